@@ -1,0 +1,64 @@
+# hapsim: the two commands a new user needs are `make demo` and `make test`.
+# Both install missing Debian packages when run as root (else print the apt-get line),
+# configure the CMake build in build/, and build with every core.
+
+BUILD     ?= build
+JOBS      ?= $(shell nproc 2>/dev/null || echo 2)
+PACKAGES  := cmake gcc make pkg-config liblcm-dev liblcm-bin libsuitesparse-dev libopenblas-dev \
+             libcjson-dev libpng-dev gnuplot-nox iproute2 util-linux
+CMAKE_ARGS ?=
+
+.PHONY: all deps configure build test test-asan test-tsan demo bench bench-quick soak fuzz clean
+
+all: build
+
+deps:
+	@missing=""; for p in $(PACKAGES); do \
+	  dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null | grep -q "install ok installed" || missing="$$missing $$p"; \
+	done; \
+	if [ -n "$$missing" ]; then \
+	  if [ "$$(id -u)" = 0 ]; then \
+	    echo "hapsim: installing$$missing"; \
+	    apt-get update -q && DEBIAN_FRONTEND=noninteractive apt-get install -y -q $$missing; \
+	  else \
+	    echo "hapsim: missing Debian packages; run as root:"; \
+	    echo "  apt-get update && apt-get install -y$$missing"; exit 1; \
+	  fi; \
+	fi
+
+$(BUILD)/CMakeCache.txt:
+	cmake -S . -B $(BUILD) -DCMAKE_BUILD_TYPE=RelWithDebInfo $(CMAKE_ARGS)
+
+configure: deps $(BUILD)/CMakeCache.txt
+
+build: configure
+	cmake --build $(BUILD) -j $(JOBS)
+
+test: build
+	cd $(BUILD) && ctest --output-on-failure -j $(JOBS) --timeout 900
+
+# The same tests once more under AddressSanitizer + UndefinedBehaviorSanitizer.
+test-asan: deps
+	$(MAKE) test BUILD=build-asan CMAKE_ARGS="-DHS_SANITIZE=ON"
+
+# Lock-free primitives and threads under ThreadSanitizer.
+test-tsan: deps
+	$(MAKE) build BUILD=build-tsan CMAKE_ARGS="-DHS_TSAN=ON"
+	cd build-tsan && ctest --output-on-failure -L tsan
+
+demo: build
+	@if [ -x $(BUILD)/server/hapsim-server ] && [ -x scripts/demo.sh ]; then \
+	  scripts/demo.sh $(BUILD); \
+	else \
+	  $(BUILD)/server/hapsim-solve --mesh scenes/liver/liver2.msh --model corotated --E 5000 --nu 0.45 \
+	    --density 1060 --gravity 0,0,-9.81 --fix-plane z,min,0.01 --static --out out/demo-disp.csv; \
+	fi
+
+bench: build
+	$(BUILD)/tests/hapsim-bench all
+
+bench-quick: build
+	$(BUILD)/tests/hapsim-bench all --quick
+
+clean:
+	rm -rf build build-asan build-tsan out

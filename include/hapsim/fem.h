@@ -1,0 +1,106 @@
+// hapsim fem: element models on a tetrahedral mesh. Computes elastic forces and assembles the
+// tangent stiffness and lumped mass into a fixed sparse pattern over the free dofs.
+// Pure computation: no threads, no I/O, no allocation after hs_fem_create.
+#ifndef HAPSIM_FEM_H
+#define HAPSIM_FEM_H
+
+#include "hapsim/base.h"
+#include "hapsim/mesh.h"
+#include "hapsim/sparse.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+typedef enum hs_model {
+    HS_MODEL_LINEAR = 0,    ///< small-strain linear elasticity
+    HS_MODEL_COROTATED = 1, ///< f_e = R_e K_e (R_e^T x - x0), R_e from the deformation gradient
+    HS_MODEL_STVK = 2,      ///< geometrically nonlinear St.Venant-Kirchhoff
+} hs_model;
+
+typedef enum hs_rotation {
+    HS_ROTATION_POLAR = 0, ///< Higham's iteration X <- X (I + (I - X^T X)/2), warm-started
+    HS_ROTATION_SVD = 1,   ///< rotation from the SVD of F (exact up to round-off)
+} hs_rotation;
+
+typedef enum hs_inversion {
+    HS_INVERSION_LINEAR_FALLBACK = 0, ///< an inverted element (det F < 0) uses linear FEM (R = I)
+    HS_INVERSION_KEEP_REFLECTION = 1, ///< R stays a proper rotation, the reflection stays in the stretch
+} hs_inversion;
+
+typedef struct hs_material {
+    double youngs_pa;          ///< Young's modulus, Pa
+    double poisson;            ///< Poisson ratio, in (-1, 0.5)
+    double density_kg_m3;      ///< kg/m^3
+    double rayleigh_mass;      ///< alpha in C = alpha M + beta K, 1/s
+    double rayleigh_stiffness; ///< beta in C = alpha M + beta K, s
+} hs_material;
+
+/// Element model options. Initialise with hs_fem_default_def().
+typedef struct hs_fem_def {
+    hs_model model;
+    hs_material material;
+    hs_rotation rotation;   ///< co-rotated only
+    double polar_tol;       ///< co-rotated + POLAR: stop when ||I - X^T X||_F <= tol
+    int polar_max_iter;     ///< co-rotated + POLAR: iteration cap per element per update
+    hs_inversion inversion; ///< what an inverted element does
+    int locking_free;       ///< 1: average nodal pressure (ANP) volumetric term, see docs
+    int cookie;             ///< set by hs_fem_default_def; catches uninitialised defs
+} hs_fem_def;
+
+/// Defaults: linear, E 3 kPa, nu 0.45, 1000 kg/m^3, no damping, POLAR tol 1e-6 x 20 iterations,
+/// linear fallback for inverted elements, locking_free off.
+hs_fem_def hs_fem_default_def(void);
+
+/// Statistics from the last hs_fem_update.
+typedef struct hs_fem_stats {
+    int inverted;            ///< elements with det F <= 0
+    double volume_ratio_mean;///< mean over elements of V/V0
+    double volume_ratio_min;
+    double volume_ratio_max;
+    int polar_iters_max;     ///< worst polar iteration count (POLAR only)
+    double energy_j;         ///< elastic strain energy, J
+} hs_fem_stats;
+
+typedef struct hs_fem hs_fem;
+
+/// Precompute element data (shape gradients, rest volumes, element stiffness, lumped mass) and
+/// the assembly map into the free-dof pattern. dof_map[3*i+c] is the free index of dof (i,c)
+/// or -1 for a constrained dof; n_free free dofs in all. The mesh must outlive the fem.
+/// @param out OUT
+hs_status hs_fem_create(const hs_mesh* mesh, const hs_fem_def* def, const int* dof_map,
+                        int n_free, hs_fem** out, hs_err* err);
+/// A new matrix with the tangent's sparsity pattern over the free dofs (values zero).
+/// It includes the wider stencil that the locking-free option needs. @param out OUT
+hs_status hs_fem_create_matrix(const hs_fem* fem, hs_csc** out);
+/// Evaluate the model at positions x ([3n], m): rotations / deformation gradients, forces and
+/// element tangents. Allocates: no.
+void hs_fem_update(hs_fem* fem, const double* x, hs_fem_stats* stats /* OUT, may be NULL */);
+/// Elastic (restoring) nodal forces -dW/dx at the last update, N, for all 3n dofs.
+void hs_fem_forces(const hs_fem* fem, double* f /* OUT [3n] */);
+/// A = kcoef * K_t + mcoef * M over the free dofs, K_t the tangent at the last update, M the
+/// lumped mass. A must come from hs_fem_create_matrix. Allocates: no.
+void hs_fem_assemble(const hs_fem* fem, double kcoef, double mcoef, hs_csc* a);
+/// y = K_t x for all 3n dofs (constrained included) at the last update. Allocates: no.
+void hs_fem_apply_tangent(const hs_fem* fem, const double* x, double* y);
+/// Lumped mass per node, kg ([n]).
+const double* hs_fem_lumped_mass(const hs_fem* fem);
+/// Rotation of node i (polar part of the volume-weighted mean deformation gradient of its
+/// tets) at the last update; identity for linear. Row-major 3x3.
+void hs_fem_node_rotation(const hs_fem* fem, int node, double r[9] /* OUT */);
+/// Set or clear an element's participation (cutting removes elements). Allocates: no.
+void hs_fem_set_element_active(hs_fem* fem, int tet, int active);
+/// Release; accepts NULL, sets *fem = NULL.
+void hs_fem_destroy(hs_fem** fem);
+
+// Element kernels, exposed for tests and the haptic path.
+/// Polar rotation of F (row-major 3x3) by Higham's iteration from the warm start r (in/out).
+/// Returns iterations used; r is a proper rotation if det F > 0.
+int hs_polar_higham(const double f[9], double r[9], double tol, int max_iter);
+/// Rotation from the SVD of F with det R = +1 (reflection kept in the stretch).
+void hs_polar_svd(const double f[9], double r[9] /* OUT */);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

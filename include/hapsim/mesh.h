@@ -1,0 +1,93 @@
+// hapsim mesh: linear tetrahedral meshes, readers, validation, boundary surface, adjacency.
+// Pure functions of their inputs: no threads, no global state.
+#ifndef HAPSIM_MESH_H
+#define HAPSIM_MESH_H
+
+#include "hapsim/base.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/// What loading and validation found. Counts, never pointers.
+typedef struct hs_mesh_report {
+    int skipped_elements;    ///< non-tetrahedral elements in the file, skipped
+    int reoriented_tets;     ///< negatively oriented tets flipped to positive
+    int degenerate_tets;     ///< |volume| below 1e-12 of the bbox volume; removed
+    int duplicate_tets;      ///< same 4 nodes as an earlier tet; removed
+    int unreferenced_nodes;  ///< nodes no tet uses (kept, flagged; see hs_mesh.node_used)
+    int components;          ///< connected components of the tet graph
+    double min_dihedral_deg; ///< quality: smallest dihedral angle
+    double max_aspect;       ///< quality: largest (longest edge / inradius) / (2 sqrt 6)
+    double mean_aspect;      ///< quality: mean of the same normalised ratio (1 = regular)
+} hs_mesh_report;
+
+/// A linear tetrahedral mesh in metres. Tets are positively oriented:
+/// det[x1-x0, x2-x0, x3-x0] > 0. Fields after `tets` are derived by hs_mesh_finalize.
+typedef struct hs_mesh {
+    int n_nodes;
+    int n_tets;
+    double* x0; ///< [3*n_nodes] rest positions, m
+    int* tets;  ///< [4*n_tets] node indices, 0-based
+
+    // derived (hs_mesh_finalize)
+    int n_tris;            ///< boundary triangles
+    int* tris;             ///< [3*n_tris] node indices, counter-clockwise seen from outside
+    int* tri_tet;          ///< [n_tris] the tet that owns each boundary triangle
+    int n_surf_nodes;      ///< nodes on the boundary
+    int* surf_nodes;       ///< [n_surf_nodes] node index of each surface node, ascending
+    int* node_surf;        ///< [n_nodes] index into surf_nodes, or -1 for interior nodes
+    int* node_tet_start;   ///< [n_nodes+1] CSR offsets into node_tet
+    int* node_tet;         ///< [4*n_tets] tets incident to each node
+    int* node_nbr_start;   ///< [n_nodes+1] CSR offsets into node_nbr
+    int* node_nbr;         ///< node-node adjacency through a shared tet, sorted, self excluded
+    unsigned char* node_used; ///< [n_nodes] 1 if some tet references the node
+    double bbox_min[3], bbox_max[3]; ///< m
+    double volume;         ///< m^3, sum of tet volumes
+    hs_mesh_report report;
+} hs_mesh;
+
+/// Read a mesh; the format is chosen by extension (.msh Gmsh 2.2/4.1 ASCII, .node/.ele TetGen
+/// (give either file), .vtk legacy ASCII unstructured grid). Validates and finalizes.
+/// On error returns NULL-filled *out, a negative status and err->msg naming file, line, problem.
+/// @param out  OUT: new mesh, free with hs_mesh_destroy
+hs_status hs_mesh_load(const char* path, hs_mesh** out, hs_err* err);
+
+/// Parse from memory (for fuzzing and tests); `name` is used in error messages, `format` is
+/// "msh", "tetgen-node"+"tetgen-ele" (use hs_mesh_parse_tetgen), or "vtk".
+hs_status hs_mesh_parse(const char* name, const char* format, const char* data, size_t len,
+                        hs_mesh** out, hs_err* err);
+/// Parse a TetGen pair held in memory.
+hs_status hs_mesh_parse_tetgen(const char* name, const char* node_data, size_t node_len,
+                               const char* ele_data, size_t ele_len, hs_mesh** out, hs_err* err);
+
+/// Build a mesh from arrays (copied), then validate and finalize as a loaded one.
+hs_status hs_mesh_create(int n_nodes, const double* x0, int n_tets, const int* tets,
+                         hs_mesh** out, hs_err* err);
+
+/// Structured box [0,lx]x[0,ly]x[0,lz] of nx*ny*nz hexahedra, each split into 6 Kuhn
+/// tetrahedra (conforming). Used by tests and benchmarks (cantilevers).
+hs_status hs_mesh_create_box(double lx, double ly, double lz, int nx, int ny, int nz,
+                             hs_mesh** out, hs_err* err);
+
+/// Recompute the derived fields after nodes or tets changed. Reorients, drops degenerate
+/// and duplicate tets (counted in report). Returns HS_ERR_INVALID for out-of-range indices.
+hs_status hs_mesh_finalize(hs_mesh* mesh, hs_err* err);
+
+/// Check invariants (orientation, ranges, surface closed and consistent, adjacency). Returns
+/// HS_OK or HS_ERR_INVALID with err->msg saying what is wrong. Pure check, changes nothing.
+hs_status hs_mesh_check(const hs_mesh* mesh, hs_err* err);
+
+/// Signed volume of tet t at positions x ([3*n_nodes]); positive when correctly oriented.
+double hs_tet_volume(const double* x, const int* tet);
+
+/// Write legacy VTK ASCII (unstructured grid) with optional per-node displacement u ([3n]).
+hs_status hs_mesh_write_vtk(const hs_mesh* mesh, const double* u, const char* path, hs_err* err);
+
+/// Release; accepts NULL and sets *mesh to NULL.
+void hs_mesh_destroy(hs_mesh** mesh);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

@@ -1,0 +1,82 @@
+// hapsim sparse: symmetric CSC matrices with a fixed pattern, CHOLMOD Cholesky with analysis
+// done once, and preconditioned conjugate gradients. Only server/sparse/cholesky.c includes
+// cholmod.h. An object here is used by one thread at a time (one cholmod_common each).
+#ifndef HAPSIM_SPARSE_H
+#define HAPSIM_SPARSE_H
+
+#include "hapsim/base.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/// Symmetric matrix stored with its FULL pattern (both triangles) in compressed columns,
+/// row indices sorted within each column. The pattern never changes after creation.
+typedef struct hs_csc {
+    int n;       ///< rows = columns
+    int nnz;     ///< stored entries
+    int* colp;   ///< [n+1] column starts
+    int* rowi;   ///< [nnz] row indices, ascending per column
+    double* val; ///< [nnz] values
+} hs_csc;
+
+/// Build the pattern of a 3x3-block matrix over free dofs. Node i couples to itself and to the
+/// nodes in nbr[nbr_start[i] .. nbr_start[i+1]); dof_map[3*i+c] is the free dof index or -1.
+/// Values are zero. @param out OUT
+hs_status hs_csc_create_block_pattern(int n_nodes, const int* nbr_start, const int* nbr,
+                                      const int* dof_map, int n_free, hs_csc** out, hs_err* err);
+/// Position of (row, col) in val, or -1 if not in the pattern. O(log column length).
+int hs_csc_find(const hs_csc* a, int row, int col);
+/// y = A x. Allocates: no.
+void hs_csc_spmv(const hs_csc* a, const double* x, double* y);
+/// Set all values to zero. Allocates: no.
+void hs_csc_zero(hs_csc* a);
+/// Deep copy. @param out OUT
+hs_status hs_csc_clone(const hs_csc* a, hs_csc** out);
+/// Release; accepts NULL, sets *a = NULL.
+void hs_csc_destroy(hs_csc** a);
+
+// ---------------------------------------------------------------------------------------------
+/// Sparse Cholesky L L^T of an SPD hs_csc (CHOLMOD, supernodal where it pays).
+typedef struct hs_cholesky hs_cholesky;
+
+/// Symbolic analysis of the pattern of a (fill-reducing ordering) + first numeric factor.
+/// Returns HS_ERR_NOT_POSDEF if a is not SPD. @param out OUT
+hs_status hs_cholesky_create(const hs_csc* a, hs_cholesky** out, hs_err* err);
+/// Numeric refactorisation of a matrix with the same pattern; reuses the analysis.
+/// On HS_ERR_NOT_POSDEF the previous good factor is kept and still usable.
+hs_status hs_cholesky_refactor(hs_cholesky* f, const hs_csc* a);
+/// Solve A x = b (x and b may alias). No allocation after the first call.
+hs_status hs_cholesky_solve(hs_cholesky* f, const double* b, double* x);
+/// Solve for several right-hand sides stored column-major: b[n*k], x[n*k].
+hs_status hs_cholesky_solve_many(hs_cholesky* f, int k, const double* b, double* x);
+/// Entries in the factor L (memory and cost indicator).
+int64_t hs_cholesky_factor_nnz(const hs_cholesky* f);
+/// Release; accepts NULL, sets *f = NULL.
+void hs_cholesky_destroy(hs_cholesky** f);
+
+// ---------------------------------------------------------------------------------------------
+/// Preconditioned conjugate gradients with warm start.
+typedef enum hs_precond {
+    HS_PRECOND_NONE = 0,
+    HS_PRECOND_JACOBI = 1, ///< inverse diagonal of A
+    HS_PRECOND_FACTOR = 2, ///< solve with a given Cholesky factor (e.g. of the rest-state matrix)
+} hs_precond;
+
+typedef struct hs_pcg hs_pcg;
+
+/// Workspace for systems of size n. @param out OUT
+hs_status hs_pcg_create(int n, hs_pcg** out);
+/// Solve A x = b. x holds the initial guess on entry (warm start) and the result on exit.
+/// Stops when ||r|| <= tol ||b|| or after max_iter. factor is used only with HS_PRECOND_FACTOR.
+/// Returns HS_OK, or HS_WARN_NOT_CONVERGED with the best x. Allocates: no.
+hs_status hs_pcg_solve(hs_pcg* pcg, const hs_csc* a, const double* b, double* x,
+                       hs_precond precond, hs_cholesky* factor, double tol, int max_iter,
+                       int* iters /* OUT */, double* rel_residual /* OUT */);
+/// Release; accepts NULL, sets *pcg = NULL.
+void hs_pcg_destroy(hs_pcg** pcg);
+
+#ifdef __cplusplus
+}
+#endif
+#endif
