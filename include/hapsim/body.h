@@ -1,0 +1,101 @@
+// hapsim body: a deformable body on a tet mesh with boundary conditions, time stepping and
+// static equilibrium. Owns its FEM model, matrix, factorisation and solver workspaces.
+// Used by one thread at a time (the deformation thread); no allocation after create.
+#ifndef HAPSIM_BODY_H
+#define HAPSIM_BODY_H
+
+#include "hapsim/base.h"
+#include "hapsim/fem.h"
+#include "hapsim/mesh.h"
+#include "hapsim/sparse.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+typedef enum hs_solver_kind {
+    HS_SOLVER_DIRECT = 0, ///< CHOLMOD: analysis once, numeric refactor when K changes
+    HS_SOLVER_PCG = 1,    ///< conjugate gradients, warm-started, preconditioner per hs_precond
+} hs_solver_kind;
+
+/// Body options. Initialise with hs_body_default_def().
+typedef struct hs_body_def {
+    hs_fem_def fem;        ///< element model and material
+    double gravity[3];     ///< m/s^2
+    double dt;             ///< time step for hs_body_step, s
+    hs_solver_kind solver; ///< linear solver for steps and Newton iterations
+    hs_precond precond;    ///< PCG only; HS_PRECOND_FACTOR uses the rest-state factor
+    int pcg_max_iter;      ///< PCG iterations per solve (a small fixed count is a valid mode)
+    double pcg_tol;        ///< PCG relative residual
+    double static_tol;     ///< static: stop at ||r|| <= tol * ||r_first|| (paper's rule)
+    int static_max_iter;   ///< static: Newton iteration cap per load step
+    int static_load_steps; ///< static: load increments (1 = full load at once)
+    int cookie;            ///< set by hs_body_default_def
+} hs_body_def;
+
+/// Defaults: hs_fem_default_def(), no gravity, dt 10 ms, direct solver, PCG factor
+/// preconditioner with 20 iterations and tol 1e-8 when chosen, static tol 1e-8, 100 iterations,
+/// 1 load step.
+hs_body_def hs_body_default_def(void);
+
+/// Statistics of one step or static solve.
+typedef struct hs_step_stats {
+    double wall_ms;        ///< wall time of the call, ms
+    int iterations;        ///< Newton iterations (static) or 1 (step)
+    int linear_iterations; ///< PCG iterations summed (0 for direct)
+    int refactors;         ///< numeric factorisations done
+    double residual;       ///< static: final ||r|| / ||r_first||; step: PCG relative residual
+    hs_fem_stats fem;      ///< model statistics at the end
+} hs_step_stats;
+
+typedef struct hs_body hs_body;
+
+/// Create a body at rest. fixed[i] != 0 fixes node i in x, y, z (eliminated from the system,
+/// not penalised); its displacement is 0 until hs_body_set_prescribed. The mesh must outlive it.
+/// @param out OUT
+hs_status hs_body_create(const hs_mesh* mesh, const hs_body_def* def, const unsigned char* fixed,
+                         hs_body** out, hs_err* err);
+/// Constant external force on node i, N (replaces the previous value).
+void hs_body_set_force(hs_body* b, int node, const double f[3]);
+/// Remove all external nodal forces (gravity stays).
+void hs_body_clear_forces(hs_body* b);
+/// Scale applied to gravity and nodal forces (load stepping, ramps). Default 1.
+void hs_body_set_load_scale(hs_body* b, double s);
+/// Prescribed displacement of a fixed node, m. HS_ERR_INVALID if the node is not fixed.
+hs_status hs_body_set_prescribed(hs_body* b, int node, const double u[3]);
+/// One implicit Euler step of size def.dt:
+/// (M + dt C + dt^2 K) du = dt^2 (f_ext + f_el(u)) + M du_prev, linearised once per step.
+hs_status hs_body_step(hs_body* b, hs_step_stats* stats /* OUT, may be NULL */);
+/// Static equilibrium f_el(u) + f_ext = 0 by Newton (co-rotated: its fixed-rotation tangent),
+/// with backtracking line search and def.static_load_steps increments. Velocities are reset.
+hs_status hs_body_solve_static(hs_body* b, hs_step_stats* stats /* OUT, may be NULL */);
+/// Back to rest: u = 0, velocity 0 (forces and prescribed values kept).
+void hs_body_reset(hs_body* b);
+/// Displacement u, m, [3n], valid until the next step/solve/reset.
+const double* hs_body_displacement(const hs_body* b);
+/// Overwrite the state (u [3n], velocity v [3n] or NULL for zero). Prescribed dofs keep theirs.
+void hs_body_set_state(hs_body* b, const double* u, const double* v);
+/// Velocity, m/s, [3n] (du/dt of the last step).
+const double* hs_body_velocity(const hs_body* b);
+/// Kinetic energy 1/2 v^T M v, J.
+double hs_body_kinetic_energy(const hs_body* b);
+/// Elastic energy at the current state, J (from the last model update).
+double hs_body_elastic_energy(hs_body* b);
+/// Reaction force on fixed node i (what the support exerts on the body), N, at the current state.
+void hs_body_reaction(hs_body* b, int node, double f[3] /* OUT */);
+/// The model (for queries like hs_fem_node_rotation). Owned by the body.
+hs_fem* hs_body_fem(hs_body* b);
+/// Free dof index of (node, component), or -1 if fixed.
+int hs_body_dof(const hs_body* b, int node, int comp);
+/// Number of free dofs.
+int hs_body_free_dofs(const hs_body* b);
+/// The factor of the current system matrix (rest-state K for static linear), or NULL if the
+/// solver is PCG without a factor. Valid until the next step/solve.
+hs_cholesky* hs_body_factor(hs_body* b);
+/// Release; accepts NULL, sets *b = NULL.
+void hs_body_destroy(hs_body** b);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

@@ -1,0 +1,458 @@
+// Deformable body: boundary conditions, implicit Euler steps and static Newton solves on top of
+// the element models (fem.c) and the sparse solvers (sparse/).
+//
+// DESIGN. Fixed dofs are eliminated: the matrix and the solver see only free dofs; prescribed
+// displacements enter through the residual (f_el is evaluated at the full configuration, and the
+// tangent coupling K_fp du_p is moved to the right-hand side). Everything is allocated in
+// hs_body_create; steps and solves allocate nothing (CHOLMOD workspaces are reused).
+#include "hapsim/body.h"
+
+#include <math.h>
+#include <string.h>
+
+#define HS_BODY_COOKIE 0x48424459
+
+struct hs_body {
+    const hs_mesh* mesh;
+    hs_body_def def;
+    int n;                // nodes
+    int n_free;           // free dofs
+    int* dof;             // [3n] free index or -1
+    int* free_to_full;    // [n_free]
+    unsigned char* fixed; // [n]
+
+    hs_fem* fem;
+    hs_csc* a;           // system matrix over free dofs
+    hs_cholesky* factor; // factor of `a` (direct) or of the rest-state matrix (PCG factor)
+    double factor_kcoef, factor_mcoef; // coefficients the factor was built with
+    int factor_is_rest;                // 1 when the factor holds the rest-state matrix
+    hs_pcg* pcg;
+
+    double* u;       // [3n] displacement
+    double* v;       // [3n] velocity
+    double* du_prev; // [3n] last increment
+    double* f_ext;   // [3n] nodal forces
+    double* f_el;    // [3n] elastic forces at the last update
+    double* r;       // [3n] residual / rhs scratch
+    double* w;       // [3n] scratch
+    double* up;      // [3n] prescribed displacement targets (fixed dofs only)
+    double* dup;     // [3n] prescribed increment of this step
+    double* y;       // [3n] scratch for tangent products
+    double* save;    // [3n] scratch to keep u while the rest state is evaluated
+    double* rhs_f;   // [n_free]
+    double* x_f;     // [n_free]
+    double load_scale;
+    int updated; // fem evaluated at the current u
+    hs_fem_stats fem_stats;
+};
+
+hs_body_def hs_body_default_def(void) {
+    hs_body_def d;
+    memset(&d, 0, sizeof d);
+    d.fem = hs_fem_default_def();
+    d.dt = 0.01;
+    d.solver = HS_SOLVER_DIRECT;
+    d.precond = HS_PRECOND_FACTOR;
+    d.pcg_max_iter = 20;
+    d.pcg_tol = 1e-8;
+    d.static_tol = 1e-8;
+    d.static_max_iter = 100;
+    d.static_load_steps = 1;
+    d.cookie = HS_BODY_COOKIE;
+    return d;
+}
+
+void hs_body_destroy(hs_body** pb) {
+    if (!pb || !*pb) return;
+    hs_body* b = *pb;
+    hs_fem_destroy(&b->fem);
+    hs_csc_destroy(&b->a);
+    hs_cholesky_destroy(&b->factor);
+    hs_pcg_destroy(&b->pcg);
+    hs_free(b->dof);
+    hs_free(b->free_to_full);
+    hs_free(b->fixed);
+    hs_free(b->u);
+    hs_free(b->v);
+    hs_free(b->du_prev);
+    hs_free(b->f_ext);
+    hs_free(b->f_el);
+    hs_free(b->r);
+    hs_free(b->w);
+    hs_free(b->up);
+    hs_free(b->dup);
+    hs_free(b->y);
+    hs_free(b->save);
+    hs_free(b->rhs_f);
+    hs_free(b->x_f);
+    hs_free(b);
+    *pb = NULL;
+}
+
+hs_status hs_body_create(const hs_mesh* mesh, const hs_body_def* def, const unsigned char* fixed,
+                         hs_body** out, hs_err* err) {
+    if (out) *out = NULL;
+    if (!mesh || !def || !out)
+        return hs_err_set(err, HS_ERR_INVALID, "hs_body_create: NULL argument");
+    if (def->cookie != HS_BODY_COOKIE)
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "hs_body_create: definition not initialised with hs_body_default_def()");
+    if (!(def->dt > 0) || !isfinite(def->dt))
+        return hs_err_set(err, HS_ERR_INVALID, "hs_body_create: dt must be positive, got %g",
+                          def->dt);
+    if (def->static_load_steps < 1 || def->static_max_iter < 1 || def->pcg_max_iter < 1)
+        return hs_err_set(err, HS_ERR_INVALID, "hs_body_create: iteration counts must be >= 1");
+
+    hs_body* b = hs_calloc(1, sizeof *b);
+    if (!b) return hs_err_set(err, HS_ERR_NOMEM, "hs_body_create: out of memory");
+    b->mesh = mesh;
+    b->def = *def;
+    b->n = mesh->n_nodes;
+    b->load_scale = 1.0;
+    size_t n3 = 3 * (size_t)b->n;
+    b->dof = hs_alloc(n3 * sizeof(int));
+    b->fixed = hs_calloc((size_t)b->n, 1);
+    b->u = hs_calloc(n3, sizeof(double));
+    b->v = hs_calloc(n3, sizeof(double));
+    b->du_prev = hs_calloc(n3, sizeof(double));
+    b->f_ext = hs_calloc(n3, sizeof(double));
+    b->f_el = hs_calloc(n3, sizeof(double));
+    b->r = hs_calloc(n3, sizeof(double));
+    b->w = hs_calloc(n3, sizeof(double));
+    b->up = hs_calloc(n3, sizeof(double));
+    b->dup = hs_calloc(n3, sizeof(double));
+    b->y = hs_calloc(n3, sizeof(double));
+    b->save = hs_calloc(n3, sizeof(double));
+    if (!b->dof || !b->fixed || !b->u || !b->v || !b->du_prev || !b->f_ext || !b->f_el || !b->r ||
+        !b->w || !b->up || !b->dup || !b->y || !b->save)
+        goto nomem;
+
+    int nf = 0;
+    for (int i = 0; i < b->n; ++i) {
+        // Unused nodes carry no stiffness: fix them so the system stays SPD.
+        int fx = (fixed && fixed[i]) || (mesh->node_used && !mesh->node_used[i]);
+        b->fixed[i] = (unsigned char)fx;
+        for (int c = 0; c < 3; ++c) b->dof[3 * i + c] = fx ? -1 : nf++;
+    }
+    b->n_free = nf;
+    if (nf == 0) {
+        hs_body_destroy(&b);
+        return hs_err_set(err, HS_ERR_INVALID, "hs_body_create: every node is fixed");
+    }
+    b->free_to_full = hs_alloc((size_t)nf * sizeof(int));
+    b->rhs_f = hs_calloc((size_t)nf, sizeof(double));
+    b->x_f = hs_calloc((size_t)nf, sizeof(double));
+    if (!b->free_to_full || !b->rhs_f || !b->x_f) goto nomem;
+    for (size_t k = 0; k < n3; ++k)
+        if (b->dof[k] >= 0) b->free_to_full[b->dof[k]] = (int)k;
+
+    hs_status s = hs_fem_create(mesh, &def->fem, b->dof, nf, &b->fem, err);
+    if (s != HS_OK) {
+        hs_body_destroy(&b);
+        return s;
+    }
+    s = hs_fem_create_matrix(b->fem, &b->a);
+    if (s != HS_OK) goto fail_status;
+    if (def->solver == HS_SOLVER_PCG) {
+        s = hs_pcg_create(nf, &b->pcg);
+        if (s != HS_OK) goto fail_status;
+    }
+    *out = b;
+    return HS_OK;
+
+fail_status:
+    hs_body_destroy(&b);
+    return hs_err_set(err, s, "hs_body_create: %s", hs_status_str(s));
+nomem:
+    hs_body_destroy(&b);
+    return hs_err_set(err, HS_ERR_NOMEM, "hs_body_create: out of memory");
+}
+
+void hs_body_set_force(hs_body* b, int node, const double f[3]) {
+    HS_ASSERT(node >= 0 && node < b->n);
+    for (int c = 0; c < 3; ++c) b->f_ext[3 * node + c] = f[c];
+}
+
+void hs_body_clear_forces(hs_body* b) {
+    memset(b->f_ext, 0, 3 * (size_t)b->n * sizeof(double));
+}
+
+void hs_body_set_load_scale(hs_body* b, double s) {
+    b->load_scale = s;
+}
+
+hs_status hs_body_set_prescribed(hs_body* b, int node, const double u[3]) {
+    if (node < 0 || node >= b->n || !b->fixed[node]) return HS_ERR_INVALID;
+    for (int c = 0; c < 3; ++c) b->up[3 * node + c] = u[c];
+    return HS_OK;
+}
+
+const double* hs_body_displacement(const hs_body* b) {
+    return b->u;
+}
+const double* hs_body_velocity(const hs_body* b) {
+    return b->v;
+}
+hs_fem* hs_body_fem(hs_body* b) {
+    return b->fem;
+}
+int hs_body_dof(const hs_body* b, int node, int comp) {
+    return b->dof[3 * node + comp];
+}
+int hs_body_free_dofs(const hs_body* b) {
+    return b->n_free;
+}
+hs_cholesky* hs_body_factor(hs_body* b) {
+    return b->factor;
+}
+
+void hs_body_reset(hs_body* b) {
+    size_t n3 = 3 * (size_t)b->n;
+    memset(b->u, 0, n3 * sizeof(double));
+    memset(b->v, 0, n3 * sizeof(double));
+    memset(b->du_prev, 0, n3 * sizeof(double));
+    b->updated = 0;
+}
+
+void hs_body_set_state(hs_body* b, const double* u, const double* v) {
+    for (int k = 0; k < 3 * b->n; ++k) {
+        if (b->dof[k] < 0) continue;
+        b->u[k] = u[k];
+        b->v[k] = v ? v[k] : 0.0;
+        b->du_prev[k] = b->v[k] * b->def.dt;
+    }
+    b->updated = 0;
+}
+
+// Evaluate the model at x0 + u (w is scratch for positions).
+static void update_model(hs_body* b) {
+    const double* x0 = b->mesh->x0;
+    for (int k = 0; k < 3 * b->n; ++k) b->w[k] = x0[k] + b->u[k];
+    hs_fem_update(b->fem, b->w, &b->fem_stats);
+    hs_fem_forces(b->fem, b->f_el);
+    b->updated = 1;
+}
+
+// Full residual r = s (f_ext + m g) + f_el at the last update.
+static void residual(hs_body* b, double* r) {
+    const double* m = hs_fem_lumped_mass(b->fem);
+    const double s = b->load_scale;
+    for (int i = 0; i < b->n; ++i)
+        for (int c = 0; c < 3; ++c) {
+            int k = 3 * i + c;
+            r[k] = s * (b->f_ext[k] + m[i] * b->def.gravity[c]) + b->f_el[k];
+        }
+}
+
+static double norm_free(const hs_body* b, const double* full) {
+    double s = 0;
+    for (int j = 0; j < b->n_free; ++j) {
+        double x = full[b->free_to_full[j]];
+        s += x * x;
+    }
+    return sqrt(s);
+}
+
+// Make `factor` represent kcoef K + mcoef M at the current update (or at rest when `rest`).
+// Returns the status of the factorisation; on HS_ERR_NOT_POSDEF the previous factor remains.
+static hs_status refresh_factor(hs_body* b, double kcoef, double mcoef, int* refactors) {
+    hs_fem_assemble(b->fem, kcoef, mcoef, b->a);
+    hs_status s;
+    if (!b->factor) {
+        hs_err e;
+        s = hs_cholesky_create(b->a, &b->factor, &e);
+    } else {
+        s = hs_cholesky_refactor(b->factor, b->a);
+    }
+    if (refactors) ++*refactors;
+    if (s == HS_OK) {
+        b->factor_kcoef = kcoef;
+        b->factor_mcoef = mcoef;
+    }
+    return s;
+}
+
+// Solve A x = rhs over free dofs with the configured solver. A = kcoef K_t + mcoef M at the
+// last update. x holds a warm start on entry.
+static hs_status solve_system(hs_body* b, double kcoef, double mcoef, hs_step_stats* st) {
+    const int linear = b->def.fem.model == HS_MODEL_LINEAR;
+    hs_status s = HS_OK;
+    if (b->def.solver == HS_SOLVER_DIRECT) {
+        int have = b->factor && b->factor_kcoef == kcoef && b->factor_mcoef == mcoef;
+        if (!(linear && have)) {
+            s = refresh_factor(b, kcoef, mcoef, &st->refactors);
+            // An indefinite tangent (e.g. StVK in compression): continue with the last good
+            // factor, which makes this a quasi-Newton step rather than a failure.
+            if (s == HS_ERR_NOT_POSDEF && b->factor) s = HS_OK;
+            if (s != HS_OK) return s;
+        }
+        s = hs_cholesky_solve(b->factor, b->rhs_f, b->x_f);
+        st->residual = 0;
+        return s;
+    }
+    // PCG: the factor (if any) is the rest-state matrix with these coefficients.
+    if (b->def.precond == HS_PRECOND_FACTOR &&
+        (!b->factor || b->factor_kcoef != kcoef || b->factor_mcoef != mcoef)) {
+        // Assemble at rest: evaluate the model at u = 0 temporarily.
+        double* keep = b->save;
+        memcpy(keep, b->u, 3 * (size_t)b->n * sizeof(double));
+        memset(b->u, 0, 3 * (size_t)b->n * sizeof(double));
+        update_model(b);
+        s = refresh_factor(b, kcoef, mcoef, &st->refactors);
+        memcpy(b->u, keep, 3 * (size_t)b->n * sizeof(double));
+        update_model(b);
+        if (s != HS_OK) return s;
+    }
+    hs_fem_assemble(b->fem, kcoef, mcoef, b->a);
+    int it = 0;
+    double rel = 0;
+    s = hs_pcg_solve(b->pcg, b->a, b->rhs_f, b->x_f, b->def.precond, b->factor, b->def.pcg_tol,
+                     b->def.pcg_max_iter, &it, &rel);
+    st->linear_iterations += it;
+    st->residual = rel;
+    if (s == HS_WARN_NOT_CONVERGED) s = HS_OK; // a fixed iteration budget is a valid mode
+    return s;
+}
+
+static int all_finite(const double* x, int n) {
+    for (int i = 0; i < n; ++i)
+        if (!isfinite(x[i])) return 0;
+    return 1;
+}
+
+hs_status hs_body_step(hs_body* b, hs_step_stats* stats) {
+    hs_step_stats st;
+    memset(&st, 0, sizeof st);
+    int64_t t0 = hs_now_ns();
+    const double dt = b->def.dt, al = b->def.fem.material.rayleigh_mass,
+                 be = b->def.fem.material.rayleigh_stiffness;
+    const int n3 = 3 * b->n;
+    const double* m = hs_fem_lumped_mass(b->fem);
+
+    if (!b->updated) update_model(b);
+    // rhs = dt^2 (f_ext + f_el) + M du_prev - (dt beta + dt^2) K_fp du_p
+    residual(b, b->r);
+    int any_presc = 0;
+    for (int k = 0; k < n3; ++k) {
+        b->r[k] = dt * dt * b->r[k] + m[k / 3] * b->du_prev[k];
+        double dup = b->dof[k] < 0 ? b->up[k] - b->u[k] : 0.0;
+        b->dup[k] = dup;
+        any_presc |= dup != 0.0;
+    }
+    const double kcoef = dt * be + dt * dt, mcoef = 1.0 + dt * al;
+    if (any_presc) {
+        hs_fem_apply_tangent(b->fem, b->dup, b->y);
+        for (int k = 0; k < n3; ++k) b->r[k] -= kcoef * b->y[k];
+    }
+    for (int j = 0; j < b->n_free; ++j) {
+        b->rhs_f[j] = b->r[b->free_to_full[j]];
+        b->x_f[j] = b->du_prev[b->free_to_full[j]]; // warm start
+    }
+    hs_status s = solve_system(b, kcoef, mcoef, &st);
+    if (s == HS_OK && !all_finite(b->x_f, b->n_free)) s = HS_ERR_NUMERIC;
+    if (s != HS_OK) {
+        // Leave the state untouched: a failed step must not corrupt it.
+        b->updated = 0;
+        if (stats) *stats = st;
+        return s;
+    }
+    for (int k = 0; k < n3; ++k) {
+        double du = b->dof[k] >= 0 ? b->x_f[b->dof[k]] : b->dup[k];
+        b->u[k] += du;
+        b->v[k] = du / dt;
+        b->du_prev[k] = du;
+    }
+    update_model(b);
+    st.iterations = 1;
+    st.fem = b->fem_stats;
+    st.wall_ms = (double)(hs_now_ns() - t0) * 1e-6;
+    if (stats) *stats = st;
+    return HS_OK;
+}
+
+hs_status hs_body_solve_static(hs_body* b, hs_step_stats* stats) {
+    hs_step_stats st;
+    memset(&st, 0, sizeof st);
+    int64_t t0 = hs_now_ns();
+    const int n3 = 3 * b->n;
+    const double full_scale = b->load_scale;
+    const int steps = b->def.static_load_steps;
+    hs_status result = HS_OK;
+    double ratio = 0;
+
+    // Prescribed displacements are imposed directly; Newton then solves for the free dofs.
+    for (int k = 0; k < n3; ++k)
+        if (b->dof[k] < 0) b->u[k] = b->up[k];
+    memset(b->v, 0, (size_t)n3 * sizeof(double));
+    memset(b->du_prev, 0, (size_t)n3 * sizeof(double));
+    update_model(b);
+
+    for (int ls = 1; ls <= steps && result == HS_OK; ++ls) {
+        b->load_scale = full_scale * (double)ls / (double)steps;
+        residual(b, b->r);
+        double r0 = norm_free(b, b->r), rn = r0;
+        ratio = 0;
+        int converged = r0 == 0.0;
+        for (int it = 0; it < b->def.static_max_iter && !converged; ++it) {
+            for (int j = 0; j < b->n_free; ++j) {
+                b->rhs_f[j] = b->r[b->free_to_full[j]];
+                b->x_f[j] = 0;
+            }
+            hs_status s = solve_system(b, 1.0, 0.0, &st);
+            if (s != HS_OK) {
+                result = s;
+                break;
+            }
+            if (!all_finite(b->x_f, b->n_free)) {
+                result = HS_ERR_NUMERIC;
+                break;
+            }
+            ++st.iterations;
+            // Backtracking on the residual norm keeps large steps (and the co-rotated model's
+            // approximate tangent) from overshooting.
+            double alpha = 1.0, prev = 0.0, rt = rn;
+            for (int ls_it = 0; ls_it < 8; ++ls_it) {
+                for (int j = 0; j < b->n_free; ++j)
+                    b->u[b->free_to_full[j]] += (alpha - prev) * b->x_f[j];
+                prev = alpha;
+                update_model(b);
+                residual(b, b->r);
+                rt = norm_free(b, b->r);
+                if (rt < rn || !isfinite(rn)) break;
+                alpha *= 0.5;
+            }
+            rn = rt;
+            ratio = r0 > 0 ? rn / r0 : 0;
+            converged = ratio <= b->def.static_tol;
+        }
+        if (result == HS_OK && !converged) result = HS_WARN_NOT_CONVERGED;
+    }
+    b->load_scale = full_scale;
+    st.residual = ratio;
+    st.fem = b->fem_stats;
+    st.wall_ms = (double)(hs_now_ns() - t0) * 1e-6;
+    if (stats) *stats = st;
+    return result;
+}
+
+double hs_body_kinetic_energy(const hs_body* b) {
+    const double* m = hs_fem_lumped_mass(b->fem);
+    double e = 0;
+    for (int k = 0; k < 3 * b->n; ++k) e += 0.5 * m[k / 3] * b->v[k] * b->v[k];
+    return e;
+}
+
+double hs_body_elastic_energy(hs_body* b) {
+    if (!b->updated) update_model(b);
+    return b->fem_stats.energy_j;
+}
+
+void hs_body_reaction(hs_body* b, int node, double f[3]) {
+    HS_ASSERT(node >= 0 && node < b->n);
+    if (!b->updated) update_model(b);
+    const double* m = hs_fem_lumped_mass(b->fem);
+    for (int c = 0; c < 3; ++c) {
+        int k = 3 * node + c;
+        f[c] = -(b->load_scale * (b->f_ext[k] + m[node] * b->def.gravity[c]) + b->f_el[k]);
+    }
+}

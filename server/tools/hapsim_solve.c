@@ -1,0 +1,387 @@
+// hapsim-solve: load a mesh, fix a region, apply gravity, and solve statically or run implicit
+// dynamics with a chosen element model. Writes the nodal displacement as CSV.
+#define _POSIX_C_SOURCE 200809L
+#include "hapsim/body.h"
+#include "hapsim/mesh.h"
+
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+static const char* usage =
+    "usage: hapsim-solve --mesh FILE --model linear|corotated|stvk [options] --out disp.csv\n"
+    "\n"
+    "Solves a tetrahedral soft-tissue model under gravity with a fixed region and writes one\n"
+    "line per node, ux,uy,uz in metres in file order, after a header line.\n"
+    "\n"
+    "  --mesh FILE            .msh (Gmsh 2.2/4.1), .node/.ele (TetGen) or .vtk (legacy ASCII)\n"
+    "  --model M              linear | corotated | stvk\n"
+    "  --locking-free         average-nodal-pressure volumetric term (near-incompressible tissue)\n"
+    "  --E PA                 Young's modulus, Pa (default 3000)\n"
+    "  --nu NU                Poisson ratio (default 0.45)\n"
+    "  --density KG_M3        density, kg/m^3 (default 1000)\n"
+    "  --gravity GX,GY,GZ     gravity, m/s^2 (default 0,0,0)\n"
+    "  --fix-box X0,Y0,Z0,X1,Y1,Z1   nodes inside the box are fixed in x, y and z (metres)\n"
+    "  --fix-plane AXIS,SIDE,TOL     nodes within TOL (m) of the bounding box min or max along\n"
+    "                         x|y|z are fixed, e.g. --fix-plane x,min,1e-6 (may be repeated with "
+    "--fix-box)\n"
+    "  --static               solve equilibrium (Newton; co-rotated uses its rotation-frozen "
+    "tangent)\n"
+    "  --steps N --dt S       run N implicit Euler steps of S seconds instead\n"
+    "  --tol T                static relative residual tolerance (default 1e-8)\n"
+    "  --max-iter N           static Newton iteration cap per load step (default 100)\n"
+    "  --load-steps N         static load increments (default 1)\n"
+    "  --rotation polar|svd   co-rotated rotation method (default polar)\n"
+    "  --polar-tol T          polar iteration tolerance (default 1e-6)\n"
+    "  --inversion fallback|reflect   inverted-element remedy (default fallback)\n"
+    "  --damping ALPHA,BETA   Rayleigh damping C = alpha M + beta K (default 0,0)\n"
+    "  --solver direct|pcg    linear solver (default direct, CHOLMOD)\n"
+    "  --precond none|jacobi|factor   PCG preconditioner (default factor: rest-state Cholesky)\n"
+    "  --pcg-iters N          PCG iterations per solve (default 20)\n"
+    "  --vtk FILE             also write the deformed mesh as legacy VTK\n"
+    "  --out FILE             displacement CSV (required)\n"
+    "  -q, --quiet            no summary\n"
+    "  -h, --help             this text\n"
+    "\n"
+    "Exit status: 0 solved, 1 bad arguments or input, 2 solver failure, 3 not converged.\n";
+
+static int parse_doubles(const char* s, double* v, int n) {
+    const char* p = s;
+    for (int i = 0; i < n; ++i) {
+        char* end;
+        errno = 0;
+        v[i] = strtod(p, &end);
+        if (end == p || errno || !isfinite(v[i])) return 0;
+        p = end;
+        if (i < n - 1) {
+            if (*p != ',') return 0;
+            ++p;
+        }
+    }
+    return *p == '\0';
+}
+
+static int parse_int(const char* s, int* v) {
+    char* end;
+    errno = 0;
+    long x = strtol(s, &end, 10);
+    if (end == s || *end || errno || x < 0 || x > 100000000) return 0;
+    *v = (int)x;
+    return 1;
+}
+
+typedef struct plane_fix {
+    int axis, side;
+    double tol;
+} plane_fix;
+
+int main(int argc, char** argv) {
+    const char *mesh_path = NULL, *out_path = NULL, *vtk_path = NULL;
+    hs_body_def def = hs_body_default_def();
+    def.fem.material.youngs_pa = 3000;
+    def.fem.material.poisson = 0.45;
+    def.fem.material.density_kg_m3 = 1000;
+    int have_model = 0, do_static = 0, steps = 0, quiet = 0, have_dt = 0;
+    double boxes[8][6];
+    int n_boxes = 0;
+    plane_fix planes[8];
+    int n_planes = 0;
+
+#define NEED_ARG()                                                                                 \
+    do {                                                                                           \
+        if (i + 1 >= argc) {                                                                       \
+            fprintf(stderr, "hapsim-solve: %s needs a value\n", a);                                \
+            return 1;                                                                              \
+        }                                                                                          \
+    } while (0)
+#define BAD(what)                                                                                  \
+    do {                                                                                           \
+        fprintf(stderr, "hapsim-solve: bad value for %s: '%s' (%s)\n", a, argv[i], what);          \
+        return 1;                                                                                  \
+    } while (0)
+
+    for (int i = 1; i < argc; ++i) {
+        const char* a = argv[i];
+        if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
+            fputs(usage, stdout);
+            return 0;
+        } else if (!strcmp(a, "-q") || !strcmp(a, "--quiet")) {
+            quiet = 1;
+        } else if (!strcmp(a, "--static")) {
+            do_static = 1;
+        } else if (!strcmp(a, "--locking-free")) {
+            def.fem.locking_free = 1;
+        } else if (!strcmp(a, "--mesh")) {
+            NEED_ARG();
+            mesh_path = argv[++i];
+        } else if (!strcmp(a, "--out")) {
+            NEED_ARG();
+            out_path = argv[++i];
+        } else if (!strcmp(a, "--vtk")) {
+            NEED_ARG();
+            vtk_path = argv[++i];
+        } else if (!strcmp(a, "--model")) {
+            NEED_ARG();
+            ++i;
+            if (!strcmp(argv[i], "linear"))
+                def.fem.model = HS_MODEL_LINEAR;
+            else if (!strcmp(argv[i], "corotated"))
+                def.fem.model = HS_MODEL_COROTATED;
+            else if (!strcmp(argv[i], "stvk"))
+                def.fem.model = HS_MODEL_STVK;
+            else
+                BAD("expected linear, corotated or stvk");
+            have_model = 1;
+        } else if (!strcmp(a, "--E")) {
+            NEED_ARG();
+            ++i;
+            if (!parse_doubles(argv[i], &def.fem.material.youngs_pa, 1) ||
+                def.fem.material.youngs_pa <= 0)
+                BAD("a positive number of pascals");
+        } else if (!strcmp(a, "--nu")) {
+            NEED_ARG();
+            ++i;
+            double nu;
+            if (!parse_doubles(argv[i], &nu, 1) || nu <= -1 || nu >= 0.5)
+                BAD("a Poisson ratio in (-1, 0.5)");
+            def.fem.material.poisson = nu;
+        } else if (!strcmp(a, "--density")) {
+            NEED_ARG();
+            ++i;
+            if (!parse_doubles(argv[i], &def.fem.material.density_kg_m3, 1) ||
+                def.fem.material.density_kg_m3 <= 0)
+                BAD("a positive density in kg/m^3");
+        } else if (!strcmp(a, "--gravity")) {
+            NEED_ARG();
+            ++i;
+            if (!parse_doubles(argv[i], def.gravity, 3)) BAD("GX,GY,GZ in m/s^2");
+        } else if (!strcmp(a, "--fix-box")) {
+            NEED_ARG();
+            ++i;
+            if (n_boxes == 8) BAD("at most 8 boxes");
+            double* bx = boxes[n_boxes];
+            if (!parse_doubles(argv[i], bx, 6) || bx[0] > bx[3] || bx[1] > bx[4] || bx[2] > bx[5])
+                BAD("XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX with min <= max");
+            ++n_boxes;
+        } else if (!strcmp(a, "--fix-plane")) {
+            NEED_ARG();
+            ++i;
+            if (n_planes == 8) BAD("at most 8 planes");
+            char axis[8], side[8];
+            double tol;
+            if (sscanf(argv[i], "%1[xyz],%3[minax],%lf", axis, side, &tol) != 3 || tol < 0 ||
+                (strcmp(side, "min") && strcmp(side, "max")))
+                BAD("AXIS,SIDE,TOL as in x,min,1e-6");
+            planes[n_planes].axis = axis[0] - 'x';
+            planes[n_planes].side = side[1] == 'i' ? -1 : 1;
+            planes[n_planes].tol = tol;
+            ++n_planes;
+        } else if (!strcmp(a, "--steps")) {
+            NEED_ARG();
+            ++i;
+            if (!parse_int(argv[i], &steps) || steps < 1) BAD("a positive step count");
+        } else if (!strcmp(a, "--dt")) {
+            NEED_ARG();
+            ++i;
+            if (!parse_doubles(argv[i], &def.dt, 1) || def.dt <= 0) BAD("a positive time step");
+            have_dt = 1;
+        } else if (!strcmp(a, "--tol")) {
+            NEED_ARG();
+            ++i;
+            if (!parse_doubles(argv[i], &def.static_tol, 1) || def.static_tol <= 0)
+                BAD("a positive tolerance");
+        } else if (!strcmp(a, "--max-iter")) {
+            NEED_ARG();
+            ++i;
+            if (!parse_int(argv[i], &def.static_max_iter) || def.static_max_iter < 1)
+                BAD("a positive count");
+        } else if (!strcmp(a, "--load-steps")) {
+            NEED_ARG();
+            ++i;
+            if (!parse_int(argv[i], &def.static_load_steps) || def.static_load_steps < 1)
+                BAD("a positive count");
+        } else if (!strcmp(a, "--rotation")) {
+            NEED_ARG();
+            ++i;
+            if (!strcmp(argv[i], "polar"))
+                def.fem.rotation = HS_ROTATION_POLAR;
+            else if (!strcmp(argv[i], "svd"))
+                def.fem.rotation = HS_ROTATION_SVD;
+            else
+                BAD("polar or svd");
+        } else if (!strcmp(a, "--polar-tol")) {
+            NEED_ARG();
+            ++i;
+            if (!parse_doubles(argv[i], &def.fem.polar_tol, 1) || def.fem.polar_tol <= 0)
+                BAD("a positive tolerance");
+        } else if (!strcmp(a, "--inversion")) {
+            NEED_ARG();
+            ++i;
+            if (!strcmp(argv[i], "fallback"))
+                def.fem.inversion = HS_INVERSION_LINEAR_FALLBACK;
+            else if (!strcmp(argv[i], "reflect"))
+                def.fem.inversion = HS_INVERSION_KEEP_REFLECTION;
+            else
+                BAD("fallback or reflect");
+        } else if (!strcmp(a, "--damping")) {
+            NEED_ARG();
+            ++i;
+            double d[2];
+            if (!parse_doubles(argv[i], d, 2) || d[0] < 0 || d[1] < 0) BAD("ALPHA,BETA >= 0");
+            def.fem.material.rayleigh_mass = d[0];
+            def.fem.material.rayleigh_stiffness = d[1];
+        } else if (!strcmp(a, "--solver")) {
+            NEED_ARG();
+            ++i;
+            if (!strcmp(argv[i], "direct"))
+                def.solver = HS_SOLVER_DIRECT;
+            else if (!strcmp(argv[i], "pcg"))
+                def.solver = HS_SOLVER_PCG;
+            else
+                BAD("direct or pcg");
+        } else if (!strcmp(a, "--precond")) {
+            NEED_ARG();
+            ++i;
+            if (!strcmp(argv[i], "none"))
+                def.precond = HS_PRECOND_NONE;
+            else if (!strcmp(argv[i], "jacobi"))
+                def.precond = HS_PRECOND_JACOBI;
+            else if (!strcmp(argv[i], "factor"))
+                def.precond = HS_PRECOND_FACTOR;
+            else
+                BAD("none, jacobi or factor");
+        } else if (!strcmp(a, "--pcg-iters")) {
+            NEED_ARG();
+            ++i;
+            if (!parse_int(argv[i], &def.pcg_max_iter) || def.pcg_max_iter < 1)
+                BAD("a positive count");
+        } else {
+            fprintf(stderr, "hapsim-solve: unknown option '%s' (see --help)\n", a);
+            return 1;
+        }
+    }
+    if (!mesh_path || !out_path || !have_model) {
+        fprintf(stderr, "hapsim-solve: --mesh, --model and --out are required (see --help)\n");
+        return 1;
+    }
+    if (do_static == (steps > 0)) {
+        fprintf(stderr, "hapsim-solve: give exactly one of --static or --steps N --dt S\n");
+        return 1;
+    }
+    if (steps > 0 && !have_dt) {
+        fprintf(stderr, "hapsim-solve: --steps needs --dt\n");
+        return 1;
+    }
+
+    hs_err err = {0};
+    hs_mesh* mesh = NULL;
+    if (hs_mesh_load(mesh_path, &mesh, &err) < 0) {
+        fprintf(stderr, "hapsim-solve: %s\n", err.msg);
+        return 1;
+    }
+    unsigned char* fixed = calloc((size_t)mesh->n_nodes, 1);
+    unsigned char* mask = calloc((size_t)mesh->n_nodes, 1);
+    if (!fixed || !mask) {
+        fprintf(stderr, "hapsim-solve: out of memory\n");
+        return 1;
+    }
+    for (int b = 0; b < n_boxes; ++b) {
+        hs_mesh_select_box(mesh, boxes[b], boxes[b] + 3, mask);
+        for (int i = 0; i < mesh->n_nodes; ++i) fixed[i] |= mask[i];
+    }
+    for (int p = 0; p < n_planes; ++p) {
+        hs_mesh_select_plane(mesh, planes[p].axis, planes[p].side, planes[p].tol, mask);
+        for (int i = 0; i < mesh->n_nodes; ++i) fixed[i] |= mask[i];
+    }
+    int n_fixed = 0;
+    for (int i = 0; i < mesh->n_nodes; ++i) n_fixed += fixed[i] != 0;
+    if (n_fixed == 0) {
+        fprintf(stderr,
+                "hapsim-solve: no node is fixed: give --fix-box or --fix-plane that "
+                "contains nodes (bbox %g,%g,%g .. %g,%g,%g)\n",
+                mesh->bbox_min[0], mesh->bbox_min[1], mesh->bbox_min[2], mesh->bbox_max[0],
+                mesh->bbox_max[1], mesh->bbox_max[2]);
+        return 1;
+    }
+
+    hs_body* body = NULL;
+    if (hs_body_create(mesh, &def, fixed, &body, &err) < 0) {
+        fprintf(stderr, "hapsim-solve: %s\n", err.msg);
+        return 1;
+    }
+    int rc = 0;
+    hs_step_stats st = {0};
+    double total_ms = 0;
+    int iters = 0, lin_iters = 0;
+    hs_status s = HS_OK;
+    if (do_static) {
+        s = hs_body_solve_static(body, &st);
+        total_ms = st.wall_ms;
+        iters = st.iterations;
+        lin_iters = st.linear_iterations;
+    } else {
+        for (int k = 0; k < steps && s >= 0; ++k) {
+            s = hs_body_step(body, &st);
+            total_ms += st.wall_ms;
+            iters += st.iterations;
+            lin_iters += st.linear_iterations;
+        }
+    }
+    if (s < 0) {
+        fprintf(stderr, "hapsim-solve: solver failed: %s\n", hs_status_str(s));
+        rc = 2;
+    } else if (s == HS_WARN_NOT_CONVERGED) {
+        fprintf(stderr, "hapsim-solve: warning: not converged (residual ratio %.3g > %.3g)\n",
+                st.residual, def.static_tol);
+        rc = 3;
+    }
+
+    const double* u = hs_body_displacement(body);
+    FILE* f = fopen(out_path, "w");
+    if (!f) {
+        fprintf(stderr, "hapsim-solve: cannot write %s: %s\n", out_path, strerror(errno));
+        rc = 1;
+    } else {
+        fprintf(f, "ux,uy,uz\n");
+        for (int i = 0; i < mesh->n_nodes; ++i)
+            fprintf(f, "%.9e,%.9e,%.9e\n", u[3 * i], u[3 * i + 1], u[3 * i + 2]);
+        if (fclose(f) != 0) {
+            fprintf(stderr, "hapsim-solve: error writing %s\n", out_path);
+            rc = 1;
+        }
+    }
+    if (vtk_path && hs_mesh_write_vtk(mesh, u, vtk_path, &err) < 0) {
+        fprintf(stderr, "hapsim-solve: %s\n", err.msg);
+        rc = 1;
+    }
+    if (!quiet) {
+        double umax = 0;
+        int imax = 0;
+        for (int i = 0; i < mesh->n_nodes; ++i) {
+            double m = sqrt(u[3 * i] * u[3 * i] + u[3 * i + 1] * u[3 * i + 1] +
+                            u[3 * i + 2] * u[3 * i + 2]);
+            if (m > umax) umax = m, imax = i;
+        }
+        printf("mesh            %s: %d nodes, %d tets, %d fixed\n", mesh_path, mesh->n_nodes,
+               mesh->n_tets, n_fixed);
+        printf("max |u|         %.6e m at node %d\n", umax, imax);
+        printf("volume ratio    mean %.5f min %.5f max %.5f, inverted %d\n",
+               st.fem.volume_ratio_mean, st.fem.volume_ratio_min, st.fem.volume_ratio_max,
+               st.fem.inverted);
+        if (do_static)
+            printf("iterations      %d Newton (residual ratio %.2e)%s\n", iters, st.residual,
+                   def.solver == HS_SOLVER_PCG ? "" : "");
+        else
+            printf("steps           %d x %g s\n", steps, def.dt);
+        if (def.solver == HS_SOLVER_PCG) printf("pcg iterations  %d\n", lin_iters);
+        printf("time            %.3f ms%s\n", total_ms, do_static ? "" : " (sum of steps)");
+        printf("wrote           %s\n", out_path);
+    }
+    hs_body_destroy(&body);
+    hs_mesh_destroy(&mesh);
+    free(fixed);
+    free(mask);
+    return rc;
+}

@@ -1,0 +1,21 @@
+// hapsim-bench: shared helpers for the benchmark subcommands (one file per subcommand).
+#ifndef HS_BENCH_H
+#define HS_BENCH_H
+
+#include <stddef.h>
+
+typedef struct hs_bench_args {
+    int quick;          ///< --quick: the small, fast subset
+    const char* out;    ///< --out FILE: CSV also written here (NULL: stdout only)
+    const char* meshes; ///< directory with the shared meshes
+} hs_bench_args;
+
+/// Each subcommand prints CSV with a header to stdout and returns 0 on success.
+int hs_bench_core(const hs_bench_args* a);
+
+/// p-th percentile (0..100) of v[n] (sorts v in place).
+double hs_bench_percentile(double* v, size_t n, double p);
+/// Peak resident set size of this process, MB.
+double hs_bench_peak_rss_mb(void);
+
+#endif

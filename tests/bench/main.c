@@ -1,0 +1,79 @@
+// hapsim-bench: benchmarks that print CSV. Targets live in docs/benchmarks.md, not in tests.
+#define _POSIX_C_SOURCE 200809L
+#include "bench.h"
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/resource.h>
+
+double hs_bench_peak_rss_mb(void) {
+    struct rusage ru;
+    getrusage(RUSAGE_SELF, &ru);
+    return (double)ru.ru_maxrss / 1024.0;
+}
+
+static int cmp_double(const void* a, const void* b) {
+    double x = *(const double*)a, y = *(const double*)b;
+    return (x > y) - (x < y);
+}
+
+double hs_bench_percentile(double* v, size_t n, double p) {
+    if (n == 0) return 0;
+    qsort(v, n, sizeof *v, cmp_double);
+    double pos = p / 100.0 * (double)(n - 1);
+    size_t i = (size_t)pos;
+    if (i + 1 >= n) return v[n - 1];
+    double f = pos - (double)i;
+    return v[i] * (1 - f) + v[i + 1] * f;
+}
+
+typedef struct bench_cmd {
+    const char* name;
+    int (*fn)(const hs_bench_args*);
+    const char* what;
+} bench_cmd;
+
+static const bench_cmd cmds[] = {
+    {"core", hs_bench_core, "FEM step cost per model and mesh (issue 2)"},
+};
+
+static void usage(FILE* f) {
+    fprintf(f, "usage: hapsim-bench <command>|all [--quick] [--meshes DIR]\n\ncommands:\n");
+    for (size_t i = 0; i < sizeof cmds / sizeof cmds[0]; ++i)
+        fprintf(f, "  %-10s %s\n", cmds[i].name, cmds[i].what);
+    fprintf(f, "\nEach prints CSV with a header on stdout; progress goes to stderr.\n"
+               "Run on an otherwise idle machine; compare ratios measured in one run.\n");
+}
+
+int main(int argc, char** argv) {
+    if (argc < 2 || !strcmp(argv[1], "-h") || !strcmp(argv[1], "--help")) {
+        usage(argc < 2 ? stderr : stdout);
+        return argc < 2 ? 1 : 0;
+    }
+    hs_bench_args a = {0, NULL, HS_SHARED_MESHES};
+    for (int i = 2; i < argc; ++i) {
+        if (!strcmp(argv[i], "--quick"))
+            a.quick = 1;
+        else if (!strcmp(argv[i], "--meshes") && i + 1 < argc)
+            a.meshes = argv[++i];
+        else {
+            fprintf(stderr, "hapsim-bench: unknown option '%s'\n", argv[i]);
+            return 1;
+        }
+    }
+    int all = !strcmp(argv[1], "all"), found = 0, rc = 0;
+    for (size_t i = 0; i < sizeof cmds / sizeof cmds[0]; ++i) {
+        if (!all && strcmp(argv[1], cmds[i].name)) continue;
+        found = 1;
+        if (all) printf("# %s\n", cmds[i].name);
+        fflush(stdout);
+        rc |= cmds[i].fn(&a);
+    }
+    if (!found) {
+        fprintf(stderr, "hapsim-bench: unknown command '%s'\n", argv[1]);
+        usage(stderr);
+        return 1;
+    }
+    return rc;
+}
