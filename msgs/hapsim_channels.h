@@ -1,0 +1,45 @@
+// hapsim protocol: channel names and default LCM URLs, shared by the server, the client library
+// and the simulated stylus (the only hand-written header of hapsim_msgs). A channel is the
+// configurable prefix followed by one of the suffixes below, e.g. "HAPSIM_" "TOOL_POSE".
+// See docs/protocol.md for direction, bus, rate and units of each channel.
+#ifndef HAPSIM_CHANNELS_H
+#define HAPSIM_CHANNELS_H
+
+#include <stdio.h>
+
+/// Default channel prefix; several servers on one LAN differ by prefix (and port).
+#define HAPSIM_DEFAULT_PREFIX "HAPSIM_"
+/// Haptic bus: 1 kHz poses in, forces out. Host-local (ttl=0).
+#define HAPSIM_DEFAULT_HAPTIC_URL "udpm://239.255.76.67:7667?ttl=0"
+/// Mesh bus: mesh, tool drawing, commands, acks, status. Receivers of mesh_state should add
+/// recv_buf_size=N (N >= the largest message, e.g. 2097152) to their URL.
+#define HAPSIM_DEFAULT_MESH_URL "udpm://239.255.76.67:7668?ttl=0"
+
+// Haptic bus.
+#define HAPSIM_CH_TOOL_POSE  "TOOL_POSE"  ///< in: hapsim_tool_pose_t, ~1 kHz per device
+#define HAPSIM_CH_TOOL_FORCE "TOOL_FORCE" ///< out: hapsim_tool_force_t, per pose
+// Mesh bus.
+#define HAPSIM_CH_MESH_TOPOLOGY  "MESH_TOPOLOGY"  ///< out: hapsim_mesh_topology_t, on change + 1 Hz
+#define HAPSIM_CH_MESH_STATE     "MESH_STATE"     ///< out: hapsim_mesh_state_t, keyframes 1-2 Hz
+#define HAPSIM_CH_MESH_DELTA     "MESH_DELTA"     ///< out: hapsim_mesh_delta_t, per frame <= 60 Hz
+#define HAPSIM_CH_TOPOLOGY_EVENT "TOPOLOGY_EVENT" ///< out: hapsim_topology_event_t, per cut
+#define HAPSIM_CH_TOOL_STATE     "TOOL_STATE"     ///< out: hapsim_tool_state_t, per frame
+#define HAPSIM_CH_COMMAND        "COMMAND"        ///< in: hapsim_command_t
+#define HAPSIM_CH_COMMAND_ACK    "COMMAND_ACK"    ///< out: hapsim_command_ack_t, one per command
+#define HAPSIM_CH_SERVER_STATUS  "SERVER_STATUS"  ///< out: hapsim_server_status_t, ~2 Hz
+
+/// Longest channel name we build (prefix up to 47 bytes + suffix + NUL).
+#define HAPSIM_CHANNEL_MAX 64
+
+/// Write prefix + suffix into out[cap]. Returns 0, or -1 if it does not fit (out is then "").
+static inline int hapsim_channel_name(char* out, size_t cap, const char* prefix,
+                                      const char* suffix) {
+    int n = snprintf(out, cap, "%s%s", prefix ? prefix : "", suffix);
+    if (n < 0 || (size_t)n >= cap) {
+        if (cap > 0) out[0] = '\0';
+        return -1;
+    }
+    return 0;
+}
+
+#endif

@@ -1,0 +1,81 @@
+// LCM bus wrapper: create, poll()-based handle, URL and kernel buffer queries.
+#include "bus.h"
+
+#include <errno.h>
+#include <poll.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+struct hs_net_bus {
+    lcm_t* lcm;
+    char url[256];
+};
+
+hs_status hs_net_bus_create(const char* url, hs_net_bus** out, hs_err* err) {
+    *out = NULL;
+    if (!url || strlen(url) >= sizeof((hs_net_bus*)0)->url)
+        return hs_err_set(err, HS_ERR_INVALID, "LCM URL missing or longer than 255 bytes");
+    hs_net_bus* b = hs_calloc(1, sizeof *b);
+    if (!b) return hs_err_set(err, HS_ERR_NOMEM, "out of memory opening LCM bus %s", url);
+    snprintf(b->url, sizeof b->url, "%s", url);
+    b->lcm = lcm_create(url);
+    if (!b->lcm) {
+        hs_free(b);
+        return hs_err_set(err, HS_ERR_IO,
+                          "cannot open LCM bus '%s' (bad URL, or no multicast route: "
+                          "ip route add 224.0.0.0/4 dev lo)",
+                          url);
+    }
+    *out = b;
+    return HS_OK;
+}
+
+void hs_net_bus_destroy(hs_net_bus** bus) {
+    if (!bus || !*bus) return;
+    lcm_destroy((*bus)->lcm);
+    hs_free(*bus);
+    *bus = NULL;
+}
+
+lcm_t* hs_net_bus_lcm(hs_net_bus* bus) {
+    return bus->lcm;
+}
+
+const char* hs_net_bus_url(const hs_net_bus* bus) {
+    return bus->url;
+}
+
+int hs_net_bus_handle(hs_net_bus* bus, int timeout_ms) {
+    struct pollfd pfd = {.fd = lcm_get_fileno(bus->lcm), .events = POLLIN, .revents = 0};
+    if (pfd.fd < 0) return -1;
+    int r = poll(&pfd, 1, timeout_ms);
+    if (r < 0) return errno == EINTR ? 0 : -1;
+    if (r == 0) return 0;
+    if (pfd.revents & (POLLERR | POLLNVAL)) return -1;
+    return lcm_handle(bus->lcm) == 0 ? 1 : -1;
+}
+
+int64_t hs_net_url_recv_buf(const char* url) {
+    const char* q = url ? strchr(url, '?') : NULL;
+    while (q) {
+        q++;
+        if (strncmp(q, "recv_buf_size=", 14) == 0) {
+            char* end = NULL;
+            long long v = strtoll(q + 14, &end, 10);
+            if (end == q + 14 || (*end != '\0' && *end != '&') || v <= 0) return 0;
+            return (int64_t)v;
+        }
+        q = strchr(q, '&');
+    }
+    return 0;
+}
+
+int64_t hs_net_rmem_max(void) {
+    FILE* f = fopen("/proc/sys/net/core/rmem_max", "r");
+    if (!f) return -1;
+    long long v = -1;
+    if (fscanf(f, "%lld", &v) != 1) v = -1;
+    fclose(f);
+    return (int64_t)v;
+}

@@ -1,0 +1,45 @@
+// hapsim net: one LCM bus (an lcm_t on one URL) with a poll()-based handle loop.
+// The only server header that includes lcm.h.
+//
+// DESIGN: the net thread owns one bus per traffic class (haptic, mesh) so a bulky mesh publish
+// never queues behind, or delays, a 1 kHz force. lcm_handle_timeout() aborts when the LCM fd
+// is >= FD_SETSIZE, so waiting is done with poll() on lcm_get_fileno() and lcm_handle().
+#ifndef HS_NET_BUS_H
+#define HS_NET_BUS_H
+
+#include <stdint.h>
+
+#include <lcm/lcm.h>
+
+#include "hapsim/base.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+typedef struct hs_net_bus hs_net_bus;
+
+/// Open an LCM instance on url (e.g. "udpm://239.255.76.67:7667?ttl=0"). @param out OUT
+/// Thread: any (then owned by one thread) | Allocates: yes
+hs_status hs_net_bus_create(const char* url, hs_net_bus** out, hs_err* err);
+/// Close and release; accepts NULL, sets *bus = NULL.
+void hs_net_bus_destroy(hs_net_bus** bus);
+/// The underlying lcm_t, for subscribe/publish. Valid until destroy.
+lcm_t* hs_net_bus_lcm(hs_net_bus* bus);
+/// The URL the bus was opened with.
+const char* hs_net_bus_url(const hs_net_bus* bus);
+/// Wait up to timeout_ms (0: do not wait) for traffic and dispatch one batch to the handlers.
+/// Returns 1 when something was handled, 0 on timeout (or EINTR), -1 on error.
+/// Thread: the bus owner only (LCM allows one handling thread) | Blocks: up to timeout_ms
+int hs_net_bus_handle(hs_net_bus* bus, int timeout_ms);
+
+/// recv_buf_size=N requested in an LCM URL, bytes; 0 when absent or malformed.
+int64_t hs_net_url_recv_buf(const char* url);
+/// The kernel's net.core.rmem_max, bytes, or -1 when unreadable. A socket receive buffer larger
+/// than this is silently capped, and fragmented mesh messages get lost.
+int64_t hs_net_rmem_max(void);
+
+#ifdef __cplusplus
+}
+#endif
+#endif
