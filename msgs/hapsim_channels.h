@@ -5,7 +5,8 @@
 #ifndef HAPSIM_CHANNELS_H
 #define HAPSIM_CHANNELS_H
 
-#include <stdio.h>
+#include <stddef.h>
+#include <string.h>
 
 /// Default channel prefix; several servers on one LAN differ by prefix (and port).
 #define HAPSIM_DEFAULT_PREFIX "HAPSIM_"
@@ -34,11 +35,14 @@
 /// Write prefix + suffix into out[cap]. Returns 0, or -1 if it does not fit (out is then "").
 static inline int hapsim_channel_name(char* out, size_t cap, const char* prefix,
                                       const char* suffix) {
-    int n = snprintf(out, cap, "%s%s", prefix ? prefix : "", suffix);
-    if (n < 0 || (size_t)n >= cap) {
-        if (cap > 0) out[0] = '\0';
+    size_t np = prefix ? strlen(prefix) : 0, ns = strlen(suffix);
+    if (cap == 0) return -1;
+    if (np + ns + 1 > cap) {
+        out[0] = '\0';
         return -1;
     }
+    if (np) memcpy(out, prefix, np);
+    memcpy(out + np, suffix, ns + 1);
     return 0;
 }
 

@@ -5,9 +5,9 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "hapsim_command.h"
-#include "hapsim_command_ack.h"
-#include "hapsim_tool_pose.h"
+#include "hapsim_command_t.h"
+#include "hapsim_command_ack_t.h"
+#include "hapsim_tool_pose_t.h"
 
 static const char* const reject_names[HS_NET_REJ_COUNT] = {
     "accept", "decode",         "length",       "nonfinite",    "quaternion",
@@ -135,7 +135,7 @@ static hs_net_reject pose_check(const hs_net_limits* lim, hs_net_pose_state* st,
                                 int64_t len, int64_t now_us, hs_net_pose* out) {
     if (buf == NULL || len != POSE_WIRE_BYTES) return HS_NET_REJ_DECODE;
     wire w = {(const uint8_t*)buf, len, 0, 0};
-    if (wire_i64(&w) != __hapsim_tool_pose_get_hash()) return HS_NET_REJ_DECODE;
+    if (wire_i64(&w) != __hapsim_tool_pose_t_get_hash()) return HS_NET_REJ_DECODE;
     hs_net_pose p;
     memset(&p, 0, sizeof p);
     p.utime = wire_i64(&w);
@@ -158,7 +158,7 @@ static hs_net_reject pose_check(const hs_net_limits* lim, hs_net_pose_state* st,
     if (!(fabs(qn - 1.0) <= lim->quat_tol)) return HS_NET_REJ_QUATERNION;
     for (int i = 0; i < 4; ++i) p.orientation[i] /= qn;
 
-    const uint32_t known = HAPSIM_TOOL_POSE_BUTTON_PRIMARY | HAPSIM_TOOL_POSE_BUTTON_CLUTCH;
+    const uint32_t known = HAPSIM_TOOL_POSE_T_BUTTON_PRIMARY | HAPSIM_TOOL_POSE_T_BUTTON_CLUTCH;
     if (p.utime < 0 || p.seq < 0 || p.session == 0 || ((uint32_t)buttons & ~known) != 0)
         return HS_NET_REJ_RANGE;
     for (int i = 0; i < 3; ++i)
@@ -227,7 +227,7 @@ int hs_net_dedup_set_status(hs_net_dedup* d, int64_t request_id, int32_t status)
 static void dedup_add(hs_net_dedup* d, int64_t id, int32_t kind) {
     d->id[d->head] = id;
     d->kind[d->head] = kind;
-    d->status[d->head] = HAPSIM_COMMAND_ACK_STATUS_PENDING;
+    d->status[d->head] = HAPSIM_COMMAND_ACK_T_STATUS_PENDING;
     d->head = (d->head + 1) % HS_NET_DEDUP_SIZE;
     if (d->count < HS_NET_DEDUP_SIZE) d->count++;
 }
@@ -255,12 +255,12 @@ static hs_net_reject command_args(hs_net_command* c) {
     }
     if (!text_ok(c->sender)) return HS_NET_REJ_ARGUMENT;
     switch (c->kind) {
-    case HAPSIM_COMMAND_KIND_LOAD_SCENE: {
+    case HAPSIM_COMMAND_T_KIND_LOAD_SCENE: {
         const char* path = hs_net_command_arg(c, "path");
         if (c->n_args != 1 || !path || path[0] == '\0') return HS_NET_REJ_ARGUMENT;
         return HS_NET_ACCEPT;
     }
-    case HAPSIM_COMMAND_KIND_SET_PARAM: {
+    case HAPSIM_COMMAND_T_KIND_SET_PARAM: {
         const char* name = hs_net_command_arg(c, "name");
         const char* value = hs_net_command_arg(c, "value");
         if (c->n_args != 2 || !name || !value || !key_ok(name) || value[0] == '\0')
@@ -282,7 +282,7 @@ static hs_net_reject command_check(hs_net_command_state* st, const void* buf, in
     memset(c, 0, sizeof *c);
     if (buf == NULL || len <= 0) return HS_NET_REJ_DECODE;
     wire w = {(const uint8_t*)buf, len, 0, 0};
-    if (wire_i64(&w) != __hapsim_command_get_hash() || w.bad) return HS_NET_REJ_DECODE;
+    if (wire_i64(&w) != __hapsim_command_t_get_hash() || w.bad) return HS_NET_REJ_DECODE;
     int64_t utime = wire_i64(&w);
     int64_t seq = wire_i64(&w);
     int64_t request_id = wire_i64(&w);
@@ -315,7 +315,7 @@ static hs_net_reject command_check(hs_net_command_state* st, const void* buf, in
     if (worst != HS_NET_ACCEPT) return worst;
 
     if (utime < 0 || request_id == 0) return HS_NET_REJ_RANGE;
-    if (kind < HAPSIM_COMMAND_KIND_RESET || kind > HAPSIM_COMMAND_KIND_REQUEST_TOPOLOGY)
+    if (kind < HAPSIM_COMMAND_T_KIND_RESET || kind > HAPSIM_COMMAND_T_KIND_REQUEST_TOPOLOGY)
         return HS_NET_REJ_UNKNOWN_KIND;
     r = command_args(c);
     if (r != HS_NET_ACCEPT) return r;

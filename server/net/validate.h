@@ -77,7 +77,7 @@ typedef struct hs_net_pose {
     int tool_id;
     double position[3];    ///< m, scene frame
     double orientation[4]; ///< unit quaternion (w, x, y, z), renormalised
-    uint32_t buttons;      ///< HAPSIM_TOOL_POSE_BUTTON_* bits
+    uint32_t buttons;      ///< HAPSIM_TOOL_POSE_T_BUTTON_* bits
 } hs_net_pose;
 
 /// Seq tracking for one device.
@@ -114,7 +114,7 @@ typedef struct hs_net_command {
     int64_t utime;
     int64_t seq;
     int64_t request_id; ///< nonzero
-    int kind;           ///< HAPSIM_COMMAND_KIND_*
+    int kind;           ///< HAPSIM_COMMAND_T_KIND_*
     int n_args;
     char keys[HS_NET_CMD_MAX_ARGS][HS_NET_CMD_KEY_MAX];
     char values[HS_NET_CMD_MAX_ARGS][HS_NET_CMD_VALUE_MAX];
@@ -131,7 +131,7 @@ const char* hs_net_command_arg(const hs_net_command* c, const char* key);
 typedef struct hs_net_dedup {
     int64_t id[HS_NET_DEDUP_SIZE];
     int32_t kind[HS_NET_DEDUP_SIZE];
-    int32_t status[HS_NET_DEDUP_SIZE]; ///< HAPSIM_COMMAND_ACK_STATUS_*
+    int32_t status[HS_NET_DEDUP_SIZE]; ///< HAPSIM_COMMAND_ACK_T_STATUS_*
     int head;                          ///< next slot to overwrite
     int count;                         ///< valid entries, <= HS_NET_DEDUP_SIZE
 } hs_net_dedup;
