@@ -122,8 +122,16 @@ hs_status hs_csc_create_block_pattern(int n_nodes, const int* nbr_start, const i
         fill[i] = w;
     }
 
-    for (int d = 0; d < 3 * n_nodes; d++)
-        if (dof_map[d] >= 0) node_of_dof[dof_map[d]] = d / 3;
+    for (int c = 0; c < n_free; c++) node_of_dof[c] = -1;
+    for (int d = 0; d < 3 * n_nodes; d++) {
+        if (dof_map[d] < 0) continue;
+        if (node_of_dof[dof_map[d]] >= 0) {
+            st = hs_err_set(err, HS_ERR_INVALID, "%s:%d: free dof %d is mapped twice (dof_map[%d])",
+                            __FILE__, __LINE__, dof_map[d], d);
+            goto done;
+        }
+        node_of_dof[dof_map[d]] = d / 3;
+    }
 
     // Column counts: free dofs of the column's node and of all its neighbours.
     int64_t nnz = 0;
