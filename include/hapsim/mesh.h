@@ -9,14 +9,14 @@
 extern "C" {
 #endif
 
-/// What loading and validation found. Counts, never pointers.
+/// What loading and validation found (repair counts are those of the last finalize).
 typedef struct hs_mesh_report {
     int skipped_elements;    ///< non-tetrahedral elements in the file, skipped
     int reoriented_tets;     ///< negatively oriented tets flipped to positive
-    int degenerate_tets;     ///< |volume| below 1e-12 of the bbox volume; removed
+    int degenerate_tets;     ///< |volume| <= 1e-12 of the bbox volume (or 1e-200 m^3); removed
     int duplicate_tets;      ///< same 4 nodes as an earlier tet; removed
     int unreferenced_nodes;  ///< nodes no tet uses (kept, flagged; see hs_mesh.node_used)
-    int components;          ///< connected components of the tet graph
+    int components;          ///< connected components (tets sharing a node are connected)
     double min_dihedral_deg; ///< quality: smallest dihedral angle
     double max_aspect;       ///< quality: largest (longest edge / inradius) / (2 sqrt 6)
     double mean_aspect;      ///< quality: mean of the same normalised ratio (1 = regular)
@@ -50,14 +50,15 @@ typedef struct hs_mesh {
 /// Read a mesh; the format is chosen by extension (.msh Gmsh 2.2/4.1 ASCII, .node/.ele TetGen
 /// (give either file), .vtk legacy ASCII unstructured grid). Validates and finalizes.
 /// On error returns NULL-filled *out, a negative status and err->msg naming file, line, problem.
+/// Returns HS_WARN_MESH_REPAIRED (> 0, mesh usable) when tets were reoriented or removed.
 /// @param out  OUT: new mesh, free with hs_mesh_destroy
 hs_status hs_mesh_load(const char* path, hs_mesh** out, hs_err* err);
 
 /// Parse from memory (for fuzzing and tests); `name` is used in error messages, `format` is
-/// "msh", "tetgen-node"+"tetgen-ele" (use hs_mesh_parse_tetgen), or "vtk".
+/// "msh" or "vtk" (TetGen: hs_mesh_parse_tetgen). Status as hs_mesh_load.
 hs_status hs_mesh_parse(const char* name, const char* format, const char* data, size_t len,
                         hs_mesh** out, hs_err* err);
-/// Parse a TetGen pair held in memory.
+/// Parse a TetGen pair held in memory; messages name `<name>.node` and `<name>.ele`.
 hs_status hs_mesh_parse_tetgen(const char* name, const char* node_data, size_t node_len,
                                const char* ele_data, size_t ele_len, hs_mesh** out, hs_err* err);
 
@@ -66,16 +67,20 @@ hs_status hs_mesh_create(int n_nodes, const double* x0, int n_tets, const int* t
                          hs_mesh** out, hs_err* err);
 
 /// Structured box [0,lx]x[0,ly]x[0,lz] of nx*ny*nz hexahedra, each split into 6 Kuhn
-/// tetrahedra (conforming). Used by tests and benchmarks (cantilevers).
+/// tetrahedra (conforming). Used by tests and benchmarks (cantilevers). Node (i,j,k) is
+/// i + (nx+1)*(j + (ny+1)*k) (x fastest) at (lx*i/nx, ly*j/ny, lz*k/nz); hex h has tets 6h..6h+5.
 hs_status hs_mesh_create_box(double lx, double ly, double lz, int nx, int ny, int nz,
                              hs_mesh** out, hs_err* err);
 
 /// Recompute the derived fields after nodes or tets changed. Reorients, drops degenerate
-/// and duplicate tets (counted in report). Returns HS_ERR_INVALID for out-of-range indices.
+/// and duplicate tets (counted in report; HS_WARN_MESH_REPAIRED if any). Returns
+/// HS_ERR_INVALID for out-of-range indices, non-finite or |x| > 1e30 coordinates, a face shared
+/// by more than two tets, or two tets on the same side of a face (overlap).
 hs_status hs_mesh_finalize(hs_mesh* mesh, hs_err* err);
 
 /// Check invariants (orientation, ranges, surface closed and consistent, adjacency). Returns
 /// HS_OK or HS_ERR_INVALID with err->msg saying what is wrong. Pure check, changes nothing.
+/// Closed: each directed boundary edge a->b is matched by as many b->a (one on a manifold).
 hs_status hs_mesh_check(const hs_mesh* mesh, hs_err* err);
 
 /// Signed volume of tet t at positions x ([3*n_nodes]); positive when correctly oriented.
@@ -86,6 +91,16 @@ hs_status hs_mesh_write_vtk(const hs_mesh* mesh, const double* u, const char* pa
 
 /// Release; accepts NULL and sets *mesh to NULL.
 void hs_mesh_destroy(hs_mesh** mesh);
+
+/// Mark nodes inside the closed box [box_min, box_max] (m). Returns how many, or -1 on bad args.
+/// @param mask  OUT: [n_nodes] 1 inside, 0 outside
+int hs_mesh_select_box(const hs_mesh* mesh, const double box_min[3], const double box_max[3],
+                       unsigned char* mask);
+
+/// Mark nodes within tol_m of the bbox min (side -1) or max (side +1) along axis 0..2.
+/// Returns how many, or -1 on bad args. @param mask  OUT: [n_nodes] 1 selected, 0 not
+int hs_mesh_select_plane(const hs_mesh* mesh, int axis, int side, double tol_m,
+                         unsigned char* mask);
 
 #ifdef __cplusplus
 }

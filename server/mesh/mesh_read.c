@@ -1,0 +1,1016 @@
+// Mesh readers: Gmsh MSH 2.2 / 4.1 ASCII, TetGen .node/.ele, legacy VTK ASCII unstructured
+// grids. All parse from a memory buffer that need not be NUL-terminated, never read past its
+// end, and check every declared count against the bytes left before allocating, so memory
+// stays proportional to the input. Errors read "<file>:<line>: <problem>".
+#include "mesh_internal.h"
+
+#include <limits.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+/// Largest mesh file hs_mesh_load reads.
+#define HS_MESH_MAX_FILE_BYTES ((size_t)512 << 20)
+
+typedef struct lexer {
+    const char* name; // for messages
+    const char* p;    // next unread byte
+    const char* end;
+    int line;          // 1-based line of p
+    int hash_comments; // TetGen: '#' starts a comment that runs to the end of the line
+    hs_status status;  // first error (err may be NULL)
+    hs_err* err;
+} lexer;
+
+typedef struct tok {
+    const char* s;
+    size_t len;
+    int line;
+} tok;
+
+static void lx_init(lexer* lx, const char* name, const char* data, size_t len, hs_err* err) {
+    memset(lx, 0, sizeof *lx);
+    lx->name = name ? name : "(memory)";
+    lx->p = data ? data : "";
+    lx->end = lx->p + (data ? len : 0);
+    lx->line = 1;
+    lx->err = err;
+}
+
+static int lx_fail(lexer* lx, int line, hs_status code, const char* fmt, ...)
+    __attribute__((format(printf, 4, 5)));
+
+// Records the error and returns 0 so callers can `return lx_fail(...)`.
+static int lx_fail(lexer* lx, int line, hs_status code, const char* fmt, ...) {
+    char problem[400];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(problem, sizeof problem, fmt, ap);
+    va_end(ap);
+    lx->status = code;
+    hs_err_set(lx->err, code, "%s:%d: %s", lx->name, line, problem);
+    return 0;
+}
+
+// Printable excerpt of a token for messages.
+static const char* tok_text(const tok* t, char buf[48]) {
+    size_t n = t->len < 32 ? t->len : 32;
+    for (size_t i = 0; i < n; ++i) {
+        unsigned char c = (unsigned char)t->s[i];
+        buf[i] = c >= 0x20 && c < 0x7f ? (char)c : '?';
+    }
+    strcpy(buf + n, t->len > 32 ? "..." : "");
+    return buf;
+}
+
+static int is_blank(char c) {
+    return c == ' ' || c == '\t' || c == '\r' || c == '\f' || c == '\v';
+}
+
+static void skip_blanks(lexer* lx) {
+    while (lx->p < lx->end) {
+        char c = *lx->p;
+        if (is_blank(c))
+            ++lx->p;
+        else if (c == '#' && lx->hash_comments)
+            while (lx->p < lx->end && *lx->p != '\n') ++lx->p;
+        else
+            break;
+    }
+}
+
+// Next token on the current line; 0 at the end of the line or file (newline not consumed).
+static int tok_line(lexer* lx, tok* t) {
+    skip_blanks(lx);
+    if (lx->p >= lx->end || *lx->p == '\n') return 0;
+    t->s = lx->p;
+    t->line = lx->line;
+    while (lx->p < lx->end && !is_blank(*lx->p) && *lx->p != '\n' &&
+           !(*lx->p == '#' && lx->hash_comments))
+        ++lx->p;
+    t->len = (size_t)(lx->p - t->s);
+    return 1;
+}
+
+// Next token anywhere, crossing newlines; 0 at the end of the file.
+static int tok_any(lexer* lx, tok* t) {
+    for (;;) {
+        if (tok_line(lx, t)) return 1;
+        if (lx->p >= lx->end) return 0;
+        ++lx->p;
+        ++lx->line;
+    }
+}
+
+static void skip_line(lexer* lx) {
+    const char* nl = memchr(lx->p, '\n', (size_t)(lx->end - lx->p));
+    if (nl) {
+        lx->p = nl + 1;
+        ++lx->line;
+    } else {
+        lx->p = lx->end;
+    }
+}
+
+// The rest of the line must be blank; consumes the newline.
+static int end_line(lexer* lx, const char* what) {
+    tok t;
+    char b[48];
+    if (tok_line(lx, &t))
+        return lx_fail(lx, t.line, HS_ERR_PARSE, "unexpected '%s' after %s", tok_text(&t, b), what);
+    skip_line(lx);
+    return 1;
+}
+
+// Moves to the next line that has a token; 0 at the end of the file.
+static int next_record(lexer* lx) {
+    for (;;) {
+        skip_blanks(lx);
+        if (lx->p >= lx->end) return 0;
+        if (*lx->p != '\n') return 1;
+        ++lx->p;
+        ++lx->line;
+    }
+}
+
+static int tok_is(const tok* t, const char* s) {
+    size_t n = strlen(s);
+    return t->len == n && memcmp(t->s, s, n) == 0;
+}
+
+static int tok_is_nocase(const tok* t, const char* s) {
+    size_t n = strlen(s);
+    if (t->len != n) return 0;
+    for (size_t i = 0; i < n; ++i) {
+        char a = t->s[i], b = s[i];
+        if (a >= 'a' && a <= 'z') a = (char)(a - 'a' + 'A');
+        if (b >= 'a' && b <= 'z') b = (char)(b - 'a' + 'A');
+        if (a != b) return 0;
+    }
+    return 1;
+}
+
+// Strict decimal integer with optional sign; 0 if malformed or beyond long long.
+static int parse_ll(const tok* t, long long* v) {
+    size_t i = 0;
+    int neg = 0;
+    if (t->len > 0 && (t->s[0] == '-' || t->s[0] == '+')) {
+        neg = t->s[0] == '-';
+        i = 1;
+    }
+    if (i == t->len) return 0;
+    unsigned long long acc = 0;
+    for (; i < t->len; ++i) {
+        unsigned d = (unsigned)(unsigned char)t->s[i] - '0';
+        if (d > 9) return 0;
+        if (acc > ((unsigned long long)LLONG_MAX - d) / 10) return 0;
+        acc = acc * 10 + d;
+    }
+    *v = neg ? -(long long)acc : (long long)acc;
+    return 1;
+}
+
+// Finite decimal number; 0 if malformed, too long, infinite or NaN.
+static int parse_double(const tok* t, double* v) {
+    char buf[64];
+    if (t->len == 0 || t->len >= sizeof buf) return 0;
+    memcpy(buf, t->s, t->len);
+    buf[t->len] = '\0';
+    char* e = NULL;
+    double d = strtod(buf, &e);
+    if (e != buf + t->len || !isfinite(d)) return 0;
+    *v = d;
+    return 1;
+}
+
+// Reads an integer in [lo, hi]: on the current line, or anywhere if `any`.
+static int rd_int(lexer* lx, int any, long long lo, long long hi, const char* what, long long* v) {
+    tok t;
+    char b[48];
+    if (!(any ? tok_any(lx, &t) : tok_line(lx, &t)))
+        return lx_fail(lx, lx->line, HS_ERR_PARSE, "missing %s", what);
+    if (!parse_ll(&t, v))
+        return lx_fail(lx, t.line, HS_ERR_PARSE, "bad %s '%s' (expected an integer)", what,
+                       tok_text(&t, b));
+    if (*v < lo || *v > hi)
+        return lx_fail(lx, t.line, HS_ERR_PARSE, "%s %lld out of range [%lld, %lld]", what, *v, lo,
+                       hi);
+    return 1;
+}
+
+static int rd_double(lexer* lx, int any, const char* what, double* v) {
+    tok t;
+    char b[48];
+    if (!(any ? tok_any(lx, &t) : tok_line(lx, &t)))
+        return lx_fail(lx, lx->line, HS_ERR_PARSE, "missing %s", what);
+    if (!parse_double(&t, v))
+        return lx_fail(lx, t.line, HS_ERR_PARSE, "bad %s '%s' (expected a finite number)", what,
+                       tok_text(&t, b));
+    return 1;
+}
+
+// A declared count must fit in the bytes left (each item takes at least min_bytes) and in the
+// mesh limits; checked before anything is allocated for it.
+static int check_count(lexer* lx, long long n, size_t min_bytes, int line, const char* what) {
+    size_t left = (size_t)(lx->end - lx->p);
+    if (n < 0 || (unsigned long long)n > left / min_bytes + 1 || n > HS_MESH_MAX_COUNT)
+        return lx_fail(lx, line, HS_ERR_PARSE,
+                       "%s count %lld does not fit in the %zu bytes that follow", what, n, left);
+    return 1;
+}
+
+// Start of record i of n inside a section: fails on end of file or an early '$' line.
+static int record(lexer* lx, long long i, long long n, const char* what) {
+    if (!next_record(lx))
+        return lx_fail(lx, lx->line, HS_ERR_PARSE, "file ends after %lld of %lld %s", i, n, what);
+    if (*lx->p == '$')
+        return lx_fail(lx, lx->line, HS_ERR_PARSE, "section ends after %lld of %lld %s", i, n,
+                       what);
+    return 1;
+}
+
+// ---------------------------------------------------------------------------------------------
+// What every reader fills: nodes with their file ids (mapped to 0-based indices) and tets.
+
+typedef struct id_pair {
+    long long id;
+    int idx;
+} id_pair;
+
+typedef struct builder {
+    int n_nodes;
+    double* x;     // [3 n_nodes]
+    long long* id; // [n_nodes] file id of each node
+    int* line;     // [n_nodes] line each node was read on
+    id_pair* map;  // [n_nodes] sorted by id
+    int n_tets;
+    int* tets; // [4 capacity]
+    int skipped;
+} builder;
+
+static void builder_free(builder* b) {
+    hs_free(b->x);
+    hs_free(b->id);
+    hs_free(b->line);
+    hs_free(b->map);
+    hs_free(b->tets);
+    memset(b, 0, sizeof *b);
+}
+
+static int nomem(lexer* lx) {
+    lx->status = HS_ERR_NOMEM;
+    hs_err_set(lx->err, HS_ERR_NOMEM, "%s: out of memory", lx->name);
+    return 0;
+}
+
+static int alloc_nodes(lexer* lx, builder* b, long long n) {
+    b->x = hs_alloc(((size_t)n * 3 + 1) * sizeof(double));
+    b->id = hs_alloc(((size_t)n + 1) * sizeof(long long));
+    b->line = hs_alloc(((size_t)n + 1) * sizeof(int));
+    if (!b->x || !b->id || !b->line) return nomem(lx);
+    b->n_nodes = (int)n;
+    return 1;
+}
+
+static int alloc_tets(lexer* lx, builder* b, long long capacity) {
+    b->tets = hs_alloc(((size_t)capacity * 4 + 1) * sizeof(int));
+    return b->tets ? 1 : nomem(lx);
+}
+
+static int cmp_id_pair(const void* pa, const void* pb) {
+    const id_pair* a = pa;
+    const id_pair* b = pb;
+    if (a->id != b->id) return a->id < b->id ? -1 : 1;
+    return (a->idx > b->idx) - (a->idx < b->idx);
+}
+
+// Sorts the node ids for lookup and rejects repeated ids.
+static int build_map(lexer* lx, builder* b) {
+    b->map = hs_alloc(((size_t)b->n_nodes + 1) * sizeof(id_pair));
+    if (!b->map) return nomem(lx);
+    for (int i = 0; i < b->n_nodes; ++i) b->map[i] = (id_pair){b->id[i], i};
+    qsort(b->map, (size_t)b->n_nodes, sizeof(id_pair), cmp_id_pair);
+    for (int i = 1; i < b->n_nodes; ++i)
+        if (b->map[i].id == b->map[i - 1].id)
+            return lx_fail(lx, b->line[b->map[i].idx], HS_ERR_PARSE,
+                           "node id %lld repeated (first on line %d)", b->map[i].id,
+                           b->line[b->map[i - 1].idx]);
+    return 1;
+}
+
+// Reads a node id on the current line and stores its index as tet corner c.
+static int rd_tet_node(lexer* lx, builder* b, long long lo, int c, long long elem) {
+    tok t;
+    char buf[48];
+    long long id;
+    if (!tok_line(lx, &t))
+        return lx_fail(lx, lx->line, HS_ERR_PARSE, "element %lld has only %d of 4 nodes", elem, c);
+    if (!parse_ll(&t, &id) || id < lo)
+        return lx_fail(lx, t.line, HS_ERR_PARSE, "element %lld: bad node id '%s'", elem,
+                       tok_text(&t, buf));
+    int lo_i = 0, hi_i = b->n_nodes;
+    while (lo_i < hi_i) {
+        int mid = lo_i + (hi_i - lo_i) / 2;
+        if (b->map[mid].id < id)
+            lo_i = mid + 1;
+        else
+            hi_i = mid;
+    }
+    if (lo_i == b->n_nodes || b->map[lo_i].id != id)
+        return lx_fail(lx, t.line, HS_ERR_PARSE, "element %lld references unknown node %lld", elem,
+                       id);
+    b->tets[4 * b->n_tets + c] = b->map[lo_i].idx;
+    return 1;
+}
+
+static hs_status builder_finish(lexer* lx, builder* b, hs_mesh** out) {
+    if (b->n_tets == 0) {
+        lx_fail(lx, lx->line, HS_ERR_PARSE, "no linear tetrahedra (%d other elements skipped)",
+                b->skipped);
+        builder_free(b);
+        return lx->status;
+    }
+    double* x = b->x;
+    int* tets = b->tets;
+    b->x = NULL;
+    b->tets = NULL;
+    int n_nodes = b->n_nodes, n_tets = b->n_tets, skipped = b->skipped;
+    builder_free(b);
+    hs_status st = hs_mesh_adopt(n_nodes, x, n_tets, tets, skipped, out, lx->err);
+    if (st < 0 && st != HS_ERR_NOMEM && lx->err) {
+        char msg[sizeof lx->err->msg];
+        memcpy(msg, lx->err->msg, sizeof msg);
+        snprintf(lx->err->msg, sizeof lx->err->msg, "%s: %.400s", lx->name, msg);
+    }
+    return st;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Gmsh MSH 2.2 and 4.1 (ASCII).
+
+static int msh_nodes_v2(lexer* lx, builder* b) {
+    long long n, id;
+    int hl = lx->line;
+    if (!rd_int(lx, 0, 0, LLONG_MAX, "node count", &n) || !end_line(lx, "the node count") ||
+        !check_count(lx, n, 8, hl, "node") || !alloc_nodes(lx, b, n))
+        return 0;
+    for (long long i = 0; i < n; ++i) {
+        double* x = b->x + 3 * i;
+        if (!record(lx, i, n, "nodes")) return 0;
+        b->line[i] = lx->line;
+        if (!rd_int(lx, 0, 1, LLONG_MAX, "node id", &id) || !rd_double(lx, 0, "x coordinate", x) ||
+            !rd_double(lx, 0, "y coordinate", x + 1) || !rd_double(lx, 0, "z coordinate", x + 2) ||
+            !end_line(lx, "a node"))
+            return 0;
+        b->id[i] = id;
+    }
+    return build_map(lx, b);
+}
+
+static int msh_nodes_v4(lexer* lx, builder* b) {
+    long long nb, n, lo, hi;
+    int hl = lx->line;
+    if (!rd_int(lx, 0, 0, LLONG_MAX, "entity block count", &nb) ||
+        !rd_int(lx, 0, 0, LLONG_MAX, "node count", &n) ||
+        !rd_int(lx, 0, 0, LLONG_MAX, "min node tag", &lo) ||
+        !rd_int(lx, 0, 0, LLONG_MAX, "max node tag", &hi) || !end_line(lx, "the node header") ||
+        !check_count(lx, nb, 8, hl, "node block") || !check_count(lx, n, 8, hl, "node") ||
+        !alloc_nodes(lx, b, n))
+        return 0;
+    long long filled = 0;
+    for (long long k = 0; k < nb; ++k) {
+        long long dim, tag, param, m, id;
+        if (!record(lx, k, nb, "node blocks")) return 0;
+        int bl = lx->line;
+        if (!rd_int(lx, 0, 0, 3, "entity dimension", &dim) ||
+            !rd_int(lx, 0, LLONG_MIN, LLONG_MAX, "entity tag", &tag) ||
+            !rd_int(lx, 0, 0, 1, "parametric flag", &param) ||
+            !rd_int(lx, 0, 0, LLONG_MAX, "block node count", &m) ||
+            !end_line(lx, "a node block header"))
+            return 0;
+        if (m > n - filled)
+            return lx_fail(lx, bl, HS_ERR_PARSE,
+                           "node blocks hold more than the %lld nodes "
+                           "declared",
+                           n);
+        for (long long j = 0; j < m; ++j) {
+            if (!record(lx, j, m, "node tags")) return 0;
+            b->line[filled + j] = lx->line;
+            if (!rd_int(lx, 0, 1, LLONG_MAX, "node tag", &id) || !end_line(lx, "a node tag"))
+                return 0;
+            b->id[filled + j] = id;
+        }
+        for (long long j = 0; j < m; ++j) {
+            double* x = b->x + 3 * (filled + j);
+            double uvw;
+            if (!record(lx, j, m, "node coordinates") || !rd_double(lx, 0, "x coordinate", x) ||
+                !rd_double(lx, 0, "y coordinate", x + 1) ||
+                !rd_double(lx, 0, "z coordinate", x + 2))
+                return 0;
+            for (long long q = 0; q < (param ? dim : 0); ++q)
+                if (!rd_double(lx, 0, "parametric coordinate", &uvw)) return 0;
+            if (!end_line(lx, "node coordinates")) return 0;
+        }
+        filled += m;
+    }
+    if (filled != n)
+        return lx_fail(lx, lx->line, HS_ERR_PARSE, "node blocks hold %lld nodes, header says %lld",
+                       filled, n);
+    return build_map(lx, b);
+}
+
+static int msh_elements_v2(lexer* lx, builder* b) {
+    long long n, id, type, ntags, tag;
+    int hl = lx->line;
+    if (!rd_int(lx, 0, 0, LLONG_MAX, "element count", &n) || !end_line(lx, "the element count") ||
+        !check_count(lx, n, 6, hl, "element") || !alloc_tets(lx, b, n))
+        return 0;
+    for (long long i = 0; i < n; ++i) {
+        if (!record(lx, i, n, "elements") ||
+            !rd_int(lx, 0, LLONG_MIN, LLONG_MAX, "element id", &id) ||
+            !rd_int(lx, 0, 1, INT_MAX, "element type", &type))
+            return 0;
+        if (type != 4) { // not a linear tet: the line is skipped whole
+            ++b->skipped;
+            skip_line(lx);
+            continue;
+        }
+        if (!rd_int(lx, 0, 0, 1000, "tag count", &ntags)) return 0;
+        for (long long k = 0; k < ntags; ++k)
+            if (!rd_int(lx, 0, LLONG_MIN, LLONG_MAX, "tag", &tag)) return 0;
+        for (int c = 0; c < 4; ++c)
+            if (!rd_tet_node(lx, b, 1, c, id)) return 0;
+        if (!end_line(lx, "a tetrahedron")) return 0;
+        ++b->n_tets;
+    }
+    return 1;
+}
+
+static int msh_elements_v4(lexer* lx, builder* b) {
+    long long nb, n, lo, hi;
+    int hl = lx->line;
+    if (!rd_int(lx, 0, 0, LLONG_MAX, "entity block count", &nb) ||
+        !rd_int(lx, 0, 0, LLONG_MAX, "element count", &n) ||
+        !rd_int(lx, 0, 0, LLONG_MAX, "min element tag", &lo) ||
+        !rd_int(lx, 0, 0, LLONG_MAX, "max element tag", &hi) ||
+        !end_line(lx, "the element header") || !check_count(lx, nb, 8, hl, "element block") ||
+        !check_count(lx, n, 4, hl, "element") || !alloc_tets(lx, b, n))
+        return 0;
+    long long filled = 0;
+    for (long long k = 0; k < nb; ++k) {
+        long long dim, tag, type, m, id;
+        if (!record(lx, k, nb, "element blocks")) return 0;
+        int bl = lx->line;
+        if (!rd_int(lx, 0, 0, 3, "entity dimension", &dim) ||
+            !rd_int(lx, 0, LLONG_MIN, LLONG_MAX, "entity tag", &tag) ||
+            !rd_int(lx, 0, 1, INT_MAX, "element type", &type) ||
+            !rd_int(lx, 0, 0, LLONG_MAX, "block element count", &m) ||
+            !end_line(lx, "an element block header"))
+            return 0;
+        if (m > n - filled)
+            return lx_fail(lx, bl, HS_ERR_PARSE,
+                           "element blocks hold more than the %lld elements declared", n);
+        for (long long j = 0; j < m; ++j) {
+            if (!record(lx, j, m, "elements")) return 0;
+            if (type != 4) {
+                ++b->skipped;
+                skip_line(lx);
+                continue;
+            }
+            if (!rd_int(lx, 0, 1, LLONG_MAX, "element tag", &id)) return 0;
+            for (int c = 0; c < 4; ++c)
+                if (!rd_tet_node(lx, b, 1, c, id)) return 0;
+            if (!end_line(lx, "a tetrahedron")) return 0;
+            ++b->n_tets;
+        }
+        filled += m;
+    }
+    if (filled != n)
+        return lx_fail(lx, lx->line, HS_ERR_PARSE,
+                       "element blocks hold %lld elements, header says %lld", filled, n);
+    return 1;
+}
+
+// After a section body: the next token must close it.
+static int msh_section_end(lexer* lx, const char* end_tag) {
+    tok t;
+    char buf[48];
+    if (!tok_any(lx, &t))
+        return lx_fail(lx, lx->line, HS_ERR_PARSE, "file ends before %s", end_tag);
+    if (!tok_is(&t, end_tag))
+        return lx_fail(lx, t.line, HS_ERR_PARSE, "expected %s, found '%s'", end_tag,
+                       tok_text(&t, buf));
+    return end_line(lx, end_tag);
+}
+
+static hs_status parse_msh(lexer* lx, hs_mesh** out) {
+    builder b = {0};
+    tok t;
+    char buf[48];
+    long long ftype, dsize;
+    int version = 0, have_nodes = 0, have_elems = 0;
+    if (!tok_any(lx, &t) || !tok_is(&t, "$MeshFormat")) {
+        lx_fail(lx, lx->line, HS_ERR_PARSE, "not a Gmsh MSH file (expected $MeshFormat)");
+        goto fail;
+    }
+    if (!end_line(lx, "$MeshFormat")) goto fail;
+    if (!tok_any(lx, &t)) {
+        lx_fail(lx, lx->line, HS_ERR_PARSE, "missing MSH version");
+        goto fail;
+    }
+    if (tok_is(&t, "2") || tok_is(&t, "2.0") || tok_is(&t, "2.1") || tok_is(&t, "2.2")) {
+        version = 2;
+    } else if (tok_is(&t, "4.1")) {
+        version = 4;
+    } else {
+        lx_fail(lx, t.line, HS_ERR_UNSUPPORTED, "MSH version '%s' not supported (2.2 or 4.1)",
+                tok_text(&t, buf));
+        goto fail;
+    }
+    if (!rd_int(lx, 0, 0, 1, "file type", &ftype)) goto fail;
+    if (ftype != 0) {
+        lx_fail(lx, lx->line, HS_ERR_UNSUPPORTED, "binary MSH not supported (save as ASCII)");
+        goto fail;
+    }
+    if (!rd_int(lx, 0, 1, 16, "data size", &dsize) || !end_line(lx, "the format line") ||
+        !msh_section_end(lx, "$EndMeshFormat"))
+        goto fail;
+
+    while (tok_any(lx, &t)) {
+        if (tok_is(&t, "$Nodes") || tok_is(&t, "$Elements")) {
+            int nodes = tok_is(&t, "$Nodes");
+            if (nodes ? have_nodes : have_elems) {
+                lx_fail(lx, t.line, HS_ERR_PARSE, "second %s section",
+                        nodes ? "$Nodes" : "$Elements");
+                goto fail;
+            }
+            if (!nodes && !have_nodes) {
+                lx_fail(lx, t.line, HS_ERR_PARSE, "$Elements before $Nodes");
+                goto fail;
+            }
+            if (!end_line(lx, nodes ? "$Nodes" : "$Elements")) goto fail;
+            int ok = nodes ? (version == 2 ? msh_nodes_v2(lx, &b) : msh_nodes_v4(lx, &b))
+                           : (version == 2 ? msh_elements_v2(lx, &b) : msh_elements_v4(lx, &b));
+            if (!ok || !msh_section_end(lx, nodes ? "$EndNodes" : "$EndElements")) goto fail;
+            have_nodes |= nodes;
+            have_elems |= !nodes;
+        } else if (t.len > 1 && t.s[0] == '$') {
+            // Another section ($Entities, $PhysicalNames, ...): skip lines up to $End<name>.
+            char end_tag[48];
+            int start = t.line;
+            if (t.len > 40) {
+                lx_fail(lx, t.line, HS_ERR_PARSE, "section name '%s' too long", tok_text(&t, buf));
+                goto fail;
+            }
+            snprintf(end_tag, sizeof end_tag, "$End%.*s", (int)t.len - 1, t.s + 1);
+            skip_line(lx);
+            for (;;) {
+                if (lx->p >= lx->end) {
+                    lx_fail(lx, start, HS_ERR_PARSE, "section %.*s has no %s", (int)t.len, t.s,
+                            end_tag);
+                    goto fail;
+                }
+                tok first;
+                int has = tok_line(lx, &first);
+                skip_line(lx);
+                if (has && tok_is(&first, end_tag)) break;
+            }
+        } else {
+            lx_fail(lx, t.line, HS_ERR_PARSE, "unexpected '%s' outside a section",
+                    tok_text(&t, buf));
+            goto fail;
+        }
+    }
+    if (!have_nodes || !have_elems) {
+        lx_fail(lx, lx->line, HS_ERR_PARSE, "missing %s section",
+                have_nodes ? "$Elements" : "$Nodes");
+        goto fail;
+    }
+    return builder_finish(lx, &b, out);
+fail:
+    builder_free(&b);
+    return lx->status;
+}
+
+// ---------------------------------------------------------------------------------------------
+// TetGen .node / .ele: '#' comments, one record per line, ids usually from 0 or 1.
+
+static int tetgen_nodes(lexer* lx, builder* b) {
+    long long n, dim, nattr, nmark, id, mark;
+    double attr;
+    lx->hash_comments = 1;
+    if (!next_record(lx)) return lx_fail(lx, lx->line, HS_ERR_PARSE, "empty .node file");
+    int hl = lx->line;
+    if (!rd_int(lx, 0, 0, LLONG_MAX, "point count", &n) ||
+        !rd_int(lx, 0, 0, 3, "dimension", &dim) ||
+        !rd_int(lx, 0, 0, 1000, "attribute count", &nattr) ||
+        !rd_int(lx, 0, 0, 1, "boundary marker flag", &nmark) || !end_line(lx, "the header"))
+        return 0;
+    if (dim != 3)
+        return lx_fail(lx, hl, HS_ERR_UNSUPPORTED, "dimension %lld not supported (only 3)", dim);
+    if (n == 0)
+        return lx_fail(lx, hl, HS_ERR_PARSE, "no points (points in a .poly file are not read)");
+    if (!check_count(lx, n, 8, hl, "point") || !alloc_nodes(lx, b, n)) return 0;
+    for (long long i = 0; i < n; ++i) {
+        double* x = b->x + 3 * i;
+        if (!record(lx, i, n, "points")) return 0;
+        b->line[i] = lx->line;
+        if (!rd_int(lx, 0, 0, LLONG_MAX, "point id", &id) || !rd_double(lx, 0, "x coordinate", x) ||
+            !rd_double(lx, 0, "y coordinate", x + 1) || !rd_double(lx, 0, "z coordinate", x + 2))
+            return 0;
+        for (long long k = 0; k < nattr; ++k)
+            if (!rd_double(lx, 0, "attribute", &attr)) return 0;
+        if (nmark && !rd_int(lx, 0, LLONG_MIN, LLONG_MAX, "boundary marker", &mark)) return 0;
+        if (!end_line(lx, "a point")) return 0;
+        b->id[i] = id;
+    }
+    if (next_record(lx))
+        return lx_fail(lx, lx->line, HS_ERR_PARSE, "unexpected content after %lld points", n);
+    return build_map(lx, b);
+}
+
+static int tetgen_elements(lexer* lx, builder* b) {
+    long long n, npt, nreg, id, v;
+    double attr;
+    lx->hash_comments = 1;
+    if (!next_record(lx)) return lx_fail(lx, lx->line, HS_ERR_PARSE, "empty .ele file");
+    int hl = lx->line;
+    if (!rd_int(lx, 0, 0, LLONG_MAX, "tetrahedron count", &n) ||
+        !rd_int(lx, 0, 4, 10, "nodes per tetrahedron", &npt) ||
+        !rd_int(lx, 0, 0, 1, "region attribute flag", &nreg) || !end_line(lx, "the header") ||
+        !check_count(lx, n, 10, hl, "tetrahedron") || !alloc_tets(lx, b, n))
+        return 0;
+    if (npt != 4 && npt != 10)
+        return lx_fail(lx, hl, HS_ERR_PARSE, "nodes per tetrahedron must be 4 or 10, not %lld",
+                       npt);
+    for (long long i = 0; i < n; ++i) {
+        if (!record(lx, i, n, "tetrahedra") ||
+            !rd_int(lx, 0, LLONG_MIN, LLONG_MAX, "tetrahedron id", &id))
+            return 0;
+        if (npt == 4) {
+            for (int c = 0; c < 4; ++c)
+                if (!rd_tet_node(lx, b, 0, c, id)) return 0;
+        } else { // quadratic: not a linear tet, skipped after checking the line
+            for (int c = 0; c < 10; ++c)
+                if (!rd_int(lx, 0, 0, LLONG_MAX, "node id", &v)) return 0;
+        }
+        if (nreg && !rd_double(lx, 0, "region attribute", &attr)) return 0;
+        if (!end_line(lx, "a tetrahedron")) return 0;
+        if (npt == 4)
+            ++b->n_tets;
+        else
+            ++b->skipped;
+    }
+    if (next_record(lx))
+        return lx_fail(lx, lx->line, HS_ERR_PARSE, "unexpected content after %lld tetrahedra", n);
+    return 1;
+}
+
+static hs_status parse_tetgen(const char* node_name, const char* node_data, size_t node_len,
+                              const char* ele_name, const char* ele_data, size_t ele_len,
+                              hs_mesh** out, hs_err* err) {
+    builder b = {0};
+    lexer ln, le;
+    lx_init(&ln, node_name, node_data, node_len, err);
+    lx_init(&le, ele_name, ele_data, ele_len, err);
+    if (!tetgen_nodes(&ln, &b)) {
+        builder_free(&b);
+        return ln.status;
+    }
+    if (!tetgen_elements(&le, &b)) {
+        builder_free(&b);
+        return le.status;
+    }
+    return builder_finish(&le, &b, out);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Legacy VTK, ASCII, DATASET UNSTRUCTURED_GRID. Points and cells are free-form (any number of
+// values per line). Both the classic CELLS layout and the 5.1 OFFSETS/CONNECTIVITY layout.
+
+typedef struct vtk_cells {
+    long long n; // cells
+    int* start;  // [n+1] offsets into conn
+    int* conn;   // point indices
+} vtk_cells;
+
+static int vtk_cells_classic(lexer* lx, vtk_cells* c, long long n_pts, int hl) {
+    long long n, size, k, v;
+    if (!rd_int(lx, 0, 0, LLONG_MAX, "cell count", &n) ||
+        !rd_int(lx, 0, 0, LLONG_MAX, "cell list size", &size) ||
+        !end_line(lx, "the CELLS header") || !check_count(lx, n, 2, hl, "cell") ||
+        !check_count(lx, size, 2, hl, "cell list entry"))
+        return 0;
+    c->start = hs_alloc(((size_t)n + 1) * sizeof(int));
+    c->conn = hs_alloc(((size_t)size + 1) * sizeof(int));
+    if (!c->start || !c->conn) return nomem(lx);
+    c->n = n;
+    long long used = 0, nc = 0;
+    c->start[0] = 0;
+    for (long long i = 0; i < n; ++i) {
+        if (!rd_int(lx, 1, 0, size - used - 1, "cell point count", &k)) return 0;
+        used += 1 + k;
+        for (long long j = 0; j < k; ++j) {
+            if (!rd_int(lx, 1, 0, n_pts - 1, "point index", &v)) return 0;
+            c->conn[nc++] = (int)v;
+        }
+        c->start[i + 1] = (int)nc;
+    }
+    if (used != size)
+        return lx_fail(lx, hl, HS_ERR_PARSE, "CELLS size is %lld but the cells use %lld", size,
+                       used);
+    return 1;
+}
+
+static int vtk_cells_v5(lexer* lx, vtk_cells* c, long long n_pts, int hl) {
+    long long n_off, n_conn, v;
+    tok t, type;
+    if (!rd_int(lx, 0, 1, LLONG_MAX, "offset count", &n_off) ||
+        !rd_int(lx, 0, 0, LLONG_MAX, "connectivity size", &n_conn) ||
+        !end_line(lx, "the CELLS header") || !check_count(lx, n_off, 2, hl, "offset") ||
+        !check_count(lx, n_conn, 2, hl, "connectivity entry"))
+        return 0;
+    c->start = hs_alloc(((size_t)n_off + 1) * sizeof(int));
+    c->conn = hs_alloc(((size_t)n_conn + 1) * sizeof(int));
+    if (!c->start || !c->conn) return nomem(lx);
+    c->n = n_off - 1;
+    for (int part = 0; part < 2; ++part) {
+        const char* key = part ? "CONNECTIVITY" : "OFFSETS";
+        if (!tok_any(lx, &t) || !tok_is_nocase(&t, key))
+            return lx_fail(lx, lx->line, HS_ERR_PARSE, "expected %s", key);
+        if (!tok_line(lx, &type))
+            return lx_fail(lx, t.line, HS_ERR_PARSE, "%s needs a data type", key);
+        if (!end_line(lx, key)) return 0;
+        long long m = part ? n_conn : n_off;
+        for (long long i = 0; i < m; ++i) {
+            if (part) {
+                if (!rd_int(lx, 1, 0, n_pts - 1, "point index", &v)) return 0;
+                c->conn[i] = (int)v;
+                continue;
+            }
+            long long lo = i ? c->start[i - 1] : 0, hi = i ? n_conn : 0;
+            if (!rd_int(lx, 1, lo, hi, "offset", &v)) return 0;
+            c->start[i] = (int)v;
+        }
+    }
+    if (c->start[c->n] != n_conn)
+        return lx_fail(lx, hl, HS_ERR_PARSE, "last offset %d differs from connectivity size %lld",
+                       c->start[c->n], n_conn);
+    return 1;
+}
+
+static hs_status parse_vtk(lexer* lx, hs_mesh** out) {
+    builder b = {0};
+    vtk_cells c = {0};
+    tok t;
+    char buf[48];
+    int have_cells = 0, have_types = 0, v5 = 0;
+    // Line 1: "# vtk DataFile Version x.y"
+    static const char* const head[4] = {"#", "vtk", "DataFile", "Version"};
+    for (int i = 0; i < 4; ++i)
+        if (!tok_line(lx, &t) || !tok_is_nocase(&t, head[i])) {
+            lx_fail(lx, 1, HS_ERR_PARSE,
+                    "not a legacy VTK file (expected '# vtk DataFile Version')");
+            goto fail;
+        }
+    double version;
+    if (!rd_double(lx, 0, "VTK version", &version)) goto fail;
+    v5 = version >= 5.0;
+    skip_line(lx);
+    if (lx->p >= lx->end) {
+        lx_fail(lx, lx->line, HS_ERR_PARSE, "missing title line");
+        goto fail;
+    }
+    skip_line(lx); // title
+    if (!tok_any(lx, &t)) {
+        lx_fail(lx, lx->line, HS_ERR_PARSE, "missing ASCII/BINARY line");
+        goto fail;
+    }
+    if (!tok_is_nocase(&t, "ASCII")) {
+        lx_fail(lx, t.line, tok_is_nocase(&t, "BINARY") ? HS_ERR_UNSUPPORTED : HS_ERR_PARSE,
+                "expected ASCII, found '%s' (binary VTK not supported)", tok_text(&t, buf));
+        goto fail;
+    }
+    if (!end_line(lx, "ASCII")) goto fail;
+    if (!tok_any(lx, &t) || !tok_is_nocase(&t, "DATASET")) {
+        lx_fail(lx, lx->line, HS_ERR_PARSE, "expected DATASET UNSTRUCTURED_GRID");
+        goto fail;
+    }
+    if (!tok_line(lx, &t) || !tok_is_nocase(&t, "UNSTRUCTURED_GRID")) {
+        lx_fail(lx, lx->line, HS_ERR_UNSUPPORTED, "only DATASET UNSTRUCTURED_GRID is supported");
+        goto fail;
+    }
+    if (!end_line(lx, "DATASET")) goto fail;
+
+    while (!have_types && tok_any(lx, &t)) {
+        int hl = t.line;
+        long long n, type;
+        if (tok_is_nocase(&t, "POINTS")) {
+            tok dtype;
+            if (b.x) {
+                lx_fail(lx, hl, HS_ERR_PARSE, "second POINTS section");
+                goto fail;
+            }
+            if (!rd_int(lx, 0, 0, LLONG_MAX, "point count", &n)) goto fail;
+            if (!tok_line(lx, &dtype)) {
+                lx_fail(lx, hl, HS_ERR_PARSE, "POINTS needs a data type");
+                goto fail;
+            }
+            if (!end_line(lx, "the POINTS header") || !check_count(lx, n, 6, hl, "point") ||
+                !alloc_nodes(lx, &b, n))
+                goto fail;
+            for (long long i = 0; i < 3 * n; ++i)
+                if (!rd_double(lx, 1, "point coordinate", b.x + i)) goto fail;
+        } else if (tok_is_nocase(&t, "CELLS")) {
+            if (!b.x || have_cells) {
+                lx_fail(lx, hl, HS_ERR_PARSE,
+                        have_cells ? "second CELLS section" : "CELLS before POINTS");
+                goto fail;
+            }
+            if (!(v5 ? vtk_cells_v5(lx, &c, b.n_nodes, hl)
+                     : vtk_cells_classic(lx, &c, b.n_nodes, hl)))
+                goto fail;
+            have_cells = 1;
+        } else if (tok_is_nocase(&t, "CELL_TYPES")) {
+            if (!have_cells) {
+                lx_fail(lx, hl, HS_ERR_PARSE, "CELL_TYPES before CELLS");
+                goto fail;
+            }
+            if (!rd_int(lx, 0, 0, LLONG_MAX, "cell type count", &n) ||
+                !end_line(lx, "the CELL_TYPES header") || !alloc_tets(lx, &b, c.n))
+                goto fail;
+            if (n != c.n) {
+                lx_fail(lx, hl, HS_ERR_PARSE, "CELL_TYPES count %lld differs from %lld cells", n,
+                        c.n);
+                goto fail;
+            }
+            for (long long i = 0; i < n; ++i) {
+                if (!rd_int(lx, 1, 0, INT_MAX, "cell type", &type)) goto fail;
+                int k = c.start[i + 1] - c.start[i];
+                if (type != 10) {
+                    ++b.skipped;
+                    continue;
+                }
+                if (k != 4) {
+                    lx_fail(lx, lx->line, HS_ERR_PARSE,
+                            "cell %lld is a tetra (type 10) with %d "
+                            "points",
+                            i, k);
+                    goto fail;
+                }
+                memcpy(b.tets + 4 * b.n_tets, c.conn + c.start[i], 4 * sizeof(int));
+                ++b.n_tets;
+            }
+            have_types = 1;
+        } else if (tok_is_nocase(&t, "METADATA")) {
+            // VTK 9 writes METADATA blocks that end at an empty line.
+            skip_line(lx);
+            while (lx->p < lx->end) {
+                tok first;
+                int has = tok_line(lx, &first);
+                skip_line(lx);
+                if (!has) break;
+            }
+        } else if (tok_is_nocase(&t, "POINT_DATA") || tok_is_nocase(&t, "CELL_DATA") ||
+                   tok_is_nocase(&t, "FIELD")) {
+            break; // attributes are not read
+        } else {
+            lx_fail(lx, hl, HS_ERR_PARSE, "unexpected '%s'", tok_text(&t, buf));
+            goto fail;
+        }
+    }
+    if (!b.x || !have_cells || !have_types) {
+        lx_fail(lx, lx->line, HS_ERR_PARSE, "missing %s section",
+                !b.x          ? "POINTS"
+                : !have_cells ? "CELLS"
+                              : "CELL_TYPES");
+        goto fail;
+    }
+    hs_free(c.start);
+    hs_free(c.conn);
+    return builder_finish(lx, &b, out);
+fail:
+    hs_free(c.start);
+    hs_free(c.conn);
+    builder_free(&b);
+    return lx->status;
+}
+
+// ---------------------------------------------------------------------------------------------
+
+hs_status hs_mesh_parse(const char* name, const char* format, const char* data, size_t len,
+                        hs_mesh** out, hs_err* err) {
+    if (!out) return hs_err_set(err, HS_ERR_INVALID, "out is NULL");
+    *out = NULL;
+    if (!format || (!data && len > 0))
+        return hs_err_set(err, HS_ERR_INVALID, "format or data is NULL");
+    lexer lx;
+    lx_init(&lx, name, data, len, err);
+    if (strcmp(format, "msh") == 0) return parse_msh(&lx, out);
+    if (strcmp(format, "vtk") == 0) return parse_vtk(&lx, out);
+    return hs_err_set(err, HS_ERR_INVALID,
+                      "unknown mesh format '%.40s' (msh, vtk; TetGen via "
+                      "hs_mesh_parse_tetgen)",
+                      format);
+}
+
+hs_status hs_mesh_parse_tetgen(const char* name, const char* node_data, size_t node_len,
+                               const char* ele_data, size_t ele_len, hs_mesh** out, hs_err* err) {
+    if (!out) return hs_err_set(err, HS_ERR_INVALID, "out is NULL");
+    *out = NULL;
+    if ((!node_data && node_len) || (!ele_data && ele_len))
+        return hs_err_set(err, HS_ERR_INVALID, "data is NULL");
+    char nn[512], en[512];
+    snprintf(nn, sizeof nn, "%s.node", name ? name : "(memory)");
+    snprintf(en, sizeof en, "%s.ele", name ? name : "(memory)");
+    return parse_tetgen(nn, node_data, node_len, en, ele_data, ele_len, out, err);
+}
+
+// Reads a whole file into an accounted buffer.
+static hs_status read_file(const char* path, char** data, size_t* len, hs_err* err) {
+    *data = NULL;
+    *len = 0;
+    FILE* f = fopen(path, "rb");
+    if (!f) return hs_err_set(err, HS_ERR_IO, "%s: cannot open", path);
+    size_t cap = (size_t)1 << 16, n = 0;
+    char* buf = hs_alloc(cap);
+    hs_status st = buf ? HS_OK : hs_err_set(err, HS_ERR_NOMEM, "%s: out of memory", path);
+    while (st == HS_OK) {
+        if (n == cap) {
+            if (cap >= HS_MESH_MAX_FILE_BYTES) {
+                st = hs_err_set(err, HS_ERR_IO, "%s: larger than %zu MiB", path,
+                                HS_MESH_MAX_FILE_BYTES >> 20);
+                break;
+            }
+            char* g = hs_realloc(buf, cap * 2);
+            if (!g) {
+                st = hs_err_set(err, HS_ERR_NOMEM, "%s: out of memory", path);
+                break;
+            }
+            buf = g;
+            cap *= 2;
+        }
+        size_t got = fread(buf + n, 1, cap - n, f);
+        n += got;
+        if (got == 0) {
+            if (ferror(f)) st = hs_err_set(err, HS_ERR_IO, "%s: read error", path);
+            break;
+        }
+    }
+    fclose(f);
+    if (st != HS_OK) {
+        hs_free(buf);
+        return st;
+    }
+    *data = buf;
+    *len = n;
+    return HS_OK;
+}
+
+static int has_ext(const char* path, const char* ext) {
+    size_t n = strlen(path), e = strlen(ext);
+    if (n < e) return 0;
+    for (size_t i = 0; i < e; ++i) {
+        char c = path[n - e + i];
+        if (c >= 'A' && c <= 'Z') c = (char)(c - 'A' + 'a');
+        if (c != ext[i]) return 0;
+    }
+    return 1;
+}
+
+hs_status hs_mesh_load(const char* path, hs_mesh** out, hs_err* err) {
+    if (!out) return hs_err_set(err, HS_ERR_INVALID, "out is NULL");
+    *out = NULL;
+    if (!path) return hs_err_set(err, HS_ERR_INVALID, "path is NULL");
+    char* data = NULL;
+    size_t len = 0;
+    hs_status st;
+    if (has_ext(path, ".msh") || has_ext(path, ".vtk")) {
+        st = read_file(path, &data, &len, err);
+        if (st != HS_OK) return st;
+        lexer lx;
+        lx_init(&lx, path, data, len, err);
+        st = has_ext(path, ".msh") ? parse_msh(&lx, out) : parse_vtk(&lx, out);
+        hs_free(data);
+        return st;
+    }
+    if (has_ext(path, ".node") || has_ext(path, ".ele")) {
+        size_t n = strlen(path), base = n - (has_ext(path, ".node") ? 5 : 4);
+        if (base > 4000) return hs_err_set(err, HS_ERR_INVALID, "path too long");
+        char node_path[4100], ele_path[4100];
+        snprintf(node_path, sizeof node_path, "%.*s.node", (int)base, path);
+        snprintf(ele_path, sizeof ele_path, "%.*s.ele", (int)base, path);
+        char* ele = NULL;
+        size_t ele_len = 0;
+        st = read_file(node_path, &data, &len, err);
+        if (st == HS_OK) st = read_file(ele_path, &ele, &ele_len, err);
+        if (st == HS_OK) st = parse_tetgen(node_path, data, len, ele_path, ele, ele_len, out, err);
+        hs_free(data);
+        hs_free(ele);
+        return st;
+    }
+    return hs_err_set(err, HS_ERR_UNSUPPORTED,
+                      "%s: unknown mesh extension (.msh, .node/.ele, .vtk)", path);
+}
