@@ -734,6 +734,7 @@ static int HapticLoop(void) {
 }
 
 // Check that the allocation counter sees an allocation on the rt thread (so zero means zero).
+#if COUNT_MALLOC
 static void allocating_tick(void* ctx, const hs_rt_clock* clk) {
     if (clk->tick == 3) {
         void* volatile p = hs_alloc(64);
@@ -741,6 +742,7 @@ static void allocating_tick(void* ctx, const hs_rt_clock* clk) {
     }
     (void)ctx;
 }
+#endif
 
 static int AllocCounterWorks(void) {
 #if COUNT_MALLOC
@@ -804,6 +806,44 @@ static int ZeroAlloc(void) {
     return 0;
 }
 
-HS_TEST_MAIN(HS_CASE(ModelEval), HS_CASE(BlendNeverJumps), HS_CASE(Clamps), HS_CASE(WatchdogRamps),
-             HS_CASE(SafetyChain), HS_CASE(LoopTiming), HS_CASE(LoopOverrunCatchUp),
-             HS_CASE(BareLoop), HS_CASE(HapticLoop), HS_CASE(AllocCounterWorks), HS_CASE(ZeroAlloc))
+// Every allocation in the set-up can fail: a clean error, nothing leaked.
+static int CreateFailures(void) {
+    int64_t bytes = hs_byte_count();
+    int ok = 0;
+    for (int k = 1; k <= 40 && !ok; ++k) {
+        hs_memdev* dev = NULL;
+        hs_model_source* src = NULL;
+        hs_haptic_rt* hap = NULL;
+        hs_rt_loop* loop = NULL;
+        hs_err err = {0};
+        hs_alloc_fail_after(k);
+        hs_status st = hs_memdev_create(&dev, &err);
+        if (st == HS_OK) st = hs_model_source_create(&src, &err);
+        if (st == HS_OK) {
+            hs_haptic_rt_def hd = hs_haptic_rt_default_def();
+            hd.device = hs_memdev_device(dev);
+            hd.source = hs_model_source_source(src);
+            st = hs_haptic_rt_create(&hd, &hap, &err);
+        }
+        if (st == HS_OK) {
+            hs_rt_def rd = hs_rt_default_def();
+            rd.tick = hs_haptic_rt_tick(hap);
+            st = hs_rt_loop_create(&rd, &loop, &err);
+        }
+        hs_alloc_fail_after(0);
+        ENSURE(st == HS_OK || (st == HS_ERR_NOMEM && strstr(err.msg, "out of memory") != NULL));
+        ok = st == HS_OK;
+        hs_rt_loop_destroy(&loop);
+        hs_haptic_rt_destroy(&hap);
+        hs_model_source_destroy(&src);
+        hs_memdev_destroy(&dev);
+        ENSURE(hs_byte_count() == bytes);
+    }
+    ENSURE(ok); // a late enough failure point lets everything succeed
+    return 0;
+}
+
+HS_TEST_MAIN(HS_CASE(CreateFailures), HS_CASE(ModelEval), HS_CASE(BlendNeverJumps), HS_CASE(Clamps),
+             HS_CASE(WatchdogRamps), HS_CASE(SafetyChain), HS_CASE(LoopTiming),
+             HS_CASE(LoopOverrunCatchUp), HS_CASE(BareLoop), HS_CASE(HapticLoop),
+             HS_CASE(AllocCounterWorks), HS_CASE(ZeroAlloc))
