@@ -27,3 +27,14 @@ else()
 endif()
 
 find_library(M_LIBRARY m)
+
+# cJSON (Debian libcjson-dev) for scene files.
+find_path(CJSON_INCLUDE_DIR cJSON.h PATH_SUFFIXES cjson)
+find_library(CJSON_LIBRARY cjson)
+if(NOT CJSON_INCLUDE_DIR OR NOT CJSON_LIBRARY)
+  message(FATAL_ERROR "cJSON not found: apt-get install libcjson-dev")
+endif()
+add_library(hs_cjson INTERFACE)
+target_include_directories(hs_cjson SYSTEM INTERFACE ${CJSON_INCLUDE_DIR})
+target_link_libraries(hs_cjson INTERFACE ${CJSON_LIBRARY})
+add_library(cJSON::cJSON ALIAS hs_cjson)

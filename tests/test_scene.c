@@ -1,0 +1,199 @@
+// Scene files: the bundled liver scene loads; defaults; every malformed input fails with a
+// message naming the file, the line and the key; truncated files never crash.
+#include <stdlib.h>
+
+#include "test_macros.h"
+
+#include "hapsim/scene.h"
+#include "hapsim_channels.h"
+
+#define LIVER HS_SOURCE_DIR "/scenes/liver/liver.json"
+
+static int liver_scene_loads(void) {
+    int64_t bytes0 = hs_byte_count();
+    hs_scene s;
+    hs_err err = {0};
+    hs_status st = hs_scene_load(LIVER, &s, &err);
+    if (st != HS_OK) printf("  %s\n", err.msg);
+    ENSURE(st == HS_OK);
+    ENSURE(strcmp(s.name, "liver") == 0);
+    ENSURE(strcmp(s.mesh_path, HS_SOURCE_DIR "/scenes/liver/liver2.msh") == 0);
+    ENSURE(s.model == HS_MODEL_COROTATED && s.rotation == HS_ROTATION_POLAR);
+    ENSURE(s.material.youngs_pa == 5000.0 && s.material.poisson == 0.45);
+    ENSURE(s.material.density_kg_m3 == 1060.0);
+    ENSURE(s.n_fixed == 1 && s.fixed[0].kind == HS_FIXED_PLANE && s.fixed[0].normal[1] == 1.0);
+    ENSURE(s.n_tools == 1 && s.tools[0].kind == HS_TOOL_PROBE && s.tools[0].radius == 0.005);
+    ENSURE(s.gravity[2] == -9.81 && s.n_devices == 1 && s.has_workspace);
+    ENSURE(s.feature_haptics && !s.feature_cutting && s.feature_visual);
+    ENSURE(s.haptic_hz == 1000.0 && s.sim_hz == 60.0 && s.watchdog_s == 0.1);
+    ENSURE(strcmp(s.prefix, HAPSIM_DEFAULT_PREFIX) == 0);
+    ENSURE(strcmp(s.haptic_url, HAPSIM_DEFAULT_HAPTIC_URL) == 0);
+    ENSURE(strcmp(s.mesh_url, HAPSIM_DEFAULT_MESH_URL) == 0);
+    ENSURE(hs_byte_count() == bytes0);
+    return 0;
+}
+
+static int defaults_and_paths(void) {
+    hs_scene s, d;
+    hs_err err = {0};
+    hs_scene_default(&d);
+    // The defaults agree with the protocol's (scene does not link the message library).
+    ENSURE(strcmp(d.haptic_url, HAPSIM_DEFAULT_HAPTIC_URL) == 0);
+    ENSURE(strcmp(d.mesh_url, HAPSIM_DEFAULT_MESH_URL) == 0);
+    ENSURE(strcmp(d.prefix, HAPSIM_DEFAULT_PREFIX) == 0);
+    const char* minimal = "{\"mesh\": \"m.msh\", \"fixed\": [{\"type\": \"box\", \"min\": [0,0,0],"
+                          " \"max\": [1,1,1]}]}";
+    ENSURE(hs_scene_parse(minimal, "/a/b/scene.json", 0, &s, &err) == HS_OK);
+    ENSURE(strcmp(s.mesh_path, "/a/b/m.msh") == 0 && strcmp(s.name, "scene.json") == 0);
+    ENSURE(s.material.youngs_pa == d.material.youngs_pa && s.model == d.model);
+    ENSURE(s.n_tools == d.n_tools && s.haptic_hz == d.haptic_hz && !s.has_workspace);
+    ENSURE(s.fixed[0].kind == HS_FIXED_BOX && s.fixed[0].max[2] == 1.0);
+    ENSURE(hs_scene_parse(minimal, "scene.json", 0, &s, &err) == HS_OK);
+    ENSURE(strcmp(s.mesh_path, "m.msh") == 0);
+    const char* abs = "{\"mesh\": \"/x/m.msh\", \"fixed\": [{\"type\": \"bbox_side\", \"axis\": "
+                      "\"z\", \"side\": \"min\", \"depth\": 0.01}], \"_note\": [1, 2]}";
+    ENSURE(hs_scene_parse(abs, "/a/b/scene.json", 0, &s, &err) == HS_OK);
+    ENSURE(strcmp(s.mesh_path, "/x/m.msh") == 0);
+    ENSURE(s.fixed[0].kind == HS_FIXED_BBOX_SIDE && s.fixed[0].axis == 2 && s.fixed[0].side == -1 &&
+           s.fixed[0].depth == 0.01);
+    // A plane normal is normalised; a scalpel scene with cutting parses.
+    const char* cut =
+        "{\"mesh\": \"m.msh\", \"fixed\": [{\"type\": \"plane\", \"point\": [0,0,0],"
+        " \"normal\": [0,0,2]}], \"tools\": [{\"kind\": \"probe\", \"radius\": 0.004},"
+        " {\"kind\": \"scalpel\", \"blade_a\": [0,0,0], \"blade_b\": [0,0,0.02]}],"
+        " \"features\": {\"cutting\": true}, \"lcm\": {\"prefix\": \"\"}}";
+    ENSURE(hs_scene_parse(cut, "c.json", 0, &s, &err) == HS_OK);
+    ENSURE(s.fixed[0].normal[2] == 1.0 && s.n_tools == 2 && s.tools[1].kind == HS_TOOL_SCALPEL);
+    ENSURE(s.feature_cutting == 1 && s.prefix[0] == '\0');
+    ENSURE(strcmp(hs_scene_model_name(HS_MODEL_STVK), "stvk") == 0);
+    return 0;
+}
+
+// Parse text that must fail; the message must contain every needle.
+static int expect_fail(const char* text, hs_status code, const char* n1, const char* n2) {
+    hs_scene s;
+    hs_err err = {0};
+    hs_status st = hs_scene_parse(text, "t.json", 0, &s, &err);
+    if (st != code || !strstr(err.msg, n1) || (n2 && !strstr(err.msg, n2))) {
+        printf("  got %d '%s', wanted %d with '%s' '%s'\n", st, err.msg, code, n1, n2 ? n2 : "");
+        return 1;
+    }
+    // On failure the struct holds defaults, not a half-filled scene.
+    hs_scene d;
+    hs_scene_default(&d);
+    ENSURE(s.material.youngs_pa == d.material.youngs_pa && s.n_fixed == 0);
+    return 0;
+}
+
+#define HEAD                                                                                       \
+    "{\n\"mesh\": \"m.msh\",\n\"fixed\": [{\"type\": \"box\", \"min\": [0,0,0], \"max\": "         \
+    "[1,1,1]}],\n"
+
+static int malformed_names_file_line_key(void) {
+    // Syntax errors: file, line and column.
+    ENSURE(expect_fail("{\n  \"mesh\": \"m.msh\"\n  \"fixed\": []\n}", HS_ERR_PARSE,
+                       "t.json:3:", "malformed JSON") == 0);
+    ENSURE(expect_fail("", HS_ERR_PARSE, "t.json:1:", "malformed") == 0);
+    ENSURE(expect_fail("{\"mesh\": \"m.msh\"} trailing", HS_ERR_PARSE, "t.json:1:", NULL) == 0);
+    // Keys: each problem names the key path and the line it is on.
+    ENSURE(expect_fail(HEAD "\"material\": {\"poisson\": \"a\"}}", HS_ERR_PARSE,
+                       "t.json:4:", "'material.poisson': must be a number") == 0);
+    ENSURE(expect_fail(HEAD "\"material\": {\n \"poisson\": 0.5}}", HS_ERR_PARSE,
+                       "t.json:5:", "'material.poisson': must be in (-1, 0.5)") == 0);
+    ENSURE(expect_fail(HEAD "\"material\": {\n\n \"young\": 5}}", HS_ERR_PARSE,
+                       "t.json:6:", "'material.young': unknown key") == 0);
+    ENSURE(expect_fail(HEAD "\"devices\": 1,\n\"devices\": 2}", HS_ERR_PARSE,
+                       "t.json:5:", "'devices': appears twice") == 0);
+    ENSURE(expect_fail(HEAD "\"devices\": 1.5}", HS_ERR_PARSE, "'devices': must be an integer",
+                       NULL) == 0);
+    ENSURE(expect_fail("{\"fixed\": []}", HS_ERR_PARSE, "'mesh': is required", NULL) == 0);
+    ENSURE(expect_fail("{\"mesh\": \"m\"}", HS_ERR_PARSE, "'fixed': is required", NULL) == 0);
+    ENSURE(expect_fail("{\"mesh\": \"m\", \"fixed\": []}", HS_ERR_PARSE, "'fixed': needs 1 to",
+                       NULL) == 0);
+    ENSURE(expect_fail("{\"mesh\": \"m\",\n\"fixed\": [{\"type\": \"box\", \"min\": [0,0,0], "
+                       "\"max\": [1,1,1]},\n {\"type\": \"plane\", \"point\": [0,0,0],\n "
+                       "\"normal\": [0,0,0]}]}",
+                       HS_ERR_PARSE, "t.json:4:", "'fixed[1].normal': must not be zero") == 0);
+    ENSURE(expect_fail("{\"mesh\": \"m\", \"fixed\": [{\"type\": \"box\", \"min\": [0,0,0], "
+                       "\"max\": [1,-1,1]}]}",
+                       HS_ERR_PARSE, "'fixed[0].max': is below min in component 1", NULL) == 0);
+    ENSURE(expect_fail("{\"mesh\": \"m\", \"fixed\": [{\"type\": \"cone\"}]}", HS_ERR_PARSE,
+                       "'fixed[0].type': must be one of: plane | box | bbox_side", NULL) == 0);
+    ENSURE(expect_fail(HEAD "\"model\": {\"type\": \"neohookean\"}}", HS_ERR_PARSE,
+                       "'model.type': must be one of: linear | corotated | stvk", NULL) == 0);
+    ENSURE(expect_fail(HEAD "\"model\": {\"locking_free\": 1}}", HS_ERR_PARSE,
+                       "'model.locking_free': must be true or false", NULL) == 0);
+    ENSURE(expect_fail(HEAD "\"gravity\": [0, 0]}", HS_ERR_PARSE,
+                       "'gravity': must be an array of 3", NULL) == 0);
+    ENSURE(expect_fail(HEAD "\"tools\": [{\"kind\": \"probe\"}]}", HS_ERR_PARSE,
+                       "'tools[0].radius': is required", NULL) == 0);
+    ENSURE(expect_fail(HEAD "\"tools\": [{\"kind\": \"scalpel\", \"blade_a\": [0,0,0], "
+                            "\"blade_b\": [0,0,0]}]}",
+                       HS_ERR_PARSE, "'tools[0].blade_b': equals blade_a", NULL) == 0);
+    ENSURE(expect_fail(HEAD "\"features\": {\"cutting\": true}}", HS_ERR_PARSE,
+                       "'features.cutting': is on but no tool is a scalpel", NULL) == 0);
+    ENSURE(expect_fail(HEAD "\"tools\": [], \"features\": {\"haptics\": true}}", HS_ERR_PARSE,
+                       "'features.haptics'", NULL) == 0);
+    ENSURE(expect_fail(HEAD "\"lcm\": {\"mesh_url\": \"udpm://239.255.76.67:7667?ttl=0\"}}",
+                       HS_ERR_PARSE, "'lcm.mesh_url': must differ", NULL) == 0);
+    ENSURE(expect_fail(HEAD "\"lcm\": {\"prefix\": \"hapsim.\"}}", HS_ERR_PARSE,
+                       "'lcm.prefix': may contain only", NULL) == 0);
+    ENSURE(expect_fail(HEAD "\"lcm\": {\"haptic_url\": \"localhost\"}}", HS_ERR_PARSE,
+                       "'lcm.haptic_url': is not an LCM URL", NULL) == 0);
+    ENSURE(expect_fail(HEAD "\"rates\": {\"haptic_hz\": 100, \"sim_hz\": 200}}", HS_ERR_PARSE,
+                       "'rates.sim_hz'", NULL) == 0);
+    ENSURE(expect_fail(HEAD "\"rates\": {\"haptic_hz\": 1e400}}", HS_ERR_PARSE, "'rates.haptic_hz'",
+                       NULL) == 0);
+    ENSURE(expect_fail("[1, 2]", HS_ERR_PARSE, "(top level)", NULL) == 0);
+    return 0;
+}
+
+static int files_and_truncation(void) {
+    int64_t bytes0 = hs_byte_count();
+    hs_scene s;
+    hs_err err = {0};
+    ENSURE(hs_scene_load("/nonexistent/x.json", &s, &err) == HS_ERR_IO);
+    ENSURE(strstr(err.msg, "/nonexistent/x.json") != NULL);
+    ENSURE(hs_scene_load("/tmp", &s, &err) == HS_ERR_IO); // a directory
+    // A mesh that does not exist is named with its resolved path.
+    const char* text = "{\"mesh\": \"nope.msh\", \"fixed\": [{\"type\": \"box\", \"min\": [0,0,0],"
+                       " \"max\": [1,1,1]}]}";
+    ENSURE(hs_scene_parse(text, "/nonexistent/dir/s.json", 1, &s, &err) == HS_ERR_PARSE);
+    ENSURE(strstr(err.msg, "/nonexistent/dir/nope.msh") && strstr(err.msg, "'mesh'"));
+
+    // Every truncation of the liver scene fails cleanly; the whole file parses.
+    FILE* f = fopen(LIVER, "rb");
+    ENSURE(f != NULL);
+    static char buf[1 << 16];
+    size_t n = fread(buf, 1, sizeof buf - 1, f);
+    fclose(f);
+    ENSURE(n > 100 && n < sizeof buf - 1);
+    char* scratch = malloc(n + 1);
+    ENSURE(scratch != NULL);
+    int ok = 0;
+    for (size_t len = 0; len <= n; ++len) {
+        memcpy(scratch, buf, len);
+        scratch[len] = '\0';
+        hs_status st = hs_scene_parse(scratch, LIVER, 0, &s, &err);
+        if (st == HS_OK)
+            ok++;
+        else
+            ENSURE(st == HS_ERR_PARSE && strstr(err.msg, "liver.json:") != NULL);
+    }
+    // Only the complete file, and the file missing just its final newline, are valid.
+    ENSURE(ok >= 1 && ok <= 2);
+    // Flip each byte to a quote: never crashes, errors always name the file.
+    for (size_t i = 0; i < n; ++i) {
+        memcpy(scratch, buf, n);
+        scratch[n] = '\0';
+        scratch[i] = scratch[i] == '"' ? '{' : '"';
+        hs_status st = hs_scene_parse(scratch, LIVER, 0, &s, &err);
+        if (st != HS_OK) ENSURE(strstr(err.msg, "liver.json") != NULL);
+    }
+    free(scratch);
+    ENSURE(hs_byte_count() == bytes0);
+    return 0;
+}
+
+HS_TEST_MAIN(HS_CASE(liver_scene_loads), HS_CASE(defaults_and_paths),
+             HS_CASE(malformed_names_file_line_key), HS_CASE(files_and_truncation))
