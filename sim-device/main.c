@@ -1,0 +1,666 @@
+// hapsim-stylus: a simulated 3-DoF haptic stylus that plays a probe script against a running
+// hapsim-server over LCM (or, with --offline-stiffness, against a built-in elastic half-space in
+// deterministic virtual time), and writes a trace CSV with a summary.
+//
+// DESIGN: two threads.
+//   device loop (1 kHz): clock_nanosleep on absolute CLOCK_MONOTONIC deadlines, real elapsed dt;
+//     takes the newest force model from the mailbox, evaluates the script target, steps the
+//     device (render, clamps, dynamics), appends a trace row to memory allocated before the run,
+//     publishes the tool pose. No allocation, no lock of ours, no printing.
+//   receive: the only caller of lcm_handle(), after poll() on lcm_get_fileno() (never
+//     lcm_handle_timeout: it aborts on fds >= 1024). Checks each tool_force and puts it into the
+//     mailbox (triple buffer, latest wins).
+//   main: options, set-up, a one-line status per second (--status), summary and trace at the end.
+// SIGINT/SIGTERM end the run gracefully: the trace and summary are still written.
+#define _POSIX_C_SOURCE 200809L
+
+#include <errno.h>
+#include <getopt.h>
+#include <inttypes.h>
+#include <math.h>
+#include <poll.h>
+#include <pthread.h>
+#include <signal.h>
+#include <stdatomic.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include <unistd.h>
+
+#include <lcm/lcm.h>
+
+#include "hapsim_channels.h"
+#include "hapsim_tool_force_t.h"
+#include "hapsim_tool_pose_t.h"
+#include "stylus.h"
+
+#define MAX_TRACE_S 600.0 // rows beyond 10 minutes are counted, not kept
+
+static atomic_int g_stop;
+
+static void on_signal(int sig) {
+    (void)sig;
+    atomic_store(&g_stop, 1);
+}
+
+static int64_t wall_us(void) {
+    struct timespec ts;
+    clock_gettime(CLOCK_REALTIME, &ts);
+    return (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000;
+}
+
+typedef struct options {
+    const char* script;
+    const char* haptic_url;
+    const char* prefix;
+    const char* trace;
+    int device_id;
+    int tool_id;
+    double duration_s;
+    double rate_hz;
+    int has_origin;
+    double origin[3];
+    int status;
+    int quiet;
+    double offline_k;
+    int has_plane;
+    double plane[6];
+    int offline_delay;
+    int offline_period;
+    double offline_radius;
+    double offline_timeout;
+} options;
+
+typedef struct app {
+    options opt;
+    hs_stylus_def def;
+    hs_script* script;
+    hs_stylus_trace* trace;
+    lcm_t* lcm;
+    char pose_channel[HAPSIM_CHANNEL_MAX];
+    char force_channel[HAPSIM_CHANNEL_MAX];
+    hs_stylus_mailbox mailbox;
+    int64_t session;
+    // Receive thread only.
+    int64_t last_force_seq;
+    // Counters shared with main (relaxed: statistics only).
+    atomic_llong rx_forces, rx_rejected, rx_other_device;
+    atomic_llong ticks, overruns, late_max_us;
+    atomic_llong force_mn, period_p99_us, latency_us;
+    atomic_int loop_done;
+} app;
+
+static void usage(FILE* f) {
+    fprintf(f,
+            "usage: hapsim-stylus --script FILE [options]\n"
+            "A simulated 3-DoF haptic stylus: plays a probe script (docs/stylus.md) at 1 kHz,\n"
+            "publishes tool poses, renders the server's force model, writes a trace CSV.\n"
+            "\n"
+            "  --script FILE           probe script (required)\n"
+            "  --haptic-url URL        LCM URL of the haptic bus (default %s)\n"
+            "  --prefix P              channel prefix (default %s)\n"
+            "  --device-id N           device id in the server's scene (default 0)\n"
+            "  --tool-id N             tool id held by the device (default 0)\n"
+            "  --trace FILE            trace CSV (default hapsim-stylus-trace.csv)\n"
+            "  --duration S            run length, s (default: script length + 0.5 s)\n"
+            "  --origin X,Y,Z          workspace centre in scene coordinates, m (default: the\n"
+            "                          script's origin, else its start)\n"
+            "  --rate HZ               device loop rate (default 1000)\n"
+            "  --mass KG               handle mass (default 0.05)\n"
+            "  --hand-stiffness N/M    virtual hand spring (default 400)\n"
+            "  --hand-damping NS/M     virtual hand damper (default 8)\n"
+            "  --max-force N           motor force limit (default 3.3)\n"
+            "  --max-rate N/S          motor force rate limit (default 2000)\n"
+            "  --workspace X,Y,Z       workspace box, m (default 0.16,0.12,0.07)\n"
+            "  --timeout-ms MS         force is zero at this model age (default 100)\n"
+            "  --ramp-ms MS            ramp-down length within the timeout (default 20)\n"
+            "  --status                print a one-line status every second\n"
+            "  --quiet                 no summary on stdout\n"
+            "Offline (no network, virtual time, deterministic):\n"
+            "  --offline-stiffness K   replace the server by an elastic half-space, N/m\n"
+            "  --offline-plane P,N     its plane: px,py,pz,nx,ny,nz (default: the script's\n"
+            "                          `surface`)\n"
+            "  --offline-delay N       ticks between a pose and its force (default 1)\n"
+            "  --offline-period N      the half-space answers every N poses (default 1)\n"
+            "  --offline-radius M      validity radius of its models, m (default 0.002)\n"
+            "  --help                  this text\n",
+            HAPSIM_DEFAULT_HAPTIC_URL, HAPSIM_DEFAULT_PREFIX);
+}
+
+static int parse_double(const char* s, double* v) {
+    char* end = NULL;
+    errno = 0;
+    double x = strtod(s, &end);
+    if (end == s || *end || errno == ERANGE || !isfinite(x)) return 0;
+    *v = x;
+    return 1;
+}
+
+static int parse_list(const char* s, double* v, int n) {
+    char buf[256];
+    snprintf(buf, sizeof buf, "%s", s);
+    int i = 0;
+    for (char *save = NULL, *tok = strtok_r(buf, ",", &save); tok;
+         tok = strtok_r(NULL, ",", &save)) {
+        if (i == n || !parse_double(tok, &v[i])) return 0;
+        ++i;
+    }
+    return i == n;
+}
+
+static int parse_int(const char* s, int lo, int hi, int* v) {
+    double x;
+    if (!parse_double(s, &x) || x != floor(x) || x < lo || x > hi) return 0;
+    *v = (int)x;
+    return 1;
+}
+
+// Returns 0 to run, 1 to exit with success (--help), 2 on a bad option (message printed).
+static int parse_options(int argc, char** argv, options* o, hs_stylus_def* def) {
+    enum {
+        O_SCRIPT = 256,
+        O_URL,
+        O_PREFIX,
+        O_DEVICE,
+        O_TOOL,
+        O_TRACE,
+        O_DURATION,
+        O_ORIGIN,
+        O_RATE,
+        O_MASS,
+        O_HK,
+        O_HB,
+        O_FMAX,
+        O_RMAX,
+        O_WS,
+        O_TIMEOUT,
+        O_RAMP,
+        O_STATUS,
+        O_QUIET,
+        O_OK,
+        O_PLANE,
+        O_DELAY,
+        O_PERIOD,
+        O_RADIUS,
+        O_HELP
+    };
+    static const struct option longopts[] = {
+        {"script", required_argument, 0, O_SCRIPT},
+        {"haptic-url", required_argument, 0, O_URL},
+        {"prefix", required_argument, 0, O_PREFIX},
+        {"device-id", required_argument, 0, O_DEVICE},
+        {"tool-id", required_argument, 0, O_TOOL},
+        {"trace", required_argument, 0, O_TRACE},
+        {"duration", required_argument, 0, O_DURATION},
+        {"origin", required_argument, 0, O_ORIGIN},
+        {"rate", required_argument, 0, O_RATE},
+        {"mass", required_argument, 0, O_MASS},
+        {"hand-stiffness", required_argument, 0, O_HK},
+        {"hand-damping", required_argument, 0, O_HB},
+        {"max-force", required_argument, 0, O_FMAX},
+        {"max-rate", required_argument, 0, O_RMAX},
+        {"workspace", required_argument, 0, O_WS},
+        {"timeout-ms", required_argument, 0, O_TIMEOUT},
+        {"ramp-ms", required_argument, 0, O_RAMP},
+        {"status", no_argument, 0, O_STATUS},
+        {"quiet", no_argument, 0, O_QUIET},
+        {"offline-stiffness", required_argument, 0, O_OK},
+        {"offline-plane", required_argument, 0, O_PLANE},
+        {"offline-delay", required_argument, 0, O_DELAY},
+        {"offline-period", required_argument, 0, O_PERIOD},
+        {"offline-radius", required_argument, 0, O_RADIUS},
+        {"help", no_argument, 0, O_HELP},
+        {0, 0, 0, 0},
+    };
+    memset(o, 0, sizeof *o);
+    o->haptic_url = HAPSIM_DEFAULT_HAPTIC_URL;
+    o->prefix = HAPSIM_DEFAULT_PREFIX;
+    o->trace = "hapsim-stylus-trace.csv";
+    o->rate_hz = 1000;
+    o->offline_delay = 1;
+    o->offline_period = 1;
+    o->offline_radius = 0.002;
+    o->offline_timeout = 0.05;
+    double ms;
+    int c;
+    opterr = 0;
+    while ((c = getopt_long(argc, argv, "h", longopts, NULL)) != -1) {
+        const char* a = optarg;
+        int ok = 1;
+        switch (c) {
+        case O_SCRIPT:
+            o->script = a;
+            break;
+        case O_URL:
+            o->haptic_url = a;
+            break;
+        case O_PREFIX:
+            o->prefix = a;
+            break;
+        case O_DEVICE:
+            ok = parse_int(a, 0, 1 << 20, &o->device_id);
+            break;
+        case O_TOOL:
+            ok = parse_int(a, 0, 1 << 20, &o->tool_id);
+            break;
+        case O_TRACE:
+            o->trace = a;
+            break;
+        case O_DURATION:
+            ok = parse_double(a, &o->duration_s) && o->duration_s > 0;
+            break;
+        case O_ORIGIN:
+            ok = o->has_origin = parse_list(a, o->origin, 3);
+            break;
+        case O_RATE:
+            ok = parse_double(a, &o->rate_hz) && o->rate_hz >= 10 && o->rate_hz <= 10000;
+            break;
+        case O_MASS:
+            ok = parse_double(a, &def->mass_kg);
+            break;
+        case O_HK:
+            ok = parse_double(a, &def->hand_stiffness_n_m);
+            break;
+        case O_HB:
+            ok = parse_double(a, &def->hand_damping_n_s_m);
+            break;
+        case O_FMAX:
+            ok = parse_double(a, &def->max_force_n);
+            break;
+        case O_RMAX:
+            ok = parse_double(a, &def->max_rate_n_s);
+            break;
+        case O_WS:
+            ok = parse_list(a, def->workspace_m, 3);
+            break;
+        case O_TIMEOUT:
+            ok = parse_double(a, &ms);
+            def->timeout_s = ms * 1e-3;
+            break;
+        case O_RAMP:
+            ok = parse_double(a, &ms);
+            def->ramp_s = ms * 1e-3;
+            break;
+        case O_STATUS:
+            o->status = 1;
+            break;
+        case O_QUIET:
+            o->quiet = 1;
+            break;
+        case O_OK:
+            ok = parse_double(a, &o->offline_k) && o->offline_k > 0;
+            break;
+        case O_PLANE:
+            ok = o->has_plane = parse_list(a, o->plane, 6);
+            break;
+        case O_DELAY:
+            ok = parse_int(a, 1, 63, &o->offline_delay);
+            break;
+        case O_PERIOD:
+            ok = parse_int(a, 1, 1000, &o->offline_period);
+            break;
+        case O_RADIUS:
+            ok = parse_double(a, &o->offline_radius) && o->offline_radius >= 0;
+            break;
+        case 'h':
+        case O_HELP:
+            usage(stdout);
+            return 1;
+        default:
+            fprintf(stderr, "hapsim-stylus: unknown option or missing value: %s\n",
+                    argv[optind - 1]);
+            usage(stderr);
+            return 2;
+        }
+        if (!ok) {
+            fprintf(stderr, "hapsim-stylus: bad value '%s' for %s\n", a, argv[optind - 2]);
+            return 2;
+        }
+    }
+    if (optind < argc) {
+        fprintf(stderr, "hapsim-stylus: unexpected argument '%s'\n", argv[optind]);
+        return 2;
+    }
+    if (!o->script) {
+        fprintf(stderr, "hapsim-stylus: --script FILE is required (see --help)\n");
+        return 2;
+    }
+    return 0;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Receive thread.
+
+static void on_force(const lcm_recv_buf_t* rbuf, const char* channel,
+                     const hapsim_tool_force_t* msg, void* user) {
+    (void)rbuf;
+    (void)channel;
+    app* a = user;
+    if (msg->device_id != a->opt.device_id) {
+        atomic_fetch_add_explicit(&a->rx_other_device, 1, memory_order_relaxed);
+        return;
+    }
+    hs_stylus_model m;
+    memset(&m, 0, sizeof m);
+    m.seq = msg->seq;
+    m.version = msg->model_version;
+    m.pose_seq = msg->pose_seq;
+    m.state = msg->state;
+    for (int i = 0; i < 3; ++i) {
+        m.force_n[i] = msg->force[i];
+        m.anchor_m[i] = msg->anchor[i];
+    }
+    for (int i = 0; i < 9; ++i) m.stiffness[i] = msg->stiffness[i];
+    m.radius_m = msg->validity_radius;
+    m.timeout_s = msg->timeout_us >= 0 ? (double)msg->timeout_us * 1e-6 : -1;
+    // A reordered (older) message is dropped; a far smaller seq means the server restarted.
+    int reordered = msg->seq <= a->last_force_seq && a->last_force_seq - msg->seq < 100000;
+    if (!hs_stylus_model_valid(&m) || reordered || msg->state < 0 || msg->state > 3) {
+        atomic_fetch_add_explicit(&a->rx_rejected, 1, memory_order_relaxed);
+        return;
+    }
+    a->last_force_seq = msg->seq;
+    m.arrival_ns = hs_now_ns();
+    m.latency_us = msg->pose_utime > 0 ? wall_us() - msg->pose_utime : -1;
+    hs_stylus_mailbox_put(&a->mailbox, &m);
+    atomic_fetch_add_explicit(&a->rx_forces, 1, memory_order_relaxed);
+    atomic_store_explicit(&a->latency_us, m.latency_us, memory_order_relaxed);
+}
+
+static void* rx_main(void* arg) {
+    app* a = arg;
+    struct pollfd pfd = {.fd = lcm_get_fileno(a->lcm), .events = POLLIN};
+    while (!atomic_load(&g_stop) && !atomic_load(&a->loop_done)) {
+        int r = poll(&pfd, 1, 50);
+        if (r > 0 && (pfd.revents & POLLIN)) {
+            if (lcm_handle(a->lcm) != 0) break;
+        } else if (r < 0 && errno != EINTR) {
+            break;
+        }
+    }
+    return NULL;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Device loop.
+
+static void ts_add_ns(struct timespec* t, int64_t ns) {
+    int64_t v = (int64_t)t->tv_nsec + ns;
+    t->tv_sec += v / 1000000000;
+    t->tv_nsec = v % 1000000000;
+}
+
+static int64_t ts_ns(const struct timespec* t) {
+    return (int64_t)t->tv_sec * 1000000000 + t->tv_nsec;
+}
+
+static void* loop_main(void* arg) {
+    app* a = arg;
+    const int64_t period_ns = (int64_t)llround(1e9 / a->opt.rate_hz);
+    const double duration = a->opt.duration_s;
+    hs_stylus_device dev;
+    hs_stylus_device_init(&dev, &a->def, a->script->start_m);
+    hapsim_tool_pose_t pose;
+    memset(&pose, 0, sizeof pose);
+    pose.session = a->session;
+    pose.device_id = a->opt.device_id;
+    pose.tool_id = a->opt.tool_id;
+    pose.orientation[0] = 1;
+    // Period error histogram for the status line (1 us bins, window of one second).
+    enum { BINS = 2000 };
+    static uint32_t hist[BINS + 1];
+    int64_t in_window = 0;
+    int hint = 0;
+    struct timespec next;
+    clock_gettime(CLOCK_MONOTONIC, &next);
+    const int64_t start_ns = ts_ns(&next);
+    int64_t last_ns = start_ns - period_ns;
+    while (!atomic_load_explicit(&g_stop, memory_order_relaxed)) {
+        int64_t now = hs_now_ns();
+        double t = (double)(now - start_ns) * 1e-9;
+        if (t >= duration) break;
+        double dt = (double)(now - last_ns) * 1e-9;
+        int64_t err_us = llabs(now - last_ns - period_ns) / 1000;
+        hist[err_us < BINS ? err_us : BINS]++;
+        last_ns = now;
+
+        hs_stylus_model m;
+        if (hs_stylus_mailbox_take(&a->mailbox, &m)) hs_stylus_device_set_model(&dev, &m);
+        double target[3], tvel[3];
+        uint32_t buttons;
+        int seg = hs_script_eval(a->script, t, target, tvel, &buttons, &hint);
+        hs_stylus_tick tick;
+        hs_stylus_device_step(&dev, target, tvel, now, dt, &tick);
+        tick.t_s = t;
+        tick.segment = seg;
+        hs_stylus_trace_add(a->trace, &tick);
+
+        pose.utime = wall_us();
+        pose.seq++;
+        for (int i = 0; i < 3; ++i) pose.position[i] = dev.pos_m[i];
+        pose.buttons = (int32_t)buttons;
+        hapsim_tool_pose_t_publish(a->lcm, a->pose_channel, &pose);
+
+        const double* f = tick.f_applied;
+        atomic_store_explicit(&a->force_mn,
+                              llround(1e3 * sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2])),
+                              memory_order_relaxed);
+        atomic_fetch_add_explicit(&a->ticks, 1, memory_order_relaxed);
+        if (++in_window >= (int64_t)a->opt.rate_hz) {
+            int64_t need = (in_window * 99 + 99) / 100, acc = 0, p99 = BINS;
+            for (int i = 0; i <= BINS; ++i) {
+                acc += hist[i];
+                if (acc >= need) {
+                    p99 = i + 1;
+                    break;
+                }
+            }
+            atomic_store_explicit(&a->period_p99_us, p99, memory_order_relaxed);
+            memset(hist, 0, sizeof hist);
+            in_window = 0;
+        }
+
+        // Absolute deadlines; after a long stall skip ahead rather than burst to catch up.
+        ts_add_ns(&next, period_ns);
+        int64_t after = hs_now_ns();
+        int64_t late = after - ts_ns(&next);
+        if (late > 0) {
+            atomic_fetch_add_explicit(&a->overruns, 1, memory_order_relaxed);
+            if (late / 1000 > atomic_load_explicit(&a->late_max_us, memory_order_relaxed))
+                atomic_store_explicit(&a->late_max_us, late / 1000, memory_order_relaxed);
+            if (late > 5 * period_ns) {
+                clock_gettime(CLOCK_MONOTONIC, &next);
+                ts_add_ns(&next, period_ns);
+            }
+        }
+        while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &next, NULL) == EINTR &&
+               !atomic_load_explicit(&g_stop, memory_order_relaxed)) {
+        }
+    }
+    atomic_store(&a->loop_done, 1);
+    return NULL;
+}
+
+// ---------------------------------------------------------------------------------------------
+
+static int finish(app* a, const char* mode) {
+    hs_stylus_summary sum;
+    hs_stylus_trace_summary(a->trace, a->script, &sum);
+    hs_err err = {0};
+    int rc = 0;
+    if (hs_stylus_trace_write_csv(a->trace, &sum, a->opt.trace, &err)) {
+        fprintf(stderr, "hapsim-stylus: %s\n", err.msg);
+        rc = 1;
+    }
+    if (!a->opt.quiet) {
+        printf("hapsim-stylus: %s run of %s\n", mode, a->script->name);
+        hs_stylus_summary_print(stdout, &sum, rc ? NULL : a->opt.trace);
+    }
+    return rc;
+}
+
+static int run_offline(app* a) {
+    hs_offline_def off;
+    memset(&off, 0, sizeof off);
+    off.dt_s = 1.0 / a->opt.rate_hz;
+    off.period_ticks = a->opt.offline_period;
+    off.delay_ticks = a->opt.offline_delay;
+    off.duration_s = a->opt.duration_s;
+    off.surface.stiffness_n_m = a->opt.offline_k;
+    off.surface.radius_m = a->opt.offline_radius;
+    off.surface.timeout_s = a->opt.offline_timeout;
+    if (a->opt.has_plane) {
+        double* p = a->opt.plane;
+        double l = sqrt(p[3] * p[3] + p[4] * p[4] + p[5] * p[5]);
+        if (!(l > 0)) {
+            fprintf(stderr, "hapsim-stylus: --offline-plane: the normal must not be zero\n");
+            return 2;
+        }
+        for (int i = 0; i < 3; ++i) {
+            off.surface.point_m[i] = p[i];
+            off.surface.normal[i] = p[3 + i] / l;
+        }
+    } else if (a->script->has_surface) {
+        memcpy(off.surface.point_m, a->script->surface_point_m, sizeof off.surface.point_m);
+        memcpy(off.surface.normal, a->script->surface_normal, sizeof off.surface.normal);
+    } else {
+        fprintf(stderr, "hapsim-stylus: %s has no `surface` line: give --offline-plane\n",
+                a->script->name);
+        return 2;
+    }
+    hs_err err = {0};
+    if (hs_stylus_run_offline(a->script, &a->def, &off, a->trace, NULL, &err)) {
+        fprintf(stderr, "hapsim-stylus: %s\n", err.msg);
+        return 1;
+    }
+    return finish(a, "offline");
+}
+
+static void print_status(app* a, double t) {
+    fprintf(stderr,
+            "\rhapsim-stylus: t %6.1f s  ticks %8lld  |F| %5.2f N  period err p99 %4lld us  "
+            "overruns %lld  forces rx %lld (bad %lld)  latency %5lld us   ",
+            t, (long long)atomic_load(&a->ticks), 1e-3 * (double)atomic_load(&a->force_mn),
+            (long long)atomic_load(&a->period_p99_us), (long long)atomic_load(&a->overruns),
+            (long long)atomic_load(&a->rx_forces), (long long)atomic_load(&a->rx_rejected),
+            (long long)atomic_load(&a->latency_us));
+    fflush(stderr);
+}
+
+static int run_live(app* a) {
+    if (hapsim_channel_name(a->pose_channel, sizeof a->pose_channel, a->opt.prefix,
+                            HAPSIM_CH_TOOL_POSE) ||
+        hapsim_channel_name(a->force_channel, sizeof a->force_channel, a->opt.prefix,
+                            HAPSIM_CH_TOOL_FORCE)) {
+        fprintf(stderr, "hapsim-stylus: --prefix '%s' is too long\n", a->opt.prefix);
+        return 2;
+    }
+    a->lcm = lcm_create(a->opt.haptic_url);
+    if (!a->lcm) {
+        fprintf(stderr,
+                "hapsim-stylus: cannot open LCM URL '%s' (for udpm on one host: a "
+                "multicast route on lo, see docs/stylus.md)\n",
+                a->opt.haptic_url);
+        return 1;
+    }
+    hapsim_tool_force_t_subscription_t* sub =
+        hapsim_tool_force_t_subscribe(a->lcm, a->force_channel, on_force, a);
+    // A session id per start, so the server can tell a restarted stylus from a replayed one.
+    uint64_t r = (uint64_t)hs_now_ns() ^ ((uint64_t)getpid() << 32) ^ (uint64_t)wall_us();
+    r ^= r >> 33;
+    r *= 0xff51afd7ed558ccdull;
+    r ^= r >> 33;
+    a->session = (int64_t)(r & 0x7fffffffffffffffull);
+    if (a->session == 0) a->session = 1;
+    hs_stylus_mailbox_init(&a->mailbox);
+    if (!a->opt.quiet)
+        printf("hapsim-stylus: device %d (tool %d), session %" PRId64 ", %s on %s -> %s, %s %.1f "
+               "s at %.0f Hz\n",
+               a->opt.device_id, a->opt.tool_id, a->session, a->opt.haptic_url, a->pose_channel,
+               a->force_channel, a->script->name, a->opt.duration_s, a->opt.rate_hz);
+    fflush(stdout);
+
+    pthread_t rx, loop;
+    int rc = 0;
+    if (pthread_create(&rx, NULL, rx_main, a) != 0) {
+        fprintf(stderr, "hapsim-stylus: cannot start the receive thread\n");
+        rc = 1;
+    } else {
+        if (pthread_create(&loop, NULL, loop_main, a) != 0) {
+            fprintf(stderr, "hapsim-stylus: cannot start the device loop\n");
+            atomic_store(&a->loop_done, 1);
+            rc = 1;
+        } else {
+            int64_t t0 = hs_now_ns(), next_status = t0 + 1000000000;
+            while (!atomic_load(&a->loop_done)) {
+                struct timespec nap = {0, 50000000};
+                nanosleep(&nap, NULL);
+                int64_t now = hs_now_ns();
+                if (a->opt.status && now >= next_status) {
+                    print_status(a, (double)(now - t0) * 1e-9);
+                    next_status += 1000000000;
+                }
+            }
+            pthread_join(loop, NULL);
+            if (a->opt.status) fprintf(stderr, "\n");
+        }
+        pthread_join(rx, NULL);
+    }
+    hapsim_tool_force_t_unsubscribe(a->lcm, sub);
+    lcm_destroy(a->lcm);
+    a->lcm = NULL;
+    if (rc) return rc;
+    if (!a->opt.quiet) {
+        printf("hapsim-stylus: %lld forces received, %lld rejected, %lld for other devices; "
+               "%lld overruns (worst %lld us late)%s\n",
+               (long long)atomic_load(&a->rx_forces), (long long)atomic_load(&a->rx_rejected),
+               (long long)atomic_load(&a->rx_other_device), (long long)atomic_load(&a->overruns),
+               (long long)atomic_load(&a->late_max_us),
+               atomic_load(&g_stop) ? "; stopped by signal" : "");
+    }
+    return finish(a, "live");
+}
+
+int main(int argc, char** argv) {
+    static app a; // large (mailbox): not on the stack
+    hs_stylus_def def = hs_stylus_default_def();
+    int pr = parse_options(argc, argv, &a.opt, &def);
+    if (pr) return pr == 1 ? 0 : 2;
+    hs_err err = {0};
+    if (hs_script_create(&a.script, &err) || hs_script_parse_file(a.script, a.opt.script, &err)) {
+        fprintf(stderr, "hapsim-stylus: %s\n", err.msg);
+        hs_script_destroy(&a.script);
+        return 1;
+    }
+    // Workspace centre: --origin, else the script's origin, else where the script starts.
+    const double* origin = a.opt.has_origin       ? a.opt.origin
+                           : a.script->has_origin ? a.script->origin_m
+                                                  : a.script->start_m;
+    memcpy(def.origin_m, origin, sizeof def.origin_m);
+    if (hs_stylus_def_check(&def, &err)) {
+        fprintf(stderr, "hapsim-stylus: %s\n", err.msg);
+        hs_script_destroy(&a.script);
+        return 2;
+    }
+    a.def = def;
+    if (a.opt.duration_s <= 0) a.opt.duration_s = a.script->duration_s + 0.5;
+    double kept = a.opt.duration_s < MAX_TRACE_S ? a.opt.duration_s : MAX_TRACE_S;
+    int64_t rows = (int64_t)ceil(kept * a.opt.rate_hz) + (int64_t)a.opt.rate_hz + 16;
+    if (hs_stylus_trace_create(rows, &a.trace, &err)) {
+        fprintf(stderr, "hapsim-stylus: %s\n", err.msg);
+        hs_script_destroy(&a.script);
+        return 1;
+    }
+    struct sigaction sa;
+    memset(&sa, 0, sizeof sa);
+    sa.sa_handler = on_signal;
+    sigemptyset(&sa.sa_mask);
+    sigaction(SIGINT, &sa, NULL);
+    sigaction(SIGTERM, &sa, NULL);
+
+    int rc = a.opt.offline_k > 0 ? run_offline(&a) : run_live(&a);
+    hs_stylus_trace_destroy(&a.trace);
+    hs_script_destroy(&a.script);
+    return rc;
+}

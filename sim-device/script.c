@@ -1,0 +1,429 @@
+// Probe scripts: a line-based keyframe format parsed into timed straight-line segments, and the
+// target trajectory target(t). Loops are expanded by re-reading their body (no allocation), so
+// the segment array is the whole, flat timeline.
+#include "stylus.h"
+
+#include <ctype.h>
+#include <errno.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define BUTTON_PRIMARY 1u // tool_pose BUTTON_PRIMARY: blade engaged
+#define MAX_TOKENS     12
+
+hs_status hs_script_create(hs_script** out, hs_err* err) {
+    *out = NULL;
+    hs_script* s = hs_calloc(1, sizeof *s);
+    if (!s) return hs_err_set(err, HS_ERR_NOMEM, "script: out of memory");
+    *out = s;
+    return HS_OK;
+}
+
+void hs_script_destroy(hs_script** s) {
+    if (!s || !*s) return;
+    hs_free(*s);
+    *s = NULL;
+}
+
+// Parser state carried across lines (and loop iterations).
+typedef struct parser {
+    hs_script* s;
+    const char* name;
+    int line;
+    double scale;     // metres per script length unit (1 or 0.001)
+    int profile;      // hs_profile for the next moves
+    double accel;     // m/s^2 (trapezoid)
+    double cur[3];    // target at the end of the timeline so far, m
+    double t;         // end time of the timeline so far, s
+    int pressed;      // a press is active
+    double normal[3]; // its outward unit normal
+    double depth;     // total pressed depth, m
+    int moved;        // any segment emitted (start/origin may no longer change)
+} parser;
+
+static hs_status perr(parser* p, hs_err* err, const char* fmt, ...)
+    __attribute__((format(printf, 3, 4)));
+static hs_status perr(parser* p, hs_err* err, const char* fmt, ...) {
+    char what[400];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(what, sizeof what, fmt, ap);
+    va_end(ap);
+    return hs_err_set(err, HS_ERR_PARSE, "%s:%d: %s", p->name, p->line, what);
+}
+
+static int parse_num(const char* tok, double* v) {
+    char* end = NULL;
+    errno = 0;
+    double x = strtod(tok, &end);
+    if (end == tok || *end != '\0' || errno == ERANGE || !isfinite(x)) return 0;
+    *v = x;
+    return 1;
+}
+
+// Duration of a straight move of length len at peak speed v with the parser's profile.
+static double move_duration(int profile, double len, double v, double a) {
+    if (len <= 0) return 0;
+    if (profile == HS_PROFILE_MINJERK) return 1.875 * len / v; // peak of 30u^2(1-u)^2 is 1.875
+    if (len >= v * v / a) return len / v + v / a;
+    return 2.0 * sqrt(len / a); // triangular: never reaches v
+}
+
+// Fraction s in [0, 1] of the path and ds/dt (1/s) at time tau into a move.
+static void profile_eval(const hs_script_segment* g, double tau, double* s, double* ds) {
+    double T = g->dur_s;
+    if (T <= 0 || tau >= T) {
+        *s = 1;
+        *ds = 0;
+        return;
+    }
+    if (tau <= 0) {
+        *s = 0;
+        *ds = 0;
+        return;
+    }
+    double d[3] = {g->to_m[0] - g->from_m[0], g->to_m[1] - g->from_m[1], g->to_m[2] - g->from_m[2]};
+    double len = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+    if (g->profile == HS_PROFILE_MINJERK) {
+        double u = tau / T, u2 = u * u, u3 = u2 * u;
+        *s = u3 * (10 - 15 * u + 6 * u2);
+        *ds = 30 * u2 * (1 - u) * (1 - u) / T;
+        return;
+    }
+    double a = g->accel_m_s2, v = g->speed_m_s;
+    double ta = v / a;
+    if (len < v * v / a) { // triangular
+        ta = T / 2;
+        v = a * ta;
+    }
+    double x, vel;
+    if (tau < ta) {
+        x = 0.5 * a * tau * tau;
+        vel = a * tau;
+    } else if (tau > T - ta) {
+        double r = T - tau;
+        x = len - 0.5 * a * r * r;
+        vel = a * r;
+    } else {
+        x = 0.5 * a * ta * ta + v * (tau - ta);
+        vel = v;
+    }
+    *s = x / len;
+    *ds = vel / len;
+}
+
+static hs_status emit(parser* p, hs_err* err, int kind, int cmd, const double to[3], double speed,
+                      double hold_s, uint32_t buttons) {
+    hs_script* s = p->s;
+    double len = 0;
+    for (int i = 0; i < 3; ++i) len += (to[i] - p->cur[i]) * (to[i] - p->cur[i]);
+    len = sqrt(len);
+    double dur = kind == HS_SEG_HOLD ? hold_s : move_duration(p->profile, len, speed, p->accel);
+    p->moved = 1;
+    if (dur <= 0) { // a zero-length move or hold: nothing to add
+        for (int i = 0; i < 3; ++i) p->cur[i] = to[i];
+        return HS_OK;
+    }
+    if (s->n_segments >= HS_SCRIPT_MAX_SEGMENTS) {
+        char lim[32];
+        snprintf(lim, sizeof lim, "%d", HS_SCRIPT_MAX_SEGMENTS);
+        return perr(p, err, "too many segments after loop expansion (limit %s)", lim);
+    }
+    hs_script_segment* g = &s->seg[s->n_segments++];
+    memset(g, 0, sizeof *g);
+    g->kind = kind;
+    g->cmd = cmd;
+    g->line = p->line;
+    g->profile = p->profile;
+    g->t0_s = p->t;
+    g->dur_s = dur;
+    g->speed_m_s = speed;
+    g->accel_m_s2 = p->accel;
+    g->buttons = buttons;
+    for (int i = 0; i < 3; ++i) {
+        g->from_m[i] = p->cur[i];
+        g->to_m[i] = to[i];
+        p->cur[i] = to[i];
+    }
+    p->t += dur;
+    s->duration_s = p->t;
+    return HS_OK;
+}
+
+// Reads n numbers from tok[1..n] scaled per kind ('L' length, 'V' speed, 'A' accel, 'N' plain,
+// 'T' time), with the command's usage in the error.
+static hs_status read_args(parser* p, hs_err* err, char** tok, int ntok, const char* kinds,
+                           const char* usage, double* v) {
+    int n = (int)strlen(kinds);
+    if (ntok - 1 != n) {
+        char msg[200];
+        snprintf(msg, sizeof msg, "%s: expected %d number%s (%s), got %d", tok[0], n,
+                 n == 1 ? "" : "s", usage, ntok - 1);
+        return perr(p, err, "%s", msg);
+    }
+    for (int i = 0; i < n; ++i) {
+        if (!parse_num(tok[i + 1], &v[i])) {
+            char msg[200];
+            snprintf(msg, sizeof msg, "%s: '%.60s' is not a finite number (%s)", tok[0], tok[i + 1],
+                     usage);
+            return perr(p, err, "%s", msg);
+        }
+        if (kinds[i] == 'L' || kinds[i] == 'V' || kinds[i] == 'A') v[i] *= p->scale;
+    }
+    return HS_OK;
+}
+
+static hs_status need_positive(parser* p, hs_err* err, const char* cmd, const char* what,
+                               double v) {
+    if (v > 0) return HS_OK;
+    char msg[160];
+    snprintf(msg, sizeof msg, "%s: %s must be > 0", cmd, what);
+    return perr(p, err, "%s", msg);
+}
+
+static hs_status unit_normal(parser* p, hs_err* err, const char* cmd, const double* in,
+                             double out[3]) {
+    double l = sqrt(in[0] * in[0] + in[1] * in[1] + in[2] * in[2]);
+    if (!(l > 1e-9)) {
+        char msg[160];
+        snprintf(msg, sizeof msg, "%s: the normal (nx ny nz) must not be zero", cmd);
+        return perr(p, err, "%s", msg);
+    }
+    for (int i = 0; i < 3; ++i) out[i] = in[i] / l;
+    return HS_OK;
+}
+
+typedef struct loop_frame {
+    const char* body; // text just after the loop line
+    int line;         // line number of the loop command
+    long remaining;   // iterations still to run after the current one
+} loop_frame;
+
+static hs_status parse_text(parser* p, const char* text, hs_err* err) {
+    hs_script* s = p->s;
+    loop_frame stack[HS_SCRIPT_MAX_LOOP_DEPTH];
+    int depth = 0;
+    const char* c = text;
+    p->line = 0;
+    char buf[HS_SCRIPT_MAX_LINE];
+    while (*c) {
+        const char* eol = strchr(c, '\n');
+        size_t len = eol ? (size_t)(eol - c) : strlen(c);
+        const char* next = eol ? eol + 1 : c + len;
+        p->line++;
+        if (len >= sizeof buf) return perr(p, err, "line longer than %s bytes", "511");
+        memcpy(buf, c, len);
+        buf[len] = '\0';
+        c = next;
+        char* hash = strchr(buf, '#');
+        if (hash) *hash = '\0';
+        char* tok[MAX_TOKENS + 1];
+        int ntok = 0;
+        for (char* q = strtok(buf, " \t\r,"); q; q = strtok(NULL, " \t\r,")) {
+            if (ntok == MAX_TOKENS) return perr(p, err, "too many words on the line");
+            tok[ntok++] = q;
+        }
+        if (ntok == 0) continue;
+        for (char* q = tok[0]; *q; ++q) *q = (char)tolower((unsigned char)*q);
+        const char* cmd = tok[0];
+        double v[8];
+        hs_status st = HS_OK;
+        if (!strcmp(cmd, "units")) {
+            if (ntok != 2 || (strcmp(tok[1], "m") && strcmp(tok[1], "mm")))
+                return perr(p, err, "units: expected 'units m' or 'units mm'");
+            p->scale = strcmp(tok[1], "mm") ? 1.0 : 1e-3;
+        } else if (!strcmp(cmd, "start") || !strcmp(cmd, "origin")) {
+            if ((st = read_args(p, err, tok, ntok, "LLL", "x y z", v))) return st;
+            int is_start = !strcmp(cmd, "start");
+            if (!is_start) {
+                s->has_origin = 1;
+                memcpy(s->origin_m, v, sizeof s->origin_m);
+            }
+            // The start (default: the origin) is where the timeline begins: fixed once moving.
+            if (!p->moved && (is_start || !s->has_start)) {
+                memcpy(s->start_m, v, sizeof s->start_m);
+                memcpy(p->cur, v, sizeof p->cur);
+                s->has_start |= is_start;
+            } else if (is_start) {
+                return perr(p, err, "start: must come before the first motion command");
+            }
+        } else if (!strcmp(cmd, "surface")) {
+            if ((st = read_args(p, err, tok, ntok, "LLLNNN", "px py pz nx ny nz", v))) return st;
+            if ((st = unit_normal(p, err, cmd, v + 3, s->surface_normal))) return st;
+            memcpy(s->surface_point_m, v, sizeof s->surface_point_m);
+            s->has_surface = 1;
+        } else if (!strcmp(cmd, "profile")) {
+            if (ntok == 2 && !strcmp(tok[1], "minjerk")) {
+                p->profile = HS_PROFILE_MINJERK;
+            } else if (ntok == 3 && !strcmp(tok[1], "trapezoid")) {
+                if (!parse_num(tok[2], &v[0]))
+                    return perr(p, err, "profile trapezoid: '%.60s' is not a finite number",
+                                tok[2]);
+                if ((st = need_positive(p, err, "profile trapezoid", "accel", v[0]))) return st;
+                p->profile = HS_PROFILE_TRAPEZOID;
+                p->accel = v[0] * p->scale;
+            } else {
+                return perr(p, err,
+                            "profile: expected 'profile minjerk' or "
+                            "'profile trapezoid ACCEL'");
+            }
+        } else if (!strcmp(cmd, "move_to") || !strcmp(cmd, "cut")) {
+            if ((st = read_args(p, err, tok, ntok, "LLLV", "x y z speed", v))) return st;
+            if ((st = need_positive(p, err, cmd, "speed", v[3]))) return st;
+            if (p->pressed)
+                return perr(p, err, "%s: a press is active (use drag, or release first)", cmd);
+            int is_cut = !strcmp(cmd, "cut");
+            st = emit(p, err, HS_SEG_MOVE, is_cut ? HS_CMD_CUT : HS_CMD_MOVE_TO, v, v[3], 0,
+                      is_cut ? BUTTON_PRIMARY : 0);
+            if (st) return st;
+        } else if (!strcmp(cmd, "press")) {
+            if ((st = read_args(p, err, tok, ntok, "NNNLV", "nx ny nz depth speed", v))) return st;
+            double n[3];
+            if ((st = unit_normal(p, err, cmd, v, n))) return st;
+            if ((st = need_positive(p, err, cmd, "depth", v[3]))) return st;
+            if ((st = need_positive(p, err, cmd, "speed", v[4]))) return st;
+            if (p->pressed &&
+                n[0] * p->normal[0] + n[1] * p->normal[1] + n[2] * p->normal[2] < 1 - 1e-9)
+                return perr(p, err,
+                            "press: a press along another normal is active "
+                            "(release first)");
+            double to[3];
+            for (int i = 0; i < 3; ++i) to[i] = p->cur[i] - n[i] * v[3];
+            memcpy(p->normal, n, sizeof n);
+            p->depth += v[3];
+            p->pressed = 1;
+            if ((st = emit(p, err, HS_SEG_MOVE, HS_CMD_PRESS, to, v[4], 0, 0))) return st;
+        } else if (!strcmp(cmd, "drag")) {
+            if ((st = read_args(p, err, tok, ntok, "LLLV", "x y z speed", v))) return st;
+            if ((st = need_positive(p, err, cmd, "speed", v[3]))) return st;
+            if (!p->pressed) return perr(p, err, "drag: no press is active (press first)");
+            double to[3];
+            for (int i = 0; i < 3; ++i) to[i] = v[i] - p->normal[i] * p->depth;
+            if ((st = emit(p, err, HS_SEG_MOVE, HS_CMD_DRAG, to, v[3], 0, 0))) return st;
+        } else if (!strcmp(cmd, "release")) {
+            if ((st = read_args(p, err, tok, ntok, "V", "speed", v))) return st;
+            if ((st = need_positive(p, err, cmd, "speed", v[0]))) return st;
+            if (!p->pressed) return perr(p, err, "release: no press is active");
+            double to[3];
+            for (int i = 0; i < 3; ++i) to[i] = p->cur[i] + p->normal[i] * p->depth;
+            p->pressed = 0;
+            p->depth = 0;
+            if ((st = emit(p, err, HS_SEG_MOVE, HS_CMD_RELEASE, to, v[0], 0, 0))) return st;
+        } else if (!strcmp(cmd, "hold")) {
+            if ((st = read_args(p, err, tok, ntok, "T", "seconds", v))) return st;
+            if (v[0] < 0) return perr(p, err, "hold: seconds must be >= 0");
+            if ((st = emit(p, err, HS_SEG_HOLD, HS_CMD_HOLD, p->cur, 0, v[0], 0))) return st;
+        } else if (!strcmp(cmd, "loop")) {
+            double n;
+            if (ntok != 2 || !parse_num(tok[1], &n) || n != floor(n) || n < 1 || n > 1e6)
+                return perr(p, err, "loop: expected a whole count 1..1000000");
+            if (depth == HS_SCRIPT_MAX_LOOP_DEPTH)
+                return perr(p, err, "loop: nested deeper than %s", "8");
+            stack[depth].body = c;
+            stack[depth].line = p->line;
+            stack[depth].remaining = (long)n - 1;
+            depth++;
+        } else if (!strcmp(cmd, "end")) {
+            if (ntok != 1) return perr(p, err, "end: takes no arguments");
+            if (depth == 0) return perr(p, err, "end: no open loop");
+            loop_frame* f = &stack[depth - 1];
+            if (f->remaining > 0) {
+                f->remaining--;
+                c = f->body;
+                p->line = f->line;
+            } else {
+                depth--;
+            }
+        } else {
+            return perr(p, err,
+                        "unknown command '%.60s' (expected units, start, origin, surface, "
+                        "profile, move_to, press, drag, release, hold, loop, end, cut)",
+                        cmd);
+        }
+    }
+    if (depth > 0) {
+        p->line = stack[depth - 1].line;
+        return perr(p, err, "loop: no matching 'end' before the end of the file");
+    }
+    return HS_OK;
+}
+
+hs_status hs_script_parse_string(hs_script* s, const char* text, const char* name, hs_err* err) {
+    HS_ASSERT(s && text);
+    memset(s, 0, offsetof(hs_script, seg));
+    snprintf(s->name, sizeof s->name, "%s", name ? name : "<script>");
+    parser p;
+    memset(&p, 0, sizeof p);
+    p.s = s;
+    p.name = s->name;
+    p.scale = 1.0;
+    p.profile = HS_PROFILE_MINJERK;
+    p.accel = 1.0;
+    hs_status st = parse_text(&p, text, err);
+    if (st) {
+        char keep[256];
+        memcpy(keep, s->name, sizeof keep);
+        memset(s, 0, offsetof(hs_script, seg));
+        memcpy(s->name, keep, sizeof keep);
+        return st;
+    }
+    return HS_OK;
+}
+
+hs_status hs_script_parse_file(hs_script* s, const char* path, hs_err* err) {
+    FILE* f = fopen(path, "rb");
+    if (!f) return hs_err_set(err, HS_ERR_IO, "%s: cannot open: %s", path, strerror(errno));
+    long size = -1;
+    if (fseek(f, 0, SEEK_END) == 0) size = ftell(f);
+    if (size < 0 || size > (1 << 20) || fseek(f, 0, SEEK_SET) != 0) {
+        fclose(f);
+        return hs_err_set(err, HS_ERR_IO, "%s: not a readable script (or larger than 1 MiB)", path);
+    }
+    char* text = hs_alloc((size_t)size + 1);
+    if (!text) {
+        fclose(f);
+        return hs_err_set(err, HS_ERR_NOMEM, "%s: out of memory", path);
+    }
+    size_t got = fread(text, 1, (size_t)size, f);
+    fclose(f);
+    text[got] = '\0';
+    hs_status st = HS_OK;
+    if (strlen(text) != got)
+        st = hs_err_set(err, HS_ERR_PARSE, "%s: contains a NUL byte (not a text file)", path);
+    else
+        st = hs_script_parse_string(s, text, path, err);
+    hs_free(text);
+    return st;
+}
+
+int hs_script_eval(const hs_script* s, double t_s, double pos_m[3], double vel_m_s[3],
+                   uint32_t* buttons, int* hint) {
+    if (vel_m_s) vel_m_s[0] = vel_m_s[1] = vel_m_s[2] = 0;
+    if (buttons) *buttons = 0;
+    if (s->n_segments == 0) {
+        memcpy(pos_m, s->start_m, 3 * sizeof(double));
+        return -1;
+    }
+    if (!(t_s > 0)) t_s = 0; // also maps NaN to the start
+    int i = hint && *hint >= 0 && *hint < s->n_segments ? *hint : 0;
+    if (s->seg[i].t0_s > t_s) i = 0;
+    while (i + 1 < s->n_segments && s->seg[i + 1].t0_s <= t_s) ++i;
+    if (hint) *hint = i;
+    const hs_script_segment* g = &s->seg[i];
+    double sfrac, ds;
+    if (g->kind == HS_SEG_HOLD) {
+        sfrac = 1;
+        ds = 0;
+    } else {
+        profile_eval(g, t_s - g->t0_s, &sfrac, &ds);
+    }
+    for (int k = 0; k < 3; ++k) {
+        double d = g->to_m[k] - g->from_m[k];
+        pos_m[k] = g->from_m[k] + sfrac * d;
+        if (vel_m_s) vel_m_s[k] = ds * d;
+    }
+    if (buttons && t_s < g->t0_s + g->dur_s) *buttons = g->buttons;
+    return i;
+}

@@ -1,0 +1,199 @@
+// The run trace: one row per device tick kept in memory allocated before the run (the device
+// loop only copies a struct), the summary numbers, and the CSV written after the run.
+#include "stylus.h"
+
+#include <errno.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+struct hs_stylus_trace {
+    int64_t capacity;
+    int64_t rows;
+    int64_t dropped;
+    hs_stylus_tick* row; // [capacity]
+};
+
+const char hs_stylus_trace_header[] =
+    "t_s,target_x,target_y,target_z,handle_x,handle_y,handle_z,f_recv_x,f_recv_y,f_recv_z,"
+    "f_app_x,f_app_y,f_app_z,model_age_ms,latency_us,segment,flags";
+
+hs_status hs_stylus_trace_create(int64_t capacity, hs_stylus_trace** out, hs_err* err) {
+    *out = NULL;
+    if (capacity < 1 || capacity > ((int64_t)1 << 31))
+        return hs_err_set(err, HS_ERR_INVALID, "trace: capacity %lld out of range",
+                          (long long)capacity);
+    hs_stylus_trace* t = hs_calloc(1, sizeof *t);
+    if (!t) return hs_err_set(err, HS_ERR_NOMEM, "trace: out of memory");
+    t->row = hs_alloc((size_t)capacity * sizeof *t->row);
+    if (!t->row) {
+        hs_free(t);
+        return hs_err_set(err, HS_ERR_NOMEM, "trace: out of memory for %lld rows",
+                          (long long)capacity);
+    }
+    t->capacity = capacity;
+    *out = t;
+    return HS_OK;
+}
+
+void hs_stylus_trace_destroy(hs_stylus_trace** t) {
+    if (!t || !*t) return;
+    hs_free((*t)->row);
+    hs_free(*t);
+    *t = NULL;
+}
+
+void hs_stylus_trace_add(hs_stylus_trace* t, const hs_stylus_tick* tick) {
+    if (t->rows < t->capacity)
+        t->row[t->rows++] = *tick;
+    else
+        t->dropped++;
+}
+
+int64_t hs_stylus_trace_rows(const hs_stylus_trace* t) {
+    return t->rows;
+}
+
+const hs_stylus_tick* hs_stylus_trace_row(const hs_stylus_trace* t, int64_t i) {
+    HS_ASSERT(i >= 0 && i < t->rows);
+    return &t->row[i];
+}
+
+static int cmp_double(const void* a, const void* b) {
+    double x = *(const double*)a, y = *(const double*)b;
+    return (x > y) - (x < y);
+}
+
+void hs_stylus_trace_summary(const hs_stylus_trace* t, const hs_script* script,
+                             hs_stylus_summary* out) {
+    memset(out, 0, sizeof *out);
+    out->rows = t->rows;
+    out->dropped = t->dropped;
+    out->steady_segment = -1;
+    out->latency_p50_us = out->latency_p99_us = -1;
+    // The longest hold: in a press-and-hold script this is where the force settles.
+    double t_from = 0, t_to = -1;
+    if (script) {
+        double best = 0;
+        for (int i = 0; i < script->n_segments; ++i) {
+            const hs_script_segment* g = &script->seg[i];
+            if (g->kind == HS_SEG_HOLD && g->dur_s > best) {
+                best = g->dur_s;
+                out->steady_segment = i;
+                t_from = g->t0_s + 0.5 * g->dur_s;
+                t_to = g->t0_s + g->dur_s;
+            }
+        }
+    }
+    int64_t n_steady = 0, n_lat = 0;
+    for (int64_t k = 0; k < t->rows; ++k) {
+        const hs_stylus_tick* r = &t->row[k];
+        double fn = sqrt(r->f_applied[0] * r->f_applied[0] + r->f_applied[1] * r->f_applied[1] +
+                         r->f_applied[2] * r->f_applied[2]);
+        if (fn > out->peak_force_n) out->peak_force_n = fn;
+        if (k > 0) {
+            const double* p = t->row[k - 1].f_applied;
+            double d[3] = {r->f_applied[0] - p[0], r->f_applied[1] - p[1], r->f_applied[2] - p[2]};
+            double dn = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+            if (dn > out->max_force_step_n) out->max_force_step_n = dn;
+        }
+        out->energy_j += r->work_j;
+        if (r->work_j > 0)
+            out->energy_in_j += r->work_j;
+        else
+            out->energy_out_j += r->work_j;
+        if (r->segment == out->steady_segment && r->t_s >= t_from && r->t_s < t_to) {
+            for (int i = 0; i < 3; ++i) out->steady_force_n[i] += r->f_applied[i];
+            n_steady++;
+        }
+        if (r->latency_us >= 0) n_lat++;
+        if (r->model_age_s > out->model_age_max_s) out->model_age_max_s = r->model_age_s;
+        if (r->flags & HS_TICK_MAGNITUDE) out->clamp_magnitude++;
+        if (r->flags & HS_TICK_RATE) out->clamp_rate++;
+        if (r->flags & HS_TICK_TIMEOUT) out->timeouts++;
+        if (r->flags & HS_TICK_WORKSPACE) out->workspace_hits++;
+        out->duration_s = r->t_s;
+    }
+    if (n_steady > 0) {
+        for (int i = 0; i < 3; ++i) out->steady_force_n[i] /= (double)n_steady;
+        const double* s = out->steady_force_n;
+        out->steady_force_norm_n = sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2]);
+    } else {
+        out->steady_segment = -1;
+    }
+    // Percentiles need a sorted copy: after the run, so an allocation is fine here.
+    double* lat = n_lat > 0 ? hs_alloc((size_t)n_lat * sizeof *lat) : NULL;
+    if (lat) {
+        int64_t j = 0;
+        for (int64_t k = 0; k < t->rows; ++k)
+            if (t->row[k].latency_us >= 0) lat[j++] = t->row[k].latency_us;
+        qsort(lat, (size_t)n_lat, sizeof *lat, cmp_double);
+        out->latency_p50_us = lat[(int64_t)floor(0.50 * (double)(n_lat - 1))];
+        out->latency_p99_us = lat[(int64_t)floor(0.99 * (double)(n_lat - 1))];
+        hs_free(lat);
+    }
+}
+
+static void summary_lines(FILE* f, const hs_stylus_summary* s, const char* prefix) {
+    fprintf(f, "%srows=%lld\n", prefix, (long long)s->rows);
+    fprintf(f, "%sdropped_rows=%lld\n", prefix, (long long)s->dropped);
+    fprintf(f, "%sduration_s=%.6f\n", prefix, s->duration_s);
+    fprintf(f, "%speak_force_n=%.9g\n", prefix, s->peak_force_n);
+    fprintf(f, "%ssteady_segment=%d\n", prefix, s->steady_segment);
+    fprintf(f, "%ssteady_force_n=%.9g,%.9g,%.9g\n", prefix, s->steady_force_n[0],
+            s->steady_force_n[1], s->steady_force_n[2]);
+    fprintf(f, "%ssteady_force_norm_n=%.9g\n", prefix, s->steady_force_norm_n);
+    fprintf(f, "%smax_force_step_n=%.9g\n", prefix, s->max_force_step_n);
+    fprintf(f, "%senergy_j=%.9g\n", prefix, s->energy_j);
+    fprintf(f, "%senergy_in_j=%.9g\n", prefix, s->energy_in_j);
+    fprintf(f, "%senergy_out_j=%.9g\n", prefix, s->energy_out_j);
+    fprintf(f, "%slatency_p50_us=%.1f\n", prefix, s->latency_p50_us);
+    fprintf(f, "%slatency_p99_us=%.1f\n", prefix, s->latency_p99_us);
+    fprintf(f, "%smodel_age_max_ms=%.3f\n", prefix, s->model_age_max_s * 1e3);
+    fprintf(f, "%sclamp_magnitude_ticks=%lld\n", prefix, (long long)s->clamp_magnitude);
+    fprintf(f, "%sclamp_rate_ticks=%lld\n", prefix, (long long)s->clamp_rate);
+    fprintf(f, "%stimeout_ticks=%lld\n", prefix, (long long)s->timeouts);
+    fprintf(f, "%sworkspace_ticks=%lld\n", prefix, (long long)s->workspace_hits);
+}
+
+hs_status hs_stylus_trace_write_csv(const hs_stylus_trace* t, const hs_stylus_summary* sum,
+                                    const char* path, hs_err* err) {
+    FILE* f = fopen(path, "w");
+    if (!f) return hs_err_set(err, HS_ERR_IO, "%s: cannot write: %s", path, strerror(errno));
+    fprintf(f, "%s\n", hs_stylus_trace_header);
+    for (int64_t k = 0; k < t->rows; ++k) {
+        const hs_stylus_tick* r = &t->row[k];
+        fprintf(f,
+                "%.6f,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.4f,%.1f,%d,"
+                "%u\n",
+                r->t_s, r->target_m[0], r->target_m[1], r->target_m[2], r->handle_m[0],
+                r->handle_m[1], r->handle_m[2], r->f_received[0], r->f_received[1],
+                r->f_received[2], r->f_applied[0], r->f_applied[1], r->f_applied[2],
+                r->model_age_s < 0 ? -1.0 : r->model_age_s * 1e3, r->latency_us, r->segment,
+                (unsigned)r->flags);
+    }
+    summary_lines(f, sum, "# ");
+    int bad = ferror(f);
+    if (fclose(f) != 0 || bad)
+        return hs_err_set(err, HS_ERR_IO, "%s: write failed: %s", path, strerror(errno));
+    return HS_OK;
+}
+
+void hs_stylus_summary_print(FILE* f, const hs_stylus_summary* s, const char* trace_path) {
+    fprintf(f,
+            "hapsim-stylus: %lld ticks over %.2f s; peak force %.3f N, steady %.3f N "
+            "(hold #%d), max step %.4f N/tick\n",
+            (long long)s->rows, s->duration_s, s->peak_force_n, s->steady_force_norm_n,
+            s->steady_segment, s->max_force_step_n);
+    fprintf(f,
+            "hapsim-stylus: energy into the handle %.3g J (in %.3g, out %.3g); latency p50 %.0f "
+            "us p99 %.0f us; max model age %.1f ms\n",
+            s->energy_j, s->energy_in_j, s->energy_out_j, s->latency_p50_us, s->latency_p99_us,
+            s->model_age_max_s * 1e3);
+    fprintf(f,
+            "hapsim-stylus: clamps: magnitude %lld, rate %lld ticks; timeout %lld, workspace "
+            "%lld ticks%s\n",
+            (long long)s->clamp_magnitude, (long long)s->clamp_rate, (long long)s->timeouts,
+            (long long)s->workspace_hits, s->dropped ? "; rows dropped (trace full)" : "");
+    if (trace_path) fprintf(f, "hapsim-stylus: trace: %s\n", trace_path);
+}
