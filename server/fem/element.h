@@ -1,0 +1,81 @@
+// Internal 3x3 helpers shared by the element kernels (element.c) and the FEM object (fem.c).
+// Matrices are row-major double[9]. Everything is static inline so the hot loops stay inlined.
+#ifndef HS_FEM_ELEMENT_H
+#define HS_FEM_ELEMENT_H
+
+#include <math.h>
+#include <string.h>
+
+static inline void m3_identity(double a[9]) {
+    memset(a, 0, 9 * sizeof(double));
+    a[0] = a[4] = a[8] = 1.0;
+}
+
+static inline double m3_det(const double a[9]) {
+    return a[0] * (a[4] * a[8] - a[5] * a[7]) - a[1] * (a[3] * a[8] - a[5] * a[6]) +
+           a[2] * (a[3] * a[7] - a[4] * a[6]);
+}
+
+/// c = a b
+static inline void m3_mul(const double a[9], const double b[9], double c[9]) {
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++)
+            c[3 * i + j] = a[3 * i] * b[j] + a[3 * i + 1] * b[3 + j] + a[3 * i + 2] * b[6 + j];
+}
+
+/// c = a^T b
+static inline void m3_mul_tn(const double a[9], const double b[9], double c[9]) {
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++)
+            c[3 * i + j] = a[i] * b[j] + a[3 + i] * b[3 + j] + a[6 + i] * b[6 + j];
+}
+
+/// c = a b^T
+static inline void m3_mul_nt(const double a[9], const double b[9], double c[9]) {
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++)
+            c[3 * i + j] =
+                a[3 * i] * b[3 * j] + a[3 * i + 1] * b[3 * j + 1] + a[3 * i + 2] * b[3 * j + 2];
+}
+
+/// y = a x
+static inline void m3_vec(const double a[9], const double x[3], double y[3]) {
+    y[0] = a[0] * x[0] + a[1] * x[1] + a[2] * x[2];
+    y[1] = a[3] * x[0] + a[4] * x[1] + a[5] * x[2];
+    y[2] = a[6] * x[0] + a[7] * x[1] + a[8] * x[2];
+}
+
+static inline double m3_fro2(const double a[9]) {
+    double s = 0;
+    for (int k = 0; k < 9; k++) s += a[k] * a[k];
+    return s;
+}
+
+/// Cofactor matrix: cof(a) = det(a) a^-T, defined also for singular a.
+static inline void m3_cofactor(const double a[9], double c[9]) {
+    c[0] = a[4] * a[8] - a[5] * a[7];
+    c[1] = a[5] * a[6] - a[3] * a[8];
+    c[2] = a[3] * a[7] - a[4] * a[6];
+    c[3] = a[2] * a[7] - a[1] * a[8];
+    c[4] = a[0] * a[8] - a[2] * a[6];
+    c[5] = a[1] * a[6] - a[0] * a[7];
+    c[6] = a[1] * a[5] - a[2] * a[4];
+    c[7] = a[2] * a[3] - a[0] * a[5];
+    c[8] = a[0] * a[4] - a[1] * a[3];
+}
+
+static inline void v3_cross(const double a[3], const double b[3], double c[3]) {
+    c[0] = a[1] * b[2] - a[2] * b[1];
+    c[1] = a[2] * b[0] - a[0] * b[2];
+    c[2] = a[0] * b[1] - a[1] * b[0];
+}
+
+static inline double v3_dot(const double a[3], const double b[3]) {
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+}
+
+/// Symmetric eigen-decomposition by cyclic Jacobi: a = V diag(w) V^T, w descending,
+/// V's columns the eigenvectors (row-major: v[3*i+k] is component i of vector k).
+void hs_sym_eig3(const double a[9], double w[3], double v[9]);
+
+#endif

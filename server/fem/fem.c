@@ -1,0 +1,912 @@
+// FEM object: per-element data in flat arrays, model evaluation (linear, co-rotated, StVK, with
+// the optional average-nodal-pressure volumetric term), and assembly by a precomputed scatter.
+//
+// DESIGN. hs_fem_create does all allocation: element shape gradients and volumes, the node ->
+// element incidence, the node adjacency of the tangent (1-ring, or 2-ring with ANP) and, for
+// every 3x3 node block of that pattern, the 9 positions in hs_csc.val. Elements and the ANP
+// node terms address blocks by id, so hs_fem_assemble is a pure scatter with no search.
+// hs_fem_update evaluates the model and keeps what the tangent needs (F, R, S, ANP gradients);
+// element tangents are formed on the fly from those in assemble / apply_tangent, since a
+// 12x12 block per element costs more memory traffic than recomputing it from 3x3 pieces.
+#include "hapsim/fem.h"
+
+#include "element.h"
+
+#include <float.h>
+#include <limits.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define HS_FEM_COOKIE 0x46454d31
+
+struct hs_fem {
+    const hs_mesh* mesh;
+    hs_fem_def def;
+    int n, ne, n_free;
+    double lambda, mu, kappa; // Lame parameters and bulk modulus, Pa
+    double lam_el;            // lambda of the element term: lambda, or -2mu/3 with ANP
+    int* dof;                 // [3n] free index or -1
+
+    // elements
+    int* tet;              // [4ne]
+    double* g;             // [12ne] rest shape gradients g_a (a = 0..3), 1/m
+    double* vol0;          // [ne] rest volume, m^3
+    unsigned char* active; // [ne]
+    double* F;             // [9ne] deformation gradient at the last update
+    double* R;             // [9ne] rotation (co-rotated); warm start of the next update
+    double* S;             // [9ne] second Piola-Kirchhoff stress (StVK), Pa
+    double* det;           // [ne] det F
+    int* piters;           // [ne] polar iterations of the last update
+
+    // nodes
+    double* f;     // [3n] elastic forces, N
+    double* mass;  // [n] lumped mass, kg
+    int* nt_start; // [n+1] node -> element incidence (CSR)
+    int* nt;       // element of each incidence
+    int* nt_local; // local index (0..3) of the node in that element
+
+    // pattern: per column node k the sorted row nodes adj[adj_start[k] ..] (self included);
+    // block id = position in adj
+    int* adj_start;
+    int* adj;
+    int n_blocks;
+    int* blkpos;   // [9 n_blocks] row-major positions in val, -1 for constrained dofs
+    int* elem_blk; // [16ne] block id of (row node a, column node b) as [4a+b]
+    int* diag_pos; // [3n]
+    int nnz;
+
+    // average nodal pressure
+    int anp;
+    int* ring_start;     // [n+1] 1-ring of each node, self included, sorted
+    int* ring;           //
+    int* nt_slot;        // [4 * incidences]: slot in ring(n) of each local node of the element
+    int64_t* pair_start; // [n+1] offsets into pair_blk
+    int* pair_blk;       // ring(n) x ring(n) block ids, row-major per node
+    double* theta_e;     // [ne] element volumetric strain
+    double* w;           // [12ne] d theta_e / d x_a
+    double* pbar;        // [ne] element mean of the nodal pressures, Pa
+    double* vn;          // [n] nodal volume, m^3
+    double* theta_n;     // [n] nodal volumetric strain
+    double* cvec;        // [3 * ring total] d theta_n / d x_m
+
+    hs_fem_stats stats;
+};
+
+hs_fem_def hs_fem_default_def(void) {
+    hs_fem_def d;
+    memset(&d, 0, sizeof d);
+    d.model = HS_MODEL_LINEAR;
+    d.material.youngs_pa = 3000.0;
+    d.material.poisson = 0.45;
+    d.material.density_kg_m3 = 1000.0;
+    d.rotation = HS_ROTATION_POLAR;
+    d.polar_tol = 1e-6;
+    d.polar_max_iter = 20;
+    d.inversion = HS_INVERSION_LINEAR_FALLBACK;
+    d.locking_free = 0;
+    d.cookie = HS_FEM_COOKIE;
+    return d;
+}
+
+void hs_fem_destroy(hs_fem** pfem) {
+    if (!pfem || !*pfem) return;
+    hs_fem* m = *pfem;
+    void* ptrs[] = {m->dof,        m->tet,  m->g,        m->vol0,       m->active,
+                    m->F,          m->R,    m->S,        m->det,        m->piters,
+                    m->f,          m->mass, m->nt_start, m->nt,         m->nt_local,
+                    m->adj_start,  m->adj,  m->blkpos,   m->elem_blk,   m->diag_pos,
+                    m->ring_start, m->ring, m->nt_slot,  m->pair_start, m->pair_blk,
+                    m->theta_e,    m->w,    m->pbar,     m->vn,         m->theta_n,
+                    m->cvec};
+    for (size_t i = 0; i < sizeof ptrs / sizeof ptrs[0]; i++) hs_free(ptrs[i]);
+    hs_free(m);
+    *pfem = NULL;
+}
+
+static int cmp_int(const void* a, const void* b) {
+    int x = *(const int*)a, y = *(const int*)b;
+    return (x > y) - (x < y);
+}
+
+/// Index of v in the sorted a[0..n), or -1.
+static int bsearch_int(const int* a, int n, int v) {
+    int lo = 0, hi = n - 1;
+    while (lo <= hi) {
+        int mid = (lo + hi) / 2;
+        if (a[mid] < v)
+            lo = mid + 1;
+        else if (a[mid] > v)
+            hi = mid - 1;
+        else
+            return mid;
+    }
+    return -1;
+}
+
+static hs_status check_def(const hs_fem_def* d, hs_err* err) {
+    if (d->cookie != HS_FEM_COOKIE)
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "fem: definition not initialised (use hs_fem_default_def())");
+    if (d->model < HS_MODEL_LINEAR || d->model > HS_MODEL_STVK)
+        return hs_err_set(err, HS_ERR_INVALID, "fem: unknown model %d", (int)d->model);
+    if (d->rotation < HS_ROTATION_POLAR || d->rotation > HS_ROTATION_SVD)
+        return hs_err_set(err, HS_ERR_INVALID, "fem: unknown rotation method %d", (int)d->rotation);
+    if (d->inversion < HS_INVERSION_LINEAR_FALLBACK || d->inversion > HS_INVERSION_KEEP_REFLECTION)
+        return hs_err_set(err, HS_ERR_INVALID, "fem: unknown inversion remedy %d",
+                          (int)d->inversion);
+    const hs_material* m = &d->material;
+    if (!(m->youngs_pa > 0) || !isfinite(m->youngs_pa))
+        return hs_err_set(err, HS_ERR_INVALID, "fem: Young's modulus must be > 0 (got %g Pa)",
+                          m->youngs_pa);
+    if (!(m->poisson > -1.0 && m->poisson < 0.5))
+        return hs_err_set(err, HS_ERR_INVALID, "fem: Poisson ratio must be in (-1, 0.5) (got %g)",
+                          m->poisson);
+    if (!(m->density_kg_m3 >= 0) || !isfinite(m->density_kg_m3))
+        return hs_err_set(err, HS_ERR_INVALID, "fem: density must be >= 0 (got %g kg/m^3)",
+                          m->density_kg_m3);
+    if (!(m->rayleigh_mass >= 0) || !(m->rayleigh_stiffness >= 0))
+        return hs_err_set(err, HS_ERR_INVALID, "fem: Rayleigh coefficients must be >= 0");
+    if (d->model == HS_MODEL_COROTATED && d->rotation == HS_ROTATION_POLAR &&
+        (!(d->polar_tol > 0) || d->polar_max_iter < 1))
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "fem: polar_tol must be > 0 and polar_max_iter >= 1 (got %g, %d)",
+                          d->polar_tol, d->polar_max_iter);
+    if (d->locking_free != 0 && d->locking_free != 1)
+        return hs_err_set(err, HS_ERR_INVALID, "fem: locking_free must be 0 or 1 (got %d)",
+                          d->locking_free);
+    return HS_OK;
+}
+
+static hs_status nomem(hs_err* err) {
+    return hs_err_set(err, HS_ERR_NOMEM, "fem: out of memory");
+}
+
+/// Recompute the lumped mass of node i from its active elements.
+static void node_mass(hs_fem* m, int i) {
+    double s = 0;
+    for (int p = m->nt_start[i]; p < m->nt_start[i + 1]; p++) {
+        int e = m->nt[p];
+        if (m->active[e]) s += m->vol0[e];
+    }
+    m->mass[i] = 0.25 * m->def.material.density_kg_m3 * s;
+}
+
+static hs_status build_incidence(hs_fem* m) {
+    int n = m->n, ne = m->ne;
+    m->nt_start = hs_calloc((size_t)n + 1, sizeof(int));
+    m->nt = hs_alloc(sizeof(int) * 4 * (size_t)ne + 1);
+    m->nt_local = hs_alloc(sizeof(int) * 4 * (size_t)ne + 1);
+    if (!m->nt_start || !m->nt || !m->nt_local) return HS_ERR_NOMEM;
+    for (int k = 0; k < 4 * ne; k++) m->nt_start[m->tet[k] + 1]++;
+    for (int i = 0; i < n; i++) m->nt_start[i + 1] += m->nt_start[i];
+    int* fill = hs_alloc(sizeof(int) * ((size_t)n + 1));
+    if (!fill) return HS_ERR_NOMEM;
+    memcpy(fill, m->nt_start, sizeof(int) * (size_t)n);
+    for (int e = 0; e < ne; e++)
+        for (int a = 0; a < 4; a++) {
+            int i = m->tet[4 * e + a], p = fill[i]++;
+            m->nt[p] = e;
+            m->nt_local[p] = a;
+        }
+    hs_free(fill);
+    return HS_OK;
+}
+
+/// 1-ring of every node (self included, sorted): ring_start/ring.
+static hs_status build_rings(hs_fem* m) {
+    int n = m->n;
+    m->ring_start = hs_calloc((size_t)n + 1, sizeof(int));
+    int cap = 4 * m->nt_start[n] + 1;
+    int* tmp = hs_alloc(sizeof(int) * (size_t)cap);
+    if (!m->ring_start || !tmp) {
+        hs_free(tmp);
+        return HS_ERR_NOMEM;
+    }
+    int w = 0;
+    for (int i = 0; i < n; i++) {
+        int b = w;
+        tmp[w++] = i;
+        for (int p = m->nt_start[i]; p < m->nt_start[i + 1]; p++)
+            for (int a = 0; a < 4; a++) tmp[w++] = m->tet[4 * m->nt[p] + a];
+        qsort(tmp + b, (size_t)(w - b), sizeof(int), cmp_int);
+        int u = b;
+        for (int q = b; q < w; q++)
+            if (u == b || tmp[u - 1] != tmp[q]) tmp[u++] = tmp[q];
+        w = u;
+        m->ring_start[i + 1] = w;
+    }
+    m->ring = hs_alloc(sizeof(int) * ((size_t)w + 1));
+    if (!m->ring) {
+        hs_free(tmp);
+        return HS_ERR_NOMEM;
+    }
+    memcpy(m->ring, tmp, sizeof(int) * (size_t)w);
+    hs_free(tmp);
+    return HS_OK;
+}
+
+/// Pattern adjacency (self included, sorted): the 1-ring, or with ANP the 2-ring.
+static hs_status build_adjacency(hs_fem* m) {
+    int n = m->n;
+    if (!m->anp) {
+        int tot = m->ring_start[n];
+        m->adj_start = hs_alloc(sizeof(int) * ((size_t)n + 1));
+        m->adj = hs_alloc(sizeof(int) * ((size_t)tot + 1));
+        if (!m->adj_start || !m->adj) return HS_ERR_NOMEM;
+        memcpy(m->adj_start, m->ring_start, sizeof(int) * ((size_t)n + 1));
+        memcpy(m->adj, m->ring, sizeof(int) * (size_t)tot);
+        return HS_OK;
+    }
+    int* mark = hs_alloc(sizeof(int) * ((size_t)n + 1));
+    m->adj_start = hs_calloc((size_t)n + 1, sizeof(int));
+    if (!mark || !m->adj_start) {
+        hs_free(mark);
+        return HS_ERR_NOMEM;
+    }
+    for (int i = 0; i < n; i++) mark[i] = -1;
+    int64_t tot = 0;
+    for (int pass = 0; pass < 2; pass++) {
+        for (int i = 0; i < n; i++) mark[i] = -1;
+        tot = 0;
+        for (int i = 0; i < n; i++) {
+            int64_t b = tot;
+            for (int p = m->ring_start[i]; p < m->ring_start[i + 1]; p++) {
+                int j = m->ring[p];
+                for (int q = m->ring_start[j]; q < m->ring_start[j + 1]; q++) {
+                    int k = m->ring[q];
+                    if (mark[k] == i) continue;
+                    mark[k] = i;
+                    if (pass == 1) m->adj[tot] = k;
+                    tot++;
+                }
+            }
+            if (pass == 1)
+                qsort(m->adj + b, (size_t)(tot - b), sizeof(int), cmp_int);
+            else if (tot > INT_MAX / 9) {
+                hs_free(mark);
+                return HS_ERR_UNSUPPORTED;
+            }
+            if (pass == 0) m->adj_start[i + 1] = (int)tot;
+        }
+        if (pass == 0) {
+            m->adj = hs_alloc(sizeof(int) * ((size_t)tot + 1));
+            if (!m->adj) {
+                hs_free(mark);
+                return HS_ERR_NOMEM;
+            }
+        }
+    }
+    hs_free(mark);
+    return HS_OK;
+}
+
+static int block_id(const hs_fem* m, int row, int col) {
+    int b = m->adj_start[col];
+    int k = bsearch_int(m->adj + b, m->adj_start[col + 1] - b, row);
+    return k < 0 ? -1 : b + k;
+}
+
+/// Block positions in a matrix with the pattern of hs_fem_create_matrix.
+static hs_status build_scatter(hs_fem* m, const hs_csc* a, hs_err* err) {
+    int n = m->n;
+    m->n_blocks = m->adj_start[n];
+    m->nnz = a->nnz;
+    m->blkpos = hs_alloc(sizeof(int) * 9 * (size_t)m->n_blocks + 1);
+    m->elem_blk = hs_alloc(sizeof(int) * 16 * (size_t)m->ne + 1);
+    m->diag_pos = hs_alloc(sizeof(int) * 3 * (size_t)n + 1);
+    if (!m->blkpos || !m->elem_blk || !m->diag_pos) return nomem(err);
+    for (int col = 0; col < n; col++) {
+        for (int p = m->adj_start[col]; p < m->adj_start[col + 1]; p++) {
+            int row = m->adj[p];
+            for (int ri = 0; ri < 3; ri++)
+                for (int cj = 0; cj < 3; cj++) {
+                    int dr = m->dof[3 * row + ri], dc = m->dof[3 * col + cj];
+                    int pos = dr >= 0 && dc >= 0 ? hs_csc_find(a, dr, dc) : -1;
+                    if (dr >= 0 && dc >= 0 && pos < 0)
+                        return hs_err_set(err, HS_ERR_INVALID,
+                                          "fem: matrix pattern lacks entry (%d, %d)", dr, dc);
+                    m->blkpos[9 * p + 3 * ri + cj] = pos;
+                }
+        }
+    }
+    for (int e = 0; e < m->ne; e++)
+        for (int aa = 0; aa < 4; aa++)
+            for (int b = 0; b < 4; b++) {
+                int id = block_id(m, m->tet[4 * e + aa], m->tet[4 * e + b]);
+                HS_ASSERT(id >= 0);
+                m->elem_blk[16 * e + 4 * aa + b] = id;
+            }
+    for (int i = 0; i < n; i++) {
+        int id = block_id(m, i, i);
+        HS_ASSERT(id >= 0);
+        for (int c = 0; c < 3; c++) m->diag_pos[3 * i + c] = m->blkpos[9 * id + 4 * c];
+    }
+    return HS_OK;
+}
+
+static hs_status build_anp(hs_fem* m) {
+    int n = m->n, ne = m->ne, ninc = m->nt_start[n];
+    m->nt_slot = hs_alloc(sizeof(int) * 4 * (size_t)ninc + 1);
+    m->pair_start = hs_alloc(sizeof(int64_t) * ((size_t)n + 1));
+    m->theta_e = hs_calloc((size_t)ne + 1, sizeof(double));
+    m->w = hs_calloc(12 * (size_t)ne + 1, sizeof(double));
+    m->pbar = hs_calloc((size_t)ne + 1, sizeof(double));
+    m->vn = hs_calloc((size_t)n + 1, sizeof(double));
+    m->theta_n = hs_calloc((size_t)n + 1, sizeof(double));
+    m->cvec = hs_calloc(3 * (size_t)m->ring_start[n] + 1, sizeof(double));
+    if (!m->nt_slot || !m->pair_start || !m->theta_e || !m->w || !m->pbar || !m->vn ||
+        !m->theta_n || !m->cvec)
+        return HS_ERR_NOMEM;
+    for (int i = 0; i < n; i++) {
+        int b = m->ring_start[i], s = m->ring_start[i + 1] - b;
+        for (int p = m->nt_start[i]; p < m->nt_start[i + 1]; p++)
+            for (int a = 0; a < 4; a++) {
+                int k = bsearch_int(m->ring + b, s, m->tet[4 * m->nt[p] + a]);
+                HS_ASSERT(k >= 0);
+                m->nt_slot[4 * p + a] = k;
+            }
+    }
+    m->pair_start[0] = 0;
+    for (int i = 0; i < n; i++) {
+        int64_t s = m->ring_start[i + 1] - m->ring_start[i];
+        m->pair_start[i + 1] = m->pair_start[i] + s * s;
+    }
+    m->pair_blk = hs_alloc(sizeof(int) * (size_t)m->pair_start[n] + 1);
+    if (!m->pair_blk) return HS_ERR_NOMEM;
+    for (int i = 0; i < n; i++) {
+        int b = m->ring_start[i], s = m->ring_start[i + 1] - b;
+        int* pb = m->pair_blk + m->pair_start[i];
+        for (int r = 0; r < s; r++)
+            for (int c = 0; c < s; c++) {
+                int id = block_id(m, m->ring[b + r], m->ring[b + c]);
+                HS_ASSERT(id >= 0);
+                pb[r * s + c] = id;
+            }
+    }
+    return HS_OK;
+}
+
+hs_status hs_fem_create(const hs_mesh* mesh, const hs_fem_def* def, const int* dof_map, int n_free,
+                        hs_fem** out, hs_err* err) {
+    if (!out) return hs_err_set(err, HS_ERR_INVALID, "fem: out is NULL");
+    *out = NULL;
+    if (!mesh || !def || !dof_map)
+        return hs_err_set(err, HS_ERR_INVALID, "fem: mesh, def and dof_map must not be NULL");
+    hs_status st = check_def(def, err);
+    if (st != HS_OK) return st;
+    if (mesh->n_nodes <= 0 || mesh->n_tets <= 0 || !mesh->x0 || !mesh->tets)
+        return hs_err_set(err, HS_ERR_INVALID, "fem: empty mesh (%d nodes, %d tets)", mesh->n_nodes,
+                          mesh->n_tets);
+    int n = mesh->n_nodes, ne = mesh->n_tets;
+    if (n > INT_MAX / 3 || ne > INT_MAX / 16)
+        return hs_err_set(err, HS_ERR_UNSUPPORTED, "fem: mesh too large (%d nodes, %d tets)", n,
+                          ne);
+    if (n_free < 0 || n_free > 3 * n)
+        return hs_err_set(err, HS_ERR_INVALID, "fem: n_free %d out of range [0, %d]", n_free,
+                          3 * n);
+    for (int k = 0; k < 4 * ne; k++)
+        if (mesh->tets[k] < 0 || mesh->tets[k] >= n)
+            return hs_err_set(err, HS_ERR_INVALID, "fem: tet %d references node %d (of %d)", k / 4,
+                              mesh->tets[k], n);
+
+    hs_fem* m = hs_calloc(1, sizeof *m);
+    if (!m) return nomem(err);
+    m->mesh = mesh;
+    m->def = *def;
+    m->n = n;
+    m->ne = ne;
+    m->n_free = n_free;
+    m->anp = def->locking_free;
+    double E = def->material.youngs_pa, nu = def->material.poisson;
+    m->mu = E / (2.0 * (1.0 + nu));
+    m->lambda = E * nu / ((1.0 + nu) * (1.0 - 2.0 * nu));
+    m->kappa = m->lambda + 2.0 * m->mu / 3.0;
+    m->lam_el = m->anp ? -2.0 * m->mu / 3.0 : m->lambda;
+
+    m->dof = hs_alloc(sizeof(int) * 3 * (size_t)n);
+    unsigned char* seen = hs_calloc((size_t)n_free + 1, 1);
+    m->tet = hs_alloc(sizeof(int) * 4 * (size_t)ne);
+    m->g = hs_alloc(sizeof(double) * 12 * (size_t)ne);
+    m->vol0 = hs_alloc(sizeof(double) * (size_t)ne);
+    m->active = hs_alloc((size_t)ne);
+    m->F = hs_alloc(sizeof(double) * 9 * (size_t)ne);
+    m->R = hs_alloc(sizeof(double) * 9 * (size_t)ne);
+    m->S = hs_calloc(9 * (size_t)ne, sizeof(double));
+    m->det = hs_alloc(sizeof(double) * (size_t)ne);
+    m->piters = hs_calloc((size_t)ne, sizeof(int));
+    m->f = hs_calloc(3 * (size_t)n, sizeof(double));
+    m->mass = hs_calloc((size_t)n, sizeof(double));
+    if (!m->dof || !seen || !m->tet || !m->g || !m->vol0 || !m->active || !m->F || !m->R || !m->S ||
+        !m->det || !m->piters || !m->f || !m->mass) {
+        hs_free(seen);
+        st = nomem(err);
+        goto fail;
+    }
+    for (int d = 0; d < 3 * n; d++) {
+        int v = dof_map[d];
+        if (v < -1 || v >= n_free || (v >= 0 && seen[v])) {
+            hs_free(seen);
+            st = hs_err_set(err, HS_ERR_INVALID,
+                            "fem: dof_map[%d] = %d is out of range or repeated (n_free %d)", d, v,
+                            n_free);
+            goto fail;
+        }
+        if (v >= 0) seen[v] = 1;
+        m->dof[d] = v;
+    }
+    for (int v = 0; v < n_free; v++)
+        if (!seen[v]) {
+            hs_free(seen);
+            st = hs_err_set(err, HS_ERR_INVALID, "fem: free index %d is not used by dof_map", v);
+            goto fail;
+        }
+    hs_free(seen);
+    memcpy(m->tet, mesh->tets, sizeof(int) * 4 * (size_t)ne);
+
+    // Shape gradients: F = sum_i (x_i - x_0) g_i^T with g_i the rows of Dm^-1 (i = 1..3).
+    for (int e = 0; e < ne; e++) {
+        const int* t = m->tet + 4 * e;
+        const double* p0 = mesh->x0 + 3 * t[0];
+        double dm[9];
+        for (int i = 0; i < 3; i++)
+            for (int c = 0; c < 3; c++) dm[3 * c + i] = mesh->x0[3 * t[i + 1] + c] - p0[c];
+        double det = m3_det(dm);
+        double scale = 0;
+        for (int k = 0; k < 9; k++) scale = fmax(scale, fabs(dm[k]));
+        if (!(det > 1e-14 * scale * scale * scale) || !isfinite(det)) {
+            st = hs_err_set(err, HS_ERR_INVALID,
+                            "fem: tet %d (nodes %d %d %d %d) has rest volume %g m^3 <= 0", e, t[0],
+                            t[1], t[2], t[3], det / 6.0);
+            goto fail;
+        }
+        double cof[9];
+        m3_cofactor(dm, cof); // Dm^-1 = cof^T / det, so row i of Dm^-1 is column i of cof / det
+        double* g = m->g + 12 * e;
+        for (int i = 0; i < 3; i++)
+            for (int c = 0; c < 3; c++) g[3 * (i + 1) + c] = cof[3 * c + i] / det;
+        for (int c = 0; c < 3; c++) g[c] = -(g[3 + c] + g[6 + c] + g[9 + c]);
+        m->vol0[e] = det / 6.0;
+        m->active[e] = 1;
+        m3_identity(m->F + 9 * e);
+        m3_identity(m->R + 9 * e);
+        m->det[e] = 1.0;
+    }
+    if (build_incidence(m) != HS_OK || build_rings(m) != HS_OK) {
+        st = nomem(err);
+        goto fail;
+    }
+    st = build_adjacency(m);
+    if (st != HS_OK) {
+        st = st == HS_ERR_NOMEM ? nomem(err)
+                                : hs_err_set(err, st, "fem: locking-free pattern too large");
+        goto fail;
+    }
+    if (m->anp && build_anp(m) != HS_OK) {
+        st = nomem(err);
+        goto fail;
+    }
+    for (int i = 0; i < n; i++) node_mass(m, i);
+    {
+        hs_csc* a = NULL;
+        // The pattern wants neighbour lists without self; ours include it (the builder skips it).
+        st = hs_csc_create_block_pattern(n, m->adj_start, m->adj, m->dof, n_free, &a, err);
+        if (st != HS_OK) goto fail;
+        st = build_scatter(m, a, err);
+        hs_csc_destroy(&a);
+        if (st != HS_OK) goto fail;
+    }
+    m->stats.volume_ratio_mean = m->stats.volume_ratio_min = m->stats.volume_ratio_max = 1.0;
+    *out = m;
+    return HS_OK;
+fail:
+    hs_fem_destroy(&m);
+    return st;
+}
+
+hs_status hs_fem_create_matrix(const hs_fem* fem, hs_csc** out) {
+    if (!out) return HS_ERR_INVALID;
+    *out = NULL;
+    if (!fem) return HS_ERR_INVALID;
+    hs_status st = hs_csc_create_block_pattern(fem->n, fem->adj_start, fem->adj, fem->dof,
+                                               fem->n_free, out, NULL);
+    if (st != HS_OK) return st;
+    HS_ASSERT((*out)->nnz == fem->nnz);
+    return HS_OK;
+}
+
+const double* hs_fem_lumped_mass(const hs_fem* fem) {
+    return fem->mass;
+}
+
+void hs_fem_set_element_active(hs_fem* fem, int tet, int active) {
+    HS_ASSERT(fem && tet >= 0 && tet < fem->ne);
+    unsigned char v = active ? 1 : 0;
+    if (fem->active[tet] == v) return;
+    fem->active[tet] = v;
+    for (int a = 0; a < 4; a++) node_mass(fem, fem->tet[4 * tet + a]);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Evaluation
+
+/// Rotation of element e for the co-rotated model; returns polar iterations.
+static int element_rotation(hs_fem* m, int e, const double F[9], double det) {
+    double* r = m->R + 9 * e;
+    if (!(det > 0)) {
+        if (m->def.inversion == HS_INVERSION_LINEAR_FALLBACK)
+            m3_identity(r);
+        else
+            hs_polar_svd(F, r);
+        return 0;
+    }
+    if (m->def.rotation == HS_ROTATION_SVD) {
+        hs_polar_svd(F, r);
+        return 0;
+    }
+    return hs_polar_higham(F, r, m->def.polar_tol, m->def.polar_max_iter);
+}
+
+void hs_fem_update(hs_fem* m, const double* x, hs_fem_stats* stats) {
+    const int ne = m->ne, n = m->n;
+    const double mu = m->mu, lam = m->lam_el;
+    const hs_model model = m->def.model;
+    memset(m->f, 0, sizeof(double) * 3 * (size_t)n);
+    double energy = 0, vsum = 0, vmin = INFINITY, vmax = -INFINITY;
+    int inverted = 0, n_active = 0, pmax = 0;
+
+    for (int e = 0; e < ne; e++) {
+        if (!m->active[e]) continue;
+        const int* t = m->tet + 4 * e;
+        const double* g = m->g + 12 * e;
+        const double* x0 = x + 3 * t[0];
+        double F[9] = {0};
+        for (int a = 1; a < 4; a++) {
+            const double* xa = x + 3 * t[a];
+            const double* ga = g + 3 * a;
+            for (int i = 0; i < 3; i++) {
+                double d = xa[i] - x0[i];
+                F[3 * i] += d * ga[0];
+                F[3 * i + 1] += d * ga[1];
+                F[3 * i + 2] += d * ga[2];
+            }
+        }
+        memcpy(m->F + 9 * e, F, sizeof F);
+        double det = m3_det(F);
+        m->det[e] = det;
+        n_active++;
+        vsum += det;
+        if (det < vmin) vmin = det;
+        if (det > vmax) vmax = det;
+        if (!(det > 0)) inverted++;
+        const double V = m->vol0[e];
+
+        double P[9]; // first Piola-Kirchhoff stress, Pa
+        if (model == HS_MODEL_STVK) {
+            double C[9], Ev[9], S[9];
+            m3_mul_tn(F, F, C);
+            for (int k = 0; k < 9; k++) Ev[k] = 0.5 * C[k];
+            Ev[0] -= 0.5;
+            Ev[4] -= 0.5;
+            Ev[8] -= 0.5;
+            double tr = Ev[0] + Ev[4] + Ev[8];
+            for (int k = 0; k < 9; k++) S[k] = 2.0 * mu * Ev[k];
+            S[0] += lam * tr;
+            S[4] += lam * tr;
+            S[8] += lam * tr;
+            memcpy(m->S + 9 * e, S, sizeof S);
+            m3_mul(F, S, P);
+            energy += V * (mu * m3_fro2(Ev) + 0.5 * lam * tr * tr);
+            if (m->anp) {
+                double cof[9];
+                m3_cofactor(F, cof); // d det F / dF
+                m->theta_e[e] = det - 1.0;
+                double* w = m->w + 12 * e;
+                for (int a = 0; a < 4; a++) m3_vec(cof, g + 3 * a, w + 3 * a);
+            }
+        } else {
+            // Linear and co-rotated: small strain of the (unrotated) displacement gradient.
+            const double* r = NULL;
+            double H[9];
+            if (model == HS_MODEL_COROTATED) {
+                int it = element_rotation(m, e, F, det);
+                m->piters[e] = it;
+                if (it > pmax) pmax = it;
+                r = m->R + 9 * e;
+                m3_mul_tn(r, F, H);
+            } else {
+                memcpy(H, F, sizeof H);
+            }
+            H[0] -= 1.0;
+            H[4] -= 1.0;
+            H[8] -= 1.0;
+            double eps[9], sig[9];
+            for (int i = 0; i < 3; i++)
+                for (int j = 0; j < 3; j++) eps[3 * i + j] = 0.5 * (H[3 * i + j] + H[3 * j + i]);
+            double tr = eps[0] + eps[4] + eps[8];
+            for (int k = 0; k < 9; k++) sig[k] = 2.0 * mu * eps[k];
+            sig[0] += lam * tr;
+            sig[4] += lam * tr;
+            sig[8] += lam * tr;
+            if (r)
+                m3_mul(r, sig, P);
+            else
+                memcpy(P, sig, sizeof P);
+            energy += V * (mu * m3_fro2(eps) + 0.5 * lam * tr * tr);
+            if (m->anp) {
+                m->theta_e[e] = tr;
+                double* w = m->w + 12 * e;
+                for (int a = 0; a < 4; a++) {
+                    if (r)
+                        m3_vec(r, g + 3 * a, w + 3 * a);
+                    else
+                        memcpy(w + 3 * a, g + 3 * a, 3 * sizeof(double));
+                }
+            }
+        }
+        // f_a = -V P g_a; node 0 balances the others.
+        double f0[3] = {0, 0, 0};
+        for (int a = 1; a < 4; a++) {
+            double pg[3];
+            m3_vec(P, g + 3 * a, pg);
+            double* fa = m->f + 3 * t[a];
+            for (int c = 0; c < 3; c++) {
+                fa[c] -= V * pg[c];
+                f0[c] += V * pg[c];
+            }
+        }
+        double* fz = m->f + 3 * t[0];
+        fz[0] += f0[0];
+        fz[1] += f0[1];
+        fz[2] += f0[2];
+    }
+
+    if (m->anp) {
+        // Nodal volumetric strain: volume-weighted mean of the incident element strains.
+        for (int i = 0; i < n; i++) {
+            double vn = 0, th = 0;
+            for (int p = m->nt_start[i]; p < m->nt_start[i + 1]; p++) {
+                int e = m->nt[p];
+                if (!m->active[e]) continue;
+                vn += 0.25 * m->vol0[e];
+                th += 0.25 * m->vol0[e] * m->theta_e[e];
+            }
+            m->vn[i] = vn;
+            m->theta_n[i] = vn > 0 ? th / vn : 0.0;
+            energy += 0.5 * m->kappa * vn * m->theta_n[i] * m->theta_n[i];
+            // c_n[m] = d theta_n / d x_m over the 1-ring of i.
+            int rb = m->ring_start[i], rs = m->ring_start[i + 1] - rb;
+            double* c = m->cvec + 3 * rb;
+            memset(c, 0, sizeof(double) * 3 * (size_t)rs);
+            if (!(vn > 0)) continue;
+            for (int p = m->nt_start[i]; p < m->nt_start[i + 1]; p++) {
+                int e = m->nt[p];
+                if (!m->active[e]) continue;
+                double wgt = 0.25 * m->vol0[e] / vn;
+                const double* w = m->w + 12 * e;
+                for (int a = 0; a < 4; a++) {
+                    double* cs = c + 3 * m->nt_slot[4 * p + a];
+                    cs[0] += wgt * w[3 * a];
+                    cs[1] += wgt * w[3 * a + 1];
+                    cs[2] += wgt * w[3 * a + 2];
+                }
+            }
+        }
+        // Forces: -dW_vol/dx = -sum_e V_e pbar_e w_e with pbar_e the mean nodal pressure.
+        for (int e = 0; e < ne; e++) {
+            if (!m->active[e]) continue;
+            const int* t = m->tet + 4 * e;
+            double pb = 0.25 * m->kappa *
+                        (m->theta_n[t[0]] + m->theta_n[t[1]] + m->theta_n[t[2]] + m->theta_n[t[3]]);
+            m->pbar[e] = pb;
+            double s = m->vol0[e] * pb;
+            const double* w = m->w + 12 * e;
+            for (int a = 0; a < 4; a++) {
+                double* fa = m->f + 3 * t[a];
+                fa[0] -= s * w[3 * a];
+                fa[1] -= s * w[3 * a + 1];
+                fa[2] -= s * w[3 * a + 2];
+            }
+        }
+    }
+
+    m->stats.inverted = inverted;
+    m->stats.volume_ratio_mean = n_active ? vsum / n_active : 1.0;
+    m->stats.volume_ratio_min = n_active ? vmin : 1.0;
+    m->stats.volume_ratio_max = n_active ? vmax : 1.0;
+    m->stats.polar_iters_max = pmax;
+    m->stats.energy_j = energy;
+    if (stats) *stats = m->stats;
+}
+
+void hs_fem_forces(const hs_fem* fem, double* f) {
+    memcpy(f, fem->f, sizeof(double) * 3 * (size_t)fem->n);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Tangent
+
+/// The 10 upper blocks (a <= b) of element e's tangent, row-major 3x3 each, in the order
+/// (0,0),(0,1),(0,2),(0,3),(1,1),(1,2),(1,3),(2,2),(2,3),(3,3). With p_a = Q g_a:
+/// K_ab = V [ s_ab I + lambda p_a p_b^T + mu p_b p_a^T + mu (g_a.g_b) M ]
+/// linear: Q = I, M = I, s = 0; co-rotated: Q = R, M = R R^T = I, s = 0 (the R K_e R^T of the
+/// paper, no dR/dx term); StVK: Q = F, M = F F^T, s_ab = g_a.S g_b (exact). With ANP and StVK
+/// the volumetric term adds V pbar d^2 det F / dx_a dx_b = V pbar [F (g_a x g_b)]x^T.
+static void element_blocks(const hs_fem* m, int e, double kb[10][9]) {
+    const double* g = m->g + 12 * e;
+    const double V = m->vol0[e], mu = m->mu, lam = m->lam_el;
+    double p[4][3];
+    double M[9];
+    int stvk = m->def.model == HS_MODEL_STVK;
+    const double* Q = NULL;
+    if (m->def.model == HS_MODEL_COROTATED)
+        Q = m->R + 9 * e;
+    else if (stvk)
+        Q = m->F + 9 * e;
+    for (int a = 0; a < 4; a++) {
+        if (Q)
+            m3_vec(Q, g + 3 * a, p[a]);
+        else
+            memcpy(p[a], g + 3 * a, sizeof p[a]);
+    }
+    double Sg[4][3];
+    if (stvk) {
+        m3_mul_nt(Q, Q, M);
+        for (int a = 0; a < 4; a++) m3_vec(m->S + 9 * e, g + 3 * a, Sg[a]);
+    }
+    double geo = (stvk && m->anp) ? V * m->pbar[e] : 0.0;
+    int k = 0;
+    for (int a = 0; a < 4; a++)
+        for (int b = a; b < 4; b++, k++) {
+            double* B = kb[k];
+            const double* pa = p[a];
+            const double* pb = p[b];
+            double gg = mu * v3_dot(g + 3 * a, g + 3 * b);
+            for (int i = 0; i < 3; i++)
+                for (int j = 0; j < 3; j++)
+                    B[3 * i + j] = V * (lam * pa[i] * pb[j] + mu * pb[i] * pa[j]);
+            if (stvk) {
+                double s = V * v3_dot(Sg[a], g + 3 * b);
+                for (int q = 0; q < 9; q++) B[q] += V * gg * M[q];
+                B[0] += s;
+                B[4] += s;
+                B[8] += s;
+                if (geo != 0.0) {
+                    double gx[3], v[3];
+                    v3_cross(g + 3 * a, g + 3 * b, gx);
+                    m3_vec(Q, gx, v);
+                    // [v]x^T: (0,1) = v2, (0,2) = -v1, (1,2) = v0, antisymmetric
+                    B[1] += geo * v[2];
+                    B[3] -= geo * v[2];
+                    B[2] -= geo * v[1];
+                    B[6] += geo * v[1];
+                    B[5] += geo * v[0];
+                    B[7] -= geo * v[0];
+                }
+            } else {
+                B[0] += V * gg;
+                B[4] += V * gg;
+                B[8] += V * gg;
+            }
+        }
+}
+
+static inline void scatter_block(double* val, const int* pos, const double* B, double coef) {
+    for (int q = 0; q < 9; q++)
+        if (pos[q] >= 0) val[pos[q]] += coef * B[q];
+}
+
+static inline void scatter_block_t(double* val, const int* pos, const double* B, double coef) {
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) {
+            int p = pos[3 * i + j];
+            if (p >= 0) val[p] += coef * B[3 * j + i];
+        }
+}
+
+void hs_fem_assemble(const hs_fem* m, double kcoef, double mcoef, hs_csc* a) {
+    HS_ASSERT(a && a->n == m->n_free && a->nnz == m->nnz);
+    memset(a->val, 0, sizeof(double) * (size_t)a->nnz);
+    double* val = a->val;
+    if (kcoef != 0.0) {
+        double kb[10][9];
+        for (int e = 0; e < m->ne; e++) {
+            if (!m->active[e]) continue;
+            element_blocks(m, e, kb);
+            const int* eb = m->elem_blk + 16 * e;
+            int k = 0;
+            for (int aa = 0; aa < 4; aa++)
+                for (int b = aa; b < 4; b++, k++) {
+                    scatter_block(val, m->blkpos + 9 * eb[4 * aa + b], kb[k], kcoef);
+                    if (b != aa) scatter_block_t(val, m->blkpos + 9 * eb[4 * b + aa], kb[k], kcoef);
+                }
+        }
+        if (m->anp) {
+            // K_vol = sum_n kappa V_n c_n c_n^T over the 1-ring of each node.
+            for (int i = 0; i < m->n; i++) {
+                double s = kcoef * m->kappa * m->vn[i];
+                if (s == 0.0) continue;
+                int rb = m->ring_start[i], rs = m->ring_start[i + 1] - rb;
+                const double* c = m->cvec + 3 * rb;
+                const int* pb = m->pair_blk + m->pair_start[i];
+                for (int r = 0; r < rs; r++) {
+                    const double* cr = c + 3 * r;
+                    for (int q = 0; q < rs; q++) {
+                        const double* cq = c + 3 * q;
+                        const int* pos = m->blkpos + 9 * pb[r * rs + q];
+                        for (int ii = 0; ii < 3; ii++)
+                            for (int jj = 0; jj < 3; jj++) {
+                                int p = pos[3 * ii + jj];
+                                if (p >= 0) val[p] += s * cr[ii] * cq[jj];
+                            }
+                    }
+                }
+            }
+        }
+    }
+    if (mcoef != 0.0) {
+        for (int i = 0; i < m->n; i++)
+            for (int c = 0; c < 3; c++) {
+                int p = m->diag_pos[3 * i + c];
+                if (p >= 0) val[p] += mcoef * m->mass[i];
+            }
+    }
+}
+
+void hs_fem_apply_tangent(const hs_fem* m, const double* x, double* y) {
+    memset(y, 0, sizeof(double) * 3 * (size_t)m->n);
+    double kb[10][9];
+    for (int e = 0; e < m->ne; e++) {
+        if (!m->active[e]) continue;
+        element_blocks(m, e, kb);
+        const int* t = m->tet + 4 * e;
+        int k = 0;
+        for (int aa = 0; aa < 4; aa++)
+            for (int b = aa; b < 4; b++, k++) {
+                const double* B = kb[k];
+                const double* xb = x + 3 * t[b];
+                double* ya = y + 3 * t[aa];
+                for (int i = 0; i < 3; i++)
+                    ya[i] += B[3 * i] * xb[0] + B[3 * i + 1] * xb[1] + B[3 * i + 2] * xb[2];
+                if (b != aa) {
+                    const double* xa = x + 3 * t[aa];
+                    double* yb = y + 3 * t[b];
+                    for (int i = 0; i < 3; i++)
+                        yb[i] += B[i] * xa[0] + B[3 + i] * xa[1] + B[6 + i] * xa[2];
+                }
+            }
+    }
+    if (m->anp) {
+        for (int i = 0; i < m->n; i++) {
+            double s = m->kappa * m->vn[i];
+            if (s == 0.0) continue;
+            int rb = m->ring_start[i], rs = m->ring_start[i + 1] - rb;
+            const double* c = m->cvec + 3 * rb;
+            double d = 0;
+            for (int r = 0; r < rs; r++) d += v3_dot(c + 3 * r, x + 3 * m->ring[rb + r]);
+            d *= s;
+            for (int r = 0; r < rs; r++) {
+                double* yr = y + 3 * m->ring[rb + r];
+                yr[0] += d * c[3 * r];
+                yr[1] += d * c[3 * r + 1];
+                yr[2] += d * c[3 * r + 2];
+            }
+        }
+    }
+}
+
+void hs_fem_node_rotation(const hs_fem* m, int node, double r[9]) {
+    HS_ASSERT(m && node >= 0 && node < m->n);
+    if (m->def.model == HS_MODEL_LINEAR) {
+        m3_identity(r);
+        return;
+    }
+    double sum[9] = {0};
+    for (int p = m->nt_start[node]; p < m->nt_start[node + 1]; p++) {
+        int e = m->nt[p];
+        if (!m->active[e]) continue;
+        const double* F = m->F + 9 * e;
+        for (int k = 0; k < 9; k++) sum[k] += m->vol0[e] * F[k];
+    }
+    hs_polar_svd(sum, r);
+}
