@@ -226,6 +226,10 @@ typedef struct hs_rt_stats {
     hs_rt_hist period_err;    ///< |measured period - nominal period|
 } hs_rt_stats;
 
+/// Add run s into acc (histograms, counters, worst cases), e.g. to pool interleaved benchmark
+/// segments. A zeroed acc starts empty. Thread: any | Allocates: no
+void hs_rt_stats_accumulate(hs_rt_stats* acc, const hs_rt_stats* s);
+
 #ifdef __cplusplus
 }
 #endif

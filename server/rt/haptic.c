@@ -265,3 +265,23 @@ double hs_rt_hist_quantile_us(const hs_rt_hist* h, double q) {
     }
     return (double)h->max_ns * 1e-3;
 }
+
+void hs_rt_stats_accumulate(hs_rt_stats* acc, const hs_rt_stats* s) {
+    int empty = acc->ticks == 0 && acc->start_ns == 0;
+    acc->obtained = empty ? s->obtained : (acc->obtained & s->obtained);
+    acc->fifo_priority = empty ? s->fifo_priority : acc->fifo_priority;
+    acc->period_s = s->period_s;
+    if (empty || s->start_ns < acc->start_ns) acc->start_ns = s->start_ns;
+    if (s->last_ns > acc->last_ns) acc->last_ns = s->last_ns;
+    acc->ticks += s->ticks;
+    acc->overruns += s->overruns;
+    acc->missed_deadlines += s->missed_deadlines;
+    if (s->wake_late_max_ns > acc->wake_late_max_ns) acc->wake_late_max_ns = s->wake_late_max_ns;
+    for (int i = 0; i <= HS_RT_HIST_BINS; ++i) {
+        acc->tick.count[i] += s->tick.count[i];
+        acc->period_err.count[i] += s->period_err.count[i];
+    }
+    if (s->tick.max_ns > acc->tick.max_ns) acc->tick.max_ns = s->tick.max_ns;
+    if (s->period_err.max_ns > acc->period_err.max_ns)
+        acc->period_err.max_ns = s->period_err.max_ns;
+}

@@ -105,6 +105,7 @@ static void* rt_main(void* arg) {
     const int64_t period = L->period_ns;
     const int64_t max_ticks = L->def.max_ticks;
 
+    pthread_setname_np(pthread_self(), "hs-rt"); // for top -H, perf, gdb
     prefault_stack();
     atomic_fetch_or_explicit(&L->obtained, HS_RT_PREFAULTED, memory_order_relaxed);
     if (tick.on_start) tick.on_start(tick.ctx);
