@@ -54,6 +54,38 @@ hs_status hs_cholesky_solve_many(hs_cholesky* f, int k, const double* b, double*
 int64_t hs_cholesky_factor_nnz(const hs_cholesky* f);
 /// Release; accepts NULL, sets *f = NULL.
 void hs_cholesky_destroy(hs_cholesky** f);
+/// Order n of the factored matrix.
+int hs_cholesky_size(const hs_cholesky* f);
+/// 1 if the factor is supernodal (BLAS-3 blocks), 0 if simplicial.
+int hs_cholesky_is_supernodal(const hs_cholesky* f);
+
+// Low-rank modification (cutting). CHOLMOD updates only a simplicial LDL^T factor, so the first
+// call converts the factor once (O(nnz(L)) time, allocates) and every later refactor is then
+// simplicial too: slower than supernodal for large 3D meshes, but each rank-r change then costs
+// about r sparse triangular passes along the elimination-tree paths instead of a refactor.
+
+/// Convert to an updatable factor and size workspaces for changes of up to max_elems elements
+/// (or max_elems*12 columns) per call, so later updates allocate nothing. Idempotent.
+hs_status hs_cholesky_prepare_updates(hs_cholesky* f, int max_elems);
+/// Factor of A + C C^T (update = 1) or A - C C^T (update = 0). C is n x n_cols in compressed
+/// columns over the original (unpermuted) dof numbering: colp[n_cols+1], rowi/val[colp[n_cols]],
+/// rows unique within a column, any order. Returns HS_ERR_NOT_POSDEF if a downdate leaves the
+/// matrix indefinite: the factor is then unusable until the next successful refactor.
+/// Allocates: only when C is larger than any earlier call (see prepare).
+hs_status hs_cholesky_updown(hs_cholesky* f, int update, int n_cols, const int* colp,
+                             const int* rowi, const double* val);
+/// Factor of A + sum_e dK_e for n_elem element changes: dk[144*e] is a symmetric 12x12 (any
+/// sign; row-major), dofs[12*e] its free dof indices or -1 for fixed dofs. Each dK_e is split
+/// by an eigen-decomposition into update and downdate columns; all updates run before all
+/// downdates so the intermediate matrices stay SPD whenever the result is.
+/// Errors as hs_cholesky_updown. Allocates: only when n_elem exceeds every earlier call.
+hs_status hs_cholesky_update_elements(hs_cholesky* f, int n_elem, const double* dk,
+                                      const int* dofs);
+
+/// Limit the BLAS (OpenBLAS) used by CHOLMOD to n threads, process-wide. OpenBLAS's default
+/// uses every core, which competes with the haptic thread; call with 1 at start-up.
+/// Returns HS_ERR_UNSUPPORTED if the BLAS in use has no such control.
+hs_status hs_sparse_set_blas_threads(int n);
 
 // ---------------------------------------------------------------------------------------------
 /// Preconditioned conjugate gradients with warm start.
@@ -70,9 +102,9 @@ hs_status hs_pcg_create(int n, hs_pcg** out);
 /// Solve A x = b. x holds the initial guess on entry (warm start) and the result on exit.
 /// Stops when ||r|| <= tol ||b|| or after max_iter. factor is used only with HS_PRECOND_FACTOR.
 /// Returns HS_OK, or HS_WARN_NOT_CONVERGED with the best x. Allocates: no.
-hs_status hs_pcg_solve(hs_pcg* pcg, const hs_csc* a, const double* b, double* x,
-                       hs_precond precond, hs_cholesky* factor, double tol, int max_iter,
-                       int* iters /* OUT */, double* rel_residual /* OUT */);
+hs_status hs_pcg_solve(hs_pcg* pcg, const hs_csc* a, const double* b, double* x, hs_precond precond,
+                       hs_cholesky* factor, double tol, int max_iter, int* iters /* OUT */,
+                       double* rel_residual /* OUT */);
 /// Release; accepts NULL, sets *pcg = NULL.
 void hs_pcg_destroy(hs_pcg** pcg);
 

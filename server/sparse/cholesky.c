@@ -1,0 +1,659 @@
+// Sparse Cholesky on CHOLMOD: analysis once, numeric refactorisation into a spare factor (the
+// last good factor survives a non-SPD matrix), allocation-free solves, and low-rank
+// update/downdate for cutting. The only file that includes cholmod.h.
+//
+// Memory: CHOLMOD allocates through SuiteSparse_config, which is pointed (once, process-wide)
+// at hs_alloc/hs_calloc/hs_realloc/hs_free, so CHOLMOD's memory is in hs_byte_count and fault
+// injection reaches it. METIS, when CHOLMOD tries it, uses its own malloc during analysis only.
+#define _GNU_SOURCE // RTLD_DEFAULT
+#include "hapsim/sparse.h"
+
+#include <cholmod.h>
+#include <dlfcn.h>
+#include <math.h>
+#include <stdatomic.h>
+#include <string.h>
+
+struct hs_cholesky {
+    cholmod_common c;            // one context per object; objects are single-threaded
+    cholmod_factor* L;           // current good factor
+    cholmod_factor* spare;       // refactor target, swapped with L on success (same symbolic)
+    cholmod_sparse a;            // header over the caller's hs_csc arrays (stype 1: upper used)
+    cholmod_dense b;             // header over the caller's right-hand side
+    cholmod_dense *x1, *y1, *e1; // solve workspaces, k = 1
+    cholmod_dense *xk, *yk, *ek; // solve_many workspaces, last k
+    double* work;                // [n] permuted right-hand side for simplicial solves
+    int n, nnz;
+    int* colp;  // [n+1] copy of the pattern's column starts (cheap same-pattern check)
+    int broken; // a downdate made L indefinite; solves refuse until a refactor succeeds
+    // Update mode (simplicial LDL^T).
+    int updatable;
+    int* pinv;        // [n] inverse fill-reducing permutation: row of dof d in L is pinv[d]
+    int cap_cols;     // capacity of each C buffer in columns
+    int cap_nnz;      // and in entries
+    int *cp_p, *ci_p; // update columns: colp [cap_cols+1], rowi [cap_nnz]
+    double* cx_p;
+    int *cp_m, *ci_m; // downdate columns
+    double* cx_m;
+};
+
+// ---------------------------------------------------------------------------------------------
+// Process-wide set-up: allocator hooks (once) and a quiet error handler.
+
+static atomic_int g_alloc_state; // 0 untouched, 1 installing, 2 installed
+
+static void install_allocator(void) {
+    int expected = 0;
+    if (atomic_compare_exchange_strong(&g_alloc_state, &expected, 1)) {
+        SuiteSparse_config.malloc_func = hs_alloc;
+        SuiteSparse_config.calloc_func = hs_calloc;
+        SuiteSparse_config.realloc_func = hs_realloc;
+        SuiteSparse_config.free_func = hs_free;
+        atomic_store(&g_alloc_state, 2);
+        return;
+    }
+    // Another thread is installing: CHOLMOD must not allocate before the hooks are in place,
+    // or hs_free would later receive a libc block.
+    while (atomic_load(&g_alloc_state) != 2) {
+    }
+}
+
+// CHOLMOD's handler has no user pointer; objects are single-threaded, so per-thread is exact.
+static _Thread_local struct {
+    int status;
+    int line;
+    const char* file;
+    const char* msg; // CHOLMOD passes string literals
+} tl_last;
+
+static void on_cholmod_error(int status, const char* file, int line, const char* message) {
+    tl_last.status = status;
+    tl_last.file = file;
+    tl_last.line = line;
+    tl_last.msg = message;
+}
+
+static hs_status map_status(int s) {
+    switch (s) {
+    case CHOLMOD_OK:
+        return HS_OK;
+    case CHOLMOD_OUT_OF_MEMORY:
+        return HS_ERR_NOMEM;
+    case CHOLMOD_TOO_LARGE:
+        return HS_ERR_UNSUPPORTED;
+    case CHOLMOD_INVALID:
+        return HS_ERR_INVALID;
+    case CHOLMOD_NOT_POSDEF:
+        return HS_ERR_NOT_POSDEF;
+    default:
+        // Remaining warnings (tiny diagonal) leave a usable factor; other errors are internal.
+        return s > 0 ? HS_OK : HS_ERR_NUMERIC;
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+
+static void set_matrix_view(hs_cholesky* f, const hs_csc* m) {
+    cholmod_sparse* a = &f->a;
+    memset(a, 0, sizeof *a);
+    a->nrow = (size_t)m->n;
+    a->ncol = (size_t)m->n;
+    a->nzmax = (size_t)m->nnz;
+    // CHOLMOD's API is not const-qualified; factorize only reads A.
+    a->p = (void*)(uintptr_t)m->colp;
+    a->i = (void*)(uintptr_t)m->rowi;
+    a->x = (void*)(uintptr_t)m->val;
+    a->stype = 1; // the full pattern is stored; CHOLMOD reads the upper triangle
+    a->itype = CHOLMOD_INT;
+    a->xtype = CHOLMOD_REAL;
+    a->dtype = CHOLMOD_DOUBLE;
+    a->sorted = 1;
+    a->packed = 1;
+}
+
+// Diagonal of L (LL^T) or D (LDL^T): 0 if any entry is not finite and positive. O(n).
+static int factor_diag_ok(const cholmod_factor* L) {
+    const double* x = L->x;
+    if (L->is_super) {
+        const int* super = L->super;
+        const int* pi = L->pi;
+        const int* px = L->px;
+        for (size_t s = 0; s < L->nsuper; s++) {
+            int k1 = super[s], k2 = super[s + 1];
+            int nsrow = pi[s + 1] - pi[s];
+            for (int j = 0; j < k2 - k1; j++) {
+                double d = x[px[s] + (size_t)j * (size_t)nsrow + (size_t)j];
+                if (!(d > 0.0 && d < INFINITY)) return 0;
+            }
+        }
+        return 1;
+    }
+    const int* p = L->p;
+    for (size_t j = 0; j < L->n; j++) {
+        double d = x[p[j]];
+        if (!(d > 0.0 && d < INFINITY)) return 0;
+    }
+    return 1;
+}
+
+static int pattern_matches(const hs_cholesky* f, const hs_csc* a) {
+    return a && a->n == f->n && a->nnz == f->nnz &&
+           memcmp(a->colp, f->colp, sizeof(int) * ((size_t)f->n + 1)) == 0;
+}
+
+static hs_status check_csc(const hs_csc* a, hs_err* err) {
+    if (!a) return hs_err_set(err, HS_ERR_INVALID, "%s:%d: matrix is NULL", __FILE__, __LINE__);
+    if (a->n < 0 || a->nnz < 0 || !a->colp || (a->nnz > 0 && (!a->rowi || !a->val)))
+        return hs_err_set(err, HS_ERR_INVALID, "%s:%d: malformed hs_csc (n %d, nnz %d)", __FILE__,
+                          __LINE__, a->n, a->nnz);
+    if (a->colp[0] != 0 || a->colp[a->n] != a->nnz)
+        return hs_err_set(err, HS_ERR_INVALID, "%s:%d: colp[0] = %d, colp[n] = %d, nnz = %d",
+                          __FILE__, __LINE__, a->colp[0], a->colp[a->n], a->nnz);
+    for (int j = 0; j < a->n; j++) {
+        int has_diag = 0;
+        for (int p = a->colp[j]; p < a->colp[j + 1]; p++) {
+            int r = a->rowi[p];
+            if (r < 0 || r >= a->n || (p > a->colp[j] && r <= a->rowi[p - 1]))
+                return hs_err_set(err, HS_ERR_INVALID,
+                                  "%s:%d: column %d: row index %d out of range or not ascending",
+                                  __FILE__, __LINE__, j, r);
+            has_diag |= r == j;
+        }
+        if (!has_diag)
+            return hs_err_set(err, HS_ERR_INVALID, "%s:%d: column %d has no diagonal entry",
+                              __FILE__, __LINE__, j);
+    }
+    return HS_OK;
+}
+
+static hs_status fail_from_cholmod(hs_cholesky* f, hs_err* err, const char* what) {
+    hs_status st = map_status(f->c.status);
+    if (st == HS_OK) st = HS_ERR_NUMERIC;
+    return hs_err_set(err, st, "%s:%d: %s failed: CHOLMOD status %d (%s:%d: %s)", __FILE__,
+                      __LINE__, what, f->c.status, tl_last.file ? tl_last.file : "?", tl_last.line,
+                      tl_last.msg ? tl_last.msg : "no message");
+}
+
+hs_status hs_cholesky_create(const hs_csc* a, hs_cholesky** out, hs_err* err) {
+    if (!out) return hs_err_set(err, HS_ERR_INVALID, "%s:%d: out is NULL", __FILE__, __LINE__);
+    *out = NULL;
+    hs_status st = check_csc(a, err);
+    if (st != HS_OK) return st;
+    install_allocator();
+
+    hs_cholesky* f = hs_calloc(1, sizeof *f);
+    if (!f) return hs_err_set(err, HS_ERR_NOMEM, "%s:%d: out of memory", __FILE__, __LINE__);
+    cholmod_start(&f->c);
+    f->c.print = 0;
+    f->c.error_handler = on_cholmod_error;
+    // The spare factor is thrown away on failure, so stop at the first bad pivot.
+    f->c.quick_return_if_not_posdef = 1;
+    f->n = a->n;
+    f->nnz = a->nnz;
+    tl_last.msg = NULL;
+
+    f->colp = hs_alloc(sizeof(int) * ((size_t)a->n + 1));
+    if (!f->colp) {
+        st = hs_err_set(err, HS_ERR_NOMEM, "%s:%d: out of memory", __FILE__, __LINE__);
+        goto fail;
+    }
+    memcpy(f->colp, a->colp, sizeof(int) * ((size_t)a->n + 1));
+    f->work = hs_alloc(sizeof(double) * ((size_t)a->n + 1));
+    if (!f->work) {
+        st = hs_err_set(err, HS_ERR_NOMEM, "%s:%d: out of memory", __FILE__, __LINE__);
+        goto fail;
+    }
+    set_matrix_view(f, a);
+
+    f->L = cholmod_analyze(&f->a, &f->c);
+    if (!f->L) {
+        st = fail_from_cholmod(f, err, "symbolic analysis");
+        goto fail;
+    }
+    cholmod_factorize(&f->a, f->L, &f->c);
+    if (f->c.status == CHOLMOD_NOT_POSDEF) {
+        st = hs_err_set(err, HS_ERR_NOT_POSDEF,
+                        "%s:%d: matrix (n %d) is not positive definite (pivot %zu of the "
+                        "permuted matrix)",
+                        __FILE__, __LINE__, a->n, f->L->minor);
+        goto fail;
+    }
+    if (map_status(f->c.status) != HS_OK) {
+        st = fail_from_cholmod(f, err, "numeric factorisation");
+        goto fail;
+    }
+    if (!factor_diag_ok(f->L)) {
+        st = hs_err_set(err, HS_ERR_NUMERIC,
+                        "%s:%d: factor has a non-finite diagonal (NaN/Inf "
+                        "in the matrix?)",
+                        __FILE__, __LINE__);
+        goto fail;
+    }
+    // Double buffering costs one more factor of memory but no copy per refactor.
+    f->spare = cholmod_copy_factor(f->L, &f->c);
+    if (!f->spare) {
+        st = fail_from_cholmod(f, err, "copying the factor");
+        goto fail;
+    }
+    f->b.nrow = (size_t)a->n;
+    f->b.ncol = 1;
+    f->b.nzmax = (size_t)a->n;
+    f->b.d = (size_t)a->n;
+    f->b.xtype = CHOLMOD_REAL;
+    f->b.dtype = CHOLMOD_DOUBLE;
+    *out = f;
+    return HS_OK;
+
+fail:
+    hs_cholesky_destroy(&f);
+    return st;
+}
+
+// Pour a supernodal LL^T factor S into a simplicial LDL^T factor L of the same pattern (the
+// layout change_factor produced from an S of the same analysis): D(j) = S(j,j)^2 and
+// L(i,j) = S(i,j) / S(j,j). With fill = 0 only checks that the patterns agree. O(nnz(L)).
+static int super_to_ldl(const cholmod_factor* S, cholmod_factor* L, int fill) {
+    if (L->is_super || L->is_ll || L->n != S->n || L->xtype != CHOLMOD_REAL) return 0;
+    const int *super = S->super, *pi = S->pi, *px = S->px, *ls = S->s;
+    const int *lp = L->p, *li = L->i, *lnz = L->nz;
+    const double* sx = S->x;
+    double* lx = L->x;
+    for (size_t s = 0; s < S->nsuper; s++) {
+        int k1 = super[s], nsrow = pi[s + 1] - pi[s];
+        const int* rows = ls + pi[s];
+        for (int j = k1; j < super[s + 1]; j++) {
+            int jj = j - k1, len = nsrow - jj, p = lp[j];
+            const double* col = sx + px[s] + (size_t)jj * (size_t)nsrow + (size_t)jj;
+            if (!fill) {
+                if (lnz[j] != len) return 0;
+                for (int q = 0; q < len; q++)
+                    if (li[p + q] != rows[jj + q]) return 0;
+                continue;
+            }
+            double d = col[0], dinv = 1.0 / d;
+            lx[p] = d * d;
+            for (int q = 1; q < len; q++) lx[p + q] = col[q] * dinv;
+        }
+    }
+    return 1;
+}
+
+hs_status hs_cholesky_refactor(hs_cholesky* f, const hs_csc* a) {
+    if (!f || !pattern_matches(f, a)) return HS_ERR_INVALID;
+    set_matrix_view(f, a);
+    cholmod_factorize(&f->a, f->spare, &f->c);
+    hs_status st = map_status(f->c.status);
+    if (st != HS_OK) return st;
+    if (!factor_diag_ok(f->spare)) return HS_ERR_NUMERIC;
+    if (f->updatable && f->spare->is_super) {
+        // Update mode keeps the spare supernodal: CHOLMOD's simplicial refactor is 5-10x
+        // slower on 3D meshes than a supernodal one plus this O(nnz(L)) copy.
+        if (super_to_ldl(f->spare, f->L, 0)) {
+            super_to_ldl(f->spare, f->L, 1);
+        } else {
+            // L's pattern grew in a general update: rebuild it (allocates; L kept on failure).
+            cholmod_factor* t = cholmod_copy_factor(f->spare, &f->c);
+            if (!t || !cholmod_change_factor(CHOLMOD_REAL, 0, 0, 0, 0, t, &f->c)) {
+                cholmod_free_factor(&t, &f->c);
+                return HS_ERR_NOMEM;
+            }
+            cholmod_free_factor(&f->L, &f->c);
+            f->L = t;
+        }
+    } else {
+        cholmod_factor* t = f->L;
+        f->L = f->spare;
+        f->spare = t;
+    }
+    f->broken = 0;
+    return HS_OK;
+}
+
+// Simplicial LL^T or LDL^T solve of one column. cholmod_solve2's simplicial path shrinks its Y
+// workspace header to the block it last used and so reallocates on every call; this loop is
+// the same arithmetic without that. Columns may be unpacked (nz) and in any order (next).
+static void simplicial_solve(const cholmod_factor* L, double* y, const double* b, double* x) {
+    const int n = (int)L->n;
+    const int *perm = L->Perm, *lp = L->p, *li = L->i, *lnz = L->nz;
+    const double* lx = L->x;
+    const int ll = L->is_ll;
+    for (int k = 0; k < n; k++) y[k] = b[perm[k]];
+    for (int j = 0; j < n; j++) { // L y = P b
+        int p = lp[j], e = p + lnz[j];
+        double yj = ll ? y[j] / lx[p] : y[j];
+        y[j] = yj;
+        for (p++; p < e; p++) y[li[p]] -= lx[p] * yj;
+    }
+    if (!ll)
+        for (int j = 0; j < n; j++) y[j] /= lx[lp[j]]; // D
+    for (int j = n - 1; j >= 0; j--) {                 // L^T z = y
+        int p = lp[j], e = p + lnz[j];
+        double s = y[j];
+        for (int q = p + 1; q < e; q++) s -= lx[q] * y[li[q]];
+        y[j] = ll ? s / lx[p] : s;
+    }
+    for (int k = 0; k < n; k++) x[perm[k]] = y[k];
+}
+
+static hs_status solve_into(hs_cholesky* f, int k, const double* b, double* x, cholmod_dense** X,
+                            cholmod_dense** Y, cholmod_dense** E) {
+    if (!f || k < 0 || (f->n > 0 && k > 0 && (!b || !x))) return HS_ERR_INVALID;
+    if (f->broken) return HS_ERR_NOT_POSDEF;
+    if (f->n == 0 || k == 0) return HS_OK;
+    size_t n = (size_t)f->n;
+    if (!f->L->is_super) {
+        for (int c = 0; c < k; c++) simplicial_solve(f->L, f->work, b + c * n, x + c * n);
+        return HS_OK;
+    }
+    f->b.ncol = (size_t)k;
+    f->b.nzmax = n * (size_t)k;
+    f->b.x = (void*)(uintptr_t)b; // read only by cholmod_solve2
+    int ok = cholmod_solve2(CHOLMOD_A, f->L, &f->b, NULL, X, NULL, Y, E, &f->c);
+    f->b.x = NULL;
+    if (!ok) return map_status(f->c.status) != HS_OK ? map_status(f->c.status) : HS_ERR_NUMERIC;
+    // X is CHOLMOD's; copying out lets x alias b and keeps X reusable.
+    memcpy(x, (*X)->x, sizeof(double) * n * (size_t)k);
+    return HS_OK;
+}
+
+hs_status hs_cholesky_solve(hs_cholesky* f, const double* b, double* x) {
+    if (!f) return HS_ERR_INVALID;
+    return solve_into(f, 1, b, x, &f->x1, &f->y1, &f->e1);
+}
+
+hs_status hs_cholesky_solve_many(hs_cholesky* f, int k, const double* b, double* x) {
+    if (!f) return HS_ERR_INVALID;
+    return solve_into(f, k, b, x, &f->xk, &f->yk, &f->ek);
+}
+
+int64_t hs_cholesky_factor_nnz(const hs_cholesky* f) {
+    if (!f || !f->L) return 0;
+    const cholmod_factor* L = f->L;
+    if (L->is_super) return (int64_t)L->xsize;
+    const int* nz = L->nz;
+    int64_t s = 0;
+    for (size_t j = 0; j < L->n; j++) s += nz[j];
+    return s;
+}
+
+int hs_cholesky_size(const hs_cholesky* f) {
+    return f ? f->n : 0;
+}
+
+int hs_cholesky_is_supernodal(const hs_cholesky* f) {
+    return f && f->L && f->L->is_super;
+}
+
+void hs_cholesky_destroy(hs_cholesky** pf) {
+    if (!pf || !*pf) return;
+    hs_cholesky* f = *pf;
+    cholmod_free_factor(&f->L, &f->c);
+    cholmod_free_factor(&f->spare, &f->c);
+    cholmod_free_dense(&f->x1, &f->c);
+    cholmod_free_dense(&f->y1, &f->c);
+    cholmod_free_dense(&f->e1, &f->c);
+    cholmod_free_dense(&f->xk, &f->c);
+    cholmod_free_dense(&f->yk, &f->c);
+    cholmod_free_dense(&f->ek, &f->c);
+    cholmod_finish(&f->c);
+    hs_free(f->colp);
+    hs_free(f->work);
+    hs_free(f->pinv);
+    hs_free(f->cp_p);
+    hs_free(f->ci_p);
+    hs_free(f->cx_p);
+    hs_free(f->cp_m);
+    hs_free(f->ci_m);
+    hs_free(f->cx_m);
+    hs_free(f);
+    *pf = NULL;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Low-rank updates.
+
+static int grow(void** p, size_t bytes) {
+    void* q = hs_realloc(*p, bytes);
+    if (!q) return 0;
+    *p = q;
+    return 1;
+}
+
+static hs_status reserve_columns(hs_cholesky* f, int64_t cols, int64_t nnz) {
+    if (cols > INT32_MAX / 2 || nnz > INT32_MAX / 2) return HS_ERR_UNSUPPORTED;
+    if (cols <= f->cap_cols && nnz <= f->cap_nnz) return HS_OK;
+    int nc = (int)(cols > f->cap_cols ? cols : f->cap_cols);
+    int nz = (int)(nnz > f->cap_nnz ? nnz : f->cap_nnz);
+    size_t ib = sizeof(int) * ((size_t)nc + 1);
+    if (!grow((void**)&f->cp_p, ib) || !grow((void**)&f->cp_m, ib) ||
+        !grow((void**)&f->ci_p, sizeof(int) * (size_t)nz) ||
+        !grow((void**)&f->ci_m, sizeof(int) * (size_t)nz) ||
+        !grow((void**)&f->cx_p, sizeof(double) * (size_t)nz) ||
+        !grow((void**)&f->cx_m, sizeof(double) * (size_t)nz))
+        return HS_ERR_NOMEM; // whatever grew stays, capacities unchanged: consistent
+    f->cap_cols = nc;
+    f->cap_nnz = nz;
+    return HS_OK;
+}
+
+hs_status hs_cholesky_prepare_updates(hs_cholesky* f, int max_elems) {
+    if (!f || max_elems < 0) return HS_ERR_INVALID;
+    if (!f->updatable) {
+        // Unpacked LDL^T: packing would drop the numerically zero entries of the supernodes,
+        // and an element update then refills them (reallocating columns). Unpacked keeps the
+        // full symbolic pattern, so updates never allocate and refactors refill it in place.
+        // A supernodal spare stays supernodal for fast refactors (see hs_cholesky_refactor).
+        int both = !f->L->is_super;
+        if (!cholmod_change_factor(CHOLMOD_REAL, 0, 0, 0, 0, f->L, &f->c) ||
+            (both && !cholmod_change_factor(CHOLMOD_REAL, 0, 0, 0, 0, f->spare, &f->c)))
+            return map_status(f->c.status) != HS_OK ? map_status(f->c.status) : HS_ERR_NUMERIC;
+        if (!f->pinv) {
+            f->pinv = hs_alloc(sizeof(int) * ((size_t)f->n + 1));
+            if (!f->pinv) return HS_ERR_NOMEM;
+        }
+        const int* perm = f->L->Perm;
+        for (int k = 0; k < f->n; k++) f->pinv[perm[k]] = k;
+        // updown's workspace (Flag, Head, Iwork, W of maxrank*n) sized now, not on the first
+        // cut; the default maxrank is 8.
+        size_t n = (size_t)f->n;
+        if (!cholmod_allocate_work(n, 2 * n, 8 * n, &f->c)) return map_status(f->c.status);
+        f->updatable = 1;
+    }
+    return reserve_columns(f, 12 * (int64_t)max_elems, 144 * (int64_t)max_elems);
+}
+
+// In-place shell sort of rows (and their values) of one column.
+static void sort_column(int* r, double* v, int len) {
+    for (int gap = len / 2; gap > 0; gap = gap == 2 ? 1 : (int)(gap / 2.2)) {
+        for (int i = gap; i < len; i++) {
+            int ri = r[i];
+            double vi = v[i];
+            int j = i;
+            for (; j >= gap && r[j - gap] > ri; j -= gap) {
+                r[j] = r[j - gap];
+                v[j] = v[j - gap];
+            }
+            r[j] = ri;
+            v[j] = vi;
+        }
+    }
+}
+
+static void set_c_view(cholmod_sparse* c, int n, int ncol, int* cp, int* ci, double* cx) {
+    memset(c, 0, sizeof *c);
+    c->nrow = (size_t)n;
+    c->ncol = (size_t)ncol;
+    c->nzmax = (size_t)(cp[ncol] > 0 ? cp[ncol] : 1);
+    c->p = cp;
+    c->i = ci;
+    c->x = cx;
+    c->stype = 0;
+    c->itype = CHOLMOD_INT;
+    c->xtype = CHOLMOD_REAL;
+    c->dtype = CHOLMOD_DOUBLE;
+    c->sorted = 1;
+    c->packed = 1;
+}
+
+// Apply update (sign 1) or downdate (0) with C already permuted and sorted.
+static hs_status apply_updown(hs_cholesky* f, int update, int ncol, int* cp, int* ci, double* cx) {
+    if (ncol == 0) return HS_OK;
+    cholmod_sparse c;
+    set_c_view(&c, f->n, ncol, cp, ci, cx);
+    if (!cholmod_updown(update, &c, f->L, &f->c)) {
+        // Out of memory leaves L as a symbolic factor per CHOLMOD: unusable until refactor.
+        f->broken = 1;
+        return map_status(f->c.status) != HS_OK ? map_status(f->c.status) : HS_ERR_NUMERIC;
+    }
+    if (!update && !factor_diag_ok(f->L)) {
+        f->broken = 1;
+        return HS_ERR_NOT_POSDEF;
+    }
+    return HS_OK;
+}
+
+hs_status hs_cholesky_updown(hs_cholesky* f, int update, int n_cols, const int* colp,
+                             const int* rowi, const double* val) {
+    if (!f || n_cols < 0 || (n_cols > 0 && (!colp || !rowi || !val)) ||
+        (n_cols > 0 && colp[0] != 0))
+        return HS_ERR_INVALID;
+    if (n_cols == 0) return HS_OK;
+    for (int j = 0; j < n_cols; j++)
+        if (colp[j + 1] < colp[j]) return HS_ERR_INVALID;
+    hs_status st = hs_cholesky_prepare_updates(f, 0);
+    if (st != HS_OK) return st;
+    st = reserve_columns(f, n_cols, colp[n_cols]);
+    if (st != HS_OK) return st;
+    for (int j = 0; j <= n_cols; j++) f->cp_p[j] = colp[j];
+    for (int j = 0; j < n_cols; j++) {
+        for (int p = colp[j]; p < colp[j + 1]; p++) {
+            if (rowi[p] < 0 || rowi[p] >= f->n) return HS_ERR_INVALID;
+            f->ci_p[p] = f->pinv[rowi[p]];
+            f->cx_p[p] = val[p];
+        }
+        sort_column(f->ci_p + colp[j], f->cx_p + colp[j], colp[j + 1] - colp[j]);
+        for (int p = colp[j] + 1; p < colp[j + 1]; p++)
+            if (f->ci_p[p] == f->ci_p[p - 1]) return HS_ERR_INVALID;
+    }
+    return apply_updown(f, update != 0, n_cols, f->cp_p, f->ci_p, f->cx_p);
+}
+
+// Cyclic Jacobi eigen-decomposition of a symmetric m x m (row-major, destroyed): eigenvalues in
+// w[m], eigenvectors in the columns of v (row-major m x m). m <= 12, so this is microseconds.
+static void sym_eig(int m, double* a, double* v, double* w) {
+    double frob2 = 0.0;
+    for (int i = 0; i < m * m; i++) frob2 += a[i] * a[i];
+    for (int i = 0; i < m; i++)
+        for (int j = 0; j < m; j++) v[i * m + j] = i == j;
+    for (int sweep = 0; sweep < 60; sweep++) {
+        double off = 0.0;
+        for (int p = 0; p < m; p++)
+            for (int q = p + 1; q < m; q++) off += 2.0 * a[p * m + q] * a[p * m + q];
+        if (off <= 1e-32 * frob2) break;
+        for (int p = 0; p < m; p++) {
+            for (int q = p + 1; q < m; q++) {
+                double apq = a[p * m + q];
+                if (apq == 0.0) continue;
+                double theta = (a[q * m + q] - a[p * m + p]) / (2.0 * apq);
+                double t = fabs(theta) > 1e150 ? 0.5 / theta
+                                               : (theta >= 0 ? 1.0 : -1.0) /
+                                                     (fabs(theta) + sqrt(theta * theta + 1));
+                double c = 1.0 / sqrt(t * t + 1.0), s = t * c;
+                for (int k = 0; k < m; k++) {
+                    if (k == p || k == q) continue;
+                    double akp = a[k * m + p], akq = a[k * m + q];
+                    a[k * m + p] = a[p * m + k] = c * akp - s * akq;
+                    a[k * m + q] = a[q * m + k] = s * akp + c * akq;
+                }
+                a[p * m + p] -= t * apq;
+                a[q * m + q] += t * apq;
+                a[p * m + q] = a[q * m + p] = 0.0;
+                for (int k = 0; k < m; k++) {
+                    double vkp = v[k * m + p], vkq = v[k * m + q];
+                    v[k * m + p] = c * vkp - s * vkq;
+                    v[k * m + q] = s * vkp + c * vkq;
+                }
+            }
+        }
+    }
+    for (int i = 0; i < m; i++) w[i] = a[i * m + i];
+}
+
+hs_status hs_cholesky_update_elements(hs_cholesky* f, int n_elem, const double* dk,
+                                      const int* dofs) {
+    if (!f || n_elem < 0 || (n_elem > 0 && (!dk || !dofs))) return HS_ERR_INVALID;
+    if (n_elem == 0) return HS_OK;
+    for (int e = 0; e < n_elem; e++) {
+        const int* d = dofs + 12 * e;
+        for (int i = 0; i < 12; i++) {
+            if (d[i] < -1 || d[i] >= f->n) return HS_ERR_INVALID;
+            for (int j = 0; j < i; j++)
+                if (d[i] >= 0 && d[i] == d[j]) return HS_ERR_INVALID;
+        }
+    }
+    hs_status st = hs_cholesky_prepare_updates(f, n_elem);
+    if (st != HS_OK) return st;
+
+    int np = 0, nm = 0; // columns so far
+    f->cp_p[0] = f->cp_m[0] = 0;
+    for (int e = 0; e < n_elem; e++) {
+        const int* d = dofs + 12 * e;
+        const double* k = dk + 144 * e;
+        int loc[12], m = 0;
+        for (int i = 0; i < 12; i++)
+            if (d[i] >= 0) loc[m++] = i;
+        if (m == 0) continue;
+        // Order the free local dofs by their row in L so every column comes out sorted.
+        for (int i = 1; i < m; i++) {
+            int li = loc[i], j = i;
+            for (; j > 0 && f->pinv[d[loc[j - 1]]] > f->pinv[d[li]]; j--) loc[j] = loc[j - 1];
+            loc[j] = li;
+        }
+        double a[144], v[144], w[12];
+        double amax = 0.0;
+        for (int i = 0; i < m; i++)
+            for (int j = 0; j < m; j++) {
+                // Symmetrise against round-off in the caller's dK.
+                double x = 0.5 * (k[loc[i] * 12 + loc[j]] + k[loc[j] * 12 + loc[i]]);
+                if (!isfinite(x)) return HS_ERR_NUMERIC;
+                a[i * m + j] = x;
+            }
+        sym_eig(m, a, v, w);
+        for (int i = 0; i < m; i++) amax = fmax(amax, fabs(w[i]));
+        // Eigenvalues at round-off level (rigid modes of an element) carry no stiffness.
+        double tol = 1e-12 * amax;
+        for (int i = 0; i < m; i++) {
+            if (fabs(w[i]) <= tol) continue;
+            int plus = w[i] > 0;
+            int* cp = plus ? f->cp_p : f->cp_m;
+            int* ci = plus ? f->ci_p : f->ci_m;
+            double* cx = plus ? f->cx_p : f->cx_m;
+            int* nc = plus ? &np : &nm;
+            double s = sqrt(fabs(w[i]));
+            int q = cp[*nc];
+            for (int r = 0; r < m; r++) {
+                ci[q] = f->pinv[d[loc[r]]];
+                cx[q] = s * v[r * m + i];
+                q++;
+            }
+            cp[++*nc] = q;
+        }
+    }
+    // Updates first: every intermediate matrix then dominates the final one.
+    st = apply_updown(f, 1, np, f->cp_p, f->ci_p, f->cx_p);
+    if (st != HS_OK) return st;
+    return apply_updown(f, 0, nm, f->cp_m, f->ci_m, f->cx_m);
+}
+
+// ---------------------------------------------------------------------------------------------
+
+hs_status hs_sparse_set_blas_threads(int n) {
+    if (n < 1) return HS_ERR_INVALID;
+    // Looked up at run time: the BLAS behind libblas.so.3 is chosen by the system (Debian
+    // alternatives), and only OpenBLAS has this entry point.
+    void (*set)(int);
+    *(void**)&set = dlsym(RTLD_DEFAULT, "openblas_set_num_threads");
+    if (!set) return HS_ERR_UNSUPPORTED;
+    set(n);
+    return HS_OK;
+}

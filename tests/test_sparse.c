@@ -1,0 +1,480 @@
+// Sparse: CSC pattern and products against a dense reference, CHOLMOD factor/refactor/solve,
+// keeping the last good factor, allocation-free solves, PCG, low-rank updates for cutting,
+// fault injection.
+#include "hapsim/sparse.h"
+#include "sparse_grid.h"
+#include "test_macros.h"
+
+#include <stdlib.h>
+
+static void fill_random(int n, double* x, uint64_t seed) {
+    for (int i = 0; i < n; i++) x[i] = grid_rand01(&seed) - 0.5;
+}
+
+static double max_abs_diff(int n, const double* a, const double* b) {
+    double m = 0;
+    for (int i = 0; i < n; i++) m = fmax(m, fabs(a[i] - b[i]));
+    return m;
+}
+
+static int CscPatternAndSpmv(void) {
+    int64_t bytes0 = hs_byte_count();
+    grid g;
+    ENSURE(grid_make(&g, 4, 3, 3, 1) == 0);
+    hs_csc* a = NULL;
+    hs_err err = {0};
+    ENSURE(grid_pattern(&g, &a, &err) == HS_OK);
+    ENSURE(a->n == g.n_free && a->colp[a->n] == a->nnz);
+    // Entry (r, c) is stored iff the two dofs' nodes are equal or grid neighbours.
+    int n = a->n;
+    int* node = malloc(sizeof(int) * (size_t)n);
+    for (int v = 0; v < g.n_nodes; v++)
+        for (int d = 0; d < 3; d++)
+            if (g.dof_map[3 * v + d] >= 0) node[g.dof_map[3 * v + d]] = v;
+    int stored = 0;
+    for (int c = 0; c < n; c++)
+        for (int r = 0; r < n; r++) {
+            double xr[3], xc[3];
+            grid_coords(&g, node[r], xr);
+            grid_coords(&g, node[c], xc);
+            int adj =
+                fabs(xr[0] - xc[0]) <= 1 && fabs(xr[1] - xc[1]) <= 1 && fabs(xr[2] - xc[2]) <= 1;
+            int p = hs_csc_find(a, r, c);
+            ENSURE((p >= 0) == adj);
+            if (p >= 0) ENSURE(a->rowi[p] == r && p >= a->colp[c] && p < a->colp[c + 1]);
+            stored += p >= 0;
+        }
+    ENSURE(stored == a->nnz);
+    ENSURE(hs_csc_find(a, -1, 0) == -1 && hs_csc_find(a, 0, n) == -1);
+
+    // Values, then spmv against a dense product.
+    ENSURE(grid_assemble(&g, a, 0.25) == 0);
+    double* dense = calloc((size_t)n * (size_t)n, sizeof(double));
+    for (int c = 0; c < n; c++)
+        for (int p = a->colp[c]; p < a->colp[c + 1]; p++) dense[a->rowi[p] * n + c] = a->val[p];
+    for (int r = 0; r < n; r++)
+        for (int c = 0; c < r; c++) ENSURE_SMALL(dense[r * n + c] - dense[c * n + r], 1e-14);
+    double *x = malloc(sizeof(double) * (size_t)n), *y = malloc(sizeof(double) * (size_t)n),
+           *yref = calloc((size_t)n, sizeof(double));
+    fill_random(n, x, 7);
+    for (int r = 0; r < n; r++)
+        for (int c = 0; c < n; c++) yref[r] += dense[r * n + c] * x[c];
+    hs_csc_spmv(a, x, y);
+    ENSURE(max_abs_diff(n, y, yref) <= 1e-12 * vec_norm(n, yref));
+
+    hs_csc* b = NULL;
+    ENSURE(hs_csc_clone(a, &b) == HS_OK);
+    ENSURE(b->nnz == a->nnz && memcmp(b->rowi, a->rowi, sizeof(int) * (size_t)a->nnz) == 0);
+    ENSURE(memcmp(b->val, a->val, sizeof(double) * (size_t)a->nnz) == 0);
+    hs_csc_zero(b);
+    hs_csc_spmv(b, x, y);
+    ENSURE(vec_norm(n, y) == 0.0 && a->val[0] != 0.0);
+
+    hs_csc_destroy(&a);
+    hs_csc_destroy(&b);
+    hs_csc_destroy(&b);
+    ENSURE(a == NULL && b == NULL);
+    free(node);
+    free(dense);
+    free(x);
+    free(y);
+    free(yref);
+    grid_free(&g);
+    ENSURE(hs_byte_count() == bytes0);
+    return 0;
+}
+
+static int CscBadInput(void) {
+    int64_t bytes0 = hs_byte_count();
+    int nbr_start[3] = {0, 1, 2}, nbr[2] = {1, 0}, dof_map[6] = {0, 1, 2, 3, 4, 5};
+    hs_csc* a = NULL;
+    hs_err err = {0};
+    int bad_nbr[2] = {1, 7};
+    ENSURE(hs_csc_create_block_pattern(2, nbr_start, bad_nbr, dof_map, 6, &a, &err) ==
+           HS_ERR_INVALID);
+    ENSURE(a == NULL && strstr(err.msg, "neighbour 7") != NULL && strstr(err.msg, "csc.c"));
+    int dup_map[6] = {0, 1, 2, 3, 4, 4};
+    ENSURE(hs_csc_create_block_pattern(2, nbr_start, nbr, dup_map, 6, &a, &err) == HS_ERR_INVALID);
+    int bad_start[3] = {0, 2, 1};
+    ENSURE(hs_csc_create_block_pattern(2, bad_start, nbr, dof_map, 6, &a, &err) == HS_ERR_INVALID);
+    ENSURE(hs_csc_create_block_pattern(2, nbr_start, nbr, dof_map, 6, NULL, &err) ==
+           HS_ERR_INVALID);
+    // One-sided neighbour lists are symmetrised; self entries and duplicates are ignored.
+    int one_start[3] = {0, 3, 3}, one[3] = {1, 0, 1};
+    ENSURE(hs_csc_create_block_pattern(2, one_start, one, dof_map, 6, &a, &err) == HS_OK);
+    ENSURE(a->nnz == 36 && hs_csc_find(a, 0, 5) >= 0 && hs_csc_find(a, 5, 0) >= 0);
+    hs_csc_destroy(&a);
+    // Fault injection: every allocation in turn fails cleanly.
+    for (int k = 1;; k++) {
+        hs_alloc_fail_after(k);
+        hs_status st = hs_csc_create_block_pattern(2, nbr_start, nbr, dof_map, 6, &a, &err);
+        hs_alloc_fail_after(0);
+        if (st == HS_OK) break;
+        ENSURE(st == HS_ERR_NOMEM && a == NULL && k < 50);
+        ENSURE(hs_byte_count() == bytes0);
+    }
+    hs_csc_destroy(&a);
+    ENSURE(hs_byte_count() == bytes0);
+    return 0;
+}
+
+// Grid matrix and a factor of it; callers free.
+typedef struct fixture {
+    grid g;
+    hs_csc* a;
+    hs_cholesky* f;
+    double *b, *x, *r;
+} fixture;
+
+static int fixture_make(fixture* t, int nx, int ny, int nz, double shift) {
+    memset(t, 0, sizeof *t);
+    hs_err err = {0};
+    if (grid_make(&t->g, nx, ny, nz, 3) != 0) return -1;
+    if (grid_pattern(&t->g, &t->a, &err) != HS_OK) return -1;
+    if (grid_assemble(&t->g, t->a, shift) != 0) return -1;
+    if (hs_cholesky_create(t->a, &t->f, &err) != HS_OK) {
+        printf("  create: %s\n", err.msg);
+        return -1;
+    }
+    int n = t->a->n;
+    t->b = malloc(sizeof(double) * 4 * (size_t)n);
+    t->x = malloc(sizeof(double) * 4 * (size_t)n);
+    t->r = malloc(sizeof(double) * 4 * (size_t)n);
+    fill_random(4 * n, t->b, 11);
+    return 0;
+}
+
+static void fixture_free(fixture* t) {
+    hs_cholesky_destroy(&t->f);
+    hs_csc_destroy(&t->a);
+    free(t->b);
+    free(t->x);
+    free(t->r);
+    grid_free(&t->g);
+}
+
+static int CholeskySolve(void) {
+    int64_t bytes0 = hs_byte_count();
+    fixture t;
+    ENSURE(fixture_make(&t, 9, 8, 8, 1e-3) == 0);
+    int n = t.a->n;
+    // CHOLMOD's own memory goes through hs_alloc: the factor's bytes are counted.
+    ENSURE(hs_byte_count() - bytes0 >= 8 * hs_cholesky_factor_nnz(t.f));
+    ENSURE(hs_cholesky_size(t.f) == n && hs_cholesky_factor_nnz(t.f) >= (t.a->nnz + n) / 2);
+    ENSURE(hs_cholesky_solve(t.f, t.b, t.x) == HS_OK);
+    ENSURE_SMALL(rel_residual(t.a, t.x, t.b, t.r), 1e-12);
+    // x may alias b.
+    double* y = malloc(sizeof(double) * (size_t)n);
+    memcpy(y, t.b, sizeof(double) * (size_t)n);
+    ENSURE(hs_cholesky_solve(t.f, y, y) == HS_OK);
+    ENSURE(max_abs_diff(n, y, t.x) == 0.0);
+    // Several right-hand sides agree with one-at-a-time solves.
+    ENSURE(hs_cholesky_solve_many(t.f, 3, t.b, t.x) == HS_OK);
+    for (int k = 0; k < 3; k++) {
+        ENSURE(hs_cholesky_solve(t.f, t.b + k * n, y) == HS_OK);
+        ENSURE(max_abs_diff(n, y, t.x + k * n) <= 1e-12 * vec_norm(n, y));
+    }
+    free(y);
+    fixture_free(&t);
+    ENSURE(hs_byte_count() == bytes0);
+    return 0;
+}
+
+static int CholeskyRefactor(void) {
+    int64_t bytes0 = hs_byte_count();
+    fixture t;
+    ENSURE(fixture_make(&t, 8, 7, 9, 1e-3) == 0);
+    int n = t.a->n;
+    ENSURE(hs_cholesky_solve(t.f, t.b, t.x) == HS_OK);
+    double* x_old = malloc(sizeof(double) * (size_t)n);
+    memcpy(x_old, t.x, sizeof(double) * (size_t)n);
+    // New values on the same pattern, given as a different hs_csc object.
+    hs_csc* a2 = NULL;
+    ENSURE(hs_csc_clone(t.a, &a2) == HS_OK);
+    for (int e = 0; e < t.g.n_tets; e++) t.g.w[e] = 2.0 + sin(e);
+    ENSURE(grid_assemble(&t.g, a2, 0.5) == 0);
+    ENSURE(hs_cholesky_refactor(t.f, a2) == HS_OK);
+    ENSURE(hs_cholesky_solve(t.f, t.b, t.x) == HS_OK);
+    ENSURE_SMALL(rel_residual(a2, t.x, t.b, t.r), 1e-12);
+    ENSURE(max_abs_diff(n, t.x, x_old) > 1e-3 * vec_norm(n, x_old) / sqrt(n));
+    // A different pattern is refused.
+    hs_csc_destroy(&a2);
+    grid g2;
+    ENSURE(grid_make(&g2, 8, 7, 8, 3) == 0);
+    hs_err err;
+    ENSURE(grid_pattern(&g2, &a2, &err) == HS_OK);
+    ENSURE(hs_cholesky_refactor(t.f, a2) == HS_ERR_INVALID);
+    hs_csc_destroy(&a2);
+    grid_free(&g2);
+    free(x_old);
+    fixture_free(&t);
+    ENSURE(hs_byte_count() == bytes0);
+    return 0;
+}
+
+static int CholeskyNotPosdefKeepsFactor(void) {
+    int64_t bytes0 = hs_byte_count();
+    fixture t;
+    ENSURE(fixture_make(&t, 7, 7, 7, 1e-3) == 0);
+    int n = t.a->n;
+    hs_csc* bad = NULL;
+    ENSURE(hs_csc_clone(t.a, &bad) == HS_OK);
+    // One strongly negative diagonal entry in the middle of the ordering.
+    bad->val[hs_csc_find(bad, n / 2, n / 2)] = -100.0;
+    for (int rep = 0; rep < 2; rep++) {
+        ENSURE(hs_cholesky_refactor(t.f, bad) == HS_ERR_NOT_POSDEF);
+        ENSURE(hs_cholesky_solve(t.f, t.b, t.x) == HS_OK);
+        ENSURE_SMALL(rel_residual(t.a, t.x, t.b, t.r), 1e-12);
+    }
+    // NaN in the matrix is refused too, and the good factor survives.
+    hs_csc* nan_a = NULL;
+    ENSURE(hs_csc_clone(t.a, &nan_a) == HS_OK);
+    nan_a->val[nan_a->colp[n / 3] + 1] = NAN;
+    hs_status st = hs_cholesky_refactor(t.f, nan_a);
+    ENSURE(st == HS_ERR_NUMERIC || st == HS_ERR_NOT_POSDEF);
+    ENSURE(hs_cholesky_solve(t.f, t.b, t.x) == HS_OK);
+    ENSURE_SMALL(rel_residual(t.a, t.x, t.b, t.r), 1e-12);
+    // After failures the spare factor still refactors correctly.
+    ENSURE(hs_cholesky_refactor(t.f, t.a) == HS_OK);
+    ENSURE(hs_cholesky_solve(t.f, t.b, t.x) == HS_OK);
+    ENSURE_SMALL(rel_residual(t.a, t.x, t.b, t.r), 1e-12);
+    // Creating from a non-SPD matrix fails cleanly with a message.
+    hs_cholesky* f2 = (hs_cholesky*)&t; // must be overwritten with NULL
+    hs_err err = {0};
+    ENSURE(hs_cholesky_create(bad, &f2, &err) == HS_ERR_NOT_POSDEF);
+    ENSURE(f2 == NULL && strstr(err.msg, "not positive definite") != NULL);
+    hs_csc_destroy(&bad);
+    hs_csc_destroy(&nan_a);
+    fixture_free(&t);
+    ENSURE(hs_byte_count() == bytes0);
+    return 0;
+}
+
+static int SolveAllocatesNothing(void) {
+    int64_t bytes0 = hs_byte_count();
+    fixture t;
+    ENSURE(fixture_make(&t, 8, 8, 8, 1e-3) == 0);
+    // Supernodal first (cholmod_solve2 with kept workspaces), then simplicial LDL^T.
+    ENSURE(hs_cholesky_is_supernodal(t.f));
+    for (int mode = 0; mode < 2; mode++) {
+        if (mode == 1) ENSURE(hs_cholesky_prepare_updates(t.f, 1) == HS_OK);
+        ENSURE(hs_cholesky_solve(t.f, t.b, t.x) == HS_OK); // warm-up
+        ENSURE(hs_cholesky_solve_many(t.f, 4, t.b, t.x) == HS_OK);
+        int64_t calls = hs_alloc_calls(), bytes = hs_byte_count();
+        for (int i = 0; i < 20; i++) {
+            ENSURE(hs_cholesky_solve(t.f, t.b + (i % 4) * t.a->n, t.x) == HS_OK);
+            ENSURE(hs_cholesky_solve_many(t.f, 4, t.b, t.x) == HS_OK);
+        }
+        ENSURE(hs_alloc_calls() == calls && hs_byte_count() == bytes);
+        for (int k = 0; k < 4; k++)
+            ENSURE_SMALL(rel_residual(t.a, t.x + k * t.a->n, t.b + k * t.a->n, t.r), 1e-12);
+    }
+    fixture_free(&t);
+    ENSURE(hs_byte_count() == bytes0);
+    return 0;
+}
+
+static int CholeskyFaultInjection(void) {
+    int64_t bytes0 = hs_byte_count();
+    grid g;
+    ENSURE(grid_make(&g, 6, 5, 5, 5) == 0);
+    hs_csc* a = NULL;
+    hs_err err;
+    ENSURE(grid_pattern(&g, &a, &err) == HS_OK);
+    ENSURE(grid_assemble(&g, a, 1e-3) == 0);
+    int64_t with_matrix = hs_byte_count();
+    int failures = 0;
+    for (int k = 1;; k++) {
+        hs_cholesky* f = NULL;
+        hs_alloc_fail_after(k);
+        hs_status st = hs_cholesky_create(a, &f, &err);
+        hs_alloc_fail_after(0);
+        if (st == HS_OK) {
+            hs_cholesky_destroy(&f);
+            break;
+        }
+        ENSURE(st == HS_ERR_NOMEM && f == NULL);
+        ENSURE(hs_byte_count() == with_matrix);
+        failures++;
+        ENSURE(k < 1000);
+    }
+    // More than our own few allocations failed: CHOLMOD's are reached as well.
+    ENSURE(failures > 5);
+    hs_pcg* p = NULL;
+    hs_alloc_fail_after(1);
+    ENSURE(hs_pcg_create(10, &p) == HS_ERR_NOMEM && p == NULL);
+    hs_alloc_fail_after(0);
+    hs_csc_destroy(&a);
+    grid_free(&g);
+    ENSURE(hs_byte_count() == bytes0);
+    return 0;
+}
+
+static int PcgConverges(void) {
+    int64_t bytes0 = hs_byte_count();
+    fixture t;
+    ENSURE(fixture_make(&t, 8, 7, 7, 1e-2) == 0);
+    int n = t.a->n;
+    hs_pcg* pcg = NULL;
+    ENSURE(hs_pcg_create(n, &pcg) == HS_OK);
+    int iters[3];
+    for (int pc = 0; pc < 3; pc++) {
+        memset(t.x, 0, sizeof(double) * (size_t)n);
+        double rel = 0;
+        ENSURE(hs_pcg_solve(pcg, t.a, t.b, t.x, (hs_precond)pc, t.f, 1e-10, 2000, &iters[pc],
+                            &rel) == HS_OK);
+        ENSURE(rel <= 1e-10);
+        ENSURE_SMALL(rel_residual(t.a, t.x, t.b, t.r) - rel, 1e-14);
+    }
+    // Exact factor: one iteration; Jacobi helps over none on this varied-weight matrix.
+    ENSURE(iters[HS_PRECOND_FACTOR] == 1);
+    ENSURE(iters[HS_PRECOND_JACOBI] <= iters[HS_PRECOND_NONE] && iters[HS_PRECOND_NONE] > 10);
+    // Warm start from the solution: no iteration.
+    int it = -1;
+    double rel = 1;
+    ENSURE(hs_pcg_solve(pcg, t.a, t.b, t.x, HS_PRECOND_JACOBI, NULL, 1e-8, 100, &it, &rel) ==
+           HS_OK);
+    ENSURE(it == 0 && rel <= 1e-8);
+    // Perturbed matrix (+-10 % element weights), preconditioned with the old factor: few
+    // iterations and no allocation.
+    hs_csc* a2 = NULL;
+    ENSURE(hs_csc_clone(t.a, &a2) == HS_OK);
+    for (int e = 0; e < t.g.n_tets; e++) t.g.w[e] *= 1.0 + 0.1 * sin(3.0 * e);
+    ENSURE(grid_assemble(&t.g, a2, 1e-2) == 0);
+    int64_t calls = hs_alloc_calls();
+    memset(t.x, 0, sizeof(double) * (size_t)n);
+    ENSURE(hs_pcg_solve(pcg, a2, t.b, t.x, HS_PRECOND_FACTOR, t.f, 1e-10, 100, &it, &rel) == HS_OK);
+    ENSURE(hs_alloc_calls() == calls);
+    ENSURE(it >= 2 && it <= 15 && rel <= 1e-10);
+    ENSURE_SMALL(rel_residual(a2, t.x, t.b, t.r), 1e-10);
+    // Too few iterations: a warning with the best x and an honest residual.
+    memset(t.x, 0, sizeof(double) * (size_t)n);
+    ENSURE(hs_pcg_solve(pcg, a2, t.b, t.x, HS_PRECOND_NONE, NULL, 1e-12, 3, &it, &rel) ==
+           HS_WARN_NOT_CONVERGED);
+    ENSURE(it == 3 && rel > 1e-12 && rel < 1.0);
+    ENSURE_NEAR(rel_residual(a2, t.x, t.b, t.r), rel, 1e-14);
+    // Wrong sizes are refused.
+    ENSURE(hs_pcg_solve(pcg, a2, t.b, t.x, HS_PRECOND_FACTOR, NULL, 1e-8, 10, &it, &rel) ==
+           HS_ERR_INVALID);
+    hs_csc_destroy(&a2);
+    hs_pcg_destroy(&pcg);
+    hs_pcg_destroy(&pcg);
+    fixture_free(&t);
+    ENSURE(hs_byte_count() == bytes0);
+    return 0;
+}
+
+// Solve with f and with a fresh factor of a; relative difference of the two solutions.
+static double compare_with_fresh(hs_cholesky* f, const hs_csc* a, const double* b, double* x1,
+                                 double* x2) {
+    hs_cholesky* g = NULL;
+    hs_err err;
+    if (hs_cholesky_create(a, &g, &err) != HS_OK) return INFINITY;
+    if (hs_cholesky_solve(f, b, x1) != HS_OK || hs_cholesky_solve(g, b, x2) != HS_OK) {
+        hs_cholesky_destroy(&g);
+        return INFINITY;
+    }
+    hs_cholesky_destroy(&g);
+    for (int i = 0; i < a->n; i++) x2[i] -= x1[i];
+    return vec_norm(a->n, x2) / vec_norm(a->n, x1);
+}
+
+static int UpdownMatchesFreshFactor(void) {
+    int64_t bytes0 = hs_byte_count();
+    fixture t;
+    ENSURE(fixture_make(&t, 9, 8, 8, 1e-3) == 0);
+    int n = t.a->n;
+    double* x2 = malloc(sizeof(double) * (size_t)n);
+    ENSURE(hs_cholesky_prepare_updates(t.f, 8) == HS_OK);
+    ENSURE(!hs_cholesky_is_supernodal(t.f));
+    // The converted factor still solves the original matrix.
+    ENSURE(hs_cholesky_solve(t.f, t.b, t.x) == HS_OK);
+    ENSURE_SMALL(rel_residual(t.a, t.x, t.b, t.r), 1e-12);
+
+    // Remove (downdate) 8 elements around the middle, as a cut would: no allocation.
+    int removed[8];
+    double dk[8 * 144];
+    int dofs[8 * 12];
+    for (int i = 0; i < 8; i++) {
+        removed[i] = t.g.n_tets / 2 + 37 * i;
+        grid_tet_block(&t.g, removed[i], -t.g.w[removed[i]], dk + 144 * i);
+        grid_tet_dofs(&t.g, removed[i], dofs + 12 * i);
+        ENSURE(grid_add_tet(&t.g, t.a, removed[i], -1.0) == 0);
+    }
+    int64_t calls = hs_alloc_calls();
+    ENSURE(hs_cholesky_update_elements(t.f, 8, dk, dofs) == HS_OK);
+    ENSURE(hs_cholesky_solve(t.f, t.b, t.x) == HS_OK);
+    ENSURE(hs_alloc_calls() == calls);
+    ENSURE_SMALL(compare_with_fresh(t.f, t.a, t.b, t.x, x2), 1e-8);
+    ENSURE_SMALL(rel_residual(t.a, t.x, t.b, t.r), 1e-10);
+
+    // An indefinite change (element stiffened in one direction, softened in another), one
+    // element at a time, including an element touching the fixed face.
+    int moved[3] = {0, t.g.n_tets / 3, t.g.n_tets - 1};
+    for (int i = 0; i < 3; i++) {
+        int e = moved[i];
+        double k_old[144], k_new[144];
+        grid_tet_block(&t.g, e, t.g.w[e], k_old);
+        grid_tet_block(&t.g, e, t.g.w[e], k_new);
+        for (int r = 0; r < 12; r++) // K_new = S K_old S with S = diag(1.5, 0.6, 1, ...)
+            for (int c = 0; c < 12; c++) {
+                double sr = r % 3 == 0 ? 1.5 : r % 3 == 1 ? 0.6 : 1.0;
+                double sc = c % 3 == 0 ? 1.5 : c % 3 == 1 ? 0.6 : 1.0;
+                k_new[r * 12 + c] *= sr * sc;
+            }
+        int d[12];
+        grid_tet_dofs(&t.g, e, d);
+        double delta[144];
+        for (int q = 0; q < 144; q++) delta[q] = k_new[q] - k_old[q];
+        for (int r = 0; r < 12; r++)
+            for (int c = 0; c < 12; c++)
+                if (d[r] >= 0 && d[c] >= 0)
+                    t.a->val[hs_csc_find(t.a, d[r], d[c])] += delta[r * 12 + c];
+        ENSURE(hs_cholesky_update_elements(t.f, 1, delta, d) == HS_OK);
+    }
+    ENSURE_SMALL(compare_with_fresh(t.f, t.a, t.b, t.x, x2), 1e-8);
+
+    // General C C^T update and downdate through hs_cholesky_updown: add then remove.
+    int colp[3] = {0, 3, 5}, rowi[5] = {n - 1, 4, n / 2, 7, 6};
+    double val[5] = {0.7, -0.2, 0.4, 1.1, 0.3};
+    ENSURE(hs_cholesky_updown(t.f, 1, 2, colp, rowi, val) == HS_OK);
+    // Rows outside one clique make L fill in: CHOLMOD grows those columns.
+    ENSURE(hs_cholesky_solve(t.f, t.b, t.x) == HS_OK);
+    hs_csc_spmv(t.a, t.x, t.r);
+    for (int j = 0; j < 2; j++) { // r += C (C^T x)
+        double s = 0;
+        for (int p = colp[j]; p < colp[j + 1]; p++) s += val[p] * t.x[rowi[p]];
+        for (int p = colp[j]; p < colp[j + 1]; p++) t.r[rowi[p]] += val[p] * s;
+    }
+    for (int i = 0; i < n; i++) t.r[i] -= t.b[i];
+    ENSURE_SMALL(vec_norm(n, t.r) / vec_norm(n, t.b), 1e-10);
+    ENSURE(hs_cholesky_updown(t.f, 0, 2, colp, rowi, val) == HS_OK);
+    ENSURE_SMALL(compare_with_fresh(t.f, t.a, t.b, t.x, x2), 1e-8);
+    int dup_rowi[5] = {3, 3, 1, 2, 0};
+    ENSURE(hs_cholesky_updown(t.f, 1, 2, colp, dup_rowi, val) == HS_ERR_INVALID);
+
+    // A downdate that breaks definiteness is reported; a refactor recovers.
+    int big_colp[2] = {0, 1}, big_rowi[1] = {n / 2};
+    double big_val[1] = {1e3};
+    ENSURE(hs_cholesky_updown(t.f, 0, 1, big_colp, big_rowi, big_val) == HS_ERR_NOT_POSDEF);
+    ENSURE(hs_cholesky_solve(t.f, t.b, t.x) == HS_ERR_NOT_POSDEF);
+    ENSURE(hs_cholesky_refactor(t.f, t.a) == HS_OK);
+    ENSURE(!hs_cholesky_is_supernodal(t.f));
+    ENSURE(hs_cholesky_solve(t.f, t.b, t.x) == HS_OK);
+    ENSURE_SMALL(rel_residual(t.a, t.x, t.b, t.r), 1e-12);
+    // ... and updates keep working on the refactored (simplicial) factor.
+    ENSURE(grid_add_tet(&t.g, t.a, removed[0], 1.0) == 0);
+    for (int q = 0; q < 144; q++) dk[q] = -dk[q];
+    ENSURE(hs_cholesky_update_elements(t.f, 1, dk, dofs) == HS_OK);
+    ENSURE_SMALL(compare_with_fresh(t.f, t.a, t.b, t.x, x2), 1e-8);
+
+    free(x2);
+    fixture_free(&t);
+    ENSURE(hs_byte_count() == bytes0);
+    return 0;
+}
+
+HS_TEST_MAIN(HS_CASE(CscPatternAndSpmv), HS_CASE(CscBadInput), HS_CASE(CholeskySolve),
+             HS_CASE(CholeskyRefactor), HS_CASE(CholeskyNotPosdefKeepsFactor),
+             HS_CASE(SolveAllocatesNothing), HS_CASE(CholeskyFaultInjection), HS_CASE(PcgConverges),
+             HS_CASE(UpdownMatchesFreshFactor))
