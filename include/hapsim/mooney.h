@@ -23,12 +23,11 @@ typedef struct hs_mooney_def {
     int max_newton_iter;  ///< Newton iterations per load increment before it is bisected
     int load_steps;       ///< equal load increments (>= 1)
     int max_bisections;   ///< step control: times a failed increment may be halved
-    double cg_tol;        ///< relative tolerance of the inner PCG (used when beta > 0)
     int cookie;           ///< set by hs_mooney_default_def; catches uninitialised defs
 } hs_mooney_def;
 
 /// Defaults: E 3 kPa, nu 0.45, 1000 kg/m^3, beta 0, tolerance 1e-8, 30 Newton iterations,
-/// 1 load step, 10 bisections, PCG tolerance 1e-12.
+/// 1 load step, 10 bisections.
 hs_mooney_def hs_mooney_default_def(void);
 
 /// Material constants by the small-strain match: c1 = c2 = E / (8 (1 + nu)),
@@ -48,11 +47,13 @@ typedef struct hs_mooney_stats {
     int n_ratio;                       ///< entries in ratio
     double ratio[HS_MOONEY_HISTORY];   ///< ||F-Q||/||F-Q||_first of the last increment, [0] = 1
     double final_ratio;                ///< the last increment's final ratio
-    int cg_total;                      ///< inner PCG iterations (beta > 0)
-    int line_search_cuts;              ///< Newton steps shortened by the line search
-    double volume_ratio_min;           ///< smallest element J at the solution
-    double volume_ratio_max;           ///< largest element J at the solution
-    double solve_ms;                   ///< wall time, ms
+    int system_size;         ///< unknowns of the factorised system (free dofs, + faces if beta > 0)
+    int64_t factor_nnz;      ///< entries of its Cholesky factor
+    int line_search_cuts;    ///< Newton steps shortened by the line search
+    double volume_ratio_min; ///< smallest element J at the solution
+    double volume_ratio_max; ///< largest element J at the solution
+    double volume_ratio_total; ///< deformed / rest volume of the whole mesh
+    double solve_ms;           ///< wall time, ms
 } hs_mooney_stats;
 
 typedef struct hs_mooney hs_mooney;

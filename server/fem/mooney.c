@@ -8,15 +8,19 @@
 // pressures are recomputed from it exactly (A is constant: total Lagrangian). The linearised
 // coupled system then reduces to the displacement Schur complement
 //   S = K(u, p) + B^T A^-1 B,   B_e = d(V (J - 1)) / du,
-// which is symmetric positive definite at a stable state. With beta = 0, A is diagonal and S is
-// an ordinary sparse matrix (static condensation), solved by one Cholesky. With beta > 0,
-// A^-1 couples all pressures, so S is applied matrix-free and solved by PCG, preconditioned by
-// the Cholesky factor of the beta = 0 matrix; since A0 <= A <= (1 + c beta) A0 the iteration
-// count is bounded independently of kappa (see docs/mooney.md).
+// which is symmetric positive definite at a stable state. With beta = 0, A = A0 = diag(V)/kappa
+// and S is an ordinary sparse matrix (static condensation), solved by one Cholesky. With
+// beta > 0, A^-1 couples all pressures (S is dense), so we factorise instead the sparse SPD
+// augmented system over (du, q), q one unknown per interior face (A = A0 + E^T W E, E the
+// face-element incidence, W the face weights beta h_f area_f / kappa):
+//   [ K + B^T A0^-1 B      -B^T A0^-1 E^T     ] [du]   [r]
+//   [ -E A0^-1 B        W^-1 + E A0^-1 E^T   ] [q ] = [0]
+// whose Schur complement on du is exactly S (Woodbury); see docs/mooney.md.
 #include "hapsim/mooney.h"
 #include "hapsim/sparse.h"
 
 #include <math.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -37,9 +41,12 @@ struct hs_mooney {
     double* face_w;    // [n_faces] h_f * area_f
     hs_csc* amat;      // pressure matrix (beta > 0 only)
     hs_cholesky* afac; // its factor
-    hs_csc* kmat;      // condensed beta = 0 tangent over free dofs
+    hs_csc* kmat;      // condensed (beta = 0) or augmented (beta > 0) tangent
     hs_cholesky* kfac; // its factor (created at the first Newton step)
+    int n_k;           // kmat size: n_free, plus n_faces when beta > 0
     int* kmap;         // [144 nt] position of (a i, b k) in kmat->val or -1
+    int* fmap;         // [48 n_faces] positions of (dof, face) and (face, dof), beta > 0
+    double* kconst;    // [nnz] constant face-face block of the augmented matrix, beta > 0
     // loads
     double* f_nodal; // [3n] user forces
     double* f_grav;  // [3n] lumped gravity
@@ -58,9 +65,8 @@ struct hs_mooney {
     // work
     double *r, *du, *u_old, *gap, *fext, *t0, *t1, *t2, *t3, *u_conv; // [3n]
     double *g, *g2, *g3;                                              // [nt] V (J - 1), work, work
-    double *bf, *xf;                                                  // [n_free]
-    int cg_iters;
-    double cg_tol_now; // inexact Newton: PCG tolerance of the current step
+    double *bf, *xf;                                                  // [n_k]
+    double elem_force_scale; // N, RMS-sum of element nodal forces before assembly (round-off)
 };
 
 hs_mooney_def hs_mooney_default_def(void) {
@@ -74,7 +80,6 @@ hs_mooney_def hs_mooney_default_def(void) {
     d.max_newton_iter = 30;
     d.load_steps = 1;
     d.max_bisections = 10;
-    d.cg_tol = 1e-12;
     d.cookie = HS_MOONEY_COOKIE;
     return d;
 }
@@ -327,27 +332,142 @@ nomem:
                       __LINE__);
 }
 
+static int cmp_i64(const void* pa, const void* pb) {
+    int64_t a = *(const int64_t*)pa, b = *(const int64_t*)pb;
+    return (a > b) - (a < b);
+}
+
+// Pattern of the augmented beta > 0 system: free dofs first, then one unknown per interior
+// face. Couplings: dofs of a tet among themselves, a face with the dofs of its two tets, and
+// faces that share a tet. Fills *tet_faces_out ([4 nt] interior faces per tet, -1 padded).
+static hs_status build_augmented_pattern(hs_mooney* m, int** tet_faces_out, hs_err* err) {
+    const int* tets = m->mesh->tets;
+    int nt = m->nt, nf = m->n_faces, nk = m->n_k;
+    int* tf = hs_alloc(sizeof(int) * 4 * (size_t)nt);
+    size_t cap = 144 * (size_t)nt + 96 * (size_t)nf + 16 * (size_t)nt;
+    int64_t* key = hs_alloc(sizeof(int64_t) * cap);
+    hs_csc* a = m->kmat = hs_calloc(1, sizeof *a);
+    *tet_faces_out = tf;
+    if (!tf || !key || !a) goto nomem;
+    for (int k = 0; k < 4 * nt; k++) tf[k] = -1;
+    for (int f = 0; f < nf; f++)
+        for (int s = 0; s < 2; s++) {
+            int* slot = tf + 4 * m->face_tet[2 * f + s];
+            while (*slot >= 0) slot++;
+            *slot = f;
+        }
+    size_t nkey = 0;
+#define PUSH(r, c) key[nkey++] = (int64_t)(c)*nk + (r)
+    int dofs[12];
+    for (int e = 0; e < nt; e++) {
+        for (int r = 0; r < 12; r++) dofs[r] = m->dof_map[3 * tets[4 * e + r / 3] + r % 3];
+        for (int r = 0; r < 12; r++)
+            for (int c = 0; c < 12; c++)
+                if (dofs[r] >= 0 && dofs[c] >= 0) PUSH(dofs[r], dofs[c]);
+        for (int x = 0; x < 4 && tf[4 * e + x] >= 0; x++)
+            for (int y = 0; y < 4 && tf[4 * e + y] >= 0; y++)
+                PUSH(m->n_free + tf[4 * e + x], m->n_free + tf[4 * e + y]);
+    }
+    for (int f = 0; f < nf; f++)
+        for (int s = 0; s < 2; s++) {
+            int e = m->face_tet[2 * f + s];
+            for (int r = 0; r < 12; r++) {
+                int d = m->dof_map[3 * tets[4 * e + r / 3] + r % 3];
+                if (d < 0) continue;
+                PUSH(d, m->n_free + f);
+                PUSH(m->n_free + f, d);
+            }
+        }
+#undef PUSH
+    qsort(key, nkey, sizeof(int64_t), cmp_i64);
+    size_t nu = 0;
+    for (size_t k = 0; k < nkey; k++)
+        if (nu == 0 || key[nu - 1] != key[k]) key[nu++] = key[k];
+    if (nu > (size_t)INT32_MAX) {
+        hs_free(key);
+        return hs_err_set(err, HS_ERR_INVALID, "%s:%d: augmented system too large", __FILE__,
+                          __LINE__);
+    }
+    a->n = nk;
+    a->nnz = (int)nu;
+    a->colp = hs_calloc((size_t)nk + 1, sizeof(int));
+    a->rowi = hs_alloc(sizeof(int) * (nu > 0 ? nu : 1));
+    a->val = hs_calloc(nu > 0 ? nu : 1, sizeof(double));
+    m->kconst = hs_calloc(nu > 0 ? nu : 1, sizeof(double));
+    m->fmap = hs_alloc(sizeof(int) * 48 * (size_t)(nf > 0 ? nf : 1));
+    if (!a->colp || !a->rowi || !a->val || !m->kconst || !m->fmap) goto nomem;
+    for (size_t k = 0; k < nu; k++) {
+        int c = (int)(key[k] / nk);
+        a->rowi[k] = (int)(key[k] % nk);
+        a->colp[c + 1]++;
+    }
+    for (int c = 0; c < nk; c++) a->colp[c + 1] += a->colp[c];
+    hs_free(key);
+    return HS_OK;
+nomem:
+    hs_free(key);
+    return hs_err_set(err, HS_ERR_NOMEM, "%s:%d: out of memory (augmented pattern)", __FILE__,
+                      __LINE__);
+}
+
 static hs_status build_stiffness_pattern(hs_mooney* m, hs_err* err) {
     const hs_mesh* mesh = m->mesh;
-    hs_status st = hs_csc_create_block_pattern(m->n, mesh->node_nbr_start, mesh->node_nbr,
-                                               m->dof_map, m->n_free, &m->kmat, err);
-    if (st != HS_OK) return st;
+    int* tf = NULL;
+    hs_status st;
+    if (m->def.beta > 0)
+        st = build_augmented_pattern(m, &tf, err);
+    else
+        st = hs_csc_create_block_pattern(m->n, mesh->node_nbr_start, mesh->node_nbr, m->dof_map,
+                                         m->n_free, &m->kmat, err);
+    if (st != HS_OK) {
+        hs_free(tf);
+        return st;
+    }
     for (int e = 0; e < m->nt; e++) {
         const int* t = mesh->tets + 4 * e;
-        for (int a = 0; a < 4; a++)
-            for (int i = 0; i < 3; i++)
-                for (int b = 0; b < 4; b++)
-                    for (int k = 0; k < 3; k++) {
-                        int r = m->dof_map[3 * t[a] + i], c = m->dof_map[3 * t[b] + k];
-                        int pos = (r >= 0 && c >= 0) ? hs_csc_find(m->kmat, r, c) : -1;
-                        if (r >= 0 && c >= 0 && pos < 0)
-                            return hs_err_set(err, HS_ERR_INVALID,
-                                              "%s:%d: tet %d couples nodes %d and %d, which the "
-                                              "mesh adjacency does not list",
-                                              __FILE__, __LINE__, e, t[a], t[b]);
-                        m->kmap[144 * e + (3 * a + i) * 12 + 3 * b + k] = pos;
-                    }
+        for (int r = 0; r < 12; r++)
+            for (int c = 0; c < 12; c++) {
+                int dr = m->dof_map[3 * t[r / 3] + r % 3], dc = m->dof_map[3 * t[c / 3] + c % 3];
+                int pos = (dr >= 0 && dc >= 0) ? hs_csc_find(m->kmat, dr, dc) : -1;
+                if (dr >= 0 && dc >= 0 && pos < 0) {
+                    hs_free(tf);
+                    return hs_err_set(err, HS_ERR_INVALID,
+                                      "%s:%d: tet %d couples nodes %d and %d, which the mesh "
+                                      "adjacency does not list",
+                                      __FILE__, __LINE__, e, t[r / 3], t[c / 3]);
+                }
+                m->kmap[144 * e + r * 12 + c] = pos;
+            }
     }
+    if (m->def.beta > 0) {
+        // (dof, face) positions, and the constant block W^-1 + E A0^-1 E^T.
+        int nfree = m->n_free;
+        for (int f = 0; f < m->n_faces; f++) {
+            for (int s = 0; s < 2; s++) {
+                const int* t = mesh->tets + 4 * m->face_tet[2 * f + s];
+                for (int r = 0; r < 12; r++) {
+                    int d = m->dof_map[3 * t[r / 3] + r % 3];
+                    int* fm = m->fmap + 48 * f + 24 * s + 2 * r;
+                    fm[0] = d >= 0 ? hs_csc_find(m->kmat, d, nfree + f) : -1;
+                    fm[1] = d >= 0 ? hs_csc_find(m->kmat, nfree + f, d) : -1;
+                }
+            }
+            m->kconst[hs_csc_find(m->kmat, nfree + f, nfree + f)] +=
+                m->kappa / (m->def.beta * m->face_w[f]);
+        }
+        for (int e = 0; e < m->nt; e++) {
+            const int* fe = tf + 4 * e;
+            for (int x = 0; x < 4 && fe[x] >= 0; x++)
+                for (int y = 0; y < 4 && fe[y] >= 0; y++) {
+                    // E_fe = +1 for the face's first tet, -1 for its second
+                    double sx = m->face_tet[2 * fe[x]] == e ? 1.0 : -1.0;
+                    double sy = m->face_tet[2 * fe[y]] == e ? 1.0 : -1.0;
+                    m->kconst[hs_csc_find(m->kmat, nfree + fe[x], nfree + fe[y])] +=
+                        sx * sy * m->kappa / m->vol[e];
+                }
+        }
+    }
+    hs_free(tf);
     return HS_OK;
 }
 
@@ -371,14 +491,14 @@ hs_status hs_mooney_create(const hs_mesh* mesh, const hs_mooney_def* def,
     if (!(def->youngs_pa > 0) || !(def->poisson > -1.0 && def->poisson < 0.5) ||
         !(def->density_kg_m3 >= 0) || !(def->beta >= 0) || !isfinite(def->beta) ||
         !(def->tolerance > 0 && def->tolerance < 1) || def->max_newton_iter < 1 ||
-        def->load_steps < 1 || def->max_bisections < 0 || !(def->cg_tol > 0 && def->cg_tol < 1))
+        def->load_steps < 1 || def->max_bisections < 0)
         return hs_err_set(err, HS_ERR_INVALID,
                           "%s:%d: invalid mooney def (E %g Pa > 0, nu %g in (-1, 0.5), density %g "
-                          ">= 0, beta %g >= 0, tolerance %g and cg_tol %g in (0, 1), "
+                          ">= 0, beta %g >= 0, tolerance %g in (0, 1), "
                           "max_newton_iter %d >= 1, load_steps %d >= 1, max_bisections %d >= 0)",
                           __FILE__, __LINE__, def->youngs_pa, def->poisson, def->density_kg_m3,
-                          def->beta, def->tolerance, def->cg_tol, def->max_newton_iter,
-                          def->load_steps, def->max_bisections);
+                          def->beta, def->tolerance, def->max_newton_iter, def->load_steps,
+                          def->max_bisections);
     if (mesh->n_nodes <= 0 || mesh->n_tets <= 0 || !mesh->x0 || !mesh->tets ||
         !mesh->node_nbr_start)
         return hs_err_set(err, HS_ERR_INVALID,
@@ -463,9 +583,10 @@ hs_status hs_mooney_create(const hs_mesh* mesh, const hs_mooney_def* def,
         for (int c = 0; c < 3; c++) m->dof_map[3 * i + c] = fx ? -1 : nf++;
     }
     m->n_free = nf;
-    MOONEY_ALLOC(m->bf, nf);
-    MOONEY_ALLOC(m->xf, nf);
     if ((st = build_faces(m, err)) != HS_OK) goto fail;
+    m->n_k = nf + (m->def.beta > 0 ? m->n_faces : 0);
+    MOONEY_ALLOC(m->bf, m->n_k);
+    MOONEY_ALLOC(m->xf, m->n_k);
     if (m->def.beta > 0 && (st = build_pressure_matrix(m, err)) != HS_OK) goto fail;
     if (nf > 0 && (st = build_stiffness_pattern(m, err)) != HS_OK) goto fail;
     for (int e = 0; e < nt; e++) {
@@ -493,11 +614,13 @@ void hs_mooney_destroy(hs_mooney** pm) {
     hs_cholesky_destroy(&m->afac);
     hs_csc_destroy(&m->kmat);
     hs_cholesky_destroy(&m->kfac);
-    void* bufs[] = {m->dof_map, m->grad,   m->vol,    m->face_tet, m->face_area, m->face_w, m->kmap,
-                    m->f_nodal, m->f_grav, m->f_prev, m->up_new,   m->up_prev,   m->u,      m->p,
-                    m->fdef,    m->jac,    m->wiso,   m->ke,       m->be,        m->q,      m->r,
-                    m->du,      m->u_old,  m->gap,    m->fext,     m->t0,        m->t1,     m->t2,
-                    m->t3,      m->u_conv, m->g,      m->g2,       m->g3,        m->bf,     m->xf};
+    void* bufs[] = {m->fmap,      m->kconst,  m->dof_map, m->grad,    m->vol,    m->face_tet,
+                    m->face_area, m->face_w,  m->kmap,    m->f_nodal, m->f_grav, m->f_prev,
+                    m->up_new,    m->up_prev, m->u,       m->p,       m->fdef,   m->jac,
+                    m->wiso,      m->ke,      m->be,      m->q,       m->r,      m->du,
+                    m->u_old,     m->gap,     m->fext,    m->t0,      m->t1,     m->t2,
+                    m->t3,        m->u_conv,  m->g,       m->g2,      m->g3,     m->bf,
+                    m->xf};
     for (size_t i = 0; i < sizeof bufs / sizeof bufs[0]; i++) hs_free(bufs[i]);
     hs_free(m);
     *pm = NULL;
@@ -567,15 +690,23 @@ static int mooney_update(hs_mooney* m, int tangent) {
             for (int i = 0; i < 3; i++)
                 for (int j = 0; j < 3; j++) f[i * 3 + j] += ua[i] * g[3 * a + j];
         }
-        double jd = det3(f);
+        // J - 1 = det(I + H) - 1 = tr H + I2(H) + det H, H = grad u: no cancellation at small
+        // strain, where kappa (J - 1) would otherwise lose digits at nu -> 0.5.
+        double hm[9];
+        for (int k = 0; k < 9; k++) hm[k] = f[k] - ((k % 4 == 0) ? 1.0 : 0.0);
+        double tr = hm[0] + hm[4] + hm[8];
+        double i2 = hm[0] * hm[4] + hm[4] * hm[8] + hm[0] * hm[8] - hm[1] * hm[3] - hm[2] * hm[6] -
+                    hm[5] * hm[7];
+        double jm1 = tr + i2 + det3(hm);
+        double jd = 1.0 + jm1;
         m->jac[e] = jd;
         if (!(jd > 0) || !isfinite(jd)) bad = 1;
-        m->g[e] = m->vol[e] * (jd - 1.0);
+        m->g[e] = m->vol[e] * jm1;
     }
     if (bad) return 1;
     if (pressure_solve(m, m->g, m->p) != HS_OK) return 1;
     memset(m->q, 0, sizeof(double) * 3 * (size_t)m->n);
-    double a[81], pk[9], h[9];
+    double a[81], pk[9], h[9], efs2 = 0;
     for (int e = 0; e < m->nt; e++) {
         const int* t = mesh->tets + 4 * e;
         const double* g = m->grad + 12 * e;
@@ -592,6 +723,7 @@ static int mooney_update(hs_mooney* m, int tangent) {
                     sb += h[i * 3 + j] * g[3 * n + j];
                 }
                 m->q[3 * t[n] + i] += v * s;
+                efs2 += v * s * v * s;
                 be[3 * n + i] = v * m->jac[e] * sb;
             }
         if (!tangent) continue;
@@ -616,6 +748,7 @@ static int mooney_update(hs_mooney* m, int tangent) {
                         ke[(3 * an + i) * 12 + 3 * b + k] = v * s;
                     }
     }
+    m->elem_force_scale = sqrt(efs2);
     return all_finite(m->q, 3 * m->n) ? 0 : 1;
 }
 
@@ -646,10 +779,14 @@ static void apply_tangent(hs_mooney* m, const double* x, double* y) {
     }
 }
 
-// Condensed beta = 0 matrix K + B^T diag(kappa / V) B over the free dofs.
-static void assemble_condensed(hs_mooney* m) {
-    hs_csc_zero(m->kmat);
+// Tangent matrix: K + B^T A0^-1 B over the free dofs (A0 = diag(V) / kappa), and with
+// beta > 0 the face coupling -B^T A0^-1 E^T and the constant face block.
+static void assemble_tangent(hs_mooney* m) {
     double* val = m->kmat->val;
+    if (m->kconst)
+        memcpy(val, m->kconst, sizeof(double) * (size_t)m->kmat->nnz);
+    else
+        hs_csc_zero(m->kmat);
     for (int e = 0; e < m->nt; e++) {
         const double* ke = m->ke + 144 * e;
         const double* be = m->be + 12 * e;
@@ -661,6 +798,30 @@ static void assemble_condensed(hs_mooney* m) {
                 if (pos >= 0) val[pos] += ke[r * 12 + c] + w * be[r] * be[c];
             }
     }
+    if (!m->kconst) return;
+    for (int f = 0; f < m->n_faces; f++)
+        for (int s = 0; s < 2; s++) {
+            int e = m->face_tet[2 * f + s];
+            double w = (s == 0 ? -1.0 : 1.0) * m->kappa / m->vol[e]; // -E_fe / A0_e
+            const double* be = m->be + 12 * e;
+            const int* fm = m->fmap + 48 * f + 24 * s;
+            for (int r = 0; r < 12; r++) {
+                if (fm[2 * r] < 0) continue;
+                val[fm[2 * r]] += w * be[r];
+                val[fm[2 * r + 1]] += w * be[r];
+            }
+        }
+}
+
+// Solve S_ff x = b over the free dofs with the factor (b, x full length; fixed entries of x 0).
+// With beta > 0 the face unknowns get a zero right-hand side and are dropped.
+static hs_status solve_tangent(hs_mooney* m, const double* b, double* x) {
+    memset(m->bf, 0, sizeof(double) * (size_t)m->n_k);
+    for (int d = 0; d < 3 * m->n; d++)
+        if (m->dof_map[d] >= 0) m->bf[m->dof_map[d]] = b[d];
+    hs_status st = hs_cholesky_solve(m->kfac, m->bf, m->xf);
+    for (int d = 0; d < 3 * m->n; d++) x[d] = m->dof_map[d] >= 0 ? m->xf[m->dof_map[d]] : 0.0;
+    return st;
 }
 
 static double dot_free(const hs_mooney* m, const double* a, const double* b) {
@@ -668,48 +829,6 @@ static double dot_free(const hs_mooney* m, const double* a, const double* b) {
     for (int d = 0; d < 3 * m->n; d++)
         if (m->dof_map[d] >= 0) s += a[d] * b[d];
     return s;
-}
-
-// z = M^-1 r through the Cholesky factor (full-length vectors, fixed entries zero).
-static hs_status precond(hs_mooney* m, const double* r, double* z) {
-    for (int d = 0; d < 3 * m->n; d++)
-        if (m->dof_map[d] >= 0) m->bf[m->dof_map[d]] = r[d];
-    hs_status st = hs_cholesky_solve(m->kfac, m->bf, m->xf);
-    for (int d = 0; d < 3 * m->n; d++) z[d] = m->dof_map[d] >= 0 ? m->xf[m->dof_map[d]] : 0.0;
-    return st;
-}
-
-// Solve S_ff x = b over the free dofs (b, x full length; fixed entries of x set to 0).
-static hs_status solve_tangent(hs_mooney* m, const double* b, double* x) {
-    if (!m->afac) return precond(m, b, x); // beta = 0: S is the condensed matrix itself
-    double *r = m->t0, *z = m->t1, *pv = m->t2, *q = m->t3;
-    int nd = 3 * m->n;
-    memset(x, 0, sizeof(double) * (size_t)nd);
-    for (int d = 0; d < nd; d++) r[d] = m->dof_map[d] >= 0 ? b[d] : 0.0;
-    double bn = sqrt(dot_free(m, r, r));
-    if (bn == 0) return HS_OK;
-    hs_status st = precond(m, r, z);
-    if (st != HS_OK) return st;
-    memcpy(pv, z, sizeof(double) * (size_t)nd);
-    double rz = dot_free(m, r, z);
-    int max_it = 50 + m->n_free;
-    for (int it = 0; it < max_it; it++) {
-        apply_tangent(m, pv, q);
-        for (int d = 0; d < nd; d++)
-            if (m->dof_map[d] < 0) q[d] = 0.0;
-        double pq = dot_free(m, pv, q);
-        if (!(pq > 0)) return HS_ERR_NOT_POSDEF;
-        double alpha = rz / pq;
-        for (int d = 0; d < nd; d++) x[d] += alpha * pv[d], r[d] -= alpha * q[d];
-        m->cg_iters++;
-        if (sqrt(dot_free(m, r, r)) <= m->cg_tol_now * bn) return HS_OK;
-        if ((st = precond(m, r, z)) != HS_OK) return st;
-        double rz2 = dot_free(m, r, z);
-        double beta = rz2 / rz;
-        rz = rz2;
-        for (int d = 0; d < nd; d++) pv[d] = z[d] + beta * pv[d];
-    }
-    return HS_ERR_NOT_CONVERGED;
 }
 
 // Residual of the current increment: rhs = fext - Q - S gap over free dofs (gap = remaining
@@ -734,9 +853,11 @@ static double total_energy(const hs_mooney* m) {
     return e;
 }
 
+// Size of the terms that cancel in the assembled residual: the residual cannot be computed
+// more accurately than a small multiple of round-off on this.
 static double qscale(const hs_mooney* m) {
-    double s = 0;
-    for (int d = 0; d < 3 * m->n; d++) s += m->q[d] * m->q[d] + m->fext[d] * m->fext[d];
+    double s = m->elem_force_scale * m->elem_force_scale;
+    for (int d = 0; d < 3 * m->n; d++) s += m->fext[d] * m->fext[d];
     return sqrt(s);
 }
 
@@ -764,19 +885,16 @@ static hs_status solve_increment(hs_mooney* m, double s, hs_mooney_stats* stats,
     stats->ratio[0] = 1.0;
     stats->final_ratio = 0.0;
     int iters = 0;
-    double floor_abs = 1e-14 * qscale(m);
+    double floor_abs = 1e-12 * qscale(m);
     if (r0 <= floor_abs && !gap_nz) goto converged;
     while (iters < m->def.max_newton_iter) {
         if (m->n_free > 0) {
-            assemble_condensed(m);
+            assemble_tangent(m);
             hs_status st = m->kfac ? hs_cholesky_refactor(m->kfac, m->kmat)
                                    : hs_cholesky_create(m->kmat, &m->kfac, err);
             if (st != HS_OK)
                 return hs_err_set(err, st, "%s:%d: tangent factorisation failed: %s", __FILE__,
                                   __LINE__, hs_status_str(st));
-            // Inexact Newton with forcing term 0.1 * ratio keeps the convergence quadratic.
-            double ratio_now = r0 > 0 ? rn / r0 : 0.0;
-            m->cg_tol_now = fmax(m->def.cg_tol, fmin(1e-3, 0.1 * ratio_now));
             st = solve_tangent(m, m->r, m->du);
             if (st != HS_OK)
                 return hs_err_set(err, st, "%s:%d: tangent solve failed: %s", __FILE__, __LINE__,
@@ -827,7 +945,10 @@ static hs_status solve_increment(hs_mooney* m, double s, hs_mooney_stats* stats,
         double ratio = r0 > 0 ? rn / r0 : 0.0;
         if (stats->n_ratio < HS_MOONEY_HISTORY) stats->ratio[stats->n_ratio++] = ratio;
         stats->final_ratio = ratio;
-        if (!gap_nz && (ratio <= m->def.tolerance || rn <= 1e-14 * qscale(m))) goto converged;
+        if (!gap_nz && (ratio <= m->def.tolerance || rn <= 1e-12 * qscale(m))) goto converged;
+        // Half the budget spent without getting below the first residual: a smaller
+        // increment is cheaper than the rest of the budget.
+        if (2 * iters >= m->def.max_newton_iter && ratio > 1.0) break;
     }
     stats->newton_total += iters;
     return hs_err_set(err, HS_ERR_NOT_CONVERGED,
@@ -846,26 +967,34 @@ hs_status hs_mooney_solve_static(hs_mooney* m, hs_mooney_stats* stats_out, hs_er
     int64_t t0 = hs_now_ns();
     hs_mooney_stats stats;
     memset(&stats, 0, sizeof stats);
-    m->cg_iters = 0;
     int nd = 3 * m->n;
     double lam = 0.0, dl = 1.0 / m->def.load_steps;
     int bisect = 0;
     hs_status st = HS_OK;
     // The last converged displacement is kept in m->u_conv.
     memcpy(m->u_conv, m->u, sizeof(double) * (size_t)nd);
+    // Step control: a failed increment is halved (at most max_bisections levels deep, and
+    // 4 max_bisections failures in all); an easy one lets the increment grow back.
+    int depth = 0;
     while (lam < 1.0) {
         double next = lam + dl;
         if (next > 1.0 - 1e-12) next = 1.0;
         // the increment works on load factor "next" relative to the previous converged loads
+        int before = stats.newton_total;
         st = solve_increment(m, next, &stats, err);
         if (st == HS_OK) {
             memcpy(m->u_conv, m->u, sizeof(double) * (size_t)nd);
             lam = next;
+            if (depth > 0 && 4 * (stats.newton_total - before) <= m->def.max_newton_iter) {
+                depth--;
+                dl *= 2.0;
+            }
             continue;
         }
         memcpy(m->u, m->u_conv, sizeof(double) * (size_t)nd);
-        if (bisect >= m->def.max_bisections) break;
+        if (depth >= m->def.max_bisections || bisect >= 4 * m->def.max_bisections) break;
         bisect++;
+        depth++;
         stats.bisections++;
         dl *= 0.5;
     }
@@ -888,11 +1017,16 @@ hs_status hs_mooney_solve_static(hs_mooney* m, hs_mooney_stats* stats_out, hs_er
     mooney_update(m, 0);
     stats.volume_ratio_min = INFINITY;
     stats.volume_ratio_max = -INFINITY;
+    double v0 = 0, v1 = 0;
     for (int e = 0; e < m->nt; e++) {
         if (m->jac[e] < stats.volume_ratio_min) stats.volume_ratio_min = m->jac[e];
         if (m->jac[e] > stats.volume_ratio_max) stats.volume_ratio_max = m->jac[e];
+        v0 += m->vol[e];
+        v1 += m->vol[e] * m->jac[e];
     }
-    stats.cg_total = m->cg_iters;
+    stats.volume_ratio_total = v1 / v0;
+    stats.system_size = m->n_k;
+    stats.factor_nnz = m->kfac ? hs_cholesky_factor_nnz(m->kfac) : 0;
     stats.solve_ms = (double)(hs_now_ns() - t0) * 1e-6;
     if (stats_out) *stats_out = stats;
     return st;
