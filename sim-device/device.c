@@ -136,15 +136,16 @@ uint32_t hs_stylus_device_render(const hs_stylus_device* d, const double p[3], i
     int inside = hs_stylus_model_eval(m, p, f_n);
     double gain = 1;
     // Age: full strength for min(model timeout, own timeout - ramp), then a linear ramp that
-    // reaches exactly zero no later than the device's own timeout.
-    double age = (double)(now_ns - m->arrival_ns) * 1e-9;
-    double hold =
+    // reaches exactly zero no later than the device's own timeout. Integer ns: no rounding at
+    // the edges.
+    int64_t age = now_ns - m->arrival_ns;
+    double hold_s =
         m->timeout_s < def->timeout_s - def->ramp_s ? m->timeout_s : def->timeout_s - def->ramp_s;
-    if (hold < 0) hold = 0;
+    int64_t hold = hold_s > 0 ? (int64_t)llround(hold_s * 1e9) : 0;
     if (age > hold) {
         flags |= HS_TICK_TIMEOUT;
-        gain = 1 - (age - hold) / def->ramp_s;
-        if (age >= def->timeout_s || gain < 0) gain = 0;
+        gain = 1 - (double)(age - hold) * 1e-9 / def->ramp_s;
+        if (age >= (int64_t)llround(def->timeout_s * 1e9) || gain < 0) gain = 0;
     }
     if (!inside) {
         flags |= HS_TICK_OUTSIDE;
@@ -188,7 +189,9 @@ void hs_stylus_device_step(hs_stylus_device* d, const double target_m[3],
     if (n > 1000) n = 1000;
     double h = dt_s / n, m = def->mass_kg;
     double c = def->hand_damping_n_s_m + def->viscous_n_s_m;
-    double stick = def->coulomb_n * h / m;
+    // The friction impulse shrinks with the implicit damping like the other forces do, so the
+    // handle sticks exactly while the net force stays below coulomb_n.
+    double stick = def->coulomb_n * h / m / (1 + h * c / m);
     int hit = 0;
     for (int s = 0; s < n && h > 0; ++s) {
         double v[3];
@@ -238,7 +241,7 @@ void hs_halfspace_model(const hs_halfspace* h, const double p[3], hs_stylus_mode
     if (depth > 0) {
         for (int i = 0; i < 3; ++i) {
             out->force_n[i] = h->stiffness_n_m * depth * h->normal[i];
-            for (int j = 0; j < 3; ++j)
+            for (int j = 0; j < 3 && !h->force_only; ++j)
                 out->stiffness[3 * i + j] = -h->stiffness_n_m * h->normal[i] * h->normal[j];
         }
     }

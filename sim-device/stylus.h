@@ -211,6 +211,7 @@ typedef struct hs_halfspace {
     double stiffness_n_m; ///< N/m
     double radius_m;      ///< validity radius of the models it sends, m
     double timeout_s;     ///< timeout of the models it sends, s
+    int force_only;       ///< 1: send no stiffness (a zero-order server, for contrast in tests)
 } hs_halfspace;
 
 /// The model the half-space sends for a pose at p ([3], m): anchored at p.

@@ -1,0 +1,699 @@
+// hapsim-stylus core: script parsing and errors, target trajectories, device dynamics against
+// nothing, a stiff wall and the motor limit, local model rendering (analytic, timeout, radius),
+// the mailbox under two threads, passivity of a press-drag-release cycle, and the trace file.
+#define _POSIX_C_SOURCE 200809L // mkstemp
+
+#include "stylus.h"
+#include "test_macros.h"
+
+#include <pthread.h>
+#include <stdlib.h>
+#include <unistd.h>
+
+static double dist3(const double a[3], const double b[3]) {
+    double d[3] = {a[0] - b[0], a[1] - b[1], a[2] - b[2]};
+    return sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+}
+
+static double norm3(const double a[3]) {
+    return sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+}
+
+// A device whose workspace comfortably contains everything the tests do.
+static hs_stylus_def test_def(void) {
+    hs_stylus_def d = hs_stylus_default_def();
+    d.workspace_m[0] = d.workspace_m[1] = d.workspace_m[2] = 1.0;
+    return d;
+}
+
+static int parse(hs_script* s, const char* text, hs_err* err) {
+    return hs_script_parse_string(s, text, "t.probe", err);
+}
+
+static int script_good(void) {
+    int64_t bytes = hs_byte_count();
+    hs_script* s = NULL;
+    hs_err err = {0};
+    ENSURE(hs_script_create(&s, &err) == HS_OK);
+    const char* text = "# a comment line\n"
+                       "units mm\n"
+                       "origin 10 20 30\n"
+                       "start 0 0 50   # trailing comment\n"
+                       "surface 0 0 40  0 0 2\n"
+                       "\n"
+                       "MOVE_TO 0 0 40 20\n"
+                       "loop 2\n"
+                       "  press 0 0 1 5 5\n"
+                       "  loop 3\n"
+                       "    drag 10 0 40 10\n"
+                       "    drag 0 0 40 10\n"
+                       "  end\n"
+                       "  hold 0.25\n"
+                       "  release 5\n"
+                       "end\n"
+                       "profile trapezoid 200\n"
+                       "cut 0, 10, 40, 20\n"
+                       "hold 0\n";
+    ENSURE(parse(s, text, &err) == HS_OK);
+    ENSURE(s->has_start && s->has_origin && s->has_surface);
+    ENSURE_NEAR(s->origin_m[1], 0.020, 1e-12);
+    ENSURE_NEAR(s->start_m[2], 0.050, 1e-12);
+    ENSURE_NEAR(s->surface_normal[2], 1.0, 1e-12); // normalised
+    ENSURE_NEAR(s->surface_point_m[2], 0.040, 1e-12);
+    // move + 2 x (press + 3 x 2 drags + hold + release) + cut; "hold 0" adds nothing.
+    ENSURE(s->n_segments == 1 + 2 * (1 + 6 + 1 + 1) + 1);
+    ENSURE(s->seg[0].cmd == HS_CMD_MOVE_TO && s->seg[0].line == 7);
+    ENSURE(s->seg[1].cmd == HS_CMD_PRESS && s->seg[1].line == 9);
+    ENSURE(s->seg[2].cmd == HS_CMD_DRAG && s->seg[2].line == 11);
+    ENSURE(s->seg[10].cmd == HS_CMD_PRESS && s->seg[10].line == 9); // second outer iteration
+    const hs_script_segment* press = &s->seg[1];
+    ENSURE_NEAR(press->to_m[2], 0.035, 1e-12); // 5 mm into the surface along -n
+    const hs_script_segment* drag = &s->seg[2];
+    ENSURE_NEAR(drag->to_m[0], 0.010, 1e-12);
+    ENSURE_NEAR(drag->to_m[2], 0.035, 1e-12); // drag keeps the pressed depth
+    const hs_script_segment* rel = &s->seg[9];
+    ENSURE(rel->cmd == HS_CMD_RELEASE);
+    ENSURE_NEAR(rel->to_m[2], 0.040, 1e-12);
+    const hs_script_segment* cut = &s->seg[s->n_segments - 1];
+    ENSURE(cut->cmd == HS_CMD_CUT && cut->buttons == 1 && cut->profile == HS_PROFILE_TRAPEZOID);
+    ENSURE_NEAR(cut->accel_m_s2, 0.2, 1e-12);
+    // Segments tile time without gaps; the duration is the end of the last.
+    for (int i = 1; i < s->n_segments; ++i)
+        ENSURE_NEAR(s->seg[i].t0_s, s->seg[i - 1].t0_s + s->seg[i - 1].dur_s, 1e-12);
+    ENSURE_NEAR(s->duration_s, cut->t0_s + cut->dur_s, 1e-12);
+    // Minimum-jerk timing: T = 1.875 L / v.
+    ENSURE_NEAR(s->seg[0].dur_s, 1.875 * 0.010 / 0.020, 1e-12);
+
+    // A file on disk parses the same and names itself.
+    char path[] = "/tmp/hs_stylus_test_XXXXXX";
+    int fd = mkstemp(path);
+    ENSURE(fd >= 0);
+    ENSURE(write(fd, text, strlen(text)) == (ssize_t)strlen(text));
+    close(fd);
+    hs_script* s2 = NULL;
+    ENSURE(hs_script_create(&s2, &err) == HS_OK);
+    ENSURE(hs_script_parse_file(s2, path, &err) == HS_OK);
+    ENSURE(s2->n_segments == s->n_segments);
+    ENSURE(strcmp(s2->name, path) == 0);
+    unlink(path);
+    ENSURE(hs_script_parse_file(s2, path, &err) == HS_ERR_IO);
+    ENSURE(strstr(err.msg, path) != NULL);
+    hs_script_destroy(&s2);
+    hs_script_destroy(&s);
+    ENSURE(s == NULL);
+    hs_script_destroy(&s); // NULL is harmless
+    ENSURE(hs_byte_count() == bytes);
+    return 0;
+}
+
+typedef struct bad_case {
+    const char* text;
+    int line;
+    const char* needle;
+} bad_case;
+
+static int script_errors(void) {
+    int64_t bytes = hs_byte_count();
+    hs_script* s = NULL;
+    hs_err err = {0};
+    ENSURE(hs_script_create(&s, &err) == HS_OK);
+    static char long_line[700];
+    memset(long_line, 'x', sizeof long_line - 2);
+    long_line[sizeof long_line - 2] = '\n';
+    static const bad_case cases[] = {
+        {"move_to 0 0 0 1\nwiggle 1 2\n", 2, "unknown command 'wiggle'"},
+        {"move_to 0 0 1\n", 1, "expected 4 numbers"},
+        {"\n\nmove_to 0 0 abc 1\n", 3, "'abc' is not a finite number"},
+        {"move_to 0 0 nan 1\n", 1, "not a finite number"},
+        {"move_to 0 0 1 0\n", 1, "speed must be > 0"},
+        {"move_to 0 0 1 -2\n", 1, "speed must be > 0"},
+        {"press 0 0 0 0.005 0.01\n", 1, "normal (nx ny nz) must not be zero"},
+        {"press 0 0 1 0 0.01\n", 1, "depth must be > 0"},
+        {"release 0.01\n", 1, "no press is active"},
+        {"hold 1\ndrag 0 0 0 0.01\n", 2, "drag: no press is active"},
+        {"press 0 0 1 0.01 0.01\nmove_to 1 0 0 1\n", 2, "a press is active"},
+        {"press 0 0 1 0.01 0.01\npress 1 0 0 0.01 0.01\n", 2, "another normal"},
+        {"hold -1\n", 1, "hold: seconds must be >= 0"},
+        {"hold 1\nend\n", 2, "end: no open loop"},
+        {"hold 1\nloop 2\n hold 1\n", 2, "no matching 'end'"},
+        {"loop 0\nend\n", 1, "whole count"},
+        {"loop 2.5\nend\n", 1, "whole count"},
+        {"loop 1000000\n move_to 0 0 1 1\n move_to 0 0 0 1\nend\n", 2, "too many segments"},
+        {"move_to 0 0 1 1\nstart 0 0 0\n", 2, "before the first motion"},
+        {"units inch\n", 1, "units: expected"},
+        {"profile bouncy\n", 1, "profile: expected"},
+        {"profile trapezoid -1\n", 1, "accel must be > 0"},
+        {"surface 0 0 0 0 0 0\n", 1, "must not be zero"},
+        {"hold 1\nhold\n", 2, "expected 1 number"},
+        {"end 3\n", 1, "takes no arguments"},
+        {long_line, 1, "line longer than"},
+    };
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; ++i) {
+        err.msg[0] = '\0';
+        hs_status st = parse(s, cases[i].text, &err);
+        char prefix[64];
+        snprintf(prefix, sizeof prefix, "t.probe:%d: ", cases[i].line);
+        if (st != HS_ERR_PARSE || strncmp(err.msg, prefix, strlen(prefix)) != 0 ||
+            !strstr(err.msg, cases[i].needle)) {
+            printf("  case %zu: status %d, message '%s' (want '%s...%s')\n", i, (int)st, err.msg,
+                   prefix, cases[i].needle);
+            return 1;
+        }
+        ENSURE(s->n_segments == 0 && s->duration_s == 0); // nothing half-parsed survives
+    }
+    hs_script_destroy(&s);
+    ENSURE(hs_byte_count() == bytes);
+    return 0;
+}
+
+// Samples target(t) finely: keyframes are hit, velocity is the derivative of position, and no
+// move exceeds its speed; minimum-jerk peaks at the speed, a trapezoid cruises at it.
+static int script_trajectory(void) {
+    hs_script* s = NULL;
+    hs_err err = {0};
+    ENSURE(hs_script_create(&s, &err) == HS_OK);
+    ENSURE(parse(s,
+                 "start 0 0 0\n"
+                 "move_to 0.03 0 0 0.02\n"
+                 "hold 0.2\n"
+                 "profile trapezoid 0.5\n"
+                 "move_to 0.03 0.04 0 0.02\n"      // long: reaches and cruises at 20 mm/s
+                 "move_to 0.03 0.04 0.0002 0.02\n" // short: triangular, never reaches it
+                 "profile minjerk\n"
+                 "press 0 0 1 0.005 0.004\n"
+                 "release 0.01\n",
+                 &err) == HS_OK);
+    ENSURE(s->n_segments == 6);
+    int hint = 0;
+    for (int i = 0; i < s->n_segments; ++i) {
+        const hs_script_segment* g = &s->seg[i];
+        double p[3], v[3];
+        hs_script_eval(s, g->t0_s, p, v, NULL, &hint);
+        ENSURE_SMALL(dist3(p, g->from_m), 1e-12);
+        ENSURE_SMALL(norm3(v), 1e-12); // every move starts and ends at rest
+        hs_script_eval(s, g->t0_s + g->dur_s - 1e-12, p, v, NULL, &hint);
+        ENSURE_SMALL(dist3(p, g->to_m), 1e-9);
+        if (g->kind == HS_SEG_MOVE) {
+            double peak = 0, fd_err = 0, h = 1e-6;
+            for (int k = 1; k < 2000; ++k) {
+                double t = g->t0_s + g->dur_s * k / 2000.0, a[3], b[3];
+                hs_script_eval(s, t, p, v, NULL, NULL);
+                hs_script_eval(s, t - h, a, NULL, NULL, NULL);
+                hs_script_eval(s, t + h, b, NULL, NULL, NULL);
+                double fd[3] = {(b[0] - a[0]) / (2 * h), (b[1] - a[1]) / (2 * h),
+                                (b[2] - a[2]) / (2 * h)};
+                double e = dist3(fd, v);
+                if (e > fd_err) fd_err = e;
+                if (norm3(v) > peak) peak = norm3(v);
+            }
+            ENSURE(peak <= g->speed_m_s * (1 + 1e-9));
+            ENSURE_SMALL(fd_err, 1e-4 * g->speed_m_s);
+            if (i == 2) { // trapezoid, long: cruise at the given speed
+                ENSURE_NEAR(peak, g->speed_m_s, 1e-9);
+                ENSURE_NEAR(g->dur_s, 0.04 / 0.02 + 0.02 / 0.5, 1e-12);
+            } else if (i == 3) { // trapezoid, too short to reach the speed
+                ENSURE(peak < 0.5 * g->speed_m_s);
+                ENSURE_NEAR(g->dur_s, 2 * sqrt(0.0002 / 0.5), 1e-12);
+            } else { // minimum jerk: the peak is the speed (sampled within 0.1 %)
+                ENSURE_NEAR(peak, g->speed_m_s, 1e-3 * g->speed_m_s);
+            }
+        }
+    }
+    // The hold stays put; before the start and after the end the target is at rest.
+    double p[3], v[3], q[3];
+    hs_script_eval(s, s->seg[1].t0_s + 0.1, p, v, NULL, NULL);
+    ENSURE_SMALL(dist3(p, s->seg[0].to_m), 1e-15);
+    hs_script_eval(s, -1, p, v, NULL, NULL);
+    ENSURE_SMALL(dist3(p, s->start_m), 0);
+    hs_script_eval(s, s->duration_s + 5, p, v, NULL, NULL);
+    ENSURE_SMALL(dist3(p, s->seg[5].to_m), 1e-15);
+    ENSURE_SMALL(norm3(v), 0);
+    // Press then release brings the target back: release undoes exactly the pressed depth.
+    ENSURE_SMALL(dist3(s->seg[5].to_m, s->seg[4].from_m), 1e-15);
+    // Sequential lookups with a hint agree with fresh lookups.
+    hint = 0;
+    for (double t = 0; t < s->duration_s; t += 0.0137) {
+        hs_script_eval(s, t, p, NULL, NULL, &hint);
+        hs_script_eval(s, t, q, NULL, NULL, NULL);
+        ENSURE(dist3(p, q) == 0);
+    }
+    hs_script_destroy(&s);
+    return 0;
+}
+
+// No server force: the virtual hand drags the handle along the target.
+static int device_tracks_target(void) {
+    hs_script* s = NULL;
+    hs_err err = {0};
+    ENSURE(hs_script_create(&s, &err) == HS_OK);
+    ENSURE(parse(s, "start 0 0 0\nmove_to 0.05 0.02 -0.01 0.05\nhold 0.5\n", &err) == HS_OK);
+    hs_stylus_def def = test_def();
+    hs_stylus_device dev;
+    hs_stylus_device_init(&dev, &def, s->start_m);
+    double worst = 0, dt = 1e-3;
+    int hint = 0;
+    for (int k = 0; k * dt < s->duration_s; ++k) {
+        double t = k * dt, target[3], tv[3];
+        hs_script_eval(s, t, target, tv, NULL, &hint);
+        hs_stylus_tick tick;
+        hs_stylus_device_step(&dev, target, tv, 1000000 * (int64_t)k, dt, &tick);
+        ENSURE(tick.flags & HS_TICK_NO_MODEL);
+        ENSURE(norm3(tick.f_applied) == 0);
+        double e = dist3(tick.handle_m, target);
+        if (e > worst) worst = e;
+    }
+    // The hand's damper feeds the target velocity forward: the lag during a 50 mm/s move is
+    // small (friction over the spring, plus the integration lag of one tick).
+    ENSURE(worst < 0.5e-3);
+    double final_target[3];
+    hs_script_eval(s, s->duration_s, final_target, NULL, NULL, NULL);
+    // At rest the handle sticks within Coulomb friction / hand stiffness of the target.
+    ENSURE(dist3(dev.pos_m, final_target) <= def.coulomb_n / def.hand_stiffness_n_m * 1.01);
+    ENSURE(dist3(dev.pos_m, final_target) < 60e-6);
+
+    // A long, irregular dt (the real elapsed time) is split into substeps and stays stable.
+    hs_stylus_device_init(&dev, &def, s->start_m);
+    hs_stylus_tick tick;
+    for (int k = 0; k < 40; ++k)
+        hs_stylus_device_step(&dev, final_target, NULL, 0, k % 2 ? 0.013 : 0.0004, &tick);
+    ENSURE(dist3(dev.pos_m, final_target) < 1e-4);
+    ENSURE(norm3(dev.vel_m_s) < 1e-3);
+    // The workspace box stops the handle even when the target is outside it.
+    def = hs_stylus_default_def(); // 160 x 120 x 70 mm around the origin
+    hs_stylus_device_init(&dev, &def, (double[3]){0, 0, 0});
+    for (int k = 0; k < 1000; ++k)
+        hs_stylus_device_step(&dev, (double[3]){0, 0, 0.2}, NULL, 0, 1e-3, &tick);
+    ENSURE_NEAR(dev.pos_m[2], 0.035, 1e-12);
+    ENSURE(tick.flags & HS_TICK_WORKSPACE);
+    ENSURE(dev.workspace_hits > 0);
+    hs_script_destroy(&s);
+    return 0;
+}
+
+// Runs a press into a half-space of stiffness k offline and returns the final device.
+static int press_offline(double depth_m, double k, hs_stylus_device* dev, hs_stylus_trace* tr,
+                         const hs_script** out_script, hs_script* s) {
+    char text[256];
+    snprintf(text, sizeof text,
+             "surface 0 0 0  0 0 1\nstart 0 0 0.01\nmove_to 0 0 0 0.02\n"
+             "press 0 0 1 %.6f 0.01\nhold 1.5\n",
+             depth_m);
+    hs_err err = {0};
+    if (parse(s, text, &err) != HS_OK) return 1;
+    hs_stylus_def def = test_def();
+    hs_offline_def off = {0};
+    memcpy(off.surface.point_m, s->surface_point_m, sizeof off.surface.point_m);
+    memcpy(off.surface.normal, s->surface_normal, sizeof off.surface.normal);
+    off.surface.stiffness_n_m = k;
+    off.surface.radius_m = 0.002;
+    off.surface.timeout_s = 0.05;
+    off.dt_s = 1e-3;
+    off.period_ticks = 1;
+    off.delay_ticks = 1;
+    if (out_script) *out_script = s;
+    return hs_stylus_run_offline(s, &def, &off, tr, dev, &err) != HS_OK;
+}
+
+// Against a stiff wall the handle stops at the wall and the force is the hand spring times the
+// distance to the target; a deeper press saturates the motor at its limit.
+static int device_wall(void) {
+    hs_script* s = NULL;
+    hs_err err = {0};
+    ENSURE(hs_script_create(&s, &err) == HS_OK);
+    hs_stylus_device dev;
+    const double k_wall = 4000; // 10x the hand; stable with a one-tick delay
+    hs_stylus_def def = test_def();
+    ENSURE(press_offline(0.005, k_wall, &dev, NULL, NULL, s) == 0);
+    double target = -0.005, f = dev.prev_force_n[2];
+    double hand = def.hand_stiffness_n_m * (dev.pos_m[2] - target);
+    ENSURE(f > 0 && f < def.max_force_n);
+    ENSURE_NEAR(f, hand, def.coulomb_n * 1.01);   // force balance up to friction
+    ENSURE_NEAR(dev.pos_m[2], -f / k_wall, 2e-6); // stopped at the wall (its compliance)
+    ENSURE(dev.pos_m[2] > -0.0006);               // i.e. not pushed through
+    ENSURE_NEAR(f, def.hand_stiffness_n_m * 0.005 * k_wall / (k_wall + def.hand_stiffness_n_m),
+                def.coulomb_n * 1.01);
+    ENSURE_SMALL(norm3(dev.vel_m_s), 1e-4);
+
+    // 15 mm deep: the hand pushes 6 N, the motor gives at most 3.3 N and the handle sinks
+    // until the hand spring is balanced by the clamped force.
+    ENSURE(press_offline(0.015, k_wall, &dev, NULL, NULL, s) == 0);
+    ENSURE_NEAR(norm3(dev.prev_force_n), def.max_force_n, 1e-12);
+    ENSURE_NEAR(def.hand_stiffness_n_m * (dev.pos_m[2] + 0.015), def.max_force_n,
+                def.coulomb_n * 1.01);
+    hs_script_destroy(&s);
+    return 0;
+}
+
+static hs_stylus_model make_model(void) {
+    hs_stylus_model m;
+    memset(&m, 0, sizeof m);
+    m.seq = 7;
+    m.version = 3;
+    m.arrival_ns = 5000000000;
+    m.state = 1;
+    double k[9] = {-300, 20, 0, 20, -250, 10, 0, 10, -400};
+    memcpy(m.stiffness, k, sizeof k);
+    m.force_n[0] = 0.1;
+    m.force_n[1] = -0.2;
+    m.force_n[2] = 0.8;
+    m.anchor_m[0] = 0.01;
+    m.anchor_m[1] = 0.02;
+    m.anchor_m[2] = -0.03;
+    m.radius_m = 0.002;
+    m.timeout_s = 0.03;
+    return m;
+}
+
+// Rendering between messages: the analytic model inside the radius, a ramp to zero after the
+// timeout, and a ramp to zero after leaving the radius.
+static int local_model(void) {
+    hs_stylus_def def = test_def();
+    hs_stylus_device dev;
+    hs_stylus_device_init(&dev, &def, (double[3]){0.01, 0.02, -0.03});
+    hs_stylus_model m = make_model();
+    ENSURE(hs_stylus_model_valid(&m));
+    hs_stylus_device_set_model(&dev, &m);
+    const int64_t t0 = m.arrival_ns;
+    double f[3];
+    srand(5);
+    for (int trial = 0; trial < 200; ++trial) {
+        double d[3], p[3];
+        for (int i = 0; i < 3; ++i) d[i] = (rand() / (double)RAND_MAX - 0.5) * 0.0022;
+        if (norm3(d) > m.radius_m) continue;
+        for (int i = 0; i < 3; ++i) p[i] = m.anchor_m[i] + d[i];
+        uint32_t fl = hs_stylus_device_render(&dev, p, t0 + 10000000, f);
+        ENSURE(fl == 0);
+        for (int i = 0; i < 3; ++i) {
+            double want = m.force_n[i] + m.stiffness[3 * i] * d[0] + m.stiffness[3 * i + 1] * d[1] +
+                          m.stiffness[3 * i + 2] * d[2];
+            ENSURE_NEAR(f[i], want, 1e-12);
+        }
+    }
+    // Age: full to the model's 30 ms timeout, linear over the device's 20 ms ramp, then 0.
+    double p[3] = {0.0105, 0.0195, -0.0302}, full[3], g[3];
+    hs_stylus_device_render(&dev, p, t0, full);
+    ENSURE(hs_stylus_device_render(&dev, p, t0 + 30000000, g) == 0);
+    ENSURE_SMALL(dist3(g, full), 1e-15);
+    ENSURE(hs_stylus_device_render(&dev, p, t0 + 40000000, g) & HS_TICK_TIMEOUT);
+    for (int i = 0; i < 3; ++i) ENSURE_NEAR(g[i], 0.5 * full[i], 1e-12);
+    hs_stylus_device_render(&dev, p, t0 + 50000000, g);
+    ENSURE(norm3(g) == 0);
+    hs_stylus_device_render(&dev, p, t0 + 900000000, g);
+    ENSURE(norm3(g) == 0);
+    // A model promising more than the device's own timeout still ends at the device's: zero at
+    // 100 ms, ramping from 80 ms.
+    m.timeout_s = 5.0;
+    hs_stylus_device_set_model(&dev, &m);
+    hs_stylus_device_render(&dev, p, t0 + 80000000, g);
+    ENSURE_SMALL(dist3(g, full), 1e-15);
+    hs_stylus_device_render(&dev, p, t0 + 90000000, g);
+    for (int i = 0; i < 3; ++i) ENSURE_NEAR(g[i], 0.5 * full[i], 1e-12);
+    hs_stylus_device_render(&dev, p, t0 + 100000000, g);
+    ENSURE(norm3(g) == 0);
+
+    // Outside the radius: evaluated on the sphere (continuous at the boundary), then the gain
+    // falls linearly to zero over outside_ramp_s while the handle stays outside.
+    hs_stylus_device_set_model(&dev, &m);
+    double out[3] = {m.anchor_m[0] + 0.004, m.anchor_m[1], m.anchor_m[2]};
+    double edge[3] = {m.anchor_m[0] + m.radius_m, m.anchor_m[1], m.anchor_m[2]}, fe[3];
+    hs_stylus_device_render(&dev, edge, t0, fe);
+    ENSURE(hs_stylus_device_render(&dev, out, t0, g) & HS_TICK_OUTSIDE);
+    ENSURE_SMALL(dist3(g, fe), 1e-12);
+    hs_stylus_tick tick;
+    def.max_rate_n_s = 1e9; // let the applied force follow the rendered one exactly
+    dev.def = def;
+    double prev = norm3(fe);
+    // The handle sits outside and stays there (a huge mass: the motor cannot move it).
+    memcpy(dev.pos_m, out, sizeof out);
+    dev.def.mass_kg = 1e9;
+    for (int k = 1; k <= 25; ++k) {
+        hs_stylus_device_step(&dev, out, NULL, t0 + k * 1000000, 1e-3, &tick);
+        ENSURE(tick.flags & HS_TICK_OUTSIDE);
+        double fn = norm3(tick.f_applied);
+        ENSURE(fn <= prev + 1e-12); // never grows while outside
+        double want = norm3(fe) * (1 - (k - 1) * 1e-3 / def.outside_ramp_s);
+        ENSURE_NEAR(fn, want > 0 ? want : 0, 1e-9);
+        prev = fn;
+    }
+    ENSURE(prev == 0);
+    // A stopped server renders nothing.
+    m.state = 3;
+    hs_stylus_device_set_model(&dev, &m);
+    hs_stylus_device_render(&dev, m.anchor_m, t0, g);
+    ENSURE(norm3(g) == 0);
+    // A model with NaN or a negative radius is invalid.
+    m = make_model();
+    m.stiffness[4] = NAN;
+    ENSURE(!hs_stylus_model_valid(&m));
+    m = make_model();
+    m.radius_m = -1;
+    ENSURE(!hs_stylus_model_valid(&m));
+    return 0;
+}
+
+// The server disappears mid-contact: with no newer model the applied force (through the rate
+// clamp too) reaches exactly zero by the device's timeout and stays there.
+static int server_timeout(void) {
+    hs_script* s = NULL;
+    hs_err err = {0};
+    ENSURE(hs_script_create(&s, &err) == HS_OK);
+    hs_stylus_device dev;
+    ENSURE(press_offline(0.005, 400, &dev, NULL, NULL, s) == 0);
+    ENSURE(norm3(dev.prev_force_n) > 0.5);
+    int64_t last = dev.model.arrival_ns, now = last;
+    hs_stylus_tick tick;
+    double target[3] = {0, 0, -0.005};
+    int zero_at = -1;
+    for (int k = 1; k <= 200; ++k) {
+        now = last + (int64_t)k * 1000000;
+        hs_stylus_device_step(&dev, target, NULL, now, 1e-3, &tick);
+        if (zero_at < 0 && norm3(tick.f_applied) == 0) zero_at = k;
+        if (zero_at >= 0) ENSURE(norm3(tick.f_applied) == 0);
+        ENSURE(k <= 50 || (tick.flags & HS_TICK_TIMEOUT));
+    }
+    ENSURE(zero_at > 0 && zero_at <= (int)lround(dev.def.timeout_s * 1e3));
+    ENSURE(zero_at > (int)lround((dev.def.timeout_s - dev.def.ramp_s) * 1e3) - 50); // not abrupt
+    hs_script_destroy(&s);
+    return 0;
+}
+
+// Passivity: a press-drag-release cycle against the elastic half-space puts back no more
+// energy than it took: |net work into the handle| stays below 1 % of the energy the surface
+// stored and returned. A deliberately active setup (long delay, stiff surface) must fail it.
+static int run_cycle(double k, int delay, int force_only, hs_stylus_summary* sum) {
+    hs_script* s = NULL;
+    hs_err err = {0};
+    if (hs_script_create(&s, &err)) return 1;
+    int rc = parse(s,
+                   "surface 0 0 0  0 0 1\nstart 0 0 0.01\nmove_to 0 0 0 0.02\nhold 0.2\n"
+                   "press 0 0 1 0.004 0.005\nhold 0.3\ndrag 0.01 0 0 0.005\nhold 0.2\n"
+                   "drag 0 0.005 0 0.005\ndrag 0 0 0 0.005\nhold 0.3\nrelease 0.005\n"
+                   "hold 0.5\n",
+                   &err);
+    hs_stylus_trace* tr = NULL;
+    if (!rc) rc = hs_stylus_trace_create((int64_t)(s->duration_s * 1000) + 600, &tr, &err);
+    if (!rc) {
+        hs_stylus_def def = test_def();
+        hs_offline_def off = {0};
+        off.surface.normal[2] = 1;
+        off.surface.stiffness_n_m = k;
+        off.surface.radius_m = 0.002;
+        off.surface.timeout_s = 0.05;
+        off.surface.force_only = force_only;
+        off.dt_s = 1e-3;
+        off.period_ticks = 1;
+        off.delay_ticks = delay;
+        rc = hs_stylus_run_offline(s, &def, &off, tr, NULL, &err);
+        hs_stylus_trace_summary(tr, s, sum);
+    }
+    hs_stylus_trace_destroy(&tr);
+    hs_script_destroy(&s);
+    return rc;
+}
+
+static int passivity(void) {
+    int64_t bytes = hs_byte_count();
+    hs_stylus_summary sum;
+    const double ks[] = {100, 300, 1000};
+    for (int i = 0; i < 3; ++i) {
+        ENSURE(run_cycle(ks[i], 1, 0, &sum) == 0);
+        ENSURE(sum.energy_in_j > 1e-4); // the cycle really loads the surface
+        ENSURE(sum.energy_j <= 0.01 * sum.energy_in_j);
+        ENSURE(sum.energy_j >= -0.05 * sum.energy_in_j); // and returns it (no sticky loss)
+        ENSURE(sum.clamp_magnitude == 0);
+        printf("  k %5.0f N/m: net %.3g J of %.3g J in (%.3f %%)\n", ks[i], sum.energy_j,
+               sum.energy_in_j, 100 * sum.energy_j / sum.energy_in_j);
+    }
+    // The local model's stiffness compensates the round trip: even 25 ticks stay passive.
+    ENSURE(run_cycle(1000, 25, 0, &sum) == 0);
+    ENSURE(sum.energy_j <= 0.01 * sum.energy_in_j);
+    // The check can fail: a server that sends only the force (no stiffness) with a 25 ms round
+    // trip against a 1000 N/m surface is active.
+    ENSURE(run_cycle(1000, 25, 1, &sum) == 0);
+    printf("  k 1000 N/m, force only, 25 ticks delay: net %.3g J of %.3g J in\n", sum.energy_j,
+           sum.energy_in_j);
+    ENSURE(sum.energy_j > 0.01 * sum.energy_in_j);
+    ENSURE(hs_byte_count() == bytes);
+    return 0;
+}
+
+// Reads "# key=value" from the trace's summary lines.
+static double summary_value(const char* text, const char* key) {
+    char pat[64];
+    snprintf(pat, sizeof pat, "# %s=", key);
+    const char* p = strstr(text, pat);
+    return p ? strtod(p + strlen(pat), NULL) : NAN;
+}
+
+static int trace_file(void) {
+    int64_t bytes = hs_byte_count();
+    hs_script* s = NULL;
+    hs_err err = {0};
+    ENSURE(hs_script_create(&s, &err) == HS_OK);
+    hs_stylus_trace* tr = NULL;
+    ENSURE(hs_stylus_trace_create(2000, &tr, &err) == HS_OK);
+    hs_stylus_device dev;
+    ENSURE(press_offline(0.004, 300, &dev, tr, NULL, s) == 0);
+    hs_stylus_summary sum;
+    hs_stylus_trace_summary(tr, s, &sum);
+    ENSURE(sum.rows == 2000 && sum.dropped > 0); // the run is longer than the capacity
+    char path[] = "/tmp/hs_stylus_trace_XXXXXX";
+    int fd = mkstemp(path);
+    ENSURE(fd >= 0);
+    close(fd);
+    ENSURE(hs_stylus_trace_write_csv(tr, &sum, path, &err) == HS_OK);
+
+    FILE* f = fopen(path, "r");
+    ENSURE(f != NULL);
+    static char text[1 << 22];
+    size_t n = fread(text, 1, sizeof text - 1, f);
+    fclose(f);
+    unlink(path);
+    text[n] = '\0';
+    ENSURE(strncmp(text, hs_stylus_trace_header, strlen(hs_stylus_trace_header)) == 0);
+    // Recompute the summary from the rows as printed.
+    const char* line = strchr(text, '\n') + 1;
+    int64_t rows = 0;
+    double peak = 0, energy = 0, step = 0, prev_f[3] = {0}, prev_p[3];
+    memcpy(prev_p, s->start_m, sizeof prev_p);
+    while (*line && *line != '#') {
+        double v[17];
+        char* end = NULL;
+        const char* at = line;
+        for (int i = 0; i < 17; ++i) {
+            v[i] = strtod(at, &end);
+            ENSURE(*end == ',' || (i == 16 && *end == '\n'));
+            at = end + 1;
+        }
+        double* fa = &v[10];
+        double* hp = &v[4];
+        double fn = norm3(fa);
+        if (fn > peak) peak = fn;
+        if (rows > 0 && dist3(fa, prev_f) > step) step = dist3(fa, prev_f);
+        energy +=
+            fa[0] * (hp[0] - prev_p[0]) + fa[1] * (hp[1] - prev_p[1]) + fa[2] * (hp[2] - prev_p[2]);
+        memcpy(prev_f, fa, sizeof prev_f);
+        memcpy(prev_p, hp, sizeof prev_p);
+        ENSURE_NEAR(v[0], rows * 1e-3, 1e-9);
+        ++rows;
+        line = at;
+    }
+    ENSURE(rows == sum.rows);
+    ENSURE(summary_value(line, "rows") == (double)rows);
+    ENSURE(summary_value(line, "dropped_rows") == (double)sum.dropped);
+    ENSURE_NEAR(summary_value(line, "peak_force_n"), peak, 1e-8);
+    ENSURE_NEAR(summary_value(line, "max_force_step_n"), step, 1e-8);
+    ENSURE_NEAR(summary_value(line, "energy_j"), energy, 1e-9 + 1e-6 * fabs(energy));
+    ENSURE(peak > 0.5);
+    ENSURE(fabs(energy) > 0); // rows carry motion under force
+    // The steady force is the mean over the 2nd half of the hold (not yet in the trace: -1).
+    ENSURE(summary_value(line, "steady_segment") == (double)sum.steady_segment);
+
+    // Offline runs are deterministic: a second run gives the same rows bit for bit.
+    hs_stylus_trace* tr2 = NULL;
+    ENSURE(hs_stylus_trace_create(2000, &tr2, &err) == HS_OK);
+    ENSURE(press_offline(0.004, 300, &dev, tr2, NULL, s) == 0);
+    for (int64_t i = 0; i < hs_stylus_trace_rows(tr); ++i)
+        ENSURE(memcmp(hs_stylus_trace_row(tr, i), hs_stylus_trace_row(tr2, i),
+                      sizeof(hs_stylus_tick)) == 0);
+    // A steady force exists once the whole hold is traced.
+    hs_stylus_trace_destroy(&tr2);
+    ENSURE(hs_stylus_trace_create(10000, &tr2, &err) == HS_OK);
+    ENSURE(press_offline(0.004, 300, &dev, tr2, NULL, s) == 0);
+    hs_stylus_trace_summary(tr2, s, &sum);
+    ENSURE(sum.steady_segment == s->n_segments - 1);
+    ENSURE_NEAR(sum.steady_force_norm_n, norm3(dev.prev_force_n), 1e-3);
+    ENSURE(hs_stylus_trace_write_csv(tr2, &sum, "/nonexistent-dir/x.csv", &err) == HS_ERR_IO);
+    ENSURE(strstr(err.msg, "/nonexistent-dir/x.csv") != NULL);
+    hs_stylus_trace_destroy(&tr2);
+    hs_stylus_trace_destroy(&tr);
+    hs_script_destroy(&s);
+    ENSURE(hs_byte_count() == bytes);
+    return 0;
+}
+
+static int def_check(void) {
+    hs_err err = {0};
+    hs_stylus_def d = hs_stylus_default_def();
+    ENSURE(hs_stylus_def_check(&d, &err) == HS_OK);
+    d.mass_kg = 0;
+    ENSURE(hs_stylus_def_check(&d, &err) == HS_ERR_INVALID && strstr(err.msg, "mass_kg"));
+    d = hs_stylus_default_def();
+    d.ramp_s = 2 * d.timeout_s;
+    ENSURE(hs_stylus_def_check(&d, &err) == HS_ERR_INVALID && strstr(err.msg, "ramp_s"));
+    d = hs_stylus_default_def();
+    d.workspace_m[1] = NAN;
+    ENSURE(hs_stylus_def_check(&d, &err) == HS_ERR_INVALID && strstr(err.msg, "workspace_m"));
+    hs_stylus_def raw;
+    memset(&raw, 0, sizeof raw);
+    ENSURE(hs_stylus_def_check(&raw, &err) == HS_ERR_INVALID);
+    return 0;
+}
+
+// Mailbox: a writer thread puts numbered models as fast as it can; the reader sees a
+// non-decreasing sequence of whole (never torn) models, ending with the last one.
+typedef struct mb_ctx {
+    hs_stylus_mailbox mb;
+    int n;
+} mb_ctx;
+
+static void* mb_writer(void* arg) {
+    mb_ctx* c = arg;
+    hs_stylus_model m;
+    memset(&m, 0, sizeof m);
+    for (int i = 1; i <= c->n; ++i) {
+        m.seq = i;
+        for (int j = 0; j < 9; ++j) m.stiffness[j] = i;
+        m.force_n[0] = m.force_n[1] = m.force_n[2] = -i;
+        hs_stylus_mailbox_put(&c->mb, &m);
+    }
+    return NULL;
+}
+
+static int mailbox(void) {
+    static mb_ctx c;
+    hs_stylus_mailbox_init(&c.mb);
+    hs_stylus_model m;
+    ENSURE(hs_stylus_mailbox_take(&c.mb, &m) == 0);
+    c.n = 200000;
+    pthread_t th;
+    ENSURE(pthread_create(&th, NULL, mb_writer, &c) == 0);
+    int64_t last = 0, takes = 0;
+    while (last < c.n) {
+        if (!hs_stylus_mailbox_take(&c.mb, &m)) continue;
+        ENSURE(m.seq > last); // each take is newer than the last
+        for (int j = 0; j < 9; ++j) ENSURE(m.stiffness[j] == (double)m.seq);
+        ENSURE(m.force_n[2] == -(double)m.seq);
+        last = m.seq;
+        ++takes;
+    }
+    pthread_join(th, NULL);
+    ENSURE(hs_stylus_mailbox_take(&c.mb, &m) == 0); // nothing newer left
+    ENSURE(takes >= 1);
+    return 0;
+}
+
+HS_TEST_MAIN(HS_CASE(script_good), HS_CASE(script_errors), HS_CASE(script_trajectory),
+             HS_CASE(device_tracks_target), HS_CASE(device_wall), HS_CASE(local_model),
+             HS_CASE(server_timeout), HS_CASE(passivity), HS_CASE(trace_file), HS_CASE(def_check),
+             HS_CASE(mailbox))
