@@ -63,8 +63,9 @@ const char* hs_scene_model_name(hs_model m) {
 // Locating an item in the source text. cJSON keeps no positions, so walk the (valid) text in
 // step with the tree until the target item is reached; members are reported at their key.
 
+// cJSON skips every byte from 1 to 32 as whitespace; so must the walker.
 static const char* skip_ws(const char* p) {
-    while (*p == ' ' || *p == '\t' || *p == '\n' || *p == '\r') ++p;
+    while (*p && (unsigned char)*p <= 32) ++p;
     return p;
 }
 
@@ -100,7 +101,7 @@ static const char* walk(const cJSON* it, const char* p, const cJSON* target, con
         return p;
     }
     if (cJSON_IsString(it)) return skip_string(p);
-    while (*p && !strchr(",}] \t\r\n", *p)) ++p;
+    while ((unsigned char)*p > 32 && !strchr(",}]", *p)) ++p;
     return p;
 }
 
