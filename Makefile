@@ -5,7 +5,7 @@
 BUILD     ?= build
 JOBS      ?= $(shell nproc 2>/dev/null || echo 2)
 PACKAGES  := cmake gcc make pkg-config liblcm-dev liblcm-bin libsuitesparse-dev libopenblas-dev \
-             libcjson-dev libpng-dev gnuplot-nox iproute2 util-linux
+             libcjson-dev libpng-dev gnuplot-nox iproute2 util-linux clang libclang-rt-14-dev
 CMAKE_ARGS ?=
 
 .PHONY: all deps configure build test test-asan test-tsan demo bench bench-quick soak fuzz clean
@@ -60,5 +60,20 @@ bench: build
 bench-quick: build
 	$(BUILD)/tests/hapsim-bench all --quick
 
+# libFuzzer targets (tests/fuzz) for FUZZ_SECONDS each; any crash, leak or sanitizer report fails.
+FUZZ_SECONDS ?= 30
+fuzz: deps
+	CC=clang cmake -S . -B build-fuzz -DCMAKE_BUILD_TYPE=RelWithDebInfo -DHS_FUZZ=ON
+	cmake --build build-fuzz --target hs_fuzzers -j $(JOBS)
+	@set -e; for f in build-fuzz/tests/fuzz/fuzz_*; do \
+	  [ -f "$$f" ] && [ -x "$$f" ] || continue; n=$${f##*/fuzz_}; \
+	  mkdir -p build-fuzz/corpus/$$n; seeds=""; dict=""; \
+	  [ -d tests/fuzz/corpus/$$n ] && seeds=tests/fuzz/corpus/$$n; \
+	  [ -f tests/fuzz/$$n.dict ] && dict=-dict=tests/fuzz/$$n.dict; \
+	  echo "fuzz: $$n for $(FUZZ_SECONDS) s"; \
+	  $$f -max_total_time=$(FUZZ_SECONDS) -timeout=10 -rss_limit_mb=2048 -print_final_stats=1 \
+	    -artifact_prefix=build-fuzz/ $$dict build-fuzz/corpus/$$n $$seeds; \
+	done
+
 clean:
-	rm -rf build build-asan build-tsan out
+	rm -rf build build-asan build-tsan build-fuzz out

@@ -274,6 +274,12 @@ static int Repairs(void) {
     ENSURE(m->report.components == 2 && m->n_tris == 8 && hs_mesh_check(m, &err) == HS_OK);
     hs_mesh_destroy(&m);
 
+    // A far unused node does not make small tets degenerate.
+    const double far[] = {0, 0, 0, 1e-3, 0, 0, 0, 1e-3, 0, 0, 0, 1e-3, 1e20, 1e20, 1e20};
+    ENSURE(hs_mesh_create(5, far, 1, tt, &m, &err) == HS_OK);
+    ENSURE(m->n_tets == 1 && m->bbox_max[0] == 1e20 && m->report.unreferenced_nodes == 1);
+    hs_mesh_destroy(&m);
+
     // Only degenerate tets: nothing left is an error.
     const int flat[] = {0, 1, 2, 4};
     ENSURE(hs_mesh_create(5, pts, 1, flat, &m, &err) == HS_ERR_INVALID && m == NULL);

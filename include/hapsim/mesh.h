@@ -13,7 +13,7 @@ extern "C" {
 typedef struct hs_mesh_report {
     int skipped_elements;    ///< non-tetrahedral elements in the file, skipped
     int reoriented_tets;     ///< negatively oriented tets flipped to positive
-    int degenerate_tets;     ///< |volume| <= 1e-12 of the bbox volume (or 1e-200 m^3); removed
+    int degenerate_tets;     ///< |volume| <= 1e-12 of the used nodes' bbox volume; removed
     int duplicate_tets;      ///< same 4 nodes as an earlier tet; removed
     int unreferenced_nodes;  ///< nodes no tet uses (kept, flagged; see hs_mesh.node_used)
     int components;          ///< connected components (tets sharing a node are connected)

@@ -366,9 +366,16 @@ hs_status hs_mesh_finalize(hs_mesh* m, hs_err* err) {
             m->bbox_min[d] = fmin(m->bbox_min[d], m->x0[3 * i + d]);
             m->bbox_max[d] = fmax(m->bbox_max[d], m->x0[3 * i + d]);
         }
-    const double bbox_vol = (m->bbox_max[0] - m->bbox_min[0]) * (m->bbox_max[1] - m->bbox_min[1]) *
-                            (m->bbox_max[2] - m->bbox_min[2]);
-    const double tiny = fmax(1e-12 * bbox_vol, HS_MESH_MIN_VOLUME);
+    // The degeneracy scale comes from the box of the nodes tets use, so a stray unused node
+    // far away cannot turn every tet degenerate.
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (int k = 0; k < 4 * m->n_tets; ++k)
+        for (int d = 0; d < 3; ++d) {
+            lo[d] = fmin(lo[d], m->x0[3 * m->tets[k] + d]);
+            hi[d] = fmax(hi[d], m->x0[3 * m->tets[k] + d]);
+        }
+    const double used_vol = m->n_tets ? (hi[0] - lo[0]) * (hi[1] - lo[1]) * (hi[2] - lo[2]) : 0.0;
+    const double tiny = fmax(1e-12 * used_vol, HS_MESH_MIN_VOLUME);
 
     hs_mesh_report* r = &m->report;
     r->reoriented_tets = r->degenerate_tets = r->duplicate_tets = 0;
