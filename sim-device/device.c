@@ -126,9 +126,11 @@ void hs_stylus_device_set_model(hs_stylus_device* d, const hs_stylus_model* m) {
     d->outside_s = 0;
 }
 
-uint32_t hs_stylus_device_render(const hs_stylus_device* d, const double p[3], int64_t now_ns,
-                                 double f_n[3]) {
+// The model's force at p (f_n) and the gain the age, radius and state allow (*gain_out).
+static uint32_t render_parts(const hs_stylus_device* d, const double p[3], int64_t now_ns,
+                             double f_n[3], double* gain_out) {
     f_n[0] = f_n[1] = f_n[2] = 0;
+    *gain_out = 0;
     if (!d->has_model) return HS_TICK_NO_MODEL;
     const hs_stylus_model* m = &d->model;
     const hs_stylus_def* def = &d->def;
@@ -153,6 +155,14 @@ uint32_t hs_stylus_device_render(const hs_stylus_device* d, const double p[3], i
         gain *= g > 0 ? g : 0;
     }
     if (m->state == STATE_STOPPED) gain = 0;
+    *gain_out = gain;
+    return flags;
+}
+
+uint32_t hs_stylus_device_render(const hs_stylus_device* d, const double p[3], int64_t now_ns,
+                                 double f_n[3]) {
+    double gain;
+    uint32_t flags = render_parts(d, p, now_ns, f_n, &gain);
     for (int i = 0; i < 3; ++i) f_n[i] *= gain;
     return flags;
 }
@@ -166,8 +176,13 @@ void hs_stylus_device_step(hs_stylus_device* d, const double target_m[3],
     double p0[3];
     memcpy(p0, d->pos_m, sizeof p0);
 
-    double f[3];
-    uint32_t flags = hs_stylus_device_render(d, d->pos_m, now_ns, f);
+    double f[3], gain;
+    uint32_t flags = render_parts(d, d->pos_m, now_ns, f, &gain);
+    // The gain falls as fast as render asks but rises over ramp_s: after a timeout, a stop or
+    // leaving the radius the force fades back in instead of jumping.
+    double up = d->gain + dt_s / def->ramp_s;
+    d->gain = gain < up ? gain : up;
+    for (int i = 0; i < 3; ++i) f[i] *= d->gain;
     if (!finite3(f)) f[0] = f[1] = f[2] = 0;
     double fn = norm3(f);
     if (fn > def->max_force_n) {

@@ -180,6 +180,7 @@ typedef struct hs_stylus_device {
     double vel_m_s[3];      ///< handle velocity, m/s
     double prev_force_n[3]; ///< last applied motor force (rate clamp), N
     double outside_s;       ///< time spent outside the current model's radius, s
+    double gain;            ///< applied share of the rendered force, [0, 1]; rises over ramp_s
     hs_stylus_model model;  ///< newest model
     int has_model;
     int64_t workspace_hits; ///< ticks the box stopped the handle
@@ -193,10 +194,10 @@ void hs_stylus_device_set_model(hs_stylus_device* d, const hs_stylus_model* m);
 /// into f_n ([3], N). Returns HS_TICK_* flags. Does not change state.
 uint32_t hs_stylus_device_render(const hs_stylus_device* d, const double p[3], int64_t now_ns,
                                  double f_n[3]);
-/// Advance by the real elapsed dt_s: render the model at the current handle position, clamp
-/// (magnitude, rate), integrate the handle semi-implicitly under hand + motor + friction forces,
-/// keep it in the workspace box, fill *out (its t_s / segment are left to the caller).
-/// Thread: device loop | Allocates: no
+/// Advance by the real elapsed dt_s: render the model at the current handle position (its gain
+/// drops at once but rises back over ramp_s, from 0 at init), clamp (magnitude, rate), integrate
+/// the handle semi-implicitly under hand + motor + friction forces, keep it in the workspace box,
+/// fill *out (its t_s / segment are left to the caller). Thread: device loop | Allocates: no
 void hs_stylus_device_step(hs_stylus_device* d, const double target_m[3],
                            const double target_vel[3], int64_t now_ns, double dt_s,
                            hs_stylus_tick* out /* OUT */);

@@ -426,6 +426,7 @@ static int local_model(void) {
     // The handle sits outside and stays there (a huge mass: the motor cannot move it).
     memcpy(dev.pos_m, out, sizeof out);
     dev.def.mass_kg = 1e9;
+    dev.gain = 1; // as after a long contact (a fresh device fades in)
     for (int k = 1; k <= 25; ++k) {
         hs_stylus_device_step(&dev, out, NULL, t0 + k * 1000000, 1e-3, &tick);
         ENSURE(tick.flags & HS_TICK_OUTSIDE);
@@ -473,6 +474,24 @@ static int server_timeout(void) {
     }
     ENSURE(zero_at > 0 && zero_at <= (int)lround(dev.def.timeout_s * 1e3));
     ENSURE(zero_at > (int)lround((dev.def.timeout_s - dev.def.ramp_s) * 1e3) - 50); // not abrupt
+    // The server comes back: the force fades in over ramp_s instead of jumping back.
+    hs_halfspace hsp = {
+        .normal = {0, 0, 1}, .stiffness_n_m = 400, .radius_m = 0.01, .timeout_s = 0.05};
+    hs_stylus_model back;
+    hs_halfspace_model(&hsp, dev.pos_m, &back);
+    back.arrival_ns = now;
+    hs_stylus_device_set_model(&dev, &back);
+    double full[3];
+    hs_stylus_device_render(&dev, dev.pos_m, now, full);
+    ENSURE(norm3(full) > 0.5);
+    int ticks = (int)lround(dev.def.ramp_s * 1e3);
+    for (int k = 1; k <= ticks + 5; ++k) {
+        hs_stylus_device_step(&dev, target, NULL, now + k * 1000000, 1e-3, &tick);
+        double share = k < ticks ? (double)k / ticks : 1;
+        ENSURE_NEAR(dev.gain, share, 1e-9);
+        ENSURE(norm3(tick.f_applied) <= share * norm3(full) * 1.001); // no jump back
+    }
+    ENSURE(norm3(tick.f_applied) > 0.5 * norm3(full));
     hs_script_destroy(&s);
     return 0;
 }
