@@ -946,9 +946,6 @@ static hs_status solve_increment(hs_mooney* m, double s, hs_mooney_stats* stats,
         if (stats->n_ratio < HS_MOONEY_HISTORY) stats->ratio[stats->n_ratio++] = ratio;
         stats->final_ratio = ratio;
         if (!gap_nz && (ratio <= m->def.tolerance || rn <= 1e-12 * qscale(m))) goto converged;
-        // Half the budget spent without getting below the first residual: a smaller
-        // increment is cheaper than the rest of the budget.
-        if (2 * iters >= m->def.max_newton_iter && ratio > 1.0) break;
     }
     stats->newton_total += iters;
     return hs_err_set(err, HS_ERR_NOT_CONVERGED,
