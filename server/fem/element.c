@@ -153,17 +153,17 @@ int hs_polar_higham(const double f[9], double r[9], double tol, int max_iter) {
     double x[9], y[9], s[9];
     if (orth_err(r) <= 1e-3 && m3_det(r) > 0) {
         memcpy(x, r, sizeof x);
-        double prev = INFINITY;
+        double prev = INFINITY, tol2 = tol * tol * sig * sig;
         while (it <= max_iter) {
             m3_mul_tn(x, f, y);
             double a[3] = {0.5 * (y[7] - y[5]), 0.5 * (y[2] - y[6]), 0.5 * (y[3] - y[1])};
-            double skew = sqrt(v3_dot(a, a)) / sig; // ~ rotation error, rad
-            double oe = orth_err(x);
+            double skew2 = v3_dot(a, a); // (rotation error * sigma)^2
             for (int i = 0; i < 3; i++)
                 for (int j = 0; j < 3; j++) s[3 * i + j] = 0.5 * (y[3 * i + j] + y[3 * j + i]);
-            if (!spd3(s)) break;
-            if (skew <= tol) {
-                if (oe <= tol) {
+            if (skew2 <= tol2) {
+                // Accept only the polar factor: X^T F symmetric positive definite, X orthogonal.
+                if (!spd3(s)) break;
+                if (orth_err(x) <= tol) {
                     memcpy(r, x, sizeof x);
                     return it;
                 }
@@ -172,9 +172,11 @@ int hs_polar_higham(const double f[9], double r[9], double tol, int max_iter) {
                 it++;
                 continue;
             }
-            if (skew > 0.5 * prev || it >= max_iter) break; // not converging: go cold
-            prev = skew;
-            // Solve (tr(S) I - S) w = 2a; the matrix is SPD when S is (eigenvalues s_i + s_j).
+            if (skew2 > 0.25 * prev || it >= max_iter) break; // not converging: go cold
+            prev = skew2;
+            // Newton-like step on axial(skew(Q^T Y)) = 0 at Q = I, dropping the small skew part
+            // of Y from the Jacobian (measured: fewer iterations than the full Jacobian):
+            // (tr(S) I - S) w = 2a, SPD when S is (eigenvalues s_i + s_j).
             double tr = s[0] + s[4] + s[8];
             double m[9] = {tr - s[0], -s[1], -s[2], -s[3],    tr - s[4],
                            -s[5],     -s[6], -s[7], tr - s[8]};
@@ -182,9 +184,9 @@ int hs_polar_higham(const double f[9], double r[9], double tol, int max_iter) {
             if (!(dm > 0)) break;
             double mc[9];
             m3_cofactor(m, mc); // m symmetric: m^-1 = cof(m) / det(m)
-            double w[3];
+            double w[3], idm = 2.0 / dm;
             for (int i = 0; i < 3; i++)
-                w[i] = 2.0 * (mc[3 * i] * a[0] + mc[3 * i + 1] * a[1] + mc[3 * i + 2] * a[2]) / dm;
+                w[i] = idm * (mc[3 * i] * a[0] + mc[3 * i + 1] * a[1] + mc[3 * i + 2] * a[2]);
             // Cayley rotation: Q = I + 2/(1 + c.c) (C + C^2), C = [c]x, c = w/2.
             double c[3] = {0.5 * w[0], 0.5 * w[1], 0.5 * w[2]};
             double cc[9] = {0, -c[2], c[1], c[2], 0, -c[0], -c[1], c[0], 0};
