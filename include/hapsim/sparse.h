@@ -82,10 +82,12 @@ hs_status hs_cholesky_updown(hs_cholesky* f, int update, int n_cols, const int* 
 hs_status hs_cholesky_update_elements(hs_cholesky* f, int n_elem, const double* dk,
                                       const int* dofs);
 
-/// Limit the BLAS (OpenBLAS) used by CHOLMOD to n threads, process-wide. OpenBLAS's default
-/// uses every core, which competes with the haptic thread; call with 1 at start-up.
-/// Returns HS_ERR_UNSUPPORTED if the BLAS in use has no such control.
-hs_status hs_sparse_set_blas_threads(int n);
+/// Threads used inside CHOLMOD, process-wide: OpenBLAS gets n threads, and CHOLMOD's own
+/// OpenMP loops (fixed at 4 threads in Debian's build) run serially when n == 1. The defaults
+/// use every core and spin-wait, competing with the haptic thread, so the first
+/// hs_cholesky_create sets 1 unless this was called before.
+/// Returns HS_ERR_UNSUPPORTED if neither control exists in the loaded libraries.
+hs_status hs_sparse_set_threads(int n);
 
 // ---------------------------------------------------------------------------------------------
 /// Preconditioned conjugate gradients with warm start.

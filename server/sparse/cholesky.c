@@ -22,7 +22,8 @@ struct hs_cholesky {
     cholmod_dense b;             // header over the caller's right-hand side
     cholmod_dense *x1, *y1, *e1; // solve workspaces, k = 1
     cholmod_dense *xk, *yk, *ek; // solve_many workspaces, last k
-    double* work;                // [n] permuted right-hand side for simplicial solves
+    double* work; // [2n] permuted right-hand side and block scratch for simplicial solves
+    int blocked;  // simplicial L still has the spare's supernodal layout (fast solve)
     int n, nnz;
     int* colp;  // [n+1] copy of the pattern's column starts (cheap same-pattern check)
     int broken; // a downdate made L indefinite; solves refuse until a refactor succeeds
@@ -41,6 +42,7 @@ struct hs_cholesky {
 // Process-wide set-up: allocator hooks (once) and a quiet error handler.
 
 static atomic_int g_alloc_state; // 0 untouched, 1 installing, 2 installed
+static atomic_int g_threads_set; // hs_sparse_set_threads called (by the user or by default)
 
 static void install_allocator(void) {
     int expected = 0;
@@ -180,6 +182,8 @@ hs_status hs_cholesky_create(const hs_csc* a, hs_cholesky** out, hs_err* err) {
     hs_status st = check_csc(a, err);
     if (st != HS_OK) return st;
     install_allocator();
+    int unset = 0;
+    if (atomic_compare_exchange_strong(&g_threads_set, &unset, 1)) hs_sparse_set_threads(1);
 
     hs_cholesky* f = hs_calloc(1, sizeof *f);
     if (!f) return hs_err_set(err, HS_ERR_NOMEM, "%s:%d: out of memory", __FILE__, __LINE__);
@@ -198,7 +202,7 @@ hs_status hs_cholesky_create(const hs_csc* a, hs_cholesky** out, hs_err* err) {
         goto fail;
     }
     memcpy(f->colp, a->colp, sizeof(int) * ((size_t)a->n + 1));
-    f->work = hs_alloc(sizeof(double) * ((size_t)a->n + 1));
+    f->work = hs_alloc(sizeof(double) * (2 * (size_t)a->n + 1));
     if (!f->work) {
         st = hs_err_set(err, HS_ERR_NOMEM, "%s:%d: out of memory", __FILE__, __LINE__);
         goto fail;
@@ -247,6 +251,22 @@ hs_status hs_cholesky_create(const hs_csc* a, hs_cholesky** out, hs_err* err) {
 fail:
     hs_cholesky_destroy(&f);
     return st;
+}
+
+// Does the simplicial LDL^T factor L keep the column layout of the supernodal S it was
+// converted from (change_factor with to_packed = 0)? Then L->x holds S's dense column-major
+// blocks (upper parts unused) and the solve can run per supernode. O(n).
+static int ldl_has_super_layout(const cholmod_factor* S, const cholmod_factor* L) {
+    if (!S || !S->is_super || L->is_super || L->is_ll || L->n != S->n) return 0;
+    const int *super = S->super, *pi = S->pi, *px = S->px, *lp = L->p, *lnz = L->nz;
+    for (size_t s = 0; s < S->nsuper; s++) {
+        int nsrow = pi[s + 1] - pi[s];
+        for (int j = super[s]; j < super[s + 1]; j++) {
+            int jj = j - super[s];
+            if (lp[j] != px[s] + jj * nsrow + jj || lnz[j] != nsrow - jj) return 0;
+        }
+    }
+    return 1;
 }
 
 // Pour a supernodal LL^T factor S into a simplicial LDL^T factor L of the same pattern (the
@@ -306,6 +326,7 @@ hs_status hs_cholesky_refactor(hs_cholesky* f, const hs_csc* a) {
         f->spare = t;
     }
     f->broken = 0;
+    f->blocked = f->updatable && ldl_has_super_layout(f->spare, f->L);
     return HS_OK;
 }
 
@@ -335,6 +356,93 @@ static void simplicial_solve(const cholmod_factor* L, double* y, const double* b
     for (int k = 0; k < n; k++) x[perm[k]] = y[k];
 }
 
+// t[q] += sum_jj B[q, jj] y[jj] for q in [r0, r1), B column-major with leading dimension ld.
+// Four columns per pass: one load/store of t per four multiply-adds.
+static void gemv_n(int r0, int r1, int nc, const double* b, size_t ld, const double* y, double* t) {
+    int jj = 0;
+    for (; jj + 4 <= nc; jj += 4) {
+        const double *c0 = b + jj * ld, *c1 = c0 + ld, *c2 = c1 + ld, *c3 = c2 + ld;
+        double y0 = y[jj], y1 = y[jj + 1], y2 = y[jj + 2], y3 = y[jj + 3];
+        for (int q = r0; q < r1; q++) t[q] += c0[q] * y0 + c1[q] * y1 + c2[q] * y2 + c3[q] * y3;
+    }
+    for (; jj < nc; jj++) {
+        const double* c0 = b + jj * ld;
+        for (int q = r0; q < r1; q++) t[q] += c0[q] * y[jj];
+    }
+}
+
+// y[jj] -= sum_q B[q, jj] t[q] for q in [r0, r1): four independent sums per pass.
+static void gemv_t(int r0, int r1, int nc, const double* b, size_t ld, const double* t, double* y) {
+    int jj = 0;
+    for (; jj + 4 <= nc; jj += 4) {
+        const double *c0 = b + jj * ld, *c1 = c0 + ld, *c2 = c1 + ld, *c3 = c2 + ld;
+        double a0 = 0, a1 = 0, a2 = 0, a3 = 0;
+        for (int q = r0; q < r1; q++) {
+            double tq = t[q];
+            a0 += c0[q] * tq;
+            a1 += c1[q] * tq;
+            a2 += c2[q] * tq;
+            a3 += c3[q] * tq;
+        }
+        y[jj] -= a0;
+        y[jj + 1] -= a1;
+        y[jj + 2] -= a2;
+        y[jj + 3] -= a3;
+    }
+    for (; jj < nc; jj++) {
+        const double* c0 = b + jj * ld;
+        double a0 = 0;
+        for (int q = r0; q < r1; q++) a0 += c0[q] * t[q];
+        y[jj] -= a0;
+    }
+}
+
+// LDL^T solve of one column over the supernodes of S, values from L (unit lower, D on the
+// diagonal). The rectangular part of each supernode is a dense matrix-vector product on
+// contiguous memory, its rows gathered/scattered once. y[n] and t[n] are scratch.
+static void blocked_ldl_solve(const cholmod_factor* S, const cholmod_factor* L, double* y,
+                              double* t, const double* b, double* x) {
+    const int n = (int)L->n;
+    const int *perm = L->Perm, *super = S->super, *pi = S->pi, *px = S->px, *ls = S->s;
+    const double* lx = L->x;
+    const int ns = (int)S->nsuper;
+    for (int k = 0; k < n; k++) y[k] = b[perm[k]];
+    for (int s = 0; s < ns; s++) { // L y = P b
+        const int k1 = super[s], nscol = super[s + 1] - k1, nsrow = pi[s + 1] - pi[s];
+        const int* rows = ls + pi[s];
+        const double* blk = lx + px[s];
+        double* yb = y + k1;
+        for (int jj = 0; jj < nscol; jj++) {
+            const double* col = blk + (size_t)jj * (size_t)nsrow;
+            for (int q = jj + 1; q < nscol; q++) yb[q] -= col[q] * yb[jj];
+        }
+        for (int q = nscol; q < nsrow; q++) t[q] = 0.0;
+        gemv_n(nscol, nsrow, nscol, blk, (size_t)nsrow, yb, t);
+        for (int q = nscol; q < nsrow; q++) y[rows[q]] -= t[q];
+    }
+    for (int s = 0; s < ns; s++) { // D
+        const int k1 = super[s], nsrow = pi[s + 1] - pi[s];
+        const double* blk = lx + px[s];
+        for (int jj = 0; jj < super[s + 1] - k1; jj++)
+            y[k1 + jj] /= blk[(size_t)jj * (size_t)nsrow + (size_t)jj];
+    }
+    for (int s = ns - 1; s >= 0; s--) { // L^T z = y
+        const int k1 = super[s], nscol = super[s + 1] - k1, nsrow = pi[s + 1] - pi[s];
+        const int* rows = ls + pi[s];
+        const double* blk = lx + px[s];
+        double* yb = y + k1;
+        for (int q = nscol; q < nsrow; q++) t[q] = y[rows[q]];
+        gemv_t(nscol, nsrow, nscol, blk, (size_t)nsrow, t, yb);
+        for (int jj = nscol - 1; jj >= 0; jj--) {
+            const double* col = blk + (size_t)jj * (size_t)nsrow;
+            double acc = yb[jj];
+            for (int q = jj + 1; q < nscol; q++) acc -= col[q] * yb[q];
+            yb[jj] = acc;
+        }
+    }
+    for (int k = 0; k < n; k++) x[perm[k]] = y[k];
+}
+
 static hs_status solve_into(hs_cholesky* f, int k, const double* b, double* x, cholmod_dense** X,
                             cholmod_dense** Y, cholmod_dense** E) {
     if (!f || k < 0 || (f->n > 0 && k > 0 && (!b || !x))) return HS_ERR_INVALID;
@@ -342,7 +450,12 @@ static hs_status solve_into(hs_cholesky* f, int k, const double* b, double* x, c
     if (f->n == 0 || k == 0) return HS_OK;
     size_t n = (size_t)f->n;
     if (!f->L->is_super) {
-        for (int c = 0; c < k; c++) simplicial_solve(f->L, f->work, b + c * n, x + c * n);
+        for (int c = 0; c < k; c++) {
+            if (f->blocked)
+                blocked_ldl_solve(f->spare, f->L, f->work, f->work + n, b + c * n, x + c * n);
+            else
+                simplicial_solve(f->L, f->work, b + c * n, x + c * n);
+        }
         return HS_OK;
     }
     f->b.ncol = (size_t)k;
@@ -458,6 +571,8 @@ hs_status hs_cholesky_prepare_updates(hs_cholesky* f, int max_elems) {
         size_t n = (size_t)f->n;
         if (!cholmod_allocate_work(n, 2 * n, 8 * n, &f->c)) return map_status(f->c.status);
         f->updatable = 1;
+        f->blocked = f->spare->is_super && super_to_ldl(f->spare, f->L, 0) &&
+                     ldl_has_super_layout(f->spare, f->L);
     }
     return reserve_columns(f, 12 * (int64_t)max_elems, 144 * (int64_t)max_elems);
 }
@@ -500,7 +615,10 @@ static hs_status apply_updown(hs_cholesky* f, int update, int ncol, int* cp, int
     if (ncol == 0) return HS_OK;
     cholmod_sparse c;
     set_c_view(&c, f->n, ncol, cp, ci, cx);
-    if (!cholmod_updown(update, &c, f->L, &f->c)) {
+    int ok = cholmod_updown(update, &c, f->L, &f->c);
+    // Fill outside the pattern moves columns and ends the supernodal layout.
+    f->blocked = f->blocked && ldl_has_super_layout(f->spare, f->L);
+    if (!ok) {
         // Out of memory leaves L as a symbolic factor per CHOLMOD: unusable until refactor.
         f->broken = 1;
         return map_status(f->c.status) != HS_OK ? map_status(f->c.status) : HS_ERR_NUMERIC;
@@ -647,13 +765,18 @@ hs_status hs_cholesky_update_elements(hs_cholesky* f, int n_elem, const double* 
 
 // ---------------------------------------------------------------------------------------------
 
-hs_status hs_sparse_set_blas_threads(int n) {
+hs_status hs_sparse_set_threads(int n) {
     if (n < 1) return HS_ERR_INVALID;
+    atomic_store(&g_threads_set, 1);
     // Looked up at run time: the BLAS behind libblas.so.3 is chosen by the system (Debian
-    // alternatives), and only OpenBLAS has this entry point.
-    void (*set)(int);
-    *(void**)&set = dlsym(RTLD_DEFAULT, "openblas_set_num_threads");
-    if (!set) return HS_ERR_UNSUPPORTED;
-    set(n);
-    return HS_OK;
+    // alternatives), and only OpenBLAS has this entry point. libgomp comes with CHOLMOD.
+    void (*set_blas)(int);
+    void (*set_levels)(int);
+    *(void**)&set_blas = dlsym(RTLD_DEFAULT, "openblas_set_num_threads");
+    *(void**)&set_levels = dlsym(RTLD_DEFAULT, "omp_set_max_active_levels");
+    if (set_blas) set_blas(n);
+    // CHOLMOD's loops say num_threads(4), which overrides omp_set_num_threads; zero active
+    // levels makes every parallel region a team of one.
+    if (set_levels) set_levels(n == 1 ? 0 : 1);
+    return set_blas || set_levels ? HS_OK : HS_ERR_UNSUPPORTED;
 }
