@@ -17,6 +17,7 @@
 #include "hapsim_tool_pose_t.h"
 #include "hapsim_tool_state_t.h"
 #include "hapsim_topology_event_t.h"
+#include "net/mesh_frames.h"
 #include "net/validate.h"
 
 // Encode any lcm-gen type into a fresh malloc'd buffer (LCM's own allocator, as its publish does).
@@ -706,7 +707,91 @@ static int flood_counts_add_up(void) {
     return 0;
 }
 
+// ---------------------------------------------------------------------------------------------
+// Keyframes and deltas: a delta against its keyframe reproduces the frame; only the newest
+// delta is needed; the byte counts agree with LCM's encoder.
+
+static int mesh_frames_roundtrip(void) {
+    enum { NV = 2000 };
+    static float key[3 * NV], f1[3 * NV], f2[3 * NV], out[3 * NV], delta[3 * NV];
+    static int32_t idx[NV];
+    for (int i = 0; i < 3 * NV; ++i) key[i] = (float)(rng() % 2000) * 1e-4f - 0.1f;
+    memcpy(f1, key, sizeof key);
+    memcpy(f2, key, sizeof key);
+    int moved1 = 0, moved2 = 0;
+    for (int i = 0; i < NV; ++i) {
+        if (i % 7 == 0) f1[3 * i + 1] += 1e-3f, moved1++;
+        if (i % 5 == 0) f2[3 * i + 2] -= 2e-3f, moved2++;
+    }
+    f2[3 * 1 + 0] += 1e-7f; // below eps: stays at the keyframe
+    const float eps = 1e-6f;
+    int n1 = hs_net_delta_build(key, f1, NV, eps, idx, delta);
+    ENSURE(n1 == moved1);
+    for (int i = 1; i < n1; ++i) ENSURE(idx[i] > idx[i - 1]);
+    int n2 = hs_net_delta_build(key, f2, NV, eps, idx, delta);
+    ENSURE(n2 == moved2);
+
+    // Frame 1's delta is lost; frame 2's delta alone, through the wire, gives frame 2.
+    hapsim_mesh_delta_t d = {.utime = 1,
+                             .seq = 2,
+                             .topology_version = 1,
+                             .keyframe_id = 1,
+                             .n_changed = n2,
+                             .index = idx,
+                             .n_delta = 3 * n2,
+                             .delta = delta};
+    uint8_t* b;
+    int n;
+    ENCODE(hapsim_mesh_delta_t, &d, b, n);
+    ENSURE(n == hs_net_delta_bytes(n2));
+    hapsim_mesh_delta_t d2;
+    memset(&d2, 0, sizeof d2);
+    ENSURE(hapsim_mesh_delta_t_decode(b, 0, n, &d2) == n);
+    ENSURE(hs_net_delta_apply(key, NV, d2.index, d2.delta, d2.n_changed, out) == 0);
+    double worst = 0.0;
+    for (int i = 0; i < 3 * NV; ++i) worst = fmax(worst, fabs((double)out[i] - (double)f2[i]));
+    ENSURE(worst <= 1e-6); // eps plus float rounding of key + (f2 - key)
+    ENSURE(out[3 * 1 + 0] == key[3 * 1 + 0]);
+    hapsim_mesh_delta_t_decode_cleanup(&d2);
+    free(b);
+
+    hapsim_mesh_state_t ks = {.utime = 1,
+                              .seq = 1,
+                              .topology_version = 1,
+                              .keyframe_id = 1,
+                              .n_pos = 3 * NV,
+                              .position = key,
+                              .n_stress = 0,
+                              .stress = NULL};
+    ENCODE(hapsim_mesh_state_t, &ks, b, n);
+    ENSURE(n == hs_net_keyframe_bytes(NV, 0));
+    free(b);
+    ks.n_stress = NV;
+    ks.stress = out;
+    ENCODE(hapsim_mesh_state_t, &ks, b, n);
+    ENSURE(n == hs_net_keyframe_bytes(NV, 1));
+    free(b);
+
+    // Bad deltas are refused and leave out untouched.
+    int32_t bad[2] = {5, 5};
+    out[0] = 42.0f;
+    ENSURE(hs_net_delta_apply(key, NV, bad, delta, 2, out) == -1 && out[0] == 42.0f);
+    bad[1] = NV;
+    ENSURE(hs_net_delta_apply(key, NV, bad, delta, 2, out) == -1);
+    bad[0] = -1;
+    ENSURE(hs_net_delta_apply(key, NV, bad, delta, 1, out) == -1);
+    ENSURE(hs_net_delta_apply(key, NV, idx, delta, NV + 1, out) == -1);
+
+    // A keyframe is due when a delta would not be smaller, or the keyframe is old.
+    ENSURE(!hs_net_keyframe_due(NV, n2, 0, 1000000));
+    ENSURE(hs_net_keyframe_due(NV, n2, 1000000, 1000000));
+    ENSURE(hs_net_keyframe_due(NV, NV, 0, 1000000));
+    ENSURE(!hs_net_keyframe_due(NV, NV * 3 / 4 - 10, 0, 1000000));
+    return 0;
+}
+
 HS_TEST_MAIN(HS_CASE(roundtrip_tool_pose_force_state), HS_CASE(roundtrip_mesh),
              HS_CASE(roundtrip_command_ack_status), HS_CASE(pose_accepts_good),
              HS_CASE(pose_rejects_each_reason), HS_CASE(command_accepts_good),
-             HS_CASE(command_rejects_each_reason), HS_CASE(flood_counts_add_up))
+             HS_CASE(command_rejects_each_reason), HS_CASE(flood_counts_add_up),
+             HS_CASE(mesh_frames_roundtrip))
