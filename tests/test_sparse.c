@@ -274,6 +274,13 @@ static int SolveAllocatesNothing(void) {
     return 0;
 }
 
+static int ThreadControl(void) {
+    ENSURE(hs_sparse_set_threads(0) == HS_ERR_INVALID);
+    // libgomp comes with Debian's CHOLMOD, so at least the OpenMP control exists.
+    ENSURE(hs_sparse_set_threads(1) == HS_OK);
+    return 0;
+}
+
 static int CholeskyFaultInjection(void) {
     int64_t bytes0 = hs_byte_count();
     grid g;
@@ -390,6 +397,19 @@ static int UpdownMatchesFreshFactor(void) {
     // The converted factor still solves the original matrix.
     ENSURE(hs_cholesky_solve(t.f, t.b, t.x) == HS_OK);
     ENSURE_SMALL(rel_residual(t.a, t.x, t.b, t.r), 1e-12);
+    // In update mode too, a failed refactor keeps the factor, and a good one replaces it.
+    hs_csc* bad = NULL;
+    ENSURE(hs_csc_clone(t.a, &bad) == HS_OK);
+    bad->val[hs_csc_find(bad, n / 3, n / 3)] = -50.0;
+    ENSURE(hs_cholesky_refactor(t.f, bad) == HS_ERR_NOT_POSDEF);
+    ENSURE(hs_cholesky_solve(t.f, t.b, t.x) == HS_OK);
+    ENSURE_SMALL(rel_residual(t.a, t.x, t.b, t.r), 1e-12);
+    grid_assemble(&t.g, bad, 0.3);
+    ENSURE(hs_cholesky_refactor(t.f, bad) == HS_OK);
+    ENSURE(hs_cholesky_solve(t.f, t.b, t.x) == HS_OK);
+    ENSURE_SMALL(rel_residual(bad, t.x, t.b, t.r), 1e-12);
+    ENSURE(hs_cholesky_refactor(t.f, t.a) == HS_OK);
+    hs_csc_destroy(&bad);
 
     // Remove (downdate) 8 elements around the middle, as a cut would: no allocation.
     int removed[8];
@@ -476,5 +496,6 @@ static int UpdownMatchesFreshFactor(void) {
 
 HS_TEST_MAIN(HS_CASE(CscPatternAndSpmv), HS_CASE(CscBadInput), HS_CASE(CholeskySolve),
              HS_CASE(CholeskyRefactor), HS_CASE(CholeskyNotPosdefKeepsFactor),
-             HS_CASE(SolveAllocatesNothing), HS_CASE(CholeskyFaultInjection), HS_CASE(PcgConverges),
+             HS_CASE(SolveAllocatesNothing), HS_CASE(ThreadControl),
+             HS_CASE(CholeskyFaultInjection), HS_CASE(PcgConverges),
              HS_CASE(UpdownMatchesFreshFactor))
