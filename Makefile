@@ -47,25 +47,25 @@ test-tsan: deps
 	cd build-tsan && ctest --output-on-failure -L tsan
 
 demo: build
-	@if [ -x $(BUILD)/server/hapsim-server ] && [ -x scripts/demo.sh ]; then \
+	@if [ -x $(BUILD)/bin/hapsim-server ] && [ -x scripts/demo.sh ]; then \
 	  scripts/demo.sh $(BUILD); \
 	else \
-	  $(BUILD)/server/hapsim-solve --mesh scenes/liver/liver2.msh --model corotated --E 5000 --nu 0.45 \
+	  $(BUILD)/bin/hapsim-solve --mesh scenes/liver/liver2.msh --model corotated --E 5000 --nu 0.45 \
 	    --density 1060 --gravity 0,0,-9.81 --fix-plane z,min,0.01 --static --out out/demo-disp.csv; \
 	fi
 
 bench: build
-	$(BUILD)/tests/hapsim-bench all
+	$(BUILD)/bin/hapsim-bench all
 
 bench-quick: build
-	$(BUILD)/tests/hapsim-bench all --quick
+	$(BUILD)/bin/hapsim-bench all --quick
 
 # libFuzzer targets (tests/fuzz) for FUZZ_SECONDS each; any crash, leak or sanitizer report fails.
 FUZZ_SECONDS ?= 30
 fuzz: deps
 	CC=clang cmake -S . -B build-fuzz -DCMAKE_BUILD_TYPE=RelWithDebInfo -DHS_FUZZ=ON
 	cmake --build build-fuzz --target hs_fuzzers -j $(JOBS)
-	@set -e; for f in build-fuzz/tests/fuzz/fuzz_*; do \
+	@set -e; for f in build-fuzz/bin/fuzz_*; do \
 	  [ -f "$$f" ] && [ -x "$$f" ] || continue; n=$${f##*/fuzz_}; \
 	  mkdir -p build-fuzz/corpus/$$n; seeds=""; dict=""; \
 	  [ -d tests/fuzz/corpus/$$n ] && seeds=tests/fuzz/corpus/$$n; \
