@@ -389,7 +389,7 @@ static int newton_case(double beta) {
     hs_mooney* m = NULL;
     ENSURE(hs_mooney_create(mesh, &def, fixed, &m, &err) == HS_OK);
     double g[3] = {0, 0, -9.81};
-    hs_mooney_set_gravity(m, g);
+    ENSURE(hs_mooney_set_gravity(m, g) == HS_OK);
     hs_mooney_stats st;
     hs_status s = hs_mooney_solve_static(m, &st, &err);
     if (s != HS_OK) printf("  solve: %s\n", err.msg);
@@ -432,43 +432,64 @@ static int mooney_bad_input(void) {
     int64_t bytes0 = hs_byte_count();
     hs_err err;
     hs_mesh* mesh = NULL;
-    ENSURE(hs_mesh_create_box(1, 1, 1, 1, 1, 1, &mesh, &err) == HS_OK);
+    ENSURE(hs_mesh_create_box(1, 1, 1, 2, 2, 2, &mesh, &err) == HS_OK);
+    int n = mesh->n_nodes;
+    unsigned char* fixed = calloc((size_t)n, 1);
+    for (int i = 0; i < n; i++) fixed[i] = mesh->x0[3 * i + 2] < 1e-9;
     hs_mooney* m = NULL;
     hs_mooney_def def;
     memset(&def, 0, sizeof def);
-    ENSURE(hs_mooney_create(mesh, &def, NULL, &m, &err) == HS_ERR_INVALID);
+    ENSURE(hs_mooney_create(mesh, &def, fixed, &m, &err) == HS_ERR_INVALID);
     ENSURE(strstr(err.msg, "hs_mooney_default_def") != NULL);
     def = hs_mooney_default_def();
     def.poisson = 0.5;
-    ENSURE(hs_mooney_create(mesh, &def, NULL, &m, &err) == HS_ERR_INVALID);
+    ENSURE(hs_mooney_create(mesh, &def, fixed, &m, &err) == HS_ERR_INVALID);
     ENSURE(m == NULL);
     def = hs_mooney_default_def();
     def.beta = -1;
-    ENSURE(hs_mooney_create(mesh, &def, NULL, &m, &err) == HS_ERR_INVALID);
+    ENSURE(hs_mooney_create(mesh, &def, fixed, &m, &err) == HS_ERR_INVALID);
     def = hs_mooney_default_def();
-    ENSURE(hs_mooney_create(NULL, &def, NULL, &m, &err) == HS_ERR_INVALID);
-    // Allocation failures at every point of create clean up after themselves.
+    ENSURE(hs_mooney_create(NULL, &def, fixed, &m, &err) == HS_ERR_INVALID);
+    // Rigid motion left free: nothing fixed, or only nodes on one line.
+    ENSURE(hs_mooney_create(mesh, &def, NULL, &m, &err) == HS_ERR_INVALID);
+    ENSURE(strstr(err.msg, "no fixed node") != NULL);
+    unsigned char* line = calloc((size_t)n, 1);
+    for (int i = 0; i < n; i++)
+        line[i] = mesh->x0[3 * i + 1] < 1e-9 && mesh->x0[3 * i + 2] < 1e-9; // the x axis
+    ENSURE(hs_mooney_create(mesh, &def, line, &m, &err) == HS_ERR_INVALID);
+    ENSURE(strstr(err.msg, "collinear") != NULL);
+    ENSURE(m == NULL);
+    // Allocation failures at every point of create (CHOLMOD's included) clean up.
     def.beta = 0.5;
-    for (int k = 1; k < 200; k++) {
+    int succeeded = 0;
+    for (int k = 1; k < 5000 && !succeeded; k++) {
         hs_alloc_fail_after(k);
-        hs_status s = hs_mooney_create(mesh, &def, NULL, &m, &err);
+        hs_status s = hs_mooney_create(mesh, &def, fixed, &m, &err);
         hs_alloc_fail_after(0);
         if (s == HS_OK) {
+            succeeded = 1;
             hs_mooney_destroy(&m);
             break;
         }
         ENSURE(s == HS_ERR_NOMEM);
         ENSURE(m == NULL);
     }
-    // Inverting displacement is rejected with a clear error.
-    ENSURE(hs_mooney_create(mesh, &def, NULL, &m, &err) == HS_OK);
-    double* u = calloc(3 * (size_t)mesh->n_nodes, sizeof(double));
-    for (int i = 0; i < mesh->n_nodes; i++) u[3 * i] = -2.0 * mesh->x0[3 * i];
+    ENSURE(succeeded);
+    // Inverting or non-finite input is rejected with a clear error.
+    ENSURE(hs_mooney_create(mesh, &def, fixed, &m, &err) == HS_OK);
+    double* u = calloc(3 * (size_t)n, sizeof(double));
+    for (int i = 0; i < n; i++) u[3 * i] = -2.0 * mesh->x0[3 * i];
     ENSURE(hs_mooney_set_displacement(m, u, &err) == HS_ERR_NUMERIC);
+    ENSURE(strstr(err.msg, "inverts") != NULL);
     u[0] = NAN;
     ENSURE(hs_mooney_set_displacement(m, u, &err) == HS_ERR_INVALID);
     ENSURE(hs_mooney_set_forces(m, u) == HS_ERR_INVALID);
+    ENSURE(hs_mooney_set_prescribed(m, u) == HS_ERR_INVALID);
+    double g[3] = {0, INFINITY, 0};
+    ENSURE(hs_mooney_set_gravity(m, g) == HS_ERR_INVALID);
     free(u);
+    free(line);
+    free(fixed);
     hs_mooney_destroy(&m);
     hs_mooney_destroy(&m); // NULL is fine
     hs_mesh_destroy(&mesh);
@@ -476,6 +497,49 @@ static int mooney_bad_input(void) {
     return 0;
 }
 
+// Solving again after a load change continues from the solved state and reaches the same
+// state as one solve of the final load.
+static int mooney_continuation(void) {
+    hs_err err;
+    hs_mesh* mesh = NULL;
+    ENSURE(hs_mesh_create_box(0.1, 0.02, 0.02, 8, 2, 2, &mesh, &err) == HS_OK);
+    int n = mesh->n_nodes;
+    unsigned char* fixed = calloc((size_t)n, 1);
+    for (int i = 0; i < n; i++) fixed[i] = mesh->x0[3 * i] < 1e-9;
+    hs_mooney_def def = hs_mooney_default_def();
+    def.youngs_pa = 20000;
+    def.beta = 1.0;
+    def.load_steps = 2;
+    hs_mooney *a = NULL, *b = NULL;
+    ENSURE(hs_mooney_create(mesh, &def, fixed, &a, &err) == HS_OK);
+    ENSURE(hs_mooney_create(mesh, &def, fixed, &b, &err) == HS_OK);
+    double g1[3] = {0, 0, -4.9}, g2[3] = {0, 0, -9.81};
+    hs_mooney_stats st;
+    ENSURE(hs_mooney_set_gravity(a, g1) == HS_OK);
+    ENSURE(hs_mooney_solve_static(a, &st, &err) == HS_OK);
+    ENSURE(hs_mooney_set_gravity(a, g2) == HS_OK);
+    // The solve keeps no memory (CHOLMOD's refactorisation allocates transiently inside).
+    int64_t bytes0 = hs_byte_count();
+    ENSURE(hs_mooney_solve_static(a, &st, &err) == HS_OK);
+    ENSURE(hs_byte_count() == bytes0);
+    ENSURE(hs_mooney_set_gravity(b, g2) == HS_OK);
+    ENSURE(hs_mooney_solve_static(b, &st, &err) == HS_OK);
+    const double *ua = hs_mooney_displacement(a), *ub = hs_mooney_displacement(b);
+    double dmax = 0, umax = 0;
+    for (int d = 0; d < 3 * n; d++) {
+        dmax = fmax(dmax, fabs(ua[d] - ub[d]));
+        umax = fmax(umax, fabs(ub[d]));
+    }
+    printf("  tip %.4f m, two-stage vs one-stage max difference %.1e m\n", umax, dmax);
+    ENSURE(umax > 0.005);
+    ENSURE(dmax < 1e-9 * umax);
+    hs_mooney_destroy(&a);
+    hs_mooney_destroy(&b);
+    hs_mesh_destroy(&mesh);
+    free(fixed);
+    return 0;
+}
+
 HS_TEST_MAIN(HS_CASE(mooney_kernel), HS_CASE(mooney_homogeneous), HS_CASE(mooney_small_strain),
              HS_CASE(mooney_stabilisation), HS_CASE(mooney_newton_quadratic),
-             HS_CASE(mooney_bad_input))
+             HS_CASE(mooney_bad_input), HS_CASE(mooney_continuation))

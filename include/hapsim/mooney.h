@@ -58,15 +58,16 @@ typedef struct hs_mooney_stats {
 
 typedef struct hs_mooney hs_mooney;
 
-/// Precompute shape gradients, interior faces, the pressure matrix and the sparse pattern.
+/// Precompute shape gradients, interior faces, the pressure matrix, the sparse pattern and
+/// the factor at rest. HS_ERR_INVALID if a connected piece lacks 3 non-collinear fixed nodes.
 /// fixed[i] != 0 makes node i fully prescribed (NULL: none fixed). The mesh must outlive m.
 /// @param out OUT: new solver, free with hs_mooney_destroy
 hs_status hs_mooney_create(const hs_mesh* mesh, const hs_mooney_def* def,
                            const unsigned char* fixed, hs_mooney** out, hs_err* err);
 /// Total external nodal forces, N ([3n]; NULL clears). Scaled by the load factor.
 hs_status hs_mooney_set_forces(hs_mooney* m, const double* f);
-/// Gravity acceleration, m/s^2 (body force density * g, lumped V/4 per node).
-void hs_mooney_set_gravity(hs_mooney* m, const double g[3]);
+/// Gravity acceleration, m/s^2 (rho g, lumped V/4 per node). HS_ERR_INVALID if not finite.
+hs_status hs_mooney_set_gravity(hs_mooney* m, const double g[3]);
 /// Total prescribed displacements of fixed nodes, m ([3n]; entries of free nodes ignored;
 /// NULL = zero). Reached by the same load factor as the forces.
 hs_status hs_mooney_set_prescribed(hs_mooney* m, const double* u);

@@ -173,6 +173,9 @@ double hs_mooney_pk1(double c1, double c2, double p, const double f[9], double p
     return c1 * (j23 * i1 - 3.0) + c2 * (j43 * i2 - 3.0);
 }
 
+static int mooney_update(hs_mooney* m, int tangent);
+static void assemble_tangent(hs_mooney* m);
+
 // ---------------------------------------------------------------------------------------------
 // Set-up
 
@@ -410,6 +413,83 @@ nomem:
                       __LINE__);
 }
 
+static int uf_find(int* parent, int i) {
+    while (parent[i] != i) i = parent[i] = parent[parent[i]];
+    return i;
+}
+
+// Every connected piece of the mesh needs three non-collinear fixed nodes, or rigid motion
+// is free and the static problem has no unique solution.
+static hs_status check_constrained(hs_mooney* m, hs_err* err) {
+    const hs_mesh* mesh = m->mesh;
+    int n = m->n;
+    int* parent = hs_alloc(sizeof(int) * (size_t)n);
+    int* first = hs_alloc(sizeof(int) * (size_t)n);      // per root: a fixed node, or -1
+    int* second = hs_alloc(sizeof(int) * (size_t)n);     // per root: farthest fixed node from first
+    double* span = hs_calloc((size_t)n, sizeof(double)); // per root: bbox diagonal^2
+    hs_status st = HS_OK;
+    if (!parent || !first || !second || !span) {
+        st = hs_err_set(err, HS_ERR_NOMEM, "%s:%d: out of memory", __FILE__, __LINE__);
+        goto done;
+    }
+    for (int i = 0; i < n; i++) parent[i] = i, first[i] = second[i] = -1;
+    for (int e = 0; e < m->nt; e++) {
+        const int* t = mesh->tets + 4 * e;
+        for (int a = 1; a < 4; a++) {
+            int x = uf_find(parent, t[0]), y = uf_find(parent, t[a]);
+            if (x != y) parent[x] = y;
+        }
+    }
+    const double* x0 = mesh->x0;
+#define D2(i, j)                                                                                   \
+    ((x0[3 * (i)] - x0[3 * (j)]) * (x0[3 * (i)] - x0[3 * (j)]) +                                   \
+     (x0[3 * (i) + 1] - x0[3 * (j) + 1]) * (x0[3 * (i) + 1] - x0[3 * (j) + 1]) +                   \
+     (x0[3 * (i) + 2] - x0[3 * (j) + 2]) * (x0[3 * (i) + 2] - x0[3 * (j) + 2]))
+    // pass 1: a fixed node per piece, and the piece's size
+    for (int i = 0; i < n; i++) {
+        if (!mesh->node_tet_start || mesh->node_tet_start[i + 1] > mesh->node_tet_start[i]) {
+            int r = uf_find(parent, i);
+            if (m->dof_map[3 * i] < 0 && first[r] < 0) first[r] = i;
+            if (first[r] >= 0) span[r] = fmax(span[r], D2(i, first[r]));
+        }
+    }
+    // pass 2: the fixed node farthest from the first one
+    for (int i = 0; i < n; i++) {
+        int r = uf_find(parent, i);
+        if (m->dof_map[3 * i] >= 0 || first[r] < 0 || i == first[r]) continue;
+        if (second[r] < 0 || D2(i, first[r]) > D2(second[r], first[r])) second[r] = i;
+    }
+    // pass 3: a fixed node off the line through the two, by more than 1e-6 of the piece size
+    for (int i = 0; i < n; i++) {
+        int r = uf_find(parent, i);
+        if (first[r] < 0 || second[r] < 0 || m->dof_map[3 * i] >= 0) continue;
+        const double *a = x0 + 3 * first[r], *b = x0 + 3 * second[r], *c = x0 + 3 * i;
+        double u[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
+        double v[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+        double w[3] = {u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2],
+                       u[0] * v[1] - u[1] * v[0]};
+        double d2 =
+            (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]) / (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]);
+        if (d2 > 1e-12 * span[r]) second[r] = -2; // marks the piece as constrained
+    }
+#undef D2
+    for (int e = 0; e < m->nt && st == HS_OK; e++) {
+        int r = uf_find(parent, mesh->tets[4 * e]);
+        if (second[r] != -2)
+            st = hs_err_set(err, HS_ERR_INVALID,
+                            "%s:%d: the piece of the mesh containing tet %d has %s: rigid motion "
+                            "is free (fix at least 3 non-collinear nodes of every piece)",
+                            __FILE__, __LINE__, e,
+                            first[r] < 0 ? "no fixed node" : "only collinear fixed nodes");
+    }
+done:
+    hs_free(parent);
+    hs_free(first);
+    hs_free(second);
+    hs_free(span);
+    return st;
+}
+
 static hs_status build_stiffness_pattern(hs_mooney* m, hs_err* err) {
     const hs_mesh* mesh = m->mesh;
     int* tf = NULL;
@@ -588,10 +668,26 @@ hs_status hs_mooney_create(const hs_mesh* mesh, const hs_mooney_def* def,
     MOONEY_ALLOC(m->bf, m->n_k);
     MOONEY_ALLOC(m->xf, m->n_k);
     if (m->def.beta > 0 && (st = build_pressure_matrix(m, err)) != HS_OK) goto fail;
+    if ((st = check_constrained(m, err)) != HS_OK) goto fail;
     if (nf > 0 && (st = build_stiffness_pattern(m, err)) != HS_OK) goto fail;
-    for (int e = 0; e < nt; e++) {
-        for (int k = 0; k < 9; k++) m->fdef[9 * e + k] = (k % 4 == 0) ? 1.0 : 0.0;
-        m->jac[e] = 1.0;
+    // Analyse and factorise at rest now, so solving allocates nothing and an unconstrained
+    // body is reported here.
+    mooney_update(m, 1);
+    if (nf > 0) {
+        assemble_tangent(m);
+        st = hs_cholesky_create(m->kmat, &m->kfac, err);
+        if (st == HS_ERR_NOT_POSDEF) {
+            st = hs_err_set(err, st,
+                            "%s:%d: the stiffness at rest is singular: the fixed nodes do not "
+                            "stop rigid motion (fix at least 3 non-collinear nodes)",
+                            __FILE__, __LINE__);
+            goto fail;
+        }
+        if (st != HS_OK) {
+            st = hs_err_set(err, st, "%s:%d: factorisation at rest failed: %s", __FILE__, __LINE__,
+                            hs_status_str(st));
+            goto fail;
+        }
     }
     *out = m;
     return HS_OK;
@@ -646,14 +742,15 @@ hs_status hs_mooney_set_forces(hs_mooney* m, const double* f) {
     return HS_OK;
 }
 
-void hs_mooney_set_gravity(hs_mooney* m, const double g[3]) {
-    HS_ASSERT(m && g && all_finite(g, 3));
+hs_status hs_mooney_set_gravity(hs_mooney* m, const double g[3]) {
+    if (!m || !g || !all_finite(g, 3)) return HS_ERR_INVALID;
     memset(m->f_grav, 0, sizeof(double) * 3 * (size_t)m->n);
     for (int e = 0; e < m->nt; e++) {
         double w = m->def.density_kg_m3 * m->vol[e] * 0.25;
         for (int a = 0; a < 4; a++)
             for (int c = 0; c < 3; c++) m->f_grav[3 * m->mesh->tets[4 * e + a] + c] += w * g[c];
     }
+    return HS_OK;
 }
 
 hs_status hs_mooney_set_prescribed(hs_mooney* m, const double* u) {
@@ -890,8 +987,7 @@ static hs_status solve_increment(hs_mooney* m, double s, hs_mooney_stats* stats,
     while (iters < m->def.max_newton_iter) {
         if (m->n_free > 0) {
             assemble_tangent(m);
-            hs_status st = m->kfac ? hs_cholesky_refactor(m->kfac, m->kmat)
-                                   : hs_cholesky_create(m->kmat, &m->kfac, err);
+            hs_status st = hs_cholesky_refactor(m->kfac, m->kmat);
             if (st != HS_OK)
                 return hs_err_set(err, st, "%s:%d: tangent factorisation failed: %s", __FILE__,
                                   __LINE__, hs_status_str(st));
