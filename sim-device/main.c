@@ -223,9 +223,9 @@ static int parse_options(int argc, char** argv, options* o, hs_stylus_def* def) 
     o->offline_radius = 0.002;
     o->offline_timeout = 0.05;
     double ms;
-    int c;
+    int c, idx = -1;
     opterr = 0;
-    while ((c = getopt_long(argc, argv, "h", longopts, NULL)) != -1) {
+    while ((c = getopt_long(argc, argv, "h", longopts, &idx)) != -1) {
         const char* a = optarg;
         int ok = 1;
         switch (c) {
@@ -314,9 +314,11 @@ static int parse_options(int argc, char** argv, options* o, hs_stylus_def* def) 
             return 2;
         }
         if (!ok) {
-            fprintf(stderr, "hapsim-stylus: bad value '%s' for %s\n", a, argv[optind - 2]);
+            fprintf(stderr, "hapsim-stylus: bad value '%s' for --%s\n", a,
+                    idx >= 0 ? longopts[idx].name : "?");
             return 2;
         }
+        idx = -1;
     }
     if (optind < argc) {
         fprintf(stderr, "hapsim-stylus: unexpected argument '%s'\n", argv[optind]);
@@ -537,11 +539,11 @@ static int run_offline(app* a) {
     return finish(a, "offline");
 }
 
-static void print_status(app* a, double t) {
+static void print_status(app* a, double t, double rate_hz) {
     fprintf(stderr,
-            "\rhapsim-stylus: t %6.1f s  ticks %8lld  |F| %5.2f N  period err p99 %4lld us  "
+            "\rhapsim-stylus: t %6.1f s  %6.0f Hz  |F| %5.2f N  period err p99 %4lld us  "
             "overruns %lld  forces rx %lld (bad %lld)  latency %5lld us   ",
-            t, (long long)atomic_load(&a->ticks), 1e-3 * (double)atomic_load(&a->force_mn),
+            t, rate_hz, 1e-3 * (double)atomic_load(&a->force_mn),
             (long long)atomic_load(&a->period_p99_us), (long long)atomic_load(&a->overruns),
             (long long)atomic_load(&a->rx_forces), (long long)atomic_load(&a->rx_rejected),
             (long long)atomic_load(&a->latency_us));
@@ -592,13 +594,17 @@ static int run_live(app* a) {
             atomic_store(&a->loop_done, 1);
             rc = 1;
         } else {
-            int64_t t0 = hs_now_ns(), next_status = t0 + 1000000000;
+            int64_t t0 = hs_now_ns(), next_status = t0 + 1000000000, last_ticks = 0, last_ns = t0;
             while (!atomic_load(&a->loop_done)) {
                 struct timespec nap = {0, 50000000};
                 nanosleep(&nap, NULL);
                 int64_t now = hs_now_ns();
                 if (a->opt.status && now >= next_status) {
-                    print_status(a, (double)(now - t0) * 1e-9);
+                    int64_t ticks = atomic_load(&a->ticks);
+                    print_status(a, (double)(now - t0) * 1e-9,
+                                 (double)(ticks - last_ticks) / ((double)(now - last_ns) * 1e-9));
+                    last_ticks = ticks;
+                    last_ns = now;
                     next_status += 1000000000;
                 }
             }
