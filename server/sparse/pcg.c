@@ -89,7 +89,7 @@ hs_status hs_pcg_solve(hs_pcg* s, const hs_csc* a, const double* b, double* x, h
     double bnorm = sqrt(dot(n, b, b));
     if (!isfinite(bnorm)) return HS_ERR_NUMERIC;
     if (bnorm == 0.0) {
-        memset(x, 0, sizeof(double) * (size_t)n);
+        if (n > 0) memset(x, 0, sizeof(double) * (size_t)n);
         if (rel_residual) *rel_residual = 0.0;
         return HS_OK;
     }
