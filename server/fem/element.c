@@ -141,6 +141,10 @@ static int spd3(const double s[9]) {
 // if X^T F is symmetric positive definite (the defining property of the polar factor); any
 // failure falls back to the cold Higham iteration, then to the SVD.
 int hs_polar_higham(const double f[9], double r[9], double tol, int max_iter) {
+    return hs_polar_higham_ex(f, r, tol, max_iter, 0);
+}
+
+int hs_polar_higham_ex(const double f[9], double r[9], double tol, int max_iter, int trusted) {
     double det = m3_det(f);
     double fn = sqrt(m3_fro2(f));
     if (!(det > 0) || !(fn > 0) || !isfinite(fn)) {
@@ -151,7 +155,7 @@ int hs_polar_higham(const double f[9], double r[9], double tol, int max_iter) {
     double sig = fn / sqrt(3.0); // root-mean-square singular value
     int it = 0;
     double x[9], y[9], s[9];
-    if (orth_err(r) <= 1e-3 && m3_det(r) > 0) {
+    if (trusted || (orth_err(r) <= 1e-3 && m3_det(r) > 0)) {
         memcpy(x, r, sizeof x);
         double prev = INFINITY, tol2 = tol * tol * sig * sig;
         while (it <= max_iter) {
@@ -163,7 +167,8 @@ int hs_polar_higham(const double f[9], double r[9], double tol, int max_iter) {
             if (skew2 <= tol2) {
                 // Accept only the polar factor: X^T F symmetric positive definite, X orthogonal.
                 if (!spd3(s)) break;
-                if (orth_err(x) <= tol) {
+                // A trusted start is orthogonal; only Newton steps can add round-off.
+                if ((trusted && it == 0) || orth_err(x) <= tol) {
                     memcpy(r, x, sizeof x);
                     return it;
                 }

@@ -51,8 +51,13 @@ struct hs_fem {
     int* adj_start;
     int* adj;
     int n_blocks;
-    int* blkpos;   // [9 n_blocks] row-major positions in val, -1 for constrained dofs
-    int* elem_pos; // [144ne] val position of element dof pair (3a+i, 3b+j) at [12(3a+i)+3b+j]
+    // Assembly writes the upper triangle only (row <= col) and then mirrors it: a symmetric
+    // matrix, so half the scatter. "Canonical" position of (r, c) = position of (min, max).
+    int* blkpos;   // [9 n_blocks] row-major canonical positions in val, -1 for constrained dofs
+    int* elem_pos; // [78ne] canonical positions of the element's dof pairs (r <= c), see
+                   // hs_fem_assemble for the order
+    int n_mirror;  // strictly lower entries
+    int* mirror;   // [2 n_mirror] (lower position, its upper transpose)
     int* diag_pos; // [3n]
     int nnz;
 
@@ -92,13 +97,12 @@ hs_fem_def hs_fem_default_def(void) {
 void hs_fem_destroy(hs_fem** pfem) {
     if (!pfem || !*pfem) return;
     hs_fem* m = *pfem;
-    void* ptrs[] = {m->dof,        m->tet,  m->g,        m->vol0,       m->active,
-                    m->F,          m->R,    m->S,        m->det,        m->piters,
-                    m->f,          m->mass, m->nt_start, m->nt,         m->nt_local,
-                    m->adj_start,  m->adj,  m->blkpos,   m->elem_pos,   m->diag_pos,
-                    m->ring_start, m->ring, m->nt_slot,  m->pair_start, m->pair_blk,
-                    m->theta_e,    m->w,    m->pbar,     m->vn,         m->theta_n,
-                    m->cvec};
+    void* ptrs[] = {m->dof,        m->tet,      m->g,        m->vol0,       m->active, m->F,
+                    m->R,          m->S,        m->det,      m->piters,     m->f,      m->mass,
+                    m->nt_start,   m->nt,       m->nt_local, m->adj_start,  m->adj,    m->blkpos,
+                    m->elem_pos,   m->diag_pos, m->mirror,   m->ring_start, m->ring,   m->nt_slot,
+                    m->pair_start, m->pair_blk, m->theta_e,  m->w,          m->pbar,   m->vn,
+                    m->theta_n,    m->cvec};
     for (size_t i = 0; i < sizeof ptrs / sizeof ptrs[0]; i++) hs_free(ptrs[i]);
     hs_free(m);
     *pfem = NULL;
@@ -293,16 +297,19 @@ static hs_status build_scatter(hs_fem* m, const hs_csc* a, hs_err* err) {
     m->n_blocks = m->adj_start[n];
     m->nnz = a->nnz;
     m->blkpos = hs_alloc(sizeof(int) * 9 * (size_t)m->n_blocks + 1);
-    m->elem_pos = hs_alloc(sizeof(int) * 144 * (size_t)m->ne + 1);
+    m->elem_pos = hs_alloc(sizeof(int) * 78 * (size_t)m->ne + 1);
+    m->n_mirror = (a->nnz - a->n) / 2;
+    m->mirror = hs_alloc(sizeof(int) * 2 * (size_t)m->n_mirror + 1);
     m->diag_pos = hs_alloc(sizeof(int) * 3 * (size_t)n + 1);
-    if (!m->blkpos || !m->elem_pos || !m->diag_pos) return nomem(err);
+    if (!m->blkpos || !m->elem_pos || !m->diag_pos || !m->mirror) return nomem(err);
     for (int col = 0; col < n; col++) {
         for (int p = m->adj_start[col]; p < m->adj_start[col + 1]; p++) {
             int row = m->adj[p];
             for (int ri = 0; ri < 3; ri++)
                 for (int cj = 0; cj < 3; cj++) {
                     int dr = m->dof[3 * row + ri], dc = m->dof[3 * col + cj];
-                    int pos = dr >= 0 && dc >= 0 ? hs_csc_find(a, dr, dc) : -1;
+                    int lo = dr < dc ? dr : dc, hi = dr < dc ? dc : dr;
+                    int pos = dr >= 0 && dc >= 0 ? hs_csc_find(a, lo, hi) : -1;
                     if (dr >= 0 && dc >= 0 && pos < 0)
                         return hs_err_set(err, HS_ERR_INVALID,
                                           "fem: matrix pattern lacks entry (%d, %d)", dr, dc);
@@ -310,18 +317,34 @@ static hs_status build_scatter(hs_fem* m, const hs_csc* a, hs_err* err) {
                 }
         }
     }
-    for (int e = 0; e < m->ne; e++)
+    // Flat per element (streamed in assemble) rather than via the block id: one indirection
+    // less on the hot path. Order: blocks a <= b, rows i, columns j (j >= i when a == b).
+    for (int e = 0; e < m->ne; e++) {
+        int k = 0;
         for (int aa = 0; aa < 4; aa++)
-            for (int b = 0; b < 4; b++) {
+            for (int b = aa; b < 4; b++) {
                 int id = block_id(m, m->tet[4 * e + aa], m->tet[4 * e + b]);
                 HS_ASSERT(id >= 0);
-                // Flat per element (streamed in assemble) rather than via the block id: one
-                // indirection less on the hot path.
                 for (int i = 0; i < 3; i++)
-                    for (int j = 0; j < 3; j++)
-                        m->elem_pos[144 * e + 12 * (3 * aa + i) + 3 * b + j] =
-                            m->blkpos[9 * id + 3 * i + j];
+                    for (int j = aa == b ? i : 0; j < 3; j++)
+                        m->elem_pos[78 * e + k++] = m->blkpos[9 * id + 3 * i + j];
             }
+        HS_ASSERT(k == 78);
+    }
+    int w = 0;
+    for (int c = 0; c < a->n; c++)
+        for (int p = a->colp[c]; p < a->colp[c + 1]; p++) {
+            int r = a->rowi[p];
+            if (r <= c) continue;
+            int t = hs_csc_find(a, c, r);
+            if (t < 0 || w >= m->n_mirror)
+                return hs_err_set(err, HS_ERR_INVALID, "fem: matrix pattern is not symmetric");
+            m->mirror[2 * w] = p;
+            m->mirror[2 * w + 1] = t;
+            w++;
+        }
+    if (w != m->n_mirror)
+        return hs_err_set(err, HS_ERR_INVALID, "fem: matrix pattern is not symmetric");
     for (int i = 0; i < n; i++) {
         int id = block_id(m, i, i);
         HS_ASSERT(id >= 0);
@@ -532,6 +555,40 @@ void hs_fem_set_element_active(hs_fem* fem, int tet, int active) {
     for (int a = 0; a < 4; a++) node_mass(fem, fem->tet[4 * tet + a]);
 }
 
+hs_status hs_fem_refresh_elements(hs_fem* fem, const int* tets, int n) {
+    if (!fem || n < 0 || (n > 0 && !tets)) return HS_ERR_INVALID;
+    const double* x0 = fem->mesh->x0;
+    // Validate every element first so a bad one leaves all element data untouched.
+    for (int k = 0; k < n; k++) {
+        int e = tets[k];
+        if (e < 0 || e >= fem->ne) return HS_ERR_INVALID;
+        const int* t = fem->tet + 4 * e;
+        double dm[9], scale = 0;
+        for (int i = 0; i < 3; i++)
+            for (int c = 0; c < 3; c++) dm[3 * c + i] = x0[3 * t[i + 1] + c] - x0[3 * t[0] + c];
+        for (int q = 0; q < 9; q++) scale = fmax(scale, fabs(dm[q]));
+        double det = m3_det(dm);
+        if (!(det > 1e-14 * scale * scale * scale) || !isfinite(det)) return HS_ERR_INVALID;
+    }
+    for (int k = 0; k < n; k++) {
+        int e = tets[k];
+        const int* t = fem->tet + 4 * e;
+        double dm[9], cof[9];
+        for (int i = 0; i < 3; i++)
+            for (int c = 0; c < 3; c++) dm[3 * c + i] = x0[3 * t[i + 1] + c] - x0[3 * t[0] + c];
+        double det = m3_det(dm);
+        m3_cofactor(dm, cof);
+        double* g = fem->g + 12 * e;
+        for (int i = 0; i < 3; i++)
+            for (int c = 0; c < 3; c++) g[3 * (i + 1) + c] = cof[3 * c + i] / det;
+        for (int c = 0; c < 3; c++) g[c] = -(g[3 + c] + g[6 + c] + g[9 + c]);
+        fem->vol0[e] = det / 6.0;
+    }
+    for (int k = 0; k < n; k++)
+        for (int a = 0; a < 4; a++) node_mass(fem, fem->tet[4 * tets[k] + a]);
+    return HS_OK;
+}
+
 // ---------------------------------------------------------------------------------------------
 // Evaluation
 
@@ -549,7 +606,7 @@ static int element_rotation(hs_fem* m, int e, const double F[9], double det) {
         hs_polar_svd(F, r);
         return 0;
     }
-    return hs_polar_higham(F, r, m->def.polar_tol, m->def.polar_max_iter);
+    return hs_polar_higham_ex(F, r, m->def.polar_tol, m->def.polar_max_iter, 1);
 }
 
 void hs_fem_update(hs_fem* m, const double* x, hs_fem_stats* stats) {
@@ -737,10 +794,10 @@ void hs_fem_forces(const hs_fem* fem, double* f) {
 /// linear: Q = I, M = I, s = 0; co-rotated: Q = R, M = R R^T = I, s = 0 (the R K_e R^T of the
 /// paper, no dR/dx term); StVK: Q = F, M = F F^T, s_ab = g_a.S g_b (exact). With ANP and StVK
 /// the volumetric term adds V pbar d^2 det F / dx_a dx_b = V pbar [F (g_a x g_b)]x^T.
-static void element_blocks(const hs_fem* m, int e, double kb[10][9]) {
+static void element_blocks(const hs_fem* m, int e, double sc, double kb[10][9]) {
     const double* g = m->g + 12 * e;
-    const double V = m->vol0[e], mu = m->mu, lam = m->lam_el;
-    double p[4][3];
+    const double cV = sc * m->vol0[e], cmu = cV * m->mu, clam = cV * m->lam_el;
+    double p[4][3], lp[4][3], mp[4][3];
     double M[9];
     int stvk = m->def.model == HS_MODEL_STVK;
     const double* Q = NULL;
@@ -753,26 +810,29 @@ static void element_blocks(const hs_fem* m, int e, double kb[10][9]) {
             m3_vec(Q, g + 3 * a, p[a]);
         else
             memcpy(p[a], g + 3 * a, sizeof p[a]);
+        for (int i = 0; i < 3; i++) {
+            lp[a][i] = clam * p[a][i];
+            mp[a][i] = cmu * p[a][i];
+        }
     }
     double Sg[4][3];
     if (stvk) {
         m3_mul_nt(Q, Q, M);
         for (int a = 0; a < 4; a++) m3_vec(m->S + 9 * e, g + 3 * a, Sg[a]);
     }
-    double geo = (stvk && m->anp) ? V * m->pbar[e] : 0.0;
+    double geo = (stvk && m->anp) ? cV * m->pbar[e] : 0.0;
     int k = 0;
     for (int a = 0; a < 4; a++)
         for (int b = a; b < 4; b++, k++) {
             double* B = kb[k];
             const double* pa = p[a];
             const double* pb = p[b];
-            double gg = mu * v3_dot(g + 3 * a, g + 3 * b);
+            double gg = cmu * v3_dot(g + 3 * a, g + 3 * b);
             for (int i = 0; i < 3; i++)
-                for (int j = 0; j < 3; j++)
-                    B[3 * i + j] = V * (lam * pa[i] * pb[j] + mu * pb[i] * pa[j]);
+                for (int j = 0; j < 3; j++) B[3 * i + j] = lp[a][i] * pb[j] + mp[b][i] * pa[j];
             if (stvk) {
-                double s = V * v3_dot(Sg[a], g + 3 * b);
-                for (int q = 0; q < 9; q++) B[q] += V * gg * M[q];
+                double s = cV * v3_dot(Sg[a], g + 3 * b);
+                for (int q = 0; q < 9; q++) B[q] += gg * M[q];
                 B[0] += s;
                 B[4] += s;
                 B[8] += s;
@@ -789,9 +849,9 @@ static void element_blocks(const hs_fem* m, int e, double kb[10][9]) {
                     B[7] -= geo * v[0];
                 }
             } else {
-                B[0] += V * gg;
-                B[4] += V * gg;
-                B[8] += V * gg;
+                B[0] += gg;
+                B[4] += gg;
+                B[8] += gg;
             }
         }
 }
@@ -804,25 +864,23 @@ void hs_fem_assemble(const hs_fem* m, double kcoef, double mcoef, hs_csc* a) {
         double kb[10][9];
         for (int e = 0; e < m->ne; e++) {
             if (!m->active[e]) continue;
-            element_blocks(m, e, kb);
-            const int* ep = m->elem_pos + 144 * e;
+            element_blocks(m, e, kcoef, kb);
+            const int* ep = m->elem_pos + 78 * e;
             int k = 0;
-            for (int aa = 0; aa < 4; aa++)
-                for (int b = aa; b < 4; b++, k++) {
-                    const double* B = kb[k];
+            for (int q = 0; q < 10; q++) {
+                const double* B = kb[q];
+                if (q == 0 || q == 4 || q == 7 || q == 9) { // diagonal block: upper half
                     for (int i = 0; i < 3; i++)
-                        for (int j = 0; j < 3; j++) {
-                            double v = kcoef * B[3 * i + j];
-                            int p = ep[12 * (3 * aa + i) + 3 * b + j];
-                            if (p >= 0) val[p] += v;
-                            if (b == aa) continue;
-                            p = ep[12 * (3 * b + j) + 3 * aa + i];
-                            if (p >= 0) val[p] += v;
-                        }
+                        for (int j = i; j < 3; j++, k++)
+                            if (ep[k] >= 0) val[ep[k]] += B[3 * i + j];
+                } else {
+                    for (int t = 0; t < 9; t++, k++)
+                        if (ep[k] >= 0) val[ep[k]] += B[t];
                 }
+            }
         }
         if (m->anp) {
-            // K_vol = sum_n kappa V_n c_n c_n^T over the 1-ring of each node.
+            // K_vol = sum_n kappa V_n c_n c_n^T over the 1-ring of each node (upper half).
             for (int i = 0; i < m->n; i++) {
                 double s = kcoef * m->kappa * m->vn[i];
                 if (s == 0.0) continue;
@@ -830,14 +888,14 @@ void hs_fem_assemble(const hs_fem* m, double kcoef, double mcoef, hs_csc* a) {
                 const double* c = m->cvec + 3 * rb;
                 const int* pb = m->pair_blk + m->pair_start[i];
                 for (int r = 0; r < rs; r++) {
-                    const double* cr = c + 3 * r;
-                    for (int q = 0; q < rs; q++) {
+                    const double cr[3] = {s * c[3 * r], s * c[3 * r + 1], s * c[3 * r + 2]};
+                    for (int q = r; q < rs; q++) {
                         const double* cq = c + 3 * q;
                         const int* pos = m->blkpos + 9 * pb[r * rs + q];
                         for (int ii = 0; ii < 3; ii++)
-                            for (int jj = 0; jj < 3; jj++) {
+                            for (int jj = q == r ? ii : 0; jj < 3; jj++) {
                                 int p = pos[3 * ii + jj];
-                                if (p >= 0) val[p] += s * cr[ii] * cq[jj];
+                                if (p >= 0) val[p] += cr[ii] * cq[jj];
                             }
                     }
                 }
@@ -851,6 +909,7 @@ void hs_fem_assemble(const hs_fem* m, double kcoef, double mcoef, hs_csc* a) {
                 if (p >= 0) val[p] += mcoef * m->mass[i];
             }
     }
+    for (int w = 0; w < m->n_mirror; w++) val[m->mirror[2 * w]] = val[m->mirror[2 * w + 1]];
 }
 
 void hs_fem_apply_tangent(const hs_fem* m, const double* x, double* y) {
@@ -858,7 +917,7 @@ void hs_fem_apply_tangent(const hs_fem* m, const double* x, double* y) {
     double kb[10][9];
     for (int e = 0; e < m->ne; e++) {
         if (!m->active[e]) continue;
-        element_blocks(m, e, kb);
+        element_blocks(m, e, 1.0, kb);
         const int* t = m->tet + 4 * e;
         int k = 0;
         for (int aa = 0; aa < 4; aa++)
