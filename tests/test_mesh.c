@@ -423,6 +423,10 @@ static const bad_case k_bad[] = {
      "f:5:", "does not fit"},
     {"vtk", VTK_HEAD VTK_PTS "CELLS 1 5\n4 0 1 x 3\n", NULL, HS_ERR_PARSE,
      "f:9:", "bad point index 'x'"},
+    {"vtk", VTK_HEAD "FIELD FieldData 1\nTIME 1 1 double\n", NULL, HS_ERR_PARSE,
+     "f:7:", "file ends in FIELD array 0"},
+    {"vtk", VTK_HEAD "FIELD FieldData 1\nTIME 1000000 1000000 double\n0\n", NULL, HS_ERR_PARSE,
+     "f:6:", "does not fit"},
     {"vtk", VTK_HEAD VTK_PTS "LINES 1 3\n", NULL, HS_ERR_PARSE, "f:8:", "unexpected 'LINES'"},
 
     {"tetgen", "4 2 0 0\n", "", HS_ERR_UNSUPPORTED, "t.node:1:", "dimension 2"},
@@ -580,7 +584,7 @@ static int RoundTrip(void) {
     t.len = 0;
     put(&t,
         "# vtk DataFile Version 5.1\nliver2\nASCII\nDATASET UNSTRUCTURED_GRID\n"
-        "POINTS %d double\n",
+        "FIELD FieldData 2\nTIME 1 1 double\n0.5\nCYCLE 1 1 int\n3\nPOINTS %d double\n",
         nn);
     for (int i = 0; i < nn; ++i)
         put(&t, "%.17g %.17g %.17g%s", ref->x0[3 * i], ref->x0[3 * i + 1], ref->x0[3 * i + 2],

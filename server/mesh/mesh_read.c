@@ -761,6 +761,33 @@ static int vtk_cells_v5(lexer* lx, vtk_cells* c, long long n_pts, int hl) {
     return 1;
 }
 
+// Field data (VTK writes e.g. TIME and CYCLE before POINTS): "FIELD name n", then per array
+// "name components tuples type" and components * tuples values, all skipped.
+static int vtk_skip_field(lexer* lx, int hl) {
+    tok t;
+    long long n_arrays, comps, tuples;
+    if (!tok_line(lx, &t)) return lx_fail(lx, hl, HS_ERR_PARSE, "FIELD needs a name");
+    if (!rd_int(lx, 0, 0, LLONG_MAX, "field array count", &n_arrays) ||
+        !end_line(lx, "the FIELD header") || !check_count(lx, n_arrays, 8, hl, "field array"))
+        return 0;
+    for (long long a = 0; a < n_arrays; ++a) {
+        if (!tok_any(lx, &t))
+            return lx_fail(lx, lx->line, HS_ERR_PARSE, "file ends in FIELD array %lld", a);
+        int al = t.line;
+        if (!rd_int(lx, 0, 0, LLONG_MAX, "field components", &comps) ||
+            !rd_int(lx, 0, 0, LLONG_MAX, "field tuples", &tuples) || !tok_line(lx, &t) ||
+            !end_line(lx, "a field array header"))
+            return lx->status ? 0 : lx_fail(lx, al, HS_ERR_PARSE, "field array needs a type");
+        if (comps > 0 && tuples > (long long)(lx->end - lx->p) / 2 / comps + 1)
+            return lx_fail(lx, al, HS_ERR_PARSE, "field array of %lld x %lld values does not fit",
+                           comps, tuples);
+        for (long long v = 0; v < comps * tuples; ++v)
+            if (!tok_any(lx, &t))
+                return lx_fail(lx, lx->line, HS_ERR_PARSE, "file ends in FIELD array %lld", a);
+    }
+    return 1;
+}
+
 static hs_status parse_vtk(lexer* lx, hs_mesh** out) {
     builder b = {0};
     vtk_cells c = {0};
@@ -873,8 +900,9 @@ static hs_status parse_vtk(lexer* lx, hs_mesh** out) {
                 skip_line(lx);
                 if (!has) break;
             }
-        } else if (tok_is_nocase(&t, "POINT_DATA") || tok_is_nocase(&t, "CELL_DATA") ||
-                   tok_is_nocase(&t, "FIELD")) {
+        } else if (tok_is_nocase(&t, "FIELD")) {
+            if (!vtk_skip_field(lx, hl)) goto fail;
+        } else if (tok_is_nocase(&t, "POINT_DATA") || tok_is_nocase(&t, "CELL_DATA")) {
             break; // attributes are not read
         } else {
             lx_fail(lx, hl, HS_ERR_PARSE, "unexpected '%s'", tok_text(&t, buf));
