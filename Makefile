@@ -50,8 +50,8 @@ demo: build
 	@if [ -x $(BUILD)/bin/hapsim-server ] && [ -x scripts/demo.sh ]; then \
 	  scripts/demo.sh $(BUILD); \
 	else \
-	  $(BUILD)/bin/hapsim-solve --mesh scenes/liver/liver2.msh --model corotated --E 5000 --nu 0.45 \
-	    --density 1060 --gravity 0,0,-9.81 --fix-plane z,min,0.01 --static --out out/demo-disp.csv; \
+	  $(BUILD)/bin/hapsim-solve --mesh scenes/liver/liver2.msh --model corotated --E 50000 --nu 0.45 \
+	    --density 1060 --gravity 0,0,-9.81 --fix-plane y,min,0.005 --static --out out/demo-disp.csv; \
 	fi
 
 bench: build

@@ -244,6 +244,18 @@ static void residual(hs_body* b, double* r) {
         }
 }
 
+// Total potential energy W(u) - s (f_ext + m g) . u at the last update, J.
+static double potential(const hs_body* b) {
+    const double* m = hs_fem_lumped_mass(b->fem);
+    double w = 0;
+    for (int i = 0; i < b->n; ++i)
+        for (int c = 0; c < 3; ++c) {
+            int k = 3 * i + c;
+            w += (b->f_ext[k] + m[i] * b->def.gravity[c]) * b->u[k];
+        }
+    return b->fem_stats.energy_j - b->load_scale * w;
+}
+
 static double norm_free(const hs_body* b, const double* full) {
     double s = 0;
     for (int j = 0; j < b->n_free; ++j) {
@@ -408,17 +420,22 @@ hs_status hs_body_solve_static(hs_body* b, hs_step_stats* stats) {
                 break;
             }
             ++st.iterations;
-            // Backtracking on the residual norm keeps large steps (and the co-rotated model's
-            // approximate tangent) from overshooting.
-            double alpha = 1.0, prev = 0.0, rt = rn;
-            for (int ls_it = 0; ls_it < 8; ++ls_it) {
+            // Armijo backtracking on the total potential energy P(u) = W(u) - f.u. The
+            // models are conservative and the tangent is SPD, so d = K^-1 r is a descent
+            // direction of P (dP/da = -r.d < 0) even when K lacks the rotation derivative,
+            // whereas the residual norm may not decrease along it.
+            double slope = 0;
+            for (int j = 0; j < b->n_free; ++j) slope += b->rhs_f[j] * b->x_f[j];
+            double p0 = potential(b), alpha = 1.0, prev = 0.0, rt = rn;
+            for (int ls_it = 0; ls_it < 30; ++ls_it) {
                 for (int j = 0; j < b->n_free; ++j)
                     b->u[b->free_to_full[j]] += (alpha - prev) * b->x_f[j];
                 prev = alpha;
                 update_model(b);
                 residual(b, b->r);
                 rt = norm_free(b, b->r);
-                if (rt < rn || !isfinite(rn)) break;
+                double p1 = potential(b);
+                if ((isfinite(p1) && p1 <= p0 - 1e-4 * alpha * slope) || rt < 1e-3 * rn) break;
                 alpha *= 0.5;
             }
             rn = rt;

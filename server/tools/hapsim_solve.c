@@ -3,6 +3,7 @@
 #define _POSIX_C_SOURCE 200809L
 #include "hapsim/body.h"
 #include "hapsim/mesh.h"
+#include "hapsim/mooney.h"
 
 #include <errno.h>
 #include <math.h>
@@ -11,13 +12,16 @@
 #include <string.h>
 
 static const char* usage =
-    "usage: hapsim-solve --mesh FILE --model linear|corotated|stvk [options] --out disp.csv\n"
+    "usage: hapsim-solve --mesh FILE --model linear|corotated|stvk|mooney [options] --out "
+    "disp.csv\n"
     "\n"
     "Solves a tetrahedral soft-tissue model under gravity with a fixed region and writes one\n"
     "line per node, ux,uy,uz in metres in file order, after a header line.\n"
     "\n"
     "  --mesh FILE            .msh (Gmsh 2.2/4.1), .node/.ele (TetGen) or .vtk (legacy ASCII)\n"
-    "  --model M              linear | corotated | stvk\n"
+    "  --model M              linear | corotated | stvk | mooney (pressure-stabilised\n"
+    "                         Mooney-Rivlin reference, static only; see docs/mooney.md)\n"
+    "  --beta B               mooney: pressure stabilisation (default 0 = plain P1/P0)\n"
     "  --locking-free         average-nodal-pressure volumetric term (near-incompressible tissue)\n"
     "  --E PA                 Young's modulus, Pa (default 3000)\n"
     "  --nu NU                Poisson ratio (default 0.45)\n"
@@ -83,7 +87,8 @@ int main(int argc, char** argv) {
     def.fem.material.youngs_pa = 3000;
     def.fem.material.poisson = 0.45;
     def.fem.material.density_kg_m3 = 1000;
-    int have_model = 0, do_static = 0, steps = 0, quiet = 0, have_dt = 0;
+    int have_model = 0, do_static = 0, steps = 0, quiet = 0, have_dt = 0, mooney = 0;
+    double beta = 0;
     double boxes[8][6];
     int n_boxes = 0;
     plane_fix planes[8];
@@ -131,8 +136,10 @@ int main(int argc, char** argv) {
                 def.fem.model = HS_MODEL_COROTATED;
             else if (!strcmp(argv[i], "stvk"))
                 def.fem.model = HS_MODEL_STVK;
+            else if (!strcmp(argv[i], "mooney"))
+                mooney = 1;
             else
-                BAD("expected linear, corotated or stvk");
+                BAD("expected linear, corotated, stvk or mooney");
             have_model = 1;
         } else if (!strcmp(a, "--E")) {
             NEED_ARG();
@@ -140,6 +147,10 @@ int main(int argc, char** argv) {
             if (!parse_doubles(argv[i], &def.fem.material.youngs_pa, 1) ||
                 def.fem.material.youngs_pa <= 0)
                 BAD("a positive number of pascals");
+        } else if (!strcmp(a, "--beta")) {
+            NEED_ARG();
+            ++i;
+            if (!parse_doubles(argv[i], &beta, 1) || beta < 0) BAD("a stabilisation >= 0");
         } else if (!strcmp(a, "--nu")) {
             NEED_ARG();
             ++i;
@@ -270,6 +281,10 @@ int main(int argc, char** argv) {
         fprintf(stderr, "hapsim-solve: give exactly one of --static or --steps N --dt S\n");
         return 1;
     }
+    if (mooney && !do_static) {
+        fprintf(stderr, "hapsim-solve: --model mooney is a static reference: use --static\n");
+        return 1;
+    }
     if (steps > 0 && !have_dt) {
         fprintf(stderr, "hapsim-solve: --steps needs --dt\n");
         return 1;
@@ -307,30 +322,56 @@ int main(int argc, char** argv) {
     }
 
     hs_body* body = NULL;
-    if (hs_body_create(mesh, &def, fixed, &body, &err) < 0) {
-        fprintf(stderr, "hapsim-solve: %s\n", err.msg);
-        return 1;
-    }
+    hs_mooney* mr = NULL;
     int rc = 0;
     hs_step_stats st = {0};
     double total_ms = 0;
     int iters = 0, lin_iters = 0;
     hs_status s = HS_OK;
-    if (do_static) {
-        s = hs_body_solve_static(body, &st);
-        total_ms = st.wall_ms;
-        iters = st.iterations;
-        lin_iters = st.linear_iterations;
+    if (mooney) {
+        hs_mooney_def md = hs_mooney_default_def();
+        md.youngs_pa = def.fem.material.youngs_pa;
+        md.poisson = def.fem.material.poisson;
+        md.density_kg_m3 = def.fem.material.density_kg_m3;
+        md.beta = beta;
+        md.tolerance = def.static_tol;
+        md.max_newton_iter = def.static_max_iter;
+        md.load_steps = def.static_load_steps;
+        if (hs_mooney_create(mesh, &md, fixed, &mr, &err) < 0 ||
+            hs_mooney_set_gravity(mr, def.gravity) < 0) {
+            fprintf(stderr, "hapsim-solve: %s\n", err.msg);
+            return 1;
+        }
+        hs_mooney_stats ms;
+        s = hs_mooney_solve_static(mr, &ms, &err);
+        total_ms = ms.solve_ms;
+        iters = ms.newton_total;
+        st.residual = ms.final_ratio;
+        st.fem.volume_ratio_min = ms.volume_ratio_min;
+        st.fem.volume_ratio_max = ms.volume_ratio_max;
+        st.fem.volume_ratio_mean = ms.volume_ratio_total; // whole-mesh ratio for this model
     } else {
-        for (int k = 0; k < steps && s >= 0; ++k) {
-            s = hs_body_step(body, &st);
-            total_ms += st.wall_ms;
-            iters += st.iterations;
-            lin_iters += st.linear_iterations;
+        if (hs_body_create(mesh, &def, fixed, &body, &err) < 0) {
+            fprintf(stderr, "hapsim-solve: %s\n", err.msg);
+            return 1;
+        }
+        if (do_static) {
+            s = hs_body_solve_static(body, &st);
+            total_ms = st.wall_ms;
+            iters = st.iterations;
+            lin_iters = st.linear_iterations;
+        } else {
+            for (int k = 0; k < steps && s >= 0; ++k) {
+                s = hs_body_step(body, &st);
+                total_ms += st.wall_ms;
+                iters += st.iterations;
+                lin_iters += st.linear_iterations;
+            }
         }
     }
     if (s < 0) {
-        fprintf(stderr, "hapsim-solve: solver failed: %s\n", hs_status_str(s));
+        fprintf(stderr, "hapsim-solve: solver failed: %s%s%s\n", hs_status_str(s),
+                mooney && err.msg[0] ? ": " : "", mooney ? err.msg : "");
         rc = 2;
     } else if (s == HS_WARN_NOT_CONVERGED) {
         fprintf(stderr, "hapsim-solve: warning: not converged (residual ratio %.3g > %.3g)\n",
@@ -338,7 +379,7 @@ int main(int argc, char** argv) {
         rc = 3;
     }
 
-    const double* u = hs_body_displacement(body);
+    const double* u = mooney ? hs_mooney_displacement(mr) : hs_body_displacement(body);
     FILE* f = fopen(out_path, "w");
     if (!f) {
         fprintf(stderr, "hapsim-solve: cannot write %s: %s\n", out_path, strerror(errno));
@@ -367,9 +408,9 @@ int main(int argc, char** argv) {
         printf("mesh            %s: %d nodes, %d tets, %d fixed\n", mesh_path, mesh->n_nodes,
                mesh->n_tets, n_fixed);
         printf("max |u|         %.6e m at node %d\n", umax, imax);
-        printf("volume ratio    mean %.5f min %.5f max %.5f, inverted %d\n",
-               st.fem.volume_ratio_mean, st.fem.volume_ratio_min, st.fem.volume_ratio_max,
-               st.fem.inverted);
+        printf("volume ratio    %s %.5f min %.5f max %.5f, inverted %d\n",
+               mooney ? "total" : "mean", st.fem.volume_ratio_mean, st.fem.volume_ratio_min,
+               st.fem.volume_ratio_max, st.fem.inverted);
         if (do_static)
             printf("iterations      %d Newton (residual ratio %.2e)%s\n", iters, st.residual,
                    def.solver == HS_SOLVER_PCG ? "" : "");
@@ -380,6 +421,7 @@ int main(int argc, char** argv) {
         printf("wrote           %s\n", out_path);
     }
     hs_body_destroy(&body);
+    hs_mooney_destroy(&mr);
     hs_mesh_destroy(&mesh);
     free(fixed);
     free(mask);

@@ -1,0 +1,44 @@
+#!/usr/bin/env bash
+# hapsim-solve as a user runs it: help, clear errors for bad flags and files, CSV output.
+set -u
+SOLVE="$1"; SRC="$2"
+MESH="$SRC/scenes/liver/liver2.msh"
+T=$(mktemp -d); trap 'rm -rf "$T"' EXIT
+fail=0; pass=0
+check() { # name, condition (0 = ok)
+  if [ "$2" -eq 0 ]; then pass=$((pass+1)); else echo "FAIL: $1"; fail=$((fail+1)); fi
+}
+"$SOLVE" --help > "$T/help" 2>&1; check "help exits 0" $?
+grep -q -- "--fix-box" "$T/help"; check "help lists --fix-box" $?
+
+"$SOLVE" --mesh "$MESH" --out "$T/o.csv" > /dev/null 2> "$T/err"; rc=$?
+[ $rc -eq 1 ] && grep -q "required" "$T/err"; check "missing --model is an error" $?
+"$SOLVE" --mesh "$MESH" --model foo --static --out "$T/o.csv" 2> "$T/err"; rc=$?
+[ $rc -eq 1 ] && grep -q "bad value for --model: 'foo'" "$T/err"; check "bad model named" $?
+"$SOLVE" --mesh "$MESH" --model linear --nu 0.5 --static --out "$T/o.csv" 2> "$T/err"; rc=$?
+[ $rc -eq 1 ] && grep -q "Poisson" "$T/err"; check "nu 0.5 refused" $?
+"$SOLVE" --mesh "$MESH" --model linear --fix-box 1,2,3 --static --out "$T/o.csv" 2> "$T/err"; rc=$?
+[ $rc -eq 1 ] && grep -q -- "--fix-box" "$T/err"; check "short --fix-box refused" $?
+"$SOLVE" --mesh "$MESH" --model linear --static --steps 3 --dt 0.01 --out "$T/o.csv" 2> "$T/err"; rc=$?
+[ $rc -eq 1 ] && grep -q "exactly one" "$T/err"; check "static and steps together refused" $?
+"$SOLVE" --mesh "$MESH" --model linear --static --fix-box 9,9,9,10,10,10 --out "$T/o.csv" 2> "$T/err"; rc=$?
+[ $rc -eq 1 ] && grep -q "no node is fixed" "$T/err"; check "empty fixed region explained" $?
+printf '$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n2\n1 0 0 x\n' > "$T/bad.msh"
+"$SOLVE" --mesh "$T/bad.msh" --model linear --static --fix-plane z,min,1 --out "$T/o.csv" 2> "$T/err"; rc=$?
+[ $rc -eq 1 ] && grep -q "bad.msh:6" "$T/err"; check "malformed mesh names file and line" $?
+"$SOLVE" --mesh "$T/missing.msh" --model linear --static --fix-plane z,min,1 --out "$T/o.csv" 2> "$T/err"; rc=$?
+[ $rc -eq 1 ] && grep -q "missing.msh" "$T/err"; check "missing file named" $?
+
+# A real solve: header + one line per node, finite numbers, summary printed.
+"$SOLVE" --mesh "$MESH" --model corotated --E 50000 --nu 0.45 --density 1060 --gravity 0,0,-9.81 \
+  --fix-plane y,min,0.005 --static --load-steps 2 --out "$T/u.csv" > "$T/sum"; check "corotated static solves" $?
+[ "$(head -1 "$T/u.csv")" = "ux,uy,uz" ]; check "CSV header" $?
+[ "$(($(wc -l < "$T/u.csv") - 1))" -eq 507 ]; check "one line per node" $?
+! grep -qiE "nan|inf" "$T/u.csv"; check "finite output" $?
+grep -q "max |u|" "$T/sum"; check "summary printed" $?
+"$SOLVE" --mesh "$MESH" --model mooney --beta 1 --E 20000 --nu 0.45 --density 1060 --gravity 0,0,-9.81 \
+  --fix-plane y,min,0.005 --static --load-steps 2 --out "$T/m.csv" > /dev/null; check "mooney static solves" $?
+"$SOLVE" --mesh "$MESH" --model linear --E 20000 --gravity 0,0,-9.81 --fix-plane y,min,0.005 \
+  --steps 5 --dt 0.01 --solver pcg --precond jacobi --out "$T/d.csv" > /dev/null; check "dynamics with pcg" $?
+echo "$pass passed, $fail failed"
+[ $fail -eq 0 ]
