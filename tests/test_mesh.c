@@ -227,6 +227,14 @@ static int CheckDetectsCorruption(void) {
     ENSURE(hs_mesh_check(m, &err) == HS_ERR_INVALID);
     m->node_surf[m->surf_nodes[0]] = 0;
 
+    m->node_used[0] ^= 1;
+    ENSURE(hs_mesh_check(m, &err) == HS_ERR_INVALID && strstr(err.msg, "node_used"));
+    m->node_used[0] ^= 1;
+
+    m->tri_tet[0] = (m->tri_tet[0] + 1) % m->n_tets; // wrong owner
+    ENSURE(hs_mesh_check(m, &err) == HS_ERR_INVALID && strstr(err.msg, "triangle 0"));
+    m->tri_tet[0] = (m->tri_tet[0] + m->n_tets - 1) % m->n_tets;
+
     m->volume *= 1.001;
     ENSURE(hs_mesh_check(m, &err) == HS_ERR_INVALID && strstr(err.msg, "volume"));
     m->volume /= 1.001;
@@ -338,6 +346,7 @@ typedef struct bad_case {
 #define MSH41_HEAD "$MeshFormat\n4.1 0 8\n$EndMeshFormat\n"
 #define VTK_HEAD   "# vtk DataFile Version 3.0\nt\nASCII\nDATASET UNSTRUCTURED_GRID\n"
 #define VTK_PTS    "POINTS 4 double\n0 0 0 1 0 0\n0 1 0 0 0 1\n"
+#define VTK5_HEAD  "# vtk DataFile Version 5.1\nt\nASCII\nDATASET UNSTRUCTURED_GRID\n"
 #define TG_NODE    "4 3 0 0\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n"
 
 static const bad_case k_bad[] = {
@@ -386,6 +395,7 @@ static const bad_case k_bad[] = {
      "f:", "no valid tetrahedra"},
     {"msh", MSH_HEAD "$PhysicalNames\n1\n3 1 \"a b\"\n", NULL, HS_ERR_PARSE,
      "f:4:", "section $PhysicalNames has no $EndPhysicalNames"},
+    {"msh", MSH_HEAD MSH_NODES MSH_NODES, NULL, HS_ERR_PARSE, "f:11:", "second $Nodes section"},
     {"msh", MSH_HEAD "garbage\n", NULL, HS_ERR_PARSE, "f:4:", "unexpected 'garbage' outside"},
     {"msh", MSH41_HEAD "$Nodes\n1 3 1 3\n3 1 0 2\n1\n2\n0 0 0\n1 0 0\n$EndNodes\n", NULL,
      HS_ERR_PARSE, "f:11:", "node blocks hold 2 nodes, header says 3"},
@@ -427,8 +437,19 @@ static const bad_case k_bad[] = {
      "f:7:", "file ends in FIELD array 0"},
     {"vtk", VTK_HEAD "FIELD FieldData 1\nTIME 1000000 1000000 double\n0\n", NULL, HS_ERR_PARSE,
      "f:6:", "does not fit"},
+    {"vtk", VTK5_HEAD VTK_PTS "CELLS 2 4\nOFFSETS vtktypeint64\n0 3\nCONNECTIVITY int\n0 1 2 3\n",
+     NULL, HS_ERR_PARSE, "f:8:", "last offset 3 differs from connectivity size 4"},
+    {"vtk", VTK5_HEAD VTK_PTS "CELLS 2 4\nOFFSETS vtktypeint64\n0 3 2\n", NULL, HS_ERR_PARSE,
+     "f:10:", "offset 2 out of range [3, 4]"},
+    {"vtk", VTK5_HEAD VTK_PTS "CELLS 2 4\nCONNECTIVITY vtktypeint64\n", NULL, HS_ERR_PARSE,
+     "f:9:", "expected OFFSETS"},
+    {"vtk", VTK_HEAD VTK_PTS VTK_PTS, NULL, HS_ERR_PARSE, "f:8:", "second POINTS section"},
+    {"vtk", VTK_HEAD VTK_PTS "CELL_TYPES 0\n", NULL, HS_ERR_PARSE,
+     "f:8:", "CELL_TYPES before CELLS"},
     {"vtk", VTK_HEAD VTK_PTS "LINES 1 3\n", NULL, HS_ERR_PARSE, "f:8:", "unexpected 'LINES'"},
 
+    {"tetgen", TG_NODE, "1 4 0\n1 1 2 3 4\n2 1 2 3 4\n", HS_ERR_PARSE,
+     "t.ele:3:", "unexpected content after 1 tetrahedra"},
     {"tetgen", "4 2 0 0\n", "", HS_ERR_UNSUPPORTED, "t.node:1:", "dimension 2"},
     {"tetgen", "# only comments\n\n", "", HS_ERR_PARSE, "t.node:3:", "empty .node file"},
     {"tetgen", TG_NODE, "1 4 0\n1 1 2 3 5\n", HS_ERR_PARSE, "t.ele:2:", "unknown node 5"},
