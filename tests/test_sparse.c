@@ -494,6 +494,44 @@ static int UpdownMatchesFreshFactor(void) {
     return 0;
 }
 
+// Removing a slab of elements leaves the far part of the grid without support: the downdate
+// must report the singular result rather than produce a factor with round-off pivots.
+static int FreeFragmentDetected(void) {
+    int64_t bytes0 = hs_byte_count();
+    fixture t;
+    ENSURE(fixture_make(&t, 8, 6, 6, 0.0) == 0);
+    ENSURE(hs_cholesky_prepare_updates(t.f, 1) == HS_OK);
+    int cap = t.g.n_tets;
+    double* dk = malloc(sizeof(double) * 144 * (size_t)cap);
+    int* dofs = malloc(sizeof(int) * 12 * (size_t)cap);
+    int* eid = malloc(sizeof(int) * (size_t)cap);
+    int m = 0;
+    for (int e = 0; e < t.g.n_tets; e++) {
+        double x0[3];
+        grid_coords(&t.g, t.g.tets[4 * e], x0);
+        if (x0[0] != 3) continue; // the tet's first node is its cell's lowest corner
+        grid_tet_block(&t.g, e, -t.g.w[e], dk + 144 * m);
+        grid_tet_dofs(&t.g, e, dofs + 12 * m);
+        eid[m++] = e;
+    }
+    ENSURE(m == 6 * 5 * 5);
+    ENSURE(hs_cholesky_update_elements(t.f, m, dk, dofs) == HS_ERR_NOT_POSDEF);
+    ENSURE(hs_cholesky_solve(t.f, t.b, t.x) == HS_ERR_NOT_POSDEF);
+    // Removing only half of the slab keeps the structure connected: accepted.
+    ENSURE(hs_cholesky_refactor(t.f, t.a) == HS_OK);
+    ENSURE(hs_cholesky_update_elements(t.f, m / 2, dk, dofs) == HS_OK);
+    for (int k = 0; k < m / 2; k++) ENSURE(grid_add_tet(&t.g, t.a, eid[k], -1.0) == 0);
+    double* x2 = malloc(sizeof(double) * (size_t)t.a->n);
+    ENSURE_SMALL(compare_with_fresh(t.f, t.a, t.b, t.x, x2), 1e-8);
+    free(x2);
+    free(eid);
+    free(dk);
+    free(dofs);
+    fixture_free(&t);
+    ENSURE(hs_byte_count() == bytes0);
+    return 0;
+}
+
 // Small matrices get a simplicial factor from CHOLMOD; update mode and refactor work there too,
 // and an empty matrix is valid.
 static int SmallAndEmpty(void) {
@@ -549,4 +587,5 @@ HS_TEST_MAIN(HS_CASE(CscPatternAndSpmv), HS_CASE(CscBadInput), HS_CASE(CholeskyS
              HS_CASE(CholeskyRefactor), HS_CASE(CholeskyNotPosdefKeepsFactor),
              HS_CASE(SolveAllocatesNothing), HS_CASE(ThreadControl),
              HS_CASE(CholeskyFaultInjection), HS_CASE(PcgConverges),
-             HS_CASE(UpdownMatchesFreshFactor), HS_CASE(SmallAndEmpty))
+             HS_CASE(UpdownMatchesFreshFactor), HS_CASE(FreeFragmentDetected),
+             HS_CASE(SmallAndEmpty))

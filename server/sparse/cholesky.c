@@ -30,6 +30,7 @@ struct hs_cholesky {
     // Update mode (simplicial LDL^T).
     int updatable;
     int* pinv;        // [n] inverse fill-reducing permutation: row of dof d in L is pinv[d]
+    double* d0;       // [n] D of the last full factorisation (singularity test after downdates)
     int cap_cols;     // capacity of each C buffer in columns
     int cap_nnz;      // and in entries
     int *cp_p, *ci_p; // update columns: colp [cap_cols+1], rowi [cap_nnz]
@@ -298,6 +299,27 @@ static int super_to_ldl(const cholmod_factor* S, cholmod_factor* L, int fill) {
     return 1;
 }
 
+// Update mode: remember D after a full factorisation. A downdate that leaves a part of the
+// structure without support (a fragment cut free of every fixed node) makes A singular, which
+// in floating point shows as a pivot collapsing to round-off rather than turning negative.
+static void save_pivots(hs_cholesky* f) {
+    const int* lp = f->L->p;
+    const double* lx = f->L->x;
+    for (int j = 0; j < f->n; j++) f->d0[j] = lx[lp[j]];
+}
+
+// 0 if a pivot of the LDL^T factor is not positive or fell below 1e-10 of its value at the last
+// full factorisation (no physical stiffness change in one cut is that large). O(n).
+static int pivots_ok(const hs_cholesky* f) {
+    const int* lp = f->L->p;
+    const double* lx = f->L->x;
+    for (int j = 0; j < f->n; j++) {
+        double d = lx[lp[j]];
+        if (!(d > 1e-10 * f->d0[j] && d < INFINITY)) return 0;
+    }
+    return 1;
+}
+
 hs_status hs_cholesky_refactor(hs_cholesky* f, const hs_csc* a) {
     if (!f || !pattern_matches(f, a)) return HS_ERR_INVALID;
     set_matrix_view(f, a);
@@ -327,6 +349,7 @@ hs_status hs_cholesky_refactor(hs_cholesky* f, const hs_csc* a) {
     }
     f->broken = 0;
     f->blocked = f->updatable && ldl_has_super_layout(f->spare, f->L);
+    if (f->updatable) save_pivots(f);
     return HS_OK;
 }
 
@@ -512,6 +535,7 @@ void hs_cholesky_destroy(hs_cholesky** pf) {
     hs_free(f->colp);
     hs_free(f->work);
     hs_free(f->pinv);
+    hs_free(f->d0);
     hs_free(f->cp_p);
     hs_free(f->ci_p);
     hs_free(f->cx_p);
@@ -560,10 +584,9 @@ hs_status hs_cholesky_prepare_updates(hs_cholesky* f, int max_elems) {
         if (!cholmod_change_factor(CHOLMOD_REAL, 0, 0, 0, 0, f->L, &f->c) ||
             (both && !cholmod_change_factor(CHOLMOD_REAL, 0, 0, 0, 0, f->spare, &f->c)))
             return map_status(f->c.status) != HS_OK ? map_status(f->c.status) : HS_ERR_NUMERIC;
-        if (!f->pinv) {
-            f->pinv = hs_alloc(sizeof(int) * ((size_t)f->n + 1));
-            if (!f->pinv) return HS_ERR_NOMEM;
-        }
+        if (!f->pinv) f->pinv = hs_alloc(sizeof(int) * ((size_t)f->n + 1));
+        if (!f->d0) f->d0 = hs_alloc(sizeof(double) * ((size_t)f->n + 1));
+        if (!f->pinv || !f->d0) return HS_ERR_NOMEM;
         const int* perm = f->L->Perm;
         for (int k = 0; k < f->n; k++) f->pinv[perm[k]] = k;
         // updown's workspace (Flag, Head, Iwork, W of maxrank*n) sized now, not on the first
@@ -573,6 +596,7 @@ hs_status hs_cholesky_prepare_updates(hs_cholesky* f, int max_elems) {
         f->updatable = 1;
         f->blocked = f->spare->is_super && super_to_ldl(f->spare, f->L, 0) &&
                      ldl_has_super_layout(f->spare, f->L);
+        save_pivots(f);
     }
     return reserve_columns(f, 12 * (int64_t)max_elems, 144 * (int64_t)max_elems);
 }
@@ -623,7 +647,7 @@ static hs_status apply_updown(hs_cholesky* f, int update, int ncol, int* cp, int
         f->broken = 1;
         return map_status(f->c.status) != HS_OK ? map_status(f->c.status) : HS_ERR_NUMERIC;
     }
-    if (!update && !factor_diag_ok(f->L)) {
+    if (!update && !pivots_ok(f)) {
         f->broken = 1;
         return HS_ERR_NOT_POSDEF;
     }
