@@ -81,7 +81,9 @@ hs_status hs_cholesky_prepare_updates(hs_cholesky* f, int max_elems);
 /// Factor of A + C C^T (update = 1) or A - C C^T (update = 0). C is n x n_cols in compressed
 /// columns over the original (unpermuted) dof numbering: colp[n_cols+1], rowi/val[colp[n_cols]],
 /// rows unique within a column, any order. Returns HS_ERR_NOT_POSDEF if a downdate leaves the
-/// matrix indefinite: the factor is then unusable until the next successful refactor.
+/// matrix indefinite or singular (a pivot below 1e-10 of its value at the last full factor,
+/// e.g. a fragment cut free of every fixed node): the factor is then unusable (solves return
+/// HS_ERR_NOT_POSDEF) until the next successful refactor.
 /// Allocates: only when C is larger than any earlier call (see prepare).
 hs_status hs_cholesky_updown(hs_cholesky* f, int update, int n_cols, const int* colp,
                              const int* rowi, const double* val);
