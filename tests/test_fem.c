@@ -300,6 +300,7 @@ static int test_tangent_fd(void) {
     double* xp = malloc(sizeof(double) * nd);
     double* fp = malloc(sizeof(double) * nd);
     double* fm = malloc(sizeof(double) * nd);
+    double* f0 = malloc(sizeof(double) * nd);
     double* e = malloc(sizeof(double) * nd);
     double* ke = malloc(sizeof(double) * nd);
     double* dense = malloc(sizeof(double) * nd * nd);
@@ -319,20 +320,27 @@ static int test_tangent_fd(void) {
         csc_dense(a, dense);
         double dscale = 0;
         for (int i = 0; i < nd * nd; i++) dscale = fmax(dscale, fabs(dense[i]));
-        double maxerr = 0, maxk = 0, asym = 0;
+        double maxerr = 0, maxk = 0, asym = 0, ferr = 0, fmaxv = 0;
         for (int j = 0; j < nd; j++) {
             memset(e, 0, sizeof(double) * nd);
             e[j] = 1.0;
-            hs_fem_update(fem, x, NULL);
+            hs_fem_stats s0, sp, sm;
+            hs_fem_update(fem, x, &s0);
             hs_fem_apply_tangent(fem, e, ke);
+            hs_fem_forces(fem, f0);
             double h = 1e-7;
             memcpy(xp, x, sizeof(double) * nd);
             xp[j] += h;
-            hs_fem_update(fem, xp, NULL);
+            hs_fem_update(fem, xp, &sp);
             hs_fem_forces(fem, fp);
             xp[j] -= 2 * h;
-            hs_fem_update(fem, xp, NULL);
+            hs_fem_update(fem, xp, &sm);
             hs_fem_forces(fem, fm);
+            // the force is the exact gradient of the reported energy (co-rotated included:
+            // R sigma(sym(R^T F - I)) is the gradient of mu |S - I|^2 + lambda/2 tr(S - I)^2)
+            double fe = -(sp.energy_j - sm.energy_j) / (2 * h);
+            ferr = fmax(ferr, fabs(fe - f0[j]));
+            fmaxv = fmax(fmaxv, fabs(f0[j]));
             for (int i = 0; i < nd; i++) {
                 double fd = -(fp[i] - fm[i]) / (2 * h);
                 maxk = fmax(maxk, fabs(ke[i]));
@@ -347,6 +355,9 @@ static int test_tangent_fd(void) {
             ENSURE(maxerr <= 1e-6 * maxk);
         }
         ENSURE(asym <= 1e-10 * maxk);
+        if (!(ferr <= 1e-8 * fmaxv))
+            printf("  %s: energy fd err %g of %g\n", cf->name, ferr, fmaxv);
+        ENSURE(fmaxv > 0 && ferr <= 1e-8 * fmaxv);
         hs_csc_destroy(&a);
         hs_fem_destroy(&fem);
     }
@@ -354,6 +365,7 @@ static int test_tangent_fd(void) {
     free(xp);
     free(fp);
     free(fm);
+    free(f0);
     free(e);
     free(ke);
     free(dense);
