@@ -197,7 +197,13 @@ static int CholeskyRefactor(void) {
     ENSURE(hs_cholesky_solve(t.f, t.b, t.x) == HS_OK);
     ENSURE_SMALL(rel_residual(a2, t.x, t.b, t.r), 1e-12);
     ENSURE(max_abs_diff(n, t.x, x_old) > 1e-3 * vec_norm(n, x_old) / sqrt(n));
-    // A different pattern is refused.
+    // A different pattern is refused, also with the same column counts.
+    hs_csc_destroy(&a2);
+    ENSURE(hs_csc_clone(t.a, &a2) == HS_OK);
+    int c = n / 2, p0 = a2->colp[c];
+    ENSURE(a2->rowi[p0] > 0 && hs_csc_find(a2, a2->rowi[p0] - 1, c) < 0);
+    a2->rowi[p0]--; // still sorted, now another row
+    ENSURE(hs_cholesky_refactor(t.f, a2) == HS_ERR_INVALID);
     hs_csc_destroy(&a2);
     grid g2;
     ENSURE(grid_make(&g2, 8, 7, 8, 3) == 0);
