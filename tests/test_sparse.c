@@ -538,6 +538,41 @@ static int FreeFragmentDetected(void) {
     return 0;
 }
 
+// Allocation failures while entering update mode and updating leave a factor that a refactor
+// restores, and nothing leaks.
+static int UpdateFaultInjection(void) {
+    int64_t bytes0 = hs_byte_count();
+    fixture t;
+    ENSURE(fixture_make(&t, 8, 7, 7, 1e-3) == 0);
+    ENSURE(hs_cholesky_is_supernodal(t.f));
+    double dk[144];
+    int dofs[12];
+    int e = t.g.n_tets / 2;
+    grid_tet_block(&t.g, e, -t.g.w[e], dk);
+    grid_tet_dofs(&t.g, e, dofs);
+    int failures = 0;
+    for (int k = 1;; k++) {
+        hs_alloc_fail_after(k);
+        hs_status st = hs_cholesky_prepare_updates(t.f, 1);
+        if (st == HS_OK) st = hs_cholesky_update_elements(t.f, 1, dk, dofs);
+        hs_alloc_fail_after(0);
+        if (st == HS_OK) break;
+        ENSURE(st == HS_ERR_NOMEM && k < 100);
+        failures++;
+        ENSURE(hs_cholesky_refactor(t.f, t.a) == HS_OK);
+        ENSURE(hs_cholesky_solve(t.f, t.b, t.x) == HS_OK);
+        ENSURE_SMALL(rel_residual(t.a, t.x, t.b, t.r), 1e-12);
+    }
+    ENSURE(failures >= 3);
+    ENSURE(grid_add_tet(&t.g, t.a, e, -1.0) == 0);
+    double* x2 = malloc(sizeof(double) * (size_t)t.a->n);
+    ENSURE_SMALL(compare_with_fresh(t.f, t.a, t.b, t.x, x2), 1e-8);
+    free(x2);
+    fixture_free(&t);
+    ENSURE(hs_byte_count() == bytes0);
+    return 0;
+}
+
 // Small matrices get a simplicial factor from CHOLMOD; update mode and refactor work there too,
 // and an empty matrix is valid.
 static int SmallAndEmpty(void) {
@@ -594,4 +629,4 @@ HS_TEST_MAIN(HS_CASE(CscPatternAndSpmv), HS_CASE(CscBadInput), HS_CASE(CholeskyS
              HS_CASE(SolveAllocatesNothing), HS_CASE(ThreadControl),
              HS_CASE(CholeskyFaultInjection), HS_CASE(PcgConverges),
              HS_CASE(UpdownMatchesFreshFactor), HS_CASE(FreeFragmentDetected),
-             HS_CASE(SmallAndEmpty))
+             HS_CASE(UpdateFaultInjection), HS_CASE(SmallAndEmpty))

@@ -525,6 +525,7 @@ int64_t hs_cholesky_factor_nnz(const hs_cholesky* f) {
     if (!f || !f->L) return 0;
     const cholmod_factor* L = f->L;
     if (L->is_super) return (int64_t)L->xsize;
+    if (L->xtype == CHOLMOD_PATTERN || !L->nz) return 0; // symbolic after a failed update
     const int* nz = L->nz;
     int64_t s = 0;
     for (size_t j = 0; j < L->n; j++) s += nz[j];
@@ -599,6 +600,14 @@ hs_status hs_cholesky_prepare_updates(hs_cholesky* f, int max_elems) {
         // and an element update then refills them (reallocating columns). Unpacked keeps the
         // full symbolic pattern, so updates never allocate and refactors refill it in place.
         // A supernodal spare stays supernodal for fast refactors (see hs_cholesky_refactor).
+        if (f->L->is_super && !f->spare->is_super) {
+            // A failed earlier prepare and a refactor swapped a converted factor into the
+            // spare: give the spare the supernodal structure back.
+            cholmod_factor* t = cholmod_copy_factor(f->L, &f->c);
+            if (!t) return HS_ERR_NOMEM;
+            cholmod_free_factor(&f->spare, &f->c);
+            f->spare = t;
+        }
         int both = !f->L->is_super;
         if (!cholmod_change_factor(CHOLMOD_REAL, 0, 0, 0, 0, f->L, &f->c) ||
             (both && !cholmod_change_factor(CHOLMOD_REAL, 0, 0, 0, 0, f->spare, &f->c)))
@@ -658,14 +667,14 @@ static hs_status apply_updown(hs_cholesky* f, int update, int ncol, int* cp, int
     if (ncol == 0) return HS_OK;
     cholmod_sparse c;
     set_c_view(&c, f->n, ncol, cp, ci, cx);
-    int ok = cholmod_updown(update, &c, f->L, &f->c);
-    // Fill outside the pattern moves columns and ends the supernodal layout.
-    f->blocked = f->blocked && ldl_has_super_layout(f->spare, f->L);
-    if (!ok) {
+    if (!cholmod_updown(update, &c, f->L, &f->c)) {
         // Out of memory leaves L as a symbolic factor per CHOLMOD: unusable until refactor.
         f->broken = 1;
+        f->blocked = 0;
         return map_status(f->c.status) != HS_OK ? map_status(f->c.status) : HS_ERR_NUMERIC;
     }
+    // Fill outside the pattern moves columns and ends the supernodal layout.
+    f->blocked = f->blocked && ldl_has_super_layout(f->spare, f->L);
     if (!update && !pivots_ok(f)) {
         f->broken = 1;
         return HS_ERR_NOT_POSDEF;
