@@ -141,35 +141,39 @@ static int spd3(const double s[9]) {
 // if X^T F is symmetric positive definite (the defining property of the polar factor); any
 // failure falls back to the cold Higham iteration, then to the SVD.
 int hs_polar_higham(const double f[9], double r[9], double tol, int max_iter) {
-    return hs_polar_higham_ex(f, r, tol, max_iter, 0);
+    return hs_polar_higham_ex(f, r, tol, max_iter, 0, NULL);
 }
 
-int hs_polar_higham_ex(const double f[9], double r[9], double tol, int max_iter, int trusted) {
+int hs_polar_higham_ex(const double f[9], double r[9], double tol, int max_iter, int trusted,
+                       double rtf[9]) {
     double det = m3_det(f);
-    double fn = sqrt(m3_fro2(f));
-    if (!(det > 0) || !(fn > 0) || !isfinite(fn)) {
+    double fn2 = m3_fro2(f);
+    if (!(det > 0) || !(fn2 > 0) || !isfinite(fn2)) {
         hs_polar_svd(f, r);
+        if (rtf) m3_mul_tn(r, f, rtf);
         return 0;
     }
     if (!(tol > 0)) tol = 1e-12;
-    double sig = fn / sqrt(3.0); // root-mean-square singular value
     int it = 0;
     double x[9], y[9], s[9];
     if (trusted || (orth_err(r) <= 1e-3 && m3_det(r) > 0)) {
         memcpy(x, r, sizeof x);
-        double prev = INFINITY, tol2 = tol * tol * sig * sig;
+        // rotation error ~ |axial(skew(Y))| / sigma_rms, sigma_rms^2 = ||F||^2 / 3
+        double prev = INFINITY, tol2 = tol * tol * fn2 / 3.0;
         while (it <= max_iter) {
             m3_mul_tn(x, f, y);
             double a[3] = {0.5 * (y[7] - y[5]), 0.5 * (y[2] - y[6]), 0.5 * (y[3] - y[1])};
-            double skew2 = v3_dot(a, a); // (rotation error * sigma)^2
+            double skew2 = v3_dot(a, a);
             for (int i = 0; i < 3; i++)
                 for (int j = 0; j < 3; j++) s[3 * i + j] = 0.5 * (y[3 * i + j] + y[3 * j + i]);
             if (skew2 <= tol2) {
                 // Accept only the polar factor: X^T F symmetric positive definite, X orthogonal.
+                // A trusted start is orthogonal, and Cayley rotations keep it so up to a few
+                // ulps per step, so only an untrusted start needs the orthogonality check.
                 if (!spd3(s)) break;
-                // A trusted start is orthogonal; only Newton steps can add round-off.
-                if ((trusted && it == 0) || orth_err(x) <= tol) {
+                if (trusted || orth_err(x) <= tol) {
                     memcpy(r, x, sizeof x);
+                    if (rtf) memcpy(rtf, y, sizeof y);
                     return it;
                 }
                 if (it >= max_iter) break;
@@ -188,41 +192,35 @@ int hs_polar_higham_ex(const double f[9], double r[9], double tol, int max_iter,
             double dm = m3_det(m);
             if (!(dm > 0)) break;
             double mc[9];
-            m3_cofactor(m, mc); // m symmetric: m^-1 = cof(m) / det(m)
-            double w[3], idm = 2.0 / dm;
+            m3_cofactor(m, mc);          // m symmetric: m^-1 = cof(m) / det(m)
+            double c[3], idm = 1.0 / dm; // c = w / 2
             for (int i = 0; i < 3; i++)
-                w[i] = idm * (mc[3 * i] * a[0] + mc[3 * i + 1] * a[1] + mc[3 * i + 2] * a[2]);
-            // Cayley rotation: Q = I + 2/(1 + c.c) (C + C^2), C = [c]x, c = w/2.
-            double c[3] = {0.5 * w[0], 0.5 * w[1], 0.5 * w[2]};
-            double cc[9] = {0, -c[2], c[1], c[2], 0, -c[0], -c[1], c[0], 0};
-            double c2[9], q[9];
-            m3_mul(cc, cc, c2);
-            double k = 2.0 / (1.0 + v3_dot(c, c));
-            for (int j = 0; j < 9; j++) q[j] = k * (cc[j] + c2[j]);
-            q[0] += 1.0;
-            q[4] += 1.0;
-            q[8] += 1.0;
+                c[i] = idm * (mc[3 * i] * a[0] + mc[3 * i + 1] * a[1] + mc[3 * i + 2] * a[2]);
+            // Cayley rotation: Q = I + 2/(1 + c.c) (C + C^2), C = [c]x, C^2 = c c^T - (c.c) I.
+            double c2 = v3_dot(c, c), k = 2.0 / (1.0 + c2), d = 1.0 - k * c2;
+            double q[9] = {
+                d + k * c[0] * c[0],      k * (c[0] * c[1] - c[2]), k * (c[0] * c[2] + c[1]),
+                k * (c[1] * c[0] + c[2]), d + k * c[1] * c[1],      k * (c[1] * c[2] - c[0]),
+                k * (c[2] * c[0] - c[1]), k * (c[2] * c[1] + c[0]), d + k * c[2] * c[2]};
             m3_mul(x, q, y);
             memcpy(x, y, sizeof y);
             it++;
         }
     }
+    double sig = sqrt(fn2 / 3.0); // root-mean-square singular value
     // Cold start: F / sigma_rms has singular values below sqrt(3) (strictly unless F has rank 1),
     // the convergence region of Higham's iteration; its limit is the polar factor of F.
     for (int k = 0; k < 9; k++) x[k] = f[k] / sig;
     int cold = 0;
     while (cold < max_iter) {
-        if (orth_err(x) <= tol) {
-            memcpy(r, x, sizeof x);
-            return it + cold;
-        }
+        if (orth_err(x) <= tol) break;
         higham_step(x);
         cold++;
     }
-    if (orth_err(x) <= tol) {
+    if (orth_err(x) <= tol)
         memcpy(r, x, sizeof x);
-        return it + cold;
-    }
-    hs_polar_svd(f, r);
+    else
+        hs_polar_svd(f, r);
+    if (rtf) m3_mul_tn(r, f, rtf);
     return it + cold;
 }

@@ -592,21 +592,22 @@ hs_status hs_fem_refresh_elements(hs_fem* fem, const int* tets, int n) {
 // ---------------------------------------------------------------------------------------------
 // Evaluation
 
-/// Rotation of element e for the co-rotated model; returns polar iterations.
-static int element_rotation(hs_fem* m, int e, const double F[9], double det) {
+/// Rotation of element e for the co-rotated model and rtf = R^T F; returns polar iterations.
+static int element_rotation(hs_fem* m, int e, const double F[9], double det, double rtf[9]) {
     double* r = m->R + 9 * e;
+    int it = 0;
     if (!(det > 0)) {
         if (m->def.inversion == HS_INVERSION_LINEAR_FALLBACK)
             m3_identity(r);
         else
             hs_polar_svd(F, r);
-        return 0;
-    }
-    if (m->def.rotation == HS_ROTATION_SVD) {
+    } else if (m->def.rotation == HS_ROTATION_SVD) {
         hs_polar_svd(F, r);
-        return 0;
+    } else {
+        return hs_polar_higham_ex(F, r, m->def.polar_tol, m->def.polar_max_iter, 1, rtf);
     }
-    return hs_polar_higham_ex(F, r, m->def.polar_tol, m->def.polar_max_iter, 1);
+    m3_mul_tn(r, F, rtf);
+    return it;
 }
 
 void hs_fem_update(hs_fem* m, const double* x, hs_fem_stats* stats) {
@@ -671,11 +672,10 @@ void hs_fem_update(hs_fem* m, const double* x, hs_fem_stats* stats) {
             const double* r = NULL;
             double H[9];
             if (model == HS_MODEL_COROTATED) {
-                int it = element_rotation(m, e, F, det);
+                int it = element_rotation(m, e, F, det, H);
                 m->piters[e] = it;
                 if (it > pmax) pmax = it;
                 r = m->R + 9 * e;
-                m3_mul_tn(r, F, H);
             } else {
                 memcpy(H, F, sizeof H);
             }
