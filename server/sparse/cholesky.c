@@ -343,7 +343,8 @@ hs_status hs_cholesky_refactor(hs_cholesky* f, const hs_csc* a) {
     if (f->updatable && f->spare->is_super) {
         // Update mode keeps the spare supernodal: CHOLMOD's simplicial refactor is 5-10x
         // slower on 3D meshes than a supernodal one plus this O(nnz(L)) copy.
-        if (super_to_ldl(f->spare, f->L, 0)) {
+        // A kept layout (blocked) implies the rows still match: checked when it was set up.
+        if (f->blocked || super_to_ldl(f->spare, f->L, 0)) {
             super_to_ldl(f->spare, f->L, 1);
         } else {
             // L's pattern grew in a general update: rebuild it (allocates; L kept on failure).
