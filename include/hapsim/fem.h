@@ -95,7 +95,9 @@ void hs_fem_destroy(hs_fem** fem);
 
 // Element kernels, exposed for tests and the haptic path.
 /// Polar rotation of F (row-major 3x3) by Higham's iteration from the warm start r (in/out).
-/// Returns iterations used; r is a proper rotation if det F > 0.
+/// Returns iterations used; r is a proper rotation if det F > 0. An r that is not a rotation
+/// (e.g. zeros) means a cold start; at most max_iter per phase (warm, cold), then the SVD;
+/// det F <= 0 gives hs_polar_svd's rotation and 0. See docs/fem.md.
 int hs_polar_higham(const double f[9], double r[9], double tol, int max_iter);
 /// Rotation from the SVD of F with det R = +1 (reflection kept in the stretch).
 void hs_polar_svd(const double f[9], double r[9] /* OUT */);
