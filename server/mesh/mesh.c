@@ -121,6 +121,14 @@ static int find_root(int* parent, int i) {
     return i;
 }
 
+// fmin/fmax without the NaN handling (and the library call): inputs are finite here.
+static inline double min_d(double a, double b) {
+    return b < a ? b : a;
+}
+static inline double max_d(double a, double b) {
+    return b > a ? b : a;
+}
+
 static double dot3(const double* a, const double* b) {
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
 }
@@ -140,7 +148,7 @@ static void tet_quality(const double* x, const int* tet, double* min_dihedral_de
     for (int i = 0; i < 4; ++i)
         for (int j = i + 1; j < 4; ++j) {
             double e[3] = {p[j][0] - p[i][0], p[j][1] - p[i][1], p[j][2] - p[i][2]};
-            longest = fmax(longest, sqrt(dot3(e, e)));
+            longest = max_d(longest, sqrt(dot3(e, e)));
         }
     double n[4][3], area[4], area_sum = 0.0;
     for (int f = 0; f < 4; ++f) {
@@ -162,8 +170,8 @@ static void tet_quality(const double* x, const int* tet, double* min_dihedral_de
         for (int g = f + 1; g < 4; ++g) {
             double den = 4.0 * area[f] * area[g];
             double c = den > 0.0 ? -dot3(n[f], n[g]) / den : 1.0;
-            c = fmin(1.0, fmax(-1.0, c));
-            min_deg = fmin(min_deg, acos(c) * (45.0 / atan(1.0)));
+            c = min_d(1.0, max_d(-1.0, c));
+            min_deg = min_d(min_deg, acos(c) * (45.0 / atan(1.0)));
         }
     *min_dihedral_deg = min_deg;
 }
@@ -185,10 +193,9 @@ static hs_status build_derived(hs_mesh* m, hs_err* err) {
     m->node_nbr_start = hs_calloc((size_t)nn + 1, sizeof(int));
     m->node_surf = hs_alloc(((size_t)nn + 1) * sizeof(int));
     marker = hs_alloc(((size_t)nn + 1) * sizeof(int));
-    faces = hs_alloc(((size_t)4 * nt + 1) * sizeof(face_key));
     bnd = hs_calloc((size_t)4 * nt + 1, 1);
     if (!m->node_used || !m->node_tet_start || !m->node_tet || !m->node_nbr_start ||
-        !m->node_surf || !marker || !faces || !bnd)
+        !m->node_surf || !marker || !bnd)
         goto fail;
 
     // Node -> tet CSR (tets ascending within each node).
@@ -235,35 +242,59 @@ static hs_status build_derived(hs_mesh* m, hs_err* err) {
         qsort(out, (size_t)cnt, sizeof(int), cmp_int);
     }
 
-    // Faces: sort by node triple; a face seen once is boundary, twice must be seen from
-    // opposite sides (else the tets overlap), more than twice is not a volume mesh.
-    for (int t = 0; t < nt; ++t)
-        for (int f = 0; f < 4; ++f) {
-            face_key* fk = faces + 4 * t + f;
-            for (int i = 0; i < 3; ++i) fk->k[i] = m->tets[4 * t + k_face[f][i]];
-            fk->parity = sort3(fk->k);
-            fk->slot = 4 * t + f;
-        }
-    qsort(faces, (size_t)4 * nt, sizeof(face_key), cmp_face_key);
+    // Faces: each face is collected at its smallest node, from that node's tets, and matched
+    // there by sorting that short list (O(sum deg log deg), no global sort). A face seen once
+    // is boundary, twice must be seen from opposite sides (else the tets overlap), more than
+    // twice is not a volume mesh.
+    int max_deg = 0;
+    for (int i = 0; i < nn; ++i)
+        if (m->node_tet_start[i + 1] - m->node_tet_start[i] > max_deg)
+            max_deg = m->node_tet_start[i + 1] - m->node_tet_start[i];
+    faces = hs_alloc(((size_t)3 * max_deg + 1) * sizeof(face_key));
+    if (!faces) goto fail;
     int n_tris = 0;
-    for (int a = 0; a < 4 * nt;) {
-        int b = a + 1;
-        while (b < 4 * nt && memcmp(faces[a].k, faces[b].k, sizeof faces[a].k) == 0) ++b;
-        if (b - a == 1) {
-            bnd[faces[a].slot] = 1;
-            ++n_tris;
-        } else if (b - a > 2) {
-            st = hs_err_set(err, HS_ERR_INVALID, "face (%d,%d,%d) is shared by %d tets",
-                            faces[a].k[0], faces[a].k[1], faces[a].k[2], b - a);
-            goto fail;
-        } else if (faces[a].parity == faces[a + 1].parity) {
-            st = hs_err_set(err, HS_ERR_INVALID,
-                            "tets %d and %d lie on the same side of face (%d,%d,%d) (overlap)",
-                            faces[a].slot / 4, faces[a + 1].slot / 4, faces[a].k[0], faces[a].k[1],
-                            faces[a].k[2]);
-            goto fail;
+    for (int v = 0; v < nn; ++v) {
+        int n = 0;
+        for (int q = m->node_tet_start[v]; q < m->node_tet_start[v + 1]; ++q) {
+            const int t = m->node_tet[q];
+            for (int f = 0; f < 4; ++f) {
+                if (m->tets[4 * t + f] == v) continue; // the face opposite v lacks v
+                face_key* fk = faces + n;
+                for (int i = 0; i < 3; ++i) fk->k[i] = m->tets[4 * t + k_face[f][i]];
+                fk->parity = sort3(fk->k);
+                fk->slot = 4 * t + f;
+                n += fk->k[0] == v;
+            }
         }
-        a = b;
+        if (n <= 64) { // insertion sort: lists are short and often nearly sorted
+            for (int i = 1; i < n; ++i)
+                for (int j = i; j > 0 && cmp_face_key(faces + j - 1, faces + j) > 0; --j) {
+                    face_key tmp = faces[j];
+                    faces[j] = faces[j - 1];
+                    faces[j - 1] = tmp;
+                }
+        } else {
+            qsort(faces, (size_t)n, sizeof(face_key), cmp_face_key);
+        }
+        for (int a = 0; a < n;) {
+            int b = a + 1;
+            while (b < n && memcmp(faces[a].k, faces[b].k, sizeof faces[a].k) == 0) ++b;
+            if (b - a == 1) {
+                bnd[faces[a].slot] = 1;
+                ++n_tris;
+            } else if (b - a > 2) {
+                st = hs_err_set(err, HS_ERR_INVALID, "face (%d,%d,%d) is shared by %d tets",
+                                faces[a].k[0], faces[a].k[1], faces[a].k[2], b - a);
+                goto fail;
+            } else if (faces[a].parity == faces[a + 1].parity) {
+                st = hs_err_set(err, HS_ERR_INVALID,
+                                "tets %d and %d lie on the same side of face (%d,%d,%d) (overlap)",
+                                faces[a].slot / 4, faces[a + 1].slot / 4, faces[a].k[0],
+                                faces[a].k[1], faces[a].k[2]);
+                goto fail;
+            }
+            a = b;
+        }
     }
     m->tris = hs_alloc(((size_t)3 * n_tris + 1) * sizeof(int));
     m->tri_tet = hs_alloc(((size_t)n_tris + 1) * sizeof(int));
@@ -311,8 +342,8 @@ static hs_status build_derived(hs_mesh* m, hs_err* err) {
         double dih, asp;
         m->volume += hs_tet_volume(m->x0, m->tets + 4 * t);
         tet_quality(m->x0, m->tets + 4 * t, &dih, &asp);
-        m->report.min_dihedral_deg = fmin(m->report.min_dihedral_deg, dih);
-        m->report.max_aspect = fmax(m->report.max_aspect, asp);
+        m->report.min_dihedral_deg = min_d(m->report.min_dihedral_deg, dih);
+        m->report.max_aspect = max_d(m->report.max_aspect, asp);
         aspect_sum += asp;
     }
     m->report.mean_aspect = nt ? aspect_sum / nt : 0.0;
@@ -350,9 +381,13 @@ hs_status hs_mesh_finalize(hs_mesh* m, hs_err* err) {
 
     unsigned char* keep = hs_alloc((size_t)m->n_tets + 1);
     tet_key* keys = hs_alloc(((size_t)m->n_tets + 1) * sizeof(tet_key));
-    if (!keep || !keys) {
+    tet_key* sorted = hs_alloc(((size_t)m->n_tets + 1) * sizeof(tet_key));
+    int* bucket = hs_calloc((size_t)nn + 2, sizeof(int));
+    if (!keep || !keys || !sorted || !bucket) {
         hs_free(keep);
         hs_free(keys);
+        hs_free(sorted);
+        hs_free(bucket);
         return hs_err_set(err, HS_ERR_NOMEM, "mesh: out of memory");
     }
     free_derived(m);
@@ -363,19 +398,19 @@ hs_status hs_mesh_finalize(hs_mesh* m, hs_err* err) {
     }
     for (int i = 0; i < nn; ++i)
         for (int d = 0; d < 3; ++d) {
-            m->bbox_min[d] = fmin(m->bbox_min[d], m->x0[3 * i + d]);
-            m->bbox_max[d] = fmax(m->bbox_max[d], m->x0[3 * i + d]);
+            m->bbox_min[d] = min_d(m->bbox_min[d], m->x0[3 * i + d]);
+            m->bbox_max[d] = max_d(m->bbox_max[d], m->x0[3 * i + d]);
         }
     // The degeneracy scale comes from the box of the nodes tets use, so a stray unused node
     // far away cannot turn every tet degenerate.
     double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
     for (int k = 0; k < 4 * m->n_tets; ++k)
         for (int d = 0; d < 3; ++d) {
-            lo[d] = fmin(lo[d], m->x0[3 * m->tets[k] + d]);
-            hi[d] = fmax(hi[d], m->x0[3 * m->tets[k] + d]);
+            lo[d] = min_d(lo[d], m->x0[3 * m->tets[k] + d]);
+            hi[d] = max_d(hi[d], m->x0[3 * m->tets[k] + d]);
         }
     const double used_vol = m->n_tets ? (hi[0] - lo[0]) * (hi[1] - lo[1]) * (hi[2] - lo[2]) : 0.0;
-    const double tiny = fmax(1e-12 * used_vol, HS_MESH_MIN_VOLUME);
+    const double tiny = max_d(1e-12 * used_vol, HS_MESH_MIN_VOLUME);
 
     hs_mesh_report* r = &m->report;
     r->reoriented_tets = r->degenerate_tets = r->duplicate_tets = 0;
@@ -401,12 +436,20 @@ hs_status hs_mesh_finalize(hs_mesh* m, hs_err* err) {
         sort4(keys[nk].k);
         keys[nk++].t = t;
     }
-    qsort(keys, (size_t)nk, sizeof(tet_key), cmp_tet_key);
-    for (int i = 1; i < nk; ++i)
-        if (memcmp(keys[i].k, keys[i - 1].k, sizeof keys[i].k) == 0) {
-            keep[keys[i].t] = 0; // the later tet of a duplicate run goes
-            r->duplicate_tets++;
-        }
+    // Duplicates: counting sort by smallest node, then sort each (short) bucket.
+    for (int i = 0; i < nk; ++i) bucket[keys[i].k[0] + 2]++;
+    for (int v = 0; v < nn; ++v) bucket[v + 2] += bucket[v + 1];
+    for (int i = 0; i < nk; ++i) sorted[bucket[keys[i].k[0] + 1]++] = keys[i];
+    for (int v = 0; v < nn; ++v) {
+        tet_key* b = sorted + bucket[v];
+        int n_b = bucket[v + 1] - bucket[v];
+        qsort(b, (size_t)n_b, sizeof(tet_key), cmp_tet_key);
+        for (int i = 1; i < n_b; ++i)
+            if (memcmp(b[i].k, b[i - 1].k, sizeof b[i].k) == 0) {
+                keep[b[i].t] = 0; // the later tet of a duplicate run goes
+                r->duplicate_tets++;
+            }
+    }
     int n = 0;
     for (int t = 0; t < m->n_tets; ++t)
         if (keep[t]) {
@@ -416,6 +459,8 @@ hs_status hs_mesh_finalize(hs_mesh* m, hs_err* err) {
     m->n_tets = n;
     hs_free(keep);
     hs_free(keys);
+    hs_free(sorted);
+    hs_free(bucket);
 
     hs_status st = build_derived(m, err);
     if (st != HS_OK) return st;
