@@ -34,6 +34,7 @@
 #include "hapsim_tool_force_t.h"
 #include "hapsim_tool_pose_t.h"
 #include "stylus.h"
+#include "wire.h"
 
 #define MAX_TRACE_S 600.0 // rows beyond 10 minutes are counted, not kept
 
@@ -82,8 +83,7 @@ typedef struct app {
     char force_channel[HAPSIM_CHANNEL_MAX];
     hs_stylus_mailbox mailbox;
     int64_t session;
-    // Receive thread only.
-    int64_t last_force_seq;
+    hs_stylus_rx_state rx; // receive thread only
     // Counters shared with main (relaxed: statistics only).
     atomic_llong rx_forces, rx_rejected, rx_other_device;
     atomic_llong ticks, overruns, late_max_us;
@@ -339,35 +339,17 @@ static void on_force(const lcm_recv_buf_t* rbuf, const char* channel,
     (void)rbuf;
     (void)channel;
     app* a = user;
-    if (msg->device_id != a->opt.device_id) {
-        atomic_fetch_add_explicit(&a->rx_other_device, 1, memory_order_relaxed);
-        return;
-    }
     hs_stylus_model m;
-    memset(&m, 0, sizeof m);
-    m.seq = msg->seq;
-    m.version = msg->model_version;
-    m.pose_seq = msg->pose_seq;
-    m.state = msg->state;
-    for (int i = 0; i < 3; ++i) {
-        m.force_n[i] = msg->force[i];
-        m.anchor_m[i] = msg->anchor[i];
-    }
-    for (int i = 0; i < 9; ++i) m.stiffness[i] = msg->stiffness[i];
-    m.radius_m = msg->validity_radius;
-    m.timeout_s = msg->timeout_us >= 0 ? (double)msg->timeout_us * 1e-6 : -1;
-    // A reordered (older) message is dropped; a far smaller seq means the server restarted.
-    int reordered = msg->seq <= a->last_force_seq && a->last_force_seq - msg->seq < 100000;
-    if (!hs_stylus_model_valid(&m) || reordered || msg->state < 0 || msg->state > 3) {
+    hs_stylus_rx r = hs_stylus_rx_force(&a->rx, msg, hs_now_ns(), wall_us(), &m);
+    if (r == HS_RX_OK) {
+        hs_stylus_mailbox_put(&a->mailbox, &m);
+        atomic_fetch_add_explicit(&a->rx_forces, 1, memory_order_relaxed);
+        atomic_store_explicit(&a->latency_us, m.latency_us, memory_order_relaxed);
+    } else if (r == HS_RX_OTHER_DEVICE) {
+        atomic_fetch_add_explicit(&a->rx_other_device, 1, memory_order_relaxed);
+    } else {
         atomic_fetch_add_explicit(&a->rx_rejected, 1, memory_order_relaxed);
-        return;
     }
-    a->last_force_seq = msg->seq;
-    m.arrival_ns = hs_now_ns();
-    m.latency_us = msg->pose_utime > 0 ? wall_us() - msg->pose_utime : -1;
-    hs_stylus_mailbox_put(&a->mailbox, &m);
-    atomic_fetch_add_explicit(&a->rx_forces, 1, memory_order_relaxed);
-    atomic_store_explicit(&a->latency_us, m.latency_us, memory_order_relaxed);
 }
 
 static void* rx_main(void* arg) {
@@ -576,6 +558,7 @@ static int run_live(app* a) {
     a->session = (int64_t)(r & 0x7fffffffffffffffull);
     if (a->session == 0) a->session = 1;
     hs_stylus_mailbox_init(&a->mailbox);
+    hs_stylus_rx_init(&a->rx, a->opt.device_id);
     if (!a->opt.quiet)
         printf("hapsim-stylus: device %d (tool %d), session %" PRId64 ", %s on %s -> %s, %s %.1f "
                "s at %.0f Hz\n",

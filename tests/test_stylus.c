@@ -5,7 +5,9 @@
 
 #include "stylus.h"
 #include "test_macros.h"
+#include "wire.h"
 
+#include <lcm/lcm.h>
 #include <pthread.h>
 #include <stdlib.h>
 #include <unistd.h>
@@ -712,7 +714,111 @@ static int mailbox(void) {
     return 0;
 }
 
+static hapsim_tool_force_t good_force(int64_t seq) {
+    hapsim_tool_force_t f;
+    memset(&f, 0, sizeof f);
+    f.utime = 1700000000000000;
+    f.seq = seq;
+    f.device_id = 2;
+    f.pose_seq = 40 + seq;
+    f.pose_utime = 1700000000000000 - 150;
+    f.model_version = 9;
+    f.state = HAPSIM_TOOL_FORCE_T_STATE_CONTACT;
+    for (int i = 0; i < 3; ++i) {
+        f.force[i] = 0.1 * (i + 1);
+        f.anchor[i] = -0.01 * i;
+    }
+    for (int i = 0; i < 9; ++i) f.stiffness[i] = i % 4 == 0 ? -300 : 5;
+    f.validity_radius = 0.002;
+    f.timeout_us = 40000;
+    return f;
+}
+
+typedef struct rx_ctx {
+    hs_stylus_rx_state st;
+    hs_stylus_model last;
+    int calls;
+} rx_ctx;
+
+static void on_force(const lcm_recv_buf_t* rb, const char* ch, const hapsim_tool_force_t* msg,
+                     void* user) {
+    (void)rb;
+    (void)ch;
+    rx_ctx* c = user;
+    hs_stylus_model m;
+    if (hs_stylus_rx_force(&c->st, msg, 77, msg->utime, &m) == HS_RX_OK) c->last = m;
+    c->calls++;
+}
+
+// tool_force intake: conversion, and every reason to drop a message.
+static int wire_rx(void) {
+    hs_stylus_rx_state st;
+    hs_stylus_rx_init(&st, 2);
+    hs_stylus_model m;
+    hapsim_tool_force_t f = good_force(0); // a first seq of 0 is fine
+    ENSURE(hs_stylus_rx_force(&st, &f, 123, f.utime + 20, &m) == HS_RX_OK);
+    ENSURE(m.seq == 0 && m.version == 9 && m.pose_seq == 40 && m.arrival_ns == 123);
+    ENSURE(m.latency_us == 170);
+    ENSURE_NEAR(m.timeout_s, 0.04, 1e-15);
+    ENSURE(m.force_n[2] == f.force[2] && m.anchor_m[1] == f.anchor[1]);
+    ENSURE(memcmp(m.stiffness, f.stiffness, sizeof m.stiffness) == 0);
+    ENSURE(m.radius_m == 0.002 && m.state == 1);
+    f = good_force(0); // same seq again: reordered
+    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_REORDERED);
+    f = good_force(5);
+    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
+    f = good_force(4);
+    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_REORDERED);
+    f = good_force(6);
+    f.device_id = 1;
+    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OTHER_DEVICE);
+    f = good_force(6);
+    f.stiffness[7] = INFINITY;
+    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_INVALID);
+    f = good_force(6);
+    f.force[0] = NAN;
+    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_INVALID);
+    f = good_force(6);
+    f.validity_radius = -1;
+    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_INVALID);
+    f = good_force(6);
+    f.timeout_us = -5;
+    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_INVALID);
+    f = good_force(6);
+    f.state = 9;
+    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_INVALID);
+    f = good_force(6);
+    f.pose_utime = 0;
+    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
+    ENSURE(m.latency_us == -1);
+    // A restarted server counts from the beginning again: accepted.
+    f = good_force(6 + HS_RX_RESTART_GAP);
+    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
+    f = good_force(1);
+    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
+    ENSURE(st.count[HS_RX_OK] == 5 && st.count[HS_RX_REORDERED] == 2);
+    ENSURE(st.count[HS_RX_OTHER_DEVICE] == 1 && st.count[HS_RX_INVALID] == 5);
+
+    // Through LCM's encoder and decoder (in-process memq://), the model arrives unchanged.
+    lcm_t* lcm = lcm_create("memq://");
+    ENSURE(lcm != NULL);
+    static rx_ctx c;
+    memset(&c, 0, sizeof c);
+    hs_stylus_rx_init(&c.st, 2);
+    hapsim_tool_force_t_subscription_t* sub =
+        hapsim_tool_force_t_subscribe(lcm, "T_TOOL_FORCE", on_force, &c);
+    f = good_force(3);
+    ENSURE(hapsim_tool_force_t_publish(lcm, "T_TOOL_FORCE", &f) == 0);
+    ENSURE(lcm_handle(lcm) == 0);
+    ENSURE(c.calls == 1 && c.st.count[HS_RX_OK] == 1);
+    ENSURE(c.last.seq == 3 && c.last.latency_us == 150 && c.last.arrival_ns == 77);
+    for (int i = 0; i < 3; ++i) ENSURE(c.last.force_n[i] == f.force[i]);
+    hapsim_tool_force_t_unsubscribe(lcm, sub);
+    lcm_destroy(lcm);
+    return 0;
+}
+
 HS_TEST_MAIN(HS_CASE(script_good), HS_CASE(script_errors), HS_CASE(script_trajectory),
              HS_CASE(device_tracks_target), HS_CASE(device_wall), HS_CASE(local_model),
              HS_CASE(server_timeout), HS_CASE(passivity), HS_CASE(trace_file), HS_CASE(def_check),
-             HS_CASE(mailbox))
+             HS_CASE(mailbox), HS_CASE(wire_rx))

@@ -1,0 +1,45 @@
+// hapsim-stylus wire edge: tool_force messages (msgs/tool_force.lcm) into device models, with
+// the checks a driver owes the network: another device's message is skipped; non-finite
+// numbers, a negative radius or timeout, an unknown state, or an older seq are dropped.
+#ifndef HS_STYLUS_WIRE_H
+#define HS_STYLUS_WIRE_H
+
+#include <stdint.h>
+
+#include "hapsim_tool_force_t.h"
+#include "stylus.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/// What became of one received tool_force.
+typedef enum hs_stylus_rx {
+    HS_RX_OK = 0,           ///< accepted: *out holds the model
+    HS_RX_OTHER_DEVICE = 1, ///< for another device id: ignored
+    HS_RX_INVALID = 2,      ///< non-finite, negative radius or timeout, unknown state
+    HS_RX_REORDERED = 3,    ///< seq not newer than the last accepted one
+} hs_stylus_rx;
+
+/// Receive-side state of one device. Initialise with hs_stylus_rx_init.
+typedef struct hs_stylus_rx_state {
+    int device_id;    ///< our device id
+    int have_seq;     ///< 1 once a message was accepted
+    int64_t last_seq; ///< seq of the last accepted message
+    int64_t count[4]; ///< messages per hs_stylus_rx outcome
+} hs_stylus_rx_state;
+
+/// A far smaller seq than the last one means the server restarted (accepted, not reordered).
+#define HS_RX_RESTART_GAP 100000
+
+/// Start with no message seen, for device_id.
+void hs_stylus_rx_init(hs_stylus_rx_state* st, int device_id);
+/// Check msg and convert it into *out (arrival_ns = now_ns, latency = wall_us - pose_utime when
+/// pose_utime > 0, else -1). Thread: the receiving thread | Allocates: no
+hs_stylus_rx hs_stylus_rx_force(hs_stylus_rx_state* st, const hapsim_tool_force_t* msg,
+                                int64_t now_ns, int64_t wall_us, hs_stylus_model* out /* OUT */);
+
+#ifdef __cplusplus
+}
+#endif
+#endif
