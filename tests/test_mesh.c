@@ -439,7 +439,7 @@ static const bad_case k_bad[] = {
      "f:6:", "does not fit"},
     {"vtk", VTK5_HEAD VTK_PTS "CELLS 2 4\nOFFSETS vtktypeint64\n0 3\nCONNECTIVITY int\n0 1 2 3\n",
      NULL, HS_ERR_PARSE, "f:8:", "last offset 3 differs from connectivity size 4"},
-    {"vtk", VTK5_HEAD VTK_PTS "CELLS 2 4\nOFFSETS vtktypeint64\n0 3 2\n", NULL, HS_ERR_PARSE,
+    {"vtk", VTK5_HEAD VTK_PTS "CELLS 3 4\nOFFSETS vtktypeint64\n0 3 2\n", NULL, HS_ERR_PARSE,
      "f:10:", "offset 2 out of range [3, 4]"},
     {"vtk", VTK5_HEAD VTK_PTS "CELLS 2 4\nCONNECTIVITY vtktypeint64\n", NULL, HS_ERR_PARSE,
      "f:9:", "expected OFFSETS"},
