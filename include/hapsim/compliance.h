@@ -1,0 +1,134 @@
+// hapsim compliance: condensed compliance of a body (Bro-Nielsen & Cotin) and probe contact.
+//
+// DESIGN. Two halves with one fixed-size value between them.
+//  - hs_compliance (deformation thread): C = K0^-1 over the free dofs, K0 the rest-state linear
+//    stiffness (fixed nodes eliminated, the same dof map as hs_body). The 3x3 diagonal block
+//    C_kk of every surface node is precomputed; whole column blocks C(:, k) (k's coupling to
+//    every surface node: one 3-rhs sparse solve) are computed on demand and kept in a bounded
+//    cache, allocated up front. Never a dense surface-by-surface matrix.
+//  - hs_contact_snapshot + hs_contact_solve (rt thread): the deformation thread packs, for the
+//    few surface nodes near the tool, their contact-free positions, normals and the rotated
+//    blocks R_i C_ij R_j^T; the rt tick solves the frictionless contact of the probe sphere
+//    with them (a linear complementarity problem over at most HS_MAX_CONTACT nodes: only
+//    pushes, every node ends on or outside the sphere) and derives force and stiffness. Pure
+//    function: no allocation, lock or I/O.
+#ifndef HAPSIM_COMPLIANCE_H
+#define HAPSIM_COMPLIANCE_H
+
+#include "hapsim/base.h"
+#include "hapsim/fem.h"
+#include "hapsim/haptic.h"
+#include "hapsim/mesh.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+#define HS_MAX_CONTACT      16 ///< contact nodes solved per tick (the deepest when more penetrate)
+#define HS_CONTACT_MAX_CAND 64 ///< candidate nodes in one snapshot (nearest the tool)
+
+// ---------------------------------------------------------------------------------------------
+// Condensed compliance (deformation thread).
+
+typedef struct hs_compliance hs_compliance;
+
+/// Factor the rest-state stiffness of a linear model with def's material over the free dofs
+/// (fixed[i] != 0 or an unused node: eliminated) and precompute every surface node's diagonal
+/// block, in batches of right-hand sides. cache_nodes (>= 1): column blocks kept at once.
+/// Thread: one at a time | Allocates: yes. @param out OUT
+hs_status hs_compliance_create(const hs_mesh* mesh, const hs_fem_def* def,
+                               const unsigned char* fixed, int cache_nodes, hs_compliance** out,
+                               hs_err* err);
+/// Release; accepts NULL, sets *c = NULL.
+void hs_compliance_destroy(hs_compliance** c);
+/// Wall time of hs_compliance_create (factor + all diagonal blocks), ms.
+double hs_compliance_setup_ms(const hs_compliance* c);
+/// Column solves done so far (each one 3-rhs solve); for tests and statistics.
+int64_t hs_compliance_column_solves(const hs_compliance* c);
+/// Capacity of the column cache, nodes.
+int hs_compliance_cache_capacity(const hs_compliance* c);
+/// 1 when node is a surface node with free dofs (a possible contact node), else 0.
+int hs_compliance_contactable(const hs_compliance* c, int node);
+/// Diagonal block C_kk of a surface node, row-major, m/N (zero for a fixed node).
+void hs_compliance_diag(const hs_compliance* c, int node, double out[9] /* OUT */);
+
+/// Start a deformation step: columns used from now on are pinned until the next call, so a
+/// snapshot's columns cannot evict each other. Allocates: no.
+void hs_compliance_begin_step(hs_compliance* c);
+/// Make the column blocks of nodes[n] (surface nodes) available, solving the missing ones in one
+/// batched solve of at most max_new nodes (the first missing ones in the given order); pins all.
+/// Returns how many of nodes[] have a column now (negative hs_status on a solver failure).
+/// Allocates: no (after the first solve, CHOLMOD's workspaces are reused).
+int hs_compliance_ensure(hs_compliance* c, int n, const int* nodes, int max_new);
+/// 1 when the column block of node is cached.
+int hs_compliance_has_column(const hs_compliance* c, int node);
+/// Block C_ij (surface nodes i, j), row-major, m/N, from the diagonal table or a cached column
+/// of j or i. Returns 1 when known exactly, 0 when neither column is cached (out = zero).
+int hs_compliance_block(const hs_compliance* c, int i, int j, double out[9] /* OUT */);
+/// Displacement of every surface node caused by forces f[3n] at nodes[n] (all with cached
+/// columns): u_surf[3*s] for surface index s, without rotation. Returns 0, or -1 when a column
+/// is missing (u_surf untouched). Allocates: no.
+int hs_compliance_surface_displacement(const hs_compliance* c, int n, const int* nodes,
+                                       const double* f, double* u_surf /* OUT [3*n_surf] */);
+/// v = C g for a full force vector g[3n] (m/N times N): one sparse solve over the free dofs,
+/// zero at fixed nodes. v may alias g. Allocates: no.
+hs_status hs_compliance_apply(hs_compliance* c, const double* g, double* v /* OUT [3n] */);
+/// Forces f[3m] at nodes[m] that impose displacements d[3m]: f = C_SS^-1 d, with each block
+/// rotated R_i C_ij R_j^T when rot ([9m] row-major per node) is given. Solves the missing
+/// columns (ignoring pins). m <= HS_MAX_CONTACT. For tests and tools. Allocates: no.
+hs_status hs_compliance_solve_set(hs_compliance* c, int m, const int* nodes, const double* rot,
+                                  const double* d, double* f /* OUT */);
+
+// ---------------------------------------------------------------------------------------------
+// Probe contact (rt thread): a fixed-size snapshot in, a fixed-size result out.
+
+/// What the deformation thread hands to the rt thread (newest wins, through a triple buffer).
+typedef struct hs_contact_snapshot {
+    int64_t version;       ///< grows with every snapshot; 0: none yet (no contact possible)
+    int64_t stamp_ns;      ///< when it was built, CLOCK_MONOTONIC ns
+    double probe_radius_m; ///< sphere radius, m
+    double centre_m[3];    ///< tool position the candidates were chosen around, m
+    double reach_m;        ///< candidates cover every contactable node within this of centre_m
+    int n_cand;            ///< candidates (<= HS_CONTACT_MAX_CAND)
+    int node[HS_CONTACT_MAX_CAND];              ///< mesh node index
+    unsigned char coupled[HS_CONTACT_MAX_CAND]; ///< 1 when the node's column block is known
+    double free_m[HS_CONTACT_MAX_CAND][3];      ///< contact-free position, m
+    double normal[HS_CONTACT_MAX_CAND][3];      ///< outward unit surface normal
+    /// Rotated compliance R_i C_ij R_j^T, row-major 3x3, m/N: exact on the diagonal and where
+    /// coupled[i] or coupled[j]; zero otherwise (the diagonal-only approximation).
+    double c[HS_CONTACT_MAX_CAND][HS_CONTACT_MAX_CAND][9];
+} hs_contact_snapshot;
+
+/// The contact at one tool position (rt -> deformation thread, and the local model's source).
+typedef struct hs_contact {
+    int64_t version;               ///< snapshot version it came from
+    double tool_m[3];              ///< probe centre, m
+    int n;                         ///< contact nodes (<= HS_MAX_CONTACT)
+    int node[HS_MAX_CONTACT];      ///< mesh node index
+    double d_m[HS_MAX_CONTACT][3]; ///< node displacement the contact forces cause, m
+    double f_n[HS_MAX_CONTACT][3]; ///< force ON THE TISSUE at each node (radial), N
+    double force_n[3];             ///< force ON THE TOOL, -sum f_n, N
+    double stiffness_n_m[9];       ///< -dforce_n/dtool, row-major, N/m (contact set fixed)
+    double clearance_m;            ///< tool travel before a candidate enters or leaves, m
+    int penetrating;               ///< contact-free positions inside the sphere
+    int dropped;                   ///< pivots that removed a node (it would have pulled)
+    int passes;                    ///< solves (pivots) used
+    int approx;                    ///< 1 when an off-diagonal block was missing
+    int failed;                    ///< 1 when C_SS was not SPD (result zeroed)
+} hs_contact;
+
+/// Frictionless contact of a probe sphere centred at tool_m with the snapshot's candidates (the
+/// HS_MAX_CONTACT nearest within 1.25 r of the centre): radial forces lambda_i n_i >= 0 such that
+/// every node's displaced position (to first order) is on or outside the sphere and only nodes
+/// on it are pushed; tool force -sum f, stiffness -dF/dp for the active set.
+/// Thread: any (rt) | Allocates: no | Blocks: no
+void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], hs_contact* out);
+/// The local model of a contact: anchor = tool, force, stiffness, validity radius =
+/// clamp(clearance, min_radius_m, max_radius_m), timeout. Thread: any | Allocates: no
+void hs_contact_model(const hs_contact* c, double min_radius_m, double max_radius_m,
+                      double timeout_s, hs_haptic_model* m /* OUT */);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

@@ -1,0 +1,127 @@
+// hapsim haptic_sim: the deformation thread and the 1 kHz rt thread of one deformable body and
+// one probe, running in-process. hapsim-server wraps this with LCM; tests drive it directly.
+//
+// DESIGN. Three parties, each owning its data; only fixed-size values cross, lock-free:
+//  - deformation thread (started here): owns the body (hs_body) and the condensed compliance
+//    (hs_compliance). Each step it takes the newest contact from rt, applies its forces on the
+//    tissue as nodal loads, steps the body (implicit Euler, def.body.dt, paced in real time),
+//    and publishes a contact snapshot (hs_contact_snapshot) for rt and a displacement frame for
+//    readers. With no contact and the body at rest it does not step; it only refreshes the
+//    snapshot's candidate set when the tool wanders off.
+//  - rt thread (hs_rt_loop + haptic tick of server/rt): per tick reads the newest pose from the
+//    memory device, solves the contact against the newest snapshot (hs_contact_solve), hands
+//    the result back to the deformation thread, blends, applies the safety chain and writes
+//    force + local model to the memory device.
+//  - the caller (test harness or the server's net thread): feeds poses, takes outputs, reads
+//    frames and statistics.
+#ifndef HAPSIM_HAPTIC_SIM_H
+#define HAPSIM_HAPTIC_SIM_H
+
+#include "hapsim/base.h"
+#include "hapsim/body.h"
+#include "hapsim/compliance.h"
+#include "hapsim/haptic.h"
+#include "hapsim/mesh.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/// The probe: a sphere at the tool tip. Initialise with hs_probe_default_def().
+typedef struct hs_probe_def {
+    double radius_m;        ///< sphere radius, m
+    double reach_margin_m;  ///< candidates cover radius + margin around the tool, m
+    int cache_nodes;        ///< compliance column cache capacity, nodes (>= HS_CONTACT_MAX_CAND)
+    int max_new_columns;    ///< column solves allowed per deformation step, nodes
+    double min_radius_m;    ///< local model validity radius, lower clamp, m
+    double max_radius_m;    ///< local model validity radius, upper clamp, m
+    double model_timeout_s; ///< local model timeout sent with every force, s
+    int cookie;             ///< set by hs_probe_default_def
+} hs_probe_def;
+
+/// Defaults: radius 1 cm, margin 1 cm, 96 cached columns, 64 new columns per step, validity
+/// radius in [0.2 mm, 5 mm], timeout 50 ms.
+hs_probe_def hs_probe_default_def(void);
+
+/// Everything the in-process haptic simulation needs. Initialise with hs_haptic_sim_default_def.
+typedef struct hs_haptic_sim_def {
+    hs_body_def body;       ///< body model, material, dt (the deformation step and its pacing)
+    hs_probe_def probe;     ///< probe sphere and compliance cache
+    hs_safety_def safety;   ///< force clamps and watchdog
+    double rate_hz;         ///< rt tick rate, Hz
+    int fifo_priority;      ///< SCHED_FIFO priority to ask for (0: do not ask)
+    int lock_memory;        ///< 1: mlockall when permitted
+    int blend_ticks;        ///< blend length on a new snapshot, ticks
+    double sleep_speed_m_s; ///< the body counts as at rest below this largest nodal speed, m/s
+    double idle_poll_s;     ///< deformation thread wake-up period while at rest, s
+    /// Optional hooks run on the rt thread before its first and after its last tick (tests use
+    /// them to mark the thread, e.g. for allocation counting); may be NULL.
+    void (*rt_on_start)(void* ctx);
+    void (*rt_on_stop)(void* ctx);
+    void* rt_hook_ctx; ///< passed to the hooks
+    int cookie;        ///< set by hs_haptic_sim_default_def
+} hs_haptic_sim_def;
+
+/// Defaults: hs_body_default_def (co-rotated model), probe and safety defaults, 1 kHz, FIFO 80,
+/// lock memory, 10 blend ticks, at rest below 0.1 mm/s, 2 ms idle poll.
+hs_haptic_sim_def hs_haptic_sim_default_def(void);
+
+/// Statistics, copied out.
+typedef struct hs_haptic_sim_stats {
+    hs_rt_stats rt;            ///< loop period, tick cost, overruns
+    int64_t rt_ticks;          ///< haptic ticks run
+    int64_t poses;             ///< valid poses taken by rt
+    int64_t blends;            ///< blends started (snapshot changes seen by rt)
+    hs_safety_counters safety; ///< safety chain counters
+    int64_t steps;             ///< deformation steps
+    int64_t snapshots;         ///< snapshots published
+    int64_t column_solves;     ///< compliance columns solved
+    int64_t step_failures;     ///< body steps that failed (state kept)
+    double step_ms_last;       ///< wall time of the last step + snapshot, ms
+    double step_ms_max;        ///< worst step + snapshot, ms
+    double setup_ms;           ///< compliance set-up (factor + diagonal blocks), ms
+    int sleeping;              ///< 1 while the body is at rest and not stepping
+    int candidates;            ///< candidates in the newest snapshot
+    int coupled;               ///< of them with exact off-diagonal blocks
+    hs_contact contact;        ///< the newest contact the deformation thread received
+} hs_haptic_sim_stats;
+
+typedef struct hs_haptic_sim hs_haptic_sim;
+
+/// Build the body, the compliance (same material, same fixed nodes) and the threads' buffers.
+/// fixed[n_nodes] (1 = fixed). The mesh must outlive the sim. Nothing runs yet. @param out OUT
+/// Thread: control | Allocates: yes
+hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def,
+                               const unsigned char* fixed, hs_haptic_sim** out, hs_err* err);
+/// Stop if running, then release; accepts NULL, sets *sim = NULL.
+void hs_haptic_sim_destroy(hs_haptic_sim** sim);
+/// Start the deformation thread and the rt thread. Once only. Thread: control
+hs_status hs_haptic_sim_start(hs_haptic_sim* sim, hs_err* err);
+/// Stop both threads and join them. Idempotent. Thread: control | Blocks: yes
+void hs_haptic_sim_stop(hs_haptic_sim* sim);
+
+/// Hand a tool pose to the rt thread (newest wins; pose->seq must grow).
+/// Thread: one feeder | Allocates: no | Lock-free: yes | Blocks: no
+void hs_haptic_sim_feed_pose(hs_haptic_sim* sim, const hs_haptic_pose* pose);
+/// Newest rt output (force and local model). Returns 1 when new since the last call.
+/// Thread: one consumer | Allocates: no | Lock-free: yes | Blocks: no
+int hs_haptic_sim_take_output(hs_haptic_sim* sim, hs_haptic_output* out /* OUT */);
+/// Newest displacement frame u[3 n_nodes] (m) and its step number. Returns 1 when new.
+/// Thread: one reader | Allocates: no | Lock-free: yes | Blocks: no
+int hs_haptic_sim_read_frame(hs_haptic_sim* sim, double* u /* OUT [3n] */,
+                             int64_t* step /* OUT, may be NULL */);
+/// Copy the statistics. Thread: one reader (control) | Allocates: no | Lock-free: yes
+void hs_haptic_sim_stats_get(hs_haptic_sim* sim, hs_haptic_sim_stats* out /* OUT */);
+struct hs_spsc_ring;
+/// Per-tick telemetry ring of the rt thread (items: hs_haptic_telemetry of server/rt/haptic_rt.h;
+/// pop with hs_spsc_ring_pop). One consumer. Thread: one consumer
+struct hs_spsc_ring* hs_haptic_sim_telemetry(hs_haptic_sim* sim);
+/// The compliance (read-only use from the control thread only while the sim is stopped).
+hs_compliance* hs_haptic_sim_compliance(hs_haptic_sim* sim);
+/// The body (use only while the sim is stopped).
+hs_body* hs_haptic_sim_body(hs_haptic_sim* sim);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

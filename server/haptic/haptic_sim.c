@@ -1,0 +1,612 @@
+// In-process haptic simulation: deformation thread + rt thread (hapsim/haptic_sim.h).
+//
+// DESIGN. The deformation thread (this file, `deform_main`) owns the body, the compliance and
+// every work array; the rt thread runs the rt helper's haptic tick with `probe_eval` as its
+// force source. Crossing, all lock-free and fixed-size:
+//   snap   (triple buffer, deformation -> rt):  hs_contact_snapshot, newest wins
+//   contact(triple buffer, rt -> deformation):  hs_contact, the newest tick's contact
+//   frame  (triple buffer, deformation -> reader): step number + u[3n]
+//   status (triple buffer, deformation -> control): hs_haptic_sim_stats without the rt part
+//   pose / output through the rt helper's memory device.
+// The deformation thread allocates nothing after create; the rt tick allocates nothing at all.
+#define _POSIX_C_SOURCE 200809L
+#include "hapsim/haptic_sim.h"
+
+#include "base/spsc_ring.h"
+#include "base/triple_buffer.h"
+#include "dense.h"
+#include "rt/device.h"
+#include "rt/haptic_rt.h"
+#include "rt/rt_thread.h"
+
+#include <float.h>
+#include <math.h>
+#include <pthread.h>
+#include <stdatomic.h>
+#include <string.h>
+#include <time.h>
+
+#define PROBE_COOKIE 0x50524f42
+#define SIM_COOKIE   0x48534d31
+
+hs_probe_def hs_probe_default_def(void) {
+    hs_probe_def d;
+    memset(&d, 0, sizeof d);
+    d.radius_m = 0.01;
+    d.reach_margin_m = 0.01;
+    d.cache_nodes = 96;
+    d.max_new_columns = 64;
+    d.min_radius_m = 0.0002;
+    d.max_radius_m = 0.005;
+    d.model_timeout_s = 0.05;
+    d.cookie = PROBE_COOKIE;
+    return d;
+}
+
+hs_haptic_sim_def hs_haptic_sim_default_def(void) {
+    hs_haptic_sim_def d;
+    memset(&d, 0, sizeof d);
+    d.body = hs_body_default_def();
+    d.body.fem.model = HS_MODEL_COROTATED;
+    d.probe = hs_probe_default_def();
+    d.safety = hs_safety_default_def();
+    d.rate_hz = 1000;
+    d.fifo_priority = 80;
+    d.lock_memory = 1;
+    d.blend_ticks = 10;
+    d.sleep_speed_m_s = 1e-4;
+    d.idle_poll_s = 0.002;
+    d.cookie = SIM_COOKIE;
+    return d;
+}
+
+// The rt side of the probe: the force source plugged into the haptic tick.
+typedef struct probe_src {
+    hs_triple_buffer* snap;    // reader: rt
+    hs_triple_buffer* contact; // writer: rt
+    double min_r, max_r, timeout_s;
+} probe_src;
+
+struct hs_haptic_sim {
+    hs_haptic_sim_def def;
+    const hs_mesh* mesh;
+    hs_body* body;
+    hs_compliance* comp;
+    int corotated;
+
+    // crossing
+    hs_triple_buffer* snap;
+    hs_triple_buffer* contact;
+    hs_triple_buffer* frame;  // [int64 step][double u[3n]]
+    hs_triple_buffer* status; // hs_haptic_sim_stats
+    hs_memdev* dev;
+    hs_haptic_rt* hrt;
+    hs_rt_loop* loop;
+    probe_src src;
+    hs_rt_tick inner; // the haptic tick of server/rt, wrapped to run the def's hooks
+
+    // deformation thread
+    pthread_t thread;
+    int thread_started;
+    atomic_int stop;
+    size_t frame_size;
+    int* tri_start;    // [n_surf+1] CSR: boundary triangles per surface node
+    int* tri_list;     // [3 n_tris]
+    double* x;         // [3n] current positions
+    double* g;         // [3n] force holding the current shape beyond the non-contact loads
+    double* v;         // [3n] C g (in the rest frame of each node)
+    double* rot;       // [9n] node rotations at the current state (identity for linear)
+    int* near_node;    // [n_surf] surface indices within reach, scratch
+    double* near_dist; // [n_surf]
+    int applied_n;     // contact forces in the body now
+    int applied_node[HS_MAX_CONTACT];
+    int64_t version;
+    hs_haptic_sim_stats st; // deformation thread's copy, published through `status`
+};
+
+// ---------------------------------------------------------------------------------------------
+// rt side
+
+static void probe_eval(void* ctx, const hs_rt_clock* clk, const hs_haptic_pose* pose,
+                       hs_haptic_model* out) {
+    probe_src* p = ctx;
+    const hs_contact_snapshot* s = hs_triple_buffer_read(p->snap, NULL);
+    hs_contact* c = hs_triple_buffer_back(p->contact);
+    hs_contact_solve(s, pose->pos_m, c);
+    hs_triple_buffer_publish(p->contact);
+    hs_contact_model(c, p->min_r, p->max_r, p->timeout_s, out);
+    out->stamp_ns = clk->now_ns;
+}
+
+static void rt_tick(void* ctx, const hs_rt_clock* clk) {
+    hs_haptic_sim* h = ctx;
+    h->inner.fn(h->inner.ctx, clk);
+}
+
+static void rt_start(void* ctx) {
+    hs_haptic_sim* h = ctx;
+    if (h->inner.on_start) h->inner.on_start(h->inner.ctx);
+    if (h->def.rt_on_start) h->def.rt_on_start(h->def.rt_hook_ctx);
+}
+
+static void rt_stop(void* ctx) {
+    hs_haptic_sim* h = ctx;
+    if (h->def.rt_on_stop) h->def.rt_on_stop(h->def.rt_hook_ctx);
+    if (h->inner.on_stop) h->inner.on_stop(h->inner.ctx);
+}
+
+// ---------------------------------------------------------------------------------------------
+// deformation side
+
+// Outward unit normal of a surface node: area-weighted mean of its triangles' normals.
+static void node_normal(const hs_haptic_sim* h, int si, double n[3]) {
+    const int* tris = h->mesh->tris;
+    n[0] = n[1] = n[2] = 0;
+    for (int k = h->tri_start[si]; k < h->tri_start[si + 1]; ++k) {
+        const int* t = tris + 3 * h->tri_list[k];
+        const double *a = h->x + 3 * t[0], *b = h->x + 3 * t[1], *c = h->x + 3 * t[2];
+        double e1[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
+        double e2[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+        n[0] += e1[1] * e2[2] - e1[2] * e2[1];
+        n[1] += e1[2] * e2[0] - e1[0] * e2[2];
+        n[2] += e1[0] * e2[1] - e1[1] * e2[0];
+    }
+    double l = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+    if (l > 0)
+        for (int k = 0; k < 3; ++k) n[k] /= l;
+}
+
+static void node_rot(hs_haptic_sim* h, int node, double r[9]) {
+    if (h->corotated) {
+        hs_fem_node_rotation(hs_body_fem(h->body), node, r);
+    } else {
+        static const double id[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+        memcpy(r, id, sizeof id);
+    }
+}
+
+// Build and publish the snapshot around tool position p from the body's current state.
+static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
+    const hs_mesh* mesh = h->mesh;
+    const int ns = mesh->n_surf_nodes;
+    const double* u = hs_body_displacement(h->body);
+    const double r = h->def.probe.radius_m, reach = r + h->def.probe.reach_margin_m;
+    for (int k = 0; k < 3 * mesh->n_nodes; ++k) h->x[k] = mesh->x0[k] + u[k];
+
+    // Contact-free positions. g = -(f_el + gravity load) is the force that holds the current
+    // shape beyond the loads that are not contact: the contact forces, plus inertia and damping
+    // while the body moves. Removing its static response R C R^T g leaves the shape the tissue
+    // would have without the probe: for the linear model exactly the rest (or gravity-loaded)
+    // shape whatever the dynamics, so the force does not depend on how far the body lags; for
+    // the co-rotated one each step is one defect-correction iteration toward its own
+    // equilibrium (see docs/haptics.md).
+    hs_body_elastic_energy(h->body); // evaluates the model at the current state if needed
+    hs_fem* fem = hs_body_fem(h->body);
+    const double* mass = hs_fem_lumped_mass(fem);
+    const double* grav = h->def.body.gravity;
+    hs_fem_forces(fem, h->g);
+    for (int i = 0; i < mesh->n_nodes; ++i) {
+        double* gi = h->g + 3 * i;
+        for (int a = 0; a < 3; ++a) gi[a] = -(gi[a] + mass[i] * grav[a]);
+        double* R = h->rot + 9 * (size_t)i;
+        node_rot(h, i, R);
+        if (h->corotated) {
+            double t[3] = {gi[0], gi[1], gi[2]};
+            for (int a = 0; a < 3; ++a) gi[a] = R[a] * t[0] + R[3 + a] * t[1] + R[6 + a] * t[2];
+        }
+    }
+    if (hs_compliance_apply(h->comp, h->g, h->v) != HS_OK)
+        memset(h->v, 0, 3 * (size_t)mesh->n_nodes * sizeof(double));
+    hs_compliance_begin_step(h->comp);
+
+    // Nearest contactable nodes within reach. |R u| = |u|, so |x - p| - |u| bounds the
+    // contact-free distance from below and rotations are computed only for nodes near the tool.
+    int n_near = 0;
+    for (int si = 0; si < ns; ++si) {
+        int node = mesh->surf_nodes[si];
+        if (!hs_compliance_contactable(h->comp, node)) continue;
+        const double* xs = h->x + 3 * node;
+        const double* uc = h->v + 3 * node;
+        double v[3] = {xs[0] - p[0], xs[1] - p[1], xs[2] - p[2]};
+        double dx = sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+        double du = sqrt(uc[0] * uc[0] + uc[1] * uc[1] + uc[2] * uc[2]);
+        if (dx - du >= reach) continue;
+        const double* R = h->rot + 9 * (size_t)node;
+        double ru[3];
+        for (int a = 0; a < 3; ++a)
+            ru[a] = R[3 * a] * uc[0] + R[3 * a + 1] * uc[1] + R[3 * a + 2] * uc[2];
+        double q[3] = {v[0] - ru[0], v[1] - ru[1], v[2] - ru[2]};
+        double dist = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2]);
+        if (dist >= reach) continue;
+        // Keep near_* sorted by distance, at most HS_CONTACT_MAX_CAND + 1 entries (the extra
+        // one tells how far the coverage reaches when the list is cut).
+        if (n_near == HS_CONTACT_MAX_CAND + 1 && dist >= h->near_dist[n_near - 1]) continue;
+        int at = n_near <= HS_CONTACT_MAX_CAND ? n_near++ : n_near - 1;
+        while (at > 0 && h->near_dist[at - 1] > dist) {
+            h->near_dist[at] = h->near_dist[at - 1];
+            h->near_node[at] = h->near_node[at - 1];
+            --at;
+        }
+        h->near_dist[at] = dist;
+        h->near_node[at] = si;
+    }
+    double cover = reach;
+    if (n_near > HS_CONTACT_MAX_CAND) {
+        cover = h->near_dist[HS_CONTACT_MAX_CAND];
+        n_near = HS_CONTACT_MAX_CAND;
+    }
+
+    hs_contact_snapshot* s = hs_triple_buffer_back(h->snap);
+    s->version = ++h->version;
+    s->probe_radius_m = r;
+    memcpy(s->centre_m, p, sizeof s->centre_m);
+    s->reach_m = cover;
+    s->n_cand = n_near;
+    int nodes[HS_CONTACT_MAX_CAND];
+    for (int i = 0; i < n_near; ++i) nodes[i] = mesh->surf_nodes[h->near_node[i]];
+    // Columns for the candidates, nearest first, within this step's budget.
+    int got = hs_compliance_ensure(h->comp, n_near, nodes, h->def.probe.max_new_columns);
+    (void)got; // a solver failure leaves the diagonal-only approximation
+    int coupled = 0;
+    for (int i = 0; i < n_near; ++i) {
+        int si = h->near_node[i], node = nodes[i];
+        s->node[i] = node;
+        s->coupled[i] = (unsigned char)hs_compliance_has_column(h->comp, node);
+        coupled += s->coupled[i];
+        const double* R = h->rot + 9 * (size_t)node;
+        const double* uc = h->v + 3 * node;
+        for (int a = 0; a < 3; ++a)
+            s->free_m[i][a] = h->x[3 * node + a] -
+                              (R[3 * a] * uc[0] + R[3 * a + 1] * uc[1] + R[3 * a + 2] * uc[2]);
+        node_normal(h, si, s->normal[i]);
+    }
+    for (int i = 0; i < n_near; ++i) {
+        const double* ri = h->rot + 9 * (size_t)nodes[i];
+        for (int j = i; j < n_near; ++j) {
+            const double* rj = h->rot + 9 * (size_t)nodes[j];
+            double blk[9];
+            if (!hs_compliance_block(h->comp, nodes[i], nodes[j], blk)) {
+                memset(s->c[i][j], 0, sizeof s->c[i][j]);
+                memset(s->c[j][i], 0, sizeof s->c[j][i]);
+                continue;
+            }
+            hs_mat3_rotate(ri, blk, rj, s->c[i][j]);
+            if (i == j) {
+                // Exact symmetry for the rt Cholesky.
+                double* b = s->c[i][i];
+                for (int a = 0; a < 3; ++a)
+                    for (int c = a + 1; c < 3; ++c)
+                        b[3 * a + c] = b[3 * c + a] = 0.5 * (b[3 * a + c] + b[3 * c + a]);
+            } else {
+                for (int a = 0; a < 3; ++a)
+                    for (int c = 0; c < 3; ++c) s->c[j][i][3 * c + a] = s->c[i][j][3 * a + c];
+            }
+        }
+    }
+    s->stamp_ns = hs_now_ns();
+    hs_triple_buffer_publish(h->snap);
+    h->st.snapshots++;
+    h->st.candidates = n_near;
+    h->st.coupled = coupled;
+}
+
+// Replace the body's contact loads by those of contact c.
+static void apply_contact(hs_haptic_sim* h, const hs_contact* c) {
+    for (int k = 0; k < h->applied_n; ++k) {
+        static const double zero[3] = {0, 0, 0};
+        hs_body_set_force(h->body, h->applied_node[k], zero);
+    }
+    h->applied_n = 0;
+    for (int k = 0; k < c->n; ++k) {
+        h->applied_node[k] = c->node[k];
+        hs_body_set_force(h->body, c->node[k], c->f_n[k]);
+    }
+    h->applied_n = c->n;
+}
+
+static double max_speed(const hs_haptic_sim* h) {
+    const double* v = hs_body_velocity(h->body);
+    double m = 0;
+    for (int i = 0; i < h->mesh->n_nodes; ++i) {
+        double s = v[3 * i] * v[3 * i] + v[3 * i + 1] * v[3 * i + 1] + v[3 * i + 2] * v[3 * i + 2];
+        if (s > m) m = s;
+    }
+    return sqrt(m);
+}
+
+static void publish_frame(hs_haptic_sim* h) {
+    unsigned char* f = hs_triple_buffer_back(h->frame);
+    int64_t step = h->st.steps;
+    memcpy(f, &step, sizeof step);
+    memcpy(f + sizeof(int64_t), hs_body_displacement(h->body),
+           3 * (size_t)h->mesh->n_nodes * sizeof(double));
+    hs_triple_buffer_publish(h->frame);
+}
+
+static void timespec_add(struct timespec* t, int64_t ns) {
+    t->tv_nsec += ns;
+    while (t->tv_nsec >= 1000000000L) {
+        t->tv_nsec -= 1000000000L;
+        t->tv_sec++;
+    }
+}
+
+static void* deform_main(void* arg) {
+    hs_haptic_sim* h = arg;
+    const int64_t step_ns = (int64_t)(h->def.body.dt * 1e9);
+    const int64_t idle_ns = (int64_t)(h->def.idle_poll_s * 1e9);
+    struct timespec next;
+    clock_gettime(CLOCK_MONOTONIC, &next);
+    hs_contact c;
+    memset(&c, 0, sizeof c);
+    double centre[3] = {0, 0, 0};
+    int have_snapshot = 0;
+    while (!atomic_load_explicit(&h->stop, memory_order_acquire)) {
+        int fresh = hs_triple_buffer_read_copy(h->contact, &c);
+        (void)fresh;
+        int loaded = c.n > 0 || h->applied_n > 0;
+        int moving = loaded || max_speed(h) > h->def.sleep_speed_m_s;
+        int64_t t0 = hs_now_ns();
+        int rebuild = 0;
+        if (moving) {
+            // The forces rt computed from the last snapshot drive this step.
+            apply_contact(h, &c);
+            hs_status s = hs_body_step(h->body, NULL);
+            if (s != HS_OK)
+                h->st.step_failures++;
+            else
+                h->st.steps++;
+            rebuild = 1;
+        } else {
+            // At rest: refresh the candidates only when the tool wandered toward their edge.
+            double dx = c.tool_m[0] - centre[0], dy = c.tool_m[1] - centre[1],
+                   dz = c.tool_m[2] - centre[2];
+            rebuild = !have_snapshot ||
+                      sqrt(dx * dx + dy * dy + dz * dz) > 0.5 * h->def.probe.reach_margin_m;
+        }
+        if (rebuild) {
+            build_snapshot(h, c.tool_m);
+            memcpy(centre, c.tool_m, sizeof centre);
+            have_snapshot = 1;
+            if (moving) publish_frame(h);
+            double ms = (double)(hs_now_ns() - t0) * 1e-6;
+            h->st.step_ms_last = ms;
+            if (ms > h->st.step_ms_max) h->st.step_ms_max = ms;
+        }
+        h->st.sleeping = !moving;
+        h->st.contact = c;
+        h->st.column_solves = hs_compliance_column_solves(h->comp);
+        hs_triple_buffer_write(h->status, &h->st);
+
+        if (moving) {
+            timespec_add(&next, step_ns);
+            // Fell behind by more than a step: restart the pacing instead of bursting.
+            struct timespec now;
+            clock_gettime(CLOCK_MONOTONIC, &now);
+            int64_t late =
+                ((int64_t)now.tv_sec - next.tv_sec) * 1000000000LL + (now.tv_nsec - next.tv_nsec);
+            if (late > step_ns) next = now;
+        } else {
+            clock_gettime(CLOCK_MONOTONIC, &next);
+            timespec_add(&next, idle_ns);
+        }
+        clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &next, NULL);
+    }
+    return NULL;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Life cycle
+
+static hs_status build_tri_adjacency(hs_haptic_sim* h) {
+    const hs_mesh* m = h->mesh;
+    const int ns = m->n_surf_nodes;
+    h->tri_start = hs_calloc((size_t)ns + 1, sizeof(int));
+    h->tri_list = hs_alloc(3 * (size_t)m->n_tris * sizeof(int) + sizeof(int));
+    if (!h->tri_start || !h->tri_list) return HS_ERR_NOMEM;
+    for (int t = 0; t < m->n_tris; ++t)
+        for (int k = 0; k < 3; ++k) {
+            int si = m->node_surf[m->tris[3 * t + k]];
+            if (si >= 0) h->tri_start[si + 1]++;
+        }
+    for (int i = 0; i < ns; ++i) h->tri_start[i + 1] += h->tri_start[i];
+    int* fill = h->near_node; // scratch of n_surf ints, unused until the thread runs
+    memcpy(fill, h->tri_start, (size_t)ns * sizeof(int));
+    for (int t = 0; t < m->n_tris; ++t)
+        for (int k = 0; k < 3; ++k) {
+            int si = m->node_surf[m->tris[3 * t + k]];
+            if (si >= 0) h->tri_list[fill[si]++] = t;
+        }
+    return HS_OK;
+}
+
+void hs_haptic_sim_destroy(hs_haptic_sim** ph) {
+    if (!ph || !*ph) return;
+    hs_haptic_sim* h = *ph;
+    hs_haptic_sim_stop(h);
+    hs_rt_loop_destroy(&h->loop);
+    hs_haptic_rt_destroy(&h->hrt);
+    hs_memdev_destroy(&h->dev);
+    hs_triple_buffer_destroy(&h->snap);
+    hs_triple_buffer_destroy(&h->contact);
+    hs_triple_buffer_destroy(&h->frame);
+    hs_triple_buffer_destroy(&h->status);
+    hs_compliance_destroy(&h->comp);
+    hs_body_destroy(&h->body);
+    hs_free(h->tri_start);
+    hs_free(h->tri_list);
+    hs_free(h->x);
+    hs_free(h->g);
+    hs_free(h->v);
+    hs_free(h->rot);
+    hs_free(h->near_node);
+    hs_free(h->near_dist);
+    hs_free(h);
+    *ph = NULL;
+}
+
+hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def,
+                               const unsigned char* fixed, hs_haptic_sim** out, hs_err* err) {
+    if (out) *out = NULL;
+    if (!mesh || !def || !out)
+        return hs_err_set(err, HS_ERR_INVALID, "hs_haptic_sim_create: NULL argument");
+    if (def->cookie != SIM_COOKIE || def->probe.cookie != PROBE_COOKIE)
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "hs_haptic_sim_create: definition not initialised with "
+                          "hs_haptic_sim_default_def()");
+    const hs_probe_def* pd = &def->probe;
+    if (!(pd->radius_m > 0) || !isfinite(pd->radius_m) || !(pd->reach_margin_m >= 0) ||
+        !isfinite(pd->reach_margin_m))
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "hs_haptic_sim_create: probe radius %g m / margin %g m invalid",
+                          pd->radius_m, pd->reach_margin_m);
+    if (pd->cache_nodes < HS_CONTACT_MAX_CAND + HS_MAX_CONTACT)
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "hs_haptic_sim_create: probe cache_nodes %d < %d (candidates + contacts)",
+                          pd->cache_nodes, HS_CONTACT_MAX_CAND + HS_MAX_CONTACT);
+    if (pd->max_new_columns < 0 || !(pd->min_radius_m >= 0) ||
+        !(pd->max_radius_m >= pd->min_radius_m) || !(pd->model_timeout_s > 0))
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "hs_haptic_sim_create: probe column budget, validity radius or timeout "
+                          "invalid");
+    if (!(def->rate_hz > 0) || def->blend_ticks < 1 || !(def->idle_poll_s > 0) ||
+        !(def->sleep_speed_m_s >= 0))
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "hs_haptic_sim_create: rate %g Hz, blend %d ticks or idle poll %g s "
+                          "invalid",
+                          def->rate_hz, def->blend_ticks, def->idle_poll_s);
+    if (!hs_safety_def_valid(&def->safety))
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "hs_haptic_sim_create: safety definition invalid (use "
+                          "hs_safety_default_def())");
+
+    hs_haptic_sim* h = hs_calloc(1, sizeof *h);
+    if (!h) return hs_err_set(err, HS_ERR_NOMEM, "hs_haptic_sim_create: out of memory");
+    h->def = *def;
+    h->mesh = mesh;
+    h->corotated = def->body.fem.model != HS_MODEL_LINEAR;
+    atomic_init(&h->stop, 0);
+    hs_status s = hs_body_create(mesh, &def->body, fixed, &h->body, err);
+    if (s != HS_OK) goto fail;
+    s = hs_compliance_create(mesh, &def->body.fem, fixed, pd->cache_nodes, &h->comp, err);
+    if (s != HS_OK) goto fail;
+    h->st.setup_ms = hs_compliance_setup_ms(h->comp);
+
+    const size_t n = (size_t)mesh->n_nodes, ns = (size_t)mesh->n_surf_nodes;
+    h->x = hs_calloc(3 * n, sizeof(double));
+    h->g = hs_calloc(3 * n, sizeof(double));
+    h->v = hs_calloc(3 * n, sizeof(double));
+    h->rot = hs_calloc(9 * n, sizeof(double));
+    h->near_node = hs_calloc(ns + 1, sizeof(int));
+    h->near_dist = hs_calloc(ns + 1, sizeof(double));
+    if (!h->x || !h->g || !h->v || !h->rot || !h->near_node || !h->near_dist) goto nomem;
+    if (build_tri_adjacency(h) != HS_OK) goto nomem;
+
+    h->frame_size = sizeof(int64_t) + 3 * n * sizeof(double);
+    s = hs_triple_buffer_create(sizeof(hs_contact_snapshot), &h->snap, err);
+    if (s == HS_OK) s = hs_triple_buffer_create(sizeof(hs_contact), &h->contact, err);
+    if (s == HS_OK) s = hs_triple_buffer_create(h->frame_size, &h->frame, err);
+    if (s == HS_OK) s = hs_triple_buffer_create(sizeof(hs_haptic_sim_stats), &h->status, err);
+    if (s == HS_OK) s = hs_memdev_create(&h->dev, err);
+    if (s != HS_OK) goto fail;
+
+    h->src.snap = h->snap;
+    h->src.contact = h->contact;
+    h->src.min_r = pd->min_radius_m;
+    h->src.max_r = pd->max_radius_m;
+    h->src.timeout_s = pd->model_timeout_s;
+    hs_haptic_rt_def hd = hs_haptic_rt_default_def();
+    hd.device = hs_memdev_device(h->dev);
+    hd.source.eval = probe_eval;
+    hd.source.ctx = &h->src;
+    hd.safety = def->safety;
+    hd.blend_ticks = def->blend_ticks;
+    s = hs_haptic_rt_create(&hd, &h->hrt, err);
+    if (s != HS_OK) goto fail;
+    hs_rt_def rd = hs_rt_default_def();
+    rd.rate_hz = def->rate_hz;
+    rd.fifo_priority = def->fifo_priority;
+    rd.lock_memory = def->lock_memory;
+    h->inner = hs_haptic_rt_tick(h->hrt);
+    rd.tick.fn = rt_tick;
+    rd.tick.ctx = h;
+    rd.tick.on_start = rt_start;
+    rd.tick.on_stop = rt_stop;
+    s = hs_rt_loop_create(&rd, &h->loop, err);
+    if (s != HS_OK) goto fail;
+    *out = h;
+    return HS_OK;
+nomem:
+    hs_haptic_sim_destroy(&h);
+    return hs_err_set(err, HS_ERR_NOMEM, "hs_haptic_sim_create: out of memory");
+fail:
+    hs_haptic_sim_destroy(&h);
+    return s;
+}
+
+hs_status hs_haptic_sim_start(hs_haptic_sim* h, hs_err* err) {
+    if (h->thread_started)
+        return hs_err_set(err, HS_ERR_INVALID, "hs_haptic_sim_start: already started");
+    // First snapshot before rt runs, around the origin; the thread refreshes it at the tool.
+    memset(&h->st.contact, 0, sizeof h->st.contact);
+    atomic_store(&h->stop, 0);
+    if (pthread_create(&h->thread, NULL, deform_main, h) != 0)
+        return hs_err_set(err, HS_ERR_UNSUPPORTED,
+                          "hs_haptic_sim_start: cannot create the deformation thread");
+    h->thread_started = 1;
+    hs_status s = hs_rt_loop_start(h->loop, err);
+    if (s != HS_OK) {
+        hs_haptic_sim_stop(h);
+        return s;
+    }
+    return HS_OK;
+}
+
+void hs_haptic_sim_stop(hs_haptic_sim* h) {
+    if (!h) return;
+    if (h->loop) hs_rt_loop_stop(h->loop);
+    if (h->thread_started) {
+        atomic_store_explicit(&h->stop, 1, memory_order_release);
+        pthread_join(h->thread, NULL);
+        h->thread_started = 0;
+    }
+}
+
+void hs_haptic_sim_feed_pose(hs_haptic_sim* h, const hs_haptic_pose* pose) {
+    hs_memdev_feed_pose(h->dev, pose);
+}
+
+int hs_haptic_sim_take_output(hs_haptic_sim* h, hs_haptic_output* out) {
+    return hs_memdev_take_output(h->dev, out);
+}
+
+int hs_haptic_sim_read_frame(hs_haptic_sim* h, double* u, int64_t* step) {
+    int fresh = 0;
+    const unsigned char* f = hs_triple_buffer_read(h->frame, &fresh);
+    if (step) memcpy(step, f, sizeof *step);
+    if (u) memcpy(u, f + sizeof(int64_t), 3 * (size_t)h->mesh->n_nodes * sizeof(double));
+    return fresh;
+}
+
+void hs_haptic_sim_stats_get(hs_haptic_sim* h, hs_haptic_sim_stats* out) {
+    hs_triple_buffer_read_copy(h->status, out);
+    out->setup_ms = hs_compliance_setup_ms(h->comp);
+    hs_rt_loop_stats(h->loop, &out->rt);
+    hs_haptic_rt_counters rc;
+    hs_haptic_rt_get_counters(h->hrt, &rc);
+    out->rt_ticks = rc.ticks;
+    out->poses = rc.poses;
+    out->blends = rc.blends;
+    out->safety = rc.safety;
+}
+
+struct hs_spsc_ring* hs_haptic_sim_telemetry(hs_haptic_sim* h) {
+    return hs_haptic_rt_telemetry(h->hrt);
+}
+
+hs_compliance* hs_haptic_sim_compliance(hs_haptic_sim* h) {
+    return h->comp;
+}
+hs_body* hs_haptic_sim_body(hs_haptic_sim* h) {
+    return h->body;
+}

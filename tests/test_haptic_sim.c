@@ -1,0 +1,523 @@
+// In-process haptic simulation on the bundled liver: real deformation and rt threads, poses fed
+// through the memory device by this (harness) thread at 1 kHz.
+#define _POSIX_C_SOURCE 200809L
+#include "hapsim/haptic_sim.h"
+#include "base/spsc_ring.h"
+#include "rt/haptic_rt.h"
+#include "test_macros.h"
+
+#include <stdatomic.h>
+#include <stdlib.h>
+#include <time.h>
+
+// ---------------------------------------------------------------------------------------------
+// Allocation counting on the rt thread (the approach of test_rt.c): malloc and friends are
+// interposed and count while a thread-local flag is on; the sim's rt hooks switch it on before
+// the first tick and off after the last. Sanitizers interpose malloc themselves: there the
+// check is skipped (said in the output).
+
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+#define COUNT_MALLOC 0
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
+#define COUNT_MALLOC 0
+#endif
+#endif
+#ifndef COUNT_MALLOC
+#define COUNT_MALLOC 1
+#endif
+
+static _Thread_local int t_counting;
+static atomic_llong g_rt_allocs;
+
+#if COUNT_MALLOC
+extern void* __libc_malloc(size_t n);
+extern void* __libc_calloc(size_t c, size_t n);
+extern void* __libc_realloc(void* p, size_t n);
+extern void* __libc_memalign(size_t a, size_t n);
+extern void __libc_free(void* p);
+void* malloc(size_t n);
+void* calloc(size_t c, size_t n);
+void* realloc(void* p, size_t n);
+void free(void* p);
+void* aligned_alloc(size_t a, size_t n);
+int posix_memalign(void** out, size_t a, size_t n);
+
+static void count(void) {
+    if (t_counting) atomic_fetch_add_explicit(&g_rt_allocs, 1, memory_order_relaxed);
+}
+void* malloc(size_t n) {
+    count();
+    return __libc_malloc(n);
+}
+void* calloc(size_t c, size_t n) {
+    count();
+    return __libc_calloc(c, n);
+}
+void* realloc(void* p, size_t n) {
+    count();
+    return __libc_realloc(p, n);
+}
+void free(void* p) {
+    if (p) count();
+    __libc_free(p);
+}
+void* aligned_alloc(size_t a, size_t n) {
+    count();
+    return __libc_memalign(a, n);
+}
+int posix_memalign(void** out, size_t a, size_t n) {
+    count();
+    void* p = __libc_memalign(a, n);
+    if (!p) return 12;
+    *out = p;
+    return 0;
+}
+#endif
+
+static void counting_on(void* ctx) {
+    (void)ctx;
+    t_counting = 1;
+}
+static void counting_off(void* ctx) {
+    (void)ctx;
+    t_counting = 0;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Helpers
+
+typedef struct liver {
+    hs_mesh* mesh;
+    unsigned char* fixed;
+    int node;    // probed surface node (farthest from the fixed face)
+    double n[3]; // its outward normal
+    double t[3]; // a unit tangent
+} liver;
+
+static int load_liver(liver* L) {
+    hs_err err = {0};
+    memset(L, 0, sizeof *L);
+    if (hs_mesh_load(HS_SOURCE_DIR "/scenes/liver/liver2.msh", &L->mesh, &err) < 0 &&
+        hs_mesh_load(HS_SHARED_MESHES "/liver2.msh", &L->mesh, &err) < 0) {
+        printf("  cannot load liver2: %s\n", err.msg);
+        return 1;
+    }
+    const hs_mesh* m = L->mesh;
+    L->fixed = calloc((size_t)m->n_nodes, 1);
+    hs_mesh_select_plane(m, 1, -1, 0.010, L->fixed); // as scenes/liver/liver.json
+    L->node = -1;
+    for (int s = 0; s < m->n_surf_nodes; ++s) {
+        int k = m->surf_nodes[s];
+        if (!L->fixed[k] && (L->node < 0 || m->x0[3 * k + 1] > m->x0[3 * L->node + 1])) L->node = k;
+    }
+    for (int t = 0; t < m->n_tris; ++t) {
+        const int* tr = m->tris + 3 * t;
+        if (tr[0] != L->node && tr[1] != L->node && tr[2] != L->node) continue;
+        const double *a = m->x0 + 3 * tr[0], *b = m->x0 + 3 * tr[1], *c = m->x0 + 3 * tr[2];
+        double e1[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
+        double e2[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+        L->n[0] += e1[1] * e2[2] - e1[2] * e2[1];
+        L->n[1] += e1[2] * e2[0] - e1[0] * e2[2];
+        L->n[2] += e1[0] * e2[1] - e1[1] * e2[0];
+    }
+    double l = sqrt(L->n[0] * L->n[0] + L->n[1] * L->n[1] + L->n[2] * L->n[2]);
+    for (int a = 0; a < 3; ++a) L->n[a] /= l;
+    // Tangent: x axis with its normal part removed.
+    double ex[3] = {1, 0, 0}, dn = L->n[0];
+    for (int a = 0; a < 3; ++a) L->t[a] = ex[a] - dn * L->n[a];
+    l = sqrt(L->t[0] * L->t[0] + L->t[1] * L->t[1] + L->t[2] * L->t[2]);
+    for (int a = 0; a < 3; ++a) L->t[a] /= l;
+    return 0;
+}
+
+static void free_liver(liver* L) {
+    hs_mesh_destroy(&L->mesh);
+    free(L->fixed);
+}
+
+static hs_haptic_sim_def liver_def(hs_model model, double radius) {
+    hs_haptic_sim_def d = hs_haptic_sim_default_def();
+    d.body.fem.model = model;
+    d.body.fem.material.youngs_pa = 5000;
+    d.body.fem.material.poisson = 0.45;
+    d.body.fem.material.density_kg_m3 = 1060;
+    d.body.fem.material.rayleigh_mass = 0.5;
+    d.body.fem.material.rayleigh_stiffness = 0.01;
+    d.body.dt = 0.01;
+    d.probe.radius_m = radius;
+    d.rt_on_start = counting_on;
+    d.rt_on_stop = counting_off;
+    return d;
+}
+
+static double norm3(const double* v) {
+    return sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+}
+
+// The harness clock: absolute 1 ms steps.
+typedef struct harness {
+    hs_haptic_sim* sim;
+    struct timespec next;
+    int64_t seq;
+    int64_t last_feed_ns;
+    hs_haptic_output out; // newest output
+    int have_out;
+} harness;
+
+static void harness_init(harness* hn, hs_haptic_sim* sim) {
+    memset(hn, 0, sizeof *hn);
+    hn->sim = sim;
+    clock_gettime(CLOCK_MONOTONIC, &hn->next);
+}
+
+// Wait for the next millisecond, feed p (unless NULL), take the newest output.
+static void harness_tick(harness* hn, const double* p) {
+    hn->next.tv_nsec += 1000000;
+    if (hn->next.tv_nsec >= 1000000000L) {
+        hn->next.tv_nsec -= 1000000000L;
+        hn->next.tv_sec++;
+    }
+    clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &hn->next, NULL);
+    if (p) {
+        hs_haptic_pose pose;
+        memset(&pose, 0, sizeof pose);
+        pose.seq = ++hn->seq;
+        pose.stamp_ns = hs_now_ns();
+        memcpy(pose.pos_m, p, sizeof pose.pos_m);
+        pose.quat_wxyz[0] = 1;
+        hs_haptic_sim_feed_pose(hn->sim, &pose);
+        hn->last_feed_ns = pose.stamp_ns;
+    }
+    if (hs_haptic_sim_take_output(hn->sim, &hn->out)) hn->have_out = 1;
+}
+
+// Drain telemetry (kept small: the ring holds 4096 records, drained every tick here).
+static void drain(hs_haptic_sim* sim) {
+    hs_haptic_telemetry t;
+    while (hs_spsc_ring_pop(hs_haptic_sim_telemetry(sim), &t)) {
+    }
+}
+
+// Tool position: `depth` into the surface at the probed node (negative: above), plus `s` along
+// the tangent.
+static void tool_at(const liver* L, double radius, double depth, double s, double p[3]) {
+    const double* x = L->mesh->x0 + 3 * L->node;
+    for (int a = 0; a < 3; ++a) p[a] = x[a] + (radius - depth) * L->n[a] + s * L->t[a];
+}
+
+// ---------------------------------------------------------------------------------------------
+
+static int no_pose_no_force(void) {
+    int64_t bytes0 = hs_byte_count();
+    liver L;
+    ENSURE(load_liver(&L) == 0);
+    hs_haptic_sim_def d = liver_def(HS_MODEL_LINEAR, 0.02);
+    hs_haptic_sim* sim = NULL;
+    hs_err err = {0};
+    ENSURE(hs_haptic_sim_create(L.mesh, &d, L.fixed, &sim, &err) == HS_OK);
+    ENSURE(hs_haptic_sim_start(sim, &err) == HS_OK);
+    ENSURE(hs_haptic_sim_start(sim, &err) == HS_ERR_INVALID); // once only
+    harness hn;
+    harness_init(&hn, sim);
+    for (int i = 0; i < 100; ++i) harness_tick(&hn, NULL);
+    ENSURE(hn.have_out);
+    ENSURE(norm3(hn.out.force_n) == 0);
+    hs_haptic_sim_stats st;
+    hs_haptic_sim_stats_get(sim, &st);
+    ENSURE(st.rt_ticks >= 50);
+    ENSURE(st.steps == 0 && st.sleeping == 1); // nothing moves: no deformation step
+    printf("  rt ticks %lld, compliance set-up %.1f ms, obtained flags 0x%x\n",
+           (long long)st.rt_ticks, st.setup_ms, st.rt.obtained);
+    hs_haptic_sim_destroy(&sim);
+    ENSURE(sim == NULL);
+    hs_haptic_sim_destroy(&sim);
+
+    // Bad definitions are refused with a message.
+    hs_haptic_sim_def bad = liver_def(HS_MODEL_LINEAR, -1);
+    ENSURE(hs_haptic_sim_create(L.mesh, &bad, L.fixed, &sim, &err) == HS_ERR_INVALID);
+    ENSURE(sim == NULL && strstr(err.msg, "radius"));
+    bad = liver_def(HS_MODEL_LINEAR, 0.01);
+    bad.probe.cache_nodes = 8;
+    ENSURE(hs_haptic_sim_create(L.mesh, &bad, L.fixed, &sim, &err) == HS_ERR_INVALID);
+    hs_haptic_sim_def raw;
+    memset(&raw, 0, sizeof raw);
+    ENSURE(hs_haptic_sim_create(L.mesh, &raw, L.fixed, &sim, &err) == HS_ERR_INVALID);
+    free_liver(&L);
+    ENSURE(hs_byte_count() == bytes0);
+    return 0;
+}
+
+// Press 8 mm with a 3 cm sphere, hold, compare with a full static solve; then release.
+static int press_hold_release(void) {
+    liver L;
+    ENSURE(load_liver(&L) == 0);
+    const double r = 0.03;
+    hs_haptic_sim_def d = liver_def(HS_MODEL_LINEAR, r);
+    hs_haptic_sim* sim = NULL;
+    hs_err err = {0};
+    ENSURE(hs_haptic_sim_create(L.mesh, &d, L.fixed, &sim, &err) == HS_OK);
+    ENSURE(hs_haptic_sim_start(sim, &err) == HS_OK);
+    harness hn;
+    harness_init(&hn, sim);
+    double p[3];
+    // 0.2 s above the surface, 0.5 s down to 8 mm, hold 2 s.
+    for (int i = 0; i < 200; ++i) {
+        tool_at(&L, r, -0.005, 0, p);
+        harness_tick(&hn, p);
+        drain(sim);
+    }
+    ENSURE(norm3(hn.out.force_n) == 0);
+    for (int i = 0; i <= 500; ++i) {
+        tool_at(&L, r, -0.005 + 0.013 * i / 500.0, 0, p);
+        harness_tick(&hn, p);
+        drain(sim);
+    }
+    double fmin[3] = {1e9, 1e9, 1e9}, fmax[3] = {-1e9, -1e9, -1e9};
+    double* u = malloc(sizeof(double) * 3 * (size_t)L.mesh->n_nodes);
+    double amp_early = 0, amp_late = 0;
+    for (int i = 0; i < 2000; ++i) {
+        harness_tick(&hn, p);
+        drain(sim);
+        if (i >= 1700)
+            for (int a = 0; a < 3; ++a) {
+                fmin[a] = fmin[a] < hn.out.force_n[a] ? fmin[a] : hn.out.force_n[a];
+                fmax[a] = fmax[a] > hn.out.force_n[a] ? fmax[a] : hn.out.force_n[a];
+            }
+        if (i % 20 == 0) {
+            // How far the tissue is from the contact's displacement: it rings around it with the
+            // scene's light damping while the force stays put.
+            hs_haptic_sim_stats s2;
+            hs_haptic_sim_stats_get(sim, &s2);
+            hs_haptic_sim_read_frame(sim, u, NULL);
+            if (s2.contact.n >= 1) {
+                const double* uk = u + 3 * s2.contact.node[0];
+                double e[3] = {uk[0] - s2.contact.d_m[0][0], uk[1] - s2.contact.d_m[0][1],
+                               uk[2] - s2.contact.d_m[0][2]};
+                double* amp = i < 1000 ? &amp_early : &amp_late;
+                if (norm3(e) > *amp) *amp = norm3(e);
+            }
+        }
+    }
+    double f_hold[3];
+    memcpy(f_hold, hn.out.force_n, sizeof f_hold);
+    double spread[3] = {fmax[0] - fmin[0], fmax[1] - fmin[1], fmax[2] - fmin[2]};
+    hs_haptic_sim_stats st;
+    hs_haptic_sim_stats_get(sim, &st);
+    int64_t frame_step = 0;
+    hs_haptic_sim_read_frame(sim, u, &frame_step);
+    printf("  held at 8 mm: |F| = %.4g N, spread over the last 0.3 s %.2g N, %d contact nodes, "
+           "steps %lld, snapshots %lld, step+snapshot max %.2f ms\n",
+           norm3(f_hold), norm3(spread), st.contact.n, (long long)st.steps, (long long)st.snapshots,
+           st.step_ms_max);
+    ENSURE(norm3(f_hold) > 0.05);
+    ENSURE(norm3(spread) <= 0.005 * norm3(f_hold));                           // settled
+    ENSURE(f_hold[0] * L.n[0] + f_hold[1] * L.n[1] + f_hold[2] * L.n[2] > 0); // pushes out
+    ENSURE(st.contact.n >= 1 && frame_step > 0);
+
+    // Release: jump 3 cm out. The force is zero within the blend time (+ 3 ticks of latency).
+    tool_at(&L, r, -0.03, 0, p);
+    int64_t t_rel = 0, t_zero = -1, rel_seq = hn.seq + 1;
+    for (int i = 0; i < 100 && t_zero < 0; ++i) {
+        harness_tick(&hn, p);
+        drain(sim);
+        if (i == 0) t_rel = hn.last_feed_ns;
+        if (hn.out.pose_seq >= rel_seq && norm3(hn.out.force_n) == 0) t_zero = hs_now_ns();
+    }
+    ENSURE(t_zero >= 0);
+    double ms = (double)(t_zero - t_rel) * 1e-6;
+    printf("  release: zero force %.1f ms after the release pose (blend %d ticks)\n", ms,
+           d.blend_ticks);
+    ENSURE(ms <= d.blend_ticks + 3);
+    hs_haptic_sim_stop(sim);
+
+    // Full model: static solve with the contact nodes prescribed at the contact's displacement
+    // (the static state the body settles to under the felt force); the sum of the reactions
+    // there is the force on the tissue, and must be -F on the tool.
+    unsigned char* fx = malloc((size_t)L.mesh->n_nodes);
+    memcpy(fx, L.fixed, (size_t)L.mesh->n_nodes);
+    for (int i = 0; i < st.contact.n; ++i) fx[st.contact.node[i]] = 1;
+    hs_body_def bd = d.body;
+    hs_body* b = NULL;
+    ENSURE(hs_body_create(L.mesh, &bd, fx, &b, &err) == HS_OK);
+    for (int i = 0; i < st.contact.n; ++i)
+        ENSURE(hs_body_set_prescribed(b, st.contact.node[i], st.contact.d_m[i]) == HS_OK);
+    ENSURE(hs_body_solve_static(b, NULL) >= 0);
+    double sum[3] = {0, 0, 0};
+    for (int i = 0; i < st.contact.n; ++i) {
+        double rr[3];
+        hs_body_reaction(b, st.contact.node[i], rr);
+        for (int a = 0; a < 3; ++a) sum[a] += rr[a];
+    }
+    double miss[3] = {f_hold[0] + sum[0], f_hold[1] + sum[1], f_hold[2] + sum[2]};
+    printf("  full-model reaction |R| = %.4g N, |F + R| / |R| = %.3g; tissue ringing about the "
+           "contact displacement: %.3g mm in the first second, %.3g mm in the second\n",
+           norm3(sum), norm3(miss) / norm3(sum), amp_early * 1e3, amp_late * 1e3);
+    ENSURE(norm3(miss) <= 1e-6 * norm3(sum));
+    ENSURE(amp_late < amp_early); // the body settles toward what the hand feels
+    hs_body_destroy(&b);
+    free(fx);
+    free(u);
+    hs_haptic_sim_destroy(&sim);
+    free_liver(&L);
+    return 0;
+}
+
+// Slide along the surface at 20 mm/s, 5 mm deep, co-rotated, across >= 1000 snapshot switches;
+// count allocations on the rt thread the whole time (> 10 s).
+//
+// Bound on the tick-to-tick force change. Within one snapshot the force is a continuous,
+// piecewise smooth function of the tool position with slope at most K (largest stiffness bound
+// seen), so |dF| <= K |dp|. On a switch the rt blend moves from the frozen old model to the new
+// one over n ticks, adding |F_new - F_old| / n per tick, where the old model is a first-order
+// extrapolation of a force field that changed over one snapshot period T while the tool moved
+// v T: |F_new - F_old| <= 2 K v T (the first-order error plus the tissue's own change, which
+// follows the tool at the same rate). So per tick
+//     |dF| <= 2 K |dp| + 2 K v T_max / n + 1 mN (rounding and the clamp-free safety chain),
+// doubled |dp| term for the kinks where a node enters or leaves the contact set.
+static int continuity_and_allocs(void) {
+    liver L;
+    ENSURE(load_liver(&L) == 0);
+    const double r = 0.02, depth = 0.005, v = 0.02, amp = 0.015;
+    hs_haptic_sim_def d = liver_def(HS_MODEL_COROTATED, r);
+    hs_haptic_sim* sim = NULL;
+    hs_err err = {0};
+    ENSURE(hs_haptic_sim_create(L.mesh, &d, L.fixed, &sim, &err) == HS_OK);
+    ENSURE(hs_haptic_sim_start(sim, &err) == HS_OK);
+    harness hn;
+    harness_init(&hn, sim);
+    double p[3];
+    for (int i = 0; i <= 300; ++i) {
+        tool_at(&L, r, -0.003 + (depth + 0.003) * i / 300.0, 0, p);
+        harness_tick(&hn, p);
+        drain(sim);
+    }
+    long long allocs0 = atomic_load(&g_rt_allocs);
+    int64_t switches = 0, ticks = 0, last_seq = -1, last_tick = -1;
+    double last_f[3] = {0, 0, 0}, last_p[3] = {0, 0, 0}, kmax = 0, fmax = 0;
+    double worst_ratio = 0, worst_df = 0, t_snap_max = 0;
+    int64_t last_switch_ns = 0;
+    // Records kept for the bound check once K and T are known.
+    enum { MAXREC = 40000 };
+    static double rec_df[MAXREC], rec_dp[MAXREC];
+    int nrec = 0;
+    int64_t start = hs_now_ns();
+    double s = 0, dir = 1;
+    while ((switches < 1000 || hs_now_ns() - start < (int64_t)10.5e9) &&
+           hs_now_ns() - start < (int64_t)40e9) {
+        s += dir * v * 1e-3;
+        if (s > amp || s < -amp) dir = -dir;
+        tool_at(&L, r, depth, s, p);
+        harness_tick(&hn, p);
+        if (hn.have_out) {
+            double kb = hs_haptic_model_stiffness_bound(&hn.out.model);
+            if (kb > kmax) kmax = kb;
+        }
+        hs_haptic_telemetry t;
+        while (hs_spsc_ring_pop(hs_haptic_sim_telemetry(sim), &t)) {
+            if (last_tick >= 0 && t.tick == last_tick + 1 && nrec < MAXREC) {
+                double df[3], dp[3];
+                for (int a = 0; a < 3; ++a) {
+                    df[a] = t.force_n[a] - last_f[a];
+                    dp[a] = t.tool_m[a] - last_p[a];
+                }
+                rec_df[nrec] = norm3(df);
+                rec_dp[nrec] = norm3(dp);
+                ++nrec;
+            }
+            if (last_seq >= 0 && t.model_seq != last_seq) {
+                ++switches;
+                if (last_switch_ns) {
+                    double T = (double)(t.now_ns - last_switch_ns) * 1e-9;
+                    if (T > t_snap_max) t_snap_max = T;
+                }
+                last_switch_ns = t.now_ns;
+            }
+            last_seq = t.model_seq;
+            last_tick = t.tick;
+            memcpy(last_f, t.force_n, sizeof last_f);
+            memcpy(last_p, t.tool_m, sizeof last_p);
+            double fn = norm3(t.force_n);
+            if (fn > fmax) fmax = fn;
+            ++ticks;
+        }
+    }
+    long long allocs = atomic_load(&g_rt_allocs) - allocs0;
+    double secs = (double)(hs_now_ns() - start) * 1e-9;
+    hs_haptic_sim_stats st;
+    hs_haptic_sim_stats_get(sim, &st);
+    hs_haptic_sim_stop(sim);
+    const int n = d.blend_ticks;
+    int violations = 0;
+    for (int i = 0; i < nrec; ++i) {
+        double bound = 2 * kmax * rec_dp[i] + 2 * kmax * v * t_snap_max / n + 1e-3;
+        double ratio = rec_df[i] / bound;
+        if (ratio > worst_ratio) worst_ratio = ratio;
+        if (rec_df[i] > worst_df) worst_df = rec_df[i];
+        violations += ratio > 1;
+    }
+    printf("  %.1f s, %lld ticks, %lld snapshot switches (longest gap %.1f ms), max |F| %.3g N, "
+           "K bound %.4g N/m\n",
+           secs, (long long)ticks, (long long)switches, t_snap_max * 1e3, fmax, kmax);
+    printf("  largest tick-to-tick change %.3g mN; worst ratio to the bound %.3f; rt allocations "
+           "%lld%s\n",
+           worst_df * 1e3, worst_ratio, allocs, COUNT_MALLOC ? "" : " (not counted: sanitizer)");
+    printf("  deformation: %lld steps, step+snapshot max %.2f ms, %lld column solves, "
+           "%d candidates (%d coupled)\n",
+           (long long)st.steps, st.step_ms_max, (long long)st.column_solves, st.candidates,
+           st.coupled);
+    ENSURE(switches >= 1000);
+    ENSURE(nrec > 5000 && fmax > 0.05);
+    ENSURE(violations == 0);
+    ENSURE(allocs == 0);
+    ENSURE(st.safety.nonfinite_force == 0);
+    hs_haptic_sim_destroy(&sim);
+    free_liver(&L);
+    return 0;
+}
+
+// Poses stop while in contact: the force is zero by timeout + ramp after the last pose.
+static int watchdog(void) {
+    liver L;
+    ENSURE(load_liver(&L) == 0);
+    const double r = 0.02;
+    hs_haptic_sim_def d = liver_def(HS_MODEL_LINEAR, r);
+    hs_haptic_sim* sim = NULL;
+    hs_err err = {0};
+    ENSURE(hs_haptic_sim_create(L.mesh, &d, L.fixed, &sim, &err) == HS_OK);
+    ENSURE(hs_haptic_sim_start(sim, &err) == HS_OK);
+    harness hn;
+    harness_init(&hn, sim);
+    double p[3];
+    for (int i = 0; i <= 400; ++i) {
+        tool_at(&L, r, -0.003 + 0.009 * i / 400.0, 0, p);
+        harness_tick(&hn, p);
+        drain(sim);
+    }
+    double f_before = norm3(hn.out.force_n);
+    ENSURE(f_before > 0.05);
+    const int64_t last = hn.last_feed_ns;
+    const double limit_s = d.safety.watchdog_timeout_s + d.safety.ramp_s;
+    double t_zero = -1, f_mid = -1;
+    for (int i = 0; i < 200; ++i) {
+        harness_tick(&hn, NULL);
+        drain(sim);
+        double since = (double)(hn.out.stamp_ns - last) * 1e-9;
+        if (since < d.safety.watchdog_timeout_s * 0.8 && since > 0) f_mid = norm3(hn.out.force_n);
+        if (t_zero < 0 && norm3(hn.out.force_n) == 0 && since > 0) t_zero = since;
+    }
+    printf("  force %.3g N before, %.3g N during the tolerated silence, zero %.1f ms after the "
+           "last pose (limit %.0f ms)\n",
+           f_before, f_mid, t_zero * 1e3, limit_s * 1e3);
+    ENSURE(f_mid > 0.5 * f_before);                  // still rendered while silence is tolerated
+    ENSURE(t_zero > 0 && t_zero <= limit_s + 0.003); // + pickup tick, output tick, one spare
+    hs_haptic_sim_stats st;
+    hs_haptic_sim_stats_get(sim, &st);
+    ENSURE(st.safety.watchdog_trips >= 1);
+    hs_haptic_sim_destroy(&sim);
+    free_liver(&L);
+    return 0;
+}
+
+HS_TEST_MAIN(HS_CASE(no_pose_no_force), HS_CASE(press_hold_release), HS_CASE(watchdog),
+             HS_CASE(continuity_and_allocs))
