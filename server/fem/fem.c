@@ -544,6 +544,7 @@ hs_status hs_fem_create_matrix(const hs_fem* fem, hs_csc** out) {
 }
 
 const double* hs_fem_lumped_mass(const hs_fem* fem) {
+    HS_ASSERT(fem);
     return fem->mass;
 }
 
@@ -611,6 +612,7 @@ static int element_rotation(hs_fem* m, int e, const double F[9], double det, dou
 }
 
 void hs_fem_update(hs_fem* m, const double* x, hs_fem_stats* stats) {
+    HS_ASSERT(m && x);
     const int ne = m->ne, n = m->n;
     const double mu = m->mu, lam = m->lam_el;
     const hs_model model = m->def.model;
@@ -782,6 +784,7 @@ void hs_fem_update(hs_fem* m, const double* x, hs_fem_stats* stats) {
 }
 
 void hs_fem_forces(const hs_fem* fem, double* f) {
+    HS_ASSERT(fem && f);
     memcpy(f, fem->f, sizeof(double) * 3 * (size_t)fem->n);
 }
 
@@ -857,7 +860,7 @@ static void element_blocks(const hs_fem* m, int e, double sc, double kb[10][9]) 
 }
 
 void hs_fem_assemble(const hs_fem* m, double kcoef, double mcoef, hs_csc* a) {
-    HS_ASSERT(a && a->n == m->n_free && a->nnz == m->nnz);
+    HS_ASSERT(m && a && a->n == m->n_free && a->nnz == m->nnz);
     memset(a->val, 0, sizeof(double) * (size_t)a->nnz);
     double* val = a->val;
     if (kcoef != 0.0) {
@@ -913,6 +916,7 @@ void hs_fem_assemble(const hs_fem* m, double kcoef, double mcoef, hs_csc* a) {
 }
 
 void hs_fem_apply_tangent(const hs_fem* m, const double* x, double* y) {
+    HS_ASSERT(m && x && y && x != y);
     memset(y, 0, sizeof(double) * 3 * (size_t)m->n);
     double kb[10][9];
     for (int e = 0; e < m->ne; e++) {
