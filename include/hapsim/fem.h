@@ -90,6 +90,10 @@ const double* hs_fem_lumped_mass(const hs_fem* fem);
 void hs_fem_node_rotation(const hs_fem* fem, int node, double r[9] /* OUT */);
 /// Set or clear an element's participation (cutting removes elements). Allocates: no.
 void hs_fem_set_element_active(hs_fem* fem, int tet, int active);
+/// Recompute the rest data (shape gradients, volume, lumped mass) of elements tets[n] from the
+/// mesh's current x0 (cutting moves vertices). HS_ERR_INVALID (nothing changed) for an index out
+/// of range or an element with rest volume <= 0. Allocates: no.
+hs_status hs_fem_refresh_elements(hs_fem* fem, const int* tets, int n);
 /// Release; accepts NULL, sets *fem = NULL.
 void hs_fem_destroy(hs_fem** fem);
 

@@ -1,0 +1,178 @@
+// hapsim cut: vertex-preserving cutting (Nakao, Minato et al.) with the stiffness factor kept
+// consistent by low-rank updates.
+//
+// DESIGN. Owned by the deformation thread; used by one thread at a time.
+//  - Geometry. The blade is a segment PQ; between two steps it sweeps the quad (P0,Q0,Q1,P1),
+//    split into the triangles (P0,Q0,Q1) and (P0,Q1,P1). A tet is cut when one of its edges (at
+//    the current positions x = x0 + u) crosses the quad. Each vertex of a removed tet moves to
+//    the closest point of the quad (the plane projection when it falls inside, else the nearest
+//    boundary segment); a surface vertex moves only within its tangent plane. Moves are mapped to
+//    rest space through the inverse of the vertex's mean deformation gradient, so u keeps the
+//    deformation. Cut tets are removed; no vertex is ever created (K keeps its size).
+//  - Rules. A removal that would leave a vertex without elements either pins the vertex (default:
+//    it leaves the system, the cut separates fully) or keeps the tet (the paper's rule). A move is
+//    halved until every remaining incident tet keeps a volume ratio and a shape quality, in rest
+//    and current positions, else dropped. A piece cut free of every fixed node is dropped (tets
+//    removed, nodes pinned) or fixed in place (nodes pinned), per def, so K stays SPD.
+//  - Physics. The cut keeps the rest-state linear stiffness K (free dofs; fixed nodes
+//    eliminated; pinned nodes held by a diagonal spring) and its sparse Cholesky factor. Each
+//    sweep changes K by the 12x12 blocks of removed tets and of tets touching moved vertices
+//    (+ pin blocks); the factor gets them as one CHOLMOD update/downdate, never a refactor,
+//    unless the update fails (then it refactors and counts it). hs_cut_refactor is the fallback
+//    a background pass may run.
+//  - Events. After each sweep: the removed tets, the moved vertices and a topology version
+//    (grows when anything changed), for the protocol's topology events.
+#ifndef HAPSIM_CUT_H
+#define HAPSIM_CUT_H
+
+#include "hapsim/base.h"
+#include "hapsim/fem.h"
+#include "hapsim/mesh.h"
+#include "hapsim/sparse.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/// What a removal that would leave a vertex with no element does.
+typedef enum hs_cut_orphan {
+    HS_CUT_ORPHAN_PIN = 0,      ///< remove the tet, pin the vertex (it leaves the system)
+    HS_CUT_ORPHAN_KEEP_TET = 1, ///< keep the tet (the paper's rule; the cut may not separate)
+} hs_cut_orphan;
+
+/// What a piece that no fixed node holds does.
+typedef enum hs_cut_fragment {
+    HS_CUT_FRAGMENT_DROP = 0, ///< remove its tets and pin its nodes (it leaves the scene)
+    HS_CUT_FRAGMENT_FIX = 1,  ///< pin its nodes in place, keep its tets
+} hs_cut_fragment;
+
+/// Cutting options. Initialise with hs_cut_default_def().
+typedef struct hs_cut_def {
+    hs_material material;     ///< material of the linear stiffness kept factorised
+    hs_cut_orphan orphan;     ///< orphan vertex rule
+    hs_cut_fragment fragment; ///< free piece rule
+    double min_volume_ratio;  ///< guard: V_after / V_before of each remaining incident tet
+    double min_quality;       ///< guard: floor of 6 sqrt(2) V / l_rms^3 (1 = regular tet)
+    int max_bisections;       ///< guard: halvings of a move before it is dropped
+    int tangent_surface;      ///< 1: surface vertices move only in their tangent plane (paper)
+    int update_factor;        ///< 1: low-rank factor updates; 0: refactor every sweep (reference)
+    int validate;             ///< 1: hs_mesh_check + own checks after every sweep
+    int cookie;               ///< set by hs_cut_default_def
+} hs_cut_def;
+
+/// Defaults: hs_fem_default_def()'s material, ORPHAN_PIN, FRAGMENT_DROP, volume ratio 0.1,
+/// quality 0.02, 8 bisections, tangent moves on, factor updates on, validation on.
+hs_cut_def hs_cut_default_def(void);
+
+/// What one sweep did.
+typedef struct hs_cut_result {
+    int cut_tets;             ///< tets with an edge crossing the sweep
+    int removed;              ///< tets removed (cut ones + dropped fragments)
+    int kept;                 ///< cut tets kept by ORPHAN_KEEP_TET
+    int moved;                ///< vertices moved
+    int clamped;              ///< of them shortened or dropped by the quality guard
+    int pinned;               ///< nodes pinned by this sweep (orphans + fragments)
+    int fragments;            ///< free pieces dropped or fixed
+    int changed_elements;     ///< element changes applied to the factor (+ pin blocks)
+    int refactored;           ///< 1 when the factor was rebuilt instead of updated
+    double cut_length_m;      ///< summed length of distinct mesh edges crossing the sweep, m
+    double geometry_ms;       ///< crossing test, moves, guard, fragments, ms
+    double factor_ms;         ///< element matrices + factor update, ms
+    double mesh_ms;           ///< live mesh rebuild (hs_mesh_finalize) + validation, ms
+    double total_ms;          ///< whole sweep, ms
+    int64_t topology_version; ///< after this sweep
+} hs_cut_result;
+
+typedef struct hs_cut hs_cut;
+
+/// Set up cutting on mesh (its x0 is moved by cuts; its tets array is never changed, so a body
+/// or fem built on it keeps its element numbering). fixed[n_nodes] (NULL: none) marks the
+/// nodes eliminated from K. Factors K. The mesh must outlive the cut. @param out OUT
+/// Thread: deformation | Allocates: yes
+hs_status hs_cut_create(hs_mesh* mesh, const unsigned char* fixed, const hs_cut_def* def,
+                        hs_cut** out, hs_err* err);
+/// Release; accepts NULL, sets *cut = NULL.
+void hs_cut_destroy(hs_cut** cut);
+
+/// Cut with the blade moving from segment (p0, q0) to (p1, q1), world coordinates, m.
+/// u ([3n], m, may be NULL for a body at rest) is the current displacement: crossings use
+/// x0 + u, and moved vertices get u updated so x0 + u lands where the move puts it.
+/// On a negative status nothing in the mesh changed if err names the input; a failure after
+/// the geometry changed (a failed refactor) is reported and leaves a consistent mesh.
+/// Thread: deformation | Allocates: only in hs_mesh_finalize of the live mesh
+hs_status hs_cut_sweep(hs_cut* cut, const double p0[3], const double q0[3], const double p1[3],
+                       const double q1[3], double* u, hs_cut_result* res /* OUT, may be NULL */,
+                       hs_err* err);
+
+/// Tets removed by the last sweep (indices into mesh->tets); valid until the next sweep.
+int hs_cut_last_removed(const hs_cut* cut, const int** tets /* OUT */);
+/// Vertices moved by the last sweep; valid until the next sweep.
+int hs_cut_last_moved(const hs_cut* cut, const int** nodes /* OUT */);
+/// Grows by one per sweep that removed or moved anything (0 before the first).
+int64_t hs_cut_topology_version(const hs_cut* cut);
+/// 1 while tet (index into mesh->tets) is part of the body.
+int hs_cut_tet_active(const hs_cut* cut, int tet);
+/// 1 when node was pinned by a cut (orphan or free piece); its displacement is then zero.
+int hs_cut_node_pinned(const hs_cut* cut, int node);
+/// The body as it is now: the active tets (finalized: surface, adjacency), same nodes as mesh.
+const hs_mesh* hs_cut_live_mesh(const hs_cut* cut);
+/// Mesh tet index of live tet k.
+int hs_cut_live_tet(const hs_cut* cut, int k);
+/// Connected pieces of the live mesh (tets sharing a node are connected).
+int hs_cut_components(const hs_cut* cut);
+/// Check the live mesh (hs_mesh_check) and the cut invariants: no used free vertex without an
+/// element, every active tet positively oriented at rest, pinned nodes unused.
+hs_status hs_cut_validate(const hs_cut* cut, hs_err* err);
+
+/// Static linear solve K u = f with the kept factor: f[3n] nodal forces (N) in, u[3n] (m) out;
+/// fixed and pinned nodes get zero. Allocates: no.
+hs_status hs_cut_solve(hs_cut* cut, const double* f, double* u /* OUT */);
+/// The kept factor (order hs_cut_free_dofs).
+hs_cholesky* hs_cut_factor(hs_cut* cut);
+/// Number of free dofs of K.
+int hs_cut_free_dofs(const hs_cut* cut);
+/// Free dof index of (node, comp), or -1 for a fixed node.
+int hs_cut_dof(const hs_cut* cut, int node, int comp);
+/// A new matrix with K's pattern (values zero). @param out OUT
+hs_status hs_cut_create_matrix(const hs_cut* cut, hs_csc** out);
+/// Assemble K as it is now from scratch (fem assembly of the active tets + pins) into a.
+void hs_cut_assemble(const hs_cut* cut, hs_csc* a);
+/// Rebuild the factor from a fresh assembly (the fallback; also resets update drift).
+hs_status hs_cut_refactor(hs_cut* cut);
+/// The linear fem the cut keeps (element activity and rest data follow the cuts).
+const hs_fem* hs_cut_fem(const hs_cut* cut);
+/// Mirror every cut so far into another fem built on the same mesh (e.g. a body's): deactivate
+/// removed tets and refresh the rest data of tets whose vertices moved since its last sync.
+/// Call after each sweep, before the body steps. Allocates: no.
+hs_status hs_cut_sync_fem(const hs_cut* cut, hs_fem* other);
+
+// ---------------------------------------------------------------------------------------------
+// Compliance: diagonal blocks C_kk of K^-1 for a tracked node set, updated exactly per sweep by
+// Woodbury on the changed dofs (or re-solved, per mode), for the haptic path.
+
+typedef enum hs_cut_compliance_mode {
+    HS_CUT_COMPLIANCE_WOODBURY = 0, ///< C' = C - C_:D (I + dK_DD C_DD)^-1 dK_DD C_D: (old factor)
+    HS_CUT_COMPLIANCE_RESOLVE = 1,  ///< re-solve every tracked block with the updated factor
+} hs_cut_compliance_mode;
+
+/// Track nodes[n] (any nodes; fixed ones give zero blocks): compute their blocks now and keep
+/// them current on every later sweep. Replaces an earlier set. Allocates: yes.
+hs_status hs_cut_track_compliance(hs_cut* cut, int n, const int* nodes,
+                                  hs_cut_compliance_mode mode);
+/// Block C_kk (m/N, row-major) of tracked node index k (0..n-1 of the tracked set).
+void hs_cut_compliance_block(const hs_cut* cut, int k, double out[9] /* OUT */);
+/// Wall time of the last compliance update, ms.
+double hs_cut_compliance_ms(const hs_cut* cut);
+
+// ---------------------------------------------------------------------------------------------
+/// Cutting resistance felt by the blade (a toughness model): separating tissue along the mesh
+/// edges the sweep crossed resists the blade with force = toughness_n_m * cut_length_m, opposite
+/// the blade travel, capped at max_n. Zero when nothing was cut or the blade did not move.
+/// Pure. Thread: any | Allocates: no
+void hs_cut_force(double toughness_n_m, double cut_length_m, const double travel_m[3], double max_n,
+                  double force_n[3] /* OUT, on the tool */);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

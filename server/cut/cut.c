@@ -1,0 +1,1353 @@
+// Vertex-preserving cutting: sweep crossing test, vertex moves with a quality guard, tet
+// removal with the orphan and free-piece rules, the live mesh, and the low-rank factor update.
+// See include/hapsim/cut.h for the design and docs/cutting.md for the choices.
+#include "hapsim/cut.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define HS_CUT_COOKIE 0x43555431
+
+struct hs_cut {
+    hs_mesh* mesh; // x0 moves with cuts; tets never change
+    hs_cut_def def;
+    int n, ne;
+    double lambda, mu; // Lame parameters of the linear K, Pa
+
+    unsigned char* fixed;  // [n] eliminated from K (user fixed or unused at create)
+    unsigned char* pinned; // [n] held by a pin spring after a cut
+    unsigned char* active; // [ne]
+    int* count;            // [n] active tets per node
+    int* nt_start;         // [n+1] node -> tet incidence over all mesh tets
+    int* nt;               //
+    double* vol_orig;      // [ne] rest volume at create, m^3
+    double* q_orig;        // [ne] rest quality at create
+
+    int* dof; // [3n] free index or -1
+    int n_free;
+    hs_fem* fem;
+    hs_csc* a;
+    hs_cholesky* factor;
+    double k_pin; // pin spring, N/m (mean diagonal of K)
+    int updates_since_refactor;
+
+    hs_mesh* live;  // active tets only
+    int* live_tet;  // [ne] live index -> mesh tet
+    int components; // of the live mesh
+    int64_t version;
+
+    // per-sweep scratch, allocated at create
+    double* x;            // [3n] current positions
+    double* x0_old;       // [3n] rest positions before this sweep
+    double* nrm;          // [3n] vertex normals
+    unsigned char* tmark; // [ne] 1 cut, 2 to remove
+    unsigned char* nmark; // [n] 1 candidate vertex
+    int* cut_list;        // [ne]
+    int* removed;         // [ne] removed by the last sweep
+    int n_removed;
+    int* moved; // [n] moved by the last sweep
+    int n_moved;
+    int* changed; // [ne] active tets whose rest data changed in the last sweep
+    int n_changed;
+    int* pins; // [n] nodes pinned by the last sweep
+    int n_pins;
+    int* edges;          // [2 * 6ne] crossed edges (a < b)
+    int* parent;         // [n] scratch
+    int* fnbr;           // [4ne] tet across face f of tet e (face f omits local node f), -1
+    int* tparent;        // [ne] union-find over tets
+    int* fa;             // [ne] first fixed node of a piece (at its root)
+    int* fb;             // [ne] second
+    unsigned char* anch; // [ne] piece is held
+    double* rhs;         // [n_free]
+    double* sol;         // [n_free]
+
+    // element changes for the factor, grown when a sweep needs more
+    int cap_elem;
+    double* dk; // [144 cap_elem]
+    int* edof;  // [12 cap_elem]
+
+    // tracked compliance
+    hs_cut_compliance_mode cmode;
+    int n_track;
+    int* track;   // [n_track] nodes
+    double* cblk; // [9 n_track]
+    double cms;   // last update, ms
+    int* dset;    // [n_free] changed dofs of a sweep
+    int* dpos;    // [n_free] position in dset or -1
+    double* zbuf; // [n_free * HS_CUT_BATCH]
+    double* zd;   // [d * d] C_DD (grown)
+    double* zt;   // [n_track*3 * d] tracked rows of Z (grown)
+    double* kdd;  // [d * d] dK_DD (grown)
+    double* wrk;  // [d * d] (grown)
+    int* piv;     // [d]
+    int cap_d;
+};
+
+#define HS_CUT_BATCH 48
+
+hs_cut_def hs_cut_default_def(void) {
+    hs_cut_def d;
+    memset(&d, 0, sizeof d);
+    d.material = hs_fem_default_def().material;
+    d.orphan = HS_CUT_ORPHAN_PIN;
+    d.fragment = HS_CUT_FRAGMENT_DROP;
+    d.min_volume_ratio = 0.1;
+    d.min_quality = 0.02;
+    d.max_bisections = 8;
+    d.tangent_surface = 1;
+    d.update_factor = 1;
+    d.validate = 1;
+    d.cookie = HS_CUT_COOKIE;
+    return d;
+}
+
+void hs_cut_destroy(hs_cut** pc) {
+    if (!pc || !*pc) return;
+    hs_cut* c = *pc;
+    hs_fem_destroy(&c->fem);
+    hs_csc_destroy(&c->a);
+    hs_cholesky_destroy(&c->factor);
+    hs_mesh_destroy(&c->live);
+    void* p[] = {c->fixed,  c->pinned,   c->active,   c->count, c->nt_start, c->nt,   c->vol_orig,
+                 c->q_orig, c->dof,      c->live_tet, c->x,     c->x0_old,   c->nrm,  c->tmark,
+                 c->nmark,  c->cut_list, c->removed,  c->moved, c->changed,  c->pins, c->edges,
+                 c->parent, c->fnbr,     c->tparent,  c->fa,    c->fb,       c->anch, c->rhs,
+                 c->sol,    c->dk,       c->edof,     c->track, c->cblk,     c->dset, c->dpos,
+                 c->zbuf,   c->zd,       c->zt,       c->kdd,   c->wrk,      c->piv};
+    for (size_t i = 0; i < sizeof p / sizeof p[0]; i++) hs_free(p[i]);
+    hs_free(c);
+    *pc = NULL;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Small geometry
+
+static inline void v3_sub(const double* a, const double* b, double* o) {
+    o[0] = a[0] - b[0];
+    o[1] = a[1] - b[1];
+    o[2] = a[2] - b[2];
+}
+static inline double v3_dot(const double* a, const double* b) {
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+}
+static inline void v3_cross(const double* a, const double* b, double* o) {
+    o[0] = a[1] * b[2] - a[2] * b[1];
+    o[1] = a[2] * b[0] - a[0] * b[2];
+    o[2] = a[0] * b[1] - a[1] * b[0];
+}
+
+static double tet_vol4(const double* p0, const double* p1, const double* p2, const double* p3) {
+    double a[3], b[3], c[3], x[3];
+    v3_sub(p1, p0, a);
+    v3_sub(p2, p0, b);
+    v3_sub(p3, p0, c);
+    v3_cross(b, c, x);
+    return v3_dot(a, x) / 6.0;
+}
+
+/// Shape quality 6 sqrt(2) V / l_rms^3: 1 for a regular tet, -> 0 for slivers and needles.
+static double tet_quality4(const double* p[4], double vol) {
+    double s = 0;
+    for (int i = 0; i < 4; i++)
+        for (int j = i + 1; j < 4; j++) {
+            double d[3];
+            v3_sub(p[i], p[j], d);
+            s += v3_dot(d, d);
+        }
+    double l = sqrt(s / 6.0);
+    return l > 0 ? 6.0 * sqrt(2.0) * vol / (l * l * l) : 0.0;
+}
+
+/// Closest point of triangle (a, b, c) to p (Ericson, Real-Time Collision Detection 5.1.5).
+static void closest_on_tri(const double* p, const double* a, const double* b, const double* c,
+                           double* out) {
+    double ab[3], ac[3], ap[3];
+    v3_sub(b, a, ab);
+    v3_sub(c, a, ac);
+    v3_sub(p, a, ap);
+    double d1 = v3_dot(ab, ap), d2 = v3_dot(ac, ap);
+    if (d1 <= 0 && d2 <= 0) {
+        memcpy(out, a, 3 * sizeof(double));
+        return;
+    }
+    double bp[3];
+    v3_sub(p, b, bp);
+    double d3 = v3_dot(ab, bp), d4 = v3_dot(ac, bp);
+    if (d3 >= 0 && d4 <= d3) {
+        memcpy(out, b, 3 * sizeof(double));
+        return;
+    }
+    double vc = d1 * d4 - d3 * d2;
+    if (vc <= 0 && d1 >= 0 && d3 <= 0) {
+        double v = d1 / (d1 - d3);
+        for (int k = 0; k < 3; k++) out[k] = a[k] + v * ab[k];
+        return;
+    }
+    double cp[3];
+    v3_sub(p, c, cp);
+    double d5 = v3_dot(ab, cp), d6 = v3_dot(ac, cp);
+    if (d6 >= 0 && d5 <= d6) {
+        memcpy(out, c, 3 * sizeof(double));
+        return;
+    }
+    double vb = d5 * d2 - d1 * d6;
+    if (vb <= 0 && d2 >= 0 && d6 <= 0) {
+        double w = d2 / (d2 - d6);
+        for (int k = 0; k < 3; k++) out[k] = a[k] + w * ac[k];
+        return;
+    }
+    double va = d3 * d6 - d5 * d4;
+    if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) {
+        double w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+        for (int k = 0; k < 3; k++) out[k] = b[k] + w * (c[k] - b[k]);
+        return;
+    }
+    double den = 1.0 / (va + vb + vc);
+    double v = vb * den, w = vc * den;
+    for (int k = 0; k < 3; k++) out[k] = a[k] + ab[k] * v + ac[k] * w;
+}
+
+/// 1 when segment (a, b) crosses triangle (t0, t1, t2): endpoints strictly on opposite sides
+/// (beyond tol, m) and the crossing point inside or on the triangle.
+static int seg_tri(const double* a, const double* b, const double* t0, const double* t1,
+                   const double* t2, double tol) {
+    double e1[3], e2[3], n[3];
+    v3_sub(t1, t0, e1);
+    v3_sub(t2, t0, e2);
+    v3_cross(e1, e2, n);
+    double nn = sqrt(v3_dot(n, n));
+    if (!(nn > 0)) return 0;
+    double da[3], db[3];
+    v3_sub(a, t0, da);
+    v3_sub(b, t0, db);
+    double sa = v3_dot(n, da) / nn, sb = v3_dot(n, db) / nn;
+    if (!((sa > tol && sb < -tol) || (sa < -tol && sb > tol))) return 0;
+    double s = sa / (sa - sb), x[3];
+    for (int k = 0; k < 3; k++) x[k] = a[k] + s * (b[k] - a[k]);
+    // Barycentric signs of x in the triangle (edges inclusive, so the shared diagonal counts).
+    const double* t[3] = {t0, t1, t2};
+    for (int i = 0; i < 3; i++) {
+        double ei[3], xi[3], c[3];
+        v3_sub(t[(i + 1) % 3], t[i], ei);
+        v3_sub(x, t[i], xi);
+        v3_cross(ei, xi, c);
+        if (v3_dot(c, n) < -1e-12 * nn * sqrt(v3_dot(ei, ei))) return 0;
+    }
+    return 1;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Element stiffness of the linear model (same formula as fem.c's linear element):
+// K_ab = V (lambda g_a g_b^T + mu g_b g_a^T + mu (g_a . g_b) I), row-major 12x12.
+
+static int element_k(const hs_cut* c, const double* x0, int e, double k[144]) {
+    const int* t = c->mesh->tets + 4 * e;
+    double dm[9];
+    for (int i = 0; i < 3; i++)
+        for (int r = 0; r < 3; r++) dm[3 * r + i] = x0[3 * t[i + 1] + r] - x0[3 * t[0] + r];
+    double det = dm[0] * (dm[4] * dm[8] - dm[5] * dm[7]) - dm[1] * (dm[3] * dm[8] - dm[5] * dm[6]) +
+                 dm[2] * (dm[3] * dm[7] - dm[4] * dm[6]);
+    if (!(det > 0)) return 0;
+    // rows of Dm^-1 = columns of the cofactor matrix / det
+    double cof[9];
+    cof[0] = dm[4] * dm[8] - dm[5] * dm[7];
+    cof[1] = -(dm[3] * dm[8] - dm[5] * dm[6]);
+    cof[2] = dm[3] * dm[7] - dm[4] * dm[6];
+    cof[3] = -(dm[1] * dm[8] - dm[2] * dm[7]);
+    cof[4] = dm[0] * dm[8] - dm[2] * dm[6];
+    cof[5] = -(dm[0] * dm[7] - dm[1] * dm[6]);
+    cof[6] = dm[1] * dm[5] - dm[2] * dm[4];
+    cof[7] = -(dm[0] * dm[5] - dm[2] * dm[3]);
+    cof[8] = dm[0] * dm[4] - dm[1] * dm[3];
+    double g[4][3];
+    for (int i = 0; i < 3; i++)
+        for (int r = 0; r < 3; r++) g[i + 1][r] = cof[3 * r + i] / det;
+    for (int r = 0; r < 3; r++) g[0][r] = -(g[1][r] + g[2][r] + g[3][r]);
+    double V = det / 6.0, lam = c->lambda, mu = c->mu;
+    for (int a = 0; a < 4; a++)
+        for (int b = 0; b < 4; b++) {
+            double gg = mu * v3_dot(g[a], g[b]);
+            for (int i = 0; i < 3; i++)
+                for (int j = 0; j < 3; j++)
+                    k[12 * (3 * a + i) + 3 * b + j] =
+                        V * (lam * g[a][i] * g[b][j] + mu * g[b][i] * g[a][j] + (i == j ? gg : 0));
+        }
+    return 1;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Set-up
+
+static hs_status nomem(hs_err* err) {
+    return hs_err_set(err, HS_ERR_NOMEM, "cut: out of memory");
+}
+
+static hs_status grow_elems(hs_cut* c, int need) {
+    if (need <= c->cap_elem) return HS_OK;
+    int cap = c->cap_elem * 2 > need ? c->cap_elem * 2 : need;
+    double* dk = hs_realloc(c->dk, sizeof(double) * 144 * (size_t)cap);
+    if (!dk) return HS_ERR_NOMEM;
+    c->dk = dk;
+    int* ed = hs_realloc(c->edof, sizeof(int) * 12 * (size_t)cap);
+    if (!ed) return HS_ERR_NOMEM;
+    c->edof = ed;
+    c->cap_elem = cap;
+    return HS_OK;
+}
+
+void hs_cut_assemble(const hs_cut* c, hs_csc* a) {
+    hs_fem_assemble(c->fem, 1.0, 0.0, a);
+    for (int i = 0; i < c->n; i++) {
+        if (!c->pinned[i]) continue;
+        for (int q = 0; q < 3; q++) {
+            int d = c->dof[3 * i + q];
+            if (d < 0) continue;
+            int p = hs_csc_find(a, d, d);
+            HS_ASSERT(p >= 0);
+            a->val[p] += c->k_pin;
+        }
+    }
+}
+
+hs_status hs_cut_refactor(hs_cut* c) {
+    hs_cut_assemble(c, c->a);
+    hs_status st = hs_cholesky_refactor(c->factor, c->a);
+    if (st == HS_OK) c->updates_since_refactor = 0;
+    return st;
+}
+
+static hs_status rebuild_live(hs_cut* c, hs_err* err) {
+    int k = 0;
+    for (int e = 0; e < c->ne; e++) {
+        if (!c->active[e]) continue;
+        memcpy(c->live->tets + 4 * k, c->mesh->tets + 4 * e, 4 * sizeof(int));
+        c->live_tet[k++] = e;
+    }
+    c->live->n_tets = k;
+    hs_status st = hs_mesh_finalize(c->live, err);
+    if (st == HS_WARN_MESH_REPAIRED)
+        return hs_err_set(err, HS_ERR_NUMERIC,
+                          "cut: the live mesh needed repair (%d degenerate, %d reoriented tets): "
+                          "the quality guard let a bad element through",
+                          c->live->report.degenerate_tets, c->live->report.reoriented_tets);
+    if (st == HS_OK) c->components = c->live->report.components;
+    return st;
+}
+
+static int cmp_face(const void* pa, const void* pb) {
+    const int* a = pa;
+    const int* b = pb;
+    for (int k = 0; k < 3; k++)
+        if (a[k] != b[k]) return (a[k] > b[k]) - (a[k] < b[k]);
+    return 0;
+}
+
+/// fnbr: the tet across each face, by sorting the faces' node triples.
+static hs_status build_face_neighbours(hs_cut* c) {
+    const int ne = c->ne;
+    int* key = hs_alloc(sizeof(int) * 5 * 4 * (size_t)ne);
+    if (!key) return HS_ERR_NOMEM;
+    for (int e = 0; e < ne; e++)
+        for (int f = 0; f < 4; f++) {
+            int* k = key + 5 * (4 * e + f);
+            int m = 0;
+            for (int a = 0; a < 4; a++)
+                if (a != f) k[m++] = c->mesh->tets[4 * e + a];
+            for (int i = 0; i < 3; i++) // sort 3
+                for (int j = i + 1; j < 3; j++)
+                    if (k[j] < k[i]) {
+                        int t = k[i];
+                        k[i] = k[j];
+                        k[j] = t;
+                    }
+            k[3] = e;
+            k[4] = f;
+            c->fnbr[4 * e + f] = -1;
+        }
+    qsort(key, 4 * (size_t)ne, 5 * sizeof(int), cmp_face);
+    for (int i = 0; i + 1 < 4 * ne; i++) {
+        int *a = key + 5 * i, *b = a + 5;
+        if (cmp_face(a, b) == 0) {
+            c->fnbr[4 * a[3] + a[4]] = b[3];
+            c->fnbr[4 * b[3] + b[4]] = a[3];
+        }
+    }
+    hs_free(key);
+    return HS_OK;
+}
+
+hs_status hs_cut_create(hs_mesh* mesh, const unsigned char* fixed, const hs_cut_def* def,
+                        hs_cut** out, hs_err* err) {
+    if (!out) return hs_err_set(err, HS_ERR_INVALID, "cut: out is NULL");
+    *out = NULL;
+    if (!mesh || !def) return hs_err_set(err, HS_ERR_INVALID, "cut: mesh and def must be given");
+    if (def->cookie != HS_CUT_COOKIE)
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "cut: definition not initialised with hs_cut_default_def()");
+    if (!(def->min_volume_ratio >= 0 && def->min_volume_ratio < 1) ||
+        !(def->min_quality >= 0 && def->min_quality < 1) || def->max_bisections < 0 ||
+        def->max_bisections > 60)
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "cut: guard out of range (volume ratio %g, quality %g, bisections %d)",
+                          def->min_volume_ratio, def->min_quality, def->max_bisections);
+    if (mesh->n_nodes <= 0 || mesh->n_tets <= 0 || !mesh->node_used)
+        return hs_err_set(err, HS_ERR_INVALID, "cut: mesh is empty or not finalized");
+    hs_cut* c = hs_calloc(1, sizeof *c);
+    if (!c) return nomem(err);
+    c->mesh = mesh;
+    c->def = *def;
+    const int n = c->n = mesh->n_nodes, ne = c->ne = mesh->n_tets;
+    size_t n3 = 3 * (size_t)n;
+    c->fixed = hs_calloc((size_t)n, 1);
+    c->pinned = hs_calloc((size_t)n, 1);
+    c->active = hs_alloc((size_t)ne);
+    c->count = hs_calloc((size_t)n, sizeof(int));
+    c->nt_start = hs_calloc((size_t)n + 1, sizeof(int));
+    c->nt = hs_alloc(4 * sizeof(int) * (size_t)ne);
+    c->vol_orig = hs_alloc(sizeof(double) * (size_t)ne);
+    c->q_orig = hs_alloc(sizeof(double) * (size_t)ne);
+    c->dof = hs_alloc(sizeof(int) * n3);
+    c->live_tet = hs_alloc(sizeof(int) * (size_t)ne);
+    c->x = hs_alloc(sizeof(double) * n3);
+    c->x0_old = hs_alloc(sizeof(double) * n3);
+    c->nrm = hs_alloc(sizeof(double) * n3);
+    c->tmark = hs_calloc((size_t)ne, 1);
+    c->nmark = hs_calloc((size_t)n, 1);
+    c->cut_list = hs_alloc(sizeof(int) * (size_t)ne);
+    c->removed = hs_alloc(sizeof(int) * (size_t)ne);
+    c->moved = hs_alloc(sizeof(int) * (size_t)n);
+    c->changed = hs_alloc(sizeof(int) * (size_t)ne);
+    c->pins = hs_alloc(sizeof(int) * (size_t)n);
+    c->edges = hs_alloc(sizeof(int) * 12 * (size_t)ne);
+    c->parent = hs_alloc(sizeof(int) * (size_t)n);
+    c->fnbr = hs_alloc(sizeof(int) * 4 * (size_t)ne);
+    c->tparent = hs_alloc(sizeof(int) * (size_t)ne);
+    c->fa = hs_alloc(sizeof(int) * (size_t)ne);
+    c->fb = hs_alloc(sizeof(int) * (size_t)ne);
+    c->anch = hs_alloc((size_t)ne);
+    if (!c->fixed || !c->pinned || !c->active || !c->count || !c->nt_start || !c->nt ||
+        !c->vol_orig || !c->q_orig || !c->dof || !c->live_tet || !c->x || !c->x0_old || !c->nrm ||
+        !c->tmark || !c->nmark || !c->cut_list || !c->removed || !c->moved || !c->changed ||
+        !c->pins || !c->edges || !c->parent || !c->fnbr || !c->tparent || !c->fa || !c->fb ||
+        !c->anch || grow_elems(c, 256) != HS_OK) {
+        hs_cut_destroy(&c);
+        return nomem(err);
+    }
+    const double* x0 = mesh->x0;
+    memcpy(c->x0_old, x0, sizeof(double) * n3);
+    for (int e = 0; e < ne; e++) {
+        const int* t = mesh->tets + 4 * e;
+        const double* p[4] = {x0 + 3 * t[0], x0 + 3 * t[1], x0 + 3 * t[2], x0 + 3 * t[3]};
+        double v = tet_vol4(p[0], p[1], p[2], p[3]);
+        if (!(v > 0)) {
+            hs_err_set(err, HS_ERR_INVALID, "cut: tet %d is not positively oriented (V = %g m^3)",
+                       e, v);
+            hs_cut_destroy(&c);
+            return HS_ERR_INVALID;
+        }
+        c->vol_orig[e] = v;
+        c->q_orig[e] = tet_quality4(p, v);
+        c->active[e] = 1;
+        for (int a = 0; a < 4; a++) {
+            c->count[t[a]]++;
+            c->nt_start[t[a] + 1]++;
+        }
+    }
+    for (int i = 0; i < n; i++) c->nt_start[i + 1] += c->nt_start[i];
+    {
+        int* fill = c->parent; // scratch
+        memcpy(fill, c->nt_start, sizeof(int) * (size_t)n);
+        for (int e = 0; e < ne; e++)
+            for (int a = 0; a < 4; a++) c->nt[fill[mesh->tets[4 * e + a]]++] = e;
+    }
+    if (build_face_neighbours(c) != HS_OK) {
+        hs_cut_destroy(&c);
+        return nomem(err);
+    }
+    int nf = 0, nfixed_used = 0;
+    for (int i = 0; i < n; i++) {
+        int fx = (fixed && fixed[i]) || c->count[i] == 0;
+        if (fixed && fixed[i] && c->count[i] > 0) nfixed_used++;
+        c->fixed[i] = (unsigned char)fx;
+        for (int q = 0; q < 3; q++) c->dof[3 * i + q] = fx ? -1 : nf++;
+    }
+    c->n_free = nf;
+    if (nf == 0 || nfixed_used == 0) {
+        hs_err_set(err, HS_ERR_INVALID,
+                   "cut: need at least one fixed node and one free node (%d fixed, %d free dofs)",
+                   nfixed_used, nf);
+        hs_cut_destroy(&c);
+        return HS_ERR_INVALID;
+    }
+    c->rhs = hs_alloc(sizeof(double) * (size_t)nf);
+    c->sol = hs_alloc(sizeof(double) * (size_t)nf);
+    if (!c->rhs || !c->sol) {
+        hs_cut_destroy(&c);
+        return nomem(err);
+    }
+    hs_fem_def fd = hs_fem_default_def();
+    fd.model = HS_MODEL_LINEAR;
+    fd.material = def->material;
+    hs_status st = hs_fem_create(mesh, &fd, c->dof, nf, &c->fem, err);
+    if (st == HS_OK) st = hs_fem_create_matrix(c->fem, &c->a);
+    if (st != HS_OK) {
+        hs_cut_destroy(&c);
+        return st == HS_ERR_NOMEM ? nomem(err) : st;
+    }
+    double E = def->material.youngs_pa, nu = def->material.poisson;
+    c->mu = E / (2.0 * (1.0 + nu));
+    c->lambda = E * nu / ((1.0 + nu) * (1.0 - 2.0 * nu));
+    hs_fem_update(c->fem, x0, NULL);
+    hs_cut_assemble(c, c->a);
+    double dsum = 0;
+    for (int d = 0; d < nf; d++) {
+        int p = hs_csc_find(c->a, d, d);
+        dsum += p >= 0 ? c->a->val[p] : 0.0;
+    }
+    c->k_pin = dsum / nf;
+    st = hs_cholesky_create(c->a, &c->factor, err);
+    if (st == HS_OK && def->update_factor) st = hs_cholesky_prepare_updates(c->factor, 256);
+    if (st != HS_OK) {
+        hs_cut_destroy(&c);
+        return hs_err_set(err, st, "cut: factorising K failed: %s", hs_status_str(st));
+    }
+    st = hs_mesh_create(n, x0, ne, mesh->tets, &c->live, err);
+    if (st >= HS_OK) st = rebuild_live(c, err);
+    if (st != HS_OK) {
+        hs_cut_destroy(&c);
+        return st;
+    }
+    *out = c;
+    return HS_OK;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Queries
+
+int hs_cut_last_removed(const hs_cut* c, const int** tets) {
+    if (tets) *tets = c->removed;
+    return c->n_removed;
+}
+int hs_cut_last_moved(const hs_cut* c, const int** nodes) {
+    if (nodes) *nodes = c->moved;
+    return c->n_moved;
+}
+int64_t hs_cut_topology_version(const hs_cut* c) {
+    return c->version;
+}
+int hs_cut_tet_active(const hs_cut* c, int tet) {
+    return tet >= 0 && tet < c->ne && c->active[tet];
+}
+int hs_cut_node_pinned(const hs_cut* c, int node) {
+    return node >= 0 && node < c->n && c->pinned[node];
+}
+const hs_mesh* hs_cut_live_mesh(const hs_cut* c) {
+    return c->live;
+}
+int hs_cut_live_tet(const hs_cut* c, int k) {
+    HS_ASSERT(k >= 0 && k < c->live->n_tets);
+    return c->live_tet[k];
+}
+int hs_cut_components(const hs_cut* c) {
+    return c->components;
+}
+hs_cholesky* hs_cut_factor(hs_cut* c) {
+    return c->factor;
+}
+int hs_cut_free_dofs(const hs_cut* c) {
+    return c->n_free;
+}
+int hs_cut_dof(const hs_cut* c, int node, int comp) {
+    HS_ASSERT(node >= 0 && node < c->n && comp >= 0 && comp < 3);
+    return c->dof[3 * node + comp];
+}
+hs_status hs_cut_create_matrix(const hs_cut* c, hs_csc** out) {
+    return hs_fem_create_matrix(c->fem, out);
+}
+const hs_fem* hs_cut_fem(const hs_cut* c) {
+    return c->fem;
+}
+
+hs_status hs_cut_sync_fem(const hs_cut* c, hs_fem* other) {
+    if (!c || !other) return HS_ERR_INVALID;
+    for (int e = 0; e < c->ne; e++)
+        if (!c->active[e]) hs_fem_set_element_active(other, e, 0);
+    return hs_fem_refresh_elements(other, c->changed, c->n_changed);
+}
+
+hs_status hs_cut_solve(hs_cut* c, const double* f, double* u) {
+    for (int k = 0; k < 3 * c->n; k++) {
+        int d = c->dof[k];
+        if (d >= 0) c->rhs[d] = c->pinned[k / 3] ? 0.0 : f[k];
+    }
+    hs_status st = hs_cholesky_solve(c->factor, c->rhs, c->sol);
+    if (st != HS_OK) return st;
+    for (int k = 0; k < 3 * c->n; k++) {
+        int d = c->dof[k];
+        u[k] = d >= 0 && !c->pinned[k / 3] ? c->sol[d] : 0.0;
+        if (!isfinite(u[k])) return HS_ERR_NUMERIC;
+    }
+    return HS_OK;
+}
+
+hs_status hs_cut_validate(const hs_cut* c, hs_err* err) {
+    hs_status st = hs_mesh_check(c->live, err);
+    if (st != HS_OK) return st;
+    int na = 0;
+    for (int e = 0; e < c->ne; e++) {
+        if (!c->active[e]) continue;
+        na++;
+        double v = hs_tet_volume(c->mesh->x0, c->mesh->tets + 4 * e);
+        if (!(v > 0))
+            return hs_err_set(err, HS_ERR_INVALID, "cut: active tet %d has rest volume %g m^3", e,
+                              v);
+    }
+    if (na != c->live->n_tets)
+        return hs_err_set(err, HS_ERR_INVALID, "cut: %d active tets but the live mesh has %d", na,
+                          c->live->n_tets);
+    for (int i = 0; i < c->n; i++) {
+        int cnt = 0;
+        for (int p = c->nt_start[i]; p < c->nt_start[i + 1]; p++) cnt += c->active[c->nt[p]];
+        if (cnt != c->count[i])
+            return hs_err_set(err, HS_ERR_INVALID, "cut: node %d counts %d tets, has %d", i,
+                              c->count[i], cnt);
+        if (cnt == 0 && c->dof[3 * i] >= 0 && !c->pinned[i])
+            return hs_err_set(err, HS_ERR_INVALID,
+                              "cut: free node %d has no element and is not pinned (orphan)", i);
+        if (cnt > 0 && c->pinned[i] && c->def.fragment == HS_CUT_FRAGMENT_DROP)
+            return hs_err_set(err, HS_ERR_INVALID, "cut: pinned node %d still has %d tets", i, cnt);
+        if (memcmp(c->live->x0 + 3 * i, c->mesh->x0 + 3 * i, 3 * sizeof(double)))
+            return hs_err_set(err, HS_ERR_INVALID, "cut: live x0 of node %d out of sync", i);
+    }
+    return HS_OK;
+}
+
+// ---------------------------------------------------------------------------------------------
+// The sweep
+
+static int find_root(int* parent, int i) {
+    while (parent[i] != i) {
+        parent[i] = parent[parent[i]];
+        i = parent[i];
+    }
+    return i;
+}
+
+static int cmp_edge(const void* pa, const void* pb) {
+    const int* a = pa;
+    const int* b = pb;
+    if (a[0] != b[0]) return (a[0] > b[0]) - (a[0] < b[0]);
+    return (a[1] > b[1]) - (a[1] < b[1]);
+}
+
+/// 1 when the remaining tets around node v stay acceptable with v at rest position X and
+/// current position xv (tmark 2 = being removed, ignored).
+static int move_ok(const hs_cut* c, int v, const double* X, const double* xv) {
+    const double* x0 = c->mesh->x0;
+    const double rmin = c->def.min_volume_ratio, qmin = c->def.min_quality;
+    for (int p = c->nt_start[v]; p < c->nt_start[v + 1]; p++) {
+        int e = c->nt[p];
+        if (!c->active[e] || c->tmark[e] == 2) continue;
+        const int* t = c->mesh->tets + 4 * e;
+        const double *pr[4], *pc[4];
+        for (int a = 0; a < 4; a++) {
+            pr[a] = t[a] == v ? X : x0 + 3 * t[a];
+            pc[a] = t[a] == v ? xv : c->x + 3 * t[a];
+        }
+        double vr = tet_vol4(pr[0], pr[1], pr[2], pr[3]);
+        if (!(vr >= rmin * c->vol_orig[e]) || !(vr > 0)) return 0;
+        if (tet_quality4(pr, vr) < fmin(qmin, c->q_orig[e])) return 0;
+        double vc = tet_vol4(pc[0], pc[1], pc[2], pc[3]);
+        const double* po[4];
+        for (int a = 0; a < 4; a++) po[a] = c->x + 3 * t[a];
+        double vo = tet_vol4(po[0], po[1], po[2], po[3]);
+        if (!(vc > 0) || vc < rmin * vo) return 0;
+        if (tet_quality4(pc, vc) < fmin(qmin, tet_quality4(po, vo))) return 0;
+    }
+    return 1;
+}
+
+/// Rest-space image of a current-space move: dX = Fbar^-1 dx, Fbar the volume-weighted mean
+/// deformation gradient of v's remaining tets; dX = dx when there is no usable Fbar.
+static void to_rest(const hs_cut* c, int v, const double* dx, double* dX) {
+    const double* x0 = c->mesh->x0;
+    double F[9] = {0}, wsum = 0;
+    for (int p = c->nt_start[v]; p < c->nt_start[v + 1]; p++) {
+        int e = c->nt[p];
+        if (!c->active[e] || c->tmark[e] == 2) continue;
+        const int* t = c->mesh->tets + 4 * e;
+        double dm[9], ds[9];
+        for (int i = 0; i < 3; i++)
+            for (int r = 0; r < 3; r++) {
+                dm[3 * r + i] = x0[3 * t[i + 1] + r] - x0[3 * t[0] + r];
+                ds[3 * r + i] = c->x[3 * t[i + 1] + r] - c->x[3 * t[0] + r];
+            }
+        double det = dm[0] * (dm[4] * dm[8] - dm[5] * dm[7]) -
+                     dm[1] * (dm[3] * dm[8] - dm[5] * dm[6]) +
+                     dm[2] * (dm[3] * dm[7] - dm[4] * dm[6]);
+        if (!(det > 0)) continue;
+        double inv[9]; // Dm^-1
+        inv[0] = (dm[4] * dm[8] - dm[5] * dm[7]) / det;
+        inv[1] = -(dm[1] * dm[8] - dm[2] * dm[7]) / det;
+        inv[2] = (dm[1] * dm[5] - dm[2] * dm[4]) / det;
+        inv[3] = -(dm[3] * dm[8] - dm[5] * dm[6]) / det;
+        inv[4] = (dm[0] * dm[8] - dm[2] * dm[6]) / det;
+        inv[5] = -(dm[0] * dm[5] - dm[2] * dm[3]) / det;
+        inv[6] = (dm[3] * dm[7] - dm[4] * dm[6]) / det;
+        inv[7] = -(dm[0] * dm[7] - dm[1] * dm[6]) / det;
+        inv[8] = (dm[0] * dm[4] - dm[1] * dm[3]) / det;
+        double w = det / 6.0;
+        for (int i = 0; i < 3; i++)
+            for (int j = 0; j < 3; j++) {
+                double s = 0;
+                for (int k = 0; k < 3; k++) s += ds[3 * i + k] * inv[3 * k + j];
+                F[3 * i + j] += w * s;
+            }
+        wsum += w;
+    }
+    memcpy(dX, dx, 3 * sizeof(double));
+    if (!(wsum > 0)) return;
+    for (int k = 0; k < 9; k++) F[k] /= wsum;
+    double det = F[0] * (F[4] * F[8] - F[5] * F[7]) - F[1] * (F[3] * F[8] - F[5] * F[6]) +
+                 F[2] * (F[3] * F[7] - F[4] * F[6]);
+    if (!(det > 0.05) || !isfinite(det)) return;
+    double inv[9];
+    inv[0] = (F[4] * F[8] - F[5] * F[7]) / det;
+    inv[1] = -(F[1] * F[8] - F[2] * F[7]) / det;
+    inv[2] = (F[1] * F[5] - F[2] * F[4]) / det;
+    inv[3] = -(F[3] * F[8] - F[5] * F[6]) / det;
+    inv[4] = (F[0] * F[8] - F[2] * F[6]) / det;
+    inv[5] = -(F[0] * F[5] - F[2] * F[3]) / det;
+    inv[6] = (F[3] * F[7] - F[4] * F[6]) / det;
+    inv[7] = -(F[0] * F[7] - F[1] * F[6]) / det;
+    inv[8] = (F[0] * F[4] - F[1] * F[3]) / det;
+    for (int i = 0; i < 3; i++)
+        dX[i] = inv[3 * i] * dx[0] + inv[3 * i + 1] * dx[1] + inv[3 * i + 2] * dx[2];
+}
+
+static void pin_node(hs_cut* c, int v) {
+    if (c->pinned[v] || c->fixed[v]) return;
+    c->pinned[v] = 1;
+    c->pins[c->n_pins++] = v;
+}
+
+/// Deactivate tet e; counted = 1 when its nodes' counts were already decremented.
+static void remove_tet(hs_cut* c, int e, int counted) {
+    c->active[e] = 0;
+    c->tmark[e] = 2;
+    c->removed[c->n_removed++] = e;
+    if (!counted)
+        for (int a = 0; a < 4; a++) c->count[c->mesh->tets[4 * e + a]]--;
+}
+
+/// Free pieces. Tets sharing a face move as one rigid body in the kernel of K, so the pieces
+/// are the face-connected sets of active tets (a piece hanging on by an edge or a vertex can
+/// still rotate: K would be singular). A piece is held when its fixed (or pinned) nodes include
+/// three non-collinear ones; any other piece is dropped or pinned per def. Returns pieces.
+static int handle_fragments(hs_cut* c) {
+    const int* T = c->mesh->tets;
+    const double* x0 = c->mesh->x0;
+    int* par = c->tparent;
+    for (int e = 0; e < c->ne; e++) {
+        par[e] = e;
+        c->fa[e] = c->fb[e] = -1;
+        c->anch[e] = 0;
+    }
+    for (int e = 0; e < c->ne; e++) {
+        if (!c->active[e]) continue;
+        for (int f = 0; f < 4; f++) {
+            int o = c->fnbr[4 * e + f];
+            if (o < 0 || !c->active[o]) continue;
+            int r0 = find_root(par, e), r1 = find_root(par, o);
+            if (r0 != r1) par[r1] = r0;
+        }
+    }
+    for (int e = 0; e < c->ne; e++) {
+        if (!c->active[e]) continue;
+        int r = find_root(par, e);
+        for (int a = 0; a < 4 && !c->anch[r]; a++) {
+            int v = T[4 * e + a];
+            if (!c->fixed[v] && !c->pinned[v]) continue;
+            if (c->fa[r] < 0 || c->fa[r] == v) {
+                c->fa[r] = v;
+            } else if (c->fb[r] < 0 || c->fb[r] == v) {
+                c->fb[r] = v;
+            } else {
+                double d1[3], d2[3], x[3];
+                v3_sub(x0 + 3 * c->fb[r], x0 + 3 * c->fa[r], d1);
+                v3_sub(x0 + 3 * v, x0 + 3 * c->fa[r], d2);
+                v3_cross(d1, d2, x);
+                if (v3_dot(x, x) > 1e-12 * v3_dot(d1, d1) * v3_dot(d2, d2)) c->anch[r] = 1;
+            }
+        }
+    }
+    int pieces = 0;
+    for (int e = 0; e < c->ne; e++)
+        if (c->active[e] && par[e] == e && !c->anch[e]) pieces++;
+    if (!pieces) return 0;
+    for (int e = 0; e < c->ne; e++) {
+        if (!c->active[e] || c->anch[find_root(par, e)]) continue;
+        if (c->def.fragment == HS_CUT_FRAGMENT_DROP)
+            remove_tet(c, e, 0);
+        else
+            for (int a = 0; a < 4; a++) pin_node(c, T[4 * e + a]);
+    }
+    if (c->def.fragment == HS_CUT_FRAGMENT_DROP)
+        for (int k = 0; k < c->n_removed; k++)
+            for (int a = 0; a < 4; a++) {
+                int v = T[4 * c->removed[k] + a];
+                if (c->count[v] == 0) pin_node(c, v);
+            }
+    return pieces;
+}
+
+/// Append the element change (new - old) of tet e, or a pin block of node v when e < 0.
+static void add_change(hs_cut* c, int* m, int e, int v, int was_active) {
+    double* dk = c->dk + 144 * (size_t)*m;
+    int* ed = c->edof + 12 * (size_t)*m;
+    memset(dk, 0, 144 * sizeof(double));
+    if (e < 0) {
+        for (int q = 0; q < 3; q++) dk[13 * q] = c->k_pin;
+        for (int q = 0; q < 12; q++) ed[q] = q < 3 ? c->dof[3 * v + q] : -1;
+        ++*m;
+        return;
+    }
+    double kn[144];
+    if (c->active[e]) {
+        element_k(c, c->mesh->x0, e, dk);
+    }
+    if (was_active && element_k(c, c->x0_old, e, kn))
+        for (int q = 0; q < 144; q++) dk[q] -= kn[q];
+    for (int a = 0; a < 4; a++)
+        for (int q = 0; q < 3; q++) ed[3 * a + q] = c->dof[3 * c->mesh->tets[4 * e + a] + q];
+    ++*m;
+}
+
+static hs_status update_compliance(hs_cut* c, int m, int before);
+
+hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const double p1[3],
+                       const double q1[3], double* u, hs_cut_result* res, hs_err* err) {
+    hs_cut_result r;
+    memset(&r, 0, sizeof r);
+    int64_t t0 = hs_now_ns();
+    if (!c || !p0 || !q0 || !p1 || !q1)
+        return hs_err_set(err, HS_ERR_INVALID, "cut: NULL argument to hs_cut_sweep");
+    const double* S[4] = {p0, q0, q1, p1};
+    for (int k = 0; k < 4; k++)
+        for (int d = 0; d < 3; d++)
+            if (!isfinite(S[k][d]) || fabs(S[k][d]) > 1e6)
+                return hs_err_set(err, HS_ERR_INVALID, "cut: blade point %d coordinate %d is %g", k,
+                                  d, S[k][d]);
+    const int n = c->n, ne = c->ne;
+    double* x0 = c->mesh->x0;
+    const int* T = c->mesh->tets;
+    for (int k = 0; k < 3 * n; k++) {
+        c->x[k] = x0[k] + (u ? u[k] : 0.0);
+        if (!isfinite(c->x[k]))
+            return hs_err_set(err, HS_ERR_INVALID, "cut: displacement of node %d is not finite",
+                              k / 3);
+    }
+    c->n_removed = c->n_moved = c->n_changed = c->n_pins = 0;
+
+    // 1. Crossing test against the two triangles of the swept quad.
+    double lo[3], hi[3];
+    for (int d = 0; d < 3; d++) {
+        lo[d] = fmin(fmin(p0[d], q0[d]), fmin(p1[d], q1[d]));
+        hi[d] = fmax(fmax(p0[d], q0[d]), fmax(p1[d], q1[d]));
+    }
+    static const int k_edge[6][2] = {{0, 1}, {0, 2}, {0, 3}, {1, 2}, {1, 3}, {2, 3}};
+    int n_cut = 0, n_edges = 0;
+    for (int e = 0; e < ne; e++) {
+        if (!c->active[e]) continue;
+        const int* t = T + 4 * e;
+        double tl[3], th[3];
+        for (int d = 0; d < 3; d++) {
+            tl[d] = th[d] = c->x[3 * t[0] + d];
+            for (int a = 1; a < 4; a++) {
+                tl[d] = fmin(tl[d], c->x[3 * t[a] + d]);
+                th[d] = fmax(th[d], c->x[3 * t[a] + d]);
+            }
+        }
+        if (tl[0] > hi[0] || th[0] < lo[0] || tl[1] > hi[1] || th[1] < lo[1] || tl[2] > hi[2] ||
+            th[2] < lo[2])
+            continue;
+        int hit = 0;
+        for (int k = 0; k < 6; k++) {
+            int a = t[k_edge[k][0]], b = t[k_edge[k][1]];
+            const double *xa = c->x + 3 * a, *xb = c->x + 3 * b;
+            double d[3];
+            v3_sub(xa, xb, d);
+            double tol = 1e-6 * sqrt(v3_dot(d, d));
+            if (seg_tri(xa, xb, p0, q0, q1, tol) || seg_tri(xa, xb, p0, q1, p1, tol)) {
+                hit = 1;
+                c->edges[2 * n_edges] = a < b ? a : b;
+                c->edges[2 * n_edges + 1] = a < b ? b : a;
+                n_edges++;
+            }
+        }
+        if (hit) {
+            c->tmark[e] = 1;
+            c->cut_list[n_cut++] = e;
+        }
+    }
+    r.cut_tets = n_cut;
+    if (n_edges > 0) {
+        qsort(c->edges, (size_t)n_edges, 2 * sizeof(int), cmp_edge);
+        for (int k = 0; k < n_edges; k++) {
+            if (k > 0 && c->edges[2 * k] == c->edges[2 * k - 2] &&
+                c->edges[2 * k + 1] == c->edges[2 * k - 1])
+                continue;
+            double d[3];
+            v3_sub(c->x + 3 * c->edges[2 * k], c->x + 3 * c->edges[2 * k + 1], d);
+            r.cut_length_m += sqrt(v3_dot(d, d));
+        }
+    }
+
+    // 2. Removal set with the orphan rule (counts are decremented as tets go).
+    for (int k = 0; k < n_cut; k++) {
+        int e = c->cut_list[k];
+        const int* t = T + 4 * e;
+        int orphan = 0;
+        for (int a = 0; a < 4; a++) orphan |= c->count[t[a]] == 1;
+        if (orphan && c->def.orphan == HS_CUT_ORPHAN_KEEP_TET) {
+            c->tmark[e] = 0;
+            r.kept++;
+            continue;
+        }
+        // Counted now so later tets of this sweep see the orphan risk; the move step below
+        // ignores tets marked 2 (going), and step 4 deactivates them.
+        for (int a = 0; a < 4; a++) c->count[t[a]]--;
+        c->tmark[e] = 2;
+    }
+
+    // 3. Vertex moves onto the swept surface (vertices of tets being removed).
+    int n_cand = 0;
+    for (int k = 0; k < n_cut; k++) {
+        int e = c->cut_list[k];
+        if (c->tmark[e] != 2) continue;
+        for (int a = 0; a < 4; a++) {
+            int v = T[4 * e + a];
+            if (c->nmark[v] || c->fixed[v] || c->pinned[v]) continue;
+            c->nmark[v] = 1;
+            c->moved[n_cand++] = v;
+        }
+    }
+    if (c->def.tangent_surface && n_cand > 0) {
+        for (int k = 0; k < n_cand; k++) memset(c->nrm + 3 * c->moved[k], 0, 3 * sizeof(double));
+        const hs_mesh* L = c->live;
+        for (int f = 0; f < L->n_tris; f++) {
+            const int* tr = L->tris + 3 * f;
+            if (!c->nmark[tr[0]] && !c->nmark[tr[1]] && !c->nmark[tr[2]]) continue;
+            double e1[3], e2[3], nn[3];
+            v3_sub(c->x + 3 * tr[1], c->x + 3 * tr[0], e1);
+            v3_sub(c->x + 3 * tr[2], c->x + 3 * tr[0], e2);
+            v3_cross(e1, e2, nn);
+            for (int a = 0; a < 3; a++)
+                if (c->nmark[tr[a]])
+                    for (int d = 0; d < 3; d++) c->nrm[3 * tr[a] + d] += nn[d];
+        }
+    }
+    int n_moved = 0;
+    for (int k = 0; k < n_cand; k++) {
+        int v = c->moved[k];
+        c->nmark[v] = 0;
+        double* xv = c->x + 3 * v;
+        double best[3], cand[3], dx[3];
+        closest_on_tri(xv, p0, q0, q1, best);
+        closest_on_tri(xv, p0, q1, p1, cand);
+        double db[3], dc[3];
+        v3_sub(best, xv, db);
+        v3_sub(cand, xv, dc);
+        if (v3_dot(dc, dc) < v3_dot(db, db)) memcpy(db, dc, sizeof db);
+        memcpy(dx, db, sizeof dx);
+        if (c->def.tangent_surface && c->live->node_surf[v] >= 0) {
+            double* nv = c->nrm + 3 * v;
+            double nn = v3_dot(nv, nv);
+            if (nn > 0) {
+                double s = v3_dot(dx, nv) / nn;
+                for (int d = 0; d < 3; d++) dx[d] -= s * nv[d];
+            }
+        }
+        if (!(v3_dot(dx, dx) > 0)) continue;
+        double dX[3];
+        if (u)
+            to_rest(c, v, dx, dX);
+        else
+            memcpy(dX, dx, sizeof dX);
+        double s = 1.0, Xt[3], xt[3];
+        int ok = 0;
+        for (int b = 0; b <= c->def.max_bisections; b++, s *= 0.5) {
+            for (int d = 0; d < 3; d++) {
+                Xt[d] = x0[3 * v + d] + s * dX[d];
+                xt[d] = xv[d] + s * dx[d];
+            }
+            if (move_ok(c, v, Xt, xt)) {
+                ok = 1;
+                break;
+            }
+        }
+        if (!ok || s < 1.0) r.clamped++;
+        if (!ok) continue;
+        for (int d = 0; d < 3; d++) {
+            if (u) u[3 * v + d] += s * (dx[d] - dX[d]);
+            x0[3 * v + d] = Xt[d];
+            c->live->x0[3 * v + d] = Xt[d];
+            xv[d] = xt[d];
+        }
+        c->moved[n_moved++] = v;
+    }
+    c->n_moved = r.moved = n_moved;
+
+    // 4. Remove, then orphans (PIN rule) and free pieces.
+    for (int k = 0; k < n_cut; k++) {
+        int e = c->cut_list[k];
+        if (c->tmark[e] == 2) remove_tet(c, e, 1);
+    }
+    for (int k = 0; k < c->n_removed; k++)
+        for (int a = 0; a < 4; a++) {
+            int v = T[4 * c->removed[k] + a];
+            if (c->count[v] == 0) pin_node(c, v);
+        }
+    if (c->n_removed > 0 || n_moved > 0) r.fragments = handle_fragments(c);
+    r.removed = c->n_removed;
+    r.pinned = c->n_pins;
+    r.geometry_ms = (double)(hs_now_ns() - t0) * 1e-6;
+
+    // 5. Element changes: removed tets, remaining tets around moved vertices, pins.
+    int64_t t1 = hs_now_ns();
+    for (int k = 0; k < n_moved; k++) {
+        int v = c->moved[k];
+        for (int p = c->nt_start[v]; p < c->nt_start[v + 1]; p++) {
+            int e = c->nt[p];
+            if (!c->active[e] || c->tmark[e] == 3) continue;
+            c->tmark[e] = 3;
+            c->changed[c->n_changed++] = e;
+        }
+    }
+    for (int k = 0; k < c->n_removed; k++) hs_fem_set_element_active(c->fem, c->removed[k], 0);
+    hs_status st = hs_fem_refresh_elements(c->fem, c->changed, c->n_changed);
+    if (st != HS_OK) {
+        hs_err_set(err, st, "cut: refreshing %d elements failed", c->n_changed);
+        goto done;
+    }
+    int need = c->n_removed + c->n_changed + c->n_pins, m = 0;
+    int can_update = c->def.update_factor && grow_elems(c, need) == HS_OK;
+    if (can_update) {
+        for (int k = 0; k < c->n_removed; k++) add_change(c, &m, c->removed[k], -1, 1);
+        for (int k = 0; k < c->n_changed; k++) add_change(c, &m, c->changed[k], -1, 1);
+        for (int k = 0; k < c->n_pins; k++) add_change(c, &m, -1, c->pins[k], 0);
+    }
+    r.changed_elements = m;
+    if (can_update && c->n_track > 0 && m > 0 && c->cmode == HS_CUT_COMPLIANCE_WOODBURY) {
+        st = update_compliance(c, m, 1);
+        if (st != HS_OK) {
+            hs_err_set(err, st, "cut: compliance update failed");
+            goto done;
+        }
+    }
+    if (need > 0) {
+        st = can_update ? hs_cholesky_update_elements(c->factor, m, c->dk, c->edof)
+                        : HS_ERR_UNSUPPORTED;
+        if (st == HS_OK) {
+            c->updates_since_refactor++;
+        } else {
+            // Updates off, no memory for them, or a downdate lost definiteness: rebuild.
+            r.refactored = 1;
+            st = hs_cut_refactor(c);
+            if (st != HS_OK) {
+                hs_err_set(err, st, "cut: refactorising K after the cut failed: %s",
+                           hs_status_str(st));
+                goto done;
+            }
+            if (c->n_track > 0 && c->cmode == HS_CUT_COMPLIANCE_WOODBURY) {
+                st = update_compliance(c, 0, 0);
+                if (st != HS_OK) goto done;
+            }
+        }
+    }
+    if (c->n_track > 0 && need > 0 && c->cmode == HS_CUT_COMPLIANCE_RESOLVE) {
+        st = update_compliance(c, m, 0);
+        if (st != HS_OK) {
+            hs_err_set(err, st, "cut: compliance update failed");
+            goto done;
+        }
+    }
+    r.factor_ms = (double)(hs_now_ns() - t1) * 1e-6;
+
+    // 6. Live mesh and checks.
+    int64_t t2 = hs_now_ns();
+    if (c->n_removed > 0 || n_moved > 0) {
+        c->version++;
+        st = rebuild_live(c, err);
+        if (st == HS_OK && c->def.validate) st = hs_cut_validate(c, err);
+    }
+    r.mesh_ms = (double)(hs_now_ns() - t2) * 1e-6;
+done:
+    for (int k = 0; k < n_cut; k++) c->tmark[c->cut_list[k]] = 0;
+    for (int k = 0; k < c->n_removed; k++) c->tmark[c->removed[k]] = 0;
+    for (int k = 0; k < c->n_changed; k++) c->tmark[c->changed[k]] = 0;
+    for (int k = 0; k < n_moved; k++)
+        memcpy(c->x0_old + 3 * c->moved[k], x0 + 3 * c->moved[k], 3 * sizeof(double));
+    r.topology_version = c->version;
+    r.total_ms = (double)(hs_now_ns() - t0) * 1e-6;
+    if (res) *res = r;
+    return st;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Compliance blocks
+
+static hs_status grow_d(hs_cut* c, int d) {
+    if (d <= c->cap_d) return HS_OK;
+    int cap = d > 2 * c->cap_d ? d : 2 * c->cap_d;
+    size_t dd = (size_t)cap * (size_t)cap, td = 3 * (size_t)c->n_track * (size_t)cap;
+    double* a = hs_realloc(c->zd, sizeof(double) * dd);
+    if (!a) return HS_ERR_NOMEM;
+    c->zd = a;
+    a = hs_realloc(c->kdd, sizeof(double) * dd);
+    if (!a) return HS_ERR_NOMEM;
+    c->kdd = a;
+    a = hs_realloc(c->wrk, sizeof(double) * dd);
+    if (!a) return HS_ERR_NOMEM;
+    c->wrk = a;
+    a = hs_realloc(c->zt, sizeof(double) * (td + 1));
+    if (!a) return HS_ERR_NOMEM;
+    c->zt = a;
+    int* p = hs_realloc(c->piv, sizeof(int) * (size_t)cap);
+    if (!p) return HS_ERR_NOMEM;
+    c->piv = p;
+    c->cap_d = cap;
+    return HS_OK;
+}
+
+/// Re-solve the blocks of tracked nodes [k0, k0 + cnt) with the current factor.
+static hs_status resolve_blocks(hs_cut* c, int k0, int cnt) {
+    const int nf = c->n_free;
+    int nb = HS_CUT_BATCH / 3;
+    for (int s = 0; s < cnt; s += nb) {
+        int m = cnt - s < nb ? cnt - s : nb;
+        memset(c->zbuf, 0, sizeof(double) * (size_t)nf * 3 * (size_t)m);
+        for (int j = 0; j < m; j++) {
+            int v = c->track[k0 + s + j];
+            for (int q = 0; q < 3; q++) {
+                int d = c->dof[3 * v + q];
+                if (d >= 0 && !c->pinned[v]) c->zbuf[(size_t)nf * (3 * j + q) + (size_t)d] = 1.0;
+            }
+        }
+        hs_status st = hs_cholesky_solve_many(c->factor, 3 * m, c->zbuf, c->zbuf);
+        if (st != HS_OK) return st;
+        for (int j = 0; j < m; j++) {
+            int v = c->track[k0 + s + j];
+            double* b = c->cblk + 9 * (size_t)(k0 + s + j);
+            for (int i = 0; i < 3; i++)
+                for (int q = 0; q < 3; q++) {
+                    int d = c->dof[3 * v + i];
+                    b[3 * i + q] = d >= 0 && !c->pinned[v]
+                                       ? c->zbuf[(size_t)nf * (3 * j + q) + (size_t)d]
+                                       : 0.0;
+                }
+        }
+    }
+    return HS_OK;
+}
+
+hs_status hs_cut_track_compliance(hs_cut* c, int n, const int* nodes, hs_cut_compliance_mode mode) {
+    if (!c || n < 0 || (n > 0 && !nodes)) return HS_ERR_INVALID;
+    for (int k = 0; k < n; k++)
+        if (nodes[k] < 0 || nodes[k] >= c->n) return HS_ERR_INVALID;
+    hs_free(c->track);
+    hs_free(c->cblk);
+    c->track = NULL;
+    c->cblk = NULL;
+    c->n_track = 0;
+    c->cmode = mode;
+    if (n == 0) return HS_OK;
+    c->track = hs_alloc(sizeof(int) * (size_t)n);
+    c->cblk = hs_alloc(sizeof(double) * 9 * (size_t)n);
+    if (!c->dset) c->dset = hs_alloc(sizeof(int) * (size_t)c->n_free);
+    if (!c->dpos) {
+        c->dpos = hs_alloc(sizeof(int) * (size_t)c->n_free);
+        if (c->dpos)
+            for (int d = 0; d < c->n_free; d++) c->dpos[d] = -1;
+    }
+    if (!c->zbuf) c->zbuf = hs_alloc(sizeof(double) * (size_t)c->n_free * HS_CUT_BATCH);
+    if (!c->track || !c->cblk || !c->dset || !c->dpos || !c->zbuf) return HS_ERR_NOMEM;
+    memcpy(c->track, nodes, sizeof(int) * (size_t)n);
+    c->n_track = n;
+    c->cap_d = 0; // zt depends on n_track: regrow
+    hs_free(c->zd);
+    hs_free(c->zt);
+    hs_free(c->kdd);
+    hs_free(c->wrk);
+    hs_free(c->piv);
+    c->zd = c->zt = c->kdd = c->wrk = NULL;
+    c->piv = NULL;
+    int64_t t0 = hs_now_ns();
+    hs_status st = resolve_blocks(c, 0, n);
+    c->cms = (double)(hs_now_ns() - t0) * 1e-6;
+    return st;
+}
+
+void hs_cut_compliance_block(const hs_cut* c, int k, double out[9]) {
+    HS_ASSERT(k >= 0 && k < c->n_track);
+    memcpy(out, c->cblk + 9 * (size_t)k, 9 * sizeof(double));
+}
+
+double hs_cut_compliance_ms(const hs_cut* c) {
+    return c->cms;
+}
+
+/// Dense LU with partial pivoting of a (d x d, row-major, in place); 0 if singular.
+static int lu_factor(int d, double* a, int* piv) {
+    for (int k = 0; k < d; k++) {
+        int p = k;
+        for (int i = k + 1; i < d; i++)
+            if (fabs(a[(size_t)i * d + k]) > fabs(a[(size_t)p * d + k])) p = i;
+        piv[k] = p;
+        if (a[(size_t)p * d + k] == 0.0) return 0;
+        if (p != k)
+            for (int j = 0; j < d; j++) {
+                double t = a[(size_t)k * d + j];
+                a[(size_t)k * d + j] = a[(size_t)p * d + j];
+                a[(size_t)p * d + j] = t;
+            }
+        double inv = 1.0 / a[(size_t)k * d + k];
+        for (int i = k + 1; i < d; i++) {
+            double l = a[(size_t)i * d + k] *= inv;
+            if (l == 0.0) continue;
+            for (int j = k + 1; j < d; j++) a[(size_t)i * d + j] -= l * a[(size_t)k * d + j];
+        }
+    }
+    return 1;
+}
+
+/// Solve with lu_factor's output for one right-hand side b (in place).
+static void lu_solve(int d, const double* a, const int* piv, double* b) {
+    for (int k = 0; k < d; k++) {
+        double t = b[piv[k]];
+        b[piv[k]] = b[k];
+        b[k] = t;
+    }
+    for (int i = 1; i < d; i++) {
+        double s = b[i];
+        for (int j = 0; j < i; j++) s -= a[(size_t)i * d + j] * b[j];
+        b[i] = s;
+    }
+    for (int i = d - 1; i >= 0; i--) {
+        double s = b[i];
+        for (int j = i + 1; j < d; j++) s -= a[(size_t)i * d + j] * b[j];
+        b[i] = s / a[(size_t)i * d + i];
+    }
+}
+
+// Woodbury (before = 1, the factor still holds the old K): with D the free dofs the m element
+// changes touch, dK = E_D dK_DD E_D^T and Z = K^-1 E_D,
+//   C' = C - Z (I + dK_DD Z_D)^-1 dK_DD Z^T,
+// so each tracked block needs only its 3 rows of Z. Re-solve (before = 0): every block again.
+static hs_status update_compliance(hs_cut* c, int m, int before) {
+    int64_t t0 = hs_now_ns();
+    if (!before) {
+        hs_status st = resolve_blocks(c, 0, c->n_track);
+        c->cms = (double)(hs_now_ns() - t0) * 1e-6;
+        return st;
+    }
+    int d = 0;
+    for (int e = 0; e < m; e++)
+        for (int q = 0; q < 12; q++) {
+            int f = c->edof[12 * e + q];
+            if (f >= 0 && c->dpos[f] < 0) {
+                c->dpos[f] = d;
+                c->dset[d++] = f;
+            }
+        }
+    hs_status st = grow_d(c, d);
+    if (st != HS_OK) goto out;
+    memset(c->kdd, 0, sizeof(double) * (size_t)d * d);
+    for (int e = 0; e < m; e++)
+        for (int i = 0; i < 12; i++) {
+            int fi = c->edof[12 * e + i];
+            if (fi < 0) continue;
+            for (int j = 0; j < 12; j++) {
+                int fj = c->edof[12 * e + j];
+                if (fj < 0) continue;
+                c->kdd[(size_t)c->dpos[fi] * d + c->dpos[fj]] +=
+                    c->dk[144 * (size_t)e + 12 * i + j];
+            }
+        }
+    const int nf = c->n_free;
+    for (int s = 0; s < d; s += HS_CUT_BATCH) {
+        int w = d - s < HS_CUT_BATCH ? d - s : HS_CUT_BATCH;
+        memset(c->zbuf, 0, sizeof(double) * (size_t)nf * (size_t)w);
+        for (int j = 0; j < w; j++) c->zbuf[(size_t)nf * j + (size_t)c->dset[s + j]] = 1.0;
+        st = hs_cholesky_solve_many(c->factor, w, c->zbuf, c->zbuf);
+        if (st != HS_OK) goto out;
+        for (int j = 0; j < w; j++) {
+            const double* z = c->zbuf + (size_t)nf * j;
+            for (int i = 0; i < d; i++) c->zd[(size_t)i * d + s + j] = z[c->dset[i]];
+            for (int k = 0; k < c->n_track; k++) {
+                int v = c->track[k];
+                for (int q = 0; q < 3; q++) {
+                    int f = c->dof[3 * v + q];
+                    c->zt[(size_t)(3 * k + q) * d + s + j] = f >= 0 ? z[f] : 0.0;
+                }
+            }
+        }
+    }
+    // wrk = I + dK_DD Z_D
+    for (int i = 0; i < d; i++)
+        for (int j = 0; j < d; j++) {
+            double sum = i == j ? 1.0 : 0.0;
+            for (int k = 0; k < d; k++) sum += c->kdd[(size_t)i * d + k] * c->zd[(size_t)k * d + j];
+            c->wrk[(size_t)i * d + j] = sum;
+        }
+    if (!lu_factor(d, c->wrk, c->piv)) {
+        st = HS_ERR_NUMERIC;
+        goto out;
+    }
+    // Per tracked row r of Z: y = (I + dK Z_D)^-1 dK z_r^T; block(i,j) -= z_i . y_j.
+    double* y = c->zd; // Z_D no longer needed: reuse its first 3 rows as scratch
+    for (int k = 0; k < c->n_track; k++) {
+        int v = c->track[k];
+        if (c->dof[3 * v] < 0 || c->pinned[v]) {
+            memset(c->cblk + 9 * (size_t)k, 0, 9 * sizeof(double));
+            continue;
+        }
+        for (int q = 0; q < 3; q++) {
+            const double* z = c->zt + (size_t)(3 * k + q) * d;
+            double* yq = y + (size_t)q * d;
+            for (int i = 0; i < d; i++) {
+                double sum = 0;
+                for (int j = 0; j < d; j++) sum += c->kdd[(size_t)i * d + j] * z[j];
+                yq[i] = sum;
+            }
+            lu_solve(d, c->wrk, c->piv, yq);
+        }
+        double* b = c->cblk + 9 * (size_t)k;
+        for (int i = 0; i < 3; i++)
+            for (int q = 0; q < 3; q++) {
+                const double* zi = c->zt + (size_t)(3 * k + i) * d;
+                const double* yq = y + (size_t)q * d;
+                double sum = 0;
+                for (int j = 0; j < d; j++) sum += zi[j] * yq[j];
+                b[3 * i + q] -= sum;
+            }
+    }
+out:
+    for (int i = 0; i < d; i++) c->dpos[c->dset[i]] = -1;
+    c->cms = (double)(hs_now_ns() - t0) * 1e-6;
+    return st;
+}
+
+// ---------------------------------------------------------------------------------------------
+
+void hs_cut_force(double toughness_n_m, double cut_length_m, const double travel_m[3], double max_n,
+                  double force_n[3]) {
+    force_n[0] = force_n[1] = force_n[2] = 0.0;
+    if (!travel_m || !(toughness_n_m > 0) || !(cut_length_m > 0)) return;
+    double len = sqrt(v3_dot(travel_m, travel_m));
+    if (!(len > 0) || !isfinite(len)) return;
+    double f = toughness_n_m * cut_length_m;
+    if (max_n >= 0 && f > max_n) f = max_n;
+    for (int d = 0; d < 3; d++) force_n[d] = -f * travel_m[d] / len;
+}

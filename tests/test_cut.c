@@ -1,0 +1,606 @@
+// Cutting: geometry and rules, separation and wounds on the skin patch, 1,000 random cuts on the
+// liver, and the factor / compliance kept consistent with fresh factorisations.
+#include "hapsim/body.h"
+#include "hapsim/cut.h"
+#include "test_macros.h"
+
+#ifdef HS_HAVE_COMPLIANCE
+#include "hapsim/compliance.h"
+#endif
+
+#include <math.h>
+#include <stdlib.h>
+
+#define MM 1e-3
+
+static unsigned long long g_rng = 0x9e3779b97f4a7c15ull;
+static double urand(void) { // xorshift64*, uniform in [0, 1)
+    g_rng ^= g_rng >> 12;
+    g_rng ^= g_rng << 25;
+    g_rng ^= g_rng >> 27;
+    return (double)((g_rng * 2685821657736338717ull) >> 11) / 9007199254740992.0;
+}
+
+static hs_mesh* load_shared(const char* name) {
+    char path[512];
+    snprintf(path, sizeof path, "%s/%s", HS_SHARED_MESHES, name);
+    hs_mesh* m = NULL;
+    hs_err e;
+    if (hs_mesh_load(path, &m, &e) < 0) {
+        printf("  cannot load %s: %s\n", path, e.msg);
+        return NULL;
+    }
+    return m;
+}
+
+/// Max relative difference of solves with the cut's factor and a fresh factor of the matrix
+/// assembled from scratch, over a few random right-hand sides.
+static double factor_vs_fresh(hs_cut* c) {
+    int nf = hs_cut_free_dofs(c);
+    hs_csc* a = NULL;
+    hs_cholesky* f = NULL;
+    if (hs_cut_create_matrix(c, &a) != HS_OK) return INFINITY;
+    hs_cut_assemble(c, a);
+    hs_err e;
+    if (hs_cholesky_create(a, &f, &e) != HS_OK) {
+        hs_csc_destroy(&a);
+        return INFINITY;
+    }
+    double* b = hs_alloc(sizeof(double) * (size_t)nf * 3);
+    double *x1 = b + nf, *x2 = b + 2 * nf;
+    double worst = 0;
+    for (int r = 0; r < 3; r++) {
+        for (int i = 0; i < nf; i++) b[i] = urand() - 0.5;
+        hs_cholesky_solve(hs_cut_factor(c), b, x1);
+        hs_cholesky_solve(f, b, x2);
+        double dn = 0, nn = 0;
+        for (int i = 0; i < nf; i++) {
+            dn += (x1[i] - x2[i]) * (x1[i] - x2[i]);
+            nn += x2[i] * x2[i];
+        }
+        double rel = sqrt(dn / nn);
+        if (!(rel <= worst)) worst = rel; // NaN propagates as failure
+    }
+    hs_free(b);
+    hs_cholesky_destroy(&f);
+    hs_csc_destroy(&a);
+    return worst;
+}
+
+/// Max relative difference of K x between the cut's fem (refreshed elements) and a fem built
+/// from scratch on the live mesh with the same dof map (+ the same pins).
+static double fem_vs_rebuilt(hs_cut* c, const hs_mesh* full, const hs_cut_def* def) {
+    const hs_mesh* live = hs_cut_live_mesh(c);
+    int n = full->n_nodes, nf = hs_cut_free_dofs(c);
+    int* dof = hs_alloc(sizeof(int) * 3 * (size_t)n);
+    for (int i = 0; i < n; i++)
+        for (int q = 0; q < 3; q++) dof[3 * i + q] = hs_cut_dof(c, i, q);
+    hs_fem_def fd = hs_fem_default_def();
+    fd.material = def->material;
+    hs_fem* fem = NULL;
+    hs_csc *a1 = NULL, *a2 = NULL;
+    hs_err e;
+    double worst = INFINITY;
+    if (hs_fem_create(live, &fd, dof, nf, &fem, &e) == HS_OK &&
+        hs_fem_create_matrix(fem, &a2) == HS_OK && hs_cut_create_matrix(c, &a1) == HS_OK) {
+        hs_fem_update(fem, live->x0, NULL);
+        hs_fem_assemble(fem, 1.0, 0.0, a2);
+        hs_cut_assemble(c, a1);
+        double* x = hs_alloc(sizeof(double) * 3 * (size_t)nf);
+        double *y1 = x + nf, *y2 = x + 2 * nf;
+        for (int i = 0; i < nf; i++) x[i] = urand() - 0.5;
+        hs_csc_spmv(a1, x, y1);
+        hs_csc_spmv(a2, x, y2);
+        // pins: a2 lacks them
+        for (int i = 0; i < n; i++)
+            if (hs_cut_node_pinned(c, i))
+                for (int q = 0; q < 3; q++) {
+                    int d = dof[3 * i + q];
+                    if (d >= 0) y2[d] = y1[d];
+                }
+        double dn = 0, nn = 0;
+        for (int i = 0; i < nf; i++) {
+            dn += (y1[i] - y2[i]) * (y1[i] - y2[i]);
+            nn += y1[i] * y1[i];
+        }
+        worst = sqrt(dn / nn);
+        hs_free(x);
+    }
+    hs_fem_destroy(&fem);
+    hs_csc_destroy(&a1);
+    hs_csc_destroy(&a2);
+    hs_free(dof);
+    return worst;
+}
+
+static int test_force_model(void) {
+    double f[3], t[3] = {0, 2 * MM, 0};
+    hs_cut_force(100.0, 0.01, t, 50.0, f); // 100 N/m * 1 cm = 1 N against +y
+    ENSURE_NEAR(f[0], 0, 1e-15);
+    ENSURE_NEAR(f[1], -1.0, 1e-12);
+    hs_cut_force(100.0, 1.0, t, 5.0, f); // capped
+    ENSURE_NEAR(f[1], -5.0, 1e-12);
+    double z[3] = {0, 0, 0};
+    hs_cut_force(100.0, 0.01, z, 50.0, f); // blade at rest: no force
+    ENSURE(f[0] == 0 && f[1] == 0 && f[2] == 0);
+    hs_cut_force(100.0, 0.0, t, 50.0, f); // nothing cut
+    ENSURE(f[1] == 0);
+    return 0;
+}
+
+/// The skin patch cut fully across at x = 1 mm by a blade spanning the thickness, swept in y.
+static int cut_across(hs_cut* c, double xc, double step, hs_err* e) {
+    for (double y = -0.045; y < 0.045 - 1e-9; y += step) {
+        double p0[3] = {xc, y, -1 * MM}, q0[3] = {xc, y, 5 * MM};
+        double p1[3] = {xc, y + step, -1 * MM}, q1[3] = {xc, y + step, 5 * MM};
+        hs_cut_result r;
+        if (hs_cut_sweep(c, p0, q0, p1, q1, NULL, &r, e) != HS_OK) return 1;
+        if (y > -0.04 && y < 0.035 && r.removed == 0) return 2; // the wound forms under the blade
+    }
+    return 0;
+}
+
+static int test_skin_full_separation(void) {
+    int64_t bytes = hs_byte_count();
+    hs_mesh* m = load_shared("skin_patch_synthetic.msh");
+    ENSURE(m);
+    const int n = m->n_nodes;
+    double* xorig = hs_alloc(sizeof(double) * 3 * (size_t)n);
+    memcpy(xorig, m->x0, sizeof(double) * 3 * (size_t)n);
+    unsigned char* fixed = hs_calloc((size_t)n, 1);
+    unsigned char* far = hs_calloc((size_t)n, 1);
+    hs_mesh_select_plane(m, 0, -1, 1e-6, fixed);
+    hs_mesh_select_plane(m, 0, +1, 1e-6, far);
+    for (int i = 0; i < n; i++) fixed[i] |= far[i]; // both ends held, the cut between
+    hs_cut_def def = hs_cut_default_def();
+    hs_cut* c = NULL;
+    hs_err e;
+    ENSURE(hs_cut_create(m, fixed, &def, &c, &e) == HS_OK);
+    ENSURE(hs_cut_components(c) == 1);
+
+    // Pull the nodes of the far piece next to the cut in +z: before the cut the near piece moves.
+    double* f = hs_calloc(3 * (size_t)n, sizeof(double));
+    double* u = hs_calloc(3 * (size_t)n, sizeof(double));
+    for (int i = 0; i < n; i++)
+        if (xorig[3 * i] > 4.5 * MM && xorig[3 * i] < 9 * MM) f[3 * i + 2] = 1e-3;
+    ENSURE(hs_cut_solve(c, f, u) == HS_OK);
+    double near_before = 0;
+    for (int i = 0; i < n; i++)
+        if (xorig[3 * i] < 0) near_before = fmax(near_before, fabs(u[3 * i + 2]));
+    ENSURE(near_before > 1e-5);
+
+    int rc = cut_across(c, 1 * MM, 5 * MM, &e);
+    if (rc) printf("  cut failed (%d): %s\n", rc, e.msg);
+    ENSURE(rc == 0);
+    ENSURE(hs_cut_components(c) == 2);
+    ENSURE(hs_cut_validate(c, &e) == HS_OK);
+    ENSURE(hs_cut_topology_version(c) > 0);
+    // Vertices moved onto the blade plane, none created.
+    ENSURE(hs_cut_live_mesh(c)->n_nodes == n);
+    int on_plane = 0;
+    for (int i = 0; i < n; i++) on_plane += fabs(m->x0[3 * i] - 1 * MM) < 1e-9;
+    ENSURE(on_plane > 20);
+
+    ENSURE(hs_cut_solve(c, f, u) == HS_OK);
+    double near = 0, pulled = 0;
+    for (int i = 0; i < n; i++) {
+        if (xorig[3 * i] < 1 * MM)
+            near = fmax(near, sqrt(u[3 * i] * u[3 * i] + u[3 * i + 1] * u[3 * i + 1] +
+                                   u[3 * i + 2] * u[3 * i + 2]));
+        else
+            pulled = fmax(pulled, u[3 * i + 2]);
+    }
+    printf("  fig. 7e: fixed piece max |u| %.3g m (before the cut %.3g), pulled piece %.3g m\n",
+           near, near_before, pulled);
+    ENSURE(pulled > 1e-4);
+    ENSURE(near <= 1e-10 * pulled); // exactly decoupled up to round-off of the updates
+    ENSURE(factor_vs_fresh(c) <= 1e-8);
+
+    hs_cut_destroy(&c);
+    ENSURE(c == NULL);
+    hs_free(f);
+    hs_free(u);
+    hs_free(fixed);
+    hs_free(far);
+    hs_free(xorig);
+    hs_mesh_destroy(&m);
+    ENSURE(hs_byte_count() == bytes);
+    return 0;
+}
+
+/// Partial-depth cut from the top of the patch, opened by a 5 mm lateral pull: the wound's faces
+/// separate in a V whose angle is measured from the gap at the top and one layer down.
+static int test_skin_wound_angle(void) {
+    int64_t bytes = hs_byte_count();
+    hs_mesh* m = load_shared("skin_patch_synthetic.msh");
+    ENSURE(m);
+    const int n = m->n_nodes;
+    double* xorig = hs_alloc(sizeof(double) * 3 * (size_t)n);
+    memcpy(xorig, m->x0, sizeof(double) * 3 * (size_t)n);
+    unsigned char* fixed = hs_calloc((size_t)n, 1);
+    unsigned char* far = hs_calloc((size_t)n, 1);
+    hs_mesh_select_plane(m, 0, -1, 1e-6, fixed);
+    hs_mesh_select_plane(m, 0, +1, 1e-6, far);
+    for (int i = 0; i < n; i++) fixed[i] |= far[i];
+    hs_cut_def def = hs_cut_default_def();
+    hs_cut* c = NULL;
+    hs_err e;
+    ENSURE(hs_cut_create(m, fixed, &def, &c, &e) == HS_OK);
+    // The body that will be opened exists before the cut (as in the simulator) and follows it.
+    hs_body_def bd = hs_body_default_def();
+    bd.fem.material = def.material;
+    hs_body* b = NULL;
+    ENSURE(hs_body_create(m, &bd, fixed, &b, &e) == HS_OK);
+    // Blade from 1 mm above the bottom to above the top, along y in [-20, 20] mm, in 4 sweeps.
+    const double xc = 1 * MM;
+    for (int k = 0; k < 4; k++) {
+        double y0 = -0.02 + 0.01 * k, y1 = y0 + 0.01;
+        double p0[3] = {xc, y0, 1 * MM}, q0[3] = {xc, y0, 6 * MM};
+        double p1[3] = {xc, y1, 1 * MM}, q1[3] = {xc, y1, 6 * MM};
+        ENSURE(hs_cut_sweep(c, p0, q0, p1, q1, NULL, NULL, &e) == HS_OK);
+        ENSURE(hs_cut_sync_fem(c, hs_body_fem(b)) == HS_OK);
+    }
+    ENSURE(hs_cut_components(c) == 1); // partial: still one piece
+    int pinned = 0;
+    for (int i = 0; i < n; i++) pinned += hs_cut_node_pinned(c, i);
+    ENSURE(pinned == 0); // the body has no pin springs: a pinned node would make it singular
+
+    // Open it: the ends move 2.5 mm apart each (prescribed displacements).
+    for (int i = 0; i < n; i++) {
+        if (!fixed[i]) continue;
+        double up[3] = {xorig[3 * i] < 0 ? -2.5 * MM : 2.5 * MM, 0, 0};
+        ENSURE(hs_body_set_prescribed(b, i, up) == HS_OK);
+    }
+    ENSURE(hs_body_solve_static(b, NULL) == HS_OK);
+    const double* u = hs_body_displacement(b);
+    // Gap across the wound at the top (z = 4 mm) and at z = 2 mm, near y = 0.
+    double g[2] = {0, 0};
+    for (int layer = 0; layer < 2; layer++) {
+        double z = layer == 0 ? 4 * MM : 2 * MM, a = 0, bb = 0;
+        int na = 0, nb = 0;
+        for (int i = 0; i < n; i++) {
+            if (fabs(m->x0[3 * i] - xc) > 1e-9 || fabs(m->x0[3 * i + 2] - z) > 1e-9 ||
+                fabs(m->x0[3 * i + 1]) > 8.5 * MM)
+                continue;
+            if (xorig[3 * i] < xc) {
+                a += u[3 * i];
+                na++;
+            } else {
+                bb += u[3 * i];
+                nb++;
+            }
+        }
+        ENSURE(na > 0 && nb > 0);
+        g[layer] = bb / nb - a / na;
+    }
+    double angle = 2.0 * atan((g[0] - g[1]) / 2.0 / (2 * MM)) * 180.0 / 3.14159265358979323846;
+    printf("  wound gap %.3f mm at the top, %.3f mm 2 mm down: opening angle %.1f deg\n", g[0] / MM,
+           g[1] / MM, angle);
+    ENSURE(g[0] > 0.1 * MM); // the faces separate
+    ENSURE(g[0] > g[1]);
+    ENSURE(angle > 1.0 && angle < 170.0);
+    hs_body_destroy(&b);
+    hs_cut_destroy(&c);
+    hs_free(fixed);
+    hs_free(far);
+    hs_free(xorig);
+    hs_mesh_destroy(&m);
+    ENSURE(hs_byte_count() == bytes);
+    return 0;
+}
+
+/// ~20 cuts on a small plate (progressive, curved, random): after each the updated factor, a
+/// fresh factor, a fem rebuilt on the live mesh and the tracked compliance agree.
+static int test_consistency(void) {
+    int64_t bytes = hs_byte_count();
+    for (int mode = 0; mode < 2; mode++) {
+        hs_mesh* m = NULL;
+        hs_err e;
+        ENSURE(hs_mesh_create_box(0.06, 0.06, 0.01, 6, 6, 2, &m, &e) == HS_OK);
+        const int n = m->n_nodes;
+        unsigned char* fixed = hs_calloc((size_t)n, 1);
+        hs_mesh_select_plane(m, 0, -1, 1e-6, fixed);
+        hs_cut_def def = hs_cut_default_def();
+        hs_cut* c = NULL;
+        ENSURE(hs_cut_create(m, fixed, &def, &c, &e) == HS_OK);
+        // Track the blocks of every node on the top face.
+        int* track = hs_alloc(sizeof(int) * (size_t)n);
+        int nt = 0;
+        for (int i = 0; i < n; i++)
+            if (m->x0[3 * i + 2] > 0.01 - 1e-9) track[nt++] = i;
+        ENSURE(hs_cut_track_compliance(c, nt, track, (hs_cut_compliance_mode)mode) == HS_OK);
+        double wms = 0;
+        int with_change = 0;
+        for (int k = 0; k < 20; k++) {
+            double p0[3], q0[3], p1[3], q1[3];
+            if (k < 8) { // a curved progressive cut: the blade turns while it advances
+                double a0 = 0.12 * k, a1 = 0.12 * (k + 1);
+                double cx0 = 0.033 + 0.005 * sin(a0), cx1 = 0.033 + 0.005 * sin(a1);
+                p0[0] = q0[0] = cx0;
+                p1[0] = q1[0] = cx1;
+                p0[1] = q0[1] = 0.005 + 0.005 * k;
+                p1[1] = q1[1] = 0.005 + 0.005 * (k + 1);
+                p0[2] = p1[2] = 0.004;
+                q0[2] = q1[2] = 0.02;
+            } else { // random short sweeps
+                for (int d = 0; d < 3; d++) {
+                    double ctr = (d == 2 ? 0.01 : 0.06) * urand();
+                    double bl = (urand() - 0.5) * 0.02, mv = (urand() - 0.5) * 0.01;
+                    p0[d] = ctr - bl;
+                    q0[d] = ctr + bl;
+                    p1[d] = p0[d] + mv;
+                    q1[d] = q0[d] + mv;
+                }
+            }
+            hs_cut_result r;
+            hs_status st = hs_cut_sweep(c, p0, q0, p1, q1, NULL, &r, &e);
+            if (st != HS_OK) printf("  sweep %d: %s\n", k, e.msg);
+            ENSURE(st == HS_OK);
+            ENSURE(!r.refactored);
+            if (r.changed_elements == 0) continue;
+            with_change++;
+            wms += hs_cut_compliance_ms(c);
+            double df = factor_vs_fresh(c);
+            ENSURE(df <= 1e-8);
+            ENSURE(fem_vs_rebuilt(c, m, &def) <= 1e-10);
+            // Compliance: tracked blocks vs solves with a fresh factor.
+            int nf = hs_cut_free_dofs(c);
+            hs_csc* a = NULL;
+            hs_cholesky* f = NULL;
+            ENSURE(hs_cut_create_matrix(c, &a) == HS_OK);
+            hs_cut_assemble(c, a);
+            ENSURE(hs_cholesky_create(a, &f, &e) == HS_OK);
+            double* rhs = hs_calloc((size_t)nf, sizeof(double));
+            double* x = hs_alloc(sizeof(double) * (size_t)nf);
+            double worst = 0, scale = 0;
+            for (int t = 0; t < nt; t++) {
+                int v = track[t];
+                double blk[9];
+                hs_cut_compliance_block(c, t, blk);
+                for (int q = 0; q < 3; q++) {
+                    int d = hs_cut_dof(c, v, q);
+                    if (d < 0 || hs_cut_node_pinned(c, v)) continue;
+                    rhs[d] = 1;
+                    hs_cholesky_solve(f, rhs, x);
+                    rhs[d] = 0;
+                    for (int i = 0; i < 3; i++) {
+                        double ref = x[hs_cut_dof(c, v, i)];
+                        worst = fmax(worst, fabs(blk[3 * i + q] - ref));
+                        scale = fmax(scale, fabs(ref));
+                    }
+                }
+            }
+            ENSURE(worst <= 1e-8 * scale);
+            hs_free(rhs);
+            hs_free(x);
+            hs_cholesky_destroy(&f);
+            hs_csc_destroy(&a);
+        }
+        ENSURE(with_change >= 10);
+        printf("  %s: %d cuts with changes, compliance update %.3f ms mean (%d nodes tracked)\n",
+               mode == 0 ? "woodbury" : "re-solve", with_change, wms / with_change, nt);
+#ifdef HS_HAVE_COMPLIANCE
+        if (mode == 0) {
+            // The haptic module's compliance computed afresh on the cut body agrees.
+            hs_mesh* live = NULL;
+            const hs_mesh* L = hs_cut_live_mesh(c);
+            ENSURE(hs_mesh_create(n, L->x0, L->n_tets, L->tets, &live, &e) >= 0);
+            for (int i = 0; i < n; i++) fixed[i] |= (unsigned char)hs_cut_node_pinned(c, i);
+            hs_fem_def fd = hs_fem_default_def();
+            fd.material = def.material;
+            hs_compliance* cc = NULL;
+            ENSURE(hs_compliance_create(live, &fd, fixed, 4, &cc, &e) == HS_OK);
+            double worst = 0, scale = 0;
+            int compared = 0;
+            for (int t = 0; t < nt; t++) {
+                int v = track[t];
+                if (!hs_compliance_contactable(cc, v)) continue;
+                double b1[9], b2[9];
+                hs_cut_compliance_block(c, t, b1);
+                hs_compliance_diag(cc, v, b2);
+                for (int q = 0; q < 9; q++) {
+                    worst = fmax(worst, fabs(b1[q] - b2[q]));
+                    scale = fmax(scale, fabs(b2[q]));
+                }
+                compared++;
+            }
+            ENSURE(compared > 10);
+            ENSURE(worst <= 1e-8 * scale);
+            hs_compliance_destroy(&cc);
+            hs_mesh_destroy(&live);
+        }
+#endif
+        hs_free(track);
+        hs_free(fixed);
+        hs_cut_destroy(&c);
+        hs_mesh_destroy(&m);
+    }
+    ENSURE(hs_byte_count() == bytes);
+    return 0;
+}
+
+/// Rules on a small box: a corner cut free is dropped (DROP) or pinned in place (FIX); the
+/// paper's orphan rule keeps tets instead of pinning.
+static int test_rules(void) {
+    int64_t bytes = hs_byte_count();
+    for (int variant = 0; variant < 3; variant++) {
+        hs_mesh* m = NULL;
+        hs_err e;
+        ENSURE(hs_mesh_create_box(0.04, 0.04, 0.01, 4, 4, 1, &m, &e) == HS_OK);
+        const int n = m->n_nodes;
+        unsigned char* fixed = hs_calloc((size_t)n, 1);
+        hs_mesh_select_plane(m, 0, -1, 1e-6, fixed);
+        hs_cut_def def = hs_cut_default_def();
+        if (variant == 1) def.fragment = HS_CUT_FRAGMENT_FIX;
+        if (variant == 2) def.orphan = HS_CUT_ORPHAN_KEEP_TET;
+        hs_cut* c = NULL;
+        ENSURE(hs_cut_create(m, fixed, &def, &c, &e) == HS_OK);
+        int ne0 = hs_cut_live_mesh(c)->n_tets;
+        // Cut off the far end (x > 25 mm) with a blade spanning the depth, swept across y: the
+        // hexes in [20, 30] mm go, those in [30, 40] mm form a free piece.
+        double p0[3] = {0.025, -0.005, -0.005}, q0[3] = {0.025, -0.005, 0.015};
+        double p1[3] = {0.025, 0.045, -0.005}, q1[3] = {0.025, 0.045, 0.015};
+        hs_cut_result r;
+        ENSURE(hs_cut_sweep(c, p0, q0, p1, q1, NULL, &r, &e) == HS_OK);
+        ENSURE(r.cut_tets > 0);
+        ENSURE(hs_cut_validate(c, &e) == HS_OK);
+        printf("  variant %d: cut %d removed %d kept %d moved %d clamped %d pinned %d pieces %d\n",
+               variant, r.cut_tets, r.removed, r.kept, r.moved, r.clamped, r.pinned, r.fragments);
+        int pinned = 0;
+        for (int i = 0; i < n; i++) pinned += hs_cut_node_pinned(c, i);
+        int ne1 = hs_cut_live_mesh(c)->n_tets;
+        if (variant == 0) { // dropped: only the held piece remains
+            ENSURE(r.fragments == 1);
+            ENSURE(hs_cut_components(c) == 1);
+            ENSURE(pinned > 0 && ne1 < ne0 - r.cut_tets + 1);
+        } else if (variant == 1) { // fixed in place: two pieces, the free one pinned
+            ENSURE(r.fragments == 1);
+            ENSURE(hs_cut_components(c) == 2);
+            ENSURE(pinned > 0);
+        } else { // orphan rule: nothing pinned that kept tets could hold
+            ENSURE(r.kept >= 0);
+            for (int i = 0; i < n; i++)
+                if (hs_cut_node_pinned(c, i)) ENSURE(r.fragments > 0);
+        }
+        ENSURE(factor_vs_fresh(c) <= 1e-8);
+        double* f = hs_calloc(3 * (size_t)n, sizeof(double));
+        double* u = hs_calloc(3 * (size_t)n, sizeof(double));
+        for (int i = 0; i < n; i++) f[3 * i + 2] = -1e-3;
+        ENSURE(hs_cut_solve(c, f, u) == HS_OK);
+        for (int i = 0; i < n; i++)
+            if (hs_cut_node_pinned(c, i)) ENSURE(u[3 * i + 2] == 0.0);
+        hs_free(f);
+        hs_free(u);
+        hs_free(fixed);
+        hs_cut_destroy(&c);
+        hs_mesh_destroy(&m);
+    }
+    ENSURE(hs_byte_count() == bytes);
+    return 0;
+}
+
+/// Cutting a deformed body: crossings use x0 + u, moves land on the blade in current space.
+static int test_deformed_and_bad_input(void) {
+    int64_t bytes = hs_byte_count();
+    hs_mesh* m = NULL;
+    hs_err e;
+    ENSURE(hs_mesh_create_box(0.04, 0.04, 0.01, 4, 4, 1, &m, &e) == HS_OK);
+    const int n = m->n_nodes;
+    unsigned char* fixed = hs_calloc((size_t)n, 1);
+    hs_mesh_select_plane(m, 0, -1, 1e-6, fixed);
+    hs_cut_def def = hs_cut_default_def();
+    hs_cut* c = NULL;
+    ENSURE(hs_cut_create(m, fixed, &def, &c, &e) == HS_OK);
+    double bad[3] = {NAN, 0, 0}, ok[3] = {0, 0, 0};
+    ENSURE(hs_cut_sweep(c, bad, ok, ok, ok, NULL, NULL, &e) == HS_ERR_INVALID);
+    ENSURE(strstr(e.msg, "blade"));
+    ENSURE(hs_cut_topology_version(c) == 0);
+    // A uniform shear u = (0.2 z, 0, 0): the blade plane x = 22 mm in current space.
+    double* u = hs_calloc(3 * (size_t)n, sizeof(double));
+    for (int i = 0; i < n; i++) u[3 * i] = 0.2 * m->x0[3 * i + 2];
+    double p0[3] = {0.022, 0.012, -0.005}, q0[3] = {0.022, 0.012, 0.015};
+    double p1[3] = {0.022, 0.028, -0.005}, q1[3] = {0.022, 0.028, 0.015};
+    hs_cut_result r;
+    ENSURE(hs_cut_sweep(c, p0, q0, p1, q1, u, &r, &e) == HS_OK);
+    ENSURE(r.moved > 0);
+    const int* mv = NULL;
+    int nm = hs_cut_last_moved(c, &mv);
+    ENSURE(nm == r.moved);
+    int on = 0;
+    for (int k = 0; k < nm; k++) {
+        int v = mv[k];
+        double xc = m->x0[3 * v] + u[3 * v];
+        // interior, unclamped moves land on the plane in current positions
+        if (fabs(xc - 0.022) < 1e-9) on++;
+        ENSURE(isfinite(u[3 * v]));
+    }
+    ENSURE(on > 0);
+    const int* rm = NULL;
+    ENSURE(hs_cut_last_removed(c, &rm) == r.removed && r.removed > 0);
+    for (int k = 0; k < r.removed; k++) ENSURE(!hs_cut_tet_active(c, rm[k]));
+    ENSURE(hs_cut_topology_version(c) == 1);
+    hs_free(u);
+    hs_free(fixed);
+    hs_cut_destroy(&c);
+    hs_cut_destroy(&c); // NULL is fine
+    hs_mesh_destroy(&m);
+    ENSURE(hs_byte_count() == bytes);
+    return 0;
+}
+
+/// 1,000 random short sweeps through the liver: validator after every cut (inside the sweep),
+/// finite solves, no orphan; factor compared with a fresh one every 50 cuts.
+static int test_liver_random_cuts(void) {
+    int64_t bytes = hs_byte_count();
+    char path[512];
+    snprintf(path, sizeof path, "%s/scenes/liver/liver2.msh", HS_SOURCE_DIR);
+    hs_mesh* m = NULL;
+    hs_err e;
+    ENSURE(hs_mesh_load(path, &m, &e) >= 0);
+    const int n = m->n_nodes;
+    unsigned char* fixed = hs_calloc((size_t)n, 1);
+    double ext[3];
+    for (int d = 0; d < 3; d++) ext[d] = m->bbox_max[d] - m->bbox_min[d];
+    double diag = sqrt(ext[0] * ext[0] + ext[1] * ext[1] + ext[2] * ext[2]);
+    ENSURE(hs_mesh_select_plane(m, 2, -1, 0.1 * ext[2], fixed) > 0);
+    hs_cut_def def = hs_cut_default_def();
+    hs_cut* c = NULL;
+    hs_sparse_set_threads(1);
+    ENSURE(hs_cut_create(m, fixed, &def, &c, &e) == HS_OK);
+    double* f = hs_calloc(3 * (size_t)n, sizeof(double));
+    double* u = hs_calloc(3 * (size_t)n, sizeof(double));
+    int total_removed = 0, refactored = 0, fragments = 0;
+    double worst = 0, max_ms = 0;
+    for (int k = 0; k < 1000; k++) {
+        double ctr[3], bl[3], mv[3];
+        for (int d = 0; d < 3; d++) {
+            ctr[d] = m->bbox_min[d] + ext[d] * urand();
+            bl[d] = urand() - 0.5;
+            mv[d] = urand() - 0.5;
+        }
+        double bn = sqrt(bl[0] * bl[0] + bl[1] * bl[1] + bl[2] * bl[2]);
+        double mn = sqrt(mv[0] * mv[0] + mv[1] * mv[1] + mv[2] * mv[2]);
+        double p0[3], q0[3], p1[3], q1[3];
+        for (int d = 0; d < 3; d++) {
+            p0[d] = ctr[d] - 0.08 * diag * bl[d] / bn;
+            q0[d] = ctr[d] + 0.08 * diag * bl[d] / bn;
+            p1[d] = p0[d] + 0.04 * diag * mv[d] / mn;
+            q1[d] = q0[d] + 0.04 * diag * mv[d] / mn;
+        }
+        hs_cut_result r;
+        hs_status st = hs_cut_sweep(c, p0, q0, p1, q1, NULL, &r, &e);
+        if (st != HS_OK) printf("  cut %d: %s\n", k, e.msg);
+        ENSURE(st == HS_OK); // includes hs_mesh_check and the cut invariants (def.validate)
+        total_removed += r.removed;
+        refactored += r.refactored;
+        fragments += r.fragments;
+        if (r.total_ms > 20)
+            printf("  slow cut %d: %.1f ms (geometry %.1f, factor %.1f, mesh %.1f), %d changes\n",
+                   k, r.total_ms, r.geometry_ms, r.factor_ms, r.mesh_ms, r.changed_elements);
+        max_ms = fmax(max_ms, r.total_ms);
+        for (int i = 0; i < 3 * n; i++) f[i] = 1e-3 * (urand() - 0.5);
+        ENSURE(hs_cut_solve(c, f, u) == HS_OK); // checks finiteness
+        if (k % 50 == 49) {
+            double df = factor_vs_fresh(c);
+            worst = fmax(worst, df);
+            ENSURE(df <= 1e-8);
+        }
+    }
+    ENSURE(hs_cut_validate(c, &e) == HS_OK);
+    printf("  1000 cuts: %d tets removed of %d, %d pieces dropped, %d refactors, %d left; "
+           "worst factor difference %.2g; slowest sweep %.2f ms\n",
+           total_removed, m->n_tets, fragments, refactored, hs_cut_live_mesh(c)->n_tets, worst,
+           max_ms);
+    ENSURE(total_removed > 0);
+    hs_free(f);
+    hs_free(u);
+    hs_free(fixed);
+    hs_cut_destroy(&c);
+    hs_mesh_destroy(&m);
+    ENSURE(hs_byte_count() == bytes);
+    return 0;
+}
+
+HS_TEST_MAIN(HS_CASE(test_force_model), HS_CASE(test_skin_full_separation),
+             HS_CASE(test_skin_wound_angle), HS_CASE(test_consistency), HS_CASE(test_rules),
+             HS_CASE(test_deformed_and_bad_input), HS_CASE(test_liver_random_cuts))
