@@ -3,8 +3,9 @@
 //
 // DESIGN. hs_fem_create does all allocation: element shape gradients and volumes, the node ->
 // element incidence, the node adjacency of the tangent (1-ring, or 2-ring with ANP) and, for
-// every 3x3 node block of that pattern, the 9 positions in hs_csc.val. Elements and the ANP
-// node terms address blocks by id, so hs_fem_assemble is a pure scatter with no search.
+// every 3x3 node block of that pattern, the 9 positions in hs_csc.val; each element keeps a
+// flat copy of its 78 upper-triangle positions, the ANP node terms address blocks by id, so
+// hs_fem_assemble is a pure scatter with no search (upper triangle, then a mirror pass).
 // hs_fem_update evaluates the model and keeps what the tangent needs (F, R, S, ANP gradients);
 // element tangents are formed on the fly from those in assemble / apply_tangent, since a
 // 12x12 block per element costs more memory traffic than recomputing it from 3x3 pieces.
@@ -37,14 +38,12 @@ struct hs_fem {
     double* R;             // [9ne] rotation (co-rotated); warm start of the next update
     double* S;             // [9ne] second Piola-Kirchhoff stress (StVK), Pa
     double* det;           // [ne] det F
-    int* piters;           // [ne] polar iterations of the last update
 
     // nodes
     double* f;     // [3n] elastic forces, N
     double* mass;  // [n] lumped mass, kg
     int* nt_start; // [n+1] node -> element incidence (CSR)
     int* nt;       // element of each incidence
-    int* nt_local; // local index (0..3) of the node in that element
 
     // pattern: per column node k the sorted row nodes adj[adj_start[k] ..] (self included);
     // block id = position in adj
@@ -54,8 +53,8 @@ struct hs_fem {
     // Assembly writes the upper triangle only (row <= col) and then mirrors it: a symmetric
     // matrix, so half the scatter. "Canonical" position of (r, c) = position of (min, max).
     int* blkpos;   // [9 n_blocks] row-major canonical positions in val, -1 for constrained dofs
-    int* elem_pos; // [78ne] canonical positions of the element's dof pairs (r <= c), see
-                   // hs_fem_assemble for the order
+    int* elem_pos; // [78ne] canonical positions of the element's dof pairs (r <= c), in the
+                   // order of build_scatter
     int n_mirror;  // strictly lower entries
     int* mirror;   // [2 n_mirror] (lower position, its upper transpose)
     int* diag_pos; // [3n]
@@ -97,12 +96,11 @@ hs_fem_def hs_fem_default_def(void) {
 void hs_fem_destroy(hs_fem** pfem) {
     if (!pfem || !*pfem) return;
     hs_fem* m = *pfem;
-    void* ptrs[] = {m->dof,        m->tet,      m->g,        m->vol0,       m->active, m->F,
-                    m->R,          m->S,        m->det,      m->piters,     m->f,      m->mass,
-                    m->nt_start,   m->nt,       m->nt_local, m->adj_start,  m->adj,    m->blkpos,
-                    m->elem_pos,   m->diag_pos, m->mirror,   m->ring_start, m->ring,   m->nt_slot,
-                    m->pair_start, m->pair_blk, m->theta_e,  m->w,          m->pbar,   m->vn,
-                    m->theta_n,    m->cvec};
+    void* ptrs[] = {m->dof,     m->tet,        m->g,    m->vol0,    m->active,     m->F,
+                    m->R,       m->S,          m->det,  m->f,       m->mass,       m->nt_start,
+                    m->nt,      m->adj_start,  m->adj,  m->blkpos,  m->elem_pos,   m->diag_pos,
+                    m->mirror,  m->ring_start, m->ring, m->nt_slot, m->pair_start, m->pair_blk,
+                    m->theta_e, m->w,          m->pbar, m->vn,      m->theta_n,    m->cvec};
     for (size_t i = 0; i < sizeof ptrs / sizeof ptrs[0]; i++) hs_free(ptrs[i]);
     hs_free(m);
     *pfem = NULL;
@@ -180,8 +178,7 @@ static hs_status build_incidence(hs_fem* m) {
     int n = m->n, ne = m->ne;
     m->nt_start = hs_calloc((size_t)n + 1, sizeof(int));
     m->nt = hs_alloc(sizeof(int) * 4 * (size_t)ne + 1);
-    m->nt_local = hs_alloc(sizeof(int) * 4 * (size_t)ne + 1);
-    if (!m->nt_start || !m->nt || !m->nt_local) return HS_ERR_NOMEM;
+    if (!m->nt_start || !m->nt) return HS_ERR_NOMEM;
     for (int k = 0; k < 4 * ne; k++) m->nt_start[m->tet[k] + 1]++;
     for (int i = 0; i < n; i++) m->nt_start[i + 1] += m->nt_start[i];
     int* fill = hs_alloc(sizeof(int) * ((size_t)n + 1));
@@ -191,7 +188,6 @@ static hs_status build_incidence(hs_fem* m) {
         for (int a = 0; a < 4; a++) {
             int i = m->tet[4 * e + a], p = fill[i]++;
             m->nt[p] = e;
-            m->nt_local[p] = a;
         }
     hs_free(fill);
     return HS_OK;
@@ -442,11 +438,10 @@ hs_status hs_fem_create(const hs_mesh* mesh, const hs_fem_def* def, const int* d
     m->R = hs_alloc(sizeof(double) * 9 * (size_t)ne);
     m->S = hs_calloc(9 * (size_t)ne, sizeof(double));
     m->det = hs_alloc(sizeof(double) * (size_t)ne);
-    m->piters = hs_calloc((size_t)ne, sizeof(int));
     m->f = hs_calloc(3 * (size_t)n, sizeof(double));
     m->mass = hs_calloc((size_t)n, sizeof(double));
     if (!m->dof || !seen || !m->tet || !m->g || !m->vol0 || !m->active || !m->F || !m->R || !m->S ||
-        !m->det || !m->piters || !m->f || !m->mass) {
+        !m->det || !m->f || !m->mass) {
         hs_free(seen);
         st = nomem(err);
         goto fail;
@@ -675,7 +670,6 @@ void hs_fem_update(hs_fem* m, const double* x, hs_fem_stats* stats) {
             double H[9];
             if (model == HS_MODEL_COROTATED) {
                 int it = element_rotation(m, e, F, det, H);
-                m->piters[e] = it;
                 if (it > pmax) pmax = it;
                 r = m->R + 9 * e;
             } else {
