@@ -274,6 +274,17 @@ static int SolveAllocatesNothing(void) {
         ENSURE(hs_alloc_calls() == calls && hs_byte_count() == bytes);
         for (int k = 0; k < 4; k++)
             ENSURE_SMALL(rel_residual(t.a, t.x + k * t.a->n, t.b + k * t.a->n, t.r), 1e-12);
+        // In place, and 3 columns (a remainder after blocks of four) against single solves.
+        size_t n4 = 4 * (size_t)t.a->n;
+        double* y = malloc(sizeof(double) * n4);
+        memcpy(y, t.b, sizeof(double) * n4);
+        ENSURE(hs_cholesky_solve_many(t.f, 4, y, y) == HS_OK);
+        ENSURE(max_abs_diff((int)n4, y, t.x) == 0.0);
+        ENSURE(hs_cholesky_solve_many(t.f, 3, t.b + t.a->n, y) == HS_OK);
+        for (int k = 0; k < 3; k++)
+            ENSURE(max_abs_diff(t.a->n, y + k * t.a->n, t.x + (k + 1) * t.a->n) <=
+                   1e-13 * vec_norm(t.a->n, t.x));
+        free(y);
     }
     fixture_free(&t);
     ENSURE(hs_byte_count() == bytes0);

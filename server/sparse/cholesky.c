@@ -22,7 +22,7 @@ struct hs_cholesky {
     cholmod_dense b;             // header over the caller's right-hand side
     cholmod_dense *x1, *y1, *e1; // solve workspaces, k = 1
     cholmod_dense *xk, *yk, *ek; // solve_many workspaces, last k
-    double* work; // [2n] permuted right-hand side and block scratch for simplicial solves
+    double* work; // [8n] permuted right-hand sides and block scratch for simplicial solves
     int blocked;  // simplicial L still has the spare's supernodal layout (fast solve)
     int n, nnz;
     int* colp;          // [n+1] copy of the pattern's column starts (cheap same-pattern check)
@@ -216,7 +216,7 @@ hs_status hs_cholesky_create(const hs_csc* a, hs_cholesky** out, hs_err* err) {
     }
     memcpy(f->colp, a->colp, sizeof(int) * ((size_t)a->n + 1));
     f->rowi_hash = hash_rows(a);
-    f->work = hs_alloc(sizeof(double) * (2 * (size_t)a->n + 1));
+    f->work = hs_alloc(sizeof(double) * (8 * (size_t)a->n + 1));
     if (!f->work) {
         st = hs_err_set(err, HS_ERR_NOMEM, "%s:%d: out of memory", __FILE__, __LINE__);
         goto fail;
@@ -480,6 +480,65 @@ static void blocked_ldl_solve(const cholmod_factor* S, const cholmod_factor* L, 
     for (int k = 0; k < n; k++) x[perm[k]] = y[k];
 }
 
+// Four right-hand sides at once (b and x columns n apart), interleaved in y[4n] and t[4n]:
+// each entry of L is loaded once for four multiply-adds, so the pass over L, which is memory
+// bound, is shared by the four solves.
+static void blocked_ldl_solve4(const cholmod_factor* S, const cholmod_factor* L, double* y,
+                               double* t, const double* b, double* x) {
+    enum { W = 4 };
+    const int n = (int)L->n;
+    const int *perm = L->Perm, *super = S->super, *pi = S->pi, *px = S->px, *ls = S->s;
+    const double* lx = L->x;
+    const int ns = (int)S->nsuper;
+    for (int k = 0; k < n; k++)
+        for (int r = 0; r < W; r++) y[k * W + r] = b[(size_t)r * (size_t)n + (size_t)perm[k]];
+    for (int s = 0; s < ns; s++) { // L y = P b
+        const int k1 = super[s], nscol = super[s + 1] - k1, nsrow = pi[s + 1] - pi[s];
+        const int* rows = ls + pi[s];
+        const double* blk = lx + px[s];
+        double* yb = y + (size_t)k1 * W;
+        for (int q = nscol * W; q < nsrow * W; q++) t[q] = 0.0;
+        for (int jj = 0; jj < nscol; jj++) {
+            const double* col = blk + (size_t)jj * (size_t)nsrow;
+            const double* yj = yb + jj * W;
+            for (int q = jj + 1; q < nscol; q++)
+                for (int r = 0; r < W; r++) yb[q * W + r] -= col[q] * yj[r];
+            for (int q = nscol; q < nsrow; q++)
+                for (int r = 0; r < W; r++) t[q * W + r] += col[q] * yj[r];
+        }
+        for (int q = nscol; q < nsrow; q++)
+            for (int r = 0; r < W; r++) y[rows[q] * W + r] -= t[q * W + r];
+    }
+    for (int s = 0; s < ns; s++) { // D
+        const int k1 = super[s], nsrow = pi[s + 1] - pi[s];
+        const double* blk = lx + px[s];
+        for (int jj = 0; jj < super[s + 1] - k1; jj++) {
+            double dinv = 1.0 / blk[(size_t)jj * (size_t)nsrow + (size_t)jj];
+            for (int r = 0; r < W; r++) y[(k1 + jj) * W + r] *= dinv;
+        }
+    }
+    for (int s = ns - 1; s >= 0; s--) { // L^T z = y
+        const int k1 = super[s], nscol = super[s + 1] - k1, nsrow = pi[s + 1] - pi[s];
+        const int* rows = ls + pi[s];
+        const double* blk = lx + px[s];
+        double* yb = y + (size_t)k1 * W;
+        for (int q = nscol; q < nsrow; q++)
+            for (int r = 0; r < W; r++) t[q * W + r] = y[rows[q] * W + r];
+        for (int jj = nscol - 1; jj >= 0; jj--) {
+            const double* col = blk + (size_t)jj * (size_t)nsrow;
+            double acc[W];
+            for (int r = 0; r < W; r++) acc[r] = yb[jj * W + r];
+            for (int q = jj + 1; q < nscol; q++)
+                for (int r = 0; r < W; r++) acc[r] -= col[q] * yb[q * W + r];
+            for (int q = nscol; q < nsrow; q++)
+                for (int r = 0; r < W; r++) acc[r] -= col[q] * t[q * W + r];
+            for (int r = 0; r < W; r++) yb[jj * W + r] = acc[r];
+        }
+    }
+    for (int k = 0; k < n; k++)
+        for (int r = 0; r < W; r++) x[(size_t)r * (size_t)n + (size_t)perm[k]] = y[k * W + r];
+}
+
 static hs_status solve_into(hs_cholesky* f, int k, const double* b, double* x, cholmod_dense** X,
                             cholmod_dense** Y, cholmod_dense** E) {
     if (!f || k < 0 || (f->n > 0 && k > 0 && (!b || !x))) return HS_ERR_INVALID;
@@ -487,7 +546,11 @@ static hs_status solve_into(hs_cholesky* f, int k, const double* b, double* x, c
     if (f->n == 0 || k == 0) return HS_OK;
     size_t n = (size_t)f->n;
     if (!f->L->is_super) {
-        for (int c = 0; c < k; c++) {
+        int c = 0;
+        if (f->blocked)
+            for (; c + 4 <= k; c += 4)
+                blocked_ldl_solve4(f->spare, f->L, f->work, f->work + 4 * n, b + c * n, x + c * n);
+        for (; c < k; c++) {
             if (f->blocked)
                 blocked_ldl_solve(f->spare, f->L, f->work, f->work + n, b + c * n, x + c * n);
             else
