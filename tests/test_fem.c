@@ -949,6 +949,92 @@ static int test_errors(void) {
     return 0;
 }
 
+/// Unstructured meshes (bundled liver, shared meshes) through the mesh loader: affine patch test on
+/// the interior vertices, zero force under a rigid rotation, lumped mass = density * volume, for
+/// co-rotated with and without ANP and for StVK.
+static int test_shared_meshes(void) {
+    int64_t bytes0 = hs_byte_count();
+    // the bundled liver always; the shared meshes when the folder is there
+    const char* names[] = {"scenes/liver/liver2.msh", "liver_coarse.msh", "aneurysm_vessel.msh"};
+    int loaded = 0;
+    for (int k = 0; k < 3; k++) {
+        char path[512];
+        snprintf(path, sizeof path, "%s/%s", k == 0 ? HS_SOURCE_DIR : HS_SHARED_MESHES, names[k]);
+        hs_mesh* mesh = NULL;
+        hs_err err;
+        hs_status ls = hs_mesh_load(path, &mesh, &err);
+        if (ls < 0) {
+            printf("  skipped %s: %s\n", names[k], err.msg);
+            continue;
+        }
+        loaded++;
+        int n = mesh->n_nodes;
+        int* dof = dofs_all(n);
+        double* x = malloc(sizeof(double) * 3 * n);
+        double* f = malloc(sizeof(double) * 3 * n);
+        double L = 0;
+        for (int c = 0; c < 3; c++) L = fmax(L, mesh->bbox_max[c] - mesh->bbox_min[c]);
+        static const cfg cs[] = {{"corot", HS_MODEL_COROTATED, HS_ROTATION_POLAR, 0},
+                                 {"corot-anp", HS_MODEL_COROTATED, HS_ROTATION_POLAR, 1},
+                                 {"stvk", HS_MODEL_STVK, HS_ROTATION_POLAR, 0}};
+        for (int c = 0; c < 3; c++) {
+            hs_fem_def def = make_def(&cs[c], 3000, 0.49);
+            def.material.density_kg_m3 = 1060;
+            hs_fem* fem = NULL;
+            ENSURE(hs_fem_create(mesh, &def, dof, 3 * n, &fem, &err) == HS_OK);
+            double msum = 0;
+            const double* ms = hs_fem_lumped_mass(fem);
+            for (int i = 0; i < n; i++) msum += ms[i];
+            ENSURE_NEAR(msum, 1060 * mesh->volume, 1e-9 * 1060 * mesh->volume);
+            // affine: stretch + shear + rotation; interior vertices feel no force
+            double A0[9] = {1.05, 0.02, 0.0, -0.03, 0.97, 0.04, 0.01, 0.0, 1.02}, R[9], A[9];
+            double ax[3] = {0.0, 0.6, 0.8};
+            rot_axis(ax, 0.8, R);
+            for (int rigid = 0; rigid < 2; rigid++) {
+                if (rigid)
+                    memcpy(A, R, sizeof A);
+                else
+                    mat3_mul(R, A0, A);
+                for (int v = 0; v < n; v++)
+                    for (int i = 0; i < 3; i++)
+                        x[3 * v + i] = A[3 * i] * mesh->x0[3 * v] +
+                                       A[3 * i + 1] * mesh->x0[3 * v + 1] +
+                                       A[3 * i + 2] * mesh->x0[3 * v + 2] + 0.1 * L;
+                hs_fem_stats st;
+                hs_fem_update(fem, x, &st);
+                hs_fem_forces(fem, f);
+                double fint = 0, fall = 0;
+                for (int v = 0; v < n; v++) {
+                    double fv = vnorm(f + 3 * v, 3);
+                    fall = fmax(fall, fv);
+                    if (mesh->node_surf[v] < 0 && mesh->node_used[v]) fint = fmax(fint, fv);
+                }
+                // force scale: 1 % strain on a face of the mean element size
+                double h = cbrt(mesh->volume / mesh->n_tets), fscale = 3000 * 0.01 * h * h;
+                if (rigid) {
+                    ENSURE_SMALL(fall / fscale, 1e-6);
+                } else {
+                    ENSURE(fall > fscale);
+                    if (!(fint <= 1e-9 * fall))
+                        printf("  %s %s: interior %g of %g\n", names[k], cs[c].name, fint, fall);
+                    ENSURE(fint <= 1e-9 * fall);
+                }
+                ENSURE(st.inverted == 0);
+            }
+            hs_fem_destroy(&fem);
+        }
+        printf("  %s: %d nodes, %d tets, volume %.4g m^3: ok\n", names[k], n, mesh->n_tets,
+               mesh->volume);
+        free(x);
+        free(f);
+        free(dof);
+        hs_mesh_destroy(&mesh);
+    }
+    ENSURE(loaded > 0);
+    ENSURE(hs_byte_count() == bytes0);
+    return 0;
+}
+
 static int64_t cpu_ns(void) {
     struct timespec ts;
     clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
@@ -1026,4 +1112,4 @@ HS_TEST_MAIN(HS_CASE(test_patch), HS_CASE(test_rigid_rotation), HS_CASE(test_tan
              HS_CASE(test_corot_tangent), HS_CASE(test_polar), HS_CASE(test_locking),
              HS_CASE(test_inversion), HS_CASE(test_inversion_dynamic),
              HS_CASE(test_mass_and_active), HS_CASE(test_no_alloc), HS_CASE(test_errors),
-             HS_CASE(test_timing))
+             HS_CASE(test_shared_meshes), HS_CASE(test_timing))
