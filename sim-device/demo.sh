@@ -30,7 +30,9 @@ if [ -x "$server" ]; then
     trap 'kill $spid 2>/dev/null || true' EXIT INT TERM
     sleep 1
     kill -0 $spid 2>/dev/null || { echo "demo: hapsim-server exited at start-up" >&2; exit 1; }
-    "$stylus" --script "$script" --trace "$trace" --status
+    # The status line adds the server's rt rate, jitter and step time from its SERVER_STATUS.
+    "$stylus" --script "$script" --trace "$trace" --status \
+        --status-url "${HS_MESH_URL:-udpm://239.255.76.67:7668?ttl=0}"
     kill -INT $spid 2>/dev/null || true
     wait $spid 2>/dev/null || true
     trap - EXIT INT TERM

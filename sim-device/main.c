@@ -31,6 +31,7 @@
 #include <lcm/lcm.h>
 
 #include "hapsim_channels.h"
+#include "hapsim_server_status_t.h"
 #include "hapsim_tool_force_t.h"
 #include "hapsim_tool_pose_t.h"
 #include "stylus.h"
@@ -54,6 +55,7 @@ static int64_t wall_us(void) {
 typedef struct options {
     const char* script;
     const char* haptic_url;
+    const char* status_url;
     const char* prefix;
     const char* trace;
     int device_id;
@@ -79,6 +81,8 @@ typedef struct app {
     hs_script* script;
     hs_stylus_trace* trace;
     lcm_t* lcm;
+    lcm_t* status_lcm; // mesh bus, for SERVER_STATUS (--status-url), or NULL
+    char status_channel[HAPSIM_CHANNEL_MAX];
     char pose_channel[HAPSIM_CHANNEL_MAX];
     char force_channel[HAPSIM_CHANNEL_MAX];
     hs_stylus_mailbox mailbox;
@@ -89,6 +93,10 @@ typedef struct app {
     atomic_llong ticks, overruns, late_max_us;
     atomic_llong force_mn, period_p99_us, latency_us;
     atomic_int loop_done;
+    atomic_int rx_failed;
+    // From the server's status (--status-url): rt loop rate (mHz), rt period p99 (us), the
+    // slowest step's p99 (us), status messages seen.
+    atomic_llong srv_rate_mhz, srv_p99_us, srv_step_p99_us, srv_status_count;
 } app;
 
 static void usage(FILE* f) {
@@ -116,6 +124,9 @@ static void usage(FILE* f) {
             "  --timeout-ms MS         force is zero at this model age (default 100)\n"
             "  --ramp-ms MS            ramp-down length within the timeout (default 20)\n"
             "  --status                print a one-line status every second\n"
+            "  --status-url URL        also show the server's loop rate, jitter and step time\n"
+            "                          from its SERVER_STATUS on this bus (the mesh bus, e.g.\n"
+            "                          %s)\n"
             "  --quiet                 no summary on stdout\n"
             "Offline (no network, virtual time, deterministic):\n"
             "  --offline-stiffness K   replace the server by an elastic half-space, N/m\n"
@@ -125,7 +136,7 @@ static void usage(FILE* f) {
             "  --offline-period N      the half-space answers every N poses (default 1)\n"
             "  --offline-radius M      validity radius of its models, m (default 0.002)\n"
             "  --help                  this text\n",
-            HAPSIM_DEFAULT_HAPTIC_URL, HAPSIM_DEFAULT_PREFIX);
+            HAPSIM_DEFAULT_HAPTIC_URL, HAPSIM_DEFAULT_PREFIX, HAPSIM_DEFAULT_MESH_URL);
 }
 
 static int parse_double(const char* s, double* v) {
@@ -177,6 +188,7 @@ static int parse_options(int argc, char** argv, options* o, hs_stylus_def* def) 
         O_TIMEOUT,
         O_RAMP,
         O_STATUS,
+        O_STATUS_URL,
         O_QUIET,
         O_OK,
         O_PLANE,
@@ -204,6 +216,7 @@ static int parse_options(int argc, char** argv, options* o, hs_stylus_def* def) 
         {"timeout-ms", required_argument, 0, O_TIMEOUT},
         {"ramp-ms", required_argument, 0, O_RAMP},
         {"status", no_argument, 0, O_STATUS},
+        {"status-url", required_argument, 0, O_STATUS_URL},
         {"quiet", no_argument, 0, O_QUIET},
         {"offline-stiffness", required_argument, 0, O_OK},
         {"offline-plane", required_argument, 0, O_PLANE},
@@ -285,6 +298,10 @@ static int parse_options(int argc, char** argv, options* o, hs_stylus_def* def) 
         case O_STATUS:
             o->status = 1;
             break;
+        case O_STATUS_URL:
+            o->status_url = a;
+            o->status = 1;
+            break;
         case O_QUIET:
             o->quiet = 1;
             break;
@@ -352,17 +369,39 @@ static void on_force(const lcm_recv_buf_t* rbuf, const char* channel,
     }
 }
 
-static void* rx_main(void* arg) {
-    app* a = arg;
-    struct pollfd pfd = {.fd = lcm_get_fileno(a->lcm), .events = POLLIN};
-    while (!atomic_load(&g_stop) && !atomic_load(&a->loop_done)) {
-        int r = poll(&pfd, 1, 50);
-        if (r > 0 && (pfd.revents & POLLIN)) {
-            if (lcm_handle(a->lcm) != 0) break;
-        } else if (r < 0 && errno != EINTR) {
-            break;
+// The server's own view, for the status line only (the mesh bus is the server's, trusted).
+static void on_status(const lcm_recv_buf_t* rbuf, const char* channel,
+                      const hapsim_server_status_t* msg, void* user) {
+    (void)rbuf;
+    (void)channel;
+    app* a = user;
+    for (int i = 0; i < msg->n_loops; ++i) {
+        if (msg->loop_name[i] && strcmp(msg->loop_name[i], "rt") == 0) {
+            atomic_store(&a->srv_rate_mhz, llround(1e3 * msg->rate_hz[i]));
+            atomic_store(&a->srv_p99_us, llround(msg->period_p99_us[i]));
         }
     }
+    double worst = 0;
+    for (int i = 0; i < msg->n_steps; ++i)
+        if (msg->step_p99_us[i] > worst) worst = msg->step_p99_us[i];
+    atomic_store(&a->srv_step_p99_us, llround(worst));
+    atomic_fetch_add(&a->srv_status_count, 1);
+}
+
+static void* rx_main(void* arg) {
+    app* a = arg;
+    struct pollfd pfd[2] = {
+        {.fd = lcm_get_fileno(a->lcm), .events = POLLIN},
+        {.fd = a->status_lcm ? lcm_get_fileno(a->status_lcm) : -1, .events = POLLIN}};
+    while (!atomic_load(&g_stop) && !atomic_load(&a->loop_done)) {
+        int r = poll(pfd, a->status_lcm ? 2 : 1, 50);
+        if (r < 0 && errno != EINTR) break;
+        if (r <= 0) continue;
+        if ((pfd[0].revents & POLLIN) && lcm_handle(a->lcm) != 0) break;
+        if (a->status_lcm && (pfd[1].revents & POLLIN) && lcm_handle(a->status_lcm) != 0) break;
+    }
+    // Without forces the device ramps to zero on its own; say why at the end.
+    if (!atomic_load(&g_stop) && !atomic_load(&a->loop_done)) atomic_store(&a->rx_failed, 1);
     return NULL;
 }
 
@@ -524,11 +563,19 @@ static int run_offline(app* a) {
 static void print_status(app* a, double t, double rate_hz) {
     fprintf(stderr,
             "\rhapsim-stylus: t %6.1f s  %6.0f Hz  |F| %5.2f N  period err p99 %4lld us  "
-            "overruns %lld  forces rx %lld (bad %lld)  latency %5lld us   ",
+            "overruns %lld  forces rx %lld (bad %lld)  latency %5lld us",
             t, rate_hz, 1e-3 * (double)atomic_load(&a->force_mn),
             (long long)atomic_load(&a->period_p99_us), (long long)atomic_load(&a->overruns),
             (long long)atomic_load(&a->rx_forces), (long long)atomic_load(&a->rx_rejected),
             (long long)atomic_load(&a->latency_us));
+    if (a->status_lcm && atomic_load(&a->srv_status_count) > 0)
+        fprintf(stderr, "  | server rt %6.1f Hz, period p99 %4lld us, sim step p99 %6lld us",
+                1e-3 * (double)atomic_load(&a->srv_rate_mhz),
+                (long long)atomic_load(&a->srv_p99_us),
+                (long long)atomic_load(&a->srv_step_p99_us));
+    else if (a->status_lcm)
+        fprintf(stderr, "  | no server status yet");
+    fprintf(stderr, "   ");
     fflush(stderr);
 }
 
@@ -550,6 +597,20 @@ static int run_live(app* a) {
     }
     hapsim_tool_force_t_subscription_t* sub =
         hapsim_tool_force_t_subscribe(a->lcm, a->force_channel, on_force, a);
+    hapsim_server_status_t_subscription_t* status_sub = NULL;
+    if (a->opt.status_url) {
+        a->status_lcm = lcm_create(a->opt.status_url);
+        if (!a->status_lcm || hapsim_channel_name(a->status_channel, sizeof a->status_channel,
+                                                  a->opt.prefix, HAPSIM_CH_SERVER_STATUS)) {
+            fprintf(stderr, "hapsim-stylus: cannot open --status-url '%s'\n", a->opt.status_url);
+            if (a->status_lcm) lcm_destroy(a->status_lcm);
+            hapsim_tool_force_t_unsubscribe(a->lcm, sub);
+            lcm_destroy(a->lcm);
+            return 1;
+        }
+        status_sub =
+            hapsim_server_status_t_subscribe(a->status_lcm, a->status_channel, on_status, a);
+    }
     // A session id per start, so the server can tell a restarted stylus from a replayed one.
     uint64_t r = (uint64_t)hs_now_ns() ^ ((uint64_t)getpid() << 32) ^ (uint64_t)wall_us();
     r ^= r >> 33;
@@ -599,6 +660,13 @@ static int run_live(app* a) {
     hapsim_tool_force_t_unsubscribe(a->lcm, sub);
     lcm_destroy(a->lcm);
     a->lcm = NULL;
+    if (a->status_lcm) {
+        hapsim_server_status_t_unsubscribe(a->status_lcm, status_sub);
+        lcm_destroy(a->status_lcm);
+        a->status_lcm = NULL;
+    }
+    if (atomic_load(&a->rx_failed))
+        fprintf(stderr, "hapsim-stylus: the LCM receive loop failed; no forces after that\n");
     if (rc) return rc;
     if (!a->opt.quiet) {
         printf("hapsim-stylus: %lld forces received, %lld rejected, %lld for other devices; "
