@@ -38,11 +38,11 @@ typedef struct hs_mesh {
     int* surf_nodes;       ///< [n_surf_nodes] node index of each surface node, ascending
     int* node_surf;        ///< [n_nodes] index into surf_nodes, or -1 for interior nodes
     int* node_tet_start;   ///< [n_nodes+1] CSR offsets into node_tet
-    int* node_tet;         ///< [4*n_tets] tets incident to each node
+    int* node_tet;         ///< [4*n_tets] tets incident to each node, ascending
     int* node_nbr_start;   ///< [n_nodes+1] CSR offsets into node_nbr
     int* node_nbr;         ///< node-node adjacency through a shared tet, sorted, self excluded
     unsigned char* node_used; ///< [n_nodes] 1 if some tet references the node
-    double bbox_min[3], bbox_max[3]; ///< m
+    double bbox_min[3], bbox_max[3]; ///< m, over all nodes (used or not)
     double volume;         ///< m^3, sum of tet volumes
     hs_mesh_report report;
 } hs_mesh;
