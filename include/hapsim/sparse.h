@@ -54,7 +54,7 @@ hs_status hs_cholesky_refactor(hs_cholesky* f, const hs_csc* a);
 /// HS_ERR_NOT_POSDEF after a failed downdate (until a refactor succeeds).
 hs_status hs_cholesky_solve(hs_cholesky* f, const double* b, double* x);
 /// Solve for several right-hand sides stored column-major: b[n*k], x[n*k] (may alias).
-/// Allocates: only when k differs from the previous call.
+/// Allocates: only when k differs from the previous call, and never in update mode.
 hs_status hs_cholesky_solve_many(hs_cholesky* f, int k, const double* b, double* x);
 /// Entries stored in the current factor (supernodal: including the unused upper parts of its
 /// dense blocks), a memory and cost indicator.
@@ -90,8 +90,10 @@ hs_status hs_cholesky_updown(hs_cholesky* f, int update, int n_cols, const int* 
 /// Factor of A + sum_e dK_e for n_elem element changes: dk[144*e] is a symmetric 12x12 (any
 /// sign; row-major), dofs[12*e] its free dof indices or -1 for fixed dofs. Each dK_e is split
 /// by an eigen-decomposition into update and downdate columns; all updates run before all
-/// downdates so the intermediate matrices stay SPD whenever the result is.
-/// Errors as hs_cholesky_updown. Allocates: only when n_elem exceeds every earlier call.
+/// downdates so the intermediate matrices stay SPD whenever the result is. An element's dofs
+/// couple in the pattern of A, so L gains no fill. Errors as hs_cholesky_updown; on
+/// HS_ERR_INVALID (dof out of range or repeated) nothing changed.
+/// Allocates: only when n_elem exceeds every earlier call and prepare.
 hs_status hs_cholesky_update_elements(hs_cholesky* f, int n_elem, const double* dk,
                                       const int* dofs);
 
