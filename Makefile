@@ -8,7 +8,7 @@ PACKAGES  := cmake gcc make pkg-config liblcm-dev liblcm-bin libsuitesparse-dev 
              libcjson-dev libpng-dev gnuplot-nox iproute2 util-linux clang libclang-rt-14-dev
 CMAKE_ARGS ?=
 
-.PHONY: all deps configure build test test-asan test-tsan demo bench bench-quick soak fuzz clean
+.PHONY: all deps configure build test test-asan test-tsan demo bench bench-quick accuracy stress soak fuzz clean
 
 all: build
 
@@ -59,6 +59,18 @@ bench: build
 
 bench-quick: build
 	$(BUILD)/bin/hapsim-bench all --quick
+
+# Run time against error (docs/accuracy.md): CSV in out/, plots in docs/plots/.
+accuracy: build
+	mkdir -p out docs/plots
+	$(BUILD)/bin/hapsim-bench accuracy | tee out/accuracy.csv
+	for s in cantilever10x cantilever liver-press vessel; do \
+	  gnuplot -e "csv='out/accuracy.csv'; scene='$$s'" tests/bench/plot_accuracy.gp; done
+
+# Numerical stress suite, long version (100,000-step soaks); `make test` runs the quick one.
+stress: build
+	mkdir -p out
+	$(BUILD)/bin/hapsim-bench stress > out/stress.csv; rc=$$?; cat out/stress.csv; exit $$rc
 
 # libFuzzer targets (tests/fuzz) for FUZZ_SECONDS each; any crash, leak or sanitizer report fails.
 FUZZ_SECONDS ?= 30

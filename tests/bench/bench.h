@@ -12,6 +12,8 @@ typedef struct hs_bench_args {
 
 /// Each subcommand prints CSV with a header to stdout and returns 0 on success.
 int hs_bench_core(const hs_bench_args* a);
+int hs_bench_accuracy(const hs_bench_args* a);
+int hs_bench_stress(const hs_bench_args* a);
 
 /// p-th percentile (0..100) of v[n] (sorts v in place).
 double hs_bench_percentile(double* v, size_t n, double p);

@@ -36,6 +36,8 @@ typedef struct bench_cmd {
 
 static const bench_cmd cmds[] = {
     {"core", hs_bench_core, "FEM step cost per model and mesh (issue 2)"},
+    {"accuracy", hs_bench_accuracy, "run time against error per model, solver, dt (issue 6)"},
+    {"stress", hs_bench_stress, "numerical stress cases: NaN, energy, inversion (issue 6)"},
 };
 
 static void usage(FILE* f) {

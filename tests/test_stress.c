@@ -1,0 +1,130 @@
+// Numerical stress suite, quick version (the long one is `make stress`): the cases of
+// tests/bench/bench_stress.c with assertions on what they measured.
+#define HS_STRESS_NO_BENCH
+#include "bench/bench_stress.c"
+#include "test_macros.h"
+
+typedef struct collected {
+    hs_stress_result r[64];
+    int n;
+} collected;
+
+static void collect(const hs_stress_result* r, void* ctx) {
+    collected* c = ctx;
+    if (c->n < 64) c->r[c->n++] = *r;
+    printf("  %-20s %-10s %-34s nan %d  E %.3g  vol [%.3g, %.3g]  inv %d/%d  fail %d\n", r->name,
+           r->model, r->option, r->nan_count, r->energy_growth, r->vol_min, r->vol_max,
+           r->inverted_max, r->inverted_left, r->failures);
+}
+
+static collected g_all;
+static int64_t g_bytes_before, g_bytes_after;
+
+// The suite runs once; every case reads its results (so a filtered run works too).
+static void run_suite(void) {
+    if (g_all.n) return;
+    g_bytes_before = hs_byte_count();
+    hs_stress_run(1, collect, &g_all);
+    g_bytes_after = hs_byte_count();
+}
+
+static int is(const hs_stress_result* r, const char* name) {
+    return !strcmp(r->name, name);
+}
+
+// The whole quick suite: no NaN or Inf ever reaches the state; a failed call never changes it.
+static int stress_quick_suite_no_nan(void) {
+    run_suite();
+    int n = g_all.n;
+    ENSURE(n >= 20);
+    ENSURE(g_bytes_after == g_bytes_before);
+    for (int i = 0; i < n; ++i) {
+        const hs_stress_result* r = &g_all.r[i];
+        if (r->nan_count || !r->state_kept) printf("  case %s %s\n", r->name, r->option);
+        ENSURE(r->nan_count == 0);
+        ENSURE(r->state_kept);
+        ENSURE(r->steps > 0);
+    }
+    return 0;
+}
+
+// Undamped, unforced linear runs: implicit Euler never adds energy, at any dt in 1 ms .. 0.1 s.
+static int stress_linear_energy_never_grows(void) {
+    run_suite();
+    int seen = 0;
+    for (int i = 0; i < g_all.n; ++i) {
+        const hs_stress_result* r = &g_all.r[i];
+        if (!is(r, "free-vibration") || strcmp(r->model, "linear")) continue;
+        ++seen;
+        ENSURE(r->failures == 0);
+        ENSURE(r->energy_growth <= 1.0 + 1e-9);
+    }
+    ENSURE(seen == 4);
+    return 0;
+}
+
+// Inverted elements (driven through inversion by random loads, or every element mirrored)
+// recover: none left at the end, for both inversion remedies.
+static int stress_inversion_recovers(void) {
+    run_suite();
+    int seen = 0, inverted_somewhere = 0;
+    for (int i = 0; i < g_all.n; ++i) {
+        const hs_stress_result* r = &g_all.r[i];
+        if (!is(r, "fold-through") && !is(r, "random-forces")) continue;
+        ++seen;
+        ENSURE(r->failures == 0);
+        ENSURE(r->inverted_left == 0);
+        if (is(r, "fold-through")) ENSURE(r->inverted_max == 60 * 4); // every element at start
+        inverted_somewhere += r->inverted_max > 0;
+    }
+    ENSURE(seen == 6);
+    ENSURE(inverted_somewhere == 6); // the random loads did invert elements
+    return 0;
+}
+
+// Non-finite input is refused with HS_ERR_NUMERIC, the state is kept, and stepping resumes once
+// the input is removed; a singular static problem is an error, not garbage.
+static int stress_failures_are_errors(void) {
+    run_suite();
+    int seen = 0;
+    for (int i = 0; i < g_all.n; ++i) {
+        const hs_stress_result* r = &g_all.r[i];
+        if (is(r, "bad-input") && strcmp(r->option, "huge-force")) {
+            ++seen;
+            ENSURE(r->failures == 3);
+            ENSURE(r->first_error == HS_ERR_NUMERIC);
+            ENSURE(r->state_kept);
+            ENSURE(r->inverted_left == 0);
+        }
+        if (is(r, "floating-static")) {
+            ++seen;
+            ENSURE(r->failures == 1);
+            ENSURE(r->first_error < 0);
+        }
+    }
+    ENSURE(seen == 4);
+    return 0;
+}
+
+// Near incompressibility (nu to 0.4999), slivers (min dihedral < 0.01 deg) and time steps up to
+// 0.1 s stay finite, error-free and without inverted elements.
+static int stress_hard_materials_and_meshes(void) {
+    run_suite();
+    int seen = 0;
+    for (int i = 0; i < g_all.n; ++i) {
+        const hs_stress_result* r = &g_all.r[i];
+        if (!is(r, "near-incompressible") && !is(r, "sliver-layer") && !is(r, "time-step") &&
+            !is(r, "soak"))
+            continue;
+        ++seen;
+        ENSURE(r->failures == 0);
+        ENSURE(r->inverted_left == 0);
+        ENSURE(r->vol_min > 0 || is(r, "soak"));
+    }
+    ENSURE(seen == 4 + 6 + 3 + 1);
+    return 0;
+}
+
+HS_TEST_MAIN(HS_CASE(stress_quick_suite_no_nan), HS_CASE(stress_linear_energy_never_grows),
+             HS_CASE(stress_inversion_recovers), HS_CASE(stress_failures_are_errors),
+             HS_CASE(stress_hard_materials_and_meshes))
