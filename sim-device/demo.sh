@@ -33,7 +33,7 @@ if [ -x "$server" ]; then
     # The status line adds the server's rt rate, jitter and step time from its SERVER_STATUS.
     "$stylus" --script "$script" --trace "$trace" --status \
         --status-url "${HS_MESH_URL:-udpm://239.255.76.67:7668?ttl=0}"
-    kill -INT $spid 2>/dev/null || true
+    kill -TERM $spid 2>/dev/null || true  # background jobs of sh ignore SIGINT
     wait $spid 2>/dev/null || true
     trap - EXIT INT TERM
 else
