@@ -90,6 +90,10 @@ const double* hs_fem_lumped_mass(const hs_fem* fem);
 void hs_fem_node_rotation(const hs_fem* fem, int node, double r[9] /* OUT */);
 /// Set or clear an element's participation (cutting removes elements). Allocates: no.
 void hs_fem_set_element_active(hs_fem* fem, int tet, int active);
+/// Multiply element tet's stiffness (forces, energy, tangent; not its mass) by s > 0, e.g. two
+/// materials in one body. HS_ERR_INVALID for a bad index or s; HS_ERR_UNSUPPORTED with
+/// locking_free (its nodal volumetric term is shared between elements). Allocates: no.
+hs_status hs_fem_set_element_stiffness_scale(hs_fem* fem, int tet, double s);
 /// Recompute the rest data (shape gradients, volume, lumped mass) of elements tets[n] from the
 /// mesh's current x0 (cutting moves vertices). HS_ERR_INVALID (nothing changed) for an index out
 /// of range or an element with rest volume <= 0. Allocates: no.

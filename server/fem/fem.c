@@ -33,6 +33,7 @@ struct hs_fem {
     int* tet;              // [4ne]
     double* g;             // [12ne] rest shape gradients g_a (a = 0..3), 1/m
     double* vol0;          // [ne] rest volume, m^3
+    double* kscale;        // [ne] element stiffness scale (1; hs_fem_set_element_stiffness_scale)
     unsigned char* active; // [ne]
     double* F;             // [9ne] deformation gradient at the last update
     double* R;             // [9ne] rotation (co-rotated); warm start of the next update
@@ -100,7 +101,8 @@ void hs_fem_destroy(hs_fem** pfem) {
                     m->R,       m->S,          m->det,  m->f,       m->mass,       m->nt_start,
                     m->nt,      m->adj_start,  m->adj,  m->blkpos,  m->elem_pos,   m->diag_pos,
                     m->mirror,  m->ring_start, m->ring, m->nt_slot, m->pair_start, m->pair_blk,
-                    m->theta_e, m->w,          m->pbar, m->vn,      m->theta_n,    m->cvec};
+                    m->theta_e, m->w,          m->pbar, m->vn,      m->theta_n,    m->cvec,
+                    m->kscale};
     for (size_t i = 0; i < sizeof ptrs / sizeof ptrs[0]; i++) hs_free(ptrs[i]);
     hs_free(m);
     *pfem = NULL;
@@ -433,6 +435,7 @@ hs_status hs_fem_create(const hs_mesh* mesh, const hs_fem_def* def, const int* d
     m->tet = hs_alloc(sizeof(int) * 4 * (size_t)ne);
     m->g = hs_alloc(sizeof(double) * 12 * (size_t)ne);
     m->vol0 = hs_alloc(sizeof(double) * (size_t)ne);
+    m->kscale = hs_alloc(sizeof(double) * (size_t)ne);
     m->active = hs_alloc((size_t)ne);
     m->F = hs_alloc(sizeof(double) * 9 * (size_t)ne);
     m->R = hs_alloc(sizeof(double) * 9 * (size_t)ne);
@@ -440,8 +443,8 @@ hs_status hs_fem_create(const hs_mesh* mesh, const hs_fem_def* def, const int* d
     m->det = hs_alloc(sizeof(double) * (size_t)ne);
     m->f = hs_calloc(3 * (size_t)n, sizeof(double));
     m->mass = hs_calloc((size_t)n, sizeof(double));
-    if (!m->dof || !seen || !m->tet || !m->g || !m->vol0 || !m->active || !m->F || !m->R || !m->S ||
-        !m->det || !m->f || !m->mass) {
+    if (!m->dof || !seen || !m->tet || !m->g || !m->vol0 || !m->kscale || !m->active || !m->F ||
+        !m->R || !m->S || !m->det || !m->f || !m->mass) {
         hs_free(seen);
         st = nomem(err);
         goto fail;
@@ -490,6 +493,7 @@ hs_status hs_fem_create(const hs_mesh* mesh, const hs_fem_def* def, const int* d
             for (int c = 0; c < 3; c++) g[3 * (i + 1) + c] = cof[3 * c + i] / det;
         for (int c = 0; c < 3; c++) g[c] = -(g[3 + c] + g[6 + c] + g[9 + c]);
         m->vol0[e] = det / 6.0;
+        m->kscale[e] = 1.0;
         m->active[e] = 1;
         m3_identity(m->F + 9 * e);
         m3_identity(m->R + 9 * e);
@@ -549,6 +553,13 @@ void hs_fem_set_element_active(hs_fem* fem, int tet, int active) {
     if (fem->active[tet] == v) return;
     fem->active[tet] = v;
     for (int a = 0; a < 4; a++) node_mass(fem, fem->tet[4 * tet + a]);
+}
+
+hs_status hs_fem_set_element_stiffness_scale(hs_fem* fem, int tet, double s) {
+    if (!fem || tet < 0 || tet >= fem->ne || !(s > 0) || !isfinite(s)) return HS_ERR_INVALID;
+    if (fem->anp) return HS_ERR_UNSUPPORTED; // the nodal volumetric term mixes elements
+    fem->kscale[tet] = s;
+    return HS_OK;
 }
 
 hs_status hs_fem_refresh_elements(hs_fem* fem, const int* tets, int n) {
@@ -639,7 +650,7 @@ void hs_fem_update(hs_fem* m, const double* x, hs_fem_stats* stats) {
         if (det < vmin) vmin = det;
         if (det > vmax) vmax = det;
         if (!(det > 0)) inverted++;
-        const double V = m->vol0[e];
+        const double V = m->vol0[e] * m->kscale[e];
 
         double P[9]; // first Piola-Kirchhoff stress, Pa
         if (model == HS_MODEL_STVK) {
@@ -793,7 +804,7 @@ void hs_fem_forces(const hs_fem* fem, double* f) {
 /// the volumetric term adds V pbar d^2 det F / dx_a dx_b = V pbar [F (g_a x g_b)]x^T.
 static void element_blocks(const hs_fem* m, int e, double sc, double kb[10][9]) {
     const double* g = m->g + 12 * e;
-    const double cV = sc * m->vol0[e], cmu = cV * m->mu, clam = cV * m->lam_el;
+    const double cV = sc * m->vol0[e] * m->kscale[e], cmu = cV * m->mu, clam = cV * m->lam_el;
     double p[4][3], lp[4][3], mp[4][3];
     double M[9];
     int stvk = m->def.model == HS_MODEL_STVK;

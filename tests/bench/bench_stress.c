@@ -360,6 +360,49 @@ static void case_slivers(hs_stress_result* r, double ratio, hs_model model, int 
     setup_free(&s);
 }
 
+/// Two materials in one cantilever: the clamped half `contrast` times stiffer than the free half
+/// (hs_fem_set_element_stiffness_scale), under gravity. Also checks that a stiffness scale is
+/// refused with ANP and for bad values.
+static void case_contrast(hs_stress_result* r, double contrast, double dt, int steps) {
+    char opt[48];
+    snprintf(opt, sizeof opt, "contrast%g;dt%gms", contrast, dt * 1e3);
+    result_init(r, "stiffness-contrast", "corotated", opt);
+    hs_body_def d = cantilever_def(HS_MODEL_COROTATED, 0.45, dt);
+    d.fem.material.youngs_pa = 1.5e6 / sqrt(contrast); // soft 15 kPa .. stiff 150 MPa at 1e4
+    d.gravity[2] = -9.81;
+    stress_setup s;
+    if (setup_box(&s, 10, 2, 2, &d)) {
+        r->failures = 1;
+        finish(r, "set-up failed");
+        return;
+    }
+    int64_t t0 = hs_now_ns();
+    hs_fem* fem = hs_body_fem(s.body);
+    int bad = 0;
+    for (int t = 0; t < s.mesh->n_tets; ++t) {
+        // Kuhn box: hex h has tets 6h..6h+5 and hex i runs fastest along x.
+        int hx = (t / 6) % 10;
+        bad |= hs_fem_set_element_stiffness_scale(fem, t, hx < 5 ? contrast : 1.0) != HS_OK;
+    }
+    bad |= hs_fem_set_element_stiffness_scale(fem, 0, NAN) != HS_ERR_INVALID;
+    bad |= hs_fem_set_element_stiffness_scale(fem, 0, -1) != HS_ERR_INVALID;
+    bad |= hs_fem_set_element_stiffness_scale(fem, s.mesh->n_tets, 1) != HS_ERR_INVALID;
+    for (int k = 0; k < steps; ++k) checked_call(&s, r, 0);
+    // Then the static equilibrium of the same state.
+    hs_step_stats st;
+    hs_status ss = hs_body_solve_static(s.body, &st);
+    r->wall_s = (double)(hs_now_ns() - t0) * 1e-9;
+    if (bad) r->failures++, r->first_error = HS_ERR_INVALID;
+    char act[160];
+    snprintf(act, sizeof act, "%s; static solve: %s after %d Newton iterations, residual %.1e",
+             bad            ? "element stiffness scale not applied as documented"
+             : r->nan_count ? "NaN in state"
+                            : "steps stable",
+             ss == HS_OK ? "converged" : hs_status_str(ss), st.iterations, st.residual);
+    finish(r, act);
+    setup_free(&s);
+}
+
 /// Bad input: NaN / Inf forces and prescribed values must return an error and keep the state.
 static void case_bad_input(hs_stress_result* r, int kind) {
     static const char* names[] = {"nan-force", "inf-force", "nan-prescribed", "huge-force"};
@@ -490,6 +533,12 @@ static int hs_stress_run(int quick, stress_sink sink, void* ctx) {
             sink(&r, ctx), ++n;
         }
     }
+    const double contrast_dt[] = {0.001, 0.01, 0.1};
+    for (int i = 0; i < 3; ++i)
+        for (int c = 0; c < 2; ++c) {
+            case_contrast(&r, c ? 1e4 : 1e2, contrast_dt[i], quick ? 50 : 500);
+            sink(&r, ctx), ++n;
+        }
     const double ratios[] = {1e-2, 1e-3, 1e-4};
     for (int i = 0; i < 3; ++i) {
         case_slivers(&r, ratios[i], HS_MODEL_COROTATED, quick ? 50 : 500);
