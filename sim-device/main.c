@@ -701,6 +701,22 @@ int main(int argc, char** argv) {
         return 2;
     }
     a.def = def;
+    // A target outside the workspace is legal (the handle stops at the box) but rarely meant.
+    for (int i = -1; i < a.script->n_segments; ++i) {
+        const double* q = i < 0 ? a.script->start_m : a.script->seg[i].to_m;
+        int out = 0;
+        for (int k = 0; k < 3; ++k)
+            out |= fabs(q[k] - def.origin_m[k]) > 0.5 * def.workspace_m[k] + 1e-9;
+        if (out) {
+            fprintf(stderr,
+                    "hapsim-stylus: warning: %s:%d: target (%.4f, %.4f, %.4f) m is outside the "
+                    "workspace box (%.3f x %.3f x %.3f m around %.4f, %.4f, %.4f)\n",
+                    a.script->name, i < 0 ? a.script->start_line : a.script->seg[i].line, q[0],
+                    q[1], q[2], def.workspace_m[0], def.workspace_m[1], def.workspace_m[2],
+                    def.origin_m[0], def.origin_m[1], def.origin_m[2]);
+            break;
+        }
+    }
     if (a.opt.duration_s <= 0) a.opt.duration_s = a.script->duration_s + 0.5;
     double kept = a.opt.duration_s < MAX_TRACE_S ? a.opt.duration_s : MAX_TRACE_S;
     int64_t rows = (int64_t)ceil(kept * a.opt.rate_hz) + (int64_t)a.opt.rate_hz + 16;

@@ -33,7 +33,7 @@ set ylabel 'force (N)'
 plot '$trace' every ::1 using 1:(sqrt(\$11**2+\$12**2+\$13**2)) with lines lw 2 title '|F| applied', \
      '' every ::1 using 1:(sqrt(\$8**2+\$9**2+\$10**2)) with lines dt 2 title '|F| received (at anchor)'
 set xlabel 'time (s)'
-set ylabel 'mm'
+set ylabel 'mm, ms'
 plot '$trace' every ::1 using 1:(1000*sqrt((\$5-\$2)**2+(\$6-\$3)**2+(\$7-\$4)**2)) with lines title '|handle - target|', \
      '' every ::1 using 1:(\$14 > 0 ? \$14 : 0) with lines title 'model age (ms)'
 unset multiplot

@@ -205,6 +205,7 @@ static hs_status parse_text(parser* p, const char* text, hs_err* err) {
     hs_script* s = p->s;
     loop_frame stack[HS_SCRIPT_MAX_LOOP_DEPTH];
     int depth = 0;
+    long executed = 0; // lines read, loops included: bounds loops of empty bodies
     const char* c = text;
     p->line = 0;
     char buf[HS_SCRIPT_MAX_LINE];
@@ -213,6 +214,8 @@ static hs_status parse_text(parser* p, const char* text, hs_err* err) {
         size_t len = eol ? (size_t)(eol - c) : strlen(c);
         const char* next = eol ? eol + 1 : c + len;
         p->line++;
+        if (++executed > HS_SCRIPT_MAX_EXECUTED)
+            return perr(p, err, "loops repeat more than %d lines in all", HS_SCRIPT_MAX_EXECUTED);
         if (len >= sizeof buf) return perr(p, err, "line longer than %s bytes", "511");
         memcpy(buf, c, len);
         buf[len] = '\0';
@@ -245,6 +248,7 @@ static hs_status parse_text(parser* p, const char* text, hs_err* err) {
             if (!p->moved && (is_start || !s->has_start)) {
                 memcpy(s->start_m, v, sizeof s->start_m);
                 memcpy(p->cur, v, sizeof p->cur);
+                s->start_line = p->line;
                 s->has_start |= is_start;
             } else if (is_start) {
                 return perr(p, err, "start: must come before the first motion command");

@@ -24,9 +24,10 @@ extern "C" {
 // ---------------------------------------------------------------------------------------------
 // Probe scripts (format: docs/stylus.md). Parsed into a fixed array of timed segments.
 
-#define HS_SCRIPT_MAX_SEGMENTS   4096 ///< after loop expansion
-#define HS_SCRIPT_MAX_LOOP_DEPTH 8    ///< nested loop ... end
-#define HS_SCRIPT_MAX_LINE       512  ///< bytes per line, including the newline
+#define HS_SCRIPT_MAX_SEGMENTS   4096    ///< after loop expansion
+#define HS_SCRIPT_MAX_LOOP_DEPTH 8       ///< nested loop ... end
+#define HS_SCRIPT_MAX_LINE       512     ///< bytes per line, including the newline
+#define HS_SCRIPT_MAX_EXECUTED   1000000 ///< lines read in all, loops included (no endless parse)
 
 /// What a segment does with the target.
 typedef enum hs_seg_kind {
@@ -72,6 +73,7 @@ typedef struct hs_script {
     double duration_s;         ///< end of the last segment, s
     double start_m[3];         ///< target (and handle) position at t = 0, m
     int has_start;             ///< 1 when the script set `start` (else start = origin, or 0)
+    int start_line;            ///< line that set the start (0: default)
     int has_origin;            ///< 1 when the script set `origin`
     double origin_m[3];        ///< workspace centre the script asks for, m
     int has_surface;           ///< 1 when the script set `surface`

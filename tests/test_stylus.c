@@ -57,7 +57,7 @@ static int script_good(void) {
                        "cut 0, 10, 40, 20\n"
                        "hold 0\n";
     ENSURE(parse(s, text, &err) == HS_OK);
-    ENSURE(s->has_start && s->has_origin && s->has_surface);
+    ENSURE(s->has_start && s->has_origin && s->has_surface && s->start_line == 4);
     ENSURE_NEAR(s->origin_m[1], 0.020, 1e-12);
     ENSURE_NEAR(s->start_m[2], 0.050, 1e-12);
     ENSURE_NEAR(s->surface_normal[2], 1.0, 1e-12); // normalised
@@ -142,6 +142,7 @@ static int script_errors(void) {
         {"loop 2.5\nend\n", 1, "whole count"},
         {"loop 1000000\n move_to 0 0 1 1\n move_to 0 0 0 1\nend\n", 2, "too many segments"},
         {"move_to 0 0 1 1\nstart 0 0 0\n", 2, "before the first motion"},
+        {"loop 1000000\nloop 1000000\nhold 0\nend\nend\n", 3, "loops repeat more than"},
         {"units inch\n", 1, "units: expected"},
         {"profile bouncy\n", 1, "profile: expected"},
         {"profile trapezoid -1\n", 1, "accel must be > 0"},
