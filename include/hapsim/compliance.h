@@ -120,9 +120,12 @@ typedef struct hs_contact {
 /// Frictionless contact of a probe sphere centred at tool_m with the snapshot's candidates (the
 /// HS_MAX_CONTACT nearest within 1.25 r of the centre): radial forces lambda_i n_i >= 0 such that
 /// every node's displaced position (to first order) is on or outside the sphere and only nodes
-/// on it are pushed; tool force -sum f, stiffness -dF/dp for the active set.
+/// on it are pushed; tool force -sum f, stiffness -dF/dp for the active set. warm_nodes[warm_n]
+/// (the previous tick's contact nodes, or warm_n = 0) only choose where the pivoting starts;
+/// the result does not depend on them. out must not alias warm_nodes.
 /// Thread: any (rt) | Allocates: no | Blocks: no
-void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], hs_contact* out);
+void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int warm_n,
+                      const int* warm_nodes, hs_contact* out);
 /// The local model of a contact: anchor = tool, force, stiffness, validity radius =
 /// clamp(clearance, min_radius_m, max_radius_m), timeout. Thread: any | Allocates: no
 void hs_contact_model(const hs_contact* c, double min_radius_m, double max_radius_m,

@@ -79,6 +79,8 @@ typedef struct hs_haptic_sim_stats {
     int64_t step_failures;     ///< body steps that failed (state kept)
     double step_ms_last;       ///< wall time of the last step + snapshot, ms
     double step_ms_max;        ///< worst step + snapshot, ms
+    double snapshot_ms_last;   ///< of the last, the snapshot alone (incl. column solves), ms
+    double snapshot_ms_max;    ///< worst snapshot alone, ms
     double setup_ms;           ///< compliance set-up (factor + diagonal blocks), ms
     int sleeping;              ///< 1 while the body is at rest and not stepping
     int candidates;            ///< candidates in the newest snapshot

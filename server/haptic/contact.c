@@ -51,7 +51,8 @@ static int solve_active(const double* w, const double* delta, const unsigned cha
     return 0;
 }
 
-void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], hs_contact* out) {
+void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int warm_n,
+                      const int* warm_nodes, hs_contact* out) {
     memset(out, 0, sizeof *out);
     out->version = s->version;
     for (int k = 0; k < 3; ++k) out->tool_m[k] = tool_m[k];
@@ -119,10 +120,16 @@ void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], hs_c
         for (int j = i + 1; j < m; ++j)
             w[i * M + j] = w[j * M + i] = 0.5 * (w[i * M + j] + w[j * M + i]);
 
-    // Principal pivoting, least index first (deepest first). Start from the penetrating set.
+    // Principal pivoting, least index first (deepest first). Start from the previous tick's
+    // contact set when given (it rarely changes between ticks: usually one solve), else from
+    // the penetrating set.
     unsigned char act[M];
     double lambda[M];
-    for (int i = 0; i < m; ++i) act[i] = delta[i] > 0;
+    for (int i = 0; i < m; ++i) {
+        act[i] = warm_n > 0 ? 0 : delta[i] > 0;
+        for (int j = 0; j < warm_n; ++j)
+            if (warm_nodes[j] == s->node[set[i].cand]) act[i] = 1;
+    }
     int converged = 0;
     for (int piv = 0; piv < MAX_PIVOTS; ++piv) {
         out->passes = piv + 1;

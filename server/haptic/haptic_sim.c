@@ -60,11 +60,22 @@ hs_haptic_sim_def hs_haptic_sim_default_def(void) {
     return d;
 }
 
+// What the deformation thread reports (the rt part of hs_haptic_sim_stats is read elsewhere;
+// its histograms are too big to copy every step).
+typedef struct deform_status {
+    int64_t steps, snapshots, column_solves, step_failures;
+    double step_ms_last, step_ms_max, snapshot_ms_last, snapshot_ms_max;
+    int sleeping, candidates, coupled;
+    hs_contact contact;
+} deform_status;
+
 // The rt side of the probe: the force source plugged into the haptic tick.
 typedef struct probe_src {
     hs_triple_buffer* snap;    // reader: rt
     hs_triple_buffer* contact; // writer: rt
     double min_r, max_r, timeout_s;
+    int last_n; // the previous tick's contact nodes (warm start)
+    int last_node[HS_MAX_CONTACT];
 } probe_src;
 
 struct hs_haptic_sim {
@@ -101,7 +112,7 @@ struct hs_haptic_sim {
     int applied_n;     // contact forces in the body now
     int applied_node[HS_MAX_CONTACT];
     int64_t version;
-    hs_haptic_sim_stats st; // deformation thread's copy, published through `status`
+    deform_status st; // deformation thread's copy, published through `status`
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -112,7 +123,9 @@ static void probe_eval(void* ctx, const hs_rt_clock* clk, const hs_haptic_pose* 
     probe_src* p = ctx;
     const hs_contact_snapshot* s = hs_triple_buffer_read(p->snap, NULL);
     hs_contact* c = hs_triple_buffer_back(p->contact);
-    hs_contact_solve(s, pose->pos_m, c);
+    hs_contact_solve(s, pose->pos_m, p->last_n, p->last_node, c);
+    p->last_n = c->n;
+    memcpy(p->last_node, c->node, sizeof p->last_node);
     hs_triple_buffer_publish(p->contact);
     hs_contact_model(c, p->min_r, p->max_r, p->timeout_s, out);
     out->stamp_ns = clk->now_ns;
@@ -365,7 +378,11 @@ static void* deform_main(void* arg) {
                       sqrt(dx * dx + dy * dy + dz * dz) > 0.5 * h->def.probe.reach_margin_m;
         }
         if (rebuild) {
+            int64_t t1 = hs_now_ns();
             build_snapshot(h, c.tool_m);
+            double sms = (double)(hs_now_ns() - t1) * 1e-6;
+            h->st.snapshot_ms_last = sms;
+            if (sms > h->st.snapshot_ms_max) h->st.snapshot_ms_max = sms;
             memcpy(centre, c.tool_m, sizeof centre);
             have_snapshot = 1;
             if (moving) publish_frame(h);
@@ -490,7 +507,6 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
     if (s != HS_OK) goto fail;
     s = hs_compliance_create(mesh, &def->body.fem, fixed, pd->cache_nodes, &h->comp, err);
     if (s != HS_OK) goto fail;
-    h->st.setup_ms = hs_compliance_setup_ms(h->comp);
 
     const size_t n = (size_t)mesh->n_nodes, ns = (size_t)mesh->n_surf_nodes;
     h->x = hs_calloc(3 * n, sizeof(double));
@@ -506,7 +522,7 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
     s = hs_triple_buffer_create(sizeof(hs_contact_snapshot), &h->snap, err);
     if (s == HS_OK) s = hs_triple_buffer_create(sizeof(hs_contact), &h->contact, err);
     if (s == HS_OK) s = hs_triple_buffer_create(h->frame_size, &h->frame, err);
-    if (s == HS_OK) s = hs_triple_buffer_create(sizeof(hs_haptic_sim_stats), &h->status, err);
+    if (s == HS_OK) s = hs_triple_buffer_create(sizeof(deform_status), &h->status, err);
     if (s == HS_OK) s = hs_memdev_create(&h->dev, err);
     if (s != HS_OK) goto fail;
 
@@ -589,7 +605,21 @@ int hs_haptic_sim_read_frame(hs_haptic_sim* h, double* u, int64_t* step) {
 }
 
 void hs_haptic_sim_stats_get(hs_haptic_sim* h, hs_haptic_sim_stats* out) {
-    hs_triple_buffer_read_copy(h->status, out);
+    deform_status ds;
+    hs_triple_buffer_read_copy(h->status, &ds);
+    memset(out, 0, sizeof *out);
+    out->steps = ds.steps;
+    out->snapshots = ds.snapshots;
+    out->column_solves = ds.column_solves;
+    out->step_failures = ds.step_failures;
+    out->step_ms_last = ds.step_ms_last;
+    out->step_ms_max = ds.step_ms_max;
+    out->snapshot_ms_last = ds.snapshot_ms_last;
+    out->snapshot_ms_max = ds.snapshot_ms_max;
+    out->sleeping = ds.sleeping;
+    out->candidates = ds.candidates;
+    out->coupled = ds.coupled;
+    out->contact = ds.contact;
     out->setup_ms = hs_compliance_setup_ms(h->comp);
     hs_rt_loop_stats(h->loop, &out->rt);
     hs_haptic_rt_counters rc;

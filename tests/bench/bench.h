@@ -14,6 +14,8 @@ typedef struct hs_bench_args {
 int hs_bench_core(const hs_bench_args* a);
 int hs_bench_accuracy(const hs_bench_args* a);
 int hs_bench_stress(const hs_bench_args* a);
+/// 1 kHz haptic loop with the condensed-compliance probe (issue 3).
+int hs_bench_haptic(const hs_bench_args* a);
 
 /// p-th percentile (0..100) of v[n] (sorts v in place).
 double hs_bench_percentile(double* v, size_t n, double p);

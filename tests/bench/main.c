@@ -38,6 +38,7 @@ static const bench_cmd cmds[] = {
     {"core", hs_bench_core, "FEM step cost per model and mesh (issue 2)"},
     {"accuracy", hs_bench_accuracy, "run time against error per model, solver, dt (issue 6)"},
     {"stress", hs_bench_stress, "numerical stress cases: NaN, energy, inversion (issue 6)"},
+    {"haptic", hs_bench_haptic, "1 kHz loop with the compliance probe vs a bare loop (issue 3)"},
 };
 
 static void usage(FILE* f) {
