@@ -269,6 +269,36 @@ void hs_stylus_summary_print(FILE* f, const hs_stylus_summary* sum, const char* 
 /// The CSV header line (no newline), for readers and tests.
 extern const char hs_stylus_trace_header[];
 
+/// Read a trace CSV written by hs_stylus_trace_write_csv back into a new trace (rows only; the
+/// work column is recomputed from consecutive handle positions). Errors name file and line.
+hs_status hs_stylus_trace_read_csv(const char* path, hs_stylus_trace** out, hs_err* err);
+
+/// Tolerances of a trace comparison: a sample passes when |F_run - F_ref| <= abs_n + rel *
+/// peak |F_ref|.
+typedef struct hs_trace_tol {
+    double abs_n;  ///< N
+    double rel;    ///< share of the reference's peak force
+    double skip_s; ///< ignore samples before this time, s
+} hs_trace_tol;
+
+/// Result of comparing a run against a reference trace.
+typedef struct hs_trace_diff {
+    int64_t samples;    ///< reference rows compared
+    int64_t failed;     ///< samples outside the tolerance
+    double max_err_n;   ///< largest |F_run(t) - F_ref(t)|, N
+    double max_err_t_s; ///< where, s
+    double rms_err_n;   ///< N
+    double ref_peak_n;  ///< peak |F_ref|, N
+    double allowed_n;   ///< abs_n + rel * ref_peak_n, N
+    double coverage_s;  ///< time both traces cover, s
+} hs_trace_diff;
+
+/// Compare the applied force of run against ref at ref's sample times (run linearly
+/// interpolated, so runs with jittery ticks compare fairly). Returns 1 when every sample passes
+/// and run covers ref's duration (within 10 ms), else 0.
+int hs_stylus_trace_compare(const hs_stylus_trace* ref, const hs_stylus_trace* run,
+                            const hs_trace_tol* tol, hs_trace_diff* out /* OUT */);
+
 // ---------------------------------------------------------------------------------------------
 // Offline run: the device against the half-space in virtual time (deterministic).
 

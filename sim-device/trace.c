@@ -197,3 +197,118 @@ void hs_stylus_summary_print(FILE* f, const hs_stylus_summary* s, const char* tr
             (long long)s->workspace_hits, s->dropped ? "; rows dropped (trace full)" : "");
     if (trace_path) fprintf(f, "hapsim-stylus: trace: %s\n", trace_path);
 }
+
+hs_status hs_stylus_trace_read_csv(const char* path, hs_stylus_trace** out, hs_err* err) {
+    *out = NULL;
+    FILE* f = fopen(path, "r");
+    if (!f) return hs_err_set(err, HS_ERR_IO, "%s: cannot open: %s", path, strerror(errno));
+    char line[1024];
+    int64_t rows = 0;
+    // First pass: check the header and count the rows, so the trace is allocated once.
+    if (!fgets(line, sizeof line, f) ||
+        strncmp(line, hs_stylus_trace_header, strlen(hs_stylus_trace_header)) != 0) {
+        fclose(f);
+        return hs_err_set(err, HS_ERR_PARSE, "%s:1: not a hapsim-stylus trace (header differs)",
+                          path);
+    }
+    while (fgets(line, sizeof line, f) && line[0] != '#') rows++;
+    if (rows == 0) {
+        fclose(f);
+        return hs_err_set(err, HS_ERR_PARSE, "%s: no rows", path);
+    }
+    hs_stylus_trace* t = NULL;
+    hs_status st = hs_stylus_trace_create(rows, &t, err);
+    if (st) {
+        fclose(f);
+        return st;
+    }
+    rewind(f);
+    if (!fgets(line, sizeof line, f)) rows = 0;
+    for (int64_t k = 0; k < rows; ++k) {
+        if (!fgets(line, sizeof line, f)) break;
+        double v[17];
+        char* at = line;
+        int ok = 1;
+        for (int i = 0; i < 17 && ok; ++i) {
+            char* end = NULL;
+            v[i] = strtod(at, &end);
+            ok = end != at && isfinite(v[i]) &&
+                 (*end == (i == 16 ? '\n' : ',') || (i == 16 && (*end == '\0' || *end == '\r')));
+            at = end + 1;
+        }
+        if (!ok) {
+            hs_stylus_trace_destroy(&t);
+            fclose(f);
+            return hs_err_set(err, HS_ERR_PARSE, "%s:%lld: expected 17 finite numbers", path,
+                              (long long)(k + 2));
+        }
+        hs_stylus_tick r;
+        memset(&r, 0, sizeof r);
+        r.t_s = v[0];
+        for (int i = 0; i < 3; ++i) {
+            r.target_m[i] = v[1 + i];
+            r.handle_m[i] = v[4 + i];
+            r.f_received[i] = v[7 + i];
+            r.f_applied[i] = v[10 + i];
+        }
+        r.model_age_s = v[13] < 0 ? -1 : v[13] * 1e-3;
+        r.latency_us = v[14];
+        r.segment = (int)v[15];
+        r.flags = (uint32_t)v[16];
+        if (t->rows > 0) {
+            const double* p = t->row[t->rows - 1].handle_m;
+            r.work_j = r.f_applied[0] * (r.handle_m[0] - p[0]) +
+                       r.f_applied[1] * (r.handle_m[1] - p[1]) +
+                       r.f_applied[2] * (r.handle_m[2] - p[2]);
+        }
+        hs_stylus_trace_add(t, &r);
+    }
+    fclose(f);
+    *out = t;
+    return HS_OK;
+}
+
+static double fnorm(const double f[3]) {
+    return sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]);
+}
+
+int hs_stylus_trace_compare(const hs_stylus_trace* ref, const hs_stylus_trace* run,
+                            const hs_trace_tol* tol, hs_trace_diff* out) {
+    memset(out, 0, sizeof *out);
+    if (ref->rows == 0 || run->rows == 0) return 0;
+    for (int64_t k = 0; k < ref->rows; ++k) {
+        double n = fnorm(ref->row[k].f_applied);
+        if (n > out->ref_peak_n) out->ref_peak_n = n;
+    }
+    out->allowed_n = tol->abs_n + tol->rel * out->ref_peak_n;
+    double t_end_run = run->row[run->rows - 1].t_s, t_end_ref = ref->row[ref->rows - 1].t_s;
+    out->coverage_s = (t_end_run < t_end_ref ? t_end_run : t_end_ref) - ref->row[0].t_s;
+    double sum2 = 0;
+    int64_t j = 0;
+    for (int64_t k = 0; k < ref->rows; ++k) {
+        const hs_stylus_tick* r = &ref->row[k];
+        // 1 us of slack: times printed with 6 decimals compare equal to the exact ones.
+        if (r->t_s < tol->skip_s || r->t_s > t_end_run + 1e-6 || r->t_s < run->row[0].t_s - 1e-6)
+            continue;
+        while (j + 1 < run->rows && run->row[j + 1].t_s < r->t_s) ++j;
+        const hs_stylus_tick* a = &run->row[j];
+        const hs_stylus_tick* b = j + 1 < run->rows ? &run->row[j + 1] : a;
+        double w = b->t_s > a->t_s ? (r->t_s - a->t_s) / (b->t_s - a->t_s) : 0;
+        if (w < 0) w = 0;
+        if (w > 1) w = 1;
+        double d[3];
+        for (int i = 0; i < 3; ++i)
+            d[i] = a->f_applied[i] + w * (b->f_applied[i] - a->f_applied[i]) - r->f_applied[i];
+        double e = fnorm(d);
+        if (e > out->max_err_n) {
+            out->max_err_n = e;
+            out->max_err_t_s = r->t_s;
+        }
+        if (e > out->allowed_n) out->failed++;
+        sum2 += e * e;
+        out->samples++;
+    }
+    out->rms_err_n = out->samples ? sqrt(sum2 / (double)out->samples) : 0;
+    int covered = t_end_run >= t_end_ref - 0.010;
+    return out->samples > 0 && out->failed == 0 && covered;
+}

@@ -654,6 +654,90 @@ static int trace_file(void) {
     return 0;
 }
 
+// Golden-trace comparison: a trace read back equals itself, a time-shifted copy (ticks that
+// do not fall on the reference's times) passes within a small tolerance, a stiffer surface or a
+// run cut short fails; malformed files name file and line.
+static int trace_compare(void) {
+    int64_t bytes = hs_byte_count();
+    hs_script* s = NULL;
+    hs_err err = {0};
+    ENSURE(hs_script_create(&s, &err) == HS_OK);
+    hs_stylus_trace *a = NULL, *b = NULL, *back = NULL;
+    ENSURE(hs_stylus_trace_create(4000, &a, &err) == HS_OK);
+    ENSURE(hs_stylus_trace_create(4000, &b, &err) == HS_OK);
+    hs_stylus_device dev;
+    ENSURE(press_offline(0.004, 300, &dev, a, NULL, s) == 0);
+    ENSURE(press_offline(0.004, 330, &dev, b, NULL, s) == 0);
+    hs_stylus_summary sum;
+    hs_stylus_trace_summary(a, s, &sum);
+    char path[] = "/tmp/hs_stylus_cmp_XXXXXX";
+    int fd = mkstemp(path);
+    ENSURE(fd >= 0);
+    close(fd);
+    ENSURE(hs_stylus_trace_write_csv(a, &sum, path, &err) == HS_OK);
+    ENSURE(hs_stylus_trace_read_csv(path, &back, &err) == HS_OK);
+    ENSURE(hs_stylus_trace_rows(back) == hs_stylus_trace_rows(a));
+    for (int64_t i = 1; i < hs_stylus_trace_rows(a); ++i) {
+        const hs_stylus_tick *x = hs_stylus_trace_row(a, i), *y = hs_stylus_trace_row(back, i);
+        ENSURE_SMALL(dist3(x->f_applied, y->f_applied), 1e-8);
+        ENSURE_SMALL(dist3(x->handle_m, y->handle_m), 1e-10);
+        ENSURE_NEAR(x->work_j, y->work_j, 1e-9);
+        ENSURE(x->segment == y->segment && x->flags == y->flags);
+    }
+    hs_trace_tol tol = {.abs_n = 0.002, .rel = 0, .skip_s = 0};
+    hs_trace_diff d;
+    ENSURE(hs_stylus_trace_compare(a, back, &tol, &d) == 1);
+    ENSURE(d.max_err_n < 1e-7 && d.samples == hs_stylus_trace_rows(a));
+    // The same run sampled 0.4 ms later: interpolation keeps it within 2 mN.
+    hs_stylus_trace* shifted = NULL;
+    ENSURE(hs_stylus_trace_create(4000, &shifted, &err) == HS_OK);
+    for (int64_t i = 0; i < hs_stylus_trace_rows(a); ++i) {
+        hs_stylus_tick r = *hs_stylus_trace_row(a, i);
+        r.t_s -= 0.0004;
+        hs_stylus_trace_add(shifted, &r);
+    }
+    ENSURE(hs_stylus_trace_compare(a, shifted, &tol, &d) == 1);
+    ENSURE(d.max_err_n > 0);
+    // 10 % stiffer (6 % more force in series with the hand): fails at 2 mN, passes at 10 %.
+    ENSURE(hs_stylus_trace_compare(a, b, &tol, &d) == 0);
+    ENSURE(d.failed > 0 && d.max_err_n > 0.002);
+    tol.rel = 0.10;
+    ENSURE(hs_stylus_trace_compare(a, b, &tol, &d) == 1);
+    // A run that stops early does not cover the reference.
+    hs_stylus_trace* part = NULL;
+    ENSURE(hs_stylus_trace_create(1000, &part, &err) == HS_OK);
+    for (int64_t i = 0; i < 1000; ++i) hs_stylus_trace_add(part, hs_stylus_trace_row(a, i));
+    ENSURE(hs_stylus_trace_compare(a, part, &tol, &d) == 0 && d.failed == 0);
+    // Malformed files.
+    FILE* f = fopen(path, "w");
+    ENSURE(f != NULL);
+    fprintf(f, "%s\n0,1,2,3,4,5,6,7,8,9,10,11,12,13,14,15,16\n0.001,1,2,x\n",
+            hs_stylus_trace_header);
+    fclose(f);
+    hs_stylus_trace* bad = NULL;
+    ENSURE(hs_stylus_trace_read_csv(path, &bad, &err) == HS_ERR_PARSE && bad == NULL);
+    char want[128];
+    snprintf(want, sizeof want, "%s:3:", path);
+    ENSURE(strstr(err.msg, want) != NULL);
+    f = fopen(path, "w");
+    ENSURE(f != NULL);
+    fprintf(f, "time,force\n0,1\n");
+    fclose(f);
+    ENSURE(hs_stylus_trace_read_csv(path, &bad, &err) == HS_ERR_PARSE);
+    snprintf(want, sizeof want, "%s:1:", path);
+    ENSURE(strstr(err.msg, want) != NULL);
+    unlink(path);
+    ENSURE(hs_stylus_trace_read_csv(path, &bad, &err) == HS_ERR_IO);
+    hs_stylus_trace_destroy(&part);
+    hs_stylus_trace_destroy(&shifted);
+    hs_stylus_trace_destroy(&back);
+    hs_stylus_trace_destroy(&b);
+    hs_stylus_trace_destroy(&a);
+    hs_script_destroy(&s);
+    ENSURE(hs_byte_count() == bytes);
+    return 0;
+}
+
 static int def_check(void) {
     hs_err err = {0};
     hs_stylus_def d = hs_stylus_default_def();
@@ -821,5 +905,5 @@ static int wire_rx(void) {
 
 HS_TEST_MAIN(HS_CASE(script_good), HS_CASE(script_errors), HS_CASE(script_trajectory),
              HS_CASE(device_tracks_target), HS_CASE(device_wall), HS_CASE(local_model),
-             HS_CASE(server_timeout), HS_CASE(passivity), HS_CASE(trace_file), HS_CASE(def_check),
-             HS_CASE(mailbox), HS_CASE(wire_rx))
+             HS_CASE(server_timeout), HS_CASE(passivity), HS_CASE(trace_file),
+             HS_CASE(trace_compare), HS_CASE(def_check), HS_CASE(mailbox), HS_CASE(wire_rx))
