@@ -20,6 +20,7 @@
 #include <math.h>
 #include <poll.h>
 #include <pthread.h>
+#include <sched.h>
 #include <signal.h>
 #include <stdatomic.h>
 #include <stdio.h>
@@ -27,6 +28,8 @@
 #include <string.h>
 #include <time.h>
 #include <unistd.h>
+
+#include <sys/mman.h>
 
 #include <lcm/lcm.h>
 
@@ -65,6 +68,7 @@ typedef struct options {
     int has_origin;
     double origin[3];
     int status;
+    int realtime;
     int quiet;
     double offline_k;
     int has_plane;
@@ -94,6 +98,7 @@ typedef struct app {
     atomic_llong force_mn, period_p99_us, latency_us;
     atomic_int loop_done;
     atomic_int rx_failed;
+    atomic_int rt_granted; // bit 0: SCHED_FIFO, bit 1: mlockall
     // From the server's status (--status-url): rt loop rate (mHz), rt period p99 (us), the
     // slowest step's p99 (us), status messages seen.
     atomic_llong srv_rate_mhz, srv_p99_us, srv_step_p99_us, srv_status_count;
@@ -123,6 +128,8 @@ static void usage(FILE* f) {
             "  --workspace X,Y,Z       workspace box, m (default 0.16,0.12,0.07)\n"
             "  --timeout-ms MS         force is zero at this model age (default 100)\n"
             "  --ramp-ms MS            ramp-down length within the timeout (default 20)\n"
+            "  --realtime              SCHED_FIFO (priority 70) and mlockall for the device loop\n"
+            "                          when permitted (else ordinary scheduling, said at the end)\n"
             "  --status                print a one-line status every second\n"
             "  --status-url URL        also show the server's loop rate, jitter and step time\n"
             "                          from its SERVER_STATUS on this bus (the mesh bus, e.g.\n"
@@ -188,6 +195,7 @@ static int parse_options(int argc, char** argv, options* o, hs_stylus_def* def) 
         O_TIMEOUT,
         O_RAMP,
         O_STATUS,
+        O_REALTIME,
         O_STATUS_URL,
         O_QUIET,
         O_OK,
@@ -216,6 +224,7 @@ static int parse_options(int argc, char** argv, options* o, hs_stylus_def* def) 
         {"timeout-ms", required_argument, 0, O_TIMEOUT},
         {"ramp-ms", required_argument, 0, O_RAMP},
         {"status", no_argument, 0, O_STATUS},
+        {"realtime", no_argument, 0, O_REALTIME},
         {"status-url", required_argument, 0, O_STATUS_URL},
         {"quiet", no_argument, 0, O_QUIET},
         {"offline-stiffness", required_argument, 0, O_OK},
@@ -297,6 +306,9 @@ static int parse_options(int argc, char** argv, options* o, hs_stylus_def* def) 
             break;
         case O_STATUS:
             o->status = 1;
+            break;
+        case O_REALTIME:
+            o->realtime = 1;
             break;
         case O_STATUS_URL:
             o->status_url = a;
@@ -435,6 +447,12 @@ static void* loop_main(void* arg) {
     static uint32_t hist[BINS + 1];
     int64_t in_window = 0;
     int hint = 0;
+    if (a->opt.realtime) {
+        struct sched_param sp = {.sched_priority = 70};
+        int got = pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp) == 0 ? 1 : 0;
+        if (mlockall(MCL_CURRENT | MCL_FUTURE) == 0) got |= 2;
+        atomic_store(&a->rt_granted, got);
+    }
     struct timespec next;
     clock_gettime(CLOCK_MONOTONIC, &next);
     const int64_t start_ns = ts_ns(&next);
@@ -675,6 +693,10 @@ static int run_live(app* a) {
                (long long)atomic_load(&a->rx_other_device), (long long)atomic_load(&a->overruns),
                (long long)atomic_load(&a->late_max_us),
                atomic_load(&g_stop) ? "; stopped by signal" : "");
+        if (a->opt.realtime)
+            printf("hapsim-stylus: --realtime: SCHED_FIFO %s, mlockall %s\n",
+                   (atomic_load(&a->rt_granted) & 1) ? "granted" : "refused",
+                   (atomic_load(&a->rt_granted) & 2) ? "granted" : "refused");
     }
     return finish(a, "live");
 }
