@@ -51,6 +51,8 @@ void* hs_calloc(size_t count, size_t size);
 void* hs_realloc(void* p, size_t n);
 /// Release; accepts NULL.
 void hs_free(void* p);
+/// Size in bytes of a block from hs_alloc/hs_calloc/hs_realloc (0 for NULL).
+size_t hs_alloc_size(const void* p);
 /// Bytes currently allocated through hs_alloc.
 int64_t hs_byte_count(void);
 /// Number of hs_alloc/hs_calloc/hs_realloc calls since start (monotonic).

@@ -45,6 +45,14 @@ typedef struct hs_cholesky hs_cholesky;
 /// refactors, so memory is about twice nnz(L) doubles. CHOLMOD allocates through hs_alloc.
 /// Returns HS_ERR_NOT_POSDEF if a is not SPD, HS_ERR_NUMERIC on NaN/Inf. @param out OUT
 hs_status hs_cholesky_create(const hs_csc* a, hs_cholesky** out, hs_err* err);
+/// Fill-reducing order of a's pattern (CHOLMOD's choice of AMD/METIS, postordered):
+/// perm[k] is the row of a that goes to position k. Renumber the unknowns by it, then use
+/// hs_cholesky_create_natural. @param perm OUT [n]
+hs_status hs_cholesky_fill_order(const hs_csc* a, int* perm, hs_err* err);
+/// As hs_cholesky_create for a matrix already in fill-reducing order (hs_cholesky_fill_order):
+/// no further permutation, and every refactorisation reads A in place, allocating nothing.
+/// @param out OUT
+hs_status hs_cholesky_create_natural(const hs_csc* a, hs_cholesky** out, hs_err* err);
 /// Numeric refactorisation of a matrix with the same pattern (checked: HS_ERR_INVALID);
 /// reuses the analysis. Factors into the spare and swaps on success, so on HS_ERR_NOT_POSDEF
 /// or HS_ERR_NUMERIC the previous good factor is kept and still usable. Allocates: CHOLMOD's

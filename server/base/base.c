@@ -11,17 +11,28 @@
 
 const char* hs_status_str(hs_status s) {
     switch (s) {
-    case HS_OK: return "ok";
-    case HS_ERR_NOMEM: return "out of memory";
-    case HS_ERR_INVALID: return "invalid argument";
-    case HS_ERR_IO: return "i/o error";
-    case HS_ERR_PARSE: return "malformed input";
-    case HS_ERR_NOT_POSDEF: return "matrix not positive definite";
-    case HS_ERR_NOT_CONVERGED: return "iteration did not converge";
-    case HS_ERR_NUMERIC: return "NaN or Inf in result";
-    case HS_ERR_UNSUPPORTED: return "unsupported";
-    case HS_WARN_NOT_CONVERGED: return "warning: tolerance not reached";
-    case HS_WARN_MESH_REPAIRED: return "warning: mesh repaired on load";
+    case HS_OK:
+        return "ok";
+    case HS_ERR_NOMEM:
+        return "out of memory";
+    case HS_ERR_INVALID:
+        return "invalid argument";
+    case HS_ERR_IO:
+        return "i/o error";
+    case HS_ERR_PARSE:
+        return "malformed input";
+    case HS_ERR_NOT_POSDEF:
+        return "matrix not positive definite";
+    case HS_ERR_NOT_CONVERGED:
+        return "iteration did not converge";
+    case HS_ERR_NUMERIC:
+        return "NaN or Inf in result";
+    case HS_ERR_UNSUPPORTED:
+        return "unsupported";
+    case HS_WARN_NOT_CONVERGED:
+        return "warning: tolerance not reached";
+    case HS_WARN_MESH_REPAIRED:
+        return "warning: mesh repaired on load";
     }
     return "unknown status";
 }
@@ -97,9 +108,22 @@ void hs_free(void* p) {
     free(h);
 }
 
-int64_t hs_byte_count(void) { return atomic_load(&g_bytes); }
-int64_t hs_alloc_calls(void) { return atomic_load(&g_calls); }
-void hs_alloc_fail_after(int64_t n) { atomic_store(&g_fail_countdown, n > 0 ? n : 0); }
+size_t hs_alloc_size(const void* p) {
+    if (!p) return 0;
+    const alloc_header* h = (const alloc_header*)p - 1;
+    HS_ASSERT(h->magic == HS_ALLOC_MAGIC);
+    return h->size;
+}
+
+int64_t hs_byte_count(void) {
+    return atomic_load(&g_bytes);
+}
+int64_t hs_alloc_calls(void) {
+    return atomic_load(&g_calls);
+}
+void hs_alloc_fail_after(int64_t n) {
+    atomic_store(&g_fail_countdown, n > 0 ? n : 0);
+}
 
 static int default_assert(const char* condition, const char* file, int line) {
     fprintf(stderr, "hapsim: assertion failed: %s (%s:%d)\n", condition, file, line);
@@ -108,7 +132,9 @@ static int default_assert(const char* condition, const char* file, int line) {
 
 static hs_assert_fcn* _Atomic g_assert_fcn = default_assert;
 
-void hs_set_assert_fcn(hs_assert_fcn* fcn) { atomic_store(&g_assert_fcn, fcn ? fcn : default_assert); }
+void hs_set_assert_fcn(hs_assert_fcn* fcn) {
+    atomic_store(&g_assert_fcn, fcn ? fcn : default_assert);
+}
 
 int hs_assert_fail(const char* condition, const char* file, int line) {
     hs_assert_fcn* f = atomic_load(&g_assert_fcn);

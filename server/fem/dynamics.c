@@ -89,6 +89,30 @@ void hs_body_destroy(hs_body** pb) {
     *pb = NULL;
 }
 
+// Renumber free dofs by the fill-reducing order of the tangent's pattern and rebuild the model
+// and matrix with that numbering.
+static hs_status renumber_dofs(hs_body* b, hs_err* err) {
+    const int nf = b->n_free;
+    int* perm = hs_alloc((size_t)nf * sizeof(int));
+    int* pos = hs_alloc((size_t)nf * sizeof(int));
+    hs_status s = perm && pos ? hs_cholesky_fill_order(b->a, perm, err)
+                              : hs_err_set(err, HS_ERR_NOMEM, "hs_body_create: out of memory");
+    if (s == HS_OK) {
+        for (int k = 0; k < nf; ++k) pos[perm[k]] = k;
+        for (int k = 0; k < 3 * b->n; ++k)
+            if (b->dof[k] >= 0) b->dof[k] = pos[b->dof[k]];
+        for (int k = 0; k < 3 * b->n; ++k)
+            if (b->dof[k] >= 0) b->free_to_full[b->dof[k]] = k;
+        hs_fem_destroy(&b->fem);
+        hs_csc_destroy(&b->a);
+        s = hs_fem_create(b->mesh, &b->def.fem, b->dof, nf, &b->fem, err);
+        if (s == HS_OK) s = hs_fem_create_matrix(b->fem, &b->a);
+    }
+    hs_free(perm);
+    hs_free(pos);
+    return s;
+}
+
 hs_status hs_body_create(const hs_mesh* mesh, const hs_body_def* def, const unsigned char* fixed,
                          hs_body** out, hs_err* err) {
     if (out) *out = NULL;
@@ -153,6 +177,15 @@ hs_status hs_body_create(const hs_mesh* mesh, const hs_body_def* def, const unsi
     }
     s = hs_fem_create_matrix(b->fem, &b->a);
     if (s != HS_OK) goto fail_status;
+    if (def->solver == HS_SOLVER_DIRECT || def->precond == HS_PRECOND_FACTOR) {
+        // Number the free dofs in the factor's fill-reducing order: CHOLMOD then refactorises
+        // the assembled matrix in place, so a step allocates nothing.
+        s = renumber_dofs(b, err);
+        if (s != HS_OK) {
+            hs_body_destroy(&b);
+            return s;
+        }
+    }
     if (def->solver == HS_SOLVER_PCG) {
         s = hs_pcg_create(nf, &b->pcg);
         if (s != HS_OK) goto fail_status;
@@ -272,7 +305,7 @@ static hs_status refresh_factor(hs_body* b, double kcoef, double mcoef, int* ref
     hs_status s;
     if (!b->factor) {
         hs_err e;
-        s = hs_cholesky_create(b->a, &b->factor, &e);
+        s = hs_cholesky_create_natural(b->a, &b->factor, &e);
     } else {
         s = hs_cholesky_refactor(b->factor, b->a);
     }

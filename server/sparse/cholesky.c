@@ -19,6 +19,7 @@ struct hs_cholesky {
     cholmod_factor* L;           // current good factor
     cholmod_factor* spare;       // refactor target, swapped with L on success (same symbolic)
     cholmod_sparse a;            // header over the caller's hs_csc arrays (stype 1: upper used)
+    int natural;                 // A is pre-ordered: natural ordering, lower triangle read in place
     cholmod_dense b;             // header over the caller's right-hand side
     cholmod_dense *x1, *y1, *e1; // solve workspaces, k = 1
     cholmod_dense *xk, *yk, *ek; // solve_many workspaces, last k
@@ -46,13 +47,46 @@ struct hs_cholesky {
 static atomic_int g_alloc_state; // 0 untouched, 1 installing, 2 installed
 static atomic_int g_threads_set; // hs_sparse_set_threads called (by the user or by default)
 
+// CHOLMOD's supernodal numeric factorisation allocates and frees a dense scratch block (and
+// its header) on every call. A few cached freed blocks, reused for requests of the same size,
+// keep refactorisations free of allocator calls once warm. Lock-free: a block is owned by
+// whoever swapped it out of its slot. hs_cholesky_destroy empties the cache.
+#define HS_BLOCK_CACHE 4
+static _Atomic(void*) g_block_cache[HS_BLOCK_CACHE];
+static atomic_uint g_block_victim;
+
+static void* cached_malloc(size_t n) {
+    for (int i = 0; i < HS_BLOCK_CACHE; ++i) {
+        void* p = atomic_exchange(&g_block_cache[i], NULL);
+        if (!p) continue;
+        if (hs_alloc_size(p) == n) return p;
+        void* empty = NULL;
+        if (!atomic_compare_exchange_strong(&g_block_cache[i], &empty, p)) hs_free(p);
+    }
+    return hs_alloc(n);
+}
+
+static void cached_free(void* p) {
+    if (!p) return;
+    for (int i = 0; i < HS_BLOCK_CACHE; ++i) {
+        void* empty = NULL;
+        if (atomic_compare_exchange_strong(&g_block_cache[i], &empty, p)) return;
+    }
+    unsigned v = atomic_fetch_add(&g_block_victim, 1) % HS_BLOCK_CACHE;
+    hs_free(atomic_exchange(&g_block_cache[v], p));
+}
+
+static void flush_block_cache(void) {
+    for (int i = 0; i < HS_BLOCK_CACHE; ++i) hs_free(atomic_exchange(&g_block_cache[i], NULL));
+}
+
 static void install_allocator(void) {
     int expected = 0;
     if (atomic_compare_exchange_strong(&g_alloc_state, &expected, 1)) {
-        SuiteSparse_config.malloc_func = hs_alloc;
+        SuiteSparse_config.malloc_func = cached_malloc;
         SuiteSparse_config.calloc_func = hs_calloc;
         SuiteSparse_config.realloc_func = hs_realloc;
-        SuiteSparse_config.free_func = hs_free;
+        SuiteSparse_config.free_func = cached_free;
         atomic_store(&g_alloc_state, 2);
         return;
     }
@@ -97,7 +131,7 @@ static hs_status map_status(int s) {
 
 // ---------------------------------------------------------------------------------------------
 
-static void set_matrix_view(hs_cholesky* f, const hs_csc* m) {
+static void set_matrix_view(hs_cholesky* f, const hs_csc* m, const cholmod_factor* target) {
     cholmod_sparse* a = &f->a;
     memset(a, 0, sizeof *a);
     a->nrow = (size_t)m->n;
@@ -107,7 +141,11 @@ static void set_matrix_view(hs_cholesky* f, const hs_csc* m) {
     a->p = (void*)(uintptr_t)m->colp;
     a->i = (void*)(uintptr_t)m->rowi;
     a->x = (void*)(uintptr_t)m->val;
-    a->stype = 1; // the full pattern is stored; CHOLMOD reads the upper triangle
+    // The full pattern is stored; CHOLMOD reads one triangle. With the natural ordering it
+    // factorises A in place when given the lower triangle for a supernodal factor, or the
+    // upper one for a simplicial factor; every other combination makes a permuted transpose
+    // (an allocation) per factorisation.
+    a->stype = f->natural && target && target->is_super ? -1 : 1;
     a->itype = CHOLMOD_INT;
     a->xtype = CHOLMOD_REAL;
     a->dtype = CHOLMOD_DOUBLE;
@@ -189,7 +227,7 @@ static hs_status fail_from_cholmod(hs_cholesky* f, hs_err* err, const char* what
                       tl_last.msg ? tl_last.msg : "no message");
 }
 
-hs_status hs_cholesky_create(const hs_csc* a, hs_cholesky** out, hs_err* err) {
+static hs_status create_factor(const hs_csc* a, int natural, hs_cholesky** out, hs_err* err) {
     if (!out) return hs_err_set(err, HS_ERR_INVALID, "%s:%d: out is NULL", __FILE__, __LINE__);
     *out = NULL;
     hs_status st = check_csc(a, err);
@@ -205,6 +243,12 @@ hs_status hs_cholesky_create(const hs_csc* a, hs_cholesky** out, hs_err* err) {
     f->c.error_handler = on_cholmod_error;
     // The spare factor is thrown away on failure, so stop at the first bad pivot.
     f->c.quick_return_if_not_posdef = 1;
+    f->natural = natural;
+    if (natural) {
+        f->c.nmethods = 1;
+        f->c.method[0].ordering = CHOLMOD_NATURAL;
+        f->c.postorder = 0; // a postorder would permute again (and copy A per factorisation)
+    }
     f->n = a->n;
     f->nnz = a->nnz;
     tl_last.msg = NULL;
@@ -221,13 +265,14 @@ hs_status hs_cholesky_create(const hs_csc* a, hs_cholesky** out, hs_err* err) {
         st = hs_err_set(err, HS_ERR_NOMEM, "%s:%d: out of memory", __FILE__, __LINE__);
         goto fail;
     }
-    set_matrix_view(f, a);
+    set_matrix_view(f, a, NULL);
 
     f->L = cholmod_analyze(&f->a, &f->c);
     if (!f->L) {
         st = fail_from_cholmod(f, err, "symbolic analysis");
         goto fail;
     }
+    set_matrix_view(f, a, f->L);
     cholmod_factorize(&f->a, f->L, &f->c);
     if (f->c.status == CHOLMOD_NOT_POSDEF) {
         st = hs_err_set(err, HS_ERR_NOT_POSDEF,
@@ -265,6 +310,49 @@ hs_status hs_cholesky_create(const hs_csc* a, hs_cholesky** out, hs_err* err) {
 fail:
     hs_cholesky_destroy(&f);
     return st;
+}
+
+hs_status hs_cholesky_create(const hs_csc* a, hs_cholesky** out, hs_err* err) {
+    return create_factor(a, 0, out, err);
+}
+
+hs_status hs_cholesky_create_natural(const hs_csc* a, hs_cholesky** out, hs_err* err) {
+    return create_factor(a, 1, out, err);
+}
+
+hs_status hs_cholesky_fill_order(const hs_csc* a, int* perm, hs_err* err) {
+    hs_status st = check_csc(a, err);
+    if (st != HS_OK) return st;
+    if (!perm) return hs_err_set(err, HS_ERR_INVALID, "%s:%d: perm is NULL", __FILE__, __LINE__);
+    install_allocator();
+    cholmod_common c;
+    cholmod_start(&c);
+    c.print = 0;
+    c.error_handler = on_cholmod_error;
+    cholmod_sparse v;
+    memset(&v, 0, sizeof v);
+    v.nrow = v.ncol = (size_t)a->n;
+    v.nzmax = (size_t)a->nnz;
+    v.p = (void*)(uintptr_t)a->colp;
+    v.i = (void*)(uintptr_t)a->rowi;
+    v.stype = 1;
+    v.itype = CHOLMOD_INT;
+    v.xtype = CHOLMOD_PATTERN;
+    v.dtype = CHOLMOD_DOUBLE;
+    v.sorted = 1;
+    v.packed = 1;
+    cholmod_factor* L = cholmod_analyze(&v, &c);
+    if (!L) {
+        int s = c.status;
+        cholmod_finish(&c);
+        return hs_err_set(err, s == CHOLMOD_OUT_OF_MEMORY ? HS_ERR_NOMEM : HS_ERR_INVALID,
+                          "%s:%d: ordering failed: CHOLMOD status %d", __FILE__, __LINE__, s);
+    }
+    memcpy(perm, L->Perm, sizeof(int) * (size_t)a->n);
+    cholmod_free_factor(&L, &c);
+    cholmod_finish(&c);
+    flush_block_cache();
+    return HS_OK;
 }
 
 // Does the simplicial LDL^T factor L keep the column layout of the supernodal S it was
@@ -335,7 +423,7 @@ static int pivots_ok(const hs_cholesky* f) {
 
 hs_status hs_cholesky_refactor(hs_cholesky* f, const hs_csc* a) {
     if (!f || !pattern_matches(f, a)) return HS_ERR_INVALID;
-    set_matrix_view(f, a);
+    set_matrix_view(f, a, f->spare);
     cholmod_factorize(&f->a, f->spare, &f->c);
     hs_status st = map_status(f->c.status);
     if (st != HS_OK) return st;
@@ -622,6 +710,7 @@ void hs_cholesky_destroy(hs_cholesky** pf) {
     hs_free(f->cx_m);
     hs_free(f);
     *pf = NULL;
+    flush_block_cache();
 }
 
 // ---------------------------------------------------------------------------------------------
