@@ -738,6 +738,68 @@ static int trace_compare(void) {
     return 0;
 }
 
+// The bundled liver scripts parse, stay inside the default workspace around their origin, start
+// clear of the surface, and the demo lasts 30-45 s. Offline against a 300 N/m half-space the
+// 5 mm press settles where the hand spring and the surface share the depth.
+static int bundled_scripts(void) {
+    int64_t bytes = hs_byte_count();
+    const char* names[] = {"press_hold", "press_drag_release", "demo"};
+    hs_script* s = NULL;
+    hs_err err = {0};
+    ENSURE(hs_script_create(&s, &err) == HS_OK);
+    for (int i = 0; i < 3; ++i) {
+        char path[512];
+        snprintf(path, sizeof path, "%s/scenes/liver/scripts/%s.probe", HS_SOURCE_DIR, names[i]);
+        if (hs_script_parse_file(s, path, &err) != HS_OK) {
+            printf("  %s\n", err.msg);
+            return 1;
+        }
+        ENSURE(s->has_origin && s->has_surface && s->has_start);
+        hs_stylus_def def = hs_stylus_default_def();
+        memcpy(def.origin_m, s->origin_m, sizeof def.origin_m);
+        for (int g = -1; g < s->n_segments; ++g) {
+            const double* q = g < 0 ? s->start_m : s->seg[g].to_m;
+            for (int k = 0; k < 3; ++k)
+                ENSURE(fabs(q[k] - def.origin_m[k]) < 0.5 * def.workspace_m[k]);
+        }
+        double d[3] = {s->start_m[0] - s->surface_point_m[0], s->start_m[1] - s->surface_point_m[1],
+                       s->start_m[2] - s->surface_point_m[2]};
+        double clear =
+            d[0] * s->surface_normal[0] + d[1] * s->surface_normal[1] + d[2] * s->surface_normal[2];
+        ENSURE(clear > 0.005);
+        if (i == 2) ENSURE(s->duration_s >= 30 && s->duration_s <= 45);
+    }
+    // press_hold offline: steady force k_s * 5 mm with k_s = k k_h / (k + k_h), within friction.
+    char path[512];
+    snprintf(path, sizeof path, "%s/scenes/liver/scripts/press_hold.probe", HS_SOURCE_DIR);
+    ENSURE(hs_script_parse_file(s, path, &err) == HS_OK);
+    hs_stylus_def def = hs_stylus_default_def();
+    memcpy(def.origin_m, s->origin_m, sizeof def.origin_m);
+    hs_offline_def off = {0};
+    memcpy(off.surface.point_m, s->surface_point_m, sizeof off.surface.point_m);
+    memcpy(off.surface.normal, s->surface_normal, sizeof off.surface.normal);
+    off.surface.stiffness_n_m = 300;
+    off.surface.radius_m = 0.002;
+    off.surface.timeout_s = 0.05;
+    off.dt_s = 1e-3;
+    off.period_ticks = 1;
+    off.delay_ticks = 1;
+    hs_stylus_trace* tr = NULL;
+    ENSURE(hs_stylus_trace_create((int64_t)(s->duration_s * 1000) + 1000, &tr, &err) == HS_OK);
+    ENSURE(hs_stylus_run_offline(s, &def, &off, tr, NULL, &err) == HS_OK);
+    hs_stylus_summary sum;
+    hs_stylus_trace_summary(tr, s, &sum);
+    double ks = 300 * def.hand_stiffness_n_m / (300 + def.hand_stiffness_n_m);
+    ENSURE(sum.steady_segment >= 0);
+    ENSURE_NEAR(sum.steady_force_norm_n, ks * 0.005, def.coulomb_n * 1.01);
+    // Released: the last row carries no force.
+    ENSURE(norm3(hs_stylus_trace_row(tr, hs_stylus_trace_rows(tr) - 1)->f_applied) == 0);
+    hs_stylus_trace_destroy(&tr);
+    hs_script_destroy(&s);
+    ENSURE(hs_byte_count() == bytes);
+    return 0;
+}
+
 static int def_check(void) {
     hs_err err = {0};
     hs_stylus_def d = hs_stylus_default_def();
@@ -906,4 +968,5 @@ static int wire_rx(void) {
 HS_TEST_MAIN(HS_CASE(script_good), HS_CASE(script_errors), HS_CASE(script_trajectory),
              HS_CASE(device_tracks_target), HS_CASE(device_wall), HS_CASE(local_model),
              HS_CASE(server_timeout), HS_CASE(passivity), HS_CASE(trace_file),
-             HS_CASE(trace_compare), HS_CASE(def_check), HS_CASE(mailbox), HS_CASE(wire_rx))
+             HS_CASE(trace_compare), HS_CASE(bundled_scripts), HS_CASE(def_check), HS_CASE(mailbox),
+             HS_CASE(wire_rx))
