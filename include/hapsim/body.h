@@ -24,7 +24,8 @@ typedef struct hs_body_def {
     double gravity[3];     ///< m/s^2
     double dt;             ///< time step for hs_body_step, s
     hs_solver_kind solver; ///< linear solver for steps and Newton iterations
-    hs_precond precond;    ///< PCG only; HS_PRECOND_FACTOR uses the rest-state factor
+    hs_precond precond;    ///< PCG only: NONE, JACOBI, FACTOR (rest-state factor) or WARPED
+                           ///< (rest-state factor rotated by the node rotations)
     int pcg_max_iter;      ///< PCG iterations per solve (a small fixed count is a valid mode)
     double pcg_tol;        ///< PCG relative residual
     double static_tol;     ///< static: stop at ||r|| <= tol * ||r_first|| (paper's rule)
@@ -33,7 +34,7 @@ typedef struct hs_body_def {
     int cookie;            ///< set by hs_body_default_def
 } hs_body_def;
 
-/// Defaults: hs_fem_default_def(), no gravity, dt 10 ms, direct solver, PCG factor
+/// Defaults: hs_fem_default_def(), no gravity, dt 10 ms, direct solver, PCG warped-factor
 /// preconditioner with 20 iterations and tol 1e-8 when chosen, static tol 1e-8, 100 iterations,
 /// 1 load step.
 hs_body_def hs_body_default_def(void);

@@ -118,7 +118,13 @@ typedef enum hs_precond {
     HS_PRECOND_NONE = 0,
     HS_PRECOND_JACOBI = 1, ///< inverse diagonal of A
     HS_PRECOND_FACTOR = 2, ///< solve with a given Cholesky factor (e.g. of the rest-state matrix)
+    HS_PRECOND_CUSTOM = 3, ///< the function given to hs_pcg_set_preconditioner
+    /// hs_body only: the rest-state factor warped by the node rotations, R K0^-1 R^T
+    HS_PRECOND_WARPED = 4,
 } hs_precond;
+
+/// A preconditioner z = M^-1 r (M SPD). Must not allocate; returns HS_OK or an error.
+typedef hs_status hs_precond_fn(void* ctx, const double* r, double* z);
 
 typedef struct hs_pcg hs_pcg;
 
@@ -130,6 +136,8 @@ hs_status hs_pcg_create(int n, hs_pcg** out);
 hs_status hs_pcg_solve(hs_pcg* pcg, const hs_csc* a, const double* b, double* x, hs_precond precond,
                        hs_cholesky* factor, double tol, int max_iter, int* iters /* OUT */,
                        double* rel_residual /* OUT */);
+/// Preconditioner used with HS_PRECOND_CUSTOM (ctx is passed back to fn).
+void hs_pcg_set_preconditioner(hs_pcg* pcg, hs_precond_fn* fn, void* ctx);
 /// Release; accepts NULL, sets *pcg = NULL.
 void hs_pcg_destroy(hs_pcg** pcg);
 

@@ -39,6 +39,8 @@ struct hs_body {
     double* dup;     // [3n] prescribed increment of this step
     double* y;       // [3n] scratch for tangent products
     double* save;    // [3n] scratch to keep u while the rest state is evaluated
+    double* rot;     // [9n] node rotations for the warped preconditioner (row-major)
+    double* tmp_f;   // [n_free] scratch for the warped preconditioner
     double* rhs_f;   // [n_free]
     double* x_f;     // [n_free]
     double load_scale;
@@ -52,7 +54,7 @@ hs_body_def hs_body_default_def(void) {
     d.fem = hs_fem_default_def();
     d.dt = 0.01;
     d.solver = HS_SOLVER_DIRECT;
-    d.precond = HS_PRECOND_FACTOR;
+    d.precond = HS_PRECOND_WARPED;
     d.pcg_max_iter = 20;
     d.pcg_tol = 1e-8;
     d.static_tol = 1e-8;
@@ -83,6 +85,8 @@ void hs_body_destroy(hs_body** pb) {
     hs_free(b->dup);
     hs_free(b->y);
     hs_free(b->save);
+    hs_free(b->rot);
+    hs_free(b->tmp_f);
     hs_free(b->rhs_f);
     hs_free(b->x_f);
     hs_free(b);
@@ -111,6 +115,30 @@ static hs_status renumber_dofs(hs_body* b, hs_err* err) {
     hs_free(perm);
     hs_free(pos);
     return s;
+}
+
+// z = R K0^-1 R^T r with R the block-diagonal node rotations: the rest-state factor follows
+// the local rotation of the tissue, so PCG keeps converging under large rotations where the
+// plain rest factor (a rotated stiff mode seen as a soft one) does not.
+static hs_status warped_precond(void* ctx, const double* r, double* z) {
+    hs_body* b = ctx;
+    for (int i = 0; i < b->n; ++i) {
+        const int* d = b->dof + 3 * i;
+        if (d[0] < 0) continue; // a node is fixed in all three components or none
+        const double* q = b->rot + 9 * i;
+        for (int c = 0; c < 3; ++c)
+            b->tmp_f[d[c]] = q[c] * r[d[0]] + q[3 + c] * r[d[1]] + q[6 + c] * r[d[2]];
+    }
+    hs_status s = hs_cholesky_solve(b->factor, b->tmp_f, z);
+    if (s != HS_OK) return s;
+    for (int i = 0; i < b->n; ++i) {
+        const int* d = b->dof + 3 * i;
+        if (d[0] < 0) continue;
+        const double* q = b->rot + 9 * i;
+        double t0 = z[d[0]], t1 = z[d[1]], t2 = z[d[2]];
+        for (int c = 0; c < 3; ++c) z[d[c]] = q[3 * c] * t0 + q[3 * c + 1] * t1 + q[3 * c + 2] * t2;
+    }
+    return HS_OK;
 }
 
 hs_status hs_body_create(const hs_mesh* mesh, const hs_body_def* def, const unsigned char* fixed,
@@ -177,7 +205,8 @@ hs_status hs_body_create(const hs_mesh* mesh, const hs_body_def* def, const unsi
     }
     s = hs_fem_create_matrix(b->fem, &b->a);
     if (s != HS_OK) goto fail_status;
-    if (def->solver == HS_SOLVER_DIRECT || def->precond == HS_PRECOND_FACTOR) {
+    if (def->solver == HS_SOLVER_DIRECT || def->precond == HS_PRECOND_FACTOR ||
+        def->precond == HS_PRECOND_WARPED) {
         // Number the free dofs in the factor's fill-reducing order: CHOLMOD then refactorises
         // the assembled matrix in place, so a step allocates nothing.
         s = renumber_dofs(b, err);
@@ -189,6 +218,12 @@ hs_status hs_body_create(const hs_mesh* mesh, const hs_body_def* def, const unsi
     if (def->solver == HS_SOLVER_PCG) {
         s = hs_pcg_create(nf, &b->pcg);
         if (s != HS_OK) goto fail_status;
+        if (def->precond == HS_PRECOND_WARPED) {
+            b->rot = hs_alloc(9 * (size_t)b->n * sizeof(double));
+            b->tmp_f = hs_alloc((size_t)nf * sizeof(double));
+            if (!b->rot || !b->tmp_f) goto nomem;
+            hs_pcg_set_preconditioner(b->pcg, warped_precond, b);
+        }
     }
     *out = b;
     return HS_OK;
@@ -336,7 +371,8 @@ static hs_status solve_system(hs_body* b, double kcoef, double mcoef, hs_step_st
         return s;
     }
     // PCG: the factor (if any) is the rest-state matrix with these coefficients.
-    if (b->def.precond == HS_PRECOND_FACTOR &&
+    const int warped = b->def.precond == HS_PRECOND_WARPED;
+    if ((b->def.precond == HS_PRECOND_FACTOR || warped) &&
         (!b->factor || b->factor_kcoef != kcoef || b->factor_mcoef != mcoef)) {
         // Assemble at rest: evaluate the model at u = 0 temporarily.
         double* keep = b->save;
@@ -349,10 +385,12 @@ static hs_status solve_system(hs_body* b, double kcoef, double mcoef, hs_step_st
         if (s != HS_OK) return s;
     }
     hs_fem_assemble(b->fem, kcoef, mcoef, b->a);
+    if (warped)
+        for (int i = 0; i < b->n; ++i) hs_fem_node_rotation(b->fem, i, b->rot + 9 * i);
     int it = 0;
     double rel = 0;
-    s = hs_pcg_solve(b->pcg, b->a, b->rhs_f, b->x_f, b->def.precond, b->factor, b->def.pcg_tol,
-                     b->def.pcg_max_iter, &it, &rel);
+    s = hs_pcg_solve(b->pcg, b->a, b->rhs_f, b->x_f, warped ? HS_PRECOND_CUSTOM : b->def.precond,
+                     b->factor, b->def.pcg_tol, b->def.pcg_max_iter, &it, &rel);
     st->linear_iterations += it;
     st->residual = rel;
     if (s == HS_WARN_NOT_CONVERGED) s = HS_OK; // a fixed iteration budget is a valid mode

@@ -6,12 +6,19 @@
 
 struct hs_pcg {
     int n;
-    double* r;    // [n] residual
-    double* z;    // [n] preconditioned residual
-    double* p;    // [n] search direction
-    double* q;    // [n] A p
-    double* dinv; // [n] inverse diagonal (Jacobi)
+    double* r;         // [n] residual
+    double* z;         // [n] preconditioned residual
+    double* p;         // [n] search direction
+    double* q;         // [n] A p
+    double* dinv;      // [n] inverse diagonal (Jacobi)
+    hs_precond_fn* fn; // HS_PRECOND_CUSTOM
+    void* ctx;
 };
+
+void hs_pcg_set_preconditioner(hs_pcg* pcg, hs_precond_fn* fn, void* ctx) {
+    pcg->fn = fn;
+    pcg->ctx = ctx;
+}
 
 hs_status hs_pcg_create(int n, hs_pcg** out) {
     if (!out) return HS_ERR_INVALID;
@@ -57,6 +64,8 @@ static hs_status precondition(hs_pcg* s, hs_precond pc, hs_cholesky* factor, con
         return HS_OK;
     case HS_PRECOND_FACTOR:
         return hs_cholesky_solve(factor, r, z);
+    case HS_PRECOND_CUSTOM:
+        return s->fn(s->ctx, r, z);
     default:
         memcpy(z, r, sizeof(double) * (size_t)n);
         return HS_OK;
@@ -72,7 +81,9 @@ hs_status hs_pcg_solve(hs_pcg* s, const hs_csc* a, const double* b, double* x, h
         return HS_ERR_INVALID;
     if (precond == HS_PRECOND_FACTOR && (!factor || hs_cholesky_size(factor) != s->n))
         return HS_ERR_INVALID;
-    if (precond != HS_PRECOND_NONE && precond != HS_PRECOND_JACOBI && precond != HS_PRECOND_FACTOR)
+    if (precond == HS_PRECOND_CUSTOM && !s->fn) return HS_ERR_INVALID;
+    if (precond != HS_PRECOND_NONE && precond != HS_PRECOND_JACOBI &&
+        precond != HS_PRECOND_FACTOR && precond != HS_PRECOND_CUSTOM)
         return HS_ERR_INVALID;
     int n = s->n;
     double *r = s->r, *z = s->z, *p = s->p, *q = s->q;

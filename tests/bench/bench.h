@@ -16,9 +16,13 @@ int hs_bench_accuracy(const hs_bench_args* a);
 int hs_bench_stress(const hs_bench_args* a);
 /// 1 kHz haptic loop with the condensed-compliance probe (issue 3).
 int hs_bench_haptic(const hs_bench_args* a);
+/// Cutting: one progressive cut step with the factor update, against refactor / dense inverse.
+int hs_bench_cut(const hs_bench_args* a);
 
 /// p-th percentile (0..100) of v[n] (sorts v in place).
 double hs_bench_percentile(double* v, size_t n, double p);
+/// CPU time of the calling thread, ms (CLOCK_THREAD_CPUTIME_ID).
+double hs_bench_thread_ms(void);
 /// Peak resident set size of this process, MB.
 double hs_bench_peak_rss_mb(void);
 

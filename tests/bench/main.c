@@ -6,6 +6,13 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/resource.h>
+#include <time.h>
+
+double hs_bench_thread_ms(void) {
+    struct timespec ts;
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+    return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
+}
 
 double hs_bench_peak_rss_mb(void) {
     struct rusage ru;
@@ -39,6 +46,9 @@ static const bench_cmd cmds[] = {
     {"accuracy", hs_bench_accuracy, "run time against error per model, solver, dt (issue 6)"},
     {"stress", hs_bench_stress, "numerical stress cases: NaN, energy, inversion (issue 6)"},
     {"haptic", hs_bench_haptic, "1 kHz loop with the compliance probe vs a bare loop (issue 3)"},
+#ifdef HS_BENCH_HAVE_CUT
+    {"cut", hs_bench_cut, "cut step with factor update vs refactor and dense inverse (issue 7)"},
+#endif
 };
 
 static void usage(FILE* f) {
