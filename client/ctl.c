@@ -1,0 +1,208 @@
+// hapsim-ctl: send commands to a running hapsim-server and show its status. docs/client.md.
+#define _POSIX_C_SOURCE 200809L
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "hapsim/client.h"
+#include "hapsim_channels.h"
+#include "hapsim_command_ack_t.h"
+#include "hapsim_command_t.h"
+
+enum { EXIT_OK = 0, EXIT_USAGE = 1, EXIT_NO_SERVER = 2, EXIT_REJECTED = 3 };
+
+static void usage(FILE* f) {
+    fprintf(f, "usage: hapsim-ctl [options] COMMAND [ARGS]\n\n"
+               "Send a command to a running hapsim-server and wait for its acknowledgement\n"
+               "(retried with the same request id until it arrives), or show its status.\n\n"
+               "commands:\n"
+               "  status               wait for one server status message and print it\n"
+               "  reset                rest shape, cuts undone\n"
+               "  pause | resume       freeze / continue the deformation (forces ramp to zero)\n"
+               "  load-scene PATH      load a scene file (path on the server host)\n"
+               "  set NAME VALUE       change a run-time parameter (VALUE: a decimal number)\n"
+               "  estop                latch every force to zero\n"
+               "  estop-release        clear the e-stop latch\n"
+               "  request-topology     publish the mesh topology and a keyframe now\n\n"
+               "options:\n"
+               "  --mesh-url URL       mesh bus (" HAPSIM_DEFAULT_MESH_URL ")\n"
+               "  --prefix P           channel prefix (" HAPSIM_DEFAULT_PREFIX ")\n"
+               "  --timeout MS         give up after MS milliseconds (3000)\n"
+               "  --retry MS           re-send an unanswered command every MS milliseconds (250)\n"
+               "  -q, --quiet          print nothing on success\n"
+               "  -h, --help           this text\n\n"
+               "exit status: 0 ok, 1 bad usage, 2 no server / timeout, 3 command rejected\n");
+}
+
+static void print_status(const hs_client_status* s, int64_t age_us) {
+    printf("server   %s, up %.1f s, scene %s\n", hs_client_state_name(s->state),
+           (double)s->uptime_us * 1e-6, s->scene[0] ? s->scene : "(none)");
+    printf("topology version %lld   (status %.0f ms old, seq %lld)\n",
+           (long long)s->topology_version, (double)age_us * 1e-3, (long long)s->seq);
+    if (s->n_loops)
+        printf("%-10s %9s %9s %9s %9s %10s\n", "loop", "rate Hz", "p50 us", "p99 us", "max us",
+               "overruns");
+    for (int i = 0; i < s->n_loops && i < HS_CLIENT_STATUS_LOOPS; i++)
+        printf("%-10s %9.1f %9.1f %9.1f %9.1f %10lld\n", s->loops[i].name, s->loops[i].rate_hz,
+               s->loops[i].p50_us, s->loops[i].p99_us, s->loops[i].max_us,
+               (long long)s->loops[i].overruns);
+    if (s->n_steps) printf("%-10s %9s %9s %9s\n", "step", "p50 us", "p99 us", "max us");
+    for (int i = 0; i < s->n_steps && i < HS_CLIENT_STATUS_STEPS; i++)
+        printf("%-10s %9.1f %9.1f %9.1f\n", s->steps[i].name, s->steps[i].p50_us,
+               s->steps[i].p99_us, s->steps[i].max_us);
+    for (int i = 0; i < s->n_devices && i < HS_CLIENT_STATUS_DEVICES; i++)
+        printf("device %d  %s  pose age %.1f ms  poses %lld (lost %lld)  latency p50 %.0f us "
+               "p99 %.0f us  force %.3f N\n",
+               s->devices[i].id, s->devices[i].live ? "live" : "idle", s->devices[i].pose_age_ms,
+               (long long)s->devices[i].poses_received, (long long)s->devices[i].poses_lost,
+               s->devices[i].latency_p50_us, s->devices[i].latency_p99_us,
+               s->devices[i].force_norm);
+    for (int i = 0; i < s->n_rejects && i < HS_CLIENT_STATUS_REJECTS; i++)
+        printf("rejected %s/%s: %lld\n", s->rejects[i].channel, s->rejects[i].reason,
+               (long long)s->rejects[i].count);
+    if (s->warnings[0]) printf("warnings:\n%s\n", s->warnings);
+}
+
+int main(int argc, char** argv) {
+    const char *mesh_url = NULL, *prefix = NULL;
+    int timeout_ms = 3000, retry_ms = 250, quiet = 0, i = 1;
+    for (; i < argc && argv[i][0] == '-'; i++) {
+        const char* a = argv[i];
+        if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
+            usage(stdout);
+            return EXIT_OK;
+        } else if (!strcmp(a, "-q") || !strcmp(a, "--quiet")) {
+            quiet = 1;
+            continue;
+        }
+        if (i + 1 >= argc) {
+            fprintf(stderr, "hapsim-ctl: unknown option or missing value: '%s' (see --help)\n", a);
+            return EXIT_USAGE;
+        }
+        const char* val = argv[++i];
+        char* e;
+        if (!strcmp(a, "--mesh-url"))
+            mesh_url = val;
+        else if (!strcmp(a, "--prefix"))
+            prefix = val;
+        else if (!strcmp(a, "--timeout") || !strcmp(a, "--retry")) {
+            long v = strtol(val, &e, 10);
+            if (e == val || *e || v < 1 || v > 3600000) {
+                fprintf(stderr, "hapsim-ctl: %s '%s': expected 1 .. 3600000 ms\n", a, val);
+                return EXIT_USAGE;
+            }
+            if (a[2] == 't')
+                timeout_ms = (int)v;
+            else
+                retry_ms = (int)v;
+        } else {
+            fprintf(stderr, "hapsim-ctl: unknown option '%s' (see --help)\n", a);
+            return EXIT_USAGE;
+        }
+    }
+    if (i >= argc) {
+        usage(stderr);
+        return EXIT_USAGE;
+    }
+    const char* cmd = argv[i++];
+    int nrest = argc - i;
+    static const struct {
+        const char* name;
+        int kind, nargs;
+    } table[] = {{"status", 0, 0},
+                 {"reset", HAPSIM_COMMAND_T_KIND_RESET, 0},
+                 {"pause", HAPSIM_COMMAND_T_KIND_PAUSE, 0},
+                 {"resume", HAPSIM_COMMAND_T_KIND_RESUME, 0},
+                 {"load-scene", HAPSIM_COMMAND_T_KIND_LOAD_SCENE, 1},
+                 {"set", HAPSIM_COMMAND_T_KIND_SET_PARAM, 2},
+                 {"estop", HAPSIM_COMMAND_T_KIND_ESTOP, 0},
+                 {"estop-release", HAPSIM_COMMAND_T_KIND_ESTOP_RELEASE, 0},
+                 {"request-topology", HAPSIM_COMMAND_T_KIND_REQUEST_TOPOLOGY, 0}};
+    int k = -1;
+    for (int j = 0; j < (int)(sizeof table / sizeof table[0]); j++)
+        if (!strcmp(cmd, table[j].name)) k = j;
+    if (k < 0) {
+        fprintf(stderr, "hapsim-ctl: unknown command '%s' (see --help)\n", cmd);
+        return EXIT_USAGE;
+    }
+    if (nrest != table[k].nargs) {
+        fprintf(stderr, "hapsim-ctl: %s takes %d argument%s, got %d (see --help)\n", cmd,
+                table[k].nargs, table[k].nargs == 1 ? "" : "s", nrest);
+        return EXIT_USAGE;
+    }
+    const char* keys[2];
+    const char* values[2];
+    if (table[k].kind == HAPSIM_COMMAND_T_KIND_LOAD_SCENE) {
+        keys[0] = "path";
+        values[0] = argv[i];
+    } else if (table[k].kind == HAPSIM_COMMAND_T_KIND_SET_PARAM) {
+        char* e;
+        double d = strtod(argv[i + 1], &e);
+        if (e == argv[i + 1] || *e || !isfinite(d)) {
+            fprintf(stderr, "hapsim-ctl: set: value '%s' is not a finite decimal number\n",
+                    argv[i + 1]);
+            return EXIT_USAGE;
+        }
+        keys[0] = "name";
+        values[0] = argv[i];
+        keys[1] = "value";
+        values[1] = argv[i + 1];
+    }
+
+    hs_client_config cfg;
+    hs_client_config_default(&cfg);
+    cfg.haptic_url = "";
+    cfg.mesh_url = mesh_url;
+    cfg.prefix = prefix;
+    cfg.sender = "hapsim-ctl";
+    cfg.subscribe = table[k].kind ? HS_CLIENT_SUB_COMMANDS : HS_CLIENT_SUB_STATUS;
+    hs_client* c = NULL;
+    hs_err err = {0};
+    hs_status st = hs_client_create(&cfg, &c, &err);
+    if (st != HS_OK) {
+        fprintf(stderr, "hapsim-ctl: %s\n", err.msg);
+        return st == HS_ERR_INVALID ? EXIT_USAGE : EXIT_NO_SERVER;
+    }
+    int rc = EXIT_OK;
+    if (table[k].kind == 0) {
+        int64_t deadline = hs_client_now_us() + (int64_t)timeout_ms * 1000;
+        hs_client_status s;
+        int64_t age = 0;
+        while (!hs_client_status_latest(c, NULL, NULL) && hs_client_now_us() < deadline)
+            if (hs_client_poll(c, 50, &err) < 0) break;
+        if (hs_client_status_latest(c, &s, &age)) {
+            print_status(&s, age);
+        } else {
+            fprintf(stderr,
+                    "hapsim-ctl: no server status within %d ms (is hapsim-server "
+                    "running on this mesh bus and prefix?)\n",
+                    timeout_ms);
+            rc = EXIT_NO_SERVER;
+        }
+    } else {
+        hs_client_ack ack;
+        st = hs_client_command(c, table[k].kind, table[k].nargs, keys, values, timeout_ms, retry_ms,
+                               &ack, &err);
+        if (st == HS_ERR_INVALID) {
+            fprintf(stderr, "hapsim-ctl: %s\n", err.msg);
+            rc = EXIT_USAGE;
+        } else if (st != HS_OK) {
+            fprintf(stderr, "hapsim-ctl: %s: no answer from the server (%d attempts in %d ms)\n",
+                    cmd, ack.attempts, timeout_ms);
+            rc = EXIT_NO_SERVER;
+        } else if (ack.status != HAPSIM_COMMAND_ACK_T_STATUS_OK) {
+            fprintf(stderr, "hapsim-ctl: %s %s: %s\n", cmd,
+                    ack.status == HAPSIM_COMMAND_ACK_T_STATUS_INVALID ? "rejected as invalid"
+                                                                      : "failed",
+                    ack.message[0] ? ack.message : "(no detail)");
+            rc = EXIT_REJECTED;
+        } else if (!quiet) {
+            printf("%s: ok (request %lld, %d attempt%s, %.1f ms)%s%s\n", cmd,
+                   (long long)ack.request_id, ack.attempts, ack.attempts == 1 ? "" : "s",
+                   (double)ack.rtt_us * 1e-3, ack.message[0] ? ": " : "", ack.message);
+        }
+    }
+    hs_client_destroy(&c);
+    return rc;
+}

@@ -1,0 +1,260 @@
+// Mesh synchronisation state machine (docs/protocol.md "Watching the mesh", docs/client.md).
+// Two topologies are kept: the one shown and a newer one waiting for its first keyframe, so the
+// visible mesh is always a topology with positions that belong to it.
+#include <string.h>
+
+#include "wire.h"
+
+typedef struct topo {
+    int64_t version;
+    int32_t n_nodes, n_vis, n_tri, n_tet;
+    int32_t* vis;
+    float* rest;
+    int32_t* tri;
+    int32_t* tet;
+    size_t cap_vis, cap_rest, cap_tri, cap_tet; // elements of vis, rest/3, tri/3, tet/4
+} topo;
+
+struct hs_mesh_sync {
+    topo shown, pending;
+    int ready, has_pending;
+    float *kf, *pos, *stress; // [3 cap_kf], [3 cap_pos], [cap_stress]
+    size_t cap_kf, cap_pos, cap_stress;
+    int has_stress;
+    int64_t kf_id, last_delta_seq;
+    int have_seq[4];
+    int64_t last_seq[4];
+    hs_client_mesh view;
+    hs_sync_stats st;
+};
+
+// Replace *p by a block of n elements of size sz keeping the first keep elements.
+static int grow(void** p, size_t* cap, size_t n, size_t sz, size_t keep) {
+    if (n <= *cap) return 0;
+    void* q = hs_client_calloc(n, sz);
+    if (!q) return -1;
+    if (*p && keep) memcpy(q, *p, keep * sz);
+    hs_client_free(*p);
+    *p = q;
+    *cap = n;
+    return 0;
+}
+
+static void topo_free(topo* t) {
+    hs_client_free(t->vis);
+    hs_client_free(t->rest);
+    hs_client_free(t->tri);
+    hs_client_free(t->tet);
+    memset(t, 0, sizeof *t);
+}
+
+hs_status hs_mesh_sync_create(hs_mesh_sync** out, hs_err* err) {
+    if (!out) {
+        if (err) err->code = HS_ERR_INVALID;
+        return HS_ERR_INVALID;
+    }
+    *out = hs_client_calloc(1, sizeof **out);
+    if (!*out) {
+        if (err) {
+            err->code = HS_ERR_NOMEM;
+            strcpy(err->msg, "hs_mesh_sync_create: out of memory");
+        }
+        return HS_ERR_NOMEM;
+    }
+    (*out)->kf_id = -1;
+    (*out)->last_delta_seq = -1;
+    (*out)->view.delta_seq = -1;
+    (*out)->st.last_event_old = -1;
+    (*out)->st.last_event_new = -1;
+    return HS_OK;
+}
+
+void hs_mesh_sync_destroy(hs_mesh_sync** s) {
+    if (!s || !*s) return;
+    topo_free(&(*s)->shown);
+    topo_free(&(*s)->pending);
+    hs_client_free((*s)->kf);
+    hs_client_free((*s)->pos);
+    hs_client_free((*s)->stress);
+    hs_client_free(*s);
+    *s = NULL;
+}
+
+const hs_client_mesh* hs_mesh_sync_mesh(const hs_mesh_sync* s) {
+    return &s->view;
+}
+void hs_mesh_sync_stats(const hs_mesh_sync* s, hs_sync_stats* out) {
+    *out = s->st;
+}
+int64_t hs_mesh_sync_newest_topology(const hs_mesh_sync* s) {
+    if (s->has_pending) return s->pending.version;
+    return s->ready ? s->shown.version : -1;
+}
+
+static void update_view(hs_mesh_sync* s, int64_t utime, int64_t sim_step, double sim_time) {
+    hs_client_mesh* v = &s->view;
+    const topo* t = &s->shown;
+    v->ready = 1;
+    v->topology_version = t->version;
+    v->keyframe_id = s->kf_id;
+    v->delta_seq = s->last_delta_seq;
+    v->sim_step = sim_step;
+    v->sim_time = sim_time;
+    v->utime = utime;
+    v->frame++;
+    v->n_nodes = t->n_nodes;
+    v->n_vis = t->n_vis;
+    v->n_tri = t->n_tri;
+    v->n_tet = t->n_tet;
+    v->vis_nodes = t->vis;
+    v->rest = t->rest;
+    v->position = s->pos;
+    v->triangles = t->tri;
+    v->tets = t->n_tet ? t->tet : NULL;
+    v->stress = s->has_stress ? s->stress : NULL;
+    s->st.applied++;
+}
+
+// The shown arrays may move when they grow.
+static void update_pointers(hs_mesh_sync* s) {
+    s->view.position = s->pos;
+    s->view.stress = s->has_stress ? s->stress : NULL;
+}
+
+// Seq bookkeeping per channel: gaps count as loss; returns 1 when seq went backwards.
+static int track_seq(hs_mesh_sync* s, int kind, int64_t seq) {
+    int back = 0;
+    if (s->have_seq[kind]) {
+        if (seq > s->last_seq[kind]) {
+            int64_t gap = seq - s->last_seq[kind] - 1;
+            if (gap > 0 && gap < 1000000) s->st.lost[kind] += gap;
+        } else if (seq < s->last_seq[kind]) {
+            back = 1;
+        }
+    }
+    s->have_seq[kind] = 1;
+    s->last_seq[kind] = seq;
+    return back;
+}
+
+static hs_sync_result on_topology(hs_mesh_sync* s, const void* buf, size_t len) {
+    hs_wire_topology w;
+    if (hs_wire_topology_decode(buf, len, &w)) return HS_SYNC_MALFORMED;
+    int restarted = track_seq(s, HS_SYNC_TOPOLOGY, w.seq);
+    int64_t newest = hs_mesh_sync_newest_topology(s);
+    if (!restarted && newest >= 0 && w.topology_version <= newest)
+        return w.topology_version == newest ? HS_SYNC_HELD : HS_SYNC_STALE;
+    // Make room first; a failed allocation leaves the visible mesh as it was.
+    topo* p = &s->pending;
+    size_t nv = (size_t)w.n_vis, nt = (size_t)w.n_tri, ntet = (size_t)w.n_tet;
+    size_t keep = s->ready ? (size_t)s->shown.n_vis : 0; // kf/pos/stress hold the shown mesh
+    if (grow((void**)&p->vis, &p->cap_vis, nv, sizeof(int32_t), 0) ||
+        grow((void**)&p->rest, &p->cap_rest, nv, 3 * sizeof(float), 0) ||
+        grow((void**)&p->tri, &p->cap_tri, nt, 3 * sizeof(int32_t), 0) ||
+        grow((void**)&p->tet, &p->cap_tet, ntet, 4 * sizeof(int32_t), 0) ||
+        grow((void**)&s->kf, &s->cap_kf, nv, 3 * sizeof(float), keep) ||
+        grow((void**)&s->pos, &s->cap_pos, nv, 3 * sizeof(float), keep) ||
+        grow((void**)&s->stress, &s->cap_stress, nv, sizeof(float), keep)) {
+        if (s->ready) update_pointers(s);
+        return HS_SYNC_NOMEM;
+    }
+    if (s->ready) update_pointers(s);
+    p->version = w.topology_version;
+    p->n_nodes = w.n_nodes;
+    p->n_vis = w.n_vis;
+    p->n_tri = w.n_tri;
+    p->n_tet = w.n_tet;
+    for (int32_t i = 0; i < w.n_vis; i++) p->vis[i] = hs_wire_i32_at(w.vis_nodes, i);
+    for (int32_t i = 0; i < 3 * w.n_vis; i++) p->rest[i] = hs_wire_f32_at(w.rest, i);
+    for (int32_t i = 0; i < 3 * w.n_tri; i++) p->tri[i] = hs_wire_i32_at(w.tri, i);
+    for (int32_t i = 0; i < 4 * w.n_tet; i++) p->tet[i] = hs_wire_i32_at(w.tet, i);
+    s->has_pending = 1;
+    s->st.topologies++;
+    return HS_SYNC_HELD;
+}
+
+static void take_keyframe(hs_mesh_sync* s, const hs_wire_state* w) {
+    for (int32_t i = 0; i < w->pos.n; i++) s->kf[i] = hs_wire_f32_at(w->pos, i);
+    if (w->pos.n) memcpy(s->pos, s->kf, (size_t)w->pos.n * sizeof(float));
+    s->has_stress = w->stress.n > 0;
+    for (int32_t i = 0; i < w->stress.n; i++) s->stress[i] = hs_wire_f32_at(w->stress, i);
+    s->kf_id = w->keyframe_id;
+    s->last_delta_seq = -1;
+    update_view(s, w->utime, w->sim_step, w->sim_time);
+}
+
+static hs_sync_result on_state(hs_mesh_sync* s, const void* buf, size_t len) {
+    hs_wire_state w;
+    if (hs_wire_state_decode(buf, len, &w)) return HS_SYNC_MALFORMED;
+    track_seq(s, HS_SYNC_STATE, w.seq);
+    if (s->has_pending && w.topology_version == s->pending.version) {
+        if (w.pos.n != 3 * s->pending.n_vis) return HS_SYNC_MALFORMED;
+        topo t = s->shown; // promote: swap storage, no allocation
+        s->shown = s->pending;
+        s->pending = t;
+        s->has_pending = 0;
+        s->ready = 1;
+        take_keyframe(s, &w);
+        return HS_SYNC_APPLIED;
+    }
+    if (!s->ready || w.topology_version != s->shown.version) return HS_SYNC_MISMATCH;
+    if (w.pos.n != 3 * s->shown.n_vis) return HS_SYNC_MALFORMED;
+    if (w.keyframe_id <= s->kf_id) return HS_SYNC_STALE;
+    take_keyframe(s, &w);
+    return HS_SYNC_APPLIED;
+}
+
+static hs_sync_result on_delta(hs_mesh_sync* s, const void* buf, size_t len) {
+    hs_wire_delta w;
+    if (hs_wire_delta_decode(buf, len, &w)) return HS_SYNC_MALFORMED;
+    track_seq(s, HS_SYNC_DELTA, w.seq);
+    if (!s->ready || w.topology_version != s->shown.version || w.keyframe_id != s->kf_id)
+        return HS_SYNC_MISMATCH;
+    if (w.index.n > 0 && hs_wire_i32_at(w.index, w.index.n - 1) >= s->shown.n_vis)
+        return HS_SYNC_MALFORMED; // indices increase: the last is the largest
+    if (w.seq <= s->last_delta_seq) return HS_SYNC_STALE;
+    if (s->shown.n_vis) memcpy(s->pos, s->kf, (size_t)s->shown.n_vis * 3 * sizeof(float));
+    for (int32_t j = 0; j < w.index.n; j++) {
+        int32_t i = hs_wire_i32_at(w.index, j);
+        for (int k = 0; k < 3; k++)
+            s->pos[3 * i + k] = s->kf[3 * i + k] + hs_wire_f32_at(w.delta, 3 * j + k);
+    }
+    s->last_delta_seq = w.seq;
+    update_view(s, w.utime, w.sim_step, w.sim_time);
+    return HS_SYNC_APPLIED;
+}
+
+static hs_sync_result on_event(hs_mesh_sync* s, const void* buf, size_t len) {
+    hs_wire_event w;
+    if (hs_wire_event_decode(buf, len, &w)) return HS_SYNC_MALFORMED;
+    track_seq(s, HS_SYNC_EVENT, w.seq);
+    s->st.events++;
+    s->st.last_event_old = w.old_version;
+    s->st.last_event_new = w.new_version;
+    s->st.last_event_removed = w.n_removed;
+    return HS_SYNC_HELD;
+}
+
+hs_sync_result hs_mesh_sync_feed(hs_mesh_sync* s, hs_sync_kind kind, const void* buf, size_t len) {
+    hs_sync_result r;
+    if (kind < HS_SYNC_TOPOLOGY || kind > HS_SYNC_EVENT) return HS_SYNC_MALFORMED;
+    s->st.received[kind]++;
+    switch (kind) {
+    case HS_SYNC_TOPOLOGY:
+        r = on_topology(s, buf, len);
+        break;
+    case HS_SYNC_STATE:
+        r = on_state(s, buf, len);
+        break;
+    case HS_SYNC_DELTA:
+        r = on_delta(s, buf, len);
+        break;
+    default:
+        r = on_event(s, buf, len);
+        break;
+    }
+    if (r == HS_SYNC_STALE) s->st.stale++;
+    if (r == HS_SYNC_MISMATCH) s->st.mismatched++;
+    if (r == HS_SYNC_MALFORMED) s->st.malformed++;
+    return r;
+}

@@ -1,0 +1,56 @@
+// The local force model of tool_force_t (docs/protocol.md "Driving a device").
+#include <math.h>
+#include <string.h>
+
+#include "hapsim_tool_force_t.h"
+#include "wire.h"
+
+double hs_local_model_eval(const hs_local_model* m, const double p[3], int64_t now_us,
+                           double f[3]) {
+    f[0] = f[1] = f[2] = 0;
+    if (!m || !m->valid || m->state == HAPSIM_TOOL_FORCE_T_STATE_STOPPED) return 0;
+    double d[3] = {p[0] - m->anchor[0], p[1] - m->anchor[1], p[2] - m->anchor[2]};
+    double n = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+    if (n > m->validity_radius) { // evaluate on the validity sphere, never extrapolate
+        double s = n > 0 ? m->validity_radius / n : 0;
+        for (int i = 0; i < 3; i++) d[i] *= s;
+    }
+    // Full strength for timeout_us after arrival, then a linear ramp to zero over timeout_us.
+    int64_t age = now_us - m->arrival_us;
+    double s = 1;
+    if (age > m->timeout_us) {
+        s = m->timeout_us > 0 ? 1.0 - (double)(age - m->timeout_us) / (double)m->timeout_us : 0;
+        if (s < 0) s = 0;
+    }
+    for (int i = 0; i < 3; i++) {
+        const double* k = m->stiffness + 3 * i;
+        f[i] = s * (m->force[i] + k[0] * d[0] + k[1] * d[1] + k[2] * d[2]);
+    }
+    return s;
+}
+
+void hs_force_renderer_init(hs_force_renderer* r) {
+    memset(r, 0, sizeof *r);
+    r->blend_us = 3000;
+}
+
+void hs_force_renderer_push(hs_force_renderer* r, const hs_local_model* m) {
+    if (r->model.valid && m->model_version != r->model.model_version) {
+        r->old_model = r->model;
+        r->blend_start_us = m->arrival_us;
+    }
+    r->model = *m;
+}
+
+int32_t hs_force_renderer_eval(const hs_force_renderer* r, const double p[3], int64_t now_us,
+                               double f[3]) {
+    hs_local_model_eval(&r->model, p, now_us, f);
+    if (!r->model.valid) return -1;
+    int64_t t = now_us - r->blend_start_us;
+    if (r->old_model.valid && r->blend_us > 0 && t < r->blend_us) {
+        double w = t <= 0 ? 0 : (double)t / (double)r->blend_us, fo[3];
+        hs_local_model_eval(&r->old_model, p, now_us, fo);
+        for (int i = 0; i < 3; i++) f[i] = (1 - w) * fo[i] + w * f[i];
+    }
+    return r->model.state;
+}

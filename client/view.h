@@ -1,0 +1,72 @@
+// hapsim-view core (internal, not installed): an orthographic camera, a software rasteriser of
+// surface triangles (z-buffer, Lambert shading, colour map), PNG in/out through libpng, and
+// VTK XML (.vtu + .pvd) writers. docs/client.md describes the output.
+#ifndef HS_CLIENT_VIEW_H
+#define HS_CLIENT_VIEW_H
+
+#include <stdint.h>
+
+#include "hapsim/client.h"
+
+/// Orthographic camera looking at center from direction (azimuth about +z from +x, elevation
+/// from the xy plane toward +z).
+typedef struct hs_camera {
+    double center[3];       ///< m, point at the image centre
+    double scale;           ///< pixels per metre
+    double right[3], up[3]; ///< unit screen axes in the scene frame
+    double eye[3];          ///< unit vector from center toward the viewer
+    double az_deg, el_deg;  ///< degrees, as given
+    int width, height;      ///< pixels
+} hs_camera;
+
+/// Fit the camera to n points pts[3n] (bounding sphere fills 90 % of the smaller image side).
+void hs_camera_fit(hs_camera* cam, const float* pts, int32_t n, double az_deg, double el_deg,
+                   int width, int height);
+/// Pixel coordinates (x right, y down; pixel centres at +0.5) and depth (m, larger = farther).
+void hs_camera_project(const hs_camera* cam, const double p[3], double* px, double* py,
+                       double* depth);
+
+/// An RGB8 image with its depth buffer.
+typedef struct hs_image {
+    int width, height; ///< pixels
+    uint8_t* rgb;      ///< [3 width height] row-major, top row first
+    float* depth;      ///< [width height] m, +inf where nothing was drawn
+} hs_image;
+
+/// Allocate (1 .. 8192 pixels per side). Thread: any | Allocates: yes
+hs_status hs_image_create(int width, int height, hs_image** out, hs_err* err);
+/// Free; accepts NULL and *img == NULL; sets *img = NULL.
+void hs_image_destroy(hs_image** img);
+/// Fill with the background colour and clear the depth buffer.
+void hs_image_clear(hs_image* img);
+/// Background colour of hs_image_clear.
+#define HS_VIEW_BG_R 28
+#define HS_VIEW_BG_G 30
+#define HS_VIEW_BG_B 36
+
+/// Colour map (cool to warm): t in [0, 1] (clamped) -> rgb. Blue for 0, red for 1.
+void hs_colormap(double t, uint8_t rgb[3]);
+
+/// Draw triangles tri[3 n_tri] over positions pos[3 n] (m) with a per-vertex scalar[n] mapped
+/// by (s - smin) / (smax - smin) through hs_colormap, times a two-sided Lambert factor
+/// 0.25 + 0.75 |n . eye| (headlight). NULL scalar: uniform grey. Returns triangles drawn.
+int32_t hs_render_mesh(hs_image* img, const hs_camera* cam, const float* pos, int32_t n,
+                       const int32_t* tri, int32_t n_tri, const float* scalar, float smin,
+                       float smax);
+
+/// Write an RGB PNG. Returns HS_OK or HS_ERR_IO (err names the file).
+hs_status hs_png_write(const char* path, const hs_image* img, hs_err* err);
+/// Read a PNG as RGB8 (depth buffer cleared). Returns HS_OK, HS_ERR_IO or HS_ERR_NOMEM.
+hs_status hs_png_read(const char* path, hs_image** out, hs_err* err);
+
+/// Per-node displacement magnitude |position - rest| (m) into disp[n].
+void hs_view_displacement(const hs_client_mesh* m, float* disp);
+/// Write the visible mesh as a VTK XML UnstructuredGrid of its surface triangles (ASCII .vtu):
+/// point data displacement (3 comp), displacement_magnitude and, when sent, stress_von_mises.
+/// Writes to path + ".tmp" then renames. Returns HS_OK or HS_ERR_IO.
+hs_status hs_vtu_write(const char* path, const hs_client_mesh* m, const float* disp, hs_err* err);
+/// Write a ParaView collection (.pvd) listing files[i] at times[i] (s); atomic (tmp + rename).
+hs_status hs_pvd_write(const char* path, int32_t n, const char* const* files, const double* times,
+                       hs_err* err);
+
+#endif

@@ -1,0 +1,112 @@
+// VTK XML output for ParaView: one .vtu per frame (surface triangles, ASCII) and a .pvd
+// collection. Files are written to "<path>.tmp" and renamed, so a reader never sees half a file.
+#define _POSIX_C_SOURCE 200809L
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+
+#include "view.h"
+
+static hs_status io_fail(hs_err* err, const char* path, const char* what) {
+    if (err) {
+        err->code = HS_ERR_IO;
+        snprintf(err->msg, sizeof err->msg, "%s: %s: %s", path, what, strerror(errno));
+    }
+    return HS_ERR_IO;
+}
+
+static hs_status finish(FILE* f, const char* tmp, const char* path, hs_err* err) {
+    int bad = ferror(f);
+    if (fclose(f) != 0 || bad) {
+        remove(tmp);
+        return io_fail(err, path, "write failed");
+    }
+    if (rename(tmp, path) != 0) {
+        remove(tmp);
+        return io_fail(err, path, "rename failed");
+    }
+    return HS_OK;
+}
+
+void hs_view_displacement(const hs_client_mesh* m, float* disp) {
+    for (int32_t i = 0; i < m->n_vis; i++) {
+        double s = 0;
+        for (int k = 0; k < 3; k++) {
+            double d = (double)m->position[3 * i + k] - m->rest[3 * i + k];
+            s += d * d;
+        }
+        disp[i] = (float)sqrt(s);
+    }
+}
+
+// Floats with 9 significant digits: exactly the float32 the server sent.
+static void floats(FILE* f, const float* v, int64_t n, int per_line) {
+    for (int64_t i = 0; i < n; i++)
+        fprintf(f, "%.9g%c", (double)v[i], (i + 1) % per_line == 0 || i + 1 == n ? '\n' : ' ');
+}
+
+hs_status hs_vtu_write(const char* path, const hs_client_mesh* m, const float* disp, hs_err* err) {
+    char tmp[4200];
+    if (snprintf(tmp, sizeof tmp, "%s.tmp", path) >= (int)sizeof tmp) {
+        errno = ENAMETOOLONG;
+        return io_fail(err, path, "path too long");
+    }
+    FILE* f = fopen(tmp, "w");
+    if (!f) return io_fail(err, tmp, "cannot create");
+    fprintf(f,
+            "<?xml version=\"1.0\"?>\n"
+            "<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" "
+            "header_type=\"UInt64\">\n<UnstructuredGrid>\n"
+            "<Piece NumberOfPoints=\"%d\" NumberOfCells=\"%d\">\n",
+            m->n_vis, m->n_tri);
+    fprintf(f, "<PointData Scalars=\"displacement_magnitude\" Vectors=\"displacement\">\n");
+    fprintf(f, "<DataArray type=\"Float32\" Name=\"displacement_magnitude\" format=\"ascii\">\n");
+    floats(f, disp, m->n_vis, 8);
+    fprintf(f, "</DataArray>\n<DataArray type=\"Float32\" Name=\"displacement\" "
+               "NumberOfComponents=\"3\" format=\"ascii\">\n");
+    for (int32_t i = 0; i < m->n_vis; i++)
+        for (int k = 0; k < 3; k++)
+            fprintf(f, "%.9g%c", (double)(m->position[3 * i + k] - m->rest[3 * i + k]),
+                    k == 2 ? '\n' : ' ');
+    fprintf(f, "</DataArray>\n");
+    if (m->stress) {
+        fprintf(f, "<DataArray type=\"Float32\" Name=\"stress_von_mises\" format=\"ascii\">\n");
+        floats(f, m->stress, m->n_vis, 8);
+        fprintf(f, "</DataArray>\n");
+    }
+    fprintf(f, "</PointData>\n<Points>\n<DataArray type=\"Float32\" Name=\"Points\" "
+               "NumberOfComponents=\"3\" format=\"ascii\">\n");
+    floats(f, m->position, 3 * (int64_t)m->n_vis, 3);
+    fprintf(f, "</DataArray>\n</Points>\n<Cells>\n"
+               "<DataArray type=\"Int32\" Name=\"connectivity\" format=\"ascii\">\n");
+    for (int32_t t = 0; t < m->n_tri; t++)
+        fprintf(f, "%d %d %d\n", m->triangles[3 * t], m->triangles[3 * t + 1],
+                m->triangles[3 * t + 2]);
+    fprintf(f, "</DataArray>\n<DataArray type=\"Int32\" Name=\"offsets\" format=\"ascii\">\n");
+    for (int32_t t = 0; t < m->n_tri; t++)
+        fprintf(f, "%d%c", 3 * (t + 1), (t + 1) % 16 == 0 || t + 1 == m->n_tri ? '\n' : ' ');
+    fprintf(f, "</DataArray>\n<DataArray type=\"UInt8\" Name=\"types\" format=\"ascii\">\n");
+    for (int32_t t = 0; t < m->n_tri; t++) // 5 = VTK_TRIANGLE
+        fprintf(f, "5%c", (t + 1) % 32 == 0 || t + 1 == m->n_tri ? '\n' : ' ');
+    fprintf(f, "</DataArray>\n</Cells>\n</Piece>\n</UnstructuredGrid>\n</VTKFile>\n");
+    return finish(f, tmp, path, err);
+}
+
+hs_status hs_pvd_write(const char* path, int32_t n, const char* const* files, const double* times,
+                       hs_err* err) {
+    char tmp[4200];
+    if (snprintf(tmp, sizeof tmp, "%s.tmp", path) >= (int)sizeof tmp) {
+        errno = ENAMETOOLONG;
+        return io_fail(err, path, "path too long");
+    }
+    FILE* f = fopen(tmp, "w");
+    if (!f) return io_fail(err, tmp, "cannot create");
+    fprintf(f, "<?xml version=\"1.0\"?>\n<VTKFile type=\"Collection\" version=\"0.1\" "
+               "byte_order=\"LittleEndian\">\n<Collection>\n");
+    for (int32_t i = 0; i < n; i++)
+        fprintf(f, "<DataSet timestep=\"%.9g\" group=\"\" part=\"0\" file=\"%s\"/>\n", times[i],
+                files[i]);
+    fprintf(f, "</Collection>\n</VTKFile>\n");
+    return finish(f, tmp, path, err);
+}

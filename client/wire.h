@@ -1,0 +1,71 @@
+// Client wire edge: a bounds-checked reader over raw LCM message bytes. Every decoder checks the
+// fingerprint, every length field against the bytes left and the type's rules, strings for a
+// final NUL and no inner NUL, floats for NaN/Inf and the message for trailing bytes. Big arrays
+// are not copied: the decoders return views on the wire bytes (big-endian) that the mesh sync
+// converts while copying. Internal to libhapsim-client.
+#ifndef HS_CLIENT_WIRE_H
+#define HS_CLIENT_WIRE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "hapsim/client.h"
+
+/// A big-endian array on the wire: n elements of 4 bytes at p.
+typedef struct hs_wire_arr {
+    const uint8_t* p; ///< first byte
+    int32_t n;        ///< elements
+} hs_wire_arr;
+
+int32_t hs_wire_i32_at(hs_wire_arr a, int32_t i);
+float hs_wire_f32_at(hs_wire_arr a, int32_t i);
+
+typedef struct hs_wire_topology {
+    int64_t utime, seq, topology_version;
+    int32_t n_nodes, n_vis, n_tri, n_tet;
+    hs_wire_arr vis_nodes; ///< [n_vis], each in [0, n_nodes)
+    hs_wire_arr rest;      ///< [3 n_vis], finite
+    hs_wire_arr tri;       ///< [3 n_tri], each in [0, n_vis)
+    hs_wire_arr tet;       ///< [4 n_tet], each in [0, n_vis)
+} hs_wire_topology;
+
+typedef struct hs_wire_state {
+    int64_t utime, seq, topology_version, keyframe_id, sim_step;
+    double sim_time;
+    hs_wire_arr pos;    ///< [n_pos] finite, n_pos % 3 == 0
+    hs_wire_arr stress; ///< [0 or n_pos / 3] finite
+} hs_wire_state;
+
+typedef struct hs_wire_delta {
+    int64_t utime, seq, topology_version, keyframe_id, sim_step;
+    double sim_time;
+    hs_wire_arr index; ///< [n_changed] strictly increasing, >= 0
+    hs_wire_arr delta; ///< [3 n_changed] finite
+} hs_wire_delta;
+
+typedef struct hs_wire_event {
+    int64_t utime, seq, old_version, new_version;
+    int32_t device_id, n_removed, n_moved;
+} hs_wire_event;
+
+typedef struct hs_wire_ack {
+    int64_t utime, seq, request_id;
+    int32_t kind, status;
+    char message[256];
+} hs_wire_ack;
+
+/// Each returns 0 when the bytes are a valid message of the type, -1 otherwise.
+int hs_wire_topology_decode(const void* buf, size_t len, hs_wire_topology* out);
+int hs_wire_state_decode(const void* buf, size_t len, hs_wire_state* out);
+int hs_wire_delta_decode(const void* buf, size_t len, hs_wire_delta* out);
+int hs_wire_event_decode(const void* buf, size_t len, hs_wire_event* out);
+int hs_wire_ack_decode(const void* buf, size_t len, hs_wire_ack* out);
+/// tool_force into a local model (arrival_us left 0); also checks radius, timeout, state ranges.
+int hs_wire_force_decode(const void* buf, size_t len, int32_t* device_id, hs_local_model* out);
+
+/// Counted allocation of the client library (hs_client_byte_count).
+void* hs_client_alloc(size_t n);
+void* hs_client_calloc(size_t count, size_t size);
+void hs_client_free(void* p);
+
+#endif
