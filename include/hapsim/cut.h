@@ -17,9 +17,12 @@
 //  - Physics. The cut keeps the rest-state linear stiffness K (free dofs; fixed nodes
 //    eliminated; pinned nodes held by a diagonal spring) and its sparse Cholesky factor. Each
 //    sweep changes K by the 12x12 blocks of removed tets and of tets touching moved vertices
-//    (+ pin blocks); the factor gets them as one CHOLMOD update/downdate, never a refactor,
-//    unless the update fails (then it refactors and counts it). hs_cut_refactor is the fallback
-//    a background pass may run.
+//    (+ pin blocks). Policy UPDATE applies them as CHOLMOD update/downdate (rank <= 12 each);
+//    AUTO (default) does that unless its measured cost exceeds a numeric refactor with the kept
+//    analysis (never a symbolic analysis again); a failed update also refactors. Either way the
+//    factor is that of the new K; tests compare it with a fresh factorisation.
+//  - Surface. Tangent planes come from the boundary faces around a vertex (face neighbours of
+//    the full mesh + activity), so a sweep never needs the live mesh; that is rebuilt on demand.
 //  - Events. After each sweep: the removed tets, the moved vertices and a topology version
 //    (grows when anything changed), for the protocol's topology events.
 #ifndef HAPSIM_CUT_H
@@ -46,6 +49,13 @@ typedef enum hs_cut_fragment {
     HS_CUT_FRAGMENT_FIX = 1,  ///< pin its nodes in place, keep its tets
 } hs_cut_fragment;
 
+/// How the factor of K follows a sweep's element changes.
+typedef enum hs_cut_factor_policy {
+    HS_CUT_FACTOR_AUTO = 0,     ///< low-rank update unless a numeric refactor is cheaper (measured)
+    HS_CUT_FACTOR_UPDATE = 1,   ///< always the low-rank update (CHOLMOD update/downdate)
+    HS_CUT_FACTOR_REFACTOR = 2, ///< numeric refactor with the kept analysis (reference)
+} hs_cut_factor_policy;
+
 /// Cutting options. Initialise with hs_cut_default_def().
 typedef struct hs_cut_def {
     hs_material material;     ///< material of the linear stiffness kept factorised
@@ -55,13 +65,13 @@ typedef struct hs_cut_def {
     double min_quality;       ///< guard: floor of 6 sqrt(2) V / l_rms^3 (1 = regular tet)
     int max_bisections;       ///< guard: halvings of a move before it is dropped
     int tangent_surface;      ///< 1: surface vertices move only in their tangent plane (paper)
-    int update_factor;        ///< 1: low-rank factor updates; 0: refactor every sweep (reference)
-    int validate;             ///< 1: hs_mesh_check + own checks after every sweep
-    int cookie;               ///< set by hs_cut_default_def
+    hs_cut_factor_policy factor_policy; ///< how K's factor follows the cuts
+    int validate;                       ///< 1: hs_mesh_check + own checks after every sweep
+    int cookie;                         ///< set by hs_cut_default_def
 } hs_cut_def;
 
 /// Defaults: hs_fem_default_def()'s material, ORPHAN_PIN, FRAGMENT_DROP, volume ratio 0.1,
-/// quality 0.02, 8 bisections, tangent moves on, factor updates on, validation on.
+/// quality 0.02, 8 bisections, tangent moves on, AUTO factor policy, validation on.
 hs_cut_def hs_cut_default_def(void);
 
 /// What one sweep did.
@@ -78,7 +88,7 @@ typedef struct hs_cut_result {
     double cut_length_m;      ///< summed length of distinct mesh edges crossing the sweep, m
     double geometry_ms;       ///< crossing test, moves, guard, fragments, ms
     double factor_ms;         ///< element matrices + factor update, ms
-    double mesh_ms;           ///< live mesh rebuild (hs_mesh_finalize) + validation, ms
+    double mesh_ms;           ///< validation incl. live mesh rebuild (def.validate only), ms
     double total_ms;          ///< whole sweep, ms
     int64_t topology_version; ///< after this sweep
 } hs_cut_result;
@@ -114,15 +124,19 @@ int64_t hs_cut_topology_version(const hs_cut* cut);
 int hs_cut_tet_active(const hs_cut* cut, int tet);
 /// 1 when node was pinned by a cut (orphan or free piece); its displacement is then zero.
 int hs_cut_node_pinned(const hs_cut* cut, int node);
-/// The body as it is now: the active tets (finalized: surface, adjacency), same nodes as mesh.
-const hs_mesh* hs_cut_live_mesh(const hs_cut* cut);
-/// Mesh tet index of live tet k.
-int hs_cut_live_tet(const hs_cut* cut, int k);
-/// Connected pieces of the live mesh (tets sharing a node are connected).
-int hs_cut_components(const hs_cut* cut);
+/// Rebuild the live mesh if a sweep changed it (hs_mesh_finalize: allocates; a few ms on large
+/// meshes, so it is off the sweep itself unless def.validate). Called by the getters below.
+hs_status hs_cut_update_live(hs_cut* cut, hs_err* err);
+/// The body as it is now: the active tets (finalized: surface, adjacency), same nodes as mesh;
+/// NULL if rebuilding failed. Valid until the next sweep.
+const hs_mesh* hs_cut_live_mesh(hs_cut* cut);
+/// Mesh tet index of live tet k (-1 if rebuilding failed).
+int hs_cut_live_tet(hs_cut* cut, int k);
+/// Connected pieces of the live mesh (tets sharing a node are connected); -1 on failure.
+int hs_cut_components(hs_cut* cut);
 /// Check the live mesh (hs_mesh_check) and the cut invariants: no used free vertex without an
 /// element, every active tet positively oriented at rest, pinned nodes unused.
-hs_status hs_cut_validate(const hs_cut* cut, hs_err* err);
+hs_status hs_cut_validate(hs_cut* cut, hs_err* err);
 
 /// Static linear solve K u = f with the kept factor: f[3n] nodal forces (N) in, u[3n] (m) out;
 /// fixed and pinned nodes get zero. Allocates: no.

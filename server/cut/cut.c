@@ -31,10 +31,13 @@ struct hs_cut {
     hs_cholesky* factor;
     double k_pin; // pin spring, N/m (mean diagonal of K)
     int updates_since_refactor;
+    double refactor_ms;          // measured numeric refactor of this factor, ms (running mean)
+    double update_ms_per_change; // measured update cost per element change, ms (running mean)
 
     hs_mesh* live;  // active tets only
     int* live_tet;  // [ne] live index -> mesh tet
     int components; // of the live mesh
+    int live_dirty; // 1: tets or x0 changed since the live mesh was built
     int64_t version;
 
     // per-sweep scratch, allocated at create
@@ -96,7 +99,7 @@ hs_cut_def hs_cut_default_def(void) {
     d.min_quality = 0.02;
     d.max_bisections = 8;
     d.tangent_surface = 1;
-    d.update_factor = 1;
+    d.factor_policy = HS_CUT_FACTOR_AUTO;
     d.validate = 1;
     d.cookie = HS_CUT_COOKIE;
     return d;
@@ -482,7 +485,11 @@ hs_status hs_cut_create(hs_mesh* mesh, const unsigned char* fixed, const hs_cut_
     }
     c->rhs = hs_alloc(sizeof(double) * (size_t)nf);
     c->sol = hs_alloc(sizeof(double) * (size_t)nf);
-    if (!c->rhs || !c->sol) {
+    c->dset = hs_alloc(sizeof(int) * (size_t)nf);
+    c->dpos = hs_alloc(sizeof(int) * (size_t)nf);
+    if (c->dpos)
+        for (int d = 0; d < nf; d++) c->dpos[d] = -1;
+    if (!c->rhs || !c->sol || !c->dset || !c->dpos) {
         hs_cut_destroy(&c);
         return nomem(err);
     }
@@ -507,7 +514,14 @@ hs_status hs_cut_create(hs_mesh* mesh, const unsigned char* fixed, const hs_cut_
     }
     c->k_pin = dsum / nf;
     st = hs_cholesky_create(c->a, &c->factor, err);
-    if (st == HS_OK && def->update_factor) st = hs_cholesky_prepare_updates(c->factor, 256);
+    if (st == HS_OK && def->factor_policy != HS_CUT_FACTOR_REFACTOR)
+        st = hs_cholesky_prepare_updates(c->factor, 256);
+    if (st == HS_OK) {
+        // Calibrate the refactor cost of this factor (AUTO compares updates against it).
+        int64_t t0 = hs_now_ns();
+        st = hs_cut_refactor(c);
+        c->refactor_ms = (double)(hs_now_ns() - t0) * 1e-6;
+    }
     if (st != HS_OK) {
         hs_cut_destroy(&c);
         return hs_err_set(err, st, "cut: factorising K failed: %s", hs_status_str(st));
@@ -542,15 +556,23 @@ int hs_cut_tet_active(const hs_cut* c, int tet) {
 int hs_cut_node_pinned(const hs_cut* c, int node) {
     return node >= 0 && node < c->n && c->pinned[node];
 }
-const hs_mesh* hs_cut_live_mesh(const hs_cut* c) {
-    return c->live;
+hs_status hs_cut_update_live(hs_cut* c, hs_err* err) {
+    if (!c) return hs_err_set(err, HS_ERR_INVALID, "cut: NULL");
+    if (!c->live_dirty) return HS_OK;
+    hs_status st = rebuild_live(c, err);
+    if (st == HS_OK) c->live_dirty = 0;
+    return st;
 }
-int hs_cut_live_tet(const hs_cut* c, int k) {
+const hs_mesh* hs_cut_live_mesh(hs_cut* c) {
+    return hs_cut_update_live(c, NULL) == HS_OK ? c->live : NULL;
+}
+int hs_cut_live_tet(hs_cut* c, int k) {
+    if (hs_cut_update_live(c, NULL) != HS_OK) return -1;
     HS_ASSERT(k >= 0 && k < c->live->n_tets);
     return c->live_tet[k];
 }
-int hs_cut_components(const hs_cut* c) {
-    return c->components;
+int hs_cut_components(hs_cut* c) {
+    return hs_cut_update_live(c, NULL) == HS_OK ? c->components : -1;
 }
 hs_cholesky* hs_cut_factor(hs_cut* c) {
     return c->factor;
@@ -591,8 +613,10 @@ hs_status hs_cut_solve(hs_cut* c, const double* f, double* u) {
     return HS_OK;
 }
 
-hs_status hs_cut_validate(const hs_cut* c, hs_err* err) {
-    hs_status st = hs_mesh_check(c->live, err);
+hs_status hs_cut_validate(hs_cut* c, hs_err* err) {
+    hs_status st = hs_cut_update_live(c, err);
+    if (st != HS_OK) return st;
+    st = hs_mesh_check(c->live, err);
     if (st != HS_OK) return st;
     int na = 0;
     for (int e = 0; e < c->ne; e++) {
@@ -726,6 +750,33 @@ static void to_rest(const hs_cut* c, int v, const double* dx, double* dX) {
         dX[i] = inv[3 * i] * dx[0] + inv[3 * i + 1] * dx[1] + inv[3 * i + 2] * dx[2];
 }
 
+/// Area-weighted outward normal (current positions) of the boundary faces around v: a face of
+/// an active tet whose neighbour across it is missing or removed. Zero for interior vertices.
+static void surface_normal(const hs_cut* c, int v, double* nv) {
+    nv[0] = nv[1] = nv[2] = 0.0;
+    for (int p = c->nt_start[v]; p < c->nt_start[v + 1]; p++) {
+        int e = c->nt[p];
+        if (!c->active[e]) continue;
+        const int* t = c->mesh->tets + 4 * e;
+        for (int f = 0; f < 4; f++) {
+            if (t[f] == v) continue; // face f omits local node f
+            int o = c->fnbr[4 * e + f];
+            if (o >= 0 && c->active[o]) continue;
+            const double* q[3];
+            int m = 0;
+            for (int a = 0; a < 4; a++)
+                if (a != f) q[m++] = c->x + 3 * t[a];
+            double e1[3], e2[3], nn[3], away[3];
+            v3_sub(q[1], q[0], e1);
+            v3_sub(q[2], q[0], e2);
+            v3_cross(e1, e2, nn);
+            v3_sub(c->x + 3 * t[f], q[0], away);
+            double s = v3_dot(nn, away) > 0 ? -1.0 : 1.0; // point away from the opposite node
+            for (int d = 0; d < 3; d++) nv[d] += s * nn[d];
+        }
+    }
+}
+
 static void pin_node(hs_cut* c, int v) {
     if (c->pinned[v] || c->fixed[v]) return;
     c->pinned[v] = 1;
@@ -825,6 +876,11 @@ static void add_change(hs_cut* c, int* m, int e, int v, int was_active) {
 }
 
 static hs_status update_compliance(hs_cut* c, int m, int before);
+
+/// Apply the sweep's m element changes to the factor.
+static hs_status apply_changes(hs_cut* c, int m) {
+    return hs_cholesky_update_elements(c->factor, m, c->dk, c->edof);
+}
 
 hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const double p1[3],
                        const double q1[3], double* u, hs_cut_result* res, hs_err* err) {
@@ -933,21 +989,9 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
             c->moved[n_cand++] = v;
         }
     }
-    if (c->def.tangent_surface && n_cand > 0) {
-        for (int k = 0; k < n_cand; k++) memset(c->nrm + 3 * c->moved[k], 0, 3 * sizeof(double));
-        const hs_mesh* L = c->live;
-        for (int f = 0; f < L->n_tris; f++) {
-            const int* tr = L->tris + 3 * f;
-            if (!c->nmark[tr[0]] && !c->nmark[tr[1]] && !c->nmark[tr[2]]) continue;
-            double e1[3], e2[3], nn[3];
-            v3_sub(c->x + 3 * tr[1], c->x + 3 * tr[0], e1);
-            v3_sub(c->x + 3 * tr[2], c->x + 3 * tr[0], e2);
-            v3_cross(e1, e2, nn);
-            for (int a = 0; a < 3; a++)
-                if (c->nmark[tr[a]])
-                    for (int d = 0; d < 3; d++) c->nrm[3 * tr[a] + d] += nn[d];
-        }
-    }
+    // Surface normals before this sweep's removals (tets marked 2 are still active here).
+    if (c->def.tangent_surface)
+        for (int k = 0; k < n_cand; k++) surface_normal(c, c->moved[k], c->nrm + 3 * c->moved[k]);
     int n_moved = 0;
     for (int k = 0; k < n_cand; k++) {
         int v = c->moved[k];
@@ -961,7 +1005,7 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
         v3_sub(cand, xv, dc);
         if (v3_dot(dc, dc) < v3_dot(db, db)) memcpy(db, dc, sizeof db);
         memcpy(dx, db, sizeof dx);
-        if (c->def.tangent_surface && c->live->node_surf[v] >= 0) {
+        if (c->def.tangent_surface) {
             double* nv = c->nrm + 3 * v;
             double nn = v3_dot(nv, nv);
             if (nn > 0) {
@@ -1009,7 +1053,7 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
             int v = T[4 * c->removed[k] + a];
             if (c->count[v] == 0) pin_node(c, v);
         }
-    if (c->n_removed > 0 || n_moved > 0) r.fragments = handle_fragments(c);
+    if (c->n_removed > 0) r.fragments = handle_fragments(c); // moves never disconnect
     r.removed = c->n_removed;
     r.pinned = c->n_pins;
     r.geometry_ms = (double)(hs_now_ns() - t0) * 1e-6;
@@ -1032,13 +1076,18 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
         goto done;
     }
     int need = c->n_removed + c->n_changed + c->n_pins, m = 0;
-    int can_update = c->def.update_factor && grow_elems(c, need) == HS_OK;
+    // AUTO: a rank-r update costs about r sparse passes along the elimination tree, a numeric
+    // refactor a fixed amount; both measured as the cut runs. Take the cheaper.
+    int want_update = c->def.factor_policy == HS_CUT_FACTOR_UPDATE ||
+                      (c->def.factor_policy == HS_CUT_FACTOR_AUTO &&
+                       need * c->update_ms_per_change <= c->refactor_ms);
+    int can_update = want_update && grow_elems(c, need) == HS_OK;
     if (can_update) {
         for (int k = 0; k < c->n_removed; k++) add_change(c, &m, c->removed[k], -1, 1);
         for (int k = 0; k < c->n_changed; k++) add_change(c, &m, c->changed[k], -1, 1);
         for (int k = 0; k < c->n_pins; k++) add_change(c, &m, -1, c->pins[k], 0);
     }
-    r.changed_elements = m;
+    r.changed_elements = need;
     if (can_update && c->n_track > 0 && m > 0 && c->cmode == HS_CUT_COMPLIANCE_WOODBURY) {
         st = update_compliance(c, m, 1);
         if (st != HS_OK) {
@@ -1047,14 +1096,19 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
         }
     }
     if (need > 0) {
-        st = can_update ? hs_cholesky_update_elements(c->factor, m, c->dk, c->edof)
-                        : HS_ERR_UNSUPPORTED;
+        int64_t tu = hs_now_ns();
+        st = can_update ? apply_changes(c, m) : HS_ERR_UNSUPPORTED;
         if (st == HS_OK) {
             c->updates_since_refactor++;
+            double per = (double)(hs_now_ns() - tu) * 1e-6 / m;
+            c->update_ms_per_change =
+                c->update_ms_per_change > 0 ? 0.8 * c->update_ms_per_change + 0.2 * per : per;
         } else {
             // Updates off, no memory for them, or a downdate lost definiteness: rebuild.
             r.refactored = 1;
+            int64_t tr = hs_now_ns();
             st = hs_cut_refactor(c);
+            c->refactor_ms = 0.8 * c->refactor_ms + 0.2 * (double)(hs_now_ns() - tr) * 1e-6;
             if (st != HS_OK) {
                 hs_err_set(err, st, "cut: refactorising K after the cut failed: %s",
                            hs_status_str(st));
@@ -1075,12 +1129,12 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
     }
     r.factor_ms = (double)(hs_now_ns() - t1) * 1e-6;
 
-    // 6. Live mesh and checks.
+    // 6. Checks (the live mesh is rebuilt here only when validating, else on first use).
     int64_t t2 = hs_now_ns();
     if (c->n_removed > 0 || n_moved > 0) {
         c->version++;
-        st = rebuild_live(c, err);
-        if (st == HS_OK && c->def.validate) st = hs_cut_validate(c, err);
+        c->live_dirty = 1;
+        if (c->def.validate) st = hs_cut_validate(c, err);
     }
     r.mesh_ms = (double)(hs_now_ns() - t2) * 1e-6;
 done:
@@ -1165,12 +1219,6 @@ hs_status hs_cut_track_compliance(hs_cut* c, int n, const int* nodes, hs_cut_com
     if (n == 0) return HS_OK;
     c->track = hs_alloc(sizeof(int) * (size_t)n);
     c->cblk = hs_alloc(sizeof(double) * 9 * (size_t)n);
-    if (!c->dset) c->dset = hs_alloc(sizeof(int) * (size_t)c->n_free);
-    if (!c->dpos) {
-        c->dpos = hs_alloc(sizeof(int) * (size_t)c->n_free);
-        if (c->dpos)
-            for (int d = 0; d < c->n_free; d++) c->dpos[d] = -1;
-    }
     if (!c->zbuf) c->zbuf = hs_alloc(sizeof(double) * (size_t)c->n_free * HS_CUT_BATCH);
     if (!c->track || !c->cblk || !c->dset || !c->dpos || !c->zbuf) return HS_ERR_NOMEM;
     memcpy(c->track, nodes, sizeof(int) * (size_t)n);
