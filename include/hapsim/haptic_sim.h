@@ -36,11 +36,12 @@ typedef struct hs_probe_def {
     double min_radius_m;    ///< local model validity radius, lower clamp, m
     double max_radius_m;    ///< local model validity radius, upper clamp, m
     double model_timeout_s; ///< local model timeout sent with every force, s
+    double free_relax;      ///< relaxation of the contact-free surface per step, (0, 1]
     int cookie;             ///< set by hs_probe_default_def
 } hs_probe_def;
 
 /// Defaults: radius 1 cm, margin 1 cm, 96 cached columns, 64 new columns per step, validity
-/// radius in [0.2 mm, 5 mm], timeout 50 ms.
+/// radius in [0.2 mm, 5 mm], timeout 50 ms, contact-free relaxation 0.5.
 hs_probe_def hs_probe_default_def(void);
 
 /// Everything the in-process haptic simulation needs. Initialise with hs_haptic_sim_default_def.

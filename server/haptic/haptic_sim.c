@@ -39,6 +39,7 @@ hs_probe_def hs_probe_default_def(void) {
     d.min_radius_m = 0.0002;
     d.max_radius_m = 0.005;
     d.model_timeout_s = 0.05;
+    d.free_relax = 0.5;
     d.cookie = PROBE_COOKIE;
     return d;
 }
@@ -107,6 +108,7 @@ struct hs_haptic_sim {
     double* g;         // [3n] force holding the current shape beyond the non-contact loads
     double* v;         // [3n] C g (in the rest frame of each node)
     double* rot;       // [9n] node rotations at the current state (identity for linear)
+    double* q;         // [3 n_surf] contact-free surface positions (relaxed)
     int* near_node;    // [n_surf] surface indices within reach, scratch
     double* near_dist; // [n_surf]
     int applied_n;     // contact forces in the body now
@@ -212,24 +214,31 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
         memset(h->v, 0, 3 * (size_t)mesh->n_nodes * sizeof(double));
     hs_compliance_begin_step(h->comp);
 
-    // Nearest contactable nodes within reach. |R u| = |u|, so |x - p| - |u| bounds the
-    // contact-free distance from below and rotations are computed only for nodes near the tool.
+    // Relaxed update of the contact-free surface (q += w (x - R C R^T g - q)): exact and
+    // immediate for the linear model (the target is constant), and for the co-rotated one an
+    // under-relaxed defect correction, which keeps converging where a large indentation makes
+    // the true compliance much larger than the rest-state one (see docs/haptics.md).
+    const double w = h->def.probe.free_relax;
+    for (int si = 0; si < ns; ++si) {
+        int node = mesh->surf_nodes[si];
+        const double* xs = h->x + 3 * node;
+        const double* uc = h->v + 3 * node;
+        const double* R = h->rot + 9 * (size_t)node;
+        double* q = h->q + 3 * (size_t)si;
+        for (int a = 0; a < 3; ++a) {
+            double t = xs[a] - (R[3 * a] * uc[0] + R[3 * a + 1] * uc[1] + R[3 * a + 2] * uc[2]);
+            q[a] += w * (t - q[a]);
+        }
+    }
+
+    // Nearest contactable nodes within reach (a linear scan: microseconds per step).
     int n_near = 0;
     for (int si = 0; si < ns; ++si) {
         int node = mesh->surf_nodes[si];
         if (!hs_compliance_contactable(h->comp, node)) continue;
-        const double* xs = h->x + 3 * node;
-        const double* uc = h->v + 3 * node;
-        double v[3] = {xs[0] - p[0], xs[1] - p[1], xs[2] - p[2]};
-        double dx = sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
-        double du = sqrt(uc[0] * uc[0] + uc[1] * uc[1] + uc[2] * uc[2]);
-        if (dx - du >= reach) continue;
-        const double* R = h->rot + 9 * (size_t)node;
-        double ru[3];
-        for (int a = 0; a < 3; ++a)
-            ru[a] = R[3 * a] * uc[0] + R[3 * a + 1] * uc[1] + R[3 * a + 2] * uc[2];
-        double q[3] = {v[0] - ru[0], v[1] - ru[1], v[2] - ru[2]};
-        double dist = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2]);
+        const double* qs = h->q + 3 * (size_t)si;
+        double v[3] = {qs[0] - p[0], qs[1] - p[1], qs[2] - p[2]};
+        double dist = sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
         if (dist >= reach) continue;
         // Keep near_* sorted by distance, at most HS_CONTACT_MAX_CAND + 1 entries (the extra
         // one tells how far the coverage reaches when the list is cut).
@@ -266,11 +275,7 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
         s->node[i] = node;
         s->coupled[i] = (unsigned char)hs_compliance_has_column(h->comp, node);
         coupled += s->coupled[i];
-        const double* R = h->rot + 9 * (size_t)node;
-        const double* uc = h->v + 3 * node;
-        for (int a = 0; a < 3; ++a)
-            s->free_m[i][a] = h->x[3 * node + a] -
-                              (R[3 * a] * uc[0] + R[3 * a + 1] * uc[1] + R[3 * a + 2] * uc[2]);
+        memcpy(s->free_m[i], h->q + 3 * (size_t)si, sizeof s->free_m[i]);
         node_normal(h, si, s->normal[i]);
     }
     for (int i = 0; i < n_near; ++i) {
@@ -456,6 +461,7 @@ void hs_haptic_sim_destroy(hs_haptic_sim** ph) {
     hs_free(h->g);
     hs_free(h->v);
     hs_free(h->rot);
+    hs_free(h->q);
     hs_free(h->near_node);
     hs_free(h->near_dist);
     hs_free(h);
@@ -481,6 +487,10 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
         return hs_err_set(err, HS_ERR_INVALID,
                           "hs_haptic_sim_create: probe cache_nodes %d < %d (candidates + contacts)",
                           pd->cache_nodes, HS_CONTACT_MAX_CAND + HS_MAX_CONTACT);
+    if (!(pd->free_relax > 0 && pd->free_relax <= 1))
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "hs_haptic_sim_create: probe free_relax %g not in (0, 1]",
+                          pd->free_relax);
     if (pd->max_new_columns < 0 || !(pd->min_radius_m >= 0) ||
         !(pd->max_radius_m >= pd->min_radius_m) || !(pd->model_timeout_s > 0))
         return hs_err_set(err, HS_ERR_INVALID,
@@ -513,10 +523,13 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
     h->g = hs_calloc(3 * n, sizeof(double));
     h->v = hs_calloc(3 * n, sizeof(double));
     h->rot = hs_calloc(9 * n, sizeof(double));
+    h->q = hs_calloc(3 * ns, sizeof(double));
     h->near_node = hs_calloc(ns + 1, sizeof(int));
     h->near_dist = hs_calloc(ns + 1, sizeof(double));
-    if (!h->x || !h->g || !h->v || !h->rot || !h->near_node || !h->near_dist) goto nomem;
+    if (!h->x || !h->g || !h->v || !h->rot || !h->q || !h->near_node || !h->near_dist) goto nomem;
     if (build_tri_adjacency(h) != HS_OK) goto nomem;
+    for (size_t si = 0; si < ns; ++si)
+        memcpy(h->q + 3 * si, mesh->x0 + 3 * (size_t)mesh->surf_nodes[si], 3 * sizeof(double));
 
     h->frame_size = sizeof(int64_t) + 3 * n * sizeof(double);
     s = hs_triple_buffer_create(sizeof(hs_contact_snapshot), &h->snap, err);
