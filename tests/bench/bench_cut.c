@@ -1,0 +1,243 @@
+// hapsim-bench cut: cost of one progressive cut step (crossing test, vertex moves, guard, piece
+// detection, element matrices and the CHOLMOD update of K's factor) against a numeric
+// refactorisation and, for small meshes, a dense inversion of K (the paper's method).
+#include "bench.h"
+
+#include "hapsim/cut.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#ifdef HS_BENCH_HAVE_LAPACK
+// LAPACK (OpenBLAS): Cholesky factor and inverse of a dense SPD matrix.
+void dpotrf_(const char* uplo, const int* n, double* a, const int* lda, int* info);
+void dpotri_(const char* uplo, const int* n, double* a, const int* lda, int* info);
+#endif
+
+#define HS_BENCH_DENSE_MAX 4000 // dense inversion only below this many dofs
+
+typedef struct cut_case {
+    const char* name;
+    const char* file; // shared mesh, or NULL for a box
+    double lx, ly, lz;
+    int nx, ny, nz;
+    int quick;
+    int vertices, tets; // filled in when loaded
+} cut_case;
+
+/// Dense inversion of K (dpotrf + dpotri), ms; negative when skipped or failed.
+static double dense_inverse_ms(hs_cut* c) {
+#ifndef HS_BENCH_HAVE_LAPACK
+    (void)c;
+    return -1;
+#else
+    int nf = hs_cut_free_dofs(c);
+    if (nf > HS_BENCH_DENSE_MAX) return -1;
+    hs_csc* a = NULL;
+    if (hs_cut_create_matrix(c, &a) != HS_OK) return -1;
+    hs_cut_assemble(c, a);
+    double* d = calloc((size_t)nf * (size_t)nf, sizeof(double));
+    if (!d) {
+        hs_csc_destroy(&a);
+        return -1;
+    }
+    for (int j = 0; j < nf; j++)
+        for (int p = a->colp[j]; p < a->colp[j + 1]; p++)
+            d[(size_t)j * nf + (size_t)a->rowi[p]] = a->val[p];
+    int info = 0;
+    int64_t t0 = hs_now_ns();
+    dpotrf_("L", &nf, d, &nf, &info);
+    if (info == 0) dpotri_("L", &nf, d, &nf, &info);
+    double ms = (double)(hs_now_ns() - t0) * 1e-6;
+    free(d);
+    hs_csc_destroy(&a);
+    return info == 0 ? ms : -1;
+#endif
+}
+
+/// Median of a few numeric refactorisations of a fresh (supernodal) factor of K, ms.
+static double refactor_ms(hs_cut* c) {
+    hs_csc* a = NULL;
+    hs_cholesky* f = NULL;
+    hs_err e;
+    if (hs_cut_create_matrix(c, &a) != HS_OK) return -1;
+    hs_cut_assemble(c, a);
+    double t[5];
+    int k = 0;
+    if (hs_cholesky_create(a, &f, &e) == HS_OK)
+        for (; k < 5; k++) {
+            int64_t t0 = hs_now_ns();
+            if (hs_cholesky_refactor(f, a) != HS_OK) break;
+            t[k] = (double)(hs_now_ns() - t0) * 1e-6;
+        }
+    hs_cholesky_destroy(&f);
+    hs_csc_destroy(&a);
+    return k > 0 ? hs_bench_percentile(t, (size_t)k, 50) : -1;
+}
+
+typedef struct pass_stats {
+    double p50, p99, removed_per_step, geometry_ms, factor_ms, changes;
+    int steps, refactors;
+    double dense_ms, refactor_ms;
+} pass_stats;
+
+/// Two parallel partial cuts (80 % of the width, so no piece comes free) at 40 % and 60 % of
+/// the length, each the wound forming step by step under the blade (about 0.6 element of travel
+/// per step), with the given factor policy. Returns 0 on success.
+static int run_pass(const cut_case* cc, const hs_bench_args* args, hs_cut_factor_policy policy,
+                    int measure_reference, pass_stats* ps) {
+    memset(ps, 0, sizeof *ps);
+    ps->dense_ms = ps->refactor_ms = -1;
+    hs_mesh* m = NULL;
+    hs_err e;
+    hs_status st;
+    if (cc->file) {
+        char path[1024];
+        snprintf(path, sizeof path, "%s/%s", args->meshes, cc->file);
+        st = hs_mesh_load(path, &m, &e);
+    } else {
+        st = hs_mesh_create_box(cc->lx, cc->ly, cc->lz, cc->nx, cc->ny, cc->nz, &m, &e);
+    }
+    if (st < 0) {
+        fprintf(stderr, "bench cut: %s: %s\n", cc->name, e.msg);
+        return 1;
+    }
+    const int n = m->n_nodes;
+    double lo[3], ext[3];
+    for (int d = 0; d < 3; d++) {
+        lo[d] = m->bbox_min[d];
+        ext[d] = m->bbox_max[d] - m->bbox_min[d];
+    }
+    // Hold both x ends; the blade lies along the thinnest axis and sweeps along the other one.
+    unsigned char* fixed = calloc((size_t)n, 1);
+    unsigned char* far = calloc((size_t)n, 1);
+    hs_mesh_select_plane(m, 0, -1, cc->file ? 0.05 * ext[0] : 1e-9, fixed);
+    hs_mesh_select_plane(m, 0, +1, cc->file ? 0.05 * ext[0] : 1e-9, far);
+    for (int i = 0; i < n; i++) fixed[i] |= far[i];
+    free(far);
+    int thin = ext[1] < ext[2] ? 1 : 2, sweep_axis = thin == 1 ? 2 : 1;
+    hs_cut_def def = hs_cut_default_def();
+    def.validate = 0;
+    def.factor_policy = policy;
+    hs_cut* c = NULL;
+    st = hs_cut_create(m, fixed, &def, &c, &e);
+    if (st != HS_OK) {
+        fprintf(stderr, "bench cut: %s: %s\n", cc->name, e.msg);
+        free(fixed);
+        hs_mesh_destroy(&m);
+        return 1;
+    }
+    if (measure_reference) {
+        ps->dense_ms = dense_inverse_ms(c);
+        ps->refactor_ms = refactor_ms(c);
+    }
+    enum { MAX_STEPS = 512 };
+    double ms[MAX_STEPS];
+    long removed = 0, chg = 0;
+    int n_steps = cc->file ? 30 : (sweep_axis == 1 ? cc->ny : cc->nz) * 2;
+    double travel = 0.8 * ext[sweep_axis] / n_steps;
+    int failures = 0;
+    for (int cut = 0; cut < 2 && !failures; cut++) {
+        double xc = lo[0] + (0.4 + 0.2 * cut) * ext[0] + 1e-4 * ext[0];
+        for (int s = 0; s < n_steps && ps->steps < MAX_STEPS; s++) {
+            double a0 = lo[sweep_axis] - 0.05 * ext[sweep_axis] + travel * s, a1 = a0 + travel;
+            double p0[3], q0[3], p1[3], q1[3];
+            p0[0] = q0[0] = p1[0] = q1[0] = xc;
+            p0[thin] = p1[thin] = lo[thin] - 0.1 * ext[thin];
+            q0[thin] = q1[thin] = lo[thin] + 1.1 * ext[thin];
+            p0[sweep_axis] = q0[sweep_axis] = a0;
+            p1[sweep_axis] = q1[sweep_axis] = a1;
+            hs_cut_result r;
+            if (hs_cut_sweep(c, p0, q0, p1, q1, NULL, &r, &e) != HS_OK) {
+                fprintf(stderr, "bench cut: %s: %s\n", cc->name, e.msg);
+                failures++;
+                break;
+            }
+            if (r.changed_elements == 0) continue;
+            ms[ps->steps++] = r.total_ms;
+            removed += r.removed;
+            chg += r.changed_elements;
+            ps->geometry_ms += r.geometry_ms;
+            ps->factor_ms += r.factor_ms;
+            ps->refactors += r.refactored;
+        }
+    }
+    if (ps->steps) {
+        ps->removed_per_step = (double)removed / ps->steps;
+        ps->changes = (double)chg / ps->steps;
+        ps->geometry_ms /= ps->steps;
+        ps->factor_ms /= ps->steps;
+        ps->p50 = hs_bench_percentile(ms, (size_t)ps->steps, 50);
+        ps->p99 = hs_bench_percentile(ms, (size_t)ps->steps, 99);
+    }
+    free(fixed);
+    hs_cut_destroy(&c);
+    hs_mesh_destroy(&m);
+    return failures ? 1 : 0;
+}
+
+static int run_case(const cut_case* cc, const hs_bench_args* args) {
+    pass_stats up, au;
+    int rc = run_pass(cc, args, HS_CUT_FACTOR_UPDATE, 1, &up);
+    rc |= run_pass(cc, args, HS_CUT_FACTOR_AUTO, 0, &au);
+    hs_mesh* m = NULL;
+    char dense_s[32];
+    if (up.dense_ms >= 0)
+        snprintf(dense_s, sizeof dense_s, "%.2f", up.dense_ms);
+    else
+        snprintf(dense_s, sizeof dense_s, "NA");
+    (void)m;
+    printf("%s,%d,%d,%.1f,%.3f,%.3f,%.2f,%s\n", cc->name, cc->vertices, cc->tets,
+           up.removed_per_step, up.p50, up.p99, up.refactor_ms, dense_s);
+    fflush(stdout);
+    fprintf(
+        stderr,
+        "cut: %s: %d steps, %.1f element changes/step; low-rank update: geometry %.3f ms + "
+        "factor %.3f ms; AUTO policy: step p50 %.3f ms p99 %.3f ms (%d of %d steps refactored)\n",
+        cc->name, up.steps, up.changes, up.geometry_ms, up.factor_ms, au.p50, au.p99, au.refactors,
+        au.steps);
+    return rc;
+}
+
+int hs_bench_cut(const hs_bench_args* a) {
+    cut_case cases[] = {
+        {"plate192", NULL, 0.2, 0.2, 0.01, 7, 7, 2, 0, 0, 0},
+        {"plate288", NULL, 0.2, 0.2, 0.01, 11, 11, 1, 0, 0, 0},
+        {"plate432", NULL, 0.2, 0.2, 0.01, 11, 11, 2, 1, 0, 0},
+        {"liver2", "liver2.msh", 0, 0, 0, 0, 0, 0, 0, 0, 0},
+        {"tongue", "tongue.msh", 0, 0, 0, 0, 0, 0, 0, 0, 0},
+        {"vessel", "aneurysm_vessel.msh", 0, 0, 0, 0, 0, 0, 0, 0, 0},
+        {"plate5043", NULL, 0.2, 0.2, 0.01, 40, 40, 2, 1, 0, 0},
+    };
+    hs_sparse_set_threads(1);
+    printf("mesh,vertices,tets,removed_per_step,update_ms_p50,update_ms_p99,refactor_ms,"
+           "dense_inverse_ms\n");
+    int rc = 0;
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+        if (a->quick && !cases[i].quick) continue;
+        fprintf(stderr, "cut: %s\n", cases[i].name);
+        hs_mesh* m = NULL;
+        hs_err e;
+        hs_status st;
+        if (cases[i].file) {
+            char path[1024];
+            snprintf(path, sizeof path, "%s/%s", a->meshes, cases[i].file);
+            st = hs_mesh_load(path, &m, &e);
+        } else {
+            st = hs_mesh_create_box(cases[i].lx, cases[i].ly, cases[i].lz, cases[i].nx, cases[i].ny,
+                                    cases[i].nz, &m, &e);
+        }
+        if (st < 0) {
+            fprintf(stderr, "bench cut: %s: %s\n", cases[i].name, e.msg);
+            rc = 1;
+            continue;
+        }
+        cases[i].vertices = m->n_nodes;
+        cases[i].tets = m->n_tets;
+        hs_mesh_destroy(&m);
+        rc |= run_case(&cases[i], a);
+    }
+    return rc;
+}
