@@ -24,6 +24,7 @@ struct hs_mesh_sync {
     int64_t kf_id, last_delta_seq;
     int have_seq[4];
     int64_t last_seq[4];
+    int64_t last_topo_utime; // utime of the newest topology message seen
     hs_client_mesh view;
     hs_sync_stats st;
 };
@@ -140,7 +141,11 @@ static int track_seq(hs_mesh_sync* s, int kind, int64_t seq) {
 static hs_sync_result on_topology(hs_mesh_sync* s, const void* buf, size_t len) {
     hs_wire_topology w;
     if (hs_wire_topology_decode(buf, len, &w)) return HS_SYNC_MALFORMED;
-    int restarted = track_seq(s, HS_SYNC_TOPOLOGY, w.seq);
+    // A seq that went backwards with a later utime is a restarted server (a reordered message
+    // has an earlier utime): its topology is taken whatever its version.
+    int back = track_seq(s, HS_SYNC_TOPOLOGY, w.seq);
+    int restarted = back && w.utime > s->last_topo_utime;
+    if (w.utime > s->last_topo_utime) s->last_topo_utime = w.utime;
     int64_t newest = hs_mesh_sync_newest_topology(s);
     if (!restarted && newest >= 0 && w.topology_version <= newest)
         return w.topology_version == newest ? HS_SYNC_HELD : HS_SYNC_STALE;
@@ -237,7 +242,10 @@ static hs_sync_result on_event(hs_mesh_sync* s, const void* buf, size_t len) {
 
 hs_sync_result hs_mesh_sync_feed(hs_mesh_sync* s, hs_sync_kind kind, const void* buf, size_t len) {
     hs_sync_result r;
-    if (kind < HS_SYNC_TOPOLOGY || kind > HS_SYNC_EVENT) return HS_SYNC_MALFORMED;
+    if (kind < HS_SYNC_TOPOLOGY || kind > HS_SYNC_EVENT) {
+        s->st.malformed++;
+        return HS_SYNC_MALFORMED;
+    }
     s->st.received[kind]++;
     switch (kind) {
     case HS_SYNC_TOPOLOGY:

@@ -153,8 +153,8 @@ hs_status hs_mesh_sync_create(hs_mesh_sync** out /* OUT */, hs_err* err);
 /// Release; accepts NULL and *s == NULL; sets *s = NULL. Thread: the owner
 void hs_mesh_sync_destroy(hs_mesh_sync** s);
 /// Feed one message (raw bytes, fingerprint first). Rules (docs/protocol.md "Watching the mesh"):
-/// a topology with a newer version (or any version after its seq went backwards: the server
-/// restarted) is held until a keyframe of that version arrives; a keyframe is shown when its
+/// a topology with a newer version (or any version when its seq went backwards with a later
+/// utime: the server restarted) is held until a keyframe of that version arrives; a keyframe is shown when its
 /// topology version is held and its keyframe_id is newer; a delta only when topology version and
 /// keyframe_id match the shown keyframe and its seq is newer. Never crashes on any bytes.
 /// Thread: the owner | Allocates: only when a topology needs larger arrays

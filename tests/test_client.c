@@ -1,0 +1,660 @@
+// libhapsim-client without a network: the mesh-sync state machine fed with encoded messages
+// (late join, 30 % loss, wrong versions, server restart, malformed and random input), the
+// wire decoders, the local force model and its blending, the status decoder.
+#include <stdint.h>
+#include <stdlib.h>
+
+#include "hapsim/client.h"
+#include "hapsim_command_ack_t.h"
+#include "hapsim_mesh_delta_t.h"
+#include "hapsim_mesh_state_t.h"
+#include "hapsim_mesh_topology_t.h"
+#include "hapsim_server_status_t.h"
+#include "hapsim_tool_force_t.h"
+#include "hapsim_topology_event_t.h"
+#include "test_macros.h"
+
+// ---------------------------------------------------------------------------------------------
+// Encoded messages.
+
+typedef struct msg {
+    hs_sync_kind kind;
+    int len;
+    uint8_t* buf;
+} msg;
+
+static uint64_t rng_state = 0x9e3779b97f4a7c15ull;
+static uint64_t rnd(void) { // xorshift64*
+    rng_state ^= rng_state >> 12;
+    rng_state ^= rng_state << 25;
+    rng_state ^= rng_state >> 27;
+    return rng_state * 2685821657736338717ull;
+}
+static int64_t g_clock = 1000000; // server utime of the next encoded message
+static double rnd01(void) {
+    return (double)(rnd() >> 11) / 9007199254740992.0;
+}
+
+static msg enc_topology(int64_t seq, int64_t version, int32_t n_vis, const float* rest,
+                        int32_t n_tri, const int32_t* tri) {
+    hapsim_mesh_topology_t t;
+    memset(&t, 0, sizeof t);
+    t.utime = g_clock += 1000;
+    t.seq = seq;
+    t.topology_version = version;
+    t.n_nodes = n_vis + 10;
+    t.n_vis = n_vis;
+    int32_t* vis = malloc((size_t)n_vis * sizeof *vis);
+    for (int32_t i = 0; i < n_vis; i++) vis[i] = i + 5;
+    t.vis_nodes = vis;
+    t.n_rest = 3 * n_vis;
+    t.rest_position = (float*)(uintptr_t)rest; // the encoder only reads
+    t.n_tri_idx = 3 * n_tri;
+    t.triangles = (int32_t*)(uintptr_t)tri;
+    msg m = {HS_SYNC_TOPOLOGY, hapsim_mesh_topology_t_encoded_size(&t), NULL};
+    m.buf = malloc((size_t)m.len);
+    hapsim_mesh_topology_t_encode(m.buf, 0, m.len, &t);
+    free(vis);
+    return m;
+}
+
+static msg enc_state(int64_t seq, int64_t version, int64_t kf, int32_t n_vis, const float* pos,
+                     int with_stress) {
+    hapsim_mesh_state_t s;
+    memset(&s, 0, sizeof s);
+    s.utime = g_clock += 1000;
+    s.seq = seq;
+    s.topology_version = version;
+    s.keyframe_id = kf;
+    s.sim_step = seq;
+    s.sim_time = 0.01 * (double)seq;
+    s.n_pos = 3 * n_vis;
+    s.position = (float*)(uintptr_t)pos;
+    float* st = NULL;
+    if (with_stress) {
+        st = malloc((size_t)n_vis * sizeof *st);
+        for (int32_t i = 0; i < n_vis; i++) st[i] = 100.0f * (float)i;
+        s.n_stress = n_vis;
+        s.stress = st;
+    }
+    msg m = {HS_SYNC_STATE, hapsim_mesh_state_t_encoded_size(&s), NULL};
+    m.buf = malloc((size_t)m.len);
+    hapsim_mesh_state_t_encode(m.buf, 0, m.len, &s);
+    free(st);
+    return m;
+}
+
+// Delta of pos against kf (every node that differs, as the server does).
+static msg enc_delta(int64_t seq, int64_t version, int64_t kf_id, int32_t n_vis, const float* kf,
+                     const float* pos) {
+    hapsim_mesh_delta_t d;
+    memset(&d, 0, sizeof d);
+    d.utime = g_clock += 1000;
+    d.seq = seq;
+    d.topology_version = version;
+    d.keyframe_id = kf_id;
+    d.sim_step = seq;
+    int32_t* idx = malloc((size_t)n_vis * sizeof *idx + 4);
+    float* dl = malloc((size_t)n_vis * 3 * sizeof *dl + 4);
+    for (int32_t i = 0; i < n_vis; i++)
+        if (pos[3 * i] != kf[3 * i] || pos[3 * i + 1] != kf[3 * i + 1] ||
+            pos[3 * i + 2] != kf[3 * i + 2]) {
+            idx[d.n_changed] = i;
+            for (int k = 0; k < 3; k++) dl[3 * d.n_changed + k] = pos[3 * i + k] - kf[3 * i + k];
+            d.n_changed++;
+        }
+    d.index = idx;
+    d.n_delta = 3 * d.n_changed;
+    d.delta = dl;
+    msg m = {HS_SYNC_DELTA, hapsim_mesh_delta_t_encoded_size(&d), NULL};
+    m.buf = malloc((size_t)m.len);
+    hapsim_mesh_delta_t_encode(m.buf, 0, m.len, &d);
+    free(idx);
+    free(dl);
+    return m;
+}
+
+static msg enc_event(int64_t seq, int64_t old_v, int64_t new_v) {
+    hapsim_topology_event_t e;
+    memset(&e, 0, sizeof e);
+    e.utime = g_clock += 1000;
+    e.seq = seq;
+    e.old_version = old_v;
+    e.new_version = new_v;
+    int32_t rem[2] = {3, 4};
+    e.n_removed = 2;
+    e.removed_tets = rem;
+    msg m = {HS_SYNC_EVENT, hapsim_topology_event_t_encoded_size(&e), NULL};
+    m.buf = malloc((size_t)m.len);
+    hapsim_topology_event_t_encode(m.buf, 0, m.len, &e);
+    return m;
+}
+
+// ---------------------------------------------------------------------------------------------
+// A scripted server: a closed surface (a subdivided cube's grid of nodes with a triangle fan)
+// that deforms every frame, a keyframe every 15 frames, cuts at frames 120 and 240 (a new
+// topology with fewer triangles and moved rest positions, then a keyframe), topology repeats
+// every 30 frames.
+
+typedef struct stream {
+    msg* m;
+    int n, cap;
+} stream;
+
+static void push(stream* s, msg m) {
+    if (s->n == s->cap) {
+        s->cap = s->cap ? 2 * s->cap : 256;
+        s->m = realloc(s->m, (size_t)s->cap * sizeof *s->m);
+    }
+    s->m[s->n++] = m;
+}
+static void stream_free(stream* s) {
+    for (int i = 0; i < s->n; i++) free(s->m[i].buf);
+    free(s->m);
+    memset(s, 0, sizeof *s);
+}
+
+enum { NV = 150, FRAMES = 360 };
+
+static void make_stream(stream* s, int with_stress) {
+    float rest[3 * NV], pos[3 * NV], kf[3 * NV];
+    int32_t tri[3 * 2 * NV];
+    int32_t n_tri = 0;
+    for (int32_t i = 0; i < NV; i++) {
+        rest[3 * i] = 0.001f * (float)(i % 10);
+        rest[3 * i + 1] = 0.001f * (float)((i / 10) % 5);
+        rest[3 * i + 2] = 0.002f * (float)(i / 50);
+    }
+    for (int32_t i = 0; i + 2 < NV; i++) {
+        tri[3 * n_tri] = i;
+        tri[3 * n_tri + 1] = i + 1;
+        tri[3 * n_tri + 2] = i + 2;
+        n_tri++;
+    }
+    int64_t seq_t = 0, seq_s = 0, seq_d = 0, seq_e = 0, version = 1, kf_id = 0;
+    memcpy(pos, rest, sizeof pos);
+    memcpy(kf, rest, sizeof kf);
+    push(s, enc_topology(seq_t++, version, NV, rest, n_tri, tri));
+    push(s, enc_state(seq_s++, version, kf_id, NV, kf, with_stress));
+    for (int f = 1; f <= FRAMES; f++) {
+        // Deform: a travelling bump moves a third of the nodes.
+        for (int32_t i = 0; i < NV; i++) {
+            float w = (float)((i + f) % 3 == 0);
+            pos[3 * i + 2] = rest[3 * i + 2] + w * 0.0005f * (float)((f * 7 + i) % 11);
+        }
+        if (f % 120 == 0) { // a cut: drop triangles, move some rest positions
+            push(s, enc_event(seq_e++, version, version + 1));
+            version++;
+            n_tri -= 10;
+            for (int32_t i = 0; i < 5; i++) rest[3 * (i * 7)] += 0.0003f;
+            push(s, enc_topology(seq_t++, version, NV, rest, n_tri, tri));
+            memcpy(kf, pos, sizeof kf);
+            push(s, enc_state(seq_s++, version, ++kf_id, NV, kf, with_stress));
+        } else if (f % 15 == 0) {
+            memcpy(kf, pos, sizeof kf);
+            push(s, enc_state(seq_s++, version, ++kf_id, NV, kf, with_stress));
+        } else {
+            push(s, enc_delta(seq_d++, version, kf_id, NV, kf, pos));
+        }
+        if (f % 30 == 0) push(s, enc_topology(seq_t++, version, NV, rest, n_tri, tri));
+    }
+    // The tail a late or lossy client recovers with: the periodic topology and a keyframe.
+    push(s, enc_topology(seq_t++, version, NV, rest, n_tri, tri));
+    memcpy(kf, pos, sizeof kf);
+    push(s, enc_state(seq_s++, version, ++kf_id, NV, kf, with_stress));
+    pos[2] += 0.001f;
+    push(s, enc_delta(seq_d++, version, kf_id, NV, kf, pos));
+}
+
+// FNV-1a over everything visible.
+static uint64_t mesh_hash(const hs_client_mesh* m) {
+    uint64_t h = 1469598103934665603ull;
+#define MIX(p, n)                                                                                  \
+    for (size_t q_ = 0; q_ < (n); q_++) h = (h ^ ((const uint8_t*)(p))[q_]) * 1099511628211ull
+    MIX(&m->topology_version, 8);
+    MIX(&m->n_vis, 4);
+    MIX(&m->n_tri, 4);
+    MIX(m->position, (size_t)m->n_vis * 12);
+    MIX(m->rest, (size_t)m->n_vis * 12);
+    MIX(m->triangles, (size_t)m->n_tri * 12);
+    MIX(m->vis_nodes, (size_t)m->n_vis * 4);
+    if (m->stress) MIX(m->stress, (size_t)m->n_vis * 4);
+#undef MIX
+    return h;
+}
+
+// A visible mesh must always be self-consistent.
+static int consistent(const hs_client_mesh* m) {
+    if (!m->ready) return 0;
+    ENSURE(m->n_vis >= 0 && m->n_tri >= 0);
+    for (int32_t i = 0; i < 3 * m->n_tri; i++)
+        ENSURE(m->triangles[i] >= 0 && m->triangles[i] < m->n_vis);
+    for (int32_t i = 0; i < 3 * m->n_vis; i++) ENSURE(isfinite(m->position[i]));
+    for (int32_t i = 0; i < m->n_vis; i++)
+        ENSURE(m->vis_nodes[i] >= 0 && m->vis_nodes[i] < m->n_nodes);
+    return 0;
+}
+
+static int test_lossless_follows_server(void) {
+    int64_t bytes0 = hs_client_byte_count();
+    stream s = {0};
+    make_stream(&s, 1);
+    hs_mesh_sync* a = NULL;
+    ENSURE(hs_mesh_sync_create(&a, NULL) == HS_OK);
+    int applied = 0;
+    for (int i = 0; i < s.n; i++) {
+        hs_sync_result r = hs_mesh_sync_feed(a, s.m[i].kind, s.m[i].buf, (size_t)s.m[i].len);
+        ENSURE(r == HS_SYNC_APPLIED || r == HS_SYNC_HELD);
+        applied += r == HS_SYNC_APPLIED;
+        ENSURE(consistent(hs_mesh_sync_mesh(a)) == 0);
+    }
+    hs_sync_stats st;
+    hs_mesh_sync_stats(a, &st);
+    ENSURE(applied == FRAMES + 3); // first keyframe, one per frame, tail keyframe + delta
+    ENSURE(st.malformed == 0 && st.stale == 0 && st.mismatched == 0);
+    ENSURE(st.lost[0] + st.lost[1] + st.lost[2] + st.lost[3] == 0);
+    ENSURE(st.topologies == 4 && st.events == 3 && st.last_event_new == 4);
+    const hs_client_mesh* m = hs_mesh_sync_mesh(a);
+    ENSURE(m->topology_version == 4 && m->n_tri == NV - 2 - 30 && m->stress != NULL);
+    ENSURE(m->stress[7] == 700.0f && m->vis_nodes[0] == 5);
+    hs_mesh_sync_destroy(&a);
+    ENSURE(a == NULL);
+    hs_mesh_sync_destroy(&a); // NULL is fine
+    stream_free(&s);
+    ENSURE(hs_client_byte_count() == bytes0);
+    return 0;
+}
+
+// 30 % of the mesh messages lost at random: every mesh shown equals one the lossless client
+// showed (never a mix), and after the tail both are bitwise identical. Several seeds.
+static int test_loss_converges(void) {
+    stream s = {0};
+    make_stream(&s, 0);
+    uint64_t* seen = malloc((size_t)s.n * sizeof *seen);
+    int n_seen = 0;
+    hs_mesh_sync* a = NULL;
+    ENSURE(hs_mesh_sync_create(&a, NULL) == HS_OK);
+    for (int i = 0; i < s.n; i++)
+        if (hs_mesh_sync_feed(a, s.m[i].kind, s.m[i].buf, (size_t)s.m[i].len) == HS_SYNC_APPLIED)
+            seen[n_seen++] = mesh_hash(hs_mesh_sync_mesh(a));
+    for (int seed = 1; seed <= 20; seed++) {
+        rng_state = 0x1234567ull * (uint64_t)seed + 1;
+        hs_mesh_sync* b = NULL;
+        ENSURE(hs_mesh_sync_create(&b, NULL) == HS_OK);
+        int dropped = 0, shown = 0;
+        for (int i = 0; i < s.n; i++) {
+            int tail = i >= s.n - 3;
+            if (!tail && rnd01() < 0.30) {
+                dropped++;
+                continue;
+            }
+            hs_sync_result r = hs_mesh_sync_feed(b, s.m[i].kind, s.m[i].buf, (size_t)s.m[i].len);
+            ENSURE(r != HS_SYNC_MALFORMED && r != HS_SYNC_NOMEM);
+            const hs_client_mesh* m = hs_mesh_sync_mesh(b);
+            ENSURE(consistent(m) == 0);
+            if (r == HS_SYNC_APPLIED) {
+                uint64_t h = mesh_hash(m);
+                int found = 0;
+                for (int j = 0; j < n_seen && !found; j++) found = seen[j] == h;
+                ENSURE(found);
+                shown++;
+            }
+        }
+        ENSURE(dropped > s.n / 5 && dropped < s.n * 2 / 5);
+        ENSURE(shown > 50);
+        hs_sync_stats st;
+        hs_mesh_sync_stats(b, &st);
+        ENSURE(st.lost[HS_SYNC_DELTA] > 0 && st.malformed == 0);
+        const hs_client_mesh *ma = hs_mesh_sync_mesh(a), *mb = hs_mesh_sync_mesh(b);
+        ENSURE(ma->topology_version == mb->topology_version && ma->n_vis == mb->n_vis);
+        ENSURE(ma->n_tri == mb->n_tri && ma->keyframe_id == mb->keyframe_id);
+        ENSURE(memcmp(ma->position, mb->position, (size_t)ma->n_vis * 12) == 0);
+        ENSURE(memcmp(ma->rest, mb->rest, (size_t)ma->n_vis * 12) == 0);
+        ENSURE(memcmp(ma->triangles, mb->triangles, (size_t)ma->n_tri * 12) == 0);
+        hs_mesh_sync_destroy(&b);
+    }
+    hs_mesh_sync_destroy(&a);
+    free(seen);
+    stream_free(&s);
+    return 0;
+}
+
+static int test_late_join(void) {
+    float rest[3 * 4] = {0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1};
+    float kf[12], pos[12];
+    int32_t tri[6] = {0, 1, 2, 0, 2, 3};
+    for (int i = 0; i < 12; i++) kf[i] = rest[i] + 0.25f;
+    memcpy(pos, kf, sizeof pos);
+    pos[4] += 0.125f;
+    msg d0 = enc_delta(10, 4, 7, 4, kf, pos);
+    msg k0 = enc_state(3, 4, 7, 4, kf, 0);
+    msg t0 = enc_topology(2, 4, 4, rest, 2, tri);
+    hs_mesh_sync* s = NULL;
+    ENSURE(hs_mesh_sync_create(&s, NULL) == HS_OK);
+    // A joiner hears a delta first, then a keyframe before any topology: both wait.
+    ENSURE(hs_mesh_sync_feed(s, HS_SYNC_DELTA, d0.buf, (size_t)d0.len) == HS_SYNC_MISMATCH);
+    ENSURE(hs_mesh_sync_feed(s, HS_SYNC_STATE, k0.buf, (size_t)k0.len) == HS_SYNC_MISMATCH);
+    ENSURE(!hs_mesh_sync_mesh(s)->ready);
+    ENSURE(hs_mesh_sync_feed(s, HS_SYNC_TOPOLOGY, t0.buf, (size_t)t0.len) == HS_SYNC_HELD);
+    ENSURE(!hs_mesh_sync_mesh(s)->ready && hs_mesh_sync_newest_topology(s) == 4);
+    ENSURE(hs_mesh_sync_feed(s, HS_SYNC_STATE, k0.buf, (size_t)k0.len) == HS_SYNC_APPLIED);
+    const hs_client_mesh* m = hs_mesh_sync_mesh(s);
+    ENSURE(m->ready && m->topology_version == 4 && m->keyframe_id == 7 && m->n_tri == 2);
+    ENSURE(memcmp(m->position, kf, sizeof kf) == 0 && m->delta_seq == -1);
+    ENSURE(hs_mesh_sync_feed(s, HS_SYNC_DELTA, d0.buf, (size_t)d0.len) == HS_SYNC_APPLIED);
+    ENSURE(memcmp(m->position, pos, sizeof pos) == 0 && m->delta_seq == 10);
+    // The same keyframe again is stale; the same delta again too.
+    ENSURE(hs_mesh_sync_feed(s, HS_SYNC_STATE, k0.buf, (size_t)k0.len) == HS_SYNC_STALE);
+    ENSURE(hs_mesh_sync_feed(s, HS_SYNC_DELTA, d0.buf, (size_t)d0.len) == HS_SYNC_STALE);
+    ENSURE(memcmp(m->position, pos, sizeof pos) == 0);
+    free(d0.buf);
+    free(k0.buf);
+    free(t0.buf);
+    hs_mesh_sync_destroy(&s);
+    return 0;
+}
+
+static int test_wrong_versions_ignored(void) {
+    float rest[12] = {0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1}, kf[12], p1[12];
+    int32_t tri[6] = {0, 1, 2, 0, 2, 3};
+    for (int i = 0; i < 12; i++) kf[i] = rest[i] * 2;
+    memcpy(p1, kf, sizeof p1);
+    p1[0] = 9;
+    hs_mesh_sync* s = NULL;
+    ENSURE(hs_mesh_sync_create(&s, NULL) == HS_OK);
+    msg t = enc_topology(0, 1, 4, rest, 2, tri), k = enc_state(0, 1, 5, 4, kf, 0);
+    ENSURE(hs_mesh_sync_feed(s, HS_SYNC_TOPOLOGY, t.buf, (size_t)t.len) == HS_SYNC_HELD);
+    ENSURE(hs_mesh_sync_feed(s, HS_SYNC_STATE, k.buf, (size_t)k.len) == HS_SYNC_APPLIED);
+    const hs_client_mesh* m = hs_mesh_sync_mesh(s);
+    uint64_t h0 = mesh_hash(m);
+    msg bad[4] = {enc_delta(1, 2, 5, 4, kf, p1),  // other topology version
+                  enc_delta(2, 1, 4, 4, kf, p1),  // older keyframe
+                  enc_delta(3, 1, 6, 4, kf, p1),  // a keyframe we never got
+                  enc_delta(4, 0, 5, 4, kf, p1)}; // an older topology
+    for (int i = 0; i < 4; i++) {
+        ENSURE(hs_mesh_sync_feed(s, HS_SYNC_DELTA, bad[i].buf, (size_t)bad[i].len) ==
+               HS_SYNC_MISMATCH);
+        ENSURE(mesh_hash(m) == h0);
+        free(bad[i].buf);
+    }
+    // A keyframe for another topology version does not replace ours.
+    msg k2 = enc_state(1, 2, 9, 4, p1, 0);
+    ENSURE(hs_mesh_sync_feed(s, HS_SYNC_STATE, k2.buf, (size_t)k2.len) == HS_SYNC_MISMATCH);
+    ENSURE(mesh_hash(m) == h0);
+    // A delta indexing past n_vis (valid on its own) is malformed for this topology.
+    float big[15] = {0};
+    msg d5 = enc_delta(9, 1, 5, 5, big, big);
+    int32_t far_idx = 4;
+    // hand-build: one changed node with index 4 (n_vis is 4)
+    hapsim_mesh_delta_t dd;
+    memset(&dd, 0, sizeof dd);
+    dd.seq = 9;
+    dd.topology_version = 1;
+    dd.keyframe_id = 5;
+    dd.n_changed = 1;
+    dd.index = &far_idx;
+    dd.n_delta = 3;
+    dd.delta = big;
+    free(d5.buf);
+    d5.len = hapsim_mesh_delta_t_encoded_size(&dd);
+    d5.buf = malloc((size_t)d5.len);
+    hapsim_mesh_delta_t_encode(d5.buf, 0, d5.len, &dd);
+    ENSURE(hs_mesh_sync_feed(s, HS_SYNC_DELTA, d5.buf, (size_t)d5.len) == HS_SYNC_MALFORMED);
+    ENSURE(mesh_hash(m) == h0);
+    // A newer topology is held; the old one stays visible (and takes its deltas) until a
+    // keyframe of the new version arrives.
+    msg t2 = enc_topology(1, 2, 3, rest, 1, tri);
+    ENSURE(hs_mesh_sync_feed(s, HS_SYNC_TOPOLOGY, t2.buf, (size_t)t2.len) == HS_SYNC_HELD);
+    ENSURE(m->topology_version == 1 && m->n_vis == 4 && mesh_hash(m) == h0);
+    msg d1 = enc_delta(20, 1, 5, 4, kf, p1);
+    ENSURE(hs_mesh_sync_feed(s, HS_SYNC_DELTA, d1.buf, (size_t)d1.len) == HS_SYNC_APPLIED);
+    ENSURE(m->position[0] == 9.0f && m->n_vis == 4);
+    msg k3 = enc_state(2, 2, 6, 3, rest, 0);
+    ENSURE(hs_mesh_sync_feed(s, HS_SYNC_STATE, k3.buf, (size_t)k3.len) == HS_SYNC_APPLIED);
+    ENSURE(m->topology_version == 2 && m->n_vis == 3 && m->n_tri == 1 && m->position[0] == 0);
+    // An older topology (reordered) is stale...
+    ENSURE(hs_mesh_sync_feed(s, HS_SYNC_TOPOLOGY, t.buf, (size_t)t.len) == HS_SYNC_STALE);
+    // ...but a server restart (its topology seq starts again, version back at 0, later utime)
+    // is taken.
+    hs_mesh_sync* r = NULL;
+    ENSURE(hs_mesh_sync_create(&r, NULL) == HS_OK);
+    msg t9 = enc_topology(500, 9, 4, rest, 2, tri), k9 = enc_state(500, 9, 50, 4, kf, 0);
+    msg t0 = enc_topology(0, 0, 4, rest, 2, tri); // encoded later: a later utime
+    msg t0b = enc_topology(1, 0, 4, rest, 2, tri);
+    ENSURE(hs_mesh_sync_feed(r, HS_SYNC_TOPOLOGY, t9.buf, (size_t)t9.len) == HS_SYNC_HELD);
+    ENSURE(hs_mesh_sync_feed(r, HS_SYNC_STATE, k9.buf, (size_t)k9.len) == HS_SYNC_APPLIED);
+    ENSURE(hs_mesh_sync_feed(r, HS_SYNC_TOPOLOGY, t0.buf, (size_t)t0.len) == HS_SYNC_HELD);
+    ENSURE(hs_mesh_sync_newest_topology(r) == 0);
+    msg k0 = enc_state(0, 0, 0, 4, rest, 0);
+    ENSURE(hs_mesh_sync_feed(r, HS_SYNC_STATE, k0.buf, (size_t)k0.len) == HS_SYNC_APPLIED);
+    ENSURE(hs_mesh_sync_mesh(r)->topology_version == 0 && hs_mesh_sync_mesh(r)->keyframe_id == 0);
+    ENSURE(hs_mesh_sync_feed(r, HS_SYNC_TOPOLOGY, t0b.buf, (size_t)t0b.len) == HS_SYNC_HELD);
+    msg* all[] = {&t, &k, &k2, &d5, &t2, &d1, &k3, &t0, &t0b, &t9, &k9, &k0};
+    for (size_t i = 0; i < sizeof all / sizeof all[0]; i++) free(all[i]->buf);
+    hs_mesh_sync_destroy(&r);
+    hs_mesh_sync_destroy(&s);
+    return 0;
+}
+
+// Truncations and fingerprint changes of valid messages are always malformed; random bytes and
+// bit flips never crash and never leave an inconsistent mesh; memory returns to its start.
+static int test_malformed_counted(void) {
+    int64_t bytes0 = hs_client_byte_count();
+    stream s = {0};
+    make_stream(&s, 1);
+    hs_mesh_sync* a = NULL;
+    ENSURE(hs_mesh_sync_create(&a, NULL) == HS_OK);
+    for (int i = 0; i < 40; i++) hs_mesh_sync_feed(a, s.m[i].kind, s.m[i].buf, (size_t)s.m[i].len);
+    ENSURE(hs_mesh_sync_mesh(a)->ready);
+    uint64_t h0 = mesh_hash(hs_mesh_sync_mesh(a));
+    hs_sync_stats st0, st1;
+    hs_mesh_sync_stats(a, &st0);
+    int64_t expect = 0;
+    rng_state = 42;
+    uint8_t* buf = malloc(1 << 16);
+    for (int it = 0; it < 60000; it++) {
+        const msg* m = &s.m[rnd() % (uint64_t)s.n];
+        int kind = (int)m->kind, mode = it % 4;
+        if (mode == 0) { // truncated
+            size_t len = rnd() % (size_t)m->len;
+            ENSURE(hs_mesh_sync_feed(a, m->kind, m->buf, len) == HS_SYNC_MALFORMED);
+            expect++;
+        } else if (mode == 1) { // sent on the wrong channel (fingerprint mismatch) or extended
+            int other = (kind + 1 + (int)(rnd() % 3)) % 4;
+            if (rnd() & 1) {
+                ENSURE(hs_mesh_sync_feed(a, (hs_sync_kind)other, m->buf, (size_t)m->len) ==
+                       HS_SYNC_MALFORMED);
+            } else {
+                memcpy(buf, m->buf, (size_t)m->len);
+                buf[m->len] = 0;
+                ENSURE(hs_mesh_sync_feed(a, m->kind, buf, (size_t)m->len + 1) == HS_SYNC_MALFORMED);
+            }
+            expect++;
+        } else if (mode == 2) { // bit flips after the fingerprint: may even be valid
+            memcpy(buf, m->buf, (size_t)m->len);
+            for (int f = 0; f < 1 + (int)(rnd() % 4); f++) {
+                size_t at = 8 + rnd() % (size_t)(m->len - 8);
+                buf[at] ^= (uint8_t)(1u << (rnd() % 8));
+            }
+            hs_sync_result r = hs_mesh_sync_feed(a, m->kind, buf, (size_t)m->len);
+            expect += r == HS_SYNC_MALFORMED;
+        } else { // the right fingerprint then random bytes
+            size_t len = 8 + rnd() % 200;
+            memcpy(buf, m->buf, 8);
+            for (size_t k = 8; k < len; k++) buf[k] = (uint8_t)rnd();
+            hs_sync_result r = hs_mesh_sync_feed(a, m->kind, buf, len);
+            expect += r == HS_SYNC_MALFORMED;
+        }
+        ENSURE(consistent(hs_mesh_sync_mesh(a)) == 0);
+    }
+    // Crafted: negative and huge counts, NaN positions.
+    {
+        hapsim_mesh_state_t k;
+        memset(&k, 0, sizeof k);
+        float nanpos[3] = {0, NAN, 0};
+        k.n_pos = 3;
+        k.position = nanpos;
+        int len = hapsim_mesh_state_t_encoded_size(&k);
+        hapsim_mesh_state_t_encode(buf, 0, len, &k);
+        ENSURE(hs_mesh_sync_feed(a, HS_SYNC_STATE, buf, (size_t)len) == HS_SYNC_MALFORMED);
+        // n_pos at offset 8 + 5*8 + 8 = 56: make it negative, then huge.
+        nanpos[1] = 0;
+        hapsim_mesh_state_t_encode(buf, 0, len, &k);
+        ENSURE(hs_mesh_sync_feed(a, HS_SYNC_STATE, buf, (size_t)len) == HS_SYNC_MISMATCH);
+        buf[56] = 0xff;
+        ENSURE(hs_mesh_sync_feed(a, HS_SYNC_STATE, buf, (size_t)len) == HS_SYNC_MALFORMED);
+        buf[56] = 0x7f;
+        ENSURE(hs_mesh_sync_feed(a, HS_SYNC_STATE, buf, (size_t)len) == HS_SYNC_MALFORMED);
+        ENSURE(hs_mesh_sync_feed(a, HS_SYNC_STATE, NULL, 0) == HS_SYNC_MALFORMED);
+        ENSURE(hs_mesh_sync_feed(a, (hs_sync_kind)7, buf, (size_t)len) == HS_SYNC_MALFORMED);
+        expect += 5;
+    }
+    hs_mesh_sync_stats(a, &st1);
+    ENSURE(st1.malformed - st0.malformed == expect);
+    ENSURE(expect > 30000);
+    // Valid traffic afterwards still works: a keyframe then a delta from the stream's tail.
+    for (int i = s.n - 3; i < s.n; i++)
+        hs_mesh_sync_feed(a, s.m[i].kind, s.m[i].buf, (size_t)s.m[i].len);
+    ENSURE(hs_mesh_sync_mesh(a)->topology_version == 4 && mesh_hash(hs_mesh_sync_mesh(a)) != h0);
+    free(buf);
+    hs_mesh_sync_destroy(&a);
+    stream_free(&s);
+    ENSURE(hs_client_byte_count() == bytes0);
+    return 0;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Local model.
+
+static int test_local_model(void) {
+    hs_local_model m;
+    memset(&m, 0, sizeof m);
+    double f[3], p[3] = {0.001, 0, 0};
+    ENSURE(hs_local_model_eval(&m, p, 0, f) == 0 && f[0] == 0); // invalid: zero
+    m.valid = 1;
+    m.state = HAPSIM_TOOL_FORCE_T_STATE_CONTACT;
+    m.force[1] = 1.0;
+    m.anchor[0] = 0.0;
+    double k[9] = {-100, 0, 0, 0, -200, 0, 0, 0, -300};
+    memcpy(m.stiffness, k, sizeof k);
+    m.validity_radius = 0.002;
+    m.timeout_us = 10000;
+    m.arrival_us = 1000;
+    // Inside the radius: force + K d.
+    ENSURE(hs_local_model_eval(&m, p, 1000, f) == 1.0);
+    ENSURE_NEAR(f[0], -0.1, 1e-12);
+    ENSURE_NEAR(f[1], 1.0, 1e-12);
+    ENSURE_NEAR(f[2], 0.0, 1e-12);
+    // Outside: d clamped to the sphere (same direction).
+    double far[3] = {0, 0, 0.01};
+    hs_local_model_eval(&m, far, 1000, f);
+    ENSURE_NEAR(f[2], -300 * 0.002, 1e-12);
+    // Timeout: full until timeout_us, half at 1.5 timeout, zero from 2 timeout.
+    ENSURE(hs_local_model_eval(&m, p, 1000 + 10000, f) == 1.0);
+    ENSURE_NEAR(hs_local_model_eval(&m, p, 1000 + 15000, f), 0.5, 1e-12);
+    ENSURE_NEAR(f[1], 0.5, 1e-12);
+    ENSURE(hs_local_model_eval(&m, p, 1000 + 20000, f) == 0 && f[1] == 0);
+    ENSURE(hs_local_model_eval(&m, p, 1000 + 90000, f) == 0 && f[1] == 0);
+    m.state = HAPSIM_TOOL_FORCE_T_STATE_STOPPED;
+    ENSURE(hs_local_model_eval(&m, p, 1000, f) == 0 && f[1] == 0);
+    // Blending between model versions.
+    hs_force_renderer r;
+    hs_force_renderer_init(&r);
+    ENSURE(hs_force_renderer_eval(&r, p, 0, f) == -1);
+    m.state = HAPSIM_TOOL_FORCE_T_STATE_CONTACT;
+    m.model_version = 1;
+    hs_force_renderer_push(&r, &m);
+    ENSURE(hs_force_renderer_eval(&r, p, 1000, f) == HAPSIM_TOOL_FORCE_T_STATE_CONTACT);
+    ENSURE_NEAR(f[1], 1.0, 1e-12);
+    hs_local_model m2 = m;
+    m2.model_version = 2;
+    m2.force[1] = 3.0;
+    m2.arrival_us = 2000;
+    hs_force_renderer_push(&r, &m2);
+    hs_force_renderer_eval(&r, p, 2000, f);
+    ENSURE_NEAR(f[1], 1.0, 1e-12); // blend starts at the old model: no jump
+    hs_force_renderer_eval(&r, p, 2000 + r.blend_us / 2, f);
+    ENSURE_NEAR(f[1], 2.0, 1e-12);
+    hs_force_renderer_eval(&r, p, 2000 + r.blend_us, f);
+    ENSURE_NEAR(f[1], 3.0, 1e-12);
+    // Same version: no blend, the new numbers at once.
+    hs_local_model m3 = m2;
+    m3.force[1] = 4.0;
+    m3.arrival_us = 9000;
+    hs_force_renderer_push(&r, &m3);
+    hs_force_renderer_eval(&r, p, 9000, f);
+    ENSURE_NEAR(f[1], 4.0, 1e-12);
+    return 0;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Status decoding.
+
+static int test_status_decode(void) {
+    hapsim_server_status_t s;
+    memset(&s, 0, sizeof s);
+    s.seq = 7;
+    s.state = HAPSIM_SERVER_STATUS_T_STATE_PAUSED;
+    s.scene = "scenes/liver/liver.json";
+    s.topology_version = 3;
+    char* names[2] = {"rt", "sim"};
+    float rate[2] = {1000, 60}, p50[2] = {1000, 16000}, p99[2] = {1100, 17000},
+          mx[2] = {2000, 20000};
+    int64_t over[2] = {2, 0};
+    s.n_loops = 2;
+    s.loop_name = names;
+    s.rate_hz = rate;
+    s.period_p50_us = p50;
+    s.period_p99_us = p99;
+    s.period_max_us = mx;
+    s.overruns = over;
+    int32_t ids[1] = {0};
+    int8_t live[1] = {1};
+    float age[1] = {1.5f}, l50[1] = {80}, l99[1] = {300}, fn[1] = {0.4f};
+    int64_t recv[1] = {12345}, lost[1] = {2};
+    s.n_devices = 1;
+    s.device_id = ids;
+    s.device_live = live;
+    s.pose_age_ms = age;
+    s.poses_received = recv;
+    s.poses_lost = lost;
+    s.latency_p50_us = l50;
+    s.latency_p99_us = l99;
+    s.force_norm = fn;
+    char* rc[1] = {"TOOL_POSE"};
+    char* rr[1] = {"nonfinite"};
+    int64_t cnt[1] = {5};
+    s.n_rejects = 1;
+    s.reject_channel = rc;
+    s.reject_reason = rr;
+    s.reject_count = cnt;
+    s.warnings = "slow sim";
+    int len = hapsim_server_status_t_encoded_size(&s);
+    uint8_t* buf = malloc((size_t)len + 1);
+    hapsim_server_status_t_encode(buf, 0, len, &s);
+    hs_client_status o;
+    ENSURE(hs_client_status_decode(buf, (size_t)len, &o) == HS_OK);
+    ENSURE(o.seq == 7 && o.state == 1 && !strcmp(o.scene, s.scene) && o.topology_version == 3);
+    ENSURE(o.n_loops == 2 && !strcmp(o.loops[1].name, "sim") && o.loops[0].rate_hz == 1000);
+    ENSURE(o.loops[0].overruns == 2 && o.loops[1].max_us == 20000);
+    ENSURE(o.n_devices == 1 && o.devices[0].live == 1 && o.devices[0].poses_received == 12345);
+    ENSURE(o.devices[0].poses_lost == 2 && o.devices[0].force_norm == 0.4f);
+    ENSURE(o.n_rejects == 1 && !strcmp(o.rejects[0].reason, "nonfinite") &&
+           o.rejects[0].count == 5);
+    ENSURE(!strcmp(o.warnings, "slow sim") && !strcmp(hs_client_state_name(o.state), "paused"));
+    for (int cut = 0; cut < len; cut += 7)
+        ENSURE(hs_client_status_decode(buf, (size_t)cut, &o) == HS_ERR_PARSE);
+    buf[len] = 0;
+    ENSURE(hs_client_status_decode(buf, (size_t)len + 1, &o) == HS_ERR_PARSE);
+    // The scene string without its NUL (last byte of the string replaced).
+    size_t scene_end = 8 + 8 + 8 + 8 + 4 + 4 + strlen(s.scene); // index of its NUL
+    buf[scene_end] = 'x';
+    ENSURE(hs_client_status_decode(buf, (size_t)len, &o) == HS_ERR_PARSE);
+    free(buf);
+    return 0;
+}
+
+HS_TEST_MAIN(HS_CASE(test_lossless_follows_server), HS_CASE(test_loss_converges),
+             HS_CASE(test_late_join), HS_CASE(test_wrong_versions_ignored),
+             HS_CASE(test_malformed_counted), HS_CASE(test_local_model),
+             HS_CASE(test_status_decode))
