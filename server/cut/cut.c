@@ -514,7 +514,9 @@ hs_status hs_cut_create(hs_mesh* mesh, const unsigned char* fixed, const hs_cut_
     }
     c->k_pin = dsum / nf;
     st = hs_cholesky_create(c->a, &c->factor, err);
-    if (st == HS_OK && def->factor_policy != HS_CUT_FACTOR_REFACTOR)
+    // AUTO keeps the (supernodal) factor until a sweep small enough for updates comes: the
+    // conversion to an updatable factor makes later refactors simplicial, hence slower.
+    if (st == HS_OK && def->factor_policy == HS_CUT_FACTOR_UPDATE)
         st = hs_cholesky_prepare_updates(c->factor, 256);
     if (st == HS_OK) {
         // Calibrate the refactor cost of this factor (AUTO compares updates against it).
@@ -1078,9 +1080,11 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
     int need = c->n_removed + c->n_changed + c->n_pins, m = 0;
     // AUTO: a rank-r update costs about r sparse passes along the elimination tree, a numeric
     // refactor a fixed amount; both measured as the cut runs. Take the cheaper.
+    // Before any update has been timed, the bench's ratio stands in: one element change costs
+    // about 1/8 of a numeric refactor on every mesh measured (docs/cutting.md).
+    double per = c->update_ms_per_change > 0 ? c->update_ms_per_change : c->refactor_ms / 8.0;
     int want_update = c->def.factor_policy == HS_CUT_FACTOR_UPDATE ||
-                      (c->def.factor_policy == HS_CUT_FACTOR_AUTO &&
-                       need * c->update_ms_per_change <= c->refactor_ms);
+                      (c->def.factor_policy == HS_CUT_FACTOR_AUTO && need * per < c->refactor_ms);
     int can_update = want_update && grow_elems(c, need) == HS_OK;
     if (can_update) {
         for (int k = 0; k < c->n_removed; k++) add_change(c, &m, c->removed[k], -1, 1);
@@ -1100,9 +1104,9 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
         st = can_update ? apply_changes(c, m) : HS_ERR_UNSUPPORTED;
         if (st == HS_OK) {
             c->updates_since_refactor++;
-            double per = (double)(hs_now_ns() - tu) * 1e-6 / m;
+            double took = (double)(hs_now_ns() - tu) * 1e-6 / m;
             c->update_ms_per_change =
-                c->update_ms_per_change > 0 ? 0.8 * c->update_ms_per_change + 0.2 * per : per;
+                c->update_ms_per_change > 0 ? 0.8 * c->update_ms_per_change + 0.2 * took : took;
         } else {
             // Updates off, no memory for them, or a downdate lost definiteness: rebuild.
             r.refactored = 1;
