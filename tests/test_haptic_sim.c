@@ -476,6 +476,75 @@ static int continuity_and_allocs(void) {
     return 0;
 }
 
+// Co-rotated, heavily damped so the body settles within the hold: the felt force must equal and
+// oppose the reactions of a full co-rotated static solve with the contact nodes prescribed at
+// the body's own final displacement (the contact-free correction's fixed point puts the tissue
+// where the contact says it is).
+static int corotated_hold(void) {
+    liver L;
+    ENSURE(load_liver(&L) == 0);
+    const double r = 0.03;
+    hs_haptic_sim_def d = liver_def(HS_MODEL_COROTATED, r);
+    d.body.fem.material.rayleigh_mass = 30; // overdamped low modes: settles in about a second
+    hs_haptic_sim* sim = NULL;
+    hs_err err = {0};
+    ENSURE(hs_haptic_sim_create(L.mesh, &d, L.fixed, &sim, &err) == HS_OK);
+    ENSURE(hs_haptic_sim_start(sim, &err) == HS_OK);
+    harness hn;
+    harness_init(&hn, sim);
+    double p[3];
+    for (int i = 0; i <= 500; ++i) {
+        tool_at(&L, r, -0.005 + 0.015 * i / 500.0, 0, p);
+        harness_tick(&hn, p);
+        drain(sim);
+    }
+    double fmin = 1e9, fmax = 0;
+    for (int i = 0; i < 3000; ++i) {
+        harness_tick(&hn, p);
+        drain(sim);
+        double f = norm3(hn.out.force_n);
+        if (i >= 2700) fmin = f < fmin ? f : fmin, fmax = f > fmax ? f : fmax;
+    }
+    double f_hold[3];
+    memcpy(f_hold, hn.out.force_n, sizeof f_hold);
+    hs_haptic_sim_stats st;
+    hs_haptic_sim_stats_get(sim, &st);
+    double* u = malloc(sizeof(double) * 3 * (size_t)L.mesh->n_nodes);
+    hs_haptic_sim_read_frame(sim, u, NULL);
+    hs_haptic_sim_stop(sim);
+    printf("  co-rotated, 10 mm: |F| = %.4g N (last 0.3 s within %.3g N), %d contact nodes\n",
+           norm3(f_hold), fmax - fmin, st.contact.n);
+    ENSURE(st.contact.n >= 1 && norm3(f_hold) > 0.05);
+    ENSURE(fmax - fmin <= 0.01 * norm3(f_hold));
+
+    unsigned char* fx = malloc((size_t)L.mesh->n_nodes);
+    memcpy(fx, L.fixed, (size_t)L.mesh->n_nodes);
+    for (int i = 0; i < st.contact.n; ++i) fx[st.contact.node[i]] = 1;
+    hs_body_def bd = d.body;
+    bd.static_load_steps = 3;
+    hs_body* b = NULL;
+    ENSURE(hs_body_create(L.mesh, &bd, fx, &b, &err) == HS_OK);
+    for (int i = 0; i < st.contact.n; ++i)
+        ENSURE(hs_body_set_prescribed(b, st.contact.node[i], u + 3 * st.contact.node[i]) == HS_OK);
+    ENSURE(hs_body_solve_static(b, NULL) >= 0);
+    double sum[3] = {0, 0, 0};
+    for (int i = 0; i < st.contact.n; ++i) {
+        double rr[3];
+        hs_body_reaction(b, st.contact.node[i], rr);
+        for (int a = 0; a < 3; ++a) sum[a] += rr[a];
+    }
+    double miss[3] = {f_hold[0] + sum[0], f_hold[1] + sum[1], f_hold[2] + sum[2]};
+    printf("  full co-rotated reaction |R| = %.4g N, |F + R| / |R| = %.3g %%\n", norm3(sum),
+           100 * norm3(miss) / norm3(sum));
+    ENSURE(norm3(miss) <= 0.02 * norm3(sum));
+    hs_body_destroy(&b);
+    free(fx);
+    free(u);
+    hs_haptic_sim_destroy(&sim);
+    free_liver(&L);
+    return 0;
+}
+
 // Poses stop while in contact: the force is zero by timeout + ramp after the last pose.
 static int watchdog(void) {
     liver L;
@@ -519,5 +588,5 @@ static int watchdog(void) {
     return 0;
 }
 
-HS_TEST_MAIN(HS_CASE(no_pose_no_force), HS_CASE(press_hold_release), HS_CASE(watchdog),
-             HS_CASE(continuity_and_allocs))
+HS_TEST_MAIN(HS_CASE(no_pose_no_force), HS_CASE(press_hold_release), HS_CASE(corotated_hold),
+             HS_CASE(watchdog), HS_CASE(continuity_and_allocs))
