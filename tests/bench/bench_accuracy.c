@@ -115,6 +115,10 @@ static int problem_setup(acc_problem* p, scene_kind kind, double heavy) {
             p->up[3 * i + 2] = -0.005;
         }
     }
+    int np = 0;
+    for (int i = 0; i < n; ++i) np += probe[i];
+    fprintf(stderr, "accuracy: liver probe at (%.4f, %.4f, %.4f) m on %d surface nodes\n", c[0],
+            c[1], c[2], np);
     p->mat = (hs_material){5e3, 0.45, 1060, 0, 0};
     p->alpha = 40;
     p->ramp = 5;
@@ -498,6 +502,15 @@ static void run_cfg(const char* scene, const acc_problem* p, const acc_cfg* c, c
     free(w);
 }
 
+// Progress line with the reference's tip motion (largest downward displacement).
+static void print_tip(const char* scene, const hs_mesh* m, const double* u) {
+    int k = 0;
+    for (int i = 0; i < m->n_nodes; ++i)
+        if (u[3 * i + 2] < u[3 * k + 2]) k = i;
+    fprintf(stderr, "accuracy: %s, %d tets: Mooney-Rivlin tip moves (%.4f, %.4f, %.4f) m\n", scene,
+            m->n_tets, u[3 * k], u[3 * k + 1], u[3 * k + 2]);
+}
+
 // Cantilever: reference = Mooney-Rivlin on a finer box (tolerance 1e-10), interpolated to the
 // coarse nodes. Rows for every static model on each coarse mesh; dynamic rows on `dyn_mesh`.
 typedef struct box_dims {
@@ -515,6 +528,7 @@ static int cantilever(const char* scene, double heavy, box_dims ref, const box_d
         problem_free(&fine);
         return 1;
     }
+    print_tip(scene, fine.mesh, uf);
     int rc = 0;
     for (int k = 0; k < n_meshes; ++k) {
         acc_problem p;
@@ -573,11 +587,13 @@ static int cantilever_vs_mr(const char* scene, double heavy, const box_dims* mes
             return 1;
         fprintf(stderr, "accuracy: %s, %d tets\n", scene, p.mesh->n_tets);
         double* uref = calloc(3 * (size_t)p.mesh->n_nodes, sizeof(double));
-        if (solve_mooney(&p, 1e-10, -1, uref, NULL, NULL) == 0)
+        if (solve_mooney(&p, 1e-10, -1, uref, NULL, NULL) == 0) {
+            print_tip(scene, p.mesh, uref);
             for (size_t c = 0; c < sizeof cfgs / sizeof *cfgs; ++c)
                 run_cfg(scene, &p, &cfgs[c], uref, NULL, 3.0);
-        else
+        } else {
             rc = 1;
+        }
         free(uref);
         problem_free(&p);
     }
