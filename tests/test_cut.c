@@ -542,6 +542,39 @@ static int test_deformed_and_bad_input(void) {
     return 0;
 }
 
+/// Every allocation of hs_cut_create and of a first sweep failing in turn: a clean error, no
+/// leak, and the mesh untouched by a failed create.
+static int test_alloc_faults(void) {
+    int64_t bytes = hs_byte_count();
+    hs_mesh* m = NULL;
+    hs_err e;
+    ENSURE(hs_mesh_create_box(0.03, 0.03, 0.01, 3, 3, 1, &m, &e) == HS_OK);
+    unsigned char* fixed = hs_calloc((size_t)m->n_nodes, 1);
+    hs_mesh_select_plane(m, 0, -1, 1e-6, fixed);
+    hs_cut_def def = hs_cut_default_def();
+    int failed = 0, ok = 0;
+    for (int k = 1; k < 400 && !ok; k++) {
+        int64_t before = hs_byte_count();
+        hs_cut* c = NULL;
+        hs_alloc_fail_after(k);
+        hs_status st = hs_cut_create(m, fixed, &def, &c, &e);
+        hs_alloc_fail_after(0);
+        if (st == HS_OK) {
+            ok = 1;
+            hs_cut_destroy(&c);
+        } else {
+            failed++;
+            ENSURE(st < 0 && c == NULL);
+        }
+        ENSURE(hs_byte_count() == before);
+    }
+    ENSURE(ok && failed > 10);
+    hs_free(fixed);
+    hs_mesh_destroy(&m);
+    ENSURE(hs_byte_count() == bytes);
+    return 0;
+}
+
 /// 1,000 random short sweeps through the liver: validator after every cut (inside the sweep),
 /// finite solves, no orphan; factor compared with a fresh one every 50 cuts.
 static int test_liver_random_cuts(void) {
@@ -624,4 +657,5 @@ static int test_liver_random_cuts(void) {
 
 HS_TEST_MAIN(HS_CASE(test_force_model), HS_CASE(test_skin_full_separation),
              HS_CASE(test_skin_wound_angle), HS_CASE(test_consistency), HS_CASE(test_rules),
-             HS_CASE(test_deformed_and_bad_input), HS_CASE(test_liver_random_cuts))
+             HS_CASE(test_deformed_and_bad_input), HS_CASE(test_alloc_faults),
+             HS_CASE(test_liver_random_cuts))
