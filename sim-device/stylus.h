@@ -5,7 +5,7 @@
 // No LCM here: hs_stylus_core is pure and testable; main.c adds the network and the clock.
 //
 // Frames and signs: positions in the scene frame, m; forces are ON THE HANDLE, N, scene frame.
-// The local model follows the wire (msgs/tool_force.lcm): F(p) = force + stiffness * d with
+// The local model follows the wire (msgs/tool_force_t.lcm): F(p) = force + stiffness * d with
 // d = p - anchor clamped to |d| <= validity_radius, so stiffness = dF/dp (negative semidefinite
 // for a passive contact).
 #ifndef HS_STYLUS_H
