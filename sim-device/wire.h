@@ -1,4 +1,4 @@
-// hapsim-stylus wire edge: tool_force messages (msgs/tool_force.lcm) into device models, with
+// hapsim-stylus wire edge: tool_force messages (msgs/tool_force_t.lcm) into device models, with
 // the checks a driver owes the network: another device's message is skipped; non-finite
 // numbers, a negative radius or timeout, an unknown state, or an older seq are dropped.
 #ifndef HS_STYLUS_WIRE_H
