@@ -29,12 +29,12 @@ extern "C" {
 
 /// The probe: a sphere at the tool tip. Initialise with hs_probe_default_def().
 typedef struct hs_probe_def {
-    double radius_m;        ///< sphere radius, m
-    double reach_margin_m;  ///< candidates cover radius + margin around the tool, m
-    int cache_nodes;        ///< compliance column cache capacity, nodes (>= HS_CONTACT_MAX_CAND)
-    int max_new_columns;    ///< column solves allowed per deformation step, nodes
-    double min_radius_m;    ///< local model validity radius, lower clamp, m
-    double max_radius_m;    ///< local model validity radius, upper clamp, m
+    double radius_m;       ///< sphere radius, m
+    double reach_margin_m; ///< candidates cover radius + margin around the tool, m
+    int cache_nodes;     ///< column cache capacity, nodes (>= HS_CONTACT_MAX_CAND + HS_MAX_CONTACT)
+    int max_new_columns; ///< column solves allowed per deformation step, nodes
+    double min_radius_m; ///< local model validity radius, lower clamp, m
+    double max_radius_m; ///< local model validity radius, upper clamp, m
     double model_timeout_s; ///< local model timeout sent with every force, s
     double free_relax;      ///< relaxation of the contact-free surface per step, (0, 1]
     int cookie;             ///< set by hs_probe_default_def
