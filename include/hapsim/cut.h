@@ -156,9 +156,9 @@ void hs_cut_assemble(const hs_cut* cut, hs_csc* a);
 hs_status hs_cut_refactor(hs_cut* cut);
 /// The linear fem the cut keeps (element activity and rest data follow the cuts).
 const hs_fem* hs_cut_fem(const hs_cut* cut);
-/// Mirror every cut so far into another fem built on the same mesh (e.g. a body's): deactivate
-/// removed tets and refresh the rest data of tets whose vertices moved since its last sync.
-/// Call after each sweep, before the body steps. Allocates: no.
+/// Mirror the cuts into another fem built on the same mesh before the first cut (e.g. a body's):
+/// deactivate every removed tet and refresh the rest data of the tets whose vertices the LAST
+/// sweep moved. Call after every sweep (a skipped sweep's moves are missed). Allocates: no.
 hs_status hs_cut_sync_fem(const hs_cut* cut, hs_fem* other);
 
 // ---------------------------------------------------------------------------------------------
