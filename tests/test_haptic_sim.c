@@ -322,7 +322,8 @@ static int press_hold_release(void) {
         harness_tick(&hn, p);
         drain(sim);
         if (i == 0) t_rel = hn.last_feed_ns;
-        if (hn.out.pose_seq >= rel_seq && norm3(hn.out.force_n) == 0) t_zero = hs_now_ns();
+        // The rt tick's own stamp: the harness thread's wake-up jitter is not the rt loop's.
+        if (hn.out.pose_seq >= rel_seq && norm3(hn.out.force_n) == 0) t_zero = hn.out.stamp_ns;
     }
     ENSURE(t_zero >= 0);
     double ms = (double)(t_zero - t_rel) * 1e-6;
