@@ -1,0 +1,210 @@
+// A stand-in mesh server for the client tests (test_client_liver.sh): publishes the bundled
+// liver's surface as topology + keyframes + deltas with a dent growing under node 399 (5 mm
+// along its inward normal, Gaussian of 8 mm), a server status, and answers commands: the first
+// copy of every request id is ignored (as if lost) so a client must retry with the same id;
+// SET_PARAM of "bad" is refused. Links the server's mesh reader (a test tool, not the client).
+//   test_client_fakesrv MESH SECONDS
+#define _POSIX_C_SOURCE 200809L
+#include <lcm/lcm.h>
+#include <math.h>
+#include <poll.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "hapsim/mesh.h"
+#include "hapsim_channels.h"
+#include "hapsim_command_ack_t.h"
+#include "hapsim_command_t.h"
+#include "hapsim_mesh_delta_t.h"
+#include "hapsim_mesh_state_t.h"
+#include "hapsim_mesh_topology_t.h"
+#include "hapsim_server_status_t.h"
+
+static int64_t now_us(void) {
+    struct timespec t;
+    clock_gettime(CLOCK_REALTIME, &t);
+    return (int64_t)t.tv_sec * 1000000 + t.tv_nsec / 1000;
+}
+
+typedef struct cmdstate {
+    lcm_t* lcm;
+    int64_t ids[256];
+    int seen[256];
+    int n;
+    int executed, ignored, duplicates;
+    int64_t ack_seq;
+} cmdstate;
+
+static void on_command(const lcm_recv_buf_t* rb, const char* ch, const hapsim_command_t* m,
+                       void* user) {
+    (void)rb;
+    (void)ch;
+    cmdstate* s = user;
+    int k = -1;
+    for (int i = 0; i < s->n; i++)
+        if (s->ids[i] == m->request_id) k = i;
+    if (k < 0 && s->n < 256) {
+        k = s->n++;
+        s->ids[k] = m->request_id;
+        s->seen[k] = 0;
+    }
+    if (k < 0) return;
+    if (s->seen[k]++ == 0) { // first copy: "lost"
+        s->ignored++;
+        return;
+    }
+    if (s->seen[k] == 2)
+        s->executed++;
+    else
+        s->duplicates++; // answered again with the recorded status, not executed
+    hapsim_command_ack_t a;
+    memset(&a, 0, sizeof a);
+    a.utime = now_us();
+    a.seq = s->ack_seq++;
+    a.request_id = m->request_id;
+    a.kind = m->kind;
+    a.status = HAPSIM_COMMAND_ACK_T_STATUS_OK;
+    a.message = "";
+    if (m->kind == HAPSIM_COMMAND_T_KIND_SET_PARAM && m->n_args == 2 &&
+        !strcmp(m->values[0], "bad")) {
+        a.status = HAPSIM_COMMAND_ACK_T_STATUS_INVALID;
+        a.message = "unknown parameter 'bad'";
+    }
+    hapsim_command_ack_t_publish(s->lcm, "HAPSIM_COMMAND_ACK", &a);
+}
+
+int main(int argc, char** argv) {
+    if (argc != 3) {
+        fprintf(stderr, "usage: test_client_fakesrv MESH SECONDS\n");
+        return 2;
+    }
+    hs_mesh* mesh = NULL;
+    hs_err err = {0};
+    if (hs_mesh_load(argv[1], &mesh, &err) < 0) {
+        fprintf(stderr, "fakesrv: %s\n", err.msg);
+        return 1;
+    }
+    double seconds = atof(argv[2]);
+    lcm_t* lcm = lcm_create(HAPSIM_DEFAULT_MESH_URL);
+    if (!lcm) return 1;
+    cmdstate cs;
+    memset(&cs, 0, sizeof cs);
+    cs.lcm = lcm;
+    hapsim_command_t_subscribe(lcm, "HAPSIM_COMMAND", on_command, &cs);
+
+    int n = mesh->n_surf_nodes, press = mesh->node_surf[399];
+    float* rest = malloc((size_t)n * 3 * sizeof(float));
+    float* pos = malloc((size_t)n * 3 * sizeof(float));
+    float* kf = malloc((size_t)n * 3 * sizeof(float));
+    float* dl = malloc((size_t)n * 3 * sizeof(float));
+    int32_t* idx = malloc((size_t)n * sizeof(int32_t));
+    int32_t* vis = malloc((size_t)n * sizeof(int32_t));
+    int32_t* tri = malloc((size_t)mesh->n_tris * 3 * sizeof(int32_t));
+    for (int i = 0; i < n; i++) {
+        vis[i] = mesh->surf_nodes[i];
+        for (int k = 0; k < 3; k++) rest[3 * i + k] = (float)mesh->x0[3 * vis[i] + k];
+    }
+    for (int t = 0; t < 3 * mesh->n_tris; t++) tri[t] = mesh->node_surf[mesh->tris[t]];
+    const double nrm[3] = {0.105, 0.993, -0.045};
+    hapsim_mesh_topology_t top = {0};
+    top.topology_version = 1;
+    top.n_nodes = mesh->n_nodes;
+    top.n_vis = n;
+    top.vis_nodes = vis;
+    top.n_rest = 3 * n;
+    top.rest_position = rest;
+    top.n_tri_idx = 3 * mesh->n_tris;
+    top.triangles = tri;
+    int64_t t0 = now_us(), next_top = t0, next_kf = t0, next_status = t0, kf_id = 0;
+    int64_t seq_t = 0, seq_s = 0, seq_d = 0, seq_st = 0, step = 0;
+    memcpy(pos, rest, (size_t)n * 3 * sizeof(float));
+    memcpy(kf, rest, (size_t)n * 3 * sizeof(float));
+    while (now_us() - t0 < (int64_t)(seconds * 1e6)) {
+        int64_t now = now_us();
+        double t = (double)(now - t0) * 1e-6;
+        double depth = t < 1 ? 0 : t < 3 ? 0.005 * (t - 1) / 2 : 0.005;
+        for (int i = 0; i < n; i++) {
+            double r2 = 0;
+            for (int k = 0; k < 3; k++) {
+                double d = (double)rest[3 * i + k] - rest[3 * press + k];
+                r2 += d * d;
+            }
+            double w = depth * exp(-r2 / (2 * 0.008 * 0.008));
+            for (int k = 0; k < 3; k++) pos[3 * i + k] = (float)(rest[3 * i + k] - w * nrm[k]);
+        }
+        step++;
+        if (now >= next_top) {
+            top.utime = now;
+            top.seq = seq_t++;
+            hapsim_mesh_topology_t_publish(lcm, "HAPSIM_MESH_TOPOLOGY", &top);
+            next_top = now + 1000000;
+        }
+        if (now >= next_kf) {
+            memcpy(kf, pos, (size_t)n * 3 * sizeof(float));
+            hapsim_mesh_state_t st = {0};
+            st.utime = now;
+            st.seq = seq_s++;
+            st.topology_version = 1;
+            st.keyframe_id = ++kf_id;
+            st.sim_step = step;
+            st.sim_time = t;
+            st.n_pos = 3 * n;
+            st.position = kf;
+            hapsim_mesh_state_t_publish(lcm, "HAPSIM_MESH_STATE", &st);
+            next_kf = now + 500000;
+        } else {
+            hapsim_mesh_delta_t d = {0};
+            d.utime = now;
+            d.seq = seq_d++;
+            d.topology_version = 1;
+            d.keyframe_id = kf_id;
+            d.sim_step = step;
+            d.sim_time = t;
+            for (int i = 0; i < n; i++)
+                if (memcmp(pos + 3 * i, kf + 3 * i, 12)) {
+                    idx[d.n_changed] = i;
+                    for (int k = 0; k < 3; k++)
+                        dl[3 * d.n_changed + k] = pos[3 * i + k] - kf[3 * i + k];
+                    d.n_changed++;
+                }
+            d.index = idx;
+            d.n_delta = 3 * d.n_changed;
+            d.delta = dl;
+            hapsim_mesh_delta_t_publish(lcm, "HAPSIM_MESH_DELTA", &d);
+        }
+        if (now >= next_status) {
+            hapsim_server_status_t s = {0};
+            s.utime = now;
+            s.seq = seq_st++;
+            s.uptime_us = now - t0;
+            s.scene = "fake-liver";
+            s.topology_version = 1;
+            s.warnings = "";
+            hapsim_server_status_t_publish(lcm, "HAPSIM_SERVER_STATUS", &s);
+            next_status = now + 500000;
+        }
+        // ~30 frames per second; commands are handled while waiting.
+        int64_t until = now + 33000;
+        for (;;) {
+            int64_t left = until - now_us();
+            if (left <= 0) break;
+            struct pollfd p = {lcm_get_fileno(lcm), POLLIN, 0};
+            if (poll(&p, 1, (int)(left / 1000) + 1) > 0) lcm_handle(lcm);
+        }
+    }
+    printf("fakesrv: %lld frames; commands: %d executed, %d first copies ignored, %d duplicates "
+           "answered\n",
+           (long long)step, cs.executed, cs.ignored, cs.duplicates);
+    lcm_destroy(lcm);
+    hs_mesh_destroy(&mesh);
+    free(rest);
+    free(pos);
+    free(kf);
+    free(dl);
+    free(idx);
+    free(vis);
+    free(tri);
+    return cs.executed == cs.ignored ? 0 : 3;
+}
