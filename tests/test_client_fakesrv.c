@@ -21,6 +21,8 @@
 #include "hapsim_mesh_state_t.h"
 #include "hapsim_mesh_topology_t.h"
 #include "hapsim_server_status_t.h"
+#include "hapsim_tool_force_t.h"
+#include "hapsim_tool_pose_t.h"
 
 static int64_t now_us(void) {
     struct timespec t;
@@ -75,6 +77,36 @@ static void on_command(const lcm_recv_buf_t* rb, const char* ch, const hapsim_co
     hapsim_command_ack_t_publish(s->lcm, "HAPSIM_COMMAND_ACK", &a);
 }
 
+// Poses answered by an elastic half-space y <= 0.0683 m (300 N/m), like a probe on the liver top.
+typedef struct hapstate {
+    lcm_t* lcm;
+    int64_t seq, poses;
+} hapstate;
+
+static void on_pose(const lcm_recv_buf_t* rb, const char* ch, const hapsim_tool_pose_t* p,
+                    void* user) {
+    (void)rb;
+    (void)ch;
+    hapstate* h = user;
+    h->poses++;
+    double pen = 0.0683 - p->position[1];
+    hapsim_tool_force_t f;
+    memset(&f, 0, sizeof f);
+    f.utime = now_us();
+    f.seq = h->seq++;
+    f.device_id = p->device_id;
+    f.pose_seq = p->seq;
+    f.pose_utime = p->utime;
+    f.model_version = 1;
+    f.state = pen > 0 ? HAPSIM_TOOL_FORCE_T_STATE_CONTACT : HAPSIM_TOOL_FORCE_T_STATE_FREE;
+    f.force[1] = pen > 0 ? 300 * pen : 0;
+    f.stiffness[4] = pen > 0 ? -300 : 0;
+    memcpy(f.anchor, p->position, sizeof f.anchor);
+    f.validity_radius = 0.002;
+    f.timeout_us = 50000;
+    hapsim_tool_force_t_publish(h->lcm, "HAPSIM_TOOL_FORCE", &f);
+}
+
 int main(int argc, char** argv) {
     if (argc != 3) {
         fprintf(stderr, "usage: test_client_fakesrv MESH SECONDS\n");
@@ -89,10 +121,15 @@ int main(int argc, char** argv) {
     double seconds = atof(argv[2]);
     lcm_t* lcm = lcm_create(HAPSIM_DEFAULT_MESH_URL);
     if (!lcm) return 1;
+    hapstate hs = {lcm_create(HAPSIM_DEFAULT_HAPTIC_URL), 0, 0};
+    if (!hs.lcm) return 1;
+    hapsim_tool_pose_t_subscription_t* psub =
+        hapsim_tool_pose_t_subscribe(hs.lcm, "HAPSIM_TOOL_POSE", on_pose, &hs);
     cmdstate cs;
     memset(&cs, 0, sizeof cs);
     cs.lcm = lcm;
-    hapsim_command_t_subscribe(lcm, "HAPSIM_COMMAND", on_command, &cs);
+    hapsim_command_t_subscription_t* sub =
+        hapsim_command_t_subscribe(lcm, "HAPSIM_COMMAND", on_command, &cs);
 
     int n = mesh->n_surf_nodes, press = mesh->node_surf[399];
     float* rest = malloc((size_t)n * 3 * sizeof(float));
@@ -117,6 +154,7 @@ int main(int argc, char** argv) {
     top.rest_position = rest;
     top.n_tri_idx = 3 * mesh->n_tris;
     top.triangles = tri;
+    top.tets = tri; // n_tet_idx = 0: not read, but must not be NULL for LCM's encoder
     int64_t t0 = now_us(), next_top = t0, next_kf = t0, next_status = t0, kf_id = 0;
     int64_t seq_t = 0, seq_s = 0, seq_d = 0, seq_st = 0, step = 0;
     memcpy(pos, rest, (size_t)n * 3 * sizeof(float));
@@ -182,6 +220,19 @@ int main(int argc, char** argv) {
             s.scene = "fake-liver";
             s.topology_version = 1;
             s.warnings = "";
+            // Empty arrays still need valid pointers (LCM's encoder memcpy's them).
+            static char* no_str[1];
+            static float no_f[1];
+            static int64_t no_i64[1];
+            static int32_t no_i32[1];
+            static int8_t no_i8[1];
+            s.loop_name = s.step_name = s.reject_channel = s.reject_reason = no_str;
+            s.rate_hz = s.period_p50_us = s.period_p99_us = s.period_max_us = no_f;
+            s.step_p50_us = s.step_p99_us = s.step_max_us = no_f;
+            s.pose_age_ms = s.latency_p50_us = s.latency_p99_us = s.force_norm = no_f;
+            s.overruns = s.poses_received = s.poses_lost = s.reject_count = no_i64;
+            s.device_id = no_i32;
+            s.device_live = no_i8;
             hapsim_server_status_t_publish(lcm, "HAPSIM_SERVER_STATUS", &s);
             next_status = now + 500000;
         }
@@ -190,13 +241,21 @@ int main(int argc, char** argv) {
         for (;;) {
             int64_t left = until - now_us();
             if (left <= 0) break;
-            struct pollfd p = {lcm_get_fileno(lcm), POLLIN, 0};
-            if (poll(&p, 1, (int)(left / 1000) + 1) > 0) lcm_handle(lcm);
+            struct pollfd p[2] = {{lcm_get_fileno(lcm), POLLIN, 0},
+                                  {lcm_get_fileno(hs.lcm), POLLIN, 0}};
+            if (poll(p, 2, (int)(left / 1000) + 1) > 0) {
+                if (p[0].revents & POLLIN) lcm_handle(lcm);
+                if (p[1].revents & POLLIN) lcm_handle(hs.lcm);
+            }
         }
     }
+    printf("fakesrv: %lld poses answered\n", (long long)hs.poses);
     printf("fakesrv: %lld frames; commands: %d executed, %d first copies ignored, %d duplicates "
            "answered\n",
            (long long)step, cs.executed, cs.ignored, cs.duplicates);
+    hapsim_command_t_unsubscribe(lcm, sub);
+    hapsim_tool_pose_t_unsubscribe(hs.lcm, psub);
+    lcm_destroy(hs.lcm);
     lcm_destroy(lcm);
     hs_mesh_destroy(&mesh);
     free(rest);

@@ -26,6 +26,16 @@ $ctl set bad 1 2>/dev/null
 rc=$?
 [ $rc = 3 ] || fail "refused set: rc $rc (want 3)"
 $ctl status | grep -q "scene fake-liver" || fail "status"
+# The example driver: a 1 cm circle 2.3 mm inside the stand-in's half-space (300 N/m) gets
+# forces near 0.69 N along +y back through the local model.
+"$bin/hapsim-example-driver" 1.5 -0.060 0.066 -0.015 0.010 >"$tmp/driver.log" 2>&1 ||
+    fail "driver rc $?: $(tail -n 3 "$tmp/driver.log")"
+tail -n 1 "$tmp/driver.log"
+awk '/^driver:/ { sent = $2; got = $5 } END { exit !(sent > 1000 && got > 0.8 * sent) }' \
+    "$tmp/driver.log" || fail "driver: too few forces: $(tail -n 1 "$tmp/driver.log")"
+awk '/^t / && $2 > 0.3 { n++; if ($11 < 0.6 || $11 > 0.78) bad++ }
+     END { exit !(n > 5 && !bad) }' "$tmp/driver.log" ||
+    fail "driver forces not near 0.69 N: $(sed -n 5,8p "$tmp/driver.log")"
 wait $srv
 rc=$?
 srv=
