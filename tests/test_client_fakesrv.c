@@ -2,7 +2,8 @@
 // liver's surface as topology + keyframes + deltas with a dent growing under node 399 (5 mm
 // along its inward normal, Gaussian of 8 mm), a server status, and answers commands: the first
 // copy of every request id is ignored (as if lost) so a client must retry with the same id;
-// SET_PARAM of "bad" is refused. Links the server's mesh reader (a test tool, not the client).
+// SET_PARAM of "bad" is refused. Random bytes go out on the mesh and force channels too. Links the
+// server's mesh reader (a test tool, not the client).
 //   test_client_fakesrv MESH SECONDS
 #define _POSIX_C_SOURCE 200809L
 #include <lcm/lcm.h>
@@ -212,6 +213,12 @@ int main(int argc, char** argv) {
             d.delta = dl;
             hapsim_mesh_delta_t_publish(lcm, "HAPSIM_MESH_DELTA", &d);
         }
+        // Garbage on the mesh and haptic channels: clients must count and drop it.
+        uint8_t junk[64];
+        for (int k = 0; k < 64; k++) junk[k] = (uint8_t)(rand() & 0xff);
+        lcm_publish(lcm, step % 2 ? "HAPSIM_MESH_DELTA" : "HAPSIM_MESH_TOPOLOGY", junk,
+                    (unsigned)(8 + rand() % 56));
+        lcm_publish(hs.lcm, "HAPSIM_TOOL_FORCE", junk, (unsigned)(rand() % 64));
         if (now >= next_status) {
             hapsim_server_status_t s = {0};
             s.utime = now;

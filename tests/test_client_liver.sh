@@ -16,7 +16,10 @@ fail() { echo "FAIL: $*"; keep=1; echo "kept $tmp"; exit 1; }
 "$bin/test_client_fakesrv" "$src/scenes/liver/liver2.msh" 9 >"$tmp/srv.log" 2>&1 &
 srv=$!
 "$bin/hapsim-view" --out "$tmp/view" --rate 4 --duration 5 --view 90,30 --size 480x360 \
-    --dmax 0.005 --quiet >"$tmp/view.log" 2>&1 || fail "hapsim-view rc $?: $(cat "$tmp/view.log")"
+    --dmax 0.005 >"$tmp/view.log" 2>&1 || fail "hapsim-view rc $?: $(cat "$tmp/view.log")"
+cat "$tmp/view.log"
+# The stand-in sends garbage every frame: counted and dropped, never shown.
+grep -Eq "malformed [1-9][0-9]*$" "$tmp/view.log" || fail "hapsim-view counted no malformed messages"
 ctl="$bin/hapsim-ctl --timeout 3000 --retry 100"
 out=$($ctl pause) || fail "pause rc $?"
 echo "$out"
