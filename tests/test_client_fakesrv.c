@@ -2,8 +2,9 @@
 // liver's surface as topology + keyframes + deltas with a dent growing under node 399 (5 mm
 // along its inward normal, Gaussian of 8 mm), a server status, and answers commands: the first
 // copy of every request id is ignored (as if lost) so a client must retry with the same id;
-// SET_PARAM of "bad" is refused. Random bytes go out on the mesh and force channels too. Links the
-// server's mesh reader (a test tool, not the client).
+// SET_PARAM of "bad" is refused;
+// LOAD_SCENE is answered PENDING, then OK 300 ms later. Random bytes go out on the mesh and force
+// channels too. Links the server's mesh reader (a test tool, not the client).
 //   test_client_fakesrv MESH SECONDS
 #define _POSIX_C_SOURCE 200809L
 #include <lcm/lcm.h>
@@ -38,6 +39,7 @@ typedef struct cmdstate {
     int n;
     int executed, ignored, duplicates;
     int64_t ack_seq;
+    int64_t load_id, load_done_us; // a LOAD_SCENE in progress: final ack due at load_done_us
 } cmdstate;
 
 static void on_command(const lcm_recv_buf_t* rb, const char* ch, const hapsim_command_t* m,
@@ -70,6 +72,13 @@ static void on_command(const lcm_recv_buf_t* rb, const char* ch, const hapsim_co
     a.kind = m->kind;
     a.status = HAPSIM_COMMAND_ACK_T_STATUS_OK;
     a.message = "";
+    if (m->kind == HAPSIM_COMMAND_T_KIND_LOAD_SCENE) { // PENDING now, final OK 300 ms later
+        a.status = HAPSIM_COMMAND_ACK_T_STATUS_PENDING;
+        if (!s->load_id) {
+            s->load_id = m->request_id;
+            s->load_done_us = now_us() + 300000;
+        }
+    }
     if (m->kind == HAPSIM_COMMAND_T_KIND_SET_PARAM && m->n_args == 2 &&
         !strcmp(m->values[0], "bad")) {
         a.status = HAPSIM_COMMAND_ACK_T_STATUS_INVALID;
@@ -219,6 +228,18 @@ int main(int argc, char** argv) {
         lcm_publish(lcm, step % 2 ? "HAPSIM_MESH_DELTA" : "HAPSIM_MESH_TOPOLOGY", junk,
                     (unsigned)(8 + rand() % 56));
         lcm_publish(hs.lcm, "HAPSIM_TOOL_FORCE", junk, (unsigned)(rand() % 64));
+        if (cs.load_id && now >= cs.load_done_us) {
+            hapsim_command_ack_t a;
+            memset(&a, 0, sizeof a);
+            a.utime = now;
+            a.seq = cs.ack_seq++;
+            a.request_id = cs.load_id;
+            a.kind = HAPSIM_COMMAND_T_KIND_LOAD_SCENE;
+            a.status = HAPSIM_COMMAND_ACK_T_STATUS_OK;
+            a.message = "scene loaded";
+            hapsim_command_ack_t_publish(lcm, "HAPSIM_COMMAND_ACK", &a);
+            cs.load_id = 0;
+        }
         if (now >= next_status) {
             hapsim_server_status_t s = {0};
             s.utime = now;

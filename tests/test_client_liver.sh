@@ -25,6 +25,9 @@ out=$($ctl pause) || fail "pause rc $?"
 echo "$out"
 echo "$out" | grep -q "2 attempts" || fail "expected a retry: $out"
 $ctl -q request-topology || fail "request-topology rc $?"
+out=$($ctl load-scene /scenes/other.json) || fail "load-scene rc $?"
+echo "$out"
+echo "$out" | grep -q "scene loaded" || fail "load-scene: no final ack after PENDING: $out"
 $ctl set bad 1 2>/dev/null
 rc=$?
 [ $rc = 3 ] || fail "refused set: rc $rc (want 3)"
