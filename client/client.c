@@ -400,7 +400,11 @@ hs_status hs_client_send_pose(hs_client* c, const hs_client_pose* p, hs_err* err
     memcpy(m.position, p->position, sizeof m.position);
     memcpy(m.orientation, p->orientation, sizeof m.orientation);
     m.buttons = p->buttons;
-    if (hapsim_tool_pose_t_publish(c->bus[0], c->ch_pose, &m) != 0)
+    // Encode on the stack (lcm-gen's _publish mallocs a buffer per message).
+    uint8_t buf[128];
+    int len = hapsim_tool_pose_t_encoded_size(&m);
+    if (len > (int)sizeof buf || hapsim_tool_pose_t_encode(buf, 0, len, &m) != len ||
+        lcm_publish(c->bus[0], c->ch_pose, buf, (unsigned)len) != 0)
         return fail(err, HS_ERR_IO, "hs_client_send_pose: publish on %s failed", c->ch_pose);
     c->st.poses_sent++;
     return HS_OK;
