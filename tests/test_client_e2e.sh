@@ -39,7 +39,7 @@ server_pid=$!
 ctl="$bin/hapsim-ctl --timeout 3000"
 
 # The server is up once it answers a status request.
-$ctl status >"$tmp/status.txt" 2>&1 || fail "hapsim-ctl status: no server status (rc $?)"
+$bin/hapsim-ctl --timeout 10000 status >"$tmp/status.txt" 2>&1 || fail "hapsim-ctl status: no server status (rc $?)"
 grep -q "^server   running" "$tmp/status.txt" || fail "status: $(cat "$tmp/status.txt")"
 grep -q "^rt " "$tmp/status.txt" || fail "status shows no rt loop"
 
