@@ -154,10 +154,10 @@ hs_status hs_mesh_sync_create(hs_mesh_sync** out /* OUT */, hs_err* err);
 void hs_mesh_sync_destroy(hs_mesh_sync** s);
 /// Feed one message (raw bytes, fingerprint first). Rules (docs/protocol.md "Watching the mesh"):
 /// a topology with a newer version (or any version when its seq went backwards with a later
-/// utime: the server restarted) is held until a keyframe of that version arrives; a keyframe is shown when its
-/// topology version is held and its keyframe_id is newer; a delta only when topology version and
-/// keyframe_id match the shown keyframe and its seq is newer. Never crashes on any bytes.
-/// Thread: the owner | Allocates: only when a topology needs larger arrays
+/// utime: the server restarted) is held until a keyframe of that version arrives; a keyframe is
+/// shown when its topology version is held and its keyframe_id is newer; a delta only when topology
+/// version and keyframe_id match the shown keyframe and its seq is newer. Never crashes on any
+/// bytes. Thread: the owner | Allocates: only when a topology needs larger arrays
 hs_sync_result hs_mesh_sync_feed(hs_mesh_sync* s, hs_sync_kind kind, const void* buf, size_t len);
 /// The visible mesh (valid until the next feed). Thread: the owner | Allocates: no
 const hs_client_mesh* hs_mesh_sync_mesh(const hs_mesh_sync* s);
