@@ -78,21 +78,23 @@ static int stress_inversion_recovers(void) {
         inverted_somewhere += r->inverted_max > 0;
     }
     ENSURE(seen == 6);
-    ENSURE(inverted_somewhere == 6); // the random loads did invert elements
+    // The fold-through cases start fully inverted; random loads may or may not invert elements
+    // (the step's energy safeguard stops most overshoots).
+    ENSURE(inverted_somewhere >= 3);
     return 0;
 }
 
-// Non-finite input is refused with HS_ERR_NUMERIC, the state is kept, and stepping resumes once
-// the input is removed; a singular static problem is an error, not garbage.
+// Non-finite or absurd input is refused by its setter with HS_ERR_INVALID, the state is kept,
+// and stepping works on; a singular static problem is an error, not garbage.
 static int stress_failures_are_errors(void) {
     run_suite();
     int seen = 0;
     for (int i = 0; i < g_all.n; ++i) {
         const hs_stress_result* r = &g_all.r[i];
-        if (is(r, "bad-input") && strcmp(r->option, "huge-force")) {
+        if (is(r, "bad-input")) { // refused by the setter; the following steps succeed
             ++seen;
-            ENSURE(r->failures == 3);
-            ENSURE(r->first_error == HS_ERR_NUMERIC);
+            ENSURE(r->failures == 1);
+            ENSURE(r->first_error == HS_ERR_INVALID);
             ENSURE(r->state_kept);
             ENSURE(r->inverted_left == 0);
         }
@@ -102,7 +104,7 @@ static int stress_failures_are_errors(void) {
             ENSURE(r->first_error < 0);
         }
     }
-    ENSURE(seen == 4);
+    ENSURE(seen == 5);
     return 0;
 }
 

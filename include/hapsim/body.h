@@ -46,6 +46,7 @@ typedef struct hs_step_stats {
     int linear_iterations; ///< PCG iterations summed (0 for direct)
     int refactors;         ///< numeric factorisations done
     double residual;       ///< static: final ||r|| / ||r_first||; step: PCG relative residual
+    int line_search_cuts;  ///< halvings: static line search, or the step's energy safeguard
     hs_fem_stats fem;      ///< model statistics at the end
 } hs_step_stats;
 
@@ -56,16 +57,20 @@ typedef struct hs_body hs_body;
 /// @param out OUT
 hs_status hs_body_create(const hs_mesh* mesh, const hs_body_def* def, const unsigned char* fixed,
                          hs_body** out, hs_err* err);
-/// Constant external force on node i, N (replaces the previous value).
-void hs_body_set_force(hs_body* b, int node, const double f[3]);
+/// Constant external force on node i, N (replaces the previous value). HS_ERR_INVALID (and
+/// nothing changed) for a bad node, a non-finite component or one above 1e9 N.
+hs_status hs_body_set_force(hs_body* b, int node, const double f[3]);
 /// Remove all external nodal forces (gravity stays).
 void hs_body_clear_forces(hs_body* b);
 /// Scale applied to gravity and nodal forces (load stepping, ramps). Default 1.
 void hs_body_set_load_scale(hs_body* b, double s);
-/// Prescribed displacement of a fixed node, m. HS_ERR_INVALID if the node is not fixed.
+/// Prescribed displacement of a fixed node, m. HS_ERR_INVALID (nothing changed) if the node
+/// is not fixed or a component is not finite.
 hs_status hs_body_set_prescribed(hs_body* b, int node, const double u[3]);
 /// One implicit Euler step of size def.dt:
-/// (M + dt C + dt^2 K) du = dt^2 (f_ext + f_el(u)) + M du_prev, linearised once per step.
+/// (M + dt C + dt^2 K) du = dt^2 (f_ext + f_el(u)) + M du_prev, linearised once per step,
+/// then shortened if needed so the incremental potential decreases (no energy gain from the
+/// linearisation at large dt or large rotations).
 hs_status hs_body_step(hs_body* b, hs_step_stats* stats /* OUT, may be NULL */);
 /// Static equilibrium f_el(u) + f_ext = 0 by Newton (co-rotated: its fixed-rotation tangent),
 /// with backtracking line search and def.static_load_steps increments. Velocities are reset.

@@ -10,13 +10,15 @@
 #include <math.h>
 #include <string.h>
 
-#define HS_BODY_COOKIE 0x48424459
+#define HS_BODY_COOKIE      0x48424459
+#define HS_BODY_MAX_FORCE_N 1e9 // beyond this a nodal force is a bug, not a load
 
 struct hs_body {
     const hs_mesh* mesh;
     hs_body_def def;
     int n;                // nodes
     int n_free;           // free dofs
+    int n_user_fixed;     // nodes fixed by the caller (unused nodes are fixed too, silently)
     int* dof;             // [3n] free index or -1
     int* free_to_full;    // [n_free]
     unsigned char* fixed; // [n]
@@ -184,6 +186,7 @@ hs_status hs_body_create(const hs_mesh* mesh, const hs_body_def* def, const unsi
         // Unused nodes carry no stiffness: fix them so the system stays SPD.
         int fx = (fixed && fixed[i]) || (mesh->node_used && !mesh->node_used[i]);
         b->fixed[i] = (unsigned char)fx;
+        b->n_user_fixed += fixed && fixed[i];
         for (int c = 0; c < 3; ++c) b->dof[3 * i + c] = fx ? -1 : nf++;
     }
     b->n_free = nf;
@@ -236,9 +239,12 @@ nomem:
     return hs_err_set(err, HS_ERR_NOMEM, "hs_body_create: out of memory");
 }
 
-void hs_body_set_force(hs_body* b, int node, const double f[3]) {
-    HS_ASSERT(node >= 0 && node < b->n);
+hs_status hs_body_set_force(hs_body* b, int node, const double f[3]) {
+    if (node < 0 || node >= b->n) return HS_ERR_INVALID;
+    for (int c = 0; c < 3; ++c)
+        if (!isfinite(f[c]) || fabs(f[c]) > HS_BODY_MAX_FORCE_N) return HS_ERR_INVALID;
     for (int c = 0; c < 3; ++c) b->f_ext[3 * node + c] = f[c];
+    return HS_OK;
 }
 
 void hs_body_clear_forces(hs_body* b) {
@@ -251,6 +257,8 @@ void hs_body_set_load_scale(hs_body* b, double s) {
 
 hs_status hs_body_set_prescribed(hs_body* b, int node, const double u[3]) {
     if (node < 0 || node >= b->n || !b->fixed[node]) return HS_ERR_INVALID;
+    for (int c = 0; c < 3; ++c)
+        if (!isfinite(u[c])) return HS_ERR_INVALID;
     for (int c = 0; c < 3; ++c) b->up[3 * node + c] = u[c];
     return HS_OK;
 }
@@ -439,13 +447,51 @@ hs_status hs_body_step(hs_body* b, hs_step_stats* stats) {
         if (stats) *stats = st;
         return s;
     }
-    for (int k = 0; k < n3; ++k) {
-        double du = b->dof[k] >= 0 ? b->x_f[b->dof[k]] : b->dup[k];
-        b->u[k] += du;
-        b->v[k] = du / dt;
-        b->du_prev[k] = du;
+    // Safeguard: implicit Euler minimises the incremental potential
+    //   P(du) = |du - du_prev|_M^2 / 2dt^2 + (alpha |du|_M^2 + beta du.K du) / 2dt + W(u + du) -
+    //   f.(u + du);
+    // one linearised step can overshoot it under large rotations or large dt (energy gain), so
+    // backtrack along du until P decreases (Armijo). Free when the full step is accepted: the
+    // model is updated at the new state anyway. Skipped while prescribed dofs move (P then
+    // changes by their work too).
+    double p0 = 0, slope = 0, mxx = 0, mdx = 0, kxx = 0, md = 0;
+    if (!any_presc) {
+        for (int j = 0; j < b->n_free; ++j) {
+            int k = b->free_to_full[j];
+            double mk = m[k / 3];
+            md += mk * b->du_prev[k] * b->du_prev[k];
+            mxx += mk * b->x_f[j] * b->x_f[j];
+            mdx += mk * b->x_f[j] * b->du_prev[k];
+            slope -= b->rhs_f[j] * b->x_f[j];
+        }
+        slope /= dt * dt;
+        p0 = potential(b) + md / (2 * dt * dt);
+        if (be > 0) { // du.K du from the assembled A = kcoef K + mcoef M
+            hs_csc_spmv(b->a, b->x_f, b->y);
+            double xax = 0;
+            for (int j = 0; j < b->n_free; ++j) xax += b->x_f[j] * b->y[j];
+            kxx = (xax - mcoef * mxx) / kcoef;
+        }
+        memcpy(b->save, b->u, (size_t)n3 * sizeof(double));
     }
-    update_model(b);
+    double alpha = 1.0;
+    for (int cut = 0;; ++cut) {
+        for (int k = 0; k < n3; ++k) {
+            double du = b->dof[k] >= 0 ? alpha * b->x_f[b->dof[k]] : b->dup[k];
+            if (!any_presc) b->u[k] = b->save[k];
+            b->u[k] += du;
+            b->v[k] = du / dt;
+            b->du_prev[k] = du;
+        }
+        update_model(b);
+        if (any_presc || cut == 8) break;
+        double a2 = alpha * alpha;
+        double p1 = (a2 * mxx - 2 * alpha * mdx + md) / (2 * dt * dt) +
+                    a2 * (al * mxx + be * kxx) / (2 * dt) + potential(b);
+        if (p1 <= p0 + 1e-4 * alpha * slope + 1e-12 * fabs(p0)) break;
+        alpha *= 0.5;
+        ++st.line_search_cuts;
+    }
     st.iterations = 1;
     st.fem = b->fem_stats;
     st.wall_ms = (double)(hs_now_ns() - t0) * 1e-6;
@@ -456,26 +502,71 @@ hs_status hs_body_step(hs_body* b, hs_step_stats* stats) {
 hs_status hs_body_solve_static(hs_body* b, hs_step_stats* stats) {
     hs_step_stats st;
     memset(&st, 0, sizeof st);
+    if (b->n_user_fixed == 0) {
+        // Rigid motions are free: the static problem is singular. Say so rather than let the
+        // factorisation produce garbage.
+        if (stats) *stats = st;
+        return HS_ERR_INVALID;
+    }
     int64_t t0 = hs_now_ns();
     const int n3 = 3 * b->n;
     const double full_scale = b->load_scale;
     const int steps = b->def.static_load_steps;
+    const double* m = hs_fem_lumped_mass(b->fem);
     hs_status result = HS_OK;
     double ratio = 0;
 
-    // Prescribed displacements are imposed directly; Newton then solves for the free dofs.
-    for (int k = 0; k < n3; ++k)
-        if (b->dof[k] < 0) b->u[k] = b->up[k];
     memset(b->v, 0, (size_t)n3 * sizeof(double));
     memset(b->du_prev, 0, (size_t)n3 * sizeof(double));
+    memcpy(b->save, b->u, (size_t)n3 * sizeof(double)); // prescribed values at the start
     update_model(b);
 
     for (int ls = 1; ls <= steps && result == HS_OK; ++ls) {
-        b->load_scale = full_scale * (double)ls / (double)steps;
+        const double frac = (double)ls / (double)steps;
+        b->load_scale = full_scale * frac;
+        // Prescribed displacements ramp with the loads. Predictor: the free dofs follow the
+        // boundary through the current tangent (K_ff du_f = r_f - K_fp du_p) instead of being
+        // left behind, which would crush the elements next to a moved boundary.
+        int any = 0;
+        for (int k = 0; k < n3; ++k) {
+            double target = b->save[k] + frac * (b->up[k] - b->save[k]);
+            b->dup[k] = b->dof[k] < 0 ? target - b->u[k] : 0.0;
+            any |= b->dup[k] != 0.0;
+        }
         residual(b, b->r);
+        if (any) {
+            hs_fem_apply_tangent(b->fem, b->dup, b->y);
+            for (int k = 0; k < n3; ++k) b->r[k] -= b->y[k];
+        }
         double r0 = norm_free(b, b->r), rn = r0;
         ratio = 0;
-        int converged = r0 == 0.0;
+        if (any) {
+            for (int j = 0; j < b->n_free; ++j) {
+                b->rhs_f[j] = b->r[b->free_to_full[j]];
+                b->x_f[j] = 0;
+            }
+            hs_status s = solve_system(b, 1.0, 0.0, &st);
+            if (s == HS_OK && !all_finite(b->x_f, b->n_free)) s = HS_ERR_NUMERIC;
+            if (s != HS_OK) {
+                result = s;
+                break;
+            }
+            for (int k = 0; k < n3; ++k) b->u[k] += b->dof[k] >= 0 ? b->x_f[b->dof[k]] : b->dup[k];
+            update_model(b);
+            residual(b, b->r);
+            rn = norm_free(b, b->r);
+        }
+        // Round-off floor: near equilibrium the residual cannot fall below the cancellation
+        // error of forces of the size of the loads and the elastic forces themselves.
+        double scale = 0;
+        for (int j = 0; j < b->n_free; ++j) {
+            int k = b->free_to_full[j];
+            scale += fabs(b->f_el[k]) +
+                     b->load_scale * fabs(b->f_ext[k] + m[k / 3] * b->def.gravity[k % 3]);
+        }
+        const double floor_abs = 1e-13 * scale;
+        ratio = r0 > 0 ? rn / r0 : 0;
+        int converged = rn <= floor_abs || ratio <= b->def.static_tol;
         for (int it = 0; it < b->def.static_max_iter && !converged; ++it) {
             for (int j = 0; j < b->n_free; ++j) {
                 b->rhs_f[j] = b->r[b->free_to_full[j]];
@@ -508,10 +599,11 @@ hs_status hs_body_solve_static(hs_body* b, hs_step_stats* stats) {
                 double p1 = potential(b);
                 if ((isfinite(p1) && p1 <= p0 - 1e-4 * alpha * slope) || rt < 1e-3 * rn) break;
                 alpha *= 0.5;
+                ++st.line_search_cuts;
             }
             rn = rt;
             ratio = r0 > 0 ? rn / r0 : 0;
-            converged = ratio <= b->def.static_tol;
+            converged = rn <= floor_abs || ratio <= b->def.static_tol;
         }
         if (result == HS_OK && !converged) result = HS_WARN_NOT_CONVERGED;
     }

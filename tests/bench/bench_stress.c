@@ -418,11 +418,17 @@ static void case_bad_input(hs_stress_result* r, int kind) {
     int64_t t0 = hs_now_ns();
     for (int k = 0; k < 5; ++k) checked_call(&s, r, 0); // some motion first
     int n = s.mesh->n_nodes, tip = n - 1;
-    if (kind == 0) hs_body_set_force(s.body, tip, (double[3]){NAN, 0, 0});
-    if (kind == 1) hs_body_set_force(s.body, tip, (double[3]){0, INFINITY, 0});
-    if (kind == 2) hs_body_set_prescribed(s.body, 0, (double[3]){0, 0, NAN});
-    if (kind == 3) hs_body_set_force(s.body, tip, (double[3]){0, 0, 1e300});
-    int f0 = r->failures;
+    // The setters refuse bad values (nothing changes); a step would refuse what got through.
+    hs_status set = HS_OK;
+    if (kind == 0) set = hs_body_set_force(s.body, tip, (double[3]){NAN, 0, 0});
+    if (kind == 1) set = hs_body_set_force(s.body, tip, (double[3]){0, INFINITY, 0});
+    if (kind == 2) set = hs_body_set_prescribed(s.body, 0, (double[3]){0, 0, NAN});
+    if (kind == 3) set = hs_body_set_force(s.body, tip, (double[3]){0, 0, 1e300});
+    if (set < 0) {
+        if (r->failures == 0) r->first_error = set;
+        ++r->failures;
+    }
+    int f0 = r->failures - (set < 0);
     for (int k = 0; k < 3; ++k) checked_call(&s, r, 0);
     int rejected = r->failures - f0;
     // Remove the bad input: stepping must work again from the kept state.
