@@ -1,0 +1,1310 @@
+// hapsim-server: scene -> world (mesh, visual set, sim), the net loop, publishing, commands.
+// See server.h for the design. Everything here runs on the net thread except what
+// hs_haptic_sim runs on its own two threads.
+#define _GNU_SOURCE
+#include "server.h"
+
+#include <errno.h>
+#include <math.h>
+#include <poll.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "hapsim/haptic.h"
+#include "hapsim/haptic_sim.h"
+#include "hapsim/mesh.h"
+#include "hapsim/scene.h"
+#include "hapsim_channels.h"
+#include "hapsim_command_ack_t.h"
+#include "hapsim_command_t.h"
+#include "hapsim_mesh_delta_t.h"
+#include "hapsim_mesh_state_t.h"
+#include "hapsim_mesh_topology_t.h"
+#include "hapsim_server_status_t.h"
+#include "hapsim_tool_force_t.h"
+#include "hapsim_tool_pose_t.h"
+#include "hapsim_tool_state_t.h"
+#include "net/bus.h"
+#include "net/mesh_frames.h"
+#include "net/validate.h"
+#include "base/spsc_ring.h"
+#include "rt/haptic_rt.h"
+
+#define MAX_DEV       HS_SCENE_MAX_DEVICES
+#define POSE_RING     64           // fed poses remembered for echoing in rt-output forces
+#define KEYFRAME_NS   1000000000LL // keyframe and topology period
+#define DELTA_EPS_M   1e-5f        // m: a visual node is listed in a delta when it moved more
+#define LIVE_NS       500000000LL  // live status line period
+#define PAUSE_RAMP_S  0.02         // forces ramp to zero over this after PAUSE, s
+#define RT_GAP_NS     1500000LL    // publish rt outputs when no force went out for this long
+#define HANDLE_BATCH  256          // messages handled per bus per loop iteration
+#define POSE_QUEUE    8192         // LCM subscription queue (default 30 drops bursts)
+#define COMMAND_QUEUE 1024
+
+// Everything that depends on the scene: rebuilt by load_scene, swapped only when complete.
+typedef struct world {
+    hs_scene scene;
+    hs_mesh* mesh;
+    unsigned char* fixed; // [n_nodes]
+    int n_fixed;
+    int haptics; // sim allocated
+    int visual;  // mesh publishing on
+    hs_haptic_sim_def def;
+    hs_haptic_sim* sim; // NULL: haptics off, or paused
+    double* u;          // [3n] newest displacement frame, m
+    double* v;          // [3n] velocity saved across a rebuild, m/s
+    int n_vis;
+    int32_t* vis_nodes; // [n_vis]
+    float* rest;        // [3 n_vis]
+    int n_tri_idx;
+    int32_t* tri;           // [n_tri_idx] visual indices
+    float* cur;             // [3 n_vis] current positions
+    float* key;             // [3 n_vis] keyframe positions
+    int32_t* d_index;       // [n_vis]
+    float* d_delta;         // [3 n_vis]
+    const char* probe_note; // why haptics is off, or NULL
+} world;
+
+typedef struct dev_state {
+    int64_t force_seq;
+    int64_t last_rx_ns;  // newest accepted pose, CLOCK_MONOTONIC
+    int64_t last_pub_ns; // newest tool_force published
+    int seen;
+    double pos[3], quat[4];
+    uint32_t buttons;
+    double force[3]; // newest published force, N
+    int contact;
+    int64_t pubs;    // forces published
+    hs_rt_hist* lat; // window: pose received -> force published, us
+} dev_state;
+
+struct hs_server {
+    hs_server_opts opt;
+    world w;
+    char haptic_url[HS_SCENE_URL_MAX], mesh_url[HS_SCENE_URL_MAX], prefix[HS_SCENE_PREFIX_MAX];
+    hs_net_bus* hbus;
+    hs_net_bus* mbus;
+    char ch_pose[HAPSIM_CHANNEL_MAX], ch_force[HAPSIM_CHANNEL_MAX], ch_topo[HAPSIM_CHANNEL_MAX],
+        ch_state[HAPSIM_CHANNEL_MAX], ch_delta[HAPSIM_CHANNEL_MAX], ch_tool[HAPSIM_CHANNEL_MAX],
+        ch_cmd[HAPSIM_CHANNEL_MAX], ch_ack[HAPSIM_CHANNEL_MAX], ch_status[HAPSIM_CHANNEL_MAX];
+
+    hs_net_limits lim;
+    hs_net_pose_state pst;
+    hs_net_command_state cst;
+
+    dev_state dev[MAX_DEV];
+    int64_t feed_seq; // poses fed to rt (rt's pose seq)
+    int64_t ring_feed[POSE_RING], ring_seq[POSE_RING], ring_utime[POSE_RING], ring_rx[POSE_RING];
+    hs_haptic_output out; // newest rt output
+    int have_out;
+
+    int paused, estop;
+    int64_t pause_ns;
+    hs_haptic_model pause_model; // output model at the pause, ramped to zero
+
+    int64_t topo_version, keyframe_id, frame_step, key_ns, sim_step_base;
+    int have_key;
+    int64_t seq_topo, seq_state, seq_delta, seq_tool, seq_ack, seq_status;
+
+    // statistics
+    int64_t start_ns, stat_ns;
+    hs_haptic_sim_stats* st_prev; // at the previous status (window start)
+    hs_haptic_sim_stats* st_now;
+    hs_rt_hist* h_net;    // net loop period, window
+    hs_rt_hist* h_step;   // deformation step + snapshot, sampled, window
+    hs_rt_hist* h_handle; // pose handling (validate, feed, reply), window
+    hs_rt_hist* h_diff;   // scratch for windowed rt histograms
+    hs_rt_hist* h_simper; // deformation step period as seen by the net thread, window
+    int64_t last_step_ns;
+    int64_t live_prev_ticks, live_prev_t;
+    int64_t net_iters, last_iter_ns, last_steps;
+    int64_t poses_total, forces_total;
+    double live_force;
+    uint32_t rt_obtained;
+    int rt_prio;
+    int stop;
+};
+
+// ---------------------------------------------------------------------------------------------
+// Helpers
+
+static int64_t now_us(void) {
+    return hs_now_ns() / 1000;
+}
+
+static double norm3(const double v[3]) {
+    return sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+}
+
+static void hist_add(hs_rt_hist* h, int64_t ns) {
+    if (ns < 0) ns = 0;
+    int64_t us = ns / 1000;
+    h->count[us < HS_RT_HIST_BINS ? us : HS_RT_HIST_BINS]++;
+    if (ns > h->max_ns) h->max_ns = ns;
+}
+
+// d = a - b (a newer cumulative histogram, b an older one); max taken from a.
+static void hist_diff(const hs_rt_hist* a, const hs_rt_hist* b, hs_rt_hist* d) {
+    for (int i = 0; i <= HS_RT_HIST_BINS; ++i) d->count[i] = a->count[i] - b->count[i];
+    d->max_ns = a->max_ns;
+}
+
+// Largest sample of a window histogram, us (the top non-empty bin's upper edge).
+static double hist_max_us(const hs_rt_hist* h) {
+    if (h->count[HS_RT_HIST_BINS]) return (double)h->max_ns * 1e-3;
+    for (int i = HS_RT_HIST_BINS - 1; i >= 0; --i)
+        if (h->count[i]) return (double)(i + 1);
+    return 0;
+}
+
+// ---------------------------------------------------------------------------------------------
+// World: mesh, fixed nodes, visual set, sim
+
+static int fixed_mask(const hs_scene* sc, const hs_mesh* m, unsigned char* fixed) {
+    unsigned char* sel = hs_calloc((size_t)m->n_nodes, 1);
+    if (!sel) return -1;
+    memset(fixed, 0, (size_t)m->n_nodes);
+    for (int r = 0; r < sc->n_fixed; ++r) {
+        const hs_scene_fixed* f = &sc->fixed[r];
+        memset(sel, 0, (size_t)m->n_nodes);
+        if (f->kind == HS_FIXED_PLANE) {
+            double n[3] = {f->normal[0], f->normal[1], f->normal[2]}, l = norm3(n);
+            for (int i = 0; i < m->n_nodes; ++i) {
+                const double* x = m->x0 + 3 * i;
+                double d = ((x[0] - f->point[0]) * n[0] + (x[1] - f->point[1]) * n[1] +
+                            (x[2] - f->point[2]) * n[2]) /
+                           l;
+                sel[i] = d <= f->tolerance;
+            }
+        } else if (f->kind == HS_FIXED_BOX) {
+            hs_mesh_select_box(m, f->min, f->max, sel);
+        } else {
+            hs_mesh_select_plane(m, f->axis, f->side, f->depth, sel);
+        }
+        for (int i = 0; i < m->n_nodes; ++i) fixed[i] |= sel[i] && m->node_used[i];
+    }
+    hs_free(sel);
+    int n = 0;
+    for (int i = 0; i < m->n_nodes; ++i) n += fixed[i] != 0;
+    return n;
+}
+
+static void world_destroy(world* w) {
+    hs_haptic_sim_destroy(&w->sim);
+    hs_mesh_destroy(&w->mesh);
+    hs_free(w->fixed);
+    hs_free(w->u);
+    hs_free(w->v);
+    hs_free(w->vis_nodes);
+    hs_free(w->rest);
+    hs_free(w->tri);
+    hs_free(w->cur);
+    hs_free(w->key);
+    hs_free(w->d_index);
+    hs_free(w->d_delta);
+    memset(w, 0, sizeof *w);
+}
+
+static void sim_def_from_scene(const hs_scene* sc, int realtime, hs_haptic_sim_def* d) {
+    *d = hs_haptic_sim_default_def();
+    d->body.fem.model = sc->model;
+    d->body.fem.material = sc->material;
+    d->body.fem.rotation = sc->rotation;
+    d->body.fem.inversion = sc->inversion;
+    d->body.fem.locking_free = sc->locking_free;
+    memcpy(d->body.gravity, sc->gravity, sizeof d->body.gravity);
+    d->body.dt = 1.0 / sc->sim_hz;
+    for (int t = 0; t < sc->n_tools; ++t)
+        if (sc->tools[t].kind == HS_TOOL_PROBE) {
+            d->probe.radius_m = sc->tools[t].radius;
+            break;
+        }
+    d->safety.max_force_n = sc->force_max_n;
+    d->safety.max_rate_n_s = sc->force_rate_max;
+    d->safety.watchdog_timeout_s = sc->watchdog_s;
+    d->rate_hz = sc->haptic_hz;
+    d->fifo_priority = realtime ? 80 : 0;
+    d->lock_memory = realtime;
+}
+
+// (Re)create the sim of w from w->def, with the body state u/v when keep. Not started.
+static hs_status world_sim_create(world* w, int keep, hs_err* err) {
+    hs_haptic_sim_destroy(&w->sim);
+    hs_status s = hs_haptic_sim_create(w->mesh, &w->def, w->fixed, &w->sim, err);
+    if (s != HS_OK) return s;
+    if (keep) hs_body_set_state(hs_haptic_sim_body(w->sim), w->u, w->v);
+    return HS_OK;
+}
+
+// Stop the sim and keep its body state in w->u / w->v.
+static void world_sim_stop(world* w) {
+    if (!w->sim) return;
+    hs_haptic_sim_stop(w->sim);
+    hs_body* b = hs_haptic_sim_body(w->sim);
+    size_t n3 = 3 * (size_t)w->mesh->n_nodes;
+    memcpy(w->u, hs_body_displacement(b), n3 * sizeof(double));
+    memcpy(w->v, hs_body_velocity(b), n3 * sizeof(double));
+    hs_haptic_sim_destroy(&w->sim);
+}
+
+static hs_status world_create(const hs_scene* sc, int realtime, world* w, hs_err* err) {
+    memset(w, 0, sizeof *w);
+    w->scene = *sc;
+    hs_status s = hs_mesh_load(sc->mesh_path, &w->mesh, err);
+    if (s < 0) return s;
+    if (sc->units_scale != 1.0) {
+        for (int i = 0; i < 3 * w->mesh->n_nodes; ++i) w->mesh->x0[i] *= sc->units_scale;
+        s = hs_mesh_finalize(w->mesh, err);
+        if (s < 0) goto fail;
+    }
+    const hs_mesh* m = w->mesh;
+    size_t n = (size_t)m->n_nodes;
+    w->fixed = hs_calloc(n, 1);
+    w->u = hs_calloc(3 * n, sizeof(double));
+    w->v = hs_calloc(3 * n, sizeof(double));
+    if (!w->fixed || !w->u || !w->v) goto nomem;
+    w->n_fixed = fixed_mask(sc, m, w->fixed);
+    if (w->n_fixed < 0) goto nomem;
+    if (w->n_fixed == 0) {
+        s = hs_err_set(err, HS_ERR_INVALID,
+                       "%s: key 'fixed': the regions select no node of %s (a free body has no "
+                       "rest position)",
+                       sc->path, sc->mesh_path);
+        goto fail;
+    }
+
+    w->visual = sc->feature_visual;
+    if (w->visual) {
+        int nv = m->n_surf_nodes;
+        w->n_vis = nv;
+        w->n_tri_idx = 3 * m->n_tris;
+        w->vis_nodes = hs_alloc((size_t)nv * sizeof(int32_t) + 1);
+        w->rest = hs_alloc(3 * (size_t)nv * sizeof(float) + 1);
+        w->tri = hs_alloc((size_t)w->n_tri_idx * sizeof(int32_t) + 1);
+        w->cur = hs_alloc(3 * (size_t)nv * sizeof(float) + 1);
+        w->key = hs_alloc(3 * (size_t)nv * sizeof(float) + 1);
+        w->d_index = hs_alloc((size_t)nv * sizeof(int32_t) + 1);
+        w->d_delta = hs_alloc(3 * (size_t)nv * sizeof(float) + 1);
+        if (!w->vis_nodes || !w->rest || !w->tri || !w->cur || !w->key || !w->d_index ||
+            !w->d_delta)
+            goto nomem;
+        for (int i = 0; i < nv; ++i) {
+            int node = m->surf_nodes[i];
+            w->vis_nodes[i] = node;
+            for (int k = 0; k < 3; ++k) w->rest[3 * i + k] = (float)m->x0[3 * node + k];
+        }
+        for (int i = 0; i < w->n_tri_idx; ++i) w->tri[i] = m->node_surf[m->tris[i]];
+        memcpy(w->cur, w->rest, 3 * (size_t)nv * sizeof(float));
+        memcpy(w->key, w->rest, 3 * (size_t)nv * sizeof(float));
+    }
+
+    int has_probe = 0;
+    for (int t = 0; t < sc->n_tools; ++t) has_probe |= sc->tools[t].kind == HS_TOOL_PROBE;
+    w->haptics = sc->feature_haptics && has_probe && sc->n_devices > 0;
+    if (sc->feature_haptics && !w->haptics)
+        w->probe_note = "haptics on but the scene has no probe tool or no device: not run";
+    if (w->haptics) {
+        sim_def_from_scene(sc, realtime, &w->def);
+        s = world_sim_create(w, 0, err);
+        if (s != HS_OK) goto fail;
+    }
+    return HS_OK;
+nomem:
+    s = hs_err_set(err, HS_ERR_NOMEM, "%s: out of memory building the scene", sc->path);
+fail:
+    world_destroy(w);
+    return s;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Publishing
+
+static hs_haptic_model zero_model(void) {
+    hs_haptic_model m;
+    memset(&m, 0, sizeof m);
+    return m;
+}
+
+static int model_stiff(const hs_haptic_model* m) {
+    for (int i = 0; i < 9; ++i)
+        if (m->stiffness_n_m[i] != 0) return 1;
+    return 0;
+}
+
+// Publish one tool_force for device d from model m (force at m->anchor_m).
+static void publish_force(hs_server* s, int d, const hs_haptic_model* m, int state,
+                          int64_t pose_seq, int64_t pose_utime, int64_t rx_ns) {
+    dev_state* ds = &s->dev[d];
+    hapsim_tool_force_t f;
+    memset(&f, 0, sizeof f);
+    f.utime = now_us();
+    f.seq = ++ds->force_seq;
+    f.device_id = d;
+    f.pose_seq = pose_seq;
+    f.pose_utime = pose_utime;
+    f.model_version = m->seq;
+    f.state = state;
+    for (int k = 0; k < 3; ++k) {
+        f.force[k] = m->force_n[k];
+        f.anchor[k] = m->anchor_m[k];
+    }
+    for (int k = 0; k < 9; ++k) f.stiffness[k] = -m->stiffness_n_m[k]; // wire: dF/dp
+    f.validity_radius = m->radius_m;
+    f.timeout_us = (int64_t)(m->timeout_s * 1e6);
+    hapsim_tool_force_t_publish(hs_net_bus_lcm(s->hbus), s->ch_force, &f);
+    int64_t t = hs_now_ns();
+    ds->last_pub_ns = t;
+    memcpy(ds->force, m->force_n, sizeof ds->force);
+    ds->contact = state == HAPSIM_TOOL_FORCE_T_STATE_CONTACT;
+    ds->pubs++;
+    s->forces_total++;
+    if (rx_ns > 0 && ds->lat) hist_add(ds->lat, t - rx_ns);
+}
+
+// Scale force and stiffness so that |force| <= fmax.
+static void clamp_model(hs_haptic_model* m, double fmax) {
+    double fn = norm3(m->force_n);
+    if (fn > fmax && fn > 0) {
+        double g = fmax / fn;
+        for (int k = 0; k < 3; ++k) m->force_n[k] *= g;
+        for (int k = 0; k < 9; ++k) m->stiffness_n_m[k] *= g;
+    }
+}
+
+static int state_of(const hs_haptic_output* o, const hs_haptic_model* m, uint32_t buttons) {
+    int active = norm3(m->force_n) > 0 || model_stiff(m);
+    if (o->safety & HS_SAFETY_WATCHDOG)
+        return active ? HAPSIM_TOOL_FORCE_T_STATE_RAMP : HAPSIM_TOOL_FORCE_T_STATE_STOPPED;
+    if (buttons & HAPSIM_TOOL_POSE_T_BUTTON_CLUTCH) return HAPSIM_TOOL_FORCE_T_STATE_RAMP;
+    return active ? HAPSIM_TOOL_FORCE_T_STATE_CONTACT : HAPSIM_TOOL_FORCE_T_STATE_FREE;
+}
+
+// The paused model at time t: the model at the pause scaled down linearly to zero.
+static hs_haptic_model paused_model(const hs_server* s, int64_t t, const double pos[3]) {
+    double g = 1.0 - (double)(t - s->pause_ns) * 1e-9 / PAUSE_RAMP_S;
+    if (g <= 0) return zero_model();
+    hs_haptic_model m;
+    hs_haptic_model_reanchor(&s->pause_model, pos, &m);
+    for (int k = 0; k < 3; ++k) m.force_n[k] *= g;
+    for (int k = 0; k < 9; ++k) m.stiffness_n_m[k] *= g;
+    return m;
+}
+
+static void drain_outputs(hs_server* s) {
+    if (!s->w.sim) return;
+    hs_haptic_output o;
+    while (hs_haptic_sim_take_output(s->w.sim, &o)) {
+        s->out = o;
+        s->have_out = 1;
+    }
+    hs_spsc_ring* tel = hs_haptic_sim_telemetry(s->w.sim);
+    if (tel) {
+        hs_haptic_telemetry t;
+        while (hs_spsc_ring_pop(tel, &t)) {
+        }
+    }
+}
+
+static int ring_find(const hs_server* s, int64_t feed) {
+    int i = (int)(feed % POSE_RING);
+    return feed > 0 && s->ring_feed[i] == feed ? i : -1;
+}
+
+// rt outputs go out when the device's poses have stopped (watchdog ramp to zero) or slowed down.
+static void publish_rt_output(hs_server* s) {
+    if (!s->have_out || s->paused) return;
+    dev_state* ds = &s->dev[0];
+    if (!ds->seen) return;
+    int64_t t = hs_now_ns();
+    double quiet_s = s->w.scene.watchdog_s + s->w.def.safety.ramp_s + 0.25;
+    if (t - ds->last_rx_ns > (int64_t)(quiet_s * 1e9)) return; // long dead: nothing to say
+    if (t - ds->last_pub_ns < RT_GAP_NS) return;
+    hs_haptic_model m = s->estop ? zero_model() : s->out.model;
+    clamp_model(&m, s->w.scene.force_max_n);
+    int state = s->estop ? HAPSIM_TOOL_FORCE_T_STATE_STOPPED : state_of(&s->out, &m, ds->buttons);
+    int i = ring_find(s, s->out.pose_seq);
+    publish_force(s, 0, &m, state, i >= 0 ? s->ring_seq[i] : 0, i >= 0 ? s->ring_utime[i] : 0, 0);
+}
+
+// Answer an accepted pose at once: the newest rt model evaluated at the new position.
+static void answer_pose(hs_server* s, const hs_net_pose* p, int64_t rx_ns) {
+    int d = p->device_id;
+    dev_state* ds = &s->dev[d];
+    ds->seen = 1;
+    ds->last_rx_ns = rx_ns;
+    memcpy(ds->pos, p->position, sizeof ds->pos);
+    memcpy(ds->quat, p->orientation, sizeof ds->quat);
+    ds->buttons = p->buttons;
+    world* w = &s->w;
+    if (!w->haptics) return; // validated and counted, not answered (scene: haptics off)
+    hs_haptic_model m = zero_model();
+    int state = HAPSIM_TOOL_FORCE_T_STATE_STOPPED;
+    if (d == 0 && s->paused) {
+        m = paused_model(s, rx_ns, p->position);
+        state = HAPSIM_TOOL_FORCE_T_STATE_RAMP;
+    } else if (d == 0 && w->sim) {
+        if (!(p->buttons & HAPSIM_TOOL_POSE_T_BUTTON_CLUTCH)) {
+            hs_haptic_pose hp;
+            memset(&hp, 0, sizeof hp);
+            hp.seq = ++s->feed_seq;
+            hp.stamp_ns = rx_ns;
+            memcpy(hp.pos_m, p->position, sizeof hp.pos_m);
+            memcpy(hp.quat_wxyz, p->orientation, sizeof hp.quat_wxyz);
+            hp.buttons = p->buttons;
+            int i = (int)(hp.seq % POSE_RING);
+            s->ring_feed[i] = hp.seq;
+            s->ring_seq[i] = p->seq;
+            s->ring_utime[i] = p->utime;
+            s->ring_rx[i] = rx_ns;
+            hs_haptic_sim_feed_pose(w->sim, &hp);
+        }
+        drain_outputs(s);
+        if (s->have_out && !s->estop) {
+            hs_haptic_model_reanchor(&s->out.model, p->position, &m);
+            clamp_model(&m, w->scene.force_max_n);
+            state = state_of(&s->out, &m, p->buttons);
+        }
+    }
+    if (s->estop) {
+        m = zero_model();
+        state = HAPSIM_TOOL_FORCE_T_STATE_STOPPED;
+    }
+    if (m.anchor_m[0] == 0 && m.anchor_m[1] == 0 && m.anchor_m[2] == 0)
+        memcpy(m.anchor_m, p->position, sizeof m.anchor_m);
+    publish_force(s, d, &m, state, p->seq, p->utime, rx_ns);
+}
+
+static void on_pose(const lcm_recv_buf_t* rb, const char* ch, void* user) {
+    (void)ch;
+    hs_server* s = user;
+    int64_t t0 = hs_now_ns();
+    hs_net_pose p;
+    if (hs_net_validate_pose(&s->lim, &s->pst, rb->data, rb->data_size, t0 / 1000, &p) !=
+        HS_NET_ACCEPT)
+        return;
+    s->poses_total++;
+    answer_pose(s, &p, t0);
+    hist_add(s->h_handle, hs_now_ns() - t0);
+}
+
+static void publish_topology(hs_server* s) {
+    world* w = &s->w;
+    if (!w->visual) return;
+    hapsim_mesh_topology_t t;
+    memset(&t, 0, sizeof t);
+    t.utime = now_us();
+    t.seq = ++s->seq_topo;
+    t.topology_version = s->topo_version;
+    t.n_nodes = w->mesh->n_nodes;
+    t.n_vis = w->n_vis;
+    t.vis_nodes = w->vis_nodes;
+    t.n_rest = 3 * w->n_vis;
+    t.rest_position = w->rest;
+    t.n_tri_idx = w->n_tri_idx;
+    t.triangles = w->tri;
+    t.n_tet_idx = 0;
+    t.tets = NULL;
+    hapsim_mesh_topology_t_publish(hs_net_bus_lcm(s->mbus), s->ch_topo, &t);
+}
+
+static double sim_time(const hs_server* s) {
+    return (double)s->frame_step * s->w.def.body.dt;
+}
+
+static void publish_keyframe(hs_server* s) {
+    world* w = &s->w;
+    if (!w->visual) return;
+    memcpy(w->key, w->cur, 3 * (size_t)w->n_vis * sizeof(float));
+    hapsim_mesh_state_t m;
+    memset(&m, 0, sizeof m);
+    m.utime = now_us();
+    m.seq = ++s->seq_state;
+    m.topology_version = s->topo_version;
+    m.keyframe_id = ++s->keyframe_id;
+    m.sim_step = s->frame_step;
+    m.sim_time = sim_time(s);
+    m.n_pos = 3 * w->n_vis;
+    m.position = w->key;
+    m.n_stress = 0;
+    m.stress = NULL;
+    hapsim_mesh_state_t_publish(hs_net_bus_lcm(s->mbus), s->ch_state, &m);
+    s->key_ns = hs_now_ns();
+    s->have_key = 1;
+}
+
+// Current positions from the newest frame; a delta (or a keyframe when due) if it is new.
+static void publish_frame(hs_server* s, int64_t t) {
+    world* w = &s->w;
+    if (!w->visual) return;
+    int fresh = 0;
+    if (w->sim) {
+        int64_t step = 0;
+        fresh = hs_haptic_sim_read_frame(w->sim, w->u, &step);
+        if (fresh) s->frame_step = s->sim_step_base + step;
+    }
+    if (!fresh) return;
+    const double* x0 = w->mesh->x0;
+    for (int i = 0; i < w->n_vis; ++i) {
+        int node = w->vis_nodes[i];
+        for (int k = 0; k < 3; ++k)
+            w->cur[3 * i + k] = (float)(x0[3 * node + k] + w->u[3 * node + k]);
+    }
+    int nc = hs_net_delta_build(w->key, w->cur, w->n_vis, DELTA_EPS_M, w->d_index, w->d_delta);
+    if (!s->have_key ||
+        hs_net_keyframe_due(w->n_vis, nc, (t - s->key_ns) / 1000, 2 * KEYFRAME_NS / 1000)) {
+        publish_keyframe(s);
+        return;
+    }
+    hapsim_mesh_delta_t d;
+    memset(&d, 0, sizeof d);
+    d.utime = now_us();
+    d.seq = ++s->seq_delta;
+    d.topology_version = s->topo_version;
+    d.keyframe_id = s->keyframe_id;
+    d.sim_step = s->frame_step;
+    d.sim_time = sim_time(s);
+    d.n_changed = nc;
+    d.index = w->d_index;
+    d.n_delta = 3 * nc;
+    d.delta = w->d_delta;
+    hapsim_mesh_delta_t_publish(hs_net_bus_lcm(s->mbus), s->ch_delta, &d);
+}
+
+static void publish_tool_states(hs_server* s, int64_t t) {
+    const hs_scene* sc = &s->w.scene;
+    for (int d = 0; d < sc->n_devices && d < MAX_DEV; ++d) {
+        dev_state* ds = &s->dev[d];
+        if (!ds->seen || t - ds->last_rx_ns > (int64_t)(sc->watchdog_s * 1e9)) continue;
+        hapsim_tool_state_t ts;
+        memset(&ts, 0, sizeof ts);
+        ts.utime = now_us();
+        ts.seq = ++s->seq_tool;
+        ts.device_id = d;
+        ts.tool_id = 0;
+        ts.kind = HAPSIM_TOOL_STATE_T_KIND_PROBE;
+        for (int k = 0; k < 3; ++k) {
+            ts.position[k] = ds->pos[k];
+            ts.blade_a[k] = ds->pos[k];
+            ts.blade_b[k] = ds->pos[k];
+            ts.force[k] = ds->force[k];
+        }
+        for (int k = 0; k < 4; ++k) ts.orientation[k] = ds->quat[k];
+        ts.radius = s->w.def.probe.radius_m;
+        ts.contact = (int8_t)ds->contact;
+        ts.cutting = 0;
+        hapsim_tool_state_t_publish(hs_net_bus_lcm(s->mbus), s->ch_tool, &ts);
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Status
+
+static void publish_status(hs_server* s, int64_t t) {
+    world* w = &s->w;
+    double win = (double)(t - s->stat_ns) * 1e-9;
+    if (win <= 0) win = 1e-9;
+    hapsim_server_status_t m;
+    memset(&m, 0, sizeof m);
+    m.utime = now_us();
+    m.seq = ++s->seq_status;
+    m.uptime_us = (t - s->start_ns) / 1000;
+    m.state = s->estop    ? HAPSIM_SERVER_STATUS_T_STATE_ESTOP
+              : s->paused ? HAPSIM_SERVER_STATUS_T_STATE_PAUSED
+                          : HAPSIM_SERVER_STATUS_T_STATE_RUNNING;
+    m.scene = w->scene.path;
+    m.topology_version = s->topo_version;
+
+    // loops: rt, sim (when the sim runs), net
+    char* lname[3];
+    float rate[3], p50[3], p99[3], pmax[3];
+    int64_t over[3];
+    int nl = 0;
+    char* sname[4];
+    float s50[4], s99[4], smax[4];
+    int ns = 0;
+    if (w->sim) {
+        hs_haptic_sim_stats_get(w->sim, s->st_now);
+        const hs_haptic_sim_stats* a = s->st_now;
+        const hs_haptic_sim_stats* b = s->st_prev;
+        double nominal_us = 1e6 / w->def.rate_hz;
+        hist_diff(&a->rt.period_err, &b->rt.period_err, s->h_diff);
+        lname[nl] = "rt";
+        rate[nl] = (float)((double)(a->rt.ticks - b->rt.ticks) / win);
+        p50[nl] = (float)(nominal_us + hs_rt_hist_quantile_us(s->h_diff, 0.5));
+        p99[nl] = (float)(nominal_us + hs_rt_hist_quantile_us(s->h_diff, 0.99));
+        pmax[nl] = (float)(nominal_us + hist_max_us(s->h_diff));
+        over[nl++] = a->rt.overruns;
+        hist_diff(&a->rt.tick, &b->rt.tick, s->h_diff);
+        sname[ns] = "rt_tick";
+        s50[ns] = (float)hs_rt_hist_quantile_us(s->h_diff, 0.5);
+        s99[ns] = (float)hs_rt_hist_quantile_us(s->h_diff, 0.99);
+        smax[ns++] = (float)hist_max_us(s->h_diff);
+        lname[nl] = "sim";
+        rate[nl] = (float)((double)(a->steps - b->steps) / win);
+        p50[nl] = (float)hs_rt_hist_quantile_us(s->h_simper, 0.5);
+        p99[nl] = (float)hs_rt_hist_quantile_us(s->h_simper, 0.99);
+        pmax[nl] = (float)hist_max_us(s->h_simper);
+        over[nl++] = a->step_failures;
+        sname[ns] = "sim_step";
+        s50[ns] = (float)hs_rt_hist_quantile_us(s->h_step, 0.5);
+        s99[ns] = (float)hs_rt_hist_quantile_us(s->h_step, 0.99);
+        smax[ns++] = (float)hist_max_us(s->h_step);
+        s->rt_obtained = a->rt.obtained;
+        s->rt_prio = a->rt.fifo_priority;
+        hs_haptic_sim_stats* tmp = s->st_prev;
+        s->st_prev = s->st_now;
+        s->st_now = tmp;
+    }
+    lname[nl] = "net";
+    rate[nl] = (float)((double)s->net_iters / win);
+    p50[nl] = (float)hs_rt_hist_quantile_us(s->h_net, 0.5);
+    p99[nl] = (float)hs_rt_hist_quantile_us(s->h_net, 0.99);
+    pmax[nl] = (float)hist_max_us(s->h_net);
+    over[nl++] = 0;
+    sname[ns] = "pose_handling";
+    s50[ns] = (float)hs_rt_hist_quantile_us(s->h_handle, 0.5);
+    s99[ns] = (float)hs_rt_hist_quantile_us(s->h_handle, 0.99);
+    smax[ns++] = (float)hist_max_us(s->h_handle);
+    m.n_loops = nl;
+    m.loop_name = lname;
+    m.rate_hz = rate;
+    m.period_p50_us = p50;
+    m.period_p99_us = p99;
+    m.period_max_us = pmax;
+    m.overruns = over;
+    m.n_steps = ns;
+    m.step_name = sname;
+    m.step_p50_us = s50;
+    m.step_p99_us = s99;
+    m.step_max_us = smax;
+
+    int nd = w->scene.n_devices < MAX_DEV ? w->scene.n_devices : MAX_DEV;
+    int32_t did[MAX_DEV];
+    int8_t live[MAX_DEV];
+    float age[MAX_DEV], l50[MAX_DEV], l99[MAX_DEV], fnorm[MAX_DEV];
+    int64_t recv[MAX_DEV], lost[MAX_DEV];
+    for (int d = 0; d < nd; ++d) {
+        dev_state* ds = &s->dev[d];
+        did[d] = d;
+        double a_ms = ds->seen ? (double)(t - ds->last_rx_ns) * 1e-6 : -1.0;
+        age[d] = (float)a_ms;
+        live[d] = (int8_t)(ds->seen && a_ms <= w->scene.watchdog_s * 1e3);
+        recv[d] = s->pst.dev[d].accepted;
+        lost[d] = s->pst.dev[d].lost;
+        l50[d] = (float)hs_rt_hist_quantile_us(ds->lat, 0.5);
+        l99[d] = (float)hs_rt_hist_quantile_us(ds->lat, 0.99);
+        fnorm[d] = (float)norm3(ds->force);
+    }
+    m.n_devices = nd;
+    m.device_id = did;
+    m.device_live = live;
+    m.pose_age_ms = age;
+    m.poses_received = recv;
+    m.poses_lost = lost;
+    m.latency_p50_us = l50;
+    m.latency_p99_us = l99;
+    m.force_norm = fnorm;
+
+    char* rch[2 * HS_NET_REJ_COUNT];
+    char* rreason[2 * HS_NET_REJ_COUNT];
+    char rname[2 * HS_NET_REJ_COUNT][32];
+    int64_t rcount[2 * HS_NET_REJ_COUNT];
+    int nr = 0;
+    const hs_net_counters* cs[2] = {&s->pst.counters, &s->cst.counters};
+    char* cn[2] = {HAPSIM_CH_TOOL_POSE, HAPSIM_CH_COMMAND};
+    for (int c = 0; c < 2; ++c)
+        for (int r = 1; r < HS_NET_REJ_COUNT; ++r)
+            if (cs[c]->rejected[r]) {
+                rch[nr] = cn[c];
+                snprintf(rname[nr], sizeof rname[nr], "%s", hs_net_reject_name((hs_net_reject)r));
+                rreason[nr] = rname[nr];
+                rcount[nr++] = (int64_t)cs[c]->rejected[r];
+            }
+    m.n_rejects = nr;
+    m.reject_channel = rch;
+    m.reject_reason = rreason;
+    m.reject_count = rcount;
+
+    char warn[1024];
+    size_t wl = 0;
+    warn[0] = '\0';
+#define WARN(...)                                                                                  \
+    do {                                                                                           \
+        if (wl < sizeof warn)                                                                      \
+            wl += (size_t)snprintf(warn + wl, sizeof warn - wl, "%s", wl ? "\n" : "");             \
+        if (wl < sizeof warn) wl += (size_t)snprintf(warn + wl, sizeof warn - wl, __VA_ARGS__);    \
+    } while (0)
+    if (w->probe_note) WARN("%s", w->probe_note);
+    if (s->opt.realtime && w->sim && !(s->rt_obtained & HS_RT_SCHED_FIFO))
+        WARN("rt thread: SCHED_FIFO not granted (ordinary scheduling)");
+    if (s->opt.realtime && w->sim && !(s->rt_obtained & HS_RT_MLOCKED))
+        WARN("mlockall not obtained");
+    if (w->scene.n_devices > 1 && w->haptics)
+        WARN("scene has %d devices: only device 0 drives the probe, others get zero force",
+             w->scene.n_devices);
+    if (w->sim && s->st_prev->step_failures)
+        WARN("%lld deformation steps failed", (long long)s->st_prev->step_failures);
+    if (s->estop) WARN("e-stop latched: every force is zero");
+#undef WARN
+    m.warnings = warn;
+    hapsim_server_status_t_publish(hs_net_bus_lcm(s->mbus), s->ch_status, &m);
+
+    // restart the windows
+    memset(s->h_net, 0, sizeof *s->h_net);
+    memset(s->h_step, 0, sizeof *s->h_step);
+    memset(s->h_handle, 0, sizeof *s->h_handle);
+    memset(s->h_simper, 0, sizeof *s->h_simper);
+    for (int d = 0; d < MAX_DEV; ++d)
+        if (s->dev[d].lat) memset(s->dev[d].lat, 0, sizeof *s->dev[d].lat);
+    s->net_iters = 0;
+    s->stat_ns = t;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Commands
+
+static void send_ack(hs_server* s, int64_t id, int32_t kind, int32_t status, const char* msg) {
+    hapsim_command_ack_t a;
+    memset(&a, 0, sizeof a);
+    a.utime = now_us();
+    a.seq = ++s->seq_ack;
+    a.request_id = id;
+    a.kind = kind;
+    a.status = status;
+    char text[640];
+    snprintf(text, sizeof text, "%s", msg ? msg : "");
+    a.message = text;
+    hapsim_command_ack_t_publish(hs_net_bus_lcm(s->mbus), s->ch_ack, &a);
+}
+
+static void reset_limits(hs_server* s) {
+    const hs_scene* sc = &s->w.scene;
+    s->lim = hs_net_default_limits();
+    s->lim.n_devices = sc->n_devices;
+    s->lim.n_tools = sc->n_tools;
+    if (sc->has_workspace) {
+        memcpy(s->lim.workspace_min, sc->workspace_min, sizeof s->lim.workspace_min);
+        memcpy(s->lim.workspace_max, sc->workspace_max, sizeof s->lim.workspace_max);
+    }
+}
+
+// A new frame numbering after a rebuild: the sim's step counter restarts.
+static void after_rebuild(hs_server* s, int keep) {
+    s->have_out = 0;
+    s->sim_step_base = keep ? s->frame_step : 0;
+    if (!keep) {
+        s->frame_step = 0;
+        memset(s->w.u, 0, 3 * (size_t)s->w.mesh->n_nodes * sizeof(double));
+        memset(s->w.v, 0, 3 * (size_t)s->w.mesh->n_nodes * sizeof(double));
+    }
+    if (s->w.visual) {
+        const double* x0 = s->w.mesh->x0;
+        for (int i = 0; i < s->w.n_vis; ++i)
+            for (int k = 0; k < 3; ++k)
+                s->w.cur[3 * i + k] =
+                    (float)(x0[3 * s->w.vis_nodes[i] + k] + s->w.u[3 * s->w.vis_nodes[i] + k]);
+    }
+    memset(s->st_prev, 0, sizeof *s->st_prev);
+    publish_keyframe(s);
+}
+
+// Rebuild the running sim from w.def; keep: carry the body state over. Paused: rebuild later.
+static hs_status rebuild_sim(hs_server* s, int keep, hs_err* err) {
+    world* w = &s->w;
+    if (!w->haptics) return HS_OK;
+    if (s->paused) {
+        if (!keep) {
+            memset(w->u, 0, 3 * (size_t)w->mesh->n_nodes * sizeof(double));
+            memset(w->v, 0, 3 * (size_t)w->mesh->n_nodes * sizeof(double));
+        }
+        return HS_OK;
+    }
+    world_sim_stop(w);
+    if (!keep) {
+        memset(w->u, 0, 3 * (size_t)w->mesh->n_nodes * sizeof(double));
+        memset(w->v, 0, 3 * (size_t)w->mesh->n_nodes * sizeof(double));
+    }
+    hs_status st = world_sim_create(w, keep, err);
+    if (st == HS_OK) st = hs_haptic_sim_start(w->sim, err);
+    after_rebuild(s, keep);
+    return st;
+}
+
+static int set_param(hs_server* s, const char* name, double v, char* msg, size_t cap) {
+    world* w = &s->w;
+    hs_haptic_sim_def d = w->def;
+    hs_scene sc = w->scene;
+    if (!w->haptics) {
+        snprintf(msg, cap, "haptics are off in this scene: no run-time parameters");
+        return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
+    }
+    if (!strcmp(name, "probe_radius_m") && v > 0 && v <= 0.1) {
+        d.probe.radius_m = v;
+        for (int t = 0; t < sc.n_tools; ++t)
+            if (sc.tools[t].kind == HS_TOOL_PROBE) sc.tools[t].radius = v;
+    } else if (!strcmp(name, "force_max_n") && v > 0 && v <= 100) {
+        d.safety.max_force_n = v;
+        sc.force_max_n = v;
+    } else if (!strcmp(name, "force_rate_max_n_per_s") && v > 0 && v <= 1e6) {
+        d.safety.max_rate_n_s = v;
+        sc.force_rate_max = v;
+    } else if (!strcmp(name, "watchdog_ms") && v >= 1 && v <= 10000) {
+        d.safety.watchdog_timeout_s = v * 1e-3;
+        sc.watchdog_s = v * 1e-3;
+    } else if (!strcmp(name, "youngs_pa") && v > 0 && v <= 1e9) {
+        d.body.fem.material.youngs_pa = v;
+        sc.material.youngs_pa = v;
+    } else if (!strcmp(name, "poisson") && v > -1 && v < 0.5) {
+        d.body.fem.material.poisson = v;
+        sc.material.poisson = v;
+    } else {
+        snprintf(msg, cap,
+                 "unknown parameter '%s' or value %g out of range (probe_radius_m, force_max_n, "
+                 "force_rate_max_n_per_s, watchdog_ms, youngs_pa, poisson)",
+                 name, v);
+        return HAPSIM_COMMAND_ACK_T_STATUS_INVALID;
+    }
+    hs_haptic_sim_def old_d = w->def;
+    hs_scene old_sc = w->scene;
+    w->def = d;
+    w->scene = sc;
+    hs_err err = {0};
+    if (rebuild_sim(s, 1, &err) != HS_OK) {
+        w->def = old_d;
+        w->scene = old_sc;
+        hs_err e2 = {0};
+        rebuild_sim(s, 1, &e2);
+        snprintf(msg, cap, "%s", err.msg);
+        return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
+    }
+    snprintf(msg, cap, "%s = %g", name, v);
+    return HAPSIM_COMMAND_ACK_T_STATUS_OK;
+}
+
+static int load_scene(hs_server* s, const char* path, char* msg, size_t cap) {
+    hs_scene sc;
+    hs_err err = {0};
+    if (hs_scene_load(path, &sc, &err) != HS_OK) {
+        snprintf(msg, cap, "%s", err.msg);
+        return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
+    }
+    world nw;
+    int paused = s->paused;
+    // The new world's sim must not compete with the old one for the device: stop the old first.
+    world_sim_stop(&s->w);
+    if (world_create(&sc, s->opt.realtime, &nw, &err) != HS_OK) {
+        snprintf(msg, cap, "%s", err.msg);
+        if (!paused && s->w.haptics) {
+            hs_err e2 = {0};
+            if (world_sim_create(&s->w, 1, &e2) == HS_OK) hs_haptic_sim_start(s->w.sim, &e2);
+        }
+        return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
+    }
+    world_destroy(&s->w);
+    s->w = nw;
+    s->paused = 0;
+    reset_limits(s);
+    s->topo_version++;
+    if (s->w.sim && hs_haptic_sim_start(s->w.sim, &err) != HS_OK) {
+        snprintf(msg, cap, "%s", err.msg);
+        return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
+    }
+    after_rebuild(s, 0);
+    publish_topology(s);
+    snprintf(msg, cap, "loaded %s (%d nodes); buses and prefix unchanged", sc.name,
+             s->w.mesh->n_nodes);
+    return HAPSIM_COMMAND_ACK_T_STATUS_OK;
+}
+
+static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap) {
+    world* w = &s->w;
+    hs_err err = {0};
+    msg[0] = '\0';
+    switch (c->kind) {
+    case HAPSIM_COMMAND_T_KIND_RESET:
+        if (rebuild_sim(s, 0, &err) != HS_OK) {
+            snprintf(msg, cap, "%s", err.msg);
+            return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
+        }
+        if (!w->haptics) publish_keyframe(s);
+        return HAPSIM_COMMAND_ACK_T_STATUS_OK;
+    case HAPSIM_COMMAND_T_KIND_PAUSE:
+        if (s->paused) return HAPSIM_COMMAND_ACK_T_STATUS_OK;
+        drain_outputs(s);
+        s->pause_model = s->have_out ? s->out.model : zero_model();
+        s->pause_ns = hs_now_ns();
+        world_sim_stop(w);
+        s->paused = 1;
+        return HAPSIM_COMMAND_ACK_T_STATUS_OK;
+    case HAPSIM_COMMAND_T_KIND_RESUME:
+        if (!s->paused) return HAPSIM_COMMAND_ACK_T_STATUS_OK;
+        s->paused = 0;
+        if (w->haptics) {
+            if (world_sim_create(w, 1, &err) != HS_OK ||
+                hs_haptic_sim_start(w->sim, &err) != HS_OK) {
+                snprintf(msg, cap, "%s", err.msg);
+                s->paused = 1;
+                return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
+            }
+            s->have_out = 0;
+            s->sim_step_base = s->frame_step;
+            memset(s->st_prev, 0, sizeof *s->st_prev);
+        }
+        return HAPSIM_COMMAND_ACK_T_STATUS_OK;
+    case HAPSIM_COMMAND_T_KIND_LOAD_SCENE:
+        return load_scene(s, hs_net_command_arg(c, "path"), msg, cap);
+    case HAPSIM_COMMAND_T_KIND_SET_PARAM:
+        return set_param(s, hs_net_command_arg(c, "name"), c->number, msg, cap);
+    case HAPSIM_COMMAND_T_KIND_ESTOP: {
+        s->estop = 1;
+        hs_haptic_model z = zero_model();
+        for (int d = 0; d < w->scene.n_devices && d < MAX_DEV; ++d)
+            if (s->dev[d].seen && w->haptics) {
+                memcpy(z.anchor_m, s->dev[d].pos, sizeof z.anchor_m);
+                publish_force(s, d, &z, HAPSIM_TOOL_FORCE_T_STATE_STOPPED, 0, 0, 0);
+            }
+        return HAPSIM_COMMAND_ACK_T_STATUS_OK;
+    }
+    case HAPSIM_COMMAND_T_KIND_ESTOP_RELEASE:
+        s->estop = 0;
+        return HAPSIM_COMMAND_ACK_T_STATUS_OK;
+    case HAPSIM_COMMAND_T_KIND_REQUEST_TOPOLOGY:
+        publish_topology(s);
+        publish_keyframe(s);
+        if (!w->visual) snprintf(msg, cap, "visual mesh is off in this scene");
+        return HAPSIM_COMMAND_ACK_T_STATUS_OK;
+    }
+    snprintf(msg, cap, "unknown kind %d", c->kind);
+    return HAPSIM_COMMAND_ACK_T_STATUS_INVALID;
+}
+
+static void on_command(const lcm_recv_buf_t* rb, const char* ch, void* user) {
+    (void)ch;
+    hs_server* s = user;
+    hs_net_command c;
+    int32_t prev = 0;
+    hs_net_reject r = hs_net_validate_command(&s->cst, rb->data, rb->data_size, &c, &prev);
+    if (r == HS_NET_REJ_DUPLICATE) {
+        send_ack(s, c.request_id, c.kind, prev, "duplicate request_id: not executed again");
+        return;
+    }
+    if (r != HS_NET_ACCEPT) {
+        if (c.request_id != 0)
+            send_ack(s, c.request_id, c.kind, HAPSIM_COMMAND_ACK_T_STATUS_INVALID,
+                     hs_net_reject_name(r));
+        return;
+    }
+    char msg[600];
+    if (c.kind == HAPSIM_COMMAND_T_KIND_LOAD_SCENE)
+        send_ack(s, c.request_id, c.kind, HAPSIM_COMMAND_ACK_T_STATUS_PENDING, "loading");
+    int st = execute(s, &c, msg, sizeof msg);
+    hs_net_dedup_set_status(&s->cst.dedup, c.request_id, st);
+    send_ack(s, c.request_id, c.kind, st, msg);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Life cycle
+
+static hs_status channels(hs_server* s, hs_err* err) {
+    const char* p = s->prefix;
+    struct {
+        char* out;
+        const char* suffix;
+    } t[] = {{s->ch_pose, HAPSIM_CH_TOOL_POSE},      {s->ch_force, HAPSIM_CH_TOOL_FORCE},
+             {s->ch_topo, HAPSIM_CH_MESH_TOPOLOGY},  {s->ch_state, HAPSIM_CH_MESH_STATE},
+             {s->ch_delta, HAPSIM_CH_MESH_DELTA},    {s->ch_tool, HAPSIM_CH_TOOL_STATE},
+             {s->ch_cmd, HAPSIM_CH_COMMAND},         {s->ch_ack, HAPSIM_CH_COMMAND_ACK},
+             {s->ch_status, HAPSIM_CH_SERVER_STATUS}};
+    for (size_t i = 0; i < sizeof t / sizeof t[0]; ++i)
+        if (hapsim_channel_name(t[i].out, HAPSIM_CHANNEL_MAX, p, t[i].suffix) != 0)
+            return hs_err_set(err, HS_ERR_INVALID, "--prefix '%s': too long", p);
+    return HS_OK;
+}
+
+static int prefix_ok(const char* p) {
+    size_t n = strlen(p);
+    if (n >= HS_SCENE_PREFIX_MAX) return 0;
+    for (size_t i = 0; i < n; ++i)
+        if (!((p[i] >= 'A' && p[i] <= 'Z') || (p[i] >= '0' && p[i] <= '9') || p[i] == '_'))
+            return 0;
+    return 1;
+}
+
+hs_status hs_server_create(const hs_server_opts* opts, hs_server** out, hs_err* err) {
+    *out = NULL;
+    hs_scene sc;
+    hs_status st = hs_scene_load(opts->scene_path, &sc, err);
+    if (st != HS_OK) return st;
+    if (opts->prefix && !prefix_ok(opts->prefix))
+        return hs_err_set(err, HS_ERR_INVALID, "--prefix '%s': must match [A-Z0-9_]{0,47}",
+                          opts->prefix);
+    hs_server* s = hs_calloc(1, sizeof *s);
+    if (!s) return hs_err_set(err, HS_ERR_NOMEM, "out of memory");
+    s->opt = *opts;
+    snprintf(s->haptic_url, sizeof s->haptic_url, "%s",
+             opts->haptic_url ? opts->haptic_url : sc.haptic_url);
+    snprintf(s->mesh_url, sizeof s->mesh_url, "%s", opts->mesh_url ? opts->mesh_url : sc.mesh_url);
+    snprintf(s->prefix, sizeof s->prefix, "%s", opts->prefix ? opts->prefix : sc.prefix);
+    if (!strcmp(s->haptic_url, s->mesh_url)) {
+        st = hs_err_set(err, HS_ERR_INVALID,
+                        "haptic and mesh URLs are both '%s': use two buses (different ports)",
+                        s->haptic_url);
+        goto fail;
+    }
+    st = channels(s, err);
+    if (st != HS_OK) goto fail;
+    s->st_prev = hs_calloc(1, sizeof *s->st_prev);
+    s->st_now = hs_calloc(1, sizeof *s->st_now);
+    s->h_net = hs_calloc(1, sizeof *s->h_net);
+    s->h_step = hs_calloc(1, sizeof *s->h_step);
+    s->h_handle = hs_calloc(1, sizeof *s->h_handle);
+    s->h_diff = hs_calloc(1, sizeof *s->h_diff);
+    s->h_simper = hs_calloc(1, sizeof *s->h_simper);
+    if (!s->st_prev || !s->st_now || !s->h_net || !s->h_step || !s->h_handle || !s->h_diff ||
+        !s->h_simper) {
+        st = hs_err_set(err, HS_ERR_NOMEM, "out of memory");
+        goto fail;
+    }
+    for (int d = 0; d < MAX_DEV; ++d) {
+        s->dev[d].lat = hs_calloc(1, sizeof(hs_rt_hist));
+        if (!s->dev[d].lat) {
+            st = hs_err_set(err, HS_ERR_NOMEM, "out of memory");
+            goto fail;
+        }
+    }
+    // Buses first (LCM's fds stay low), then the world.
+    st = hs_net_bus_create(s->haptic_url, &s->hbus, err);
+    if (st != HS_OK) goto fail;
+    st = hs_net_bus_create(s->mesh_url, &s->mbus, err);
+    if (st != HS_OK) goto fail;
+    st = world_create(&sc, opts->realtime, &s->w, err);
+    if (st != HS_OK) goto fail;
+    reset_limits(s);
+    hs_net_pose_state_init(&s->pst);
+    hs_net_command_state_init(&s->cst);
+    lcm_subscription_t* ps = lcm_subscribe(hs_net_bus_lcm(s->hbus), s->ch_pose, on_pose, s);
+    lcm_subscription_t* cs = lcm_subscribe(hs_net_bus_lcm(s->mbus), s->ch_cmd, on_command, s);
+    if (!ps || !cs) {
+        st = hs_err_set(err, HS_ERR_INVALID, "cannot subscribe to %s / %s", s->ch_pose, s->ch_cmd);
+        goto fail;
+    }
+    lcm_subscription_set_queue_capacity(ps, POSE_QUEUE);
+    lcm_subscription_set_queue_capacity(cs, COMMAND_QUEUE);
+    s->topo_version = 1;
+    *out = s;
+    return HS_OK;
+fail:
+    hs_server_destroy(&s);
+    return st;
+}
+
+void hs_server_destroy(hs_server** ps) {
+    if (!ps || !*ps) return;
+    hs_server* s = *ps;
+    world_destroy(&s->w);
+    hs_net_bus_destroy(&s->hbus);
+    hs_net_bus_destroy(&s->mbus);
+    hs_free(s->st_prev);
+    hs_free(s->st_now);
+    hs_free(s->h_net);
+    hs_free(s->h_step);
+    hs_free(s->h_handle);
+    hs_free(s->h_diff);
+    hs_free(s->h_simper);
+    for (int d = 0; d < MAX_DEV; ++d) hs_free(s->dev[d].lat);
+    hs_free(s);
+    *ps = NULL;
+}
+
+void hs_server_print_summary(hs_server* s) {
+    const world* w = &s->w;
+    const hs_scene* sc = &w->scene;
+    const hs_mesh* m = w->mesh;
+    printf("hapsim-server: scene '%s' (%s)\n", sc->name, sc->path);
+    printf("  mesh     %s: %d nodes, %d tets, %d surface nodes, %d fixed\n", sc->mesh_path,
+           m->n_nodes, m->n_tets, m->n_surf_nodes, w->n_fixed);
+    printf("  model    %s, E %g Pa, nu %g, %g kg/m^3; deformation up to %g Hz\n",
+           hs_scene_model_name(sc->model), sc->material.youngs_pa, sc->material.poisson,
+           sc->material.density_kg_m3, sc->sim_hz);
+    if (w->haptics) {
+        hs_haptic_sim_stats st;
+        hs_haptic_sim_stats_get(w->sim, &st);
+        printf("  haptics  rt %g Hz, probe radius %g mm, force clamp %g N, watchdog %g ms; "
+               "compliance set-up %.1f ms\n",
+               sc->haptic_hz, w->def.probe.radius_m * 1e3, sc->force_max_n, sc->watchdog_s * 1e3,
+               st.setup_ms);
+    } else {
+        printf("  haptics  off (%s): no rt thread, poses validated and counted only\n",
+               w->probe_note ? w->probe_note : "scene");
+    }
+    if (w->visual)
+        printf("  visual   %d nodes, %d triangles, %g Hz deltas, keyframe + topology every 1 s "
+               "(keyframe %lld bytes)\n",
+               w->n_vis, w->n_tri_idx / 3, sc->visual_hz,
+               (long long)hs_net_keyframe_bytes(w->n_vis, 0));
+    else
+        printf("  visual   off: no mesh messages\n");
+    printf("  buses    haptic %s  (%s in, %s out)\n", s->haptic_url, s->ch_pose, s->ch_force);
+    printf("           mesh   %s  (%s in; mesh, tool state, acks, status out)\n", s->mesh_url,
+           s->ch_cmd);
+    if (w->sim) {
+        hs_haptic_sim_stats st;
+        hs_haptic_sim_stats_get(w->sim, &st);
+        printf("  threads  rt (%s%s), deformation, net\n",
+               (st.rt.obtained & HS_RT_SCHED_FIFO) ? "SCHED_FIFO" : "ordinary scheduling",
+               (st.rt.obtained & HS_RT_MLOCKED) ? ", mlockall" : ", no mlockall");
+        if (s->opt.realtime && !(st.rt.obtained & HS_RT_SCHED_FIFO))
+            printf("  note     --realtime: SCHED_FIFO not granted (needs CAP_SYS_NICE or an "
+                   "rtprio limit)\n");
+    } else {
+        printf("  threads  net only\n");
+    }
+    printf("  running; SIGINT/SIGTERM stops%s\n", s->opt.duration_s > 0 ? " (or --duration)" : "");
+    fflush(stdout);
+}
+
+static void live_line(hs_server* s, int64_t t) {
+    world* w = &s->w;
+    double rate = 0, jit = 0, step_ms = 0;
+    if (w->sim) {
+        hs_haptic_sim_stats st;
+        hs_haptic_sim_stats_get(w->sim, &st);
+        if (s->live_prev_t)
+            rate =
+                (double)(st.rt.ticks - s->live_prev_ticks) / ((double)(t - s->live_prev_t) * 1e-9);
+        s->live_prev_ticks = st.rt.ticks;
+        s->live_prev_t = t;
+        jit = hs_rt_hist_quantile_us(&st.rt.period_err, 0.99);
+        step_ms = st.step_ms_last;
+    }
+    uint64_t rej =
+        hs_net_counters_rejected(&s->pst.counters) + hs_net_counters_rejected(&s->cst.counters);
+    fprintf(stderr,
+            "\rhapsim-server: rt %6.1f Hz  jitter p99 %5.0f us  force %5.2f N  sim step %5.2f ms  "
+            "poses %lld  rejected %llu%s   ",
+            rate, jit, norm3(s->dev[0].force), step_ms, (long long)s->poses_total,
+            (unsigned long long)rej,
+            s->estop    ? "  E-STOP"
+            : s->paused ? "  PAUSED"
+                        : "");
+    fflush(stderr);
+}
+
+static int handle_ready(hs_net_bus* b) {
+    lcm_t* l = hs_net_bus_lcm(b);
+    struct pollfd p = {lcm_get_fileno(l), POLLIN, 0};
+    for (int i = 0; i < HANDLE_BATCH; ++i) {
+        if (poll(&p, 1, 0) <= 0 || !(p.revents & POLLIN)) return 0;
+        if (lcm_handle(l) != 0) return -1;
+    }
+    return 0;
+}
+
+hs_status hs_server_run(hs_server* s, hs_err* err) {
+    int sfd = s->opt.stop_fd;
+    world* w = &s->w;
+    if (w->sim) {
+        hs_status st = hs_haptic_sim_start(w->sim, err);
+        if (st != HS_OK) return st;
+    }
+    if (!s->opt.quiet) hs_server_print_summary(s);
+    int64_t t = hs_now_ns();
+    s->start_ns = s->stat_ns = s->last_iter_ns = t;
+    int64_t end = s->opt.duration_s > 0 ? t + (int64_t)(s->opt.duration_s * 1e9) : INT64_MAX;
+    int64_t visual_ns = (int64_t)(1e9 / w->scene.visual_hz);
+    int64_t next_visual = t, next_status = t, next_topo = t, next_key = t, next_live = t;
+    publish_topology(s);
+    hs_status rc = HS_OK;
+    while (!s->stop) {
+        t = hs_now_ns();
+        int64_t next = next_visual;
+        if (next_status < next) next = next_status;
+        if (next_topo < next) next = next_topo;
+        if (next_key < next) next = next_key;
+        if (s->opt.live && next_live < next) next = next_live;
+        if (end < next) next = end;
+        int64_t wait_ns = next - t;
+        // While a device is active, wake every millisecond to pass rt outputs on.
+        if (w->sim && s->dev[0].seen && t - s->dev[0].last_rx_ns < 2000000000LL &&
+            wait_ns > 1000000)
+            wait_ns = 1000000;
+        int timeout = wait_ns <= 0 ? 0 : (int)((wait_ns + 999999) / 1000000);
+        struct pollfd pf[3] = {{lcm_get_fileno(hs_net_bus_lcm(s->hbus)), POLLIN, 0},
+                               {lcm_get_fileno(hs_net_bus_lcm(s->mbus)), POLLIN, 0},
+                               {sfd, POLLIN, 0}};
+        int n = poll(pf, 3, timeout);
+        if (n < 0 && errno != EINTR) {
+            rc = hs_err_set(err, HS_ERR_IO, "poll: %s", strerror(errno));
+            break;
+        }
+        t = hs_now_ns();
+        hist_add(s->h_net, t - s->last_iter_ns);
+        s->last_iter_ns = t;
+        s->net_iters++;
+        if (n > 0 && (pf[2].revents & POLLIN)) {
+            char b[16];
+            while (read(sfd, b, sizeof b) > 0) s->stop = 1;
+        }
+        if (n > 0 && (pf[0].revents & POLLIN) && handle_ready(s->hbus) < 0) {
+            rc = hs_err_set(err, HS_ERR_IO, "lcm_handle failed on %s", s->haptic_url);
+            break;
+        }
+        if (n > 0 && (pf[1].revents & POLLIN) && handle_ready(s->mbus) < 0) {
+            rc = hs_err_set(err, HS_ERR_IO, "lcm_handle failed on %s", s->mesh_url);
+            break;
+        }
+        w = &s->w; // a load_scene replaces the world
+        drain_outputs(s);
+        publish_rt_output(s);
+        t = hs_now_ns();
+        if (w->sim) {
+            hs_haptic_sim_stats st;
+            hs_haptic_sim_stats_get(w->sim, &st);
+            if (st.steps != s->last_steps) {
+                hist_add(s->h_step, (int64_t)(st.step_ms_last * 1e6));
+                if (s->last_step_ns && st.steps > s->last_steps)
+                    hist_add(s->h_simper, (t - s->last_step_ns) / (st.steps - s->last_steps));
+                s->last_steps = st.steps;
+                s->last_step_ns = t;
+            }
+        }
+        if (t >= next_visual) {
+            publish_frame(s, t);
+            publish_tool_states(s, t);
+            next_visual += visual_ns;
+            if (next_visual < t) next_visual = t + visual_ns;
+        }
+        if (t >= next_key) {
+            publish_keyframe(s);
+            next_key = t + KEYFRAME_NS;
+        }
+        if (t >= next_topo) {
+            publish_topology(s);
+            next_topo = t + KEYFRAME_NS;
+        }
+        if (t >= next_status) {
+            publish_status(s, t);
+            next_status = t + (int64_t)(1e9 / w->scene.status_hz);
+        }
+        if (s->opt.live && t >= next_live) {
+            live_line(s, t);
+            next_live = t + LIVE_NS;
+        }
+        if (t >= end) s->stop = 1;
+    }
+    if (s->w.sim) hs_haptic_sim_stop(s->w.sim);
+    if (s->opt.live) fprintf(stderr, "\n");
+    if (!s->opt.quiet) {
+        uint64_t rej =
+            hs_net_counters_rejected(&s->pst.counters) + hs_net_counters_rejected(&s->cst.counters);
+        printf("hapsim-server: stopped after %.1f s: %lld poses answered, %lld forces sent, "
+               "%llu messages rejected\n",
+               (double)(hs_now_ns() - s->start_ns) * 1e-9, (long long)s->poses_total,
+               (long long)s->forces_total, (unsigned long long)rej);
+        fflush(stdout);
+    }
+    return rc;
+}

@@ -1,0 +1,849 @@
+// hapsim-server end to end: the real daemon as a child process and real LCM clients over UDP
+// multicast, inside a private network namespace (tests/netns.sh; ttl=0, private ports).
+// Poses in -> forces out on the liver, the watchdog, commands with acks, a 10k-vertex keyframe,
+// delta loss recovered at the next keyframe, a 100k-message flood of malformed payloads with
+// exact reject counters and a bitwise-identical mesh, a malformed scene. Every wait is bounded.
+#define _GNU_SOURCE
+#include <errno.h>
+#include <signal.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "test_macros.h"
+
+#include "hapsim/base.h"
+#include "hapsim/mesh.h"
+#include "hapsim_channels.h"
+#include "hapsim_command_ack_t.h"
+#include "hapsim_command_t.h"
+#include "hapsim_mesh_delta_t.h"
+#include "hapsim_mesh_state_t.h"
+#include "hapsim_mesh_topology_t.h"
+#include "hapsim_server_status_t.h"
+#include "hapsim_tool_force_t.h"
+#include "hapsim_tool_pose_t.h"
+#include "net/bus.h"
+#include "net/mesh_frames.h"
+
+#define URL_H    "udpm://239.255.76.91:7791?ttl=0"
+#define URL_M    "udpm://239.255.76.92:7792?ttl=0"
+#define URL_H_RX "udpm://239.255.76.91:7791?ttl=0&recv_buf_size=4194304"
+#define URL_M_RX "udpm://239.255.76.92:7792?ttl=0&recv_buf_size=4194304"
+#define PREFIX   "T_"
+
+// Node 399 of liver2.msh, the top of the liver, and its outward normal (scenes/liver/scripts).
+static const double P399[3] = {-0.0601965072, 0.0632736481, -0.0146254244};
+static const double N399[3] = {0.105, 0.993, -0.045};
+#define PROBE_R 0.005
+#ifndef PRESS_D
+#define PRESS_D 0.003
+#endif
+
+static char tmpdir[256];
+static pid_t child = -1;
+
+static void kill_child(void) {
+    if (child > 0) {
+        kill(child, SIGKILL);
+        waitpid(child, NULL, 0);
+        child = -1;
+    }
+}
+
+__attribute__((constructor)) static void setup(void) {
+    snprintf(tmpdir, sizeof tmpdir, "/tmp/hs_test_server_XXXXXX");
+    if (!mkdtemp(tmpdir)) tmpdir[0] = '\0';
+    atexit(kill_child);
+}
+
+static void write_file(const char* path, const char* text) {
+    FILE* f = fopen(path, "w");
+    if (f) {
+        fputs(text, f);
+        fclose(f);
+    }
+}
+
+// A liver scene without gravity (the press script's surface is the rest surface), mesh by path.
+static void liver_scene(const char* path, const char* extra) {
+    char text[2048];
+    snprintf(text, sizeof text,
+             "{ \"mesh\": \"%s/scenes/liver/liver2.msh\",\n"
+             "  \"material\": {\"youngs_pa\": 5000, \"poisson\": 0.45, \"density_kg_m3\": 1060,\n"
+             "               \"rayleigh_mass\": 0.5, \"rayleigh_stiffness\": 0.01},\n"
+             "  \"fixed\": [{\"type\": \"plane\", \"point\": [0, -0.0433, 0], \"normal\": [0, 1, "
+             "0]}],\n"
+             "  \"gravity\": [0, 0, 0],\n"
+             "  \"tools\": [{\"kind\": \"probe\", \"radius\": %g}],\n"
+             "  \"workspace\": {\"min\": [-0.25, -0.2, -0.2], \"max\": [0.25, 0.25, 0.2]}%s }\n",
+             HS_SOURCE_DIR, PROBE_R, extra ? extra : "");
+    write_file(path, text);
+}
+
+// Start hapsim-server on scene with the test URLs; stdout/stderr to files in tmpdir.
+static int start_server(const char* scene, const char* tag) {
+    kill_child();
+    char out[512];
+    snprintf(out, sizeof out, "%s/server-%s.log", tmpdir, tag);
+    fflush(stdout);
+    child = fork();
+    if (child < 0) return -1;
+    if (child == 0) {
+        FILE* f = freopen(out, "w", stdout);
+        (void)f;
+        dup2(fileno(stdout), 2);
+        execl(HS_SERVER_BIN, HS_SERVER_BIN, scene, "--haptic-url", URL_H, "--mesh-url", URL_M,
+              "--prefix", PREFIX, "--duration", "120", (char*)NULL);
+        _exit(127);
+    }
+    return 0;
+}
+
+// SIGTERM; returns the exit status (or -1 if it did not exit within 5 s).
+static int stop_server(void) {
+    if (child <= 0) return -1;
+    kill(child, SIGTERM);
+    int64_t end = hs_now_ns() + 5000000000LL;
+    int st = 0;
+    while (hs_now_ns() < end) {
+        pid_t r = waitpid(child, &st, WNOHANG);
+        if (r == child) {
+            child = -1;
+            int code = WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
+            if (code != 0) printf("  hapsim-server exit status %d\n", code);
+            return code;
+        }
+        usleep(10000);
+    }
+    kill_child();
+    return -1;
+}
+
+static int server_alive(void) {
+    return child > 0 && waitpid(child, NULL, WNOHANG) == 0;
+}
+
+// ---------------------------------------------------------------------------------------------
+// The client: both buses, the newest of everything, a consistent mesh copy.
+
+typedef struct client {
+    hs_net_bus* h;
+    hs_net_bus* m;
+    int64_t session, seq;
+    // forces
+    int n_force;
+    hapsim_tool_force_t force; // newest (arrays are fixed-size)
+    int64_t force_rx_ns;
+    // status
+    int n_status;
+    hapsim_server_status_t* status; // newest, owned copy
+    // acks
+    int n_ack;
+    int64_t ack_id[64];
+    int32_t ack_status[64];
+    // mesh
+    int n_topo, n_key, n_delta;
+    int64_t topo_version;
+    int n_vis;
+    float* rest;
+    int64_t key_id;
+    float* key;   // newest keyframe [3 n_vis]
+    float* shape; // keyframe + newest matching delta
+    int drop_deltas;
+    int n_delta_applied;
+    int64_t hist_id[8]; // the last keyframes, by id
+    float* hist[8];
+} client;
+
+static void on_force(const lcm_recv_buf_t* rb, const char* ch, const hapsim_tool_force_t* f,
+                     void* u) {
+    (void)rb;
+    (void)ch;
+    client* c = u;
+    c->force = *f;
+    c->force_rx_ns = hs_now_ns();
+    c->n_force++;
+}
+
+static void on_status(const lcm_recv_buf_t* rb, const char* ch, const hapsim_server_status_t* s,
+                      void* u) {
+    (void)rb;
+    (void)ch;
+    client* c = u;
+    if (c->status) hapsim_server_status_t_destroy(c->status);
+    c->status = hapsim_server_status_t_copy(s);
+    c->n_status++;
+}
+
+static void on_ack(const lcm_recv_buf_t* rb, const char* ch, const hapsim_command_ack_t* a,
+                   void* u) {
+    (void)rb;
+    (void)ch;
+    client* c = u;
+    c->ack_id[c->n_ack % 64] = a->request_id;
+    c->ack_status[c->n_ack % 64] = a->status;
+    c->n_ack++;
+}
+
+static void on_topo(const lcm_recv_buf_t* rb, const char* ch, const hapsim_mesh_topology_t* t,
+                    void* u) {
+    (void)rb;
+    (void)ch;
+    client* c = u;
+    if (t->n_rest != 3 * t->n_vis || t->n_vis <= 0) return;
+    if (c->n_vis != t->n_vis) {
+        free(c->rest);
+        free(c->key);
+        free(c->shape);
+        c->n_vis = t->n_vis;
+        c->rest = malloc(sizeof(float) * 3 * (size_t)t->n_vis);
+        c->key = calloc(3 * (size_t)t->n_vis, sizeof(float));
+        c->shape = calloc(3 * (size_t)t->n_vis, sizeof(float));
+        c->key_id = 0;
+    }
+    memcpy(c->rest, t->rest_position, sizeof(float) * 3 * (size_t)t->n_vis);
+    c->topo_version = t->topology_version;
+    c->n_topo++;
+}
+
+static void on_key(const lcm_recv_buf_t* rb, const char* ch, const hapsim_mesh_state_t* m,
+                   void* u) {
+    (void)rb;
+    (void)ch;
+    client* c = u;
+    if (!c->n_topo || m->topology_version != c->topo_version || m->n_pos != 3 * c->n_vis) return;
+    memcpy(c->key, m->position, sizeof(float) * (size_t)m->n_pos);
+    memcpy(c->shape, m->position, sizeof(float) * (size_t)m->n_pos);
+    c->key_id = m->keyframe_id;
+    int h = c->n_key % 8;
+    free(c->hist[h]);
+    c->hist[h] = malloc(sizeof(float) * (size_t)m->n_pos);
+    memcpy(c->hist[h], m->position, sizeof(float) * (size_t)m->n_pos);
+    c->hist_id[h] = m->keyframe_id;
+    c->n_key++;
+}
+
+static void on_delta(const lcm_recv_buf_t* rb, const char* ch, const hapsim_mesh_delta_t* d,
+                     void* u) {
+    (void)rb;
+    (void)ch;
+    client* c = u;
+    c->n_delta++;
+    if (c->drop_deltas || !c->key_id || d->keyframe_id != c->key_id ||
+        d->topology_version != c->topo_version || d->n_delta != 3 * d->n_changed)
+        return;
+    if (hs_net_delta_apply(c->key, c->n_vis, d->index, d->delta, d->n_changed, c->shape) == 0)
+        c->n_delta_applied++;
+}
+
+static int client_open(client* c) {
+    memset(c, 0, sizeof *c);
+    hs_err err = {0};
+    if (hs_net_bus_create(URL_H_RX, &c->h, &err) != HS_OK) return -1;
+    if (hs_net_bus_create(URL_M_RX, &c->m, &err) != HS_OK) return -1;
+    c->session = 0x5eed0000 + getpid();
+    hapsim_tool_force_t_subscribe(hs_net_bus_lcm(c->h), PREFIX "TOOL_FORCE", on_force, c);
+    hapsim_server_status_t_subscribe(hs_net_bus_lcm(c->m), PREFIX "SERVER_STATUS", on_status, c);
+    hapsim_command_ack_t_subscribe(hs_net_bus_lcm(c->m), PREFIX "COMMAND_ACK", on_ack, c);
+    hapsim_mesh_topology_t_subscribe(hs_net_bus_lcm(c->m), PREFIX "MESH_TOPOLOGY", on_topo, c);
+    hapsim_mesh_state_t_subscribe(hs_net_bus_lcm(c->m), PREFIX "MESH_STATE", on_key, c);
+    hapsim_mesh_delta_t_subscribe(hs_net_bus_lcm(c->m), PREFIX "MESH_DELTA", on_delta, c);
+    return 0;
+}
+
+static void client_close(client* c) {
+    hs_net_bus_destroy(&c->h);
+    hs_net_bus_destroy(&c->m);
+    if (c->status) hapsim_server_status_t_destroy(c->status);
+    free(c->rest);
+    free(c->key);
+    free(c->shape);
+    for (int i = 0; i < 8; ++i) free(c->hist[i]);
+    memset(c, 0, sizeof *c);
+}
+
+// Handle both buses for up to ms milliseconds.
+static void pump_ms(client* c, int ms) {
+    int64_t end = hs_now_ns() + (int64_t)ms * 1000000;
+    while (hs_now_ns() < end) {
+        hs_net_bus_handle(c->h, 0);
+        hs_net_bus_handle(c->m, 1);
+    }
+}
+
+// Pump until *counter exceeds start or timeout; returns 1 when it did.
+static int wait_more(client* c, const int* counter, int timeout_ms) {
+    int start = *counter;
+    int64_t end = hs_now_ns() + (int64_t)timeout_ms * 1000000;
+    while (*counter <= start && hs_now_ns() < end) {
+        hs_net_bus_handle(c->h, 0);
+        hs_net_bus_handle(c->m, 1);
+    }
+    return *counter > start;
+}
+
+static void send_pose(client* c, const double p[3], uint32_t buttons) {
+    hapsim_tool_pose_t m;
+    memset(&m, 0, sizeof m);
+    m.utime = hs_now_ns() / 1000;
+    m.seq = ++c->seq;
+    m.session = c->session;
+    m.device_id = 0;
+    m.tool_id = 0;
+    for (int k = 0; k < 3; ++k) m.position[k] = p[k];
+    m.orientation[0] = 1;
+    m.buttons = (int32_t)buttons;
+    hapsim_tool_pose_t_publish(hs_net_bus_lcm(c->h), PREFIX "TOOL_POSE", &m);
+}
+
+// Probe centre at depth d (m, > 0: pressed in) along the normal at node 399.
+static void probe_at(double depth, double p[3]) {
+    double l = sqrt(N399[0] * N399[0] + N399[1] * N399[1] + N399[2] * N399[2]);
+    for (int k = 0; k < 3; ++k) p[k] = P399[k] + (PROBE_R - depth) * N399[k] / l;
+}
+
+// Stream poses at ~1 kHz for ms, moving linearly from depth d0 to d1; handles traffic between.
+static void stream(client* c, double d0, double d1, int ms) {
+    int64_t t0 = hs_now_ns();
+    for (int i = 0; i < ms; ++i) {
+        double p[3];
+        probe_at(d0 + (d1 - d0) * (i + 1) / ms, p);
+        send_pose(c, p, 0);
+        int64_t next = t0 + (int64_t)(i + 1) * 1000000;
+        while (hs_now_ns() < next) {
+            hs_net_bus_handle(c->h, 0);
+            hs_net_bus_handle(c->m, 0);
+        }
+    }
+}
+
+static int64_t next_request = 1000;
+
+static void send_command(client* c, int64_t id, int kind, const char* k1, const char* v1,
+                         const char* k2, const char* v2) {
+    hapsim_command_t m;
+    memset(&m, 0, sizeof m);
+    char* keys[2] = {(char*)(uintptr_t)k1, (char*)(uintptr_t)k2};
+    char* values[2] = {(char*)(uintptr_t)v1, (char*)(uintptr_t)v2};
+    m.utime = hs_now_ns() / 1000;
+    m.seq = id;
+    m.request_id = id;
+    m.kind = kind;
+    m.n_args = k2 ? 2 : k1 ? 1 : 0;
+    m.keys = keys;
+    m.values = values;
+    m.sender = "test_server";
+    hapsim_command_t_publish(hs_net_bus_lcm(c->m), PREFIX "COMMAND", &m);
+}
+
+// Send a command (retrying) and wait for its ack; returns the ack status or 99 on timeout.
+static int command(client* c, int kind, const char* k1, const char* v1, const char* k2,
+                   const char* v2, int64_t* id_out) {
+    int64_t id = ++next_request;
+    if (id_out) *id_out = id;
+    for (int attempt = 0; attempt < 5; ++attempt) {
+        send_command(c, id, kind, k1, v1, k2, v2);
+        int64_t end = hs_now_ns() + 600000000LL;
+        while (hs_now_ns() < end) {
+            hs_net_bus_handle(c->m, 1);
+            hs_net_bus_handle(c->h, 0);
+            for (int i = 0; i < 64 && i < c->n_ack; ++i)
+                if (c->ack_id[i] == id && c->ack_status[i] != HAPSIM_COMMAND_ACK_T_STATUS_PENDING)
+                    return c->ack_status[i];
+        }
+    }
+    return 99;
+}
+
+static double dot_n(const double f[3]) {
+    double l = sqrt(N399[0] * N399[0] + N399[1] * N399[1] + N399[2] * N399[2]);
+    return (f[0] * N399[0] + f[1] * N399[1] + f[2] * N399[2]) / l;
+}
+
+static double norm3(const double v[3]) {
+    return sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+}
+
+static int wait_up(client* c) {
+    // The server is up once its status arrives (set-up: mesh, compliance, buses).
+    int64_t end = hs_now_ns() + 20000000000LL;
+    while (c->n_status == 0 && hs_now_ns() < end && server_alive()) pump_ms(c, 20);
+    return c->n_status > 0;
+}
+
+static int64_t reject_count(const hapsim_server_status_t* s, const char* ch, const char* reason) {
+    for (int i = 0; i < s->n_rejects; ++i)
+        if (!strcmp(s->reject_channel[i], ch) && !strcmp(s->reject_reason[i], reason))
+            return s->reject_count[i];
+    return 0;
+}
+
+// ---------------------------------------------------------------------------------------------
+
+static int poses_in_forces_out(void) {
+    char scene[512];
+    snprintf(scene, sizeof scene, "%s/liver.json", tmpdir);
+    liver_scene(scene, NULL);
+    ENSURE(start_server(scene, "forces") == 0);
+    client c;
+    ENSURE(client_open(&c) == 0);
+    ENSURE(wait_up(&c));
+
+    // Free space, 10 mm above the surface: answers echo the pose, force exactly zero.
+    stream(&c, -0.010, -0.010, 300);
+    pump_ms(&c, 20);
+    ENSURE(c.n_force > 200);
+    ENSURE(c.force.pose_seq == c.seq && c.force.device_id == 0);
+    ENSURE(norm3(c.force.force) == 0.0);
+    ENSURE(c.force.state == HAPSIM_TOOL_FORCE_T_STATE_FREE);
+
+    // Press 4 mm along -n and hold: the force pushes back along +n.
+    stream(&c, -0.010, 0.004, 700);
+    stream(&c, 0.004, 0.004, 800);
+    pump_ms(&c, 5);
+    double fn = dot_n(c.force.force);
+    printf("  pressed 4 mm: force %.4f %.4f %.4f N (along n %.4f), state %d\n", c.force.force[0],
+           c.force.force[1], c.force.force[2], fn, c.force.state);
+    ENSURE(fn > 0.02);
+    ENSURE(fn > 0.9 * norm3(c.force.force)); // opposing the press, mostly normal
+    ENSURE(c.force.state == HAPSIM_TOOL_FORCE_T_STATE_CONTACT);
+    ENSURE(c.force.pose_seq == c.seq);
+    // The local model stiffens against a deeper press: n^T (dF/dp) n < 0.
+    double kn = 0;
+    for (int a = 0; a < 3; ++a)
+        for (int b = 0; b < 3; ++b) kn += N399[a] * c.force.stiffness[3 * a + b] * N399[b];
+    ENSURE(kn < 0);
+
+    // Clamp through SET_PARAM, then restore.
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_SET_PARAM, "name", "force_max_n", "value", "0.01",
+                   NULL) == HAPSIM_COMMAND_ACK_T_STATUS_OK);
+    stream(&c, 0.004, 0.004, 400);
+    ENSURE(norm3(c.force.force) <= 0.01 + 1e-12);
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_SET_PARAM, "name", "no_such_param", "value", "1",
+                   NULL) == HAPSIM_COMMAND_ACK_T_STATUS_INVALID);
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_SET_PARAM, "name", "force_max_n", "value", "3.3",
+                   NULL) == HAPSIM_COMMAND_ACK_T_STATUS_OK);
+    stream(&c, 0.004, 0.004, 400);
+    ENSURE(dot_n(c.force.force) > 0.02);
+
+    // E-stop: zero at once, even while pressed; a repeated request id is not executed again.
+    int64_t id = 0;
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_ESTOP, NULL, NULL, NULL, NULL, &id) ==
+           HAPSIM_COMMAND_ACK_T_STATUS_OK);
+    stream(&c, 0.004, 0.004, 50);
+    ENSURE(norm3(c.force.force) == 0.0 && c.force.state == HAPSIM_TOOL_FORCE_T_STATE_STOPPED);
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_ESTOP_RELEASE, NULL, NULL, NULL, NULL, NULL) ==
+           HAPSIM_COMMAND_ACK_T_STATUS_OK);
+    stream(&c, 0.004, 0.004, 300);
+    ENSURE(dot_n(c.force.force) > 0.02);
+    int acks = c.n_ack;
+    send_command(&c, id, HAPSIM_COMMAND_T_KIND_ESTOP, NULL, NULL, NULL, NULL); // duplicate
+    ENSURE(wait_more(&c, &c.n_ack, 2000) && c.n_ack == acks + 1);
+    stream(&c, 0.004, 0.004, 100);
+    ENSURE(dot_n(c.force.force) > 0.02); // not latched again
+
+    // Stop sending mid-contact: zero force within the watchdog (100 ms) and its ramp.
+    int64_t last = hs_now_ns();
+    int64_t t_zero = -1;
+    int64_t end = last + 1000000000LL;
+    while (hs_now_ns() < end && t_zero < 0) {
+        int n = c.n_force;
+        hs_net_bus_handle(c.h, 1);
+        if (c.n_force > n && norm3(c.force.force) == 0.0) t_zero = c.force_rx_ns - last;
+    }
+    printf("  device stopped: zero force after %.1f ms\n", (double)t_zero * 1e-6);
+    ENSURE(t_zero > 0 && t_zero < 100000000LL + 10000000LL + 60000000LL);
+    ENSURE(c.force.state == HAPSIM_TOOL_FORCE_T_STATE_STOPPED);
+
+    // Status reports the device and the loops.
+    ENSURE(wait_more(&c, &c.n_status, 2000));
+    ENSURE(c.status->n_devices == 1 && c.status->poses_received[0] == c.seq);
+    int has_rt = 0;
+    for (int i = 0; i < c.status->n_loops; ++i)
+        if (!strcmp(c.status->loop_name[i], "rt")) has_rt = c.status->rate_hz[i] > 500;
+    ENSURE(has_rt);
+    ENSURE(stop_server() == 0);
+    client_close(&c);
+    return 0;
+}
+
+static int mesh_10k_arrives_whole(void) {
+    // A 71 x 71 x 1 slab: every one of its 10368 nodes is on the surface.
+    hs_mesh* box = NULL;
+    hs_err err = {0};
+    ENSURE(hs_mesh_create_box(0.2, 0.2, 0.004, 71, 71, 1, &box, &err) == HS_OK);
+    char mesh[512], scene[512], text[1024];
+    snprintf(mesh, sizeof mesh, "%s/slab.vtk", tmpdir);
+    ENSURE(hs_mesh_write_vtk(box, NULL, mesh, &err) == HS_OK);
+    ENSURE(box->n_surf_nodes == 10368);
+    snprintf(scene, sizeof scene, "%s/slab.json", tmpdir);
+    snprintf(text, sizeof text,
+             "{ \"mesh\": \"slab.vtk\", \"fixed\": [{\"type\": \"bbox_side\", \"axis\": \"x\", "
+             "\"side\": \"min\", \"depth\": 0.001}],\n"
+             "  \"features\": {\"haptics\": false, \"visual_mesh\": true} }\n");
+    write_file(scene, text);
+    ENSURE(start_server(scene, "mesh10k") == 0);
+    client c;
+    ENSURE(client_open(&c) == 0);
+    ENSURE(wait_up(&c));
+    int64_t end = hs_now_ns() + 10000000000LL;
+    while ((c.n_topo == 0 || c.n_key == 0) && hs_now_ns() < end) pump_ms(&c, 20);
+    ENSURE(c.n_vis == 10368 && c.n_key > 0);
+    ENSURE(hs_net_keyframe_bytes(c.n_vis, 0) > 65000); // really fragmented
+    for (int i = 0; i < c.n_vis; ++i)
+        for (int k = 0; k < 3; ++k) {
+            ENSURE(c.key[3 * i + k] == c.rest[3 * i + k]);
+            ENSURE(c.rest[3 * i + k] == (float)box->x0[3 * box->surf_nodes[i] + k]);
+        }
+    // Haptics off: poses are validated and counted, never answered; no rt loop.
+    double p[3] = {0.1, 0.1, 0.01};
+    for (int i = 0; i < 20; ++i) send_pose(&c, p, 0);
+    pump_ms(&c, 200);
+    ENSURE(c.n_force == 0);
+    ENSURE(wait_more(&c, &c.n_status, 2000));
+    ENSURE(c.status->poses_received[0] == 20);
+    for (int i = 0; i < c.status->n_loops; ++i) ENSURE(strcmp(c.status->loop_name[i], "rt") != 0);
+    ENSURE(stop_server() == 0);
+    client_close(&c);
+    hs_mesh_destroy(&box);
+    return 0;
+}
+
+static int dropped_deltas_recover(void) {
+    char scene[512];
+    snprintf(scene, sizeof scene, "%s/liver_d.json", tmpdir);
+    liver_scene(scene, NULL);
+    ENSURE(start_server(scene, "deltas") == 0);
+    client c, ref;
+    ENSURE(client_open(&c) == 0);
+    ENSURE(client_open(&ref) == 0);
+    c.session = 77; // only c sends poses
+    ENSURE(wait_up(&c));
+    int64_t end = hs_now_ns() + 5000000000LL;
+    while ((c.n_key == 0 || ref.n_key == 0) && hs_now_ns() < end) {
+        pump_ms(&c, 10);
+        pump_ms(&ref, 10);
+    }
+    ENSURE(c.n_key > 0 && ref.n_key > 0);
+    // Press: the tissue moves; the reference applies every delta, c drops them all for a while.
+    c.drop_deltas = 1;
+    int differed = 0; // c was stale while ref followed the deltas
+    int64_t t0 = hs_now_ns();
+    for (int i = 0; i < 900; ++i) {
+        differed |= memcmp(c.shape, ref.shape, sizeof(float) * 3 * (size_t)c.n_vis) != 0;
+        double p[3];
+        probe_at(-0.002 + PRESS_D * (i + 1) / 900.0, p);
+        send_pose(&c, p, 0);
+        int64_t next = t0 + (int64_t)(i + 1) * 1000000;
+        while (hs_now_ns() < next) {
+            hs_net_bus_handle(c.h, 0);
+            hs_net_bus_handle(c.m, 0);
+            hs_net_bus_handle(ref.m, 0);
+        }
+    }
+    printf("  ref: %d keyframes, %d deltas (%d applied)\n", ref.n_key, ref.n_delta,
+           ref.n_delta_applied);
+    ENSURE(ref.n_delta_applied >= 2);
+    ENSURE(differed);
+    // Keep the tool pressed and listen again: the next keyframe restores c exactly.
+    c.drop_deltas = 0;
+    int keys = c.n_key;
+    t0 = hs_now_ns();
+    for (int i = 0; i < 2500 && c.n_key == keys; ++i) {
+        double p[3];
+        probe_at(PRESS_D - 0.002, p);
+        send_pose(&c, p, 0);
+        int64_t next = t0 + (int64_t)(i + 1) * 1000000;
+        while (hs_now_ns() < next) {
+            hs_net_bus_handle(c.h, 0);
+            hs_net_bus_handle(c.m, 0);
+            hs_net_bus_handle(ref.m, 0);
+        }
+    }
+    ENSURE(c.n_key > keys);
+    pump_ms(&ref, 50);
+    const float* ref_key = NULL;
+    for (int i = 0; i < 8; ++i)
+        if (ref.hist[i] && ref.hist_id[i] == c.key_id) ref_key = ref.hist[i];
+    ENSURE(ref_key != NULL);
+    ENSURE(memcmp(c.key, ref_key, sizeof(float) * 3 * (size_t)c.n_vis) == 0);
+    ENSURE(memcmp(c.shape, ref_key, sizeof(float) * 3 * (size_t)c.n_vis) == 0);
+    // ... and the deltas after it apply again, identically on both.
+    int applied = c.n_delta_applied;
+    for (int i = 0; i < 200; ++i) {
+        double p[3];
+        probe_at(PRESS_D - 0.002 - 0.0005 * i / 200.0, p);
+        send_pose(&c, p, 0);
+        pump_ms(&c, 1);
+        hs_net_bus_handle(ref.m, 0);
+    }
+    pump_ms(&ref, 30);
+    pump_ms(&c, 1);
+    ENSURE(c.n_delta_applied > applied);
+    if (c.key_id == ref.key_id)
+        ENSURE(memcmp(c.shape, ref.shape, sizeof(float) * 3 * (size_t)c.n_vis) == 0);
+    ENSURE(stop_server() == 0);
+    client_close(&c);
+    client_close(&ref);
+    return 0;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Flood
+
+enum { F_DECODE, F_NONFINITE, F_QUAT, F_RANGE, F_DEVICE, F_TOOL, F_SESSION, F_SEQ, F_NP };
+static const char* const pose_reason[F_NP] = {
+    "decode",         "nonfinite",    "quaternion", "range",
+    "unknown_device", "unknown_tool", "session",    "seq"};
+enum { C_DECODE, C_LENGTH, C_RANGE, C_KIND, C_ARG, C_NONFINITE, C_DUP, C_NC };
+static const char* const cmd_reason[C_NC] = {"decode",   "length",    "range",    "unknown_kind",
+                                             "argument", "nonfinite", "duplicate"};
+
+static uint64_t rng = 0x9e3779b97f4a7c15ULL;
+static uint32_t rnd(void) {
+    rng ^= rng << 13;
+    rng ^= rng >> 7;
+    rng ^= rng << 17;
+    return (uint32_t)(rng >> 11);
+}
+
+// One malformed pose of category k, inside the liver whenever the category allows (a pose
+// that slipped through would press the tissue and change the mesh).
+static int bad_pose(client* c, int k, uint8_t* buf, int cap) {
+    hapsim_tool_pose_t m;
+    memset(&m, 0, sizeof m);
+    double inside[3];
+    probe_at(0.008, inside);
+    m.utime = hs_now_ns() / 1000;
+    m.seq = c->seq + 1 + (int64_t)(rnd() % 100);
+    m.session = 424242;
+    for (int i = 0; i < 3; ++i) m.position[i] = inside[i];
+    m.orientation[0] = 1;
+    switch (k) {
+    case F_NONFINITE:
+        m.position[rnd() % 3] = (rnd() & 1) ? NAN : INFINITY;
+        break;
+    case F_QUAT:
+        m.orientation[1] = 0.5;
+        break;
+    case F_RANGE:
+        m.buttons = 1 << (2 + rnd() % 20);
+        break;
+    case F_DEVICE:
+        m.device_id = 1 + (int32_t)(rnd() % 1000);
+        break;
+    case F_TOOL:
+        m.tool_id = 1 + (int32_t)(rnd() % 9);
+        break;
+    case F_SESSION:
+        break; // another session while the real driver is live
+    case F_SEQ:
+        m.session = c->session;
+        int64_t back = (int64_t)(rnd() % 50);
+        if (back >= c->seq) back = c->seq - 1;
+        m.seq = c->seq - back; // repeated or reordered, >= 1
+        break;
+    }
+    int n = hapsim_tool_pose_t_encode(buf, 0, cap, &m);
+    if (k == F_DECODE) {
+        switch (rnd() % 3) {
+        case 0: // random bytes
+            n = (int)(rnd() % 200);
+            for (int i = 0; i < n; ++i) buf[i] = (uint8_t)rnd();
+            break;
+        case 1: // truncated
+            n -= 1 + (int)(rnd() % (unsigned)(n - 1));
+            break;
+        default: // trailing byte
+            buf[n++] = (uint8_t)rnd();
+            break;
+        }
+    }
+    return n;
+}
+
+static int bad_command(int k, int64_t dup_id, uint8_t* buf, int cap) {
+    hapsim_command_t m;
+    memset(&m, 0, sizeof m);
+    char* keys[9] = {"name", "value", "c", "d", "e", "f", "g", "h", "i"};
+    char* values[9] = {"youngs_pa", "1", "", "", "", "", "", "", ""};
+    m.utime = hs_now_ns() / 1000;
+    m.request_id = 1000000 + (int64_t)rnd();
+    m.kind = HAPSIM_COMMAND_T_KIND_SET_PARAM;
+    m.n_args = 2;
+    m.keys = keys;
+    m.values = values;
+    m.sender = "flood";
+    switch (k) {
+    case C_LENGTH:
+        m.n_args = 9;
+        break;
+    case C_RANGE:
+        m.request_id = 0;
+        break;
+    case C_KIND:
+        m.kind = 9 + (int32_t)(rnd() % 100);
+        m.n_args = 0;
+        break;
+    case C_ARG:
+        values[1] = "12abc";
+        break;
+    case C_NONFINITE:
+        values[1] = (rnd() & 1) ? "nan" : "inf";
+        break;
+    case C_DUP:
+        m.request_id = dup_id;
+        m.kind = HAPSIM_COMMAND_T_KIND_ESTOP_RELEASE;
+        m.n_args = 0;
+        break;
+    }
+    int n = hapsim_command_t_encode(buf, 0, cap, &m);
+    if (k == C_DECODE) {
+        if (rnd() & 1) {
+            n = 1 + (int)(rnd() % 300);
+            for (int i = 0; i < n; ++i) buf[i] = (uint8_t)rnd();
+        } else {
+            n -= 1 + (int)(rnd() % (unsigned)(n - 1));
+        }
+    }
+    return n;
+}
+
+// Hover 3 mm off the surface for hover_ms while (optionally) flooding; then ask for a keyframe.
+static int flood_run(const char* tag, int flood, float** mesh_out, int* n_vis_out,
+                     int64_t* pose_expect, int64_t* cmd_expect, hapsim_server_status_t** st_out) {
+    char scene[512];
+    snprintf(scene, sizeof scene, "%s/liver_%s.json", tmpdir, tag);
+    liver_scene(scene, NULL);
+    ENSURE(start_server(scene, tag) == 0);
+    client c;
+    ENSURE(client_open(&c) == 0);
+    ENSURE(wait_up(&c));
+    int64_t dup_id = 0;
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_ESTOP_RELEASE, NULL, NULL, NULL, NULL, &dup_id) ==
+           HAPSIM_COMMAND_ACK_T_STATUS_OK);
+    uint8_t buf[4096];
+    const int total = 100000, per_ms = 25;
+    int sent = 0;
+    int64_t t0 = hs_now_ns();
+    for (int ms = 0; (flood && sent < total) || ms < 1000; ++ms) {
+        double p[3];
+        probe_at(-0.003, p);
+        send_pose(&c, p, 0);
+        for (int j = 0; flood && j < per_ms && sent < total; ++j, ++sent) {
+            if (rnd() % 4 != 0) {
+                int k = (int)(rnd() % F_NP);
+                int n = bad_pose(&c, k, buf, sizeof buf);
+                lcm_publish(hs_net_bus_lcm(c.h), PREFIX "TOOL_POSE", buf, (unsigned)n);
+                pose_expect[k]++;
+            } else {
+                int k = (int)(rnd() % C_NC);
+                int n = bad_command(k, dup_id, buf, sizeof buf);
+                lcm_publish(hs_net_bus_lcm(c.m), PREFIX "COMMAND", buf, (unsigned)n);
+                cmd_expect[k]++;
+            }
+        }
+        int64_t next = t0 + (int64_t)(ms + 1) * 1000000;
+        while (hs_now_ns() < next) {
+            hs_net_bus_handle(c.h, 0);
+            hs_net_bus_handle(c.m, 0);
+        }
+    }
+    ENSURE(server_alive());
+    // The server still answers, and only the real driver's poses were accepted.
+    stream(&c, -0.003, -0.003, 200);
+    ENSURE(c.force.pose_seq == c.seq && norm3(c.force.force) == 0.0);
+    int keys = c.n_key;
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_REQUEST_TOPOLOGY, NULL, NULL, NULL, NULL, NULL) ==
+           HAPSIM_COMMAND_ACK_T_STATUS_OK);
+    int64_t end = hs_now_ns() + 3000000000LL;
+    while (c.n_key == keys && hs_now_ns() < end) pump_ms(&c, 10);
+    ENSURE(c.n_key > keys);
+    int st = c.n_status;
+    end = hs_now_ns() + 3000000000LL;
+    while (c.n_status < st + 2 && hs_now_ns() < end) pump_ms(&c, 10);
+    ENSURE(c.n_status >= st + 2);
+    ENSURE(c.status->poses_received[0] == c.seq);
+    *n_vis_out = c.n_vis;
+    *mesh_out = malloc(sizeof(float) * 3 * (size_t)c.n_vis);
+    memcpy(*mesh_out, c.key, sizeof(float) * 3 * (size_t)c.n_vis);
+    *st_out = hapsim_server_status_t_copy(c.status);
+    printf("  %s: %d flood messages, %lld driver poses, %d keyframes\n", tag, sent,
+           (long long)c.seq, c.n_key);
+    ENSURE(stop_server() == 0);
+    client_close(&c);
+    return 0;
+}
+
+static int flood_leaves_server_intact(void) {
+    int64_t pe[F_NP] = {0}, ce[C_NC] = {0}, pe0[F_NP] = {0}, ce0[C_NC] = {0};
+    float *clean = NULL, *flooded = NULL;
+    int nv_clean = 0, nv_flood = 0;
+    hapsim_server_status_t *s_clean = NULL, *s_flood = NULL;
+    ENSURE(flood_run("clean", 0, &clean, &nv_clean, pe0, ce0, &s_clean) == 0);
+    ENSURE(flood_run("flood", 1, &flooded, &nv_flood, pe, ce, &s_flood) == 0);
+    int64_t sum = 0;
+    for (int k = 0; k < F_NP; ++k) {
+        int64_t got = reject_count(s_flood, "TOOL_POSE", pose_reason[k]);
+        printf("  TOOL_POSE %-14s sent %6lld counted %6lld\n", pose_reason[k], (long long)pe[k],
+               (long long)got);
+        ENSURE(got == pe[k]);
+        sum += pe[k];
+    }
+    for (int k = 0; k < C_NC; ++k) {
+        int64_t got = reject_count(s_flood, "COMMAND", cmd_reason[k]);
+        printf("  COMMAND   %-14s sent %6lld counted %6lld\n", cmd_reason[k], (long long)ce[k],
+               (long long)got);
+        ENSURE(got == ce[k]);
+        sum += ce[k];
+    }
+    ENSURE(sum >= 100000);
+    ENSURE(s_clean->n_rejects == 0);
+    ENSURE(nv_clean == nv_flood && nv_clean > 0);
+    ENSURE(memcmp(clean, flooded, sizeof(float) * 3 * (size_t)nv_clean) == 0);
+    free(clean);
+    free(flooded);
+    hapsim_server_status_t_destroy(s_clean);
+    hapsim_server_status_t_destroy(s_flood);
+    return 0;
+}
+
+static int malformed_scene_exits_1(void) {
+    char scene[512];
+    snprintf(scene, sizeof scene, "%s/bad.json", tmpdir);
+    write_file(scene, "{\n  \"mesh\": \"x.msh\",\n  \"material\": {\"poisson\": 0.7},\n"
+                      "  \"fixed\": []\n}\n");
+    ENSURE(start_server(scene, "bad") == 0);
+    int st = -1;
+    int64_t end = hs_now_ns() + 5000000000LL;
+    while (hs_now_ns() < end) {
+        int w = 0;
+        if (waitpid(child, &w, WNOHANG) == child) {
+            st = WIFEXITED(w) ? WEXITSTATUS(w) : -1;
+            child = -1;
+            break;
+        }
+        usleep(10000);
+    }
+    ENSURE(st == 1);
+    char log[600], text[2048] = {0};
+    snprintf(log, sizeof log, "%s/server-bad.log", tmpdir);
+    FILE* f = fopen(log, "r");
+    ENSURE(f);
+    size_t n = fread(text, 1, sizeof text - 1, f);
+    fclose(f);
+    text[n] = '\0';
+    printf("  %s", text);
+    ENSURE(strstr(text, "bad.json:") && strstr(text, "key '"));
+    return 0;
+}
+
+HS_TEST_MAIN(HS_CASE(malformed_scene_exits_1), HS_CASE(poses_in_forces_out),
+             HS_CASE(mesh_10k_arrives_whole), HS_CASE(dropped_deltas_recover),
+             HS_CASE(flood_leaves_server_intact))
