@@ -275,8 +275,6 @@ hs_status hs_stylus_run_offline(const hs_script* script, const hs_stylus_def* de
                           "offline: need 0 < dt < 1 s, period >= 1, 1 <= delay <= %d, "
                           "stiffness/radius/timeout >= 0, a unit normal",
                           MAX_DELAY);
-    double duration = off->duration_s > 0 ? off->duration_s : script->duration_s + 0.5;
-    int64_t ticks = (int64_t)ceil(duration / off->dt_s - 1e-9);
 
     hs_stylus_device dev;
     hs_stylus_device_init(&dev, def, script->start_m);
@@ -286,9 +284,15 @@ hs_status hs_stylus_run_offline(const hs_script* script, const hs_stylus_def* de
     memset(has_pending, 0, sizeof has_pending);
     const int64_t dt_ns = (int64_t)llround(off->dt_s * 1e9);
     const int64_t base_ns = 1000000000; // virtual clock, ns
-    int hint = 0;
+    hs_script_runner run;
+    hs_script_runner_init(&run, script);
+    double felt[3] = {0, 0, 0};
     int64_t pose_seq = 0;
-    for (int64_t k = 0; k < ticks; ++k) {
+    for (int64_t k = 0;; ++k) {
+        // Without a given duration the run ends 0.5 s after the script, whose end moves when a
+        // touch finds the surface early.
+        double duration = off->duration_s > 0 ? off->duration_s : hs_script_runner_end(&run) + 0.5;
+        if (k >= (int64_t)ceil(duration / off->dt_s - 1e-9)) break;
         int64_t now = base_ns + k * dt_ns;
         int slot = (int)(k % (MAX_DELAY + 1));
         if (has_pending[slot]) {
@@ -298,10 +302,14 @@ hs_status hs_stylus_run_offline(const hs_script* script, const hs_stylus_def* de
         }
         double t = (double)k * off->dt_s, target[3], tvel[3];
         hs_stylus_tick tick;
-        int seg = hs_script_eval(script, t, target, tvel, NULL, &hint);
+        uint32_t events;
+        int seg = hs_script_runner_eval(&run, t, felt, target, tvel, NULL, &events);
         hs_stylus_device_step(&dev, target, tvel, now, off->dt_s, &tick);
+        memcpy(felt, tick.f_applied, sizeof felt);
         tick.t_s = t;
         tick.segment = seg;
+        if (events & HS_TOUCH_FOUND) tick.flags |= HS_TICK_TOUCH_FOUND;
+        if (events & HS_TOUCH_MISSED) tick.flags |= HS_TICK_TOUCH_MISSED;
         if (trace) hs_stylus_trace_add(trace, &tick);
         // The pose leaves at the end of the tick; the half-space answers delay ticks later.
         if (pose_seq++ % off->period_ticks == 0) {

@@ -68,6 +68,7 @@ typedef struct options {
     int has_origin;
     double origin[3];
     int status;
+    int duration_auto; // no --duration: the script's end (+ 0.5 s)
     int realtime;
     int quiet;
     double offline_k;
@@ -433,7 +434,9 @@ static int64_t ts_ns(const struct timespec* t) {
 static void* loop_main(void* arg) {
     app* a = arg;
     const int64_t period_ns = (int64_t)llround(1e9 / a->opt.rate_hz);
-    const double duration = a->opt.duration_s;
+    hs_script_runner run;
+    hs_script_runner_init(&run, a->script);
+    double felt[3] = {0, 0, 0};
     hs_stylus_device dev;
     hs_stylus_device_init(&dev, &a->def, a->script->start_m);
     hapsim_tool_pose_t pose;
@@ -446,7 +449,6 @@ static void* loop_main(void* arg) {
     enum { BINS = 2000 };
     static uint32_t hist[BINS + 1];
     int64_t in_window = 0;
-    int hint = 0;
     if (a->opt.realtime) {
         struct sched_param sp = {.sched_priority = 70};
         int got = pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp) == 0 ? 1 : 0;
@@ -460,7 +462,10 @@ static void* loop_main(void* arg) {
     while (!atomic_load_explicit(&g_stop, memory_order_relaxed)) {
         int64_t now = hs_now_ns();
         double t = (double)(now - start_ns) * 1e-9;
-        if (t >= duration) break;
+        // Without --duration: 0.5 s after the script, whose end moves when a touch finds the
+        // surface early.
+        if (t >= (a->opt.duration_auto ? hs_script_runner_end(&run) + 0.5 : a->opt.duration_s))
+            break;
         double dt = (double)(now - last_ns) * 1e-9;
         int64_t err_us = llabs(now - last_ns - period_ns) / 1000;
         hist[err_us < BINS ? err_us : BINS]++;
@@ -470,11 +475,15 @@ static void* loop_main(void* arg) {
         if (hs_stylus_mailbox_take(&a->mailbox, &m)) hs_stylus_device_set_model(&dev, &m);
         double target[3], tvel[3];
         uint32_t buttons;
-        int seg = hs_script_eval(a->script, t, target, tvel, &buttons, &hint);
+        uint32_t events;
+        int seg = hs_script_runner_eval(&run, t, felt, target, tvel, &buttons, &events);
         hs_stylus_tick tick;
         hs_stylus_device_step(&dev, target, tvel, now, dt, &tick);
+        memcpy(felt, tick.f_applied, sizeof felt);
         tick.t_s = t;
         tick.segment = seg;
+        if (events & HS_TOUCH_FOUND) tick.flags |= HS_TICK_TOUCH_FOUND;
+        if (events & HS_TOUCH_MISSED) tick.flags |= HS_TICK_TOUCH_MISSED;
         hs_stylus_trace_add(a->trace, &tick);
 
         pose.utime = wall_us();
@@ -739,7 +748,10 @@ int main(int argc, char** argv) {
             break;
         }
     }
-    if (a.opt.duration_s <= 0) a.opt.duration_s = a.script->duration_s + 0.5;
+    if (a.opt.duration_s <= 0) {
+        a.opt.duration_s = a.script->duration_s + 0.5; // the longest it can take
+        a.opt.duration_auto = 1;
+    }
     double kept = a.opt.duration_s < MAX_TRACE_S ? a.opt.duration_s : MAX_TRACE_S;
     int64_t rows = (int64_t)ceil(kept * a.opt.rate_hz) + (int64_t)a.opt.rate_hz + 16;
     if (hs_stylus_trace_create(rows, &a.trace, &err)) {

@@ -12,6 +12,8 @@
 
 #define BUTTON_PRIMARY 1u // tool_pose BUTTON_PRIMARY: blade engaged
 #define MAX_TOKENS     12
+#define TOUCH_ACCEL    0.1  // m/s^2: a touch reaches its search speed within a few ms
+#define TOUCH_FORCE_N  0.02 // N: default force that ends a touch
 
 hs_status hs_script_create(hs_script** out, hs_err* err) {
     *out = NULL;
@@ -315,6 +317,44 @@ static hs_status parse_text(parser* p, const char* text, hs_err* err) {
             p->pressed = 0;
             p->depth = 0;
             if ((st = emit(p, err, HS_SEG_MOVE, HS_CMD_RELEASE, to, v[0], 0, 0))) return st;
+        } else if (!strcmp(cmd, "touch")) {
+            // touch nx ny nz max_depth speed [force]: search along -n for the surface.
+            int n_args = ntok - 1;
+            if (n_args != 5 && n_args != 6)
+                return perr(p, err,
+                            "touch: expected 5 or 6 numbers (nx ny nz max_depth speed "
+                            "[force_n]), got %d",
+                            n_args);
+            char* t6[7];
+            for (int i = 0; i < 6; ++i) t6[i] = tok[i];
+            if ((st = read_args(p, err, t6, 6, "NNNLV", "nx ny nz max_depth speed", v))) return st;
+            double force = TOUCH_FORCE_N;
+            if (n_args == 6 && !parse_num(tok[6], &force))
+                return perr(p, err, "touch: '%.60s' is not a finite number (force_n)", tok[6]);
+            double n[3];
+            if ((st = unit_normal(p, err, cmd, v, n))) return st;
+            if ((st = need_positive(p, err, cmd, "max_depth", v[3]))) return st;
+            if ((st = need_positive(p, err, cmd, "speed", v[4]))) return st;
+            if ((st = need_positive(p, err, cmd, "force_n", force))) return st;
+            if (p->pressed) return perr(p, err, "touch: a press is active (release first)");
+            double from[3], to[3];
+            for (int i = 0; i < 3; ++i) {
+                from[i] = p->cur[i];
+                to[i] = p->cur[i] - n[i] * v[3];
+            }
+            int keep_profile = p->profile;
+            double keep_accel = p->accel;
+            p->profile = HS_PROFILE_TRAPEZOID;
+            p->accel = TOUCH_ACCEL;
+            int before = s->n_segments;
+            st = emit(p, err, HS_SEG_MOVE, HS_CMD_TOUCH, to, v[4], 0, 0);
+            p->profile = keep_profile;
+            p->accel = keep_accel;
+            if (st) return st;
+            if (s->n_segments > before) s->seg[s->n_segments - 1].touch_force_n = force;
+            // What follows is written as if the surface were where the touch starts; the runner
+            // shifts it to where the surface is found.
+            memcpy(p->cur, from, sizeof from);
         } else if (!strcmp(cmd, "hold")) {
             if ((st = read_args(p, err, tok, ntok, "T", "seconds", v))) return st;
             if (v[0] < 0) return perr(p, err, "hold: seconds must be >= 0");
@@ -343,7 +383,7 @@ static hs_status parse_text(parser* p, const char* text, hs_err* err) {
         } else {
             return perr(p, err,
                         "unknown command '%.60s' (expected units, start, origin, surface, "
-                        "profile, move_to, press, drag, release, hold, loop, end, cut)",
+                        "profile, move_to, touch, press, drag, release, hold, loop, end, cut)",
                         cmd);
         }
     }
@@ -430,4 +470,55 @@ int hs_script_eval(const hs_script* s, double t_s, double pos_m[3], double vel_m
     }
     if (buttons && t_s < g->t0_s + g->dur_s) *buttons = g->buttons;
     return i;
+}
+
+void hs_script_runner_init(hs_script_runner* r, const hs_script* s) {
+    memset(r, 0, sizeof *r);
+    r->s = s;
+    r->touch_seg = -1;
+}
+
+double hs_script_runner_end(const hs_script_runner* r) {
+    return r->s->duration_s + r->t_off_s;
+}
+
+int hs_script_runner_eval(hs_script_runner* r, double t_s, const double force_n[3], double pos_m[3],
+                          double vel_m_s[3], uint32_t* buttons, uint32_t* events) {
+    const hs_script* s = r->s;
+    uint32_t ev = 0;
+    double t = t_s - r->t_off_s;
+    int seg = hs_script_eval(s, t, pos_m, vel_m_s, buttons, &r->hint);
+    // A touch searched earlier ended without a force: continue from where it stopped.
+    if (r->touch_seg >= 0 && seg != r->touch_seg) {
+        const hs_script_segment* g = &s->seg[r->touch_seg];
+        for (int i = 0; i < 3; ++i) r->off_m[i] += g->to_m[i] - g->from_m[i];
+        r->touch_seg = -1;
+        r->missed++;
+        ev |= HS_TOUCH_MISSED;
+    }
+    if (seg >= 0 && s->seg[seg].cmd == HS_CMD_TOUCH && t < s->seg[seg].t0_s + s->seg[seg].dur_s) {
+        const hs_script_segment* g = &s->seg[seg];
+        double d[3] = {g->from_m[0] - g->to_m[0], g->from_m[1] - g->to_m[1],
+                       g->from_m[2] - g->to_m[2]};
+        double len = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+        double fn = force_n ? (force_n[0] * d[0] + force_n[1] * d[1] + force_n[2] * d[2]) / len : 0;
+        r->touch_seg = seg;
+        if (fn >= g->touch_force_n) {
+            // Found: stop the target where it is, shift what follows so it starts here, and
+            // skip the rest of the search.
+            for (int i = 0; i < 3; ++i) r->off_m[i] += pos_m[i] - g->from_m[i];
+            r->t_off_s = t_s - (g->t0_s + g->dur_s);
+            r->touch_seg = -1;
+            r->found++;
+            ev |= HS_TOUCH_FOUND;
+            seg = hs_script_eval(s, g->t0_s + g->dur_s, pos_m, vel_m_s, buttons, &r->hint);
+            if (seg == (int)(g - s->seg)) { // the touch was the last segment: stay put
+                memcpy(pos_m, g->from_m, 3 * sizeof(double));
+                if (vel_m_s) vel_m_s[0] = vel_m_s[1] = vel_m_s[2] = 0;
+            }
+        }
+    }
+    for (int i = 0; i < 3; ++i) pos_m[i] += r->off_m[i];
+    if (events) *events = ev;
+    return seg;
 }

@@ -49,21 +49,23 @@ typedef enum hs_seg_cmd {
     HS_CMD_RELEASE = 3,
     HS_CMD_HOLD = 4,
     HS_CMD_CUT = 5,
+    HS_CMD_TOUCH = 6,
 } hs_seg_cmd;
 
 /// One timed piece of the target trajectory.
 typedef struct hs_script_segment {
-    int kind;          ///< hs_seg_kind
-    int cmd;           ///< hs_seg_cmd
-    int line;          ///< source line of the command
-    int profile;       ///< hs_profile (moves)
-    double t0_s;       ///< start time, s from script start
-    double dur_s;      ///< duration, s (>= 0)
-    double from_m[3];  ///< start point, m, scene frame
-    double to_m[3];    ///< end point, m (== from for a hold)
-    double speed_m_s;  ///< requested (peak) speed, m/s (moves)
-    double accel_m_s2; ///< trapezoid acceleration, m/s^2
-    uint32_t buttons;  ///< tool_pose button bits held during the segment (cut: PRIMARY)
+    int kind;             ///< hs_seg_kind
+    int cmd;              ///< hs_seg_cmd
+    int line;             ///< source line of the command
+    int profile;          ///< hs_profile (moves)
+    double t0_s;          ///< start time, s from script start
+    double dur_s;         ///< duration, s (>= 0)
+    double from_m[3];     ///< start point, m, scene frame
+    double to_m[3];       ///< end point, m (== from for a hold)
+    double speed_m_s;     ///< requested (peak) speed, m/s (moves)
+    double accel_m_s2;    ///< trapezoid acceleration, m/s^2
+    uint32_t buttons;     ///< tool_pose button bits held during the segment (cut: PRIMARY)
+    double touch_force_n; ///< touch: force along the normal that ends the search, N
 } hs_script_segment;
 
 /// A parsed script. Create with hs_script_create (large: fixed segment array).
@@ -98,6 +100,37 @@ hs_status hs_script_parse_file(hs_script* s, const char* path, hs_err* err);
 /// Thread: any | Allocates: no
 int hs_script_eval(const hs_script* s, double t_s, double pos_m[3], double vel_m_s[3],
                    uint32_t* buttons, int* hint);
+
+/// Runs a script with its `touch` searches resolved against the force the handle feels: a
+/// touch ends as soon as the force along its normal reaches its threshold, and everything
+/// after it is shifted in space (by where the surface was found relative to where the touch
+/// started) and in time (the rest of the search is skipped). Without touches it is
+/// hs_script_eval.
+typedef struct hs_script_runner {
+    const hs_script* s;
+    double t_off_s;  ///< script time = run time - t_off_s
+    double off_m[3]; ///< added to the script's positions after the last resolved touch
+    int hint;
+    int touch_seg;  ///< the touch being searched (-1: none)
+    int64_t found;  ///< touches that found the surface
+    int64_t missed; ///< touches that ran their whole depth without a force
+} hs_script_runner;
+
+/// Touch events of one runner step (bitwise or).
+enum {
+    HS_TOUCH_FOUND = 1u << 0,  ///< the surface was found this step
+    HS_TOUCH_MISSED = 1u << 1, ///< a touch ended without finding it
+};
+
+/// Start at run time 0 without offsets.
+void hs_script_runner_init(hs_script_runner* r, const hs_script* s);
+/// Target at run time t_s given the force the handle felt in the last tick (force_n [3], N).
+/// Fills pos/vel/buttons as hs_script_eval (vel, buttons may be NULL) and *events (may be NULL)
+/// with HS_TOUCH_* bits. Returns the segment index. Thread: device loop | Allocates: no
+int hs_script_runner_eval(hs_script_runner* r, double t_s, const double force_n[3], double pos_m[3],
+                          double vel_m_s[3], uint32_t* buttons, uint32_t* events);
+/// Run time at which the script ends with the offsets found so far, s.
+double hs_script_runner_end(const hs_script_runner* r);
 
 // ---------------------------------------------------------------------------------------------
 // The force model received from the server (one tool_force message, in device terms).
@@ -152,12 +185,14 @@ hs_status hs_stylus_def_check(const hs_stylus_def* def, hs_err* err);
 
 /// What happened in a tick (bitwise or).
 enum {
-    HS_TICK_MAGNITUDE = 1u << 0, ///< motor magnitude clamp engaged
-    HS_TICK_RATE = 1u << 1,      ///< rate clamp engaged
-    HS_TICK_WORKSPACE = 1u << 2, ///< the handle hit the workspace box
-    HS_TICK_TIMEOUT = 1u << 3,   ///< model older than its hold time: ramping / zero
-    HS_TICK_OUTSIDE = 1u << 4,   ///< handle outside the model's validity radius
-    HS_TICK_NO_MODEL = 1u << 5,  ///< no model received yet
+    HS_TICK_MAGNITUDE = 1u << 0,    ///< motor magnitude clamp engaged
+    HS_TICK_RATE = 1u << 1,         ///< rate clamp engaged
+    HS_TICK_WORKSPACE = 1u << 2,    ///< the handle hit the workspace box
+    HS_TICK_TIMEOUT = 1u << 3,      ///< model older than its hold time: ramping / zero
+    HS_TICK_OUTSIDE = 1u << 4,      ///< handle outside the model's validity radius
+    HS_TICK_NO_MODEL = 1u << 5,     ///< no model received yet
+    HS_TICK_TOUCH_FOUND = 1u << 6,  ///< a `touch` found the surface at this tick
+    HS_TICK_TOUCH_MISSED = 1u << 7, ///< a `touch` ended without finding it
 };
 
 /// One tick of the device, as traced.
@@ -243,6 +278,8 @@ typedef struct hs_stylus_summary {
     int64_t clamp_rate;         ///< ticks with HS_TICK_RATE
     int64_t timeouts;           ///< ticks with HS_TICK_TIMEOUT
     int64_t workspace_hits;     ///< ticks with HS_TICK_WORKSPACE
+    int64_t touches_found;      ///< ticks with HS_TICK_TOUCH_FOUND
+    int64_t touches_missed;     ///< ticks with HS_TICK_TOUCH_MISSED
 } hs_stylus_summary;
 
 typedef struct hs_stylus_trace hs_stylus_trace;

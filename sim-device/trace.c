@@ -71,8 +71,8 @@ void hs_stylus_trace_summary(const hs_stylus_trace* t, const hs_script* script,
     out->dropped = t->dropped;
     out->steady_segment = -1;
     out->latency_p50_us = out->latency_p99_us = -1;
-    // The longest hold: in a press-and-hold script this is where the force settles.
-    double t_from = 0, t_to = -1;
+    // The longest hold: in a press-and-hold script this is where the force settles. Its rows
+    // are found by segment index (run time and script time differ after a touch).
     if (script) {
         double best = 0;
         for (int i = 0; i < script->n_segments; ++i) {
@@ -80,11 +80,11 @@ void hs_stylus_trace_summary(const hs_stylus_trace* t, const hs_script* script,
             if (g->kind == HS_SEG_HOLD && g->dur_s > best) {
                 best = g->dur_s;
                 out->steady_segment = i;
-                t_from = g->t0_s + 0.5 * g->dur_s;
-                t_to = g->t0_s + g->dur_s;
             }
         }
     }
+    int64_t hold_rows = 0, hold_seen = 0;
+    for (int64_t k = 0; k < t->rows; ++k) hold_rows += t->row[k].segment == out->steady_segment;
     int64_t n_steady = 0, n_lat = 0;
     for (int64_t k = 0; k < t->rows; ++k) {
         const hs_stylus_tick* r = &t->row[k];
@@ -102,7 +102,7 @@ void hs_stylus_trace_summary(const hs_stylus_trace* t, const hs_script* script,
             out->energy_in_j += r->work_j;
         else
             out->energy_out_j += r->work_j;
-        if (r->segment == out->steady_segment && r->t_s >= t_from && r->t_s < t_to) {
+        if (r->segment == out->steady_segment && 2 * hold_seen++ >= hold_rows) {
             for (int i = 0; i < 3; ++i) out->steady_force_n[i] += r->f_applied[i];
             n_steady++;
         }
@@ -112,6 +112,8 @@ void hs_stylus_trace_summary(const hs_stylus_trace* t, const hs_script* script,
         if (r->flags & HS_TICK_RATE) out->clamp_rate++;
         if (r->flags & HS_TICK_TIMEOUT) out->timeouts++;
         if (r->flags & HS_TICK_WORKSPACE) out->workspace_hits++;
+        if (r->flags & HS_TICK_TOUCH_FOUND) out->touches_found++;
+        if (r->flags & HS_TICK_TOUCH_MISSED) out->touches_missed++;
         out->duration_s = r->t_s;
     }
     if (n_steady > 0) {
@@ -154,6 +156,8 @@ static void summary_lines(FILE* f, const hs_stylus_summary* s, const char* prefi
     fprintf(f, "%sclamp_rate_ticks=%lld\n", prefix, (long long)s->clamp_rate);
     fprintf(f, "%stimeout_ticks=%lld\n", prefix, (long long)s->timeouts);
     fprintf(f, "%sworkspace_ticks=%lld\n", prefix, (long long)s->workspace_hits);
+    fprintf(f, "%stouches_found=%lld\n", prefix, (long long)s->touches_found);
+    fprintf(f, "%stouches_missed=%lld\n", prefix, (long long)s->touches_missed);
 }
 
 hs_status hs_stylus_trace_write_csv(const hs_stylus_trace* t, const hs_stylus_summary* sum,
@@ -195,6 +199,10 @@ void hs_stylus_summary_print(FILE* f, const hs_stylus_summary* s, const char* tr
             "%lld ticks%s\n",
             (long long)s->clamp_magnitude, (long long)s->clamp_rate, (long long)s->timeouts,
             (long long)s->workspace_hits, s->dropped ? "; rows dropped (trace full)" : "");
+    if (s->touches_found || s->touches_missed)
+        fprintf(f, "hapsim-stylus: touch: surface found %lld time(s), missed %lld time(s)%s\n",
+                (long long)s->touches_found, (long long)s->touches_missed,
+                s->touches_missed ? " (WARNING: a touch ran its whole depth without contact)" : "");
     if (trace_path) fprintf(f, "hapsim-stylus: trace: %s\n", trace_path);
 }
 

@@ -149,6 +149,11 @@ static int script_errors(void) {
         {"surface 0 0 0 0 0 0\n", 1, "must not be zero"},
         {"hold 1\nhold\n", 2, "expected 1 number"},
         {"end 3\n", 1, "takes no arguments"},
+        {"touch 0 0 1 0.01\n", 1, "touch: expected 5 or 6 numbers"},
+        {"touch 0 0 1 0.01 0.002 -1\n", 1, "force_n must be > 0"},
+        {"touch 0 0 1 0.01 0.002 abc\n", 1, "'abc' is not a finite number"},
+        {"touch 0 0 0 0.01 0.002\n", 1, "must not be zero"},
+        {"press 0 0 1 0.01 0.01\ntouch 0 0 1 0.01 0.002\n", 2, "a press is active"},
         {long_line, 1, "line longer than"},
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; ++i) {
@@ -800,6 +805,86 @@ static int bundled_scripts(void) {
     return 0;
 }
 
+// touch: the search stops where the handle first feels the surface, and everything after it
+// is shifted there (space) and brought forward (time); a search that finds nothing says so.
+static int run_touch(double surface_z, hs_stylus_trace* tr, hs_script* s, hs_stylus_summary* sum) {
+    hs_err err = {0};
+    if (parse(s,
+              "start 0 0 0.02\nmove_to 0 0 0.01 0.02\ntouch 0 0 1 0.03 0.004\nhold 0.2\n"
+              "press 0 0 1 0.004 0.005\nhold 1\nrelease 0.005\nmove_to 0 0 0.02 0.02\n",
+              &err))
+        return 1;
+    hs_stylus_def def = test_def();
+    hs_offline_def off = {0};
+    off.surface.point_m[2] = surface_z;
+    off.surface.normal[2] = 1;
+    off.surface.stiffness_n_m = 300;
+    off.surface.radius_m = 0.002;
+    off.surface.timeout_s = 0.05;
+    off.dt_s = 1e-3;
+    off.period_ticks = 1;
+    off.delay_ticks = 1;
+    if (hs_stylus_run_offline(s, &def, &off, tr, NULL, &err)) return 1;
+    hs_stylus_trace_summary(tr, s, sum);
+    return 0;
+}
+
+static int script_touch(void) {
+    int64_t bytes = hs_byte_count();
+    hs_script* s = NULL;
+    hs_err err = {0};
+    ENSURE(hs_script_create(&s, &err) == HS_OK);
+    hs_stylus_trace* tr = NULL;
+    ENSURE(hs_stylus_trace_create(20000, &tr, &err) == HS_OK);
+    hs_stylus_summary sum;
+    // The surface 18 mm below where the touch starts (the script was written for 0 mm).
+    ENSURE(run_touch(-0.008, tr, s, &sum) == 0);
+    ENSURE(s->n_segments == 7 && s->seg[1].cmd == HS_CMD_TOUCH);
+    ENSURE(sum.touches_found == 1 && sum.touches_missed == 0);
+    int64_t found_at = -1;
+    for (int64_t i = 0; i < hs_stylus_trace_rows(tr); ++i)
+        if (hs_stylus_trace_row(tr, i)->flags & HS_TICK_TOUCH_FOUND) found_at = i;
+    ENSURE(found_at > 0);
+    const hs_stylus_tick* at = hs_stylus_trace_row(tr, found_at);
+    // Found within 0.5 mm of the surface, after a 18 mm search at 4 mm/s (about 4.5 s).
+    ENSURE(at->handle_m[2] < -0.008 + 1e-4 && at->handle_m[2] > -0.008 - 5e-4);
+    ENSURE_NEAR(at->t_s, s->seg[1].t0_s + 0.018 / 0.004, 0.2);
+    // The 4 mm press is relative to the found surface: force ~ k_s (4 mm + the touch depth).
+    hs_stylus_def def = test_def();
+    double ks = 300 * def.hand_stiffness_n_m / (300 + def.hand_stiffness_n_m);
+    ENSURE(sum.steady_force_norm_n > ks * 0.004 - def.coulomb_n);
+    ENSURE(sum.steady_force_norm_n < ks * 0.0045 + def.coulomb_n);
+    // The rest of the search was skipped: the run is shorter than the nominal script, and the
+    // final move_to ends 10 mm above the found surface (it was written 10 mm above 0.01).
+    ENSURE(sum.duration_s < s->duration_s + 0.5 - 1.0);
+    const hs_stylus_tick* last = hs_stylus_trace_row(tr, hs_stylus_trace_rows(tr) - 1);
+    ENSURE_NEAR(last->target_m[2], at->target_m[2] + 0.010, 1e-9);
+    ENSURE(norm3(last->f_applied) == 0);
+    // Nothing within 30 mm: the search runs its whole depth, reports a miss, no force anywhere.
+    hs_stylus_trace_destroy(&tr);
+    ENSURE(hs_stylus_trace_create(20000, &tr, &err) == HS_OK);
+    ENSURE(run_touch(-0.05, tr, s, &sum) == 0);
+    ENSURE(sum.touches_found == 0 && sum.touches_missed == 1 && sum.peak_force_n == 0);
+    ENSURE_NEAR(sum.duration_s, s->duration_s + 0.5 - 1e-3, 1e-6);
+    // Without touches the runner is hs_script_eval.
+    ENSURE(parse(s, "start 0 0 0\nmove_to 0.01 0 0 0.01\nhold 0.1\nmove_to 0 0.01 0 0.02\n",
+                 &err) == HS_OK);
+    hs_script_runner run;
+    hs_script_runner_init(&run, s);
+    double f[3] = {5, 5, 5};
+    for (double t = 0; t < s->duration_s + 0.2; t += 0.0123) {
+        double p[3], q[3], v[3], w[3];
+        uint32_t ev = 7;
+        hs_script_runner_eval(&run, t, f, p, v, NULL, &ev);
+        hs_script_eval(s, t, q, w, NULL, NULL);
+        ENSURE(dist3(p, q) == 0 && dist3(v, w) == 0 && ev == 0);
+    }
+    hs_stylus_trace_destroy(&tr);
+    hs_script_destroy(&s);
+    ENSURE(hs_byte_count() == bytes);
+    return 0;
+}
+
 static int def_check(void) {
     hs_err err = {0};
     hs_stylus_def d = hs_stylus_default_def();
@@ -966,7 +1051,7 @@ static int wire_rx(void) {
 }
 
 HS_TEST_MAIN(HS_CASE(script_good), HS_CASE(script_errors), HS_CASE(script_trajectory),
-             HS_CASE(device_tracks_target), HS_CASE(device_wall), HS_CASE(local_model),
-             HS_CASE(server_timeout), HS_CASE(passivity), HS_CASE(trace_file),
+             HS_CASE(script_touch), HS_CASE(device_tracks_target), HS_CASE(device_wall),
+             HS_CASE(local_model), HS_CASE(server_timeout), HS_CASE(passivity), HS_CASE(trace_file),
              HS_CASE(trace_compare), HS_CASE(bundled_scripts), HS_CASE(def_check), HS_CASE(mailbox),
              HS_CASE(wire_rx))
