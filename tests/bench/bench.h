@@ -18,6 +18,8 @@ int hs_bench_stress(const hs_bench_args* a);
 int hs_bench_haptic(const hs_bench_args* a);
 /// Cutting: one progressive cut step with the factor update, against refactor / dense inverse.
 int hs_bench_cut(const hs_bench_args* a);
+/// hapsim-server round trip vs a bare LCM echo, in a private network namespace (issue 4).
+int hs_bench_protocol(const hs_bench_args* a);
 
 /// p-th percentile (0..100) of v[n] (sorts v in place).
 double hs_bench_percentile(double* v, size_t n, double p);

@@ -49,6 +49,9 @@ static const bench_cmd cmds[] = {
 #ifdef HS_BENCH_HAVE_CUT
     {"cut", hs_bench_cut, "cut step with factor update vs refactor and dense inverse (issue 7)"},
 #endif
+#ifdef HS_BENCH_HAVE_PROTOCOL
+    {"protocol", hs_bench_protocol, "pose -> force round trip via hapsim-server vs bare LCM (issue 4)"},
+#endif
 };
 
 static void usage(FILE* f) {
