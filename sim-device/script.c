@@ -337,10 +337,25 @@ static hs_status parse_text(parser* p, const char* text, hs_err* err) {
             if ((st = need_positive(p, err, cmd, "speed", v[4]))) return st;
             if ((st = need_positive(p, err, cmd, "force_n", force))) return st;
             if (p->pressed) return perr(p, err, "touch: a press is active (release first)");
-            double from[3], to[3];
+            double from[3], to[3], ref[3];
             for (int i = 0; i < 3; ++i) {
                 from[i] = p->cur[i];
                 to[i] = p->cur[i] - n[i] * v[3];
+                ref[i] = from[i];
+            }
+            if (s->has_surface) {
+                // The expected contact: where the search line crosses the surface plane.
+                const double* m = s->surface_normal;
+                const double* q = s->surface_point_m;
+                double mn = m[0] * n[0] + m[1] * n[1] + m[2] * n[2];
+                double h =
+                    m[0] * (from[0] - q[0]) + m[1] * (from[1] - q[1]) + m[2] * (from[2] - q[2]);
+                double at = mn > 1e-6 ? h / mn : -1;
+                if (!(at >= 0 && at <= v[3]))
+                    return perr(p, err,
+                                "touch: the search does not cross the `surface` plane "
+                                "within max_depth (start above it, search toward it)");
+                for (int i = 0; i < 3; ++i) ref[i] = from[i] - n[i] * at;
             }
             int keep_profile = p->profile;
             double keep_accel = p->accel;
@@ -351,10 +366,13 @@ static hs_status parse_text(parser* p, const char* text, hs_err* err) {
             p->profile = keep_profile;
             p->accel = keep_accel;
             if (st) return st;
-            if (s->n_segments > before) s->seg[s->n_segments - 1].touch_force_n = force;
-            // What follows is written as if the surface were where the touch starts; the runner
-            // shifts it to where the surface is found.
-            memcpy(p->cur, from, sizeof from);
+            if (s->n_segments > before) {
+                s->seg[s->n_segments - 1].touch_force_n = force;
+                memcpy(s->seg[s->n_segments - 1].touch_ref_m, ref, sizeof ref);
+            }
+            // What follows is written as if the surface were where the script expects it; the
+            // runner shifts it to where the surface is found.
+            memcpy(p->cur, ref, sizeof ref);
         } else if (!strcmp(cmd, "hold")) {
             if ((st = read_args(p, err, tok, ntok, "T", "seconds", v))) return st;
             if (v[0] < 0) return perr(p, err, "hold: seconds must be >= 0");
@@ -491,7 +509,7 @@ int hs_script_runner_eval(hs_script_runner* r, double t_s, const double force_n[
     // A touch searched earlier ended without a force: continue from where it stopped.
     if (r->touch_seg >= 0 && seg != r->touch_seg) {
         const hs_script_segment* g = &s->seg[r->touch_seg];
-        for (int i = 0; i < 3; ++i) r->off_m[i] += g->to_m[i] - g->from_m[i];
+        for (int i = 0; i < 3; ++i) r->off_m[i] += g->to_m[i] - g->touch_ref_m[i];
         r->touch_seg = -1;
         r->missed++;
         ev |= HS_TOUCH_MISSED;
@@ -506,14 +524,14 @@ int hs_script_runner_eval(hs_script_runner* r, double t_s, const double force_n[
         if (fn >= g->touch_force_n) {
             // Found: stop the target where it is, shift what follows so it starts here, and
             // skip the rest of the search.
-            for (int i = 0; i < 3; ++i) r->off_m[i] += pos_m[i] - g->from_m[i];
+            for (int i = 0; i < 3; ++i) r->off_m[i] += pos_m[i] - g->touch_ref_m[i];
             r->t_off_s = t_s - (g->t0_s + g->dur_s);
             r->touch_seg = -1;
             r->found++;
             ev |= HS_TOUCH_FOUND;
             seg = hs_script_eval(s, g->t0_s + g->dur_s, pos_m, vel_m_s, buttons, &r->hint);
             if (seg == (int)(g - s->seg)) { // the touch was the last segment: stay put
-                memcpy(pos_m, g->from_m, 3 * sizeof(double));
+                memcpy(pos_m, g->touch_ref_m, 3 * sizeof(double));
                 if (vel_m_s) vel_m_s[0] = vel_m_s[1] = vel_m_s[2] = 0;
             }
         }

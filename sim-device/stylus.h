@@ -54,18 +54,19 @@ typedef enum hs_seg_cmd {
 
 /// One timed piece of the target trajectory.
 typedef struct hs_script_segment {
-    int kind;             ///< hs_seg_kind
-    int cmd;              ///< hs_seg_cmd
-    int line;             ///< source line of the command
-    int profile;          ///< hs_profile (moves)
-    double t0_s;          ///< start time, s from script start
-    double dur_s;         ///< duration, s (>= 0)
-    double from_m[3];     ///< start point, m, scene frame
-    double to_m[3];       ///< end point, m (== from for a hold)
-    double speed_m_s;     ///< requested (peak) speed, m/s (moves)
-    double accel_m_s2;    ///< trapezoid acceleration, m/s^2
-    uint32_t buttons;     ///< tool_pose button bits held during the segment (cut: PRIMARY)
-    double touch_force_n; ///< touch: force along the normal that ends the search, N
+    int kind;              ///< hs_seg_kind
+    int cmd;               ///< hs_seg_cmd
+    int line;              ///< source line of the command
+    int profile;           ///< hs_profile (moves)
+    double t0_s;           ///< start time, s from script start
+    double dur_s;          ///< duration, s (>= 0)
+    double from_m[3];      ///< start point, m, scene frame
+    double to_m[3];        ///< end point, m (== from for a hold)
+    double speed_m_s;      ///< requested (peak) speed, m/s (moves)
+    double accel_m_s2;     ///< trapezoid acceleration, m/s^2
+    uint32_t buttons;      ///< tool_pose button bits held during the segment (cut: PRIMARY)
+    double touch_force_n;  ///< touch: force along the normal that ends the search, N
+    double touch_ref_m[3]; ///< touch: where the script expects the surface (see hs_script_runner)
 } hs_script_segment;
 
 /// A parsed script. Create with hs_script_create (large: fixed segment array).
@@ -103,8 +104,9 @@ int hs_script_eval(const hs_script* s, double t_s, double pos_m[3], double vel_m
 
 /// Runs a script with its `touch` searches resolved against the force the handle feels: a
 /// touch ends as soon as the force along its normal reaches its threshold, and everything
-/// after it is shifted in space (by where the surface was found relative to where the touch
-/// started) and in time (the rest of the search is skipped). Without touches it is
+/// after it is shifted in space (by where the surface was found relative to where the script
+/// expected it: the crossing of the search line with the `surface` plane, or without one the
+/// touch's start) and in time (the rest of the search is skipped). Without touches it is
 /// hs_script_eval.
 typedef struct hs_script_runner {
     const hs_script* s;

@@ -772,9 +772,29 @@ static int bundled_scripts(void) {
         double clear =
             d[0] * s->surface_normal[0] + d[1] * s->surface_normal[1] + d[2] * s->surface_normal[2];
         ENSURE(clear > 0.005);
-        if (i == 2) ENSURE(s->duration_s >= 30 && s->duration_s <= 45);
+        // Offline against a half-space on the script's surface: the touch finds it and the
+        // demo runs 30-45 s.
+        hs_offline_def off = {0};
+        memcpy(off.surface.point_m, s->surface_point_m, sizeof off.surface.point_m);
+        memcpy(off.surface.normal, s->surface_normal, sizeof off.surface.normal);
+        off.surface.stiffness_n_m = 300;
+        off.surface.radius_m = 0.002;
+        off.surface.timeout_s = 0.05;
+        off.dt_s = 1e-3;
+        off.period_ticks = 1;
+        off.delay_ticks = 1;
+        hs_stylus_trace* tr = NULL;
+        ENSURE(hs_stylus_trace_create((int64_t)(s->duration_s * 1000) + 1000, &tr, &err) == HS_OK);
+        ENSURE(hs_stylus_run_offline(s, &def, &off, tr, NULL, &err) == HS_OK);
+        hs_stylus_summary sum;
+        hs_stylus_trace_summary(tr, s, &sum);
+        ENSURE(sum.touches_found == 1 && sum.touches_missed == 0 && sum.workspace_hits == 0);
+        ENSURE(sum.energy_j <= 0.01 * sum.energy_in_j);
+        if (i == 2) ENSURE(sum.duration_s >= 30 && sum.duration_s <= 45);
+        hs_stylus_trace_destroy(&tr);
     }
-    // press_hold offline: steady force k_s * 5 mm with k_s = k k_h / (k + k_h), within friction.
+    // press_hold offline: steady force k_s * 5 mm with k_s = k k_h / (k + k_h), within friction
+    // and the touch depth (0.02 N / k_s).
     char path[512];
     snprintf(path, sizeof path, "%s/scenes/liver/scripts/press_hold.probe", HS_SOURCE_DIR);
     ENSURE(hs_script_parse_file(s, path, &err) == HS_OK);
@@ -796,7 +816,7 @@ static int bundled_scripts(void) {
     hs_stylus_trace_summary(tr, s, &sum);
     double ks = 300 * def.hand_stiffness_n_m / (300 + def.hand_stiffness_n_m);
     ENSURE(sum.steady_segment >= 0);
-    ENSURE_NEAR(sum.steady_force_norm_n, ks * 0.005, def.coulomb_n * 1.01);
+    ENSURE_NEAR(sum.steady_force_norm_n, ks * 0.005 + 0.02, def.coulomb_n * 1.01);
     // Released: the last row carries no force.
     ENSURE(norm3(hs_stylus_trace_row(tr, hs_stylus_trace_rows(tr) - 1)->f_applied) == 0);
     hs_stylus_trace_destroy(&tr);
@@ -807,13 +827,15 @@ static int bundled_scripts(void) {
 
 // touch: the search stops where the handle first feels the surface, and everything after it
 // is shifted there (space) and brought forward (time); a search that finds nothing says so.
-static int run_touch(double surface_z, hs_stylus_trace* tr, hs_script* s, hs_stylus_summary* sum) {
+static int run_touch(double surface_z, const char* surface_line, hs_stylus_trace* tr, hs_script* s,
+                     hs_stylus_summary* sum) {
     hs_err err = {0};
-    if (parse(s,
-              "start 0 0 0.02\nmove_to 0 0 0.01 0.02\ntouch 0 0 1 0.03 0.004\nhold 0.2\n"
-              "press 0 0 1 0.004 0.005\nhold 1\nrelease 0.005\nmove_to 0 0 0.02 0.02\n",
-              &err))
-        return 1;
+    char text[512];
+    snprintf(text, sizeof text,
+             "%sstart 0 0 0.02\nmove_to 0 0 0.01 0.02\ntouch 0 0 1 0.03 0.004\nhold 0.2\n"
+             "press 0 0 1 0.004 0.005\nhold 1\nrelease 0.005\nmove_to 0 0 0.02 0.02\n",
+             surface_line);
+    if (parse(s, text, &err)) return 1;
     hs_stylus_def def = test_def();
     hs_offline_def off = {0};
     off.surface.point_m[2] = surface_z;
@@ -838,7 +860,7 @@ static int script_touch(void) {
     ENSURE(hs_stylus_trace_create(20000, &tr, &err) == HS_OK);
     hs_stylus_summary sum;
     // The surface 18 mm below where the touch starts (the script was written for 0 mm).
-    ENSURE(run_touch(-0.008, tr, s, &sum) == 0);
+    ENSURE(run_touch(-0.008, "", tr, s, &sum) == 0);
     ENSURE(s->n_segments == 7 && s->seg[1].cmd == HS_CMD_TOUCH);
     ENSURE(sum.touches_found == 1 && sum.touches_missed == 0);
     int64_t found_at = -1;
@@ -863,9 +885,24 @@ static int script_touch(void) {
     // Nothing within 30 mm: the search runs its whole depth, reports a miss, no force anywhere.
     hs_stylus_trace_destroy(&tr);
     ENSURE(hs_stylus_trace_create(20000, &tr, &err) == HS_OK);
-    ENSURE(run_touch(-0.05, tr, s, &sum) == 0);
+    ENSURE(run_touch(-0.05, "", tr, s, &sum) == 0);
     ENSURE(sum.touches_found == 0 && sum.touches_missed == 1 && sum.peak_force_n == 0);
     ENSURE_NEAR(sum.duration_s, s->duration_s + 0.5 - 1e-3, 1e-6);
+    // With a `surface` plane at z = 0 the script's positions are relative to it: the final
+    // move_to (20 mm above the plane) ends 20 mm above the found surface.
+    hs_stylus_trace_destroy(&tr);
+    ENSURE(hs_stylus_trace_create(20000, &tr, &err) == HS_OK);
+    ENSURE(run_touch(-0.008, "surface 0 0 0 0 0 1\n", tr, s, &sum) == 0);
+    ENSURE_NEAR(s->seg[1].touch_ref_m[2], 0, 1e-15);
+    ENSURE(sum.touches_found == 1);
+    ENSURE(sum.steady_force_norm_n > ks * 0.004 - def.coulomb_n);
+    ENSURE(sum.steady_force_norm_n < ks * 0.0045 + def.coulomb_n);
+    last = hs_stylus_trace_row(tr, hs_stylus_trace_rows(tr) - 1);
+    ENSURE(last->target_m[2] > -0.008 + 0.020 - 5e-4 && last->target_m[2] < -0.008 + 0.020 + 1e-4);
+    // A search that never crosses the plane is an error.
+    ENSURE(parse(s, "surface 0 0 0 0 0 1\nstart 0 0 0.02\ntouch 0 0 1 0.01 0.004\n", &err) ==
+           HS_ERR_PARSE);
+    ENSURE(strstr(err.msg, "t.probe:3: touch: the search does not cross") != NULL);
     // Without touches the runner is hs_script_eval.
     ENSURE(parse(s, "start 0 0 0\nmove_to 0.01 0 0 0.01\nhold 0.1\nmove_to 0 0.01 0 0.02\n",
                  &err) == HS_OK);
