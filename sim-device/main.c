@@ -556,7 +556,7 @@ static int run_offline(app* a) {
     off.dt_s = 1.0 / a->opt.rate_hz;
     off.period_ticks = a->opt.offline_period;
     off.delay_ticks = a->opt.offline_delay;
-    off.duration_s = a->opt.duration_s;
+    off.duration_s = a->opt.duration_auto ? 0 : a->opt.duration_s; // 0: follows the touches
     off.surface.stiffness_n_m = a->opt.offline_k;
     off.surface.radius_m = a->opt.offline_radius;
     off.surface.timeout_s = a->opt.offline_timeout;
