@@ -1,6 +1,6 @@
 #!/bin/sh
 # The hapsim demo: hapsim-server on the bundled liver scene and hapsim-stylus on the bundled
-# demo script (about 43 s) with a live one-line status, then the trace and a force plot.
+# demo script (about 42 s) with a live one-line status, then the trace and a force plot.
 #   sim-device/demo.sh [BUILD_DIR] [OUT_DIR]
 # BUILD_DIR defaults to build/, OUT_DIR to BUILD_DIR/demo. Inside a private network namespace
 # when this user may create one (tests/netns.sh), so the demo neither hears nor disturbs other
