@@ -5,14 +5,14 @@
 #   scripts/demo.sh [BUILD_DIR] [OUT_DIR]        (defaults: build, out/demo)
 # Inside a private network namespace when this user may create one (root: tests/netns.sh), so
 # the demo neither hears nor disturbs other LCM traffic; otherwise on the host with the scene's
-# host-local URLs (ttl=0).
+# host-local URLs (ttl=0). HS_DEMO_SCENE=FILE serves another scene file.
 set -eu
 root=$(cd "$(dirname "$0")/.." && pwd)
 build=$(cd "${1:-$root/build}" && pwd)
 out=${2:-$root/out/demo}
 server=$build/bin/hapsim-server
 stylus=$build/bin/hapsim-stylus
-scene=$root/scenes/liver/liver.json
+scene=${HS_DEMO_SCENE:-$root/scenes/liver/liver.json}
 script=$root/scenes/liver/scripts/demo.probe
 for exe in "$server" "$stylus"; do
     [ -x "$exe" ] || { echo "demo: $exe not built (make build)" >&2; exit 1; }
@@ -53,8 +53,12 @@ echo
 tail -n 1 "$log"
 
 if command -v gnuplot >/dev/null 2>&1; then
-    gnuplot -e "trace='$trace'; out='$plot'" "$root/scripts/plot_force.gp"
-    echo "demo: force plot  $plot"
+    if gnuplot -e "trace='$trace'; out='$plot'" "$root/scripts/plot_force.gp" 2>"$out/gnuplot.log"; then
+        echo "demo: force plot  $plot"
+    else
+        cat "$out/gnuplot.log" >&2
+        echo "demo: gnuplot failed: no plot" >&2
+    fi
 else
     echo "demo: gnuplot not installed (apt-get install gnuplot-nox): no plot"
 fi

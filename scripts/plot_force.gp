@@ -9,9 +9,9 @@ set multiplot layout 2,1 title sprintf('hapsim demo: %s', trace)
 set grid
 set key top right
 set ylabel 'force magnitude (N)'
-norm(x, y, z) = sqrt(x*x + y*y + z*z)
-plot trace every ::1 using 1:(norm($11, $12, $13)) with lines lw 2 title '|F| applied to the handle', \
-     trace every ::1 using 1:(norm($8, $9, $10)) with lines lw 1 dt 2 title '|F| from the server model'
+fmag(x, y, z) = sqrt(x*x + y*y + z*z)
+plot trace every ::1 using 1:(fmag($11, $12, $13)) with lines lw 2 title '|F| applied to the handle', \
+     trace every ::1 using 1:(fmag($8, $9, $10)) with lines lw 1 dt 2 title '|F| from the server model'
 set xlabel 'time (s)'
 set ylabel 'force (N)'
 plot trace every ::1 using 1:11 with lines title 'F_x', \
