@@ -922,6 +922,56 @@ static int script_touch(void) {
     return 0;
 }
 
+// Random scripts from the command vocabulary, random numbers and random bytes: every one parses
+// or fails with "t.probe:LINE: ..."; a parsed one evaluates to finite targets.
+static int script_garbage(void) {
+    static const char* words[] = {"units",   "mm",      "m",         "start",   "origin", "surface",
+                                  "profile", "minjerk", "trapezoid", "move_to", "press",  "drag",
+                                  "release", "hold",    "loop",      "end",     "cut",    "touch",
+                                  "#",       ",",       "nan",       "-"};
+    hs_script* s = NULL;
+    hs_err err = {0};
+    ENSURE(hs_script_create(&s, &err) == HS_OK);
+    static char text[4096];
+    srand(11);
+    int ok = 0, bad = 0;
+    for (int trial = 0; trial < 3000; ++trial) {
+        size_t n = 0;
+        int lines = 1 + rand() % 12;
+        for (int l = 0; l < lines && n + 200 < sizeof text; ++l) {
+            int toks = rand() % 8;
+            for (int k = 0; k < toks; ++k) {
+                int r = rand() % 10;
+                if (r < 4)
+                    n += (size_t)snprintf(text + n, 64, "%s ", words[rand() % 22]);
+                else if (r < 9)
+                    n += (size_t)snprintf(text + n, 64, "%.3g ", (rand() % 2000 - 1000) * 1e-3);
+                else
+                    text[n++] = (char)(1 + rand() % 255);
+            }
+            text[n++] = '\n';
+        }
+        text[n] = '\0';
+        hs_status st = parse(s, text, &err);
+        if (st == HS_OK) {
+            ok++;
+            for (double t = -0.1; t < s->duration_s + 0.2; t += s->duration_s / 7 + 0.01) {
+                double p[3], v[3];
+                hs_script_eval(s, t, p, v, NULL, NULL);
+                ENSURE(isfinite(p[0]) && isfinite(p[1]) && isfinite(p[2]));
+                ENSURE(isfinite(v[0]) && isfinite(v[1]) && isfinite(v[2]));
+            }
+        } else {
+            bad++;
+            ENSURE(st == HS_ERR_PARSE && strncmp(err.msg, "t.probe:", 8) == 0);
+        }
+    }
+    printf("  %d parsed, %d rejected\n", ok, bad);
+    ENSURE(ok > 0 && bad > 0);
+    hs_script_destroy(&s);
+    return 0;
+}
+
 static int def_check(void) {
     hs_err err = {0};
     hs_stylus_def d = hs_stylus_default_def();
@@ -1088,7 +1138,7 @@ static int wire_rx(void) {
 }
 
 HS_TEST_MAIN(HS_CASE(script_good), HS_CASE(script_errors), HS_CASE(script_trajectory),
-             HS_CASE(script_touch), HS_CASE(device_tracks_target), HS_CASE(device_wall),
-             HS_CASE(local_model), HS_CASE(server_timeout), HS_CASE(passivity), HS_CASE(trace_file),
-             HS_CASE(trace_compare), HS_CASE(bundled_scripts), HS_CASE(def_check), HS_CASE(mailbox),
-             HS_CASE(wire_rx))
+             HS_CASE(script_touch), HS_CASE(script_garbage), HS_CASE(device_tracks_target),
+             HS_CASE(device_wall), HS_CASE(local_model), HS_CASE(server_timeout),
+             HS_CASE(passivity), HS_CASE(trace_file), HS_CASE(trace_compare),
+             HS_CASE(bundled_scripts), HS_CASE(def_check), HS_CASE(mailbox), HS_CASE(wire_rx))
