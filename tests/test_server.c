@@ -132,6 +132,19 @@ static int server_alive(void) {
 // ---------------------------------------------------------------------------------------------
 // The client: both buses, the newest of everything, a consistent mesh copy.
 
+// What the tests read from server_status_t, copied into fixed storage.
+typedef struct status_info {
+    int n_loops;
+    char loop_name[8][16];
+    float rate_hz[8];
+    int n_devices;
+    int64_t poses_received[4];
+    int n_rejects;
+    char reject_channel[32][32];
+    char reject_reason[32][32];
+    int64_t reject_count[32];
+} status_info;
+
 typedef struct client {
     hs_net_bus* h;
     hs_net_bus* m;
@@ -142,7 +155,7 @@ typedef struct client {
     int64_t force_rx_ns;
     // status
     int n_status;
-    hapsim_server_status_t* status; // newest, owned copy
+    status_info* status; // newest
     // acks
     int n_ack;
     int64_t ack_id[64];
@@ -157,6 +170,12 @@ typedef struct client {
     float* shape; // keyframe + newest matching delta
     int drop_deltas;
     int n_delta_applied;
+    hapsim_tool_force_t_subscription_t* s_force;
+    hapsim_server_status_t_subscription_t* s_status;
+    hapsim_command_ack_t_subscription_t* s_ack;
+    hapsim_mesh_topology_t_subscription_t* s_topo;
+    hapsim_mesh_state_t_subscription_t* s_key;
+    hapsim_mesh_delta_t_subscription_t* s_delta;
     int64_t hist_id[8]; // the last keyframes, by id
     float* hist[8];
 } client;
@@ -176,8 +195,22 @@ static void on_status(const lcm_recv_buf_t* rb, const char* ch, const hapsim_ser
     (void)rb;
     (void)ch;
     client* c = u;
-    if (c->status) hapsim_server_status_t_destroy(c->status);
-    c->status = hapsim_server_status_t_copy(s);
+    if (!c->status) c->status = calloc(1, sizeof *c->status);
+    status_info* i = c->status;
+    memset(i, 0, sizeof *i);
+    for (int k = 0; k < s->n_loops && k < 8; ++k) {
+        snprintf(i->loop_name[k], sizeof i->loop_name[k], "%s", s->loop_name[k]);
+        i->rate_hz[k] = s->rate_hz[k];
+        i->n_loops = k + 1;
+    }
+    i->n_devices = s->n_devices;
+    for (int k = 0; k < s->n_devices && k < 4; ++k) i->poses_received[k] = s->poses_received[k];
+    for (int k = 0; k < s->n_rejects && k < 32; ++k) {
+        snprintf(i->reject_channel[k], 32, "%s", s->reject_channel[k]);
+        snprintf(i->reject_reason[k], 32, "%s", s->reject_reason[k]);
+        i->reject_count[k] = s->reject_count[k];
+        i->n_rejects = k + 1;
+    }
     c->n_status++;
 }
 
@@ -248,19 +281,33 @@ static int client_open(client* c) {
     if (hs_net_bus_create(URL_H_RX, &c->h, &err) != HS_OK) return -1;
     if (hs_net_bus_create(URL_M_RX, &c->m, &err) != HS_OK) return -1;
     c->session = 0x5eed0000 + getpid();
-    hapsim_tool_force_t_subscribe(hs_net_bus_lcm(c->h), PREFIX "TOOL_FORCE", on_force, c);
-    hapsim_server_status_t_subscribe(hs_net_bus_lcm(c->m), PREFIX "SERVER_STATUS", on_status, c);
-    hapsim_command_ack_t_subscribe(hs_net_bus_lcm(c->m), PREFIX "COMMAND_ACK", on_ack, c);
-    hapsim_mesh_topology_t_subscribe(hs_net_bus_lcm(c->m), PREFIX "MESH_TOPOLOGY", on_topo, c);
-    hapsim_mesh_state_t_subscribe(hs_net_bus_lcm(c->m), PREFIX "MESH_STATE", on_key, c);
-    hapsim_mesh_delta_t_subscribe(hs_net_bus_lcm(c->m), PREFIX "MESH_DELTA", on_delta, c);
+    c->s_force =
+        hapsim_tool_force_t_subscribe(hs_net_bus_lcm(c->h), PREFIX "TOOL_FORCE", on_force, c);
+    c->s_status = hapsim_server_status_t_subscribe(hs_net_bus_lcm(c->m), PREFIX "SERVER_STATUS",
+                                                   on_status, c);
+    c->s_ack =
+        hapsim_command_ack_t_subscribe(hs_net_bus_lcm(c->m), PREFIX "COMMAND_ACK", on_ack, c);
+    c->s_topo =
+        hapsim_mesh_topology_t_subscribe(hs_net_bus_lcm(c->m), PREFIX "MESH_TOPOLOGY", on_topo, c);
+    c->s_key = hapsim_mesh_state_t_subscribe(hs_net_bus_lcm(c->m), PREFIX "MESH_STATE", on_key, c);
+    c->s_delta =
+        hapsim_mesh_delta_t_subscribe(hs_net_bus_lcm(c->m), PREFIX "MESH_DELTA", on_delta, c);
     return 0;
 }
 
 static void client_close(client* c) {
+    if (c->h) hapsim_tool_force_t_unsubscribe(hs_net_bus_lcm(c->h), c->s_force);
+    if (c->m) {
+        lcm_t* l = hs_net_bus_lcm(c->m);
+        hapsim_server_status_t_unsubscribe(l, c->s_status);
+        hapsim_command_ack_t_unsubscribe(l, c->s_ack);
+        hapsim_mesh_topology_t_unsubscribe(l, c->s_topo);
+        hapsim_mesh_state_t_unsubscribe(l, c->s_key);
+        hapsim_mesh_delta_t_unsubscribe(l, c->s_delta);
+    }
     hs_net_bus_destroy(&c->h);
     hs_net_bus_destroy(&c->m);
-    if (c->status) hapsim_server_status_t_destroy(c->status);
+    free(c->status);
     free(c->rest);
     free(c->key);
     free(c->shape);
@@ -377,7 +424,7 @@ static int wait_up(client* c) {
     return c->n_status > 0;
 }
 
-static int64_t reject_count(const hapsim_server_status_t* s, const char* ch, const char* reason) {
+static int64_t reject_count(const status_info* s, const char* ch, const char* reason) {
     for (int i = 0; i < s->n_rejects; ++i)
         if (!strcmp(s->reject_channel[i], ch) && !strcmp(s->reject_reason[i], reason))
             return s->reject_count[i];
@@ -717,7 +764,7 @@ static int bad_command(int k, int64_t dup_id, uint8_t* buf, int cap) {
 
 // Hover 3 mm off the surface for hover_ms while (optionally) flooding; then ask for a keyframe.
 static int flood_run(const char* tag, int flood, float** mesh_out, int* n_vis_out,
-                     int64_t* pose_expect, int64_t* cmd_expect, hapsim_server_status_t** st_out) {
+                     int64_t* pose_expect, int64_t* cmd_expect, status_info* st_out) {
     char scene[512];
     snprintf(scene, sizeof scene, "%s/liver_%s.json", tmpdir, tag);
     liver_scene(scene, NULL);
@@ -773,7 +820,7 @@ static int flood_run(const char* tag, int flood, float** mesh_out, int* n_vis_ou
     *n_vis_out = c.n_vis;
     *mesh_out = malloc(sizeof(float) * 3 * (size_t)c.n_vis);
     memcpy(*mesh_out, c.key, sizeof(float) * 3 * (size_t)c.n_vis);
-    *st_out = hapsim_server_status_t_copy(c.status);
+    *st_out = *c.status;
     printf("  %s: %d flood messages, %lld driver poses, %d keyframes\n", tag, sent,
            (long long)c.seq, c.n_key);
     ENSURE(stop_server() == 0);
@@ -785,9 +832,10 @@ static int flood_leaves_server_intact(void) {
     int64_t pe[F_NP] = {0}, ce[C_NC] = {0}, pe0[F_NP] = {0}, ce0[C_NC] = {0};
     float *clean = NULL, *flooded = NULL;
     int nv_clean = 0, nv_flood = 0;
-    hapsim_server_status_t *s_clean = NULL, *s_flood = NULL;
-    ENSURE(flood_run("clean", 0, &clean, &nv_clean, pe0, ce0, &s_clean) == 0);
-    ENSURE(flood_run("flood", 1, &flooded, &nv_flood, pe, ce, &s_flood) == 0);
+    static status_info s_clean_v, s_flood_v;
+    status_info *s_clean = &s_clean_v, *s_flood = &s_flood_v;
+    ENSURE(flood_run("clean", 0, &clean, &nv_clean, pe0, ce0, s_clean) == 0);
+    ENSURE(flood_run("flood", 1, &flooded, &nv_flood, pe, ce, s_flood) == 0);
     int64_t sum = 0;
     for (int k = 0; k < F_NP; ++k) {
         int64_t got = reject_count(s_flood, "TOOL_POSE", pose_reason[k]);
@@ -809,8 +857,6 @@ static int flood_leaves_server_intact(void) {
     ENSURE(memcmp(clean, flooded, sizeof(float) * 3 * (size_t)nv_clean) == 0);
     free(clean);
     free(flooded);
-    hapsim_server_status_t_destroy(s_clean);
-    hapsim_server_status_t_destroy(s_flood);
     return 0;
 }
 
