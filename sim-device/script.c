@@ -13,6 +13,7 @@
 #define BUTTON_PRIMARY 1u // tool_pose BUTTON_PRIMARY: blade engaged
 #define MAX_TOKENS     12
 #define TOUCH_ACCEL    0.1  // m/s^2: a touch reaches its search speed within a few ms
+#define TOUCH_ONSET_N  1e-4 // N: a force above this marks where the contact began
 #define TOUCH_FORCE_N  0.02 // N: default force that ends a touch
 
 hs_status hs_script_create(hs_script** out, hs_err* err) {
@@ -309,11 +310,20 @@ static hs_status parse_text(parser* p, const char* text, hs_err* err) {
             for (int i = 0; i < 3; ++i) to[i] = v[i] - p->normal[i] * p->depth;
             if ((st = emit(p, err, HS_SEG_MOVE, HS_CMD_DRAG, to, v[3], 0, 0))) return st;
         } else if (!strcmp(cmd, "release")) {
-            if ((st = read_args(p, err, tok, ntok, "V", "speed", v))) return st;
+            // release speed [lift]: back out by the pressed depth, plus lift clear of the
+            // surface (so Coulomb friction cannot hold the handle in light contact).
+            double lift = 0;
+            if (ntok == 3) {
+                if (!parse_num(tok[2], &lift) || lift < 0)
+                    return perr(p, err, "release: lift '%.60s' must be a number >= 0", tok[2]);
+                lift *= p->scale;
+                ntok = 2;
+            }
+            if ((st = read_args(p, err, tok, ntok, "V", "speed [lift]", v))) return st;
             if ((st = need_positive(p, err, cmd, "speed", v[0]))) return st;
             if (!p->pressed) return perr(p, err, "release: no press is active");
             double to[3];
-            for (int i = 0; i < 3; ++i) to[i] = p->cur[i] + p->normal[i] * p->depth;
+            for (int i = 0; i < 3; ++i) to[i] = p->cur[i] + p->normal[i] * (p->depth + lift);
             p->pressed = 0;
             p->depth = 0;
             if ((st = emit(p, err, HS_SEG_MOVE, HS_CMD_RELEASE, to, v[0], 0, 0))) return st;
@@ -494,6 +504,7 @@ void hs_script_runner_init(hs_script_runner* r, const hs_script* s) {
     memset(r, 0, sizeof *r);
     r->s = s;
     r->touch_seg = -1;
+    r->has_onset = 0;
 }
 
 double hs_script_runner_end(const hs_script_runner* r) {
@@ -520,11 +531,20 @@ int hs_script_runner_eval(hs_script_runner* r, double t_s, const double force_n[
                        g->from_m[2] - g->to_m[2]};
         double len = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
         double fn = force_n ? (force_n[0] * d[0] + force_n[1] * d[1] + force_n[2] * d[2]) / len : 0;
+        if (r->touch_seg != seg) r->has_onset = 0;
         r->touch_seg = seg;
+        // Remember where the force began, forget it if it fades (a brush, not the surface).
+        if (fn > TOUCH_ONSET_N && !r->has_onset) {
+            r->has_onset = 1;
+            memcpy(r->onset_m, pos_m, sizeof r->onset_m);
+        } else if (fn <= TOUCH_ONSET_N) {
+            r->has_onset = 0;
+        }
         if (fn >= g->touch_force_n) {
-            // Found: stop the target where it is, shift what follows so it starts here, and
-            // skip the rest of the search.
-            for (int i = 0; i < 3; ++i) r->off_m[i] += pos_m[i] - g->touch_ref_m[i];
+            // Found: what follows starts where the contact began (so a release comes back to
+            // zero force), and the rest of the search is skipped.
+            const double* at = r->has_onset ? r->onset_m : pos_m;
+            for (int i = 0; i < 3; ++i) r->off_m[i] += at[i] - g->touch_ref_m[i];
             r->t_off_s = t_s - (g->t0_s + g->dur_s);
             r->touch_seg = -1;
             r->found++;

@@ -113,9 +113,11 @@ typedef struct hs_script_runner {
     double t_off_s;  ///< script time = run time - t_off_s
     double off_m[3]; ///< added to the script's positions after the last resolved touch
     int hint;
-    int touch_seg;  ///< the touch being searched (-1: none)
-    int64_t found;  ///< touches that found the surface
-    int64_t missed; ///< touches that ran their whole depth without a force
+    int touch_seg;     ///< the touch being searched (-1: none)
+    int has_onset;     ///< the search felt a first force (contact onset)
+    double onset_m[3]; ///< script position of the target at the onset, m
+    int64_t found;     ///< touches that found the surface
+    int64_t missed;    ///< touches that ran their whole depth without a force
 } hs_script_runner;
 
 /// Touch events of one runner step (bitwise or).

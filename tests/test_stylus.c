@@ -132,6 +132,8 @@ static int script_errors(void) {
         {"press 0 0 0 0.005 0.01\n", 1, "normal (nx ny nz) must not be zero"},
         {"press 0 0 1 0 0.01\n", 1, "depth must be > 0"},
         {"release 0.01\n", 1, "no press is active"},
+        {"press 0 0 1 0.01 0.01\nrelease 0.01 -1\n", 2, "lift '-1' must be a number >= 0"},
+        {"press 0 0 1 0.01 0.01\nrelease 0.01 1 2\n", 2, "expected 1 number"},
         {"hold 1\ndrag 0 0 0 0.01\n", 2, "drag: no press is active"},
         {"press 0 0 1 0.01 0.01\nmove_to 1 0 0 1\n", 2, "a press is active"},
         {"press 0 0 1 0.01 0.01\npress 1 0 0 0.01 0.01\n", 2, "another normal"},
@@ -236,6 +238,12 @@ static int script_trajectory(void) {
     hs_script_eval(s, s->duration_s + 5, p, v, NULL, NULL);
     ENSURE_SMALL(dist3(p, s->seg[5].to_m), 1e-15);
     ENSURE_SMALL(norm3(v), 0);
+    // release with a lift ends that far beyond the press start.
+    hs_script* s3 = NULL;
+    ENSURE(hs_script_create(&s3, &err) == HS_OK);
+    ENSURE(parse(s3, "units mm\nstart 0 0 0\npress 0 0 1 5 5\nrelease 5 1.5\n", &err) == HS_OK);
+    ENSURE_NEAR(s3->seg[1].to_m[2], 0.0015, 1e-15);
+    hs_script_destroy(&s3);
     // Press then release brings the target back: release undoes exactly the pressed depth.
     ENSURE_SMALL(dist3(s->seg[5].to_m, s->seg[4].from_m), 1e-15);
     // Sequential lookups with a hint agree with fresh lookups.
@@ -793,8 +801,8 @@ static int bundled_scripts(void) {
         if (i == 2) ENSURE(sum.duration_s >= 30 && sum.duration_s <= 45);
         hs_stylus_trace_destroy(&tr);
     }
-    // press_hold offline: steady force k_s * 5 mm with k_s = k k_h / (k + k_h), within friction
-    // and the touch depth (0.02 N / k_s).
+    // press_hold offline: steady force k_s * 5 mm with k_s = k k_h / (k + k_h) (the press starts
+    // where the touch felt the first force), within friction.
     char path[512];
     snprintf(path, sizeof path, "%s/scenes/liver/scripts/press_hold.probe", HS_SOURCE_DIR);
     ENSURE(hs_script_parse_file(s, path, &err) == HS_OK);
@@ -816,8 +824,17 @@ static int bundled_scripts(void) {
     hs_stylus_trace_summary(tr, s, &sum);
     double ks = 300 * def.hand_stiffness_n_m / (300 + def.hand_stiffness_n_m);
     ENSURE(sum.steady_segment >= 0);
-    ENSURE_NEAR(sum.steady_force_norm_n, ks * 0.005 + 0.02, def.coulomb_n * 1.01);
-    // Released: the last row carries no force.
+    ENSURE_NEAR(sum.steady_force_norm_n, ks * 0.005, def.coulomb_n * 1.01);
+    // Released (with its 1 mm lift): the hold after the release carries no force at all.
+    ENSURE(s->seg[s->n_segments - 2].kind == HS_SEG_HOLD);
+    int64_t after = 0;
+    for (int64_t i = 0; i < hs_stylus_trace_rows(tr); ++i) {
+        const hs_stylus_tick* r = hs_stylus_trace_row(tr, i);
+        if (r->segment != s->n_segments - 2) continue;
+        ENSURE(norm3(r->f_applied) == 0);
+        after++;
+    }
+    ENSURE(after > 400);
     ENSURE(norm3(hs_stylus_trace_row(tr, hs_stylus_trace_rows(tr) - 1)->f_applied) == 0);
     hs_stylus_trace_destroy(&tr);
     hs_script_destroy(&s);
