@@ -23,7 +23,7 @@ static int liver_scene_loads(void) {
     ENSURE(s.material.density_kg_m3 == 1060.0);
     ENSURE(s.n_fixed == 1 && s.fixed[0].kind == HS_FIXED_PLANE && s.fixed[0].normal[1] == 1.0);
     ENSURE(s.n_tools == 1 && s.tools[0].kind == HS_TOOL_PROBE && s.tools[0].radius == 0.005);
-    ENSURE(s.gravity[2] == -9.81 && s.n_devices == 1 && s.has_workspace);
+    ENSURE(s.gravity[2] == 0.0 && s.n_devices == 1 && s.has_workspace);
     ENSURE(s.feature_haptics && !s.feature_cutting && s.feature_visual);
     ENSURE(s.haptic_hz == 1000.0 && s.sim_hz == 60.0 && s.watchdog_s == 0.1);
     ENSURE(strcmp(s.prefix, HAPSIM_DEFAULT_PREFIX) == 0);
