@@ -738,10 +738,13 @@ static void publish_status(hs_server* s, int64_t t) {
         if (wl < sizeof warn) wl += (size_t)snprintf(warn + wl, sizeof warn - wl, __VA_ARGS__);    \
     } while (0)
     if (w->probe_note) WARN("%s", w->probe_note);
-    if (s->opt.realtime && w->sim && !(s->rt_obtained & HS_RT_SCHED_FIFO))
-        WARN("rt thread: SCHED_FIFO not granted (ordinary scheduling)");
-    if (s->opt.realtime && w->sim && !(s->rt_obtained & HS_RT_MLOCKED))
-        WARN("mlockall not obtained");
+    // What the rt thread obtained from the OS is reported here (the message has no field for it).
+    if (w->sim && !(s->rt_obtained & HS_RT_SCHED_FIFO))
+        WARN("rt thread: ordinary scheduling, no SCHED_FIFO (%s)",
+             s->opt.realtime ? "refused by the OS" : "--realtime not given");
+    if (w->sim && !(s->rt_obtained & HS_RT_MLOCKED))
+        WARN("rt thread: memory not locked, no mlockall (%s)",
+             s->opt.realtime ? "refused or skipped" : "--realtime not given");
     if (w->scene.n_devices > 1 && w->haptics)
         WARN("scene has %d devices: only device 0 drives the probe, others get zero force",
              w->scene.n_devices);
