@@ -56,10 +56,21 @@ static void kill_child(void) {
     }
 }
 
+// Scenes, meshes and server logs go to a fresh folder, removed at exit unless HS_TEST_KEEP=1.
+static void cleanup(void) {
+    kill_child();
+    const char* keep = getenv("HS_TEST_KEEP");
+    if (tmpdir[0] && !(keep && !strcmp(keep, "1"))) {
+        char cmd[300];
+        snprintf(cmd, sizeof cmd, "rm -rf '%s'", tmpdir);
+        if (system(cmd) != 0) fprintf(stderr, "could not remove %s\n", tmpdir);
+    }
+}
+
 __attribute__((constructor)) static void setup(void) {
     snprintf(tmpdir, sizeof tmpdir, "/tmp/hs_test_server_XXXXXX");
     if (!mkdtemp(tmpdir)) tmpdir[0] = '\0';
-    atexit(kill_child);
+    atexit(cleanup);
 }
 
 static void write_file(const char* path, const char* text) {
