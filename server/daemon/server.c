@@ -1303,7 +1303,7 @@ hs_status hs_server_run(hs_server* s, hs_err* err) {
     if (!s->opt.quiet) {
         uint64_t rej =
             hs_net_counters_rejected(&s->pst.counters) + hs_net_counters_rejected(&s->cst.counters);
-        printf("hapsim-server: stopped after %.1f s: %lld poses answered, %lld forces sent, "
+        printf("hapsim-server: stopped after %.1f s: %lld poses accepted, %lld forces sent, "
                "%llu messages rejected\n",
                (double)(hs_now_ns() - s->start_ns) * 1e-9, (long long)s->poses_total,
                (long long)s->forces_total, (unsigned long long)rej);
