@@ -25,7 +25,8 @@ typedef enum hs_rotation {
 
 typedef enum hs_inversion {
     HS_INVERSION_LINEAR_FALLBACK = 0, ///< an inverted element (det F < 0) uses linear FEM (R = I)
-    HS_INVERSION_KEEP_REFLECTION = 1, ///< R stays a proper rotation, the reflection stays in the stretch
+    HS_INVERSION_KEEP_REFLECTION =
+        1, ///< R stays a proper rotation, the reflection stays in the stretch
 } hs_inversion;
 
 typedef struct hs_material {
@@ -54,12 +55,12 @@ hs_fem_def hs_fem_default_def(void);
 
 /// Statistics from the last hs_fem_update.
 typedef struct hs_fem_stats {
-    int inverted;            ///< elements with det F <= 0
-    double volume_ratio_mean;///< mean over elements of V/V0
+    int inverted;             ///< elements with det F <= 0
+    double volume_ratio_mean; ///< mean over elements of V/V0
     double volume_ratio_min;
     double volume_ratio_max;
-    int polar_iters_max;     ///< worst polar iteration count (POLAR only)
-    double energy_j;         ///< elastic strain energy, J
+    int polar_iters_max; ///< worst polar iteration count (POLAR only)
+    double energy_j;     ///< elastic strain energy, J
 } hs_fem_stats;
 
 typedef struct hs_fem hs_fem;
@@ -68,8 +69,8 @@ typedef struct hs_fem hs_fem;
 /// the assembly map into the free-dof pattern. dof_map[3*i+c] is the free index of dof (i,c)
 /// or -1 for a constrained dof; n_free free dofs in all. The mesh must outlive the fem.
 /// @param out OUT
-hs_status hs_fem_create(const hs_mesh* mesh, const hs_fem_def* def, const int* dof_map,
-                        int n_free, hs_fem** out, hs_err* err);
+hs_status hs_fem_create(const hs_mesh* mesh, const hs_fem_def* def, const int* dof_map, int n_free,
+                        hs_fem** out, hs_err* err);
 /// A new matrix with the tangent's sparsity pattern over the free dofs (values zero).
 /// It includes the wider stencil that the locking-free option needs. @param out OUT
 hs_status hs_fem_create_matrix(const hs_fem* fem, hs_csc** out);
@@ -88,6 +89,9 @@ const double* hs_fem_lumped_mass(const hs_fem* fem);
 /// Rotation of node i (polar part of the volume-weighted mean deformation gradient of its
 /// tets) at the last update; identity for linear. Row-major 3x3.
 void hs_fem_node_rotation(const hs_fem* fem, int node, double r[9] /* OUT */);
+/// The same rotation by a polar iteration warm-started from r (input: the previous rotation,
+/// or zeros for a cold start; output: the new one). Cheaper when called every step.
+void hs_fem_node_rotation_warm(const hs_fem* fem, int node, double r[9] /* in/out */);
 /// Set or clear an element's participation (cutting removes elements). Allocates: no.
 void hs_fem_set_element_active(hs_fem* fem, int tet, int active);
 /// Multiply element tet's stiffness (forces, energy, tangent; not its mass) by s > 0, e.g. two

@@ -222,7 +222,7 @@ hs_status hs_body_create(const hs_mesh* mesh, const hs_body_def* def, const unsi
         s = hs_pcg_create(nf, &b->pcg);
         if (s != HS_OK) goto fail_status;
         if (def->precond == HS_PRECOND_WARPED) {
-            b->rot = hs_alloc(9 * (size_t)b->n * sizeof(double));
+            b->rot = hs_calloc(9 * (size_t)b->n, sizeof(double)); // zeros: cold first start
             b->tmp_f = hs_alloc((size_t)nf * sizeof(double));
             if (!b->rot || !b->tmp_f) goto nomem;
             hs_pcg_set_preconditioner(b->pcg, warped_precond, b);
@@ -394,7 +394,7 @@ static hs_status solve_system(hs_body* b, double kcoef, double mcoef, hs_step_st
     }
     hs_fem_assemble(b->fem, kcoef, mcoef, b->a);
     if (warped)
-        for (int i = 0; i < b->n; ++i) hs_fem_node_rotation(b->fem, i, b->rot + 9 * i);
+        for (int i = 0; i < b->n; ++i) hs_fem_node_rotation_warm(b->fem, i, b->rot + 9 * i);
     int it = 0;
     double rel = 0;
     s = hs_pcg_solve(b->pcg, b->a, b->rhs_f, b->x_f, warped ? HS_PRECOND_CUSTOM : b->def.precond,

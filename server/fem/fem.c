@@ -978,3 +978,20 @@ void hs_fem_node_rotation(const hs_fem* m, int node, double r[9]) {
     }
     hs_polar_svd(sum, r);
 }
+
+void hs_fem_node_rotation_warm(const hs_fem* m, int node, double r[9]) {
+    HS_ASSERT(m && node >= 0 && node < m->n);
+    if (m->def.model == HS_MODEL_LINEAR) {
+        m3_identity(r);
+        return;
+    }
+    double sum[9] = {0};
+    for (int p = m->nt_start[node]; p < m->nt_start[node + 1]; p++) {
+        int e = m->nt[p];
+        if (!m->active[e]) continue;
+        const double* F = m->F + 9 * e;
+        for (int k = 0; k < 9; k++) sum[k] += m->vol0[e] * F[k];
+    }
+    // Node rotations change little per step: a warm polar iteration replaces the SVD.
+    hs_polar_higham(sum, r, 1e-10, 20);
+}
