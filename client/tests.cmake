@@ -8,8 +8,14 @@ add_test(NAME client_vtk COMMAND ${CMAKE_CURRENT_SOURCE_DIR}/test_client_vtk.sh
          $<TARGET_FILE:test_client_view>)
 set_tests_properties(client_vtk PROPERTIES TIMEOUT 60 SKIP_RETURN_CODE 77)
 # Install into a temporary prefix; build consumers with find_package(hapsim) and pkg-config.
+set(HS_CONSUMER_SANITIZE "")
+if(HS_SANITIZE)
+  set(HS_CONSUMER_SANITIZE "-fsanitize=address,undefined")
+elseif(HS_TSAN)
+  set(HS_CONSUMER_SANITIZE "-fsanitize=thread")
+endif()
 add_test(NAME client_install COMMAND ${CMAKE_CURRENT_SOURCE_DIR}/test_client_install.sh
-         ${PROJECT_BINARY_DIR})
+         ${PROJECT_BINARY_DIR} "${HS_CONSUMER_SANITIZE}")
 set_tests_properties(client_install PROPERTIES TIMEOUT 60)
 # End to end in a private network namespace: hapsim-server + hapsim-stylus + hapsim-view +
 # hapsim-ctl (skipped, code 77, without a server build or network namespaces).

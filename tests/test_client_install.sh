@@ -3,9 +3,12 @@
 # against it: one with CMake find_package(hapsim) -> hapsim::client, one with pkg-config
 # (hapsim-client.pc). Both run: they create a client on memq:// buses (no network) and a mesh
 # sync object, and check a few calls.
-#   tests/test_client_install.sh BUILD_DIR
+#   tests/test_client_install.sh BUILD_DIR [SANITIZER_FLAGS]
+# SANITIZER_FLAGS: what the project was built with (a sanitized static library needs its
+# runtime in the consumer too).
 set -eu
 build=$1
+san=${2:-}
 tmp=$(mktemp -d /tmp/hs_client_install.XXXXXX)
 trap 'rm -rf "$tmp"' EXIT
 prefix=$tmp/prefix
@@ -58,7 +61,7 @@ add_executable(consumer main.c)
 target_link_libraries(consumer PRIVATE hapsim::client)
 CM
 cmake -S "$tmp/consumer" -B "$tmp/consumer/build" -DCMAKE_PREFIX_PATH="$prefix" \
-    >"$tmp/cfg.log" 2>&1 || { cat "$tmp/cfg.log"; echo "FAIL: consumer configure"; exit 1; }
+    -DCMAKE_C_FLAGS="$san" -DCMAKE_EXE_LINKER_FLAGS="$san" >"$tmp/cfg.log" 2>&1 || { cat "$tmp/cfg.log"; echo "FAIL: consumer configure"; exit 1; }
 cmake --build "$tmp/consumer/build" >"$tmp/build.log" 2>&1 ||
     { cat "$tmp/build.log"; echo "FAIL: consumer build"; exit 1; }
 "$tmp/consumer/build/consumer"
@@ -66,6 +69,6 @@ cmake --build "$tmp/consumer/build" >"$tmp/build.log" 2>&1 ||
 # pkg-config
 cc=${CC:-cc}
 flags=$(PKG_CONFIG_PATH=$(dirname "$pc") pkg-config --cflags --libs hapsim-client)
-$cc -std=c11 -o "$tmp/consumer_pc" "$tmp/consumer/main.c" $flags
+$cc -std=c11 $san -o "$tmp/consumer_pc" "$tmp/consumer/main.c" $flags
 "$tmp/consumer_pc"
 echo "installed client OK (cmake find_package and pkg-config)"
