@@ -31,19 +31,19 @@ typedef struct hs_mesh {
     int* tets;  ///< [4*n_tets] node indices, 0-based
 
     // derived (hs_mesh_finalize)
-    int n_tris;            ///< boundary triangles
-    int* tris;             ///< [3*n_tris] node indices, counter-clockwise seen from outside
-    int* tri_tet;          ///< [n_tris] the tet that owns each boundary triangle
-    int n_surf_nodes;      ///< nodes on the boundary
-    int* surf_nodes;       ///< [n_surf_nodes] node index of each surface node, ascending
-    int* node_surf;        ///< [n_nodes] index into surf_nodes, or -1 for interior nodes
-    int* node_tet_start;   ///< [n_nodes+1] CSR offsets into node_tet
-    int* node_tet;         ///< [4*n_tets] tets incident to each node, ascending
-    int* node_nbr_start;   ///< [n_nodes+1] CSR offsets into node_nbr
-    int* node_nbr;         ///< node-node adjacency through a shared tet, sorted, self excluded
+    int n_tris;               ///< boundary triangles
+    int* tris;                ///< [3*n_tris] node indices, counter-clockwise seen from outside
+    int* tri_tet;             ///< [n_tris] the tet that owns each boundary triangle
+    int n_surf_nodes;         ///< nodes on the boundary
+    int* surf_nodes;          ///< [n_surf_nodes] node index of each surface node, ascending
+    int* node_surf;           ///< [n_nodes] index into surf_nodes, or -1 for interior nodes
+    int* node_tet_start;      ///< [n_nodes+1] CSR offsets into node_tet
+    int* node_tet;            ///< [4*n_tets] tets incident to each node, ascending
+    int* node_nbr_start;      ///< [n_nodes+1] CSR offsets into node_nbr
+    int* node_nbr;            ///< node-node adjacency through a shared tet, sorted, self excluded
     unsigned char* node_used; ///< [n_nodes] 1 if some tet references the node
     double bbox_min[3], bbox_max[3]; ///< m, over all nodes (used or not)
-    double volume;         ///< m^3, sum of tet volumes
+    double volume;                   ///< m^3, sum of tet volumes
     hs_mesh_report report;
 } hs_mesh;
 
@@ -63,14 +63,14 @@ hs_status hs_mesh_parse_tetgen(const char* name, const char* node_data, size_t n
                                const char* ele_data, size_t ele_len, hs_mesh** out, hs_err* err);
 
 /// Build a mesh from arrays (copied), then validate and finalize as a loaded one.
-hs_status hs_mesh_create(int n_nodes, const double* x0, int n_tets, const int* tets,
-                         hs_mesh** out, hs_err* err);
+hs_status hs_mesh_create(int n_nodes, const double* x0, int n_tets, const int* tets, hs_mesh** out,
+                         hs_err* err);
 
 /// Structured box [0,lx]x[0,ly]x[0,lz] of nx*ny*nz hexahedra, each split into 6 Kuhn
 /// tetrahedra (conforming). Used by tests and benchmarks (cantilevers). Node (i,j,k) is
 /// i + (nx+1)*(j + (ny+1)*k) (x fastest) at (lx*i/nx, ly*j/ny, lz*k/nz); hex h has tets 6h..6h+5.
-hs_status hs_mesh_create_box(double lx, double ly, double lz, int nx, int ny, int nz,
-                             hs_mesh** out, hs_err* err);
+hs_status hs_mesh_create_box(double lx, double ly, double lz, int nx, int ny, int nz, hs_mesh** out,
+                             hs_err* err);
 
 /// Recompute the derived fields after nodes or tets changed. Reorients, drops degenerate
 /// and duplicate tets (counted in report; HS_WARN_MESH_REPAIRED if any). Returns

@@ -963,35 +963,34 @@ void hs_fem_apply_tangent(const hs_fem* m, const double* x, double* y) {
     }
 }
 
-void hs_fem_node_rotation(const hs_fem* m, int node, double r[9]) {
+// Volume-weighted sum of the deformation gradients of the node's active tets. Returns 0 for
+// the linear model (no rotation).
+static int node_mean_f(const hs_fem* m, int node, double sum[9]) {
     HS_ASSERT(m && node >= 0 && node < m->n);
-    if (m->def.model == HS_MODEL_LINEAR) {
-        m3_identity(r);
-        return;
-    }
-    double sum[9] = {0};
+    if (m->def.model == HS_MODEL_LINEAR) return 0;
+    for (int k = 0; k < 9; k++) sum[k] = 0;
     for (int p = m->nt_start[node]; p < m->nt_start[node + 1]; p++) {
         int e = m->nt[p];
         if (!m->active[e]) continue;
         const double* F = m->F + 9 * e;
         for (int k = 0; k < 9; k++) sum[k] += m->vol0[e] * F[k];
     }
-    hs_polar_svd(sum, r);
+    return 1;
+}
+
+void hs_fem_node_rotation(const hs_fem* m, int node, double r[9]) {
+    double sum[9];
+    if (node_mean_f(m, node, sum))
+        hs_polar_svd(sum, r);
+    else
+        m3_identity(r);
 }
 
 void hs_fem_node_rotation_warm(const hs_fem* m, int node, double r[9]) {
-    HS_ASSERT(m && node >= 0 && node < m->n);
-    if (m->def.model == HS_MODEL_LINEAR) {
-        m3_identity(r);
-        return;
-    }
-    double sum[9] = {0};
-    for (int p = m->nt_start[node]; p < m->nt_start[node + 1]; p++) {
-        int e = m->nt[p];
-        if (!m->active[e]) continue;
-        const double* F = m->F + 9 * e;
-        for (int k = 0; k < 9; k++) sum[k] += m->vol0[e] * F[k];
-    }
+    double sum[9];
     // Node rotations change little per step: a warm polar iteration replaces the SVD.
-    hs_polar_higham(sum, r, 1e-10, 20);
+    if (node_mean_f(m, node, sum))
+        hs_polar_higham(sum, r, 1e-10, 20);
+    else
+        m3_identity(r);
 }

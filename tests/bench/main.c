@@ -50,7 +50,8 @@ static const bench_cmd cmds[] = {
     {"cut", hs_bench_cut, "cut step with factor update vs refactor and dense inverse (issue 7)"},
 #endif
 #ifdef HS_BENCH_HAVE_PROTOCOL
-    {"protocol", hs_bench_protocol, "pose -> force round trip via hapsim-server vs bare LCM (issue 4)"},
+    {"protocol", hs_bench_protocol,
+     "pose -> force round trip via hapsim-server vs bare LCM (issue 4)"},
 #endif
 };
 
