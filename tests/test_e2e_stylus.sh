@@ -239,6 +239,10 @@ replay)
     stop_server 1
     "$logdump" "$tmp/live.lcmlog" >"$tmp/live.txt" || fail "cannot read the recorded log"
     grep '^count' "$tmp/live.txt"
+    # Deterministic: the file:// provider at speed=0 with time from each message's utime reads
+    # the same log identically every time.
+    "$logdump" "$tmp/live.lcmlog" >"$tmp/live2.txt" || fail "cannot read the recorded log again"
+    cmp -s "$tmp/live.txt" "$tmp/live2.txt" || fail "two reads of the same log differ"
     np=$(awk '$1 == "count" && $2 == "HAPSIM_TOOL_POSE" { print $3 }' "$tmp/live.txt")
     nf=$(awk '$1 == "force" && $6 > 0.05 { n++ } END { print n + 0 }' "$tmp/live.txt")
     echo "recorded: ${np:-0} poses, $nf forces above 0.05 N"
