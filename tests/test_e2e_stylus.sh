@@ -10,6 +10,7 @@ bin=$2
 reaction=$3
 logdump=$4
 src=$5
+replay=$(dirname "$logdump")/e2e_replay
 scene=$src/scenes/liver/liver.json
 scripts=$src/scenes/liver/scripts
 golden=$src/tests/golden
@@ -247,6 +248,19 @@ replay)
     nf=$(awk '$1 == "force" && $6 > 0.05 { n++ } END { print n + 0 }' "$tmp/live.txt")
     echo "recorded: ${np:-0} poses, $nf forces above 0.05 N"
     [ "${np:-0}" -gt 1000 ] && [ "$nf" -gt 100 ] || fail "the log lacks poses or contact forces"
+    # Deterministic re-simulation (tests/e2e_replay.c): the recorded poses through the file://
+    # provider, time from their utime, answered by the library's contact on the rest-state
+    # (linear, quasi-static) compliance: identical twice, and close to the recorded forces
+    # (the server is co-rotated and dynamic: RMS within 10 %, worst pose within 20 % of the peak).
+    "$replay" "$scene" "$tmp/live.lcmlog" >"$tmp/resim1.txt" || fail "e2e_replay rc $?"
+    "$replay" "$scene" "$tmp/live.lcmlog" >"$tmp/resim2.txt" || fail "e2e_replay rc $?"
+    cmp -s "$tmp/resim1.txt" "$tmp/resim2.txt" || fail "two deterministic replays differ"
+    awk 'FNR == NR { if ($1 == "force") rec[$7] = $6; next }
+         $1 == "replay" && ($7 in rec) { n++; d = $6 - rec[$7]; s += d * d; if (d < 0) d = -d
+             if (d > mx) mx = d; if (rec[$7] > pk) pk = rec[$7] }
+         END { printf "deterministic replay vs recorded forces: %d poses matched, RMS %.4g N, max %.4g N, recorded peak %.4g N\n", n, sqrt(s / n), mx, pk
+               exit !(n > 1000 && pk > 0.05 && sqrt(s / n) <= 0.1 * pk && mx <= 0.2 * pk) }' \
+        "$tmp/live.txt" "$tmp/resim1.txt" || fail "deterministic replay far from the recorded forces"
     start_server 2
     lcm-logger --lcm-url="$H" -q "$tmp/replay.lcmlog" >"$tmp/lgr2.log" 2>&1 &
     lgr=$!
