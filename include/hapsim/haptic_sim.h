@@ -20,6 +20,7 @@
 #include "hapsim/base.h"
 #include "hapsim/body.h"
 #include "hapsim/compliance.h"
+#include "hapsim/cut.h"
 #include "hapsim/haptic.h"
 #include "hapsim/mesh.h"
 
@@ -87,6 +88,17 @@ typedef struct hs_haptic_sim_stats {
     int candidates;            ///< candidates in the newest snapshot
     int coupled;               ///< of them with exact off-diagonal blocks
     hs_contact contact;        ///< the newest contact the deformation thread received
+    int64_t cut_sweeps;        ///< blade sweeps run (cutting on)
+    int64_t cut_steps;         ///< of them that changed the mesh (each bumps topology_version)
+    int64_t cut_removed;       ///< tets removed so far
+    int64_t topology_version;  ///< cut topology version (0 before the first cut)
+    int64_t cut_failures;      ///< sweeps or compliance rebuilds that failed (state kept)
+    double cut_ms_last;        ///< last changing cut step: sweep + body sync + compliance, ms
+    double cut_ms_max;         ///< worst of them, ms
+    double sweep_ms_last;      ///< of the last, the sweep (geometry + factor update), ms
+    double comp_ms_last;       ///< of the last, the haptic compliance rebuild, ms
+    double cut_force_n[3];     ///< cutting resistance on the blade in the newest snapshot, N
+    int cutting;               ///< 1 when the newest sweep cut tissue
 } hs_haptic_sim_stats;
 
 typedef struct hs_haptic_sim hs_haptic_sim;
@@ -119,6 +131,51 @@ struct hs_spsc_ring;
 /// Per-tick telemetry ring of the rt thread (items: hs_haptic_telemetry of server/rt/haptic_rt.h;
 /// pop with hs_spsc_ring_pop). One consumer. Thread: one consumer
 struct hs_spsc_ring* hs_haptic_sim_telemetry(hs_haptic_sim* sim);
+/// Cutting with a scalpel. Initialise with hs_haptic_cut_default_def().
+typedef struct hs_haptic_cut_def {
+    hs_cut_def cut;          ///< cut rules; orphan and fragment rules are forced to KEEP_TET / FIX
+    double blade_a[3];       ///< blade start, tool frame, m
+    double blade_b[3];       ///< blade end, tool frame, m
+    double toughness_n_m;    ///< cutting force per metre of mesh edge cut in one sweep, N/m
+    double max_force_n;      ///< cutting force cap, N
+    double min_travel_m;     ///< blade travel (either end) gathered before a sweep runs, m
+    uint32_t engage_buttons; ///< the blade cuts while any of these pose buttons is held (0: always)
+    int cookie;              ///< set by hs_haptic_cut_default_def
+} hs_haptic_cut_def;
+
+/// Defaults: hs_cut_default_def without validation, blade 0 .. 10 mm along tool z, toughness
+/// 20 N/m, cap 1.5 N, 0.5 mm travel per sweep, engaged by button 0.
+hs_haptic_cut_def hs_haptic_cut_default_def(void);
+
+/// Turn cutting on (before hs_haptic_sim_start). mesh must be the mesh the sim was created on
+/// (cuts move its x0; nobody else may read x0 while the sim runs: use
+/// hs_haptic_sim_take_topology). The tool then is a blade: the probe contact is off, the felt
+/// force is the cutting resistance (blended on each new snapshot). Allocates: yes
+hs_status hs_haptic_sim_enable_cutting(hs_haptic_sim* sim, hs_mesh* mesh,
+                                       const hs_haptic_cut_def* def, hs_err* err);
+
+/// What the cuts since the previous hs_haptic_sim_take_topology changed (caller storage).
+typedef struct hs_haptic_cut_event {
+    int64_t old_version;   ///< topology version at the previous take
+    int64_t new_version;   ///< topology version now
+    int n_removed;         ///< tets removed since then
+    int* removed_tets;     ///< [n_tets of the mesh] caller storage; mesh tet indices
+    int n_moved;           ///< distinct vertices moved since then
+    int* moved_nodes;      ///< [n_nodes] caller storage; node indices
+    double swept_quad[12]; ///< m: the newest changing sweep's P0, Q0, P1, Q1
+} hs_haptic_cut_event;
+
+/// Cut topology version now (0 before the first cut). Thread: any | Lock-free: yes
+int64_t hs_haptic_sim_topology_version(hs_haptic_sim* sim);
+/// Copy the topology after the newest cut: rest positions x0[3n] (m), the live boundary
+/// triangles (node indices, outward) into tris[tri_cap * 3] with *n_tris, and the changes
+/// since the previous take into ev (may be NULL). Returns the version copied.
+/// Thread: one reader (control) | Allocates: no | Blocks: briefly (a mutex the deformation
+/// thread holds while it copies a cut's result)
+int64_t hs_haptic_sim_take_topology(hs_haptic_sim* sim, double* x0 /* OUT [3n] */,
+                                    int* tris /* OUT */, int tri_cap, int* n_tris /* OUT */,
+                                    hs_haptic_cut_event* ev /* OUT, may be NULL */);
+
 /// The compliance (read-only use from the control thread only while the sim is stopped).
 hs_compliance* hs_haptic_sim_compliance(hs_haptic_sim* sim);
 /// The body (use only while the sim is stopped).

@@ -27,6 +27,7 @@
 #include "hapsim_tool_force_t.h"
 #include "hapsim_tool_pose_t.h"
 #include "hapsim_tool_state_t.h"
+#include "hapsim_topology_event_t.h"
 #include "net/bus.h"
 #include "net/mesh_frames.h"
 #include "net/validate.h"
@@ -43,6 +44,7 @@
 #define HANDLE_BATCH  256          // messages handled per bus per loop iteration
 #define POSE_QUEUE    8192         // LCM subscription queue (default 30 drops bursts)
 #define COMMAND_QUEUE 1024
+#define CUT_SAMPLES   1024 // cut step times kept for the quantiles (cut steps take ms, not us)
 
 // Everything that depends on the scene: rebuilt by load_scene, swapped only when complete.
 typedef struct world {
@@ -66,6 +68,20 @@ typedef struct world {
     int32_t* d_index;       // [n_vis]
     float* d_delta;         // [3 n_vis]
     const char* probe_note; // why haptics is off, or NULL
+    // cutting (scene features.cutting with a scalpel): visual arrays then have room for every
+    // node and every live boundary triangle, and the rest positions come from the sim
+    int cutting;
+    int scalpel; // scene tool index of the blade
+    hs_haptic_cut_def cdef;
+    double* x0r;         // [3n] rest positions after the newest cut taken, m
+    int tri_cap;         // boundary triangles the buffers hold
+    int* ctris;          // [3 tri_cap] node indices
+    int32_t* vis_of;     // [n] visual index of a node, -1 when not drawn
+    int32_t* ev_removed; // [n_tets]
+    int32_t* ev_moved;   // [n]
+    float* ev_rest;      // [3n]
+    int64_t cut_seen;    // sim topology version taken
+    int cut_made;        // 1 once the mesh was cut (the sim cannot be rebuilt on it)
 } world;
 
 typedef struct dev_state {
@@ -89,7 +105,8 @@ struct hs_server {
     hs_net_bus* mbus;
     char ch_pose[HAPSIM_CHANNEL_MAX], ch_force[HAPSIM_CHANNEL_MAX], ch_topo[HAPSIM_CHANNEL_MAX],
         ch_state[HAPSIM_CHANNEL_MAX], ch_delta[HAPSIM_CHANNEL_MAX], ch_tool[HAPSIM_CHANNEL_MAX],
-        ch_cmd[HAPSIM_CHANNEL_MAX], ch_ack[HAPSIM_CHANNEL_MAX], ch_status[HAPSIM_CHANNEL_MAX];
+        ch_cmd[HAPSIM_CHANNEL_MAX], ch_ack[HAPSIM_CHANNEL_MAX], ch_status[HAPSIM_CHANNEL_MAX],
+        ch_tevent[HAPSIM_CHANNEL_MAX];
 
     hs_net_limits lim;
     hs_net_pose_state pst;
@@ -107,7 +124,13 @@ struct hs_server {
 
     int64_t topo_version, keyframe_id, frame_step, key_ns, sim_step_base;
     int have_key;
-    int64_t seq_topo, seq_state, seq_delta, seq_tool, seq_ack, seq_status;
+    int64_t seq_topo, seq_state, seq_delta, seq_tool, seq_ack, seq_status, seq_tevent;
+    double cut_ms[CUT_SAMPLES];   // newest cut step times (deformation thread), ms, ring
+    double cut_sort[CUT_SAMPLES]; // scratch for the quantiles
+    int64_t n_cut_ms;
+    int64_t last_cut_steps;
+    int64_t cut_events; // topology events published
+    int cutting_now;    // the newest sweep cut tissue
 
     // statistics
     int64_t start_ns, stat_ns;
@@ -205,6 +228,12 @@ static void world_destroy(world* w) {
     hs_free(w->key);
     hs_free(w->d_index);
     hs_free(w->d_delta);
+    hs_free(w->x0r);
+    hs_free(w->ctris);
+    hs_free(w->vis_of);
+    hs_free(w->ev_removed);
+    hs_free(w->ev_moved);
+    hs_free(w->ev_rest);
     memset(w, 0, sizeof *w);
 }
 
@@ -233,8 +262,19 @@ static void sim_def_from_scene(const hs_scene* sc, int realtime, hs_haptic_sim_d
 // (Re)create the sim of w from w->def, with the body state u/v when keep. Not started.
 static hs_status world_sim_create(world* w, int keep, hs_err* err) {
     hs_haptic_sim_destroy(&w->sim);
+    if (w->cut_made)
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "the mesh was cut: the simulation cannot be rebuilt on it (RESET "
+                          "reloads the uncut scene)");
     hs_status s = hs_haptic_sim_create(w->mesh, &w->def, w->fixed, &w->sim, err);
     if (s != HS_OK) return s;
+    if (w->cutting) {
+        s = hs_haptic_sim_enable_cutting(w->sim, w->mesh, &w->cdef, err);
+        if (s != HS_OK) {
+            hs_haptic_sim_destroy(&w->sim);
+            return s;
+        }
+    }
     if (keep) hs_body_set_state(hs_haptic_sim_body(w->sim), w->u, w->v);
     return HS_OK;
 }
@@ -276,18 +316,43 @@ static hs_status world_create(const hs_scene* sc, int realtime, world* w, hs_err
         goto fail;
     }
 
+    w->scalpel = -1;
+    for (int t = 0; t < sc->n_tools; ++t)
+        if (sc->tools[t].kind == HS_TOOL_SCALPEL && w->scalpel < 0) w->scalpel = t;
+    w->cutting = sc->feature_cutting && w->scalpel >= 0;
+    w->x0r = hs_alloc(3 * n * sizeof(double));
+    if (!w->x0r) goto nomem;
+    memcpy(w->x0r, m->x0, 3 * n * sizeof(double));
+    if (w->cutting) {
+        w->cdef = hs_haptic_cut_default_def();
+        memcpy(w->cdef.blade_a, sc->tools[w->scalpel].blade_a, sizeof w->cdef.blade_a);
+        memcpy(w->cdef.blade_b, sc->tools[w->scalpel].blade_b, sizeof w->cdef.blade_b);
+        w->cdef.max_force_n =
+            sc->force_max_n < w->cdef.max_force_n ? sc->force_max_n : w->cdef.max_force_n;
+        w->tri_cap = 4 * m->n_tets;
+        w->ctris = hs_alloc(3 * (size_t)w->tri_cap * sizeof(int) + 1);
+        w->vis_of = hs_alloc(n * sizeof(int32_t) + 1);
+        w->ev_removed = hs_alloc((size_t)m->n_tets * sizeof(int32_t) + 1);
+        w->ev_moved = hs_alloc(n * sizeof(int32_t) + 1);
+        w->ev_rest = hs_alloc(3 * n * sizeof(float) + 1);
+        if (!w->ctris || !w->vis_of || !w->ev_removed || !w->ev_moved || !w->ev_rest) goto nomem;
+    }
+
     w->visual = sc->feature_visual;
     if (w->visual) {
         int nv = m->n_surf_nodes;
+        // a cut exposes inner nodes and faces: room for all of them
+        size_t vcap = w->cutting ? n : (size_t)nv;
+        size_t tcap = w->cutting ? 3 * (size_t)w->tri_cap : 3 * (size_t)m->n_tris;
         w->n_vis = nv;
         w->n_tri_idx = 3 * m->n_tris;
-        w->vis_nodes = hs_alloc((size_t)nv * sizeof(int32_t) + 1);
-        w->rest = hs_alloc(3 * (size_t)nv * sizeof(float) + 1);
-        w->tri = hs_alloc((size_t)w->n_tri_idx * sizeof(int32_t) + 1);
-        w->cur = hs_alloc(3 * (size_t)nv * sizeof(float) + 1);
-        w->key = hs_alloc(3 * (size_t)nv * sizeof(float) + 1);
-        w->d_index = hs_alloc((size_t)nv * sizeof(int32_t) + 1);
-        w->d_delta = hs_alloc(3 * (size_t)nv * sizeof(float) + 1);
+        w->vis_nodes = hs_alloc(vcap * sizeof(int32_t) + 1);
+        w->rest = hs_alloc(3 * vcap * sizeof(float) + 1);
+        w->tri = hs_alloc(tcap * sizeof(int32_t) + 1);
+        w->cur = hs_alloc(3 * vcap * sizeof(float) + 1);
+        w->key = hs_alloc(3 * vcap * sizeof(float) + 1);
+        w->d_index = hs_alloc(vcap * sizeof(int32_t) + 1);
+        w->d_delta = hs_alloc(3 * vcap * sizeof(float) + 1);
         if (!w->vis_nodes || !w->rest || !w->tri || !w->cur || !w->key || !w->d_index ||
             !w->d_delta)
             goto nomem;
@@ -301,7 +366,7 @@ static hs_status world_create(const hs_scene* sc, int realtime, world* w, hs_err
         memcpy(w->key, w->rest, 3 * (size_t)nv * sizeof(float));
     }
 
-    int has_probe = 0;
+    int has_probe = w->cutting; // with cutting on, the scalpel is the haptic tool
     for (int t = 0; t < sc->n_tools; ++t) has_probe |= sc->tools[t].kind == HS_TOOL_PROBE;
     w->haptics = sc->feature_haptics && has_probe && sc->n_devices > 0;
     if (sc->feature_haptics && !w->haptics)
@@ -546,7 +611,7 @@ static void publish_frame(hs_server* s, int64_t t) {
         if (fresh) s->frame_step = s->sim_step_base + step;
     }
     if (!fresh) return;
-    const double* x0 = w->mesh->x0;
+    const double* x0 = w->x0r; // the mesh's own x0 belongs to the deformation thread (cuts)
     for (int i = 0; i < w->n_vis; ++i) {
         int node = w->vis_nodes[i];
         for (int k = 0; k < 3; ++k)
@@ -573,6 +638,73 @@ static void publish_frame(hs_server* s, int64_t t) {
     hapsim_mesh_delta_t_publish(hs_net_bus_lcm(s->mbus), s->ch_delta, &d);
 }
 
+// v rotated by the unit quaternion q (w, x, y, z).
+static void quat_rot(const double q[4], const double v[3], double out[3]) {
+    const double w = q[0], x = q[1], y = q[2], z = q[3];
+    double r[9] = {1 - 2 * (y * y + z * z), 2 * (x * y - w * z),     2 * (x * z + w * y),
+                   2 * (x * y + w * z),     1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+                   2 * (x * z - w * y),     2 * (y * z + w * x),     1 - 2 * (x * x + y * y)};
+    for (int a = 0; a < 3; ++a)
+        out[a] = r[3 * a] * v[0] + r[3 * a + 1] * v[1] + r[3 * a + 2] * v[2];
+}
+
+// Take the newest cut from the sim: publish a topology_event, bump the topology version,
+// rebuild the visual set from the live boundary (inner nodes the cut exposed join it), and
+// republish mesh_topology + a keyframe so every client (also one that missed the event)
+// rebuilds.
+static void apply_cut(hs_server* s) {
+    world* w = &s->w;
+    hs_haptic_cut_event ev;
+    memset(&ev, 0, sizeof ev);
+    ev.removed_tets = w->ev_removed;
+    ev.moved_nodes = w->ev_moved;
+    int nt = 0;
+    w->cut_seen = hs_haptic_sim_take_topology(w->sim, w->x0r, w->ctris, w->tri_cap, &nt, &ev);
+    w->cut_made = 1;
+    int64_t old = s->topo_version++;
+
+    hapsim_topology_event_t e;
+    memset(&e, 0, sizeof e);
+    e.utime = now_us();
+    e.seq = ++s->seq_tevent;
+    e.old_version = old;
+    e.new_version = s->topo_version;
+    e.device_id = 0;
+    e.n_removed = ev.n_removed;
+    e.removed_tets = w->ev_removed;
+    e.n_moved = ev.n_moved;
+    e.moved_nodes = w->ev_moved;
+    for (int k = 0; k < ev.n_moved; ++k)
+        for (int a = 0; a < 3; ++a) w->ev_rest[3 * k + a] = (float)w->x0r[3 * w->ev_moved[k] + a];
+    e.n_moved_rest = 3 * ev.n_moved;
+    e.moved_rest = w->ev_rest;
+    for (int k = 0; k < 12; ++k) e.swept_quad[k] = (float)ev.swept_quad[k];
+    hapsim_topology_event_t_publish(hs_net_bus_lcm(s->mbus), s->ch_tevent, &e);
+    s->cut_events++;
+
+    if (!w->visual) return;
+    const int n = w->mesh->n_nodes;
+    for (int i = 0; i < n; ++i) w->vis_of[i] = -1;
+    for (int k = 0; k < 3 * nt; ++k) w->vis_of[w->ctris[k]] = 0;
+    int nv = 0;
+    for (int i = 0; i < n; ++i)
+        if (w->vis_of[i] == 0) {
+            w->vis_of[i] = nv;
+            w->vis_nodes[nv++] = i;
+        }
+    w->n_vis = nv;
+    w->n_tri_idx = 3 * nt;
+    for (int k = 0; k < 3 * nt; ++k) w->tri[k] = w->vis_of[w->ctris[k]];
+    for (int i = 0; i < nv; ++i)
+        for (int a = 0; a < 3; ++a) {
+            int node = w->vis_nodes[i];
+            w->rest[3 * i + a] = (float)w->x0r[3 * node + a];
+            w->cur[3 * i + a] = (float)(w->x0r[3 * node + a] + w->u[3 * node + a]);
+        }
+    publish_topology(s);
+    publish_keyframe(s);
+}
+
 static void publish_tool_states(hs_server* s, int64_t t) {
     const hs_scene* sc = &s->w.scene;
     for (int d = 0; d < sc->n_devices && d < MAX_DEV; ++d) {
@@ -595,12 +727,41 @@ static void publish_tool_states(hs_server* s, int64_t t) {
         ts.radius = s->w.def.probe.radius_m;
         ts.contact = (int8_t)ds->contact;
         ts.cutting = 0;
+        if (s->w.cutting && d == 0) {
+            const hs_scene_tool* tl = &sc->tools[s->w.scalpel];
+            double ra[3], rb[3];
+            quat_rot(ds->quat, tl->blade_a, ra);
+            quat_rot(ds->quat, tl->blade_b, rb);
+            ts.tool_id = s->w.scalpel;
+            ts.kind = HAPSIM_TOOL_STATE_T_KIND_SCALPEL;
+            ts.radius = 0;
+            for (int k = 0; k < 3; ++k) {
+                ts.blade_a[k] = ds->pos[k] + ra[k];
+                ts.blade_b[k] = ds->pos[k] + rb[k];
+            }
+            ts.cutting = (int8_t)(s->w.sim && s->cutting_now);
+        }
         hapsim_tool_state_t_publish(hs_net_bus_lcm(s->mbus), s->ch_tool, &ts);
     }
 }
 
 // ---------------------------------------------------------------------------------------------
 // Status
+
+static int cmp_double(const void* a, const void* b) {
+    double x = *(const double*)a, y = *(const double*)b;
+    return (x > y) - (x < y);
+}
+
+// Quantile q of the kept cut step times, ms (0 when there is none).
+static double cut_quantile(hs_server* s, double q) {
+    int n = s->n_cut_ms < CUT_SAMPLES ? (int)s->n_cut_ms : CUT_SAMPLES;
+    if (n == 0) return 0;
+    memcpy(s->cut_sort, s->cut_ms, (size_t)n * sizeof(double));
+    qsort(s->cut_sort, (size_t)n, sizeof(double), cmp_double);
+    int k = (int)(q * (n - 1) + 0.5);
+    return s->cut_sort[k < n ? k : n - 1];
+}
 
 static void publish_status(hs_server* s, int64_t t) {
     world* w = &s->w;
@@ -622,8 +783,8 @@ static void publish_status(hs_server* s, int64_t t) {
     float rate[3], p50[3], p99[3], pmax[3];
     int64_t over[3];
     int nl = 0;
-    char* sname[4];
-    float s50[4], s99[4], smax[4];
+    char* sname[5];
+    float s50[5], s99[5], smax[5];
     int ns = 0;
     if (w->sim) {
         hs_haptic_sim_stats_get(w->sim, s->st_now);
@@ -652,6 +813,12 @@ static void publish_status(hs_server* s, int64_t t) {
         s50[ns] = (float)hs_rt_hist_quantile_us(s->h_step, 0.5);
         s99[ns] = (float)hs_rt_hist_quantile_us(s->h_step, 0.99);
         smax[ns++] = (float)hist_max_us(s->h_step);
+        if (w->cutting) { // since start: cut steps are rare
+            sname[ns] = "cut";
+            s50[ns] = (float)(cut_quantile(s, 0.5) * 1e3);
+            s99[ns] = (float)(cut_quantile(s, 0.99) * 1e3);
+            smax[ns++] = (float)(cut_quantile(s, 1.0) * 1e3);
+        }
         s->rt_obtained = a->rt.obtained;
         s->rt_prio = a->rt.fifo_priority;
         hs_haptic_sim_stats* tmp = s->st_prev;
@@ -751,6 +918,8 @@ static void publish_status(hs_server* s, int64_t t) {
     if (w->sim && s->st_prev->step_failures)
         WARN("%lld deformation steps failed", (long long)s->st_prev->step_failures);
     if (s->estop) WARN("e-stop latched: every force is zero");
+    if (w->sim && s->st_prev->cut_failures)
+        WARN("%lld cut steps failed (mesh kept consistent)", (long long)s->st_prev->cut_failures);
 #undef WARN
     m.warnings = warn;
     hapsim_server_status_t_publish(hs_net_bus_lcm(s->mbus), s->ch_status, &m);
@@ -804,7 +973,7 @@ static void after_rebuild(hs_server* s, int keep) {
         memset(s->w.v, 0, 3 * (size_t)s->w.mesh->n_nodes * sizeof(double));
     }
     if (s->w.visual) {
-        const double* x0 = s->w.mesh->x0;
+        const double* x0 = s->w.x0r;
         for (int i = 0; i < s->w.n_vis; ++i)
             for (int k = 0; k < 3; ++k)
                 s->w.cur[3 * i + k] =
@@ -928,6 +1097,7 @@ static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap)
     msg[0] = '\0';
     switch (c->kind) {
     case HAPSIM_COMMAND_T_KIND_RESET:
+        if (w->cut_made) return load_scene(s, w->scene.path, msg, cap); // the uncut mesh
         if (rebuild_sim(s, 0, &err) != HS_OK) {
             snprintf(msg, cap, "%s", err.msg);
             return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
@@ -1016,11 +1186,11 @@ static hs_status channels(hs_server* s, hs_err* err) {
     struct {
         char* out;
         const char* suffix;
-    } t[] = {{s->ch_pose, HAPSIM_CH_TOOL_POSE},      {s->ch_force, HAPSIM_CH_TOOL_FORCE},
-             {s->ch_topo, HAPSIM_CH_MESH_TOPOLOGY},  {s->ch_state, HAPSIM_CH_MESH_STATE},
-             {s->ch_delta, HAPSIM_CH_MESH_DELTA},    {s->ch_tool, HAPSIM_CH_TOOL_STATE},
-             {s->ch_cmd, HAPSIM_CH_COMMAND},         {s->ch_ack, HAPSIM_CH_COMMAND_ACK},
-             {s->ch_status, HAPSIM_CH_SERVER_STATUS}};
+    } t[] = {{s->ch_pose, HAPSIM_CH_TOOL_POSE},       {s->ch_force, HAPSIM_CH_TOOL_FORCE},
+             {s->ch_topo, HAPSIM_CH_MESH_TOPOLOGY},   {s->ch_state, HAPSIM_CH_MESH_STATE},
+             {s->ch_delta, HAPSIM_CH_MESH_DELTA},     {s->ch_tool, HAPSIM_CH_TOOL_STATE},
+             {s->ch_cmd, HAPSIM_CH_COMMAND},          {s->ch_ack, HAPSIM_CH_COMMAND_ACK},
+             {s->ch_status, HAPSIM_CH_SERVER_STATUS}, {s->ch_tevent, HAPSIM_CH_TOPOLOGY_EVENT}};
     for (size_t i = 0; i < sizeof t / sizeof t[0]; ++i)
         if (hapsim_channel_name(t[i].out, HAPSIM_CHANNEL_MAX, p, t[i].suffix) != 0)
             return hs_err_set(err, HS_ERR_INVALID, "--prefix '%s': too long", p);
@@ -1273,6 +1443,12 @@ hs_status hs_server_run(hs_server* s, hs_err* err) {
                 s->last_steps = st.steps;
                 s->last_step_ns = t;
             }
+            if (st.cut_steps != s->last_cut_steps) {
+                s->cut_ms[s->n_cut_ms++ % CUT_SAMPLES] = st.cut_ms_last;
+                s->last_cut_steps = st.cut_steps;
+            }
+            s->cutting_now = st.cutting;
+            if (w->cutting && hs_haptic_sim_topology_version(w->sim) != w->cut_seen) apply_cut(s);
         }
         if (t >= next_visual) {
             publish_frame(s, t);
@@ -1307,6 +1483,12 @@ hs_status hs_server_run(hs_server* s, hs_err* err) {
                "%llu messages rejected\n",
                (double)(hs_now_ns() - s->start_ns) * 1e-9, (long long)s->poses_total,
                (long long)s->forces_total, (unsigned long long)rej);
+        if (s->w.cutting)
+            printf("hapsim-server: %lld cut steps (topology events), topology version %lld; cut "
+                   "step p50 %.1f ms, p99 %.1f ms, max %.1f ms (deformation thread: sweep + "
+                   "body + compliance)\n",
+                   (long long)s->cut_events, (long long)s->topo_version, cut_quantile(s, 0.5),
+                   cut_quantile(s, 0.99), cut_quantile(s, 1.0));
         fflush(stdout);
     }
     return rc;

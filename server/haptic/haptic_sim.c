@@ -26,8 +26,33 @@
 #include <string.h>
 #include <time.h>
 
-#define PROBE_COOKIE 0x50524f42
-#define SIM_COOKIE   0x48534d31
+#define PROBE_COOKIE     0x50524f42
+#define SIM_COOKIE       0x48534d31
+#define CUT_COOKIE       0x48534354
+#define CUT_FORCE_SMOOTH 0.3 // weight of the newest sweep's resistance
+
+// What crosses to rt: the contact snapshot and the cutting resistance computed with it, in one
+// buffer so a new resistance always comes with a new model version (rt blends across it).
+typedef struct sim_snapshot {
+    hs_contact_snapshot s;
+    double cut_force_n[3];
+} sim_snapshot;
+
+hs_haptic_cut_def hs_haptic_cut_default_def(void) {
+    hs_haptic_cut_def d;
+    memset(&d, 0, sizeof d);
+    d.cut = hs_cut_default_def();
+    d.cut.validate = 0;
+    d.cut.orphan = HS_CUT_ORPHAN_KEEP_TET;
+    d.cut.fragment = HS_CUT_FRAGMENT_FIX;
+    d.blade_b[2] = 0.01;
+    d.toughness_n_m = 20.0;
+    d.max_force_n = 1.5;
+    d.min_travel_m = 0.0005;
+    d.engage_buttons = 1u;
+    d.cookie = CUT_COOKIE;
+    return d;
+}
 
 hs_probe_def hs_probe_default_def(void) {
     hs_probe_def d;
@@ -68,6 +93,10 @@ typedef struct deform_status {
     double step_ms_last, step_ms_max, snapshot_ms_last, snapshot_ms_max;
     int sleeping, candidates, coupled;
     hs_contact contact;
+    int64_t cut_sweeps, cut_steps, cut_removed, cut_failures;
+    double cut_ms_last, cut_ms_max, sweep_ms_last, comp_ms_last;
+    double cut_force_n[3];
+    int cutting;
 } deform_status;
 
 // The rt side of the probe: the force source plugged into the haptic tick.
@@ -115,6 +144,34 @@ struct hs_haptic_sim {
     int applied_node[HS_MAX_CONTACT];
     int64_t version;
     deform_status st; // deformation thread's copy, published through `status`
+
+    // cutting (cut == NULL: off); owned by the deformation thread after start
+    hs_haptic_cut_def cdef;
+    hs_cut* cut;
+    unsigned char* fixed0;   // [n] the fixed nodes given at create
+    unsigned char* cfix;     // [n] fixed0 | pinned by cuts, for compliance rebuilds
+    double* cu;              // [3n] displacement handed to the sweep
+    double* cv;              // [3n] velocity kept across the sweep
+    hs_triple_buffer* cpose; // hs_haptic_pose, feeder -> deformation
+    int blade_have;
+    double bp[3], bq[3]; // blade ends at the last sweep, m
+    double cut_force[3]; // resistance in the newest snapshot, N
+    int comp_stale;      // the compliance predates the newest cut (rebuilt once the blade stops)
+    // topology after the newest cut, shared with the control thread under tmx
+    pthread_mutex_t tmx;
+    int tmx_init;
+    double* t_x0; // [3n]
+    int* t_tris;  // [3 t_cap]
+    int t_cap, t_ntris;
+    int* t_removed; // [n_tets]
+    int t_nremoved;
+    int* t_moved;           // [n]
+    unsigned char* t_mflag; // [n] 1 when listed in t_moved
+    int t_nmoved;
+    double t_quad[12];
+    int64_t t_taken; // version at the previous take
+    _Atomic int64_t topo_version;
+    double setup_ms; // the first compliance's set-up
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -123,13 +180,15 @@ struct hs_haptic_sim {
 static void probe_eval(void* ctx, const hs_rt_clock* clk, const hs_haptic_pose* pose,
                        hs_haptic_model* out) {
     probe_src* p = ctx;
-    const hs_contact_snapshot* s = hs_triple_buffer_read(p->snap, NULL);
+    const sim_snapshot* ss = hs_triple_buffer_read(p->snap, NULL);
+    const hs_contact_snapshot* s = &ss->s;
     hs_contact* c = hs_triple_buffer_back(p->contact);
     hs_contact_solve(s, pose->pos_m, p->last_n, p->last_node, c);
     p->last_n = c->n;
     memcpy(p->last_node, c->node, sizeof p->last_node);
     hs_triple_buffer_publish(p->contact);
     hs_contact_model(c, p->min_r, p->max_r, p->timeout_s, out);
+    for (int k = 0; k < 3; ++k) out->force_n[k] += ss->cut_force_n[k];
     out->stamp_ns = clk->now_ns;
 }
 
@@ -233,7 +292,7 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
 
     // Nearest contactable nodes within reach (a linear scan: microseconds per step).
     int n_near = 0;
-    for (int si = 0; si < ns; ++si) {
+    for (int si = 0; si < ns && !h->cut; ++si) { // a blade has no contact sphere
         int node = mesh->surf_nodes[si];
         if (!hs_compliance_contactable(h->comp, node)) continue;
         const double* qs = h->q + 3 * (size_t)si;
@@ -258,7 +317,9 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
         n_near = HS_CONTACT_MAX_CAND;
     }
 
-    hs_contact_snapshot* s = hs_triple_buffer_back(h->snap);
+    sim_snapshot* wrap = hs_triple_buffer_back(h->snap);
+    memcpy(wrap->cut_force_n, h->cut_force, sizeof wrap->cut_force_n);
+    hs_contact_snapshot* s = &wrap->s;
     s->version = ++h->version;
     s->probe_radius_m = r;
     memcpy(s->centre_m, p, sizeof s->centre_m);
@@ -341,6 +402,163 @@ static void publish_frame(hs_haptic_sim* h) {
     hs_triple_buffer_publish(h->frame);
 }
 
+// ---------------------------------------------------------------------------------------------
+// cutting (deformation side)
+
+static void quat_rotate(const double q[4], const double v[3], double out[3]) {
+    const double w = q[0], x = q[1], y = q[2], z = q[3];
+    double r[9] = {1 - 2 * (y * y + z * z), 2 * (x * y - w * z),     2 * (x * z + w * y),
+                   2 * (x * y + w * z),     1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+                   2 * (x * z - w * y),     2 * (y * z + w * x),     1 - 2 * (x * x + y * y)};
+    for (int a = 0; a < 3; ++a)
+        out[a] = r[3 * a] * v[0] + r[3 * a + 1] * v[1] + r[3 * a + 2] * v[2];
+}
+
+static double dist3(const double a[3], const double b[3]) {
+    double d[3] = {a[0] - b[0], a[1] - b[1], a[2] - b[2]};
+    return sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+}
+
+// Rebuild the haptic compliance on the cut body (live mesh; fixed + pinned nodes held).
+// Recreated rather than updated: hs_compliance has no update entry point. Allocates.
+static hs_status rebuild_compliance(hs_haptic_sim* h) {
+    hs_err err = {0};
+    hs_status us = hs_cut_update_live(h->cut, &err);
+    if (us != HS_OK) return us;
+    const hs_mesh* live = hs_cut_live_mesh(h->cut);
+    if (!live) return HS_ERR_NOMEM;
+    for (int i = 0; i < h->mesh->n_nodes; ++i)
+        h->cfix[i] = (unsigned char)(h->fixed0[i] || hs_cut_node_pinned(h->cut, i));
+    hs_compliance* nc = NULL;
+    hs_status s =
+        hs_compliance_create(live, &h->def.body.fem, h->cfix, h->def.probe.cache_nodes, &nc, &err);
+    if (s != HS_OK) return s;
+    hs_compliance_destroy(&h->comp);
+    h->comp = nc;
+    return HS_OK;
+}
+
+// Hand the cut's result to the control thread (rest positions, live surface, event lists).
+static void share_topology(hs_haptic_sim* h, const double quad[12]) {
+    const hs_mesh* live = hs_cut_live_mesh(h->cut);
+    const int* rem = NULL;
+    const int* mov = NULL;
+    int nr = hs_cut_last_removed(h->cut, &rem), nm = hs_cut_last_moved(h->cut, &mov);
+    pthread_mutex_lock(&h->tmx);
+    memcpy(h->t_x0, h->mesh->x0, 3 * (size_t)h->mesh->n_nodes * sizeof(double));
+    h->t_ntris = 0;
+    if (live && live->n_tris <= h->t_cap) {
+        memcpy(h->t_tris, live->tris, 3 * (size_t)live->n_tris * sizeof(int));
+        h->t_ntris = live->n_tris;
+    }
+    for (int k = 0; k < nr && h->t_nremoved < h->mesh->n_tets; ++k)
+        h->t_removed[h->t_nremoved++] = rem[k];
+    for (int k = 0; k < nm; ++k)
+        if (!h->t_mflag[mov[k]]) {
+            h->t_mflag[mov[k]] = 1;
+            h->t_moved[h->t_nmoved++] = mov[k];
+        }
+    memcpy(h->t_quad, quad, sizeof h->t_quad);
+    atomic_store(&h->topo_version, hs_cut_topology_version(h->cut));
+    pthread_mutex_unlock(&h->tmx);
+}
+
+// One blade step: sweep from the last blade pose to the newest one when it travelled far
+// enough, mirror the cut into the body and the compliance, and set the resistance. Returns 1
+// when a new snapshot is due (the resistance or the body changed).
+static int cut_step(hs_haptic_sim* h) {
+    hs_haptic_pose pose;
+    hs_triple_buffer_read_copy(h->cpose, &pose);
+    if (pose.seq <= 0) return 0;
+    const hs_haptic_cut_def* cd = &h->cdef;
+    int engaged = !cd->engage_buttons || (pose.buttons & cd->engage_buttons);
+    static const double zero[3] = {0, 0, 0};
+    if (!engaged) {
+        h->blade_have = 0;
+        h->st.cutting = 0;
+        int due = 0;
+        if (h->comp_stale) {
+            // The blade has no contact sphere, so nothing reads the compliance while it cuts:
+            // rebuild it once the blade is withdrawn rather than after every cut step.
+            int64_t t1 = hs_now_ns();
+            if (rebuild_compliance(h) != HS_OK) h->st.cut_failures++;
+            h->st.comp_ms_last = (double)(hs_now_ns() - t1) * 1e-6;
+            h->comp_stale = 0;
+            due = 1;
+        }
+        if (memcmp(h->cut_force, zero, sizeof zero)) {
+            memset(h->cut_force, 0, sizeof h->cut_force);
+            memset(h->st.cut_force_n, 0, sizeof h->st.cut_force_n);
+            due = 1;
+        }
+        return due;
+    }
+    double p1[3], q1[3], ra[3], rb[3];
+    quat_rotate(pose.quat_wxyz, cd->blade_a, ra);
+    quat_rotate(pose.quat_wxyz, cd->blade_b, rb);
+    for (int k = 0; k < 3; ++k) {
+        p1[k] = pose.pos_m[k] + ra[k];
+        q1[k] = pose.pos_m[k] + rb[k];
+    }
+    if (!h->blade_have) {
+        memcpy(h->bp, p1, sizeof p1);
+        memcpy(h->bq, q1, sizeof q1);
+        h->blade_have = 1;
+        return 0;
+    }
+    double tp = dist3(p1, h->bp), tq = dist3(q1, h->bq);
+    if ((tp > tq ? tp : tq) < cd->min_travel_m) return 0;
+
+    int64_t t0 = hs_now_ns();
+    const size_t n3 = 3 * (size_t)h->mesh->n_nodes;
+    memcpy(h->cu, hs_body_displacement(h->body), n3 * sizeof(double));
+    hs_cut_result res;
+    memset(&res, 0, sizeof res);
+    hs_err err = {0};
+    hs_status s = hs_cut_sweep(h->cut, h->bp, h->bq, p1, q1, h->cu, &res, &err);
+    h->st.cut_sweeps++;
+    double quad[12];
+    memcpy(quad, h->bp, 3 * sizeof(double));
+    memcpy(quad + 3, h->bq, 3 * sizeof(double));
+    memcpy(quad + 6, p1, 3 * sizeof(double));
+    memcpy(quad + 9, q1, 3 * sizeof(double));
+    double travel[3];
+    for (int k = 0; k < 3; ++k) travel[k] = 0.5 * (p1[k] + q1[k] - h->bp[k] - h->bq[k]);
+    memcpy(h->bp, p1, sizeof p1);
+    memcpy(h->bq, q1, sizeof q1);
+    double f[3] = {0, 0, 0};
+    if (s == HS_OK)
+        hs_cut_force(cd->toughness_n_m, res.cut_length_m, travel, cd->max_force_n, f);
+    else
+        h->st.cut_failures++;
+    int changed = s == HS_OK && (res.removed > 0 || res.moved > 0);
+    h->st.cutting = res.cut_tets > 0;
+    if (changed) {
+        double sweep_ms = (double)(hs_now_ns() - t0) * 1e-6;
+        memcpy(h->cv, hs_body_velocity(h->body), n3 * sizeof(double));
+        if (hs_cut_sync_fem(h->cut, hs_body_fem(h->body)) != HS_OK) h->st.cut_failures++;
+        hs_body_set_state(h->body, h->cu, h->cv);
+        hs_err lerr = {0};
+        if (hs_cut_update_live(h->cut, &lerr) != HS_OK) h->st.cut_failures++;
+        h->comp_stale = 1;
+        share_topology(h, quad);
+        h->st.cut_steps++;
+        h->st.cut_removed += res.removed;
+        h->st.sweep_ms_last = sweep_ms;
+        double ms = (double)(hs_now_ns() - t0) * 1e-6;
+        h->st.cut_ms_last = ms;
+        if (ms > h->st.cut_ms_max) h->st.cut_ms_max = ms;
+    }
+    // First-order smoothing over sweeps: whether a short sweep happens to cross an edge is a
+    // matter of the grid, not of the tissue; rt then blends each change over blend_ticks.
+    for (int k = 0; k < 3; ++k)
+        f[k] = h->cut_force[k] + CUT_FORCE_SMOOTH * (f[k] - h->cut_force[k]);
+    int due = changed || memcmp(f, h->cut_force, sizeof f) != 0;
+    memcpy(h->cut_force, f, sizeof f);
+    memcpy(h->st.cut_force_n, f, sizeof f);
+    return due;
+}
+
 static void timespec_add(struct timespec* t, int64_t ns) {
     t->tv_nsec += ns;
     while (t->tv_nsec >= 1000000000L) {
@@ -365,7 +583,12 @@ static void* deform_main(void* arg) {
         int loaded = c.n > 0 || h->applied_n > 0;
         int moving = loaded || max_speed(h) > h->def.sleep_speed_m_s;
         int64_t t0 = hs_now_ns();
-        int rebuild = 0;
+        int rebuild = 0, cut_changed = 0;
+        if (h->cut) {
+            int64_t before = h->st.cut_steps;
+            rebuild = cut_step(h);
+            cut_changed = h->st.cut_steps != before;
+        }
         if (moving) {
             // The forces rt computed from the last snapshot drive this step.
             apply_contact(h, &c);
@@ -379,7 +602,7 @@ static void* deform_main(void* arg) {
             // At rest: refresh the candidates only when the tool wandered toward their edge.
             double dx = c.tool_m[0] - centre[0], dy = c.tool_m[1] - centre[1],
                    dz = c.tool_m[2] - centre[2];
-            rebuild = !have_snapshot ||
+            rebuild = rebuild || !have_snapshot ||
                       sqrt(dx * dx + dy * dy + dz * dz) > 0.5 * h->def.probe.reach_margin_m;
         }
         if (rebuild) {
@@ -390,7 +613,7 @@ static void* deform_main(void* arg) {
             if (sms > h->st.snapshot_ms_max) h->st.snapshot_ms_max = sms;
             memcpy(centre, c.tool_m, sizeof centre);
             have_snapshot = 1;
-            if (moving) publish_frame(h);
+            if (moving || cut_changed) publish_frame(h);
             double ms = (double)(hs_now_ns() - t0) * 1e-6;
             h->st.step_ms_last = ms;
             if (ms > h->st.step_ms_max) h->st.step_ms_max = ms;
@@ -464,6 +687,18 @@ void hs_haptic_sim_destroy(hs_haptic_sim** ph) {
     hs_free(h->q);
     hs_free(h->near_node);
     hs_free(h->near_dist);
+    hs_triple_buffer_destroy(&h->cpose);
+    hs_cut_destroy(&h->cut);
+    hs_free(h->fixed0);
+    hs_free(h->cfix);
+    hs_free(h->cu);
+    hs_free(h->cv);
+    hs_free(h->t_x0);
+    hs_free(h->t_tris);
+    hs_free(h->t_removed);
+    hs_free(h->t_moved);
+    hs_free(h->t_mflag);
+    if (h->tmx_init) pthread_mutex_destroy(&h->tmx);
     hs_free(h);
     *ph = NULL;
 }
@@ -515,8 +750,12 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
     atomic_init(&h->stop, 0);
     hs_status s = hs_body_create(mesh, &def->body, fixed, &h->body, err);
     if (s != HS_OK) goto fail;
+    h->fixed0 = hs_calloc((size_t)mesh->n_nodes + 1, 1);
+    if (!h->fixed0) goto nomem;
+    if (fixed) memcpy(h->fixed0, fixed, (size_t)mesh->n_nodes);
     s = hs_compliance_create(mesh, &def->body.fem, fixed, pd->cache_nodes, &h->comp, err);
     if (s != HS_OK) goto fail;
+    h->setup_ms = hs_compliance_setup_ms(h->comp);
 
     const size_t n = (size_t)mesh->n_nodes, ns = (size_t)mesh->n_surf_nodes;
     h->x = hs_calloc(3 * n, sizeof(double));
@@ -532,7 +771,7 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
         memcpy(h->q + 3 * si, mesh->x0 + 3 * (size_t)mesh->surf_nodes[si], 3 * sizeof(double));
 
     h->frame_size = sizeof(int64_t) + 3 * n * sizeof(double);
-    s = hs_triple_buffer_create(sizeof(hs_contact_snapshot), &h->snap, err);
+    s = hs_triple_buffer_create(sizeof(sim_snapshot), &h->snap, err);
     if (s == HS_OK) s = hs_triple_buffer_create(sizeof(hs_contact), &h->contact, err);
     if (s == HS_OK) s = hs_triple_buffer_create(h->frame_size, &h->frame, err);
     if (s == HS_OK) s = hs_triple_buffer_create(sizeof(deform_status), &h->status, err);
@@ -602,7 +841,92 @@ void hs_haptic_sim_stop(hs_haptic_sim* h) {
 }
 
 void hs_haptic_sim_feed_pose(hs_haptic_sim* h, const hs_haptic_pose* pose) {
+    if (h->cpose) hs_triple_buffer_write(h->cpose, pose);
     hs_memdev_feed_pose(h->dev, pose);
+}
+
+hs_status hs_haptic_sim_enable_cutting(hs_haptic_sim* h, hs_mesh* mesh,
+                                       const hs_haptic_cut_def* def, hs_err* err) {
+    if (!h || !mesh || !def)
+        return hs_err_set(err, HS_ERR_INVALID, "hs_haptic_sim_enable_cutting: NULL argument");
+    if (def->cookie != CUT_COOKIE)
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "hs_haptic_sim_enable_cutting: definition not initialised with "
+                          "hs_haptic_cut_default_def()");
+    if (mesh != h->mesh)
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "hs_haptic_sim_enable_cutting: not the mesh the sim was created on");
+    if (h->thread_started || h->cut)
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "hs_haptic_sim_enable_cutting: sim already running or cutting");
+    if (!(def->toughness_n_m >= 0) || !(def->max_force_n >= 0) || !(def->min_travel_m >= 0) ||
+        !isfinite(def->toughness_n_m) || !isfinite(def->max_force_n) ||
+        dist3(def->blade_a, def->blade_b) <= 0 || !isfinite(dist3(def->blade_a, def->blade_b)))
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "hs_haptic_sim_enable_cutting: blade of zero length, or toughness, "
+                          "force cap or travel negative");
+    h->cdef = *def;
+    // The body has no pin springs: a node must keep a tet and a freed piece keeps its mass.
+    h->cdef.cut.orphan = HS_CUT_ORPHAN_KEEP_TET;
+    h->cdef.cut.fragment = HS_CUT_FRAGMENT_FIX;
+    h->cdef.cut.material = h->def.body.fem.material;
+    const size_t n = (size_t)mesh->n_nodes, nt = (size_t)mesh->n_tets;
+    h->cfix = hs_calloc(n + 1, 1);
+    h->cu = hs_calloc(3 * n, sizeof(double));
+    h->cv = hs_calloc(3 * n, sizeof(double));
+    h->t_x0 = hs_calloc(3 * n, sizeof(double));
+    h->t_cap = 4 * (int)nt;
+    h->t_tris = hs_calloc(3 * nt * 4 + 1, sizeof(int));
+    h->t_removed = hs_calloc(nt + 1, sizeof(int));
+    h->t_moved = hs_calloc(n + 1, sizeof(int));
+    h->t_mflag = hs_calloc(n + 1, 1);
+    if (!h->cfix || !h->cu || !h->cv || !h->t_x0 || !h->t_tris || !h->t_removed || !h->t_moved ||
+        !h->t_mflag)
+        return hs_err_set(err, HS_ERR_NOMEM, "hs_haptic_sim_enable_cutting: out of memory");
+    if (!h->tmx_init) {
+        if (pthread_mutex_init(&h->tmx, NULL) != 0)
+            return hs_err_set(err, HS_ERR_NOMEM, "hs_haptic_sim_enable_cutting: mutex");
+        h->tmx_init = 1;
+    }
+    hs_status s = hs_triple_buffer_create(sizeof(hs_haptic_pose), &h->cpose, err);
+    if (s != HS_OK) return s;
+    s = hs_cut_create(mesh, h->fixed0, &h->cdef.cut, &h->cut, err);
+    if (s != HS_OK) return s;
+    memcpy(h->t_x0, mesh->x0, 3 * n * sizeof(double));
+    h->t_ntris = mesh->n_tris <= h->t_cap ? mesh->n_tris : 0;
+    memcpy(h->t_tris, mesh->tris, 3 * (size_t)h->t_ntris * sizeof(int));
+    atomic_store(&h->topo_version, 0);
+    return HS_OK;
+}
+
+int64_t hs_haptic_sim_topology_version(hs_haptic_sim* h) {
+    return atomic_load(&h->topo_version);
+}
+
+int64_t hs_haptic_sim_take_topology(hs_haptic_sim* h, double* x0, int* tris, int tri_cap,
+                                    int* n_tris, hs_haptic_cut_event* ev) {
+    if (!h->tmx_init) return 0;
+    pthread_mutex_lock(&h->tmx);
+    int64_t v = atomic_load(&h->topo_version);
+    if (x0) memcpy(x0, h->t_x0, 3 * (size_t)h->mesh->n_nodes * sizeof(double));
+    int nt = h->t_ntris <= tri_cap ? h->t_ntris : 0;
+    if (tris) memcpy(tris, h->t_tris, 3 * (size_t)nt * sizeof(int));
+    if (n_tris) *n_tris = nt;
+    if (ev) {
+        ev->old_version = h->t_taken;
+        ev->new_version = v;
+        ev->n_removed = h->t_nremoved;
+        if (ev->removed_tets)
+            memcpy(ev->removed_tets, h->t_removed, (size_t)h->t_nremoved * sizeof(int));
+        ev->n_moved = h->t_nmoved;
+        if (ev->moved_nodes) memcpy(ev->moved_nodes, h->t_moved, (size_t)h->t_nmoved * sizeof(int));
+        memcpy(ev->swept_quad, h->t_quad, sizeof ev->swept_quad);
+    }
+    for (int k = 0; k < h->t_nmoved; ++k) h->t_mflag[h->t_moved[k]] = 0;
+    h->t_nremoved = h->t_nmoved = 0;
+    h->t_taken = v;
+    pthread_mutex_unlock(&h->tmx);
+    return v;
 }
 
 int hs_haptic_sim_take_output(hs_haptic_sim* h, hs_haptic_output* out) {
@@ -633,7 +957,18 @@ void hs_haptic_sim_stats_get(hs_haptic_sim* h, hs_haptic_sim_stats* out) {
     out->candidates = ds.candidates;
     out->coupled = ds.coupled;
     out->contact = ds.contact;
-    out->setup_ms = hs_compliance_setup_ms(h->comp);
+    out->cut_sweeps = ds.cut_sweeps;
+    out->cut_steps = ds.cut_steps;
+    out->cut_removed = ds.cut_removed;
+    out->cut_failures = ds.cut_failures;
+    out->cut_ms_last = ds.cut_ms_last;
+    out->cut_ms_max = ds.cut_ms_max;
+    out->sweep_ms_last = ds.sweep_ms_last;
+    out->comp_ms_last = ds.comp_ms_last;
+    memcpy(out->cut_force_n, ds.cut_force_n, sizeof out->cut_force_n);
+    out->cutting = ds.cutting;
+    out->topology_version = atomic_load(&h->topo_version);
+    out->setup_ms = h->setup_ms; // h->comp is replaced by cuts on the deformation thread
     hs_rt_loop_stats(h->loop, &out->rt);
     hs_haptic_rt_counters rc;
     hs_haptic_rt_get_counters(h->hrt, &rc);

@@ -1,0 +1,100 @@
+#!/bin/sh
+# Cutting end to end (run through tests/netns.sh: private network namespace, multicast on lo):
+# hapsim-server on scenes/skin (cutting on) and hapsim-stylus dragging the scalpel across the
+# patch (scenes/skin/scripts/cut_across.probe). Checks:
+#  - a client connected during the cut gets topology events, versions old -> old + 1, and ends
+#    with a consistent mesh at the newest version (test_cut_e2e_client watch);
+#  - the server keeps running, its status shows the topology version grown and the cut timings;
+#  - a client joining after the cut (it missed every event) ends with the server's newest
+#    topology: triangle count changed, no orphan or out-of-range reference (client late);
+#  - hapsim-view still writes frames of the cut mesh;
+#  - the force the stylus received is finite, the blade felt resistance, and it changes by at
+#    most MAX_STEP_N per tick (the rt thread blends every change over 10 ticks).
+#   tests/test_cut_e2e.sh BIN_DIR CLIENT_BIN SOURCE_DIR
+set -u
+bin=$1
+client=$2
+src=$3
+MAX_STEP_N=0.05
+for p in hapsim-server hapsim-stylus hapsim-view hapsim-ctl; do
+    [ -x "$bin/$p" ] || { echo "SKIP: $bin/$p not built"; exit 77; }
+done
+[ -f "$src/scenes/skin/skin.json" ] || { echo "SKIP: no scenes/skin/skin.json"; exit 77; }
+tmp=$(mktemp -d /tmp/hs_cut_e2e.XXXXXX)
+server_pid=""
+watch_pid=""
+cleanup() {
+    [ -n "$watch_pid" ] && kill "$watch_pid" 2>/dev/null
+    [ -n "$server_pid" ] && kill "$server_pid" 2>/dev/null
+    wait 2>/dev/null
+    if [ "${keep:-0}" = 1 ]; then echo "kept $tmp"; else rm -rf "$tmp"; fi
+}
+trap cleanup EXIT
+fail() {
+    echo "FAIL: $*"
+    keep=1
+    echo "--- server log"; tail -n 20 "$tmp/server.log"
+    exit 1
+}
+cd "$src" || exit 1
+ORIG_TRIS=1920 # boundary triangles of skin_patch_synthetic.msh (its ATTRIBUTION file)
+
+"$bin/hapsim-server" scenes/skin/skin.json --duration 50 >"$tmp/server.log" 2>&1 &
+server_pid=$!
+ctl="$bin/hapsim-ctl --timeout 3000"
+$bin/hapsim-ctl --timeout 10000 status >"$tmp/status0.txt" 2>&1 || fail "no server status"
+grep -q "^topology version 1 " "$tmp/status0.txt" || fail "start: $(head -2 "$tmp/status0.txt")"
+
+"$client" watch 17 $ORIG_TRIS >"$tmp/watch.log" 2>&1 &
+watch_pid=$!
+sleep 0.5
+"$bin/hapsim-stylus" --script scenes/skin/scripts/cut_across.probe --trace "$tmp/trace.csv" \
+    --quiet >"$tmp/stylus.log" 2>&1 || fail "hapsim-stylus rc $?: $(cat "$tmp/stylus.log")"
+wait $watch_pid
+rc=$?
+watch_pid=""
+[ $rc = 0 ] || fail "watching client: $(cat "$tmp/watch.log")"
+echo "watch: $(tail -n 1 "$tmp/watch.log")"
+
+kill -0 $server_pid 2>/dev/null || fail "the server died"
+$ctl status >"$tmp/status1.txt" 2>&1 || fail "no status after the cut"
+grep -q "^server   running" "$tmp/status1.txt" || fail "not running: $(head -1 "$tmp/status1.txt")"
+ver=$(sed -n 's/^topology version \([0-9]*\).*/\1/p' "$tmp/status1.txt")
+[ -n "$ver" ] && [ "$ver" -gt 1 ] || fail "topology version did not grow: '$ver'"
+grep -q "^cut " "$tmp/status1.txt" || fail "status has no cut step timing"
+echo "status: topology version $ver; $(grep '^cut ' "$tmp/status1.txt")"
+
+"$client" late 8 $ORIG_TRIS >"$tmp/late.log" 2>&1 || fail "late client: $(cat "$tmp/late.log")"
+echo "$(cat "$tmp/late.log")"
+
+"$bin/hapsim-view" --out "$tmp/view" --png --rate 4 --duration 3 --quiet >"$tmp/view.log" 2>&1
+rc=$?
+[ $rc = 0 ] || fail "hapsim-view rc $rc: $(cat "$tmp/view.log")"
+n_png=$(ls "$tmp/view"/*.png 2>/dev/null | wc -l)
+[ "$n_png" -ge 1 ] || fail "hapsim-view wrote no frame of the cut mesh"
+
+# Forces received by the stylus: finite, some resistance, bounded change per tick.
+awk -F, -v max="$MAX_STEP_N" '
+NR == 1 { for (i = 1; i <= NF; ++i) col[$i] = i; next }
+{
+    fx = $(col["f_recv_x"]); fy = $(col["f_recv_y"]); fz = $(col["f_recv_z"])
+    if (tolower(fx " " fy " " fz) ~ /nan|inf/) { bad = 1 }
+    f = sqrt(fx * fx + fy * fy + fz * fz); if (f > peak) peak = f
+    if (n) { d = sqrt((fx - px)^2 + (fy - py)^2 + (fz - pz)^2); if (d > dmax) dmax = d }
+    px = fx; py = fy; pz = fz; ++n
+}
+END {
+    printf "trace: %d ticks, peak force %.3f N, largest change %.4f N/tick (bound %g)\n", n, peak, dmax, max
+    if (bad) { print "FAIL: non-finite force"; exit 1 }
+    if (n < 1000) { print "FAIL: short trace"; exit 1 }
+    if (peak < 0.01) { print "FAIL: the blade felt no cutting resistance"; exit 1 }
+    if (dmax > max) { print "FAIL: force jumps"; exit 1 }
+}' "$tmp/trace.csv" || fail "force trace"
+
+kill -TERM $server_pid
+wait $server_pid
+rc=$?
+server_pid=""
+[ $rc = 0 ] || fail "server exit $rc"
+grep "cut steps" "$tmp/server.log" || fail "no cut summary at exit"
+echo "PASS"
