@@ -315,21 +315,25 @@ static int press_hold_release(void) {
     ENSURE(f_hold[0] * L.n[0] + f_hold[1] * L.n[1] + f_hold[2] * L.n[2] > 0); // pushes out
     ENSURE(st.contact.n >= 1 && frame_step > 0);
 
-    // Release: jump 3 cm out. The force is zero within the blend time (+ 3 ticks of latency).
+    // Release: jump 3 cm out. The force is zero within the blend time (+ 3 ticks of latency),
+    // counted in rt ticks from the telemetry (every tick is recorded): on a loaded machine the
+    // rt thread may run late, but the contract is about its ticks.
     tool_at(&L, r, -0.03, 0, p);
-    int64_t t_rel = 0, t_zero = -1, rel_seq = hn.seq + 1;
-    for (int i = 0; i < 100 && t_zero < 0; ++i) {
+    int64_t rel_seq = hn.seq + 1, tick_rel = -1, tick_zero = -1;
+    for (int i = 0; i < 200 && tick_zero < 0; ++i) {
         harness_tick(&hn, p);
-        drain(sim);
-        if (i == 0) t_rel = hn.last_feed_ns;
-        // The rt tick's own stamp: the harness thread's wake-up jitter is not the rt loop's.
-        if (hn.out.pose_seq >= rel_seq && norm3(hn.out.force_n) == 0) t_zero = hn.out.stamp_ns;
+        hs_haptic_telemetry t;
+        while (hs_spsc_ring_pop(hs_haptic_sim_telemetry(sim), &t)) {
+            if (t.pose_seq < rel_seq) continue;
+            if (tick_rel < 0) tick_rel = t.tick;
+            if (tick_zero < 0 && norm3(t.force_n) == 0) tick_zero = t.tick;
+        }
     }
-    ENSURE(t_zero >= 0);
-    double ms = (double)(t_zero - t_rel) * 1e-6;
-    printf("  release: zero force %.1f ms after the release pose (blend %d ticks)\n", ms,
-           d.blend_ticks);
-    ENSURE(ms <= d.blend_ticks + 3);
+    ENSURE(tick_rel >= 0 && tick_zero >= 0);
+    printf("  release: zero force %lld rt ticks after the first tick with the release pose "
+           "(blend %d ticks)\n",
+           (long long)(tick_zero - tick_rel), d.blend_ticks);
+    ENSURE(tick_zero - tick_rel <= d.blend_ticks + 3);
     hs_haptic_sim_stop(sim);
 
     // Full model: static solve with the contact nodes prescribed at the contact's displacement

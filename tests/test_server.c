@@ -379,6 +379,13 @@ static void stream(client* c, double d0, double d1, int ms) {
             hs_net_bus_handle(c->m, 0);
         }
     }
+    // The answer to the last pose may still be in flight on a loaded machine: wait for it
+    // (bounded), so callers can check it.
+    int64_t end = hs_now_ns() + 500000000LL;
+    while (c->force.pose_seq != c->seq && hs_now_ns() < end) {
+        hs_net_bus_handle(c->h, 0);
+        hs_net_bus_handle(c->m, 0);
+    }
 }
 
 static int64_t next_request = 1000;

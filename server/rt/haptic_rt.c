@@ -20,6 +20,7 @@ struct hs_haptic_rt {
     hs_spsc_ring* telemetry;
     // rt thread only:
     hs_haptic_blend blend;
+    int stopped; // the watchdog held the output at zero on the last tick
     hs_safety safety;
     hs_haptic_pose pose; // last valid pose
     int have_pose;
@@ -162,7 +163,8 @@ static void haptic_tick(void* ctx, const hs_rt_clock* clk) {
             f[0] = NAN; // the safety chain zeroes and counts it
             hs_haptic_blend_reset(&h->blend);
         } else {
-            if (!h->blend.started || target.seq != h->blend.target_seq) ++c->blends;
+            if (!h->stopped && (!h->blend.started || target.seq != h->blend.target_seq))
+                ++c->blends;
             hs_haptic_blend_step(&h->blend, &target, h->pose.pos_m, f, &model);
         }
     }
@@ -170,6 +172,10 @@ static void haptic_tick(void* ctx, const hs_rt_clock* clk) {
     // 4. safety
     uint32_t flags = hs_safety_apply(&h->safety, f, fresh, pose_ok, clk->now_ns, clk->dt_s);
     double gain = h->safety.watchdog.gain;
+    // After a full watchdog stop there is no force to blend from: a resumed device (perhaps
+    // elsewhere, perhaps a new session) ramps in from zero and never gets the old contact back.
+    h->stopped = gain == 0;
+    if (h->stopped) hs_haptic_blend_reset(&h->blend);
     if ((flags & HS_SAFETY_NONFINITE) || gain == 0) {
         int64_t seq = model.seq;
         memset(&model, 0, sizeof model);
