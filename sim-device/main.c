@@ -490,6 +490,8 @@ static void* loop_main(void* arg) {
         pose.seq++;
         for (int i = 0; i < 3; ++i) pose.position[i] = dev.pos_m[i];
         pose.buttons = (int32_t)buttons;
+        if (seg >= 0 && seg < a->script->n_segments)
+            memcpy(pose.orientation, a->script->seg[seg].quat_wxyz, sizeof pose.orientation);
         hapsim_tool_pose_t_publish(a->lcm, a->pose_channel, &pose);
 
         const double* f = tick.f_applied;

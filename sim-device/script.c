@@ -44,6 +44,7 @@ typedef struct parser {
     double normal[3]; // its outward unit normal
     double depth;     // total pressed depth, m
     int moved;        // any segment emitted (start/origin may no longer change)
+    double quat[4];   // tool orientation (w, x, y, z) from the last `cut` with a blade axis
 } parser;
 
 static hs_status perr(parser* p, hs_err* err, const char* fmt, ...)
@@ -145,6 +146,7 @@ static hs_status emit(parser* p, hs_err* err, int kind, int cmd, const double to
     g->speed_m_s = speed;
     g->accel_m_s2 = p->accel;
     g->buttons = buttons;
+    memcpy(g->quat_wxyz, p->quat, sizeof g->quat_wxyz);
     for (int i = 0; i < 3; ++i) {
         g->from_m[i] = p->cur[i];
         g->to_m[i] = to[i];
@@ -176,6 +178,21 @@ static hs_status read_args(parser* p, hs_err* err, char** tok, int ntok, const c
         if (kinds[i] == 'L' || kinds[i] == 'V' || kinds[i] == 'A') v[i] *= p->scale;
     }
     return HS_OK;
+}
+
+// The shortest rotation taking +z to the unit vector a, as a unit quaternion (w, x, y, z).
+static void axis_quat(const double a[3], double q[4]) {
+    double w = 1 + a[2]; // 1 + z . a
+    if (w < 1e-9) {      // a = -z: half a turn about x
+        q[0] = 0, q[1] = 1, q[2] = 0, q[3] = 0;
+        return;
+    }
+    // q = (1 + z.a, z x a) normalised; z x a = (-a_y, a_x, 0)
+    double n = sqrt(w * w + a[0] * a[0] + a[1] * a[1]);
+    q[0] = w / n;
+    q[1] = -a[1] / n;
+    q[2] = a[0] / n;
+    q[3] = 0;
 }
 
 static hs_status need_positive(parser* p, hs_err* err, const char* cmd, const char* what,
@@ -276,8 +293,23 @@ static hs_status parse_text(parser* p, const char* text, hs_err* err) {
                             "profile: expected 'profile minjerk' or "
                             "'profile trapezoid ACCEL'");
             }
+        } else if (!strcmp(cmd, "cut") && ntok == 8) {
+            // cut x y z speed ax ay az: the tool turns so that its z axis (the blade of a
+            // scalpel whose blade lies along tool z) points along a, then moves.
+            if ((st = read_args(p, err, tok, ntok, "LLLVNNN", "x y z speed [ax ay az]", v)))
+                return st;
+            if ((st = need_positive(p, err, cmd, "speed", v[3]))) return st;
+            if (p->pressed)
+                return perr(p, err, "%s: a press is active (use drag, or release first)", cmd);
+            double a[3];
+            if ((st = unit_normal(p, err, cmd, v + 4, a))) return st;
+            axis_quat(a, p->quat);
+            st = emit(p, err, HS_SEG_MOVE, HS_CMD_CUT, v, v[3], 0, BUTTON_PRIMARY);
+            if (st) return st;
         } else if (!strcmp(cmd, "move_to") || !strcmp(cmd, "cut")) {
-            if ((st = read_args(p, err, tok, ntok, "LLLV", "x y z speed", v))) return st;
+            if ((st = read_args(p, err, tok, ntok, "LLLV",
+                                !strcmp(cmd, "cut") ? "x y z speed [ax ay az]" : "x y z speed", v)))
+                return st;
             if ((st = need_positive(p, err, cmd, "speed", v[3]))) return st;
             if (p->pressed)
                 return perr(p, err, "%s: a press is active (use drag, or release first)", cmd);
@@ -431,6 +463,7 @@ hs_status hs_script_parse_string(hs_script* s, const char* text, const char* nam
     p.s = s;
     p.name = s->name;
     p.scale = 1.0;
+    p.quat[0] = 1; // identity orientation until a `cut` gives a blade axis
     p.profile = HS_PROFILE_MINJERK;
     p.accel = 1.0;
     hs_status st = parse_text(&p, text, err);

@@ -67,6 +67,7 @@ typedef struct hs_script_segment {
     uint32_t buttons;      ///< tool_pose button bits held during the segment (cut: PRIMARY)
     double touch_force_n;  ///< touch: force along the normal that ends the search, N
     double touch_ref_m[3]; ///< touch: where the script expects the surface (see hs_script_runner)
+    double quat_wxyz[4];   ///< tool orientation published during the segment (set by `cut`)
 } hs_script_segment;
 
 /// A parsed script. Create with hs_script_create (large: fixed segment array).

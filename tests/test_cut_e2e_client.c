@@ -80,6 +80,26 @@ static int check_mesh(const hs_client_mesh* m, int orig_tris) {
     return 0;
 }
 
+static int find(int* up, int i) {
+    while (up[i] != i) i = up[i] = up[up[i]];
+    return i;
+}
+
+// Connected pieces of the drawn surface (triangles sharing a visual node); -1 on no memory.
+static int pieces(const hs_client_mesh* m) {
+    int* up = malloc(((size_t)m->n_vis + 1) * sizeof(int));
+    if (!up) return -1;
+    for (int i = 0; i < m->n_vis; ++i) up[i] = i;
+    for (int t = 0; t < m->n_tri; ++t) {
+        const int32_t* v = m->triangles + 3 * t;
+        for (int k = 1; k < 3; ++k) up[find(up, v[k])] = find(up, v[0]);
+    }
+    int n = 0;
+    for (int i = 0; i < m->n_vis; ++i) n += find(up, i) == i;
+    free(up);
+    return n;
+}
+
 int main(int argc, char** argv) {
     if (argc != 4 || (strcmp(argv[1], "watch") && strcmp(argv[1], "late"))) {
         fprintf(stderr, "usage: %s watch|late SECONDS ORIG_TRIS\n", argv[0]);
@@ -117,8 +137,9 @@ int main(int argc, char** argv) {
         if (m && m->ready && hs_client_status_latest(c, &st, &age) && st.topology_version > 1 &&
             m->topology_version == st.topology_version) {
             rc = check_mesh(m, orig_tris);
-            printf("late: version %lld tris %d vis %d (%lld events seen)\n",
-                   (long long)m->topology_version, m->n_tri, m->n_vis, (long long)w.events);
+            printf("late: version %lld tris %d vis %d surface pieces %d (%lld events seen)\n",
+                   (long long)m->topology_version, m->n_tri, m->n_vis, pieces(m),
+                   (long long)w.events);
             break;
         }
     }

@@ -1485,10 +1485,17 @@ hs_status hs_server_run(hs_server* s, hs_err* err) {
                (long long)s->forces_total, (unsigned long long)rej);
         if (s->w.cutting)
             printf("hapsim-server: %lld cut steps (topology events), topology version %lld; cut "
-                   "step p50 %.1f ms, p99 %.1f ms, max %.1f ms (deformation thread: sweep + "
-                   "body + compliance)\n",
+                   "step p50 %.1f ms, p99 %.1f ms, max %.1f ms (deformation thread: sweep, "
+                   "body sync, live mesh)\n",
                    (long long)s->cut_events, (long long)s->topo_version, cut_quantile(s, 0.5),
                    cut_quantile(s, 0.99), cut_quantile(s, 1.0));
+        if (s->w.cutting && s->w.sim) {
+            hs_haptic_sim_stats st;
+            hs_haptic_sim_stats_get(s->w.sim, &st);
+            printf("hapsim-server: %lld tets removed; last sweep alone %.1f ms; haptic compliance "
+                   "rebuilt after the blade left in %.1f ms\n",
+                   (long long)st.cut_removed, st.sweep_ms_last, st.comp_ms_last);
+        }
         fflush(stdout);
     }
     return rc;

@@ -476,7 +476,11 @@ static int cut_step(hs_haptic_sim* h) {
     if (!engaged) {
         h->blade_have = 0;
         h->st.cutting = 0;
-        int due = 0;
+        if (memcmp(h->cut_force, zero, sizeof zero)) { // first the zero-force snapshot
+            memset(h->cut_force, 0, sizeof h->cut_force);
+            memset(h->st.cut_force_n, 0, sizeof h->st.cut_force_n);
+            return 1;
+        }
         if (h->comp_stale) {
             // The blade has no contact sphere, so nothing reads the compliance while it cuts:
             // rebuild it once the blade is withdrawn rather than after every cut step.
@@ -484,14 +488,9 @@ static int cut_step(hs_haptic_sim* h) {
             if (rebuild_compliance(h) != HS_OK) h->st.cut_failures++;
             h->st.comp_ms_last = (double)(hs_now_ns() - t1) * 1e-6;
             h->comp_stale = 0;
-            due = 1;
+            return 1;
         }
-        if (memcmp(h->cut_force, zero, sizeof zero)) {
-            memset(h->cut_force, 0, sizeof h->cut_force);
-            memset(h->st.cut_force_n, 0, sizeof h->st.cut_force_n);
-            due = 1;
-        }
-        return due;
+        return 0;
     }
     double p1[3], q1[3], ra[3], rb[3];
     quat_rotate(pose.quat_wxyz, cd->blade_a, ra);
