@@ -1,0 +1,221 @@
+// Cutting through the in-process haptic simulation (the path hapsim-server runs): a scalpel
+// dragged across the skin patch by poses fed at 1 kHz, real deformation and rt threads.
+// The LCM end to end is tests/test_cut_e2e.sh.
+#define _POSIX_C_SOURCE 200809L
+#include "hapsim/haptic_sim.h"
+#include "test_macros.h"
+
+#include <time.h>
+
+static hs_mesh* load_skin(void) {
+    hs_mesh* m = NULL;
+    hs_err e;
+    if (hs_mesh_load(HS_SOURCE_DIR "/scenes/skin/skin_patch_synthetic.msh", &m, &e) < 0) {
+        printf("  cannot load the skin patch: %s\n", e.msg);
+        return NULL;
+    }
+    return m;
+}
+
+// Both x ends held (the cut runs between them).
+static unsigned char* ends_fixed(const hs_mesh* m) {
+    unsigned char* fixed = hs_calloc((size_t)m->n_nodes, 1);
+    unsigned char* far = hs_calloc((size_t)m->n_nodes, 1);
+    if (fixed && far) {
+        hs_mesh_select_plane(m, 0, -1, 1e-6, fixed);
+        hs_mesh_select_plane(m, 0, +1, 1e-6, far);
+        for (int i = 0; i < m->n_nodes; ++i) fixed[i] |= far[i];
+    }
+    hs_free(far);
+    return fixed;
+}
+
+static hs_haptic_sim_def sim_def(void) {
+    hs_haptic_sim_def d = hs_haptic_sim_default_def();
+    d.fifo_priority = 0;
+    d.lock_memory = 0;
+    d.body.dt = 1.0 / 60;
+    return d;
+}
+
+/// Bad definitions are refused with a message and leave the sim usable and leak-free.
+static int test_enable_errors(void) {
+    int64_t bytes = hs_byte_count();
+    hs_mesh* m = load_skin();
+    ENSURE(m);
+    hs_mesh* other = load_skin();
+    ENSURE(other);
+    unsigned char* fixed = ends_fixed(m);
+    ENSURE(fixed);
+    hs_haptic_sim_def d = sim_def();
+    hs_haptic_sim* sim = NULL;
+    hs_err err = {0};
+    ENSURE(hs_haptic_sim_create(m, &d, fixed, &sim, &err) == HS_OK);
+    hs_haptic_cut_def cd = hs_haptic_cut_default_def();
+    ENSURE(hs_haptic_sim_enable_cutting(sim, m, NULL, &err) == HS_ERR_INVALID);
+    hs_haptic_cut_def raw;
+    memset(&raw, 0, sizeof raw);
+    ENSURE(hs_haptic_sim_enable_cutting(sim, m, &raw, &err) == HS_ERR_INVALID);
+    ENSURE(strstr(err.msg, "hs_haptic_cut_default_def"));
+    ENSURE(hs_haptic_sim_enable_cutting(sim, other, &cd, &err) == HS_ERR_INVALID);
+    ENSURE(strstr(err.msg, "not the mesh"));
+    hs_haptic_cut_def flat = cd;
+    memcpy(flat.blade_b, flat.blade_a, sizeof flat.blade_b);
+    ENSURE(hs_haptic_sim_enable_cutting(sim, m, &flat, &err) == HS_ERR_INVALID);
+    ENSURE(strstr(err.msg, "blade"));
+    hs_haptic_cut_def neg = cd;
+    neg.toughness_n_m = -1;
+    ENSURE(hs_haptic_sim_enable_cutting(sim, m, &neg, &err) == HS_ERR_INVALID);
+    ENSURE(hs_haptic_sim_topology_version(sim) == 0);
+    ENSURE(hs_haptic_sim_enable_cutting(sim, m, &cd, &err) == HS_OK);
+    ENSURE(hs_haptic_sim_enable_cutting(sim, m, &cd, &err) == HS_ERR_INVALID); // once only
+    // Before any cut the shared topology is the mesh's own.
+    double* x0 = hs_alloc(3 * (size_t)m->n_nodes * sizeof(double));
+    int* tris = hs_alloc(3 * 4 * (size_t)m->n_tets * sizeof(int));
+    ENSURE(x0 && tris);
+    int nt = -1;
+    ENSURE(hs_haptic_sim_take_topology(sim, x0, tris, 4 * m->n_tets, &nt, NULL) == 0);
+    ENSURE(nt == m->n_tris);
+    ENSURE(!memcmp(x0, m->x0, 3 * (size_t)m->n_nodes * sizeof(double)));
+    hs_free(x0);
+    hs_free(tris);
+    hs_haptic_sim_destroy(&sim);
+    ENSURE(sim == NULL);
+    hs_free(fixed);
+    hs_mesh_destroy(&m);
+    hs_mesh_destroy(&other);
+    ENSURE(hs_byte_count() == bytes);
+    return 0;
+}
+
+static void sleep_until(struct timespec* t, long ns) {
+    t->tv_nsec += ns;
+    while (t->tv_nsec >= 1000000000L) {
+        t->tv_nsec -= 1000000000L;
+        t->tv_sec++;
+    }
+    clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, t, NULL);
+}
+
+/// The blade dragged across the patch with the button held, then released: topology versions
+/// grow, events list each removed tet once, the shared surface and rest positions are the
+/// mesh's, the force is finite, shows resistance, changes by at most the cap over one blend
+/// per tick, and returns to zero after the release; the compliance is rebuilt after it.
+static int test_blade_drag(void) {
+    int64_t bytes = hs_byte_count();
+    hs_mesh* m = load_skin();
+    ENSURE(m);
+    const int n = m->n_nodes, ntet = m->n_tets;
+    unsigned char* fixed = ends_fixed(m);
+    ENSURE(fixed);
+    hs_haptic_sim_def d = sim_def();
+    hs_haptic_sim* sim = NULL;
+    hs_err err = {0};
+    ENSURE(hs_haptic_sim_create(m, &d, fixed, &sim, &err) == HS_OK);
+    hs_haptic_cut_def cd = hs_haptic_cut_default_def();
+    cd.blade_a[2] = -0.003; // with the tool point at z = 2 mm: spans the 4 mm thickness
+    cd.blade_b[2] = 0.005;
+    ENSURE(hs_haptic_sim_enable_cutting(sim, m, &cd, &err) == HS_OK);
+    ENSURE(hs_haptic_sim_start(sim, &err) == HS_OK);
+
+    double* x0 = hs_alloc(3 * (size_t)n * sizeof(double));
+    int* tris = hs_alloc(3 * 4 * (size_t)ntet * sizeof(int));
+    int* removed = hs_alloc((size_t)ntet * sizeof(int));
+    int* moved = hs_alloc((size_t)n * sizeof(int));
+    unsigned char* gone = hs_calloc((size_t)ntet, 1);
+    ENSURE(x0 && tris && removed && moved && gone);
+
+    const double speed = 0.04, y0 = -0.05, y1 = 0.05;
+    const int drag_ticks = (int)((y1 - y0) / speed * 1000), rest_ticks = 600;
+    struct timespec t;
+    clock_gettime(CLOCK_MONOTONIC, &t);
+    hs_haptic_pose pose;
+    memset(&pose, 0, sizeof pose);
+    pose.quat_wxyz[0] = 1;
+    double prev[3] = {0, 0, 0}, peak = 0, max_step = 0, after_release = 0;
+    int64_t version = 0, events = 0, removed_total = 0;
+    int have_prev = 0, bad_event = 0;
+    for (int k = 0; k < drag_ticks + rest_ticks; ++k) {
+        int cutting = k < drag_ticks;
+        double y = cutting ? y0 + speed * k * 1e-3 : y1;
+        pose.seq++;
+        pose.stamp_ns = hs_now_ns();
+        pose.pos_m[0] = 0.001;
+        pose.pos_m[1] = y;
+        pose.pos_m[2] = 0.002;
+        pose.buttons = cutting ? 1u : 0u;
+        hs_haptic_sim_feed_pose(sim, &pose);
+        sleep_until(&t, 1000000);
+        hs_haptic_output out;
+        if (hs_haptic_sim_take_output(sim, &out)) {
+            const double* f = out.force_n;
+            ENSURE(isfinite(f[0]) && isfinite(f[1]) && isfinite(f[2]));
+            double fn = sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]);
+            if (fn > peak) peak = fn;
+            if (have_prev) {
+                double dd[3] = {f[0] - prev[0], f[1] - prev[1], f[2] - prev[2]};
+                double s = sqrt(dd[0] * dd[0] + dd[1] * dd[1] + dd[2] * dd[2]);
+                if (s > max_step) max_step = s;
+            }
+            memcpy(prev, f, sizeof prev);
+            have_prev = 1;
+            if (k >= drag_ticks + 200) after_release = fmax(after_release, fn);
+        }
+        if (hs_haptic_sim_topology_version(sim) != version) {
+            hs_haptic_cut_event ev;
+            memset(&ev, 0, sizeof ev);
+            ev.removed_tets = removed;
+            ev.moved_nodes = moved;
+            int nt = 0;
+            int64_t v = hs_haptic_sim_take_topology(sim, x0, tris, 4 * ntet, &nt, &ev);
+            if (v <= version || ev.old_version != version || ev.new_version != v) bad_event++;
+            for (int i = 0; i < ev.n_removed; ++i) {
+                int e = removed[i];
+                if (e < 0 || e >= ntet || gone[e])
+                    bad_event++;
+                else
+                    gone[e] = 1;
+            }
+            for (int i = 0; i < ev.n_moved; ++i)
+                if (moved[i] < 0 || moved[i] >= n) bad_event++;
+            for (int i = 0; i < 3 * nt; ++i)
+                if (tris[i] < 0 || tris[i] >= n) bad_event++;
+            if (nt == m->n_tris && ev.n_removed > 0) bad_event++; // cut faces must show
+            removed_total += ev.n_removed;
+            version = v;
+            events++;
+        }
+    }
+    hs_haptic_sim_stats st;
+    hs_haptic_sim_stats_get(sim, &st);
+    hs_haptic_sim_stop(sim);
+    int nt = 0;
+    ENSURE(hs_haptic_sim_take_topology(sim, x0, tris, 4 * ntet, &nt, NULL) == version);
+    printf("  %lld events, version %lld, %lld tets removed (%lld cut steps, %lld sweeps); "
+           "peak %.3f N, largest step %.4f N/tick; cut step last %.1f ms max %.1f ms; "
+           "compliance rebuilt in %.1f ms\n",
+           (long long)events, (long long)version, (long long)removed_total, (long long)st.cut_steps,
+           (long long)st.cut_sweeps, peak, max_step, st.cut_ms_last, st.cut_ms_max,
+           st.comp_ms_last);
+    ENSURE(events > 0 && version == st.topology_version && version == st.cut_steps);
+    ENSURE(bad_event == 0);
+    ENSURE(removed_total == st.cut_removed && removed_total > 0);
+    ENSURE(st.cut_failures == 0);
+    ENSURE(!memcmp(x0, m->x0, 3 * (size_t)n * sizeof(double))); // rest positions shared as cut
+    ENSURE(peak > 0.01 && peak <= cd.max_force_n + 1e-9);       // resistance, within the cap
+    ENSURE(max_step <= cd.max_force_n / d.blend_ticks + 1e-9);  // blended, never a jump
+    ENSURE(after_release < 1e-9);                               // released: no resistance left
+    ENSURE(st.comp_ms_last > 0); // the compliance was rebuilt once the blade left
+    hs_free(x0);
+    hs_free(tris);
+    hs_free(removed);
+    hs_free(moved);
+    hs_free(gone);
+    hs_haptic_sim_destroy(&sim);
+    hs_free(fixed);
+    hs_mesh_destroy(&m);
+    ENSURE(hs_byte_count() == bytes);
+    return 0;
+}
+
+HS_TEST_MAIN(HS_CASE(test_enable_errors), HS_CASE(test_blade_drag))
