@@ -8,6 +8,8 @@
 #  - a client joining after the cut (it missed every event) ends with the server's newest
 #    topology: triangle count changed, no orphan or out-of-range reference (client late);
 #  - hapsim-view still writes frames of the cut mesh;
+#  - after the cut, set is refused (the sim cannot be rebuilt on a cut mesh) and reset reloads
+#    the uncut scene (new topology version, set works again);
 #  - the force the stylus received is finite, the blade felt resistance, and it changes by at
 #    most MAX_STEP_N per tick: the cutting force cap (1.5 N) spread over one blend (10 ticks).
 #    Without the blend a resistance of 0.2-0.4 N would switch on in one tick.
@@ -91,6 +93,16 @@ END {
     if (peak < 0.01) { print "FAIL: the blade felt no cutting resistance"; exit 1 }
     if (dmax > max) { print "FAIL: force jumps"; exit 1 }
 }' "$tmp/trace.csv" || fail "force trace"
+
+# After a cut the simulation cannot be rebuilt on the mesh: set is refused, reset reloads it.
+$ctl -q set youngs_pa 60000 2>"$tmp/set.err" && fail "set after a cut was accepted"
+grep -q "cut" "$tmp/set.err" || fail "set after a cut: $(cat "$tmp/set.err")"
+$ctl -q reset || fail "reset after a cut: rc $?"
+$ctl status >"$tmp/status2.txt" 2>&1 || fail "no status after reset"
+grep -q "^server   running" "$tmp/status2.txt" || fail "not running after reset"
+ver2=$(sed -n 's/^topology version \([0-9]*\).*/\1/p' "$tmp/status2.txt")
+[ "$ver2" -gt "$ver" ] || fail "reset did not publish a new topology version ($ver2 after $ver)"
+$ctl -q set youngs_pa 60000 || fail "set after reset: rc $?"
 
 kill -TERM $server_pid
 wait $server_pid

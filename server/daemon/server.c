@@ -1305,13 +1305,26 @@ void hs_server_print_summary(hs_server* s) {
     if (w->haptics) {
         hs_haptic_sim_stats st;
         hs_haptic_sim_stats_get(w->sim, &st);
-        printf("  haptics  rt %g Hz, probe radius %g mm, force clamp %g N, watchdog %g ms; "
+        char tool[64];
+        if (w->cutting)
+            snprintf(tool, sizeof tool, "scalpel (no probe sphere)");
+        else
+            snprintf(tool, sizeof tool, "probe radius %g mm", w->def.probe.radius_m * 1e3);
+        printf("  haptics  rt %g Hz, %s, force clamp %g N, watchdog %g ms; "
                "compliance set-up %.1f ms\n",
-               sc->haptic_hz, w->def.probe.radius_m * 1e3, sc->force_max_n, sc->watchdog_s * 1e3,
-               st.setup_ms);
+               sc->haptic_hz, tool, sc->force_max_n, sc->watchdog_s * 1e3, st.setup_ms);
     } else {
         printf("  haptics  off (%s): no rt thread, poses validated and counted only\n",
                w->probe_note ? w->probe_note : "scene");
+    }
+    if (w->cutting) {
+        const hs_scene_tool* tl = &sc->tools[w->scalpel];
+        double l = 0;
+        for (int k = 0; k < 3; ++k)
+            l += (tl->blade_b[k] - tl->blade_a[k]) * (tl->blade_b[k] - tl->blade_a[k]);
+        printf("  cutting  scalpel (tool %d, blade %.1f mm) cuts while button 0 is held; "
+               "resistance %g N/m of edge cut, cap %g N; topology events on %s\n",
+               w->scalpel, sqrt(l) * 1e3, w->cdef.toughness_n_m, w->cdef.max_force_n, s->ch_tevent);
     }
     if (w->visual)
         printf("  visual   %d nodes, %d triangles, %g Hz deltas, keyframe + topology every 1 s "
