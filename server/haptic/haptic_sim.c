@@ -870,6 +870,16 @@ hs_status hs_haptic_sim_enable_cutting(hs_haptic_sim* h, hs_mesh* mesh,
     h->cdef.cut.fragment = HS_CUT_FRAGMENT_FIX;
     h->cdef.cut.material = h->def.body.fem.material;
     const size_t n = (size_t)mesh->n_nodes, nt = (size_t)mesh->n_tets;
+    // A retry after a failed call starts clean.
+    hs_free(h->cfix);
+    hs_free(h->cu);
+    hs_free(h->cv);
+    hs_free(h->t_x0);
+    hs_free(h->t_tris);
+    hs_free(h->t_removed);
+    hs_free(h->t_moved);
+    hs_free(h->t_mflag);
+    hs_triple_buffer_destroy(&h->cpose);
     h->cfix = hs_calloc(n + 1, 1);
     h->cu = hs_calloc(3 * n, sizeof(double));
     h->cv = hs_calloc(3 * n, sizeof(double));
