@@ -10,79 +10,8 @@
 #include <stdlib.h>
 #include <time.h>
 
-// ---------------------------------------------------------------------------------------------
-// Allocation counting on the rt thread (the approach of test_rt.c): malloc and friends are
-// interposed and count while a thread-local flag is on; the sim's rt hooks switch it on before
-// the first tick and off after the last. Sanitizers interpose malloc themselves: there the
-// check is skipped (said in the output).
-
-#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
-#define COUNT_MALLOC 0
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
-#define COUNT_MALLOC 0
-#endif
-#endif
-#ifndef COUNT_MALLOC
-#define COUNT_MALLOC 1
-#endif
-
-static _Thread_local int t_counting;
-static atomic_llong g_rt_allocs;
-
-#if COUNT_MALLOC
-extern void* __libc_malloc(size_t n);
-extern void* __libc_calloc(size_t c, size_t n);
-extern void* __libc_realloc(void* p, size_t n);
-extern void* __libc_memalign(size_t a, size_t n);
-extern void __libc_free(void* p);
-void* malloc(size_t n);
-void* calloc(size_t c, size_t n);
-void* realloc(void* p, size_t n);
-void free(void* p);
-void* aligned_alloc(size_t a, size_t n);
-int posix_memalign(void** out, size_t a, size_t n);
-
-static void count(void) {
-    if (t_counting) atomic_fetch_add_explicit(&g_rt_allocs, 1, memory_order_relaxed);
-}
-void* malloc(size_t n) {
-    count();
-    return __libc_malloc(n);
-}
-void* calloc(size_t c, size_t n) {
-    count();
-    return __libc_calloc(c, n);
-}
-void* realloc(void* p, size_t n) {
-    count();
-    return __libc_realloc(p, n);
-}
-void free(void* p) {
-    if (p) count();
-    __libc_free(p);
-}
-void* aligned_alloc(size_t a, size_t n) {
-    count();
-    return __libc_memalign(a, n);
-}
-int posix_memalign(void** out, size_t a, size_t n) {
-    count();
-    void* p = __libc_memalign(a, n);
-    if (!p) return 12;
-    *out = p;
-    return 0;
-}
-#endif
-
-static void counting_on(void* ctx) {
-    (void)ctx;
-    t_counting = 1;
-}
-static void counting_off(void* ctx) {
-    (void)ctx;
-    t_counting = 0;
-}
+// Allocation counting on the rt thread: see alloc_counter.h.
+#include "alloc_counter.h"
 
 // ---------------------------------------------------------------------------------------------
 // Helpers
@@ -146,8 +75,8 @@ static hs_haptic_sim_def liver_def(hs_model model, double radius) {
     d.body.fem.material.rayleigh_stiffness = 0.01;
     d.body.dt = 0.01;
     d.probe.radius_m = radius;
-    d.rt_on_start = counting_on;
-    d.rt_on_stop = counting_off;
+    d.rt_on_start = count_on;
+    d.rt_on_stop = count_off;
     return d;
 }
 
@@ -466,7 +395,7 @@ static int continuity_and_allocs(void) {
            secs, (long long)ticks, (long long)switches, t_snap_max * 1e3, fmax, kmax);
     printf("  largest tick-to-tick change %.3g mN; worst ratio to the bound %.3f; rt allocations "
            "%lld%s\n",
-           worst_df * 1e3, worst_ratio, allocs, COUNT_MALLOC ? "" : " (not counted: sanitizer)");
+           worst_df * 1e3, worst_ratio, allocs, HS_COUNT_MALLOC ? "" : " (not counted: sanitizer)");
     printf("  deformation: %lld steps, step+snapshot max %.2f ms, %lld column solves, "
            "%d candidates (%d coupled)\n",
            (long long)st.steps, st.step_ms_max, (long long)st.column_solves, st.candidates,

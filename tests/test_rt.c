@@ -20,84 +20,8 @@
 #include <stdlib.h>
 #include <time.h>
 
-// ---------------------------------------------------------------------------------------------
-// Allocation counting: every malloc-family call made on a thread whose flag is on (the rt thread
-// between its first and last tick) is counted. Sanitizers interpose malloc themselves, so there
-// the check falls back to hs_alloc_calls().
-
-#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
-#define COUNT_MALLOC 0
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
-#define COUNT_MALLOC 0
-#endif
-#endif
-#ifndef COUNT_MALLOC
-#define COUNT_MALLOC 1
-#endif
-
-static _Thread_local int t_count_allocs;
-static atomic_llong g_rt_allocs;
-
-#if COUNT_MALLOC
-extern void* __libc_malloc(size_t n);
-extern void* __libc_calloc(size_t c, size_t n);
-extern void* __libc_realloc(void* p, size_t n);
-extern void* __libc_memalign(size_t a, size_t n);
-extern void __libc_free(void* p);
-
-static void note_alloc(void) {
-    if (t_count_allocs) atomic_fetch_add_explicit(&g_rt_allocs, 1, memory_order_relaxed);
-}
-void* malloc(size_t n);
-void* calloc(size_t c, size_t n);
-void* realloc(void* p, size_t n);
-void free(void* p);
-void* memalign(size_t a, size_t n);
-void* aligned_alloc(size_t a, size_t n);
-int posix_memalign(void** out, size_t a, size_t n);
-
-void* malloc(size_t n) {
-    note_alloc();
-    return __libc_malloc(n);
-}
-void* calloc(size_t c, size_t n) {
-    note_alloc();
-    return __libc_calloc(c, n);
-}
-void* realloc(void* p, size_t n) {
-    note_alloc();
-    return __libc_realloc(p, n);
-}
-void free(void* p) {
-    if (p) note_alloc();
-    __libc_free(p);
-}
-void* memalign(size_t a, size_t n) {
-    note_alloc();
-    return __libc_memalign(a, n);
-}
-void* aligned_alloc(size_t a, size_t n) {
-    note_alloc();
-    return __libc_memalign(a, n);
-}
-int posix_memalign(void** out, size_t a, size_t n) {
-    note_alloc();
-    void* p = __libc_memalign(a, n);
-    if (!p) return 12; // ENOMEM
-    *out = p;
-    return 0;
-}
-#endif
-
-static void count_on(void* ctx) {
-    (void)ctx;
-    t_count_allocs = 1;
-}
-static void count_off(void* ctx) {
-    (void)ctx;
-    t_count_allocs = 0;
-}
+// Allocation counting on the rt thread: see alloc_counter.h.
+#include "alloc_counter.h"
 
 // ---------------------------------------------------------------------------------------------
 // Helpers
@@ -751,7 +675,7 @@ static int HapticLoop(void) {
 }
 
 // Check that the allocation counter sees an allocation on the rt thread (so zero means zero).
-#if COUNT_MALLOC
+#if HS_COUNT_MALLOC
 static void allocating_tick(void* ctx, const hs_rt_clock* clk) {
     if (clk->tick == 3) {
         void* volatile p = hs_alloc(64);
@@ -762,7 +686,7 @@ static void allocating_tick(void* ctx, const hs_rt_clock* clk) {
 #endif
 
 static int AllocCounterWorks(void) {
-#if COUNT_MALLOC
+#if HS_COUNT_MALLOC
     hs_rt_def def = hs_rt_default_def();
     def.tick.fn = allocating_tick;
     def.tick.on_start = count_on;
@@ -813,7 +737,7 @@ static int ZeroAlloc(void) {
     printf(
         "  %.1f s: %lld ticks, %lld blends, %lld telemetry records, rt-thread allocations %lld%s\n",
         seconds, (long long)c.ticks, (long long)c.blends, (long long)popped, allocs,
-        COUNT_MALLOC ? "" : " (not interposed: sanitizer build)");
+        HS_COUNT_MALLOC ? "" : " (not interposed: sanitizer build)");
     print_stats("zero-alloc loop", &g_stats);
     ENSURE(c.ticks >= (int64_t)(seconds * 250) && popped == c.ticks);
     ENSURE(c.blends >= (int64_t)(seconds * 20));
