@@ -309,6 +309,16 @@ int hs_wire_force_decode(const void* buf, size_t len, int32_t* device_id, hs_loc
     return 0;
 }
 
+// A status array travels one field at a time (one column per field, n entries each); read a
+// column of n, keeping the first k (the capacity of the decoded struct).
+#define READ_COLUMN(read, arr, field)                                                              \
+    for (int32_t i = 0; i < n; i++) {                                                              \
+        if (i < k)                                                                                 \
+            o->arr[i].field = read(&r);                                                            \
+        else                                                                                       \
+            (void)read(&r);                                                                        \
+    }
+
 hs_status hs_client_status_decode(const void* buf, size_t len, hs_client_status* o) {
     rd r;
     if (!o) return HS_ERR_INVALID;
@@ -330,26 +340,11 @@ hs_status hs_client_status_decode(const void* buf, size_t len, hs_client_status*
             rd_str(&r, o->loops[i].name, sizeof o->loops[i].name);
         else
             rd_str(&r, skip, sizeof skip);
-    for (int32_t i = 0; i < n; i++) {
-        float v = rd_f32(&r);
-        if (i < k) o->loops[i].rate_hz = v;
-    }
-    for (int32_t i = 0; i < n; i++) {
-        float v = rd_f32(&r);
-        if (i < k) o->loops[i].p50_us = v;
-    }
-    for (int32_t i = 0; i < n; i++) {
-        float v = rd_f32(&r);
-        if (i < k) o->loops[i].p99_us = v;
-    }
-    for (int32_t i = 0; i < n; i++) {
-        float v = rd_f32(&r);
-        if (i < k) o->loops[i].max_us = v;
-    }
-    for (int32_t i = 0; i < n; i++) {
-        int64_t v = rd_i64(&r);
-        if (i < k) o->loops[i].overruns = v;
-    }
+    READ_COLUMN(rd_f32, loops, rate_hz);
+    READ_COLUMN(rd_f32, loops, p50_us);
+    READ_COLUMN(rd_f32, loops, p99_us);
+    READ_COLUMN(rd_f32, loops, max_us);
+    READ_COLUMN(rd_i64, loops, overruns);
     // Steps.
     n = o->n_steps = rd_i32(&r);
     if (r.bad || n < 0 || n > 4096) return HS_ERR_PARSE;
@@ -359,54 +354,21 @@ hs_status hs_client_status_decode(const void* buf, size_t len, hs_client_status*
             rd_str(&r, o->steps[i].name, sizeof o->steps[i].name);
         else
             rd_str(&r, skip, sizeof skip);
-    for (int32_t i = 0; i < n; i++) {
-        float v = rd_f32(&r);
-        if (i < k) o->steps[i].p50_us = v;
-    }
-    for (int32_t i = 0; i < n; i++) {
-        float v = rd_f32(&r);
-        if (i < k) o->steps[i].p99_us = v;
-    }
-    for (int32_t i = 0; i < n; i++) {
-        float v = rd_f32(&r);
-        if (i < k) o->steps[i].max_us = v;
-    }
+    READ_COLUMN(rd_f32, steps, p50_us);
+    READ_COLUMN(rd_f32, steps, p99_us);
+    READ_COLUMN(rd_f32, steps, max_us);
     // Devices.
     n = o->n_devices = rd_i32(&r);
     if (r.bad || n < 0 || n > 4096) return HS_ERR_PARSE;
     k = n < HS_CLIENT_STATUS_DEVICES ? n : HS_CLIENT_STATUS_DEVICES;
-    for (int32_t i = 0; i < n; i++) {
-        int32_t v = rd_i32(&r);
-        if (i < k) o->devices[i].id = v;
-    }
-    for (int32_t i = 0; i < n; i++) {
-        int8_t v = rd_i8(&r);
-        if (i < k) o->devices[i].live = v;
-    }
-    for (int32_t i = 0; i < n; i++) {
-        float v = rd_f32(&r);
-        if (i < k) o->devices[i].pose_age_ms = v;
-    }
-    for (int32_t i = 0; i < n; i++) {
-        int64_t v = rd_i64(&r);
-        if (i < k) o->devices[i].poses_received = v;
-    }
-    for (int32_t i = 0; i < n; i++) {
-        int64_t v = rd_i64(&r);
-        if (i < k) o->devices[i].poses_lost = v;
-    }
-    for (int32_t i = 0; i < n; i++) {
-        float v = rd_f32(&r);
-        if (i < k) o->devices[i].latency_p50_us = v;
-    }
-    for (int32_t i = 0; i < n; i++) {
-        float v = rd_f32(&r);
-        if (i < k) o->devices[i].latency_p99_us = v;
-    }
-    for (int32_t i = 0; i < n; i++) {
-        float v = rd_f32(&r);
-        if (i < k) o->devices[i].force_norm = v;
-    }
+    READ_COLUMN(rd_i32, devices, id);
+    READ_COLUMN(rd_i8, devices, live);
+    READ_COLUMN(rd_f32, devices, pose_age_ms);
+    READ_COLUMN(rd_i64, devices, poses_received);
+    READ_COLUMN(rd_i64, devices, poses_lost);
+    READ_COLUMN(rd_f32, devices, latency_p50_us);
+    READ_COLUMN(rd_f32, devices, latency_p99_us);
+    READ_COLUMN(rd_f32, devices, force_norm);
     // Rejects.
     n = o->n_rejects = rd_i32(&r);
     if (r.bad || n < 0 || n > 4096) return HS_ERR_PARSE;
@@ -421,10 +383,7 @@ hs_status hs_client_status_decode(const void* buf, size_t len, hs_client_status*
             rd_str(&r, o->rejects[i].reason, sizeof o->rejects[i].reason);
         else
             rd_str(&r, skip, sizeof skip);
-    for (int32_t i = 0; i < n; i++) {
-        int64_t v = rd_i64(&r);
-        if (i < k) o->rejects[i].count = v;
-    }
+    READ_COLUMN(rd_i64, rejects, count);
     rd_str(&r, o->warnings, sizeof o->warnings);
     if (rd_end(&r)) {
         memset(o, 0, sizeof *o);
