@@ -334,6 +334,17 @@ static int CholeskyFaultInjection(void) {
     return 0;
 }
 
+typedef struct counted_precond {
+    hs_cholesky* f;
+    int calls;
+} counted_precond;
+
+static hs_status counted_solve(void* ctx, const double* r, double* z) {
+    counted_precond* c = ctx;
+    c->calls++;
+    return hs_cholesky_solve(c->f, r, z);
+}
+
 static int PcgConverges(void) {
     int64_t bytes0 = hs_byte_count();
     fixture t;
@@ -377,6 +388,17 @@ static int PcgConverges(void) {
            HS_WARN_NOT_CONVERGED);
     ENSURE(it == 3 && rel > 1e-12 && rel < 1.0);
     ENSURE_NEAR(rel_residual(a2, t.x, t.b, t.r), rel, 1e-14);
+    // A budget of k iterations costs exactly k preconditioner solves: none is wasted on a
+    // direction that is never taken.
+    for (int k = 1; k <= 4; k++) {
+        counted_precond cp = {t.f, 0};
+        hs_pcg_set_preconditioner(pcg, counted_solve, &cp);
+        memset(t.x, 0, sizeof(double) * (size_t)n);
+        ENSURE(hs_pcg_solve(pcg, a2, t.b, t.x, HS_PRECOND_CUSTOM, NULL, 1e-14, k, &it, &rel) ==
+               HS_WARN_NOT_CONVERGED);
+        ENSURE(it == k && cp.calls == k);
+        ENSURE(fabs(rel_residual(a2, t.x, t.b, t.r) - rel) <= 1e-12 * rel + 1e-15);
+    }
     // Wrong sizes are refused.
     ENSURE(hs_pcg_solve(pcg, a2, t.b, t.x, HS_PRECOND_FACTOR, NULL, 1e-8, 10, &it, &rel) ==
            HS_ERR_INVALID);

@@ -132,7 +132,8 @@ typedef struct hs_pcg hs_pcg;
 hs_status hs_pcg_create(int n, hs_pcg** out);
 /// Solve A x = b. x holds the initial guess on entry (warm start) and the result on exit.
 /// Stops when ||r|| <= tol ||b|| or after max_iter. factor is used only with HS_PRECOND_FACTOR.
-/// Returns HS_OK, or HS_WARN_NOT_CONVERGED with the best x. Allocates: no.
+/// Returns HS_OK, or HS_WARN_NOT_CONVERGED with the best x. rel_residual is the true residual
+/// when converged, the recurrence's when stopped by max_iter (no extra product). Allocates: no.
 hs_status hs_pcg_solve(hs_pcg* pcg, const hs_csc* a, const double* b, double* x, hs_precond precond,
                        hs_cholesky* factor, double tol, int max_iter, int* iters /* OUT */,
                        double* rel_residual /* OUT */);
