@@ -102,6 +102,9 @@ hs_status hs_fem_set_element_stiffness_scale(hs_fem* fem, int tet, double s);
 /// mesh's current x0 (cutting moves vertices). HS_ERR_INVALID (nothing changed) for an index out
 /// of range or an element with rest volume <= 0. Allocates: no.
 hs_status hs_fem_refresh_elements(hs_fem* fem, const int* tets, int n);
+/// Grows whenever an element is activated, deactivated, rescaled or refreshed: a caller may
+/// keep an assembled matrix of the (state-independent) linear model while it is unchanged.
+uint64_t hs_fem_stiffness_version(const hs_fem* fem);
 /// Release; accepts NULL, sets *fem = NULL.
 void hs_fem_destroy(hs_fem** fem);
 

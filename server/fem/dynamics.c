@@ -28,6 +28,10 @@ struct hs_body {
     hs_cholesky* factor; // factor of `a` (direct) or of the rest-state matrix (PCG factor)
     double factor_kcoef, factor_mcoef; // coefficients the factor was built with
     int factor_is_rest;                // 1 when the factor holds the rest-state matrix
+    uint64_t factor_version;           // hs_fem_stiffness_version the factor was built at
+    double a_kcoef, a_mcoef;           // coefficients `a` was last assembled with
+    uint64_t a_version;                // and the stiffness version
+    int a_valid;                       // 1 once `a` has been assembled
     hs_pcg* pcg;
 
     double* u;       // [3n] displacement
@@ -341,10 +345,24 @@ static double norm_free(const hs_body* b, const double* full) {
     return sqrt(s);
 }
 
+// a = kcoef K + mcoef M at the last update. The linear model's matrix depends only on the
+// coefficients and the elements, so it is assembled again only when one of them changed.
+static void assemble(hs_body* b, double kcoef, double mcoef) {
+    uint64_t v = hs_fem_stiffness_version(b->fem);
+    if (b->def.fem.model == HS_MODEL_LINEAR && b->a_valid && b->a_kcoef == kcoef &&
+        b->a_mcoef == mcoef && b->a_version == v)
+        return;
+    hs_fem_assemble(b->fem, kcoef, mcoef, b->a);
+    b->a_valid = 1;
+    b->a_kcoef = kcoef;
+    b->a_mcoef = mcoef;
+    b->a_version = v;
+}
+
 // Make `factor` represent kcoef K + mcoef M at the current update (or at rest when `rest`).
 // Returns the status of the factorisation; on HS_ERR_NOT_POSDEF the previous factor remains.
 static hs_status refresh_factor(hs_body* b, double kcoef, double mcoef, int* refactors) {
-    hs_fem_assemble(b->fem, kcoef, mcoef, b->a);
+    assemble(b, kcoef, mcoef);
     hs_status s;
     if (!b->factor) {
         hs_err e;
@@ -356,6 +374,7 @@ static hs_status refresh_factor(hs_body* b, double kcoef, double mcoef, int* ref
     if (s == HS_OK) {
         b->factor_kcoef = kcoef;
         b->factor_mcoef = mcoef;
+        b->factor_version = hs_fem_stiffness_version(b->fem);
     }
     return s;
 }
@@ -366,7 +385,9 @@ static hs_status solve_system(hs_body* b, double kcoef, double mcoef, hs_step_st
     const int linear = b->def.fem.model == HS_MODEL_LINEAR;
     hs_status s = HS_OK;
     if (b->def.solver == HS_SOLVER_DIRECT) {
-        int have = b->factor && b->factor_kcoef == kcoef && b->factor_mcoef == mcoef;
+        // A cut (elements removed or moved) changes even the linear model's matrix.
+        int have = b->factor && b->factor_kcoef == kcoef && b->factor_mcoef == mcoef &&
+                   b->factor_version == hs_fem_stiffness_version(b->fem);
         if (!(linear && have)) {
             s = refresh_factor(b, kcoef, mcoef, &st->refactors);
             // An indefinite tangent (e.g. StVK in compression): continue with the last good
@@ -381,7 +402,8 @@ static hs_status solve_system(hs_body* b, double kcoef, double mcoef, hs_step_st
     // PCG: the factor (if any) is the rest-state matrix with these coefficients.
     const int warped = b->def.precond == HS_PRECOND_WARPED;
     if ((b->def.precond == HS_PRECOND_FACTOR || warped) &&
-        (!b->factor || b->factor_kcoef != kcoef || b->factor_mcoef != mcoef)) {
+        (!b->factor || b->factor_kcoef != kcoef || b->factor_mcoef != mcoef ||
+         b->factor_version != hs_fem_stiffness_version(b->fem))) {
         // Assemble at rest: evaluate the model at u = 0 temporarily.
         double* keep = b->save;
         memcpy(keep, b->u, 3 * (size_t)b->n * sizeof(double));
@@ -392,7 +414,7 @@ static hs_status solve_system(hs_body* b, double kcoef, double mcoef, hs_step_st
         update_model(b);
         if (s != HS_OK) return s;
     }
-    hs_fem_assemble(b->fem, kcoef, mcoef, b->a);
+    assemble(b, kcoef, mcoef);
     if (warped)
         for (int i = 0; i < b->n; ++i) hs_fem_node_rotation_warm(b->fem, i, b->rot + 9 * i);
     int it = 0;

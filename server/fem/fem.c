@@ -35,6 +35,7 @@ struct hs_fem {
     double* vol0;          // [ne] rest volume, m^3
     double* kscale;        // [ne] element stiffness scale (1; hs_fem_set_element_stiffness_scale)
     unsigned char* active; // [ne]
+    uint64_t k_version;    // grows whenever the rest stiffness or the mass changes
     double* F;             // [9ne] deformation gradient at the last update
     double* R;             // [9ne] rotation (co-rotated); warm start of the next update
     double* S;             // [9ne] second Piola-Kirchhoff stress (StVK), Pa
@@ -552,6 +553,7 @@ void hs_fem_set_element_active(hs_fem* fem, int tet, int active) {
     unsigned char v = active ? 1 : 0;
     if (fem->active[tet] == v) return;
     fem->active[tet] = v;
+    fem->k_version++;
     for (int a = 0; a < 4; a++) node_mass(fem, fem->tet[4 * tet + a]);
 }
 
@@ -559,6 +561,7 @@ hs_status hs_fem_set_element_stiffness_scale(hs_fem* fem, int tet, double s) {
     if (!fem || tet < 0 || tet >= fem->ne || !(s > 0) || !isfinite(s)) return HS_ERR_INVALID;
     if (fem->anp) return HS_ERR_UNSUPPORTED; // the nodal volumetric term mixes elements
     fem->kscale[tet] = s;
+    fem->k_version++;
     return HS_OK;
 }
 
@@ -593,7 +596,13 @@ hs_status hs_fem_refresh_elements(hs_fem* fem, const int* tets, int n) {
     }
     for (int k = 0; k < n; k++)
         for (int a = 0; a < 4; a++) node_mass(fem, fem->tet[4 * tets[k] + a]);
+    fem->k_version++;
     return HS_OK;
+}
+
+uint64_t hs_fem_stiffness_version(const hs_fem* fem) {
+    HS_ASSERT(fem);
+    return fem->k_version;
 }
 
 // ---------------------------------------------------------------------------------------------
