@@ -48,7 +48,8 @@ static const core_cfg cfgs[] = {
     {"stvk", HS_MODEL_STVK, 0, HS_SOLVER_DIRECT, 0, HS_PRECOND_NONE, "cholmod"},
 };
 
-static int run_case(const hs_bench_args* a, const core_case* c, const core_cfg* cfg) {
+static int run_case(const hs_bench_args* a, const core_case* c, const core_cfg* cfg,
+                    double* step_ms_out) {
     hs_err err = {0};
     hs_mesh* mesh = NULL;
     hs_status s;
@@ -114,6 +115,7 @@ static int run_case(const hs_bench_args* a, const core_case* c, const core_cfg* 
            hs_body_free_dofs(body), cfg->solver_label, step_ms, (double)iters / steps, tip,
            st.fem.volume_ratio_mean, mem_mb, c->name);
     fflush(stdout);
+    *step_ms_out = step_ms;
     free(ms);
     free(fixed);
     hs_body_destroy(&body);
@@ -127,10 +129,20 @@ int hs_bench_core(const hs_bench_args* a) {
                          : sizeof cases_full / sizeof *cases_full;
     printf("model,tets,dofs,solver,step_ms,iterations,tip_m,volume_ratio,mem_mb,mesh\n");
     int rc = 0;
-    for (size_t i = 0; i < nc; ++i)
-        for (size_t j = 0; j < sizeof cfgs / sizeof *cfgs; ++j) {
+    enum { NCFG = sizeof cfgs / sizeof *cfgs };
+    for (size_t i = 0; i < nc; ++i) {
+        double t[NCFG];
+        for (size_t j = 0; j < NCFG; ++j) {
+            t[j] = NAN;
             if (a->quick && cfgs[j].model == HS_MODEL_STVK) continue;
-            rc |= run_case(a, &cases[i], &cfgs[j]);
+            rc |= run_case(a, &cases[i], &cfgs[j], &t[j]);
         }
+        // The cost of co-rotation, measured in this run (rows 0, 1, 3 of cfgs): against the
+        // linear step with the same PCG, and against linear with its constant factor.
+        fprintf(stderr,
+                "%s: corotated/linear step time %.2fx with the same pcg3-warped solver, "
+                "%.2fx against linear's constant cholmod factor\n",
+                cases[i].name, t[3] / t[1], t[3] / t[0]);
+    }
     return rc;
 }
