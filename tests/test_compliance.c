@@ -395,7 +395,10 @@ static int contact_solve(void) {
     // under the contact forces (d_m of the contact nodes must agree); contact nodes end on the
     // sphere (to first order in the radial direction), all others on or outside it, and every
     // force pushes radially away from the centre.
-    double sum[3] = {0, 0, 0};
+    double sum[3] = {0, 0, 0}, eps = 0;
+    for (int i = 0; i < snap.n_cand; ++i)
+        eps += (snap.c[i][i][0] + snap.c[i][i][4] + snap.c[i][i][8]) / 3 / snap.n_cand;
+    eps *= HS_CONTACT_SOFTNESS;
     for (int i = 0; i < snap.n_cand; ++i) {
         double u[3] = {0, 0, 0};
         for (int j = 0; j < con.n; ++j) {
@@ -412,9 +415,10 @@ static int contact_solve(void) {
         int in = -1;
         for (int j = 0; j < con.n; ++j)
             if (con.node[j] == snap.node[i]) in = j;
-        if (rho >= 1.25 * r) continue; // not an LCP candidate
+        if (rho >= HS_CONTACT_BAND * r) continue; // not an LCP candidate
         if (in >= 0) {
-            ENSURE_NEAR(dist, r, 1e-9);
+            // On the sphere up to the contact compliance eps: r - eps lambda.
+            ENSURE_NEAR(dist, r - eps * vnorm(con.f_n[in], 3), 1e-9);
             ENSURE_SMALL(rel_diff(u, con.d_m[in], 3), 1e-9);
             double fr = con.f_n[in][0] * nn[0] + con.f_n[in][1] * nn[1] + con.f_n[in][2] * nn[2];
             ENSURE(fr > 0);

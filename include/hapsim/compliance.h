@@ -7,11 +7,14 @@
 //    every surface node: one 3-rhs sparse solve) are computed on demand and kept in a bounded
 //    cache, allocated up front. Never a dense surface-by-surface matrix.
 //  - hs_contact_snapshot + hs_contact_solve (rt thread): the deformation thread packs, for the
-//    few surface nodes near the tool, their contact-free positions, normals and the rotated
-//    blocks R_i C_ij R_j^T; the rt tick solves the frictionless contact of the probe sphere
-//    with them (a linear complementarity problem over at most HS_MAX_CONTACT nodes: only
-//    pushes, every node ends on or outside the sphere) and derives force and stiffness. Pure
-//    function: no allocation, lock or I/O.
+//    few surface nodes near the tool, their contact-free positions, normals, the rotated
+//    blocks R_i C_ij R_j^T and the boundary triangles between them; the rt tick solves the
+//    frictionless contact of the probe sphere with the surface: one contact point per
+//    triangle (its closest point to the centre, on a vertex, an edge or the face interior,
+//    each geometric point once), a linear complementarity problem over at most HS_MAX_CONTACT
+//    points on at most HS_MAX_CONTACT nodes (only pushes, every point ends on or outside the
+//    sphere), forces distributed to the vertices by the barycentric weights, and derives force
+//    and stiffness. Pure function: no allocation, lock or I/O.
 #ifndef HAPSIM_COMPLIANCE_H
 #define HAPSIM_COMPLIANCE_H
 
@@ -24,8 +27,16 @@
 extern "C" {
 #endif
 
-#define HS_MAX_CONTACT      16 ///< contact nodes solved per tick (the deepest when more penetrate)
-#define HS_CONTACT_MAX_CAND 64 ///< candidate nodes in one snapshot (nearest the tool)
+#define HS_MAX_CONTACT      16  ///< contact points and their nodes per tick (the deepest first)
+#define HS_CONTACT_MAX_CAND 64  ///< candidate nodes in one snapshot (nearest the tool)
+#define HS_CONTACT_MAX_TRI  128 ///< surface triangles in one snapshot
+/// Contact compliance added to every contact point, relative to the mean diagonal compliance
+/// of the snapshot's nodes: keeps the contact problem positive definite when contact points
+/// nearly coincide (moves a held force by about this fraction).
+#define HS_CONTACT_SOFTNESS 1e-5
+/// Contact points considered: within this many probe radii of the centre (a point outside the
+/// sphere can be carried into it by the push on its neighbours: the sphere's flank).
+#define HS_CONTACT_BAND 2.0
 
 // ---------------------------------------------------------------------------------------------
 // Condensed compliance (deformation thread).
@@ -94,6 +105,10 @@ typedef struct hs_contact_snapshot {
     unsigned char coupled[HS_CONTACT_MAX_CAND]; ///< 1 when the node's column block is known
     double free_m[HS_CONTACT_MAX_CAND][3];      ///< contact-free position, m
     double normal[HS_CONTACT_MAX_CAND][3];      ///< outward unit surface normal
+    /// Boundary triangles whose three vertices are candidates (0: node contact, every
+    /// candidate a contact point).
+    int n_tri;
+    int tri[HS_CONTACT_MAX_TRI][3]; ///< candidate indices, counter-clockwise seen from outside
     /// Rotated compliance R_i C_ij R_j^T, row-major 3x3, m/N: exact on the diagonal and where
     /// coupled[i] or coupled[j]; zero otherwise (the diagonal-only approximation).
     double c[HS_CONTACT_MAX_CAND][HS_CONTACT_MAX_CAND][9];
@@ -115,17 +130,24 @@ typedef struct hs_contact {
     int passes;                    ///< solves (pivots) used
     int approx;                    ///< 1 when an off-diagonal block was missing
     int failed;                    ///< 1 when C_SS was not SPD (result zeroed)
+    int features;                  ///< contact points (vertex, edge or face points) pushing
 } hs_contact;
 
-/// Frictionless contact of a probe sphere centred at tool_m with the snapshot's candidates (the
-/// HS_MAX_CONTACT nearest within 1.25 r of the centre): radial forces lambda_i n_i >= 0 such that
-/// every node's displaced position (to first order) is on or outside the sphere and only nodes
-/// on it are pushed; tool force -sum f, stiffness -dF/dp for the active set. warm_nodes[warm_n]
-/// (the previous tick's contact nodes, or warm_n = 0) only choose where the pivoting starts;
-/// the result does not depend on them. out must not alias warm_nodes.
-/// Thread: any (rt) | Allocates: no | Blocks: no
+/// Frictionless contact of a probe sphere centred at tool_m with the snapshot's surface: contact
+/// points = each triangle's closest point to the centre (or each candidate node when n_tri is
+/// 0), those within HS_CONTACT_BAND r, deepest first, at most HS_MAX_CONTACT on at most
+/// HS_MAX_CONTACT nodes; forces lambda_i n_i >= 0 (n_i away from the centre; a face point's along
+/// the inward face normal) such that every point's displaced position (to first order) is on or
+/// outside the sphere and only points on it push; node forces sum_i w_ia lambda_i n_i; tool force
+/// -sum f, stiffness -dF/dp for the active set. warm_nodes[warm_n] (the previous tick's contact
+/// nodes, or warm_n = 0) only choose where the pivoting starts; the result does not depend on
+/// them. out must not alias warm_nodes. Thread: any (rt) | Allocates: no | Blocks: no
 void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int warm_n,
                       const int* warm_nodes, hs_contact* out);
+/// Fill s->n_tri/tri with the boundary triangles of mesh whose three vertices are all among
+/// s->node[0..n_cand) (mesh order, at most HS_CONTACT_MAX_TRI). For tools and tests that build
+/// snapshots themselves. Returns n_tri. Thread: any | Allocates: no
+int hs_contact_snapshot_add_tris(hs_contact_snapshot* s, const hs_mesh* mesh);
 /// The local model of a contact: anchor = tool, force, stiffness, validity radius =
 /// clamp(clearance, min_radius_m, max_radius_m), timeout. Thread: any | Allocates: no
 void hs_contact_model(const hs_contact* c, double min_radius_m, double max_radius_m,

@@ -1,21 +1,31 @@
 // Probe contact from a compliance snapshot: the per-tick work of the rt thread.
 //
 // DESIGN. Pure function of (snapshot, tool position): fixed-size stack arrays, no allocation.
-// The probe is a smooth sphere, so the contact is frictionless: the force on node i is
-// lambda_i n_i along the sphere's normal n_i = (q_i - p) / rho_i at the closest point to the
-// node's contact-free position q_i (the radial direction; defined for every node off the
-// centre, which a projection along the surface normal is not near the sphere's rim). The
-// node's displacement is u_i = sum_j C_ij n_j lambda_j, and to first order its distance from
-// the centre becomes rho_i + n_i . u_i. Contact is the linear complementarity problem
-//     w = W lambda - delta >= 0,  lambda >= 0,  w . lambda = 0,
-//     W_ij = n_i^T C_ij n_j,  delta_i = r - rho_i (penetration),
-// i.e. every node ends on or outside the sphere, only pushed, and pushed only where it touches.
-// W is symmetric positive definite, so the solution is unique and depends continuously on the
-// tool position: the force never jumps when a node enters or leaves the contact. Solved by
-// principal pivoting (Murty's least-index rule, candidates ordered deepest first; finite for
-// positive definite W), one m x m Cholesky (m <= 16) per pivot.
+// The probe is a smooth sphere, so the contact is frictionless. The tissue is its surface, not
+// its nodes: every listed triangle contributes one contact point, its closest point x_i to the
+// centre p, x_i = sum_a w_ia q_a over its vertices' contact-free positions q_a (barycentric
+// weights; the point lies on a vertex, an edge or the face interior, and a point shared by
+// several triangles counts once). Each point is pushed along n_i: away from the centre,
+// n_i = (x_i - p) / rho_i, rho_i = |x_i - p| (the smallest displacement that resolves the
+// penetration), and for a face-interior point the inward face normal with the signed distance
+// rho_i = N . (p - q_a) (the same while the centre is in front of the face, and still defined
+// when it reaches or passes the contact-free surface). A force lambda_i n_i at point i puts
+// w_ia lambda_i n_i on vertex a; vertex a moves by u_a = sum_b C_ab f_b, the point by
+// sum_a w_ia u_a, so to first order its distance from the centre along n_i becomes
+// rho_i + (W lambda)_i with W_ij = sum_a sum_b w_ia w_jb n_i^T C_ab n_j. Contact is the linear
+// complementarity problem
+//     w = (W + eps I) lambda - delta >= 0,  lambda >= 0,  w . lambda = 0,  delta_i = r - rho_i,
+// every point ends on or outside the sphere, only pushed, and pushed only where it touches.
+// eps (HS_CONTACT_SOFTNESS x the nodes' mean diagonal compliance, a constant of the snapshot)
+// is a tiny contact compliance: nearby points (a face point next to an edge point of the next
+// triangle) make W nearly singular, eps keeps it positive definite, so the solution is unique
+// and continuous in the tool position, and principal pivoting (Murty's least-index rule,
+// points ordered deepest first; finite for positive definite matrices) stays well conditioned.
+// Each closest point moves continuously with p, so the force does not jump when the centre
+// crosses from a face over an edge or a vertex to the next face.
 #include "hapsim/compliance.h"
 
+#include "closest.h"
 #include "dense.h"
 
 #include <float.h>
@@ -24,14 +34,21 @@
 
 #define M          HS_MAX_CONTACT
 #define MAX_PIVOTS (4 * M)
+#define MAX_FEAT                                                                                   \
+    (HS_CONTACT_MAX_TRI > HS_CONTACT_MAX_CAND ? HS_CONTACT_MAX_TRI : HS_CONTACT_MAX_CAND)
 
-typedef struct sel {
-    int cand;    // candidate index in the snapshot
-    double rho;  // distance of the contact-free position from the sphere centre, m
-    double n[3]; // unit direction centre -> node
-} sel;
+// A contact point (feature) of the contact-free surface.
+typedef struct feat {
+    int kind;    // HS_FEAT_VERTEX / EDGE / FACE: how many vertices carry a weight
+    int v[3];    // candidate indices of those vertices, ascending (with kind: the identity)
+    double w[3]; // their barycentric weights
+    int lv[3];   // local vertex index (once selected)
+    int tri;     // the triangle it came from (-1: a node)
+    double n[3]; // unit direction the tissue is pushed along
+    double rho;  // distance of the point from the centre along -n, m (signed on a face)
+} feat;
 
-// Solve W_AA lambda_A = delta_A for the active set; lambda = 0 elsewhere. Returns -1 if W_AA is
+// Solve A_AA lambda_A = delta_A for the active set; lambda = 0 elsewhere. Returns -1 if A_AA is
 // not positive definite.
 static int solve_active(const double* w, const double* delta, const unsigned char* act, int m,
                         double* lambda) {
@@ -51,6 +68,108 @@ static int solve_active(const double* w, const double* delta, const unsigned cha
     return 0;
 }
 
+static void tri_normal(const double* a, const double* b, const double* c, double n[3]) {
+    double e1[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
+    double e2[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+    n[0] = e1[1] * e2[2] - e1[2] * e2[1];
+    n[1] = e1[2] * e2[0] - e1[0] * e2[2];
+    n[2] = e1[0] * e2[1] - e1[1] * e2[0];
+    double l = sqrt(hs_dot3(n, n));
+    for (int k = 0; k < 3; ++k) n[k] = l > 0 ? n[k] / l : 0;
+}
+
+// The contact point of triangle t for centre p; 0 when the triangle gives none (degenerate, or
+// the centre more than r behind its face: a face on the far side of a thin part).
+static int tri_feature(const hs_contact_snapshot* s, int t, const double p[3], double r, feat* f) {
+    const int* tv = s->tri[t];
+    const double *a = s->free_m[tv[0]], *b = s->free_m[tv[1]], *c = s->free_m[tv[2]];
+    double w[3], x[3];
+    if (!hs_tri_closest(p, a, b, c, w, x)) return 0;
+    f->kind = 0;
+    f->tri = t;
+    for (int k = 0; k < 3; ++k) {
+        if (!(w[k] > 0)) continue;
+        // insertion keeps v ascending
+        int at = f->kind++;
+        while (at > 0 && f->v[at - 1] > tv[k]) {
+            f->v[at] = f->v[at - 1];
+            f->w[at] = f->w[at - 1];
+            --at;
+        }
+        f->v[at] = tv[k];
+        f->w[at] = w[k];
+    }
+    double nf[3];
+    tri_normal(a, b, c, nf);
+    if (f->kind == HS_FEAT_FACE) {
+        double ap[3] = {p[0] - a[0], p[1] - a[1], p[2] - a[2]};
+        f->rho = hs_dot3(nf, ap);
+        if (f->rho <= -r) return 0;
+        for (int k = 0; k < 3; ++k) f->n[k] = -nf[k];
+        return 1;
+    }
+    double d[3] = {x[0] - p[0], x[1] - p[1], x[2] - p[2]};
+    f->rho = sqrt(hs_dot3(d, d));
+    if (f->rho > 1e-9 * r) {
+        for (int k = 0; k < 3; ++k) f->n[k] = d[k] / f->rho;
+    } else {
+        f->rho = 0;
+        for (int k = 0; k < 3; ++k) f->n[k] = -nf[k];
+    }
+    return 1;
+}
+
+// d n_i / d p (3x3 row-major): zero on a face (the normal is fixed), -(I - n n^T - t t^T) / rho
+// on an edge with unit direction t (the point slides along it), -(I - n n^T) / rho at a vertex.
+static void feat_dn(const hs_contact_snapshot* s, const feat* f, double dn[9]) {
+    memset(dn, 0, 9 * sizeof(double));
+    if (f->kind == HS_FEAT_FACE || !(f->rho > 0)) return;
+    double t[3] = {0, 0, 0};
+    if (f->kind == HS_FEAT_EDGE) {
+        const double *a = s->free_m[f->v[0]], *b = s->free_m[f->v[1]];
+        for (int k = 0; k < 3; ++k) t[k] = b[k] - a[k];
+        double l = sqrt(hs_dot3(t, t));
+        for (int k = 0; k < 3; ++k) t[k] /= l;
+    }
+    for (int p = 0; p < 3; ++p)
+        for (int q = 0; q < 3; ++q)
+            dn[3 * p + q] = -((p == q) - f->n[p] * f->n[q] - t[p] * t[q]) / f->rho;
+}
+
+// d w_k / d p for the point's vertices (rows): zero at a vertex; along an edge the parameter's
+// gradient; on a face the projection's barycentric gradient (inverse Gram matrix).
+static void feat_dw(const hs_contact_snapshot* s, const feat* f, double dw[3][3]) {
+    memset(dw, 0, 9 * sizeof(double));
+    if (f->kind == HS_FEAT_EDGE) {
+        const double *a = s->free_m[f->v[0]], *b = s->free_m[f->v[1]];
+        double e[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
+        double l2 = hs_dot3(e, e);
+        for (int k = 0; k < 3; ++k) {
+            dw[1][k] = e[k] / l2;
+            dw[0][k] = -e[k] / l2;
+        }
+    } else if (f->kind == HS_FEAT_FACE) {
+        const double *a = s->free_m[f->v[0]], *b = s->free_m[f->v[1]], *c = s->free_m[f->v[2]];
+        double e1[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
+        double e2[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+        double g11 = hs_dot3(e1, e1), g12 = hs_dot3(e1, e2), g22 = hs_dot3(e2, e2);
+        double det = g11 * g22 - g12 * g12;
+        for (int k = 0; k < 3; ++k) {
+            dw[1][k] = (g22 * e1[k] - g12 * e2[k]) / det;
+            dw[2][k] = (g11 * e2[k] - g12 * e1[k]) / det;
+            dw[0][k] = -dw[1][k] - dw[2][k];
+        }
+    }
+}
+
+static int same_feat(const feat* a, const feat* b) {
+    if (a->kind != b->kind) return 0;
+    if (a->kind == HS_FEAT_FACE) return a->tri == b->tri;
+    for (int k = 0; k < a->kind; ++k)
+        if (a->v[k] != b->v[k]) return 0;
+    return 1;
+}
+
 void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int warm_n,
                       const int* warm_nodes, hs_contact* out) {
     memset(out, 0, sizeof *out);
@@ -59,76 +178,133 @@ void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int 
     const double r = s->probe_radius_m;
     double clearance = DBL_MAX;
 
-    // The tool must stay inside the region whose nodes the snapshot lists.
+    // The tool must stay inside the region whose surface the snapshot lists.
     double off[3] = {tool_m[0] - s->centre_m[0], tool_m[1] - s->centre_m[1],
                      tool_m[2] - s->centre_m[2]};
-    double cover = s->reach_m - r - sqrt(off[0] * off[0] + off[1] * off[1] + off[2] * off[2]);
+    double cover = s->reach_m - r - sqrt(hs_dot3(off, off));
     if (cover < clearance) clearance = cover;
 
-    // LCP candidates: penetrating nodes and those within 25 % of r outside the sphere (which the
-    // push on their neighbours may bring into contact), nearest the centre first, at most M.
-    const double near = 1.25 * r;
-    sel set[M];
-    int m = 0;
-    for (int i = 0; i < s->n_cand; ++i) {
-        double v[3] = {s->free_m[i][0] - tool_m[0], s->free_m[i][1] - tool_m[1],
-                       s->free_m[i][2] - tool_m[2]};
-        double rho = sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
-        double gap = rho - r;
+    // Contact points: penetrating ones and those outside the sphere within the band (which the
+    // push on their neighbours may carry into the sphere: on liver2 a point 1.25 r from the
+    // centre on the sphere's flank was), deepest first, each geometric point once.
+    const double near = HS_CONTACT_BAND * r;
+    feat cand[MAX_FEAT];
+    int nc = 0;
+    const int n_src = s->n_tri > 0 ? s->n_tri : s->n_cand;
+    for (int i = 0; i < n_src; ++i) {
+        feat f;
+        if (s->n_tri > 0) {
+            if (!tri_feature(s, i, tool_m, r, &f)) continue;
+        } else { // node contact: every candidate node is a contact point
+            f.kind = HS_FEAT_VERTEX;
+            f.v[0] = i;
+            f.w[0] = 1;
+            f.tri = -1;
+            double d[3] = {s->free_m[i][0] - tool_m[0], s->free_m[i][1] - tool_m[1],
+                           s->free_m[i][2] - tool_m[2]};
+            f.rho = sqrt(hs_dot3(d, d));
+            if (f.rho > 1e-9 * (r > 0 ? r : 1)) {
+                for (int k = 0; k < 3; ++k) f.n[k] = d[k] / f.rho;
+            } else { // at the centre the radial direction is undefined: push along -normal
+                f.rho = 0;
+                for (int k = 0; k < 3; ++k) f.n[k] = -s->normal[i][k];
+            }
+        }
+        double gap = f.rho - r;
         if (fabs(gap) < clearance) clearance = fabs(gap);
+        if (f.rho >= near) continue;
+        int dup = 0;
+        for (int j = 0; j < nc && !dup; ++j) dup = same_feat(&cand[j], &f);
+        if (dup) continue;
         if (gap < 0) ++out->penetrating;
-        if (rho >= near) continue;
-        if (m == M && rho >= set[m - 1].rho) continue;
-        int at = m < M ? m++ : m - 1;
-        while (at > 0 && set[at - 1].rho > rho) {
-            set[at] = set[at - 1];
+        if (nc == MAX_FEAT && f.rho >= cand[nc - 1].rho) continue;
+        int at = nc < MAX_FEAT ? nc++ : nc - 1;
+        while (at > 0 && cand[at - 1].rho > f.rho) {
+            cand[at] = cand[at - 1];
             --at;
         }
-        sel e;
-        e.cand = i;
-        e.rho = rho;
-        if (rho > 1e-9 * (r > 0 ? r : 1)) {
-            for (int k = 0; k < 3; ++k) e.n[k] = v[k] / rho;
-        } else {
-            // At the centre the radial direction is undefined: push along -normal (inward).
-            for (int k = 0; k < 3; ++k) e.n[k] = -s->normal[i][k];
-        }
-        set[at] = e;
+        cand[at] = f;
     }
     out->clearance_m = clearance > 0 ? clearance : 0;
-    if (m == 0 || set[0].rho >= r) return; // nothing penetrates
+    if (nc == 0 || cand[0].rho >= r) return; // nothing penetrates
 
-    // W and delta.
-    double w[M * M], cn[M][M][3], delta[M];
-    for (int i = 0; i < m; ++i) {
-        delta[i] = r - set[i].rho;
+    // The deepest points whose vertices fit in M nodes.
+    feat set[M];
+    int m = 0, nv = 0, vtx[M]; // local vertices: candidate indices
+    for (int i = 0; i < nc && m < M; ++i) {
+        feat* f = &cand[i];
+        int add = 0;
+        for (int k = 0; k < f->kind; ++k) {
+            int j = 0;
+            while (j < nv && vtx[j] != f->v[k]) ++j;
+            if (j == nv) ++add;
+        }
+        if (nv + add > M) continue;
+        for (int k = 0; k < f->kind; ++k) {
+            int j = 0;
+            while (j < nv && vtx[j] != f->v[k]) ++j;
+            if (j == nv) vtx[nv++] = f->v[k];
+            f->lv[k] = j;
+        }
+        set[m++] = *f;
+    }
+
+    // Contact compliance: a constant of the snapshot (so it adds nothing to the stiffness).
+    double eps = 0;
+    for (int i = 0; i < s->n_cand; ++i) {
+        const double* b = s->c[i][i];
+        eps += (b[0] + b[4] + b[8]) / 3;
+    }
+    eps = HS_CONTACT_SOFTNESS * eps / (s->n_cand > 0 ? s->n_cand : 1);
+
+    // cn[a][j] = sum_k w_jk C(a, v_jk) n_j: vertex a's displacement per unit lambda_j.
+    double cn[M][M][3], w[M * M], delta[M];
+    for (int a = 0; a < nv; ++a)
         for (int j = 0; j < m; ++j) {
-            const double* b = s->c[set[i].cand][set[j].cand];
-            const double* nj = set[j].n;
-            if (i != j && !s->coupled[set[i].cand] && !s->coupled[set[j].cand]) out->approx = 1;
-            // cn[i][j] = C_ij n_j
-            for (int p = 0; p < 3; ++p)
-                cn[i][j][p] = b[3 * p] * nj[0] + b[3 * p + 1] * nj[1] + b[3 * p + 2] * nj[2];
+            const feat* f = &set[j];
+            double* o = cn[a][j];
+            o[0] = o[1] = o[2] = 0;
+            for (int k = 0; k < f->kind; ++k) {
+                int b = vtx[f->lv[k]];
+                const double* blk = s->c[vtx[a]][b];
+                if (vtx[a] != b && !s->coupled[vtx[a]] && !s->coupled[b]) out->approx = 1;
+                for (int p = 0; p < 3; ++p)
+                    o[p] += f->w[k] * (blk[3 * p] * f->n[0] + blk[3 * p + 1] * f->n[1] +
+                                       blk[3 * p + 2] * f->n[2]);
+            }
+        }
+    for (int i = 0; i < m; ++i) {
+        const feat* f = &set[i];
+        delta[i] = r - f->rho;
+        for (int j = 0; j < m; ++j) {
+            double sum = 0;
+            for (int k = 0; k < f->kind; ++k) sum += f->w[k] * hs_dot3(f->n, cn[f->lv[k]][j]);
+            w[i * M + j] = sum;
         }
     }
-    for (int i = 0; i < m; ++i)
-        for (int j = 0; j < m; ++j) {
-            const double* ni = set[i].n;
-            w[i * M + j] = ni[0] * cn[i][j][0] + ni[1] * cn[i][j][1] + ni[2] * cn[i][j][2];
-        }
-    for (int i = 0; i < m; ++i)
+    for (int i = 0; i < m; ++i) {
         for (int j = i + 1; j < m; ++j)
             w[i * M + j] = w[j * M + i] = 0.5 * (w[i * M + j] + w[j * M + i]);
+        w[i * M + i] += eps;
+    }
 
     // Principal pivoting, least index first (deepest first). Start from the previous tick's
-    // contact set when given (it rarely changes between ticks: usually one solve), else from
-    // the penetrating set.
+    // contact (points whose vertices were all contact nodes) when given (it rarely changes
+    // between ticks: usually one solve), else from the penetrating set.
     unsigned char act[M];
     double lambda[M];
     for (int i = 0; i < m; ++i) {
-        act[i] = warm_n > 0 ? 0 : delta[i] > 0;
-        for (int j = 0; j < warm_n; ++j)
-            if (warm_nodes[j] == s->node[set[i].cand]) act[i] = 1;
+        if (warm_n > 0) {
+            int all = 1;
+            for (int k = 0; k < set[i].kind && all; ++k) {
+                int node = s->node[set[i].v[k]], found = 0;
+                for (int j = 0; j < warm_n && !found; ++j) found = warm_nodes[j] == node;
+                all = found;
+            }
+            act[i] = (unsigned char)all;
+        } else {
+            act[i] = delta[i] > 0;
+        }
     }
     int converged = 0;
     for (int piv = 0; piv < MAX_PIVOTS; ++piv) {
@@ -154,75 +330,112 @@ void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int 
         if (act[flip]) ++out->dropped;
         act[flip] = !act[flip];
     }
-    if (!converged) {
-        // Keep the last solve but never pull.
-        for (int i = 0; i < m; ++i)
-            if (lambda[i] < 0) lambda[i] = 0;
-    }
+    for (int i = 0; i < m; ++i)
+        if (!act[i] || (!converged && lambda[i] < 0)) lambda[i] = 0; // never pull
 
-    // Result: active nodes, forces on the tissue, their displacements.
-    int k = 0;
-    int ia[M];
-    for (int i = 0; i < m; ++i) {
-        if (!act[i] || lambda[i] <= 0) continue;
-        ia[k] = i;
-        out->node[k] = s->node[set[i].cand];
-        for (int p = 0; p < 3; ++p) {
-            out->f_n[k][p] = lambda[i] * set[i].n[p];
-            out->force_n[p] -= out->f_n[k][p];
-            double u = 0;
-            for (int j = 0; j < m; ++j) u += cn[i][j][p] * lambda[j];
-            out->d_m[k][p] = u;
-        }
-        ++k;
-    }
-    out->n = k;
+    // Result: the active points' forces on their vertices, the vertices' displacements.
+    int ia[M], k = 0;
+    for (int i = 0; i < m; ++i)
+        if (lambda[i] > 0) ia[k++] = i;
+    out->features = k;
     if (k == 0) return;
+    double fv[M][3], uv[M][3];
+    int used[M];
+    for (int a = 0; a < nv; ++a) {
+        used[a] = 0;
+        for (int p = 0; p < 3; ++p) {
+            fv[a][p] = 0;
+            uv[a][p] = 0;
+            for (int j = 0; j < m; ++j) uv[a][p] += cn[a][j][p] * lambda[j];
+        }
+    }
+    for (int i = 0; i < k; ++i) {
+        const feat* f = &set[ia[i]];
+        double l = lambda[ia[i]];
+        for (int q = 0; q < f->kind; ++q) {
+            used[f->lv[q]] = 1;
+            for (int p = 0; p < 3; ++p) fv[f->lv[q]][p] += f->w[q] * l * f->n[p];
+        }
+        for (int p = 0; p < 3; ++p) out->force_n[p] -= l * f->n[p];
+    }
+    for (int a = 0; a < nv; ++a) {
+        if (!used[a]) continue;
+        out->node[out->n] = s->node[vtx[a]];
+        memcpy(out->f_n[out->n], fv[a], sizeof fv[a]);
+        memcpy(out->d_m[out->n], uv[a], sizeof uv[a]);
+        out->n++;
+    }
 
-    // Stiffness K = -dF/dp with the active set fixed. F = -sum_i lambda_i n_i, lambda = W^-1
-    // delta over the active set, dn_i/dp = -P_i / rho_i (P_i = I - n_i n_i^T), ddelta_i/dp =
-    // n_i^T, dW_ij/dp = -(C_ij n_j)^T P_i / rho_i - (C_ji n_i)^T P_j / rho_j, so
-    //     dlambda/dp = W^-1 G,  G_i = n_i^T + (u_i^T P_i) / rho_i
-    //                                + sum_j lambda_j (C_ji n_i)^T P_j / rho_j,
-    //     K = sum_i n_i (W^-1 G)_i - sum_i lambda_i P_i / rho_i.
-    double a[M * M], g[3][M];
+    // Stiffness K = -dF/dp with the active set and the points' features fixed. F = -sum_i
+    // lambda_i n_i, (W + eps I) lambda = delta over the active set, d delta_i/dp = n_i^T (the
+    // point slides in its feature, perpendicular to n_i), so with lambda held
+    //     d(W lambda)_i/dp = U_i^T Dn_i + sum_a (n_i . u_a) dw_ia + sum_b cn_bi^T E_b,
+    // U_i = sum_a w_ia u_a (the point's displacement), Dn_i = dn_i/dp, dw_ia = dw_ia/dp,
+    // E_b = sum_j lambda_j (n_j dw_jb + w_jb Dn_j) (= df_b/dp with lambda held), and
+    //     dlambda/dp = (W + eps I)^-1 G,  G_i = n_i^T - d(W lambda)_i/dp,
+    //     K = sum_i n_i (dlambda_i/dp) + sum_i lambda_i Dn_i.
+    double a[M * M], g[3][M], dn[M][9], dw[M][3][3], e[M][9];
     for (int i = 0; i < k; ++i)
         for (int j = 0; j < k; ++j) a[i * k + j] = w[ia[i] * M + ia[j]];
     if (hs_dense_cholesky(a, k) != 0) {
         out->failed = 1;
         return;
     }
+    memset(e, 0, sizeof e);
     for (int i = 0; i < k; ++i) {
-        const sel* si = &set[ia[i]];
-        const double* ni = si->n;
-        double gi[3], u[3];
-        for (int p = 0; p < 3; ++p) {
-            gi[p] = ni[p];
-            u[p] = out->d_m[i][p];
+        const feat* f = &set[ia[i]];
+        double l = lambda[ia[i]];
+        feat_dn(s, f, dn[i]);
+        feat_dw(s, f, dw[i]);
+        for (int q = 0; q < f->kind; ++q) {
+            double* eb = e[f->lv[q]];
+            for (int p = 0; p < 3; ++p)
+                for (int c = 0; c < 3; ++c)
+                    eb[3 * p + c] += l * (f->n[p] * dw[i][q][c] + f->w[q] * dn[i][3 * p + c]);
         }
-        double un = u[0] * ni[0] + u[1] * ni[1] + u[2] * ni[2];
-        for (int p = 0; p < 3; ++p) gi[p] += (u[p] - un * ni[p]) / si->rho;
-        for (int j = 0; j < k; ++j) {
-            const sel* sj = &set[ia[j]];
-            const double* nj = sj->n;
-            const double* c = cn[ia[j]][ia[i]]; // C_ji n_i
-            double cnj = c[0] * nj[0] + c[1] * nj[1] + c[2] * nj[2];
-            double lj = lambda[ia[j]] / sj->rho;
-            for (int p = 0; p < 3; ++p) gi[p] += lj * (c[p] - cnj * nj[p]);
+    }
+    for (int i = 0; i < k; ++i) {
+        const feat* f = &set[ia[i]];
+        double gi[3], ui[3] = {0, 0, 0};
+        for (int q = 0; q < f->kind; ++q)
+            for (int p = 0; p < 3; ++p) ui[p] += f->w[q] * uv[f->lv[q]][p];
+        for (int c = 0; c < 3; ++c) {
+            double d = 0;
+            for (int p = 0; p < 3; ++p) d += ui[p] * dn[i][3 * p + c];
+            for (int q = 0; q < f->kind; ++q) d += hs_dot3(f->n, uv[f->lv[q]]) * dw[i][q][c];
+            for (int b = 0; b < nv; ++b) {
+                const double* cb = cn[b][ia[i]];
+                d += cb[0] * e[b][c] + cb[1] * e[b][3 + c] + cb[2] * e[b][6 + c];
+            }
+            gi[c] = f->n[c] - d;
         }
         for (int p = 0; p < 3; ++p) g[p][i] = gi[p];
     }
     for (int p = 0; p < 3; ++p) hs_dense_cholesky_solve(a, k, g[p]);
     memset(out->stiffness_n_m, 0, sizeof out->stiffness_n_m);
     for (int i = 0; i < k; ++i) {
-        const sel* si = &set[ia[i]];
-        const double* ni = si->n;
-        double l = lambda[ia[i]] / si->rho;
+        const feat* f = &set[ia[i]];
+        double l = lambda[ia[i]];
         for (int p = 0; p < 3; ++p)
             for (int q = 0; q < 3; ++q)
-                out->stiffness_n_m[3 * p + q] +=
-                    ni[p] * g[q][i] - l * ((p == q ? 1.0 : 0.0) - ni[p] * ni[q]);
+                out->stiffness_n_m[3 * p + q] += f->n[p] * g[q][i] + l * dn[i][3 * p + q];
     }
+}
+
+int hs_contact_snapshot_add_tris(hs_contact_snapshot* s, const hs_mesh* mesh) {
+    s->n_tri = 0;
+    for (int t = 0; t < mesh->n_tris && s->n_tri < HS_CONTACT_MAX_TRI; ++t) {
+        int c[3], ok = 1;
+        for (int k = 0; k < 3 && ok; ++k) {
+            c[k] = -1;
+            for (int i = 0; i < s->n_cand && c[k] < 0; ++i)
+                if (s->node[i] == mesh->tris[3 * t + k]) c[k] = i;
+            ok = c[k] >= 0;
+        }
+        if (!ok) continue;
+        memcpy(s->tri[s->n_tri++], c, sizeof c);
+    }
+    return s->n_tri;
 }
 
 void hs_contact_model(const hs_contact* c, double min_radius_m, double max_radius_m,

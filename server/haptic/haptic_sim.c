@@ -14,6 +14,7 @@
 
 #include "base/spsc_ring.h"
 #include "base/triple_buffer.h"
+#include "closest.h"
 #include "dense.h"
 #include "rt/device.h"
 #include "rt/haptic_rt.h"
@@ -23,6 +24,7 @@
 #include <math.h>
 #include <pthread.h>
 #include <stdatomic.h>
+#include <stdlib.h>
 #include <string.h>
 #include <time.h>
 
@@ -99,6 +101,19 @@ typedef struct deform_status {
     int cutting;
 } deform_status;
 
+// A boundary triangle and its distance from the tool (snapshot search).
+typedef struct near_tri {
+    double dist;
+    int tri;
+} near_tri;
+
+// Nearest first; ties by triangle index, so the choice depends on the positions only.
+static int near_tri_cmp(const void* pa, const void* pb) {
+    const near_tri *a = pa, *b = pb;
+    if (a->dist != b->dist) return a->dist < b->dist ? -1 : 1;
+    return (a->tri > b->tri) - (a->tri < b->tri);
+}
+
 // The rt side of the probe: the force source plugged into the haptic tick.
 typedef struct probe_src {
     hs_triple_buffer* snap;    // reader: rt
@@ -131,16 +146,17 @@ struct hs_haptic_sim {
     int thread_started;
     atomic_int stop;
     size_t frame_size;
-    int* tri_start;    // [n_surf+1] CSR: boundary triangles per surface node
-    int* tri_list;     // [3 n_tris]
-    double* x;         // [3n] current positions
-    double* g;         // [3n] force holding the current shape beyond the non-contact loads
-    double* v;         // [3n] C g (in the rest frame of each node)
-    double* rot;       // [9n] node rotations at the current state (identity for linear)
-    double* q;         // [3 n_surf] contact-free surface positions (relaxed)
-    int* near_node;    // [n_surf] surface indices within reach, scratch
-    double* near_dist; // [n_surf]
-    int applied_n;     // contact forces in the body now
+    int* tri_start;     // [n_surf+1] CSR: boundary triangles per surface node
+    int* tri_list;      // [3 n_tris]
+    double* x;          // [3n] current positions
+    double* g;          // [3n] force holding the current shape beyond the non-contact loads
+    double* v;          // [3n] C g (in the rest frame of each node)
+    double* rot;        // [9n] node rotations at the current state (identity for linear)
+    double* q;          // [3 n_surf] contact-free surface positions (relaxed)
+    int* near_node;     // [n_surf] scratch (triangle adjacency at create)
+    near_tri* near_tri; // [n_tris] triangles within reach of the tool, scratch
+    int* cand_of;       // [n] candidate index of a node while a snapshot is built, else -1
+    int applied_n;      // contact forces in the body now
     int applied_node[HS_MAX_CONTACT];
     int64_t version;
     deform_status st; // deformation thread's copy, published through `status`
@@ -211,6 +227,11 @@ static void rt_stop(void* ctx) {
 
 // ---------------------------------------------------------------------------------------------
 // deformation side
+
+static double dist3(const double a[3], const double b[3]) {
+    double d[3] = {a[0] - b[0], a[1] - b[1], a[2] - b[2]};
+    return sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+}
 
 // Outward unit normal of a surface node: area-weighted mean of its triangles' normals.
 static void node_normal(const hs_haptic_sim* h, int si, double n[3]) {
@@ -290,58 +311,78 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
         }
     }
 
-    // Nearest contactable nodes within reach (a linear scan: microseconds per step).
-    int n_near = 0;
-    for (int si = 0; si < ns && !h->cut; ++si) { // a blade has no contact sphere
-        int node = mesh->surf_nodes[si];
-        if (!hs_compliance_contactable(h->comp, node)) continue;
-        const double* qs = h->q + 3 * (size_t)si;
-        double v[3] = {qs[0] - p[0], qs[1] - p[1], qs[2] - p[2]};
-        double dist = sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
-        if (dist >= reach) continue;
-        // Keep near_* sorted by distance, at most HS_CONTACT_MAX_CAND + 1 entries (the extra
-        // one tells how far the coverage reaches when the list is cut).
-        if (n_near == HS_CONTACT_MAX_CAND + 1 && dist >= h->near_dist[n_near - 1]) continue;
-        int at = n_near <= HS_CONTACT_MAX_CAND ? n_near++ : n_near - 1;
-        while (at > 0 && h->near_dist[at - 1] > dist) {
-            h->near_dist[at] = h->near_dist[at - 1];
-            h->near_node[at] = h->near_node[at - 1];
-            --at;
-        }
-        h->near_dist[at] = dist;
-        h->near_node[at] = si;
-    }
-    double cover = reach;
-    if (n_near > HS_CONTACT_MAX_CAND) {
-        cover = h->near_dist[HS_CONTACT_MAX_CAND];
-        n_near = HS_CONTACT_MAX_CAND;
-    }
-
+    // Contact surface: the boundary triangles (all three vertices contactable) within reach of
+    // the tool on the contact-free surface, nearest first, and their vertices as the
+    // candidates, until either list is full (a linear scan: microseconds per step; this plays
+    // the role of the per-step acceleration structure, which at these sizes would cost more
+    // than it saves). Every contact-free surface point within `cover` of p is on a listed
+    // triangle.
     sim_snapshot* wrap = hs_triple_buffer_back(h->snap);
     memcpy(wrap->cut_force_n, h->cut_force, sizeof wrap->cut_force_n);
     hs_contact_snapshot* s = &wrap->s;
+    int n_near = 0;
+    for (int t = 0; t < mesh->n_tris && !h->cut; ++t) { // a blade has no contact sphere
+        const int* tv = mesh->tris + 3 * t;
+        if (!hs_compliance_contactable(h->comp, tv[0]) ||
+            !hs_compliance_contactable(h->comp, tv[1]) ||
+            !hs_compliance_contactable(h->comp, tv[2]))
+            continue;
+        const double* a = h->q + 3 * (size_t)mesh->node_surf[tv[0]];
+        const double* b = h->q + 3 * (size_t)mesh->node_surf[tv[1]];
+        const double* c = h->q + 3 * (size_t)mesh->node_surf[tv[2]];
+        double wb[3], x[3];
+        if (!hs_tri_closest(p, a, b, c, wb, x)) continue;
+        double dist = dist3(x, p);
+        if (dist >= reach) continue;
+        h->near_tri[n_near].dist = dist;
+        h->near_tri[n_near].tri = t;
+        ++n_near;
+    }
+    qsort(h->near_tri, (size_t)n_near, sizeof *h->near_tri, near_tri_cmp);
+    double cover = reach;
+    int n_cand = 0, n_tri = 0;
+    int nodes[HS_CONTACT_MAX_CAND];
+    for (int k = 0; k < n_near; ++k) {
+        const int* tv = mesh->tris + 3 * h->near_tri[k].tri;
+        int add = 0;
+        for (int j = 0; j < 3; ++j) add += h->cand_of[tv[j]] < 0;
+        if (n_tri == HS_CONTACT_MAX_TRI || n_cand + add > HS_CONTACT_MAX_CAND) {
+            cover = h->near_tri[k].dist;
+            break;
+        }
+        for (int j = 0; j < 3; ++j) {
+            if (h->cand_of[tv[j]] < 0) {
+                h->cand_of[tv[j]] = n_cand;
+                nodes[n_cand++] = tv[j];
+            }
+            s->tri[n_tri][j] = h->cand_of[tv[j]];
+        }
+        ++n_tri;
+    }
+    for (int i = 0; i < n_cand; ++i) h->cand_of[nodes[i]] = -1;
+    const int n_near_nodes = n_cand;
+
     s->version = ++h->version;
     s->probe_radius_m = r;
     memcpy(s->centre_m, p, sizeof s->centre_m);
     s->reach_m = cover;
-    s->n_cand = n_near;
-    int nodes[HS_CONTACT_MAX_CAND];
-    for (int i = 0; i < n_near; ++i) nodes[i] = mesh->surf_nodes[h->near_node[i]];
+    s->n_cand = n_cand;
+    s->n_tri = n_tri;
     // Columns for the candidates, nearest first, within this step's budget.
-    int got = hs_compliance_ensure(h->comp, n_near, nodes, h->def.probe.max_new_columns);
+    int got = hs_compliance_ensure(h->comp, n_cand, nodes, h->def.probe.max_new_columns);
     (void)got; // a solver failure leaves the diagonal-only approximation
     int coupled = 0;
-    for (int i = 0; i < n_near; ++i) {
-        int si = h->near_node[i], node = nodes[i];
+    for (int i = 0; i < n_cand; ++i) {
+        int node = nodes[i], si = mesh->node_surf[node];
         s->node[i] = node;
         s->coupled[i] = (unsigned char)hs_compliance_has_column(h->comp, node);
         coupled += s->coupled[i];
         memcpy(s->free_m[i], h->q + 3 * (size_t)si, sizeof s->free_m[i]);
         node_normal(h, si, s->normal[i]);
     }
-    for (int i = 0; i < n_near; ++i) {
+    for (int i = 0; i < n_cand; ++i) {
         const double* ri = h->rot + 9 * (size_t)nodes[i];
-        for (int j = i; j < n_near; ++j) {
+        for (int j = i; j < n_cand; ++j) {
             const double* rj = h->rot + 9 * (size_t)nodes[j];
             double blk[9];
             if (!hs_compliance_block(h->comp, nodes[i], nodes[j], blk)) {
@@ -365,7 +406,7 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
     s->stamp_ns = hs_now_ns();
     hs_triple_buffer_publish(h->snap);
     h->st.snapshots++;
-    h->st.candidates = n_near;
+    h->st.candidates = n_near_nodes;
     h->st.coupled = coupled;
 }
 
@@ -412,11 +453,6 @@ static void quat_rotate(const double q[4], const double v[3], double out[3]) {
                    2 * (x * z - w * y),     2 * (y * z + w * x),     1 - 2 * (x * x + y * y)};
     for (int a = 0; a < 3; ++a)
         out[a] = r[3 * a] * v[0] + r[3 * a + 1] * v[1] + r[3 * a + 2] * v[2];
-}
-
-static double dist3(const double a[3], const double b[3]) {
-    double d[3] = {a[0] - b[0], a[1] - b[1], a[2] - b[2]};
-    return sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
 }
 
 // Rebuild the haptic compliance on the cut body (live mesh; fixed + pinned nodes held).
@@ -685,7 +721,8 @@ void hs_haptic_sim_destroy(hs_haptic_sim** ph) {
     hs_free(h->rot);
     hs_free(h->q);
     hs_free(h->near_node);
-    hs_free(h->near_dist);
+    hs_free(h->near_tri);
+    hs_free(h->cand_of);
     hs_triple_buffer_destroy(&h->cpose);
     hs_cut_destroy(&h->cut);
     hs_free(h->fixed0);
@@ -763,8 +800,11 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
     h->rot = hs_calloc(9 * n, sizeof(double));
     h->q = hs_calloc(3 * ns, sizeof(double));
     h->near_node = hs_calloc(ns + 1, sizeof(int));
-    h->near_dist = hs_calloc(ns + 1, sizeof(double));
-    if (!h->x || !h->g || !h->v || !h->rot || !h->q || !h->near_node || !h->near_dist) goto nomem;
+    h->near_tri = hs_calloc((size_t)mesh->n_tris + 1, sizeof *h->near_tri);
+    h->cand_of = hs_alloc((n + 1) * sizeof(int));
+    if (!h->x || !h->g || !h->v || !h->rot || !h->q || !h->near_node || !h->near_tri || !h->cand_of)
+        goto nomem;
+    for (size_t i = 0; i < n; ++i) h->cand_of[i] = -1;
     if (build_tri_adjacency(h) != HS_OK) goto nomem;
     for (size_t si = 0; si < ns; ++si)
         memcpy(h->q + 3 * si, mesh->x0 + 3 * (size_t)mesh->surf_nodes[si], 3 * sizeof(double));
