@@ -96,14 +96,29 @@ hs_status hs_cholesky_prepare_updates(hs_cholesky* f, int max_elems);
 hs_status hs_cholesky_updown(hs_cholesky* f, int update, int n_cols, const int* colp,
                              const int* rowi, const double* val);
 /// Factor of A + sum_e dK_e for n_elem element changes: dk[144*e] is a symmetric 12x12 (any
-/// sign; row-major), dofs[12*e] its free dof indices or -1 for fixed dofs. Each dK_e is split
-/// by an eigen-decomposition into update and downdate columns; all updates run before all
-/// downdates so the intermediate matrices stay SPD whenever the result is. An element's dofs
-/// couple in the pattern of A, so L gains no fill. Errors as hs_cholesky_updown; on
+/// sign; row-major), dofs[12*e] its free dof indices or -1 for fixed dofs. Aggregated (the
+/// default): the changes are summed over the union of their free dofs (d of them, at most 384)
+/// and factored S = G Q G^T in L's elimination order, so at most d columns (one per nonzero
+/// pivot) go to update/downdate, each within L's pattern (no fill). An S whose unpivoted
+/// factorisation breaks down, or a larger union, goes element by element: each dK_e split by
+/// its eigen-decomposition (up to 12 columns each). All updates run before all downdates, so
+/// the intermediate matrices stay SPD whenever the result is. Errors as hs_cholesky_updown; on
 /// HS_ERR_INVALID (dof out of range or repeated) nothing changed.
 /// Allocates: only when n_elem exceeds every earlier call and prepare.
 hs_status hs_cholesky_update_elements(hs_cholesky* f, int n_elem, const double* dk,
                                       const int* dofs);
+/// As hs_cholesky_update_elements for a change given as semidefinite parts: factor of
+/// A + sum_{e < n_plus} K_e - sum_{e >= n_plus} K_e, blocks k[144*e], dofs[12*e] for
+/// e < n_plus + n_minus (e.g. new element matrices and pin springs, then the old ones). When the
+/// summed change's factorisation breaks down, each part is aggregated alone (semidefinite: no
+/// breakdown; rank <= twice the union) instead of going element by element.
+hs_status hs_cholesky_update_parts(hs_cholesky* f, int n_plus, int n_minus, const double* k,
+                                   const int* dofs);
+/// 1 (default): hs_cholesky_update_elements aggregates the step; 0: element by element.
+void hs_cholesky_set_aggregate(hs_cholesky* f, int on);
+/// Columns (rank-1 changes) the last hs_cholesky_update_elements sent to update/downdate;
+/// union_dofs (may be NULL) gets the free dofs it aggregated, -1 if it went element by element.
+int hs_cholesky_last_update_rank(const hs_cholesky* f, int* union_dofs /* OUT */);
 
 /// Threads used inside CHOLMOD, process-wide: OpenBLAS gets n threads, and CHOLMOD's own
 /// OpenMP loops (fixed at 4 threads in Debian's build) run serially when n == 1. The defaults

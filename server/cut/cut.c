@@ -31,8 +31,8 @@ struct hs_cut {
     hs_cholesky* factor;
     double k_pin; // pin spring, N/m (mean diagonal of K)
     int updates_since_refactor;
-    double refactor_ms;          // measured numeric refactor of this factor, ms (running mean)
-    double update_ms_per_change; // measured update cost per element change, ms (running mean)
+    double refactor_ms;        // measured numeric refactor of this factor, ms (running mean)
+    double update_ms_per_rank; // measured update cost per rank-1 column, ms (running mean)
 
     hs_mesh* live;  // active tets only
     int* live_tet;  // [ne] live index -> mesh tet
@@ -67,8 +67,9 @@ struct hs_cut {
 
     // element changes for the factor, grown when a sweep needs more
     int cap_elem;
-    double* dk; // [144 cap_elem]
-    int* edof;  // [12 cap_elem]
+    double* dk;      // [144 cap_elem] new element matrices and pins, then the old matrices
+    int* edof;       // [12 cap_elem]
+    int first_minus; // blocks from here on are subtracted
 
     // tracked compliance
     hs_cut_compliance_mode cmode;
@@ -855,8 +856,9 @@ static int handle_fragments(hs_cut* c) {
     return pieces;
 }
 
-/// Append the element change (new - old) of tet e, or a pin block of node v when e < 0.
-static void add_change(hs_cut* c, int* m, int e, int v, int was_active) {
+/// Append a block of the sweep's change: tet e's stiffness at rest positions x0 (zero if the
+/// tet is degenerate there), or node v's pin spring when e < 0.
+static void add_block(hs_cut* c, int* m, int e, int v, const double* x0) {
     double* dk = c->dk + 144 * (size_t)*m;
     int* ed = c->edof + 12 * (size_t)*m;
     memset(dk, 0, 144 * sizeof(double));
@@ -866,22 +868,31 @@ static void add_change(hs_cut* c, int* m, int e, int v, int was_active) {
         ++*m;
         return;
     }
-    double kn[144];
-    if (c->active[e]) {
-        element_k(c, c->mesh->x0, e, dk);
-    }
-    if (was_active && element_k(c, c->x0_old, e, kn))
-        for (int q = 0; q < 144; q++) dk[q] -= kn[q];
+    if (!element_k(c, x0, e, dk)) memset(dk, 0, 144 * sizeof(double));
     for (int a = 0; a < 4; a++)
         for (int q = 0; q < 3; q++) ed[3 * a + q] = c->dof[3 * c->mesh->tets[4 * e + a] + q];
     ++*m;
 }
 
+/// Free dofs touched by the sweep's blocks (a bound on the rank of its aggregated update).
+static int union_dofs(hs_cut* c, int m) {
+    int d = 0;
+    for (int k = 0; k < 12 * m; k++) {
+        int f = c->edof[k];
+        if (f >= 0 && c->dpos[f] < 0) {
+            c->dpos[f] = d;
+            c->dset[d++] = f;
+        }
+    }
+    for (int i = 0; i < d; i++) c->dpos[c->dset[i]] = -1;
+    return d;
+}
+
 static hs_status update_compliance(hs_cut* c, int m, int before);
 
-/// Apply the sweep's m element changes to the factor.
+/// Apply the sweep's m blocks to the factor (aggregated: one rank <= union update).
 static hs_status apply_changes(hs_cut* c, int m) {
-    return hs_cholesky_update_elements(c->factor, m, c->dk, c->edof);
+    return hs_cholesky_update_parts(c->factor, c->first_minus, m - c->first_minus, c->dk, c->edof);
 }
 
 hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const double p1[3],
@@ -1078,18 +1089,24 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
         goto done;
     }
     int need = c->n_removed + c->n_changed + c->n_pins, m = 0;
-    // AUTO: a rank-r update costs about r sparse passes along the elimination tree, a numeric
-    // refactor a fixed amount; both measured as the cut runs. Take the cheaper.
-    // Before any update has been timed, the bench's ratio stands in: one element change costs
-    // about 1/8 of a numeric refactor on every mesh measured (docs/cutting.md).
-    double per = c->update_ms_per_change > 0 ? c->update_ms_per_change : c->refactor_ms / 8.0;
-    int want_update = c->def.factor_policy == HS_CUT_FACTOR_UPDATE ||
-                      (c->def.factor_policy == HS_CUT_FACTOR_AUTO && need * per < c->refactor_ms);
-    int can_update = want_update && grow_elems(c, need) == HS_OK;
+    int blocks = c->n_removed + 2 * c->n_changed + c->n_pins;
+    // AUTO: the aggregated update costs about one sparse pass along the elimination tree per
+    // unit of rank, and its rank is about the number of free dofs the change touches; a
+    // numeric refactor costs a fixed amount. Both are measured as the cut runs: take the
+    // cheaper. Until an update has been timed, one rank costs 1/96 of a refactor (measured:
+    // 1/77 at 432 vertices, 1/108 at 5,043; docs/cutting.md).
+    int can_update = c->def.factor_policy != HS_CUT_FACTOR_REFACTOR && need > 0 &&
+                     grow_elems(c, blocks) == HS_OK;
     if (can_update) {
-        for (int k = 0; k < c->n_removed; k++) add_change(c, &m, c->removed[k], -1, 1);
-        for (int k = 0; k < c->n_changed; k++) add_change(c, &m, c->changed[k], -1, 1);
-        for (int k = 0; k < c->n_pins; k++) add_change(c, &m, -1, c->pins[k], 0);
+        for (int k = 0; k < c->n_changed; k++) add_block(c, &m, c->changed[k], -1, x0);
+        for (int k = 0; k < c->n_pins; k++) add_block(c, &m, -1, c->pins[k], NULL);
+        c->first_minus = m;
+        for (int k = 0; k < c->n_removed; k++) add_block(c, &m, c->removed[k], -1, c->x0_old);
+        for (int k = 0; k < c->n_changed; k++) add_block(c, &m, c->changed[k], -1, c->x0_old);
+    }
+    if (can_update && c->def.factor_policy == HS_CUT_FACTOR_AUTO) {
+        double per = c->update_ms_per_rank > 0 ? c->update_ms_per_rank : c->refactor_ms / 96.0;
+        can_update = union_dofs(c, m) * per < c->refactor_ms;
     }
     r.changed_elements = need;
     if (can_update && c->n_track > 0 && m > 0 && c->cmode == HS_CUT_COMPLIANCE_WOODBURY) {
@@ -1100,13 +1117,16 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
         }
     }
     if (need > 0) {
+        // Entering update mode converts the factor once (allocates): not part of the timing.
+        st = can_update ? hs_cholesky_prepare_updates(c->factor, blocks) : HS_ERR_UNSUPPORTED;
         int64_t tu = hs_now_ns();
-        st = can_update ? apply_changes(c, m) : HS_ERR_UNSUPPORTED;
+        if (st == HS_OK) st = apply_changes(c, m);
         if (st == HS_OK) {
             c->updates_since_refactor++;
-            double took = (double)(hs_now_ns() - tu) * 1e-6 / m;
-            c->update_ms_per_change =
-                c->update_ms_per_change > 0 ? 0.8 * c->update_ms_per_change + 0.2 * took : took;
+            int rank = hs_cholesky_last_update_rank(c->factor, NULL);
+            double took = (double)(hs_now_ns() - tu) * 1e-6 / (rank > 0 ? rank : 1);
+            c->update_ms_per_rank =
+                c->update_ms_per_rank > 0 ? 0.8 * c->update_ms_per_rank + 0.2 * took : took;
         } else {
             // Updates off, no memory for them, or a downdate lost definiteness: rebuild.
             r.refactored = 1;
@@ -1323,8 +1343,8 @@ static hs_status update_compliance(hs_cut* c, int m, int before) {
             for (int j = 0; j < 12; j++) {
                 int fj = c->edof[12 * e + j];
                 if (fj < 0) continue;
-                c->kdd[(size_t)c->dpos[fi] * d + c->dpos[fj]] +=
-                    c->dk[144 * (size_t)e + 12 * i + j];
+                double x = c->dk[144 * (size_t)e + 12 * i + j];
+                c->kdd[(size_t)c->dpos[fi] * d + c->dpos[fj]] += e < c->first_minus ? x : -x;
             }
         }
     const int nf = c->n_free;

@@ -39,6 +39,14 @@ struct hs_cholesky {
     double* cx_p;
     int *cp_m, *ci_m; // downdate columns
     double* cx_m;
+    // Aggregated element updates: the step's summed change over the union of its dofs.
+    int aggregate;  // 1 (default): one L-ordered LDL^T of the summed change; 0: per element
+    int cap_d;      // order of the dense workspace
+    int* dpos;      // [n] position of a dof in the union, -1 outside
+    int* dlist;     // [cap_d] union dofs, then their rows in L
+    double* dense;  // [cap_d^2] summed change, then its LDL^T (lower triangle)
+    int last_rank;  // columns sent by the last update_elements
+    int last_union; // free dofs touched by it
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -304,6 +312,7 @@ static hs_status create_factor(const hs_csc* a, int natural, hs_cholesky** out, 
     f->b.d = (size_t)a->n;
     f->b.xtype = CHOLMOD_REAL;
     f->b.dtype = CHOLMOD_DOUBLE;
+    f->aggregate = 1;
     *out = f;
     return HS_OK;
 
@@ -708,6 +717,9 @@ void hs_cholesky_destroy(hs_cholesky** pf) {
     hs_free(f->cp_m);
     hs_free(f->ci_m);
     hs_free(f->cx_m);
+    hs_free(f->dpos);
+    hs_free(f->dlist);
+    hs_free(f->dense);
     hs_free(f);
     *pf = NULL;
     flush_block_cache();
@@ -737,6 +749,36 @@ static hs_status reserve_columns(hs_cholesky* f, int64_t cols, int64_t nnz) {
         return HS_ERR_NOMEM; // whatever grew stays, capacities unchanged: consistent
     f->cap_cols = nc;
     f->cap_nnz = nz;
+    return HS_OK;
+}
+
+// Largest union of dofs aggregated into one dense change; a larger step goes element by element
+// (its update would cost more than a refactor on any mesh where such a step occurs).
+#define HS_AGG_MAX_D 384
+
+// Order of the dense workspace a step of max_elems elements can need.
+static int agg_order(const hs_cholesky* f, int max_elems) {
+    int64_t d = 12 * (int64_t)max_elems;
+    if (d > HS_AGG_MAX_D) d = HS_AGG_MAX_D;
+    if (d > f->n) d = f->n;
+    return (int)d;
+}
+
+static hs_status reserve_dense(hs_cholesky* f, int max_elems) {
+    if (!f->dpos) {
+        f->dpos = hs_alloc(sizeof(int) * ((size_t)f->n + 1));
+        if (!f->dpos) return HS_ERR_NOMEM;
+        for (int i = 0; i < f->n; i++) f->dpos[i] = -1;
+    }
+    int d = agg_order(f, max_elems);
+    if (d <= f->cap_d) return HS_OK;
+    int* l = hs_realloc(f->dlist, sizeof(int) * (size_t)d);
+    if (!l) return HS_ERR_NOMEM;
+    f->dlist = l;
+    double* m = hs_realloc(f->dense, sizeof(double) * (size_t)d * (size_t)d);
+    if (!m) return HS_ERR_NOMEM;
+    f->dense = m;
+    f->cap_d = d;
     return HS_OK;
 }
 
@@ -773,7 +815,12 @@ hs_status hs_cholesky_prepare_updates(hs_cholesky* f, int max_elems) {
                      ldl_has_super_layout(f->spare, f->L);
         save_pivots(f);
     }
-    return reserve_columns(f, 12 * (int64_t)max_elems, 144 * (int64_t)max_elems);
+    hs_status st = reserve_dense(f, max_elems);
+    if (st != HS_OK) return st;
+    int64_t d = agg_order(f, max_elems);
+    int64_t nnz = 144 * (int64_t)max_elems;
+    if (d * (d + 1) / 2 > nnz) nnz = d * (d + 1) / 2;
+    return reserve_columns(f, 12 * (int64_t)max_elems, nnz);
 }
 
 // In-place shell sort of rows (and their values) of one column.
@@ -896,21 +943,11 @@ static void sym_eig(int m, double* a, double* v, double* w) {
     for (int i = 0; i < m; i++) w[i] = a[i * m + i];
 }
 
-hs_status hs_cholesky_update_elements(hs_cholesky* f, int n_elem, const double* dk,
-                                      const int* dofs) {
-    if (!f || n_elem < 0 || (n_elem > 0 && (!dk || !dofs))) return HS_ERR_INVALID;
-    if (n_elem == 0) return HS_OK;
-    for (int e = 0; e < n_elem; e++) {
-        const int* d = dofs + 12 * e;
-        for (int i = 0; i < 12; i++) {
-            if (d[i] < -1 || d[i] >= f->n) return HS_ERR_INVALID;
-            for (int j = 0; j < i; j++)
-                if (d[i] >= 0 && d[i] == d[j]) return HS_ERR_INVALID;
-        }
-    }
-    hs_status st = hs_cholesky_prepare_updates(f, n_elem);
-    if (st != HS_OK) return st;
-
+// Element by element: each dK_e (negated from first_minus on) split by its own
+// eigen-decomposition (rank <= 12 each).
+static hs_status update_per_element(hs_cholesky* f, int n_elem, const double* dk, const int* dofs,
+                                    int first_minus) {
+    hs_status st;
     int np = 0, nm = 0; // columns so far
     f->cp_p[0] = f->cp_m[0] = 0;
     for (int e = 0; e < n_elem; e++) {
@@ -932,6 +969,7 @@ hs_status hs_cholesky_update_elements(hs_cholesky* f, int n_elem, const double* 
             for (int j = 0; j < m; j++) {
                 // Symmetrise against round-off in the caller's dK.
                 double x = 0.5 * (k[loc[i] * 12 + loc[j]] + k[loc[j] * 12 + loc[i]]);
+                if (e >= first_minus) x = -x;
                 if (!isfinite(x)) return HS_ERR_NUMERIC;
                 a[i * m + j] = x;
             }
@@ -956,10 +994,205 @@ hs_status hs_cholesky_update_elements(hs_cholesky* f, int n_elem, const double* 
             cp[++*nc] = q;
         }
     }
+    f->last_rank = np + nm;
     // Updates first: every intermediate matrix then dominates the final one.
     st = apply_updown(f, 1, np, f->cp_p, f->ci_p, f->cx_p);
     if (st != HS_OK) return st;
     return apply_updown(f, 0, nm, f->cp_m, f->ci_m, f->cx_m);
+}
+
+// Sort the union's dofs by their row in L (insertion sort: d is a few hundred at most).
+static void sort_by_row(const int* pinv, int* dl, int d) {
+    for (int i = 1; i < d; i++) {
+        int v = dl[i], r = pinv[v], j = i;
+        for (; j > 0 && pinv[dl[j - 1]] > r; j--) dl[j] = dl[j - 1];
+        dl[j] = v;
+    }
+}
+
+// The whole step at once. Sum the blocks e0 <= e < e1 (negated from first_minus on) into S over
+// the union D of their free dofs, ordered as
+// the rows of L, and factor S = G Q G^T (G unit lower, Q diagonal) without pivoting, in L's
+// elimination order. S's graph is a union of element cliques, a subgraph of A's, so the fill of
+// this elimination lies inside L's pattern: column j of G has its rows in those of column j of
+// L, and the update adds no fill (an eigen-split would give columns dense over D, which fill L
+// and slow every later update). Rank <= d instead of up to 12 per element. Pivots are not
+// chosen, so an indefinite S can break down: a negligible pivot with a non-negligible column,
+// or large growth, returns 0 (the caller then splits S or goes element by element). A
+// semidefinite S cannot: its growth is bounded by its diagonal. Columns are appended to the
+// update (Q_j > 0) and downdate (Q_j < 0) lists at *np, *nm; -1 on NaN/Inf.
+static int aggregate_columns(hs_cholesky* f, int e0, int e1, int first_minus, const double* dk,
+                             const int* dofs, int* np_io, int* nm_io) {
+    int* pos = f->dpos;
+    int* dl = f->dlist;
+    int d = 0;
+    for (int e = e0; e < e1; e++)
+        for (int i = 0; i < 12; i++) {
+            int q = dofs[12 * e + i];
+            if (q < 0 || pos[q] >= 0) continue;
+            if (d == f->cap_d) {
+                for (int k = 0; k < d; k++) pos[dl[k]] = -1;
+                f->last_union = -1;
+                return 0;
+            }
+            pos[q] = d;
+            dl[d++] = q;
+        }
+    f->last_union = d;
+    sort_by_row(f->pinv, dl, d);
+    for (int k = 0; k < d; k++) pos[dl[k]] = k;
+    double* S = f->dense;
+    for (int i = 0; i < d; i++)
+        memset(S + (size_t)i * (size_t)d, 0, sizeof(double) * (size_t)(i + 1));
+    // Lower triangle, row-major: S[i*d + j], j <= i.
+    for (int e = e0; e < e1; e++) {
+        const int* q = dofs + 12 * e;
+        const double* k = dk + 144 * e;
+        const double sg = e >= first_minus ? -1.0 : 1.0;
+        for (int a = 0; a < 12; a++) {
+            if (q[a] < 0) continue;
+            int pa = pos[q[a]];
+            for (int b = 0; b < 12; b++) {
+                if (q[b] < 0) continue;
+                int pb = pos[q[b]];
+                if (pb > pa) continue;
+                // Both halves of the element's symmetric block land on the one stored entry;
+                // a diagonal entry once.
+                S[(size_t)pa * (size_t)d + (size_t)pb] +=
+                    sg * (pa == pb ? k[a * 12 + b] : 0.5 * (k[a * 12 + b] + k[b * 12 + a]));
+            }
+        }
+    }
+    for (int k = 0; k < d; k++) pos[dl[k]] = -1;
+    double smax = 0.0;
+    for (int i = 0; i < d; i++)
+        for (int j = 0; j <= i; j++) {
+            double x = S[(size_t)i * (size_t)d + (size_t)j];
+            if (!isfinite(x)) return -1;
+            smax = fmax(smax, fabs(x));
+        }
+    if (smax == 0.0) return 1;
+    // Right-looking LDL^T; structural zeros stay exact zeros, so rows outside L's pattern of
+    // the column never appear.
+    const double tiny = 1e-12 * smax, drop = 1e-10 * smax, growth_max = 1e3 * smax;
+    for (int j = 0; j < d; j++) {
+        double* rj = S + (size_t)j * (size_t)d;
+        double p = rj[j];
+        if (fabs(p) <= tiny) {
+            // A zero pivot: only a column of round-off may be dropped.
+            for (int i = j + 1; i < d; i++)
+                if (fabs(S[(size_t)i * (size_t)d + (size_t)j]) > drop) return 0;
+            rj[j] = 0.0;
+            for (int i = j + 1; i < d; i++) S[(size_t)i * (size_t)d + (size_t)j] = 0.0;
+            continue;
+        }
+        double pinv = 1.0 / p;
+        for (int i = j + 1; i < d; i++) {
+            double* ri = S + (size_t)i * (size_t)d;
+            double sij = ri[j];
+            if (sij == 0.0) continue;
+            double g = sij * pinv;
+            for (int k = j + 1; k <= i; k++) {
+                double skj = S[(size_t)k * (size_t)d + (size_t)j];
+                if (skj != 0.0) ri[k] -= g * skj;
+            }
+        }
+        for (int i = j + 1; i < d; i++) {
+            double* sij = S + (size_t)i * (size_t)d + (size_t)j;
+            *sij *= pinv;
+            if (fabs(p) * *sij * *sij > growth_max) return 0;
+        }
+    }
+    // Columns sqrt|Q_j| G_j, updates and downdates apart; rows as in L, ascending.
+    int np = *np_io, nm = *nm_io;
+    for (int j = 0; j < d; j++) {
+        double p = S[(size_t)j * (size_t)d + (size_t)j];
+        if (p == 0.0) continue;
+        int plus = p > 0;
+        int* cp = plus ? f->cp_p : f->cp_m;
+        int* ci = plus ? f->ci_p : f->ci_m;
+        double* cx = plus ? f->cx_p : f->cx_m;
+        int* nc = plus ? &np : &nm;
+        double s = sqrt(fabs(p));
+        int q = cp[*nc];
+        ci[q] = f->pinv[dl[j]];
+        cx[q++] = s;
+        for (int i = j + 1; i < d; i++) {
+            double g = S[(size_t)i * (size_t)d + (size_t)j];
+            if (g == 0.0) continue;
+            ci[q] = f->pinv[dl[i]];
+            cx[q++] = s * g;
+        }
+        cp[++*nc] = q;
+    }
+    *np_io = np;
+    *nm_io = nm;
+    return 1;
+}
+
+// Blocks [0, first_minus) add, [first_minus, n_elem) subtract. Signed aggregate first; if its
+// factorisation breaks down and both parts are semidefinite, each part alone (rank <= 2d);
+// else element by element.
+static hs_status update_blocks(hs_cholesky* f, int n_elem, const double* dk, const int* dofs,
+                               int first_minus, int parts_semidefinite) {
+    if (!f || n_elem < 0 || (n_elem > 0 && (!dk || !dofs))) return HS_ERR_INVALID;
+    if (n_elem == 0) return HS_OK;
+    for (int e = 0; e < n_elem; e++) {
+        const int* d = dofs + 12 * e;
+        for (int i = 0; i < 12; i++) {
+            if (d[i] < -1 || d[i] >= f->n) return HS_ERR_INVALID;
+            for (int j = 0; j < i; j++)
+                if (d[i] >= 0 && d[i] == d[j]) return HS_ERR_INVALID;
+        }
+    }
+    hs_status st = hs_cholesky_prepare_updates(f, n_elem);
+    if (st != HS_OK) return st;
+    f->last_union = -1;
+    if (f->aggregate) {
+        int np = 0, nm = 0;
+        f->cp_p[0] = f->cp_m[0] = 0;
+        int ok = aggregate_columns(f, 0, n_elem, first_minus, dk, dofs, &np, &nm);
+        if (!ok && parts_semidefinite) {
+            int d = f->last_union;
+            np = nm = 0;
+            ok = aggregate_columns(f, 0, first_minus, first_minus, dk, dofs, &np, &nm);
+            if (ok > 0) {
+                int dp = f->last_union;
+                ok = aggregate_columns(f, first_minus, n_elem, first_minus, dk, dofs, &np, &nm);
+                // Report the union of the step, not of its last part.
+                if (ok > 0) f->last_union = d >= 0 ? d : (dp > f->last_union ? dp : f->last_union);
+            }
+        }
+        if (ok < 0) return HS_ERR_NUMERIC;
+        if (ok) {
+            f->last_rank = np + nm;
+            st = apply_updown(f, 1, np, f->cp_p, f->ci_p, f->cx_p);
+            if (st != HS_OK) return st;
+            return apply_updown(f, 0, nm, f->cp_m, f->ci_m, f->cx_m);
+        }
+    }
+    f->last_union = -1;
+    return update_per_element(f, n_elem, dk, dofs, first_minus);
+}
+
+hs_status hs_cholesky_update_elements(hs_cholesky* f, int n_elem, const double* dk,
+                                      const int* dofs) {
+    return update_blocks(f, n_elem, dk, dofs, n_elem, 0);
+}
+
+hs_status hs_cholesky_update_parts(hs_cholesky* f, int n_plus, int n_minus, const double* k,
+                                   const int* dofs) {
+    if (n_plus < 0 || n_minus < 0 || n_plus > INT32_MAX - n_minus) return HS_ERR_INVALID;
+    return update_blocks(f, n_plus + n_minus, k, dofs, n_plus, 1);
+}
+
+void hs_cholesky_set_aggregate(hs_cholesky* f, int on) {
+    if (f) f->aggregate = on != 0;
+}
+
+int hs_cholesky_last_update_rank(const hs_cholesky* f, int* union_dofs) {
+    if (union_dofs) *union_dofs = f ? f->last_union : -1;
+    return f ? f->last_rank : 0;
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -79,6 +79,8 @@ static double refactor_ms(hs_cut* c) {
 
 typedef struct pass_stats {
     double p50, p99, removed_per_step, geometry_ms, factor_ms, changes;
+    double rank, union_dofs; // per updated step: columns sent, free dofs aggregated
+    int updated, split;      // steps updated; of them not aggregated as one signed change
     int steps, refactors;
     double dense_ms, refactor_ms;
 } pass_stats;
@@ -162,11 +164,22 @@ static int run_pass(const cut_case* cc, const hs_bench_args* args, hs_cut_factor
             ps->geometry_ms += r.geometry_ms;
             ps->factor_ms += r.factor_ms;
             ps->refactors += r.refactored;
+            if (!r.refactored) {
+                int u = 0;
+                ps->rank += hs_cholesky_last_update_rank(hs_cut_factor(c), &u);
+                ps->union_dofs += u;
+                ps->updated++;
+                ps->split += u < 0 || hs_cholesky_last_update_rank(hs_cut_factor(c), NULL) > u;
+            }
         }
     }
     if (ps->steps) {
         ps->removed_per_step = (double)removed / ps->steps;
         ps->changes = (double)chg / ps->steps;
+        if (ps->updated) {
+            ps->rank /= ps->updated;
+            ps->union_dofs /= ps->updated;
+        }
         ps->geometry_ms /= ps->steps;
         ps->factor_ms /= ps->steps;
         ps->p50 = hs_bench_percentile(ms, (size_t)ps->steps, 50);
@@ -192,12 +205,12 @@ static int run_case(const cut_case* cc, const hs_bench_args* args) {
     printf("%s,%d,%d,%.1f,%.3f,%.3f,%.2f,%s\n", cc->name, cc->vertices, cc->tets,
            up.removed_per_step, up.p50, up.p99, up.refactor_ms, dense_s);
     fflush(stdout);
-    fprintf(
-        stderr,
-        "cut: %s: %d steps, %.1f element changes/step; low-rank update: geometry %.3f ms + "
-        "factor %.3f ms; AUTO policy: step p50 %.3f ms p99 %.3f ms (%d of %d steps refactored)\n",
-        cc->name, up.steps, up.changes, up.geometry_ms, up.factor_ms, au.p50, au.p99, au.refactors,
-        au.steps);
+    fprintf(stderr,
+            "cut: %s: %d steps, %.1f element changes/step; low-rank update: geometry %.3f ms + "
+            "factor %.3f ms, rank %.1f for %.1f free dofs touched (%d of %d steps split); AUTO "
+            "policy: step p50 %.3f ms p99 %.3f ms (%d of %d steps refactored)\n",
+            cc->name, up.steps, up.changes, up.geometry_ms, up.factor_ms, up.rank, up.union_dofs,
+            up.split, up.updated, au.p50, au.p99, au.refactors, au.steps);
     return rc;
 }
 
