@@ -423,6 +423,75 @@ static int test_consistency(void) {
 /// Rules on a small box (40 x 40 x 10 mm, 4 x 4 x 1 hexes, x = 0 held): a far piece cut free is
 /// dropped (DROP) or pinned in place (FIX); a corner sliced off orphans its vertices, which are
 /// pinned (ORPHAN_PIN) or keep their tets (the paper's rule) unless those hang on by an edge.
+/// Sweeps under the UPDATE policy (removals, relocations, orphan pins): the aggregated update
+/// of each sweep has rank <= the free dofs it touches (twice that when its semidefinite parts
+/// go apart) and far below 12 per element change, and matches a fresh factor.
+static int test_aggregated_update(void) {
+    int64_t bytes = hs_byte_count();
+    hs_mesh* m = NULL;
+    hs_err e;
+    ENSURE(hs_mesh_create_box(0.08, 0.08, 0.01, 8, 8, 2, &m, &e) == HS_OK);
+    unsigned char* fixed = hs_calloc((size_t)m->n_nodes, 1);
+    hs_mesh_select_plane(m, 0, -1, 1e-6, fixed);
+    hs_cut_def def = hs_cut_default_def();
+    def.factor_policy = HS_CUT_FACTOR_UPDATE;
+    hs_cut* c = NULL;
+    ENSURE(hs_cut_create(m, fixed, &def, &c, &e) == HS_OK);
+    int removed = 0, moved = 0, pinned = 0, updated = 0, aggregated = 0;
+    for (int k = 0; k < 16; k++) {
+        double p0[3], q0[3], p1[3], q1[3];
+        if (k < 8) { // progressive partial cut across y at x = 45 mm
+            p0[0] = q0[0] = p1[0] = q1[0] = 0.0451;
+            p0[1] = q0[1] = -0.005 + 0.007 * k;
+            p1[1] = q1[1] = -0.005 + 0.007 * (k + 1);
+            p0[2] = p1[2] = -0.005;
+            q0[2] = q1[2] = 0.015;
+        } else if (k == 8) { // slice the free corner (80, 0, *) off: its vertices are orphaned
+            p0[0] = q0[0] = p1[0] = q1[0] = 0.075;
+            p0[1] = q0[1] = -0.005;
+            p1[1] = q1[1] = 0.003;
+            p0[2] = p1[2] = -0.005;
+            q0[2] = q1[2] = 0.015;
+        } else { // random short sweeps
+            for (int d = 0; d < 3; d++) {
+                double ctr = (d == 2 ? 0.01 : 0.08) * urand();
+                double bl = (urand() - 0.5) * 0.02, mv = (urand() - 0.5) * 0.01;
+                p0[d] = ctr - bl;
+                q0[d] = ctr + bl;
+                p1[d] = p0[d] + mv;
+                q1[d] = q0[d] + mv;
+            }
+        }
+        hs_cut_result r;
+        ENSURE(hs_cut_sweep(c, p0, q0, p1, q1, NULL, &r, &e) == HS_OK);
+        if (r.changed_elements == 0) continue;
+        ENSURE(!r.refactored);
+        removed += r.removed;
+        moved += r.moved;
+        pinned += r.pinned;
+        hs_cholesky_update_info ui;
+        hs_cholesky_last_update(hs_cut_factor(c), &ui);
+        ENSURE(ui.method != HS_UPDATE_PER_ELEMENT && ui.union_dofs > 0);
+        ENSURE(ui.rank <= (ui.method == HS_UPDATE_AGGREGATED ? 1 : 2) * ui.union_dofs);
+        ENSURE(ui.rank < 12 * r.changed_elements);
+        updated++;
+        aggregated += ui.method == HS_UPDATE_AGGREGATED;
+        double df = factor_vs_fresh(c);
+        printf("  sweep %d: removed %d moved %d pinned %d changes %d: rank %d of %d dofs (%s), "
+               "vs fresh %.1e\n",
+               k, r.removed, r.moved, r.pinned, r.changed_elements, ui.rank, ui.union_dofs,
+               ui.method == HS_UPDATE_AGGREGATED ? "summed" : "parts", df);
+        ENSURE(df <= 1e-8);
+    }
+    ENSURE(removed > 0 && moved > 0 && pinned > 0);
+    ENSURE(updated >= 8 && aggregated >= updated / 2);
+    hs_free(fixed);
+    hs_cut_destroy(&c);
+    hs_mesh_destroy(&m);
+    ENSURE(hs_byte_count() == bytes);
+    return 0;
+}
+
 static int test_rules(void) {
     int64_t bytes = hs_byte_count();
     for (int variant = 0; variant < 4; variant++) {
@@ -720,6 +789,7 @@ static int test_liver_random_cuts(void) {
 }
 
 HS_TEST_MAIN(HS_CASE(test_force_model), HS_CASE(test_skin_full_separation),
-             HS_CASE(test_skin_wound_angle), HS_CASE(test_consistency), HS_CASE(test_rules),
+             HS_CASE(test_skin_wound_angle), HS_CASE(test_consistency),
+             HS_CASE(test_aggregated_update), HS_CASE(test_rules),
              HS_CASE(test_deformed_and_bad_input), HS_CASE(test_dynamic_body),
              HS_CASE(test_alloc_faults), HS_CASE(test_liver_random_cuts))

@@ -533,6 +533,132 @@ static int UpdownMatchesFreshFactor(void) {
     return 0;
 }
 
+// Add sign * blocks [e0, e1) of k (row-major 12x12, dofs[12 e], -1 fixed) into a.
+static void add_blocks(hs_csc* a, const double* k, const int* dofs, int e0, int e1, double sign) {
+    for (int e = e0; e < e1; e++)
+        for (int r = 0; r < 12; r++)
+            for (int c = 0; c < 12; c++) {
+                int dr = dofs[12 * e + r], dc = dofs[12 * e + c];
+                if (dr >= 0 && dc >= 0)
+                    a->val[hs_csc_find(a, dr, dc)] += sign * k[144 * e + 12 * r + c];
+            }
+}
+
+// The aggregated update (one factorisation of the summed change over the union of its dofs)
+// against a fresh factor and against the element-by-element update, for removals, indefinite
+// relocations, a pin block, and a change whose unpivoted factorisation breaks down (zero
+// diagonal: the semidefinite parts are then factored apart). Rank <= union every time.
+static int AggregatedUpdates(void) {
+    int64_t bytes0 = hs_byte_count();
+    fixture t;
+    ENSURE(fixture_make(&t, 8, 8, 6, 1e-3) == 0);
+    int n = t.a->n;
+    hs_cholesky* g = NULL; // element by element, the reference path
+    hs_err err;
+    ENSURE(hs_cholesky_create(t.a, &g, &err) == HS_OK);
+    hs_cholesky_set_aggregate(g, 0);
+    ENSURE(hs_cholesky_prepare_updates(t.f, 25) == HS_OK);
+    ENSURE(hs_cholesky_prepare_updates(g, 25) == HS_OK);
+    double* x2 = malloc(sizeof(double) * (size_t)n);
+    double k[25 * 144];
+    int dofs[25 * 12];
+    hs_cholesky_update_info ia, ie;
+    const int mid = t.g.n_tets / 2;
+    for (int step = 0; step < 4; step++) {
+        int np = 0, nm = 0;
+        if (step == 0) { // remove 12 neighbouring tets (the 6 of two adjacent cells)
+            for (int i = 0; i < 12; i++) {
+                grid_tet_block(&t.g, mid + i, t.g.w[mid + i], k + 144 * i);
+                grid_tet_dofs(&t.g, mid + i, dofs + 12 * i);
+            }
+            nm = 12;
+        } else if (step == 1 || step == 3) {
+            // Relocation: 12 tets (one of them touching the fixed face at step 3) change
+            // their stiffness to S K S, S = diag(1.4, 0.7, 1) per node: indefinite change.
+            int e0 = step == 1 ? mid - 40 : 0;
+            for (int i = 0; i < 12; i++) {
+                int e = e0 + i;
+                double* kn = k + 144 * i;
+                grid_tet_block(&t.g, e, t.g.w[e], kn);
+                grid_tet_block(&t.g, e, t.g.w[e], k + 144 * (12 + i));
+                for (int r = 0; r < 12; r++)
+                    for (int c = 0; c < 12; c++)
+                        kn[12 * r + c] *= (r % 3 == 0   ? 1.4
+                                           : r % 3 == 1 ? 0.7
+                                                        : 1.0) *
+                                          (c % 3 == 0   ? 1.4
+                                           : c % 3 == 1 ? 0.7
+                                                        : 1.0);
+                grid_tet_dofs(&t.g, e, dofs + 12 * i);
+                grid_tet_dofs(&t.g, e, dofs + 12 * (12 + i));
+            }
+            np = nm = 12;
+            if (step == 3) { // plus a pin spring on the three dofs of one node
+                memmove(k + 144 * 13, k + 144 * 12, sizeof(double) * 144 * 12);
+                memmove(dofs + 12 * 13, dofs + 12 * 12, sizeof(int) * 12 * 12);
+                memset(k + 144 * 12, 0, sizeof(double) * 144);
+                for (int q = 0; q < 12; q++) dofs[12 * 12 + q] = q < 3 ? 3 * (n / 6) + q : -1;
+                for (int q = 0; q < 3; q++) k[144 * 12 + 13 * q] = 5.0;
+                np = 13;
+            }
+        } else {
+            // D K D - K with D = +-1 per node has a zero diagonal: the summed change has no
+            // usable pivot, its semidefinite parts K and D K D do.
+            int e = mid + 100;
+            grid_tet_block(&t.g, e, 0.3 * t.g.w[e], k);
+            grid_tet_block(&t.g, e, 0.3 * t.g.w[e], k + 144);
+            for (int r = 0; r < 12; r++)
+                for (int c = 0; c < 12; c++)
+                    k[144 + 12 * r + c] *= ((r / 3) % 2 ? -1.0 : 1.0) * ((c / 3) % 2 ? -1.0 : 1.0);
+            grid_tet_dofs(&t.g, e, dofs);
+            grid_tet_dofs(&t.g, e, dofs + 12);
+            np = nm = 1;
+        }
+        add_blocks(t.a, k, dofs, 0, np, 1.0);
+        add_blocks(t.a, k, dofs, np, np + nm, -1.0);
+        ENSURE(hs_cholesky_update_parts(t.f, np, nm, k, dofs) == HS_OK);
+        ENSURE(hs_cholesky_update_parts(g, np, nm, k, dofs) == HS_OK);
+        hs_cholesky_last_update(t.f, &ia);
+        hs_cholesky_last_update(g, &ie);
+        printf("  step %d: aggregated rank %d (union %d, method %d), per element %d\n", step,
+               ia.rank, ia.union_dofs, ia.method, ie.rank);
+        ENSURE(ie.method == HS_UPDATE_PER_ELEMENT);
+        ENSURE(ia.union_dofs > 0 && ia.rank > 0);
+        if (step == 2) {
+            ENSURE(ia.method == HS_UPDATE_PARTS);
+            ENSURE(ia.rank <= 2 * ia.union_dofs);
+        } else {
+            ENSURE(ia.method == HS_UPDATE_AGGREGATED);
+            ENSURE(ia.rank <= ia.union_dofs);
+            ENSURE(ia.rank < ie.rank);
+        }
+        ENSURE_SMALL(compare_with_fresh(t.f, t.a, t.b, t.x, x2), 1e-8);
+        ENSURE_SMALL(compare_with_fresh(g, t.a, t.b, t.x, x2), 1e-8);
+    }
+    // update_elements (summed differences) aggregates too: undo step 0's removal.
+    for (int i = 0; i < 12; i++) {
+        grid_tet_block(&t.g, mid + i, t.g.w[mid + i], k + 144 * i);
+        grid_tet_dofs(&t.g, mid + i, dofs + 12 * i);
+    }
+    add_blocks(t.a, k, dofs, 0, 12, 1.0);
+    int64_t calls = hs_alloc_calls();
+    ENSURE(hs_cholesky_update_elements(t.f, 12, k, dofs) == HS_OK);
+    ENSURE(hs_alloc_calls() == calls);
+    hs_cholesky_last_update(t.f, &ia);
+    ENSURE(ia.method == HS_UPDATE_AGGREGATED && ia.rank <= ia.union_dofs);
+    ENSURE_SMALL(compare_with_fresh(t.f, t.a, t.b, t.x, x2), 1e-8);
+    // Bad input changes nothing.
+    ENSURE(hs_cholesky_update_parts(t.f, -1, 2, k, dofs) == HS_ERR_INVALID);
+    dofs[5] = dofs[4];
+    ENSURE(hs_cholesky_update_parts(t.f, 1, 0, k, dofs) == HS_ERR_INVALID);
+    ENSURE_SMALL(compare_with_fresh(t.f, t.a, t.b, t.x, x2), 1e-8);
+    free(x2);
+    hs_cholesky_destroy(&g);
+    fixture_free(&t);
+    ENSURE(hs_byte_count() == bytes0);
+    return 0;
+}
+
 // Removing a slab of elements leaves the far part of the grid without support: the downdate
 // must report the singular result rather than produce a factor with round-off pivots.
 static int FreeFragmentDetected(void) {
@@ -735,5 +861,6 @@ HS_TEST_MAIN(HS_CASE(CscPatternAndSpmv), HS_CASE(CscBadInput), HS_CASE(CholeskyS
              HS_CASE(CholeskyRefactor), HS_CASE(CholeskyNotPosdefKeepsFactor),
              HS_CASE(SolveAllocatesNothing), HS_CASE(ThreadControl),
              HS_CASE(CholeskyFaultInjection), HS_CASE(PcgConverges),
-             HS_CASE(UpdownMatchesFreshFactor), HS_CASE(FreeFragmentDetected),
-             HS_CASE(UpdateFaultInjection), HS_CASE(SmallAndEmpty), HS_CASE(NaturalOrderInPlace))
+             HS_CASE(UpdownMatchesFreshFactor), HS_CASE(AggregatedUpdates),
+             HS_CASE(FreeFragmentDetected), HS_CASE(UpdateFaultInjection), HS_CASE(SmallAndEmpty),
+             HS_CASE(NaturalOrderInPlace))

@@ -116,9 +116,22 @@ hs_status hs_cholesky_update_parts(hs_cholesky* f, int n_plus, int n_minus, cons
                                    const int* dofs);
 /// 1 (default): hs_cholesky_update_elements aggregates the step; 0: element by element.
 void hs_cholesky_set_aggregate(hs_cholesky* f, int on);
-/// Columns (rank-1 changes) the last hs_cholesky_update_elements sent to update/downdate;
-/// union_dofs (may be NULL) gets the free dofs it aggregated, -1 if it went element by element.
-int hs_cholesky_last_update_rank(const hs_cholesky* f, int* union_dofs /* OUT */);
+/// How hs_cholesky_update_elements / _parts applied a change.
+typedef enum hs_cholesky_update_method {
+    HS_UPDATE_PER_ELEMENT = 0, ///< each block split by its own eigen-decomposition
+    HS_UPDATE_AGGREGATED = 1,  ///< the summed change factored once (rank <= union_dofs)
+    HS_UPDATE_PARTS = 2,       ///< the summed + and - parts factored apart (rank <= 2 union_dofs)
+} hs_cholesky_update_method;
+
+/// What the last hs_cholesky_update_elements / _parts did.
+typedef struct hs_cholesky_update_info {
+    int rank;       ///< rank-1 columns sent to update/downdate
+    int union_dofs; ///< free dofs the change touched (-1: more than the aggregation limit)
+    hs_cholesky_update_method method;
+} hs_cholesky_update_info;
+
+/// The last update's rank, union and method. @param info OUT
+void hs_cholesky_last_update(const hs_cholesky* f, hs_cholesky_update_info* info);
 
 /// Threads used inside CHOLMOD, process-wide: OpenBLAS gets n threads, and CHOLMOD's own
 /// OpenMP loops (fixed at 4 threads in Debian's build) run serially when n == 1. The defaults

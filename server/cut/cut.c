@@ -1123,8 +1123,9 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
         if (st == HS_OK) st = apply_changes(c, m);
         if (st == HS_OK) {
             c->updates_since_refactor++;
-            int rank = hs_cholesky_last_update_rank(c->factor, NULL);
-            double took = (double)(hs_now_ns() - tu) * 1e-6 / (rank > 0 ? rank : 1);
+            hs_cholesky_update_info ui;
+            hs_cholesky_last_update(c->factor, &ui);
+            double took = (double)(hs_now_ns() - tu) * 1e-6 / (ui.rank > 0 ? ui.rank : 1);
             c->update_ms_per_rank =
                 c->update_ms_per_rank > 0 ? 0.8 * c->update_ms_per_rank + 0.2 * took : took;
         } else {

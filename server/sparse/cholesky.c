@@ -40,13 +40,12 @@ struct hs_cholesky {
     int *cp_m, *ci_m; // downdate columns
     double* cx_m;
     // Aggregated element updates: the step's summed change over the union of its dofs.
-    int aggregate;  // 1 (default): one L-ordered LDL^T of the summed change; 0: per element
-    int cap_d;      // order of the dense workspace
-    int* dpos;      // [n] position of a dof in the union, -1 outside
-    int* dlist;     // [cap_d] union dofs, then their rows in L
-    double* dense;  // [cap_d^2] summed change, then its LDL^T (lower triangle)
-    int last_rank;  // columns sent by the last update_elements
-    int last_union; // free dofs touched by it
+    int aggregate; // 1 (default): one L-ordered LDL^T of the summed change; 0: per element
+    int cap_d;     // order of the dense workspace
+    int* dpos;     // [n] position of a dof in the union, -1 outside
+    int* dlist;    // [cap_d] union dofs, then their rows in L
+    double* dense; // [cap_d^2] summed change, then its LDL^T (lower triangle)
+    hs_cholesky_update_info last; // of the last update_elements / update_parts
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -994,7 +993,7 @@ static hs_status update_per_element(hs_cholesky* f, int n_elem, const double* dk
             cp[++*nc] = q;
         }
     }
-    f->last_rank = np + nm;
+    f->last.rank = np + nm;
     // Updates first: every intermediate matrix then dominates the final one.
     st = apply_updown(f, 1, np, f->cp_p, f->ci_p, f->cx_p);
     if (st != HS_OK) return st;
@@ -1032,13 +1031,13 @@ static int aggregate_columns(hs_cholesky* f, int e0, int e1, int first_minus, co
             if (q < 0 || pos[q] >= 0) continue;
             if (d == f->cap_d) {
                 for (int k = 0; k < d; k++) pos[dl[k]] = -1;
-                f->last_union = -1;
+                f->last.union_dofs = -1;
                 return 0;
             }
             pos[q] = d;
             dl[d++] = q;
         }
-    f->last_union = d;
+    f->last.union_dofs = d;
     sort_by_row(f->pinv, dl, d);
     for (int k = 0; k < d; k++) pos[dl[k]] = k;
     double* S = f->dense;
@@ -1147,31 +1146,30 @@ static hs_status update_blocks(hs_cholesky* f, int n_elem, const double* dk, con
     }
     hs_status st = hs_cholesky_prepare_updates(f, n_elem);
     if (st != HS_OK) return st;
-    f->last_union = -1;
+    f->last.union_dofs = -1;
     if (f->aggregate) {
         int np = 0, nm = 0;
         f->cp_p[0] = f->cp_m[0] = 0;
+        f->last.method = HS_UPDATE_AGGREGATED;
         int ok = aggregate_columns(f, 0, n_elem, first_minus, dk, dofs, &np, &nm);
         if (!ok && parts_semidefinite) {
-            int d = f->last_union;
+            int d = f->last.union_dofs;
             np = nm = 0;
+            f->last.method = HS_UPDATE_PARTS;
             ok = aggregate_columns(f, 0, first_minus, first_minus, dk, dofs, &np, &nm);
-            if (ok > 0) {
-                int dp = f->last_union;
+            if (ok > 0)
                 ok = aggregate_columns(f, first_minus, n_elem, first_minus, dk, dofs, &np, &nm);
-                // Report the union of the step, not of its last part.
-                if (ok > 0) f->last_union = d >= 0 ? d : (dp > f->last_union ? dp : f->last_union);
-            }
+            f->last.union_dofs = d; // of the whole step, not of its last part
         }
         if (ok < 0) return HS_ERR_NUMERIC;
         if (ok) {
-            f->last_rank = np + nm;
+            f->last.rank = np + nm;
             st = apply_updown(f, 1, np, f->cp_p, f->ci_p, f->cx_p);
             if (st != HS_OK) return st;
             return apply_updown(f, 0, nm, f->cp_m, f->ci_m, f->cx_m);
         }
     }
-    f->last_union = -1;
+    f->last.method = HS_UPDATE_PER_ELEMENT;
     return update_per_element(f, n_elem, dk, dofs, first_minus);
 }
 
@@ -1190,9 +1188,14 @@ void hs_cholesky_set_aggregate(hs_cholesky* f, int on) {
     if (f) f->aggregate = on != 0;
 }
 
-int hs_cholesky_last_update_rank(const hs_cholesky* f, int* union_dofs) {
-    if (union_dofs) *union_dofs = f ? f->last_union : -1;
-    return f ? f->last_rank : 0;
+void hs_cholesky_last_update(const hs_cholesky* f, hs_cholesky_update_info* info) {
+    if (!info) return;
+    if (f) {
+        *info = f->last;
+    } else {
+        memset(info, 0, sizeof *info);
+        info->union_dofs = -1;
+    }
 }
 
 // ---------------------------------------------------------------------------------------------

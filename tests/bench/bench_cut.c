@@ -165,11 +165,12 @@ static int run_pass(const cut_case* cc, const hs_bench_args* args, hs_cut_factor
             ps->factor_ms += r.factor_ms;
             ps->refactors += r.refactored;
             if (!r.refactored) {
-                int u = 0;
-                ps->rank += hs_cholesky_last_update_rank(hs_cut_factor(c), &u);
-                ps->union_dofs += u;
+                hs_cholesky_update_info ui;
+                hs_cholesky_last_update(hs_cut_factor(c), &ui);
+                ps->rank += ui.rank;
+                ps->union_dofs += ui.union_dofs;
                 ps->updated++;
-                ps->split += u < 0 || hs_cholesky_last_update_rank(hs_cut_factor(c), NULL) > u;
+                ps->split += ui.method != HS_UPDATE_AGGREGATED;
             }
         }
     }
