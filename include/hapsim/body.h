@@ -16,6 +16,11 @@ extern "C" {
 typedef enum hs_solver_kind {
     HS_SOLVER_DIRECT = 0, ///< CHOLMOD: analysis once, numeric refactor when K changes
     HS_SOLVER_PCG = 1,    ///< conjugate gradients, warm-started, preconditioner per hs_precond
+    /// One solve per system with the rest-state factor rotated by the node rotations,
+    /// R K0^-1 R^T (stiffness warping): the tangent is approximated, the forces are not, so
+    /// equilibria are exact and a step costs about one back-solve. For the linear model it is
+    /// the direct solver. See docs/fem.md "Warped solver".
+    HS_SOLVER_WARPED = 2,
 } hs_solver_kind;
 
 /// Body options. Initialise with hs_body_default_def().
@@ -45,7 +50,8 @@ typedef struct hs_step_stats {
     int iterations;        ///< Newton iterations (static) or 1 (step)
     int linear_iterations; ///< PCG iterations summed (0 for direct)
     int refactors;         ///< numeric factorisations done
-    double residual;       ///< static: final ||r|| / ||r_first||; step: PCG relative residual
+    double residual;       ///< static: final ||r|| / ||r_first||; step: PCG relative
+                           ///< residual (0 direct; NaN warped: not computed)
     int line_search_cuts;  ///< halvings: static line search, or the step's energy safeguard
     hs_fem_stats fem;      ///< model statistics at the end
 } hs_step_stats;

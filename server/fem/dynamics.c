@@ -27,7 +27,6 @@ struct hs_body {
     hs_csc* a;           // system matrix over free dofs
     hs_cholesky* factor; // factor of `a` (direct) or of the rest-state matrix (PCG factor)
     double factor_kcoef, factor_mcoef; // coefficients the factor was built with
-    int factor_is_rest;                // 1 when the factor holds the rest-state matrix
     uint64_t factor_version;           // hs_fem_stiffness_version the factor was built at
     double a_kcoef, a_mcoef;           // coefficients `a` was last assembled with
     uint64_t a_version;                // and the stiffness version
@@ -160,6 +159,14 @@ hs_status hs_body_create(const hs_mesh* mesh, const hs_body_def* def, const unsi
                           def->dt);
     if (def->static_load_steps < 1 || def->static_max_iter < 1 || def->pcg_max_iter < 1)
         return hs_err_set(err, HS_ERR_INVALID, "hs_body_create: iteration counts must be >= 1");
+    if (def->solver < HS_SOLVER_DIRECT || def->solver > HS_SOLVER_WARPED)
+        return hs_err_set(err, HS_ERR_INVALID, "hs_body_create: unknown solver %d",
+                          (int)def->solver);
+    if (def->solver == HS_SOLVER_PCG &&
+        (def->precond < HS_PRECOND_NONE || def->precond > HS_PRECOND_WARPED ||
+         def->precond == HS_PRECOND_CUSTOM))
+        return hs_err_set(err, HS_ERR_INVALID, "hs_body_create: unusable preconditioner %d",
+                          (int)def->precond);
 
     hs_body* b = hs_calloc(1, sizeof *b);
     if (!b) return hs_err_set(err, HS_ERR_NOMEM, "hs_body_create: out of memory");
@@ -212,8 +219,9 @@ hs_status hs_body_create(const hs_mesh* mesh, const hs_body_def* def, const unsi
     }
     s = hs_fem_create_matrix(b->fem, &b->a);
     if (s != HS_OK) goto fail_status;
-    if (def->solver == HS_SOLVER_DIRECT || def->precond == HS_PRECOND_FACTOR ||
-        def->precond == HS_PRECOND_WARPED) {
+    const int warped = def->solver == HS_SOLVER_WARPED ||
+                       (def->solver == HS_SOLVER_PCG && def->precond == HS_PRECOND_WARPED);
+    if (def->solver != HS_SOLVER_PCG || def->precond == HS_PRECOND_FACTOR || warped) {
         // Number the free dofs in the factor's fill-reducing order: CHOLMOD then refactorises
         // the assembled matrix in place, so a step allocates nothing.
         s = renumber_dofs(b, err);
@@ -222,15 +230,15 @@ hs_status hs_body_create(const hs_mesh* mesh, const hs_body_def* def, const unsi
             return s;
         }
     }
+    if (warped) {
+        b->rot = hs_calloc(9 * (size_t)b->n, sizeof(double)); // zeros: cold first start
+        b->tmp_f = hs_alloc((size_t)nf * sizeof(double));
+        if (!b->rot || !b->tmp_f) goto nomem;
+    }
     if (def->solver == HS_SOLVER_PCG) {
         s = hs_pcg_create(nf, &b->pcg);
         if (s != HS_OK) goto fail_status;
-        if (def->precond == HS_PRECOND_WARPED) {
-            b->rot = hs_calloc(9 * (size_t)b->n, sizeof(double)); // zeros: cold first start
-            b->tmp_f = hs_alloc((size_t)nf * sizeof(double));
-            if (!b->rot || !b->tmp_f) goto nomem;
-            hs_pcg_set_preconditioner(b->pcg, warped_precond, b);
-        }
+        if (warped) hs_pcg_set_preconditioner(b->pcg, warped_precond, b);
     }
     *out = b;
     return HS_OK;
@@ -381,10 +389,14 @@ static hs_status refresh_factor(hs_body* b, double kcoef, double mcoef, int* ref
 
 // Solve A x = rhs over free dofs with the configured solver. A = kcoef K_t + mcoef M at the
 // last update. x holds a warm start on entry.
-static hs_status solve_system(hs_body* b, double kcoef, double mcoef, hs_step_stats* st) {
+// `exact`: the static Newton iteration, which the warped solver's approximate tangent would
+// turn into a slow quasi-Newton one (measured: hundreds of iterations on a large bend, stalling
+// near 1e-9), so there it solves with the exact tangent.
+static hs_status solve_system(hs_body* b, double kcoef, double mcoef, hs_step_stats* st,
+                              int exact) {
     const int linear = b->def.fem.model == HS_MODEL_LINEAR;
     hs_status s = HS_OK;
-    if (b->def.solver == HS_SOLVER_DIRECT) {
+    if (b->def.solver == HS_SOLVER_DIRECT || (exact && b->def.solver == HS_SOLVER_WARPED)) {
         // A cut (elements removed or moved) changes even the linear model's matrix.
         int have = b->factor && b->factor_kcoef == kcoef && b->factor_mcoef == mcoef &&
                    b->factor_version == hs_fem_stiffness_version(b->fem);
@@ -399,8 +411,9 @@ static hs_status solve_system(hs_body* b, double kcoef, double mcoef, hs_step_st
         st->residual = 0;
         return s;
     }
-    // PCG: the factor (if any) is the rest-state matrix with these coefficients.
-    const int warped = b->def.precond == HS_PRECOND_WARPED;
+    // PCG and warped: the factor (if any) is the rest-state matrix with these coefficients.
+    const int one_solve = b->def.solver == HS_SOLVER_WARPED;
+    const int warped = one_solve || b->def.precond == HS_PRECOND_WARPED;
     if ((b->def.precond == HS_PRECOND_FACTOR || warped) &&
         (!b->factor || b->factor_kcoef != kcoef || b->factor_mcoef != mcoef ||
          b->factor_version != hs_fem_stiffness_version(b->fem))) {
@@ -414,9 +427,17 @@ static hs_status solve_system(hs_body* b, double kcoef, double mcoef, hs_step_st
         update_model(b);
         if (s != HS_OK) return s;
     }
-    assemble(b, kcoef, mcoef);
     if (warped)
         for (int i = 0; i < b->n; ++i) hs_fem_node_rotation_warm(b->fem, i, b->rot + 9 * i);
+    if (one_solve) {
+        // `a` keeps the rest-state matrix the factor was made from (the step's safeguard
+        // measures du.K du with it).
+        s = warped_precond(b, b->rhs_f, b->x_f);
+        st->linear_iterations += 1;
+        st->residual = NAN;
+        return s;
+    }
+    assemble(b, kcoef, mcoef);
     int it = 0;
     double rel = 0;
     s = hs_pcg_solve(b->pcg, b->a, b->rhs_f, b->x_f, warped ? HS_PRECOND_CUSTOM : b->def.precond,
@@ -461,7 +482,7 @@ hs_status hs_body_step(hs_body* b, hs_step_stats* stats) {
         b->rhs_f[j] = b->r[b->free_to_full[j]];
         b->x_f[j] = b->du_prev[b->free_to_full[j]]; // warm start
     }
-    hs_status s = solve_system(b, kcoef, mcoef, &st);
+    hs_status s = solve_system(b, kcoef, mcoef, &st, 0);
     if (s == HS_OK && !all_finite(b->x_f, b->n_free)) s = HS_ERR_NUMERIC;
     if (s != HS_OK) {
         // Leave the state untouched: a failed step must not corrupt it.
@@ -489,9 +510,22 @@ hs_status hs_body_step(hs_body* b, hs_step_stats* stats) {
         slope /= dt * dt;
         p0 = potential(b) + md / (2 * dt * dt);
         if (be > 0) { // du.K du from the assembled A = kcoef K + mcoef M
-            hs_csc_spmv(b->a, b->x_f, b->y);
+            const double* xs = b->x_f;
+            if (b->def.solver == HS_SOLVER_WARPED) {
+                // The step's tangent is R K0 R^T and `a` holds A0: measure R^T du with it.
+                for (int i = 0; i < b->n; ++i) {
+                    const int* d = b->dof + 3 * i;
+                    if (d[0] < 0) continue;
+                    const double* q = b->rot + 9 * i;
+                    for (int c = 0; c < 3; ++c)
+                        b->tmp_f[d[c]] =
+                            q[c] * b->x_f[d[0]] + q[3 + c] * b->x_f[d[1]] + q[6 + c] * b->x_f[d[2]];
+                }
+                xs = b->tmp_f;
+            }
+            hs_csc_spmv(b->a, xs, b->y);
             double xax = 0;
-            for (int j = 0; j < b->n_free; ++j) xax += b->x_f[j] * b->y[j];
+            for (int j = 0; j < b->n_free; ++j) xax += xs[j] * b->y[j];
             kxx = (xax - mcoef * mxx) / kcoef;
         }
         memcpy(b->save, b->u, (size_t)n3 * sizeof(double));
@@ -567,7 +601,7 @@ hs_status hs_body_solve_static(hs_body* b, hs_step_stats* stats) {
                 b->rhs_f[j] = b->r[b->free_to_full[j]];
                 b->x_f[j] = 0;
             }
-            hs_status s = solve_system(b, 1.0, 0.0, &st);
+            hs_status s = solve_system(b, 1.0, 0.0, &st, 1);
             if (s == HS_OK && !all_finite(b->x_f, b->n_free)) s = HS_ERR_NUMERIC;
             if (s != HS_OK) {
                 result = s;
@@ -594,7 +628,7 @@ hs_status hs_body_solve_static(hs_body* b, hs_step_stats* stats) {
                 b->rhs_f[j] = b->r[b->free_to_full[j]];
                 b->x_f[j] = 0;
             }
-            hs_status s = solve_system(b, 1.0, 0.0, &st);
+            hs_status s = solve_system(b, 1.0, 0.0, &st, 1);
             if (s != HS_OK) {
                 result = s;
                 break;

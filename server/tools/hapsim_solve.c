@@ -41,7 +41,8 @@ static const char* usage =
     "  --polar-tol T          polar iteration tolerance (default 1e-6)\n"
     "  --inversion fallback|reflect   inverted-element remedy (default fallback)\n"
     "  --damping ALPHA,BETA   Rayleigh damping C = alpha M + beta K (default 0,0)\n"
-    "  --solver direct|pcg    linear solver (default direct, CHOLMOD)\n"
+    "  --solver direct|pcg|warped  linear solver (default direct, CHOLMOD; warped: one\n"
+    "                         rotated rest-factor solve per step, exact tangent when --static)\n"
     "  --precond none|jacobi|factor   PCG preconditioner (default factor: rest-state Cholesky)\n"
     "  --pcg-iters N          PCG iterations per solve (default 20)\n"
     "  --vtk FILE             also write the deformed mesh as legacy VTK\n"
@@ -250,8 +251,10 @@ int main(int argc, char** argv) {
                 def.solver = HS_SOLVER_DIRECT;
             else if (!strcmp(argv[i], "pcg"))
                 def.solver = HS_SOLVER_PCG;
+            else if (!strcmp(argv[i], "warped"))
+                def.solver = HS_SOLVER_WARPED;
             else
-                BAD("direct or pcg");
+                BAD("direct, pcg or warped");
         } else if (!strcmp(a, "--precond")) {
             NEED_ARG();
             ++i;
