@@ -32,8 +32,9 @@
 #include <math.h>
 #include <string.h>
 
-#define M          HS_MAX_CONTACT
-#define MAX_PIVOTS (4 * M)
+#define M            HS_MAX_CONTACT
+#define MAX_PIVOTS   (4 * M)
+#define BLOCK_PIVOTS 6
 #define MAX_FEAT                                                                                   \
     (HS_CONTACT_MAX_TRI > HS_CONTACT_MAX_CAND ? HS_CONTACT_MAX_TRI : HS_CONTACT_MAX_CAND)
 
@@ -189,7 +190,7 @@ void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int 
     // centre on the sphere's flank was), deepest first, each geometric point once.
     const double near = HS_CONTACT_BAND * r;
     feat cand[MAX_FEAT];
-    int nc = 0;
+    int order[MAX_FEAT], nc = 0; // cand[order[k]]: deepest first
     const int n_src = s->n_tri > 0 ? s->n_tri : s->n_cand;
     for (int i = 0; i < n_src; ++i) {
         feat f;
@@ -217,22 +218,23 @@ void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int 
         for (int j = 0; j < nc && !dup; ++j) dup = same_feat(&cand[j], &f);
         if (dup) continue;
         if (gap < 0) ++out->penetrating;
-        if (nc == MAX_FEAT && f.rho >= cand[nc - 1].rho) continue;
-        int at = nc < MAX_FEAT ? nc++ : nc - 1;
-        while (at > 0 && cand[at - 1].rho > f.rho) {
-            cand[at] = cand[at - 1];
+        // at most one point per triangle or node: nc < MAX_FEAT here
+        int at = nc;
+        cand[nc++] = f;
+        while (at > 0 && cand[order[at - 1]].rho > f.rho) {
+            order[at] = order[at - 1];
             --at;
         }
-        cand[at] = f;
+        order[at] = nc - 1;
     }
     out->clearance_m = clearance > 0 ? clearance : 0;
-    if (nc == 0 || cand[0].rho >= r) return; // nothing penetrates
+    if (nc == 0 || cand[order[0]].rho >= r) return; // nothing penetrates
 
     // The deepest points whose vertices fit in M nodes.
     feat set[M];
     int m = 0, nv = 0, vtx[M]; // local vertices: candidate indices
     for (int i = 0; i < nc && m < M; ++i) {
-        feat* f = &cand[i];
+        feat* f = &cand[order[i]];
         int add = 0;
         for (int k = 0; k < f->kind; ++k) {
             int j = 0;
@@ -301,11 +303,14 @@ void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int 
                 for (int j = 0; j < warm_n && !found; ++j) found = warm_nodes[j] == node;
                 all = found;
             }
-            act[i] = (unsigned char)all;
+            act[i] = (unsigned char)(all && delta[i] > 0);
         } else {
             act[i] = delta[i] > 0;
         }
     }
+    // Block principal pivoting first (every infeasible point changes side at once: two or
+    // three solves from a fair start), Murty's single least-index flips after BLOCK_PIVOTS
+    // (finite for a positive definite matrix whatever the start).
     int converged = 0;
     for (int piv = 0; piv < MAX_PIVOTS; ++piv) {
         out->passes = piv + 1;
@@ -313,22 +318,28 @@ void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int 
             out->failed = 1;
             return;
         }
+        unsigned char bad[M];
         int flip = -1;
-        for (int i = 0; i < m && flip < 0; ++i) {
+        for (int i = 0; i < m; ++i) {
+            bad[i] = 0;
             if (act[i]) {
-                if (lambda[i] < 0) flip = i; // would pull: leaves the contact
+                bad[i] = lambda[i] < 0; // would pull: leaves the contact
             } else {
                 double wi = -delta[i];
                 for (int j = 0; j < m; ++j) wi += w[i * M + j] * lambda[j];
-                if (wi < -1e-12 * r) flip = i; // pushed into the sphere: joins the contact
+                bad[i] = wi < -1e-12 * r; // pushed into the sphere: joins the contact
             }
+            if (bad[i] && flip < 0) flip = i;
         }
         if (flip < 0) {
             converged = 1;
             break;
         }
-        if (act[flip]) ++out->dropped;
-        act[flip] = !act[flip];
+        for (int i = 0; i < m; ++i) {
+            if (!(piv < BLOCK_PIVOTS ? bad[i] : i == flip)) continue;
+            if (act[i]) ++out->dropped;
+            act[i] = !act[i];
+        }
     }
     for (int i = 0; i < m; ++i)
         if (!act[i] || (!converged && lambda[i] < 0)) lambda[i] = 0; // never pull

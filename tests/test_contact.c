@@ -1,0 +1,434 @@
+// Surface (triangle) probe contact: a pressed probe dragged over a surface whose triangles are
+// wider than the probe never loses it and its force changes continuously across faces, edges
+// and vertices; one contact point per geometric point; stiffness against finite differences;
+// the contact compliance's effect on a held force; caps; no allocation.
+#include "hapsim/compliance.h"
+#include "hapsim/mesh.h"
+#include "test_macros.h"
+
+#include <stdlib.h>
+
+static double vnorm(const double* v, int n) {
+    double s = 0;
+    for (int i = 0; i < n; ++i) s += v[i] * v[i];
+    return sqrt(s);
+}
+
+static hs_fem_def soft_fem(void) {
+    hs_fem_def d = hs_fem_default_def();
+    d.model = HS_MODEL_LINEAR;
+    d.material.youngs_pa = 5000;
+    d.material.poisson = 0.45;
+    d.material.density_kg_m3 = 1060;
+    return d;
+}
+
+// A coarse slab: 60 x 60 x 15 mm in 4 x 4 x 1 cells (top triangles 15 mm on a side, 21 mm
+// across: wider than the 10 mm probe), bottom fixed, top at z = 15 mm.
+typedef struct slab {
+    hs_mesh* mesh;
+    unsigned char* fixed;
+    hs_compliance* comp;
+} slab;
+
+static int slab_create(slab* s) {
+    hs_err err = {0};
+    memset(s, 0, sizeof *s);
+    if (hs_mesh_create_box(0.06, 0.06, 0.015, 4, 4, 1, &s->mesh, &err) < 0) return 1;
+    s->fixed = calloc((size_t)s->mesh->n_nodes, 1);
+    hs_mesh_select_plane(s->mesh, 2, -1, 1e-9, s->fixed);
+    hs_fem_def fd = soft_fem();
+    if (hs_compliance_create(s->mesh, &fd, s->fixed, 96, &s->comp, &err) != HS_OK) {
+        printf("  compliance: %s\n", err.msg);
+        return 1;
+    }
+    return 0;
+}
+
+static void slab_destroy(slab* s) {
+    hs_compliance_destroy(&s->comp);
+    hs_mesh_destroy(&s->mesh);
+    free(s->fixed);
+}
+
+// Snapshot at rest around p: the contactable surface nodes nearest p (all coupled), and the
+// boundary triangles between them unless nodes_only.
+static void make_snapshot(hs_compliance* c, const hs_mesh* mesh, const double p[3], double r,
+                          int nodes_only, hs_contact_snapshot* s) {
+    memset(s, 0, sizeof *s);
+    s->version = 1;
+    s->probe_radius_m = r;
+    memcpy(s->centre_m, p, sizeof s->centre_m);
+    int n = 0;
+    double dist[HS_CONTACT_MAX_CAND];
+    for (int si = 0; si < mesh->n_surf_nodes; ++si) {
+        int v = mesh->surf_nodes[si];
+        if (!hs_compliance_contactable(c, v)) continue;
+        double d = sqrt(pow(mesh->x0[3 * v] - p[0], 2) + pow(mesh->x0[3 * v + 1] - p[1], 2) +
+                        pow(mesh->x0[3 * v + 2] - p[2], 2));
+        if (n == HS_CONTACT_MAX_CAND && d >= dist[n - 1]) continue;
+        int at = n < HS_CONTACT_MAX_CAND ? n++ : n - 1;
+        while (at > 0 && dist[at - 1] > d) {
+            dist[at] = dist[at - 1];
+            s->node[at] = s->node[at - 1];
+            --at;
+        }
+        dist[at] = d;
+        s->node[at] = v;
+    }
+    s->n_cand = n;
+    s->reach_m = n == HS_CONTACT_MAX_CAND ? dist[n - 1] : 1.0;
+    hs_compliance_begin_step(c);
+    hs_compliance_ensure(c, n, s->node, n);
+    for (int i = 0; i < n; ++i) {
+        s->coupled[i] = (unsigned char)hs_compliance_has_column(c, s->node[i]);
+        memcpy(s->free_m[i], mesh->x0 + 3 * s->node[i], 3 * sizeof(double));
+        s->normal[i][2] = 1;
+        for (int j = 0; j < n; ++j) hs_compliance_block(c, s->node[i], s->node[j], s->c[i][j]);
+    }
+    if (!nodes_only) hs_contact_snapshot_add_tris(s, mesh);
+}
+
+static double kmax_of(const hs_contact* c) {
+    double k = 0;
+    for (int q = 0; q < 9; ++q) k = fmax(k, fabs(c->stiffness_n_m[q]));
+    return k;
+}
+
+// Frobenius norm of the stiffness: bounds |K dp| / |dp|.
+static double knorm_of(const hs_contact* c) {
+    return vnorm(c->stiffness_n_m, 9);
+}
+
+// Smallest distance from p to the slab's top surface displaced by u_surf (sampled finely on
+// every top triangle): the contact must have pushed the surface out of the sphere.
+static double displaced_clearance(const hs_mesh* m, const double* u_surf, const double p[3]) {
+    double best = 1e9;
+    for (int t = 0; t < m->n_tris; ++t) {
+        const int* tv = m->tris + 3 * t;
+        double x[3][3];
+        int top = 1;
+        for (int k = 0; k < 3; ++k) {
+            int si = m->node_surf[tv[k]];
+            top = top && m->x0[3 * tv[k] + 2] > 0.0149;
+            for (int a = 0; a < 3; ++a) x[k][a] = m->x0[3 * tv[k] + a] + u_surf[3 * si + a];
+        }
+        if (!top) continue;
+        const int g = 120;
+        for (int i = 0; i <= g; ++i)
+            for (int j = 0; i + j <= g; ++j) {
+                double b = (double)i / g, c = (double)j / g, a = 1 - b - c, d2 = 0;
+                for (int q = 0; q < 3; ++q) {
+                    double v = a * x[0][q] + b * x[1][q] + c * x[2][q] - p[q];
+                    d2 += v * v;
+                }
+                if (d2 < best * best) best = sqrt(d2);
+            }
+    }
+    return best;
+}
+
+// Drag the probe, pressed 4 mm into the slab, in 10 um steps along straight paths over face
+// interiors, across edges and over vertices: contact is never lost, the force stays on the
+// outward side, and every step's force change is bounded by the stiffness times the step.
+// The node contact on the same paths loses the probe between nodes.
+static int coarse_drag(void) {
+    int64_t bytes0 = hs_byte_count();
+    slab sl;
+    ENSURE(slab_create(&sl) == 0);
+    const hs_mesh* m = sl.mesh;
+    static hs_contact_snapshot snap, node_snap;
+    const double r = 0.005, depth = 0.004, zc = 0.015 + r - depth;
+    double centre[3] = {0.03, 0.03, zc};
+    make_snapshot(sl.comp, m, centre, r, 0, &snap);
+    make_snapshot(sl.comp, m, centre, r, 1, &node_snap);
+    printf("  slab: %d candidates, %d triangles in the snapshot\n", snap.n_cand, snap.n_tri);
+    ENSURE(snap.n_cand == 25 && snap.n_tri == 32); // the free top: 5 x 5 nodes, 32 triangles
+    // Paths (x0, y0) -> (x1, y1), mm: across a row of cells (edges and diagonals), along the
+    // main diagonal through three vertices, and along the other diagonal (across the cells'
+    // diagonals and through the centre vertex).
+    const double path[3][4] = {{10, 22.5, 50, 22.5}, {12, 12, 48, 48}, {14, 46, 46, 14}};
+    double worst_ratio = 0, f_lo = 1e9, f_hi = 0, tilt = 0, node_fmin = 1e9;
+    int kinds_seen[4] = {0, 0, 0, 0}, steps_total = 0;
+    int64_t calls0 = hs_alloc_calls();
+    for (int k = 0; k < 3; ++k) {
+        const int steps = (int)(1e3 * hypot(path[k][2] - path[k][0], path[k][3] - path[k][1]) / 10);
+        hs_contact prev, cur, nc;
+        memset(&prev, 0, sizeof prev);
+        for (int i = 0; i <= steps; ++i) {
+            double t = (double)i / steps;
+            double p[3] = {1e-3 * (path[k][0] + t * (path[k][2] - path[k][0])),
+                           1e-3 * (path[k][1] + t * (path[k][3] - path[k][1])), zc};
+            hs_contact_solve(&snap, p, prev.n, prev.node, &cur);
+            ENSURE(!cur.failed && !cur.approx);
+            double f = vnorm(cur.force_n, 3);
+            f_lo = fmin(f_lo, f);
+            f_hi = fmax(f_hi, f);
+            // Outward: +z, and never far from it on this flat top.
+            ENSURE(cur.force_n[2] > 0);
+            tilt = fmax(tilt, vnorm(cur.force_n, 2) / cur.force_n[2]);
+            kinds_seen[cur.features < 3 ? cur.features : 3]++;
+            if (i > 0) {
+                double df[3], dp[3];
+                for (int a = 0; a < 3; ++a) {
+                    df[a] = cur.force_n[a] - prev.force_n[a];
+                    dp[a] = cur.tool_m[a] - prev.tool_m[a];
+                }
+                double bound = 2 * fmax(knorm_of(&cur), knorm_of(&prev)) * vnorm(dp, 3);
+                worst_ratio = fmax(worst_ratio, vnorm(df, 3) / bound);
+            }
+            hs_contact_solve(&node_snap, p, 0, NULL, &nc);
+            node_fmin = fmin(node_fmin, vnorm(nc.force_n, 3));
+            prev = cur;
+            ++steps_total;
+        }
+    }
+    ENSURE(hs_alloc_calls() == calls0);
+    printf("  %d positions: |F| %.4f..%.4f N, largest tangential/normal %.3f, worst "
+           "|dF| / (2 |K|_F |dp|) %.3f; contact points 1: %d, 2: %d, 3+: %d ticks; node contact "
+           "min |F| %.4f N\n",
+           steps_total, f_lo, f_hi, tilt, worst_ratio, kinds_seen[1], kinds_seen[2], kinds_seen[3],
+           node_fmin);
+    ENSURE(f_lo > 0.3 * f_hi);  // never loses the surface
+    ENSURE(worst_ratio <= 1.0); // no jump anywhere
+    ENSURE(tilt < 0.35);        // pushes out of the flat top, not sideways
+    ENSURE(kinds_seen[2] > 0);  // the paths did cross between triangles
+    ENSURE(node_fmin == 0);     // the node contact falls between the nodes
+
+    // Complementarity on the geometry itself: the surface displaced by the contact forces
+    // (through the compliance, independently of the solver's own linearisation) touches the
+    // sphere and clears it up to the linearisation, at a face interior, on an edge and over a
+    // vertex. The contact points are those of the contact-free surface (first order): pushed
+    // down alone, an edge becomes a valley whose faces then reach into the sphere a little
+    // (measured 0.44 mm of the 4 mm indentation on this 15 mm grid).
+    const double at[3][2] = {{20, 24}, {22.5, 15}, {30, 30}};
+    double* us = malloc(sizeof(double) * 3 * (size_t)m->n_surf_nodes);
+    for (int k = 0; k < 3; ++k) {
+        double p[3] = {1e-3 * at[k][0], 1e-3 * at[k][1], zc};
+        hs_contact c;
+        hs_contact_solve(&snap, p, 0, NULL, &c);
+        double f[3 * HS_MAX_CONTACT];
+        for (int i = 0; i < c.n; ++i) memcpy(f + 3 * i, c.f_n[i], sizeof c.f_n[i]);
+        ENSURE(hs_compliance_surface_displacement(sl.comp, c.n, c.node, f, us) == 0);
+        double clear = displaced_clearance(m, us, p);
+        printf("  at (%.1f, %.1f) mm: %d contact points on %d nodes, |F| %.4f N, displaced "
+               "surface %.4f mm from the centre (r %.1f mm)\n",
+               at[k][0], at[k][1], c.features, c.n, vnorm(c.force_n, 3), clear * 1e3, r * 1e3);
+        ENSURE(c.features >= 1 && c.n >= 1);
+        ENSURE(clear > r - 0.15 * depth);
+        ENSURE(clear < r + 0.05 * depth); // and touches it
+        // Forces on the tissue push into it, and sum to minus the tool force.
+        double sum[3] = {0, 0, 0};
+        for (int i = 0; i < c.n; ++i) {
+            ENSURE(c.f_n[i][2] < 0);
+            for (int a = 0; a < 3; ++a) sum[a] -= c.f_n[i][a];
+        }
+        for (int a = 0; a < 3; ++a) ENSURE_NEAR(sum[a], c.force_n[a], 1e-12);
+    }
+    free(us);
+    slab_destroy(&sl);
+    ENSURE(hs_byte_count() == bytes0);
+    return 0;
+}
+
+// One contact point per geometric point: over a vertex every triangle around it gives that
+// vertex, over an edge both triangles give that edge point.
+static int one_point_per_feature(void) {
+    slab sl;
+    ENSURE(slab_create(&sl) == 0);
+    static hs_contact_snapshot snap;
+    const double r = 0.005, zc = 0.015 + r - 0.001;
+    double p[3] = {0.03, 0.03, zc}; // above the centre vertex, 1 mm deep
+    make_snapshot(sl.comp, sl.mesh, p, r, 0, &snap);
+    hs_contact c;
+    hs_contact_solve(&snap, p, 0, NULL, &c);
+    printf("  over a vertex: %d contact point(s), %d node(s), %d penetrating\n", c.features, c.n,
+           c.penetrating);
+    ENSURE(c.features == 1 && c.n == 1 && c.penetrating == 1);
+    ENSURE(c.force_n[2] > 0 && fabs(c.force_n[0]) < 1e-9 * c.force_n[2]);
+    // Over the middle of an edge parallel to x (between (15,30) and (30,30) mm): one point
+    // carried by the two edge nodes.
+    p[0] = 0.0225;
+    hs_contact_solve(&snap, p, 0, NULL, &c);
+    printf("  over an edge: %d contact point(s), %d node(s), %d penetrating\n", c.features, c.n,
+           c.penetrating);
+    ENSURE(c.features == 1 && c.n == 2 && c.penetrating == 1);
+    ENSURE_NEAR(c.f_n[0][2], c.f_n[1][2], 1e-9 * fabs(c.f_n[0][2])); // halfway: equal shares
+    slab_destroy(&sl);
+    return 0;
+}
+
+// Stiffness -dF/dp against central differences, where one, two and several contact points
+// push (face interior, edge, vertex, deeper and larger spheres).
+static int stiffness_fd(void) {
+    slab sl;
+    ENSURE(slab_create(&sl) == 0);
+    static hs_contact_snapshot snap;
+    const struct {
+        double x, y, r, depth;
+    } cases[] = {{20.1, 24.3, 5, 4},
+                 {22.4, 15.6, 5, 4},
+                 {29.7, 30.4, 5, 4},
+                 {25.3, 27.1, 12, 6},
+                 {31.2, 28.7, 20, 9}};
+    int multi = 0;
+    for (size_t k = 0; k < sizeof cases / sizeof cases[0]; ++k) {
+        const double r = 1e-3 * cases[k].r;
+        double p[3] = {1e-3 * cases[k].x, 1e-3 * cases[k].y, 0.015 + r - 1e-3 * cases[k].depth};
+        make_snapshot(sl.comp, sl.mesh, p, r, 0, &snap);
+        hs_contact c;
+        hs_contact_solve(&snap, p, 0, NULL, &c);
+        ENSURE(c.features >= 1 && !c.failed);
+        multi += c.features > 1;
+        const double h = 1e-7;
+        double km = kmax_of(&c), worst = 0;
+        for (int b = 0; b < 3; ++b) {
+            double pp[3], pm[3];
+            memcpy(pp, p, sizeof pp);
+            memcpy(pm, p, sizeof pm);
+            pp[b] += h;
+            pm[b] -= h;
+            hs_contact cp, cm;
+            hs_contact_solve(&snap, pp, 0, NULL, &cp);
+            hs_contact_solve(&snap, pm, 0, NULL, &cm);
+            ENSURE(cp.features == c.features && cm.features == c.features);
+            for (int a = 0; a < 3; ++a) {
+                double fd = -(cp.force_n[a] - cm.force_n[a]) / (2 * h);
+                worst = fmax(worst, fabs(fd - c.stiffness_n_m[3 * a + b]));
+            }
+        }
+        printf("  r %.0f mm, %.0f mm deep at (%.1f, %.1f): %d contact points on %d nodes, "
+               "K_zz %.2f N/m, |K - FD| %.2g of max %.3g N/m\n",
+               cases[k].r, cases[k].depth, cases[k].x, cases[k].y, c.features, c.n,
+               c.stiffness_n_m[8], worst, km);
+        ENSURE(c.stiffness_n_m[8] > 0);
+        ENSURE_SMALL(worst, 1e-5 * km);
+    }
+    ENSURE(multi >= 2);
+    slab_destroy(&sl);
+    return 0;
+}
+
+// The default liver (liver2, held by its y-min face) with the scene's 5 mm probe: the top
+// surface nodes there are 10-14 mm apart. Pressed 5 mm at node 399 and dragged 10 mm along -x
+// (the press_drag_release script) the triangle contact keeps the probe (the node contact does
+// not), and the contact compliance moves the held force by far less than 0.1 %.
+static int liver_press_drag(void) {
+    hs_err err = {0};
+    hs_mesh* m = NULL;
+    if (hs_mesh_load(HS_SOURCE_DIR "/scenes/liver/liver2.msh", &m, &err) < 0) {
+        printf("  cannot load liver2: %s\n", err.msg);
+        return 1;
+    }
+    unsigned char* fixed = calloc((size_t)m->n_nodes, 1);
+    for (int i = 0; i < m->n_nodes; ++i) fixed[i] = m->x0[3 * i + 1] <= -0.0433;
+    hs_fem_def fd = soft_fem();
+    hs_compliance* c = NULL;
+    ENSURE(hs_compliance_create(m, &fd, fixed, 96, &c, &err) == HS_OK);
+    const double nrm[3] = {0.105, 0.993, -0.045}, r = 0.005;
+    const int top = 399;
+    static hs_contact_snapshot snap, big;
+    double worst_ratio = 0, f_lo = 1e9, node_fmin = 1e9, ref = 0;
+    hs_contact prev, cur, nc;
+    memset(&prev, 0, sizeof prev);
+    const int steps = 1000;
+    for (int i = 0; i <= steps; ++i) {
+        double p[3];
+        for (int a = 0; a < 3; ++a) p[a] = m->x0[3 * top + a] + (r - 0.004) * nrm[a];
+        p[0] -= 0.010 * i / steps;
+        make_snapshot(c, m, p, r, 0, &snap); // a fresh snapshot per position: at rest, exact
+        hs_contact_solve(&snap, p, prev.n, prev.node, &cur);
+        ENSURE(!cur.failed);
+        double f = vnorm(cur.force_n, 3);
+        f_lo = fmin(f_lo, f);
+        ENSURE(cur.force_n[0] * nrm[0] + cur.force_n[1] * nrm[1] + cur.force_n[2] * nrm[2] > 0);
+        if (i > 0) {
+            double df[3], dp[3];
+            for (int a = 0; a < 3; ++a) {
+                df[a] = cur.force_n[a] - prev.force_n[a];
+                dp[a] = cur.tool_m[a] - prev.tool_m[a];
+            }
+            double bound = 2 * fmax(knorm_of(&cur), knorm_of(&prev)) * vnorm(dp, 3);
+            worst_ratio = fmax(worst_ratio, vnorm(df, 3) / bound);
+        }
+        snap.n_tri = 0;
+        hs_contact_solve(&snap, p, 0, NULL, &nc);
+        node_fmin = fmin(node_fmin, vnorm(nc.force_n, 3));
+        prev = cur;
+    }
+    printf("  liver2, 4 mm deep, 10 mm drag: min |F| %.4f N (node contact %.4f N), worst |dF| / "
+           "(2 K |dp|) %.3f\n",
+           f_lo, node_fmin, worst_ratio);
+    ENSURE(f_lo > 0.05);
+    ENSURE(node_fmin == 0);
+    ENSURE(worst_ratio <= 1.0);
+
+    // The 5 mm hold: the contact compliance eps is HS_CONTACT_SOFTNESS x the candidates' mean
+    // diagonal compliance. Candidates that are no triangle's vertex change nothing but that
+    // mean: with one such node of a large compliance, eps grows k-fold, and since the force is
+    // smooth in eps, (F(k eps) - F(eps)) / (k - 1) is the shift eps itself causes.
+    double p[3];
+    for (int a = 0; a < 3; ++a) p[a] = m->x0[3 * top + a] + (r - 0.005) * nrm[a];
+    make_snapshot(c, m, p, r, 0, &big);
+    if (big.n_cand == HS_CONTACT_MAX_CAND) { // room for the extra one: drop the farthest node
+        big.n_cand--;
+        hs_contact_snapshot_add_tris(&big, m);
+    }
+    hs_contact c1, ck;
+    hs_contact_solve(&big, p, 0, NULL, &c1);
+    double mean = 0;
+    for (int i = 0; i < big.n_cand; ++i)
+        mean += (big.c[i][i][0] + big.c[i][i][4] + big.c[i][i][8]) / 3 / big.n_cand;
+    const double kf = 101;
+    int extra = big.n_cand++;
+    big.node[extra] = -1;
+    memset(big.c[extra], 0, sizeof big.c[extra]);
+    for (int i = 0; i < extra; ++i) memset(big.c[i][extra], 0, sizeof big.c[i][extra]);
+    // mean' = (n mean + x) / (n + 1) = kf mean
+    double x = (kf * (extra + 1) - extra) * mean;
+    big.c[extra][extra][0] = big.c[extra][extra][4] = big.c[extra][extra][8] = x;
+    hs_contact_solve(&big, p, 0, NULL, &ck);
+    ENSURE(ck.features == c1.features && !ck.failed);
+    double d[3] = {ck.force_n[0] - c1.force_n[0], ck.force_n[1] - c1.force_n[1],
+                   ck.force_n[2] - c1.force_n[2]};
+    ref = vnorm(c1.force_n, 3);
+    double shift = vnorm(d, 3) / (kf - 1) / ref;
+    printf("  5 mm hold: |F| %.4f N on %d contact point(s), %d node(s); the contact compliance "
+           "moves it by %.2g (relative)\n",
+           ref, c1.features, c1.n, shift);
+    ENSURE(ref > 0.05);
+    ENSURE(vnorm(d, 3) > 0); // the probe really changed eps
+    ENSURE(shift < 1e-3);
+    hs_compliance_destroy(&c);
+    hs_mesh_destroy(&m);
+    free(fixed);
+    return 0;
+}
+
+// A large sphere deep in the slab: many triangles penetrate; at most HS_MAX_CONTACT contact
+// points on at most HS_MAX_CONTACT nodes are solved, and the result is still a push.
+static int caps(void) {
+    slab sl;
+    ENSURE(slab_create(&sl) == 0);
+    static hs_contact_snapshot snap;
+    const double r = 0.04;
+    double p[3] = {0.03, 0.031, 0.015 + r - 0.008};
+    make_snapshot(sl.comp, sl.mesh, p, r, 0, &snap);
+    hs_contact c;
+    hs_contact_solve(&snap, p, 0, NULL, &c);
+    printf("  r 40 mm, 8 mm deep: %d penetrating points, %d pushing on %d nodes, %d pivots\n",
+           c.penetrating, c.features, c.n, c.passes);
+    ENSURE(c.penetrating > HS_MAX_CONTACT);
+    ENSURE(c.features >= 1 && c.features <= HS_MAX_CONTACT && c.n <= HS_MAX_CONTACT);
+    ENSURE(!c.failed && c.force_n[2] > 0);
+    // Clear of the surface: nothing, and the clearance says how far.
+    p[2] = 0.015 + r + 0.002;
+    hs_contact_solve(&snap, p, 0, NULL, &c);
+    ENSURE(c.n == 0 && c.features == 0 && c.force_n[2] == 0);
+    ENSURE(c.clearance_m > 0.0019 && c.clearance_m < 0.0021);
+    slab_destroy(&sl);
+    return 0;
+}
+
+HS_TEST_MAIN(HS_CASE(coarse_drag), HS_CASE(one_point_per_feature), HS_CASE(stiffness_fd),
+             HS_CASE(liver_press_drag), HS_CASE(caps))
