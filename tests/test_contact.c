@@ -357,7 +357,7 @@ static int liver_press_drag(void) {
         prev = cur;
     }
     printf("  liver2, 4 mm deep, 10 mm drag: min |F| %.4f N (node contact %.4f N), worst |dF| / "
-           "(2 K |dp|) %.3f\n",
+           "(2 |K|_F |dp|) %.3f\n",
            f_lo, node_fmin, worst_ratio);
     ENSURE(f_lo > 0.05);
     ENSURE(node_fmin == 0);
