@@ -470,6 +470,49 @@ static int WarpedSolver(void) {
     }
     ENSURE(lin[0] < 0);
     ENSURE_SMALL(lin[1] / lin[0] - 1, 1e-12);
+    // The thin-walled vessel sagging under gravity: the warped tangent is far off there (it
+    // diverged to 1e48 m before the fallback existed). The steps the safeguard cannot fix are
+    // redone with the exact tangent; the state stays close to the direct solver's.
+    hs_mesh* vm = NULL;
+    hs_err verr;
+    if (hs_mesh_load(HS_SHARED_MESHES "/aneurysm_vessel.msh", &vm, &verr) < 0) {
+        printf("  SKIP vessel part: %s\n", verr.msg);
+    } else {
+        double tipv[2];
+        int fallbacks = 0;
+        unsigned char* vf = calloc((size_t)vm->n_nodes, 1);
+        hs_mesh_select_plane(vm, 2, -1, 0.1 * (vm->bbox_max[2] - vm->bbox_min[2]), vf);
+        for (int c = 0; c < 2; ++c) {
+            hs_body_def d = hs_body_default_def();
+            d.fem.model = HS_MODEL_COROTATED;
+            d.fem.material.youngs_pa = 5e4;
+            d.fem.material.poisson = 0.45;
+            d.fem.material.density_kg_m3 = 1060;
+            d.gravity[2] = -9.81;
+            d.solver = c ? HS_SOLVER_WARPED : HS_SOLVER_DIRECT;
+            hs_body* b = NULL;
+            ENSURE(hs_body_create(vm, &d, vf, &b, NULL) == HS_OK);
+            hs_step_stats st;
+            for (int k = 0; k < 40; ++k) {
+                ENSURE(hs_body_step(b, &st) == HS_OK);
+                fallbacks += st.exact_fallbacks;
+            }
+            ENSURE(fabs(st.fem.volume_ratio_mean - 1) < 0.02);
+            const double* u = hs_body_displacement(b);
+            tipv[c] = 0;
+            for (int i = 0; i < vm->n_nodes; ++i)
+                tipv[c] = fmax(tipv[c], sqrt(u[3 * i] * u[3 * i] + u[3 * i + 1] * u[3 * i + 1] +
+                                             u[3 * i + 2] * u[3 * i + 2]));
+            hs_body_destroy(&b);
+        }
+        printf("  vessel, 40 steps: max |u| direct %.4e, warped %.4e m, %d steps redone exactly\n",
+               tipv[0], tipv[1], fallbacks);
+        ENSURE(tipv[0] > 0.01 && isfinite(tipv[1]));
+        ENSURE(fabs(tipv[1] / tipv[0] - 1) < 0.25);
+        ENSURE(fallbacks > 0);
+        free(vf);
+        hs_mesh_destroy(&vm);
+    }
     // Undamped release of a large bend at dt 33 ms: no energy gain.
     hs_mesh* m = NULL;
     ENSURE(hs_mesh_create_box(0.1, 0.02, 0.02, 10, 2, 2, &m, NULL) == HS_OK);

@@ -53,6 +53,7 @@ typedef struct hs_step_stats {
     double residual;       ///< static: final ||r|| / ||r_first||; step: PCG relative
                            ///< residual (0 direct; NaN warped: not computed)
     int line_search_cuts;  ///< halvings: static line search, or the step's energy safeguard
+    int exact_fallbacks;   ///< warped steps redone with the exact tangent (safeguard failed)
     hs_fem_stats fem;      ///< model statistics at the end
 } hs_step_stats;
 
