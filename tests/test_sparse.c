@@ -659,6 +659,43 @@ static int AggregatedUpdates(void) {
     return 0;
 }
 
+// A factor ordered with a set of dofs last (the cut's update window) solves like any other,
+// and element updates inside the set match a fresh factor.
+static int OrderedLastWindow(void) {
+    int64_t bytes0 = hs_byte_count();
+    fixture t;
+    ENSURE(fixture_make(&t, 8, 8, 6, 1e-3) == 0);
+    int n = t.a->n;
+    const int mid = t.g.n_tets / 2;
+    double k[12 * 144];
+    int dofs[12 * 12];
+    unsigned char* last = calloc((size_t)n, 1);
+    for (int i = 0; i < 12; i++) {
+        grid_tet_block(&t.g, mid + i, t.g.w[mid + i], k + 144 * i);
+        grid_tet_dofs(&t.g, mid + i, dofs + 12 * i);
+        for (int q = 0; q < 12; q++)
+            if (dofs[12 * i + q] >= 0) last[dofs[12 * i + q]] = 1;
+    }
+    hs_cholesky* w = NULL;
+    hs_err err;
+    ENSURE(hs_cholesky_create_last(t.a, NULL, &w, &err) == HS_ERR_INVALID);
+    ENSURE(hs_cholesky_create_last(t.a, last, &w, &err) == HS_OK);
+    ENSURE(hs_cholesky_solve(w, t.b, t.x) == HS_OK);
+    ENSURE_SMALL(rel_residual(t.a, t.x, t.b, t.r), 1e-12);
+    ENSURE(hs_cholesky_refactor(w, t.a) == HS_OK);
+    ENSURE(hs_cholesky_prepare_updates(w, 12) == HS_OK);
+    add_blocks(t.a, k, dofs, 0, 12, -1.0);
+    ENSURE(hs_cholesky_update_parts(w, 0, 12, k, dofs) == HS_OK);
+    double* x2 = malloc(sizeof(double) * (size_t)n);
+    ENSURE_SMALL(compare_with_fresh(w, t.a, t.b, t.x, x2), 1e-8);
+    free(x2);
+    free(last);
+    hs_cholesky_destroy(&w);
+    fixture_free(&t);
+    ENSURE(hs_byte_count() == bytes0);
+    return 0;
+}
+
 // Removing a slab of elements leaves the far part of the grid without support: the downdate
 // must report the singular result rather than produce a factor with round-off pivots.
 static int FreeFragmentDetected(void) {
@@ -862,5 +899,5 @@ HS_TEST_MAIN(HS_CASE(CscPatternAndSpmv), HS_CASE(CscBadInput), HS_CASE(CholeskyS
              HS_CASE(SolveAllocatesNothing), HS_CASE(ThreadControl),
              HS_CASE(CholeskyFaultInjection), HS_CASE(PcgConverges),
              HS_CASE(UpdownMatchesFreshFactor), HS_CASE(AggregatedUpdates),
-             HS_CASE(FreeFragmentDetected), HS_CASE(UpdateFaultInjection), HS_CASE(SmallAndEmpty),
-             HS_CASE(NaturalOrderInPlace))
+             HS_CASE(OrderedLastWindow), HS_CASE(FreeFragmentDetected),
+             HS_CASE(UpdateFaultInjection), HS_CASE(SmallAndEmpty), HS_CASE(NaturalOrderInPlace))

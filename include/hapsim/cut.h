@@ -67,11 +67,17 @@ typedef struct hs_cut_def {
     int tangent_surface;      ///< 1: surface vertices move only in their tangent plane (paper)
     hs_cut_factor_policy factor_policy; ///< how K's factor follows the cuts
     int validate;                       ///< 1: hs_mesh_check + own checks after every sweep
-    int cookie;                         ///< set by hs_cut_default_def
+    /// Update window (UPDATE / AUTO; 0: off). The factor is ordered with the free dofs of the
+    /// nodes within this distance of the blade (extended window_ahead_m along its travel)
+    /// eliminated last, so updates there walk short paths. A sweep touching a dof outside it
+    /// rebuilds the factor (new ordering + numeric factor) around the blade, m.
+    double window_radius_m;
+    double window_ahead_m; ///< how far ahead of the blade, along its travel, the window reaches, m
+    int cookie;            ///< set by hs_cut_default_def
 } hs_cut_def;
 
 /// Defaults: hs_fem_default_def()'s material, ORPHAN_PIN, FRAGMENT_DROP, volume ratio 0.1,
-/// quality 0.02, 8 bisections, tangent moves on, AUTO factor policy, validation on.
+/// quality 0.02, 8 bisections, tangent moves on, AUTO factor policy, validation on, no window.
 hs_cut_def hs_cut_default_def(void);
 
 /// What one sweep did.
@@ -85,6 +91,7 @@ typedef struct hs_cut_result {
     int fragments;            ///< free pieces dropped or fixed
     int changed_elements;     ///< element changes applied to the factor (+ pin blocks)
     int refactored;           ///< 1 when the factor was rebuilt instead of updated
+    int rewindowed;           ///< 1 when it was rebuilt with a new window (def.window_radius_m)
     double cut_length_m;      ///< summed length of distinct mesh edges crossing the sweep, m
     double geometry_ms;       ///< crossing test, moves, guard, fragments, ms
     double factor_ms;         ///< element matrices + factor update, ms

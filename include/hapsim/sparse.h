@@ -45,6 +45,12 @@ typedef struct hs_cholesky hs_cholesky;
 /// refactors, so memory is about twice nnz(L) doubles. CHOLMOD allocates through hs_alloc.
 /// Returns HS_ERR_NOT_POSDEF if a is not SPD, HS_ERR_NUMERIC on NaN/Inf. @param out OUT
 hs_status hs_cholesky_create(const hs_csc* a, hs_cholesky** out, hs_err* err);
+/// As hs_cholesky_create, but the dofs with last[i] != 0 ([n]) are eliminated after all the
+/// others (CAMD with two constraint sets). A low-rank change confined to them then walks only
+/// the trailing columns of L instead of the root separators: a window around a cut. The
+/// numeric factor costs about as much as the unconstrained one. @param out OUT
+hs_status hs_cholesky_create_last(const hs_csc* a, const unsigned char* last, hs_cholesky** out,
+                                  hs_err* err);
 /// Fill-reducing order of a's pattern (CHOLMOD's choice of AMD/METIS, postordered):
 /// perm[k] is the row of a that goes to position k. Renumber the unknowns by it, then use
 /// hs_cholesky_create_natural. @param perm OUT [n]

@@ -67,9 +67,10 @@ struct hs_cut {
 
     // element changes for the factor, grown when a sweep needs more
     int cap_elem;
-    double* dk;      // [144 cap_elem] new element matrices and pins, then the old matrices
-    int* edof;       // [12 cap_elem]
-    int first_minus; // blocks from here on are subtracted
+    double* dk;         // [144 cap_elem] new element matrices and pins, then the old matrices
+    int* edof;          // [12 cap_elem]
+    int first_minus;    // blocks from here on are subtracted
+    unsigned char* win; // [n_free] 1: eliminated last in the factor (the update window)
 
     // tracked compliance
     hs_cut_compliance_mode cmode;
@@ -118,7 +119,7 @@ void hs_cut_destroy(hs_cut** pc) {
                  c->nmark,  c->cut_list, c->removed,  c->moved, c->changed,  c->pins, c->edges,
                  c->parent, c->fnbr,     c->tparent,  c->fa,    c->fb,       c->anch, c->rhs,
                  c->sol,    c->dk,       c->edof,     c->track, c->cblk,     c->dset, c->dpos,
-                 c->zbuf,   c->zd,       c->zt,       c->kdd,   c->wrk,      c->piv};
+                 c->zbuf,   c->zd,       c->zt,       c->kdd,   c->wrk,      c->piv,  c->win};
     for (size_t i = 0; i < sizeof p / sizeof p[0]; i++) hs_free(p[i]);
     hs_free(c);
     *pc = NULL;
@@ -395,6 +396,10 @@ hs_status hs_cut_create(hs_mesh* mesh, const unsigned char* fixed, const hs_cut_
         return hs_err_set(err, HS_ERR_INVALID,
                           "cut: guard out of range (volume ratio %g, quality %g, bisections %d)",
                           def->min_volume_ratio, def->min_quality, def->max_bisections);
+    if (!(def->window_radius_m >= 0 && def->window_radius_m < 1e6) ||
+        !(def->window_ahead_m >= 0 && def->window_ahead_m < 1e6))
+        return hs_err_set(err, HS_ERR_INVALID, "cut: window radius %g m / ahead %g m out of range",
+                          def->window_radius_m, def->window_ahead_m);
     if (mesh->n_nodes <= 0 || mesh->n_tets <= 0 || !mesh->node_used)
         return hs_err_set(err, HS_ERR_INVALID, "cut: mesh is empty or not finalized");
     hs_cut* c = hs_calloc(1, sizeof *c);
@@ -486,11 +491,12 @@ hs_status hs_cut_create(hs_mesh* mesh, const unsigned char* fixed, const hs_cut_
     }
     c->rhs = hs_alloc(sizeof(double) * (size_t)nf);
     c->sol = hs_alloc(sizeof(double) * (size_t)nf);
+    c->win = hs_calloc((size_t)nf + 1, 1);
     c->dset = hs_alloc(sizeof(int) * (size_t)nf);
     c->dpos = hs_alloc(sizeof(int) * (size_t)nf);
     if (c->dpos)
         for (int d = 0; d < nf; d++) c->dpos[d] = -1;
-    if (!c->rhs || !c->sol || !c->dset || !c->dpos) {
+    if (!c->rhs || !c->sol || !c->dset || !c->dpos || !c->win) {
         hs_cut_destroy(&c);
         return nomem(err);
     }
@@ -890,6 +896,55 @@ static int union_dofs(hs_cut* c, int m) {
 
 static hs_status update_compliance(hs_cut* c, int m, int before);
 
+/// 1 if every free dof of the sweep's m blocks lies in the factor's window.
+static int in_window(const hs_cut* c, int m) {
+    for (int k = 0; k < 12 * m; k++)
+        if (c->edof[k] >= 0 && !c->win[c->edof[k]]) return 0;
+    return 1;
+}
+
+/// Rebuild the factor of K as it is now, ordered with a new window last: the free dofs of the
+/// nodes (current positions c->x) within window_radius_m of the quad the blade (p1, q1) sweeps
+/// moving window_ahead_m along its last travel (the mean of p1 - p0 and q1 - q0). Keeps the old
+/// factor on failure.
+static hs_status rewindow(hs_cut* c, const double* p0, const double* q0, const double* p1,
+                          const double* q1, hs_err* err) {
+    double v[3], p2[3], q2[3];
+    for (int d = 0; d < 3; d++) v[d] = 0.5 * ((p1[d] - p0[d]) + (q1[d] - q0[d]));
+    double len = sqrt(v3_dot(v, v));
+    double ahead = len > 0 ? c->def.window_ahead_m / len : 0.0;
+    for (int d = 0; d < 3; d++) {
+        p2[d] = p1[d] + ahead * v[d];
+        q2[d] = q1[d] + ahead * v[d];
+    }
+    const double r2 = c->def.window_radius_m * c->def.window_radius_m;
+    memset(c->win, 0, (size_t)c->n_free);
+    for (int i = 0; i < c->n; i++) {
+        if (c->dof[3 * i] < 0) continue;
+        const double* xi = c->x + 3 * i;
+        double a[3], b[3], da[3], db[3];
+        closest_on_tri(xi, p1, q1, q2, a);
+        closest_on_tri(xi, p1, q2, p2, b);
+        v3_sub(xi, a, da);
+        v3_sub(xi, b, db);
+        if (fmin(v3_dot(da, da), v3_dot(db, db)) > r2) continue;
+        for (int q = 0; q < 3; q++) c->win[c->dof[3 * i + q]] = 1;
+    }
+    hs_cut_assemble(c, c->a);
+    hs_cholesky* f = NULL;
+    hs_status st = hs_cholesky_create_last(c->a, c->win, &f, err);
+    if (st == HS_OK && c->def.factor_policy == HS_CUT_FACTOR_UPDATE)
+        st = hs_cholesky_prepare_updates(f, c->cap_elem);
+    if (st != HS_OK) {
+        hs_cholesky_destroy(&f);
+        return st;
+    }
+    hs_cholesky_destroy(&c->factor);
+    c->factor = f;
+    c->updates_since_refactor = 0;
+    return HS_OK;
+}
+
 /// Apply the sweep's m blocks to the factor (aggregated: one rank <= union update).
 static hs_status apply_changes(hs_cut* c, int m) {
     return hs_cholesky_update_parts(c->factor, c->first_minus, m - c->first_minus, c->dk, c->edof);
@@ -1104,6 +1159,9 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
         for (int k = 0; k < c->n_removed; k++) add_block(c, &m, c->removed[k], -1, c->x0_old);
         for (int k = 0; k < c->n_changed; k++) add_block(c, &m, c->changed[k], -1, c->x0_old);
     }
+    // A change reaching outside the update window gets a factor with a new window instead.
+    int new_window = can_update && c->def.window_radius_m > 0 && !in_window(c, m);
+    if (new_window) can_update = 0;
     if (can_update && c->def.factor_policy == HS_CUT_FACTOR_AUTO) {
         double per = c->update_ms_per_rank > 0 ? c->update_ms_per_rank : c->refactor_ms / 96.0;
         can_update = union_dofs(c, m) * per < c->refactor_ms;
@@ -1131,9 +1189,11 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
         } else {
             // Updates off, no memory for them, or a downdate lost definiteness: rebuild.
             r.refactored = 1;
+            r.rewindowed = new_window;
             int64_t tr = hs_now_ns();
-            st = hs_cut_refactor(c);
-            c->refactor_ms = 0.8 * c->refactor_ms + 0.2 * (double)(hs_now_ns() - tr) * 1e-6;
+            st = new_window ? rewindow(c, p0, q0, p1, q1, err) : hs_cut_refactor(c);
+            if (!new_window)
+                c->refactor_ms = 0.8 * c->refactor_ms + 0.2 * (double)(hs_now_ns() - tr) * 1e-6;
             if (st != HS_OK) {
                 hs_err_set(err, st, "cut: refactorising K after the cut failed: %s",
                            hs_status_str(st));

@@ -234,7 +234,8 @@ static hs_status fail_from_cholmod(hs_cholesky* f, hs_err* err, const char* what
                       tl_last.msg ? tl_last.msg : "no message");
 }
 
-static hs_status create_factor(const hs_csc* a, int natural, hs_cholesky** out, hs_err* err) {
+static hs_status create_factor(const hs_csc* a, int natural, const unsigned char* last,
+                               hs_cholesky** out, hs_err* err) {
     if (!out) return hs_err_set(err, HS_ERR_INVALID, "%s:%d: out is NULL", __FILE__, __LINE__);
     *out = NULL;
     hs_status st = check_csc(a, err);
@@ -274,7 +275,33 @@ static hs_status create_factor(const hs_csc* a, int natural, hs_cholesky** out, 
     }
     set_matrix_view(f, a, NULL);
 
-    f->L = cholmod_analyze(&f->a, &f->c);
+    if (last) {
+        // CAMD with two constraint sets: the flagged dofs after all others. Not postordered:
+        // a postorder may move them away from the end.
+        int* cm = hs_alloc(sizeof(int) * ((size_t)a->n + 1));
+        int* perm = hs_alloc(sizeof(int) * ((size_t)a->n + 1));
+        int ok = cm && perm;
+        if (ok) {
+            for (int i = 0; i < a->n; i++) cm[i] = last[i] != 0;
+            ok = cholmod_camd(&f->a, NULL, 0, cm, perm, &f->c);
+        }
+        if (ok) {
+            f->c.nmethods = 1;
+            f->c.method[0].ordering = CHOLMOD_GIVEN;
+            f->c.postorder = 0;
+            f->L = cholmod_analyze_p(&f->a, perm, NULL, 0, &f->c);
+        }
+        hs_free(cm);
+        hs_free(perm);
+        if (!ok) {
+            st = cm && perm
+                     ? fail_from_cholmod(f, err, "constrained ordering")
+                     : hs_err_set(err, HS_ERR_NOMEM, "%s:%d: out of memory", __FILE__, __LINE__);
+            goto fail;
+        }
+    } else {
+        f->L = cholmod_analyze(&f->a, &f->c);
+    }
     if (!f->L) {
         st = fail_from_cholmod(f, err, "symbolic analysis");
         goto fail;
@@ -321,11 +348,17 @@ fail:
 }
 
 hs_status hs_cholesky_create(const hs_csc* a, hs_cholesky** out, hs_err* err) {
-    return create_factor(a, 0, out, err);
+    return create_factor(a, 0, NULL, out, err);
+}
+
+hs_status hs_cholesky_create_last(const hs_csc* a, const unsigned char* last, hs_cholesky** out,
+                                  hs_err* err) {
+    if (!last) return hs_err_set(err, HS_ERR_INVALID, "%s:%d: last is NULL", __FILE__, __LINE__);
+    return create_factor(a, 0, last, out, err);
 }
 
 hs_status hs_cholesky_create_natural(const hs_csc* a, hs_cholesky** out, hs_err* err) {
-    return create_factor(a, 1, out, err);
+    return create_factor(a, 1, NULL, out, err);
 }
 
 hs_status hs_cholesky_fill_order(const hs_csc* a, int* perm, hs_err* err) {
