@@ -63,6 +63,23 @@ static int stress_linear_energy_never_grows(void) {
     return 0;
 }
 
+// Undamped co-rotated runs: with the exact tangent or the warped one, the step's safeguard keeps
+// the energy from growing at any dt in 1 ms .. 0.1 s.
+static int stress_corotated_energy_never_grows(void) {
+    run_suite();
+    int seen = 0;
+    for (int i = 0; i < g_all.n; ++i) {
+        const hs_stress_result* r = &g_all.r[i];
+        if (!is(r, "free-vibration") || strcmp(r->model, "corotated")) continue;
+        ++seen;
+        printf("  corotated %s: energy max/start %.9f\n", r->option, r->energy_growth);
+        ENSURE(r->failures == 0);
+        ENSURE(r->energy_growth <= 1.0 + 1e-6);
+    }
+    ENSURE(seen == 8);
+    return 0;
+}
+
 // Inverted elements (driven through inversion by random loads, or every element mirrored)
 // recover: none left at the end, for both inversion remedies.
 static int stress_inversion_recovers(void) {
@@ -77,7 +94,7 @@ static int stress_inversion_recovers(void) {
         if (is(r, "fold-through")) ENSURE(r->inverted_max == 60 * 4); // every element at start
         inverted_somewhere += r->inverted_max > 0;
     }
-    ENSURE(seen == 6);
+    ENSURE(seen == 8);
     // The fold-through cases start fully inverted; random loads may or may not invert elements
     // (the step's energy safeguard stops most overshoots).
     ENSURE(inverted_somewhere >= 3);
@@ -166,5 +183,6 @@ static int stress_stiffness_scale_applies(void) {
 }
 
 HS_TEST_MAIN(HS_CASE(stress_quick_suite_no_nan), HS_CASE(stress_linear_energy_never_grows),
-             HS_CASE(stress_inversion_recovers), HS_CASE(stress_failures_are_errors),
-             HS_CASE(stress_hard_materials_and_meshes), HS_CASE(stress_stiffness_scale_applies))
+             HS_CASE(stress_corotated_energy_never_grows), HS_CASE(stress_inversion_recovers),
+             HS_CASE(stress_failures_are_errors), HS_CASE(stress_hard_materials_and_meshes),
+             HS_CASE(stress_stiffness_scale_applies))

@@ -159,11 +159,13 @@ static hs_body_def cantilever_def(hs_model model, double nu, double dt) {
 /// Undamped free vibration from a bent state (tip load solved statically, then released):
 /// backward Euler must never add energy. E_k / E_0 over `steps` steps.
 static void case_free_vibration(hs_stress_result* r, hs_model model, double dt, int steps,
-                                double tip_n) {
+                                double tip_n, hs_solver_kind solver) {
     char opt[48];
-    snprintf(opt, sizeof opt, "dt%gms;tip%gN", dt * 1e3, tip_n);
+    snprintf(opt, sizeof opt, "dt%gms;tip%gN%s", dt * 1e3, tip_n,
+             solver == HS_SOLVER_WARPED ? ";warped" : "");
     result_init(r, "free-vibration", model == HS_MODEL_LINEAR ? "linear" : "corotated", opt);
     hs_body_def d = cantilever_def(model, 0.45, dt);
+    d.solver = solver;
     stress_setup s;
     if (setup_box(&s, 10, 2, 2, &d)) {
         r->failures = 1;
@@ -235,13 +237,14 @@ static void case_dt(hs_stress_result* r, hs_model model, double dt, int steps) {
 /// Random large nodal forces (a new draw every 5 steps, up to `scale` times each node's weight),
 /// then released with damping: the body must come back without inverted elements.
 static void case_random_forces(hs_stress_result* r, hs_inversion inv, double scale, int steps,
-                               uint64_t seed) {
+                               uint64_t seed, hs_solver_kind solver) {
     char opt[48];
-    snprintf(opt, sizeof opt, "%s;x%g;seed%llu",
+    snprintf(opt, sizeof opt, "%s;x%g;seed%llu%s",
              inv == HS_INVERSION_LINEAR_FALLBACK ? "fallback" : "reflection", scale,
-             (unsigned long long)seed);
+             (unsigned long long)seed, solver == HS_SOLVER_WARPED ? ";warped" : "");
     result_init(r, "random-forces", "corotated", opt);
     hs_body_def d = cantilever_def(HS_MODEL_COROTATED, 0.45, 0.01);
+    d.solver = solver;
     d.fem.inversion = inv;
     d.fem.material.rayleigh_mass = 5;
     stress_setup s;
@@ -515,9 +518,11 @@ static int hs_stress_run(int quick, stress_sink sink, void* ctx) {
     const double dts[] = {0.001, 0.01, 0.033, 0.1};
     for (int i = 0; i < 4; ++i) {
         int steps = quick ? 200 : (int)fmin(3000, ceil(10.0 / dts[i]));
-        case_free_vibration(&r, HS_MODEL_LINEAR, dts[i], steps, 5);
+        case_free_vibration(&r, HS_MODEL_LINEAR, dts[i], steps, 5, HS_SOLVER_DIRECT);
         sink(&r, ctx), ++n;
-        case_free_vibration(&r, HS_MODEL_COROTATED, dts[i], steps, 20);
+        case_free_vibration(&r, HS_MODEL_COROTATED, dts[i], steps, 20, HS_SOLVER_DIRECT);
+        sink(&r, ctx), ++n;
+        case_free_vibration(&r, HS_MODEL_COROTATED, dts[i], steps, 20, HS_SOLVER_WARPED);
         sink(&r, ctx), ++n;
         case_dt(&r, HS_MODEL_COROTATED, dts[i], quick ? 100 : 1000);
         sink(&r, ctx), ++n;
@@ -530,10 +535,12 @@ static int hs_stress_run(int quick, stress_sink sink, void* ctx) {
         }
     for (int inv = 0; inv < 2; ++inv) {
         int seeds = quick ? 1 : 5;
-        for (int sd = 1; sd <= seeds; ++sd) {
-            case_random_forces(&r, (hs_inversion)inv, 3000, quick ? 30 : 200, (uint64_t)sd);
-            sink(&r, ctx), ++n;
-        }
+        for (int sd = 1; sd <= seeds; ++sd)
+            for (int w = 0; w < 2; ++w) {
+                case_random_forces(&r, (hs_inversion)inv, 3000, quick ? 30 : 200, (uint64_t)sd,
+                                   w ? HS_SOLVER_WARPED : HS_SOLVER_DIRECT);
+                sink(&r, ctx), ++n;
+            }
         for (int lf = 0; lf < 2; ++lf) {
             case_inversion(&r, (hs_inversion)inv, lf, quick ? 150 : 1000);
             sink(&r, ctx), ++n;
