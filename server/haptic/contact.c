@@ -230,10 +230,14 @@ void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int 
     out->clearance_m = clearance > 0 ? clearance : 0;
     if (nc == 0 || cand[order[0]].rho >= r) return; // nothing penetrates
 
-    // The deepest points whose vertices fit in M nodes.
+    // The deepest points whose vertices fit in M nodes. A point outside the sphere joins only
+    // if the push can carry it in: it moves by about the deepest penetration at most, so the
+    // band narrows to r + 1.5 x that when it is less than HS_CONTACT_BAND r (continuous in p:
+    // a point crossing its edge carries no force).
+    const double band = fmin(near, r + 1.5 * (r - cand[order[0]].rho));
     feat set[M];
     int m = 0, nv = 0, vtx[M]; // local vertices: candidate indices
-    for (int i = 0; i < nc && m < M; ++i) {
+    for (int i = 0; i < nc && m < M && cand[order[i]].rho < band; ++i) {
         feat* f = &cand[order[i]];
         int add = 0;
         for (int k = 0; k < f->kind; ++k) {
@@ -290,23 +294,27 @@ void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int 
         w[i * M + i] += eps;
     }
 
-    // Principal pivoting, least index first (deepest first). Start from the previous tick's
-    // contact (points whose vertices were all contact nodes) when given (it rarely changes
-    // between ticks: usually one solve), else from the penetrating set.
+    // Start from the previous tick's contact when given (it rarely changes between ticks:
+    // usually one solve): deepest first, each point whose vertices were all contact nodes and
+    // that reaches a contact node no earlier one did (a few points cover the old contact);
+    // else from the penetrating set.
     unsigned char act[M];
     double lambda[M];
+    unsigned int covered = 0; // bit j: warm_nodes[j] reached
     for (int i = 0; i < m; ++i) {
-        if (warm_n > 0) {
-            int all = 1;
-            for (int k = 0; k < set[i].kind && all; ++k) {
-                int node = s->node[set[i].v[k]], found = 0;
-                for (int j = 0; j < warm_n && !found; ++j) found = warm_nodes[j] == node;
-                all = found;
-            }
-            act[i] = (unsigned char)(all && delta[i] > 0);
-        } else {
-            act[i] = delta[i] > 0;
+        act[i] = delta[i] > 0;
+        if (warm_n <= 0) continue;
+        unsigned int mine = 0;
+        int all = 1;
+        for (int k = 0; k < set[i].kind && all; ++k) {
+            int node = s->node[set[i].v[k]], found = -1;
+            for (int j = 0; j < warm_n && j < 32 && found < 0; ++j)
+                if (warm_nodes[j] == node) found = j;
+            all = found >= 0;
+            if (all) mine |= 1u << found;
         }
+        act[i] = (unsigned char)(all && (mine & ~covered) && delta[i] > 0);
+        if (act[i]) covered |= mine;
     }
     // Block principal pivoting first (every infeasible point changes side at once: two or
     // three solves from a fair start), Murty's single least-index flips after BLOCK_PIVOTS
