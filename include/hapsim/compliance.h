@@ -116,17 +116,17 @@ typedef struct hs_contact_snapshot {
 
 /// The contact at one tool position (rt -> deformation thread, and the local model's source).
 typedef struct hs_contact {
-    int64_t version;               ///< snapshot version it came from
-    double tool_m[3];              ///< probe centre, m
-    int n;                         ///< contact nodes (<= HS_MAX_CONTACT)
-    int node[HS_MAX_CONTACT];      ///< mesh node index
+    int64_t version;          ///< snapshot version it came from
+    double tool_m[3];         ///< probe centre, m
+    int n;                    ///< contact nodes: vertices of pushing points (<= HS_MAX_CONTACT)
+    int node[HS_MAX_CONTACT]; ///< mesh node index
     double d_m[HS_MAX_CONTACT][3]; ///< node displacement the contact forces cause, m
-    double f_n[HS_MAX_CONTACT][3]; ///< force ON THE TISSUE at each node (radial), N
+    double f_n[HS_MAX_CONTACT][3]; ///< force ON THE TISSUE at each node (sum w lambda n), N
     double force_n[3];             ///< force ON THE TOOL, -sum f_n, N
     double stiffness_n_m[9];       ///< -dforce_n/dtool, row-major, N/m (contact set fixed)
-    double clearance_m;            ///< tool travel before a candidate enters or leaves, m
-    int penetrating;               ///< contact-free positions inside the sphere
-    int dropped;                   ///< pivots that removed a node (it would have pulled)
+    double clearance_m;            ///< tool travel before a contact point enters or leaves, m
+    int penetrating;               ///< contact points (contact-free) inside the sphere
+    int dropped;                   ///< pivots that removed a point (it would have pulled)
     int passes;                    ///< solves (pivots) used
     int approx;                    ///< 1 when an off-diagonal block was missing
     int failed;                    ///< 1 when C_SS was not SPD (result zeroed)
