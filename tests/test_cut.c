@@ -9,6 +9,7 @@
 #endif
 
 #include <math.h>
+#include <pthread.h>
 #include <stdlib.h>
 
 #define MM 1e-3
@@ -514,6 +515,75 @@ static int test_aggregated_update(void) {
     return aggregated_pass(1);
 }
 
+static void* window_build_thread(void* arg) {
+    hs_err e;
+    return hs_cut_window_build((hs_cut*)arg, &e) == HS_OK ? arg : NULL;
+}
+
+/// Background window: sweeps never refactor; when a rebuild is due a thread builds the new
+/// window while the next sweep runs, and finish brings it up to date and swaps it in. The
+/// factor matches a fresh one after every sweep and every swap.
+static int test_window_background(void) {
+    int64_t bytes = hs_byte_count();
+    hs_mesh* m = NULL;
+    hs_err e;
+    ENSURE(hs_mesh_create_box(0.08, 0.08, 0.01, 8, 8, 2, &m, &e) == HS_OK);
+    unsigned char* fixed = hs_calloc((size_t)m->n_nodes, 1);
+    hs_mesh_select_plane(m, 0, -1, 1e-6, fixed);
+    hs_cut_def def = hs_cut_default_def();
+    def.factor_policy = HS_CUT_FACTOR_UPDATE;
+    def.window_radius_m = 0.02;
+    def.window_ahead_m = 0.03;
+    def.window_background = 1;
+    hs_cut* c = NULL;
+    ENSURE(hs_cut_create(m, fixed, &def, &c, &e) == HS_OK);
+    ENSURE(hs_cut_window_due(c) == 0);                    // no blade yet
+    ENSURE(hs_cut_window_begin(c, &e) == HS_ERR_INVALID); // nor a sweep
+    int swaps = 0, in_flight = 0;
+    pthread_t th;
+    for (int k = 0; k < 11; k++) {
+        double p0[3], q0[3], p1[3], q1[3];
+        p0[0] = q0[0] = p1[0] = q1[0] = 0.0451;
+        p0[1] = q0[1] = -0.005 + 0.007 * k;
+        p1[1] = q1[1] = -0.005 + 0.007 * (k + 1);
+        p0[2] = p1[2] = -0.005;
+        q0[2] = q1[2] = 0.015;
+        hs_cut_result r;
+        ENSURE(hs_cut_sweep(c, p0, q0, p1, q1, NULL, &r, &e) == HS_OK);
+        ENSURE(!r.refactored);
+        if (in_flight) { // the build ran alongside this sweep
+            void* ret = NULL;
+            ENSURE(pthread_join(th, &ret) == 0 && ret == c);
+            ENSURE(hs_cut_window_finish(c, &e) == HS_OK);
+            in_flight = 0;
+            swaps++;
+        }
+        double df = factor_vs_fresh(c);
+        printf("  sweep %d: changes %d, vs fresh %.1e, windows swapped in %d\n", k,
+               r.changed_elements, df, swaps);
+        ENSURE(df <= 1e-8);
+        if (hs_cut_window_due(c)) {
+            ENSURE(hs_cut_window_begin(c, &e) == HS_OK);
+            ENSURE(hs_cut_window_begin(c, &e) == HS_ERR_INVALID); // one at a time
+            ENSURE(pthread_create(&th, NULL, window_build_thread, c) == 0);
+            in_flight = 1;
+        }
+    }
+    if (in_flight) {
+        ENSURE(pthread_join(th, NULL) == 0);
+        ENSURE(hs_cut_window_finish(c, &e) == HS_OK);
+        swaps++;
+        ENSURE(factor_vs_fresh(c) <= 1e-8);
+    }
+    ENSURE(swaps >= 2); // the first window, then one the blade moved into
+    ENSURE(hs_cut_window_finish(c, &e) == HS_ERR_INVALID);
+    hs_free(fixed);
+    hs_cut_destroy(&c);
+    hs_mesh_destroy(&m);
+    ENSURE(hs_byte_count() == bytes);
+    return 0;
+}
+
 static int test_rules(void) {
     int64_t bytes = hs_byte_count();
     for (int variant = 0; variant < 4; variant++) {
@@ -812,6 +882,6 @@ static int test_liver_random_cuts(void) {
 
 HS_TEST_MAIN(HS_CASE(test_force_model), HS_CASE(test_skin_full_separation),
              HS_CASE(test_skin_wound_angle), HS_CASE(test_consistency),
-             HS_CASE(test_aggregated_update), HS_CASE(test_rules),
+             HS_CASE(test_aggregated_update), HS_CASE(test_window_background), HS_CASE(test_rules),
              HS_CASE(test_deformed_and_bad_input), HS_CASE(test_dynamic_body),
              HS_CASE(test_alloc_faults), HS_CASE(test_liver_random_cuts))

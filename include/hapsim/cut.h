@@ -73,7 +73,10 @@ typedef struct hs_cut_def {
     /// rebuilds the factor (new ordering + numeric factor) around the blade, m.
     double window_radius_m;
     double window_ahead_m; ///< how far ahead of the blade, along its travel, the window reaches, m
-    int cookie;            ///< set by hs_cut_default_def
+    /// 1: a sweep leaving the window updates the current factor (longer paths) instead of
+    /// rebuilding it; the caller rebuilds the window off the critical path (hs_cut_window_*).
+    int window_background;
+    int cookie; ///< set by hs_cut_default_def
 } hs_cut_def;
 
 /// Defaults: hs_fem_default_def()'s material, ORPHAN_PIN, FRAGMENT_DROP, volume ratio 0.1,
@@ -145,6 +148,23 @@ int hs_cut_components(hs_cut* cut);
 /// Check the live mesh (hs_mesh_check) and the cut invariants: no used free vertex without an
 /// element, every active tet positively oriented at rest, pinned nodes unused.
 hs_status hs_cut_validate(hs_cut* cut, hs_err* err);
+
+/// Background window rebuild (def.window_radius_m > 0, typically with def.window_background):
+/// 1 when a rebuild is due: the last sweep changed dofs outside the window, or the blade has
+/// used up half of the window's reach ahead. Thread: deformation | Allocates: no
+int hs_cut_window_due(const hs_cut* cut);
+/// Snapshot K and choose a new window around the last sweep's blade; sweeps from here on are
+/// recorded for hs_cut_window_finish. Thread: deformation | Allocates: yes (first call; the
+/// record grows with the sweeps until finish)
+hs_status hs_cut_window_begin(hs_cut* cut, hs_err* err);
+/// Order and factor the snapshot (analysis + numeric factor, the expensive part). Touches only
+/// the snapshot, so it may run on another thread while sweeps go on; the caller orders it
+/// between begin and finish. Thread: any one | Allocates: yes
+hs_status hs_cut_window_build(hs_cut* cut, hs_err* err);
+/// Bring the new factor up to date with the sweeps since begin (one aggregated update inside
+/// its window; a numeric refactor if that is impossible) and swap it in.
+/// Thread: deformation | Allocates: on growth only
+hs_status hs_cut_window_finish(hs_cut* cut, hs_err* err);
 
 /// Static linear solve K u = f with the kept factor: f[3n] nodal forces (N) in, u[3n] (m) out;
 /// fixed and pinned nodes get zero. Allocates: no.

@@ -4,6 +4,7 @@
 #include "hapsim/cut.h"
 
 #include <math.h>
+#include <pthread.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -71,6 +72,36 @@ struct hs_cut {
     int* edof;          // [12 cap_elem]
     int first_minus;    // blocks from here on are subtracted
     unsigned char* win; // [n_free] 1: eliminated last in the factor (the update window)
+    double win_org[3];  // blade midpoint when the window was chosen
+    double win_dir[3];  // unit blade travel then (0 if it did not move)
+    int win_stale;      // the last sweep changed dofs outside the window
+    double blade[12];   // last sweep: p0, q0, p1, q1
+    int have_blade;
+    // Background window rebuild (hs_cut_window_begin / _build / _finish).
+    int bg_state;          // 0 idle, 1 begun (snapshot taken); deformation thread only
+    int bg_built;          // build ran (written by the build thread, read by finish)
+    hs_status bg_caught;   // the build thread's catch-up
+    hs_csc* bg_a;          // snapshot of K
+    unsigned char* bg_win; // [n_free] its window
+    double bg_org[3], bg_dir[3];
+    hs_cholesky* bg_f;
+    hs_status bg_status;
+    int acc_valid;      // every sweep since begin recorded its blocks
+    int n_accp, n_accm; // blocks added / subtracted since begin
+    int cap_acc;
+    double *accp_k, *accm_k; // [144 cap_acc]
+    int *accp_d, *accm_d;    // [12 cap_acc]
+    int n_accs, cap_accs;    // sweeps recorded
+    int* accs;               // [2 cap_accs] where each sweep's + and - blocks start
+    // The record (acc*, n_acc*) is shared with the build thread, which applies it to bg_f as
+    // it grows: guarded by bg_lock. The rest of bg_* is the build thread's until finish.
+    pthread_mutex_t bg_lock;
+    int has_lock;
+    int bg_applied;       // recorded sweeps already applied to bg_f
+    int *bg_pos, *bg_set; // [n_free] union marks of the catch-up (-1 outside)
+    int bg_cap;           // blocks bg_k / bg_d hold
+    double* bg_k;         // [144 bg_cap] one catch-up group: + blocks, then - blocks
+    int* bg_d;            // [12 bg_cap]
 
     // tracked compliance
     hs_cut_compliance_mode cmode;
@@ -113,13 +144,18 @@ void hs_cut_destroy(hs_cut** pc) {
     hs_fem_destroy(&c->fem);
     hs_csc_destroy(&c->a);
     hs_cholesky_destroy(&c->factor);
+    hs_cholesky_destroy(&c->bg_f);
+    hs_csc_destroy(&c->bg_a);
     hs_mesh_destroy(&c->live);
-    void* p[] = {c->fixed,  c->pinned,   c->active,   c->count, c->nt_start, c->nt,   c->vol_orig,
-                 c->q_orig, c->dof,      c->live_tet, c->x,     c->x0_old,   c->nrm,  c->tmark,
-                 c->nmark,  c->cut_list, c->removed,  c->moved, c->changed,  c->pins, c->edges,
-                 c->parent, c->fnbr,     c->tparent,  c->fa,    c->fb,       c->anch, c->rhs,
-                 c->sol,    c->dk,       c->edof,     c->track, c->cblk,     c->dset, c->dpos,
-                 c->zbuf,   c->zd,       c->zt,       c->kdd,   c->wrk,      c->piv,  c->win};
+    void* p[] = {c->fixed,  c->pinned,   c->active,   c->count,  c->nt_start, c->nt,   c->vol_orig,
+                 c->q_orig, c->dof,      c->live_tet, c->x,      c->x0_old,   c->nrm,  c->tmark,
+                 c->nmark,  c->cut_list, c->removed,  c->moved,  c->changed,  c->pins, c->edges,
+                 c->parent, c->fnbr,     c->tparent,  c->fa,     c->fb,       c->anch, c->rhs,
+                 c->sol,    c->dk,       c->edof,     c->track,  c->cblk,     c->dset, c->dpos,
+                 c->zbuf,   c->zd,       c->zt,       c->kdd,    c->wrk,      c->piv,  c->win,
+                 c->bg_win, c->accp_k,   c->accm_k,   c->accp_d, c->accm_d,   c->accs, c->bg_pos,
+                 c->bg_set, c->bg_k,     c->bg_d};
+    if (c->has_lock) pthread_mutex_destroy(&c->bg_lock);
     for (size_t i = 0; i < sizeof p / sizeof p[0]; i++) hs_free(p[i]);
     hs_free(c);
     *pc = NULL;
@@ -903,22 +939,24 @@ static int in_window(const hs_cut* c, int m) {
     return 1;
 }
 
-/// Rebuild the factor of K as it is now, ordered with a new window last: the free dofs of the
-/// nodes (current positions c->x) within window_radius_m of the quad the blade (p1, q1) sweeps
-/// moving window_ahead_m along its last travel (the mean of p1 - p0 and q1 - q0). Keeps the old
-/// factor on failure.
-static hs_status rewindow(hs_cut* c, const double* p0, const double* q0, const double* p1,
-                          const double* q1, hs_err* err) {
+/// The window around the blade's sweep (p0, q0) -> (p1, q1): the free dofs of the nodes (current
+/// positions c->x) within window_radius_m of the quad the blade (p1, q1) sweeps moving
+/// window_ahead_m along its travel (the mean of p1 - p0 and q1 - q0). Writes mask[n_free], the
+/// blade midpoint org and the unit travel dir.
+static void choose_window(const hs_cut* c, const double* bl, unsigned char* mask, double* org,
+                          double* dir) {
+    const double *p0 = bl, *q0 = bl + 3, *p1 = bl + 6, *q1 = bl + 9;
     double v[3], p2[3], q2[3];
     for (int d = 0; d < 3; d++) v[d] = 0.5 * ((p1[d] - p0[d]) + (q1[d] - q0[d]));
     double len = sqrt(v3_dot(v, v));
-    double ahead = len > 0 ? c->def.window_ahead_m / len : 0.0;
     for (int d = 0; d < 3; d++) {
-        p2[d] = p1[d] + ahead * v[d];
-        q2[d] = q1[d] + ahead * v[d];
+        dir[d] = len > 0 ? v[d] / len : 0.0;
+        org[d] = 0.5 * (p1[d] + q1[d]);
+        p2[d] = p1[d] + c->def.window_ahead_m * dir[d];
+        q2[d] = q1[d] + c->def.window_ahead_m * dir[d];
     }
     const double r2 = c->def.window_radius_m * c->def.window_radius_m;
-    memset(c->win, 0, (size_t)c->n_free);
+    memset(mask, 0, (size_t)c->n_free);
     for (int i = 0; i < c->n; i++) {
         if (c->dof[3 * i] < 0) continue;
         const double* xi = c->x + 3 * i;
@@ -928,8 +966,20 @@ static hs_status rewindow(hs_cut* c, const double* p0, const double* q0, const d
         v3_sub(xi, a, da);
         v3_sub(xi, b, db);
         if (fmin(v3_dot(da, da), v3_dot(db, db)) > r2) continue;
-        for (int q = 0; q < 3; q++) c->win[c->dof[3 * i + q]] = 1;
+        for (int q = 0; q < 3; q++) mask[c->dof[3 * i + q]] = 1;
     }
+}
+
+/// Rebuild the factor of K as it is now, ordered with a new window around the blade last.
+/// Keeps the old factor on failure.
+static hs_status rewindow(hs_cut* c, const double* p0, const double* q0, const double* p1,
+                          const double* q1, hs_err* err) {
+    double bl[12];
+    memcpy(bl, p0, 3 * sizeof(double));
+    memcpy(bl + 3, q0, 3 * sizeof(double));
+    memcpy(bl + 6, p1, 3 * sizeof(double));
+    memcpy(bl + 9, q1, 3 * sizeof(double));
+    choose_window(c, bl, c->win, c->win_org, c->win_dir);
     hs_cut_assemble(c, c->a);
     hs_cholesky* f = NULL;
     hs_status st = hs_cholesky_create_last(c->a, c->win, &f, err);
@@ -948,6 +998,205 @@ static hs_status rewindow(hs_cut* c, const double* p0, const double* q0, const d
 /// Apply the sweep's m blocks to the factor (aggregated: one rank <= union update).
 static hs_status apply_changes(hs_cut* c, int m) {
     return hs_cholesky_update_parts(c->factor, c->first_minus, m - c->first_minus, c->dk, c->edof);
+}
+
+// Largest union of a catch-up group (the sparse module aggregates up to 384).
+#define HS_CUT_CATCHUP_D 360
+
+/// Put free dof f into the union being counted (set/pos from position *d on); returns 1 if it
+/// was new. The caller clears pos.
+static int mark_dof(int* pos, int* set, int f, const int* d) {
+    if (f < 0 || pos[f] >= 0) return 0;
+    pos[f] = *d;
+    set[*d] = f;
+    return 1;
+}
+
+/// Append the sweep's m blocks to the record kept since hs_cut_window_begin.
+static hs_status record_blocks(hs_cut* c, int m) {
+    int np = c->first_minus, nm = m - c->first_minus;
+    int need = (c->n_accp + np > c->n_accm + nm ? c->n_accp + np : c->n_accm + nm);
+    if (need > c->cap_acc) {
+        int cap = need > 2 * c->cap_acc ? need : 2 * c->cap_acc;
+        double* k = hs_realloc(c->accp_k, sizeof(double) * 144 * (size_t)cap);
+        if (!k) return HS_ERR_NOMEM;
+        c->accp_k = k;
+        k = hs_realloc(c->accm_k, sizeof(double) * 144 * (size_t)cap);
+        if (!k) return HS_ERR_NOMEM;
+        c->accm_k = k;
+        int* d = hs_realloc(c->accp_d, sizeof(int) * 12 * (size_t)cap);
+        if (!d) return HS_ERR_NOMEM;
+        c->accp_d = d;
+        d = hs_realloc(c->accm_d, sizeof(int) * 12 * (size_t)cap);
+        if (!d) return HS_ERR_NOMEM;
+        c->accm_d = d;
+        c->cap_acc = cap;
+    }
+    if (c->n_accs == c->cap_accs) {
+        int cap = c->cap_accs ? 2 * c->cap_accs : 64;
+        int* a = hs_realloc(c->accs, sizeof(int) * 2 * (size_t)cap);
+        if (!a) return HS_ERR_NOMEM;
+        c->accs = a;
+        c->cap_accs = cap;
+    }
+    c->accs[2 * c->n_accs] = c->n_accp;
+    c->accs[2 * c->n_accs + 1] = c->n_accm;
+    c->n_accs++;
+    memcpy(c->accp_k + 144 * (size_t)c->n_accp, c->dk, sizeof(double) * 144 * (size_t)np);
+    memcpy(c->accp_d + 12 * (size_t)c->n_accp, c->edof, sizeof(int) * 12 * (size_t)np);
+    memcpy(c->accm_k + 144 * (size_t)c->n_accm, c->dk + 144 * (size_t)np,
+           sizeof(double) * 144 * (size_t)nm);
+    memcpy(c->accm_d + 12 * (size_t)c->n_accm, c->edof + 12 * (size_t)np,
+           sizeof(int) * 12 * (size_t)nm);
+    c->n_accp += np;
+    c->n_accm += nm;
+    return HS_OK;
+}
+
+int hs_cut_window_due(const hs_cut* c) {
+    if (!c || !(c->def.window_radius_m > 0) || c->bg_state || !c->have_blade) return 0;
+    if (c->win_stale) return 1;
+    // Ahead of time: the blade has used up half of the window's reach along its travel.
+    double mid[3], d[3];
+    for (int k = 0; k < 3; k++) mid[k] = 0.5 * (c->blade[6 + k] + c->blade[9 + k]);
+    v3_sub(mid, c->win_org, d);
+    return v3_dot(d, c->win_dir) > 0.5 * c->def.window_ahead_m;
+}
+
+hs_status hs_cut_window_begin(hs_cut* c, hs_err* err) {
+    if (!c || !(c->def.window_radius_m > 0) || !c->have_blade)
+        return hs_err_set(err, HS_ERR_INVALID, "cut: no window radius set or no sweep yet");
+    if (c->bg_state)
+        return hs_err_set(err, HS_ERR_INVALID, "cut: a window rebuild is already under way");
+    if (!c->bg_a) {
+        hs_status st = hs_csc_clone(c->a, &c->bg_a);
+        size_t nf = (size_t)c->n_free + 1;
+        if (st == HS_OK && !c->bg_win && !(c->bg_win = hs_calloc(nf, 1))) st = HS_ERR_NOMEM;
+        if (st == HS_OK && !c->bg_pos && !(c->bg_pos = hs_alloc(sizeof(int) * nf)))
+            st = HS_ERR_NOMEM;
+        if (st == HS_OK && !c->bg_set && !(c->bg_set = hs_alloc(sizeof(int) * nf)))
+            st = HS_ERR_NOMEM;
+        if (st == HS_OK && !c->has_lock) {
+            if (pthread_mutex_init(&c->bg_lock, NULL) != 0) st = HS_ERR_NOMEM;
+            c->has_lock = st == HS_OK;
+        }
+        if (st != HS_OK) {
+            hs_csc_destroy(&c->bg_a); // retried in full next time
+            return hs_err_set(err, st, "cut: window rebuild: out of memory");
+        }
+        for (int i = 0; i < c->n_free; i++) c->bg_pos[i] = -1;
+    }
+    hs_cut_assemble(c, c->bg_a);
+    choose_window(c, c->blade, c->bg_win, c->bg_org, c->bg_dir);
+    c->n_accp = c->n_accm = c->n_accs = 0;
+    c->bg_applied = 0;
+    c->bg_caught = HS_OK;
+    c->acc_valid = 1;
+    c->bg_status = HS_OK;
+    c->bg_built = 0;
+    c->bg_state = 1;
+    return HS_OK;
+}
+
+/// Apply the recorded sweeps not yet in bg_f: consecutive sweeps merged while their union stays
+/// within the aggregation limit, one aggregated update per group (inside the new window, so
+/// short paths). Returns HS_ERR_UNSUPPORTED if the record is incomplete. The record is read
+/// under the lock; the update runs outside it, so sweeps go on meanwhile.
+static hs_status catch_up(hs_cut* c) {
+    for (;;) {
+        pthread_mutex_lock(&c->bg_lock);
+        int s0 = c->bg_applied, ns = c->n_accs, valid = c->acc_valid;
+        if (!valid || s0 == ns) {
+            pthread_mutex_unlock(&c->bg_lock);
+            return valid ? HS_OK : HS_ERR_UNSUPPORTED;
+        }
+        int d = 0, s1 = s0, marked = 0;
+        for (; s1 < ns; s1++) {
+            int p1 = s1 + 1 < ns ? c->accs[2 * s1 + 2] : c->n_accp;
+            int m1 = s1 + 1 < ns ? c->accs[2 * s1 + 3] : c->n_accm;
+            int d1 = d;
+            for (int k = 12 * c->accs[2 * s1]; k < 12 * p1; k++)
+                d1 += mark_dof(c->bg_pos, c->bg_set, c->accp_d[k], &d1);
+            for (int k = 12 * c->accs[2 * s1 + 1]; k < 12 * m1; k++)
+                d1 += mark_dof(c->bg_pos, c->bg_set, c->accm_d[k], &d1);
+            marked = d1;
+            if (d1 > HS_CUT_CATCHUP_D && s1 > s0) break;
+            d = d1;
+        }
+        for (int i = 0; i < marked; i++) c->bg_pos[c->bg_set[i]] = -1;
+        int pa = c->accs[2 * s0], ma = c->accs[2 * s0 + 1];
+        int np = (s1 < ns ? c->accs[2 * s1] : c->n_accp) - pa;
+        int nm = (s1 < ns ? c->accs[2 * s1 + 1] : c->n_accm) - ma;
+        hs_status st = HS_OK;
+        if (np + nm > c->bg_cap) {
+            double* k = hs_realloc(c->bg_k, sizeof(double) * 144 * (size_t)(np + nm));
+            if (k) c->bg_k = k;
+            int* dd = k ? hs_realloc(c->bg_d, sizeof(int) * 12 * (size_t)(np + nm)) : NULL;
+            if (dd) c->bg_d = dd;
+            if (k && dd)
+                c->bg_cap = np + nm;
+            else
+                st = HS_ERR_NOMEM;
+        }
+        if (st == HS_OK) {
+            memcpy(c->bg_k, c->accp_k + 144 * (size_t)pa, sizeof(double) * 144 * (size_t)np);
+            memcpy(c->bg_d, c->accp_d + 12 * (size_t)pa, sizeof(int) * 12 * (size_t)np);
+            memcpy(c->bg_k + 144 * (size_t)np, c->accm_k + 144 * (size_t)ma,
+                   sizeof(double) * 144 * (size_t)nm);
+            memcpy(c->bg_d + 12 * (size_t)np, c->accm_d + 12 * (size_t)ma,
+                   sizeof(int) * 12 * (size_t)nm);
+        }
+        pthread_mutex_unlock(&c->bg_lock);
+        if (st == HS_OK) st = hs_cholesky_update_parts(c->bg_f, np, nm, c->bg_k, c->bg_d);
+        if (st != HS_OK) return st;
+        c->bg_applied = s1;
+    }
+}
+
+hs_status hs_cut_window_build(hs_cut* c, hs_err* err) {
+    // bg_state is the deformation thread's: not read here (the caller orders the calls).
+    if (!c || !c->bg_a)
+        return hs_err_set(err, HS_ERR_INVALID, "cut: window build without hs_cut_window_begin");
+    hs_cholesky_destroy(&c->bg_f);
+    hs_status st = hs_cholesky_create_last(c->bg_a, c->bg_win, &c->bg_f, err);
+    if (st == HS_OK) st = hs_cholesky_prepare_updates(c->bg_f, 0);
+    // Catch up with the sweeps made meanwhile (a failure is finish's to handle).
+    if (st == HS_OK) c->bg_caught = catch_up(c);
+    c->bg_status = st;
+    c->bg_built = 1;
+    return st;
+}
+
+hs_status hs_cut_window_finish(hs_cut* c, hs_err* err) {
+    if (!c || c->bg_state != 1 || !c->bg_built)
+        return hs_err_set(err, HS_ERR_INVALID, "cut: window finish without begin and build");
+    c->bg_state = 0;
+    c->bg_built = 0;
+    hs_status st = c->bg_status;
+    if (st != HS_OK) {
+        hs_cholesky_destroy(&c->bg_f);
+        return hs_err_set(err, st, "cut: window build failed: %s", hs_status_str(st));
+    }
+    // The sweeps since the build caught up; a failed update there breaks bg_f's factor.
+    st = c->bg_caught == HS_OK ? catch_up(c) : c->bg_caught;
+    if (st != HS_OK) { // unrecorded sweeps or a failed update: refactor the new factor
+        hs_cut_assemble(c, c->a);
+        st = hs_cholesky_refactor(c->bg_f, c->a);
+    }
+    if (st != HS_OK) {
+        hs_cholesky_destroy(&c->bg_f);
+        return hs_err_set(err, st, "cut: bringing the new window up to date failed: %s",
+                          hs_status_str(st));
+    }
+    hs_cholesky_destroy(&c->factor);
+    c->factor = c->bg_f;
+    c->bg_f = NULL;
+    memcpy(c->win, c->bg_win, (size_t)c->n_free);
+    memcpy(c->win_org, c->bg_org, sizeof c->win_org);
+    memcpy(c->win_dir, c->bg_dir, sizeof c->win_dir);
+    c->win_stale = 0;
+    c->updates_since_refactor = 0;
+    return HS_OK;
 }
 
 hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const double p1[3],
@@ -1160,8 +1409,20 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
         for (int k = 0; k < c->n_changed; k++) add_block(c, &m, c->changed[k], -1, c->x0_old);
     }
     // A change reaching outside the update window gets a factor with a new window instead.
-    int new_window = can_update && c->def.window_radius_m > 0 && !in_window(c, m);
+    int outside = can_update && c->def.window_radius_m > 0 && !in_window(c, m);
+    c->win_stale = outside;
+    // In background mode the change still updates the current factor (longer paths) and the
+    // caller rebuilds the window off the critical path (hs_cut_window_begin).
+    int new_window = outside && !c->def.window_background;
     if (new_window) can_update = 0;
+    if (c->bg_state) { // record the change for the window being built
+        pthread_mutex_lock(&c->bg_lock);
+        if (m == 0 && need > 0)
+            c->acc_valid = 0;
+        else if (m > 0 && record_blocks(c, m) != HS_OK)
+            c->acc_valid = 0;
+        pthread_mutex_unlock(&c->bg_lock);
+    }
     if (can_update && c->def.factor_policy == HS_CUT_FACTOR_AUTO) {
         double per = c->update_ms_per_rank > 0 ? c->update_ms_per_rank : c->refactor_ms / 96.0;
         can_update = union_dofs(c, m) * per < c->refactor_ms;
@@ -1223,6 +1484,11 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
     }
     r.mesh_ms = (double)(hs_now_ns() - t2) * 1e-6;
 done:
+    memcpy(c->blade, p0, 3 * sizeof(double));
+    memcpy(c->blade + 3, q0, 3 * sizeof(double));
+    memcpy(c->blade + 6, p1, 3 * sizeof(double));
+    memcpy(c->blade + 9, q1, 3 * sizeof(double));
+    c->have_blade = 1;
     for (int k = 0; k < n_cut; k++) c->tmark[c->cut_list[k]] = 0;
     for (int k = 0; k < c->n_removed; k++) c->tmark[c->removed[k]] = 0;
     for (int k = 0; k < c->n_changed; k++) c->tmark[c->changed[k]] = 0;
