@@ -17,10 +17,13 @@
 //  - Physics. The cut keeps the rest-state linear stiffness K (free dofs; fixed nodes
 //    eliminated; pinned nodes held by a diagonal spring) and its sparse Cholesky factor. Each
 //    sweep changes K by the 12x12 blocks of removed tets and of tets touching moved vertices
-//    (+ pin blocks). Policy UPDATE applies them as CHOLMOD update/downdate (rank <= 12 each);
-//    AUTO (default) does that unless its measured cost exceeds a numeric refactor with the kept
-//    analysis (never a symbolic analysis again); a failed update also refactors. Either way the
-//    factor is that of the new K; tests compare it with a fresh factorisation.
+//    (+ pin blocks). Policy UPDATE sums them over the union of their dofs and applies one
+//    CHOLMOD update/downdate of rank <= that union (hs_cholesky_update_parts); AUTO (default)
+//    does that unless its predicted cost (union x measured cost per rank) exceeds a numeric
+//    refactor with the kept analysis; a failed update also refactors. An optional update
+//    window orders the dofs near the blade last so in-window updates walk short paths; leaving
+//    it rebuilds the factor (in the sweep, or on another thread: hs_cut_window_*). Either way
+//    the factor is that of the new K; tests compare it with a fresh factorisation.
 //  - Surface. Tangent planes come from the boundary faces around a vertex (face neighbours of
 //    the full mesh + activity), so a sweep never needs the live mesh; that is rebuilt on demand.
 //  - Events. After each sweep: the removed tets, the moved vertices and a topology version

@@ -84,10 +84,12 @@ int hs_cholesky_is_supernodal(const hs_cholesky* f);
 // mode converts the current factor once (O(nnz(L)), allocates; done by prepare or the first
 // update) and keeps it simplicial, in the supernodal column layout. The spare stays supernodal:
 // a refactor is a supernodal factorisation plus an O(nnz(L)) copy into the LDL^T factor, and
-// solves run per supernode (about 1.5-2x a supernodal solve). Memory: about 2.5x nnz(L). A
-// rank-r change costs about ceil(r/8) passes along the elimination-tree paths of its rows,
-// which in 3D cross the large separators (one removed element, measured with
-// tests/sparse_timing on 27-point grids: ~3.5 ms at 7.6k dofs, ~25 ms at 30k dofs).
+// solves run per supernode (about 1.5-2x a supernodal solve). Memory: about 2.5x nnz(L), plus
+// for element updates a dense d x d workspace and column buffers, d = min(12 max_elems, 768, n)
+// (up to ~8 MB). A rank-r change costs about ceil(r/8) passes along the elimination-tree paths
+// of its rows, which in 3D cross the large separators (one removed element, measured with
+// tests/sparse_timing on 27-point grids: ~3.5 ms at 7.6k dofs, ~25 ms at 30k dofs); ordering
+// the changed region last (hs_cholesky_create_last) shortens them.
 
 /// Convert to an updatable factor and size workspaces for changes of up to max_elems elements
 /// (or max_elems*12 columns) per call, so later updates allocate nothing. Idempotent.
@@ -103,7 +105,7 @@ hs_status hs_cholesky_updown(hs_cholesky* f, int update, int n_cols, const int* 
                              const int* rowi, const double* val);
 /// Factor of A + sum_e dK_e for n_elem element changes: dk[144*e] is a symmetric 12x12 (any
 /// sign; row-major), dofs[12*e] its free dof indices or -1 for fixed dofs. Aggregated (the
-/// default): the changes are summed over the union of their free dofs (d of them, at most 384)
+/// default): the changes are summed over the union of their free dofs (d of them, at most 768)
 /// and factored S = G Q G^T in L's elimination order, so at most d columns (one per nonzero
 /// pivot) go to update/downdate, each within L's pattern (no fill). An S whose unpivoted
 /// factorisation breaks down, or a larger union, goes element by element: each dK_e split by

@@ -1000,7 +1000,7 @@ static hs_status apply_changes(hs_cut* c, int m) {
     return hs_cholesky_update_parts(c->factor, c->first_minus, m - c->first_minus, c->dk, c->edof);
 }
 
-// Largest union of a catch-up group (the sparse module aggregates up to 384).
+// Largest union of a catch-up group (the sparse module aggregates up to 768).
 #define HS_CUT_CATCHUP_D 360
 
 /// Put free dof f into the union being counted (set/pos from position *d on); returns 1 if it

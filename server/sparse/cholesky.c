@@ -786,7 +786,7 @@ static hs_status reserve_columns(hs_cholesky* f, int64_t cols, int64_t nnz) {
 
 // Largest union of dofs aggregated into one dense change; a larger step goes element by element
 // (its update would cost more than a refactor on any mesh where such a step occurs).
-#define HS_AGG_MAX_D 384
+#define HS_AGG_MAX_D 768
 
 // Order of the dense workspace a step of max_elems elements can need.
 static int agg_order(const hs_cholesky* f, int max_elems) {
