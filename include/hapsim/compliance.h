@@ -109,6 +109,9 @@ typedef struct hs_contact_snapshot {
     /// candidate a contact point).
     int n_tri;
     int tri[HS_CONTACT_MAX_TRI][3]; ///< candidate indices, counter-clockwise seen from outside
+    /// Bounding sphere of each triangle's contact-free vertices: centre (m), radius (m); lets
+    /// the rt solve skip far triangles (hs_contact_snapshot_bound_tris).
+    double tri_bound[HS_CONTACT_MAX_TRI][4];
     /// Rotated compliance R_i C_ij R_j^T, row-major 3x3, m/N: exact on the diagonal and where
     /// coupled[i] or coupled[j]; zero otherwise (the diagonal-only approximation).
     double c[HS_CONTACT_MAX_CAND][HS_CONTACT_MAX_CAND][9];
@@ -145,9 +148,12 @@ typedef struct hs_contact {
 void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int warm_n,
                       const int* warm_nodes, hs_contact* out);
 /// Fill s->n_tri/tri with the boundary triangles of mesh whose three vertices are all among
-/// s->node[0..n_cand) (mesh order, at most HS_CONTACT_MAX_TRI). For tools and tests that build
-/// snapshots themselves. Returns n_tri. Thread: any | Allocates: no
+/// s->node[0..n_cand) (mesh order, at most HS_CONTACT_MAX_TRI), and their bounds (free_m must
+/// be set). For tools and tests that build snapshots themselves. Returns n_tri.
+/// Thread: any | Allocates: no
 int hs_contact_snapshot_add_tris(hs_contact_snapshot* s, const hs_mesh* mesh);
+/// Set s->tri_bound from s->tri and s->free_m (after either changed). Allocates: no
+void hs_contact_snapshot_bound_tris(hs_contact_snapshot* s);
 /// The local model of a contact: anchor = tool, force, stiffness, validity radius =
 /// clamp(clearance, min_radius_m, max_radius_m), timeout. Thread: any | Allocates: no
 void hs_contact_model(const hs_contact* c, double min_radius_m, double max_radius_m,

@@ -30,6 +30,7 @@
 
 #include <float.h>
 #include <math.h>
+#include <stdint.h>
 #include <string.h>
 
 #define M            HS_MAX_CONTACT
@@ -101,8 +102,8 @@ static int tri_feature(const hs_contact_snapshot* s, int t, const double p[3], d
         f->w[at] = w[k];
     }
     double nf[3];
-    tri_normal(a, b, c, nf);
     if (f->kind == HS_FEAT_FACE) {
+        tri_normal(a, b, c, nf);
         double ap[3] = {p[0] - a[0], p[1] - a[1], p[2] - a[2]};
         f->rho = hs_dot3(nf, ap);
         if (f->rho <= -r) return 0;
@@ -115,6 +116,7 @@ static int tri_feature(const hs_contact_snapshot* s, int t, const double p[3], d
         for (int k = 0; k < 3; ++k) f->n[k] = d[k] / f->rho;
     } else {
         f->rho = 0;
+        tri_normal(a, b, c, nf);
         for (int k = 0; k < 3; ++k) f->n[k] = -nf[k];
     }
     return 1;
@@ -163,12 +165,11 @@ static void feat_dw(const hs_contact_snapshot* s, const feat* f, double dw[3][3]
     }
 }
 
-static int same_feat(const feat* a, const feat* b) {
-    if (a->kind != b->kind) return 0;
-    if (a->kind == HS_FEAT_FACE) return a->tri == b->tri;
-    for (int k = 0; k < a->kind; ++k)
-        if (a->v[k] != b->v[k]) return 0;
-    return 1;
+// Bit of a vertex or edge point in the seen-set (candidate indices < HS_CONTACT_MAX_CAND); a
+// face point is its triangle's own, never shared.
+static int feat_bit(const feat* f) {
+    if (f->kind == HS_FEAT_VERTEX) return f->v[0];
+    return HS_CONTACT_MAX_CAND + f->v[0] * HS_CONTACT_MAX_CAND + f->v[1];
 }
 
 void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int warm_n,
@@ -191,10 +192,21 @@ void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int 
     const double near = HS_CONTACT_BAND * r;
     feat cand[MAX_FEAT];
     int order[MAX_FEAT], nc = 0; // cand[order[k]]: deepest first
+    uint64_t seen[(HS_CONTACT_MAX_CAND + 1) * HS_CONTACT_MAX_CAND / 64];
+    memset(seen, 0, sizeof seen);
     const int n_src = s->n_tri > 0 ? s->n_tri : s->n_cand;
     for (int i = 0; i < n_src; ++i) {
         feat f;
         if (s->n_tri > 0) {
+            // Beyond the band by its bounding sphere: only a bound on the clearance.
+            const double* b = s->tri_bound[i];
+            double d[3] = {b[0] - tool_m[0], b[1] - tool_m[1], b[2] - tool_m[2]};
+            double lim = near + b[3], d2 = hs_dot3(d, d);
+            if (d2 >= lim * lim) {
+                double far = clearance + r + b[3];
+                if (d2 < far * far) clearance = sqrt(d2) - b[3] - r;
+                continue;
+            }
             if (!tri_feature(s, i, tool_m, r, &f)) continue;
         } else { // node contact: every candidate node is a contact point
             f.kind = HS_FEAT_VERTEX;
@@ -214,9 +226,11 @@ void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int 
         double gap = f.rho - r;
         if (fabs(gap) < clearance) clearance = fabs(gap);
         if (f.rho >= near) continue;
-        int dup = 0;
-        for (int j = 0; j < nc && !dup; ++j) dup = same_feat(&cand[j], &f);
-        if (dup) continue;
+        if (f.kind != HS_FEAT_FACE) { // each geometric point once
+            int bit = feat_bit(&f);
+            if (seen[bit >> 6] >> (bit & 63) & 1u) continue;
+            seen[bit >> 6] |= (uint64_t)1 << (bit & 63);
+        }
         if (gap < 0) ++out->penetrating;
         // at most one point per triangle or node: nc < MAX_FEAT here
         int at = nc;
@@ -454,7 +468,24 @@ int hs_contact_snapshot_add_tris(hs_contact_snapshot* s, const hs_mesh* mesh) {
         if (!ok) continue;
         memcpy(s->tri[s->n_tri++], c, sizeof c);
     }
+    hs_contact_snapshot_bound_tris(s);
     return s->n_tri;
+}
+
+void hs_contact_snapshot_bound_tris(hs_contact_snapshot* s) {
+    for (int t = 0; t < s->n_tri; ++t) {
+        double* b = s->tri_bound[t];
+        const int* tv = s->tri[t];
+        for (int k = 0; k < 3; ++k)
+            b[k] = (s->free_m[tv[0]][k] + s->free_m[tv[1]][k] + s->free_m[tv[2]][k]) / 3;
+        double r2 = 0;
+        for (int j = 0; j < 3; ++j) {
+            const double* q = s->free_m[tv[j]];
+            double d[3] = {q[0] - b[0], q[1] - b[1], q[2] - b[2]};
+            r2 = fmax(r2, hs_dot3(d, d));
+        }
+        b[3] = sqrt(r2);
+    }
 }
 
 void hs_contact_model(const hs_contact* c, double min_radius_m, double max_radius_m,

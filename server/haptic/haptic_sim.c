@@ -380,6 +380,7 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
         memcpy(s->free_m[i], h->q + 3 * (size_t)si, sizeof s->free_m[i]);
         node_normal(h, si, s->normal[i]);
     }
+    hs_contact_snapshot_bound_tris(s);
     for (int i = 0; i < n_cand; ++i) {
         const double* ri = h->rot + 9 * (size_t)nodes[i];
         for (int j = i; j < n_cand; ++j) {
