@@ -50,26 +50,6 @@ typedef struct feat {
     double rho;  // distance of the point from the centre along -n, m (signed on a face)
 } feat;
 
-// Solve A_AA lambda_A = delta_A for the active set; lambda = 0 elsewhere. Returns -1 if A_AA is
-// not positive definite.
-static int solve_active(const double* w, const double* delta, const unsigned char* act, int m,
-                        double* lambda) {
-    double a[M * M], x[M];
-    int idx[M], k = 0;
-    for (int i = 0; i < m; ++i)
-        if (act[i]) idx[k++] = i;
-    for (int i = 0; i < k; ++i) {
-        for (int j = 0; j < k; ++j) a[i * k + j] = w[idx[i] * M + idx[j]];
-        x[i] = delta[idx[i]];
-    }
-    for (int i = 0; i < m; ++i) lambda[i] = 0;
-    if (k == 0) return 0;
-    if (hs_dense_cholesky(a, k) != 0) return -1;
-    hs_dense_cholesky_solve(a, k, x);
-    for (int i = 0; i < k; ++i) lambda[idx[i]] = x[i];
-    return 0;
-}
-
 static void tri_normal(const double* a, const double* b, const double* c, double n[3]) {
     double e1[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
     double e2[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
@@ -170,6 +150,69 @@ static void feat_dw(const hs_contact_snapshot* s, const feat* f, double dw[3][3]
 static int feat_bit(const feat* f) {
     if (f->kind == HS_FEAT_VERTEX) return f->v[0];
     return HS_CONTACT_MAX_CAND + f->v[0] * HS_CONTACT_MAX_CAND + f->v[1];
+}
+
+// W's columns as they are needed (see hs_contact_solve).
+typedef struct cols {
+    const hs_contact_snapshot* s;
+    const feat* set;
+    const int* vtx; // local vertex -> candidate index
+    int m, nv;
+    double eps;
+    int approx;
+    unsigned char have[M];
+    double cn[M][M][3]; // cn[a][j] = sum_k w_jk C(a, v_jk) n_j: vertex a's move per unit lambda_j
+    double w[M * M];    // w[i * M + j] = n_i . sum_k w_ik cn[v_ik][j] (+ eps on the diagonal)
+} cols;
+
+static void build_col(cols* c, int j) {
+    if (c->have[j]) return;
+    const feat* f = &c->set[j];
+    for (int a = 0; a < c->nv; ++a) {
+        double* o = c->cn[a][j];
+        o[0] = o[1] = o[2] = 0;
+        for (int k = 0; k < f->kind; ++k) {
+            int va = c->vtx[a], b = c->vtx[f->lv[k]];
+            const double* blk = c->s->c[va][b];
+            if (va != b && !c->s->coupled[va] && !c->s->coupled[b]) c->approx = 1;
+            for (int p = 0; p < 3; ++p)
+                o[p] += f->w[k] * (blk[3 * p] * f->n[0] + blk[3 * p + 1] * f->n[1] +
+                                   blk[3 * p + 2] * f->n[2]);
+        }
+    }
+    for (int i = 0; i < c->m; ++i) {
+        const feat* g = &c->set[i];
+        double sum = 0;
+        for (int k = 0; k < g->kind; ++k) sum += g->w[k] * hs_dot3(g->n, c->cn[g->lv[k]][j]);
+        c->w[i * M + j] = sum;
+    }
+    c->w[j * M + j] += c->eps;
+    c->have[j] = 1;
+}
+
+// Symmetric entry of W for two built columns.
+static double w_sym(const cols* c, int i, int j) {
+    return 0.5 * (c->w[i * M + j] + c->w[j * M + i]);
+}
+
+// Solve W_AA lambda_A = delta_A for the active set (columns built); lambda = 0 elsewhere.
+// Returns -1 if W_AA is not positive definite.
+static int solve_active(const cols* c, const double* delta, const unsigned char* act, int m,
+                        double* lambda) {
+    double a[M * M], x[M];
+    int idx[M], k = 0;
+    for (int i = 0; i < m; ++i)
+        if (act[i]) idx[k++] = i;
+    for (int i = 0; i < k; ++i) {
+        for (int j = 0; j < k; ++j) a[i * k + j] = w_sym(c, idx[i], idx[j]);
+        x[i] = delta[idx[i]];
+    }
+    for (int i = 0; i < m; ++i) lambda[i] = 0;
+    if (k == 0) return 0;
+    if (hs_dense_cholesky(a, k) != 0) return -1;
+    hs_dense_cholesky_solve(a, k, x);
+    for (int i = 0; i < k; ++i) lambda[idx[i]] = x[i];
+    return 0;
 }
 
 void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int warm_n,
@@ -277,35 +320,21 @@ void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int 
     }
     eps = HS_CONTACT_SOFTNESS * eps / (s->n_cand > 0 ? s->n_cand : 1);
 
-    // cn[a][j] = sum_k w_jk C(a, v_jk) n_j: vertex a's displacement per unit lambda_j.
-    double cn[M][M][3], w[M * M], delta[M];
-    for (int a = 0; a < nv; ++a)
-        for (int j = 0; j < m; ++j) {
-            const feat* f = &set[j];
-            double* o = cn[a][j];
-            o[0] = o[1] = o[2] = 0;
-            for (int k = 0; k < f->kind; ++k) {
-                int b = vtx[f->lv[k]];
-                const double* blk = s->c[vtx[a]][b];
-                if (vtx[a] != b && !s->coupled[vtx[a]] && !s->coupled[b]) out->approx = 1;
-                for (int p = 0; p < 3; ++p)
-                    o[p] += f->w[k] * (blk[3 * p] * f->n[0] + blk[3 * p + 1] * f->n[1] +
-                                       blk[3 * p + 2] * f->n[2]);
-            }
-        }
+    // W by columns, on demand: column j (cn[.][j], W[.][j]) is built when point j first becomes
+    // active; an inactive point's residual needs only the active columns, so the cost follows
+    // the few points in contact, not all the points in the band.
+    cols wc;
+    wc.s = s;
+    wc.set = set;
+    wc.vtx = vtx;
+    wc.m = m;
+    wc.nv = nv;
+    wc.eps = eps;
+    wc.approx = 0;
+    double delta[M];
     for (int i = 0; i < m; ++i) {
-        const feat* f = &set[i];
-        delta[i] = r - f->rho;
-        for (int j = 0; j < m; ++j) {
-            double sum = 0;
-            for (int k = 0; k < f->kind; ++k) sum += f->w[k] * hs_dot3(f->n, cn[f->lv[k]][j]);
-            w[i * M + j] = sum;
-        }
-    }
-    for (int i = 0; i < m; ++i) {
-        for (int j = i + 1; j < m; ++j)
-            w[i * M + j] = w[j * M + i] = 0.5 * (w[i * M + j] + w[j * M + i]);
-        w[i * M + i] += eps;
+        delta[i] = r - set[i].rho;
+        wc.have[i] = 0;
     }
 
     // Start from the previous tick's contact when given (it rarely changes between ticks:
@@ -336,7 +365,9 @@ void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int 
     int converged = 0;
     for (int piv = 0; piv < MAX_PIVOTS; ++piv) {
         out->passes = piv + 1;
-        if (solve_active(w, delta, act, m, lambda) != 0) {
+        for (int i = 0; i < m; ++i)
+            if (act[i]) build_col(&wc, i);
+        if (solve_active(&wc, delta, act, m, lambda) != 0) {
             out->failed = 1;
             return;
         }
@@ -348,7 +379,8 @@ void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int 
                 bad[i] = lambda[i] < 0; // would pull: leaves the contact
             } else {
                 double wi = -delta[i];
-                for (int j = 0; j < m; ++j) wi += w[i * M + j] * lambda[j];
+                for (int j = 0; j < m; ++j)
+                    if (act[j]) wi += wc.w[i * M + j] * lambda[j];
                 bad[i] = wi < -1e-12 * r; // pushed into the sphere: joins the contact
             }
             if (bad[i] && flip < 0) flip = i;
@@ -365,6 +397,7 @@ void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int 
     }
     for (int i = 0; i < m; ++i)
         if (!act[i] || (!converged && lambda[i] < 0)) lambda[i] = 0; // never pull
+    out->approx = wc.approx;
 
     // Result: the active points' forces on their vertices, the vertices' displacements.
     int ia[M], k = 0;
@@ -379,7 +412,8 @@ void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int 
         for (int p = 0; p < 3; ++p) {
             fv[a][p] = 0;
             uv[a][p] = 0;
-            for (int j = 0; j < m; ++j) uv[a][p] += cn[a][j][p] * lambda[j];
+            for (int j = 0; j < m; ++j)
+                if (lambda[j] > 0) uv[a][p] += wc.cn[a][j][p] * lambda[j];
         }
     }
     for (int i = 0; i < k; ++i) {
@@ -409,7 +443,7 @@ void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int 
     //     K = sum_i n_i (dlambda_i/dp) + sum_i lambda_i Dn_i.
     double a[M * M], g[3][M], dn[M][9], dw[M][3][3], e[M][9];
     for (int i = 0; i < k; ++i)
-        for (int j = 0; j < k; ++j) a[i * k + j] = w[ia[i] * M + ia[j]];
+        for (int j = 0; j < k; ++j) a[i * k + j] = w_sym(&wc, ia[i], ia[j]);
     if (hs_dense_cholesky(a, k) != 0) {
         out->failed = 1;
         return;
@@ -437,7 +471,7 @@ void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int 
             for (int p = 0; p < 3; ++p) d += ui[p] * dn[i][3 * p + c];
             for (int q = 0; q < f->kind; ++q) d += hs_dot3(f->n, uv[f->lv[q]]) * dw[i][q][c];
             for (int b = 0; b < nv; ++b) {
-                const double* cb = cn[b][ia[i]];
+                const double* cb = wc.cn[b][ia[i]];
                 d += cb[0] * e[b][c] + cb[1] * e[b][3 + c] + cb[2] * e[b][6 + c];
             }
             gi[c] = f->n[c] - d;
