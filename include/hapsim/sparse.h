@@ -144,7 +144,8 @@ void hs_cholesky_last_update(const hs_cholesky* f, hs_cholesky_update_info* info
 /// Threads used inside CHOLMOD, process-wide: OpenBLAS gets n threads, and CHOLMOD's own
 /// OpenMP loops (fixed at 4 threads in Debian's build) run serially when n == 1. The defaults
 /// use every core and spin-wait, competing with the haptic thread, so the first
-/// hs_cholesky_create sets 1 unless this was called before.
+/// hs_cholesky_create sets 1 unless this was called before. OpenMP keeps the setting per
+/// thread, so every thread applies it when it enters a factorisation or update.
 /// Returns HS_ERR_UNSUPPORTED if neither control exists in the loaded libraries.
 hs_status hs_sparse_set_threads(int n);
 

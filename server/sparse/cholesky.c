@@ -54,6 +54,22 @@ struct hs_cholesky {
 static atomic_int g_alloc_state; // 0 untouched, 1 installing, 2 installed
 static atomic_int g_threads_set; // hs_sparse_set_threads called (by the user or by default)
 
+// OpenMP's max-active-levels is per thread in libgomp: the value set by hs_sparse_set_threads
+// holds for the calling thread only, and another thread calling CHOLMOD (a background
+// factorisation) would spawn CHOLMOD's 4-thread teams. Each thread applies it on entry.
+static atomic_int g_threads;             // last hs_sparse_set_threads(n), 0 before any
+static _Atomic(void*) g_set_levels;      // omp_set_max_active_levels, if loaded
+static _Thread_local int tl_threads = 0; // value applied on this thread
+
+static void apply_thread_limit(void) {
+    int n = atomic_load(&g_threads);
+    if (n == tl_threads || n == 0) return;
+    tl_threads = n;
+    void (*set_levels)(int);
+    *(void**)&set_levels = atomic_load(&g_set_levels);
+    if (set_levels) set_levels(n == 1 ? 0 : 1);
+}
+
 // CHOLMOD's supernodal numeric factorisation allocates and frees a dense scratch block (and
 // its header) on every call. A few cached freed blocks, reused for requests of the same size,
 // keep refactorisations free of allocator calls once warm. Lock-free: a block is owned by
@@ -243,6 +259,7 @@ static hs_status create_factor(const hs_csc* a, int natural, const unsigned char
     install_allocator();
     int unset = 0;
     if (atomic_compare_exchange_strong(&g_threads_set, &unset, 1)) hs_sparse_set_threads(1);
+    apply_thread_limit();
 
     hs_cholesky* f = hs_calloc(1, sizeof *f);
     if (!f) return hs_err_set(err, HS_ERR_NOMEM, "%s:%d: out of memory", __FILE__, __LINE__);
@@ -464,6 +481,7 @@ static int pivots_ok(const hs_cholesky* f) {
 
 hs_status hs_cholesky_refactor(hs_cholesky* f, const hs_csc* a) {
     if (!f || !pattern_matches(f, a)) return HS_ERR_INVALID;
+    apply_thread_limit();
     set_matrix_view(f, a, f->spare);
     cholmod_factorize(&f->a, f->spare, &f->c);
     hs_status st = map_status(f->c.status);
@@ -891,6 +909,7 @@ static void set_c_view(cholmod_sparse* c, int n, int ncol, int* cp, int* ci, dou
 // Apply update (sign 1) or downdate (0) with C already permuted and sorted.
 static hs_status apply_updown(hs_cholesky* f, int update, int ncol, int* cp, int* ci, double* cx) {
     if (ncol == 0) return HS_OK;
+    apply_thread_limit();
     cholmod_sparse c;
     set_c_view(&c, f->n, ncol, cp, ci, cx);
     if (!cholmod_updown(update, &c, f->L, &f->c)) {
@@ -1239,12 +1258,14 @@ hs_status hs_sparse_set_threads(int n) {
     // Looked up at run time: the BLAS behind libblas.so.3 is chosen by the system (Debian
     // alternatives), and only OpenBLAS has this entry point. libgomp comes with CHOLMOD.
     void (*set_blas)(int);
-    void (*set_levels)(int);
     *(void**)&set_blas = dlsym(RTLD_DEFAULT, "openblas_set_num_threads");
-    *(void**)&set_levels = dlsym(RTLD_DEFAULT, "omp_set_max_active_levels");
+    void* set_levels = dlsym(RTLD_DEFAULT, "omp_set_max_active_levels");
+    atomic_store(&g_set_levels, set_levels);
     if (set_blas) set_blas(n);
     // CHOLMOD's loops say num_threads(4), which overrides omp_set_num_threads; zero active
     // levels makes every parallel region a team of one.
-    if (set_levels) set_levels(n == 1 ? 0 : 1);
+    atomic_store(&g_threads, n);
+    tl_threads = 0;
+    apply_thread_limit();
     return set_blas || set_levels ? HS_OK : HS_ERR_UNSUPPORTED;
 }
