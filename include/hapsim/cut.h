@@ -122,8 +122,10 @@ void hs_cut_destroy(hs_cut** cut);
 /// x0 + u, and moved vertices get u updated so x0 + u lands where the move puts it.
 /// On a negative status nothing in the mesh changed if err names the input; a failure after
 /// the geometry changed (a failed refactor) is reported and leaves a consistent mesh.
-/// Thread: deformation | Allocates: only for more element changes than any earlier sweep, and
-/// in the live mesh rebuild when def.validate is on
+/// Thread: deformation | Allocates: only for more element changes than any earlier sweep, when
+/// the first update converts the factor, when a window is rebuilt in the sweep, while a
+/// background window is being built (its record grows), and in the live mesh rebuild when
+/// def.validate is on
 hs_status hs_cut_sweep(hs_cut* cut, const double p0[3], const double q0[3], const double p1[3],
                        const double q1[3], double* u, hs_cut_result* res /* OUT, may be NULL */,
                        hs_err* err);
