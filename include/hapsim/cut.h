@@ -164,7 +164,8 @@ int hs_cut_window_due(const hs_cut* cut);
 hs_status hs_cut_window_begin(hs_cut* cut, hs_err* err);
 /// Order and factor the snapshot (analysis + numeric factor, the expensive part). Touches only
 /// the snapshot, so it may run on another thread while sweeps go on; the caller orders it
-/// between begin and finish. Thread: any one | Allocates: yes
+/// between begin and finish (join it before finish or hs_cut_destroy). It also applies the
+/// sweeps recorded meanwhile, as they come. Thread: any one | Allocates: yes
 hs_status hs_cut_window_build(hs_cut* cut, hs_err* err);
 /// Bring the new factor up to date with the sweeps since begin (one aggregated update inside
 /// its window; a numeric refactor if that is impossible) and swap it in.
