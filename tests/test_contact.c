@@ -149,7 +149,7 @@ static int coarse_drag(void) {
     // diagonals and through the centre vertex).
     const double path[3][4] = {{10, 22.5, 50, 22.5}, {12, 12, 48, 48}, {14, 46, 46, 14}};
     double worst_ratio = 0, f_lo = 1e9, f_hi = 0, tilt = 0, node_fmin = 1e9;
-    int kinds_seen[4] = {0, 0, 0, 0}, steps_total = 0;
+    int kinds_seen[4] = {0, 0, 0, 0}, steps_total = 0, passes[3] = {0, 0, 0};
     int64_t calls0 = hs_alloc_calls();
     for (int k = 0; k < 3; ++k) {
         const int steps = (int)(1e3 * hypot(path[k][2] - path[k][0], path[k][3] - path[k][1]) / 10);
@@ -159,8 +159,21 @@ static int coarse_drag(void) {
             double t = (double)i / steps;
             double p[3] = {1e-3 * (path[k][0] + t * (path[k][2] - path[k][0])),
                            1e-3 * (path[k][1] + t * (path[k][3] - path[k][1])), zc};
-            hs_contact_solve(&snap, p, prev.n, prev.node, &cur);
+            hs_contact_solve_from(&snap, p, i > 0 ? &prev : NULL, &cur);
             ENSURE(!cur.failed && !cur.approx);
+            // The warm start (previous tick's points, or its nodes) changes where the pivoting
+            // starts, not the answer.
+            hs_contact cold, by_nodes;
+            hs_contact_solve(&snap, p, 0, NULL, &cold);
+            hs_contact_solve(&snap, p, prev.n, prev.node, &by_nodes);
+            ENSURE(cold.features == cur.features && by_nodes.features == cur.features);
+            for (int a = 0; a < 3; ++a) {
+                ENSURE_NEAR(cold.force_n[a], cur.force_n[a], 1e-9 * vnorm(cur.force_n, 3));
+                ENSURE_NEAR(by_nodes.force_n[a], cur.force_n[a], 1e-9 * vnorm(cur.force_n, 3));
+            }
+            passes[0] += cur.passes;
+            passes[1] += by_nodes.passes;
+            passes[2] += cold.passes;
             double f = vnorm(cur.force_n, 3);
             f_lo = fmin(f_lo, f);
             f_hi = fmax(f_hi, f);
@@ -184,6 +197,9 @@ static int coarse_drag(void) {
         }
     }
     ENSURE(hs_alloc_calls() == calls0);
+    printf("  solves: warm from the previous points %d, from its nodes %d, cold %d\n", passes[0],
+           passes[1], passes[2]);
+    ENSURE(passes[0] < passes[2] && passes[0] <= passes[1]);
     printf("  %d positions: |F| %.4f..%.4f N, largest tangential/normal %.3f, worst "
            "|dF| / (2 |K|_F |dp|) %.3f; contact points 1: %d, 2: %d, 3+: %d ticks; node contact "
            "min |F| %.4f N\n",

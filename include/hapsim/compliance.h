@@ -123,17 +123,18 @@ typedef struct hs_contact {
     double tool_m[3];         ///< probe centre, m
     int n;                    ///< contact nodes: vertices of pushing points (<= HS_MAX_CONTACT)
     int node[HS_MAX_CONTACT]; ///< mesh node index
-    double d_m[HS_MAX_CONTACT][3]; ///< node displacement the contact forces cause, m
-    double f_n[HS_MAX_CONTACT][3]; ///< force ON THE TISSUE at each node (sum w lambda n), N
-    double force_n[3];             ///< force ON THE TOOL, -sum f_n, N
-    double stiffness_n_m[9];       ///< -dforce_n/dtool, row-major, N/m (contact set fixed)
-    double clearance_m;            ///< tool travel before a contact point enters or leaves, m
-    int penetrating;               ///< contact points (contact-free) inside the sphere
-    int dropped;                   ///< pivots that removed a point (it would have pulled)
-    int passes;                    ///< solves (pivots) used
-    int approx;                    ///< 1 when an off-diagonal block was missing
-    int failed;                    ///< 1 when C_SS was not SPD (result zeroed)
-    int features;                  ///< contact points (vertex, edge or face points) pushing
+    double d_m[HS_MAX_CONTACT][3];      ///< node displacement the contact forces cause, m
+    double f_n[HS_MAX_CONTACT][3];      ///< force ON THE TISSUE at each node (sum w lambda n), N
+    double force_n[3];                  ///< force ON THE TOOL, -sum f_n, N
+    double stiffness_n_m[9];            ///< -dforce_n/dtool, row-major, N/m (contact set fixed)
+    double clearance_m;                 ///< tool travel before a contact point enters or leaves, m
+    int penetrating;                    ///< contact points (contact-free) inside the sphere
+    int dropped;                        ///< pivots that removed a point (it would have pulled)
+    int passes;                         ///< solves (pivots) used
+    int approx;                         ///< 1 when an off-diagonal block was missing
+    int failed;                         ///< 1 when C_SS was not SPD (result zeroed)
+    int features;                       ///< contact points (vertex, edge or face points) pushing
+    int point_nodes[HS_MAX_CONTACT][3]; ///< mesh nodes of each pushing point, ascending, -1 pad
 } hs_contact;
 
 /// Frictionless contact of a probe sphere centred at tool_m with the snapshot's surface: contact
@@ -147,6 +148,12 @@ typedef struct hs_contact {
 /// them. out must not alias warm_nodes. Thread: any (rt) | Allocates: no | Blocks: no
 void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int warm_n,
                       const int* warm_nodes, hs_contact* out);
+/// hs_contact_solve warm-started from the previous tick's contact points (prev->point_nodes;
+/// exact where the pushing points did not change, so usually one solve); prev NULL: cold. The
+/// result does not depend on prev. out must not alias prev.
+/// Thread: any (rt) | Allocates: no | Blocks: no
+void hs_contact_solve_from(const hs_contact_snapshot* s, const double tool_m[3],
+                           const hs_contact* prev, hs_contact* out);
 /// Fill s->n_tri/tri with the boundary triangles of mesh whose three vertices are all among
 /// s->node[0..n_cand) (mesh order, at most HS_CONTACT_MAX_TRI), and their bounds (free_m must
 /// be set). For tools and tests that build snapshots themselves. Returns n_tri.

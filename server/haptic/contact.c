@@ -48,6 +48,7 @@ typedef struct feat {
     int tri;     // the triangle it came from (-1: a node)
     double n[3]; // unit direction the tissue is pushed along
     double rho;  // distance of the point from the centre along -n, m (signed on a face)
+    int raw;     // 1 while n is still x - p (not yet divided by rho)
 } feat;
 
 static void tri_normal(const double* a, const double* b, const double* c, double n[3]) {
@@ -69,6 +70,7 @@ static int tri_feature(const hs_contact_snapshot* s, int t, const double p[3], d
     if (!hs_tri_closest(p, a, b, c, w, x)) return 0;
     f->kind = 0;
     f->tri = t;
+    f->raw = 0;
     for (int k = 0; k < 3; ++k) {
         if (!(w[k] > 0)) continue;
         // insertion keeps v ascending
@@ -93,7 +95,8 @@ static int tri_feature(const hs_contact_snapshot* s, int t, const double p[3], d
     double d[3] = {x[0] - p[0], x[1] - p[1], x[2] - p[2]};
     f->rho = sqrt(hs_dot3(d, d));
     if (f->rho > 1e-9 * r) {
-        for (int k = 0; k < 3; ++k) f->n[k] = d[k] / f->rho;
+        for (int k = 0; k < 3; ++k) f->n[k] = d[k]; // normalised once selected (few are)
+        f->raw = 1;
     } else {
         f->rho = 0;
         tri_normal(a, b, c, nf);
@@ -215,8 +218,21 @@ static int solve_active(const cols* c, const double* delta, const unsigned char*
     return 0;
 }
 
-void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int warm_n,
-                      const int* warm_nodes, hs_contact* out) {
+// A point's mesh nodes, ascending, -1 padded: its identity across snapshots.
+static void point_nodes(const hs_contact_snapshot* s, const feat* f, int out[3]) {
+    out[0] = out[1] = out[2] = -1;
+    for (int k = 0; k < f->kind; ++k) {
+        int node = s->node[f->v[k]], at = k;
+        while (at > 0 && out[at - 1] > node) {
+            out[at] = out[at - 1];
+            --at;
+        }
+        out[at] = node;
+    }
+}
+
+static void solve(const hs_contact_snapshot* s, const double tool_m[3], int warm_n,
+                  const int* warm_nodes, const hs_contact* prev, hs_contact* out) {
     memset(out, 0, sizeof *out);
     out->version = s->version;
     for (int k = 0; k < 3; ++k) out->tool_m[k] = tool_m[k];
@@ -234,12 +250,13 @@ void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int 
     // centre on the sphere's flank was), deepest first, each geometric point once.
     const double near = HS_CONTACT_BAND * r;
     feat cand[MAX_FEAT];
-    int order[MAX_FEAT], nc = 0; // cand[order[k]]: deepest first
+    int order[MAX_FEAT], nc = 0; // cand[order[k]]: deepest first, key[k] its rho
+    double key[MAX_FEAT];
     uint64_t seen[(HS_CONTACT_MAX_CAND + 1) * HS_CONTACT_MAX_CAND / 64];
     memset(seen, 0, sizeof seen);
     const int n_src = s->n_tri > 0 ? s->n_tri : s->n_cand;
     for (int i = 0; i < n_src; ++i) {
-        feat f;
+        feat* f = &cand[nc]; // kept when nc advances
         if (s->n_tri > 0) {
             // Beyond the band by its bounding sphere: only a bound on the clearance.
             const double* b = s->tri_bound[i];
@@ -250,39 +267,41 @@ void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int 
                 if (d2 < far * far) clearance = sqrt(d2) - b[3] - r;
                 continue;
             }
-            if (!tri_feature(s, i, tool_m, r, &f)) continue;
+            if (!tri_feature(s, i, tool_m, r, f)) continue;
         } else { // node contact: every candidate node is a contact point
-            f.kind = HS_FEAT_VERTEX;
-            f.v[0] = i;
-            f.w[0] = 1;
-            f.tri = -1;
+            f->kind = HS_FEAT_VERTEX;
+            f->v[0] = i;
+            f->w[0] = 1;
+            f->tri = -1;
+            f->raw = 0;
             double d[3] = {s->free_m[i][0] - tool_m[0], s->free_m[i][1] - tool_m[1],
                            s->free_m[i][2] - tool_m[2]};
-            f.rho = sqrt(hs_dot3(d, d));
-            if (f.rho > 1e-9 * (r > 0 ? r : 1)) {
-                for (int k = 0; k < 3; ++k) f.n[k] = d[k] / f.rho;
+            f->rho = sqrt(hs_dot3(d, d));
+            if (f->rho > 1e-9 * (r > 0 ? r : 1)) {
+                for (int k = 0; k < 3; ++k) f->n[k] = d[k] / f->rho;
             } else { // at the centre the radial direction is undefined: push along -normal
-                f.rho = 0;
-                for (int k = 0; k < 3; ++k) f.n[k] = -s->normal[i][k];
+                f->rho = 0;
+                for (int k = 0; k < 3; ++k) f->n[k] = -s->normal[i][k];
             }
         }
-        double gap = f.rho - r;
+        double gap = f->rho - r;
         if (fabs(gap) < clearance) clearance = fabs(gap);
-        if (f.rho >= near) continue;
-        if (f.kind != HS_FEAT_FACE) { // each geometric point once
-            int bit = feat_bit(&f);
+        if (f->rho >= near) continue;
+        if (f->kind != HS_FEAT_FACE) { // each geometric point once
+            int bit = feat_bit(f);
             if (seen[bit >> 6] >> (bit & 63) & 1u) continue;
             seen[bit >> 6] |= (uint64_t)1 << (bit & 63);
         }
         if (gap < 0) ++out->penetrating;
         // at most one point per triangle or node: nc < MAX_FEAT here
-        int at = nc;
-        cand[nc++] = f;
-        while (at > 0 && cand[order[at - 1]].rho > f.rho) {
+        int at = nc++;
+        while (at > 0 && key[at - 1] > f->rho) {
             order[at] = order[at - 1];
+            key[at] = key[at - 1];
             --at;
         }
         order[at] = nc - 1;
+        key[at] = f->rho;
     }
     out->clearance_m = clearance > 0 ? clearance : 0;
     if (nc == 0 || cand[order[0]].rho >= r) return; // nothing penetrates
@@ -309,7 +328,13 @@ void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int 
             if (j == nv) vtx[nv++] = f->v[k];
             f->lv[k] = j;
         }
-        set[m++] = *f;
+        set[m] = *f;
+        if (f->raw) {
+            double inv = 1.0 / f->rho;
+            for (int k = 0; k < 3; ++k) set[m].n[k] *= inv;
+            set[m].raw = 0;
+        }
+        ++m;
     }
 
     // Contact compliance: a constant of the snapshot (so it adds nothing to the stiffness).
@@ -338,14 +363,23 @@ void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int 
     }
 
     // Start from the previous tick's contact when given (it rarely changes between ticks:
-    // usually one solve): deepest first, each point whose vertices were all contact nodes and
-    // that reaches a contact node no earlier one did (a few points cover the old contact);
-    // else from the penetrating set.
+    // usually one solve): its pushing points (prev), or else, deepest first, each point whose
+    // vertices were all contact nodes and that reaches a contact node no earlier one did (a
+    // few points cover the old contact); with neither, from the penetrating set.
     unsigned char act[M];
     double lambda[M];
     unsigned int covered = 0; // bit j: warm_nodes[j] reached
     for (int i = 0; i < m; ++i) {
         act[i] = delta[i] > 0;
+        if (prev && prev->features > 0) {
+            int pk[3], found = 0;
+            point_nodes(s, &set[i], pk);
+            for (int j = 0; j < prev->features && !found; ++j)
+                found = prev->point_nodes[j][0] == pk[0] && prev->point_nodes[j][1] == pk[1] &&
+                        prev->point_nodes[j][2] == pk[2];
+            act[i] = (unsigned char)found;
+            continue;
+        }
         if (warm_n <= 0) continue;
         unsigned int mine = 0;
         int all = 1;
@@ -404,17 +438,18 @@ void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int 
     for (int i = 0; i < m; ++i)
         if (lambda[i] > 0) ia[k++] = i;
     out->features = k;
+    for (int i = 0; i < k; ++i) point_nodes(s, &set[ia[i]], out->point_nodes[i]);
     if (k == 0) return;
     double fv[M][3], uv[M][3];
     int used[M];
     for (int a = 0; a < nv; ++a) {
         used[a] = 0;
-        for (int p = 0; p < 3; ++p) {
-            fv[a][p] = 0;
-            uv[a][p] = 0;
-            for (int j = 0; j < m; ++j)
-                if (lambda[j] > 0) uv[a][p] += wc.cn[a][j][p] * lambda[j];
-        }
+        for (int p = 0; p < 3; ++p) fv[a][p] = uv[a][p] = 0;
+    }
+    for (int i = 0; i < k; ++i) {
+        int j = ia[i];
+        for (int a = 0; a < nv; ++a)
+            for (int p = 0; p < 3; ++p) uv[a][p] += wc.cn[a][j][p] * lambda[j];
     }
     for (int i = 0; i < k; ++i) {
         const feat* f = &set[ia[i]];
@@ -487,6 +522,16 @@ void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int 
             for (int q = 0; q < 3; ++q)
                 out->stiffness_n_m[3 * p + q] += f->n[p] * g[q][i] + l * dn[i][3 * p + q];
     }
+}
+
+void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int warm_n,
+                      const int* warm_nodes, hs_contact* out) {
+    solve(s, tool_m, warm_n, warm_nodes, NULL, out);
+}
+
+void hs_contact_solve_from(const hs_contact_snapshot* s, const double tool_m[3],
+                           const hs_contact* prev, hs_contact* out) {
+    solve(s, tool_m, 0, NULL, prev, out);
 }
 
 int hs_contact_snapshot_add_tris(hs_contact_snapshot* s, const hs_mesh* mesh) {

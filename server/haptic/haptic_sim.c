@@ -119,8 +119,7 @@ typedef struct probe_src {
     hs_triple_buffer* snap;    // reader: rt
     hs_triple_buffer* contact; // writer: rt
     double min_r, max_r, timeout_s;
-    int last_n; // the previous tick's contact nodes (warm start)
-    int last_node[HS_MAX_CONTACT];
+    hs_contact last; // the previous tick's contact (warm start)
 } probe_src;
 
 struct hs_haptic_sim {
@@ -199,9 +198,8 @@ static void probe_eval(void* ctx, const hs_rt_clock* clk, const hs_haptic_pose* 
     const sim_snapshot* ss = hs_triple_buffer_read(p->snap, NULL);
     const hs_contact_snapshot* s = &ss->s;
     hs_contact* c = hs_triple_buffer_back(p->contact);
-    hs_contact_solve(s, pose->pos_m, p->last_n, p->last_node, c);
-    p->last_n = c->n;
-    memcpy(p->last_node, c->node, sizeof p->last_node);
+    hs_contact_solve_from(s, pose->pos_m, &p->last, c);
+    p->last = *c;
     hs_triple_buffer_publish(p->contact);
     hs_contact_model(c, p->min_r, p->max_r, p->timeout_s, out);
     for (int k = 0; k < 3; ++k) out->force_n[k] += ss->cut_force_n[k];
