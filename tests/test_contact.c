@@ -422,7 +422,7 @@ static int liver_press_drag(void) {
 }
 
 // A large sphere deep in the slab: many triangles penetrate; at most HS_MAX_CONTACT contact
-// points on at most HS_MAX_CONTACT nodes are solved, and the result is still a push.
+// points on at most HS_MAX_CONTACT nodes are solved, and the result is still a push. Bad input.
 static int caps(void) {
     slab sl;
     ENSURE(slab_create(&sl) == 0);
@@ -442,6 +442,24 @@ static int caps(void) {
     hs_contact_solve(&snap, p, 0, NULL, &c);
     ENSURE(c.n == 0 && c.features == 0 && c.force_n[2] == 0);
     ENSURE(c.clearance_m > 0.0019 && c.clearance_m < 0.0021);
+
+    // Bad input never crashes: a non-finite tool, a triangle naming no candidate, counts out of
+    // range. The result is no force (flagged failed where the snapshot was unusable).
+    p[2] = 0.015 + r - 0.008;
+    double bad[3] = {p[0], NAN, p[2]};
+    hs_contact_solve(&snap, bad, 0, NULL, &c);
+    ENSURE(c.failed && c.n == 0 && c.force_n[0] == 0 && c.force_n[1] == 0);
+    snap.tri[0][1] = snap.n_cand + 5;
+    snap.tri[1][0] = -1;
+    hs_contact_solve(&snap, p, 0, NULL, &c);
+    ENSURE(!c.failed && c.n >= 1 && isfinite(c.force_n[2]) && c.force_n[2] > 0);
+    snap.n_tri = HS_CONTACT_MAX_TRI + 1;
+    hs_contact_solve(&snap, p, 0, NULL, &c);
+    ENSURE(c.failed && c.n == 0);
+    snap.n_tri = 0;
+    snap.n_cand = -3;
+    hs_contact_solve(&snap, p, 0, NULL, &c);
+    ENSURE(c.n == 0 && c.force_n[2] == 0);
     slab_destroy(&sl);
     return 0;
 }

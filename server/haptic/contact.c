@@ -65,6 +65,8 @@ static void tri_normal(const double* a, const double* b, const double* c, double
 // the centre more than r behind its face: a face on the far side of a thin part).
 static int tri_feature(const hs_contact_snapshot* s, int t, const double p[3], double r, feat* f) {
     const int* tv = s->tri[t];
+    for (int k = 0; k < 3; ++k)
+        if (tv[k] < 0 || tv[k] >= s->n_cand) return 0; // not a candidate: ignore the triangle
     const double *a = s->free_m[tv[0]], *b = s->free_m[tv[1]], *c = s->free_m[tv[2]];
     double w[3], x[3];
     if (!hs_tri_closest(p, a, b, c, w, x)) return 0;
@@ -83,6 +85,7 @@ static int tri_feature(const hs_contact_snapshot* s, int t, const double p[3], d
         f->v[at] = tv[k];
         f->w[at] = w[k];
     }
+    if (f->kind == 0) return 0; // no finite weight (a non-finite position)
     double nf[3];
     if (f->kind == HS_FEAT_FACE) {
         tri_normal(a, b, c, nf);
@@ -238,6 +241,12 @@ static void solve(const hs_contact_snapshot* s, const double tool_m[3], int warm
     for (int k = 0; k < 3; ++k) out->tool_m[k] = tool_m[k];
     const double r = s->probe_radius_m;
     double clearance = DBL_MAX;
+    if (!isfinite(tool_m[0]) || !isfinite(tool_m[1]) || !isfinite(tool_m[2]) || !(r > 0) ||
+        s->n_cand < 0 || s->n_cand > HS_CONTACT_MAX_CAND || s->n_tri < 0 ||
+        s->n_tri > HS_CONTACT_MAX_TRI) {
+        out->failed = s->n_cand > 0 || s->n_tri != 0; // an empty snapshot is just no contact
+        return;
+    }
 
     // The tool must stay inside the region whose surface the snapshot lists.
     double off[3] = {tool_m[0] - s->centre_m[0], tool_m[1] - s->centre_m[1],
@@ -552,9 +561,15 @@ int hs_contact_snapshot_add_tris(hs_contact_snapshot* s, const hs_mesh* mesh) {
 }
 
 void hs_contact_snapshot_bound_tris(hs_contact_snapshot* s) {
-    for (int t = 0; t < s->n_tri; ++t) {
+    for (int t = 0; t < s->n_tri && t < HS_CONTACT_MAX_TRI; ++t) {
         double* b = s->tri_bound[t];
         const int* tv = s->tri[t];
+        int ok = 1;
+        for (int k = 0; k < 3; ++k) ok = ok && tv[k] >= 0 && tv[k] < s->n_cand;
+        if (!ok) { // ignored by the solve
+            b[0] = b[1] = b[2] = b[3] = 0;
+            continue;
+        }
         for (int k = 0; k < 3; ++k)
             b[k] = (s->free_m[tv[0]][k] + s->free_m[tv[1]][k] + s->free_m[tv[2]][k]) / 3;
         double r2 = 0;
