@@ -113,7 +113,7 @@ static int test_blade_drag(void) {
     hs_err err = {0};
     ENSURE(hs_haptic_sim_create(m, &d, fixed, &sim, &err) == HS_OK);
     hs_haptic_cut_def cd = hs_haptic_cut_default_def();
-    cd.blade_a[2] = -0.003; // with the tool point at z = 2 mm: spans the 4 mm thickness
+    cd.blade_a[2] = -0.02; // with the tool point at z = 2 mm: spans the 4 mm thickness, sagging
     cd.blade_b[2] = 0.005;
     ENSURE(hs_haptic_sim_enable_cutting(sim, m, &cd, &err) == HS_OK);
     ENSURE(hs_haptic_sim_start(sim, &err) == HS_OK);
@@ -126,21 +126,31 @@ static int test_blade_drag(void) {
     ENSURE(x0 && tris && removed && moved && gone);
 
     const double speed = 0.04, y0 = -0.05, y1 = 0.05;
-    const int drag_ticks = (int)((y1 - y0) / speed * 1000), rest_ticks = 600;
+    // Across the patch (y0 -> y1 at x = 1 mm), released for `gap` ticks (the compliance rebuild
+    // starts), then a second, partial cut back in from the y1 side at x = 21 mm before that
+    // rebuild can end (it is then dropped and redone), then released for good.
+    const int drag_ticks = (int)((y1 - y0) / speed * 1000), gap = 40, drag2 = 600;
+    const int end2 = drag_ticks + gap + drag2, rest_ticks = 600;
+    const double y2 = 0.042; // the second cut enters the patch (y <= 40 mm) after ~50 ms
     struct timespec t;
     clock_gettime(CLOCK_MONOTONIC, &t);
     hs_haptic_pose pose;
     memset(&pose, 0, sizeof pose);
     pose.quat_wxyz[0] = 1;
     double prev[3] = {0, 0, 0}, peak = 0, max_step = 0, after_release = 0;
+    int64_t loops_building0 = -1, loops_building1 = -1; // loop passes seen during the rebuild
     int64_t version = 0, events = 0, removed_total = 0;
     int have_prev = 0, bad_event = 0;
-    for (int k = 0; k < drag_ticks + rest_ticks; ++k) {
-        int cutting = k < drag_ticks;
-        double y = cutting ? y0 + speed * k * 1e-3 : y1;
+    for (int k = 0; k < end2 + rest_ticks; ++k) {
+        int second = k >= drag_ticks + gap && k < end2;
+        int cutting = k < drag_ticks || second;
+        double y = k < drag_ticks ? y0 + speed * k * 1e-3
+                   : second       ? y2 - speed * (k - drag_ticks - gap) * 1e-3
+                   : k < end2     ? y1
+                                  : y2 - speed * drag2 * 1e-3;
         pose.seq++;
         pose.stamp_ns = hs_now_ns();
-        pose.pos_m[0] = 0.001;
+        pose.pos_m[0] = second || k >= end2 ? 0.021 : 0.001; // off the 2 mm grid lines
         pose.pos_m[1] = y;
         pose.pos_m[2] = 0.002;
         pose.buttons = cutting ? 1u : 0u;
@@ -159,7 +169,15 @@ static int test_blade_drag(void) {
             }
             memcpy(prev, f, sizeof prev);
             have_prev = 1;
-            if (k >= drag_ticks + 200) after_release = fmax(after_release, fn);
+            if (k >= end2 + 200) after_release = fmax(after_release, fn);
+        }
+        if (!cutting && k % 5 == 0) {
+            hs_haptic_sim_stats bs;
+            hs_haptic_sim_stats_get(sim, &bs);
+            if (bs.comp_building) {
+                if (loops_building0 < 0) loops_building0 = bs.loops;
+                loops_building1 = bs.loops;
+            }
         }
         if (hs_haptic_sim_topology_version(sim) != version) {
             hs_haptic_cut_event ev;
@@ -186,14 +204,20 @@ static int test_blade_drag(void) {
             events++;
         }
     }
-    // The compliance rebuild (~0.4 s, more on a loaded machine) follows the release.
+    // The compliance rebuild (~0.4 s, more on a loaded machine) follows the release, on a
+    // worker: the deformation loop keeps running meanwhile.
     hs_haptic_sim_stats st;
     hs_haptic_sim_stats_get(sim, &st);
-    for (int i = 0; i < 1000 && !(st.comp_ms_last > 0); ++i) {
-        sleep_until(&t, 10000000);
+    for (int i = 0; i < 2000 && st.comp_version != st.topology_version; ++i) {
+        sleep_until(&t, 5000000);
         hs_haptic_sim_stats_get(sim, &st);
+        if (st.comp_building) {
+            if (loops_building0 < 0) loops_building0 = st.loops;
+            loops_building1 = st.loops;
+        }
     }
     hs_haptic_sim_stop(sim);
+    hs_haptic_sim_stats_get(sim, &st);
     int nt = 0;
     ENSURE(hs_haptic_sim_take_topology(sim, x0, tris, 4 * ntet, &nt, NULL) == version);
     printf("  %lld events, version %lld, %lld tets removed (%lld cut steps, %lld sweeps); "
@@ -210,7 +234,53 @@ static int test_blade_drag(void) {
     ENSURE(peak > 0.01 && peak <= cd.max_force_n + 1e-9);       // resistance, within the cap
     ENSURE(max_step <= cd.max_force_n / d.blend_ticks + 1e-9);  // blended, never a jump
     ENSURE(after_release < 1e-9);                               // released: no resistance left
-    ENSURE(st.comp_ms_last > 0); // the compliance was rebuilt once the blade left
+    ENSURE(st.comp_ms_last > 0); // the compliance was rebuilt once the blade left ...
+    ENSURE(st.comp_rebuilds >= 1 && st.comp_version == version && !st.comp_building);
+    printf("  compliance rebuilds: %lld swapped in, %lld dropped (a newer cut came first)\n",
+           (long long)st.comp_rebuilds, (long long)st.comp_discarded);
+    ENSURE(st.comp_discarded >= 1); // the first one (~0.4 s) was overtaken by the second cut
+    printf("  deformation loop passes while the compliance was rebuilt: %lld\n",
+           (long long)(loops_building1 - loops_building0));
+    ENSURE(loops_building1 - loops_building0 > 10); // ... beside the loop, not in it
+    // ... and it is the compliance of the cut body: diagonal blocks as a fresh one's.
+    int* live = hs_alloc(4 * (size_t)ntet * sizeof(int));
+    ENSURE(live);
+    int nlive = 0;
+    for (int e = 0; e < ntet; ++e)
+        if (!gone[e]) memcpy(live + 4 * nlive++, m->tets + 4 * e, 4 * sizeof(int));
+    hs_mesh* lm = NULL;
+    ENSURE(hs_mesh_create(n, m->x0, nlive, live, &lm, &err) == HS_OK);
+    hs_compliance* fresh = NULL;
+    // Pieces the cuts freed from the fixed region are pinned (HS_CUT_FRAGMENT_FIX).
+    unsigned char* fix2 = hs_calloc((size_t)n, 1);
+    ENSURE(fix2);
+    int pinned = hs_haptic_sim_cut_pinned(sim, fix2);
+    for (int i = 0; i < n; ++i) fix2[i] |= fixed[i];
+    printf("  %d components, %d nodes pinned as freed pieces\n", lm->report.components, pinned);
+    ENSURE(hs_compliance_create(lm, &d.body.fem, fix2, d.probe.cache_nodes, &fresh, &err) == HS_OK);
+    hs_free(fix2);
+    const hs_compliance* cc = hs_haptic_sim_compliance(sim);
+    double worst = 0;
+    int compared = 0;
+    for (int i = 0; i < n; ++i) {
+        if (!hs_compliance_contactable(fresh, i)) continue;
+        ENSURE(hs_compliance_contactable(cc, i));
+        double a[9], b[9], na = 0, nd = 0;
+        ENSURE(hs_compliance_block(cc, i, i, a) && hs_compliance_block(fresh, i, i, b));
+        for (int k = 0; k < 9; ++k) {
+            na += b[k] * b[k];
+            nd += (a[k] - b[k]) * (a[k] - b[k]);
+        }
+        worst = fmax(worst, sqrt(nd / na));
+        compared++;
+    }
+    printf("  rebuilt compliance vs fresh on the cut mesh: %d surface nodes, worst block %.2e\n",
+           compared, worst);
+    ENSURE(compared > 0 && compared >= lm->n_surf_nodes / 2);
+    ENSURE(worst <= 1e-8);
+    hs_compliance_destroy(&fresh);
+    hs_mesh_destroy(&lm);
+    hs_free(live);
     hs_free(x0);
     hs_free(tris);
     hs_free(removed);

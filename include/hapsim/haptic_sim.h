@@ -93,10 +93,15 @@ typedef struct hs_haptic_sim_stats {
     int64_t cut_removed;       ///< tets removed so far
     int64_t topology_version;  ///< cut topology version (0 before the first cut)
     int64_t cut_failures;      ///< sweeps or compliance rebuilds that failed (state kept)
-    double cut_ms_last;        ///< last changing cut step: sweep + body sync + compliance, ms
+    double cut_ms_last;        ///< last changing cut step: sweep + body sync + live mesh, ms
     double cut_ms_max;         ///< worst of them, ms
     double sweep_ms_last;      ///< of the last, the sweep (geometry + factor update), ms
-    double comp_ms_last;       ///< of the last, the haptic compliance rebuild, ms
+    double comp_ms_last;       ///< the last haptic compliance rebuild (background worker), ms
+    int64_t comp_version;      ///< topology version the compliance was built on (0: uncut)
+    int64_t comp_rebuilds;     ///< rebuilds swapped in
+    int64_t comp_discarded;    ///< rebuilds dropped because a newer cut came meanwhile
+    int comp_building;         ///< 1 while a rebuild runs beside the deformation thread
+    int64_t loops;             ///< deformation-loop passes (it keeps going during rebuilds)
     double cut_force_n[3];     ///< cutting resistance on the blade in the newest snapshot, N
     int cutting;               ///< 1 when the newest sweep cut tissue
 } hs_haptic_sim_stats;
@@ -150,7 +155,9 @@ hs_haptic_cut_def hs_haptic_cut_default_def(void);
 /// Turn cutting on (before hs_haptic_sim_start). mesh must be the mesh the sim was created on
 /// (cuts move its x0; nobody else may read x0 while the sim runs: use
 /// hs_haptic_sim_take_topology). The tool then is a blade: the probe contact is off, the felt
-/// force is the cutting resistance (blended on each new snapshot). Allocates: yes
+/// force is the cutting resistance (blended on each new snapshot). Once the blade is released
+/// after a cut, the haptic compliance is rebuilt on a worker thread while the deformation loop
+/// goes on, and swapped in between two steps (stats comp_*). Allocates: yes
 hs_status hs_haptic_sim_enable_cutting(hs_haptic_sim* sim, hs_mesh* mesh,
                                        const hs_haptic_cut_def* def, hs_err* err);
 
@@ -176,6 +183,9 @@ int64_t hs_haptic_sim_take_topology(hs_haptic_sim* sim, double* x0 /* OUT [3n] *
                                     int* tris /* OUT */, int tri_cap, int* n_tris /* OUT */,
                                     hs_haptic_cut_event* ev /* OUT, may be NULL */);
 
+/// Nodes the cuts pinned (pieces cut free of the fixed region, per HS_CUT_FRAGMENT_FIX): sets
+/// pinned[n_nodes] to 1 / 0 and returns how many (0 without cutting). Only while stopped.
+int hs_haptic_sim_cut_pinned(hs_haptic_sim* sim, unsigned char* pinned /* OUT [n] */);
 /// The compliance (read-only use from the control thread only while the sim is stopped).
 hs_compliance* hs_haptic_sim_compliance(hs_haptic_sim* sim);
 /// The body (use only while the sim is stopped).

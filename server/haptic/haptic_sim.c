@@ -99,6 +99,8 @@ typedef struct deform_status {
     double cut_ms_last, cut_ms_max, sweep_ms_last, comp_ms_last;
     double cut_force_n[3];
     int cutting;
+    int64_t loops, comp_version, comp_rebuilds, comp_discarded;
+    int comp_building;
 } deform_status;
 
 // A boundary triangle and its distance from the tool (snapshot search).
@@ -164,7 +166,6 @@ struct hs_haptic_sim {
     hs_haptic_cut_def cdef;
     hs_cut* cut;
     unsigned char* fixed0;   // [n] the fixed nodes given at create
-    unsigned char* cfix;     // [n] fixed0 | pinned by cuts, for compliance rebuilds
     double* cu;              // [3n] displacement handed to the sweep
     double* cv;              // [3n] velocity kept across the sweep
     hs_triple_buffer* cpose; // hs_haptic_pose, feeder -> deformation
@@ -172,6 +173,22 @@ struct hs_haptic_sim {
     double bp[3], bq[3]; // blade ends at the last sweep, m
     double cut_force[3]; // resistance in the newest snapshot, N
     int comp_stale;      // the compliance predates the newest cut (rebuilt once the blade stops)
+    hs_mesh* comp_mesh;  // the mesh h->comp was built on once cuts replaced it (owned)
+    // Background compliance rebuild: the deformation thread copies the live mesh into cw_*,
+    // a worker builds mesh + compliance from it, and the deformation thread swaps the result
+    // in when the topology has not moved on meanwhile (else it is dropped).
+    pthread_t cw_thread;
+    int cw_running;     // started and not yet joined (deformation thread)
+    atomic_int cw_done; // worker: the result fields below are final
+    int64_t cw_version; // topology version the job was copied at
+    double* cw_x0;      // [3n] job input
+    int* cw_tets;       // [4 n_tets] job input
+    int cw_ntets;
+    unsigned char* cw_fix; // [n] job input
+    hs_mesh* cw_mesh;      // job output
+    hs_compliance* cw_comp;
+    hs_status cw_status;
+    double cw_ms;
     // topology after the newest cut, shared with the control thread under tmx
     pthread_mutex_t tmx;
     int tmx_init;
@@ -454,23 +471,80 @@ static void quat_rotate(const double q[4], const double v[3], double out[3]) {
         out[a] = r[3 * a] * v[0] + r[3 * a + 1] * v[1] + r[3 * a + 2] * v[2];
 }
 
-// Rebuild the haptic compliance on the cut body (live mesh; fixed + pinned nodes held).
-// Recreated rather than updated: hs_compliance has no update entry point. Allocates.
-static hs_status rebuild_compliance(hs_haptic_sim* h) {
+// Worker: the haptic compliance of the job's mesh (fixed + pinned nodes held). Recreated
+// rather than updated (hs_compliance has no update entry point); it costs ~0.4 s on the skin
+// patch, which is why it runs beside the deformation thread instead of in it.
+static void* comp_worker(void* arg) {
+    hs_haptic_sim* h = arg;
+    int64_t t0 = hs_now_ns();
     hs_err err = {0};
-    hs_status us = hs_cut_update_live(h->cut, &err);
-    if (us != HS_OK) return us;
+    hs_mesh* m = NULL;
+    hs_compliance* c = NULL;
+    hs_status s = hs_mesh_create(h->mesh->n_nodes, h->cw_x0, h->cw_ntets, h->cw_tets, &m, &err);
+    if (s == HS_OK)
+        s = hs_compliance_create(m, &h->def.body.fem, h->cw_fix, h->def.probe.cache_nodes, &c,
+                                 &err);
+    else if (s > HS_OK)
+        s = HS_ERR_NUMERIC; // the live mesh passed its checks; a repair here means a bad copy
+    if (s != HS_OK) {
+        hs_compliance_destroy(&c);
+        hs_mesh_destroy(&m);
+    }
+    h->cw_mesh = m;
+    h->cw_comp = c;
+    h->cw_status = s;
+    h->cw_ms = (double)(hs_now_ns() - t0) * 1e-6;
+    atomic_store_explicit(&h->cw_done, 1, memory_order_release);
+    return NULL;
+}
+
+// Start a rebuild on a copy of the live mesh. Returns 0 when it could not start.
+static int comp_start(hs_haptic_sim* h) {
+    hs_err err = {0};
+    if (hs_cut_update_live(h->cut, &err) != HS_OK) return 0;
     const hs_mesh* live = hs_cut_live_mesh(h->cut);
-    if (!live) return HS_ERR_NOMEM;
-    for (int i = 0; i < h->mesh->n_nodes; ++i)
-        h->cfix[i] = (unsigned char)(h->fixed0[i] || hs_cut_node_pinned(h->cut, i));
-    hs_compliance* nc = NULL;
-    hs_status s =
-        hs_compliance_create(live, &h->def.body.fem, h->cfix, h->def.probe.cache_nodes, &nc, &err);
-    if (s != HS_OK) return s;
-    hs_compliance_destroy(&h->comp);
-    h->comp = nc;
-    return HS_OK;
+    if (!live || live->n_tets > h->mesh->n_tets) return 0;
+    const int n = h->mesh->n_nodes;
+    memcpy(h->cw_x0, live->x0, 3 * (size_t)n * sizeof(double));
+    memcpy(h->cw_tets, live->tets, 4 * (size_t)live->n_tets * sizeof(int));
+    h->cw_ntets = live->n_tets;
+    for (int i = 0; i < n; ++i)
+        h->cw_fix[i] = (unsigned char)(h->fixed0[i] || hs_cut_node_pinned(h->cut, i));
+    h->cw_version = hs_cut_topology_version(h->cut);
+    h->cw_mesh = NULL;
+    h->cw_comp = NULL;
+    atomic_store_explicit(&h->cw_done, 0, memory_order_relaxed);
+    if (pthread_create(&h->cw_thread, NULL, comp_worker, h) != 0) return 0;
+    h->cw_running = 1;
+    h->st.comp_building = 1;
+    return 1;
+}
+
+// Take a finished rebuild (or wait for a running one): swap it in when it matches the newest
+// topology, else drop it (a newer cut came meanwhile; the next release starts another).
+static void comp_poll(hs_haptic_sim* h, int wait) {
+    if (!h->cw_running) return;
+    if (!wait && !atomic_load_explicit(&h->cw_done, memory_order_acquire)) return;
+    pthread_join(h->cw_thread, NULL);
+    h->cw_running = 0;
+    h->st.comp_building = 0;
+    if (h->cw_status != HS_OK) {
+        h->st.cut_failures++; // the old compliance stays; the next cut retries
+    } else if (h->cw_version != hs_cut_topology_version(h->cut)) {
+        h->st.comp_discarded++;
+        hs_compliance_destroy(&h->cw_comp);
+        hs_mesh_destroy(&h->cw_mesh);
+    } else {
+        hs_compliance_destroy(&h->comp);
+        hs_mesh_destroy(&h->comp_mesh);
+        h->comp = h->cw_comp;
+        h->comp_mesh = h->cw_mesh;
+        h->cw_comp = NULL;
+        h->cw_mesh = NULL;
+        h->st.comp_ms_last = h->cw_ms;
+        h->st.comp_version = h->cw_version;
+        h->st.comp_rebuilds++;
+    }
 }
 
 // Hand the cut's result to the control thread (rest positions, live surface, event lists).
@@ -516,14 +590,11 @@ static int cut_step(hs_haptic_sim* h) {
             memset(h->st.cut_force_n, 0, sizeof h->st.cut_force_n);
             return 1;
         }
-        if (h->comp_stale) {
+        if (h->comp_stale && !h->cw_running) {
             // The blade has no contact sphere, so nothing reads the compliance while it cuts:
-            // rebuild it once the blade is withdrawn rather than after every cut step.
-            int64_t t1 = hs_now_ns();
-            if (rebuild_compliance(h) != HS_OK) h->st.cut_failures++;
-            h->st.comp_ms_last = (double)(hs_now_ns() - t1) * 1e-6;
+            // rebuild it once the blade is withdrawn, in the background.
+            if (!comp_start(h)) h->st.cut_failures++;
             h->comp_stale = 0;
-            return 1;
         }
         return 0;
     }
@@ -618,7 +689,9 @@ static void* deform_main(void* arg) {
         int moving = loaded || max_speed(h) > h->def.sleep_speed_m_s;
         int64_t t0 = hs_now_ns();
         int rebuild = 0, cut_changed = 0;
+        h->st.loops++;
         if (h->cut) {
+            comp_poll(h, 0);
             int64_t before = h->st.cut_steps;
             rebuild = cut_step(h);
             cut_changed = h->st.cut_steps != before;
@@ -711,6 +784,7 @@ void hs_haptic_sim_destroy(hs_haptic_sim** ph) {
     hs_triple_buffer_destroy(&h->frame);
     hs_triple_buffer_destroy(&h->status);
     hs_compliance_destroy(&h->comp);
+    hs_mesh_destroy(&h->comp_mesh);
     hs_body_destroy(&h->body);
     hs_free(h->tri_start);
     hs_free(h->tri_list);
@@ -725,7 +799,9 @@ void hs_haptic_sim_destroy(hs_haptic_sim** ph) {
     hs_triple_buffer_destroy(&h->cpose);
     hs_cut_destroy(&h->cut);
     hs_free(h->fixed0);
-    hs_free(h->cfix);
+    hs_free(h->cw_x0);
+    hs_free(h->cw_tets);
+    hs_free(h->cw_fix);
     hs_free(h->cu);
     hs_free(h->cv);
     hs_free(h->t_x0);
@@ -875,6 +951,10 @@ void hs_haptic_sim_stop(hs_haptic_sim* h) {
         atomic_store_explicit(&h->stop, 1, memory_order_release);
         pthread_join(h->thread, NULL);
         h->thread_started = 0;
+        if (h->cw_running) { // the thread is gone: finish its rebuild here (cannot be cut short)
+            comp_poll(h, 1);
+            hs_triple_buffer_write(h->status, &h->st);
+        }
     }
 }
 
@@ -910,7 +990,9 @@ hs_status hs_haptic_sim_enable_cutting(hs_haptic_sim* h, hs_mesh* mesh,
     h->cdef.cut.material = h->def.body.fem.material;
     const size_t n = (size_t)mesh->n_nodes, nt = (size_t)mesh->n_tets;
     // A retry after a failed call starts clean.
-    hs_free(h->cfix);
+    hs_free(h->cw_x0);
+    hs_free(h->cw_tets);
+    hs_free(h->cw_fix);
     hs_free(h->cu);
     hs_free(h->cv);
     hs_free(h->t_x0);
@@ -919,7 +1001,9 @@ hs_status hs_haptic_sim_enable_cutting(hs_haptic_sim* h, hs_mesh* mesh,
     hs_free(h->t_moved);
     hs_free(h->t_mflag);
     hs_triple_buffer_destroy(&h->cpose);
-    h->cfix = hs_calloc(n + 1, 1);
+    h->cw_x0 = hs_calloc(3 * n, sizeof(double));
+    h->cw_tets = hs_calloc(4 * nt + 1, sizeof(int));
+    h->cw_fix = hs_calloc(n + 1, 1);
     h->cu = hs_calloc(3 * n, sizeof(double));
     h->cv = hs_calloc(3 * n, sizeof(double));
     h->t_x0 = hs_calloc(3 * n, sizeof(double));
@@ -928,8 +1012,8 @@ hs_status hs_haptic_sim_enable_cutting(hs_haptic_sim* h, hs_mesh* mesh,
     h->t_removed = hs_calloc(nt + 1, sizeof(int));
     h->t_moved = hs_calloc(n + 1, sizeof(int));
     h->t_mflag = hs_calloc(n + 1, 1);
-    if (!h->cfix || !h->cu || !h->cv || !h->t_x0 || !h->t_tris || !h->t_removed || !h->t_moved ||
-        !h->t_mflag)
+    if (!h->cw_x0 || !h->cw_tets || !h->cw_fix || !h->cu || !h->cv || !h->t_x0 || !h->t_tris ||
+        !h->t_removed || !h->t_moved || !h->t_mflag)
         return hs_err_set(err, HS_ERR_NOMEM, "hs_haptic_sim_enable_cutting: out of memory");
     if (!h->tmx_init) {
         if (pthread_mutex_init(&h->tmx, NULL) != 0)
@@ -1013,6 +1097,11 @@ void hs_haptic_sim_stats_get(hs_haptic_sim* h, hs_haptic_sim_stats* out) {
     out->cut_ms_max = ds.cut_ms_max;
     out->sweep_ms_last = ds.sweep_ms_last;
     out->comp_ms_last = ds.comp_ms_last;
+    out->loops = ds.loops;
+    out->comp_version = ds.comp_version;
+    out->comp_rebuilds = ds.comp_rebuilds;
+    out->comp_discarded = ds.comp_discarded;
+    out->comp_building = ds.comp_building;
     memcpy(out->cut_force_n, ds.cut_force_n, sizeof out->cut_force_n);
     out->cutting = ds.cutting;
     out->topology_version = atomic_load(&h->topo_version);
@@ -1028,6 +1117,15 @@ void hs_haptic_sim_stats_get(hs_haptic_sim* h, hs_haptic_sim_stats* out) {
 
 struct hs_spsc_ring* hs_haptic_sim_telemetry(hs_haptic_sim* h) {
     return hs_haptic_rt_telemetry(h->hrt);
+}
+
+int hs_haptic_sim_cut_pinned(hs_haptic_sim* h, unsigned char* pinned) {
+    int k = 0;
+    for (int i = 0; i < h->mesh->n_nodes; ++i) {
+        pinned[i] = (unsigned char)(h->cut && hs_cut_node_pinned(h->cut, i));
+        k += pinned[i];
+    }
+    return k;
 }
 
 hs_compliance* hs_haptic_sim_compliance(hs_haptic_sim* h) {
