@@ -41,7 +41,8 @@ static double dist2(const double* a, const double* b) {
 }
 
 // Candidates: the contactable surface nodes nearest the tool within reach (insertion order by
-// distance, ties by node index, so the choice depends on the pose only).
+// distance, ties by node index, so the choice depends on the pose only), and the boundary
+// triangles among them.
 static void build_snapshot(replay* r, const double p[3]) {
     hs_contact_snapshot* s = &r->snap;
     const hs_mesh* m = r->mesh;
@@ -79,6 +80,7 @@ static void build_snapshot(replay* r, const double p[3]) {
         memcpy(s->normal[i], r->normal + 3 * cand[i], sizeof s->normal[i]);
         for (int j = 0; j < n; ++j) hs_compliance_block(r->comp, cand[i], cand[j], s->c[i][j]);
     }
+    hs_contact_snapshot_add_tris(s, m); // surface contact, as the server's
     r->have_snap = 1;
 }
 
@@ -95,7 +97,7 @@ static void on_pose(const lcm_recv_buf_t* rb, const char* channel, void* user) {
         if (!r->have_snap || dist2(p.position, r->snap.centre_m) > 0.0625 * margin * margin)
             build_snapshot(r, p.position);
         hs_contact prev = r->contact;
-        hs_contact_solve(&r->snap, p.position, prev.n, prev.node, &r->contact);
+        hs_contact_solve_from(&r->snap, p.position, &prev, &r->contact);
         const double* f = r->contact.force_n;
         printf("replay %.6f %.9g %.9g %.9g %.9g %lld\n", (double)(p.utime - r->t0_us) * 1e-6, f[0],
                f[1], f[2], sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]), (long long)p.utime);

@@ -47,7 +47,8 @@ static hs_haptic_sim_def bench_def(double radius) {
     return d;
 }
 
-// Contact nodes at rest for a sphere of radius r pressed `depth` at node k along -n.
+// Contact nodes at rest for a sphere of radius r pressed `depth` at node k along -n (surface
+// contact on the boundary triangles among the nearest nodes).
 static int rest_contacts(hs_compliance* c, const hs_mesh* m, int k, const double n[3], double r,
                          double depth, hs_contact_snapshot* s) {
     double p[3];
@@ -83,8 +84,9 @@ static int rest_contacts(hs_compliance* c, const hs_mesh* m, int k, const double
         memcpy(s->normal[i], n, 3 * sizeof(double));
         for (int j = 0; j < nc; ++j) hs_compliance_block(c, s->node[i], s->node[j], s->c[i][j]);
     }
+    hs_contact_snapshot_add_tris(s, m); // surface contact, as the sim's snapshots
     hs_contact con;
-    hs_contact_solve(s, p, 0, NULL, &con);
+    hs_contact_solve_from(s, p, NULL, &con);
     return con.n;
 }
 
