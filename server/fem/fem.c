@@ -626,6 +626,72 @@ static int element_rotation(hs_fem* m, int e, const double F[9], double det, dou
     return it;
 }
 
+/// F = sum_a x_a g_a^T of element e.
+static inline void element_F(const hs_fem* m, const double* x, int e, double F[9]) {
+    const int* t = m->tet + 4 * e;
+    const double* g = m->g + 12 * e;
+    const double* x0 = x + 3 * t[0];
+    memset(F, 0, 9 * sizeof(double));
+    for (int a = 1; a < 4; a++) {
+        const double* xa = x + 3 * t[a];
+        const double* ga = g + 3 * a;
+        for (int i = 0; i < 3; i++) {
+            double d = xa[i] - x0[i];
+            F[3 * i] += d * ga[0];
+            F[3 * i + 1] += d * ga[1];
+            F[3 * i + 2] += d * ga[2];
+        }
+    }
+}
+
+/// Co-rotated, polar: F, det F and the rotation of the active elements e0 .. e0 + 3, the warm
+/// Newton steps four at a time (hs_polar_warm4, bit-identical to the scalar iteration); rtf[k]
+/// receives R^T F of element e0 + k, its[k] its polar iterations.
+static void corot_rotations4(hs_fem* m, const double* x, int e0, int ne, double rtf[4][9],
+                             int its[4]) {
+    double fs[9][4], rs[9][4], ys[9][4], fn2[4];
+    int lane_e[4], nl = 0;
+    for (int k = 0; k < 4 && e0 + k < ne; k++) {
+        int e = e0 + k;
+        if (!m->active[e]) continue;
+        double* F = m->F + 9 * e;
+        element_F(m, x, e, F);
+        double det = m3_det(F);
+        m->det[e] = det;
+        double f2 = m3_fro2(F);
+        if (!(det > 0) || !(f2 > 0) || !isfinite(f2)) {
+            its[k] = element_rotation(m, e, F, det, rtf[k]); // inverted or degenerate
+            continue;
+        }
+        for (int q = 0; q < 9; q++) {
+            fs[q][nl] = F[q];
+            rs[q][nl] = m->R[9 * e + q];
+        }
+        fn2[nl] = f2;
+        lane_e[nl++] = e - e0;
+    }
+    if (nl == 0) return;
+    for (int l = nl; l < 4; l++) { // pad: I converges at once
+        for (int q = 0; q < 9; q++) fs[q][l] = rs[q][l] = (q % 4 == 0);
+        fn2[l] = 3.0;
+    }
+    int it[4];
+    hs_polar_warm4((const double(*)[4])fs, rs, ys, fn2, m->def.polar_tol, m->def.polar_max_iter,
+                   1, it);
+    for (int l = 0; l < nl; l++) {
+        int k = lane_e[l], e = e0 + k;
+        if (it[l] < 0) { // left the warm phase: the scalar code from the same start
+            its[k] = element_rotation(m, e, m->F + 9 * e, m->det[e], rtf[k]);
+            continue;
+        }
+        its[k] = it[l];
+        for (int q = 0; q < 9; q++) {
+            m->R[9 * e + q] = rs[q][l];
+            rtf[k][q] = ys[q][l];
+        }
+    }
+}
+
 void hs_fem_update(hs_fem* m, const double* x, hs_fem_stats* stats) {
     HS_ASSERT(m && x);
     const int ne = m->ne, n = m->n;
@@ -634,26 +700,27 @@ void hs_fem_update(hs_fem* m, const double* x, hs_fem_stats* stats) {
     memset(m->f, 0, sizeof(double) * 3 * (size_t)n);
     double energy = 0, vsum = 0, vmin = INFINITY, vmax = -INFINITY;
     int inverted = 0, n_active = 0, pmax = 0;
+    // Co-rotated + polar: rotations of 4 elements at a time, then each element as below.
+    const int batch = model == HS_MODEL_COROTATED && m->def.rotation == HS_ROTATION_POLAR;
+    double rtf4[4][9];
+    int its4[4];
 
     for (int e = 0; e < ne; e++) {
+        if (batch && (e & 3) == 0) corot_rotations4(m, x, e, ne, rtf4, its4);
         if (!m->active[e]) continue;
         const int* t = m->tet + 4 * e;
         const double* g = m->g + 12 * e;
-        const double* x0 = x + 3 * t[0];
-        double F[9] = {0};
-        for (int a = 1; a < 4; a++) {
-            const double* xa = x + 3 * t[a];
-            const double* ga = g + 3 * a;
-            for (int i = 0; i < 3; i++) {
-                double d = xa[i] - x0[i];
-                F[3 * i] += d * ga[0];
-                F[3 * i + 1] += d * ga[1];
-                F[3 * i + 2] += d * ga[2];
-            }
+        double F[9];
+        double det;
+        if (batch) {
+            memcpy(F, m->F + 9 * e, sizeof F);
+            det = m->det[e];
+        } else {
+            element_F(m, x, e, F);
+            memcpy(m->F + 9 * e, F, sizeof F);
+            det = m3_det(F);
+            m->det[e] = det;
         }
-        memcpy(m->F + 9 * e, F, sizeof F);
-        double det = m3_det(F);
-        m->det[e] = det;
         n_active++;
         vsum += det;
         if (det < vmin) vmin = det;
@@ -689,7 +756,13 @@ void hs_fem_update(hs_fem* m, const double* x, hs_fem_stats* stats) {
             const double* r = NULL;
             double H[9];
             if (model == HS_MODEL_COROTATED) {
-                int it = element_rotation(m, e, F, det, H);
+                int it;
+                if (batch) {
+                    memcpy(H, rtf4[e & 3], sizeof H);
+                    it = its4[e & 3];
+                } else {
+                    it = element_rotation(m, e, F, det, H);
+                }
                 if (it > pmax) pmax = it;
                 r = m->R + 9 * e;
             } else {
