@@ -208,7 +208,8 @@ static int test_blade_drag(void) {
     // worker: the deformation loop keeps running meanwhile.
     hs_haptic_sim_stats st;
     hs_haptic_sim_stats_get(sim, &st);
-    for (int i = 0; i < 2000 && st.comp_version != st.topology_version; ++i) {
+    for (int i = 0; i < 12000 && st.comp_version != st.topology_version;
+         ++i) { // <= 60 s (sanitizers)
         sleep_until(&t, 5000000);
         hs_haptic_sim_stats_get(sim, &st);
         if (st.comp_building) {
@@ -232,9 +233,15 @@ static int test_blade_drag(void) {
     ENSURE(st.cut_failures == 0);
     ENSURE(!memcmp(x0, m->x0, 3 * (size_t)n * sizeof(double))); // rest positions shared as cut
     ENSURE(peak > 0.01 && peak <= cd.max_force_n + 1e-9);       // resistance, within the cap
-    ENSURE(max_step <= cd.max_force_n / d.blend_ticks + 1e-9);  // blended, never a jump
-    ENSURE(after_release < 1e-9);                               // released: no resistance left
-    ENSURE(st.comp_ms_last > 0); // the compliance was rebuilt once the blade left ...
+#ifdef __SANITIZE_THREAD__
+    // Under TSan the test thread misses rt outputs, so one sample spans several ticks: the
+    // per-tick bound is not measurable there (checked in the normal build).
+    printf("  (TSan build: the per-tick force step is not checked)\n");
+#else
+    ENSURE(max_step <= cd.max_force_n / d.blend_ticks + 1e-9); // blended, never a jump
+#endif
+    ENSURE(after_release < 1e-9); // released: no resistance left
+    ENSURE(st.comp_ms_last > 0);  // the compliance was rebuilt once the blade left ...
     ENSURE(st.comp_rebuilds >= 1 && st.comp_version == version && !st.comp_building);
     printf("  compliance rebuilds: %lld swapped in, %lld dropped (a newer cut came first)\n",
            (long long)st.comp_rebuilds, (long long)st.comp_discarded);
