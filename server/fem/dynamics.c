@@ -7,6 +7,8 @@
 // hs_body_create; steps and solves allocate nothing (CHOLMOD workspaces are reused).
 #include "hapsim/body.h"
 
+#include "fem_internal.h"
+
 #include <math.h>
 #include <string.h>
 
@@ -436,8 +438,7 @@ static hs_status solve_system(hs_body* b, double kcoef, double mcoef, hs_step_st
         update_model(b);
         if (s != HS_OK) return s;
     }
-    if (warped)
-        for (int i = 0; i < b->n; ++i) hs_fem_node_rotation_warm(b->fem, i, b->rot + 9 * i);
+    if (warped) hs_fem_node_rotations_warm(b->fem, b->rot);
     if (one_solve) {
         // `a` keeps the rest-state matrix the factor was made from (the step's safeguard
         // measures du.K du with it).

@@ -233,6 +233,20 @@ int hs_polar_higham_ex(const double f[9], double r[9], double tol, int max_iter,
 
 typedef double v4d __attribute__((vector_size(32)));
 
+/// ||I - X^T X||_F^2 of each lane, the operations of orth_err.
+static inline __attribute__((always_inline)) void orth_err2_4(const v4d x[9], v4d* out) {
+    v4d e[9];
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++)
+            e[3 * i + j] = x[i] * x[j] + x[3 + i] * x[3 + j] + x[6 + i] * x[6 + j];
+    e[0] -= 1.0;
+    e[4] -= 1.0;
+    e[8] -= 1.0;
+    v4d s = {0, 0, 0, 0};
+    for (int k = 0; k < 9; k++) s += e[k] * e[k];
+    *out = s;
+}
+
 static inline __attribute__((always_inline)) void polar_warm4_body(const double f_[9][4],
                                                                    double r_[9][4],
                                                                    double rtf_[9][4],
@@ -253,6 +267,14 @@ static inline __attribute__((always_inline)) void polar_warm4_body(const double 
         state[l] = 1;
         itl[l] = 0;
     }
+    if (!trusted) { // the scalar entry check: r a rotation to 1e-3
+        v4d oe;
+        orth_err2_4(x, &oe);
+        v4d dx = x[0] * (x[4] * x[8] - x[5] * x[7]) - x[1] * (x[3] * x[8] - x[5] * x[6]) +
+                 x[2] * (x[3] * x[7] - x[4] * x[6]);
+        for (int l = 0; l < 4; l++)
+            if (!(sqrt(oe[l]) <= 1e-3 && dx[l] > 0)) state[l] = -1;
+    }
     for (int it = 0; it <= max_iter; it++) {
         for (int i = 0; i < 3; i++)
             for (int j = 0; j < 3; j++)
@@ -263,6 +285,8 @@ static inline __attribute__((always_inline)) void polar_warm4_body(const double 
             for (int j = 0; j < 3; j++) s[3 * i + j] = 0.5 * (y[3 * i + j] + y[3 * j + i]);
         int step = 0;
         int ok_mask[4] = {0, 0, 0, 0};
+        v4d oe = {0, 0, 0, 0};
+        if (!trusted) orth_err2_4(x, &oe);
         for (int l = 0; l < 4; l++) {
             if (state[l] != 1) continue;
             if (skew2[l] <= tol2[l]) {
@@ -271,13 +295,7 @@ static inline __attribute__((always_inline)) void polar_warm4_body(const double 
                                            s[1][l] * (s[3][l] * s[8][l] - s[5][l] * s[6][l]) +
                                            s[2][l] * (s[3][l] * s[7][l] - s[4][l] * s[6][l]);
                 int spd = s0 > 0 && s0 * s[4][l] - s[1][l] * s[3][l] > 0 && det > 0;
-                int orth = 1;
-                if (spd && !trusted) {
-                    double xl[9];
-                    for (int k = 0; k < 9; k++) xl[k] = x[k][l];
-                    orth = orth_err(xl) <= tol;
-                }
-                if (spd && orth) {
+                if (spd && (trusted || sqrt(oe[l]) <= tol)) {
                     state[l] = 0;
                     itl[l] = it;
                     for (int k = 0; k < 9; k++) {

@@ -12,6 +12,7 @@
 #include "hapsim/fem.h"
 
 #include "element.h"
+#include "fem_internal.h"
 
 #include <float.h>
 #include <limits.h>
@@ -1079,4 +1080,47 @@ void hs_fem_node_rotation_warm(const hs_fem* m, int node, double r[9]) {
         hs_polar_higham(sum, r, m->def.polar_tol, 20);
     else
         m3_identity(r);
+}
+
+void hs_fem_node_rotations_warm(const hs_fem* m, double* rot) {
+    const double tol = m->def.polar_tol;
+    for (int i0 = 0; i0 < m->n; i0 += 4) {
+        double fs[9][4], rs[9][4], ys[9][4], fn2[4], sums[4][9];
+        int lane_n[4], nl = 0;
+        for (int i = i0; i < i0 + 4 && i < m->n; i++) {
+            double* r = rot + 9 * (size_t)i;
+            double* sum = sums[i - i0];
+            if (!node_mean_f(m, i, sum)) {
+                m3_identity(r);
+                continue;
+            }
+            double f2 = m3_fro2(sum);
+            if (!(m3_det(sum) > 0) || !(f2 > 0) || !isfinite(f2)) {
+                hs_polar_higham(sum, r, tol, 20); // SVD
+                continue;
+            }
+            for (int q = 0; q < 9; q++) {
+                fs[q][nl] = sum[q];
+                rs[q][nl] = r[q];
+            }
+            fn2[nl] = f2;
+            lane_n[nl++] = i;
+        }
+        if (nl == 0) continue;
+        for (int l = nl; l < 4; l++) {
+            for (int q = 0; q < 9; q++) fs[q][l] = rs[q][l] = (q % 4 == 0);
+            fn2[l] = 3.0;
+        }
+        int it[4];
+        hs_polar_warm4((const double(*)[4])fs, rs, ys, fn2, tol, 20, 0, it);
+        for (int l = 0; l < nl; l++) {
+            int i = lane_n[l];
+            double* r = rot + 9 * (size_t)i;
+            if (it[l] < 0) { // not a warm result: the scalar code from the same start
+                hs_polar_higham(sums[i - i0], r, tol, 20);
+                continue;
+            }
+            for (int q = 0; q < 9; q++) r[q] = rs[q][l];
+        }
+    }
 }
