@@ -232,6 +232,7 @@ int hs_polar_higham_ex(const double f[9], double r[9], double tol, int max_iter,
 // -ffp-contract=off, each lane performs exactly the scalar code's operations.
 
 typedef double v4d __attribute__((vector_size(32)));
+typedef long long v4l __attribute__((vector_size(32)));
 
 /// ||I - X^T X||_F^2 of each lane, the operations of orth_err.
 static inline __attribute__((always_inline)) void orth_err2_4(const v4d x[9], v4d* out) {
@@ -287,21 +288,18 @@ static inline __attribute__((always_inline)) void polar_warm4_body(const double 
         int ok_mask[4] = {0, 0, 0, 0};
         v4d oe = {0, 0, 0, 0};
         if (!trusted) orth_err2_4(x, &oe);
+        // spd3(s): leading minors
+        v4d sm2 = s[0] * s[4] - s[1] * s[3];
+        v4d sdet = s[0] * (s[4] * s[8] - s[5] * s[7]) - s[1] * (s[3] * s[8] - s[5] * s[6]) +
+                   s[2] * (s[3] * s[7] - s[4] * s[6]);
         for (int l = 0; l < 4; l++) {
             if (state[l] != 1) continue;
             if (skew2[l] <= tol2[l]) {
                 // spd3(s) and, for an untrusted start, the orthogonality of x
-                double s0 = s[0][l], det = s0 * (s[4][l] * s[8][l] - s[5][l] * s[7][l]) -
-                                           s[1][l] * (s[3][l] * s[8][l] - s[5][l] * s[6][l]) +
-                                           s[2][l] * (s[3][l] * s[7][l] - s[4][l] * s[6][l]);
-                int spd = s0 > 0 && s0 * s[4][l] - s[1][l] * s[3][l] > 0 && det > 0;
+                int spd = s[0][l] > 0 && sm2[l] > 0 && sdet[l] > 0;
                 if (spd && (trusted || sqrt(oe[l]) <= tol)) {
-                    state[l] = 0;
+                    state[l] = 0; // x stays; y is recomputed from it unchanged
                     itl[l] = it;
-                    for (int k = 0; k < 9; k++) {
-                        r_[k][l] = x[k][l];
-                        rtf_[k][l] = y[k][l];
-                    }
                 } else {
                     state[l] = -1;
                 }
@@ -346,9 +344,14 @@ static inline __attribute__((always_inline)) void polar_warm4_body(const double 
         for (int i = 0; i < 3; i++)
             for (int j = 0; j < 3; j++)
                 xn[3 * i + j] = x[3 * i] * q[j] + x[3 * i + 1] * q[3 + j] + x[3 * i + 2] * q[6 + j];
-        for (int l = 0; l < 4; l++)
-            if (ok_mask[l])
-                for (int k = 0; k < 9; k++) x[k][l] = xn[k][l];
+        v4l mk = {-(long long)ok_mask[0], -(long long)ok_mask[1], -(long long)ok_mask[2],
+                  -(long long)ok_mask[3]};
+        for (int k = 0; k < 9; k++) x[k] = (v4d)(((v4l)xn[k] & mk) | ((v4l)x[k] & ~mk));
+    }
+    // Accepted lanes: x and the y computed from it last. Other lanes: the caller ignores them.
+    for (int k = 0; k < 9; k++) {
+        memcpy(r_[k], &x[k], sizeof(v4d));
+        memcpy(rtf_[k], &y[k], sizeof(v4d));
     }
     for (int l = 0; l < 4; l++)
         if (state[l] != 0) itl[l] = -1;

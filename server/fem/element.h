@@ -89,7 +89,8 @@ int hs_polar_higham_ex(const double f[9], double r[9], double tol, int max_iter,
 /// the scalar code, so an accepted lane's r and rtf are bit-identical to hs_polar_higham_ex's;
 /// it[l] = its iteration count, or -1 where the scalar code would leave the warm phase (cold
 /// start, SVD, orthogonality correction): the caller redoes that lane with hs_polar_higham_ex
-/// from its original start. Lanes it does not need are padded with f = r = I.
+/// from its original start (r and rtf of such lanes are garbage). Lanes it does not need are
+/// padded with f = r = I.
 void hs_polar_warm4(const double f[9][4], double r[9][4], double rtf[9][4], const double fn2[4],
                     double tol, int max_iter, int trusted, int it[4]);
 

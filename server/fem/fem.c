@@ -693,16 +693,16 @@ static void corot_rotations4(hs_fem* m, const double* x, int e0, int ne, double 
     }
 }
 
-void hs_fem_update(hs_fem* m, const double* x, hs_fem_stats* stats) {
-    HS_ASSERT(m && x);
+// The element loop of hs_fem_update; `batch` (a constant at each call): co-rotated + polar, the
+// rotations of 4 elements at a time, then each element as the other models.
+static inline __attribute__((always_inline)) void update_all(hs_fem* m, const double* x,
+                                                             const int batch) {
     const int ne = m->ne, n = m->n;
     const double mu = m->mu, lam = m->lam_el;
     const hs_model model = m->def.model;
     memset(m->f, 0, sizeof(double) * 3 * (size_t)n);
     double energy = 0, vsum = 0, vmin = INFINITY, vmax = -INFINITY;
     int inverted = 0, n_active = 0, pmax = 0;
-    // Co-rotated + polar: rotations of 4 elements at a time, then each element as below.
-    const int batch = model == HS_MODEL_COROTATED && m->def.rotation == HS_ROTATION_POLAR;
     double rtf4[4][9];
     int its4[4];
 
@@ -868,6 +868,15 @@ void hs_fem_update(hs_fem* m, const double* x, hs_fem_stats* stats) {
     m->stats.volume_ratio_max = n_active ? vmax : 1.0;
     m->stats.polar_iters_max = pmax;
     m->stats.energy_j = energy;
+}
+
+void hs_fem_update(hs_fem* m, const double* x, hs_fem_stats* stats) {
+    HS_ASSERT(m && x);
+    // Two specialised copies, so the linear and StVK loop carries nothing of the batching.
+    if (m->def.model == HS_MODEL_COROTATED && m->def.rotation == HS_ROTATION_POLAR)
+        update_all(m, x, 1);
+    else
+        update_all(m, x, 0);
     if (stats) *stats = m->stats;
 }
 
