@@ -248,24 +248,24 @@ static inline __attribute__((always_inline)) void orth_err2_4(const v4d x[9], v4
     *out = s;
 }
 
-static inline __attribute__((always_inline)) void polar_warm4_body(const double f_[9][4],
-                                                                   double r_[9][4],
-                                                                   double rtf_[9][4],
-                                                                   const double fn2[4], double tol,
-                                                                   int max_iter, int trusted,
-                                                                   int itl[4]) {
+static inline __attribute__((always_inline)) void
+polar_warm4_body(const double* const f_[4], double* const r_[4], double* const rtf_[4], double tol,
+                 int max_iter, int trusted, int itl[4]) {
     v4d f[9], x[9], y[9], s[9];
     for (int k = 0; k < 9; k++) {
-        memcpy(&f[k], f_[k], sizeof(v4d));
-        memcpy(&x[k], r_[k], sizeof(v4d));
+        f[k] = (v4d){f_[0][k], f_[1][k], f_[2][k], f_[3][k]};
+        x[k] = (v4d){r_[0][k], r_[1][k], r_[2][k], r_[3][k]};
     }
+    v4d fn2 = {0, 0, 0, 0}; // m3_fro2
+    for (int k = 0; k < 9; k++) fn2 += f[k] * f[k];
     if (!(tol > 0)) tol = 1e-12;
+    v4d tol2v = tol * tol * fn2 / 3.0;
     double tol2[4], prev[4];
     int state[4]; // 1 iterating, 0 accepted, -1 leaves to the scalar code
     for (int l = 0; l < 4; l++) {
-        tol2[l] = tol * tol * fn2[l] / 3.0;
+        tol2[l] = tol2v[l];
         prev[l] = INFINITY;
-        state[l] = 1;
+        state[l] = fn2[l] > 0 && isfinite(fn2[l]) ? 1 : -1;
         itl[l] = 0;
     }
     if (!trusted) { // the scalar entry check: r a rotation to 1e-3
@@ -348,33 +348,34 @@ static inline __attribute__((always_inline)) void polar_warm4_body(const double 
                   -(long long)ok_mask[3]};
         for (int k = 0; k < 9; k++) x[k] = (v4d)(((v4l)xn[k] & mk) | ((v4l)x[k] & ~mk));
     }
-    // Accepted lanes: x and the y computed from it last. Other lanes: the caller ignores them.
-    for (int k = 0; k < 9; k++) {
-        memcpy(r_[k], &x[k], sizeof(v4d));
-        memcpy(rtf_[k], &y[k], sizeof(v4d));
+    // Accepted lanes: x and the y computed from it last. Others keep their start.
+    for (int l = 0; l < 4; l++) {
+        if (state[l] != 0) {
+            itl[l] = -1;
+            continue;
+        }
+        for (int k = 0; k < 9; k++) {
+            r_[l][k] = x[k][l];
+            rtf_[l][k] = y[k][l];
+        }
     }
-    for (int l = 0; l < 4; l++)
-        if (state[l] != 0) itl[l] = -1;
 }
 
-__attribute__((target("avx2"))) static void polar_warm4_avx2(const double f[9][4],
-                                                             double r[9][4], double rtf[9][4],
-                                                             const double fn2[4], double tol,
-                                                             int max_iter, int trusted,
-                                                             int it[4]) {
-    polar_warm4_body(f, r, rtf, fn2, tol, max_iter, trusted, it);
+__attribute__((target("avx2"))) static void
+polar_warm4_avx2(const double* const f[4], double* const r[4], double* const rtf[4], double tol,
+                 int max_iter, int trusted, int it[4]) {
+    polar_warm4_body(f, r, rtf, tol, max_iter, trusted, it);
 }
 
-static void polar_warm4_base(const double f[9][4], double r[9][4], double rtf[9][4],
-                             const double fn2[4], double tol, int max_iter, int trusted,
-                             int it[4]) {
-    polar_warm4_body(f, r, rtf, fn2, tol, max_iter, trusted, it);
+static void polar_warm4_base(const double* const f[4], double* const r[4], double* const rtf[4],
+                             double tol, int max_iter, int trusted, int it[4]) {
+    polar_warm4_body(f, r, rtf, tol, max_iter, trusted, it);
 }
 
-void hs_polar_warm4(const double f[9][4], double r[9][4], double rtf[9][4], const double fn2[4],
+void hs_polar_warm4(const double* const f[4], double* const r[4], double* const rtf[4],
                     double tol, int max_iter, int trusted, int it[4]) {
     if (__builtin_cpu_supports("avx2"))
-        polar_warm4_avx2(f, r, rtf, fn2, tol, max_iter, trusted, it);
+        polar_warm4_avx2(f, r, rtf, tol, max_iter, trusted, it);
     else
-        polar_warm4_base(f, r, rtf, fn2, tol, max_iter, trusted, it);
+        polar_warm4_base(f, r, rtf, tol, max_iter, trusted, it);
 }

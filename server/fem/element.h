@@ -83,15 +83,14 @@ void hs_sym_eig3(const double a[9], double w[3], double v[9]);
 int hs_polar_higham_ex(const double f[9], double r[9], double tol, int max_iter, int trusted,
                        double rtf[9]);
 
-/// The warm phase of hs_polar_higham_ex on 4 matrices at once, lane l = column l of f, r, rtf
-/// (f[k][l] is entry k of matrix l). The caller has checked det F > 0 and passes
-/// fn2[l] = ||F_l||_F^2 (> 0, finite). Lane-wise the same IEEE operations in the same order as
-/// the scalar code, so an accepted lane's r and rtf are bit-identical to hs_polar_higham_ex's;
-/// it[l] = its iteration count, or -1 where the scalar code would leave the warm phase (cold
-/// start, SVD, orthogonality correction): the caller redoes that lane with hs_polar_higham_ex
-/// from its original start (r and rtf of such lanes are garbage). Lanes it does not need are
-/// padded with f = r = I.
-void hs_polar_warm4(const double f[9][4], double r[9][4], double rtf[9][4], const double fn2[4],
+/// The warm phase of hs_polar_higham_ex on 4 matrices at once: lane l reads F from f[l] and
+/// its start from r[l] (row-major 3x3 each); the caller has checked det F > 0. Lane-wise the
+/// same IEEE operations in the same order as the scalar code, so an accepted lane's rotation
+/// (written to r[l]) and R^T F (to rtf[l]) are bit-identical to hs_polar_higham_ex's, and
+/// it[l] is its iteration count. it[l] = -1 where the scalar code would leave the warm phase
+/// (degenerate F, cold start, SVD, orthogonality correction): r[l] is left as it was, and the
+/// caller redoes that lane with hs_polar_higham_ex. Unused lanes may point at f = r = I.
+void hs_polar_warm4(const double* const f[4], double* const r[4], double* const rtf[4],
                     double tol, int max_iter, int trusted, int it[4]);
 
 #endif

@@ -645,13 +645,18 @@ static inline void element_F(const hs_fem* m, const double* x, int e, double F[9
     }
 }
 
+static const double k_eye[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+
 /// Co-rotated, polar: F, det F and the rotation of the active elements e0 .. e0 + 3, the warm
 /// Newton steps four at a time (hs_polar_warm4, bit-identical to the scalar iteration); rtf[k]
 /// receives R^T F of element e0 + k, its[k] its polar iterations.
 static void corot_rotations4(hs_fem* m, const double* x, int e0, int ne, double rtf[4][9],
                              int its[4]) {
-    double fs[9][4], rs[9][4], ys[9][4], fn2[4];
-    int lane_e[4], nl = 0;
+    const double* fp[4];
+    double* rp[4];
+    double* yp[4];
+    double pad_r[9], pad_y[9];
+    int lane_k[4], nl = 0;
     for (int k = 0; k < 4 && e0 + k < ne; k++) {
         int e = e0 + k;
         if (!m->active[e]) continue;
@@ -659,37 +664,24 @@ static void corot_rotations4(hs_fem* m, const double* x, int e0, int ne, double 
         element_F(m, x, e, F);
         double det = m3_det(F);
         m->det[e] = det;
-        double f2 = m3_fro2(F);
-        if (!(det > 0) || !(f2 > 0) || !isfinite(f2)) {
-            its[k] = element_rotation(m, e, F, det, rtf[k]); // inverted or degenerate
+        if (!(det > 0)) {
+            its[k] = element_rotation(m, e, F, det, rtf[k]); // inverted: the chosen remedy
             continue;
         }
-        for (int q = 0; q < 9; q++) {
-            fs[q][nl] = F[q];
-            rs[q][nl] = m->R[9 * e + q];
-        }
-        fn2[nl] = f2;
-        lane_e[nl++] = e - e0;
+        fp[nl] = F;
+        rp[nl] = m->R + 9 * e;
+        yp[nl] = rtf[k];
+        lane_k[nl++] = k;
     }
     if (nl == 0) return;
-    for (int l = nl; l < 4; l++) { // pad: I converges at once
-        for (int q = 0; q < 9; q++) fs[q][l] = rs[q][l] = (q % 4 == 0);
-        fn2[l] = 3.0;
-    }
+    memcpy(pad_r, k_eye, sizeof pad_r);
+    for (int l = nl; l < 4; l++) fp[l] = k_eye, rp[l] = pad_r, yp[l] = pad_y;
     int it[4];
-    hs_polar_warm4((const double(*)[4])fs, rs, ys, fn2, m->def.polar_tol, m->def.polar_max_iter,
-                   1, it);
+    hs_polar_warm4(fp, rp, yp, m->def.polar_tol, m->def.polar_max_iter, 1, it);
     for (int l = 0; l < nl; l++) {
-        int k = lane_e[l], e = e0 + k;
-        if (it[l] < 0) { // left the warm phase: the scalar code from the same start
-            its[k] = element_rotation(m, e, m->F + 9 * e, m->det[e], rtf[k]);
-            continue;
-        }
-        its[k] = it[l];
-        for (int q = 0; q < 9; q++) {
-            m->R[9 * e + q] = rs[q][l];
-            rtf[k][q] = ys[q][l];
-        }
+        int k = lane_k[l], e = e0 + k;
+        // -1: left the warm phase; the scalar code from the same (untouched) start
+        its[k] = it[l] >= 0 ? it[l] : element_rotation(m, e, m->F + 9 * e, m->det[e], rtf[k]);
     }
 }
 
@@ -711,10 +703,9 @@ static inline __attribute__((always_inline)) void update_all(hs_fem* m, const do
         if (!m->active[e]) continue;
         const int* t = m->tet + 4 * e;
         const double* g = m->g + 12 * e;
-        double F[9];
+        double F[9]; // not read in the batched path (co-rotated: rtf4 holds R^T F)
         double det;
         if (batch) {
-            memcpy(F, m->F + 9 * e, sizeof F);
             det = m->det[e];
         } else {
             element_F(m, x, e, F);
@@ -1093,43 +1084,34 @@ void hs_fem_node_rotation_warm(const hs_fem* m, int node, double r[9]) {
 
 void hs_fem_node_rotations_warm(const hs_fem* m, double* rot) {
     const double tol = m->def.polar_tol;
+    double sums[4][9], ys[4][9], pad_r[9];
     for (int i0 = 0; i0 < m->n; i0 += 4) {
-        double fs[9][4], rs[9][4], ys[9][4], fn2[4], sums[4][9];
-        int lane_n[4], nl = 0;
+        const double* fp[4];
+        double* rp[4];
+        double* yp[4];
+        int nl = 0;
         for (int i = i0; i < i0 + 4 && i < m->n; i++) {
             double* r = rot + 9 * (size_t)i;
-            double* sum = sums[i - i0];
+            double* sum = sums[nl];
             if (!node_mean_f(m, i, sum)) {
                 m3_identity(r);
                 continue;
             }
-            double f2 = m3_fro2(sum);
-            if (!(m3_det(sum) > 0) || !(f2 > 0) || !isfinite(f2)) {
+            if (!(m3_det(sum) > 0)) {
                 hs_polar_higham(sum, r, tol, 20); // SVD
                 continue;
             }
-            for (int q = 0; q < 9; q++) {
-                fs[q][nl] = sum[q];
-                rs[q][nl] = r[q];
-            }
-            fn2[nl] = f2;
-            lane_n[nl++] = i;
+            fp[nl] = sum;
+            rp[nl] = r;
+            yp[nl] = ys[nl];
+            nl++;
         }
         if (nl == 0) continue;
-        for (int l = nl; l < 4; l++) {
-            for (int q = 0; q < 9; q++) fs[q][l] = rs[q][l] = (q % 4 == 0);
-            fn2[l] = 3.0;
-        }
+        memcpy(pad_r, k_eye, sizeof pad_r);
+        for (int l = nl; l < 4; l++) fp[l] = k_eye, rp[l] = pad_r, yp[l] = ys[l];
         int it[4];
-        hs_polar_warm4((const double(*)[4])fs, rs, ys, fn2, tol, 20, 0, it);
-        for (int l = 0; l < nl; l++) {
-            int i = lane_n[l];
-            double* r = rot + 9 * (size_t)i;
-            if (it[l] < 0) { // not a warm result: the scalar code from the same start
-                hs_polar_higham(sums[i - i0], r, tol, 20);
-                continue;
-            }
-            for (int q = 0; q < 9; q++) r[q] = rs[q][l];
-        }
+        hs_polar_warm4(fp, rp, yp, tol, 20, 0, it);
+        for (int l = 0; l < nl; l++) // not a warm result: the scalar code from the same start
+            if (it[l] < 0) hs_polar_higham(fp[l], rp[l], tol, 20);
     }
 }
