@@ -248,6 +248,12 @@ static inline __attribute__((always_inline)) void orth_err2_4(const v4d x[9], v4
     *out = s;
 }
 
+static inline __attribute__((always_inline)) int any4(v4l m) {
+    return (m[0] | m[1] | m[2] | m[3]) != 0;
+}
+
+// Control flow as lane masks (-1 true, 0 false): `act` iterating, `acc` accepted; a lane in
+// neither has left for the scalar code.
 static inline __attribute__((always_inline)) void
 polar_warm4_body(const double* const f_[4], double* const r_[4], double* const rtf_[4], double tol,
                  int max_iter, int trusted, int itl[4]) {
@@ -259,24 +265,19 @@ polar_warm4_body(const double* const f_[4], double* const r_[4], double* const r
     v4d fn2 = {0, 0, 0, 0}; // m3_fro2
     for (int k = 0; k < 9; k++) fn2 += f[k] * f[k];
     if (!(tol > 0)) tol = 1e-12;
-    v4d tol2v = tol * tol * fn2 / 3.0;
-    double tol2[4], prev[4];
-    int state[4]; // 1 iterating, 0 accepted, -1 leaves to the scalar code
-    for (int l = 0; l < 4; l++) {
-        tol2[l] = tol2v[l];
-        prev[l] = INFINITY;
-        state[l] = fn2[l] > 0 && isfinite(fn2[l]) ? 1 : -1;
-        itl[l] = 0;
-    }
+    const v4d tol2 = tol * tol * fn2 / 3.0;
+    v4d prev = {INFINITY, INFINITY, INFINITY, INFINITY};
+    v4l act = (fn2 > 0) & (fn2 <= DBL_MAX), acc = {0, 0, 0, 0}, itv = {0, 0, 0, 0};
     if (!trusted) { // the scalar entry check: r a rotation to 1e-3
         v4d oe;
         orth_err2_4(x, &oe);
         v4d dx = x[0] * (x[4] * x[8] - x[5] * x[7]) - x[1] * (x[3] * x[8] - x[5] * x[6]) +
                  x[2] * (x[3] * x[7] - x[4] * x[6]);
-        for (int l = 0; l < 4; l++)
-            if (!(sqrt(oe[l]) <= 1e-3 && dx[l] > 0)) state[l] = -1;
+        v4l ok = dx > 0;
+        for (int l = 0; l < 4; l++) ok[l] &= -(long long)(sqrt(oe[l]) <= 1e-3);
+        act &= ok;
     }
-    for (int it = 0; it <= max_iter; it++) {
+    for (int it = 0; it <= max_iter && any4(act); it++) {
         for (int i = 0; i < 3; i++)
             for (int j = 0; j < 3; j++)
                 y[3 * i + j] = x[i] * f[j] + x[3 + i] * f[3 + j] + x[6 + i] * f[6 + j];
@@ -284,42 +285,31 @@ polar_warm4_body(const double* const f_[4], double* const r_[4], double* const r
         v4d skew2 = a0 * a0 + a1 * a1 + a2 * a2;
         for (int i = 0; i < 3; i++)
             for (int j = 0; j < 3; j++) s[3 * i + j] = 0.5 * (y[3 * i + j] + y[3 * j + i]);
-        int step = 0;
-        int ok_mask[4] = {0, 0, 0, 0};
-        v4d oe = {0, 0, 0, 0};
-        if (!trusted) orth_err2_4(x, &oe);
-        // spd3(s): leading minors
-        v4d sm2 = s[0] * s[4] - s[1] * s[3];
-        v4d sdet = s[0] * (s[4] * s[8] - s[5] * s[7]) - s[1] * (s[3] * s[8] - s[5] * s[6]) +
-                   s[2] * (s[3] * s[7] - s[4] * s[6]);
-        for (int l = 0; l < 4; l++) {
-            if (state[l] != 1) continue;
-            if (skew2[l] <= tol2[l]) {
-                // spd3(s) and, for an untrusted start, the orthogonality of x
-                int spd = s[0][l] > 0 && sm2[l] > 0 && sdet[l] > 0;
-                if (spd && (trusted || sqrt(oe[l]) <= tol)) {
-                    state[l] = 0; // x stays; y is recomputed from it unchanged
-                    itl[l] = it;
-                } else {
-                    state[l] = -1;
-                }
-                continue;
+        v4l conv = act & (skew2 <= tol2);
+        if (any4(conv)) {
+            // spd3(s) and, for an untrusted start, the orthogonality of x
+            v4d sm2 = s[0] * s[4] - s[1] * s[3];
+            v4d sdet = s[0] * (s[4] * s[8] - s[5] * s[7]) - s[1] * (s[3] * s[8] - s[5] * s[6]) +
+                       s[2] * (s[3] * s[7] - s[4] * s[6]);
+            v4l ok = (s[0] > 0) & (sm2 > 0) & (sdet > 0);
+            if (!trusted) {
+                v4d oe;
+                orth_err2_4(x, &oe);
+                for (int l = 0; l < 4; l++) ok[l] &= -(long long)(sqrt(oe[l]) <= tol);
             }
-            if (skew2[l] > 0.25 * prev[l] || it >= max_iter) {
-                state[l] = -1;
-                continue;
-            }
-            prev[l] = skew2[l];
-            ok_mask[l] = 1;
-            step = 1;
+            acc |= conv & ok; // x stays; y is recomputed from it unchanged
         }
-        if (!step) break;
+        // Not yet converged: stalled (-> cold start) or out of iterations leave; others step.
+        v4l step = act & ~conv & ~(skew2 > 0.25 * prev);
+        if (it >= max_iter) step &= (v4l){0, 0, 0, 0};
+        prev = (v4d)(((v4l)skew2 & step) | ((v4l)prev & ~step));
         v4d tr = s[0] + s[4] + s[8];
         v4d m[9] = {tr - s[0], -s[1], -s[2], -s[3], tr - s[4], -s[5], -s[6], -s[7], tr - s[8]};
         v4d dm = m[0] * (m[4] * m[8] - m[5] * m[7]) - m[1] * (m[3] * m[8] - m[5] * m[6]) +
                  m[2] * (m[3] * m[7] - m[4] * m[6]);
-        for (int l = 0; l < 4; l++)
-            if (ok_mask[l] && !(dm[l] > 0)) ok_mask[l] = 0, state[l] = -1;
+        step &= dm > 0;
+        act = step;
+        if (!any4(step)) break;
         v4d mc[9];
         mc[0] = m[4] * m[8] - m[5] * m[7];
         mc[1] = m[5] * m[6] - m[3] * m[8];
@@ -340,20 +330,22 @@ polar_warm4_body(const double* const f_[4], double* const r_[4], double* const r
                     d + kk * c[1] * c[1],       kk * (c[1] * c[2] - c[0]),
                     kk * (c[2] * c[0] - c[1]), kk * (c[2] * c[1] + c[0]),
                     d + kk * c[2] * c[2]};
-        v4d xn[9];
-        for (int i = 0; i < 3; i++)
-            for (int j = 0; j < 3; j++)
-                xn[3 * i + j] = x[3 * i] * q[j] + x[3 * i + 1] * q[3 + j] + x[3 * i + 2] * q[6 + j];
-        v4l mk = {-(long long)ok_mask[0], -(long long)ok_mask[1], -(long long)ok_mask[2],
-                  -(long long)ok_mask[3]};
-        for (int k = 0; k < 9; k++) x[k] = (v4d)(((v4l)xn[k] & mk) | ((v4l)x[k] & ~mk));
+        for (int i = 0; i < 3; i++) {
+            v4d xi[3] = {x[3 * i], x[3 * i + 1], x[3 * i + 2]};
+            for (int j = 0; j < 3; j++) {
+                v4d xn = xi[0] * q[j] + xi[1] * q[3 + j] + xi[2] * q[6 + j];
+                x[3 * i + j] = (v4d)(((v4l)xn & step) | ((v4l)x[3 * i + j] & ~step));
+            }
+        }
+        itv -= step; // +1 where stepped
     }
     // Accepted lanes: x and the y computed from it last. Others keep their start.
     for (int l = 0; l < 4; l++) {
-        if (state[l] != 0) {
+        if (!acc[l]) {
             itl[l] = -1;
             continue;
         }
+        itl[l] = (int)itv[l];
         for (int k = 0; k < 9; k++) {
             r_[l][k] = x[k][l];
             rtf_[l][k] = y[k][l];
