@@ -1059,7 +1059,8 @@ void hs_fem_apply_tangent(const hs_fem* m, const double* x, double* y) {
 
 // Volume-weighted sum of the deformation gradients of the node's active tets. Returns 0 for
 // the linear model (no rotation).
-static int node_mean_f(const hs_fem* m, int node, double sum[9]) {
+static inline __attribute__((always_inline)) int node_mean_f(const hs_fem* m, int node,
+                                                             double sum[9]) {
     HS_ASSERT(m && node >= 0 && node < m->n);
     if (m->def.model == HS_MODEL_LINEAR) return 0;
     double acc[9] = {0}; // local: the compiler cannot keep sum[] in registers (aliasing)
@@ -1093,7 +1094,7 @@ void hs_fem_node_rotation_warm(const hs_fem* m, int node, double r[9]) {
         m3_identity(r);
 }
 
-void hs_fem_node_rotations_warm(const hs_fem* m, double* rot) {
+static inline __attribute__((always_inline)) void node_rotations(const hs_fem* m, double* rot) {
     const double tol = m->def.polar_tol;
     double sums[4][9], ys[4][9], pad_r[9];
     for (int i0 = 0; i0 < m->n; i0 += 4) {
@@ -1125,4 +1126,20 @@ void hs_fem_node_rotations_warm(const hs_fem* m, double* rot) {
         for (int l = 0; l < nl; l++) // not a warm result: the scalar code from the same start
             if (it[l] < 0) hs_polar_higham(fp[l], rp[l], tol, 20);
     }
+}
+
+// The gathers of node_mean_f take about half of this: an AVX2 clone sums 4 components at once.
+__attribute__((target("avx2"))) static void node_rotations_avx2(const hs_fem* m, double* rot) {
+    node_rotations(m, rot);
+}
+
+static void node_rotations_base(const hs_fem* m, double* rot) {
+    node_rotations(m, rot);
+}
+
+void hs_fem_node_rotations_warm(const hs_fem* m, double* rot) {
+    if (__builtin_cpu_supports("avx2"))
+        node_rotations_avx2(m, rot);
+    else
+        node_rotations_base(m, rot);
 }
