@@ -49,11 +49,14 @@ static const core_cfg cfgs[] = {
     {"stvk", HS_MODEL_STVK, 0, HS_SOLVER_DIRECT, 0, HS_PRECOND_NONE, "cholmod"},
 };
 
-static int run_case(const hs_bench_args* a, const core_case* c, const core_cfg* cfg,
-                    double* step_ms_out) {
+// The case's mesh, its fixed nodes and a body with cfg; NULL (message printed) on failure.
+static hs_body* make_body(const hs_bench_args* a, const core_case* c, const core_cfg* cfg,
+                          hs_mesh** mesh_out, unsigned char** fixed_out) {
     hs_err err = {0};
     hs_mesh* mesh = NULL;
     hs_status s;
+    *mesh_out = NULL;
+    *fixed_out = NULL;
     if (c->file) {
         char path[1024];
         snprintf(path, sizeof path, "%s/%s", a->meshes, c->file);
@@ -63,7 +66,7 @@ static int run_case(const hs_bench_args* a, const core_case* c, const core_cfg* 
     }
     if (s < 0) {
         fprintf(stderr, "hapsim-bench: %s: %s\n", c->name, err.msg);
-        return 1;
+        return NULL;
     }
     // Cantilevers hang from x = 0; organ meshes are held along their lowest 10 % in z.
     unsigned char* fixed = calloc((size_t)mesh->n_nodes, 1);
@@ -92,8 +95,20 @@ static int run_case(const hs_bench_args* a, const core_case* c, const core_cfg* 
         fprintf(stderr, "hapsim-bench: %s: %s\n", c->name, err.msg);
         free(fixed);
         hs_mesh_destroy(&mesh);
-        return 1;
+        return NULL;
     }
+    *mesh_out = mesh;
+    *fixed_out = fixed;
+    return body;
+}
+
+static int run_case(const hs_bench_args* a, const core_case* c, const core_cfg* cfg,
+                    double* step_ms_out) {
+    hs_mesh* mesh = NULL;
+    unsigned char* fixed = NULL;
+    hs_body* body = make_body(a, c, cfg, &mesh, &fixed);
+    if (!body) return 1;
+    hs_status s = HS_OK;
     int steps = a->quick ? 20 : 40, warm = 3, iters = 0;
     double* ms = calloc((size_t)steps, sizeof(double));
     hs_step_stats st = {0};
@@ -124,6 +139,55 @@ static int run_case(const hs_bench_args* a, const core_case* c, const core_cfg* 
     return s < 0;
 }
 
+static int cmp_double(const void* x, const void* y) {
+    double p = *(const double*)x, q = *(const double*)y;
+    return (p > q) - (p < q);
+}
+
+// Cost of co-rotation with the load shared: the linear body (constant factor) and the warped
+// co-rotated body are stepped alternately, step k of one right after step k of the other, so
+// both see the same machine; the ratio of each pair, then its median. (The per-configuration
+// runs above are tens of seconds apart on a shared machine.)
+static void paired_ratio(const hs_bench_args* a, const core_case* c, const core_cfg* lin,
+                         const core_cfg* cor) {
+    hs_mesh *m0 = NULL, *m1 = NULL;
+    unsigned char *f0 = NULL, *f1 = NULL;
+    hs_body* b0 = make_body(a, c, lin, &m0, &f0);
+    hs_body* b1 = b0 ? make_body(a, c, cor, &m1, &f1) : NULL;
+    int steps = a->quick ? 20 : 40, warm = 3, n = 0;
+    double* t = calloc(3 * (size_t)steps, sizeof(double)); // linear, warped, ratio
+    for (int k = 0; b1 && t && k < warm + steps; ++k) {
+        hs_step_stats st;
+        double t0 = hs_bench_thread_ms();
+        hs_status s0 = hs_body_step(b0, &st);
+        double t1 = hs_bench_thread_ms();
+        hs_status s1 = hs_body_step(b1, &st);
+        double t2 = hs_bench_thread_ms();
+        if (s0 < 0 || s1 < 0) break;
+        if (k < warm) continue;
+        t[n] = t1 - t0;
+        t[steps + n] = t2 - t1;
+        t[2 * steps + n] = (t2 - t1) / (t1 - t0);
+        ++n;
+    }
+    if (n == steps) {
+        for (int j = 0; j < 3; ++j) qsort(t + j * steps, (size_t)steps, sizeof(double), cmp_double);
+        fprintf(stderr,
+                "%s: stepped alternately: linear (%s) %.3f ms, corotated (%s) %.3f ms (medians); "
+                "ratio per pair: median %.2fx (quartiles %.2f-%.2f)\n",
+                c->name, lin->solver_label, t[steps / 2], cor->solver_label,
+                t[steps + steps / 2], t[2 * steps + steps / 2], t[2 * steps + steps / 4],
+                t[2 * steps + 3 * steps / 4]);
+    }
+    free(t);
+    hs_body_destroy(&b1);
+    hs_body_destroy(&b0);
+    free(f1);
+    free(f0);
+    hs_mesh_destroy(&m1);
+    hs_mesh_destroy(&m0);
+}
+
 int hs_bench_core(const hs_bench_args* a) {
     const core_case* cases = a->quick ? cases_quick : cases_full;
     size_t nc = a->quick ? sizeof cases_quick / sizeof *cases_quick
@@ -145,6 +209,7 @@ int hs_bench_core(const hs_bench_args* a) {
                 "%s: corotated/linear step time: pcg3-warped %.2fx the same pcg3-warped solver, "
                 "%.2fx linear's constant factor; warped %.2fx linear's constant factor\n",
                 cases[i].name, t[3] / t[1], t[3] / t[0], t[5] / t[0]);
+        paired_ratio(a, &cases[i], &cfgs[0], &cfgs[5]);
     }
     return rc;
 }
