@@ -3,6 +3,9 @@
 // decomposition, locking-free bending, inversion recovery, mass, allocation discipline.
 #include "hapsim/fem.h"
 
+#include "../server/fem/element.h"      // hs_polar_warm4, hs_polar_higham_ex
+#include "../server/fem/fem_internal.h" // hs_fem_node_rotations_warm
+
 #include "test_macros.h"
 
 #include <stdint.h>
@@ -466,6 +469,101 @@ static int test_corot_tangent(void) {
 }
 
 /// Higham's iteration agrees with the SVD rotation; a warm start needs fewer iterations.
+// The 4-wide warm polar step (co-rotated updates, the warped solver's node rotations) must give
+// bit for bit the scalar iteration's rotation, R^T F and iteration count for every lane it
+// accepts, and leave the start untouched on every lane it hands back to the scalar code.
+static int test_polar_batched(void) {
+    uint64_t s = 7;
+    int accepted = 0, handed = 0;
+    for (int trial = 0; trial < 400; trial++) {
+        const int trusted = trial % 2, max_iter = trial % 5 == 0 ? 2 : 20;
+        const double tol = trial % 3 == 0 ? 1e-8 : 1e-6;
+        double F[4][9], R0[4][9], R[4][9], Y[4][9];
+        const double* fp[4];
+        double* rp[4];
+        double* yp[4];
+        for (int l = 0; l < 4; l++) {
+            double ax[3] = {2 * urand(&s) - 1, 2 * urand(&s) - 1, 2 * urand(&s) - 1};
+            double an = vnorm(ax, 3);
+            for (int i = 0; i < 3; i++) ax[i] /= an;
+            double Rt[9], S[9] = {0}, dR[9];
+            rot_axis(ax, 3.0 * urand(&s), Rt);
+            for (int i = 0; i < 3; i++) S[4 * i] = 0.6 + urand(&s);
+            S[1] = S[3] = 0.2 * (urand(&s) - 0.5);
+            mat3_mul(Rt, S, F[l]);
+            // start: the rotation turned by up to 0.5 rad, or by ~pi (no warm convergence)
+            double ang = l == 3 && trial % 4 == 1 ? 3.1 : 0.5 * urand(&s) * urand(&s);
+            double ax2[3] = {ax[1], -ax[0], 0.3}; // unit after the division below
+            double n2 = vnorm(ax2, 3);
+            for (int i = 0; i < 3; i++) ax2[i] /= n2;
+            rot_axis(ax2, ang, dR);
+            mat3_mul(dR, Rt, R0[l]);
+            if (!trusted && l == 2) // not orthogonal to tol, but within the entry check's 1e-3
+                for (int k = 0; k < 9; k++) R0[l][k] += 1e-5 * (urand(&s) - 0.5);
+            memcpy(R[l], R0[l], sizeof R[l]);
+            fp[l] = F[l];
+            rp[l] = R[l];
+            yp[l] = Y[l];
+        }
+        int it[4];
+        hs_polar_warm4(fp, rp, yp, tol, max_iter, trusted, it);
+        for (int l = 0; l < 4; l++) {
+            double rs[9], ys[9];
+            memcpy(rs, R0[l], sizeof rs);
+            int its = hs_polar_higham_ex(F[l], rs, tol, max_iter, trusted, ys);
+            if (it[l] >= 0) {
+                ENSURE(it[l] == its);
+                ENSURE(memcmp(R[l], rs, sizeof rs) == 0);
+                ENSURE(memcmp(Y[l], ys, sizeof ys) == 0);
+                accepted++;
+            } else {
+                ENSURE(memcmp(R[l], R0[l], sizeof rs) == 0);
+                handed++;
+            }
+        }
+    }
+    printf("  batched warm polar: %d lanes bit-identical to the scalar code, %d handed back\n",
+           accepted, handed);
+    ENSURE(accepted > 1000 && handed > 0);
+
+    // node rotations: the batched call equals the per-node call bit for bit, from a cold
+    // (zero) start and from the previous rotations
+    box b;
+    box_make(&b, 0.1, 0.02, 0.02, 10, 3, 3);
+    int n = b.mesh.n_nodes;
+    int* dof = malloc(sizeof(int) * 3 * n);
+    int nf = 0;
+    for (int d = 0; d < 3 * n; d++) dof[d] = b.mesh.x0[3 * (d / 3)] < 1e-12 ? -1 : nf++;
+    hs_fem_def def = hs_fem_default_def();
+    def.model = HS_MODEL_COROTATED;
+    hs_fem* fem = NULL;
+    ENSURE(hs_fem_create(&b.mesh, &def, dof, nf, &fem, NULL) == HS_OK);
+    double* x = malloc(sizeof(double) * 3 * n);
+    double* r1 = calloc(9 * (size_t)n, sizeof(double));
+    double* r2 = calloc(9 * (size_t)n, sizeof(double));
+    for (int step = 0; step < 3; step++) {
+        double Rz[9];
+        rot_z(0.3 * step, Rz);
+        for (int v = 0; v < n; v++) {
+            const double* p = b.mesh.x0 + 3 * v;
+            for (int i = 0; i < 3; i++)
+                x[3 * v + i] = Rz[3 * i] * p[0] + Rz[3 * i + 1] * p[1] + Rz[3 * i + 2] * p[2];
+            x[3 * v + 2] -= 3.0 * p[0] * p[0] * step;
+        }
+        hs_fem_update(fem, x, NULL);
+        for (int v = 0; v < n; v++) hs_fem_node_rotation_warm(fem, v, r1 + 9 * v);
+        hs_fem_node_rotations_warm(fem, r2);
+        ENSURE(memcmp(r1, r2, sizeof(double) * 9 * (size_t)n) == 0);
+    }
+    hs_fem_destroy(&fem);
+    free(r1);
+    free(r2);
+    free(x);
+    free(dof);
+    box_free(&b);
+    return 0;
+}
+
 static int test_polar(void) {
     uint64_t s = 42;
     int cold_total = 0, warm_total = 0;
@@ -1109,7 +1207,8 @@ static int test_timing(void) {
 }
 
 HS_TEST_MAIN(HS_CASE(test_patch), HS_CASE(test_rigid_rotation), HS_CASE(test_tangent_fd),
-             HS_CASE(test_corot_tangent), HS_CASE(test_polar), HS_CASE(test_locking),
+             HS_CASE(test_corot_tangent), HS_CASE(test_polar),
+             HS_CASE(test_polar_batched), HS_CASE(test_locking),
              HS_CASE(test_inversion), HS_CASE(test_inversion_dynamic),
              HS_CASE(test_mass_and_active), HS_CASE(test_no_alloc), HS_CASE(test_errors),
              HS_CASE(test_shared_meshes), HS_CASE(test_timing))
