@@ -148,7 +148,8 @@ typedef struct hs_haptic_cut_def {
     int cookie;              ///< set by hs_haptic_cut_default_def
 } hs_haptic_cut_def;
 
-/// Defaults: hs_cut_default_def without validation, blade 0 .. 10 mm along tool z, toughness
+/// Defaults: hs_cut_default_def without validation and with the UPDATE factor policy (never a
+/// refactorisation in a cut step), blade 0 .. 10 mm along tool z, toughness
 /// 20 N/m, cap 1.5 N, 0.5 mm travel per sweep, engaged by button 0.
 hs_haptic_cut_def hs_haptic_cut_default_def(void);
 
