@@ -145,7 +145,11 @@ typedef struct hs_haptic_cut_def {
     double max_force_n;      ///< cutting force cap, N
     double min_travel_m;     ///< blade travel (either end) gathered before a sweep runs, m
     uint32_t engage_buttons; ///< the blade cuts while any of these pose buttons is held (0: always)
-    int cookie;              ///< set by hs_haptic_cut_default_def
+    /// 1: while the buttons are released, the tool is the probe sphere (hs_haptic_sim_def.probe)
+    /// on the cut tissue, from the moment the compliance matches the newest cut (stats
+    /// comp_version == topology_version; no contact before that). 0 (default): never a probe.
+    int probe_when_released;
+    int cookie; ///< set by hs_haptic_cut_default_def
 } hs_haptic_cut_def;
 
 /// Defaults: hs_cut_default_def without validation and with the UPDATE factor policy (never a
@@ -156,7 +160,8 @@ hs_haptic_cut_def hs_haptic_cut_default_def(void);
 /// Turn cutting on (before hs_haptic_sim_start). mesh must be the mesh the sim was created on
 /// (cuts move its x0; nobody else may read x0 while the sim runs: use
 /// hs_haptic_sim_take_topology). The tool then is a blade: the probe contact is off, the felt
-/// force is the cutting resistance (blended on each new snapshot). Once the blade is released
+/// force is the cutting resistance (blended on each new snapshot); with probe_when_released
+/// the released tool probes the cut tissue. Once the blade is released
 /// after a cut, the haptic compliance is rebuilt on a worker thread while the deformation loop
 /// goes on, and swapped in between two steps (stats comp_*). Allocates: yes
 hs_status hs_haptic_sim_enable_cutting(hs_haptic_sim* sim, hs_mesh* mesh,
@@ -184,8 +189,10 @@ int64_t hs_haptic_sim_take_topology(hs_haptic_sim* sim, double* x0 /* OUT [3n] *
                                     int* tris /* OUT */, int tri_cap, int* n_tris /* OUT */,
                                     hs_haptic_cut_event* ev /* OUT, may be NULL */);
 
-/// Nodes the cuts pinned (pieces cut free of the fixed region, per HS_CUT_FRAGMENT_FIX): sets
-/// pinned[n_nodes] to 1 / 0 and returns how many (0 without cutting). Only while stopped.
+/// Nodes the cuts pinned: every node of a piece cut free of the fixed region or left hanging on
+/// by an edge or a vertex. The body lets such pieces move with their mass; the compliance
+/// leaves out the tets made only of pinned nodes (so the probe does not touch those pieces).
+/// Sets pinned[n_nodes] to 1 / 0 and returns how many (0 without cutting). Only while stopped.
 int hs_haptic_sim_cut_pinned(hs_haptic_sim* sim, unsigned char* pinned /* OUT [n] */);
 /// The compliance (read-only use from the control thread only while the sim is stopped).
 hs_compliance* hs_haptic_sim_compliance(hs_haptic_sim* sim);

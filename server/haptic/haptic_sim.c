@@ -150,17 +150,20 @@ struct hs_haptic_sim {
     int thread_started;
     atomic_int stop;
     size_t frame_size;
-    int* tri_start;     // [n_surf+1] CSR: boundary triangles per surface node
-    int* tri_list;      // [3 n_tris]
-    double* x;          // [3n] current positions
-    double* g;          // [3n] force holding the current shape beyond the non-contact loads
-    double* v;          // [3n] C g (in the rest frame of each node)
-    double* rot;        // [9n] node rotations at the current state (identity for linear)
-    double* q;          // [3 n_surf] contact-free surface positions (relaxed)
-    int* near_node;     // [n_surf] scratch (triangle adjacency at create)
-    near_tri* near_tri; // [n_tris] triangles within reach of the tool, scratch
-    int* cand_of;       // [n] candidate index of a node while a snapshot is built, else -1
-    int applied_n;      // contact forces in the body now
+    const hs_mesh* smesh; // the surface the probe touches: the mesh, or comp_mesh after cuts
+    int tri_cap;          // boundary triangles tri_list / near_tri can hold
+    int* tri_start;       // [n+1] CSR: boundary triangles of smesh per node
+    int* tri_list;        // [3 tri_cap]
+    double* x;            // [3n] current positions
+    double* g;            // [3n] force holding the current shape beyond the non-contact loads
+    double* v;            // [3n] C g (in the rest frame of each node)
+    double* rot;          // [9n] node rotations at the current state (identity for linear)
+    double* q;            // [3n] contact-free positions of smesh's surface nodes (relaxed)
+    int q_reset;          // the surface changed: set q exactly at the next snapshot
+    int* near_node;       // [n+1] scratch (triangle adjacency)
+    near_tri* near_tri;   // [tri_cap] triangles within reach of the tool, scratch
+    int* cand_of;         // [n] candidate index of a node while a snapshot is built, else -1
+    int applied_n;        // contact forces in the body now
     int applied_node[HS_MAX_CONTACT];
     int64_t version;
     deform_status st; // deformation thread's copy, published through `status`
@@ -176,6 +179,7 @@ struct hs_haptic_sim {
     double bp[3], bq[3]; // blade ends at the last sweep, m
     double cut_force[3]; // resistance in the newest snapshot, N
     int comp_stale;      // the compliance predates the newest cut (rebuilt once the blade stops)
+    int engaged;         // the blade's buttons are held (cutting on)
     hs_mesh* comp_mesh;  // the mesh h->comp was built on once cuts replaced it (owned)
     // Background compliance rebuild: the deformation thread copies the live mesh into cw_*,
     // a worker builds mesh + compliance from it, and the deformation thread swaps the result
@@ -187,7 +191,7 @@ struct hs_haptic_sim {
     double* cw_x0;      // [3n] job input
     int* cw_tets;       // [4 n_tets] job input
     int cw_ntets;
-    unsigned char* cw_fix; // [n] job input
+    unsigned char* cw_fix; // [n] job input: fixed0 + floating pieces
     hs_mesh* cw_mesh;      // job output
     hs_compliance* cw_comp;
     hs_status cw_status;
@@ -252,10 +256,10 @@ static double dist3(const double a[3], const double b[3]) {
 }
 
 // Outward unit normal of a surface node: area-weighted mean of its triangles' normals.
-static void node_normal(const hs_haptic_sim* h, int si, double n[3]) {
-    const int* tris = h->mesh->tris;
+static void node_normal(const hs_haptic_sim* h, int node, double n[3]) {
+    const int* tris = h->smesh->tris;
     n[0] = n[1] = n[2] = 0;
-    for (int k = h->tri_start[si]; k < h->tri_start[si + 1]; ++k) {
+    for (int k = h->tri_start[node]; k < h->tri_start[node + 1]; ++k) {
         const int* t = tris + 3 * h->tri_list[k];
         const double *a = h->x + 3 * t[0], *b = h->x + 3 * t[1], *c = h->x + 3 * t[2];
         double e1[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
@@ -281,7 +285,8 @@ static void node_rot(hs_haptic_sim* h, int node, double r[9]) {
 // Build and publish the snapshot around tool position p from the body's current state.
 static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
     const hs_mesh* mesh = h->mesh;
-    const int ns = mesh->n_surf_nodes;
+    const hs_mesh* sm = h->smesh; // same nodes and x0; its own boundary
+    const int ns = sm->n_surf_nodes;
     const double* u = hs_body_displacement(h->body);
     const double r = h->def.probe.radius_m, reach = r + h->def.probe.reach_margin_m;
     for (int k = 0; k < 3 * mesh->n_nodes; ++k) h->x[k] = mesh->x0[k] + u[k];
@@ -316,13 +321,15 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
     // immediate for the linear model (the target is constant), and for the co-rotated one an
     // under-relaxed defect correction, which keeps converging where a large indentation makes
     // the true compliance much larger than the rest-state one (see docs/haptics.md).
-    const double w = h->def.probe.free_relax;
+    // A new surface (after a cut) starts from its exact target: its new nodes have no history.
+    const double w = h->q_reset ? 1.0 : h->def.probe.free_relax;
+    h->q_reset = 0;
     for (int si = 0; si < ns; ++si) {
-        int node = mesh->surf_nodes[si];
+        int node = sm->surf_nodes[si];
         const double* xs = h->x + 3 * node;
         const double* uc = h->v + 3 * node;
         const double* R = h->rot + 9 * (size_t)node;
-        double* q = h->q + 3 * (size_t)si;
+        double* q = h->q + 3 * (size_t)node;
         for (int a = 0; a < 3; ++a) {
             double t = xs[a] - (R[3 * a] * uc[0] + R[3 * a + 1] * uc[1] + R[3 * a + 2] * uc[2]);
             q[a] += w * (t - q[a]);
@@ -339,15 +346,19 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
     memcpy(wrap->cut_force_n, h->cut_force, sizeof wrap->cut_force_n);
     hs_contact_snapshot* s = &wrap->s;
     int n_near = 0;
-    for (int t = 0; t < mesh->n_tris && !h->cut; ++t) { // a blade has no contact sphere
-        const int* tv = mesh->tris + 3 * t;
+    // A blade has no contact sphere. A released one probes when the def says so, once the
+    // compliance matches the cut body (a stale one would answer for the uncut tissue).
+    int probing = !h->cut || (h->cdef.probe_when_released && !h->engaged &&
+                              h->st.comp_version == hs_cut_topology_version(h->cut));
+    for (int t = 0; t < sm->n_tris && probing; ++t) {
+        const int* tv = sm->tris + 3 * t;
         if (!hs_compliance_contactable(h->comp, tv[0]) ||
             !hs_compliance_contactable(h->comp, tv[1]) ||
             !hs_compliance_contactable(h->comp, tv[2]))
             continue;
-        const double* a = h->q + 3 * (size_t)mesh->node_surf[tv[0]];
-        const double* b = h->q + 3 * (size_t)mesh->node_surf[tv[1]];
-        const double* c = h->q + 3 * (size_t)mesh->node_surf[tv[2]];
+        const double* a = h->q + 3 * (size_t)tv[0];
+        const double* b = h->q + 3 * (size_t)tv[1];
+        const double* c = h->q + 3 * (size_t)tv[2];
         double wb[3], x[3];
         if (!hs_tri_closest(p, a, b, c, wb, x)) continue;
         double dist = dist3(x, p);
@@ -361,7 +372,7 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
     int n_cand = 0, n_tri = 0;
     int nodes[HS_CONTACT_MAX_CAND];
     for (int k = 0; k < n_near; ++k) {
-        const int* tv = mesh->tris + 3 * h->near_tri[k].tri;
+        const int* tv = sm->tris + 3 * h->near_tri[k].tri;
         int add = 0;
         for (int j = 0; j < 3; ++j) add += h->cand_of[tv[j]] < 0;
         if (n_tri == HS_CONTACT_MAX_TRI || n_cand + add > HS_CONTACT_MAX_CAND) {
@@ -391,12 +402,12 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
     (void)got; // a solver failure leaves the diagonal-only approximation
     int coupled = 0;
     for (int i = 0; i < n_cand; ++i) {
-        int node = nodes[i], si = mesh->node_surf[node];
+        int node = nodes[i];
         s->node[i] = node;
         s->coupled[i] = (unsigned char)hs_compliance_has_column(h->comp, node);
         coupled += s->coupled[i];
-        memcpy(s->free_m[i], h->q + 3 * (size_t)si, sizeof s->free_m[i]);
-        node_normal(h, si, s->normal[i]);
+        memcpy(s->free_m[i], h->q + 3 * (size_t)node, sizeof s->free_m[i]);
+        node_normal(h, node, s->normal[i]);
     }
     hs_contact_snapshot_bound_tris(s);
     for (int i = 0; i < n_cand; ++i) {
@@ -474,6 +485,8 @@ static void quat_rotate(const double q[4], const double v[3], double out[3]) {
         out[a] = r[3 * a] * v[0] + r[3 * a + 1] * v[1] + r[3 * a + 2] * v[2];
 }
 
+static hs_status build_tri_adjacency(hs_haptic_sim* h);
+
 // Worker: the haptic compliance of the job's mesh (fixed + pinned nodes held). Recreated
 // rather than updated (hs_compliance has no update entry point); it costs ~0.4 s on the skin
 // patch, which is why it runs beside the deformation thread instead of in it.
@@ -509,10 +522,24 @@ static int comp_start(hs_haptic_sim* h) {
     if (!live || live->n_tets > h->mesh->n_tets) return 0;
     const int n = h->mesh->n_nodes;
     memcpy(h->cw_x0, live->x0, 3 * (size_t)n * sizeof(double));
-    memcpy(h->cw_tets, live->tets, 4 * (size_t)live->n_tets * sizeof(int));
-    h->cw_ntets = live->n_tets;
-    for (int i = 0; i < n; ++i)
-        h->cw_fix[i] = (unsigned char)(h->fixed0[i] || hs_cut_node_pinned(h->cut, i));
+    // The compliance sees the pieces anchored to the fixed region. The cut pins every node of
+    // a piece that is not (cut free, or hanging on by an edge or a vertex: a mechanism), while
+    // the body, which cannot gain fixed nodes, lets such a piece move with its mass. Its tets
+    // are therefore left out: a hinge carries no static load, and holding the piece would
+    // stiffen the anchored side through the shared nodes (3-4x the body's force, measured).
+    // Nodes no kept tet uses are held (and not contactable).
+    int k = 0;
+    memset(h->cw_fix, 1, (size_t)n);
+    for (int e = 0; e < live->n_tets; ++e) {
+        const int* t = live->tets + 4 * e;
+        int free_node = 0;
+        for (int a = 0; a < 4; ++a) free_node |= !hs_cut_node_pinned(h->cut, t[a]);
+        if (!free_node) continue;
+        memcpy(h->cw_tets + 4 * k++, t, 4 * sizeof(int));
+        for (int a = 0; a < 4; ++a) h->cw_fix[t[a]] = 0;
+    }
+    h->cw_ntets = k;
+    for (int i = 0; i < n; ++i) h->cw_fix[i] |= h->fixed0[i];
     h->cw_version = hs_cut_topology_version(h->cut);
     h->cw_mesh = NULL;
     h->cw_comp = NULL;
@@ -525,29 +552,38 @@ static int comp_start(hs_haptic_sim* h) {
 
 // Take a finished rebuild (or wait for a running one): swap it in when it matches the newest
 // topology, else drop it (a newer cut came meanwhile; the next release starts another).
-static void comp_poll(hs_haptic_sim* h, int wait) {
-    if (!h->cw_running) return;
-    if (!wait && !atomic_load_explicit(&h->cw_done, memory_order_acquire)) return;
+// Returns 1 when swapped in (the probe's surface changed: a snapshot is due).
+static int comp_poll(hs_haptic_sim* h, int wait) {
+    if (!h->cw_running) return 0;
+    if (!wait && !atomic_load_explicit(&h->cw_done, memory_order_acquire)) return 0;
     pthread_join(h->cw_thread, NULL);
     h->cw_running = 0;
     h->st.comp_building = 0;
-    if (h->cw_status != HS_OK) {
+    if (h->cw_status != HS_OK || h->cw_mesh->n_tris > h->tri_cap) {
         h->st.cut_failures++; // the old compliance stays; the next cut retries
-    } else if (h->cw_version != hs_cut_topology_version(h->cut)) {
+        hs_compliance_destroy(&h->cw_comp);
+        hs_mesh_destroy(&h->cw_mesh);
+        return 0;
+    }
+    if (h->cw_version != hs_cut_topology_version(h->cut)) {
         h->st.comp_discarded++;
         hs_compliance_destroy(&h->cw_comp);
         hs_mesh_destroy(&h->cw_mesh);
-    } else {
-        hs_compliance_destroy(&h->comp);
-        hs_mesh_destroy(&h->comp_mesh);
-        h->comp = h->cw_comp;
-        h->comp_mesh = h->cw_mesh;
-        h->cw_comp = NULL;
-        h->cw_mesh = NULL;
-        h->st.comp_ms_last = h->cw_ms;
-        h->st.comp_version = h->cw_version;
-        h->st.comp_rebuilds++;
+        return 0;
     }
+    hs_compliance_destroy(&h->comp);
+    hs_mesh_destroy(&h->comp_mesh);
+    h->comp = h->cw_comp;
+    h->comp_mesh = h->cw_mesh;
+    h->cw_comp = NULL;
+    h->cw_mesh = NULL;
+    h->smesh = h->comp_mesh; // the probe now touches the cut surface
+    build_tri_adjacency(h);  // fits: n_tris <= tri_cap checked above
+    h->q_reset = 1;
+    h->st.comp_ms_last = h->cw_ms;
+    h->st.comp_version = h->cw_version;
+    h->st.comp_rebuilds++;
+    return 1;
 }
 
 // Hand the cut's result to the control thread (rest positions, live surface, event lists).
@@ -584,6 +620,9 @@ static int cut_step(hs_haptic_sim* h) {
     if (pose.seq <= 0) return 0;
     const hs_haptic_cut_def* cd = &h->cdef;
     int engaged = !cd->engage_buttons || (pose.buttons & cd->engage_buttons);
+    // Pressing or releasing switches the probe contact (probe_when_released): a snapshot is due.
+    int flipped = engaged != h->engaged;
+    h->engaged = engaged;
     static const double zero[3] = {0, 0, 0};
     if (!engaged) {
         h->blade_have = 0;
@@ -599,7 +638,7 @@ static int cut_step(hs_haptic_sim* h) {
             if (!comp_start(h)) h->st.cut_failures++;
             h->comp_stale = 0;
         }
-        return 0;
+        return flipped;
     }
     double p1[3], q1[3], ra[3], rb[3];
     quat_rotate(pose.quat_wxyz, cd->blade_a, ra);
@@ -612,7 +651,7 @@ static int cut_step(hs_haptic_sim* h) {
         memcpy(h->bp, p1, sizeof p1);
         memcpy(h->bq, q1, sizeof q1);
         h->blade_have = 1;
-        return 0;
+        return flipped;
     }
     double tp = dist3(p1, h->bp), tq = dist3(q1, h->bq);
     if ((tp > tq ? tp : tq) < cd->min_travel_m) return 0;
@@ -694,9 +733,9 @@ static void* deform_main(void* arg) {
         int rebuild = 0, cut_changed = 0;
         h->st.loops++;
         if (h->cut) {
-            comp_poll(h, 0);
+            int swapped = comp_poll(h, 0);
             int64_t before = h->st.cut_steps;
-            rebuild = cut_step(h);
+            rebuild = cut_step(h) || swapped;
             cut_changed = h->st.cut_steps != before;
         }
         if (moving) {
@@ -753,25 +792,19 @@ static void* deform_main(void* arg) {
 // ---------------------------------------------------------------------------------------------
 // Life cycle
 
+// Node -> boundary triangles of h->smesh (CSR). Fits the arrays sized at create / enable.
 static hs_status build_tri_adjacency(hs_haptic_sim* h) {
-    const hs_mesh* m = h->mesh;
-    const int ns = m->n_surf_nodes;
-    h->tri_start = hs_calloc((size_t)ns + 1, sizeof(int));
-    h->tri_list = hs_alloc(3 * (size_t)m->n_tris * sizeof(int) + sizeof(int));
-    if (!h->tri_start || !h->tri_list) return HS_ERR_NOMEM;
+    const hs_mesh* m = h->smesh;
+    const int n = h->mesh->n_nodes;
+    if (m->n_tris > h->tri_cap) return HS_ERR_NOMEM;
+    memset(h->tri_start, 0, ((size_t)n + 1) * sizeof(int));
     for (int t = 0; t < m->n_tris; ++t)
-        for (int k = 0; k < 3; ++k) {
-            int si = m->node_surf[m->tris[3 * t + k]];
-            if (si >= 0) h->tri_start[si + 1]++;
-        }
-    for (int i = 0; i < ns; ++i) h->tri_start[i + 1] += h->tri_start[i];
-    int* fill = h->near_node; // scratch of n_surf ints, unused until the thread runs
-    memcpy(fill, h->tri_start, (size_t)ns * sizeof(int));
+        for (int k = 0; k < 3; ++k) h->tri_start[m->tris[3 * t + k] + 1]++;
+    for (int i = 0; i < n; ++i) h->tri_start[i + 1] += h->tri_start[i];
+    int* fill = h->near_node;
+    memcpy(fill, h->tri_start, (size_t)n * sizeof(int));
     for (int t = 0; t < m->n_tris; ++t)
-        for (int k = 0; k < 3; ++k) {
-            int si = m->node_surf[m->tris[3 * t + k]];
-            if (si >= 0) h->tri_list[fill[si]++] = t;
-        }
+        for (int k = 0; k < 3; ++k) h->tri_list[fill[m->tris[3 * t + k]]++] = t;
     return HS_OK;
 }
 
@@ -871,21 +904,25 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
     if (s != HS_OK) goto fail;
     h->setup_ms = hs_compliance_setup_ms(h->comp);
 
-    const size_t n = (size_t)mesh->n_nodes, ns = (size_t)mesh->n_surf_nodes;
+    const size_t n = (size_t)mesh->n_nodes;
     h->x = hs_calloc(3 * n, sizeof(double));
     h->g = hs_calloc(3 * n, sizeof(double));
     h->v = hs_calloc(3 * n, sizeof(double));
     h->rot = hs_calloc(9 * n, sizeof(double));
-    h->q = hs_calloc(3 * ns, sizeof(double));
-    h->near_node = hs_calloc(ns + 1, sizeof(int));
-    h->near_tri = hs_calloc((size_t)mesh->n_tris + 1, sizeof *h->near_tri);
+    h->q = hs_calloc(3 * n, sizeof(double));
+    h->near_node = hs_calloc(n + 1, sizeof(int));
+    h->smesh = mesh;
+    h->tri_cap = mesh->n_tris;
+    h->near_tri = hs_calloc((size_t)h->tri_cap + 1, sizeof *h->near_tri);
+    h->tri_start = hs_calloc(n + 1, sizeof(int));
+    h->tri_list = hs_alloc(3 * (size_t)h->tri_cap * sizeof(int) + sizeof(int));
     h->cand_of = hs_alloc((n + 1) * sizeof(int));
-    if (!h->x || !h->g || !h->v || !h->rot || !h->q || !h->near_node || !h->near_tri || !h->cand_of)
+    if (!h->x || !h->g || !h->v || !h->rot || !h->q || !h->near_node || !h->near_tri ||
+        !h->cand_of || !h->tri_start || !h->tri_list)
         goto nomem;
     for (size_t i = 0; i < n; ++i) h->cand_of[i] = -1;
     if (build_tri_adjacency(h) != HS_OK) goto nomem;
-    for (size_t si = 0; si < ns; ++si)
-        memcpy(h->q + 3 * si, mesh->x0 + 3 * (size_t)mesh->surf_nodes[si], 3 * sizeof(double));
+    memcpy(h->q, mesh->x0, 3 * n * sizeof(double));
 
     h->frame_size = sizeof(int64_t) + 3 * n * sizeof(double);
     s = hs_triple_buffer_create(sizeof(sim_snapshot), &h->snap, err);
@@ -1022,6 +1059,22 @@ hs_status hs_haptic_sim_enable_cutting(hs_haptic_sim* h, hs_mesh* mesh,
         if (pthread_mutex_init(&h->tmx, NULL) != 0)
             return hs_err_set(err, HS_ERR_NOMEM, "hs_haptic_sim_enable_cutting: mutex");
         h->tmx_init = 1;
+    }
+    // Room for the boundary of any live mesh (at most 4 faces per tet), for the probe.
+    if (h->tri_cap < 4 * (int)nt) {
+        int* tl = hs_alloc(3 * 4 * nt * sizeof(int) + sizeof(int));
+        near_tri* nr = hs_calloc(4 * nt + 1, sizeof *nr);
+        if (!tl || !nr) {
+            hs_free(tl);
+            hs_free(nr);
+            return hs_err_set(err, HS_ERR_NOMEM, "hs_haptic_sim_enable_cutting: out of memory");
+        }
+        memcpy(tl, h->tri_list, 3 * (size_t)h->tri_cap * sizeof(int));
+        hs_free(h->tri_list);
+        hs_free(h->near_tri);
+        h->tri_list = tl;
+        h->near_tri = nr;
+        h->tri_cap = 4 * (int)nt;
     }
     hs_status s = hs_triple_buffer_create(sizeof(hs_haptic_pose), &h->cpose, err);
     if (s != HS_OK) return s;
