@@ -1,7 +1,8 @@
 #!/bin/sh
 # Cutting end to end (run through tests/netns.sh: private network namespace, multicast on lo):
 # hapsim-server on scenes/skin (cutting on) and hapsim-stylus dragging the scalpel across the
-# patch (scenes/skin/scripts/cut_across.probe). Checks:
+# patch, then pressing the released tool (the scene's probe) into the cut tissue
+# (scenes/skin/scripts/cut_then_press.probe). Checks:
 #  - a client connected during the cut gets topology events, versions old -> old + 1, and ends
 #    with a consistent mesh at the newest version (test_cut_e2e_client watch);
 #  - the server keeps running, its status shows the topology version grown and the cut timings;
@@ -12,7 +13,9 @@
 #    the uncut scene (new topology version, set works again);
 #  - the force the stylus received is finite, the blade felt resistance, and it changes by at
 #    most MAX_STEP_N per tick: the cutting force cap (1.5 N) spread over one blend (10 ticks).
-#    Without the blend a resistance of 0.2-0.4 N would switch on in one tick.
+#    Without the blend a resistance of 0.2-0.4 N would switch on in one tick;
+#  - released, the tool probes the cut tissue: the stylus finds the surface beside the cut and
+#    holds a steady force (between 3 mN and 0.1 N for a 1 mm press).
 #   tests/test_cut_e2e.sh BIN_DIR CLIENT_BIN SOURCE_DIR
 set -u
 bin=$1
@@ -51,8 +54,8 @@ grep -q "^topology version 1 " "$tmp/status0.txt" || fail "start: $(head -2 "$tm
 "$client" watch 17 $ORIG_TRIS >"$tmp/watch.log" 2>&1 &
 watch_pid=$!
 sleep 0.5
-"$bin/hapsim-stylus" --script scenes/skin/scripts/cut_across.probe --trace "$tmp/trace.csv" \
-    --quiet >"$tmp/stylus.log" 2>&1 || fail "hapsim-stylus rc $?: $(cat "$tmp/stylus.log")"
+"$bin/hapsim-stylus" --script scenes/skin/scripts/cut_then_press.probe --trace "$tmp/trace.csv" \
+    >"$tmp/stylus.log" 2>&1 || fail "hapsim-stylus rc $?: $(cat "$tmp/stylus.log")"
 wait $watch_pid
 rc=$?
 watch_pid=""
@@ -93,6 +96,13 @@ END {
     if (peak < 0.01) { print "FAIL: the blade felt no cutting resistance"; exit 1 }
     if (dmax > max) { print "FAIL: force jumps"; exit 1 }
 }' "$tmp/trace.csv" || fail "force trace"
+
+# Released, the tool is the scene's probe: pressed 1 mm into the cut patch beside the cut, it
+# feels the cut tissue (the compliance rebuilt after the release).
+grep -q "surface found 1 time" "$tmp/stylus.log" || fail "the probe did not find the cut surface"
+steady=$(sed -n 's/.* steady \([0-9.]*\) N.*/\1/p' "$tmp/stylus.log")
+echo "probe on the cut tissue: steady $steady N"
+echo "$steady" | awk '{ exit !($1 > 0.003 && $1 < 0.1) }' || fail "steady probe force '$steady' N"
 
 # After a cut the simulation cannot be rebuilt on the mesh: set is refused, reset reloads it.
 $ctl -q set youngs_pa 60000 2>"$tmp/set.err" && fail "set after a cut was accepted"

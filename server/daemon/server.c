@@ -71,7 +71,8 @@ typedef struct world {
     // cutting (scene features.cutting with a scalpel): visual arrays then have room for every
     // node and every live boundary triangle, and the rest positions come from the sim
     int cutting;
-    int scalpel; // scene tool index of the blade
+    int scalpel;    // scene tool index of the blade
+    int probe_tool; // first probe tool, or -1
     hs_haptic_cut_def cdef;
     double* x0r;         // [3n] rest positions after the newest cut taken, m
     int tri_cap;         // boundary triangles the buffers hold
@@ -316,9 +317,11 @@ static hs_status world_create(const hs_scene* sc, int realtime, world* w, hs_err
         goto fail;
     }
 
-    w->scalpel = -1;
-    for (int t = 0; t < sc->n_tools; ++t)
+    w->scalpel = w->probe_tool = -1;
+    for (int t = 0; t < sc->n_tools; ++t) {
         if (sc->tools[t].kind == HS_TOOL_SCALPEL && w->scalpel < 0) w->scalpel = t;
+        if (sc->tools[t].kind == HS_TOOL_PROBE && w->probe_tool < 0) w->probe_tool = t;
+    }
     w->cutting = sc->feature_cutting && w->scalpel >= 0;
     w->x0r = hs_alloc(3 * n * sizeof(double));
     if (!w->x0r) goto nomem;
@@ -329,6 +332,8 @@ static hs_status world_create(const hs_scene* sc, int realtime, world* w, hs_err
         memcpy(w->cdef.blade_b, sc->tools[w->scalpel].blade_b, sizeof w->cdef.blade_b);
         w->cdef.max_force_n =
             sc->force_max_n < w->cdef.max_force_n ? sc->force_max_n : w->cdef.max_force_n;
+        // A scene listing a probe as well: the released blade probes the (cut) tissue.
+        w->cdef.probe_when_released = w->probe_tool >= 0;
         w->tri_cap = 4 * m->n_tets;
         w->ctris = hs_alloc(3 * (size_t)w->tri_cap * sizeof(int) + 1);
         w->vis_of = hs_alloc(n * sizeof(int32_t) + 1);
@@ -715,7 +720,7 @@ static void publish_tool_states(hs_server* s, int64_t t) {
         ts.utime = now_us();
         ts.seq = ++s->seq_tool;
         ts.device_id = d;
-        ts.tool_id = 0;
+        ts.tool_id = s->w.probe_tool > 0 ? s->w.probe_tool : 0;
         ts.kind = HAPSIM_TOOL_STATE_T_KIND_PROBE;
         for (int k = 0; k < 3; ++k) {
             ts.position[k] = ds->pos[k];
@@ -727,7 +732,8 @@ static void publish_tool_states(hs_server* s, int64_t t) {
         ts.radius = s->w.def.probe.radius_m;
         ts.contact = (int8_t)ds->contact;
         ts.cutting = 0;
-        if (s->w.cutting && d == 0) {
+        if (s->w.cutting && d == 0 &&
+            !(s->w.cdef.probe_when_released && !(ds->buttons & s->w.cdef.engage_buttons))) {
             const hs_scene_tool* tl = &sc->tools[s->w.scalpel];
             double ra[3], rb[3];
             quat_rot(ds->quat, tl->blade_a, ra);
@@ -1306,7 +1312,10 @@ void hs_server_print_summary(hs_server* s) {
         hs_haptic_sim_stats st;
         hs_haptic_sim_stats_get(w->sim, &st);
         char tool[64];
-        if (w->cutting)
+        if (w->cutting && w->cdef.probe_when_released)
+            snprintf(tool, sizeof tool, "scalpel, released: probe radius %g mm",
+                     w->def.probe.radius_m * 1e3);
+        else if (w->cutting)
             snprintf(tool, sizeof tool, "scalpel (no probe sphere)");
         else
             snprintf(tool, sizeof tool, "probe radius %g mm", w->def.probe.radius_m * 1e3);
