@@ -301,7 +301,7 @@ static hs_status parse_text(parser* p, const char* text, hs_err* err) {
             if ((st = need_positive(p, err, cmd, "speed", v[3]))) return st;
             if (p->pressed)
                 return perr(p, err, "%s: a press is active (use drag, or release first)", cmd);
-            double a[3];
+            double a[3] = {0, 0, 1}; // set by unit_normal (init: -O3 cannot see that)
             if ((st = unit_normal(p, err, cmd, v + 4, a))) return st;
             axis_quat(a, p->quat);
             st = emit(p, err, HS_SEG_MOVE, HS_CMD_CUT, v, v[3], 0, BUTTON_PRIMARY);

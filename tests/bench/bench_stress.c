@@ -139,7 +139,7 @@ static hs_status checked_call(stress_setup* s, hs_stress_result* r, int is_stati
 
 static void finish(hs_stress_result* r, const char* action) {
     if (r->failures)
-        snprintf(r->action, sizeof r->action, "%s; %d calls returned %s, state %s", action,
+        snprintf(r->action, sizeof r->action, "%.80s; %d calls returned %.30s, state %s", action,
                  r->failures, hs_status_str(r->first_error),
                  r->state_kept ? "untouched" : "CHANGED");
     else
