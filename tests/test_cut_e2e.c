@@ -38,6 +38,14 @@ static hs_haptic_sim_def sim_def(void) {
     return d;
 }
 
+// With the tool point at z = 2 mm the blade spans the 4 mm thickness, with room for sagging.
+static hs_haptic_cut_def blade_def(void) {
+    hs_haptic_cut_def cd = hs_haptic_cut_default_def();
+    cd.blade_a[2] = -0.02;
+    cd.blade_b[2] = 0.005;
+    return cd;
+}
+
 /// Bad definitions are refused with a message and leave the sim usable and leak-free.
 static int test_enable_errors(void) {
     int64_t bytes = hs_byte_count();
@@ -112,9 +120,7 @@ static int test_blade_drag(void) {
     hs_haptic_sim* sim = NULL;
     hs_err err = {0};
     ENSURE(hs_haptic_sim_create(m, &d, fixed, &sim, &err) == HS_OK);
-    hs_haptic_cut_def cd = hs_haptic_cut_default_def();
-    cd.blade_a[2] = -0.02; // with the tool point at z = 2 mm: spans the 4 mm thickness, sagging
-    cd.blade_b[2] = 0.005;
+    hs_haptic_cut_def cd = blade_def();
     ENSURE(hs_haptic_sim_enable_cutting(sim, m, &cd, &err) == HS_OK);
     ENSURE(hs_haptic_sim_start(sim, &err) == HS_OK);
 
@@ -446,9 +452,7 @@ static int test_probe_after_cut(void) {
     hs_haptic_sim* sim = NULL;
     hs_err err = {0};
     ENSURE(hs_haptic_sim_create(m, &d, fixed, &sim, &err) == HS_OK);
-    hs_haptic_cut_def cd = hs_haptic_cut_default_def();
-    cd.blade_a[2] = -0.02;
-    cd.blade_b[2] = 0.005;
+    hs_haptic_cut_def cd = blade_def();
     cd.probe_when_released = 1;
     ENSURE(hs_haptic_sim_enable_cutting(sim, m, &cd, &err) == HS_OK);
     // Reference before the cut: the sim's own (uncut) compliance, read while stopped.
