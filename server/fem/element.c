@@ -248,8 +248,8 @@ static inline __attribute__((always_inline)) void orth_err2_4(const v4d x[9], v4
     *out = s;
 }
 
-static inline __attribute__((always_inline)) int any4(v4l m) {
-    return (m[0] | m[1] | m[2] | m[3]) != 0;
+static inline __attribute__((always_inline)) int any4(const v4l* m) {
+    return ((*m)[0] | (*m)[1] | (*m)[2] | (*m)[3]) != 0;
 }
 
 // Control flow as lane masks (-1 true, 0 false): `act` iterating, `acc` accepted; a lane in
@@ -277,7 +277,7 @@ polar_warm4_body(const double* const f_[4], double* const r_[4], double* const r
         for (int l = 0; l < 4; l++) ok[l] &= -(long long)(sqrt(oe[l]) <= 1e-3);
         act &= ok;
     }
-    for (int it = 0; it <= max_iter && any4(act); it++) {
+    for (int it = 0; it <= max_iter && any4(&act); it++) {
         for (int i = 0; i < 3; i++)
             for (int j = 0; j < 3; j++)
                 y[3 * i + j] = x[i] * f[j] + x[3 + i] * f[3 + j] + x[6 + i] * f[6 + j];
@@ -286,7 +286,7 @@ polar_warm4_body(const double* const f_[4], double* const r_[4], double* const r
         for (int i = 0; i < 3; i++)
             for (int j = 0; j < 3; j++) s[3 * i + j] = 0.5 * (y[3 * i + j] + y[3 * j + i]);
         v4l conv = act & (skew2 <= tol2);
-        if (any4(conv)) {
+        if (any4(&conv)) {
             // spd3(s) and, for an untrusted start, the orthogonality of x
             v4d sm2 = s[0] * s[4] - s[1] * s[3];
             v4d sdet = s[0] * (s[4] * s[8] - s[5] * s[7]) - s[1] * (s[3] * s[8] - s[5] * s[6]) +
@@ -309,7 +309,7 @@ polar_warm4_body(const double* const f_[4], double* const r_[4], double* const r
                  m[2] * (m[3] * m[7] - m[4] * m[6]);
         step &= dm > 0;
         act = step;
-        if (!any4(step)) break;
+        if (!any4(&step)) break;
         v4d mc[9];
         mc[0] = m[4] * m[8] - m[5] * m[7];
         mc[1] = m[5] * m[6] - m[3] * m[8];
