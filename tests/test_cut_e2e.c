@@ -5,6 +5,7 @@
 #include "hapsim/haptic_sim.h"
 #include "test_macros.h"
 
+#include <stdlib.h>
 #include <time.h>
 
 static hs_mesh* load_skin(void) {
@@ -103,6 +104,23 @@ static void sleep_until(struct timespec* t, long ns) {
         t->tv_sec++;
     }
     clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, t, NULL);
+}
+
+static int cmp_tri(const void* pa, const void* pb) {
+    const int *a = pa, *b = pb;
+    for (int k = 0; k < 3; ++k)
+        if (a[k] != b[k]) return a[k] < b[k] ? -1 : 1;
+    return 0;
+}
+
+// Triangles rotated to start at their smallest node (orientation kept), then sorted.
+static void canonical_tris(const int* in, int n, int* out) {
+    for (int t = 0; t < n; ++t) {
+        const int* v = in + 3 * t;
+        int s = v[0] < v[1] ? (v[0] < v[2] ? 0 : 2) : (v[1] < v[2] ? 1 : 2);
+        for (int k = 0; k < 3; ++k) out[3 * t + k] = v[(s + k) % 3];
+    }
+    qsort(out, (size_t)n, 3 * sizeof(int), cmp_tri);
 }
 
 /// The blade dragged across the patch with the button held, then released: topology versions
@@ -247,7 +265,30 @@ static int test_blade_drag(void) {
     ENSURE(max_step <= cd.max_force_n / d.blend_ticks + 1e-9); // blended, never a jump
 #endif
     ENSURE(after_release < 1e-9); // released: no resistance left
-    ENSURE(st.comp_ms_last > 0);  // the compliance was rebuilt once the blade left ...
+    // The shared surface (derived from the removed tets) is the boundary of the live tets, with
+    // the same orientation: compared with a mesh built from them, as sets of triangles.
+    {
+        int* all = hs_alloc(4 * (size_t)ntet * sizeof(int));
+        ENSURE(all);
+        int na = 0;
+        for (int e = 0; e < ntet; ++e)
+            if (!gone[e]) memcpy(all + 4 * na++, m->tets + 4 * e, 4 * sizeof(int));
+        hs_mesh* am = NULL;
+        ENSURE(hs_mesh_create(n, m->x0, na, all, &am, &err) == HS_OK);
+        ENSURE(am->n_tris == nt);
+        int* a = hs_alloc(3 * (size_t)nt * sizeof(int));
+        int* b = hs_alloc(3 * (size_t)nt * sizeof(int));
+        ENSURE(a && b);
+        canonical_tris(tris, nt, a);
+        canonical_tris(am->tris, nt, b);
+        ENSURE(!memcmp(a, b, 3 * (size_t)nt * sizeof(int)));
+        printf("  shared surface: %d triangles, the live tets' boundary\n", nt);
+        hs_free(a);
+        hs_free(b);
+        hs_free(all);
+        hs_mesh_destroy(&am);
+    }
+    ENSURE(st.comp_ms_last > 0); // the compliance was rebuilt once the blade left ...
     ENSURE(st.comp_rebuilds >= 1 && st.comp_version == version && !st.comp_building);
     printf("  compliance rebuilds: %lld swapped in, %lld dropped (a newer cut came first)\n",
            (long long)st.comp_rebuilds, (long long)st.comp_discarded);

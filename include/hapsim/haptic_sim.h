@@ -93,7 +93,7 @@ typedef struct hs_haptic_sim_stats {
     int64_t cut_removed;       ///< tets removed so far
     int64_t topology_version;  ///< cut topology version (0 before the first cut)
     int64_t cut_failures;      ///< sweeps or compliance rebuilds that failed (state kept)
-    double cut_ms_last;        ///< last changing cut step: sweep + body sync + live mesh, ms
+    double cut_ms_last;        ///< last changing cut step: sweep + body sync + topology hand-over, ms
     double cut_ms_max;         ///< worst of them, ms
     double sweep_ms_last;      ///< of the last, the sweep (geometry + factor update), ms
     double comp_ms_last;       ///< the last haptic compliance rebuild (background worker), ms

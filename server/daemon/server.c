@@ -1508,7 +1508,7 @@ hs_status hs_server_run(hs_server* s, hs_err* err) {
         if (s->w.cutting)
             printf("hapsim-server: %lld cut steps (topology events), topology version %lld; cut "
                    "step p50 %.1f ms, p99 %.1f ms, max %.1f ms (deformation thread: sweep, "
-                   "body sync, live mesh)\n",
+                   "body sync, topology hand-over)\n",
                    (long long)s->cut_events, (long long)s->topo_version, cut_quantile(s, 0.5),
                    cut_quantile(s, 0.99), cut_quantile(s, 1.0));
         if (s->w.cutting && s->w.sim) {

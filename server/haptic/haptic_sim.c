@@ -127,6 +127,11 @@ typedef struct probe_src {
     hs_contact last; // the previous tick's contact (warm start)
 } probe_src;
 
+typedef struct face_key {
+    int k[3]; // nodes, ascending
+    int o[3]; // nodes, outward order
+} face_key;
+
 struct hs_haptic_sim {
     hs_haptic_sim_def def;
     const hs_mesh* mesh;
@@ -200,9 +205,16 @@ struct hs_haptic_sim {
     pthread_mutex_t tmx;
     int tmx_init;
     double* t_x0; // [3n]
-    int* t_tris;  // [3 t_cap]
+    int* t_tris;  // [3 t_cap] live boundary; the reader's own (built in take_topology)
     int t_cap, t_ntris;
-    int* t_removed; // [n_tets]
+    // reader side: the live boundary is derived from the removed tets, off the deformation
+    // thread (a live-mesh rebuild there cost ~3 ms of a ~11 ms cut step on the skin patch)
+    unsigned char* r_gone; // [n_tets] removed so far
+    face_key* r_keys;      // [4 n_tets] faces of the live tets
+    face_key* r_sorted;    // [4 n_tets] the same, by smallest node
+    int* r_start;          // [n + 1] bucket starts
+    int* r_cur;            // [n + 1] bucket cursors
+    int* t_removed;        // [n_tets]
     int t_nremoved;
     int* t_moved;           // [n]
     unsigned char* t_mflag; // [n] 1 when listed in t_moved
@@ -586,19 +598,14 @@ static int comp_poll(hs_haptic_sim* h, int wait) {
     return 1;
 }
 
-// Hand the cut's result to the control thread (rest positions, live surface, event lists).
+// Hand the cut's result to the control thread (rest positions, event lists; the reader
+// derives the live surface from the removed tets).
 static void share_topology(hs_haptic_sim* h, const double quad[12]) {
-    const hs_mesh* live = hs_cut_live_mesh(h->cut);
     const int* rem = NULL;
     const int* mov = NULL;
     int nr = hs_cut_last_removed(h->cut, &rem), nm = hs_cut_last_moved(h->cut, &mov);
     pthread_mutex_lock(&h->tmx);
     memcpy(h->t_x0, h->mesh->x0, 3 * (size_t)h->mesh->n_nodes * sizeof(double));
-    h->t_ntris = 0;
-    if (live && live->n_tris <= h->t_cap) {
-        memcpy(h->t_tris, live->tris, 3 * (size_t)live->n_tris * sizeof(int));
-        h->t_ntris = live->n_tris;
-    }
     for (int k = 0; k < nr && h->t_nremoved < h->mesh->n_tets; ++k)
         h->t_removed[h->t_nremoved++] = rem[k];
     for (int k = 0; k < nm; ++k)
@@ -685,8 +692,6 @@ static int cut_step(hs_haptic_sim* h) {
         memcpy(h->cv, hs_body_velocity(h->body), n3 * sizeof(double));
         if (hs_cut_sync_fem(h->cut, hs_body_fem(h->body)) != HS_OK) h->st.cut_failures++;
         hs_body_set_state(h->body, h->cu, h->cv);
-        hs_err lerr = {0};
-        if (hs_cut_update_live(h->cut, &lerr) != HS_OK) h->st.cut_failures++;
         h->comp_stale = 1;
         share_topology(h, quad);
         h->st.cut_steps++;
@@ -845,6 +850,11 @@ void hs_haptic_sim_destroy(hs_haptic_sim** ph) {
     hs_free(h->t_removed);
     hs_free(h->t_moved);
     hs_free(h->t_mflag);
+    hs_free(h->r_gone);
+    hs_free(h->r_keys);
+    hs_free(h->r_sorted);
+    hs_free(h->r_start);
+    hs_free(h->r_cur);
     if (h->tmx_init) pthread_mutex_destroy(&h->tmx);
     hs_free(h);
     *ph = NULL;
@@ -1040,6 +1050,11 @@ hs_status hs_haptic_sim_enable_cutting(hs_haptic_sim* h, hs_mesh* mesh,
     hs_free(h->t_removed);
     hs_free(h->t_moved);
     hs_free(h->t_mflag);
+    hs_free(h->r_gone);
+    hs_free(h->r_keys);
+    hs_free(h->r_sorted);
+    hs_free(h->r_start);
+    hs_free(h->r_cur);
     hs_triple_buffer_destroy(&h->cpose);
     h->cw_x0 = hs_calloc(3 * n, sizeof(double));
     h->cw_tets = hs_calloc(4 * nt + 1, sizeof(int));
@@ -1052,6 +1067,13 @@ hs_status hs_haptic_sim_enable_cutting(hs_haptic_sim* h, hs_mesh* mesh,
     h->t_removed = hs_calloc(nt + 1, sizeof(int));
     h->t_moved = hs_calloc(n + 1, sizeof(int));
     h->t_mflag = hs_calloc(n + 1, 1);
+    h->r_gone = hs_calloc(nt + 1, 1);
+    h->r_keys = hs_alloc((4 * nt + 1) * sizeof(face_key));
+    h->r_sorted = hs_alloc((4 * nt + 1) * sizeof(face_key));
+    h->r_start = hs_alloc((n + 2) * sizeof(int));
+    h->r_cur = hs_alloc((n + 2) * sizeof(int));
+    if (!h->r_gone || !h->r_keys || !h->r_sorted || !h->r_start || !h->r_cur)
+        return hs_err_set(err, HS_ERR_NOMEM, "hs_haptic_sim_enable_cutting: out of memory");
     if (!h->cw_x0 || !h->cw_tets || !h->cw_fix || !h->cu || !h->cv || !h->t_x0 || !h->t_tris ||
         !h->t_removed || !h->t_moved || !h->t_mflag)
         return hs_err_set(err, HS_ERR_NOMEM, "hs_haptic_sim_enable_cutting: out of memory");
@@ -1091,15 +1113,79 @@ int64_t hs_haptic_sim_topology_version(hs_haptic_sim* h) {
     return atomic_load(&h->topo_version);
 }
 
+static void sort3(int k[3]) {
+    if (k[0] > k[1]) {
+        int t = k[0];
+        k[0] = k[1];
+        k[1] = t;
+    }
+    if (k[1] > k[2]) {
+        int t = k[1];
+        k[1] = k[2];
+        k[2] = t;
+    }
+    if (k[0] > k[1]) {
+        int t = k[0];
+        k[0] = k[1];
+        k[1] = t;
+    }
+}
+
+static int key_less(const face_key* a, const face_key* b) {
+    return a->k[1] < b->k[1] || (a->k[1] == b->k[1] && a->k[2] < b->k[2]);
+}
+
+// Reader side: the boundary of the tets not removed (the faces used once), outward, into
+// t_tris. Tets stay positively oriented at rest through cuts (the cut's quality guard), so a
+// tet's faces in this order point out of it.
+static void build_boundary(hs_haptic_sim* h) {
+    static const int fv[4][3] = {{1, 2, 3}, {0, 3, 2}, {0, 1, 3}, {0, 2, 1}};
+    const hs_mesh* m = h->mesh;
+    const int nn = m->n_nodes;
+    face_key* key = h->r_keys;
+    int nk = 0;
+    memset(h->r_start, 0, ((size_t)nn + 1) * sizeof(int));
+    for (int t = 0; t < m->n_tets; ++t) {
+        if (h->r_gone[t]) continue;
+        const int* tv = m->tets + 4 * t;
+        for (int f = 0; f < 4; ++f) {
+            face_key* q = key + nk++;
+            for (int j = 0; j < 3; ++j) q->o[j] = q->k[j] = tv[fv[f][j]];
+            sort3(q->k);
+            h->r_start[q->k[0] + 1]++;
+        }
+    }
+    for (int v = 0; v < nn; ++v) h->r_start[v + 1] += h->r_start[v];
+    memcpy(h->r_cur, h->r_start, ((size_t)nn + 1) * sizeof(int));
+    for (int i = 0; i < nk; ++i) h->r_sorted[h->r_cur[key[i].k[0]]++] = key[i];
+    h->t_ntris = 0;
+    for (int v = 0; v < nn; ++v) {
+        face_key* b = h->r_sorted + h->r_start[v];
+        int nb = h->r_start[v + 1] - h->r_start[v];
+        for (int i = 1; i < nb; ++i) { // buckets hold the few faces around one node
+            face_key x = b[i];
+            int j = i;
+            for (; j > 0 && key_less(&x, &b[j - 1]); --j) b[j] = b[j - 1];
+            b[j] = x;
+        }
+        for (int i = 0; i < nb;) {
+            int j = i + 1;
+            while (j < nb && b[j].k[1] == b[i].k[1] && b[j].k[2] == b[i].k[2]) ++j;
+            if (j - i == 1 && h->t_ntris < h->t_cap)
+                memcpy(h->t_tris + 3 * h->t_ntris++, b[i].o, 3 * sizeof(int));
+            i = j;
+        }
+    }
+}
+
 int64_t hs_haptic_sim_take_topology(hs_haptic_sim* h, double* x0, int* tris, int tri_cap,
                                     int* n_tris, hs_haptic_cut_event* ev) {
     if (!h->tmx_init) return 0;
     pthread_mutex_lock(&h->tmx);
     int64_t v = atomic_load(&h->topo_version);
     if (x0) memcpy(x0, h->t_x0, 3 * (size_t)h->mesh->n_nodes * sizeof(double));
-    int nt = h->t_ntris <= tri_cap ? h->t_ntris : 0;
-    if (tris) memcpy(tris, h->t_tris, 3 * (size_t)nt * sizeof(int));
-    if (n_tris) *n_tris = nt;
+    int grew = h->t_nremoved > 0;
+    for (int k = 0; k < h->t_nremoved; ++k) h->r_gone[h->t_removed[k]] = 1;
     if (ev) {
         ev->old_version = h->t_taken;
         ev->new_version = v;
@@ -1114,6 +1200,10 @@ int64_t hs_haptic_sim_take_topology(hs_haptic_sim* h, double* x0, int* tris, int
     h->t_nremoved = h->t_nmoved = 0;
     h->t_taken = v;
     pthread_mutex_unlock(&h->tmx);
+    if (grew) build_boundary(h);
+    int nt = h->t_ntris <= tri_cap ? h->t_ntris : 0;
+    if (tris) memcpy(tris, h->t_tris, 3 * (size_t)nt * sizeof(int));
+    if (n_tris) *n_tris = nt;
     return v;
 }
 
