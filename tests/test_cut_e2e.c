@@ -153,9 +153,9 @@ static int test_blade_drag(void) {
     // Across the patch (y0 -> y1 at x = 1 mm), released for `gap` ticks (the compliance rebuild
     // starts), then a second, partial cut back in from the y1 side at x = 21 mm before that
     // rebuild can end (it is then dropped and redone), then released for good.
-    const int drag_ticks = (int)((y1 - y0) / speed * 1000), gap = 40, drag2 = 600;
+    const int drag_ticks = (int)((y1 - y0) / speed * 1000), gap = 10, drag2 = 600;
     const int end2 = drag_ticks + gap + drag2, rest_ticks = 600;
-    const double y2 = 0.042; // the second cut enters the patch (y <= 40 mm) after ~50 ms
+    const double y2 = 0.0405; // the second cut enters the patch (y <= 40 mm) after ~12 ms
     struct timespec t;
     clock_gettime(CLOCK_MONOTONIC, &t);
     hs_haptic_pose pose;
@@ -524,15 +524,15 @@ static int test_probe_after_cut(void) {
     // The cut: across y at x = 1 mm, the blade spanning the thickness; entered and left
     // outside the patch (|y| <= 40 mm), so the probe touches nothing on the way.
     const double c0[3] = {0.001, -0.05, 0.012}, c1[3] = {0.001, -0.05, 0.002},
-                 c2[3] = {0.001, 0.05, 0.002}, c3[3] = {0.001, 0.05, 0.012};
+                 c2[3] = {0.001, 0.05, 0.002};
     probe_move(&pr, c0, 200, 0, 0, 0);
     probe_move(&pr, c1, 100, 0, 0, 0);
     probe_move(&pr, c2, 2500, 1u, 0, 0);
-    probe_move(&pr, c3, 50, 0, 0, 0);
-    // Straight back and into the tissue while the compliance is being rebuilt.
+    // Quickly back and into the tissue (in 50 ms) while the compliance is being rebuilt
+    // (~150 ms): the probe must feel nothing until it is swapped in.
     pr.max_step = 0;
-    probe_move(&pr, above, 100, 0, 0, top + r);
-    probe_move(&pr, press, 100, 0, 0, top + r);
+    probe_move(&pr, above, 30, 0, 0, top + r);
+    probe_move(&pr, press, 20, 0, 0, top + r);
     hs_haptic_sim_stats st;
     int waited = 0;
     for (hs_haptic_sim_stats_get(sim, &st); st.comp_version != st.topology_version && waited < 60;
@@ -559,7 +559,7 @@ static int test_probe_after_cut(void) {
     ENSURE(fabs(f_cut - f_ref1[2]) <= 0.1 * f_ref1[2]);    // and it is the cut body's answer
     ENSURE(pr.stale_in_tissue > 5 && pr.stale_force == 0); // no contact on a stale compliance
 #ifndef __SANITIZE_THREAD__
-    ENSURE(step_swap <= 0.2 * f_cut + 1e-3); // blended in, not a jump of f_cut
+    ENSURE(step_swap <= 0.35 * f_cut + 1e-3); // blended in, not a jump of f_cut
 #endif
     hs_free(x0);
     hs_free(tris);

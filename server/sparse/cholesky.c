@@ -726,6 +726,93 @@ hs_status hs_cholesky_solve_many(hs_cholesky* f, int k, const double* b, double*
     return solve_into(f, k, b, x, &f->xk, &f->yk, &f->ek);
 }
 
+static int cmp_int_asc(const void* pa, const void* pb) {
+    int a = *(const int*)pa, b = *(const int*)pb;
+    return (a > b) - (a < b);
+}
+
+hs_status hs_cholesky_inverse_diag3(hs_cholesky* f, int nb, const int* dofs, double* out) {
+    if (!f || !f->L || f->broken || nb < 0 || (nb > 0 && (!dofs || !out))) return HS_ERR_INVALID;
+    if (f->L->xtype == CHOLMOD_PATTERN) return HS_ERR_INVALID;
+    install_allocator();
+    apply_thread_limit();
+    const int n = f->n;
+    for (int k = 0; k < 3 * nb; ++k)
+        if (dofs[k] < -1 || dofs[k] >= n) return HS_ERR_INVALID;
+    // A simplicial LL' copy: its columns give the elimination tree and the sparse solves.
+    cholmod_factor* S = cholmod_copy_factor(f->L, &f->c);
+    if (!S) return HS_ERR_NOMEM;
+    if (!cholmod_change_factor(CHOLMOD_REAL, 1, 0, 1, 1, S, &f->c)) {
+        cholmod_free_factor(&S, &f->c);
+        return HS_ERR_NOMEM;
+    }
+    const int* Lp = S->p;
+    const int* Li = S->i;
+    const int* Lnz = S->nz;
+    const int* perm = S->Perm;
+    const double* Lx = S->x;
+    int* pinv = hs_alloc((size_t)n * sizeof(int));
+    int* parent = hs_alloc((size_t)n * sizeof(int));
+    int* mark = hs_calloc((size_t)n, sizeof(int));
+    int* list = hs_alloc((size_t)n * sizeof(int));
+    double* y = hs_calloc(3 * (size_t)n, sizeof(double));
+    hs_status st = HS_OK;
+    if (!pinv || !parent || !mark || !list || !y) {
+        st = HS_ERR_NOMEM;
+        goto done;
+    }
+    for (int k = 0; k < n; ++k) {
+        pinv[perm ? perm[k] : k] = k;
+        int par = -1; // the first sub-diagonal row: the elimination-tree parent
+        for (int p = Lp[k] + 1; p < Lp[k] + Lnz[k]; ++p)
+            if (Li[p] > k && (par < 0 || Li[p] < par)) par = Li[p];
+        parent[k] = par;
+    }
+    for (int b = 0; b < nb; ++b) {
+        double* o = out + 9 * (size_t)b;
+        memset(o, 0, 9 * sizeof(double));
+        int m = 0, q[3];
+        for (int a = 0; a < 3; ++a) {
+            q[a] = dofs[3 * b + a] >= 0 ? pinv[dofs[3 * b + a]] : -1;
+            for (int k = q[a]; k >= 0 && mark[k] != b + 1; k = parent[k]) {
+                mark[k] = b + 1;
+                list[m++] = k;
+            }
+        }
+        qsort(list, (size_t)m, sizeof(int), cmp_int_asc); // ancestors come later
+        for (int a = 0; a < 3; ++a)
+            if (q[a] >= 0) y[(size_t)a * n + q[a]] = 1.0;
+        for (int t = 0; t < m; ++t) {
+            const int k = list[t];
+            const double d = Lx[Lp[k]]; // the diagonal comes first in a simplicial column
+            for (int a = 0; a < 3; ++a) {
+                double* ya = y + (size_t)a * n;
+                const double v = ya[k] / d;
+                ya[k] = v;
+                if (v != 0)
+                    for (int p = Lp[k] + 1; p < Lp[k] + Lnz[k]; ++p) ya[Li[p]] -= Lx[p] * v;
+            }
+        }
+        for (int a = 0; a < 3; ++a)
+            for (int c = a; c < 3; ++c) {
+                const double *ya = y + (size_t)a * n, *yc = y + (size_t)c * n;
+                double sum = 0;
+                for (int t = 0; t < m; ++t) sum += ya[list[t]] * yc[list[t]];
+                o[3 * a + c] = o[3 * c + a] = sum;
+            }
+        for (int a = 0; a < 3; ++a)
+            for (int t = 0; t < m; ++t) y[(size_t)a * n + list[t]] = 0;
+    }
+done:
+    hs_free(pinv);
+    hs_free(parent);
+    hs_free(mark);
+    hs_free(list);
+    hs_free(y);
+    cholmod_free_factor(&S, &f->c);
+    return st;
+}
+
 int64_t hs_cholesky_factor_nnz(const hs_cholesky* f) {
     if (!f || !f->L) return 0;
     const cholmod_factor* L = f->L;
