@@ -1527,34 +1527,18 @@ static hs_status grow_d(hs_cut* c, int d) {
 }
 
 /// Re-solve the blocks of tracked nodes [k0, k0 + cnt) with the current factor.
+// Tracked blocks k0 .. k0+cnt-1 from the current factor: one sparse forward solve per node
+// along its elimination-tree paths (hs_cholesky_inverse_diag3), not three full solves.
 static hs_status resolve_blocks(hs_cut* c, int k0, int cnt) {
-    const int nf = c->n_free;
-    int nb = HS_CUT_BATCH / 3;
-    for (int s = 0; s < cnt; s += nb) {
-        int m = cnt - s < nb ? cnt - s : nb;
-        memset(c->zbuf, 0, sizeof(double) * (size_t)nf * 3 * (size_t)m);
-        for (int j = 0; j < m; j++) {
-            int v = c->track[k0 + s + j];
-            for (int q = 0; q < 3; q++) {
-                int d = c->dof[3 * v + q];
-                if (d >= 0 && !c->pinned[v]) c->zbuf[(size_t)nf * (3 * j + q) + (size_t)d] = 1.0;
-            }
-        }
-        hs_status st = hs_cholesky_solve_many(c->factor, 3 * m, c->zbuf, c->zbuf);
-        if (st != HS_OK) return st;
-        for (int j = 0; j < m; j++) {
-            int v = c->track[k0 + s + j];
-            double* b = c->cblk + 9 * (size_t)(k0 + s + j);
-            for (int i = 0; i < 3; i++)
-                for (int q = 0; q < 3; q++) {
-                    int d = c->dof[3 * v + i];
-                    b[3 * i + q] = d >= 0 && !c->pinned[v]
-                                       ? c->zbuf[(size_t)nf * (3 * j + q) + (size_t)d]
-                                       : 0.0;
-                }
-        }
+    int* dl = hs_alloc(3 * (size_t)cnt * sizeof(int) + sizeof(int));
+    if (!dl) return HS_ERR_NOMEM;
+    for (int j = 0; j < cnt; j++) {
+        int v = c->track[k0 + j];
+        for (int q = 0; q < 3; q++) dl[3 * j + q] = c->pinned[v] ? -1 : c->dof[3 * v + q];
     }
-    return HS_OK;
+    hs_status st = hs_cholesky_inverse_diag3(c->factor, cnt, dl, c->cblk + 9 * (size_t)k0);
+    hs_free(dl);
+    return st;
 }
 
 hs_status hs_cut_track_compliance(hs_cut* c, int n, const int* nodes, hs_cut_compliance_mode mode) {

@@ -739,13 +739,21 @@ hs_status hs_cholesky_inverse_diag3(hs_cholesky* f, int nb, const int* dofs, dou
     const int n = f->n;
     for (int k = 0; k < 3 * nb; ++k)
         if (dofs[k] < -1 || dofs[k] >= n) return HS_ERR_INVALID;
-    // A simplicial LL' copy: its columns give the elimination tree and the sparse solves.
-    cholmod_factor* S = cholmod_copy_factor(f->L, &f->c);
-    if (!S) return HS_ERR_NOMEM;
-    if (!cholmod_change_factor(CHOLMOD_REAL, 1, 0, 1, 1, S, &f->c)) {
-        cholmod_free_factor(&S, &f->c);
-        return HS_ERR_NOMEM;
+    // A simplicial factor's columns give the elimination tree and the sparse solves: use L
+    // itself when it is one (LDL' in update mode: unit L, D on the diagonal), else a simplicial
+    // LL' copy of the supernodal one.
+    cholmod_factor* copy = NULL;
+    cholmod_factor* S = f->L;
+    if (S->is_super) {
+        copy = cholmod_copy_factor(f->L, &f->c);
+        if (!copy) return HS_ERR_NOMEM;
+        if (!cholmod_change_factor(CHOLMOD_REAL, 1, 0, 1, 1, copy, &f->c)) {
+            cholmod_free_factor(&copy, &f->c);
+            return HS_ERR_NOMEM;
+        }
+        S = copy;
     }
+    const int ldl = !S->is_ll; // then y = L^-1 e with unit L, and A^-1 = L^-T D^-1 L^-1
     const int* Lp = S->p;
     const int* Li = S->i;
     const int* Lnz = S->nz;
@@ -784,7 +792,7 @@ hs_status hs_cholesky_inverse_diag3(hs_cholesky* f, int nb, const int* dofs, dou
             if (q[a] >= 0) y[(size_t)a * n + q[a]] = 1.0;
         for (int t = 0; t < m; ++t) {
             const int k = list[t];
-            const double d = Lx[Lp[k]]; // the diagonal comes first in a simplicial column
+            const double d = ldl ? 1.0 : Lx[Lp[k]]; // the diagonal comes first in a column
             for (int a = 0; a < 3; ++a) {
                 double* ya = y + (size_t)a * n;
                 const double v = ya[k] / d;
@@ -797,7 +805,10 @@ hs_status hs_cholesky_inverse_diag3(hs_cholesky* f, int nb, const int* dofs, dou
             for (int c = a; c < 3; ++c) {
                 const double *ya = y + (size_t)a * n, *yc = y + (size_t)c * n;
                 double sum = 0;
-                for (int t = 0; t < m; ++t) sum += ya[list[t]] * yc[list[t]];
+                if (ldl)
+                    for (int t = 0; t < m; ++t) sum += ya[list[t]] * yc[list[t]] / Lx[Lp[list[t]]];
+                else
+                    for (int t = 0; t < m; ++t) sum += ya[list[t]] * yc[list[t]];
                 o[3 * a + c] = o[3 * c + a] = sum;
             }
         for (int a = 0; a < 3; ++a)
@@ -809,7 +820,7 @@ done:
     hs_free(mark);
     hs_free(list);
     hs_free(y);
-    cholmod_free_factor(&S, &f->c);
+    cholmod_free_factor(&copy, &f->c);
     return st;
 }
 
