@@ -788,31 +788,44 @@ hs_status hs_cholesky_inverse_diag3(hs_cholesky* f, int nb, const int* dofs, dou
             }
         }
         qsort(list, (size_t)m, sizeof(int), cmp_int_asc); // ancestors come later
+        // y holds the three right-hand sides interleaved (y[3k + a]): one pass over each column.
         for (int a = 0; a < 3; ++a)
-            if (q[a] >= 0) y[(size_t)a * n + q[a]] = 1.0;
+            if (q[a] >= 0) y[3 * (size_t)q[a] + a] = 1.0;
         for (int t = 0; t < m; ++t) {
             const int k = list[t];
             const double d = ldl ? 1.0 : Lx[Lp[k]]; // the diagonal comes first in a column
-            for (int a = 0; a < 3; ++a) {
-                double* ya = y + (size_t)a * n;
-                const double v = ya[k] / d;
-                ya[k] = v;
-                if (v != 0)
-                    for (int p = Lp[k] + 1; p < Lp[k] + Lnz[k]; ++p) ya[Li[p]] -= Lx[p] * v;
+            double* yk = y + 3 * (size_t)k;
+            const double v0 = yk[0] / d, v1 = yk[1] / d, v2 = yk[2] / d;
+            yk[0] = v0;
+            yk[1] = v1;
+            yk[2] = v2;
+            if (v0 == 0 && v1 == 0 && v2 == 0) continue;
+            for (int p = Lp[k] + 1; p < Lp[k] + Lnz[k]; ++p) {
+                double* yr = y + 3 * (size_t)Li[p];
+                const double l = Lx[p];
+                yr[0] -= l * v0;
+                yr[1] -= l * v1;
+                yr[2] -= l * v2;
             }
         }
-        for (int a = 0; a < 3; ++a)
-            for (int c = a; c < 3; ++c) {
-                const double *ya = y + (size_t)a * n, *yc = y + (size_t)c * n;
-                double sum = 0;
-                if (ldl)
-                    for (int t = 0; t < m; ++t) sum += ya[list[t]] * yc[list[t]] / Lx[Lp[list[t]]];
-                else
-                    for (int t = 0; t < m; ++t) sum += ya[list[t]] * yc[list[t]];
-                o[3 * a + c] = o[3 * c + a] = sum;
-            }
-        for (int a = 0; a < 3; ++a)
-            for (int t = 0; t < m; ++t) y[(size_t)a * n + list[t]] = 0;
+        double acc[6] = {0, 0, 0, 0, 0, 0}; // 00 01 02 11 12 22
+        for (int t = 0; t < m; ++t) {
+            double* yk = y + 3 * (size_t)list[t];
+            const double w = ldl ? 1.0 / Lx[Lp[list[t]]] : 1.0;
+            acc[0] += w * yk[0] * yk[0];
+            acc[1] += w * yk[0] * yk[1];
+            acc[2] += w * yk[0] * yk[2];
+            acc[3] += w * yk[1] * yk[1];
+            acc[4] += w * yk[1] * yk[2];
+            acc[5] += w * yk[2] * yk[2];
+            yk[0] = yk[1] = yk[2] = 0;
+        }
+        o[0] = acc[0];
+        o[1] = o[3] = acc[1];
+        o[2] = o[6] = acc[2];
+        o[4] = acc[3];
+        o[5] = o[7] = acc[4];
+        o[8] = acc[5];
     }
 done:
     hs_free(pinv);
