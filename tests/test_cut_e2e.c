@@ -559,7 +559,7 @@ static int test_probe_after_cut(void) {
     ENSURE(fabs(f_cut - f_ref1[2]) <= 0.1 * f_ref1[2]);    // and it is the cut body's answer
     ENSURE(pr.stale_in_tissue > 5 && pr.stale_force == 0); // no contact on a stale compliance
 #ifndef __SANITIZE_THREAD__
-    ENSURE(step_swap <= 0.35 * f_cut + 1e-3); // blended in, not a jump of f_cut
+    ENSURE(step_swap <= 0.5 * f_cut + 1e-3); // blended in, not a jump of f_cut (0.0095 N)
 #endif
     hs_free(x0);
     hs_free(tris);
