@@ -31,6 +31,13 @@ static unsigned char* ends_fixed(const hs_mesh* m) {
     return fixed;
 }
 
+// The skin patch and its held ends; 0 on success (the caller frees both).
+static int skin_with_ends_fixed(hs_mesh** m, unsigned char** fixed) {
+    *m = load_skin();
+    *fixed = *m ? ends_fixed(*m) : NULL;
+    return *m && *fixed ? 0 : 1;
+}
+
 static hs_haptic_sim_def sim_def(void) {
     hs_haptic_sim_def d = hs_haptic_sim_default_def();
     d.fifo_priority = 0;
@@ -129,11 +136,10 @@ static void canonical_tris(const int* in, int n, int* out) {
 /// per tick, and returns to zero after the release; the compliance is rebuilt after it.
 static int test_blade_drag(void) {
     int64_t bytes = hs_byte_count();
-    hs_mesh* m = load_skin();
-    ENSURE(m);
+    hs_mesh* m = NULL;
+    unsigned char* fixed = NULL;
+    ENSURE(skin_with_ends_fixed(&m, &fixed) == 0);
     const int n = m->n_nodes, ntet = m->n_tets;
-    unsigned char* fixed = ends_fixed(m);
-    ENSURE(fixed);
     hs_haptic_sim_def d = sim_def();
     hs_haptic_sim* sim = NULL;
     hs_err err = {0};
@@ -481,11 +487,10 @@ static void probe_move(probe_run* pr, const double to[3], int ticks, unsigned bu
 /// contact that appears when it is swapped in is blended.
 static int test_probe_after_cut(void) {
     int64_t bytes = hs_byte_count();
-    hs_mesh* m = load_skin();
-    ENSURE(m);
+    hs_mesh* m = NULL;
+    unsigned char* fixed = NULL;
+    ENSURE(skin_with_ends_fixed(&m, &fixed) == 0);
     const int n = m->n_nodes, ntet = m->n_tets;
-    unsigned char* fixed = ends_fixed(m);
-    ENSURE(fixed);
     hs_haptic_sim_def d = sim_def();
     const double r = 0.003, top = 0.004, depth = 0.001;
     d.probe.radius_m = r;
