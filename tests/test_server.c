@@ -780,9 +780,34 @@ static int bad_command(int k, int64_t dup_id, uint8_t* buf, int cap) {
     return n;
 }
 
+// UDP datagrams the kernel dropped for full socket buffers in this network namespace (the
+// test's own, tests/netns.sh); -1 when /proc/net/snmp cannot be read.
+static long long udp_rcvbuf_errors(void) {
+    FILE* f = fopen("/proc/net/snmp", "r");
+    if (!f) return -1;
+    char head[1024], vals[1024];
+    long long r = -1;
+    while (r < 0 && fgets(head, sizeof head, f)) {
+        if (strncmp(head, "Udp:", 4) || !fgets(vals, sizeof vals, f)) continue;
+        char *hs = NULL, *vs = NULL;
+        char* h = strtok_r(head, " \n", &hs);
+        char* v = strtok_r(vals, " \n", &vs);
+        while (h && v) {
+            if (!strcmp(h, "RcvbufErrors")) r = atoll(v);
+            h = strtok_r(NULL, " \n", &hs);
+            v = strtok_r(NULL, " \n", &vs);
+        }
+    }
+    fclose(f);
+    return r;
+}
+
 // Hover 3 mm off the surface for hover_ms while (optionally) flooding; then ask for a keyframe.
+// *drops: datagrams the kernel dropped meanwhile (any socket here, the test's own included).
 static int flood_run(const char* tag, int flood, float** mesh_out, int* n_vis_out,
-                     int64_t* pose_expect, int64_t* cmd_expect, status_info* st_out) {
+                     int64_t* pose_expect, int64_t* cmd_expect, status_info* st_out,
+                     long long* drops) {
+    long long drops0 = udp_rcvbuf_errors();
     char scene[512];
     snprintf(scene, sizeof scene, "%s/liver_%s.json", tmpdir, tag);
     liver_scene(scene, NULL);
@@ -834,7 +859,15 @@ static int flood_run(const char* tag, int flood, float** mesh_out, int* n_vis_ou
     end = hs_now_ns() + 3000000000LL;
     while (c.n_status < st + 2 && hs_now_ns() < end) pump_ms(&c, 10);
     ENSURE(c.n_status >= st + 2);
-    ENSURE(c.status->poses_received[0] == c.seq);
+    long long d1 = udp_rcvbuf_errors();
+    *drops = drops0 >= 0 && d1 >= 0 ? d1 - drops0 : 0;
+    // Every driver pose the kernel delivered was counted (all of them unless the machine
+    // stalled the receiver long enough for a socket buffer to fill: then it says so).
+    if (*drops > 0)
+        printf("  %s: the kernel dropped %lld datagrams (socket buffers full: the 2 cores were "
+               "busy); counts checked as at most sent and at least sent - dropped\n",
+               tag, *drops);
+    ENSURE(c.status->poses_received[0] <= c.seq && c.status->poses_received[0] + *drops >= c.seq);
     *n_vis_out = c.n_vis;
     *mesh_out = malloc(sizeof(float) * 3 * (size_t)c.n_vis);
     memcpy(*mesh_out, c.key, sizeof(float) * 3 * (size_t)c.n_vis);
@@ -852,23 +885,29 @@ static int flood_leaves_server_intact(void) {
     int nv_clean = 0, nv_flood = 0;
     static status_info s_clean_v, s_flood_v;
     status_info *s_clean = &s_clean_v, *s_flood = &s_flood_v;
-    ENSURE(flood_run("clean", 0, &clean, &nv_clean, pe0, ce0, s_clean) == 0);
-    ENSURE(flood_run("flood", 1, &flooded, &nv_flood, pe, ce, s_flood) == 0);
-    int64_t sum = 0;
+    long long drops0 = 0, drops = 0;
+    ENSURE(flood_run("clean", 0, &clean, &nv_clean, pe0, ce0, s_clean, &drops0) == 0);
+    ENSURE(flood_run("flood", 1, &flooded, &nv_flood, pe, ce, s_flood, &drops) == 0);
+    int64_t sum = 0, missing = 0;
     for (int k = 0; k < F_NP; ++k) {
         int64_t got = reject_count(s_flood, "TOOL_POSE", pose_reason[k]);
         printf("  TOOL_POSE %-14s sent %6lld counted %6lld\n", pose_reason[k], (long long)pe[k],
                (long long)got);
-        ENSURE(got == pe[k]);
+        ENSURE(got <= pe[k]); // exact unless the kernel dropped some (below)
+        missing += pe[k] - got;
         sum += pe[k];
     }
     for (int k = 0; k < C_NC; ++k) {
         int64_t got = reject_count(s_flood, "COMMAND", cmd_reason[k]);
         printf("  COMMAND   %-14s sent %6lld counted %6lld\n", cmd_reason[k], (long long)ce[k],
                (long long)got);
-        ENSURE(got == ce[k]);
+        ENSURE(got <= ce[k]);
+        missing += ce[k] - got;
         sum += ce[k];
     }
+    printf("  %lld sent messages not counted, %lld datagrams dropped by the kernel\n",
+           (long long)missing, drops);
+    ENSURE(missing <= drops); // nothing the server received went uncounted
     ENSURE(sum >= 100000);
     ENSURE(s_clean->n_rejects == 0);
     ENSURE(nv_clean == nv_flood && nv_clean > 0);
