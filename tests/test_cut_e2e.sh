@@ -12,8 +12,9 @@
 #  - after the cut, set is refused (the sim cannot be rebuilt on a cut mesh) and reset reloads
 #    the uncut scene (new topology version, set works again);
 #  - the force the stylus received is finite, the blade felt resistance, and it changes by at
-#    most MAX_STEP_N per tick: the cutting force cap (1.5 N) spread over one blend (10 ticks).
-#    Without the blend a resistance of 0.2-0.4 N would switch on in one tick;
+#    most MAX_STEP_N per trace row: twice the cutting force cap (1.5 N) spread over one blend
+#    (10 ticks), as two server ticks can reach the stylus between two of its ticks. A guard
+#    against gross jumps; cut_sim checks the blend tick by tick on the sim itself;
 #  - released, the tool probes the cut tissue: the stylus finds the surface beside the cut and
 #    holds a steady force (between 3 mN and 0.1 N for a 1 mm press).
 #   tests/test_cut_e2e.sh BIN_DIR CLIENT_BIN SOURCE_DIR
@@ -21,7 +22,10 @@ set -u
 bin=$1
 client=$2
 src=$3
-MAX_STEP_N=0.15
+# Per trace row, twice the per-tick bound: the stylus reads the server's 1 kHz messages on its
+# own 1 kHz clock, and two can land between two of its ticks (seen: 0.18 N in one row where the
+# server's ticks changed by 0.09 N each). cut_sim checks the per-tick bound on the sim itself.
+MAX_STEP_N=0.30
 for p in hapsim-server hapsim-stylus hapsim-view hapsim-ctl; do
     [ -x "$bin/$p" ] || { echo "SKIP: $bin/$p not built"; exit 77; }
 done
