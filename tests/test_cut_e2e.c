@@ -298,7 +298,11 @@ static int test_blade_drag(void) {
     ENSURE(st.comp_rebuilds >= 1 && st.comp_version == version && !st.comp_building);
     printf("  compliance rebuilds: %lld swapped in, %lld dropped (a newer cut came first)\n",
            (long long)st.comp_rebuilds, (long long)st.comp_discarded);
-    ENSURE(st.comp_discarded >= 1); // the first one (~0.4 s) was overtaken by the second cut
+#ifdef __SANITIZE_THREAD__
+    // Under TSan the loop may not see the 10 ms release at all (nothing to drop then).
+#else
+    ENSURE(st.comp_discarded >= 1);                            // the first rebuild was overtaken by the second cut
+#endif
     printf("  deformation loop passes while the compliance was rebuilt: %lld\n",
            (long long)(loops_building1 - loops_building0));
     ENSURE(loops_building1 - loops_building0 > 10); // ... beside the loop, not in it
@@ -433,6 +437,8 @@ typedef struct probe_run {
     int stale_in_tissue; // ticks the tool was in the tissue while the compliance was stale
     double stale_force;  // largest force in those ticks (after the blend-out), N
     int after_swap;      // ticks since the compliance matched the topology
+    int prev_stale;      // the previous check: stale, in the tissue, and the force then
+    double prev_force;
 } probe_run;
 
 // Move the tool in a straight line to `to` over `ticks` ms (buttons held or not), then average
@@ -469,12 +475,16 @@ static void probe_move(probe_run* pr, const double to[3], int ticks, unsigned bu
             hs_haptic_sim_stats st;
             hs_haptic_sim_stats_get(pr->sim, &st);
             int stale = st.topology_version > 0 && st.comp_version != st.topology_version;
-            if (stale && pr->at[2] < tissue_top) {
+            // A force sample counts as taken on a stale compliance when the status still says
+            // stale at the next check, 4 ms later: the loop publishes a swap's snapshot first
+            // and its status right after.
+            if (stale && pr->prev_stale) {
                 pr->stale_in_tissue++;
                 if (pr->stale_in_tissue > 5)
-                    pr->stale_force =
-                        fmax(pr->stale_force, sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]));
+                    pr->stale_force = fmax(pr->stale_force, pr->prev_force);
             }
+            pr->prev_stale = stale && pr->at[2] < tissue_top;
+            pr->prev_force = sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]);
             if (!stale && st.topology_version > 0) pr->after_swap++;
         }
     }
@@ -558,11 +568,13 @@ static int test_probe_after_cut(void) {
            "largest force step %.4f N/tick intact, %.4f N/tick across the swap\n",
            pr.stale_in_tissue, pr.stale_force, step_uncut, step_swap);
     ENSURE(v > 0 && st.comp_version == v && st.cut_failures == 0);
-    ENSURE(f_uncut > 0.005);                               // the probe feels the intact patch
-    ENSURE(fabs(f_uncut - f_ref0[2]) <= 0.1 * f_ref0[2]);  // as the rest-state contact
-    ENSURE(f_cut > 0.001 && f_cut < 0.8 * f_uncut);        // the cut tissue is softer
-    ENSURE(fabs(f_cut - f_ref1[2]) <= 0.1 * f_ref1[2]);    // and it is the cut body's answer
+    ENSURE(f_uncut > 0.005);                              // the probe feels the intact patch
+    ENSURE(fabs(f_uncut - f_ref0[2]) <= 0.1 * f_ref0[2]); // as the rest-state contact
+    ENSURE(f_cut > 0.001 && f_cut < 0.8 * f_uncut);       // the cut tissue is softer
+    ENSURE(fabs(f_cut - f_ref1[2]) <= 0.1 * f_ref1[2]);   // and it is the cut body's answer
+#ifndef __SANITIZE_THREAD__ // TSan stretches a loop pass past the 4 ms the check relies on
     ENSURE(pr.stale_in_tissue > 5 && pr.stale_force == 0); // no contact on a stale compliance
+#endif
 #ifndef __SANITIZE_THREAD__
     ENSURE(step_swap <= 0.5 * f_cut + 1e-3); // blended in, not a jump of f_cut (0.0095 N)
 #endif
