@@ -1207,8 +1207,7 @@ static int test_timing(void) {
 }
 
 HS_TEST_MAIN(HS_CASE(test_patch), HS_CASE(test_rigid_rotation), HS_CASE(test_tangent_fd),
-             HS_CASE(test_corot_tangent), HS_CASE(test_polar),
-             HS_CASE(test_polar_batched), HS_CASE(test_locking),
-             HS_CASE(test_inversion), HS_CASE(test_inversion_dynamic),
+             HS_CASE(test_corot_tangent), HS_CASE(test_polar), HS_CASE(test_polar_batched),
+             HS_CASE(test_locking), HS_CASE(test_inversion), HS_CASE(test_inversion_dynamic),
              HS_CASE(test_mass_and_active), HS_CASE(test_no_alloc), HS_CASE(test_errors),
              HS_CASE(test_shared_meshes), HS_CASE(test_timing))

@@ -325,11 +325,9 @@ polar_warm4_body(const double* const f_[4], double* const r_[4], double* const r
             c[i] = idm * (mc[3 * i] * a0 + mc[3 * i + 1] * a1 + mc[3 * i + 2] * a2);
         v4d c2 = c[0] * c[0] + c[1] * c[1] + c[2] * c[2];
         v4d kk = 2.0 / (1.0 + c2), d = 1.0 - kk * c2;
-        v4d q[9] = {d + kk * c[0] * c[0],       kk * (c[0] * c[1] - c[2]),
-                    kk * (c[0] * c[2] + c[1]), kk * (c[1] * c[0] + c[2]),
-                    d + kk * c[1] * c[1],       kk * (c[1] * c[2] - c[0]),
-                    kk * (c[2] * c[0] - c[1]), kk * (c[2] * c[1] + c[0]),
-                    d + kk * c[2] * c[2]};
+        v4d q[9] = {d + kk * c[0] * c[0],      kk * (c[0] * c[1] - c[2]), kk * (c[0] * c[2] + c[1]),
+                    kk * (c[1] * c[0] + c[2]), d + kk * c[1] * c[1],      kk * (c[1] * c[2] - c[0]),
+                    kk * (c[2] * c[0] - c[1]), kk * (c[2] * c[1] + c[0]), d + kk * c[2] * c[2]};
         for (int i = 0; i < 3; i++) {
             v4d xi[3] = {x[3 * i], x[3 * i + 1], x[3 * i + 2]};
             for (int j = 0; j < 3; j++) {
@@ -353,9 +351,10 @@ polar_warm4_body(const double* const f_[4], double* const r_[4], double* const r
     }
 }
 
-__attribute__((target("avx2"))) static void
-polar_warm4_avx2(const double* const f[4], double* const r[4], double* const rtf[4], double tol,
-                 int max_iter, int trusted, int it[4]) {
+__attribute__((target("avx2"))) static void polar_warm4_avx2(const double* const f[4],
+                                                             double* const r[4],
+                                                             double* const rtf[4], double tol,
+                                                             int max_iter, int trusted, int it[4]) {
     polar_warm4_body(f, r, rtf, tol, max_iter, trusted, it);
 }
 
@@ -364,8 +363,8 @@ static void polar_warm4_base(const double* const f[4], double* const r[4], doubl
     polar_warm4_body(f, r, rtf, tol, max_iter, trusted, it);
 }
 
-void hs_polar_warm4(const double* const f[4], double* const r[4], double* const rtf[4],
-                    double tol, int max_iter, int trusted, int it[4]) {
+void hs_polar_warm4(const double* const f[4], double* const r[4], double* const rtf[4], double tol,
+                    int max_iter, int trusted, int it[4]) {
     if (__builtin_cpu_supports("avx2"))
         polar_warm4_avx2(f, r, rtf, tol, max_iter, trusted, it);
     else

@@ -90,7 +90,7 @@ int hs_polar_higham_ex(const double f[9], double r[9], double tol, int max_iter,
 /// it[l] is its iteration count. it[l] = -1 where the scalar code would leave the warm phase
 /// (degenerate F, cold start, SVD, orthogonality correction): r[l] is left as it was, and the
 /// caller redoes that lane with hs_polar_higham_ex. Unused lanes may point at f = r = I.
-void hs_polar_warm4(const double* const f[4], double* const r[4], double* const rtf[4],
-                    double tol, int max_iter, int trusted, int it[4]);
+void hs_polar_warm4(const double* const f[4], double* const r[4], double* const rtf[4], double tol,
+                    int max_iter, int trusted, int it[4]);
 
 #endif

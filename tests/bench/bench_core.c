@@ -129,8 +129,8 @@ static int run_case(const hs_bench_args* a, const core_case* c, const core_cfg* 
     double step_ms = s < 0 ? NAN : hs_bench_percentile(ms, (size_t)steps, 50);
     if (print)
         printf("%s,%d,%d,%s,%.3f,%.1f,%.6e,%.5f,%.1f,%s\n", cfg->label, mesh->n_tets,
-           hs_body_free_dofs(body), cfg->solver_label, step_ms, (double)iters / steps, tip,
-           st.fem.volume_ratio_mean, mem_mb, c->name);
+               hs_body_free_dofs(body), cfg->solver_label, step_ms, (double)iters / steps, tip,
+               st.fem.volume_ratio_mean, mem_mb, c->name);
     fflush(stdout);
     *step_ms_out = step_ms;
     free(ms);
@@ -198,9 +198,8 @@ static void paired_ratio(const hs_bench_args* a, const core_case* c, const core_
         fprintf(stderr,
                 "%s: stepped alternately: linear (%s) %.3f ms, corotated (%s) %.3f ms (medians); "
                 "ratio per pair: median %.2fx (quartiles %.2f-%.2f)\n",
-                c->name, lin->solver_label, t[steps / 2], cor->solver_label,
-                t[steps + steps / 2], t[2 * steps + steps / 2], t[2 * steps + steps / 4],
-                t[2 * steps + 3 * steps / 4]);
+                c->name, lin->solver_label, t[steps / 2], cor->solver_label, t[steps + steps / 2],
+                t[2 * steps + steps / 2], t[2 * steps + steps / 4], t[2 * steps + 3 * steps / 4]);
     }
     free(t);
     hs_body_destroy(&b1);
