@@ -436,7 +436,6 @@ typedef struct probe_run {
     int fz_n;
     int stale_in_tissue; // ticks the tool was in the tissue while the compliance was stale
     double stale_force;  // largest force in those ticks (after the blend-out), N
-    int after_swap;      // ticks since the compliance matched the topology
     int prev_stale;      // the previous check: stale, in the tissue, and the force then
     double prev_force;
 } probe_run;
@@ -485,7 +484,6 @@ static void probe_move(probe_run* pr, const double to[3], int ticks, unsigned bu
             }
             pr->prev_stale = stale && pr->at[2] < tissue_top;
             pr->prev_force = sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]);
-            if (!stale && st.topology_version > 0) pr->after_swap++;
         }
     }
 }

@@ -499,9 +499,10 @@ static void quat_rotate(const double q[4], const double v[3], double out[3]) {
 
 static hs_status build_tri_adjacency(hs_haptic_sim* h);
 
-// Worker: the haptic compliance of the job's mesh (fixed + pinned nodes held). Recreated
-// rather than updated (hs_compliance has no update entry point); it costs ~0.4 s on the skin
-// patch, which is why it runs beside the deformation thread instead of in it.
+// Worker: the haptic compliance of the job's mesh (see comp_start for what it holds).
+// Recreated rather than updated (hs_compliance has no update entry point); it costs 0.1-0.2 s
+// on the skin patch (0.4-0.7 s before its sparse diagonal blocks), which is why it runs beside
+// the deformation thread instead of in it.
 static void* comp_worker(void* arg) {
     hs_haptic_sim* h = arg;
     int64_t t0 = hs_now_ns();
