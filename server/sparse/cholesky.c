@@ -777,8 +777,7 @@ hs_status hs_cholesky_inverse_diag3(hs_cholesky* f, int nb, const int* dofs, dou
         parent[k] = par;
     }
     for (int b = 0; b < nb; ++b) {
-        double* o = out + 9 * (size_t)b;
-        memset(o, 0, 9 * sizeof(double));
+        double* o = out + 9 * (size_t)b; // all nine entries written below
         int m = 0, q[3];
         for (int a = 0; a < 3; ++a) {
             q[a] = dofs[3 * b + a] >= 0 ? pinv[dofs[3 * b + a]] : -1;
