@@ -11,6 +11,7 @@
 #include <math.h>
 #include <pthread.h>
 #include <stdlib.h>
+#include <string.h>
 
 #define MM 1e-3
 
@@ -880,8 +881,85 @@ static int test_liver_random_cuts(void) {
     return 0;
 }
 
+/// HS_CUT_FACTOR_NONE cuts exactly as a factored cut (same removals, moves, pins, versions and
+/// rest positions, sweep by sweep) and refuses what needs the factor.
+static int test_factor_none(void) {
+    int64_t bytes = hs_byte_count();
+    hs_mesh* m[2] = {NULL, NULL};
+    hs_cut* c[2] = {NULL, NULL};
+    unsigned char* fixed[2] = {NULL, NULL};
+    hs_err e;
+    hs_cut_def def = hs_cut_default_def();
+    for (int k = 0; k < 2; k++) {
+        ENSURE(hs_mesh_create_box(0.04, 0.04, 0.01, 8, 8, 2, &m[k], &e) == HS_OK);
+        fixed[k] = hs_calloc((size_t)m[k]->n_nodes, 1);
+        hs_mesh_select_plane(m[k], 0, -1, 1e-6, fixed[k]);
+        def.factor_policy = k ? HS_CUT_FACTOR_NONE : HS_CUT_FACTOR_UPDATE;
+        ENSURE(hs_cut_create(m[k], fixed[k], &def, &c[k], &e) == HS_OK);
+    }
+    ENSURE(hs_cut_factor(c[0]) != NULL && hs_cut_factor(c[1]) == NULL);
+    // A curved progressive cut from one side to the other (a free piece comes off: pins).
+    int changed = 0;
+    for (int s = 0; s < 24; s++) {
+        double y0 = -0.002 + 0.0019 * s, y1 = y0 + 0.0019;
+        double x0 = 0.02 + 0.004 * sin(60.0 * y0), x1 = 0.02 + 0.004 * sin(60.0 * y1);
+        double p0[3] = {x0, y0, -0.002}, q0[3] = {x0, y0, 0.012};
+        double p1[3] = {x1, y1, -0.002}, q1[3] = {x1, y1, 0.012};
+        hs_cut_result r[2];
+        for (int k = 0; k < 2; k++)
+            ENSURE(hs_cut_sweep(c[k], p0, q0, p1, q1, NULL, &r[k], &e) == HS_OK);
+        ENSURE(r[0].cut_tets == r[1].cut_tets && r[0].removed == r[1].removed);
+        ENSURE(r[0].moved == r[1].moved && r[0].pinned == r[1].pinned);
+        ENSURE(r[0].fragments == r[1].fragments && r[0].kept == r[1].kept);
+        ENSURE(r[0].changed_elements == r[1].changed_elements);
+        ENSURE(r[0].topology_version == r[1].topology_version);
+        const int *a0, *a1;
+        int nr = hs_cut_last_removed(c[0], &a0);
+        ENSURE(hs_cut_last_removed(c[1], &a1) == nr);
+        for (int i = 0; i < nr; i++) ENSURE(a0[i] == a1[i]);
+        ENSURE(memcmp(m[0]->x0, m[1]->x0, 3 * (size_t)m[0]->n_nodes * sizeof(double)) == 0);
+        changed += r[1].changed_elements > 0;
+    }
+    ENSURE(changed >= 5);
+    ENSURE(hs_cut_validate(c[1], &e) == HS_OK);
+    ENSURE(hs_cut_components(c[1]) == hs_cut_components(c[0]));
+    int pins = 0;
+    for (int i = 0; i < m[0]->n_nodes; i++) {
+        ENSURE(hs_cut_node_pinned(c[0], i) == hs_cut_node_pinned(c[1], i));
+        pins += hs_cut_node_pinned(c[1], i);
+    }
+    printf("  %d sweeps changed the mesh, %d tets left, %d pieces, %d pinned nodes: the same "
+           "with and without the factor\n",
+           changed, hs_cut_live_mesh(c[1])->n_tets, hs_cut_components(c[1]), pins);
+    ENSURE(factor_vs_fresh(c[0]) <= 1e-8);
+    // What needs the factor refuses.
+    const int n = m[1]->n_nodes;
+    double* f = hs_calloc(6 * (size_t)n, sizeof(double));
+    ENSURE(hs_cut_solve(c[1], f, f + 3 * n) == HS_ERR_INVALID);
+    ENSURE(hs_cut_refactor(c[1]) == HS_ERR_INVALID);
+    int node = 0;
+    ENSURE(hs_cut_track_compliance(c[1], 1, &node, HS_CUT_COMPLIANCE_RESOLVE) == HS_ERR_INVALID);
+    hs_free(f);
+    hs_cut* bad = NULL;
+    def.window_radius_m = 0.01;
+    ENSURE(hs_cut_create(m[1], fixed[1], &def, &bad, &e) == HS_ERR_INVALID && !bad);
+    printf("  NONE with a window: %s\n", e.msg);
+    def.window_radius_m = 0;
+    def.factor_policy = (hs_cut_factor_policy)7;
+    ENSURE(hs_cut_create(m[1], fixed[1], &def, &bad, &e) == HS_ERR_INVALID && !bad);
+    printf("  unknown policy: %s\n", e.msg);
+    for (int k = 0; k < 2; k++) {
+        hs_cut_destroy(&c[k]);
+        hs_free(fixed[k]);
+        hs_mesh_destroy(&m[k]);
+    }
+    ENSURE(hs_byte_count() == bytes);
+    return 0;
+}
+
 HS_TEST_MAIN(HS_CASE(test_force_model), HS_CASE(test_skin_full_separation),
              HS_CASE(test_skin_wound_angle), HS_CASE(test_consistency),
              HS_CASE(test_aggregated_update), HS_CASE(test_window_background), HS_CASE(test_rules),
-             HS_CASE(test_deformed_and_bad_input), HS_CASE(test_dynamic_body),
-             HS_CASE(test_alloc_faults), HS_CASE(test_liver_random_cuts))
+             HS_CASE(test_factor_none), HS_CASE(test_deformed_and_bad_input),
+             HS_CASE(test_dynamic_body), HS_CASE(test_alloc_faults),
+             HS_CASE(test_liver_random_cuts))

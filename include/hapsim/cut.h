@@ -57,6 +57,11 @@ typedef enum hs_cut_factor_policy {
     HS_CUT_FACTOR_AUTO = 0,     ///< low-rank update unless a numeric refactor is cheaper (measured)
     HS_CUT_FACTOR_UPDATE = 1,   ///< always the low-rank update (CHOLMOD update/downdate)
     HS_CUT_FACTOR_REFACTOR = 2, ///< numeric refactor with the kept analysis (reference)
+    /// No factor at all: geometry, pins and element changes only, for a caller whose own
+    /// solver follows the changed elements (the server's co-rotated body refactors its tangent
+    /// every step anyway). hs_cut_solve, hs_cut_refactor, compliance tracking and the update
+    /// window are unavailable; hs_cut_factor returns NULL.
+    HS_CUT_FACTOR_NONE = 3,
 } hs_cut_factor_policy;
 
 /// Cutting options. Initialise with hs_cut_default_def().
@@ -173,9 +178,9 @@ hs_status hs_cut_window_build(hs_cut* cut, hs_err* err);
 hs_status hs_cut_window_finish(hs_cut* cut, hs_err* err);
 
 /// Static linear solve K u = f with the kept factor: f[3n] nodal forces (N) in, u[3n] (m) out;
-/// fixed and pinned nodes get zero. Allocates: no.
+/// fixed and pinned nodes get zero; HS_ERR_INVALID without a factor (NONE). Allocates: no.
 hs_status hs_cut_solve(hs_cut* cut, const double* f, double* u /* OUT */);
-/// The kept factor (order hs_cut_free_dofs).
+/// The kept factor (order hs_cut_free_dofs); NULL with HS_CUT_FACTOR_NONE.
 hs_cholesky* hs_cut_factor(hs_cut* cut);
 /// Number of free dofs of K.
 int hs_cut_free_dofs(const hs_cut* cut);
@@ -185,7 +190,8 @@ int hs_cut_dof(const hs_cut* cut, int node, int comp);
 hs_status hs_cut_create_matrix(const hs_cut* cut, hs_csc** out);
 /// Assemble K as it is now from scratch (fem assembly of the active tets + pins) into a.
 void hs_cut_assemble(const hs_cut* cut, hs_csc* a);
-/// Rebuild the factor from a fresh assembly (the fallback; also resets update drift).
+/// Rebuild the factor from a fresh assembly (the fallback; also resets update drift);
+/// HS_ERR_INVALID without a factor (NONE).
 hs_status hs_cut_refactor(hs_cut* cut);
 /// The linear fem the cut keeps (element activity and rest data follow the cuts).
 const hs_fem* hs_cut_fem(const hs_cut* cut);
@@ -204,7 +210,8 @@ typedef enum hs_cut_compliance_mode {
 } hs_cut_compliance_mode;
 
 /// Track nodes[n] (any nodes; fixed ones give zero blocks): compute their blocks now and keep
-/// them current on every later sweep. Replaces an earlier set. Allocates: yes.
+/// them current on every later sweep. Replaces an earlier set. HS_ERR_INVALID without a
+/// factor (NONE). Allocates: yes.
 hs_status hs_cut_track_compliance(hs_cut* cut, int n, const int* nodes,
                                   hs_cut_compliance_mode mode);
 /// Block C_kk (m/N, row-major) of tracked node index k (0..n-1 of the tracked set).

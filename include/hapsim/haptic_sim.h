@@ -95,7 +95,7 @@ typedef struct hs_haptic_sim_stats {
     int64_t cut_failures;      ///< sweeps or compliance rebuilds that failed (state kept)
     double cut_ms_last;     ///< last changing cut step: sweep + body sync + topology hand-over, ms
     double cut_ms_max;      ///< worst of them, ms
-    double sweep_ms_last;   ///< of the last, the sweep (geometry + factor update), ms
+    double sweep_ms_last;   ///< of the last, the sweep (geometry, + factor update if kept), ms
     double comp_ms_last;    ///< the last haptic compliance rebuild (background worker), ms
     int64_t comp_version;   ///< topology version the compliance was built on (0: uncut)
     int64_t comp_rebuilds;  ///< rebuilds swapped in
@@ -152,8 +152,8 @@ typedef struct hs_haptic_cut_def {
     int cookie; ///< set by hs_haptic_cut_default_def
 } hs_haptic_cut_def;
 
-/// Defaults: hs_cut_default_def without validation and with the UPDATE factor policy (never a
-/// refactorisation in a cut step), blade 0 .. 10 mm along tool z, toughness
+/// Defaults: hs_cut_default_def without validation and with the NONE factor policy (the cut
+/// keeps no factor: nothing in the sim solves with it), blade 0 .. 10 mm along tool z, toughness
 /// 20 N/m, cap 1.5 N, 0.5 mm travel per sweep, engaged by button 0.
 hs_haptic_cut_def hs_haptic_cut_default_def(void);
 

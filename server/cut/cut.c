@@ -352,6 +352,7 @@ void hs_cut_assemble(const hs_cut* c, hs_csc* a) {
 }
 
 hs_status hs_cut_refactor(hs_cut* c) {
+    if (!c->factor) return HS_ERR_INVALID;
     hs_cut_assemble(c, c->a);
     hs_status st = hs_cholesky_refactor(c->factor, c->a);
     if (st == HS_OK) c->updates_since_refactor = 0;
@@ -436,6 +437,12 @@ hs_status hs_cut_create(hs_mesh* mesh, const unsigned char* fixed, const hs_cut_
         !(def->window_ahead_m >= 0 && def->window_ahead_m < 1e6))
         return hs_err_set(err, HS_ERR_INVALID, "cut: window radius %g m / ahead %g m out of range",
                           def->window_radius_m, def->window_ahead_m);
+    if (def->factor_policy < HS_CUT_FACTOR_AUTO || def->factor_policy > HS_CUT_FACTOR_NONE)
+        return hs_err_set(err, HS_ERR_INVALID, "cut: unknown factor policy %d",
+                          (int)def->factor_policy);
+    if (def->factor_policy == HS_CUT_FACTOR_NONE && def->window_radius_m > 0)
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "cut: an update window needs a factor (policy NONE)");
     if (mesh->n_nodes <= 0 || mesh->n_tets <= 0 || !mesh->node_used)
         return hs_err_set(err, HS_ERR_INVALID, "cut: mesh is empty or not finalized");
     hs_cut* c = hs_calloc(1, sizeof *c);
@@ -556,12 +563,12 @@ hs_status hs_cut_create(hs_mesh* mesh, const unsigned char* fixed, const hs_cut_
         dsum += p >= 0 ? c->a->val[p] : 0.0;
     }
     c->k_pin = dsum / nf;
-    st = hs_cholesky_create(c->a, &c->factor, err);
+    if (def->factor_policy != HS_CUT_FACTOR_NONE) st = hs_cholesky_create(c->a, &c->factor, err);
     // AUTO keeps the (supernodal) factor until a sweep small enough for updates comes: the
     // conversion to an updatable factor makes later refactors simplicial, hence slower.
     if (st == HS_OK && def->factor_policy == HS_CUT_FACTOR_UPDATE)
         st = hs_cholesky_prepare_updates(c->factor, 256);
-    if (st == HS_OK) {
+    if (st == HS_OK && c->factor) {
         // Calibrate the refactor cost of this factor (AUTO compares updates against it).
         int64_t t0 = hs_now_ns();
         st = hs_cut_refactor(c);
@@ -644,6 +651,7 @@ hs_status hs_cut_sync_fem(const hs_cut* c, hs_fem* other) {
 }
 
 hs_status hs_cut_solve(hs_cut* c, const double* f, double* u) {
+    if (!c || !c->factor || !f || !u) return HS_ERR_INVALID;
     for (int k = 0; k < 3 * c->n; k++) {
         int d = c->dof[k];
         if (d >= 0) c->rhs[d] = c->pinned[k / 3] ? 0.0 : f[k];
@@ -1399,7 +1407,7 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
     // numeric refactor costs a fixed amount. Both are measured as the cut runs: take the
     // cheaper. Until an update has been timed, one rank costs 1/96 of a refactor (measured:
     // 1/77 at 432 vertices, 1/108 at 5,043; docs/cutting.md).
-    int can_update = c->def.factor_policy != HS_CUT_FACTOR_REFACTOR && need > 0 &&
+    int can_update = c->factor && c->def.factor_policy != HS_CUT_FACTOR_REFACTOR && need > 0 &&
                      grow_elems(c, blocks) == HS_OK;
     if (can_update) {
         for (int k = 0; k < c->n_changed; k++) add_block(c, &m, c->changed[k], -1, x0);
@@ -1435,7 +1443,7 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
             goto done;
         }
     }
-    if (need > 0) {
+    if (need > 0 && c->factor) {
         // Entering update mode converts the factor once (allocates): not part of the timing.
         st = can_update ? hs_cholesky_prepare_updates(c->factor, blocks) : HS_ERR_UNSUPPORTED;
         int64_t tu = hs_now_ns();
@@ -1542,7 +1550,7 @@ static hs_status resolve_blocks(hs_cut* c, int k0, int cnt) {
 }
 
 hs_status hs_cut_track_compliance(hs_cut* c, int n, const int* nodes, hs_cut_compliance_mode mode) {
-    if (!c || n < 0 || (n > 0 && !nodes)) return HS_ERR_INVALID;
+    if (!c || !c->factor || n < 0 || (n > 0 && !nodes)) return HS_ERR_INVALID;
     for (int k = 0; k < n; k++)
         if (nodes[k] < 0 || nodes[k] >= c->n) return HS_ERR_INVALID;
     hs_free(c->track);

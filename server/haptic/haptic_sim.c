@@ -45,9 +45,10 @@ hs_haptic_cut_def hs_haptic_cut_default_def(void) {
     memset(&d, 0, sizeof d);
     d.cut = hs_cut_default_def();
     d.cut.validate = 0;
-    // Low-rank updates only: no refactorisation on the deformation thread's critical path.
-    // On the skin patch it costs the same as AUTO, which refactored 20 of 22 steps there.
-    d.cut.factor_policy = HS_CUT_FACTOR_UPDATE;
+    // No factor of K in the cut: here nothing solves with it. The body's direct co-rotated
+    // solver refactors its own tangent every step, and the haptic compliance is rebuilt from
+    // the live mesh. Keeping it updated cost ~12 ms of a ~13 ms sweep on the skin patch.
+    d.cut.factor_policy = HS_CUT_FACTOR_NONE;
     d.cut.orphan = HS_CUT_ORPHAN_KEEP_TET;
     d.cut.fragment = HS_CUT_FRAGMENT_FIX;
     d.blade_b[2] = 0.01;
