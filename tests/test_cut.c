@@ -768,6 +768,110 @@ static int test_dynamic_body(void) {
     return 0;
 }
 
+/// A body with the warped solver follows each sweep by a low-rank update of its rest-state
+/// factor (hs_body_change_elements): the factor agrees with a fresh one, the steps need no
+/// refactor and match a twin body that refactors after each sweep (hs_cut_sync_fem).
+static int test_body_low_rank(void) {
+    int64_t bytes = hs_byte_count();
+    hs_mesh* m = NULL;
+    hs_err e;
+    ENSURE(hs_mesh_create_box(0.06, 0.03, 0.01, 12, 6, 2, &m, &e) == HS_OK);
+    const int n = m->n_nodes;
+    unsigned char* fixed = hs_calloc((size_t)n, 1);
+    hs_mesh_select_plane(m, 0, -1, 1e-6, fixed);
+    hs_cut_def def = hs_cut_default_def();
+    def.orphan = HS_CUT_ORPHAN_KEEP_TET;
+    def.fragment = HS_CUT_FRAGMENT_FIX;
+    def.factor_policy = HS_CUT_FACTOR_NONE;
+    def.material.youngs_pa = 1e6; // sags a few mm: the blade stays across the beam
+    hs_cut* c = NULL;
+    ENSURE(hs_cut_create(m, fixed, &def, &c, &e) == HS_OK);
+    hs_body_def bd = hs_body_default_def();
+    bd.fem.model = HS_MODEL_COROTATED;
+    bd.fem.material = def.material;
+    bd.fem.material.rayleigh_mass = 5.0;
+    bd.fem.material.rayleigh_stiffness = 0.01;
+    bd.gravity[2] = -9.81;
+    bd.dt = 0.01;
+    bd.solver = HS_SOLVER_WARPED;
+    hs_body *a = NULL, *b = NULL, *d = NULL;
+    ENSURE(hs_body_create(m, &bd, fixed, &a, &e) == HS_OK); // low-rank updates
+    ENSURE(hs_body_create(m, &bd, fixed, &b, &e) == HS_OK); // refactors after each sweep
+    bd.solver = HS_SOLVER_DIRECT;
+    ENSURE(hs_body_create(m, &bd, fixed, &d, &e) == HS_OK); // no rest factor to keep
+    double* u = hs_alloc(sizeof(double) * 3 * (size_t)n);
+    double* v = hs_alloc(sizeof(double) * 3 * (size_t)n);
+    hs_step_stats sa, sb;
+    for (int s = 0; s < 20; s++) {
+        ENSURE(hs_body_step(a, &sa) == HS_OK && hs_body_step(b, &sb) == HS_OK);
+        ENSURE(hs_body_step(d, NULL) == HS_OK);
+    }
+    int removed = 0, changed = 0, updates = 0;
+    double worst_f = 0, worst_u = 0;
+    for (int k = 0; k < 8; k++) { // a partial cut: 25 of the 30 mm width
+        double y0 = -0.002 + 0.003 * k, y1 = y0 + 0.003;
+        double p0[3] = {0.031, y0, -0.05}, q0[3] = {0.031, y0, 0.03};
+        double p1[3] = {0.031, y1, -0.05}, q1[3] = {0.031, y1, 0.03};
+        memcpy(u, hs_body_displacement(a), sizeof(double) * 3 * (size_t)n);
+        memcpy(v, hs_body_velocity(a), sizeof(double) * 3 * (size_t)n);
+        hs_cut_result r;
+        ENSURE(hs_cut_sweep(c, p0, q0, p1, q1, u, &r, &e) == HS_OK);
+        const int *off, *mv;
+        int n_off = hs_cut_last_removed(c, &off), n_mv = hs_cut_last_changed(c, &mv);
+        removed += n_off;
+        changed += n_mv;
+        int lr = -1, lrd = -1;
+        ENSURE(hs_body_change_elements(a, n_off, off, n_mv, mv, &lr) == HS_OK);
+        ENSURE(hs_body_change_elements(d, n_off, off, n_mv, mv, &lrd) == HS_OK);
+        ENSURE(lrd == 0);
+        ENSURE(hs_cut_sync_fem(c, hs_body_fem(b)) == HS_OK);
+        if (n_off + n_mv > 0) {
+            ENSURE(lr == 1);
+            updates++;
+            double df = INFINITY;
+            ENSURE(hs_body_rest_factor_difference(a, &df) == HS_OK);
+            worst_f = fmax(worst_f, df);
+            ENSURE(df <= 1e-8);
+        }
+        hs_body_set_state(a, u, v);
+        hs_body_set_state(b, u, v);
+        hs_body_set_state(d, u, v);
+        for (int s = 0; s < 5; s++) {
+            ENSURE(hs_body_step(a, &sa) == HS_OK && hs_body_step(b, &sb) == HS_OK);
+            ENSURE(hs_body_step(d, NULL) == HS_OK);
+            if (s == 0 && n_off + n_mv > 0) ENSURE(sa.refactors == 0 && sb.refactors == 1);
+        }
+        const double *ua = hs_body_displacement(a), *ub = hs_body_displacement(b);
+        double dn = 0, nn = 0;
+        for (int i = 0; i < 3 * n; i++) {
+            dn = fmax(dn, fabs(ua[i] - ub[i]));
+            nn = fmax(nn, fabs(ub[i]));
+        }
+        worst_u = fmax(worst_u, dn / nn);
+    }
+    printf("  %d sweeps updated the factor (%d tets off, %d refreshed): factor vs fresh %.2g, "
+           "displacement vs refactoring twin %.2g (max rel)\n",
+           updates, removed, changed, worst_f, worst_u);
+    ENSURE(removed > 0 && updates >= 5);
+    ENSURE(hs_body_lowrank_updates(a) == updates && hs_body_lowrank_updates(d) == 0);
+    ENSURE(worst_u <= 1e-8);
+    // Bad input changes nothing.
+    int bad = m->n_tets;
+    ENSURE(hs_body_change_elements(a, 1, &bad, 0, NULL, NULL) == HS_ERR_INVALID);
+    double df = 0;
+    ENSURE(hs_body_rest_factor_difference(a, &df) == HS_OK && df <= 1e-8);
+    hs_free(u);
+    hs_free(v);
+    hs_free(fixed);
+    hs_body_destroy(&a);
+    hs_body_destroy(&b);
+    hs_body_destroy(&d);
+    hs_cut_destroy(&c);
+    hs_mesh_destroy(&m);
+    ENSURE(hs_byte_count() == bytes);
+    return 0;
+}
+
 /// Every allocation of hs_cut_create and of a first sweep failing in turn: a clean error, no
 /// leak, and the mesh untouched by a failed create.
 static int test_alloc_faults(void) {
@@ -961,5 +1065,5 @@ HS_TEST_MAIN(HS_CASE(test_force_model), HS_CASE(test_skin_full_separation),
              HS_CASE(test_skin_wound_angle), HS_CASE(test_consistency),
              HS_CASE(test_aggregated_update), HS_CASE(test_window_background), HS_CASE(test_rules),
              HS_CASE(test_factor_none), HS_CASE(test_deformed_and_bad_input),
-             HS_CASE(test_dynamic_body), HS_CASE(test_alloc_faults),
+             HS_CASE(test_dynamic_body), HS_CASE(test_body_low_rank), HS_CASE(test_alloc_faults),
              HS_CASE(test_liver_random_cuts))

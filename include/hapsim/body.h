@@ -96,6 +96,25 @@ double hs_body_kinetic_energy(const hs_body* b);
 double hs_body_elastic_energy(hs_body* b);
 /// Reaction force on fixed node i (what the support exerts on the body), N, at the current state.
 void hs_body_reaction(hs_body* b, int node, double f[3] /* OUT */);
+/// Follow a cut (or any change of the rest mesh): deactivate elements off[n_off] and refresh the
+/// rest data of moved[n_moved] from the mesh's current x0 (their vertices moved); inactive ones
+/// are skipped. A factor of the rest-state matrix (the warped solver, PCG with the factor or
+/// warped preconditioner, the linear model) that is current follows by one low-rank update of
+/// the elements' old and new rest shares (hs_cholesky_update_parts) instead of a numeric
+/// refactorisation at the next step; *low_rank (may be NULL) says whether it did. Otherwise
+/// (no such factor, locking_free, a downdate that lost definiteness) the next step refactors as
+/// before. Call after every sweep, before hs_body_set_state; replaces hs_cut_sync_fem for a
+/// body. HS_ERR_INVALID (nothing changed) for an index out of range or a moved element with rest
+/// volume <= 0. Allocates: the element blocks, on growth.
+hs_status hs_body_change_elements(hs_body* b, int n_off, const int* off, int n_moved,
+                                  const int* moved, int* low_rank /* OUT */);
+/// Low-rank factor updates hs_body_change_elements has made.
+int64_t hs_body_lowrank_updates(const hs_body* b);
+/// Largest relative difference of solves (three random right-hand sides) between the kept
+/// rest-state factor and a fresh factorisation of the rest-state matrix assembled now; for
+/// tests of the low-rank path. HS_ERR_INVALID when no current rest-state factor is kept.
+/// Allocates: yes.
+hs_status hs_body_rest_factor_difference(hs_body* b, double* rel /* OUT */);
 /// The model (for queries like hs_fem_node_rotation). Owned by the body.
 hs_fem* hs_body_fem(hs_body* b);
 /// Free dof index of (node, component), or -1 if fixed.

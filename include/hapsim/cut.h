@@ -139,6 +139,9 @@ hs_status hs_cut_sweep(hs_cut* cut, const double p0[3], const double q0[3], cons
 int hs_cut_last_removed(const hs_cut* cut, const int** tets /* OUT */);
 /// Vertices moved by the last sweep; valid until the next sweep.
 int hs_cut_last_moved(const hs_cut* cut, const int** nodes /* OUT */);
+/// Remaining tets whose rest data the last sweep changed (a vertex moved); valid until the
+/// next sweep. With hs_cut_last_removed, what hs_body_change_elements takes.
+int hs_cut_last_changed(const hs_cut* cut, const int** tets /* OUT */);
 /// Grows by one per sweep that removed or moved anything (0 before the first).
 int64_t hs_cut_topology_version(const hs_cut* cut);
 /// 1 while tet (index into mesh->tets) is part of the body.

@@ -82,6 +82,19 @@ void hs_fem_forces(const hs_fem* fem, double* f /* OUT [3n] */);
 /// A = kcoef * K_t + mcoef * M over the free dofs, K_t the tangent at the last update, M the
 /// lumped mass. A must come from hs_fem_create_matrix. Allocates: no.
 void hs_fem_assemble(const hs_fem* fem, double kcoef, double mcoef, hs_csc* a);
+/// a = kcoef K(rest) + mcoef M from the element rest data alone (no update needed: rotations are
+/// the identity, stresses zero), the matrix a rest-state factor holds. HS_ERR_UNSUPPORTED with
+/// locking_free (its nodal term). Allocates: no.
+hs_status hs_fem_assemble_rest(const hs_fem* fem, double kcoef, double mcoef, hs_csc* a);
+/// Element tet's share of that matrix: kcoef K_e(rest) + mcoef M_e (its lumped mass, rho V / 4
+/// per node), row-major 12x12 over its 4 nodes x 3 components. HS_ERR_UNSUPPORTED with
+/// locking_free. Allocates: no.
+hs_status hs_fem_rest_element_matrix(const hs_fem* fem, int tet, double kcoef, double mcoef,
+                                     double out[144] /* OUT */);
+/// a += s * (the rest shares of elements tets[n]) in a matrix with the fem's pattern (both
+/// halves kept). HS_ERR_UNSUPPORTED with locking_free. Allocates: no.
+hs_status hs_fem_add_rest_elements(const hs_fem* fem, int n, const int* tets, double kcoef,
+                                   double mcoef, double s, hs_csc* a);
 /// y = K_t x for all 3n dofs (constrained included) at the last update. Allocates: no.
 void hs_fem_apply_tangent(const hs_fem* fem, const double* x, double* y);
 /// Lumped mass per node, kg ([n]).
@@ -94,6 +107,8 @@ void hs_fem_node_rotation(const hs_fem* fem, int node, double r[9] /* OUT */);
 void hs_fem_node_rotation_warm(const hs_fem* fem, int node, double r[9] /* in/out */);
 /// Set or clear an element's participation (cutting removes elements). Allocates: no.
 void hs_fem_set_element_active(hs_fem* fem, int tet, int active);
+/// 1 when element tet takes part (not removed by a cut).
+int hs_fem_element_active(const hs_fem* fem, int tet);
 /// Multiply element tet's stiffness (forces, energy, tangent; not its mass) by s > 0, e.g. two
 /// materials in one body. HS_ERR_INVALID for a bad index or s; HS_ERR_UNSUPPORTED with
 /// locking_free (its nodal volumetric term is shared between elements). Allocates: no.

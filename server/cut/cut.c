@@ -599,6 +599,10 @@ int hs_cut_last_moved(const hs_cut* c, const int** nodes) {
     if (nodes) *nodes = c->moved;
     return c->n_moved;
 }
+int hs_cut_last_changed(const hs_cut* c, const int** tets) {
+    if (tets) *tets = c->changed;
+    return c->n_changed;
+}
 int64_t hs_cut_topology_version(const hs_cut* c) {
     return c->version;
 }

@@ -55,6 +55,12 @@ struct hs_body {
     double load_scale;
     int updated; // fem evaluated at the current u
     hs_fem_stats fem_stats;
+    // hs_body_change_elements: element blocks (new ones first, then old) and their free dofs.
+    int cap_blk;
+    double* blk_k; // [144 cap_blk]
+    int* blk_d;    // [12 cap_blk]
+    int* blk_e;    // [cap_blk] scratch element list
+    int64_t lowrank_updates;
 };
 
 hs_body_def hs_body_default_def(void) {
@@ -80,6 +86,9 @@ void hs_body_destroy(hs_body** pb) {
     hs_csc_destroy(&b->a);
     hs_cholesky_destroy(&b->factor);
     hs_pcg_destroy(&b->pcg);
+    hs_free(b->blk_k);
+    hs_free(b->blk_d);
+    hs_free(b->blk_e);
     hs_free(b->dof);
     hs_free(b->free_to_full);
     hs_free(b->fixed);
@@ -321,6 +330,139 @@ void hs_body_set_state(hs_body* b, const double* u, const double* v) {
     b->updated = 0;
 }
 
+static hs_status grow_blocks(hs_body* b, int n) {
+    if (n <= b->cap_blk) return HS_OK;
+    int cap = n > 2 * b->cap_blk ? n : 2 * b->cap_blk;
+    double* k = hs_realloc(b->blk_k, sizeof(double) * 144 * (size_t)cap);
+    if (!k) return HS_ERR_NOMEM;
+    b->blk_k = k;
+    int* d = hs_realloc(b->blk_d, sizeof(int) * 12 * (size_t)cap);
+    if (!d) return HS_ERR_NOMEM;
+    b->blk_d = d;
+    int* e = hs_realloc(b->blk_e, sizeof(int) * (size_t)cap);
+    if (!e) return HS_ERR_NOMEM;
+    b->blk_e = e;
+    b->cap_blk = cap;
+    return HS_OK;
+}
+
+// Element e's rest share into block slot i (matrix and free dofs).
+static hs_status rest_block(hs_body* b, int i, int e) {
+    hs_status s = hs_fem_rest_element_matrix(b->fem, e, b->factor_kcoef, b->factor_mcoef,
+                                             b->blk_k + 144 * (size_t)i);
+    const int* t = b->mesh->tets + 4 * e;
+    for (int a = 0; a < 4; a++)
+        for (int q = 0; q < 3; q++) b->blk_d[12 * i + 3 * a + q] = b->dof[3 * t[a] + q];
+    return s;
+}
+
+hs_status hs_body_change_elements(hs_body* b, int n_off, const int* off, int n_moved,
+                                  const int* moved, int* low_rank) {
+    if (low_rank) *low_rank = 0;
+    if (!b || n_off < 0 || n_moved < 0 || (n_off > 0 && !off) || (n_moved > 0 && !moved))
+        return HS_ERR_INVALID;
+    const int ne = b->mesh->n_tets;
+    for (int k = 0; k < n_off; k++)
+        if (off[k] < 0 || off[k] >= ne) return HS_ERR_INVALID;
+    for (int k = 0; k < n_moved; k++)
+        if (moved[k] < 0 || moved[k] >= ne) return HS_ERR_INVALID;
+    hs_status s = grow_blocks(b, n_off + 2 * n_moved);
+    if (s != HS_OK) return s;
+    const uint64_t v0 = hs_fem_stiffness_version(b->fem);
+    // A factor of the rest-state matrix as it is now follows by low rank; `a` too where it
+    // holds that matrix (the warped solver's safeguard reads it; the linear model caches it).
+    int keep = b->factor && b->factor_rest && b->factor_version == v0;
+    int a_rest = keep && b->a_kcoef == b->factor_kcoef && b->a_mcoef == b->factor_mcoef &&
+                 b->a_version == v0 &&
+                 (b->def.solver == HS_SOLVER_WARPED || b->def.fem.model == HS_MODEL_LINEAR);
+    // Old shares (slots n_new ..): the moved elements and the active ones going off.
+    int n_new = 0, n_old = 0;
+    for (int k = 0; k < n_moved; k++)
+        if (hs_fem_element_active(b->fem, moved[k])) n_new++;
+    int* list = b->blk_e;
+    for (int k = 0; k < n_moved; k++)
+        if (hs_fem_element_active(b->fem, moved[k])) list[n_old++] = moved[k];
+    for (int k = 0; k < n_off; k++)
+        if (hs_fem_element_active(b->fem, off[k])) list[n_old++] = off[k];
+    for (int k = 0; keep && k < n_old; k++) keep = rest_block(b, n_new + k, list[k]) == HS_OK;
+    if (!keep) a_rest = 0;
+    if (a_rest && hs_fem_add_rest_elements(b->fem, n_old, list, b->factor_kcoef, b->factor_mcoef,
+                                           -1.0, b->a) != HS_OK)
+        a_rest = 0, keep = 0;
+    // The change itself (refresh validates every element before touching any).
+    s = hs_fem_refresh_elements(b->fem, list, n_new);
+    if (s != HS_OK) {
+        if (a_rest) // put back what was taken out
+            hs_fem_add_rest_elements(b->fem, n_old, list, b->factor_kcoef, b->factor_mcoef, 1.0,
+                                     b->a);
+        return s;
+    }
+    for (int k = 0; k < n_off; k++) hs_fem_set_element_active(b->fem, off[k], 0);
+    b->updated = 0;
+    const uint64_t v1 = hs_fem_stiffness_version(b->fem);
+    if (a_rest && hs_fem_add_rest_elements(b->fem, n_new, list, b->factor_kcoef, b->factor_mcoef,
+                                           1.0, b->a) != HS_OK)
+        keep = 0;
+    for (int k = 0; keep && k < n_new; k++) keep = rest_block(b, k, list[k]) == HS_OK;
+    if (keep && hs_cholesky_update_parts(b->factor, n_new, n_old, b->blk_k, b->blk_d) != HS_OK)
+        keep = 0; // e.g. a downdate lost definiteness: the next step refactors
+    if (keep) {
+        b->factor_version = v1;
+        b->lowrank_updates++;
+        if (low_rank) *low_rank = 1;
+    } else {
+        b->factor_version = 0; // stale: refreshed at the next solve
+    }
+    if (keep && a_rest)
+        b->a_version = v1;
+    else
+        b->a_valid = 0, b->a_version = 0;
+    return HS_OK;
+}
+
+int64_t hs_body_lowrank_updates(const hs_body* b) {
+    return b ? b->lowrank_updates : 0;
+}
+
+hs_status hs_body_rest_factor_difference(hs_body* b, double* rel) {
+    if (!b || !rel) return HS_ERR_INVALID;
+    *rel = INFINITY;
+    if (!b->factor || !b->factor_rest || b->factor_version != hs_fem_stiffness_version(b->fem))
+        return HS_ERR_INVALID;
+    hs_csc* a = NULL;
+    hs_cholesky* f = NULL;
+    hs_err e;
+    hs_status s = hs_fem_create_matrix(b->fem, &a);
+    if (s == HS_OK) s = hs_fem_assemble_rest(b->fem, b->factor_kcoef, b->factor_mcoef, a);
+    if (s == HS_OK) s = hs_cholesky_create_natural(a, &f, &e);
+    const int nf = b->n_free;
+    double* w = s == HS_OK ? hs_alloc(sizeof(double) * 3 * (size_t)nf) : NULL;
+    if (s == HS_OK && !w) s = HS_ERR_NOMEM;
+    double worst = 0;
+    uint64_t x = 0x9e3779b97f4a7c15ull;
+    for (int r = 0; s == HS_OK && r < 3; r++) {
+        for (int i = 0; i < nf; i++) {
+            x ^= x << 13, x ^= x >> 7, x ^= x << 17;
+            w[i] = (double)(x >> 11) / 9007199254740992.0 - 0.5;
+        }
+        s = hs_cholesky_solve(b->factor, w, w + nf);
+        if (s == HS_OK) s = hs_cholesky_solve(f, w, w + 2 * nf);
+        double dn = 0, nn = 0;
+        for (int i = 0; s == HS_OK && i < nf; i++) {
+            double d = w[nf + i] - w[2 * nf + i];
+            dn += d * d;
+            nn += w[2 * nf + i] * w[2 * nf + i];
+        }
+        double q = sqrt(dn / nn);
+        if (s == HS_OK && !(q <= worst)) worst = q; // NaN stays
+    }
+    hs_free(w);
+    hs_cholesky_destroy(&f);
+    hs_csc_destroy(&a);
+    if (s == HS_OK) *rel = worst;
+    return s;
+}
+
 // Evaluate the model at x0 + u (w is scratch for positions).
 static void update_model(hs_body* b) {
     const double* x0 = b->mesh->x0;
@@ -379,8 +521,15 @@ static void assemble(hs_body* b, double kcoef, double mcoef) {
 // Make `factor` represent kcoef K + mcoef M at the current update; `rest`: the model is
 // evaluated at rest. Returns the status of the factorisation; on HS_ERR_NOT_POSDEF the previous
 // factor remains.
+static hs_status factor_a(hs_body* b, double kcoef, double mcoef, int* refactors, int rest);
+
 static hs_status refresh_factor(hs_body* b, double kcoef, double mcoef, int* refactors, int rest) {
     assemble(b, kcoef, mcoef);
+    return factor_a(b, kcoef, mcoef, refactors, rest);
+}
+
+// Factorise `a` as assembled (numeric refactor once a factor exists).
+static hs_status factor_a(hs_body* b, double kcoef, double mcoef, int* refactors, int rest) {
     hs_status s;
     if (!b->factor) {
         hs_err e;
@@ -428,15 +577,25 @@ static hs_status solve_system(hs_body* b, double kcoef, double mcoef, hs_step_st
     if ((b->def.precond == HS_PRECOND_FACTOR || warped) &&
         (!b->factor || !b->factor_rest || b->factor_kcoef != kcoef || b->factor_mcoef != mcoef ||
          b->factor_version != hs_fem_stiffness_version(b->fem))) {
-        // Assemble at rest: evaluate the model at u = 0 temporarily.
-        double* keep = b->save;
-        memcpy(keep, b->u, 3 * (size_t)b->n * sizeof(double));
-        memset(b->u, 0, 3 * (size_t)b->n * sizeof(double));
-        update_model(b);
-        s = refresh_factor(b, kcoef, mcoef, &st->refactors, 1);
-        memcpy(b->u, keep, 3 * (size_t)b->n * sizeof(double));
-        update_model(b);
-        if (s != HS_OK) return s;
+        // The rest-state matrix straight from the element rest data (R = I exactly); with the
+        // locking-free term, which that cannot give, evaluate the model at u = 0 instead.
+        if (hs_fem_assemble_rest(b->fem, kcoef, mcoef, b->a) == HS_OK) {
+            b->a_valid = linear; // the linear model's cached tangent is this matrix
+            b->a_kcoef = kcoef;
+            b->a_mcoef = mcoef;
+            b->a_version = hs_fem_stiffness_version(b->fem);
+            s = factor_a(b, kcoef, mcoef, &st->refactors, 1);
+            if (s != HS_OK) return s;
+        } else {
+            double* keep = b->save;
+            memcpy(keep, b->u, 3 * (size_t)b->n * sizeof(double));
+            memset(b->u, 0, 3 * (size_t)b->n * sizeof(double));
+            update_model(b);
+            s = refresh_factor(b, kcoef, mcoef, &st->refactors, 1);
+            memcpy(b->u, keep, 3 * (size_t)b->n * sizeof(double));
+            update_model(b);
+            if (s != HS_OK) return s;
+        }
     }
     if (warped) hs_fem_node_rotations_warm(b->fem, b->rot);
     if (one_solve) {

@@ -558,6 +558,10 @@ void hs_fem_set_element_active(hs_fem* fem, int tet, int active) {
     for (int a = 0; a < 4; a++) node_mass(fem, fem->tet[4 * tet + a]);
 }
 
+int hs_fem_element_active(const hs_fem* fem, int tet) {
+    return fem && tet >= 0 && tet < fem->ne && fem->active[tet];
+}
+
 hs_status hs_fem_set_element_stiffness_scale(hs_fem* fem, int tet, double s) {
     if (!fem || tet < 0 || tet >= fem->ne || !(s > 0) || !isfinite(s)) return HS_ERR_INVALID;
     if (fem->anp) return HS_ERR_UNSUPPORTED; // the nodal volumetric term mixes elements
@@ -1012,6 +1016,91 @@ void hs_fem_assemble(const hs_fem* m, double kcoef, double mcoef, hs_csc* a) {
             }
     }
     for (int w = 0; w < m->n_mirror; w++) val[m->mirror[2 * w]] = val[m->mirror[2 * w + 1]];
+}
+
+// Element e's rest share in assembly order: kcoef K_e at R = I (S = 0) plus mcoef times its
+// lumped mass share on the diagonal blocks.
+static void rest_blocks(const hs_fem* m, int e, double kcoef, double mcoef, double kb[10][9]) {
+    const double* g = m->g + 12 * e;
+    const double cV = kcoef * m->vol0[e] * m->kscale[e], cmu = cV * m->mu, clam = cV * m->lam_el;
+    const double ms = mcoef * 0.25 * m->def.material.density_kg_m3 * m->vol0[e];
+    int k = 0;
+    for (int a = 0; a < 4; a++)
+        for (int b = a; b < 4; b++, k++) {
+            double* B = kb[k];
+            const double *ga = g + 3 * a, *gb = g + 3 * b;
+            for (int i = 0; i < 3; i++)
+                for (int j = 0; j < 3; j++)
+                    B[3 * i + j] = clam * ga[i] * gb[j] + cmu * gb[i] * ga[j];
+            double d = cmu * v3_dot(ga, gb) + (a == b ? ms : 0.0);
+            B[0] += d;
+            B[4] += d;
+            B[8] += d;
+        }
+}
+
+// Scatter s * kb (assembly order) into val through element e's upper-triangle positions.
+static void scatter_blocks(const hs_fem* m, int e, double kb[10][9], double s, double* val) {
+    const int* ep = m->elem_pos + 78 * e;
+    int k = 0;
+    for (int q = 0; q < 10; q++) {
+        const double* B = kb[q];
+        if (q == 0 || q == 4 || q == 7 || q == 9) {
+            for (int i = 0; i < 3; i++)
+                for (int j = i; j < 3; j++, k++)
+                    if (ep[k] >= 0) val[ep[k]] += s * B[3 * i + j];
+        } else {
+            for (int t = 0; t < 9; t++, k++)
+                if (ep[k] >= 0) val[ep[k]] += s * B[t];
+        }
+    }
+}
+
+hs_status hs_fem_assemble_rest(const hs_fem* m, double kcoef, double mcoef, hs_csc* a) {
+    if (!m || !a || a->n != m->n_free || a->nnz != m->nnz) return HS_ERR_INVALID;
+    if (m->anp) return HS_ERR_UNSUPPORTED;
+    memset(a->val, 0, sizeof(double) * (size_t)a->nnz);
+    double kb[10][9];
+    for (int e = 0; e < m->ne; e++) {
+        if (!m->active[e]) continue;
+        rest_blocks(m, e, kcoef, mcoef, kb);
+        scatter_blocks(m, e, kb, 1.0, a->val);
+    }
+    for (int w = 0; w < m->n_mirror; w++) a->val[m->mirror[2 * w]] = a->val[m->mirror[2 * w + 1]];
+    return HS_OK;
+}
+
+hs_status hs_fem_rest_element_matrix(const hs_fem* m, int e, double kcoef, double mcoef,
+                                     double out[144]) {
+    if (!m || e < 0 || e >= m->ne || !out) return HS_ERR_INVALID;
+    if (m->anp) return HS_ERR_UNSUPPORTED;
+    double kb[10][9];
+    rest_blocks(m, e, kcoef, mcoef, kb);
+    int k = 0;
+    for (int a = 0; a < 4; a++)
+        for (int b = a; b < 4; b++, k++)
+            for (int i = 0; i < 3; i++)
+                for (int j = 0; j < 3; j++) {
+                    out[(3 * a + i) * 12 + 3 * b + j] = kb[k][3 * i + j];
+                    out[(3 * b + j) * 12 + 3 * a + i] = kb[k][3 * i + j];
+                }
+    return HS_OK;
+}
+
+hs_status hs_fem_add_rest_elements(const hs_fem* m, int n, const int* tets, double kcoef,
+                                   double mcoef, double s, hs_csc* a) {
+    if (!m || !a || a->n != m->n_free || a->nnz != m->nnz || n < 0 || (n > 0 && !tets))
+        return HS_ERR_INVALID;
+    if (m->anp) return HS_ERR_UNSUPPORTED;
+    for (int k = 0; k < n; k++)
+        if (tets[k] < 0 || tets[k] >= m->ne) return HS_ERR_INVALID;
+    double kb[10][9];
+    for (int k = 0; k < n; k++) {
+        rest_blocks(m, tets[k], kcoef, mcoef, kb);
+        scatter_blocks(m, tets[k], kb, s, a->val);
+    }
+    for (int w = 0; w < m->n_mirror; w++) a->val[m->mirror[2 * w]] = a->val[m->mirror[2 * w + 1]];
+    return HS_OK;
 }
 
 void hs_fem_apply_tangent(const hs_fem* m, const double* x, double* y) {
