@@ -685,14 +685,22 @@ static int cut_step(hs_haptic_sim* h) {
     double f[3] = {0, 0, 0};
     if (s == HS_OK)
         hs_cut_force(cd->toughness_n_m, res.cut_length_m, travel, cd->max_force_n, f);
-    else
+    else {
         h->st.cut_failures++;
+        (void)hs_cut_sync_fem(h->cut, hs_body_fem(h->body)); // what the failed sweep did change
+    }
     int changed = s == HS_OK && (res.removed > 0 || res.moved > 0);
     h->st.cutting = res.cut_tets > 0;
     if (changed) {
         double sweep_ms = (double)(hs_now_ns() - t0) * 1e-6;
         memcpy(h->cv, hs_body_velocity(h->body), n3 * sizeof(double));
-        if (hs_cut_sync_fem(h->cut, hs_body_fem(h->body)) != HS_OK) h->st.cut_failures++;
+        // The body follows the sweep (by a low-rank update of its factor when it keeps a
+        // rest-state one); should that fail, mirror every removal and refactor instead.
+        const int *off, *mv;
+        int n_off = hs_cut_last_removed(h->cut, &off), n_mv = hs_cut_last_changed(h->cut, &mv);
+        if (hs_body_change_elements(h->body, n_off, off, n_mv, mv, NULL) != HS_OK &&
+            hs_cut_sync_fem(h->cut, hs_body_fem(h->body)) != HS_OK)
+            h->st.cut_failures++;
         hs_body_set_state(h->body, h->cu, h->cv);
         h->comp_stale = 1;
         share_topology(h, quad);
