@@ -46,6 +46,10 @@ static int defaults_and_paths(void) {
     ENSURE(hs_scene_parse(minimal, "/a/b/scene.json", 0, &s, &err) == HS_OK);
     ENSURE(strcmp(s.mesh_path, "/a/b/m.msh") == 0 && strcmp(s.name, "scene.json") == 0);
     ENSURE(s.material.youngs_pa == d.material.youngs_pa && s.model == d.model);
+    ENSURE(!s.warped_solver && !d.warped_solver);
+    const char* warped = "{\"mesh\": \"m.msh\", \"model\": {\"solver\": \"warped\"}, \"fixed\": "
+                         "[{\"type\": \"box\", \"min\": [0,0,0], \"max\": [1,1,1]}]}";
+    ENSURE(hs_scene_parse(warped, "/a/b/scene.json", 0, &s, &err) == HS_OK && s.warped_solver);
     ENSURE(s.n_tools == d.n_tools && s.haptic_hz == d.haptic_hz && !s.has_workspace);
     ENSURE(s.fixed[0].kind == HS_FIXED_BOX && s.fixed[0].max[2] == 1.0);
     ENSURE(hs_scene_parse(minimal, "scene.json", 0, &s, &err) == HS_OK);
@@ -123,6 +127,8 @@ static int malformed_names_file_line_key(void) {
                        "'model.type': must be one of: linear | corotated | stvk", NULL) == 0);
     ENSURE(expect_fail(HEAD "\"model\": {\"locking_free\": 1}}", HS_ERR_PARSE,
                        "'model.locking_free': must be true or false", NULL) == 0);
+    ENSURE(expect_fail(HEAD "\"model\": {\"solver\": \"pcg\"}}", HS_ERR_PARSE,
+                       "'model.solver': must be one of: direct | warped", NULL) == 0);
     ENSURE(expect_fail(HEAD "\"gravity\": [0, 0]}", HS_ERR_PARSE,
                        "'gravity': must be an array of 3", NULL) == 0);
     ENSURE(expect_fail(HEAD "\"tools\": [{\"kind\": \"probe\"}]}", HS_ERR_PARSE,

@@ -62,7 +62,11 @@ typedef struct hs_scene {
     hs_rotation rotation;   ///< co-rotated: how element rotations are extracted
     hs_inversion inversion; ///< what inverted elements do
     int locking_free;       ///< 1: average nodal pressure volumetric term
-    hs_material material;   ///< E, nu, density, Rayleigh damping
+    /// 1: the warped solver (one solve per step with the rest factor rotated by the node
+    /// rotations; cuts update that factor by low rank); 0: direct (the exact tangent, refactored
+    /// each step for a nonlinear model)
+    int warped_solver;
+    hs_material material; ///< E, nu, density, Rayleigh damping
 
     double gravity[3];                        ///< m/s^2, scene frame
     int n_fixed;                              ///< used entries of fixed[]

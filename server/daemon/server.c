@@ -245,6 +245,7 @@ static void sim_def_from_scene(const hs_scene* sc, int realtime, hs_haptic_sim_d
     d->body.fem.rotation = sc->rotation;
     d->body.fem.inversion = sc->inversion;
     d->body.fem.locking_free = sc->locking_free;
+    d->body.solver = sc->warped_solver ? HS_SOLVER_WARPED : HS_SOLVER_DIRECT;
     memcpy(d->body.gravity, sc->gravity, sizeof d->body.gravity);
     d->body.dt = 1.0 / sc->sim_hz;
     for (int t = 0; t < sc->n_tools; ++t)

@@ -304,7 +304,8 @@ static hs_status parse_model(const ctx* c, const cJSON* root, hs_scene* s) {
     const cJSON* m;
     TRY(get_obj(c, root, "", "model", &m));
     if (!m) return HS_OK;
-    static const char* const keys[] = {"type", "rotation", "inversion", "locking_free", NULL};
+    static const char* const keys[] = {"type",         "rotation", "inversion",
+                                       "locking_free", "solver",   NULL};
     TRY(check_keys(c, m, "model", keys));
     static const char* const types[] = {"linear", "corotated", "stvk"};
     static const char* const rots[] = {"polar", "svd"};
@@ -319,6 +320,8 @@ static hs_status parse_model(const ctx* c, const cJSON* root, hs_scene* s) {
     TRY(get_enum(c, m, "model", "inversion", invs, 2, 0, &v));
     s->inversion = (hs_inversion)v;
     TRY(get_bool(c, m, "model", "locking_free", &s->locking_free));
+    static const char* const solvers[] = {"direct", "warped"};
+    TRY(get_enum(c, m, "model", "solver", solvers, 2, 0, &s->warped_solver));
     return HS_OK;
 }
 
