@@ -377,6 +377,7 @@ hs_status hs_body_change_elements(hs_body* b, int n_off, const int* off, int n_m
     int a_rest = keep && b->a_kcoef == b->factor_kcoef && b->a_mcoef == b->factor_mcoef &&
                  b->a_version == v0 &&
                  (b->def.solver == HS_SOLVER_WARPED || b->def.fem.model == HS_MODEL_LINEAR);
+    if (b->def.solver == HS_SOLVER_WARPED && !a_rest) keep = 0; // its safeguard reads `a`
     // Old shares (slots n_new ..): the moved elements and the active ones going off.
     int n_new = 0, n_old = 0;
     for (int k = 0; k < n_moved; k++)

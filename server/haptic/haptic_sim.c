@@ -45,9 +45,10 @@ hs_haptic_cut_def hs_haptic_cut_default_def(void) {
     memset(&d, 0, sizeof d);
     d.cut = hs_cut_default_def();
     d.cut.validate = 0;
-    // No factor of K in the cut: here nothing solves with it. The body's direct co-rotated
-    // solver refactors its own tangent every step, and the haptic compliance is rebuilt from
-    // the live mesh. Keeping it updated cost ~12 ms of a ~13 ms sweep on the skin patch.
+    // No factor of K in the cut: here nothing solves with it. The body keeps its own (the
+    // direct solver refactors its tangent every step; the warped solver's rest factor follows
+    // each sweep by hs_body_change_elements), and the haptic compliance is rebuilt from the
+    // live mesh. Keeping the cut's updated cost ~12 ms of a ~13 ms sweep on the skin patch.
     d.cut.factor_policy = HS_CUT_FACTOR_NONE;
     d.cut.orphan = HS_CUT_ORPHAN_KEEP_TET;
     d.cut.fragment = HS_CUT_FRAGMENT_FIX;
