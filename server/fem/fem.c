@@ -632,7 +632,8 @@ static int element_rotation(hs_fem* m, int e, const double F[9], double det, dou
 }
 
 /// F = sum_a x_a g_a^T of element e.
-static inline void element_F(const hs_fem* m, const double* x, int e, double F[9]) {
+static inline __attribute__((always_inline)) void element_F(const hs_fem* m, const double* x, int e,
+                                                            double F[9]) {
     const int* t = m->tet + 4 * e;
     const double* g = m->g + 12 * e;
     const double* x0 = x + 3 * t[0];
@@ -711,19 +712,8 @@ static inline __attribute__((always_inline)) void update_all(hs_fem* m, const do
         double det;
         if (batch) {
             det = m->det[e];
-        } else { // element_F, written out so that F stays in registers
-            const double* x0 = x + 3 * t[0];
-            memset(F, 0, sizeof F);
-            for (int a = 1; a < 4; a++) {
-                const double* xa = x + 3 * t[a];
-                const double* ga = g + 3 * a;
-                for (int i = 0; i < 3; i++) {
-                    double d = xa[i] - x0[i];
-                    F[3 * i] += d * ga[0];
-                    F[3 * i + 1] += d * ga[1];
-                    F[3 * i + 2] += d * ga[2];
-                }
-            }
+        } else {
+            element_F(m, x, e, F);
             memcpy(m->F + 9 * e, F, sizeof F);
             det = m3_det(F);
             m->det[e] = det;
