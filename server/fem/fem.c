@@ -952,6 +952,28 @@ static void element_blocks(const hs_fem* m, int e, double sc, double kb[10][9]) 
         }
 }
 
+// Scatter s * kb (assembly order) into val through element e's upper-triangle positions.
+static void scatter_blocks(const hs_fem* m, int e, double kb[10][9], double s, double* val) {
+    const int* ep = m->elem_pos + 78 * e;
+    int k = 0;
+    for (int q = 0; q < 10; q++) {
+        const double* B = kb[q];
+        if (q == 0 || q == 4 || q == 7 || q == 9) { // diagonal block: upper half
+            for (int i = 0; i < 3; i++)
+                for (int j = i; j < 3; j++, k++)
+                    if (ep[k] >= 0) val[ep[k]] += s * B[3 * i + j];
+        } else {
+            for (int t = 0; t < 9; t++, k++)
+                if (ep[k] >= 0) val[ep[k]] += s * B[t];
+        }
+    }
+}
+
+// The strictly lower entries from their upper transposes.
+static void mirror_upper(const hs_fem* m, double* val) {
+    for (int w = 0; w < m->n_mirror; w++) val[m->mirror[2 * w]] = val[m->mirror[2 * w + 1]];
+}
+
 void hs_fem_assemble(const hs_fem* m, double kcoef, double mcoef, hs_csc* a) {
     HS_ASSERT(m && a && a->n == m->n_free && a->nnz == m->nnz);
     memset(a->val, 0, sizeof(double) * (size_t)a->nnz);
@@ -961,19 +983,7 @@ void hs_fem_assemble(const hs_fem* m, double kcoef, double mcoef, hs_csc* a) {
         for (int e = 0; e < m->ne; e++) {
             if (!m->active[e]) continue;
             element_blocks(m, e, kcoef, kb);
-            const int* ep = m->elem_pos + 78 * e;
-            int k = 0;
-            for (int q = 0; q < 10; q++) {
-                const double* B = kb[q];
-                if (q == 0 || q == 4 || q == 7 || q == 9) { // diagonal block: upper half
-                    for (int i = 0; i < 3; i++)
-                        for (int j = i; j < 3; j++, k++)
-                            if (ep[k] >= 0) val[ep[k]] += B[3 * i + j];
-                } else {
-                    for (int t = 0; t < 9; t++, k++)
-                        if (ep[k] >= 0) val[ep[k]] += B[t];
-                }
-            }
+            scatter_blocks(m, e, kb, 1.0, val);
         }
         if (m->anp) {
             // K_vol = sum_n kappa V_n c_n c_n^T over the 1-ring of each node (upper half).
@@ -1005,7 +1015,7 @@ void hs_fem_assemble(const hs_fem* m, double kcoef, double mcoef, hs_csc* a) {
                 if (p >= 0) val[p] += mcoef * m->mass[i];
             }
     }
-    for (int w = 0; w < m->n_mirror; w++) val[m->mirror[2 * w]] = val[m->mirror[2 * w + 1]];
+    mirror_upper(m, val);
 }
 
 // Element e's rest share in assembly order: kcoef K_e at R = I (S = 0) plus mcoef times its
@@ -1029,23 +1039,6 @@ static void rest_blocks(const hs_fem* m, int e, double kcoef, double mcoef, doub
         }
 }
 
-// Scatter s * kb (assembly order) into val through element e's upper-triangle positions.
-static void scatter_blocks(const hs_fem* m, int e, double kb[10][9], double s, double* val) {
-    const int* ep = m->elem_pos + 78 * e;
-    int k = 0;
-    for (int q = 0; q < 10; q++) {
-        const double* B = kb[q];
-        if (q == 0 || q == 4 || q == 7 || q == 9) {
-            for (int i = 0; i < 3; i++)
-                for (int j = i; j < 3; j++, k++)
-                    if (ep[k] >= 0) val[ep[k]] += s * B[3 * i + j];
-        } else {
-            for (int t = 0; t < 9; t++, k++)
-                if (ep[k] >= 0) val[ep[k]] += s * B[t];
-        }
-    }
-}
-
 hs_status hs_fem_assemble_rest(const hs_fem* m, double kcoef, double mcoef, hs_csc* a) {
     if (!m || !a || a->n != m->n_free || a->nnz != m->nnz) return HS_ERR_INVALID;
     if (m->anp) return HS_ERR_UNSUPPORTED;
@@ -1056,7 +1049,7 @@ hs_status hs_fem_assemble_rest(const hs_fem* m, double kcoef, double mcoef, hs_c
         rest_blocks(m, e, kcoef, mcoef, kb);
         scatter_blocks(m, e, kb, 1.0, a->val);
     }
-    for (int w = 0; w < m->n_mirror; w++) a->val[m->mirror[2 * w]] = a->val[m->mirror[2 * w + 1]];
+    mirror_upper(m, a->val);
     return HS_OK;
 }
 
@@ -1089,7 +1082,7 @@ hs_status hs_fem_add_rest_elements(const hs_fem* m, int n, const int* tets, doub
         rest_blocks(m, tets[k], kcoef, mcoef, kb);
         scatter_blocks(m, tets[k], kb, s, a->val);
     }
-    for (int w = 0; w < m->n_mirror; w++) a->val[m->mirror[2 * w]] = a->val[m->mirror[2 * w + 1]];
+    mirror_upper(m, a->val);
     return HS_OK;
 }
 
