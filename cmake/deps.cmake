@@ -12,6 +12,12 @@ add_library(hs_cholmod INTERFACE)
 target_include_directories(hs_cholmod SYSTEM INTERFACE ${CHOLMOD_INCLUDE_DIR})
 target_link_libraries(hs_cholmod INTERFACE ${CHOLMOD_LIBRARY} ${SUITESPARSECONFIG_LIBRARY})
 add_library(SuiteSparse::CHOLMOD ALIAS hs_cholmod)
+# The partial refactorisation calls LAPACK / BLAS directly (the ones CHOLMOD links).
+find_library(LAPACK_LIBRARY lapack)
+find_library(BLAS_LIBRARY NAMES blas openblas)
+if(NOT LAPACK_LIBRARY OR NOT BLAS_LIBRARY)
+  message(FATAL_ERROR "LAPACK/BLAS not found: apt-get install libopenblas-dev")
+endif()
 
 find_path(LCM_INCLUDE_DIR lcm/lcm.h)
 find_library(LCM_LIBRARY lcm)

@@ -86,6 +86,32 @@ int hs_cholesky_size(const hs_cholesky* f);
 /// 1 if the factor is supernodal (BLAS-3 blocks), 0 if simplicial.
 int hs_cholesky_is_supernodal(const hs_cholesky* f);
 
+// Partial refactorisation (cutting). A change of A confined to a few dofs alters only the
+// columns of L in the elimination-tree paths from those dofs to the root. Multifrontal over
+// CHOLMOD's supernodes, keeping every supernode's update matrix (memory: the sum of their
+// squares, about nnz(L) to 3 nnz(L) doubles), the factor then recomputes only the supernodes
+// holding a changed dof and their ancestors, with the same arithmetic as a full factorisation;
+// the rest of L and the other update matrices are reused. A localised change in 3D still
+// reaches the top separators, where most of the flops are: about a third to two thirds of a
+// refactor (hs_cholesky_partial_share). Not for a factor in update mode (they exclude each
+// other: updates need simplicial LDL^T, this needs supernodal LL^T).
+
+/// Set up partial refactorisation of a supernodal factor (a has the factor's pattern, both
+/// halves stored) and factor a once in full through it. HS_ERR_UNSUPPORTED for a simplicial
+/// factor or one in update mode. Allocates: yes (the maps and update matrices).
+hs_status hs_cholesky_prepare_partial(hs_cholesky* f, const hs_csc* a);
+/// Refactor after a changed only in the rows and columns dofs[n_dofs] (original numbering;
+/// repeats allowed; n_dofs < 0: everything). The pattern is checked in full only when a's
+/// arrays are not the ones checked last: change values, not the pattern, in place. The first call
+/// after hs_cholesky_refactor redoes everything. On HS_ERR_NOT_POSDEF (a pivot not positive, or
+/// below 1e-12 of its diagonal entry: a singular A) L is partly recomputed: solves refuse until
+/// hs_cholesky_refactor succeeds. HS_ERR_UNSUPPORTED before hs_cholesky_prepare_partial or in
+/// update mode. Allocates: no.
+hs_status hs_cholesky_refactor_partial(hs_cholesky* f, const hs_csc* a, int n_dofs,
+                                       const int* dofs);
+/// Share of a full factorisation's flops the last partial refactor did (0..1).
+double hs_cholesky_partial_share(const hs_cholesky* f);
+
 // Low-rank modification (cutting). CHOLMOD updates only a simplicial LDL^T factor, so update
 // mode converts the current factor once (O(nnz(L)), allocates; done by prepare or the first
 // update) and keeps it simplicial, in the supernodal column layout. The spare stays supernodal:

@@ -45,6 +45,7 @@ struct hs_cholesky {
     int* dpos;     // [n] position of a dof in the union, -1 outside
     int* dlist;    // [cap_d] union dofs, then their rows in L
     double* dense; // [cap_d^2] summed change, then its LDL^T (lower triangle)
+    struct hs_partial* part;      // partial refactorisation data (hs_cholesky_prepare_partial)
     hs_cholesky_update_info last; // of the last update_elements / update_parts
 };
 
@@ -479,6 +480,8 @@ static int pivots_ok(const hs_cholesky* f) {
     return 1;
 }
 
+static void invalidate_partial(hs_cholesky* f);
+
 hs_status hs_cholesky_refactor(hs_cholesky* f, const hs_csc* a) {
     if (!f || !pattern_matches(f, a)) return HS_ERR_INVALID;
     apply_thread_limit();
@@ -509,6 +512,7 @@ hs_status hs_cholesky_refactor(hs_cholesky* f, const hs_csc* a) {
         f->spare = t;
     }
     f->broken = 0;
+    invalidate_partial(f); // its update matrices belong to the old numbers
     f->blocked = f->updatable && ldl_has_super_layout(f->spare, f->L);
     if (f->updatable) save_pivots(f);
     return HS_OK;
@@ -855,6 +859,8 @@ int hs_cholesky_is_supernodal(const hs_cholesky* f) {
     return f && f->L && f->L->is_super;
 }
 
+static void free_partial(struct hs_partial** pp);
+
 void hs_cholesky_destroy(hs_cholesky** pf) {
     if (!pf || !*pf) return;
     hs_cholesky* f = *pf;
@@ -880,6 +886,7 @@ void hs_cholesky_destroy(hs_cholesky** pf) {
     hs_free(f->dpos);
     hs_free(f->dlist);
     hs_free(f->dense);
+    free_partial(&f->part);
     hs_free(f);
     *pf = NULL;
     flush_block_cache();
@@ -1378,4 +1385,329 @@ hs_status hs_sparse_set_threads(int n) {
     tl_threads = 0;
     apply_thread_limit();
     return set_blas || set_levels ? HS_OK : HS_ERR_UNSUPPORTED;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Partial refactorisation: multifrontal over CHOLMOD's supernodes, keeping every supernode's
+// update (contribution) matrix, so a change of A confined to a few columns recomputes only
+// their supernodes and those supernodes' ancestors; the others' blocks of L and their update
+// matrices stay as they are. The result is written into L's own supernodal blocks, so CHOLMOD
+// solves with it unchanged.
+
+// BLAS / LAPACK (the ones CHOLMOD itself links).
+void dpotrf_(const char* uplo, const int* n, double* a, const int* lda, int* info);
+void dtrsm_(const char* side, const char* uplo, const char* transa, const char* diag, const int* m,
+            const int* n, const double* alpha, const double* a, const int* lda, double* b,
+            const int* ldb);
+void dsyrk_(const char* uplo, const char* trans, const int* n, const int* k, const double* alpha,
+            const double* a, const int* lda, const double* beta, double* c, const int* ldc);
+
+struct hs_partial {
+    int ns;              // supernodes
+    int* parent;         // [ns] parent supernode, -1 for a root
+    int* child_start;    // [ns+1] children of s: child[child_start[s] .. child_start[s+1])
+    int* child;          // [ns]
+    int* col_super;      // [n] supernode of each column of L
+    int* ent_start;      // [ns+1] A's entries assembled into supernode s
+    int* ent_val;        // [nnz_upper] index into A's values
+    int* ent_off;        // [nnz_upper] offset in L->x
+    int* diag_val;       // [n] index of A(j,j) (L's order) in A's values
+    int* rel_start;      // [ns+1] rows of s's update matrix, as local rows of its parent's block
+    int* rel;            //
+    size_t* u_start;     // [ns+1] offsets of the update matrices (m x m, column-major)
+    double* u;           //
+    double* flops;       // [ns] cost of each supernode
+    double total_flops;  //
+    unsigned char* mark; // [ns]
+    int valid;           // the update matrices are those of the numbers in L
+    double last_share;   // flops of the last call / total
+    const int* colp;     // arrays of the matrix last checked in full (see refactor_partial)
+    const int* rowi;
+};
+
+static void free_partial(struct hs_partial** pp) {
+    struct hs_partial* p = *pp;
+    if (!p) return;
+    hs_free(p->parent);
+    hs_free(p->child_start);
+    hs_free(p->child);
+    hs_free(p->col_super);
+    hs_free(p->ent_start);
+    hs_free(p->ent_val);
+    hs_free(p->ent_off);
+    hs_free(p->diag_val);
+    hs_free(p->rel_start);
+    hs_free(p->rel);
+    hs_free(p->u_start);
+    hs_free(p->u);
+    hs_free(p->flops);
+    hs_free(p->mark);
+    hs_free(p);
+    *pp = NULL;
+}
+
+// Build the maps of a supernodal factor L for a matrix with a's pattern (both halves stored).
+static hs_status build_partial(const cholmod_factor* L, const hs_csc* a, struct hs_partial** out) {
+    const int n = (int)L->n, ns = (int)L->nsuper;
+    const int *super = L->super, *pi = L->pi, *px = L->px, *ls = L->s, *perm = L->Perm;
+    struct hs_partial* p = hs_calloc(1, sizeof *p);
+    int* pinv = hs_alloc(sizeof(int) * ((size_t)n + 1));
+    int* pos = hs_alloc(sizeof(int) * ((size_t)n + 1));
+    int* cnt = hs_calloc((size_t)n + 1, sizeof(int));
+    hs_status st = HS_ERR_NOMEM;
+    if (!p || !pinv || !pos || !cnt) goto fail;
+    p->ns = ns;
+    p->parent = hs_alloc(sizeof(int) * ((size_t)ns + 1));
+    p->child_start = hs_calloc((size_t)ns + 2, sizeof(int));
+    p->child = hs_alloc(sizeof(int) * ((size_t)ns + 1));
+    p->col_super = hs_alloc(sizeof(int) * ((size_t)n + 1));
+    p->ent_start = hs_calloc((size_t)ns + 2, sizeof(int));
+    p->diag_val = hs_alloc(sizeof(int) * ((size_t)n + 1));
+    p->rel_start = hs_calloc((size_t)ns + 2, sizeof(int));
+    p->u_start = hs_calloc((size_t)ns + 2, sizeof(size_t));
+    p->flops = hs_alloc(sizeof(double) * ((size_t)ns + 1));
+    p->mark = hs_calloc((size_t)ns + 1, 1);
+    if (!p->parent || !p->child_start || !p->child || !p->col_super || !p->ent_start ||
+        !p->diag_val || !p->rel_start || !p->u_start || !p->flops || !p->mark)
+        goto fail;
+    for (int k = 0; k < n; k++) pinv[perm ? perm[k] : k] = k;
+    for (int s = 0; s < ns; s++)
+        for (int j = super[s]; j < super[s + 1]; j++) p->col_super[j] = s;
+    // Tree, sizes and the row lists' order (ascending, columns first: relied on below).
+    st = HS_ERR_UNSUPPORTED;
+    for (int s = 0; s < ns; s++) {
+        int nc = super[s + 1] - super[s], nr = pi[s + 1] - pi[s], m = nr - nc;
+        if (m < 0) goto fail;
+        for (int k = 0; k < nr; k++)
+            if ((k < nc && ls[pi[s] + k] != super[s] + k) ||
+                (k > 0 && ls[pi[s] + k] <= ls[pi[s] + k - 1]))
+                goto fail;
+        p->parent[s] = m > 0 ? p->col_super[ls[pi[s] + nc]] : -1;
+        if (m > 0 && p->parent[s] <= s) goto fail;
+        if (m > 0) p->child_start[p->parent[s] + 1]++;
+        p->rel_start[s + 1] = p->rel_start[s] + m;
+        p->u_start[s + 1] = p->u_start[s] + (size_t)m * (size_t)m;
+        p->flops[s] = (double)nc * nc * nc / 3.0 + (double)m * nc * nc + (double)m * m * nc;
+        p->total_flops += p->flops[s];
+    }
+    for (int s = 0; s < ns; s++) p->child_start[s + 1] += p->child_start[s];
+    st = HS_ERR_NOMEM;
+    p->rel = hs_alloc(sizeof(int) * ((size_t)p->rel_start[ns] + 1));
+    p->u = hs_alloc(sizeof(double) * (p->u_start[ns] + 1));
+    if (!p->rel || !p->u) goto fail;
+    {
+        int* fill = cnt; // next free child slot per supernode
+        for (int s = 0; s < ns; s++) fill[s] = p->child_start[s];
+        for (int s = 0; s < ns; s++)
+            if (p->parent[s] >= 0) p->child[fill[p->parent[s]]++] = s;
+        for (int s = 0; s < ns; s++) {
+            for (int k = pi[s]; k < pi[s + 1]; k++) pos[ls[k]] = k - pi[s];
+            for (int q = p->child_start[s]; q < p->child_start[s + 1]; q++) {
+                int c = p->child[q], cnc = super[c + 1] - super[c];
+                int* r = p->rel + p->rel_start[c];
+                for (int k = pi[c] + cnc; k < pi[c + 1]; k++) *r++ = pos[ls[k]];
+            }
+        }
+    }
+    // A's upper entries (original numbering), each to the supernode of its lower column.
+    memset(cnt, 0, sizeof(int) * ((size_t)n + 1));
+    int nz = 0;
+    for (int j = 0; j < n; j++)
+        for (int q = a->colp[j]; q < a->colp[j + 1]; q++) {
+            int i = a->rowi[q];
+            if (i > j) continue;
+            int c = pinv[i] < pinv[j] ? pinv[i] : pinv[j];
+            cnt[p->col_super[c]]++;
+            nz++;
+            if (i == j) p->diag_val[pinv[j]] = q;
+        }
+    p->ent_val = hs_alloc(sizeof(int) * ((size_t)nz + 1));
+    p->ent_off = hs_alloc(sizeof(int) * ((size_t)nz + 1));
+    if (!p->ent_val || !p->ent_off) goto fail;
+    for (int s = 0; s < ns; s++) p->ent_start[s + 1] = p->ent_start[s] + cnt[s];
+    for (int s = 0; s < ns; s++) cnt[s] = p->ent_start[s];
+    // Local rows of every supernode at once would need n x ns; go supernode by supernode over
+    // a column-to-entries list instead.
+    int* cstart = hs_calloc((size_t)n + 2, sizeof(int));
+    int* clist = hs_alloc(sizeof(int) * ((size_t)nz + 1));
+    if (!cstart || !clist) {
+        hs_free(cstart);
+        hs_free(clist);
+        goto fail;
+    }
+    for (int j = 0; j < n; j++)
+        for (int q = a->colp[j]; q < a->colp[j + 1]; q++)
+            if (a->rowi[q] <= j) {
+                int c = pinv[a->rowi[q]] < pinv[j] ? pinv[a->rowi[q]] : pinv[j];
+                cstart[c + 2]++;
+            }
+    for (int c = 0; c < n; c++) cstart[c + 2] += cstart[c + 1];
+    for (int j = 0; j < n; j++)
+        for (int q = a->colp[j]; q < a->colp[j + 1]; q++)
+            if (a->rowi[q] <= j) {
+                int c = pinv[a->rowi[q]] < pinv[j] ? pinv[a->rowi[q]] : pinv[j];
+                clist[cstart[c + 1]++] = q;
+            }
+    int* colof = hs_alloc(sizeof(int) * ((size_t)a->nnz + 1)); // column of each entry
+    if (!colof) {
+        hs_free(cstart);
+        hs_free(clist);
+        goto fail;
+    }
+    for (int j = 0; j < n; j++)
+        for (int q = a->colp[j]; q < a->colp[j + 1]; q++) colof[q] = j;
+    int bad = 0;
+    for (int s = 0; s < ns && !bad; s++) {
+        int nr = pi[s + 1] - pi[s];
+        for (int k = pi[s]; k < pi[s + 1]; k++) pos[ls[k]] = k - pi[s];
+        for (int c = super[s]; c < super[s + 1]; c++)
+            for (int t = cstart[c]; t < cstart[c + 1]; t++) {
+                int q = clist[t];
+                int r = pinv[a->rowi[q]] > pinv[colof[q]] ? pinv[a->rowi[q]] : pinv[colof[q]];
+                int lr = pos[r];
+                if (lr < 0 || lr >= nr || ls[pi[s] + lr] != r) bad = 1; // not in L's pattern
+                int e = cnt[s]++;
+                p->ent_val[e] = q;
+                p->ent_off[e] = px[s] + (c - super[s]) * nr + lr;
+            }
+    }
+    hs_free(cstart);
+    hs_free(clist);
+    hs_free(colof);
+    if (bad) {
+        st = HS_ERR_UNSUPPORTED;
+        goto fail;
+    }
+    hs_free(pinv);
+    hs_free(pos);
+    hs_free(cnt);
+    *out = p;
+    return HS_OK;
+fail:
+    hs_free(pinv);
+    hs_free(pos);
+    hs_free(cnt);
+    free_partial(&p);
+    return st;
+}
+
+// Recompute supernode s of L (its block in x) and its update matrix from A's values and the
+// children's kept update matrices. 0 if a pivot is not positive and finite, or collapsed below
+// 1e-12 of A's diagonal (a singular matrix shows as round-off rather than a negative pivot).
+static int factor_supernode(const cholmod_factor* L, struct hs_partial* p, const double* aval,
+                            int s) {
+    const int *super = L->super, *pi = L->pi, *px = L->px;
+    double* x = L->x;
+    const int nc = super[s + 1] - super[s], nr = pi[s + 1] - pi[s], m = nr - nc;
+    double* blk = x + px[s];
+    double* us = p->u + p->u_start[s];
+    memset(blk, 0, sizeof(double) * (size_t)nr * (size_t)nc);
+    for (int e = p->ent_start[s]; e < p->ent_start[s + 1]; e++)
+        x[p->ent_off[e]] += aval[p->ent_val[e]];
+    // Children's update matrices, the columns landing in s's own columns first; the rest go
+    // after the syrk, which then writes the update matrix outright instead of adding to a
+    // zeroed one.
+    for (int q = p->child_start[s]; q < p->child_start[s + 1]; q++) {
+        int c = p->child[q];
+        int mc = p->rel_start[c + 1] - p->rel_start[c];
+        const int* rel = p->rel + p->rel_start[c];
+        const double* uc = p->u + p->u_start[c];
+        for (int k2 = 0; k2 < mc && rel[k2] < nc; k2++) {
+            const double* col = uc + (size_t)k2 * (size_t)mc;
+            double* dst = blk + (size_t)rel[k2] * (size_t)nr;
+            for (int k1 = k2; k1 < mc; k1++) dst[rel[k1]] += col[k1];
+        }
+    }
+    int info = 0;
+    dpotrf_("L", &nc, blk, &nr, &info);
+    if (info != 0) return 0;
+    for (int j = 0; j < nc; j++) {
+        double d = blk[(size_t)j * (size_t)nr + (size_t)j];
+        double ajj = aval[p->diag_val[super[s] + j]];
+        if (!(d > 0.0 && d < INFINITY) || !(d * d > 1e-12 * ajj)) return 0;
+    }
+    if (m == 0) return 1;
+    const double one = 1.0, minus = -1.0, zero = 0.0;
+    dtrsm_("R", "L", "T", "N", &m, &nc, &one, blk, &nr, blk + nc, &nr);
+    dsyrk_("L", "N", &m, &nc, &minus, blk + nc, &nr, &zero, us, &m);
+    for (int q = p->child_start[s]; q < p->child_start[s + 1]; q++) {
+        int c = p->child[q];
+        int mc = p->rel_start[c + 1] - p->rel_start[c];
+        const int* rel = p->rel + p->rel_start[c];
+        const double* uc = p->u + p->u_start[c];
+        int k2 = 0;
+        while (k2 < mc && rel[k2] < nc) k2++;
+        for (; k2 < mc; k2++) {
+            const double* col = uc + (size_t)k2 * (size_t)mc;
+            double* dst = us + (size_t)(rel[k2] - nc) * (size_t)m - nc;
+            for (int k1 = k2; k1 < mc; k1++) dst[rel[k1]] += col[k1];
+        }
+    }
+    return 1;
+}
+
+hs_status hs_cholesky_prepare_partial(hs_cholesky* f, const hs_csc* a) {
+    if (!f || !pattern_matches(f, a)) return HS_ERR_INVALID;
+    if (f->updatable || !f->L->is_super) return HS_ERR_UNSUPPORTED;
+    if (!f->pinv) {
+        f->pinv = hs_alloc(sizeof(int) * ((size_t)f->n + 1));
+        if (!f->pinv) return HS_ERR_NOMEM;
+        for (int k = 0; k < f->n; k++) f->pinv[f->L->Perm ? ((const int*)f->L->Perm)[k] : k] = k;
+    }
+    if (!f->part) {
+        hs_status st = build_partial(f->L, a, &f->part);
+        if (st != HS_OK) return st;
+    }
+    return hs_cholesky_refactor_partial(f, a, -1, NULL);
+}
+
+hs_status hs_cholesky_refactor_partial(hs_cholesky* f, const hs_csc* a, int n_dofs,
+                                       const int* dofs) {
+    if (!f || !a || (n_dofs > 0 && !dofs)) return HS_ERR_INVALID;
+    struct hs_partial* p = f->part;
+    if (!p || f->updatable || !f->L->is_super) return HS_ERR_UNSUPPORTED;
+    // The full pattern check costs O(nnz), a large part of a small partial refactor: done when
+    // the matrix's arrays are not those checked last.
+    if (a->n != f->n || a->nnz != f->nnz || a->colp != p->colp || a->rowi != p->rowi) {
+        if (!pattern_matches(f, a)) return HS_ERR_INVALID;
+        p->colp = a->colp;
+        p->rowi = a->rowi;
+    }
+    apply_thread_limit();
+    int all = n_dofs < 0 || !p->valid;
+    if (!all) {
+        for (int k = 0; k < n_dofs; k++)
+            if (dofs[k] < 0 || dofs[k] >= f->n) return HS_ERR_INVALID;
+        for (int k = 0; k < n_dofs; k++)
+            for (int s = p->col_super[f->pinv[dofs[k]]]; s >= 0 && !p->mark[s]; s = p->parent[s])
+                p->mark[s] = 1;
+    }
+    const double* aval = a->val;
+    double done = 0;
+    int ok = 1;
+    for (int s = 0; s < p->ns; s++) {
+        if (!all && !p->mark[s]) continue;
+        p->mark[s] = 0;
+        if (!ok) continue; // clear the remaining marks only
+        ok = factor_supernode(f->L, p, aval, s);
+        done += p->flops[s];
+    }
+    p->last_share = p->total_flops > 0 ? done / p->total_flops : 0;
+    if (!ok) {
+        // L is partly recomputed: unusable until a full refactor (as after a failed downdate).
+        p->valid = 0;
+        f->broken = 1;
+        return HS_ERR_NOT_POSDEF;
+    }
+    p->valid = 1;
+    f->broken = 0;
+    return HS_OK;
+}
+
+static void invalidate_partial(hs_cholesky* f) {
+    if (f->part) f->part->valid = 0;
+}
+
+double hs_cholesky_partial_share(const hs_cholesky* f) {
+    return f && f->part ? f->part->last_share : 0;
 }
