@@ -60,6 +60,7 @@ struct hs_fem {
                    // order of build_scatter
     int n_mirror;  // strictly lower entries
     int* mirror;   // [2 n_mirror] (lower position, its upper transpose)
+    int* low_of;   // [nnz] lower transpose of a strictly upper position, else -1
     int* diag_pos; // [3n]
     int nnz;
 
@@ -99,12 +100,12 @@ hs_fem_def hs_fem_default_def(void) {
 void hs_fem_destroy(hs_fem** pfem) {
     if (!pfem || !*pfem) return;
     hs_fem* m = *pfem;
-    void* ptrs[] = {m->dof,     m->tet,        m->g,    m->vol0,    m->active,     m->F,
-                    m->R,       m->S,          m->det,  m->f,       m->mass,       m->nt_start,
-                    m->nt,      m->adj_start,  m->adj,  m->blkpos,  m->elem_pos,   m->diag_pos,
-                    m->mirror,  m->ring_start, m->ring, m->nt_slot, m->pair_start, m->pair_blk,
-                    m->theta_e, m->w,          m->pbar, m->vn,      m->theta_n,    m->cvec,
-                    m->kscale};
+    void* ptrs[] = {m->dof,      m->tet,       m->g,          m->vol0,   m->active,   m->F,
+                    m->R,        m->S,         m->det,        m->f,      m->mass,     m->nt_start,
+                    m->nt,       m->adj_start, m->adj,        m->blkpos, m->elem_pos, m->diag_pos,
+                    m->mirror,   m->low_of,    m->ring_start, m->ring,   m->nt_slot,  m->pair_start,
+                    m->pair_blk, m->theta_e,   m->w,          m->pbar,   m->vn,       m->theta_n,
+                    m->cvec,     m->kscale};
     for (size_t i = 0; i < sizeof ptrs / sizeof ptrs[0]; i++) hs_free(ptrs[i]);
     hs_free(m);
     *pfem = NULL;
@@ -301,7 +302,9 @@ static hs_status build_scatter(hs_fem* m, const hs_csc* a, hs_err* err) {
     m->n_mirror = (a->nnz - a->n) / 2;
     m->mirror = hs_alloc(sizeof(int) * 2 * (size_t)m->n_mirror + 1);
     m->diag_pos = hs_alloc(sizeof(int) * 3 * (size_t)n + 1);
-    if (!m->blkpos || !m->elem_pos || !m->diag_pos || !m->mirror) return nomem(err);
+    m->low_of = hs_alloc(sizeof(int) * (size_t)a->nnz + 1);
+    if (!m->blkpos || !m->elem_pos || !m->diag_pos || !m->mirror || !m->low_of) return nomem(err);
+    for (int p = 0; p < a->nnz; p++) m->low_of[p] = -1;
     for (int col = 0; col < n; col++) {
         for (int p = m->adj_start[col]; p < m->adj_start[col + 1]; p++) {
             int row = m->adj[p];
@@ -341,6 +344,7 @@ static hs_status build_scatter(hs_fem* m, const hs_csc* a, hs_err* err) {
                 return hs_err_set(err, HS_ERR_INVALID, "fem: matrix pattern is not symmetric");
             m->mirror[2 * w] = p;
             m->mirror[2 * w + 1] = t;
+            m->low_of[t] = p;
             w++;
         }
     if (w != m->n_mirror)
@@ -1081,8 +1085,12 @@ hs_status hs_fem_add_rest_elements(const hs_fem* m, int n, const int* tets, doub
     for (int k = 0; k < n; k++) {
         rest_blocks(m, tets[k], kcoef, mcoef, kb);
         scatter_blocks(m, tets[k], kb, s, a->val);
+        // Mirror just these entries: a pass over the whole matrix would cost more than the
+        // few elements of a cut.
+        const int* ep = m->elem_pos + 78 * tets[k];
+        for (int q = 0; q < 78; q++)
+            if (ep[q] >= 0 && m->low_of[ep[q]] >= 0) a->val[m->low_of[ep[q]]] = a->val[ep[q]];
     }
-    mirror_upper(m, a->val);
     return HS_OK;
 }
 
