@@ -295,7 +295,9 @@ static int test_skin_wound_angle(void) {
 /// fresh factor, a fem rebuilt on the live mesh and the tracked compliance agree.
 static int test_consistency(void) {
     int64_t bytes = hs_byte_count();
-    for (int mode = 0; mode < 2; mode++) {
+    // UPDATE with either compliance mode, then PARTIAL (whose compliance re-solves).
+    for (int pass = 0; pass < 3; pass++) {
+        int mode = pass == 1;
         hs_mesh* m = NULL;
         hs_err e;
         ENSURE(hs_mesh_create_box(0.06, 0.06, 0.01, 6, 6, 2, &m, &e) == HS_OK);
@@ -303,7 +305,7 @@ static int test_consistency(void) {
         unsigned char* fixed = hs_calloc((size_t)n, 1);
         hs_mesh_select_plane(m, 0, -1, 1e-6, fixed);
         hs_cut_def def = hs_cut_default_def();
-        def.factor_policy = HS_CUT_FACTOR_UPDATE; // the low-rank path is what is checked
+        def.factor_policy = pass < 2 ? HS_CUT_FACTOR_UPDATE : HS_CUT_FACTOR_PARTIAL;
         hs_cut* c = NULL;
         ENSURE(hs_cut_create(m, fixed, &def, &c, &e) == HS_OK);
         // Track the blocks of every node on the top face.
@@ -312,7 +314,7 @@ static int test_consistency(void) {
         for (int i = 0; i < n; i++)
             if (m->x0[3 * i + 2] > 0.01 - 1e-9) track[nt++] = i;
         ENSURE(hs_cut_track_compliance(c, nt, track, (hs_cut_compliance_mode)mode) == HS_OK);
-        double wms = 0;
+        double wms = 0, min_share = 1;
         int with_change = 0;
         for (int k = 0; k < 20; k++) {
             double p0[3], q0[3], p1[3], q1[3];
@@ -343,6 +345,11 @@ static int test_consistency(void) {
             if (r.changed_elements == 0) continue;
             with_change++;
             wms += hs_cut_compliance_ms(c);
+            if (pass == 2) { // really partial: less than a whole factorisation recomputed
+                double share = hs_cholesky_partial_share(hs_cut_factor(c));
+                ENSURE(share > 0 && share < 1);
+                min_share = fmin(min_share, share);
+            }
             double df = factor_vs_fresh(c);
             ENSURE(df <= 1e-8);
             ENSURE(fem_vs_rebuilt(c, m, &def) <= 1e-10);
@@ -381,7 +388,12 @@ static int test_consistency(void) {
         }
         ENSURE(with_change >= 10);
         printf("  %s: %d cuts with changes, compliance update %.3f ms mean (%d nodes tracked)\n",
-               mode == 0 ? "woodbury" : "re-solve", with_change, wms / with_change, nt);
+               pass == 2   ? "partial refactor, re-solve"
+               : mode == 0 ? "woodbury"
+                           : "re-solve",
+               with_change, wms / with_change, nt);
+        if (pass == 2)
+            printf("  partial refactor: least share of a factorisation %.2f\n", min_share);
 #ifdef HS_HAVE_COMPLIANCE
         if (mode == 0) {
             // The haptic module's compliance computed afresh on the cut body agrees.
@@ -906,8 +918,9 @@ static int test_alloc_faults(void) {
 }
 
 /// 1,000 random short sweeps through the liver: validator after every cut (inside the sweep),
-/// finite solves, no orphan; factor compared with a fresh one every 50 cuts.
-static int test_liver_random_cuts(void) {
+/// finite solves, no orphan; factor compared with a fresh one every 50 cuts. Under the low-rank
+/// updates, then under the partial refactor (which keeps K itself up to date).
+static int liver_random_cuts(hs_cut_factor_policy policy) {
     int64_t bytes = hs_byte_count();
     char path[512];
     snprintf(path, sizeof path, "%s/scenes/liver/liver2.msh", HS_SOURCE_DIR);
@@ -921,7 +934,7 @@ static int test_liver_random_cuts(void) {
     double diag = sqrt(ext[0] * ext[0] + ext[1] * ext[1] + ext[2] * ext[2]);
     ENSURE(hs_mesh_select_plane(m, 2, -1, 0.25 * ext[2], fixed) > 0);
     hs_cut_def def = hs_cut_default_def();
-    def.factor_policy = HS_CUT_FACTOR_UPDATE; // 1,000 low-rank updates in a row
+    def.factor_policy = policy; // 1,000 updates in a row
     hs_cut* c = NULL;
     hs_sparse_set_threads(1);
     ENSURE(hs_cut_create(m, fixed, &def, &c, &e) == HS_OK);
@@ -971,10 +984,10 @@ static int test_liver_random_cuts(void) {
         }
     }
     ENSURE(hs_cut_validate(c, &e) == HS_OK);
-    printf("  1000 cuts (%d removed tets): %d tets removed of %d, %d pieces dropped, %d "
+    printf("  %s: 1000 cuts (%d removed tets): %d tets removed of %d, %d pieces dropped, %d "
            "refactors, %d left; worst factor difference %.2g; slowest sweep %.2f ms\n",
-           cutting, total_removed, m->n_tets, fragments, refactored, hs_cut_live_mesh(c)->n_tets,
-           worst, max_ms);
+           policy == HS_CUT_FACTOR_PARTIAL ? "partial" : "low-rank", cutting, total_removed,
+           m->n_tets, fragments, refactored, hs_cut_live_mesh(c)->n_tets, worst, max_ms);
     ENSURE(cutting > 200);
     hs_free(f);
     hs_free(u);
@@ -982,6 +995,12 @@ static int test_liver_random_cuts(void) {
     hs_cut_destroy(&c);
     hs_mesh_destroy(&m);
     ENSURE(hs_byte_count() == bytes);
+    return 0;
+}
+
+static int test_liver_random_cuts(void) {
+    ENSURE(liver_random_cuts(HS_CUT_FACTOR_UPDATE) == 0);
+    ENSURE(liver_random_cuts(HS_CUT_FACTOR_PARTIAL) == 0);
     return 0;
 }
 

@@ -351,6 +351,39 @@ void hs_cut_assemble(const hs_cut* c, hs_csc* a) {
     }
 }
 
+// K's pin springs on the nodes pinned by the last sweep.
+static void add_pins(hs_cut* c, hs_csc* a) {
+    for (int k = 0; k < c->n_pins; k++)
+        for (int q = 0; q < 3; q++) {
+            int d = c->dof[3 * c->pins[k] + q];
+            int p = d >= 0 ? hs_csc_find(a, d, d) : -1;
+            if (p >= 0) a->val[p] += c->k_pin;
+        }
+}
+
+// Free dofs of the last sweep's removed and changed tets and new pins, into c->dset.
+static int partial_dofs(hs_cut* c) {
+    int d = 0;
+    const int* T = c->mesh->tets;
+    for (int k = 0; k < c->n_removed + c->n_changed + c->n_pins; k++) {
+        int nv = k < c->n_removed + c->n_changed ? 4 : 1;
+        for (int a = 0; a < nv; a++) {
+            int v = k < c->n_removed                  ? T[4 * c->removed[k] + a]
+                    : k < c->n_removed + c->n_changed ? T[4 * c->changed[k - c->n_removed] + a]
+                                                      : c->pins[k - c->n_removed - c->n_changed];
+            for (int q = 0; q < 3; q++) {
+                int f = c->dof[3 * v + q];
+                if (f >= 0 && c->dpos[f] < 0) {
+                    c->dpos[f] = d;
+                    c->dset[d++] = f;
+                }
+            }
+        }
+    }
+    for (int i = 0; i < d; i++) c->dpos[c->dset[i]] = -1;
+    return d;
+}
+
 hs_status hs_cut_refactor(hs_cut* c) {
     if (!c->factor) return HS_ERR_INVALID;
     hs_cut_assemble(c, c->a);
@@ -437,12 +470,14 @@ hs_status hs_cut_create(hs_mesh* mesh, const unsigned char* fixed, const hs_cut_
         !(def->window_ahead_m >= 0 && def->window_ahead_m < 1e6))
         return hs_err_set(err, HS_ERR_INVALID, "cut: window radius %g m / ahead %g m out of range",
                           def->window_radius_m, def->window_ahead_m);
-    if (def->factor_policy < HS_CUT_FACTOR_AUTO || def->factor_policy > HS_CUT_FACTOR_NONE)
+    if (def->factor_policy < HS_CUT_FACTOR_AUTO || def->factor_policy > HS_CUT_FACTOR_PARTIAL)
         return hs_err_set(err, HS_ERR_INVALID, "cut: unknown factor policy %d",
                           (int)def->factor_policy);
-    if (def->factor_policy == HS_CUT_FACTOR_NONE && def->window_radius_m > 0)
+    if ((def->factor_policy == HS_CUT_FACTOR_NONE || def->factor_policy == HS_CUT_FACTOR_PARTIAL) &&
+        def->window_radius_m > 0)
         return hs_err_set(err, HS_ERR_INVALID,
-                          "cut: an update window needs a factor (policy NONE)");
+                          "cut: an update window is for the low-rank policies (policy %s)",
+                          def->factor_policy == HS_CUT_FACTOR_NONE ? "NONE" : "PARTIAL");
     if (mesh->n_nodes <= 0 || mesh->n_tets <= 0 || !mesh->node_used)
         return hs_err_set(err, HS_ERR_INVALID, "cut: mesh is empty or not finalized");
     hs_cut* c = hs_calloc(1, sizeof *c);
@@ -573,6 +608,11 @@ hs_status hs_cut_create(hs_mesh* mesh, const unsigned char* fixed, const hs_cut_
         int64_t t0 = hs_now_ns();
         st = hs_cut_refactor(c);
         c->refactor_ms = (double)(hs_now_ns() - t0) * 1e-6;
+        // A simplicial factor (tiny meshes) cannot be refactored in part: sweeps refactor.
+        if (st == HS_OK && def->factor_policy == HS_CUT_FACTOR_PARTIAL) {
+            st = hs_cholesky_prepare_partial(c->factor, c->a);
+            if (st == HS_ERR_UNSUPPORTED) st = HS_OK;
+        }
     }
     if (st != HS_OK) {
         hs_cut_destroy(&c);
@@ -1398,12 +1438,22 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
             c->changed[c->n_changed++] = e;
         }
     }
+    // PARTIAL keeps K itself current: the old shares out before the elements change.
+    int partial = c->factor && c->def.factor_policy == HS_CUT_FACTOR_PARTIAL;
+    int a_current =
+        partial &&
+        hs_fem_add_rest_elements(c->fem, c->n_removed, c->removed, 1, 0, -1, c->a) == HS_OK &&
+        hs_fem_add_rest_elements(c->fem, c->n_changed, c->changed, 1, 0, -1, c->a) == HS_OK;
     for (int k = 0; k < c->n_removed; k++) hs_fem_set_element_active(c->fem, c->removed[k], 0);
     hs_status st = hs_fem_refresh_elements(c->fem, c->changed, c->n_changed);
     if (st != HS_OK) {
         hs_err_set(err, st, "cut: refreshing %d elements failed", c->n_changed);
         goto done;
     }
+    if (a_current)
+        a_current =
+            hs_fem_add_rest_elements(c->fem, c->n_changed, c->changed, 1, 0, 1, c->a) == HS_OK;
+    if (a_current) add_pins(c, c->a);
     int need = c->n_removed + c->n_changed + c->n_pins, m = 0;
     int blocks = c->n_removed + 2 * c->n_changed + c->n_pins;
     // AUTO: the aggregated update costs about one sparse pass along the elimination tree per
@@ -1411,8 +1461,8 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
     // numeric refactor costs a fixed amount. Both are measured as the cut runs: take the
     // cheaper. Until an update has been timed, one rank costs 1/96 of a refactor (measured:
     // 1/77 at 432 vertices, 1/108 at 5,043; docs/cutting.md).
-    int can_update = c->factor && c->def.factor_policy != HS_CUT_FACTOR_REFACTOR && need > 0 &&
-                     grow_elems(c, blocks) == HS_OK;
+    int can_update = c->factor && c->def.factor_policy != HS_CUT_FACTOR_REFACTOR && !partial &&
+                     need > 0 && grow_elems(c, blocks) == HS_OK;
     if (can_update) {
         for (int k = 0; k < c->n_changed; k++) add_block(c, &m, c->changed[k], -1, x0);
         for (int k = 0; k < c->n_pins; k++) add_block(c, &m, -1, c->pins[k], NULL);
@@ -1447,7 +1497,30 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
             goto done;
         }
     }
-    if (need > 0 && c->factor) {
+    if (need > 0 && partial) {
+        if (a_current) {
+            st = hs_cholesky_refactor_partial(c->factor, c->a, partial_dofs(c), c->dset);
+        } else {
+            hs_cut_assemble(c, c->a);
+            st = hs_cholesky_refactor_partial(c->factor, c->a, -1, NULL);
+        }
+        if (st != HS_OK) { // no partial data (simplicial), or a singular K: refactor in full
+            r.refactored = 1;
+            st = hs_cut_refactor(c);
+            if (st != HS_OK) {
+                hs_err_set(err, st, "cut: refactorising K after the cut failed: %s",
+                           hs_status_str(st));
+                goto done;
+            }
+        }
+        if (c->n_track > 0) {
+            st = update_compliance(c, 0, 0);
+            if (st != HS_OK) {
+                hs_err_set(err, st, "cut: compliance update failed");
+                goto done;
+            }
+        }
+    } else if (need > 0 && c->factor) {
         // Entering update mode converts the factor once (allocates): not part of the timing.
         st = can_update ? hs_cholesky_prepare_updates(c->factor, blocks) : HS_ERR_UNSUPPORTED;
         int64_t tu = hs_now_ns();
@@ -1478,7 +1551,7 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
             }
         }
     }
-    if (c->n_track > 0 && need > 0 && c->cmode == HS_CUT_COMPLIANCE_RESOLVE) {
+    if (c->n_track > 0 && need > 0 && c->cmode == HS_CUT_COMPLIANCE_RESOLVE && !partial) {
         st = update_compliance(c, m, 0);
         if (st != HS_OK) {
             hs_err_set(err, st, "cut: compliance update failed");
