@@ -88,6 +88,7 @@ typedef struct pass_stats {
     double build_ms;         // their mean time
     int steps, refactors;
     double dense_ms, refactor_ms;
+    double share; // PARTIAL: mean share of a full factorisation's flops recomputed
 } pass_stats;
 
 /// Two parallel partial cuts (80 % of the width, so no piece comes free) at 40 % and 60 % of
@@ -232,7 +233,9 @@ static int run_pass(const cut_case* cc, const hs_bench_args* args, hs_cut_factor
             ps->factor_ms += r.factor_ms;
             ps->refactors += r.refactored;
             ps->rewindows += r.rewindowed;
-            if (!r.refactored) {
+            if (policy == HS_CUT_FACTOR_PARTIAL) {
+                ps->share += hs_cholesky_partial_share(hs_cut_factor(c));
+            } else if (!r.refactored) {
                 hs_cholesky_update_info ui;
                 hs_cholesky_last_update(hs_cut_factor(c), &ui);
                 ps->rank += ui.rank;
@@ -251,6 +254,7 @@ static int run_pass(const cut_case* cc, const hs_bench_args* args, hs_cut_factor
             ps->union_dofs /= ps->updated;
         }
         ps->geometry_ms /= ps->steps;
+        ps->share /= ps->steps;
         ps->factor_ms /= ps->steps;
         ps->p50 = hs_bench_percentile(ms, (size_t)ps->steps, 50);
         ps->p99 = hs_bench_percentile(ms, (size_t)ps->steps, 99);
@@ -264,8 +268,9 @@ static int run_pass(const cut_case* cc, const hs_bench_args* args, hs_cut_factor
 }
 
 static int run_case(const cut_case* cc, const hs_bench_args* args) {
-    pass_stats up, au, wu, wa, wb;
+    pass_stats up, au, wu, wa, wb, pa;
     int rc = run_pass(cc, args, HS_CUT_FACTOR_UPDATE, 0, 1, &up);
+    rc |= run_pass(cc, args, HS_CUT_FACTOR_PARTIAL, 0, 0, &pa);
     rc |= run_pass(cc, args, HS_CUT_FACTOR_AUTO, 0, 0, &au);
     rc |= run_pass(cc, args, HS_CUT_FACTOR_UPDATE, 1, 0, &wu);
     rc |= run_pass(cc, args, HS_CUT_FACTOR_AUTO, 1, 0, &wa);
@@ -286,6 +291,11 @@ static int run_case(const cut_case* cc, const hs_bench_args* args) {
             "policy: step p50 %.3f ms p99 %.3f ms (%d of %d steps refactored)\n",
             cc->name, up.steps, up.changes, up.geometry_ms, up.factor_ms, up.rank, up.union_dofs,
             up.split, up.updated, au.p50, au.p99, au.refactors, au.steps);
+    fprintf(stderr,
+            "cut: %s: PARTIAL policy: step p50 %.3f ms p99 %.3f ms max %.3f ms (geometry %.3f ms, "
+            "factor %.3f ms, %.2f of a factorisation's flops, %d of %d steps refactored)\n",
+            cc->name, pa.p50, pa.p99, pa.max, pa.geometry_ms, pa.factor_ms, pa.share, pa.refactors,
+            pa.steps);
     fprintf(stderr,
             "cut: %s: with the update window: UPDATE step p50 %.3f ms p99 %.3f ms (%d of %d steps "
             "rebuilt the window, rank %.1f); AUTO step p50 %.3f ms p99 %.3f ms (%d refactored, "
