@@ -20,7 +20,9 @@
 //    (+ pin blocks). Policy UPDATE sums them over the union of their dofs and applies one
 //    CHOLMOD update/downdate of rank <= that union (hs_cholesky_update_parts); AUTO (default)
 //    does that unless its predicted cost (union x measured cost per rank) exceeds a numeric
-//    refactor with the kept analysis; a failed update also refactors. An optional update
+//    refactor with the kept analysis; a failed update also refactors. PARTIAL keeps K itself
+//    current and refactors only the supernodes of L the change reaches
+//    (hs_cholesky_refactor_partial): the fastest exact path in the benchmark. An optional update
 //    window orders the dofs near the blade last so in-window updates walk short paths; leaving
 //    it rebuilds the factor (in the sweep, or on another thread: hs_cut_window_*). Either way
 //    the factor is that of the new K; tests compare it with a fresh factorisation.
