@@ -99,16 +99,19 @@ void hs_body_reaction(hs_body* b, int node, double f[3] /* OUT */);
 /// Follow a cut (or any change of the rest mesh): deactivate elements off[n_off] and refresh the
 /// rest data of moved[n_moved] from the mesh's current x0 (their vertices moved); inactive ones
 /// are skipped. A factor of the rest-state matrix (the warped solver, PCG with the factor or
-/// warped preconditioner, the linear model) that is current follows by one low-rank update of
-/// the elements' old and new rest shares (hs_cholesky_update_parts) instead of a numeric
-/// refactorisation at the next step; *low_rank (may be NULL) says whether it did. Otherwise
+/// warped preconditioner, the linear model) that is current follows instead of a numeric
+/// refactorisation at the next step: where the body keeps that matrix and the factor is
+/// supernodal, by a partial refactor of the supernodes the change reaches
+/// (hs_cholesky_refactor_partial; the first time also sets it up), else by one low-rank update
+/// of the elements' old and new rest shares (hs_cholesky_update_parts); *low_rank (may be NULL)
+/// says whether it followed either way. Otherwise
 /// (no such factor, locking_free, a downdate that lost definiteness) the next step refactors as
 /// before. Call after every sweep, before hs_body_set_state; replaces hs_cut_sync_fem for a
 /// body. HS_ERR_INVALID (nothing changed) for an index out of range or a moved element with rest
 /// volume <= 0. Allocates: the element blocks, on growth.
 hs_status hs_body_change_elements(hs_body* b, int n_off, const int* off, int n_moved,
                                   const int* moved, int* low_rank /* OUT */);
-/// Low-rank factor updates hs_body_change_elements has made.
+/// Factor updates (partial refactors or low-rank updates) hs_body_change_elements has made.
 int64_t hs_body_lowrank_updates(const hs_body* b);
 /// Largest relative difference of solves (three random right-hand sides) between the kept
 /// rest-state factor and a fresh factorisation of the rest-state matrix assembled now; for
