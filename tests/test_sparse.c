@@ -709,7 +709,10 @@ static int PartialRefactor(void) {
     int* dofs = malloc(sizeof(int) * 12 * (size_t)t.g.n_tets);
     // Before prepare: unsupported.
     ENSURE(hs_cholesky_refactor_partial(t.f, t.a, -1, NULL) == HS_ERR_UNSUPPORTED);
-    // Every allocation of prepare fails in turn cleanly; the factor stays usable.
+    // Every allocation of prepare fails in turn cleanly; the factor stays usable. What it
+    // keeps is what hs_cholesky_partial_bytes says beforehand.
+    int64_t est = hs_cholesky_partial_bytes(t.f), before = hs_byte_count();
+    ENSURE(est > 8 * hs_cholesky_factor_nnz(t.f) / 2);
     for (int k = 1;; k++) {
         hs_alloc_fail_after(k);
         hs_status st = hs_cholesky_prepare_partial(t.f, t.a);
@@ -719,6 +722,10 @@ static int PartialRefactor(void) {
         ENSURE(hs_cholesky_solve(t.f, t.b, t.x) == HS_OK);
         ENSURE_SMALL(rel_residual(t.a, t.x, t.b, t.r), 1e-12);
     }
+    int64_t kept = hs_byte_count() - before;
+    printf("  partial data: %lld bytes kept, %lld estimated, factor %lld entries\n",
+           (long long)kept, (long long)est, (long long)hs_cholesky_factor_nnz(t.f));
+    ENSURE(llabs(kept - est) <= est / 50);
     ENSURE(hs_cholesky_partial_share(t.f) == 1.0);
     ENSURE_SMALL(compare_with_fresh(t.f, t.a, t.b, t.x, x2), 1e-10);
     // Soften or stiffen the tets of one cell at a time, in cells across the grid.
@@ -782,6 +789,7 @@ static int PartialRefactor(void) {
     ENSURE(hs_cholesky_prepare_updates(t.f, 1) == HS_OK);
     ENSURE(hs_cholesky_refactor_partial(t.f, t.a, 1, &d) == HS_ERR_UNSUPPORTED);
     ENSURE(hs_cholesky_prepare_partial(t.f, t.a) == HS_ERR_UNSUPPORTED);
+    ENSURE(hs_cholesky_partial_bytes(t.f) == -1);
     free(x2);
     free(dofs);
     fixture_free(&t);

@@ -109,6 +109,9 @@ hs_status hs_cholesky_prepare_partial(hs_cholesky* f, const hs_csc* a);
 /// update mode. Allocates: no.
 hs_status hs_cholesky_refactor_partial(hs_cholesky* f, const hs_csc* a, int n_dofs,
                                        const int* dofs);
+/// Memory hs_cholesky_prepare_partial would allocate (the update matrices dominate), bytes;
+/// -1 for a factor that is not supernodal. O(supernodes), allocates nothing.
+int64_t hs_cholesky_partial_bytes(const hs_cholesky* f);
 /// Share of a full factorisation's flops the last partial refactor did (0..1).
 double hs_cholesky_partial_share(const hs_cholesky* f);
 

@@ -380,7 +380,11 @@ hs_status hs_body_change_elements(hs_body* b, int n_off, const int* off, int n_m
     if (b->def.solver == HS_SOLVER_WARPED && !a_rest) keep = 0; // its safeguard reads `a`
     // With `a` kept current, a supernodal factor is refactored in part (only the supernodes the
     // change reaches: 3-8x cheaper than the low-rank update in hapsim-bench cut); else low rank.
-    const int partial = keep && a_rest && hs_cholesky_is_supernodal(b->factor);
+    // Its kept update matrices take 2-3.5x the factor's memory on the benchmark's meshes: above
+    // 4x, low rank.
+    const int partial =
+        keep && a_rest && hs_cholesky_is_supernodal(b->factor) &&
+        hs_cholesky_partial_bytes(b->factor) <= 32 * hs_cholesky_factor_nnz(b->factor);
     // Old shares (slots n_new ..): the moved elements and the active ones going off.
     int n_new = 0, n_old = 0;
     for (int k = 0; k < n_moved; k++)

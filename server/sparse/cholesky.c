@@ -1708,6 +1708,18 @@ static void invalidate_partial(hs_cholesky* f) {
     if (f->part) f->part->valid = 0;
 }
 
+int64_t hs_cholesky_partial_bytes(const hs_cholesky* f) {
+    if (!f || !f->L || !f->L->is_super) return -1;
+    const cholmod_factor* L = f->L;
+    const int *super = L->super, *pi = L->pi;
+    int64_t b = 0;
+    for (size_t s = 0; s < L->nsuper; s++) {
+        int64_t m = (pi[s + 1] - pi[s]) - (super[s + 1] - super[s]);
+        b += 8 * m * m + 4 * m + 64; // update matrix, rows in the parent, per-supernode arrays
+    }
+    return b + 4 * (int64_t)f->nnz + 12 * (int64_t)f->n; // A's entries (upper half), columns
+}
+
 double hs_cholesky_partial_share(const hs_cholesky* f) {
     return f && f->part ? f->part->last_share : 0;
 }
