@@ -17,12 +17,13 @@
 //  - Physics. The cut keeps the rest-state linear stiffness K (free dofs; fixed nodes
 //    eliminated; pinned nodes held by a diagonal spring) and its sparse Cholesky factor. Each
 //    sweep changes K by the 12x12 blocks of removed tets and of tets touching moved vertices
-//    (+ pin blocks). Policy UPDATE sums them over the union of their dofs and applies one
-//    CHOLMOD update/downdate of rank <= that union (hs_cholesky_update_parts); AUTO (default)
-//    does that unless its predicted cost (union x measured cost per rank) exceeds a numeric
-//    refactor with the kept analysis; a failed update also refactors. PARTIAL keeps K itself
-//    current and refactors only the supernodes of L the change reaches
-//    (hs_cholesky_refactor_partial): the fastest exact path in the benchmark. An optional update
+//    (+ pin blocks). Policy PARTIAL keeps K itself current and refactors only the supernodes
+//    of L the change reaches (hs_cholesky_refactor_partial): the fastest exact path in the
+//    benchmark. UPDATE sums the blocks over the union of their dofs and applies one CHOLMOD
+//    update/downdate of rank <= that union (hs_cholesky_update_parts). AUTO (default) is
+//    PARTIAL where the factor allows it, else UPDATE unless its predicted cost (union x
+//    measured cost per rank) exceeds a numeric refactor with the kept analysis; a failed
+//    update also refactors. An optional update
 //    window orders the dofs near the blade last so in-window updates walk short paths; leaving
 //    it rebuilds the factor (in the sweep, or on another thread: hs_cut_window_*). Either way
 //    the factor is that of the new K; tests compare it with a fresh factorisation.
@@ -56,7 +57,9 @@ typedef enum hs_cut_fragment {
 
 /// How the factor of K follows a sweep's element changes.
 typedef enum hs_cut_factor_policy {
-    HS_CUT_FACTOR_AUTO = 0,     ///< low-rank update unless a numeric refactor is cheaper (measured)
+    /// PARTIAL where the factor allows it (supernodal, its kept data within 4x the factor, no
+    /// window); else the low-rank update unless a numeric refactor is cheaper (measured).
+    HS_CUT_FACTOR_AUTO = 0,
     HS_CUT_FACTOR_UPDATE = 1,   ///< always the low-rank update (CHOLMOD update/downdate)
     HS_CUT_FACTOR_REFACTOR = 2, ///< numeric refactor with the kept analysis (reference)
     /// No factor at all: geometry, pins and element changes only, for a caller whose own

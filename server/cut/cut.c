@@ -33,6 +33,7 @@ struct hs_cut {
     double k_pin; // pin spring, N/m (mean diagonal of K)
     int updates_since_refactor;
     double refactor_ms;        // measured numeric refactor of this factor, ms (running mean)
+    int auto_partial;          // AUTO chose the partial refactor at create
     double update_ms_per_rank; // measured update cost per rank-1 column, ms (running mean)
 
     hs_mesh* live;  // active tets only
@@ -608,10 +609,20 @@ hs_status hs_cut_create(hs_mesh* mesh, const unsigned char* fixed, const hs_cut_
         int64_t t0 = hs_now_ns();
         st = hs_cut_refactor(c);
         c->refactor_ms = (double)(hs_now_ns() - t0) * 1e-6;
-        // A simplicial factor (tiny meshes) cannot be refactored in part: sweeps refactor.
+        // A simplicial factor (tiny meshes) cannot be refactored in part: PARTIAL's sweeps
+        // refactor. AUTO takes the partial refactor where it can (the fastest exact path on
+        // every mesh of hapsim-bench cut) and its kept data stays within 4x the factor.
         if (st == HS_OK && def->factor_policy == HS_CUT_FACTOR_PARTIAL) {
             st = hs_cholesky_prepare_partial(c->factor, c->a);
             if (st == HS_ERR_UNSUPPORTED) st = HS_OK;
+        } else if (st == HS_OK && def->factor_policy == HS_CUT_FACTOR_AUTO &&
+                   def->window_radius_m == 0 && hs_cholesky_is_supernodal(c->factor) &&
+                   hs_cholesky_partial_bytes(c->factor) <= 32 * hs_cholesky_factor_nnz(c->factor)) {
+            hs_status ps = hs_cholesky_prepare_partial(c->factor, c->a);
+            c->auto_partial = ps == HS_OK;
+            // Else the low-rank path as before; a full pass that failed (a pivot its 1e-12
+            // guard refused) leaves L partly recomputed, so refactor it.
+            if (ps != HS_OK && ps != HS_ERR_NOMEM) st = hs_cut_refactor(c);
         }
     }
     if (st != HS_OK) {
@@ -1439,7 +1450,7 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
         }
     }
     // PARTIAL keeps K itself current: the old shares out before the elements change.
-    int partial = c->factor && c->def.factor_policy == HS_CUT_FACTOR_PARTIAL;
+    int partial = c->factor && (c->def.factor_policy == HS_CUT_FACTOR_PARTIAL || c->auto_partial);
     int a_current =
         partial &&
         hs_fem_add_rest_elements(c->fem, c->n_removed, c->removed, 1, 0, -1, c->a) == HS_OK &&
