@@ -1500,13 +1500,25 @@ static hs_status build_partial(const cholmod_factor* L, const hs_csc* a, struct 
         for (int s = 0; s < ns; s++) fill[s] = p->child_start[s];
         for (int s = 0; s < ns; s++)
             if (p->parent[s] >= 0) p->child[fill[p->parent[s]]++] = s;
-        for (int s = 0; s < ns; s++) {
+        // A child's rows below its columns lie in its parent's row list (elimination-tree
+        // property); checked, since the extend-add writes through these positions unchecked.
+        for (int k = 0; k < n; k++) pos[k] = -1;
+        int bad = 0;
+        for (int s = 0; s < ns && !bad; s++) {
             for (int k = pi[s]; k < pi[s + 1]; k++) pos[ls[k]] = k - pi[s];
             for (int q = p->child_start[s]; q < p->child_start[s + 1]; q++) {
                 int c = p->child[q], cnc = super[c + 1] - super[c];
                 int* r = p->rel + p->rel_start[c];
-                for (int k = pi[c] + cnc; k < pi[c + 1]; k++) *r++ = pos[ls[k]];
+                for (int k = pi[c] + cnc; k < pi[c + 1]; k++) {
+                    int lr = pos[ls[k]];
+                    bad |= lr < 0 || lr >= pi[s + 1] - pi[s] || ls[pi[s] + lr] != ls[k];
+                    *r++ = lr;
+                }
             }
+        }
+        if (bad) {
+            st = HS_ERR_UNSUPPORTED;
+            goto fail;
         }
     }
     // A's upper entries (original numbering), each to the supernode of its lower column.
