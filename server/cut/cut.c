@@ -34,6 +34,7 @@ struct hs_cut {
     int updates_since_refactor;
     double refactor_ms;        // measured numeric refactor of this factor, ms (running mean)
     int auto_partial;          // AUTO chose the partial refactor at create
+    int a_stale;               // `a` no longer holds K (a sweep failed half way): reassemble
     double update_ms_per_rank; // measured update cost per rank-1 column, ms (running mean)
 
     hs_mesh* live;  // active tets only
@@ -388,6 +389,7 @@ static int partial_dofs(hs_cut* c) {
 hs_status hs_cut_refactor(hs_cut* c) {
     if (!c->factor) return HS_ERR_INVALID;
     hs_cut_assemble(c, c->a);
+    c->a_stale = 0;
     hs_status st = hs_cholesky_refactor(c->factor, c->a);
     if (st == HS_OK) c->updates_since_refactor = 0;
     return st;
@@ -1452,12 +1454,13 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
     // PARTIAL keeps K itself current: the old shares out before the elements change.
     int partial = c->factor && (c->def.factor_policy == HS_CUT_FACTOR_PARTIAL || c->auto_partial);
     int a_current =
-        partial &&
+        partial && !c->a_stale &&
         hs_fem_add_rest_elements(c->fem, c->n_removed, c->removed, 1, 0, -1, c->a) == HS_OK &&
         hs_fem_add_rest_elements(c->fem, c->n_changed, c->changed, 1, 0, -1, c->a) == HS_OK;
     for (int k = 0; k < c->n_removed; k++) hs_fem_set_element_active(c->fem, c->removed[k], 0);
     hs_status st = hs_fem_refresh_elements(c->fem, c->changed, c->n_changed);
     if (st != HS_OK) {
+        c->a_stale |= a_current; // the old shares are out of `a` already
         hs_err_set(err, st, "cut: refreshing %d elements failed", c->n_changed);
         goto done;
     }
@@ -1513,6 +1516,7 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
             st = hs_cholesky_refactor_partial(c->factor, c->a, partial_dofs(c), c->dset);
         } else {
             hs_cut_assemble(c, c->a);
+            c->a_stale = 0;
             st = hs_cholesky_refactor_partial(c->factor, c->a, -1, NULL);
         }
         if (st != HS_OK) { // no partial data (simplicial), or a singular K: refactor in full
