@@ -89,12 +89,13 @@ int hs_cholesky_is_supernodal(const hs_cholesky* f);
 // Partial refactorisation (cutting). A change of A confined to a few dofs alters only the
 // columns of L in the elimination-tree paths from those dofs to the root. Multifrontal over
 // CHOLMOD's supernodes, keeping every supernode's update matrix (memory: the sum of their
-// squares, about nnz(L) to 3 nnz(L) doubles), the factor then recomputes only the supernodes
-// holding a changed dof and their ancestors, with the same arithmetic as a full factorisation;
-// the rest of L and the other update matrices are reused. A localised change in 3D still
-// reaches the top separators, where most of the flops are: about a third to two thirds of a
-// refactor (hs_cholesky_partial_share). Not for a factor in update mode (they exclude each
-// other: updates need simplicial LDL^T, this needs supernodal LL^T).
+// squares, 2-3.5x the factor on the benchmark's meshes: hs_cholesky_partial_bytes), the factor
+// then recomputes only the supernodes holding a changed dof and their ancestors, with the same
+// arithmetic as a full factorisation; the rest of L and the other update matrices are reused.
+// A localised change still reaches the top separators, where most of the flops are: a quarter
+// to two thirds of a factorisation in hapsim-bench cut (hs_cholesky_partial_share), run at
+// dense-BLAS speed (a full pass is faster than CHOLMOD's own refactor there). Not for a factor
+// in update mode (they exclude each other: updates need simplicial LDL^T, this supernodal LL^T).
 
 /// Set up partial refactorisation of a supernodal factor (a has the factor's pattern, both
 /// halves stored) and factor a once in full through it. HS_ERR_UNSUPPORTED for a simplicial
