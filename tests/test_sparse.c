@@ -751,6 +751,49 @@ static int PartialRefactor(void) {
     }
     printf("  8 local changes: least share of a factorisation %.2f\n", least);
     ENSURE(least < 0.6);
+    // The same on two threads: a clone of the factor state cannot be had, so compare each
+    // step with a fresh factor and with the one-thread result of the same matrix.
+    ENSURE(hs_cholesky_set_partial_threads(t.f, 3) == HS_ERR_INVALID);
+    ENSURE(hs_cholesky_set_partial_threads(t.f, 2) == HS_OK);
+    ENSURE(hs_cholesky_set_partial_threads(t.f, 2) == HS_OK); // already running: kept
+    double* x1 = malloc(sizeof(double) * (size_t)n);
+    long long helped = 0;
+    for (int k = 0; k < 20 && (k < 4 || helped == 0); k++) {
+        int cx = 1 + (k * 7) % 10, cy = 1 + (k * 5) % 8, cz = 1 + (k * 3) % 6, nd = 0;
+        for (int e = 0; e < t.g.n_tets; e++) {
+            double x0[3];
+            grid_coords(&t.g, t.g.tets[4 * e], x0);
+            if (x0[0] != cx || x0[1] != cy || x0[2] != cz) continue;
+            ENSURE(grid_add_tet(&t.g, t.a, e, k % 2 ? -0.5 : 2.0) == 0);
+            grid_tet_dofs(&t.g, e, dofs + nd);
+            nd += 12;
+        }
+        for (int q = 0; q < nd; q++)
+            if (dofs[q] < 0) dofs[q--] = dofs[--nd];
+        ENSURE(hs_cholesky_refactor_partial(t.f, t.a, nd, dofs) == HS_OK);
+        ENSURE(hs_cholesky_solve(t.f, t.b, x1) == HS_OK);
+        ENSURE_SMALL(compare_with_fresh(t.f, t.a, t.b, t.x, x2), 1e-10);
+        // A whole pass on two threads, then one on one thread: the same to round-off.
+        ENSURE(hs_cholesky_refactor_partial(t.f, t.a, -1, NULL) == HS_OK);
+        ENSURE(hs_cholesky_solve(t.f, t.b, x1) == HS_OK);
+        helped += hs_cholesky_partial_helper_chunks(t.f);
+        ENSURE(hs_cholesky_set_partial_threads(t.f, 1) == HS_OK);
+        ENSURE(hs_cholesky_partial_helper_chunks(t.f) == 0);
+        ENSURE(hs_cholesky_refactor_partial(t.f, t.a, -1, NULL) == HS_OK);
+        ENSURE(hs_cholesky_solve(t.f, t.b, x2) == HS_OK);
+        double dn = 0, xn = 0;
+        for (int i = 0; i < n; i++) {
+            dn = fmax(dn, fabs(x1[i] - x2[i]));
+            xn = fmax(xn, fabs(x2[i]));
+        }
+        ENSURE_SMALL(dn / xn, 1e-12);
+        ENSURE(hs_cholesky_set_partial_threads(t.f, 2) == HS_OK);
+    }
+    // The helper took chunks of the large supernodes (a busy machine may delay it for a
+    // while, hence up to 20 rounds).
+    printf("  two threads: %lld chunks run by the helper\n", helped);
+    ENSURE(helped > 0);
+    free(x1);
     // No change at all recomputes nothing and changes nothing.
     ENSURE(hs_cholesky_refactor_partial(t.f, t.a, 0, dofs) == HS_OK);
     ENSURE(hs_cholesky_partial_share(t.f) == 0.0);

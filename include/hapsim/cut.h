@@ -95,11 +95,16 @@ typedef struct hs_cut_def {
     /// 1: a sweep leaving the window updates the current factor (longer paths) instead of
     /// rebuilding it; the caller rebuilds the window off the critical path (hs_cut_window_*).
     int window_background;
+    /// Threads of the partial refactor (PARTIAL, and AUTO when it takes that path): 1, or 2 to
+    /// share its large supernodes with a helper thread (hs_cholesky_set_partial_threads);
+    /// 0: 2 when two or more processors are online, else 1.
+    int factor_threads;
     int cookie; ///< set by hs_cut_default_def
 } hs_cut_def;
 
 /// Defaults: hs_fem_default_def()'s material, ORPHAN_PIN, FRAGMENT_DROP, volume ratio 0.1,
-/// quality 0.02, 8 bisections, tangent moves on, AUTO factor policy, validation on, no window.
+/// quality 0.02, 8 bisections, tangent moves on, AUTO factor policy, validation on, no window,
+/// factor threads by the processors online.
 hs_cut_def hs_cut_default_def(void);
 
 /// What one sweep did.

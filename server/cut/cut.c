@@ -1,12 +1,14 @@
 // Vertex-preserving cutting: sweep crossing test, vertex moves with a quality guard, tet
 // removal with the orphan and free-piece rules, the live mesh, and the low-rank factor update.
 // See include/hapsim/cut.h for the design and docs/cutting.md for the choices.
+#define _DEFAULT_SOURCE // sysconf(_SC_NPROCESSORS_ONLN)
 #include "hapsim/cut.h"
 
 #include <math.h>
 #include <pthread.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #define HS_CUT_COOKIE 0x43555431
 
@@ -473,6 +475,9 @@ hs_status hs_cut_create(hs_mesh* mesh, const unsigned char* fixed, const hs_cut_
         !(def->window_ahead_m >= 0 && def->window_ahead_m < 1e6))
         return hs_err_set(err, HS_ERR_INVALID, "cut: window radius %g m / ahead %g m out of range",
                           def->window_radius_m, def->window_ahead_m);
+    if (def->factor_threads < 0 || def->factor_threads > 2)
+        return hs_err_set(err, HS_ERR_INVALID, "cut: factor threads %d (0, 1 or 2)",
+                          def->factor_threads);
     if (def->factor_policy < HS_CUT_FACTOR_AUTO || def->factor_policy > HS_CUT_FACTOR_PARTIAL)
         return hs_err_set(err, HS_ERR_INVALID, "cut: unknown factor policy %d",
                           (int)def->factor_policy);
@@ -626,6 +631,11 @@ hs_status hs_cut_create(hs_mesh* mesh, const unsigned char* fixed, const hs_cut_
             // guard refused) leaves L partly recomputed, so refactor it.
             if (ps != HS_OK && ps != HS_ERR_NOMEM) st = hs_cut_refactor(c);
         }
+        int threads = def->factor_threads ? def->factor_threads
+                                          : (sysconf(_SC_NPROCESSORS_ONLN) >= 2 ? 2 : 1);
+        if (st == HS_OK && threads == 2 &&
+            (def->factor_policy == HS_CUT_FACTOR_PARTIAL || c->auto_partial))
+            st = hs_cholesky_set_partial_threads(c->factor, 2);
     }
     if (st != HS_OK) {
         hs_cut_destroy(&c);

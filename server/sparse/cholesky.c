@@ -11,6 +11,7 @@
 #include <cholmod.h>
 #include <dlfcn.h>
 #include <math.h>
+#include <pthread.h>
 #include <stdatomic.h>
 #include <string.h>
 
@@ -46,8 +47,12 @@ struct hs_cholesky {
     int* dlist;    // [cap_d] union dofs, then their rows in L
     double* dense; // [cap_d^2] summed change, then its LDL^T (lower triangle)
     struct hs_partial* part;      // partial refactorisation data (hs_cholesky_prepare_partial)
+    struct duo* duo;              // its second thread (hs_cholesky_set_partial_threads)
     hs_cholesky_update_info last; // of the last update_elements / update_parts
 };
+
+struct duo;
+static void duo_destroy(struct duo** pd);
 
 // ---------------------------------------------------------------------------------------------
 // Process-wide set-up: allocator hooks (once) and a quiet error handler.
@@ -864,6 +869,7 @@ static void free_partial(struct hs_partial** pp);
 void hs_cholesky_destroy(hs_cholesky** pf) {
     if (!pf || !*pf) return;
     hs_cholesky* f = *pf;
+    duo_destroy(&f->duo);
     cholmod_free_factor(&f->L, &f->c);
     cholmod_free_factor(&f->spare, &f->c);
     cholmod_free_dense(&f->x1, &f->c);
@@ -1401,6 +1407,9 @@ void dtrsm_(const char* side, const char* uplo, const char* transa, const char* 
             const int* ldb);
 void dsyrk_(const char* uplo, const char* trans, const int* n, const int* k, const double* alpha,
             const double* a, const int* lda, const double* beta, double* c, const int* ldc);
+void dgemm_(const char* ta, const char* tb, const int* m, const int* n, const int* k,
+            const double* alpha, const double* a, const int* lda, const double* b, const int* ldb,
+            const double* beta, double* c, const int* ldc);
 
 struct hs_partial {
     int ns;              // supernodes
@@ -1414,6 +1423,7 @@ struct hs_partial {
     int* diag_val;       // [n] index of A(j,j) (L's order) in A's values
     int* rel_start;      // [ns+1] rows of s's update matrix, as local rows of its parent's block
     int* rel;            //
+    int* run_end;        // [as rel] end of the run of consecutive rows in rel holding each
     size_t* u_start;     // [ns+1] offsets of the update matrices (m x m, column-major)
     double* u;           //
     double* flops;       // [ns] cost of each supernode
@@ -1438,6 +1448,7 @@ static void free_partial(struct hs_partial** pp) {
     hs_free(p->diag_val);
     hs_free(p->rel_start);
     hs_free(p->rel);
+    hs_free(p->run_end);
     hs_free(p->u_start);
     hs_free(p->u);
     hs_free(p->flops);
@@ -1493,8 +1504,9 @@ static hs_status build_partial(const cholmod_factor* L, const hs_csc* a, struct 
     for (int s = 0; s < ns; s++) p->child_start[s + 1] += p->child_start[s];
     st = HS_ERR_NOMEM;
     p->rel = hs_alloc(sizeof(int) * ((size_t)p->rel_start[ns] + 1));
+    p->run_end = hs_alloc(sizeof(int) * ((size_t)p->rel_start[ns] + 1));
     p->u = hs_alloc(sizeof(double) * (p->u_start[ns] + 1));
-    if (!p->rel || !p->u) goto fail;
+    if (!p->rel || !p->run_end || !p->u) goto fail;
     {
         int* fill = cnt; // next free child slot per supernode
         for (int s = 0; s < ns; s++) fill[s] = p->child_start[s];
@@ -1519,6 +1531,12 @@ static hs_status build_partial(const cholmod_factor* L, const hs_csc* a, struct 
         if (bad) {
             st = HS_ERR_UNSUPPORTED;
             goto fail;
+        }
+        for (int c = 0; c < ns; c++) {
+            const int *r = p->rel + p->rel_start[c], mc = p->rel_start[c + 1] - p->rel_start[c];
+            int* e = p->run_end + p->rel_start[c];
+            for (int k = mc - 1; k >= 0; k--)
+                e[k] = k + 1 < mc && r[k + 1] == r[k] + 1 ? e[k + 1] : k + 1;
         }
     }
     // A's upper entries (original numbering), each to the supernode of its lower column.
@@ -1603,58 +1621,337 @@ fail:
     return st;
 }
 
+// ---------------------------------------------------------------------------------------------
+// A second thread for the partial refactor's large supernodes (hs_cholesky_set_partial_threads).
+// A piece of work is cut into chunks that write disjoint parts of the output; the caller and
+// the helper take chunks from a shared counter, so the load balances itself and a slow or busy
+// helper costs at most the chunk it holds. The helper spins while a refactor runs and sleeps
+// on a condition otherwise.
+
+typedef void duo_fn(void* arg, int chunk);
+
+// Supernodes below this many flops (about 0.1 ms) stay on one thread: the split kernels would
+// be too small to pay for the hand-over.
+#define HS_DUO_MIN_FLOPS 3e6
+#define HS_DUO_CHUNKS    8  // chunks per kernel: enough to even out unequal ones,
+#define HS_DUO_WIDTH     48 // but no narrower than this (BLAS slows down on thin blocks)
+
+// Rows or columns per chunk when m are shared out: a multiple of 4.
+static int chunk_width(int m) {
+    int w = (m + HS_DUO_CHUNKS - 1) / HS_DUO_CHUNKS;
+    if (w < HS_DUO_WIDTH) w = HS_DUO_WIDTH;
+    return (w + 3) & ~3;
+}
+
+struct duo {
+    pthread_t th;
+    pthread_mutex_t mu;
+    pthread_cond_t cv;
+    atomic_int spin; // a refactor is running: poll for work (set under mu, cleared without)
+    int quit;        // under mu
+    uint32_t seq;    // caller's count of postings
+    // Posting seq, next chunk to take and chunk count in one word, so that a chunk is taken
+    // only from the posting the taker saw: seq << 32 | next << 16 | n.
+    _Atomic uint64_t ticket;
+    atomic_int finished; // chunks of the current posting the helper has completed
+    atomic_llong helped; // chunks the helper has run, in all
+    duo_fn* fn;
+    void* arg;
+};
+
+static inline void cpu_relax(void) {
+#if defined(__x86_64__) || defined(__i386__)
+    __builtin_ia32_pause();
+#endif
+}
+
+// Take the next chunk of the posting in t; -1 when none is left (or a newer posting came).
+static int duo_take(struct duo* d, uint64_t seq) {
+    uint64_t v = atomic_load_explicit(&d->ticket, memory_order_acquire);
+    for (;;) {
+        unsigned next = (unsigned)(v >> 16) & 0xffffu, n = (unsigned)v & 0xffffu;
+        if ((v >> 32) != seq || next >= n) return -1;
+        if (atomic_compare_exchange_weak_explicit(&d->ticket, &v, v + (1u << 16),
+                                                  memory_order_acq_rel, memory_order_acquire))
+            return (int)next;
+    }
+}
+
+static void* duo_main(void* arg) {
+    struct duo* d = arg;
+    uint64_t seen = 0;
+    for (;;) {
+        pthread_mutex_lock(&d->mu);
+        while (!atomic_load(&d->spin) && !d->quit) pthread_cond_wait(&d->cv, &d->mu);
+        int quit = d->quit;
+        pthread_mutex_unlock(&d->mu);
+        if (quit) return NULL;
+        while (atomic_load_explicit(&d->spin, memory_order_acquire)) {
+            uint64_t seq = atomic_load_explicit(&d->ticket, memory_order_acquire) >> 32;
+            if (seq == seen) {
+                cpu_relax();
+                continue;
+            }
+            seen = seq;
+            // Holding a chunk keeps the caller from posting again, so fn and arg are this
+            // posting's while it runs.
+            for (int c; (c = duo_take(d, seq)) >= 0;) {
+                d->fn(d->arg, c);
+                atomic_fetch_add_explicit(&d->helped, 1, memory_order_relaxed);
+                atomic_fetch_add_explicit(&d->finished, 1, memory_order_release);
+            }
+        }
+    }
+}
+
+static hs_status duo_create(struct duo** out) {
+    struct duo* d = hs_calloc(1, sizeof *d);
+    if (!d) return HS_ERR_NOMEM;
+    if (pthread_mutex_init(&d->mu, NULL) != 0) {
+        hs_free(d);
+        return HS_ERR_NOMEM;
+    }
+    if (pthread_cond_init(&d->cv, NULL) != 0) {
+        pthread_mutex_destroy(&d->mu);
+        hs_free(d);
+        return HS_ERR_NOMEM;
+    }
+    if (pthread_create(&d->th, NULL, duo_main, d) != 0) {
+        pthread_cond_destroy(&d->cv);
+        pthread_mutex_destroy(&d->mu);
+        hs_free(d);
+        return HS_ERR_NOMEM;
+    }
+    *out = d;
+    return HS_OK;
+}
+
+static void duo_destroy(struct duo** pd) {
+    struct duo* d = *pd;
+    if (!d) return;
+    pthread_mutex_lock(&d->mu);
+    d->quit = 1;
+    atomic_store(&d->spin, 0);
+    pthread_cond_signal(&d->cv);
+    pthread_mutex_unlock(&d->mu);
+    pthread_join(d->th, NULL);
+    pthread_cond_destroy(&d->cv);
+    pthread_mutex_destroy(&d->mu);
+    hs_free(d);
+    *pd = NULL;
+}
+
+static void duo_wake(struct duo* d) {
+    pthread_mutex_lock(&d->mu);
+    atomic_store(&d->spin, 1);
+    pthread_cond_signal(&d->cv);
+    pthread_mutex_unlock(&d->mu);
+}
+
+static void duo_sleep(struct duo* d) {
+    atomic_store_explicit(&d->spin, 0, memory_order_release);
+}
+
+// fn(arg, c) for every chunk c < n, on both threads when d is given, else in order here.
+static void duo_run(struct duo* d, duo_fn* fn, void* arg, int n) {
+    if (!d) {
+        for (int c = 0; c < n; c++) fn(arg, c);
+        return;
+    }
+    uint64_t seq = ++d->seq;
+    d->fn = fn;
+    d->arg = arg;
+    atomic_store_explicit(&d->finished, 0, memory_order_relaxed);
+    atomic_store_explicit(&d->ticket, seq << 32 | (uint64_t)n, memory_order_release);
+    int mine = 0;
+    for (int c; (c = duo_take(d, seq)) >= 0; mine++) fn(arg, c);
+    while (atomic_load_explicit(&d->finished, memory_order_acquire) != n - mine) cpu_relax();
+}
+
+// B (m x k, rows of a lower block) := B L^-T, in chunks of rows.
+typedef struct trsm_job {
+    int m, k, ld, rows;
+    const double* l;
+    double* b;
+} trsm_job;
+
+static void trsm_chunk(void* arg, int c) {
+    const trsm_job* j = arg;
+    int r0 = c * j->rows, mm = j->m - r0 < j->rows ? j->m - r0 : j->rows;
+    const double one = 1.0;
+    if (mm > 0) dtrsm_("R", "L", "T", "N", &mm, &j->k, &one, j->l, &j->ld, j->b + r0, &j->ld);
+}
+
+static void trsm_run(struct duo* d, int m, int k, const double* l, double* b, int ld) {
+    trsm_job t = {m, k, ld, chunk_width(m), l, b};
+    duo_run(d, trsm_chunk, &t, (m + t.rows - 1) / t.rows);
+}
+
+// Lower triangle of C (m x m) := beta C - A A^T (A m x k), in blocks of columns: each a
+// triangle on the diagonal and the rectangle under it, the first ones the largest.
+typedef struct syrk_job {
+    int m, k, lda, ldc, cols;
+    double beta;
+    const double* a;
+    double* c;
+} syrk_job;
+
+static void syrk_chunk(void* arg, int ch) {
+    const syrk_job* j = arg;
+    int c0 = ch * j->cols, w = j->m - c0 < j->cols ? j->m - c0 : j->cols, below = j->m - c0 - w;
+    const double minus = -1.0;
+    if (w <= 0) return;
+    double* cc = j->c + (size_t)c0 * (size_t)j->ldc + (size_t)c0;
+    dsyrk_("L", "N", &w, &j->k, &minus, j->a + c0, &j->lda, &j->beta, cc, &j->ldc);
+    if (below > 0)
+        dgemm_("N", "T", &below, &w, &j->k, &minus, j->a + c0 + w, &j->lda, j->a + c0, &j->lda,
+               &j->beta, cc + w, &j->ldc);
+}
+
+static void syrk_run(struct duo* d, int m, int k, const double* a, int lda, double beta, double* c,
+                     int ldc) {
+    syrk_job y = {m, k, lda, ldc, chunk_width(m), beta, a, c};
+    duo_run(d, syrk_chunk, &y, (m + y.cols - 1) / y.cols);
+}
+
+// Cholesky of the n x n lower block a: recursive halves, the off-diagonal solve and the
+// trailing update shared between the threads. LAPACK's info convention.
+static int potrf_duo(struct duo* d, int n, double* a, int lda) {
+    int info = 0;
+    if (n < 192) {
+        dpotrf_("L", &n, a, &lda, &info);
+        return info;
+    }
+    int h = (n / 2 + 3) & ~3;
+    info = potrf_duo(d, h, a, lda);
+    if (info) return info;
+    double* a22 = a + (size_t)h * (size_t)lda + (size_t)h;
+    trsm_run(d, n - h, h, a, a + h, lda);
+    syrk_run(d, n - h, h, a + h, lda, 1.0, a22, lda);
+    info = potrf_duo(d, n - h, a22, lda);
+    return info ? info + h : 0;
+}
+
+// d[i] += v[i], unrolled so that -O2 pairs the adds (its vectoriser leaves epilogue loops be).
+static inline void add_run(double* restrict d, const double* restrict v, int len) {
+    int i = 0;
+    for (; i + 4 <= len; i += 4) {
+        d[i] += v[i];
+        d[i + 1] += v[i + 1];
+        d[i + 2] += v[i + 2];
+        d[i + 3] += v[i + 3];
+    }
+    for (; i < len; i++) d[i] += v[i];
+}
+
+// dst[rel[k]] += src[k] for k in [k0, k1): whole runs of consecutive rows at a time (rows come
+// in node triples, and separators map in long runs).
+static void extend_add_col(double* dst, const double* src, const int* rel, const int* run_end,
+                           int k0, int k1) {
+    for (int k = k0; k < k1; k = run_end[k]) add_run(dst + rel[k], src + k, run_end[k] - k);
+}
+
+// Supernode s's block assembled (phase 0: zeroed, A's entries and the children's update
+// matrices in its columns) or the rest of the children's update matrices added into s's own
+// (phase 1). Chunks are ranges of destination columns of about equal area, so no two chunks
+// write the same entry.
+typedef struct extadd_job {
+    const struct hs_partial* p;
+    int s, nc, nr, m, phase, n_chunks;
+    double *x, *blk, *us;
+    const double* aval;
+} extadd_job;
+
+// First destination column of chunk c: column j holds rows j..rows-1 of a width-column block.
+static int extadd_bound(int c, int n_chunks, int width, int rows) {
+    if (c <= 0) return 0;
+    if (c >= n_chunks) return width;
+    double total = (double)width * rows - 0.5 * (double)width * (width - 1);
+    double area = total * c / n_chunks, b = rows + 0.5;
+    int j = (int)(b - sqrt(b * b - 2.0 * area));
+    return j < 0 ? 0 : j > width ? width : j;
+}
+
+static void extadd_chunk(void* arg, int ch) {
+    const extadd_job* j = arg;
+    const struct hs_partial* p = j->p;
+    int width = j->phase ? j->m : j->nc, rows = j->phase ? j->m : j->nr;
+    int lo = extadd_bound(ch, j->n_chunks, width, rows);
+    int hi = extadd_bound(ch + 1, j->n_chunks, width, rows);
+    int shift = j->phase ? j->nc : 0; // destination column of child column k: rel[k] - shift
+    if (lo >= hi) return;
+    if (j->phase == 0) {
+        memset(j->blk + (size_t)lo * (size_t)j->nr, 0,
+               sizeof(double) * (size_t)(hi - lo) * (size_t)j->nr);
+        // A's entries of s come column by column: find those of columns [lo, hi).
+        int e0 = p->ent_start[j->s], e1 = p->ent_start[j->s + 1];
+        ptrdiff_t first = j->blk - j->x + (ptrdiff_t)lo * j->nr;
+        ptrdiff_t last = j->blk - j->x + (ptrdiff_t)hi * j->nr;
+        int a = e0, b = e1;
+        while (a < b) {
+            int mid = a + (b - a) / 2;
+            if (p->ent_off[mid] < first)
+                a = mid + 1;
+            else
+                b = mid;
+        }
+        for (int e = a; e < e1 && p->ent_off[e] < last; e++)
+            j->x[p->ent_off[e]] += j->aval[p->ent_val[e]];
+    }
+    for (int q = p->child_start[j->s]; q < p->child_start[j->s + 1]; q++) {
+        int c = p->child[q];
+        int mc = p->rel_start[c + 1] - p->rel_start[c];
+        const int* rel = p->rel + p->rel_start[c];
+        const int* run = p->run_end + p->rel_start[c];
+        const double* uc = p->u + p->u_start[c];
+        int k = 0;
+        while (k < mc && rel[k] - shift < lo) k++;
+        for (; k < mc && rel[k] - shift < hi; k++) {
+            double* dst = j->phase ? j->us + (size_t)(rel[k] - shift) * (size_t)j->m - shift
+                                   : j->blk + (size_t)rel[k] * (size_t)j->nr;
+            extend_add_col(dst, uc + (size_t)k * (size_t)mc, rel, run, k, mc);
+        }
+    }
+}
+
 // Recompute supernode s of L (its block in x) and its update matrix from A's values and the
-// children's kept update matrices. 0 if a pivot is not positive and finite, or collapsed below
-// 1e-12 of A's diagonal (a singular matrix shows as round-off rather than a negative pivot).
+// children's kept update matrices, on two threads when d is given. 0 if a pivot is not positive
+// and finite, or collapsed below 1e-12 of A's diagonal (a singular matrix shows as round-off
+// rather than a negative pivot).
 static int factor_supernode(const cholmod_factor* L, struct hs_partial* p, const double* aval,
-                            int s) {
+                            int s, struct duo* d) {
     const int *super = L->super, *pi = L->pi, *px = L->px;
     double* x = L->x;
     const int nc = super[s + 1] - super[s], nr = pi[s + 1] - pi[s], m = nr - nc;
     double* blk = x + px[s];
     double* us = p->u + p->u_start[s];
-    memset(blk, 0, sizeof(double) * (size_t)nr * (size_t)nc);
-    for (int e = p->ent_start[s]; e < p->ent_start[s + 1]; e++)
-        x[p->ent_off[e]] += aval[p->ent_val[e]];
     // Children's update matrices, the columns landing in s's own columns first; the rest go
     // after the syrk, which then writes the update matrix outright instead of adding to a
     // zeroed one.
-    for (int q = p->child_start[s]; q < p->child_start[s + 1]; q++) {
-        int c = p->child[q];
-        int mc = p->rel_start[c + 1] - p->rel_start[c];
-        const int* rel = p->rel + p->rel_start[c];
-        const double* uc = p->u + p->u_start[c];
-        for (int k2 = 0; k2 < mc && rel[k2] < nc; k2++) {
-            const double* col = uc + (size_t)k2 * (size_t)mc;
-            double* dst = blk + (size_t)rel[k2] * (size_t)nr;
-            for (int k1 = k2; k1 < mc; k1++) dst[rel[k1]] += col[k1];
-        }
-    }
+    extadd_job ej = {p, s, nc, nr, m, 0, d ? HS_DUO_CHUNKS : 1, x, blk, us, aval};
+    duo_run(d, extadd_chunk, &ej, ej.n_chunks);
     int info = 0;
-    dpotrf_("L", &nc, blk, &nr, &info);
+    if (d)
+        info = potrf_duo(d, nc, blk, nr);
+    else
+        dpotrf_("L", &nc, blk, &nr, &info);
     if (info != 0) return 0;
     for (int j = 0; j < nc; j++) {
-        double d = blk[(size_t)j * (size_t)nr + (size_t)j];
+        double dj = blk[(size_t)j * (size_t)nr + (size_t)j];
         double ajj = aval[p->diag_val[super[s] + j]];
-        if (!(d > 0.0 && d < INFINITY) || !(d * d > 1e-12 * ajj)) return 0;
+        if (!(dj > 0.0 && dj < INFINITY) || !(dj * dj > 1e-12 * ajj)) return 0;
     }
     if (m == 0) return 1;
-    const double one = 1.0, minus = -1.0, zero = 0.0;
-    dtrsm_("R", "L", "T", "N", &m, &nc, &one, blk, &nr, blk + nc, &nr);
-    dsyrk_("L", "N", &m, &nc, &minus, blk + nc, &nr, &zero, us, &m);
-    for (int q = p->child_start[s]; q < p->child_start[s + 1]; q++) {
-        int c = p->child[q];
-        int mc = p->rel_start[c + 1] - p->rel_start[c];
-        const int* rel = p->rel + p->rel_start[c];
-        const double* uc = p->u + p->u_start[c];
-        int k2 = 0;
-        while (k2 < mc && rel[k2] < nc) k2++;
-        for (; k2 < mc; k2++) {
-            const double* col = uc + (size_t)k2 * (size_t)mc;
-            double* dst = us + (size_t)(rel[k2] - nc) * (size_t)m - nc;
-            for (int k1 = k2; k1 < mc; k1++) dst[rel[k1]] += col[k1];
-        }
+    if (d) {
+        trsm_run(d, m, nc, blk, blk + nc, nr);
+        syrk_run(d, m, nc, blk + nc, nr, 0.0, us, m);
+    } else {
+        const double one = 1.0, minus = -1.0, zero = 0.0;
+        dtrsm_("R", "L", "T", "N", &m, &nc, &one, blk, &nr, blk + nc, &nr);
+        dsyrk_("L", "N", &m, &nc, &minus, blk + nc, &nr, &zero, us, &m);
     }
+    ej.phase = 1;
+    duo_run(d, extadd_chunk, &ej, ej.n_chunks);
     return 1;
 }
 
@@ -1697,13 +1994,21 @@ hs_status hs_cholesky_refactor_partial(hs_cholesky* f, const hs_csc* a, int n_do
     const double* aval = a->val;
     double done = 0;
     int ok = 1;
+    struct duo* d = f->duo;
+    int awake = 0;
     for (int s = 0; s < p->ns; s++) {
         if (!all && !p->mark[s]) continue;
         p->mark[s] = 0;
         if (!ok) continue; // clear the remaining marks only
-        ok = factor_supernode(f->L, p, aval, s);
+        int big = d && p->flops[s] >= HS_DUO_MIN_FLOPS;
+        if (big && !awake) {
+            duo_wake(d); // supernodes come in postorder: the large ones last, so wake late
+            awake = 1;
+        }
+        ok = factor_supernode(f->L, p, aval, s, big ? d : NULL);
         done += p->flops[s];
     }
+    if (awake) duo_sleep(d);
     p->last_share = p->total_flops > 0 ? done / p->total_flops : 0;
     if (!ok) {
         // L is partly recomputed: unusable until a full refactor (as after a failed downdate).
@@ -1714,6 +2019,19 @@ hs_status hs_cholesky_refactor_partial(hs_cholesky* f, const hs_csc* a, int n_do
     p->valid = 1;
     f->broken = 0;
     return HS_OK;
+}
+
+hs_status hs_cholesky_set_partial_threads(hs_cholesky* f, int n) {
+    if (!f || n < 1 || n > 2) return HS_ERR_INVALID;
+    if (n == 1) {
+        duo_destroy(&f->duo);
+        return HS_OK;
+    }
+    return f->duo ? HS_OK : duo_create(&f->duo);
+}
+
+int64_t hs_cholesky_partial_helper_chunks(const hs_cholesky* f) {
+    return f && f->duo ? (int64_t)atomic_load(&f->duo->helped) : 0;
 }
 
 static void invalidate_partial(hs_cholesky* f) {
@@ -1727,7 +2045,7 @@ int64_t hs_cholesky_partial_bytes(const hs_cholesky* f) {
     int64_t b = 0;
     for (size_t s = 0; s < L->nsuper; s++) {
         int64_t m = (pi[s + 1] - pi[s]) - (super[s + 1] - super[s]);
-        b += 8 * m * m + 4 * m + 64; // update matrix, rows in the parent, per-supernode arrays
+        b += 8 * m * m + 8 * m + 64; // update matrix, rows in the parent and their runs, arrays
     }
     return b + 4 * (int64_t)f->nnz + 12 * (int64_t)f->n; // A's entries (upper half), columns
 }

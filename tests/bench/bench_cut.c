@@ -1,6 +1,7 @@
 // hapsim-bench cut: cost of one progressive cut step (crossing test, vertex moves, guard, piece
-// detection, element shares and the update of K's factor: the partial refactor in the CSV, the
-// low-rank CHOLMOD update, AUTO and the update window on stderr) against a numeric refactorisation
+// detection, element shares and the update of K's factor: the partial refactor with the default
+// threads in the CSV; on one thread, the low-rank CHOLMOD update, AUTO and the update window on
+// stderr) against a numeric refactorisation
 // and, for small meshes, a dense inversion of K (the paper's method).
 #include "bench.h"
 
@@ -114,9 +115,17 @@ static void* bg_build_main(void* arg) {
 }
 
 /// window: 0 none; 1 rebuilt in the sweep when left; 2 rebuilt on a second thread (begin and
-/// finish count in the step they run in, the build runs while the sweeps go on).
+/// finish count in the step they run in, the build runs while the sweeps go on). threads:
+/// hs_cut_def.factor_threads. twin (no window): a second cut with twin->threads factor threads
+/// takes every sweep too, the two in alternating order, its times into twin->ps.
+typedef struct twin_pass {
+    int threads;
+    pass_stats ps;
+} twin_pass;
+
 static int run_pass(const cut_case* cc, const hs_bench_args* args, hs_cut_factor_policy policy,
-                    int window, int measure_reference, pass_stats* ps) {
+                    int window, int threads, int measure_reference, twin_pass* twin,
+                    pass_stats* ps) {
     memset(ps, 0, sizeof *ps);
     ps->dense_ms = ps->refactor_ms = -1;
     hs_mesh* m = NULL;
@@ -150,6 +159,7 @@ static int run_pass(const cut_case* cc, const hs_bench_args* args, hs_cut_factor
     hs_cut_def def = hs_cut_default_def();
     def.validate = 0;
     def.factor_policy = policy;
+    def.factor_threads = threads;
     if (window) {
         // Window sized by the mean edge length h: the nodes a step touches lie within about
         // 2 h of the blade; 14 h ahead, a window lasts about 20 steps (tuned on plate5043).
@@ -164,8 +174,22 @@ static int run_pass(const cut_case* cc, const hs_bench_args* args, hs_cut_factor
         def.window_ahead_m = 14.0 * h;
         def.window_background = window == 2;
     }
-    hs_cut* c = NULL;
+    hs_cut *c = NULL, *c2 = NULL;
     st = hs_cut_create(m, fixed, &def, &c, &e);
+    hs_mesh* m2 = NULL;
+    if (st == HS_OK && twin) {
+        memset(&twin->ps, 0, sizeof twin->ps);
+        hs_cut_def d2 = def;
+        d2.factor_threads = twin->threads;
+        st = cc->file ? HS_OK
+                      : hs_mesh_create_box(cc->lx, cc->ly, cc->lz, cc->nx, cc->ny, cc->nz, &m2, &e);
+        if (cc->file) {
+            char path[1024];
+            snprintf(path, sizeof path, "%s/%s", args->meshes, cc->file);
+            st = hs_mesh_load(path, &m2, &e);
+        }
+        if (st >= HS_OK) st = hs_cut_create(m2, fixed, &d2, &c2, &e);
+    }
     if (st != HS_OK) {
         fprintf(stderr, "bench cut: %s: %s\n", cc->name, e.msg);
         free(fixed);
@@ -177,7 +201,8 @@ static int run_pass(const cut_case* cc, const hs_bench_args* args, hs_cut_factor
         ps->refactor_ms = refactor_ms(c);
     }
     enum { MAX_STEPS = 512 };
-    double ms[MAX_STEPS];
+    double ms[MAX_STEPS], ms2[MAX_STEPS];
+    double factor2 = 0;
     long removed = 0, chg = 0;
     int n_steps = cc->file ? 30 : (sweep_axis == 1 ? cc->ny : cc->nz) * 2;
     bg_build bg;
@@ -195,12 +220,18 @@ static int run_pass(const cut_case* cc, const hs_bench_args* args, hs_cut_factor
             q0[thin] = q1[thin] = lo[thin] + 1.1 * ext[thin];
             p0[sweep_axis] = q0[sweep_axis] = a0;
             p1[sweep_axis] = q1[sweep_axis] = a1;
-            hs_cut_result r;
-            if (hs_cut_sweep(c, p0, q0, p1, q1, NULL, &r, &e) != HS_OK) {
-                fprintf(stderr, "bench cut: %s: %s\n", cc->name, e.msg);
-                failures++;
-                break;
+            hs_cut_result r, r2;
+            memset(&r2, 0, sizeof r2);
+            // With a twin, the first cut sweeps first on even steps, second on odd ones.
+            for (int k = 0; k < (c2 ? 2 : 1); k++) {
+                int second = c2 && (k ^ (s & 1));
+                if (hs_cut_sweep(second ? c2 : c, p0, q0, p1, q1, NULL, second ? &r2 : &r, &e) !=
+                    HS_OK) {
+                    fprintf(stderr, "bench cut: %s: %s\n", cc->name, e.msg);
+                    failures++;
+                }
             }
+            if (failures) break;
             double extra = 0; // window begin/finish run in the deformation thread
             if (window == 2) {
                 if (bg_running && atomic_load(&bg.done)) {
@@ -227,6 +258,10 @@ static int run_pass(const cut_case* cc, const hs_bench_args* args, hs_cut_factor
                 }
             }
             if (r.changed_elements == 0) continue;
+            if (c2) {
+                ms2[ps->steps] = r2.total_ms;
+                factor2 += r2.factor_ms;
+            }
             ms[ps->steps++] = r.total_ms + extra;
             removed += r.removed;
             chg += r.changed_elements;
@@ -258,24 +293,35 @@ static int run_pass(const cut_case* cc, const hs_bench_args* args, hs_cut_factor
         ps->share /= ps->steps;
         ps->factor_ms /= ps->steps;
         ps->p50 = hs_bench_percentile(ms, (size_t)ps->steps, 50);
+        if (c2) {
+            twin->ps.steps = ps->steps;
+            twin->ps.factor_ms = factor2 / ps->steps;
+            twin->ps.p50 = hs_bench_percentile(ms2, (size_t)ps->steps, 50);
+            twin->ps.p99 = hs_bench_percentile(ms2, (size_t)ps->steps, 99);
+            twin->ps.max = hs_bench_percentile(ms2, (size_t)ps->steps, 100);
+        }
         ps->p99 = hs_bench_percentile(ms, (size_t)ps->steps, 99);
         ps->max = hs_bench_percentile(ms, (size_t)ps->steps, 100);
     }
     if (bg_running) pthread_join(bg.th, NULL);
     free(fixed);
     hs_cut_destroy(&c);
+    hs_cut_destroy(&c2);
     hs_mesh_destroy(&m);
+    hs_mesh_destroy(&m2);
     return failures ? 1 : 0;
 }
 
 static int run_case(const cut_case* cc, const hs_bench_args* args) {
     pass_stats up, au, wu, wa, wb, pa;
-    int rc = run_pass(cc, args, HS_CUT_FACTOR_UPDATE, 0, 1, &up);
-    rc |= run_pass(cc, args, HS_CUT_FACTOR_PARTIAL, 0, 0, &pa);
-    rc |= run_pass(cc, args, HS_CUT_FACTOR_AUTO, 0, 0, &au);
-    rc |= run_pass(cc, args, HS_CUT_FACTOR_UPDATE, 1, 0, &wu);
-    rc |= run_pass(cc, args, HS_CUT_FACTOR_AUTO, 1, 0, &wa);
-    rc |= run_pass(cc, args, HS_CUT_FACTOR_UPDATE, 2, 0, &wb);
+    twin_pass one = {.threads = 1};
+    int rc = run_pass(cc, args, HS_CUT_FACTOR_UPDATE, 0, 0, 1, NULL, &up);
+    rc |= run_pass(cc, args, HS_CUT_FACTOR_PARTIAL, 0, 0, 0, &one, &pa);
+    rc |= run_pass(cc, args, HS_CUT_FACTOR_AUTO, 0, 0, 0, NULL, &au);
+    rc |= run_pass(cc, args, HS_CUT_FACTOR_UPDATE, 1, 0, 0, NULL, &wu);
+    rc |= run_pass(cc, args, HS_CUT_FACTOR_AUTO, 1, 0, 0, NULL, &wa);
+    rc |= run_pass(cc, args, HS_CUT_FACTOR_UPDATE, 2, 0, 0, NULL, &wb);
+    const pass_stats* p1 = &one.ps;
     hs_mesh* m = NULL;
     char dense_s[32];
     if (up.dense_ms >= 0)
@@ -295,10 +341,18 @@ static int run_case(const cut_case* cc, const hs_bench_args* args) {
             cc->name, up.steps, up.changes, up.p50, up.p99, up.geometry_ms, up.factor_ms, up.rank,
             up.union_dofs, up.split, up.updated, au.p50, au.p99, au.refactors, au.steps);
     fprintf(stderr,
-            "cut: %s: PARTIAL policy: step p50 %.3f ms p99 %.3f ms max %.3f ms (geometry %.3f ms, "
+            "cut: %s: PARTIAL policy (default factor threads): step p50 %.3f ms p99 %.3f ms max "
+            "%.3f ms (geometry %.3f ms, "
             "factor %.3f ms, %.2f of a factorisation's flops, %d of %d steps refactored)\n",
             cc->name, pa.p50, pa.p99, pa.max, pa.geometry_ms, pa.factor_ms, pa.share, pa.refactors,
             pa.steps);
+    fprintf(stderr,
+            "cut: %s: PARTIAL on one thread (factor_threads 1), its sweeps alternating with the "
+            "above: step p50 %.3f ms p99 %.3f ms max %.3f ms (factor %.3f ms); default threads "
+            "/ one thread: factor time %.2f, step p50 %.2f\n",
+            cc->name, p1->p50, p1->p99, p1->max, p1->factor_ms,
+            p1->factor_ms > 0 ? pa.factor_ms / p1->factor_ms : 0,
+            p1->p50 > 0 ? pa.p50 / p1->p50 : 0);
     fprintf(stderr,
             "cut: %s: with the update window: UPDATE step p50 %.3f ms p99 %.3f ms (%d of %d steps "
             "rebuilt the window, rank %.1f); AUTO step p50 %.3f ms p99 %.3f ms (%d refactored, "
