@@ -369,6 +369,10 @@ static int NoAllocAndErrors(void) {
     ENSURE(hs_body_create(m, &d, all, &b, &e) == HS_ERR_INVALID && b == NULL);
     d.dt = -1;
     ENSURE(hs_body_create(m, &d, fx, &b, &e) == HS_ERR_INVALID && b == NULL);
+    d.dt = 0.01;
+    d.factor_threads = -1;
+    ENSURE(hs_body_create(m, &d, fx, &b, &e) == HS_ERR_INVALID && b == NULL);
+    ENSURE(strstr(e.msg, "factor threads") != NULL);
     free(all);
     free(fx);
     hs_mesh_destroy(&m);

@@ -678,6 +678,10 @@ static int test_deformed_and_bad_input(void) {
     hs_mesh_select_plane(m, 0, -1, 1e-6, fixed);
     hs_cut_def def = hs_cut_default_def();
     hs_cut* c = NULL;
+    def.factor_threads = 3;
+    ENSURE(hs_cut_create(m, fixed, &def, &c, &e) == HS_ERR_INVALID && c == NULL);
+    ENSURE(strstr(e.msg, "factor threads"));
+    def.factor_threads = 0;
     ENSURE(hs_cut_create(m, fixed, &def, &c, &e) == HS_OK);
     double bad[3] = {NAN, 0, 0}, ok[3] = {0, 0, 0};
     ENSURE(hs_cut_sweep(c, bad, ok, ok, ok, NULL, NULL, &e) == HS_ERR_INVALID);

@@ -36,12 +36,16 @@ typedef struct hs_body_def {
     double static_tol;     ///< static: stop at ||r|| <= tol * ||r_first|| (paper's rule)
     int static_max_iter;   ///< static: Newton iteration cap per load step
     int static_load_steps; ///< static: load increments (1 = full load at once)
-    int cookie;            ///< set by hs_body_default_def
+    /// Threads of the partial refactor after element changes (hs_body_change_elements): 1, or
+    /// 2 to share its large supernodes with a helper thread (hs_cholesky_set_partial_threads);
+    /// 0: 2 when two or more processors are online, else 1.
+    int factor_threads;
+    int cookie; ///< set by hs_body_default_def
 } hs_body_def;
 
 /// Defaults: hs_fem_default_def(), no gravity, dt 10 ms, direct solver, PCG warped-factor
 /// preconditioner with 20 iterations and tol 1e-8 when chosen, static tol 1e-8, 100 iterations,
-/// 1 load step.
+/// 1 load step, factor threads by the processors online.
 hs_body_def hs_body_default_def(void);
 
 /// Statistics of one step or static solve.

@@ -115,7 +115,8 @@ hs_status hs_cholesky_refactor_partial(hs_cholesky* f, const hs_csc* a, int n_do
 int64_t hs_cholesky_partial_bytes(const hs_cholesky* f);
 /// Share of a full factorisation's flops the last partial refactor did (0..1).
 double hs_cholesky_partial_share(const hs_cholesky* f);
-/// Threads for the partial refactor's large supernodes (over ~3 Mflop): 1 (default) or 2.
+/// Threads for the partial refactor's large supernodes (over ~3 Mflop): 1 (the default before
+/// any call) or 2; 0: 2 when two or more processors are online, else 1.
 /// With 2, a helper thread (created here, joined by hs_cholesky_destroy or a call with 1) takes
 /// half of each large dense kernel: the off-diagonal solve by rows, the update matrix and the
 /// extend-adds by columns, the diagonal block's Cholesky by recursive halves. It spins while a

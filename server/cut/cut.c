@@ -1,14 +1,12 @@
 // Vertex-preserving cutting: sweep crossing test, vertex moves with a quality guard, tet
 // removal with the orphan and free-piece rules, the live mesh, and the low-rank factor update.
 // See include/hapsim/cut.h for the design and docs/cutting.md for the choices.
-#define _DEFAULT_SOURCE // sysconf(_SC_NPROCESSORS_ONLN)
 #include "hapsim/cut.h"
 
 #include <math.h>
 #include <pthread.h>
 #include <stdlib.h>
 #include <string.h>
-#include <unistd.h>
 
 #define HS_CUT_COOKIE 0x43555431
 
@@ -631,11 +629,9 @@ hs_status hs_cut_create(hs_mesh* mesh, const unsigned char* fixed, const hs_cut_
             // guard refused) leaves L partly recomputed, so refactor it.
             if (ps != HS_OK && ps != HS_ERR_NOMEM) st = hs_cut_refactor(c);
         }
-        int threads = def->factor_threads ? def->factor_threads
-                                          : (sysconf(_SC_NPROCESSORS_ONLN) >= 2 ? 2 : 1);
-        if (st == HS_OK && threads == 2 &&
-            (def->factor_policy == HS_CUT_FACTOR_PARTIAL || c->auto_partial))
-            st = hs_cholesky_set_partial_threads(c->factor, 2);
+        // A helper thread that cannot start leaves the refactor on one thread.
+        if (st == HS_OK && (def->factor_policy == HS_CUT_FACTOR_PARTIAL || c->auto_partial))
+            (void)hs_cholesky_set_partial_threads(c->factor, def->factor_threads);
     }
     if (st != HS_OK) {
         hs_cut_destroy(&c);

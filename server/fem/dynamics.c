@@ -174,6 +174,9 @@ hs_status hs_body_create(const hs_mesh* mesh, const hs_body_def* def, const unsi
                           def->dt);
     if (def->static_load_steps < 1 || def->static_max_iter < 1 || def->pcg_max_iter < 1)
         return hs_err_set(err, HS_ERR_INVALID, "hs_body_create: iteration counts must be >= 1");
+    if (def->factor_threads < 0 || def->factor_threads > 2)
+        return hs_err_set(err, HS_ERR_INVALID, "hs_body_create: factor threads %d (0, 1 or 2)",
+                          def->factor_threads);
     if (def->solver < HS_SOLVER_DIRECT || def->solver > HS_SOLVER_WARPED)
         return hs_err_set(err, HS_ERR_INVALID, "hs_body_create: unknown solver %d",
                           (int)def->solver);
@@ -422,8 +425,11 @@ hs_status hs_body_change_elements(hs_body* b, int n_off, const int* off, int n_m
                 if (d >= 0) b->blk_d[nd++] = d;
             }
         hs_status ps = hs_cholesky_refactor_partial(b->factor, b->a, nd, b->blk_d);
-        if (ps == HS_ERR_UNSUPPORTED) // the first time: the maps, and one full pass
+        if (ps == HS_ERR_UNSUPPORTED) { // the first time: the maps, and one full pass
             ps = hs_cholesky_prepare_partial(b->factor, b->a);
+            if (ps == HS_OK) // a helper that cannot start leaves one thread
+                (void)hs_cholesky_set_partial_threads(b->factor, b->def.factor_threads);
+        }
         if (ps != HS_OK) keep = 0; // e.g. a singular matrix: the next step refactors
     } else {
         for (int k = 0; keep && k < n_new; k++) keep = rest_block(b, k, list[k]) == HS_OK;

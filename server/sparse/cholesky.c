@@ -14,6 +14,7 @@
 #include <pthread.h>
 #include <stdatomic.h>
 #include <string.h>
+#include <unistd.h>
 
 struct hs_cholesky {
     cholmod_common c;            // one context per object; objects are single-threaded
@@ -2022,7 +2023,8 @@ hs_status hs_cholesky_refactor_partial(hs_cholesky* f, const hs_csc* a, int n_do
 }
 
 hs_status hs_cholesky_set_partial_threads(hs_cholesky* f, int n) {
-    if (!f || n < 1 || n > 2) return HS_ERR_INVALID;
+    if (!f || n < 0 || n > 2) return HS_ERR_INVALID;
+    if (n == 0) n = sysconf(_SC_NPROCESSORS_ONLN) >= 2 ? 2 : 1;
     if (n == 1) {
         duo_destroy(&f->duo);
         return HS_OK;
