@@ -6,6 +6,7 @@
 #include "bench.h"
 
 #include "hapsim/cut.h"
+#include "rt/rt_thread.h"
 
 #include <math.h>
 #include <pthread.h>
@@ -28,6 +29,7 @@ typedef struct cut_case {
     double lx, ly, lz;
     int nx, ny, nz;
     int quick;
+    int rt;             // also run PARTIAL beside a 1 kHz loop, one and two factor threads
     int vertices, tets; // filled in when loaded
 } cut_case;
 
@@ -363,18 +365,45 @@ static int run_case(const cut_case* cc, const hs_bench_args* args) {
             "cut: %s: background window (UPDATE): step p50 %.3f ms p99 %.3f ms max %.3f ms, %d "
             "refactored; %d builds of %.1f ms on a second thread, %d swapped in\n",
             cc->name, wb.p50, wb.p99, wb.max, wb.refactors, wb.builds, wb.build_ms, wb.rewindows);
+    // Does the helper thread disturb a haptic loop? The rt thread's own scheduling (SCHED_FIFO
+    // when granted), an empty tick, beside a PARTIAL pass on one and on two threads.
+    for (int t = 1; t <= 2 && cc->rt; t++) {
+        hs_rt_def rd = hs_rt_default_def();
+        hs_rt_loop* loop = NULL;
+        hs_err e;
+        pass_stats ps;
+        if (hs_rt_loop_create(&rd, &loop, &e) != HS_OK || hs_rt_loop_start(loop, &e) != HS_OK) {
+            fprintf(stderr, "bench cut: rt loop: %s\n", e.msg);
+            hs_rt_loop_destroy(&loop);
+            return 1;
+        }
+        rc |= run_pass(cc, args, HS_CUT_FACTOR_PARTIAL, 0, t, 0, NULL, &ps);
+        hs_rt_loop_stop(loop);
+        hs_rt_stats st;
+        hs_rt_loop_stats(loop, &st);
+        hs_rt_loop_destroy(&loop);
+        fprintf(stderr,
+                "cut: %s: 1 kHz loop (%s) beside PARTIAL on %d thread%s (step p50 %.3f ms): "
+                "period error p50 %.0f us p99 %.0f us p99.9 %.0f us, worst wake-up %.0f us late, "
+                "%lld of %lld deadlines missed\n",
+                cc->name, (st.obtained & HS_RT_SCHED_FIFO) ? "SCHED_FIFO" : "ordinary scheduling",
+                t, t > 1 ? "s" : "", ps.p50, hs_rt_hist_quantile_us(&st.period_err, 0.5),
+                hs_rt_hist_quantile_us(&st.period_err, 0.99),
+                hs_rt_hist_quantile_us(&st.period_err, 0.999), (double)st.wake_late_max_ns * 1e-3,
+                (long long)st.missed_deadlines, (long long)(st.ticks + st.missed_deadlines));
+    }
     return rc;
 }
 
 int hs_bench_cut(const hs_bench_args* a) {
     cut_case cases[] = {
-        {"plate192", NULL, 0.2, 0.2, 0.01, 7, 7, 2, 0, 0, 0},
-        {"plate288", NULL, 0.2, 0.2, 0.01, 11, 11, 1, 0, 0, 0},
-        {"plate432", NULL, 0.2, 0.2, 0.01, 11, 11, 2, 1, 0, 0},
-        {"liver2", "liver2.msh", 0, 0, 0, 0, 0, 0, 0, 0, 0},
-        {"tongue", "tongue.msh", 0, 0, 0, 0, 0, 0, 0, 0, 0},
-        {"vessel", "aneurysm_vessel.msh", 0, 0, 0, 0, 0, 0, 0, 0, 0},
-        {"plate5043", NULL, 0.2, 0.2, 0.01, 40, 40, 2, 1, 0, 0},
+        {"plate192", NULL, 0.2, 0.2, 0.01, 7, 7, 2, 0, 0, 0, 0},
+        {"plate288", NULL, 0.2, 0.2, 0.01, 11, 11, 1, 0, 0, 0, 0},
+        {"plate432", NULL, 0.2, 0.2, 0.01, 11, 11, 2, 1, 0, 0, 0},
+        {"liver2", "liver2.msh", 0, 0, 0, 0, 0, 0, 0, 0, 0, 0},
+        {"tongue", "tongue.msh", 0, 0, 0, 0, 0, 0, 0, 0, 0, 0},
+        {"vessel", "aneurysm_vessel.msh", 0, 0, 0, 0, 0, 0, 0, 0, 0, 0},
+        {"plate5043", NULL, 0.2, 0.2, 0.01, 40, 40, 2, 1, 1, 0, 0},
     };
     hs_sparse_set_threads(1);
     printf("mesh,vertices,tets,removed_per_step,update_ms_p50,update_ms_p99,refactor_ms,"
