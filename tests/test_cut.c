@@ -667,6 +667,62 @@ static int test_rules(void) {
     return 0;
 }
 
+/// The free-piece check: a progressive cut across a plate held at x = 0 settles each step by a
+/// short search from the removed tets' neighbours, until the step that frees the far piece,
+/// which the full check finds (and drops or pins), in both fragment modes.
+static int test_piece_check(void) {
+    int64_t bytes = hs_byte_count();
+    for (int variant = 0; variant < 2; variant++) {
+        hs_mesh* m = NULL;
+        hs_err e;
+        ENSURE(hs_mesh_create_box(0.04, 0.04, 0.01, 8, 8, 2, &m, &e) == HS_OK);
+        const int n = m->n_nodes, ne = m->n_tets;
+        unsigned char* fixed = hs_calloc((size_t)n, 1);
+        hs_mesh_select_plane(m, 0, -1, 1e-6, fixed);
+        hs_cut_def def = hs_cut_default_def(); // validated after every sweep
+        if (variant == 1) def.fragment = HS_CUT_FRAGMENT_FIX;
+        hs_cut* c = NULL;
+        ENSURE(hs_cut_create(m, fixed, &def, &c, &e) == HS_OK);
+        int short_checks = 0, full_checks = 0, freed_at = -1;
+        for (int s = 0; s < 12; s++) {
+            double y0 = -0.004 + 0.004 * s, y1 = y0 + 0.004;
+            double p0[3] = {0.0255, y0, -0.005}, q0[3] = {0.0255, y0, 0.015};
+            double p1[3] = {0.0255, y1, -0.005}, q1[3] = {0.0255, y1, 0.015};
+            hs_cut_result r;
+            ENSURE(hs_cut_sweep(c, p0, q0, p1, q1, NULL, &r, &e) == HS_OK);
+            if (r.removed == 0) {
+                ENSURE(r.piece_check_tets == 0);
+                continue;
+            }
+            if (r.piece_check_tets < ne)
+                short_checks++;
+            else
+                full_checks++;
+            if (r.fragments) {
+                ENSURE(freed_at < 0 && r.fragments == 1 && r.piece_check_tets >= ne);
+                freed_at = s;
+            }
+        }
+        printf("  variant %d: %d steps settled by the short search, %d full checks, the far "
+               "piece freed at step %d\n",
+               variant, short_checks, full_checks, freed_at);
+        ENSURE(freed_at >= 8);     // the blade leaves the plate at y = 40 mm
+        ENSURE(short_checks >= 5); // the steps before it, but the first
+        ENSURE(full_checks <= 3);  // the first removal, the freeing step (and one more at most)
+        int pinned = 0;
+        for (int i = 0; i < n; i++) pinned += hs_cut_node_pinned(c, i);
+        if (variant == 0) // dropped: one piece left (pieces touching at a node count as one)
+            ENSURE(hs_cut_components(c) == 1);
+        else // pinned in place: its nodes, every one past the blade
+            ENSURE(pinned >= 3 * 9);
+        hs_cut_destroy(&c);
+        hs_free(fixed);
+        hs_mesh_destroy(&m);
+    }
+    ENSURE(hs_byte_count() == bytes);
+    return 0;
+}
+
 /// Cutting a deformed body: crossings use x0 + u, moves land on the blade in current space.
 static int test_deformed_and_bad_input(void) {
     int64_t bytes = hs_byte_count();
@@ -1106,6 +1162,7 @@ static int test_factor_none(void) {
 HS_TEST_MAIN(HS_CASE(test_force_model), HS_CASE(test_skin_full_separation),
              HS_CASE(test_skin_wound_angle), HS_CASE(test_consistency),
              HS_CASE(test_aggregated_update), HS_CASE(test_window_background), HS_CASE(test_rules),
-             HS_CASE(test_factor_none), HS_CASE(test_deformed_and_bad_input),
-             HS_CASE(test_dynamic_body), HS_CASE(test_body_follows_cut), HS_CASE(test_alloc_faults),
+             HS_CASE(test_factor_none), HS_CASE(test_piece_check),
+             HS_CASE(test_deformed_and_bad_input), HS_CASE(test_dynamic_body),
+             HS_CASE(test_body_follows_cut), HS_CASE(test_alloc_faults),
              HS_CASE(test_liver_random_cuts))

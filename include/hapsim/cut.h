@@ -109,13 +109,17 @@ hs_cut_def hs_cut_default_def(void);
 
 /// What one sweep did.
 typedef struct hs_cut_result {
-    int cut_tets;             ///< tets with an edge crossing the sweep
-    int removed;              ///< tets removed (cut ones + dropped fragments)
-    int kept;                 ///< cut tets kept by ORPHAN_KEEP_TET
-    int moved;                ///< vertices moved
-    int clamped;              ///< of them shortened or dropped by the quality guard
-    int pinned;               ///< nodes pinned by this sweep (orphans + fragments)
-    int fragments;            ///< free pieces dropped or fixed
+    int cut_tets;  ///< tets with an edge crossing the sweep
+    int removed;   ///< tets removed (cut ones + dropped fragments)
+    int kept;      ///< cut tets kept by ORPHAN_KEEP_TET
+    int moved;     ///< vertices moved
+    int clamped;   ///< of them shortened or dropped by the quality guard
+    int pinned;    ///< nodes pinned by this sweep (orphans + fragments)
+    int fragments; ///< free pieces dropped or fixed
+    /// Tets the free-piece check visited: a search from the removed tets' neighbours that
+    /// stops once they are connected again (typically a few hundred), or every tet when that
+    /// cannot settle it (the first removal, a piece coming free, a hold touched). 0: no removal.
+    int piece_check_tets;
     int changed_elements;     ///< element changes applied to the factor (+ pin blocks)
     int refactored;           ///< 1 when the factor was rebuilt instead of updated
     int rewindowed;           ///< 1 when it was rebuilt with a new window (def.window_radius_m)

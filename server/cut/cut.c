@@ -65,8 +65,12 @@ struct hs_cut {
     int* fa;             // [ne] first fixed node of a piece (at its root)
     int* fb;             // [ne] second
     unsigned char* anch; // [ne] piece is held
-    double* rhs;         // [n_free]
-    double* sol;         // [n_free]
+    unsigned* tstamp;    // [ne] fast piece check: visited in search number stamp
+    int* gopen;          // [ne] fast piece check: tets of a group still to expand
+    unsigned stamp;
+    int pieces_checked; // every piece was found held by a full check, and nothing freed since
+    double* rhs;        // [n_free]
+    double* sol;        // [n_free]
 
     // element changes for the factor, grown when a sweep needs more
     int cap_elem;
@@ -156,7 +160,7 @@ void hs_cut_destroy(hs_cut** pc) {
                  c->sol,    c->dk,       c->edof,     c->track,  c->cblk,     c->dset, c->dpos,
                  c->zbuf,   c->zd,       c->zt,       c->kdd,    c->wrk,      c->piv,  c->win,
                  c->bg_win, c->accp_k,   c->accm_k,   c->accp_d, c->accm_d,   c->accs, c->bg_pos,
-                 c->bg_set, c->bg_k,     c->bg_d};
+                 c->bg_set, c->bg_k,     c->bg_d,     c->tstamp, c->gopen};
     if (c->has_lock) pthread_mutex_destroy(&c->bg_lock);
     for (size_t i = 0; i < sizeof p / sizeof p[0]; i++) hs_free(p[i]);
     hs_free(c);
@@ -519,11 +523,13 @@ hs_status hs_cut_create(hs_mesh* mesh, const unsigned char* fixed, const hs_cut_
     c->fa = hs_alloc(sizeof(int) * (size_t)ne);
     c->fb = hs_alloc(sizeof(int) * (size_t)ne);
     c->anch = hs_alloc((size_t)ne);
-    if (!c->fixed || !c->pinned || !c->active || !c->count || !c->nt_start || !c->nt ||
-        !c->vol_orig || !c->q_orig || !c->dof || !c->live_tet || !c->x || !c->x0_old || !c->nrm ||
-        !c->tmark || !c->nmark || !c->cut_list || !c->removed || !c->moved || !c->changed ||
-        !c->pins || !c->edges || !c->parent || !c->fnbr || !c->tparent || !c->fa || !c->fb ||
-        !c->anch || grow_elems(c, 256) != HS_OK) {
+    c->tstamp = hs_calloc((size_t)ne, sizeof(unsigned));
+    c->gopen = hs_alloc(sizeof(int) * (size_t)ne);
+    if (!c->tstamp || !c->gopen || !c->fixed || !c->pinned || !c->active || !c->count ||
+        !c->nt_start || !c->nt || !c->vol_orig || !c->q_orig || !c->dof || !c->live_tet || !c->x ||
+        !c->x0_old || !c->nrm || !c->tmark || !c->nmark || !c->cut_list || !c->removed ||
+        !c->moved || !c->changed || !c->pins || !c->edges || !c->parent || !c->fnbr ||
+        !c->tparent || !c->fa || !c->fb || !c->anch || grow_elems(c, 256) != HS_OK) {
         hs_cut_destroy(&c);
         return nomem(err);
     }
@@ -729,6 +735,8 @@ hs_status hs_cut_solve(hs_cut* c, const double* f, double* u) {
     return HS_OK;
 }
 
+static int find_pieces(hs_cut* c);
+
 hs_status hs_cut_validate(hs_cut* c, hs_err* err) {
     hs_status st = hs_cut_update_live(c, err);
     if (st != HS_OK) return st;
@@ -760,6 +768,13 @@ hs_status hs_cut_validate(hs_cut* c, hs_err* err) {
         if (memcmp(c->live->x0 + 3 * i, c->mesh->x0 + 3 * i, 3 * sizeof(double)))
             return hs_err_set(err, HS_ERR_INVALID, "cut: live x0 of node %d out of sync", i);
     }
+    // Every piece held since the first sweep that removed tets (the fast check's claim),
+    // recounted over all tets.
+    int loose = c->pieces_checked ? find_pieces(c) : 0;
+    if (loose)
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "cut: %d piece(s) without three non-collinear fixed or pinned nodes",
+                          loose);
     return HS_OK;
 }
 
@@ -912,7 +927,9 @@ static void remove_tet(hs_cut* c, int e, int counted) {
 /// are the face-connected sets of active tets (a piece hanging on by an edge or a vertex can
 /// still rotate: K would be singular). A piece is held when its fixed (or pinned) nodes include
 /// three non-collinear ones; any other piece is dropped or pinned per def. Returns pieces.
-static int handle_fragments(hs_cut* c) {
+/// Label the pieces (union-find roots in tparent; anch at a root: the piece is held). Returns
+/// the number of pieces not held.
+static int find_pieces(hs_cut* c) {
     const int* T = c->mesh->tets;
     const double* x0 = c->mesh->x0;
     int* par = c->tparent;
@@ -952,6 +969,87 @@ static int handle_fragments(hs_cut* c) {
     int pieces = 0;
     for (int e = 0; e < c->ne; e++)
         if (c->active[e] && par[e] == e && !c->anch[e]) pieces++;
+    return pieces;
+}
+
+/// 1 when the last removals cannot have freed a piece, found without visiting every tet. If
+/// the active tets next to the removed ones are still face-connected among themselves, so is
+/// their piece: a path that ran through removed tets goes round through those neighbours. And if
+/// no removed tet held a fixed or pinned node that still has tets, every piece keeps its hold.
+/// Multi-source search from the neighbours, fronts merged by union-find; it stops when one
+/// group is left, or gives up (0: run the full check) when a group runs out of tets to expand
+/// (it is a piece of its own) or it has visited a quarter of the tets. Needs every piece held
+/// before the sweep (a full check ran).
+static int pieces_still_held(hs_cut* c, int* visited) {
+    *visited = 0;
+    if (!c->pieces_checked) return 0;
+    const int* T = c->mesh->tets;
+    for (int k = 0; k < c->n_removed; k++)
+        for (int a = 0; a < 4; a++) {
+            int v = T[4 * c->removed[k] + a];
+            if ((c->fixed[v] || c->pinned[v]) && c->count[v] > 0) return 0;
+        }
+    if (++c->stamp == 0) { // wrapped: clear the marks once
+        memset(c->tstamp, 0, sizeof(unsigned) * (size_t)c->ne);
+        c->stamp = 1;
+    }
+    const unsigned st = c->stamp;
+    int *grp = c->tparent, *queue = c->fa, *gpar = c->fb; // free between full checks
+    int* open = c->gopen;
+    int ng = 0;
+    for (int k = 0; k < c->n_removed; k++)
+        for (int f = 0; f < 4; f++) {
+            int o = c->fnbr[4 * c->removed[k] + f];
+            if (o < 0 || !c->active[o] || c->tstamp[o] == st) continue;
+            c->tstamp[o] = st;
+            grp[o] = ng;
+            gpar[ng] = ng;
+            open[ng] = 1;
+            queue[ng++] = o;
+        }
+    int groups = ng, head = 0, tail = ng, budget = c->ne / 4;
+    while (groups > 1 && head < tail) {
+        int t = queue[head++], g = find_root(gpar, grp[t]);
+        open[g]--;
+        for (int f = 0; f < 4 && groups > 1; f++) {
+            int o = c->fnbr[4 * t + f];
+            if (o < 0 || !c->active[o]) continue;
+            if (c->tstamp[o] != st) {
+                if (tail >= budget) {
+                    *visited = tail;
+                    return 0;
+                }
+                c->tstamp[o] = st;
+                grp[o] = g;
+                open[g]++;
+                queue[tail++] = o;
+            } else {
+                int h = find_root(gpar, grp[o]);
+                if (h != g) {
+                    gpar[h] = g;
+                    open[g] += open[h];
+                    groups--;
+                }
+            }
+        }
+        if (groups > 1 && open[g] == 0) { // g is closed: a piece apart from the others
+            *visited = tail;
+            return 0;
+        }
+    }
+    *visited = tail;
+    return groups <= 1;
+}
+
+/// Drop or pin the pieces the removals freed; returns their number. visited: see
+/// hs_cut_result.piece_check_tets.
+static int handle_fragments(hs_cut* c, int* visited) {
+    if (pieces_still_held(c, visited)) return 0;
+    const int* T = c->mesh->tets;
+    int* par = c->tparent;
+    int pieces = find_pieces(c);
+    *visited += c->ne;
+    c->pieces_checked = 1;
     if (!pieces) return 0;
     for (int e = 0; e < c->ne; e++) {
         if (!c->active[e] || c->anch[find_root(par, e)]) continue;
@@ -1441,7 +1539,8 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
             int v = T[4 * c->removed[k] + a];
             if (c->count[v] == 0) pin_node(c, v);
         }
-    if (c->n_removed > 0) r.fragments = handle_fragments(c); // moves never disconnect
+    if (c->n_removed > 0) // moves never disconnect
+        r.fragments = handle_fragments(c, &r.piece_check_tets);
     r.removed = c->n_removed;
     r.pinned = c->n_pins;
     r.geometry_ms = (double)(hs_now_ns() - t0) * 1e-6;
