@@ -12,6 +12,7 @@
 #include <dlfcn.h>
 #include <math.h>
 #include <pthread.h>
+#include <sched.h>
 #include <stdatomic.h>
 #include <string.h>
 #include <unistd.h>
@@ -1682,6 +1683,7 @@ static int duo_take(struct duo* d, uint64_t seq) {
 static void* duo_main(void* arg) {
     struct duo* d = arg;
     uint64_t seen = 0;
+    unsigned idle = 0;
     // OpenBLAS maps its work buffer (128 MB here, all of it faulted in under mlockall) on a
     // thread's first call: make that call now, during set-up, not in the first refactor.
     {
@@ -1704,7 +1706,12 @@ static void* duo_main(void* arg) {
         while (atomic_load_explicit(&d->spin, memory_order_acquire)) {
             uint64_t seq = atomic_load_explicit(&d->ticket, memory_order_acquire) >> 32;
             if (seq == seen) {
-                cpu_relax();
+                // Yield now and then: woken onto the caller's core, it would otherwise spin
+                // there until the scheduler moves it.
+                if ((++idle & 63) == 0)
+                    sched_yield();
+                else
+                    cpu_relax();
                 continue;
             }
             seen = seq;
