@@ -926,9 +926,8 @@ static void remove_tet(hs_cut* c, int e, int counted) {
 /// Free pieces. Tets sharing a face move as one rigid body in the kernel of K, so the pieces
 /// are the face-connected sets of active tets (a piece hanging on by an edge or a vertex can
 /// still rotate: K would be singular). A piece is held when its fixed (or pinned) nodes include
-/// three non-collinear ones; any other piece is dropped or pinned per def. Returns pieces.
-/// Label the pieces (union-find roots in tparent; anch at a root: the piece is held). Returns
-/// the number of pieces not held.
+/// three non-collinear ones. Labels them (union-find roots in tparent; anch at a root: held) and
+/// returns the number not held.
 static int find_pieces(hs_cut* c) {
     const int* T = c->mesh->tets;
     const double* x0 = c->mesh->x0;
@@ -1041,7 +1040,7 @@ static int pieces_still_held(hs_cut* c, int* visited) {
     return groups <= 1;
 }
 
-/// Drop or pin the pieces the removals freed; returns their number. visited: see
+/// Drop or pin (per def) the pieces the removals freed; returns their number. visited: see
 /// hs_cut_result.piece_check_tets.
 static int handle_fragments(hs_cut* c, int* visited) {
     if (pieces_still_held(c, visited)) return 0;

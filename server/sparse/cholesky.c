@@ -1668,7 +1668,7 @@ static inline void cpu_relax(void) {
 #endif
 }
 
-// Take the next chunk of the posting in t; -1 when none is left (or a newer posting came).
+// Take the next chunk of posting seq; -1 when none is left (or a newer posting came).
 static int duo_take(struct duo* d, uint64_t seq) {
     uint64_t v = atomic_load_explicit(&d->ticket, memory_order_acquire);
     for (;;) {
