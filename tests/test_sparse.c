@@ -696,6 +696,23 @@ static int OrderedLastWindow(void) {
     return 0;
 }
 
+// Soften (scale -0.5) or stiffen (2.0) the tets of grid cell (cx, cy, cz) in t's matrix; their
+// free dofs into dofs. Returns how many, -1 on failure.
+static int change_cell(fixture* t, int cx, int cy, int cz, double scale, int* dofs) {
+    int nd = 0;
+    for (int e = 0; e < t->g.n_tets; e++) {
+        double x0[3];
+        grid_coords(&t->g, t->g.tets[4 * e], x0);
+        if (x0[0] != cx || x0[1] != cy || x0[2] != cz) continue;
+        if (grid_add_tet(&t->g, t->a, e, scale) != 0) return -1;
+        grid_tet_dofs(&t->g, e, dofs + nd);
+        nd += 12;
+    }
+    for (int q = 0; q < nd; q++) // fixed dofs are -1: leave them out
+        if (dofs[q] < 0) dofs[q--] = dofs[--nd];
+    return nd;
+}
+
 // Partial refactorisation: changes confined to small regions of the grid recompute part of the
 // factor and agree with a fresh factor; a whole pass, a non-SPD change (factor refused until a
 // refactor), the pattern check, update mode and allocation faults.
@@ -731,18 +748,9 @@ static int PartialRefactor(void) {
     // Soften or stiffen the tets of one cell at a time, in cells across the grid.
     double least = 1;
     for (int k = 0; k < 8; k++) {
-        int cx = 1 + (k * 5) % 10, cy = 1 + (k * 3) % 8, cz = 1 + k % 6, nd = 0;
-        for (int e = 0; e < t.g.n_tets; e++) {
-            double x0[3];
-            grid_coords(&t.g, t.g.tets[4 * e], x0);
-            if (x0[0] != cx || x0[1] != cy || x0[2] != cz) continue;
-            ENSURE(grid_add_tet(&t.g, t.a, e, k % 2 ? -0.5 : 2.0) == 0);
-            grid_tet_dofs(&t.g, e, dofs + nd);
-            nd += 12;
-        }
+        int nd =
+            change_cell(&t, 1 + (k * 5) % 10, 1 + (k * 3) % 8, 1 + k % 6, k % 2 ? -0.5 : 2.0, dofs);
         ENSURE(nd > 0);
-        for (int q = 0; q < nd; q++) // fixed dofs are -1: leave them out
-            if (dofs[q] < 0) dofs[q--] = dofs[--nd];
         ENSURE(hs_cholesky_refactor_partial(t.f, t.a, nd, dofs) == HS_OK);
         double share = hs_cholesky_partial_share(t.f);
         ENSURE(share > 0 && share < 1);
@@ -758,18 +766,10 @@ static int PartialRefactor(void) {
     ENSURE(hs_cholesky_set_partial_threads(t.f, 2) == HS_OK); // already running: kept
     double* x1 = malloc(sizeof(double) * (size_t)n);
     long long helped = 0;
-    for (int k = 0; k < 20 && (k < 4 || helped == 0); k++) {
-        int cx = 1 + (k * 7) % 10, cy = 1 + (k * 5) % 8, cz = 1 + (k * 3) % 6, nd = 0;
-        for (int e = 0; e < t.g.n_tets; e++) {
-            double x0[3];
-            grid_coords(&t.g, t.g.tets[4 * e], x0);
-            if (x0[0] != cx || x0[1] != cy || x0[2] != cz) continue;
-            ENSURE(grid_add_tet(&t.g, t.a, e, k % 2 ? -0.5 : 2.0) == 0);
-            grid_tet_dofs(&t.g, e, dofs + nd);
-            nd += 12;
-        }
-        for (int q = 0; q < nd; q++)
-            if (dofs[q] < 0) dofs[q--] = dofs[--nd];
+    for (int k = 0; k < 60 && (k < 4 || helped == 0); k++) {
+        int nd = change_cell(&t, 1 + (k * 7) % 10, 1 + (k * 5) % 8, 1 + (k * 3) % 6,
+                             k % 2 ? -0.5 : 2.0, dofs);
+        ENSURE(nd > 0);
         ENSURE(hs_cholesky_refactor_partial(t.f, t.a, nd, dofs) == HS_OK);
         ENSURE(hs_cholesky_solve(t.f, t.b, x1) == HS_OK);
         ENSURE_SMALL(compare_with_fresh(t.f, t.a, t.b, t.x, x2), 1e-10);
@@ -790,7 +790,7 @@ static int PartialRefactor(void) {
         ENSURE(hs_cholesky_set_partial_threads(t.f, 2) == HS_OK);
     }
     // The helper took chunks of the large supernodes (a busy machine may delay it for a
-    // while, hence up to 20 rounds).
+    // while, hence up to 60 rounds).
     printf("  two threads: %lld chunks run by the helper\n", helped);
     ENSURE(helped > 0);
     free(x1);
