@@ -1684,8 +1684,8 @@ static void* duo_main(void* arg) {
     struct duo* d = arg;
     uint64_t seen = 0;
     unsigned idle = 0;
-    // OpenBLAS maps its work buffer (128 MB here, all of it faulted in under mlockall) on a
-    // thread's first call: make that call now, during set-up, not in the first refactor.
+    // OpenBLAS maps a thread's work buffer on its first call (faulted in at once under
+    // mlockall): make that call now, during set-up, not in the first refactor.
     {
         enum { W = 64 };
         static const double one = 1.0, zero = 0.0;
