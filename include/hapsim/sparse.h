@@ -117,12 +117,12 @@ int64_t hs_cholesky_partial_bytes(const hs_cholesky* f);
 double hs_cholesky_partial_share(const hs_cholesky* f);
 /// Threads for the partial refactor's large supernodes (over ~3 Mflop): 1 (the default before
 /// any call) or 2; 0: 2 when two or more processors are online, else 1.
-/// With 2, a helper thread (created here, joined by hs_cholesky_destroy or a call with 1) takes
-/// half of each large dense kernel: the off-diagonal solve by rows, the update matrix and the
-/// extend-adds by columns, the diagonal block's Cholesky by recursive halves. It spins while a
-/// partial refactor runs and sleeps otherwise; when it is slow to start, the caller does its
-/// half too. Results agree with one thread to round-off (BLAS blocking differs). For a core
-/// the haptic thread barely uses. Allocates: yes (the thread).
+/// With 2, a helper thread (created here, joined by hs_cholesky_destroy or a call with 1) shares
+/// each large dense kernel in chunks writing disjoint parts: the off-diagonal solve by rows, the
+/// update matrix and the extend-adds by columns, the diagonal block's Cholesky by recursive
+/// halves. It spins while a partial refactor runs and sleeps otherwise; the caller runs every
+/// chunk the helper has not claimed. Results agree with one thread to round-off (BLAS blocking
+/// differs). For a core the haptic thread barely uses. Allocates: yes (the thread).
 hs_status hs_cholesky_set_partial_threads(hs_cholesky* f, int n);
 /// Chunks of work the helper thread has run since it was started (0 without one).
 int64_t hs_cholesky_partial_helper_chunks(const hs_cholesky* f);

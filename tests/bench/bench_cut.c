@@ -1,8 +1,8 @@
 // hapsim-bench cut: cost of one progressive cut step (crossing test, vertex moves, guard, piece
 // detection, element shares and the update of K's factor: the partial refactor with the default
-// threads in the CSV; on one thread, the low-rank CHOLMOD update, AUTO and the update window on
-// stderr) against a numeric refactorisation
-// and, for small meshes, a dense inversion of K (the paper's method).
+// threads in the CSV; on stderr its one-thread twin, the low-rank CHOLMOD update, AUTO and the
+// update window) against a numeric refactorisation and, for small meshes, a dense inversion of K
+// (the paper's method).
 #include "bench.h"
 
 #include "hapsim/cut.h"
@@ -32,6 +32,14 @@ typedef struct cut_case {
     int rt;             // also run PARTIAL beside a 1 kHz loop, one and two factor threads
     int vertices, tets; // filled in when loaded
 } cut_case;
+
+/// The case's mesh: its shared file, or its box. Negative status (e.msg) on failure.
+static hs_status load_mesh(const cut_case* cc, const hs_bench_args* args, hs_mesh** m, hs_err* e) {
+    if (!cc->file) return hs_mesh_create_box(cc->lx, cc->ly, cc->lz, cc->nx, cc->ny, cc->nz, m, e);
+    char path[1024];
+    snprintf(path, sizeof path, "%s/%s", args->meshes, cc->file);
+    return hs_mesh_load(path, m, e);
+}
 
 /// Dense inversion of K (dpotrf + dpotri), ms; negative when skipped or failed.
 static double dense_inverse_ms(hs_cut* c) {
@@ -132,14 +140,7 @@ static int run_pass(const cut_case* cc, const hs_bench_args* args, hs_cut_factor
     ps->dense_ms = ps->refactor_ms = -1;
     hs_mesh* m = NULL;
     hs_err e;
-    hs_status st;
-    if (cc->file) {
-        char path[1024];
-        snprintf(path, sizeof path, "%s/%s", args->meshes, cc->file);
-        st = hs_mesh_load(path, &m, &e);
-    } else {
-        st = hs_mesh_create_box(cc->lx, cc->ly, cc->lz, cc->nx, cc->ny, cc->nz, &m, &e);
-    }
+    hs_status st = load_mesh(cc, args, &m, &e);
     if (st < 0) {
         fprintf(stderr, "bench cut: %s: %s\n", cc->name, e.msg);
         return 1;
@@ -183,13 +184,7 @@ static int run_pass(const cut_case* cc, const hs_bench_args* args, hs_cut_factor
         memset(&twin->ps, 0, sizeof twin->ps);
         hs_cut_def d2 = def;
         d2.factor_threads = twin->threads;
-        st = cc->file ? HS_OK
-                      : hs_mesh_create_box(cc->lx, cc->ly, cc->lz, cc->nx, cc->ny, cc->nz, &m2, &e);
-        if (cc->file) {
-            char path[1024];
-            snprintf(path, sizeof path, "%s/%s", args->meshes, cc->file);
-            st = hs_mesh_load(path, &m2, &e);
-        }
+        st = load_mesh(cc, args, &m2, &e);
         if (st >= HS_OK) st = hs_cut_create(m2, fixed, &d2, &c2, &e);
     }
     if (st != HS_OK) {
@@ -414,16 +409,7 @@ int hs_bench_cut(const hs_bench_args* a) {
         fprintf(stderr, "cut: %s\n", cases[i].name);
         hs_mesh* m = NULL;
         hs_err e;
-        hs_status st;
-        if (cases[i].file) {
-            char path[1024];
-            snprintf(path, sizeof path, "%s/%s", a->meshes, cases[i].file);
-            st = hs_mesh_load(path, &m, &e);
-        } else {
-            st = hs_mesh_create_box(cases[i].lx, cases[i].ly, cases[i].lz, cases[i].nx, cases[i].ny,
-                                    cases[i].nz, &m, &e);
-        }
-        if (st < 0) {
+        if (load_mesh(&cases[i], a, &m, &e) < 0) {
             fprintf(stderr, "bench cut: %s: %s\n", cases[i].name, e.msg);
             rc = 1;
             continue;
