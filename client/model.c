@@ -16,15 +16,22 @@ double hs_local_model_eval(const hs_local_model* m, const double p[3], int64_t n
         for (int i = 0; i < 3; i++) d[i] *= s;
     }
     // Full strength for timeout_us after arrival, then a linear ramp to zero over timeout_us.
-    int64_t age = now_us - m->arrival_us;
+    // In double: clocks far apart must not overflow.
+    double age = (double)now_us - (double)m->arrival_us, to = (double)m->timeout_us;
     double s = 1;
-    if (age > m->timeout_us) {
-        s = m->timeout_us > 0 ? 1.0 - (double)(age - m->timeout_us) / (double)m->timeout_us : 0;
-        if (s < 0) s = 0;
+    if (age > to) {
+        s = to > 0 ? 1.0 - (age - to) / to : 0;
+        if (!(s > 0)) return 0;
     }
     for (int i = 0; i < 3; i++) {
         const double* k = m->stiffness + 3 * i;
         f[i] = s * (m->force[i] + k[0] * d[0] + k[1] * d[1] + k[2] * d[2]);
+    }
+    // A non-finite p (a lost encoder) or a model built by hand beyond the decoder's ranges: no
+    // force rather than an infinite or NaN one.
+    if (!isfinite(f[0]) || !isfinite(f[1]) || !isfinite(f[2])) {
+        f[0] = f[1] = f[2] = 0;
+        return 0;
     }
     return s;
 }

@@ -1,5 +1,7 @@
 # Client tests (included from tests/CMakeLists.txt, so hs_add_test and the tests folder apply).
 hs_add_test(client hapsim_client)
+# White-box cases (the wire decoders' ranges) include the client's internal wire.h.
+target_include_directories(test_client PRIVATE ${PROJECT_SOURCE_DIR}/client)
 set_tests_properties(client PROPERTIES TIMEOUT 60)
 hs_add_test(client_view hs_view)
 set_tests_properties(client_view PROPERTIES TIMEOUT 60)

@@ -305,6 +305,14 @@ int hs_wire_force_decode(const void* buf, size_t len, int32_t* device_id, hs_loc
     if (m->state < HAPSIM_TOOL_FORCE_T_STATE_FREE || m->state > HAPSIM_TOOL_FORCE_T_STATE_STOPPED)
         return -1;
     if (m->validity_radius < 0 || m->timeout_us < 0 || m->seq < 0) return -1;
+    // Physical ranges (docs/protocol.md): within them F(p) stays finite wherever the device is.
+    if (m->validity_radius > HS_WIRE_RADIUS_MAX_M || m->timeout_us > HS_WIRE_TIMEOUT_MAX_US)
+        return -1;
+    for (int i = 0; i < 3; i++)
+        if (fabs(m->force[i]) > HS_WIRE_FORCE_MAX_N || fabs(m->anchor[i]) > HS_WIRE_ANCHOR_MAX_M)
+            return -1;
+    for (int i = 0; i < 9; i++)
+        if (fabs(m->stiffness[i]) > HS_WIRE_STIFFNESS_MAX_N_M) return -1;
     m->valid = 1;
     return 0;
 }

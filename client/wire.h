@@ -60,7 +60,14 @@ int hs_wire_state_decode(const void* buf, size_t len, hs_wire_state* out);
 int hs_wire_delta_decode(const void* buf, size_t len, hs_wire_delta* out);
 int hs_wire_event_decode(const void* buf, size_t len, hs_wire_event* out);
 int hs_wire_ack_decode(const void* buf, size_t len, hs_wire_ack* out);
-/// tool_force into a local model (arrival_us left 0); also checks radius, timeout, state ranges.
+/// Ranges a tool_force_t must keep (docs/protocol.md): |F| then stays below ~3e10 N.
+#define HS_WIRE_FORCE_MAX_N       1e4
+#define HS_WIRE_STIFFNESS_MAX_N_M 1e9
+#define HS_WIRE_ANCHOR_MAX_M      1e3
+#define HS_WIRE_RADIUS_MAX_M      10.0
+#define HS_WIRE_TIMEOUT_MAX_US    60000000
+
+/// tool_force into a local model (arrival_us left 0); also checks state, and the ranges above.
 int hs_wire_force_decode(const void* buf, size_t len, int32_t* device_id, hs_local_model* out);
 
 /// Counted allocation of the client library (hs_client_byte_count).

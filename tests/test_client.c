@@ -5,6 +5,7 @@
 #include <stdlib.h>
 
 #include "hapsim/client.h"
+#include "wire.h"
 #include "hapsim_command_ack_t.h"
 #include "hapsim_mesh_delta_t.h"
 #include "hapsim_mesh_state_t.h"
@@ -587,6 +588,89 @@ static int test_local_model(void) {
     return 0;
 }
 
+// A tool_force_t beyond the physical ranges of docs/protocol.md is dropped, and the local model
+// never renders a non-finite force, whatever the device position or a hand-built model holds.
+static int force_decodes(const hapsim_tool_force_t* f) {
+    uint8_t buf[512];
+    int len = hapsim_tool_force_t_encode(buf, 0, (int)sizeof buf, f);
+    int32_t dev;
+    hs_local_model m;
+    return len > 0 && hs_wire_force_decode(buf, (size_t)len, &dev, &m) == 0;
+}
+
+static int test_force_ranges(void) {
+    hapsim_tool_force_t f;
+    memset(&f, 0, sizeof f);
+    f.seq = 1;
+    f.state = HAPSIM_TOOL_FORCE_T_STATE_CONTACT;
+    f.force[1] = 1.0;
+    for (int i = 0; i < 3; i++) f.stiffness[4 * i] = -100;
+    f.validity_radius = 0.002;
+    f.timeout_us = 20000;
+    ENSURE(force_decodes(&f));
+    // Each range at its limit, then just beyond it.
+    struct {
+        double* field;
+        double limit;
+    } r[] = {{&f.force[2], HS_WIRE_FORCE_MAX_N},
+             {&f.anchor[0], HS_WIRE_ANCHOR_MAX_M},
+             {&f.stiffness[5], HS_WIRE_STIFFNESS_MAX_N_M},
+             {&f.validity_radius, HS_WIRE_RADIUS_MAX_M}};
+    for (size_t k = 0; k < sizeof r / sizeof r[0]; k++) {
+        double keep = *r[k].field;
+        *r[k].field = r[k].limit;
+        ENSURE(force_decodes(&f));
+        *r[k].field = r[k].limit * 1.0001;
+        ENSURE(!force_decodes(&f));
+        if (r[k].field != &f.validity_radius) {
+            *r[k].field = -r[k].limit * 1.0001;
+            ENSURE(!force_decodes(&f));
+        }
+        *r[k].field = keep;
+    }
+    f.timeout_us = HS_WIRE_TIMEOUT_MAX_US;
+    ENSURE(force_decodes(&f));
+    f.timeout_us = HS_WIRE_TIMEOUT_MAX_US + 1;
+    ENSURE(!force_decodes(&f));
+    f.timeout_us = 20000;
+    ENSURE(force_decodes(&f));
+
+    // The worst model the decoder lets through, rendered far away: finite.
+    hs_local_model m;
+    memset(&m, 0, sizeof m);
+    m.valid = 1;
+    m.state = HAPSIM_TOOL_FORCE_T_STATE_CONTACT;
+    for (int i = 0; i < 3; i++)
+        m.force[i] = HS_WIRE_FORCE_MAX_N, m.anchor[i] = -HS_WIRE_ANCHOR_MAX_M;
+    for (int i = 0; i < 9; i++) m.stiffness[i] = HS_WIRE_STIFFNESS_MAX_N_M;
+    m.validity_radius = HS_WIRE_RADIUS_MAX_M;
+    m.timeout_us = HS_WIRE_TIMEOUT_MAX_US;
+    double fo[3], far[3] = {100, 100, -100}, farthest[3] = {1e308, 1e308, -1e308};
+    ENSURE(hs_local_model_eval(&m, far, 0, fo) == 1.0);
+    for (int i = 0; i < 3; i++) ENSURE(isfinite(fo[i]) && fabs(fo[i]) > 1e9);
+    ENSURE(hs_local_model_eval(&m, farthest, 0, fo) == 1.0);
+    for (int i = 0; i < 3; i++) ENSURE(isfinite(fo[i]));
+    // A device that reports no position gets no force.
+    double bad[3][3] = {{NAN, 0, 0}, {0, INFINITY, 0}, {0, 0, -INFINITY}};
+    for (int k = 0; k < 3; k++) {
+        ENSURE(hs_local_model_eval(&m, bad[k], 0, fo) == 0);
+        ENSURE(fo[0] == 0 && fo[1] == 0 && fo[2] == 0);
+    }
+    // A hand-built model past the ranges: zero rather than infinite or NaN.
+    m.validity_radius = 1e300;
+    m.stiffness[0] = 1e300;
+    double p[3] = {1e10, 0, 0};
+    ENSURE(hs_local_model_eval(&m, p, 0, fo) == 0 && fo[0] == 0 && fo[1] == 0 && fo[2] == 0);
+    // Clocks as far apart as int64 allows: no overflow, the model has timed out.
+    m.stiffness[0] = -100;
+    m.validity_radius = 0.002;
+    m.arrival_us = INT64_MIN;
+    ENSURE(hs_local_model_eval(&m, p, INT64_MAX, fo) == 0 && fo[0] == 0);
+    m.arrival_us = INT64_MAX; // arrived "in the future": full strength, as before
+    ENSURE(hs_local_model_eval(&m, p, INT64_MIN, fo) == 1.0 && isfinite(fo[0]));
+    return 0;
+}
+
 // ---------------------------------------------------------------------------------------------
 // Status decoding.
 
@@ -656,5 +740,5 @@ static int test_status_decode(void) {
 
 HS_TEST_MAIN(HS_CASE(test_lossless_follows_server), HS_CASE(test_loss_converges),
              HS_CASE(test_late_join), HS_CASE(test_wrong_versions_ignored),
-             HS_CASE(test_malformed_counted), HS_CASE(test_local_model),
+             HS_CASE(test_malformed_counted), HS_CASE(test_local_model), HS_CASE(test_force_ranges),
              HS_CASE(test_status_decode))

@@ -62,7 +62,8 @@ typedef struct hs_local_model {
 /// F(p) = force + stiffness * d, d = p - anchor clamped to |d| <= validity_radius; full strength
 /// until timeout_us after arrival, then a linear ramp to zero over another timeout_us; zero for
 /// STATE_STOPPED or an invalid model. Writes f[3] (N); returns the strength factor in [0, 1].
-/// Thread: any | Allocates: no
+/// Never a non-finite force: a non-finite p, or a hand-built model whose F would overflow, gives
+/// zero (and returns 0). Thread: any | Allocates: no
 double hs_local_model_eval(const hs_local_model* m, const double p[3], int64_t now_us,
                            double f[3] /* OUT */);
 
