@@ -130,6 +130,10 @@ static hs_status emit(parser* p, hs_err* err, int kind, int cmd, const double to
         for (int i = 0; i < 3; ++i) p->cur[i] = to[i];
         return HS_OK;
     }
+    // A crawl (speed 1e-300) or a hold of years: a typo, refused before it plays forever.
+    if (!(p->t + dur <= HS_SCRIPT_MAX_DURATION_S))
+        return perr(p, err, "the script would last beyond %g s (a speed too low, a hold too long?)",
+                    HS_SCRIPT_MAX_DURATION_S);
     if (s->n_segments >= HS_SCRIPT_MAX_SEGMENTS) {
         char lim[32];
         snprintf(lim, sizeof lim, "%d", HS_SCRIPT_MAX_SEGMENTS);
@@ -176,6 +180,12 @@ static hs_status read_args(parser* p, hs_err* err, char** tok, int ntok, const c
             return perr(p, err, "%s", msg);
         }
         if (kinds[i] == 'L' || kinds[i] == 'V' || kinds[i] == 'A') v[i] *= p->scale;
+        if (kinds[i] == 'L' && !(fabs(v[i]) <= HS_SCRIPT_MAX_LENGTH_M)) {
+            char msg[200];
+            snprintf(msg, sizeof msg, "%s: '%.60s' is beyond +-%g m (%s)", tok[0], tok[i + 1],
+                     HS_SCRIPT_MAX_LENGTH_M, usage);
+            return perr(p, err, "%s", msg);
+        }
     }
     return HS_OK;
 }
@@ -349,6 +359,9 @@ static hs_status parse_text(parser* p, const char* text, hs_err* err) {
                 if (!parse_num(tok[2], &lift) || lift < 0)
                     return perr(p, err, "release: lift '%.60s' must be a number >= 0", tok[2]);
                 lift *= p->scale;
+                if (lift > HS_SCRIPT_MAX_LENGTH_M)
+                    return perr(p, err, "release: lift '%.60s' is beyond %g m", tok[2],
+                                HS_SCRIPT_MAX_LENGTH_M);
                 ntok = 2;
             }
             if ((st = read_args(p, err, tok, ntok, "V", "speed [lift]", v))) return st;

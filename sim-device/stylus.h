@@ -28,6 +28,8 @@ extern "C" {
 #define HS_SCRIPT_MAX_LOOP_DEPTH 8       ///< nested loop ... end
 #define HS_SCRIPT_MAX_LINE       512     ///< bytes per line, including the newline
 #define HS_SCRIPT_MAX_EXECUTED   1000000 ///< lines read in all, loops included (no endless parse)
+#define HS_SCRIPT_MAX_LENGTH_M   1e3     ///< |coordinate|, depth, lift, m (after units)
+#define HS_SCRIPT_MAX_DURATION_S 1e6     ///< the whole script, s (a typo, not a session)
 
 /// What a segment does with the target.
 typedef enum hs_seg_kind {

@@ -157,6 +157,15 @@ static int script_errors(void) {
         {"touch 0 0 0 0.01 0.002\n", 1, "must not be zero"},
         {"press 0 0 1 0.01 0.01\ntouch 0 0 1 0.01 0.002\n", 2, "a press is active"},
         {long_line, 1, "line longer than"},
+        // Typos that would play for ever or fly off: lengths and the whole duration bounded.
+        {"units mm\nmove_to 0 0 66616633333333333333 20\n", 2, "is beyond +-1000 m"},
+        {"start 1001 0 0\n", 1, "is beyond +-1000 m"},
+        {"press 0 0 1 1e4 0.01\n", 1, "is beyond +-1000 m"},
+        {"press 0 0 1 0.01 0.01\nrelease 0.01 1001\n", 2, "lift '1001' is beyond"},
+        {"move_to 0 0 1 1e-300\n", 1, "would last beyond 1e+06 s"},
+        {"hold 2e6\n", 1, "would last beyond"},
+        {"loop 100\n hold 10000\nend\nhold 2\n", 4, "would last beyond"},
+        {"profile trapezoid 1e-300\nmove_to 0 0 1 1\n", 2, "would last beyond"},
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; ++i) {
         err.msg[0] = '\0';
