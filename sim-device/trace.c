@@ -244,11 +244,16 @@ hs_status hs_stylus_trace_read_csv(const char* path, hs_stylus_trace** out, hs_e
                  (*end == (i == 16 ? '\n' : ',') || (i == 16 && (*end == '\0' || *end == '\r')));
             at = end + 1;
         }
-        if (!ok) {
+        const char* bad = ok ? NULL : "expected 17 finite numbers";
+        // segment and flags are integers (a cast of 1e300 would be undefined); time runs forward
+        if (!bad && (v[15] != floor(v[15]) || v[15] < -1 || v[15] > INT32_MAX ||
+                     v[16] != floor(v[16]) || v[16] < 0 || v[16] > UINT32_MAX))
+            bad = "segment and flags must be whole numbers (segment >= -1, flags >= 0)";
+        if (!bad && t->rows > 0 && v[0] < t->row[t->rows - 1].t_s) bad = "t_s goes backwards";
+        if (bad) {
             hs_stylus_trace_destroy(&t);
             fclose(f);
-            return hs_err_set(err, HS_ERR_PARSE, "%s:%lld: expected 17 finite numbers", path,
-                              (long long)(k + 2));
+            return hs_err_set(err, HS_ERR_PARSE, "%s:%lld: %s", path, (long long)(k + 2), bad);
         }
         hs_stylus_tick r;
         memset(&r, 0, sizeof r);

@@ -741,6 +741,22 @@ static int trace_compare(void) {
     char want[128];
     snprintf(want, sizeof want, "%s:3:", path);
     ENSURE(strstr(err.msg, want) != NULL);
+    // Rows that parse as numbers but cannot be a trace: the line named, nothing returned.
+    static const char* const rows[] = {
+        "0.001,1,2,3,4,5,6,7,8,9,10,11,12,13,14,1e300,16\n", // segment beyond int
+        "0.001,1,2,3,4,5,6,7,8,9,10,11,12,13,14,15,-1\n",    // negative flags
+        "0.001,1,2,3,4,5,6,7,8,9,10,11,12,13,14,2.5,16\n",   // fractional segment
+        "-1,1,2,3,4,5,6,7,8,9,10,11,12,13,14,15,16\n",       // time going backwards
+    };
+    for (size_t i = 0; i < sizeof rows / sizeof rows[0]; ++i) {
+        f = fopen(path, "w");
+        ENSURE(f != NULL);
+        fprintf(f, "%s\n0,1,2,3,4,5,6,7,8,9,10,11,12,13,14,15,16\n%s", hs_stylus_trace_header,
+                rows[i]);
+        fclose(f);
+        ENSURE(hs_stylus_trace_read_csv(path, &bad, &err) == HS_ERR_PARSE && bad == NULL);
+        ENSURE(strstr(err.msg, want) != NULL); // line 3
+    }
     f = fopen(path, "w");
     ENSURE(f != NULL);
     fprintf(f, "time,force\n0,1\n");
