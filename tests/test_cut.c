@@ -535,24 +535,33 @@ static void* window_build_thread(void* arg) {
 
 /// Background window: sweeps never refactor; when a rebuild is due a thread builds the new
 /// window while the next sweep runs, and finish brings it up to date and swaps it in. The
-/// factor matches a fresh one after every sweep and every swap.
-static int test_window_background(void) {
+/// factor matches a fresh one after every sweep and every swap. Under UPDATE (low-rank
+/// updates) and PARTIAL (partial refactors; a finer plate, so the factor is supernodal): there
+/// a sweep inside a swapped-in window redoes a small share of the factorisation, where the
+/// default order's sweeps redo the top separators.
+static int window_background(hs_cut_factor_policy policy) {
     int64_t bytes = hs_byte_count();
     hs_mesh* m = NULL;
     hs_err e;
-    ENSURE(hs_mesh_create_box(0.08, 0.08, 0.01, 8, 8, 2, &m, &e) == HS_OK);
+    int fine = policy == HS_CUT_FACTOR_PARTIAL;
+    ENSURE(hs_mesh_create_box(0.08, 0.08, 0.01, fine ? 16 : 8, fine ? 16 : 8, 2, &m, &e) == HS_OK);
     unsigned char* fixed = hs_calloc((size_t)m->n_nodes, 1);
     hs_mesh_select_plane(m, 0, -1, 1e-6, fixed);
     hs_cut_def def = hs_cut_default_def();
-    def.factor_policy = HS_CUT_FACTOR_UPDATE;
-    def.window_radius_m = 0.02;
+    def.factor_policy = policy;
+    def.window_radius_m = fine ? 0.01 : 0.02; // two cells either way
     def.window_ahead_m = 0.03;
-    def.window_background = 1;
+    def.window_background = 0;
     hs_cut* c = NULL;
+    if (fine) // PARTIAL rebuilds a window in the background only
+        ENSURE(hs_cut_create(m, fixed, &def, &c, &e) == HS_ERR_INVALID && !c);
+    def.window_background = 1;
     ENSURE(hs_cut_create(m, fixed, &def, &c, &e) == HS_OK);
+    ENSURE(!fine || hs_cholesky_is_supernodal(hs_cut_factor(c)));
     ENSURE(hs_cut_window_due(c) == 0);                    // no blade yet
     ENSURE(hs_cut_window_begin(c, &e) == HS_ERR_INVALID); // nor a sweep
     int swaps = 0, in_flight = 0;
+    double share_default = 0, share_window = 1;
     pthread_t th;
     for (int k = 0; k < 11; k++) {
         double p0[3], q0[3], p1[3], q1[3];
@@ -564,7 +573,11 @@ static int test_window_background(void) {
         hs_cut_result r;
         ENSURE(hs_cut_sweep(c, p0, q0, p1, q1, NULL, &r, &e) == HS_OK);
         ENSURE(!r.refactored);
-        if (in_flight) { // the build ran alongside this sweep
+        double share = fine ? hs_cholesky_partial_share(hs_cut_factor(c)) : 0;
+        if (r.changed_elements > 0 && swaps == 0) share_default = fmax(share_default, share);
+        if (r.changed_elements > 0 && swaps > 0 && !hs_cut_window_due(c))
+            share_window = fmin(share_window, share); // this sweep stayed in the window
+        if (in_flight) {                              // the build ran alongside this sweep
             void* ret = NULL;
             ENSURE(pthread_join(th, &ret) == 0 && ret == c);
             ENSURE(hs_cut_window_finish(c, &e) == HS_OK);
@@ -572,8 +585,10 @@ static int test_window_background(void) {
             swaps++;
         }
         double df = factor_vs_fresh(c);
-        printf("  sweep %d: changes %d, vs fresh %.1e, windows swapped in %d\n", k,
+        printf("  sweep %d: changes %d, vs fresh %.1e, windows swapped in %d", k,
                r.changed_elements, df, swaps);
+        if (fine) printf(", share of a factorisation %.3f", share);
+        printf("\n");
         ENSURE(df <= 1e-8);
         if (hs_cut_window_due(c)) {
             ENSURE(hs_cut_window_begin(c, &e) == HS_OK);
@@ -590,11 +605,30 @@ static int test_window_background(void) {
     }
     ENSURE(swaps >= 2); // the first window, then one the blade moved into
     ENSURE(hs_cut_window_finish(c, &e) == HS_ERR_INVALID);
+    {
+        // The blade is lifted off and moves aside, cutting nothing: a window around it is due.
+        double p0[3] = {0.0451, 0.072, 0.02}, q0[3] = {0.0451, 0.072, 0.03};
+        double p1[3] = {0.0151, 0.072, 0.02}, q1[3] = {0.0151, 0.072, 0.03};
+        ENSURE(!hs_cut_window_due(c));
+        hs_cut_result r;
+        ENSURE(hs_cut_sweep(c, p0, q0, p1, q1, NULL, &r, &e) == HS_OK && r.changed_elements == 0);
+        ENSURE(hs_cut_window_due(c));
+    }
+    if (fine) {
+        printf("  PARTIAL: largest share before a window %.3f, smallest inside one %.3f\n",
+               share_default, share_window);
+        ENSURE(share_default > 0 && share_window < 0.5 * share_default);
+    }
     hs_free(fixed);
     hs_cut_destroy(&c);
     hs_mesh_destroy(&m);
     ENSURE(hs_byte_count() == bytes);
     return 0;
+}
+
+static int test_window_background(void) {
+    ENSURE(window_background(HS_CUT_FACTOR_UPDATE) == 0);
+    return window_background(HS_CUT_FACTOR_PARTIAL);
 }
 
 static int test_rules(void) {
@@ -738,6 +772,13 @@ static int test_deformed_and_bad_input(void) {
     ENSURE(hs_cut_create(m, fixed, &def, &c, &e) == HS_ERR_INVALID && c == NULL);
     ENSURE(strstr(e.msg, "factor threads"));
     def.factor_threads = 0;
+    for (int k = 0; k < 3; k++) { // the due fraction: in (0, 1]
+        const double f[3] = {0, 1.5, NAN};
+        def.window_due_fraction = f[k];
+        ENSURE(hs_cut_create(m, fixed, &def, &c, &e) == HS_ERR_INVALID && c == NULL);
+        ENSURE(strstr(e.msg, "due fraction"));
+    }
+    def.window_due_fraction = 1;
     ENSURE(hs_cut_create(m, fixed, &def, &c, &e) == HS_OK);
     double bad[3] = {NAN, 0, 0}, ok[3] = {0, 0, 0};
     ENSURE(hs_cut_sweep(c, bad, ok, ok, ok, NULL, NULL, &e) == HS_ERR_INVALID);

@@ -24,9 +24,10 @@
 //    PARTIAL where the factor allows it, else UPDATE unless its predicted cost (union x
 //    measured cost per rank) exceeds a numeric refactor with the kept analysis; a failed
 //    update also refactors. An optional update
-//    window orders the dofs near the blade last so in-window updates walk short paths; leaving
-//    it rebuilds the factor (in the sweep, or on another thread: hs_cut_window_*). Either way
-//    the factor is that of the new K; tests compare it with a fresh factorisation.
+//    window orders the dofs near the blade last so in-window updates and partial refactors
+//    walk short paths; leaving it rebuilds the factor (in the sweep, or on another thread:
+//    hs_cut_window_*; PARTIAL only the latter). Either way the factor is that of the new K;
+//    tests compare it with a fresh factorisation.
 //  - Surface. Tangent planes come from the boundary faces around a vertex (face neighbours of
 //    the full mesh + activity), so a sweep never needs the live mesh; that is rebuilt on demand.
 //  - Events. After each sweep: the removed tets, the moved vertices and a topology version
@@ -86,15 +87,20 @@ typedef struct hs_cut_def {
     int tangent_surface;      ///< 1: surface vertices move only in their tangent plane (paper)
     hs_cut_factor_policy factor_policy; ///< how K's factor follows the cuts
     int validate;                       ///< 1: hs_mesh_check + own checks after every sweep
-    /// Update window (UPDATE / AUTO; 0: off). The factor is ordered with the free dofs of the
-    /// nodes within this distance of the blade (extended window_ahead_m along its travel)
-    /// eliminated last, so updates there walk short paths. A sweep touching a dof outside it
-    /// rebuilds the factor (new ordering + numeric factor) around the blade, m.
+    /// Update window (UPDATE / AUTO / PARTIAL; 0: off). The factor is ordered with the free
+    /// dofs of the nodes within this distance of the blade (extended window_ahead_m along its
+    /// travel) eliminated last, so updates and partial refactors there walk short paths. A
+    /// sweep touching a dof outside it rebuilds the factor (new ordering + numeric factor)
+    /// around the blade, m. PARTIAL needs window_background.
     double window_radius_m;
     double window_ahead_m; ///< how far ahead of the blade, along its travel, the window reaches, m
     /// 1: a sweep leaving the window updates the current factor (longer paths) instead of
     /// rebuilding it; the caller rebuilds the window off the critical path (hs_cut_window_*).
     int window_background;
+    /// A rebuild is due (hs_cut_window_due) once the blade has travelled this fraction of
+    /// window_ahead_m from where the window was chosen; in (0, 1], default 0.5. Lower it when
+    /// a build takes longer than the blade needs for the rest of the window.
+    double window_due_fraction;
     /// Threads of the partial refactor (PARTIAL, and AUTO when it takes that path): 1, or 2 to
     /// share its large supernodes with a helper thread (hs_cholesky_set_partial_threads);
     /// 0: 2 when two or more processors are online, else 1.
@@ -183,21 +189,30 @@ int hs_cut_components(hs_cut* cut);
 hs_status hs_cut_validate(hs_cut* cut, hs_err* err);
 
 /// Background window rebuild (def.window_radius_m > 0, typically with def.window_background):
-/// 1 when a rebuild is due: the last sweep changed dofs outside the window, or the blade has
-/// used up half of the window's reach ahead. Thread: deformation | Allocates: no
+/// 1 when a rebuild is due: there is no window yet, the last sweep changed dofs outside it,
+/// the blade has travelled def.window_due_fraction of its reach ahead, or the blade's midpoint
+/// has left its strip (farther than window_radius_m from the line it was chosen along, or
+/// behind its start), cutting or not. 0 while a rebuild is under way.
+/// Thread: deformation | Allocates: no
 int hs_cut_window_due(const hs_cut* cut);
 /// Snapshot K and choose a new window around the last sweep's blade; sweeps from here on are
-/// recorded for hs_cut_window_finish. Thread: deformation | Allocates: yes (first call; the
-/// record grows with the sweeps until finish)
+/// recorded for hs_cut_window_finish (PARTIAL: the union of the dofs they changed).
+/// Thread: deformation | Allocates: yes (first call; the record grows with the sweeps until
+/// finish)
 hs_status hs_cut_window_begin(hs_cut* cut, hs_err* err);
-/// Order and factor the snapshot (analysis + numeric factor, the expensive part). Touches only
-/// the snapshot, so it may run on another thread while sweeps go on; the caller orders it
-/// between begin and finish (join it before finish or hs_cut_destroy). It also applies the
-/// sweeps recorded meanwhile, as they come. Thread: any one | Allocates: yes
+/// Order and factor the snapshot (analysis + numeric factor, the expensive part; PARTIAL: the
+/// factor with its kept update matrices, hs_cholesky_create_last_partial, ~0.1 s at 5,043
+/// vertices). Touches only the snapshot and the factor the last finish replaced (freed here,
+/// off the sweeps' thread), so it may run on another thread while sweeps go on; the caller
+/// orders it between begin and finish (join it before finish or hs_cut_destroy). Low-rank
+/// policies: it also applies the sweeps recorded meanwhile, as they come.
+/// Thread: any one | Allocates: yes
 hs_status hs_cut_window_build(hs_cut* cut, hs_err* err);
-/// Bring the new factor up to date with the sweeps since begin (one aggregated update inside
-/// its window; a numeric refactor if that is impossible) and swap it in.
-/// Thread: deformation | Allocates: on growth only
+/// Bring the new factor up to date with the sweeps since begin and swap it in: one aggregated
+/// update inside its window (a numeric refactor if that is impossible); PARTIAL: a partial
+/// refactor of the dofs K changed in since begin, about one in-window sweep's cost, so call
+/// it in a step that cut nothing where possible. The replaced factor is kept until the next
+/// build. Thread: deformation | Allocates: on growth only
 hs_status hs_cut_window_finish(hs_cut* cut, hs_err* err);
 
 /// Static linear solve K u = f with the kept factor: f[3n] nodal forces (N) in, u[3n] (m) out;

@@ -81,6 +81,7 @@ struct hs_cut {
     double win_org[3];  // blade midpoint when the window was chosen
     double win_dir[3];  // unit blade travel then (0 if it did not move)
     int win_stale;      // the last sweep changed dofs outside the window
+    int have_win;       // a window has been swapped in (hs_cut_window_finish)
     double blade[12];   // last sweep: p0, q0, p1, q1
     int have_blade;
     // Background window rebuild (hs_cut_window_begin / _build / _finish).
@@ -105,6 +106,8 @@ struct hs_cut {
     int has_lock;
     int bg_applied;       // recorded sweeps already applied to bg_f
     int *bg_pos, *bg_set; // [n_free] union marks of the catch-up (-1 outside)
+    int n_bgu;            // PARTIAL: free dofs K changed in since begin (in bg_set)
+    int bg_all;           // PARTIAL: K was reassembled since begin (redo everything)
     int bg_cap;           // blocks bg_k / bg_d hold
     double* bg_k;         // [144 bg_cap] one catch-up group: + blocks, then - blocks
     int* bg_d;            // [12 bg_cap]
@@ -140,6 +143,7 @@ hs_cut_def hs_cut_default_def(void) {
     d.tangent_surface = 1;
     d.factor_policy = HS_CUT_FACTOR_AUTO;
     d.validate = 1;
+    d.window_due_fraction = 0.5;
     d.cookie = HS_CUT_COOKIE;
     return d;
 }
@@ -477,17 +481,23 @@ hs_status hs_cut_create(hs_mesh* mesh, const unsigned char* fixed, const hs_cut_
         !(def->window_ahead_m >= 0 && def->window_ahead_m < 1e6))
         return hs_err_set(err, HS_ERR_INVALID, "cut: window radius %g m / ahead %g m out of range",
                           def->window_radius_m, def->window_ahead_m);
+    if (!(def->window_due_fraction > 0 && def->window_due_fraction <= 1))
+        return hs_err_set(err, HS_ERR_INVALID, "cut: window due fraction %g (0 < f <= 1)",
+                          def->window_due_fraction);
     if (def->factor_threads < 0 || def->factor_threads > 2)
         return hs_err_set(err, HS_ERR_INVALID, "cut: factor threads %d (0, 1 or 2)",
                           def->factor_threads);
     if (def->factor_policy < HS_CUT_FACTOR_AUTO || def->factor_policy > HS_CUT_FACTOR_PARTIAL)
         return hs_err_set(err, HS_ERR_INVALID, "cut: unknown factor policy %d",
                           (int)def->factor_policy);
-    if ((def->factor_policy == HS_CUT_FACTOR_NONE || def->factor_policy == HS_CUT_FACTOR_PARTIAL) &&
-        def->window_radius_m > 0)
+    if (def->factor_policy == HS_CUT_FACTOR_NONE && def->window_radius_m > 0)
         return hs_err_set(err, HS_ERR_INVALID,
-                          "cut: an update window is for the low-rank policies (policy %s)",
-                          def->factor_policy == HS_CUT_FACTOR_NONE ? "NONE" : "PARTIAL");
+                          "cut: an update window needs a factor (policy NONE)");
+    if (def->factor_policy == HS_CUT_FACTOR_PARTIAL && def->window_radius_m > 0 &&
+        !def->window_background)
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "cut: a PARTIAL window is rebuilt in the background only (set "
+                          "window_background)");
     if (mesh->n_nodes <= 0 || mesh->n_tets <= 0 || !mesh->node_used)
         return hs_err_set(err, HS_ERR_INVALID, "cut: mesh is empty or not finalized");
     hs_cut* c = hs_calloc(1, sizeof *c);
@@ -1100,6 +1110,11 @@ static int union_dofs(hs_cut* c, int m) {
 
 static hs_status update_compliance(hs_cut* c, int m, int before);
 
+/// The factor follows K by partial refactors (PARTIAL, or AUTO where it chose them).
+static int partial_policy(const hs_cut* c) {
+    return c->def.factor_policy == HS_CUT_FACTOR_PARTIAL || c->auto_partial;
+}
+
 /// 1 if every free dof of the sweep's m blocks lies in the factor's window.
 static int in_window(const hs_cut* c, int m) {
     for (int k = 0; k < 12 * m; k++)
@@ -1159,6 +1174,7 @@ static hs_status rewindow(hs_cut* c, const double* p0, const double* q0, const d
     }
     hs_cholesky_destroy(&c->factor);
     c->factor = f;
+    c->have_win = 1;
     c->updates_since_refactor = 0;
     return HS_OK;
 }
@@ -1178,6 +1194,17 @@ static int mark_dof(int* pos, int* set, int f, const int* d) {
     pos[f] = *d;
     set[*d] = f;
     return 1;
+}
+
+/// PARTIAL with a window: whether the sweep's dofs (c->dset[nd]; nd < 0: all of K) left the
+/// window, and, while a window is being built, their union since its snapshot.
+static void note_partial_window(hs_cut* c, int nd) {
+    int out = nd < 0;
+    for (int i = 0; i < nd && !out; i++) out = !c->win[c->dset[i]];
+    c->win_stale = out;
+    if (!c->bg_state) return;
+    if (nd < 0) c->bg_all = 1;
+    for (int i = 0; i < nd; i++) c->n_bgu += mark_dof(c->bg_pos, c->bg_set, c->dset[i], &c->n_bgu);
 }
 
 /// Append the sweep's m blocks to the record kept since hs_cut_window_begin.
@@ -1224,11 +1251,16 @@ static hs_status record_blocks(hs_cut* c, int m) {
 int hs_cut_window_due(const hs_cut* c) {
     if (!c || !(c->def.window_radius_m > 0) || c->bg_state || !c->have_blade) return 0;
     if (c->win_stale) return 1;
-    // Ahead of time: the blade has used up half of the window's reach along its travel.
+    // Ahead of time: the blade has used up window_due_fraction of the window's reach along its
+    // travel, or its midpoint has left the window's strip (or there is none yet), e.g. moving
+    // to where the next cut starts: a window around it is then ready when it cuts again.
     double mid[3], d[3];
     for (int k = 0; k < 3; k++) mid[k] = 0.5 * (c->blade[6 + k] + c->blade[9 + k]);
     v3_sub(mid, c->win_org, d);
-    return v3_dot(d, c->win_dir) > 0.5 * c->def.window_ahead_m;
+    double along = v3_dot(d, c->win_dir);
+    if (along > c->def.window_due_fraction * c->def.window_ahead_m) return 1;
+    double side2 = v3_dot(d, d) - along * along, r = c->def.window_radius_m;
+    return !c->have_win || along < -r || side2 > r * r;
 }
 
 hs_status hs_cut_window_begin(hs_cut* c, hs_err* err) {
@@ -1254,9 +1286,14 @@ hs_status hs_cut_window_begin(hs_cut* c, hs_err* err) {
         }
         for (int i = 0; i < c->n_free; i++) c->bg_pos[i] = -1;
     }
-    hs_cut_assemble(c, c->bg_a);
+    // PARTIAL keeps K current in `a` (same pattern): copying it is ~5x cheaper than assembling.
+    if (partial_policy(c) && !c->a_stale)
+        memcpy(c->bg_a->val, c->a->val, sizeof(double) * (size_t)c->a->nnz);
+    else
+        hs_cut_assemble(c, c->bg_a);
     choose_window(c, c->blade, c->bg_win, c->bg_org, c->bg_dir);
     c->n_accp = c->n_accm = c->n_accs = 0;
+    c->n_bgu = c->bg_all = 0;
     c->bg_applied = 0;
     c->bg_caught = HS_OK;
     c->acc_valid = 1;
@@ -1325,11 +1362,20 @@ hs_status hs_cut_window_build(hs_cut* c, hs_err* err) {
     // bg_state is the deformation thread's: not read here (the caller orders the calls).
     if (!c || !c->bg_a)
         return hs_err_set(err, HS_ERR_INVALID, "cut: window build without hs_cut_window_begin");
+    // Also frees the factor the last finish replaced, here rather than in the sweeps' thread.
     hs_cholesky_destroy(&c->bg_f);
-    hs_status st = hs_cholesky_create_last(c->bg_a, c->bg_win, &c->bg_f, err);
-    if (st == HS_OK) st = hs_cholesky_prepare_updates(c->bg_f, 0);
-    // Catch up with the sweeps made meanwhile (a failure is finish's to handle).
-    if (st == HS_OK) c->bg_caught = catch_up(c);
+    hs_status st;
+    if (partial_policy(c)) {
+        // Factored with its kept update matrices; the sweeps made meanwhile changed K in the
+        // dofs finish refactors (a short path when they lie in the new window).
+        st = hs_cholesky_create_last_partial(c->bg_a, c->bg_win, &c->bg_f, err);
+        if (st == HS_OK && !hs_cholesky_is_supernodal(c->bg_f)) st = HS_ERR_UNSUPPORTED;
+    } else {
+        st = hs_cholesky_create_last(c->bg_a, c->bg_win, &c->bg_f, err);
+        if (st == HS_OK) st = hs_cholesky_prepare_updates(c->bg_f, 0);
+        // Catch up with the sweeps made meanwhile (a failure is finish's to handle).
+        if (st == HS_OK) c->bg_caught = catch_up(c);
+    }
     c->bg_status = st;
     c->bg_built = 1;
     return st;
@@ -1342,11 +1388,26 @@ hs_status hs_cut_window_finish(hs_cut* c, hs_err* err) {
     c->bg_built = 0;
     hs_status st = c->bg_status;
     if (st != HS_OK) {
+        for (int i = 0; i < c->n_bgu; i++) c->bg_pos[c->bg_set[i]] = -1;
+        c->n_bgu = c->bg_all = 0;
         hs_cholesky_destroy(&c->bg_f);
         return hs_err_set(err, st, "cut: window build failed: %s", hs_status_str(st));
     }
-    // The sweeps since the build caught up; a failed update there breaks bg_f's factor.
-    st = c->bg_caught == HS_OK ? catch_up(c) : c->bg_caught;
+    if (partial_policy(c)) {
+        // K itself is current (or reassembled here): refactor the dofs it changed in since
+        // the snapshot.
+        int all = c->bg_all || c->a_stale;
+        if (c->a_stale) {
+            hs_cut_assemble(c, c->a);
+            c->a_stale = 0;
+        }
+        st = hs_cholesky_refactor_partial(c->bg_f, c->a, all ? -1 : c->n_bgu, c->bg_set);
+        for (int i = 0; i < c->n_bgu; i++) c->bg_pos[c->bg_set[i]] = -1;
+        c->n_bgu = c->bg_all = 0;
+    } else {
+        // The sweeps since the build caught up; a failed update there breaks bg_f's factor.
+        st = c->bg_caught == HS_OK ? catch_up(c) : c->bg_caught;
+    }
     if (st != HS_OK) { // unrecorded sweeps or a failed update: refactor the new factor
         hs_cut_assemble(c, c->a);
         st = hs_cholesky_refactor(c->bg_f, c->a);
@@ -1356,13 +1417,17 @@ hs_status hs_cut_window_finish(hs_cut* c, hs_err* err) {
         return hs_err_set(err, st, "cut: bringing the new window up to date failed: %s",
                           hs_status_str(st));
     }
-    hs_cholesky_destroy(&c->factor);
+    // The old factor goes to bg_f: the next build frees it (freeing ~100 MB of a large
+    // factor's pages took milliseconds here).
+    hs_cholesky* old = c->factor;
     c->factor = c->bg_f;
-    c->bg_f = NULL;
+    c->bg_f = old;
+    if (partial_policy(c)) (void)hs_cholesky_set_partial_threads(c->factor, c->def.factor_threads);
     memcpy(c->win, c->bg_win, (size_t)c->n_free);
     memcpy(c->win_org, c->bg_org, sizeof c->win_org);
     memcpy(c->win_dir, c->bg_dir, sizeof c->win_dir);
     c->win_stale = 0;
+    c->have_win = 1;
     c->updates_since_refactor = 0;
     return HS_OK;
 }
@@ -1595,7 +1660,7 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
     // caller rebuilds the window off the critical path (hs_cut_window_begin).
     int new_window = outside && !c->def.window_background;
     if (new_window) can_update = 0;
-    if (c->bg_state) { // record the change for the window being built
+    if (c->bg_state && !partial) { // record the change for the window being built
         pthread_mutex_lock(&c->bg_lock);
         if (m == 0 && need > 0)
             c->acc_valid = 0;
@@ -1616,8 +1681,10 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
         }
     }
     if (need > 0 && partial) {
+        int nd = a_current ? partial_dofs(c) : -1;
+        if (c->def.window_radius_m > 0) note_partial_window(c, nd);
         if (a_current) {
-            st = hs_cholesky_refactor_partial(c->factor, c->a, partial_dofs(c), c->dset);
+            st = hs_cholesky_refactor_partial(c->factor, c->a, nd, c->dset);
         } else {
             hs_cut_assemble(c, c->a);
             c->a_stale = 0;
