@@ -189,10 +189,10 @@ int hs_cut_components(hs_cut* cut);
 hs_status hs_cut_validate(hs_cut* cut, hs_err* err);
 
 /// Background window rebuild (def.window_radius_m > 0, typically with def.window_background):
-/// 1 when a rebuild is due: there is no window yet, the last sweep changed dofs outside it,
-/// the blade has travelled def.window_due_fraction of its reach ahead, or the blade's midpoint
-/// has left its strip (farther than window_radius_m from the line it was chosen along, or
-/// behind its start), cutting or not. 0 while a rebuild is under way.
+/// 1 when a rebuild is due: the last sweep changed dofs outside the window, or the blade has
+/// travelled def.window_due_fraction of its reach ahead; PARTIAL also when there is no window
+/// yet or the blade's midpoint has left its strip (farther than window_radius_m from the line
+/// it was chosen along, or behind its start), cutting or not. 0 while a rebuild is under way.
 /// Thread: deformation | Allocates: no
 int hs_cut_window_due(const hs_cut* cut);
 /// Snapshot K and choose a new window around the last sweep's blade; sweeps from here on are
