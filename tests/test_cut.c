@@ -543,7 +543,7 @@ static int window_background(hs_cut_factor_policy policy) {
     int64_t bytes = hs_byte_count();
     hs_mesh* m = NULL;
     hs_err e;
-    int fine = policy == HS_CUT_FACTOR_PARTIAL;
+    int fine = policy != HS_CUT_FACTOR_UPDATE; // PARTIAL, or AUTO taking it
     ENSURE(hs_mesh_create_box(0.08, 0.08, 0.01, fine ? 16 : 8, fine ? 16 : 8, 2, &m, &e) == HS_OK);
     unsigned char* fixed = hs_calloc((size_t)m->n_nodes, 1);
     hs_mesh_select_plane(m, 0, -1, 1e-6, fixed);
@@ -553,7 +553,7 @@ static int window_background(hs_cut_factor_policy policy) {
     def.window_ahead_m = 0.03;
     def.window_background = 0;
     hs_cut* c = NULL;
-    if (fine) // PARTIAL rebuilds a window in the background only
+    if (policy == HS_CUT_FACTOR_PARTIAL) // PARTIAL rebuilds a window in the background only
         ENSURE(hs_cut_create(m, fixed, &def, &c, &e) == HS_ERR_INVALID && !c);
     def.window_background = 1;
     ENSURE(hs_cut_create(m, fixed, &def, &c, &e) == HS_OK);
@@ -629,6 +629,7 @@ static int window_background(hs_cut_factor_policy policy) {
 
 static int test_window_background(void) {
     ENSURE(window_background(HS_CUT_FACTOR_UPDATE) == 0);
+    ENSURE(window_background(HS_CUT_FACTOR_AUTO) == 0); // takes PARTIAL here
     return window_background(HS_CUT_FACTOR_PARTIAL);
 }
 

@@ -59,7 +59,8 @@ typedef enum hs_cut_fragment {
 /// How the factor of K follows a sweep's element changes.
 typedef enum hs_cut_factor_policy {
     /// PARTIAL where the factor allows it (supernodal, its kept data within 4x the factor, no
-    /// window); else the low-rank update unless a numeric refactor is cheaper (measured).
+    /// window or a background one); else the low-rank update unless a numeric refactor is
+    /// cheaper (measured).
     HS_CUT_FACTOR_AUTO = 0,
     HS_CUT_FACTOR_UPDATE = 1,   ///< always the low-rank update (CHOLMOD update/downdate)
     HS_CUT_FACTOR_REFACTOR = 2, ///< numeric refactor with the kept analysis (reference)

@@ -637,7 +637,8 @@ hs_status hs_cut_create(hs_mesh* mesh, const unsigned char* fixed, const hs_cut_
             st = hs_cholesky_prepare_partial(c->factor, c->a);
             if (st == HS_ERR_UNSUPPORTED) st = HS_OK;
         } else if (st == HS_OK && def->factor_policy == HS_CUT_FACTOR_AUTO &&
-                   def->window_radius_m == 0 && hs_cholesky_is_supernodal(c->factor) &&
+                   (def->window_radius_m == 0 || def->window_background) &&
+                   hs_cholesky_is_supernodal(c->factor) &&
                    hs_cholesky_partial_bytes(c->factor) <= 32 * hs_cholesky_factor_nnz(c->factor)) {
             hs_status ps = hs_cholesky_prepare_partial(c->factor, c->a);
             c->auto_partial = ps == HS_OK;
