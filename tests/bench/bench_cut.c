@@ -250,12 +250,13 @@ static int run_pass(const cut_case* cc, const hs_bench_args* args, hs_cut_factor
             if (failures) break;
             double extra = 0; // window begin/finish run in the deformation thread
             if (window == 2) {
+                int swap = bg_running && atomic_load(&bg.done);
                 // PARTIAL: the swap refactors what K changed since the snapshot, a few ms;
-                // done in a step that cut nothing (or after 5 steps waiting).
-                if (bg_running && atomic_load(&bg.done) && policy == HS_CUT_FACTOR_PARTIAL &&
-                    r.changed_elements > 0 && ++bg_waited < 5)
-                    ;
-                else if (bg_running && atomic_load(&bg.done)) {
+                // done in a step that cut nothing, at the latest 4 steps after the build.
+                if (swap && policy == HS_CUT_FACTOR_PARTIAL && r.changed_elements > 0 &&
+                    ++bg_waited < 5)
+                    swap = 0;
+                if (swap) {
                     bg_waited = 0;
                     pthread_join(bg.th, NULL);
                     bg_running = 0;
