@@ -536,9 +536,9 @@ static void* window_build_thread(void* arg) {
 /// Background window: sweeps never refactor; when a rebuild is due a thread builds the new
 /// window while the next sweep runs, and finish brings it up to date and swaps it in. The
 /// factor matches a fresh one after every sweep and every swap. Under UPDATE (low-rank
-/// updates) and PARTIAL (partial refactors; a finer plate, so the factor is supernodal): there
-/// a sweep inside a swapped-in window redoes a small share of the factorisation, where the
-/// default order's sweeps redo the top separators.
+/// updates), and PARTIAL and AUTO (partial refactors; a finer plate, so the factor is
+/// supernodal): there a sweep inside a swapped-in window redoes a small share of the
+/// factorisation, where the default order's sweeps redo the top separators.
 static int window_background(hs_cut_factor_policy policy) {
     int64_t bytes = hs_byte_count();
     hs_mesh* m = NULL;
@@ -628,6 +628,29 @@ static int window_background(hs_cut_factor_policy policy) {
 }
 
 static int test_window_background(void) {
+    // PARTIAL on a plate too small for a supernodal factor: sweeps refactor, no window is due.
+    hs_mesh* m = NULL;
+    hs_err e;
+    ENSURE(hs_mesh_create_box(0.04, 0.04, 0.01, 4, 4, 1, &m, &e) == HS_OK);
+    unsigned char* fixed = hs_calloc((size_t)m->n_nodes, 1);
+    hs_mesh_select_plane(m, 0, -1, 1e-6, fixed);
+    hs_cut_def def = hs_cut_default_def();
+    def.factor_policy = HS_CUT_FACTOR_PARTIAL;
+    def.window_radius_m = 0.01;
+    def.window_ahead_m = 0.02;
+    def.window_background = 1;
+    hs_cut* c = NULL;
+    ENSURE(hs_cut_create(m, fixed, &def, &c, &e) == HS_OK);
+    ENSURE(!hs_cholesky_is_supernodal(hs_cut_factor(c)));
+    double p0[3] = {0.0251, -0.005, -0.005}, q0[3] = {0.0251, -0.005, 0.015};
+    double p1[3] = {0.0251, 0.02, -0.005}, q1[3] = {0.0251, 0.02, 0.015};
+    hs_cut_result r;
+    ENSURE(hs_cut_sweep(c, p0, q0, p1, q1, NULL, &r, &e) == HS_OK);
+    ENSURE(r.changed_elements > 0 && r.refactored && !hs_cut_window_due(c));
+    ENSURE(factor_vs_fresh(c) <= 1e-8);
+    hs_cut_destroy(&c);
+    hs_free(fixed);
+    hs_mesh_destroy(&m);
     ENSURE(window_background(HS_CUT_FACTOR_UPDATE) == 0);
     ENSURE(window_background(HS_CUT_FACTOR_AUTO) == 0); // takes PARTIAL here
     return window_background(HS_CUT_FACTOR_PARTIAL);

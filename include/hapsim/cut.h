@@ -193,7 +193,8 @@ hs_status hs_cut_validate(hs_cut* cut, hs_err* err);
 /// 1 when a rebuild is due: the last sweep changed dofs outside the window, or the blade has
 /// travelled def.window_due_fraction of its reach ahead; PARTIAL also when there is no window
 /// yet or the blade's midpoint has left its strip (farther than window_radius_m from the line
-/// it was chosen along, or behind its start), cutting or not. 0 while a rebuild is under way.
+/// it was chosen along, or behind its start), cutting or not. 0 while a rebuild is under way,
+/// and always under PARTIAL on a factor too small to be supernodal (no partial refactor).
 /// Thread: deformation | Allocates: no
 int hs_cut_window_due(const hs_cut* cut);
 /// Snapshot K and choose a new window around the last sweep's blade; sweeps from here on are

@@ -1251,6 +1251,9 @@ static hs_status record_blocks(hs_cut* c, int m) {
 
 int hs_cut_window_due(const hs_cut* c) {
     if (!c || !(c->def.window_radius_m > 0) || c->bg_state || !c->have_blade) return 0;
+    // PARTIAL on a factor too small to be supernodal: no partial refactor (its sweeps
+    // refactor, which is cheap there), so a window's build would fail. Never due.
+    if (partial_policy(c) && !hs_cholesky_is_supernodal(c->factor)) return 0;
     if (c->win_stale) return 1;
     // Ahead of time: the blade has used up window_due_fraction of the window's reach along its
     // travel, or (PARTIAL) its midpoint has left the window's strip (or there is none yet),
