@@ -96,8 +96,16 @@ typedef struct hs_cut_def {
     double window_radius_m;
     double window_ahead_m; ///< how far ahead of the blade, along its travel, the window reaches, m
     /// 1: a sweep leaving the window updates the current factor (longer paths) instead of
-    /// rebuilding it; the caller rebuilds the window off the critical path (hs_cut_window_*).
+    /// rebuilding it; the caller rebuilds the window off the critical path (hs_cut_window_*),
+    /// or the cut itself does with window_thread.
     int window_background;
+    /// 1 (needs window_background): the cut rebuilds its window on a thread of its own.
+    /// hs_cut_sweep starts a build when one is due (hs_cut_window_due) and swaps a finished
+    /// one in; under PARTIAL in a sweep that changed nothing, or at the latest in the 5th that
+    /// did after the build ended (the swap's partial refactor costs about an in-window sweep).
+    /// The begin and finish costs count in the sweep's times; hs_cut_window_begin, _build and
+    /// _finish then refuse; hs_cut_window_stats reports the builds.
+    int window_thread;
     /// A rebuild is due (hs_cut_window_due) once the blade has travelled this fraction of
     /// window_ahead_m from where the window was chosen; in (0, 1], default 0.5. Lower it when
     /// a build takes longer than the blade needs for the rest of the window.
@@ -130,6 +138,7 @@ typedef struct hs_cut_result {
     int changed_elements;     ///< element changes applied to the factor (+ pin blocks)
     int refactored;           ///< 1 when the factor was rebuilt instead of updated
     int rewindowed;           ///< 1 when it was rebuilt with a new window (def.window_radius_m)
+    int window_started;       ///< 1 when the cut's window thread began a build (window_thread)
     double cut_length_m;      ///< summed length of distinct mesh edges crossing the sweep, m
     double geometry_ms;       ///< crossing test, moves, guard, fragments, ms
     double factor_ms;         ///< element matrices + factor update, ms
@@ -216,6 +225,17 @@ hs_status hs_cut_window_build(hs_cut* cut, hs_err* err);
 /// it in a step that cut nothing where possible. The replaced factor is kept until the next
 /// build. Thread: deformation | Allocates: on growth only
 hs_status hs_cut_window_finish(hs_cut* cut, hs_err* err);
+
+/// Rebuilds made by the cut's own window thread (def.window_thread).
+typedef struct hs_cut_window_stats {
+    int builds;      ///< builds started
+    int swapped;     ///< finished builds swapped in
+    int failed;      ///< builds that failed (the sweeps went on with the factor they had)
+    int running;     ///< 1 while a build is under way
+    double build_ms; ///< mean wall time of the finished builds, ms
+} hs_cut_window_stats;
+/// Thread: deformation | Allocates: no
+void hs_cut_window_stats_get(const hs_cut* cut, hs_cut_window_stats* out);
 
 /// Static linear solve K u = f with the kept factor: f[3n] nodal forces (N) in, u[3n] (m) out;
 /// fixed and pinned nodes get zero; HS_ERR_INVALID without a factor (NONE). Allocates: no.

@@ -5,6 +5,7 @@
 
 #include <math.h>
 #include <pthread.h>
+#include <stdatomic.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -108,9 +109,17 @@ struct hs_cut {
     int *bg_pos, *bg_set; // [n_free] union marks of the catch-up (-1 outside)
     int n_bgu;            // PARTIAL: free dofs K changed in since begin (in bg_set)
     int bg_all;           // PARTIAL: K was reassembled since begin (redo everything)
-    int bg_cap;           // blocks bg_k / bg_d hold
-    double* bg_k;         // [144 bg_cap] one catch-up group: + blocks, then - blocks
-    int* bg_d;            // [12 bg_cap]
+    // The cut's own build thread (def.window_thread); the rest is the deformation thread's.
+    pthread_t wt;
+    int wt_running;     // a build thread is started and not yet joined
+    atomic_int wt_done; // set by the build thread when hs_cut_window_build returned
+    double wt_ms;       // its wall time (written before wt_done)
+    int wt_waited;      // changing sweeps since the build ended (PARTIAL swap rule)
+    hs_cut_window_stats wstats;
+    double wt_ms_sum;
+    int bg_cap;   // blocks bg_k / bg_d hold
+    double* bg_k; // [144 bg_cap] one catch-up group: + blocks, then - blocks
+    int* bg_d;    // [12 bg_cap]
 
     // tracked compliance
     hs_cut_compliance_mode cmode;
@@ -151,6 +160,7 @@ hs_cut_def hs_cut_default_def(void) {
 void hs_cut_destroy(hs_cut** pc) {
     if (!pc || !*pc) return;
     hs_cut* c = *pc;
+    if (c->wt_running) pthread_join(c->wt, NULL); // its build reads the snapshot and bg_f
     hs_fem_destroy(&c->fem);
     hs_csc_destroy(&c->a);
     hs_cholesky_destroy(&c->factor);
@@ -498,6 +508,10 @@ hs_status hs_cut_create(hs_mesh* mesh, const unsigned char* fixed, const hs_cut_
         return hs_err_set(err, HS_ERR_INVALID,
                           "cut: a PARTIAL window is rebuilt in the background only (set "
                           "window_background)");
+    if (def->window_thread && !(def->window_radius_m > 0 && def->window_background))
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "cut: window_thread needs a window (window_radius_m > 0) rebuilt in "
+                          "the background (window_background)");
     if (mesh->n_nodes <= 0 || mesh->n_tets <= 0 || !mesh->node_used)
         return hs_err_set(err, HS_ERR_INVALID, "cut: mesh is empty or not finalized");
     hs_cut* c = hs_calloc(1, sizeof *c);
@@ -1270,7 +1284,7 @@ int hs_cut_window_due(const hs_cut* c) {
     return !c->have_win || along < -r || side2 > r * r;
 }
 
-hs_status hs_cut_window_begin(hs_cut* c, hs_err* err) {
+static hs_status window_begin(hs_cut* c, hs_err* err) {
     if (!c || !(c->def.window_radius_m > 0) || !c->have_blade)
         return hs_err_set(err, HS_ERR_INVALID, "cut: no window radius set or no sweep yet");
     if (c->bg_state)
@@ -1365,7 +1379,7 @@ static hs_status catch_up(hs_cut* c) {
     }
 }
 
-hs_status hs_cut_window_build(hs_cut* c, hs_err* err) {
+static hs_status window_build(hs_cut* c, hs_err* err) {
     // bg_state is the deformation thread's: not read here (the caller orders the calls).
     if (!c || !c->bg_a)
         return hs_err_set(err, HS_ERR_INVALID, "cut: window build without hs_cut_window_begin");
@@ -1388,7 +1402,7 @@ hs_status hs_cut_window_build(hs_cut* c, hs_err* err) {
     return st;
 }
 
-hs_status hs_cut_window_finish(hs_cut* c, hs_err* err) {
+static hs_status window_finish(hs_cut* c, hs_err* err) {
     if (!c || c->bg_state != 1 || !c->bg_built)
         return hs_err_set(err, HS_ERR_INVALID, "cut: window finish without begin and build");
     c->bg_state = 0;
@@ -1437,6 +1451,83 @@ hs_status hs_cut_window_finish(hs_cut* c, hs_err* err) {
     c->have_win = 1;
     c->updates_since_refactor = 0;
     return HS_OK;
+}
+
+static hs_status refuse_own_thread(hs_err* err) {
+    return hs_err_set(err, HS_ERR_INVALID,
+                      "cut: the window is rebuilt by the cut's own thread "
+                      "(window_thread)");
+}
+
+hs_status hs_cut_window_begin(hs_cut* c, hs_err* err) {
+    if (c && c->def.window_thread) return refuse_own_thread(err);
+    return window_begin(c, err);
+}
+
+hs_status hs_cut_window_build(hs_cut* c, hs_err* err) {
+    if (c && c->def.window_thread) return refuse_own_thread(err);
+    return window_build(c, err);
+}
+
+hs_status hs_cut_window_finish(hs_cut* c, hs_err* err) {
+    if (c && c->def.window_thread) return refuse_own_thread(err);
+    return window_finish(c, err);
+}
+
+static void* window_thread_main(void* arg) {
+    hs_cut* c = arg;
+    hs_err e;
+    int64_t t0 = hs_now_ns();
+    (void)window_build(c, &e); // its status reaches finish through bg_status
+    c->wt_ms = (double)(hs_now_ns() - t0) * 1e-6;
+    atomic_store_explicit(&c->wt_done, 1, memory_order_release);
+    return NULL;
+}
+
+/// def.window_thread, after a sweep: swap in a finished build, then start one if due.
+static void window_thread_step(hs_cut* c, int changed, hs_cut_result* r) {
+    if (c->wt_running && atomic_load_explicit(&c->wt_done, memory_order_acquire)) {
+        // PARTIAL: the swap refactors what K changed in since the snapshot, a few ms on top
+        // of a changing sweep; in one that changed nothing it is the sweep's only cost.
+        int wait = partial_policy(c) && changed && ++c->wt_waited < 5;
+        if (!wait) {
+            pthread_join(c->wt, NULL);
+            c->wt_running = 0;
+            c->wt_waited = 0;
+            c->wt_ms_sum += c->wt_ms;
+            hs_err e;
+            if (window_finish(c, &e) == HS_OK) {
+                c->wstats.swapped++;
+                r->rewindowed = 1;
+            } else {
+                c->wstats.failed++; // the sweeps go on with the factor they have
+            }
+        }
+    }
+    if (!c->wt_running && hs_cut_window_due(c)) {
+        hs_err e;
+        if (window_begin(c, &e) != HS_OK) return; // out of memory: tried again next sweep
+        atomic_store_explicit(&c->wt_done, 0, memory_order_relaxed);
+        if (pthread_create(&c->wt, NULL, window_thread_main, c) == 0) {
+            c->wt_running = 1;
+            c->wstats.builds++;
+            r->window_started = 1;
+        } else { // no thread: drop the snapshot (begin again next sweep)
+            for (int i = 0; i < c->n_bgu; i++) c->bg_pos[c->bg_set[i]] = -1;
+            c->n_bgu = c->bg_all = 0;
+            c->bg_state = 0;
+        }
+    }
+}
+
+void hs_cut_window_stats_get(const hs_cut* c, hs_cut_window_stats* out) {
+    if (!out) return;
+    memset(out, 0, sizeof *out);
+    if (!c) return;
+    *out = c->wstats;
+    out->running = c->wt_running;
+    int ended = c->wstats.swapped + c->wstats.failed;
+    out->build_ms = ended > 0 ? c->wt_ms_sum / ended : 0;
 }
 
 hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const double p1[3],
@@ -1772,6 +1863,7 @@ done:
     for (int k = 0; k < c->n_changed; k++) c->tmark[c->changed[k]] = 0;
     for (int k = 0; k < n_moved; k++)
         memcpy(c->x0_old + 3 * c->moved[k], x0 + 3 * c->moved[k], 3 * sizeof(double));
+    if (st == HS_OK && c->def.window_thread) window_thread_step(c, r.changed_elements > 0, &r);
     r.topology_version = c->version;
     r.total_ms = (double)(hs_now_ns() - t0) * 1e-6;
     if (res) *res = r;

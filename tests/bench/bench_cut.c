@@ -108,26 +108,9 @@ typedef struct pass_stats {
 /// Two parallel partial cuts (80 % of the width, so no piece comes free) at 40 % and 60 % of
 /// the length, each the wound forming step by step under the blade (about 0.6 element of travel
 /// per step), with the given factor policy. Returns 0 on success.
-typedef struct bg_build {
-    hs_cut* cut;
-    pthread_t th;
-    atomic_int done;
-    double ms; // wall time of the build (incl. its catch-up)
-    hs_status st;
-} bg_build;
-
-static void* bg_build_main(void* arg) {
-    bg_build* b = arg;
-    hs_err e;
-    int64_t t0 = hs_now_ns();
-    b->st = hs_cut_window_build(b->cut, &e);
-    b->ms = (double)(hs_now_ns() - t0) * 1e-6;
-    atomic_store(&b->done, 1);
-    return NULL;
-}
-
-/// window: 0 none; 1 rebuilt in the sweep when left; 2 rebuilt on a second thread (begin and
-/// finish count in the step they run in, the build runs while the sweeps go on). paced: one
+/// window: 0 none; 1 rebuilt in the sweep when left; 2 rebuilt by the cut's own window thread
+/// (window_thread: begin and finish count in the sweep they run in, the build runs while the
+/// sweeps go on). paced: one
 /// sweep per 10 ms, as in a 100 Hz deformation loop (the server runs up to 60 Hz), after 30
 /// steps of the blade travelling towards the plate; else sweeps back to back. threads:
 /// hs_cut_def.factor_threads. twin (no window): a second cut with twin->threads factor threads
@@ -184,7 +167,7 @@ static int run_pass(const cut_case* cc, const hs_bench_args* args, hs_cut_factor
         // build takes about 40 % of the window's steps), the low-rank path's halfway.
         if (policy == HS_CUT_FACTOR_PARTIAL) def.window_due_fraction = 1.0 / 3.0;
         def.window_ahead_m = 14.0 * h;
-        def.window_background = window == 2;
+        def.window_background = def.window_thread = window == 2;
     }
     hs_cut *c = NULL, *c2 = NULL;
     st = hs_cut_create(m, fixed, &def, &c, &e);
@@ -211,9 +194,6 @@ static int run_pass(const cut_case* cc, const hs_bench_args* args, hs_cut_factor
     double factor2 = 0;
     long removed = 0, chg = 0;
     int n_steps = cc->file ? 30 : (sweep_axis == 1 ? cc->ny : cc->nz) * 2;
-    bg_build bg;
-    memset(&bg, 0, sizeof bg);
-    int bg_running = 0, bg_waited = 0;
     double travel = 0.8 * ext[sweep_axis] / n_steps;
     int failures = 0;
     int64_t next = hs_now_ns();
@@ -248,45 +228,13 @@ static int run_pass(const cut_case* cc, const hs_bench_args* args, hs_cut_factor
                 }
             }
             if (failures) break;
-            double extra = 0; // window begin/finish run in the deformation thread
-            if (window == 2) {
-                int swap = bg_running && atomic_load(&bg.done);
-                // PARTIAL: the swap refactors what K changed since the snapshot, a few ms;
-                // done in a step that cut nothing, at the latest 4 steps after the build.
-                if (swap && policy == HS_CUT_FACTOR_PARTIAL && r.changed_elements > 0 &&
-                    ++bg_waited < 5)
-                    swap = 0;
-                if (swap) {
-                    bg_waited = 0;
-                    pthread_join(bg.th, NULL);
-                    bg_running = 0;
-                    int64_t tf = hs_now_ns();
-                    if (bg.st != HS_OK || hs_cut_window_finish(c, &e) != HS_OK) failures++;
-                    extra += (double)(hs_now_ns() - tf) * 1e-6;
-                    ps->build_ms += bg.ms;
-                    ps->rewindows++;
-                }
-                if (!bg_running && hs_cut_window_due(c)) {
-                    int64_t tb = hs_now_ns();
-                    if (hs_cut_window_begin(c, &e) != HS_OK) failures++;
-                    extra += (double)(hs_now_ns() - tb) * 1e-6;
-                    bg.cut = c;
-                    atomic_store(&bg.done, 0);
-                    if (pthread_create(&bg.th, NULL, bg_build_main, &bg) != 0) {
-                        failures++;
-                    } else {
-                        bg_running = 1;
-                        ps->builds++;
-                    }
-                }
-            }
-            // A step that cuts nothing counts only if a window begin or finish ran in it.
-            if (r.changed_elements == 0 && extra == 0) continue;
+            // A sweep that cut nothing counts only if a window begin or finish ran in it.
+            if (r.changed_elements == 0 && !r.rewindowed && !r.window_started) continue;
             if (c2) {
                 ms2[ps->steps] = r2.total_ms;
                 factor2 += r2.factor_ms;
             }
-            ms[ps->steps++] = r.total_ms + extra;
+            ms[ps->steps++] = r.total_ms;
             removed += r.removed;
             chg += r.changed_elements;
             ps->geometry_ms += r.geometry_ms;
@@ -308,7 +256,6 @@ static int run_pass(const cut_case* cc, const hs_bench_args* args, hs_cut_factor
     if (ps->steps) {
         ps->removed_per_step = (double)removed / ps->steps;
         ps->changes = (double)chg / ps->steps;
-        if (ps->rewindows) ps->build_ms /= ps->rewindows;
         if (ps->updated) {
             ps->rank /= ps->updated;
             ps->union_dofs /= ps->updated;
@@ -327,7 +274,13 @@ static int run_pass(const cut_case* cc, const hs_bench_args* args, hs_cut_factor
         ps->p99 = hs_bench_percentile(ms, (size_t)ps->steps, 99);
         ps->max = hs_bench_percentile(ms, (size_t)ps->steps, 100);
     }
-    if (bg_running) pthread_join(bg.th, NULL);
+    if (window == 2) {
+        hs_cut_window_stats ws;
+        hs_cut_window_stats_get(c, &ws);
+        ps->builds = ws.builds;
+        ps->build_ms = ws.build_ms;
+        failures += ws.failed;
+    }
     free(fixed);
     hs_cut_destroy(&c);
     hs_cut_destroy(&c2);
