@@ -1565,12 +1565,15 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
     for (int e = 0; e < ne; e++) {
         if (!c->active[e]) continue;
         const int* t = T + 4 * e;
+        // Plain comparisons, not fmin/fmax (library calls here; x is finite): this loop
+        // visits every tet of the mesh each sweep.
         double tl[3], th[3];
         for (int d = 0; d < 3; d++) {
             tl[d] = th[d] = c->x[3 * t[0] + d];
             for (int a = 1; a < 4; a++) {
-                tl[d] = fmin(tl[d], c->x[3 * t[a] + d]);
-                th[d] = fmax(th[d], c->x[3 * t[a] + d]);
+                double v = c->x[3 * t[a] + d];
+                tl[d] = v < tl[d] ? v : tl[d];
+                th[d] = v > th[d] ? v : th[d];
             }
         }
         if (tl[0] > hi[0] || th[0] < lo[0] || tl[1] > hi[1] || th[1] < lo[1] || tl[2] > hi[2] ||
