@@ -106,6 +106,13 @@ typedef struct hs_cut_def {
     /// The begin and finish costs count in the sweep's times; hs_cut_window_begin, _build and
     /// _finish then refuse; hs_cut_window_stats reports the builds.
     int window_thread;
+    /// PARTIAL: keep windows only where they pay. The first window is swapped in only if a
+    /// partial refactor of all its dofs would redo at most this fraction of the flops it
+    /// redoes in the current (default-order) factor, both read from the factors' structure;
+    /// if not, the mesh is too compact or too small for windows and none is built again
+    /// (hs_cut_window_stats.off). Later windows are always swapped in. 0 (default): no test;
+    /// hs_cut_def_auto_window sets 0.5.
+    double window_accept_ratio;
     /// A rebuild is due (hs_cut_window_due) once the blade has travelled this fraction of
     /// window_ahead_m from where the window was chosen; in (0, 1], default 0.5. Lower it when
     /// a build takes longer than the blade needs for the rest of the window.
@@ -116,6 +123,13 @@ typedef struct hs_cut_def {
     int factor_threads;
     int cookie; ///< set by hs_cut_default_def
 } hs_cut_def;
+
+/// Turn on an update window sized to the mesh, rebuilt by the cut's own thread and kept only
+/// where it pays (PARTIAL, or AUTO taking it): with h the mean edge length, radius 3 h (a
+/// sweep's changes reach ~2.7 h from the blade), 14 h ahead, due a third of the way in,
+/// window_background and window_thread on, window_accept_ratio 0.5 (tuned on hapsim-bench
+/// cut: on plate5043 a sweep then redoes ~5 % of a factorisation instead of 25 %).
+void hs_cut_def_auto_window(hs_cut_def* def, const hs_mesh* mesh);
 
 /// Defaults: hs_fem_default_def()'s material, ORPHAN_PIN, FRAGMENT_DROP, volume ratio 0.1,
 /// quality 0.02, 8 bisections, tangent moves on, AUTO factor policy, validation on, no window,
@@ -203,7 +217,9 @@ hs_status hs_cut_validate(hs_cut* cut, hs_err* err);
 /// travelled def.window_due_fraction of its reach ahead; PARTIAL also when there is no window
 /// yet or the blade's midpoint has left its strip (farther than window_radius_m from the line
 /// it was chosen along, or behind its start), cutting or not. 0 while a rebuild is under way,
-/// and always under PARTIAL on a factor too small to be supernodal (no partial refactor).
+/// always under PARTIAL on a factor too small to be supernodal (no partial refactor), after a
+/// first window was refused (def.window_accept_ratio), and, while that first one is still to
+/// be judged, until a sweep changes the mesh.
 /// Thread: deformation | Allocates: no
 int hs_cut_window_due(const hs_cut* cut);
 /// Snapshot K and choose a new window around the last sweep's blade; sweeps from here on are
@@ -226,11 +242,14 @@ hs_status hs_cut_window_build(hs_cut* cut, hs_err* err);
 /// build. Thread: deformation | Allocates: on growth only
 hs_status hs_cut_window_finish(hs_cut* cut, hs_err* err);
 
-/// Rebuilds made by the cut's own window thread (def.window_thread).
+/// Window rebuilds: those of the cut's own thread (def.window_thread), and whether the first
+/// window paid (def.window_accept_ratio, with either kind of rebuild).
 typedef struct hs_cut_window_stats {
     int builds;      ///< builds started
     int swapped;     ///< finished builds swapped in
     int failed;      ///< builds that failed (the sweeps went on with the factor they had)
+    int refused;     ///< 1 when the first window did not pay (def.window_accept_ratio)
+    int off;         ///< 1 then: no more rebuilds
     int running;     ///< 1 while a build is under way
     double build_ms; ///< mean wall time of the finished builds, ms
 } hs_cut_window_stats;

@@ -121,6 +121,11 @@ hs_status hs_cholesky_refactor_partial(hs_cholesky* f, const hs_csc* a, int n_do
 int64_t hs_cholesky_partial_bytes(const hs_cholesky* f);
 /// Share of a full factorisation's flops the last partial refactor did (0..1).
 double hs_cholesky_partial_share(const hs_cholesky* f);
+/// Share of a full factorisation's flops a partial refactor of dofs[n_dofs] (original
+/// numbering) would redo, from the structure alone (nothing is computed); -1 without partial
+/// set-up or for a dof out of range. For comparing two orderings of the same matrix.
+/// Thread: the factor's | Allocates: no
+double hs_cholesky_partial_share_of(hs_cholesky* f, int n_dofs, const int* dofs);
 /// Threads for the partial refactor's large supernodes (over ~3 Mflop): 1 (the default before
 /// any call) or 2; 0: 2 when two or more processors are online, else 1.
 /// With 2, a helper thread (created here, joined by hs_cholesky_destroy or a call with 1) shares

@@ -116,6 +116,13 @@ struct hs_cut {
     double wt_ms;       // its wall time (written before wt_done)
     int wt_waited;      // changing sweeps since the build ended (PARTIAL swap rule)
     hs_cut_window_stats wstats;
+    // window_accept_ratio: the first window's dofs, the shares a partial refactor of them
+    // redoes in the current factor (begin) and in the built one (build).
+    int* est;
+    int n_est;
+    double est_old, est_new;
+    int win_off;      // a first window was refused: no more rebuilds
+    int last_changed; // element changes of the last sweep
     double wt_ms_sum;
     int bg_cap;   // blocks bg_k / bg_d hold
     double* bg_k; // [144 bg_cap] one catch-up group: + blocks, then - blocks
@@ -157,6 +164,23 @@ hs_cut_def hs_cut_default_def(void) {
     return d;
 }
 
+void hs_cut_def_auto_window(hs_cut_def* def, const hs_mesh* m) {
+    if (!def || !m || m->n_tets <= 0) return;
+    double h = 0; // mean length of each tet's first edge: the mesh's edge length
+    for (int t = 0; t < m->n_tets; t++) {
+        const double *a = m->x0 + 3 * m->tets[4 * t], *b = m->x0 + 3 * m->tets[4 * t + 1];
+        h += sqrt((a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1]) +
+                  (a[2] - b[2]) * (a[2] - b[2]));
+    }
+    h /= m->n_tets;
+    def->window_radius_m = 3.0 * h;
+    def->window_ahead_m = 14.0 * h;
+    def->window_due_fraction = 1.0 / 3.0; // a build takes ~40 % of a window's steps (plate5043)
+    def->window_background = 1;
+    def->window_thread = 1;
+    def->window_accept_ratio = 0.5;
+}
+
 void hs_cut_destroy(hs_cut** pc) {
     if (!pc || !*pc) return;
     hs_cut* c = *pc;
@@ -174,7 +198,7 @@ void hs_cut_destroy(hs_cut** pc) {
                  c->sol,    c->dk,       c->edof,     c->track,  c->cblk,     c->dset, c->dpos,
                  c->zbuf,   c->zd,       c->zt,       c->kdd,    c->wrk,      c->piv,  c->win,
                  c->bg_win, c->accp_k,   c->accm_k,   c->accp_d, c->accm_d,   c->accs, c->bg_pos,
-                 c->bg_set, c->bg_k,     c->bg_d,     c->tstamp, c->gopen};
+                 c->bg_set, c->bg_k,     c->bg_d,     c->tstamp, c->gopen,    c->est};
     if (c->has_lock) pthread_mutex_destroy(&c->bg_lock);
     for (size_t i = 0; i < sizeof p / sizeof p[0]; i++) hs_free(p[i]);
     hs_free(c);
@@ -508,6 +532,9 @@ hs_status hs_cut_create(hs_mesh* mesh, const unsigned char* fixed, const hs_cut_
         return hs_err_set(err, HS_ERR_INVALID,
                           "cut: a PARTIAL window is rebuilt in the background only (set "
                           "window_background)");
+    if (!(def->window_accept_ratio >= 0 && def->window_accept_ratio <= 1))
+        return hs_err_set(err, HS_ERR_INVALID, "cut: window accept ratio %g (0 <= r <= 1)",
+                          def->window_accept_ratio);
     if (def->window_thread && !(def->window_radius_m > 0 && def->window_background))
         return hs_err_set(err, HS_ERR_INVALID,
                           "cut: window_thread needs a window (window_radius_m > 0) rebuilt in "
@@ -1264,10 +1291,15 @@ static hs_status record_blocks(hs_cut* c, int m) {
 }
 
 int hs_cut_window_due(const hs_cut* c) {
-    if (!c || !(c->def.window_radius_m > 0) || c->bg_state || !c->have_blade) return 0;
+    if (!c || !(c->def.window_radius_m > 0) || c->bg_state || !c->have_blade || c->win_off)
+        return 0;
     // PARTIAL on a factor too small to be supernodal: no partial refactor (its sweeps
     // refactor, which is cheap there), so a window's build would fail. Never due.
     if (partial_policy(c) && !hs_cholesky_is_supernodal(c->factor)) return 0;
+    // A first window to be judged (window_accept_ratio) waits until the blade cuts: one
+    // chosen while it approaches would hold a few boundary dofs and say little about the mesh.
+    if (partial_policy(c) && c->def.window_accept_ratio > 0 && !c->have_win && c->last_changed == 0)
+        return 0;
     if (c->win_stale) return 1;
     // Ahead of time: the blade has used up window_due_fraction of the window's reach along its
     // travel, or (PARTIAL) its midpoint has left the window's strip (or there is none yet),
@@ -1313,6 +1345,17 @@ static hs_status window_begin(hs_cut* c, hs_err* err) {
     else
         hs_cut_assemble(c, c->bg_a);
     choose_window(c, c->blade, c->bg_win, c->bg_org, c->bg_dir);
+    // The first window is kept only if it pays: the share a partial refactor of all its dofs
+    // (every sweep inside it at once) redoes, in the new order against the current one.
+    c->est_old = c->est_new = -1;
+    if (c->def.window_accept_ratio > 0 && partial_policy(c) && !c->have_win) {
+        if (!c->est && !(c->est = hs_alloc(sizeof(int) * ((size_t)c->n_free + 1))))
+            return hs_err_set(err, HS_ERR_NOMEM, "cut: window rebuild: out of memory");
+        c->n_est = 0;
+        for (int d = 0; d < c->n_free; d++)
+            if (c->bg_win[d]) c->est[c->n_est++] = d;
+        c->est_old = hs_cholesky_partial_share_of(c->factor, c->n_est, c->est);
+    }
     c->n_accp = c->n_accm = c->n_accs = 0;
     c->n_bgu = c->bg_all = 0;
     c->bg_applied = 0;
@@ -1391,6 +1434,8 @@ static hs_status window_build(hs_cut* c, hs_err* err) {
         // dofs finish refactors (a short path when they lie in the new window).
         st = hs_cholesky_create_last_partial(c->bg_a, c->bg_win, &c->bg_f, err);
         if (st == HS_OK && !hs_cholesky_is_supernodal(c->bg_f)) st = HS_ERR_UNSUPPORTED;
+        if (st == HS_OK && c->est_old > 0)
+            c->est_new = hs_cholesky_partial_share_of(c->bg_f, c->n_est, c->est);
     } else {
         st = hs_cholesky_create_last(c->bg_a, c->bg_win, &c->bg_f, err);
         if (st == HS_OK) st = hs_cholesky_prepare_updates(c->bg_f, 0);
@@ -1402,7 +1447,8 @@ static hs_status window_build(hs_cut* c, hs_err* err) {
     return st;
 }
 
-static hs_status window_finish(hs_cut* c, hs_err* err) {
+static hs_status window_finish(hs_cut* c, int* swapped, hs_err* err) {
+    if (swapped) *swapped = 0;
     if (!c || c->bg_state != 1 || !c->bg_built)
         return hs_err_set(err, HS_ERR_INVALID, "cut: window finish without begin and build");
     c->bg_state = 0;
@@ -1413,6 +1459,18 @@ static hs_status window_finish(hs_cut* c, hs_err* err) {
         c->n_bgu = c->bg_all = 0;
         hs_cholesky_destroy(&c->bg_f);
         return hs_err_set(err, st, "cut: window build failed: %s", hs_status_str(st));
+    }
+    if (!c->have_win && c->est_old > 0 && c->est_new >= 0 &&
+        c->est_new > c->def.window_accept_ratio * c->est_old) {
+        // Windows do not pay on this mesh: the sweeps keep the factor they have (K's changes
+        // are in it) and no window is built again.
+        for (int i = 0; i < c->n_bgu; i++) c->bg_pos[c->bg_set[i]] = -1;
+        c->n_bgu = c->bg_all = 0;
+        c->wstats.refused++;
+        c->win_off = 1;
+        c->wstats.off = 1;
+        hs_cholesky_destroy(&c->bg_f);
+        return HS_OK;
     }
     if (partial_policy(c)) {
         // K itself is current (or reassembled here): refactor the dofs it changed in since
@@ -1450,6 +1508,7 @@ static hs_status window_finish(hs_cut* c, hs_err* err) {
     c->win_stale = 0;
     c->have_win = 1;
     c->updates_since_refactor = 0;
+    if (swapped) *swapped = 1;
     return HS_OK;
 }
 
@@ -1471,7 +1530,7 @@ hs_status hs_cut_window_build(hs_cut* c, hs_err* err) {
 
 hs_status hs_cut_window_finish(hs_cut* c, hs_err* err) {
     if (c && c->def.window_thread) return refuse_own_thread(err);
-    return window_finish(c, err);
+    return window_finish(c, NULL, err);
 }
 
 static void* window_thread_main(void* arg) {
@@ -1496,9 +1555,10 @@ static void window_thread_step(hs_cut* c, int changed, hs_cut_result* r) {
             c->wt_waited = 0;
             c->wt_ms_sum += c->wt_ms;
             hs_err e;
-            if (window_finish(c, &e) == HS_OK) {
-                c->wstats.swapped++;
-                r->rewindowed = 1;
+            int swapped = 0;
+            if (window_finish(c, &swapped, &e) == HS_OK) {
+                c->wstats.swapped += swapped;
+                r->rewindowed = swapped;
             } else {
                 c->wstats.failed++; // the sweeps go on with the factor they have
             }
@@ -1526,7 +1586,7 @@ void hs_cut_window_stats_get(const hs_cut* c, hs_cut_window_stats* out) {
     if (!c) return;
     *out = c->wstats;
     out->running = c->wt_running;
-    int ended = c->wstats.swapped + c->wstats.failed;
+    int ended = c->wstats.swapped + c->wstats.failed + c->wstats.refused;
     out->build_ms = ended > 0 ? c->wt_ms_sum / ended : 0;
 }
 
@@ -1552,7 +1612,7 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
             return hs_err_set(err, HS_ERR_INVALID, "cut: displacement of node %d is not finite",
                               k / 3);
     }
-    c->n_removed = c->n_moved = c->n_changed = c->n_pins = 0;
+    c->n_removed = c->n_moved = c->n_changed = c->n_pins = c->last_changed = 0;
 
     // 1. Crossing test against the two triangles of the swept quad.
     double lo[3], hi[3];
@@ -1774,6 +1834,7 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
         can_update = union_dofs(c, m) * per < c->refactor_ms;
     }
     r.changed_elements = need;
+    c->last_changed = need;
     if (can_update && c->n_track > 0 && m > 0 && c->cmode == HS_CUT_COMPLIANCE_WOODBURY) {
         st = update_compliance(c, m, 1);
         if (st != HS_OK) {

@@ -2124,3 +2124,20 @@ int64_t hs_cholesky_partial_bytes(const hs_cholesky* f) {
 double hs_cholesky_partial_share(const hs_cholesky* f) {
     return f && f->part ? f->part->last_share : 0;
 }
+
+double hs_cholesky_partial_share_of(hs_cholesky* f, int n_dofs, const int* dofs) {
+    struct hs_partial* p = f ? f->part : NULL;
+    if (!p || !f->pinv || n_dofs < 0 || (n_dofs > 0 && !dofs) || !(p->total_flops > 0)) return -1;
+    for (int k = 0; k < n_dofs; k++)
+        if (dofs[k] < 0 || dofs[k] >= f->n) return -1;
+    double done = 0;
+    for (int k = 0; k < n_dofs; k++)
+        for (int s = p->col_super[f->pinv[dofs[k]]]; s >= 0 && !p->mark[s]; s = p->parent[s]) {
+            p->mark[s] = 1;
+            done += p->flops[s];
+        }
+    for (int k = 0; k < n_dofs; k++) // clear the marks along the same paths
+        for (int s = p->col_super[f->pinv[dofs[k]]]; s >= 0 && p->mark[s]; s = p->parent[s])
+            p->mark[s] = 0;
+    return done / p->total_flops;
+}

@@ -104,6 +104,7 @@ typedef struct pass_stats {
     double dense_ms, refactor_ms;
     double share; // PARTIAL: mean share of a full factorisation's flops recomputed
     int reps;     // repetitions of the pass (fresh meshes)
+    int refused;  // built windows not swapped in (window_accept_ratio)
 } pass_stats;
 
 /// Two parallel partial cuts (80 % of the width, so no piece comes free) at 40 % and 60 % of
@@ -160,7 +161,10 @@ static int run_once(const cut_case* cc, const hs_bench_args* args, hs_cut_factor
     def.validate = 0;
     def.factor_policy = policy;
     def.factor_threads = threads;
-    if (window) {
+    if (window && policy == HS_CUT_FACTOR_PARTIAL) {
+        hs_cut_def_auto_window(&def, m); // kept only where it pays (window_accept_ratio)
+        def.window_background = def.window_thread = window == 2;
+    } else if (window) {
         // Window sized by the mean edge length h: the nodes a step touches lie within about
         // 2 h of the blade; 14 h ahead, a window lasts about 20 steps (tuned on plate5043).
         double h = 0;
@@ -170,12 +174,7 @@ static int run_once(const cut_case* cc, const hs_bench_args* args, hs_cut_factor
                       (a[2] - b[2]) * (a[2] - b[2]));
         }
         h /= m->n_tets;
-        // PARTIAL: 3 h, as its changes include every tet around a moved vertex (up to ~2.7 h
-        // from the blade) and one outside the window walks a long path.
-        def.window_radius_m = (policy == HS_CUT_FACTOR_PARTIAL ? 3.0 : 2.0) * h;
-        // PARTIAL: the window's factor is rebuilt a third of the way in (at 5,043 vertices a
-        // build takes about 40 % of the window's steps), the low-rank path's halfway.
-        if (policy == HS_CUT_FACTOR_PARTIAL) def.window_due_fraction = 1.0 / 3.0;
+        def.window_radius_m = 2.0 * h;
         def.window_ahead_m = 14.0 * h;
         def.window_background = def.window_thread = window == 2;
     }
@@ -262,8 +261,9 @@ static int run_once(const cut_case* cc, const hs_bench_args* args, hs_cut_factor
         hs_cut_window_stats ws;
         hs_cut_window_stats_get(c, &ws);
         ps->builds += ws.builds;
-        acc->build_sum += ws.build_ms * (ws.swapped + ws.failed);
-        acc->build_n += ws.swapped + ws.failed;
+        acc->build_sum += ws.build_ms * (ws.swapped + ws.failed + ws.refused);
+        acc->build_n += ws.swapped + ws.failed + ws.refused;
+        ps->refused += ws.refused;
         failures += ws.failed;
     }
     free(fixed);
@@ -380,10 +380,10 @@ static int run_case(const cut_case* cc, const hs_bench_args* args) {
         fprintf(stderr,
                 "cut: %s: background window (PARTIAL%s): step p50 %.3f ms p99 %.3f ms max %.3f "
                 "ms, %.2f of a factorisation's flops, %d refactored; %d builds of %.1f ms on a "
-                "second thread, %d swapped in; %d steps in %d passes\n",
+                "second thread, %d swapped in, %d refused as not paying; %d steps in %d passes\n",
                 cc->name, k ? ", one sweep per 10 ms" : ", sweeps back to back", w->p50, w->p99,
-                w->max, w->share, w->refactors, w->builds, w->build_ms, w->rewindows, w->steps,
-                w->reps);
+                w->max, w->share, w->refactors, w->builds, w->build_ms, w->rewindows, w->refused,
+                w->steps, w->reps);
     }
     fprintf(stderr,
             "cut: %s: PARTIAL without a window (default factor threads), one sweep per 10 ms: "
