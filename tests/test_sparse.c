@@ -894,6 +894,13 @@ static int CreateLastPartial(void) {
     ENSURE(hs_cholesky_refactor_partial(t.f, t.a, nd, dofs) == HS_OK);
     double sw = hs_cholesky_partial_share(w), sd = hs_cholesky_partial_share(t.f);
     ENSURE(ew == sw && ed == sd); // the structural estimates, two orders of one matrix
+    // The same two shares from the symbolic analyses alone, no factor needed.
+    double od = -1, ow = -1;
+    ENSURE(hs_cholesky_order_shares(t.a, last, nd, dofs, &od, &ow, &err) == HS_OK);
+    ENSURE(od == sd && ow == sw);
+    int oob = n;
+    ENSURE(hs_cholesky_order_shares(t.a, last, 1, &oob, &od, &ow, &err) == HS_ERR_INVALID);
+    ENSURE(hs_cholesky_order_shares(t.a, NULL, nd, dofs, &od, &ow, &err) == HS_ERR_INVALID);
     printf("  a change inside the window: share %.3f, in the default order %.3f\n", sw, sd);
     ENSURE(sw > 0 && sw < sd);
     ENSURE_SMALL(compare_with_fresh(w, t.a, t.b, t.x, x2), 1e-10);

@@ -106,12 +106,12 @@ typedef struct hs_cut_def {
     /// The begin and finish costs count in the sweep's times; hs_cut_window_begin, _build and
     /// _finish then refuse; hs_cut_window_stats reports the builds.
     int window_thread;
-    /// PARTIAL: keep windows only where they pay. The first window is swapped in only if a
-    /// partial refactor of all its dofs would redo at most this fraction of the flops it
-    /// redoes in the current (default-order) factor, both read from the factors' structure;
-    /// if not, the mesh is too compact or too small for windows and none is built again
-    /// (hs_cut_window_stats.off). Later windows are always swapped in. 0 (default): no test;
-    /// hs_cut_def_auto_window sets 0.5.
+    /// PARTIAL: keep windows only where they pay. At create, a probe window in the middle of
+    /// the mesh: if a partial refactor of all its dofs would redo more than this fraction of
+    /// the flops in the window's order than in the default one (CHOLMOD's symbolic analyses,
+    /// hs_cholesky_order_shares), the mesh is too compact or too small for windows and none is
+    /// ever due (hs_cut_window_stats.off). 0 (default): no probe; hs_cut_def_auto_window sets
+    /// 0.5.
     double window_accept_ratio;
     /// A rebuild is due (hs_cut_window_due) once the blade has travelled this fraction of
     /// window_ahead_m from where the window was chosen; in (0, 1], default 0.5. Lower it when
@@ -119,7 +119,8 @@ typedef struct hs_cut_def {
     double window_due_fraction;
     /// Threads of the partial refactor (PARTIAL, and AUTO when it takes that path): 1, or 2 to
     /// share its large supernodes with a helper thread (hs_cholesky_set_partial_threads);
-    /// 0: 2 when two or more processors are online, else 1.
+    /// 0: 2 when two or more processors are online, else 1; 1 with window_thread (unless its
+    /// probe turned windows off), whose builds take the second core.
     int factor_threads;
     int cookie; ///< set by hs_cut_default_def
 } hs_cut_def;
@@ -217,9 +218,8 @@ hs_status hs_cut_validate(hs_cut* cut, hs_err* err);
 /// travelled def.window_due_fraction of its reach ahead; PARTIAL also when there is no window
 /// yet or the blade's midpoint has left its strip (farther than window_radius_m from the line
 /// it was chosen along, or behind its start), cutting or not. 0 while a rebuild is under way,
-/// always under PARTIAL on a factor too small to be supernodal (no partial refactor), after a
-/// first window was refused (def.window_accept_ratio), and, while that first one is still to
-/// be judged, until a sweep changes the mesh.
+/// always under PARTIAL on a factor too small to be supernodal (no partial refactor), and when
+/// the probe of def.window_accept_ratio said windows do not pay on this mesh.
 /// Thread: deformation | Allocates: no
 int hs_cut_window_due(const hs_cut* cut);
 /// Snapshot K and choose a new window around the last sweep's blade; sweeps from here on are
@@ -242,16 +242,17 @@ hs_status hs_cut_window_build(hs_cut* cut, hs_err* err);
 /// build. Thread: deformation | Allocates: on growth only
 hs_status hs_cut_window_finish(hs_cut* cut, hs_err* err);
 
-/// Window rebuilds: those of the cut's own thread (def.window_thread), and whether the first
-/// window paid (def.window_accept_ratio, with either kind of rebuild).
+/// Window rebuilds by the cut's own thread (def.window_thread), and the probe of
+/// def.window_accept_ratio.
 typedef struct hs_cut_window_stats {
-    int builds;      ///< builds started
-    int swapped;     ///< finished builds swapped in
-    int failed;      ///< builds that failed (the sweeps went on with the factor they had)
-    int refused;     ///< 1 when the first window did not pay (def.window_accept_ratio)
-    int off;         ///< 1 then: no more rebuilds
-    int running;     ///< 1 while a build is under way
-    double build_ms; ///< mean wall time of the finished builds, ms
+    int builds;  ///< builds started
+    int swapped; ///< finished builds swapped in
+    int failed;  ///< builds that failed (the sweeps went on with the factor they had)
+    int off;     ///< 1: the probe at create said windows do not pay (no rebuilds)
+    double probe_share_default; ///< the probe's share in the default order (0: no probe)
+    double probe_share_window;  ///< and in the window's order
+    int running;                ///< 1 while a build is under way
+    double build_ms;            ///< mean wall time of the finished builds, ms
 } hs_cut_window_stats;
 /// Thread: deformation | Allocates: no
 void hs_cut_window_stats_get(const hs_cut* cut, hs_cut_window_stats* out);

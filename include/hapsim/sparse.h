@@ -126,6 +126,14 @@ double hs_cholesky_partial_share(const hs_cholesky* f);
 /// set-up or for a dof out of range. For comparing two orderings of the same matrix.
 /// Thread: the factor's | Allocates: no
 double hs_cholesky_partial_share_of(hs_cholesky* f, int n_dofs, const int* dofs);
+/// Whether an order with the flagged dofs last (last[i] != 0, as hs_cholesky_create_last)
+/// would shorten partial refactors of dofs[n_dofs]: the shares of a factorisation's flops they
+/// would redo in the default order and in that one, from CHOLMOD's symbolic analyses alone
+/// (no numeric factorisation; about a third of a create's time). HS_ERR_UNSUPPORTED when
+/// either factor would be simplicial. Allocates: yes (temporarily)
+hs_status hs_cholesky_order_shares(const hs_csc* a, const unsigned char* last, int n_dofs,
+                                   const int* dofs, double* share_default, double* share_last,
+                                   hs_err* err);
 /// Threads for the partial refactor's large supernodes (over ~3 Mflop): 1 (the default before
 /// any call) or 2; 0: 2 when two or more processors are online, else 1.
 /// With 2, a helper thread (created here, joined by hs_cholesky_destroy or a call with 1) shares

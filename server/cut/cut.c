@@ -116,13 +116,7 @@ struct hs_cut {
     double wt_ms;       // its wall time (written before wt_done)
     int wt_waited;      // changing sweeps since the build ended (PARTIAL swap rule)
     hs_cut_window_stats wstats;
-    // window_accept_ratio: the first window's dofs, the shares a partial refactor of them
-    // redoes in the current factor (begin) and in the built one (build).
-    int* est;
-    int n_est;
-    double est_old, est_new;
-    int win_off;      // a first window was refused: no more rebuilds
-    int last_changed; // element changes of the last sweep
+    int win_off; // window_accept_ratio: windows do not pay on this mesh (probe at create)
     double wt_ms_sum;
     int bg_cap;   // blocks bg_k / bg_d hold
     double* bg_k; // [144 bg_cap] one catch-up group: + blocks, then - blocks
@@ -198,7 +192,7 @@ void hs_cut_destroy(hs_cut** pc) {
                  c->sol,    c->dk,       c->edof,     c->track,  c->cblk,     c->dset, c->dpos,
                  c->zbuf,   c->zd,       c->zt,       c->kdd,    c->wrk,      c->piv,  c->win,
                  c->bg_win, c->accp_k,   c->accm_k,   c->accp_d, c->accm_d,   c->accs, c->bg_pos,
-                 c->bg_set, c->bg_k,     c->bg_d,     c->tstamp, c->gopen,    c->est};
+                 c->bg_set, c->bg_k,     c->bg_d,     c->tstamp, c->gopen};
     if (c->has_lock) pthread_mutex_destroy(&c->bg_lock);
     for (size_t i = 0; i < sizeof p / sizeof p[0]; i++) hs_free(p[i]);
     hs_free(c);
@@ -497,6 +491,75 @@ static hs_status build_face_neighbours(hs_cut* c) {
     return HS_OK;
 }
 
+static void choose_window(const hs_cut* c, const double* bl, unsigned char* mask, double* org,
+                          double* dir);
+static int partial_policy(const hs_cut* c);
+
+/// def.factor_threads, with 0 (by the processors) meaning one thread while the cut's own
+/// window thread builds on the second core.
+static int factor_threads(const hs_cut* c) {
+    if (c->def.factor_threads == 0 && c->def.window_thread && !c->win_off) return 1;
+    return c->def.factor_threads;
+}
+
+/// window_accept_ratio: does a window pay on this mesh? A probe window in the middle of the
+/// free nodes, its blade across the thinnest extent moving along the longest: a partial refactor
+/// of all its dofs (every sweep inside it at once) in the order with them last, against the
+/// default order, from symbolic analyses. Windows are turned off (win_off) when the ratio is
+/// above def.window_accept_ratio; kept when the probe cannot tell (out of memory, simplicial).
+static void probe_window(hs_cut* c) {
+    double ctr[3] = {0, 0, 0}, lo[3] = {0, 0, 0}, hi[3] = {0, 0, 0};
+    int nn = 0;
+    for (int i = 0; i < c->n; i++) {
+        if (c->dof[3 * i] < 0) continue;
+        for (int d = 0; d < 3; d++) {
+            double v = c->mesh->x0[3 * i + d];
+            ctr[d] += v;
+            lo[d] = nn == 0 || v < lo[d] ? v : lo[d];
+            hi[d] = nn == 0 || v > hi[d] ? v : hi[d];
+        }
+        nn++;
+    }
+    if (nn == 0) return;
+    int thin = 0, lng = 0;
+    for (int d = 0; d < 3; d++) {
+        ctr[d] /= nn;
+        if (hi[d] - lo[d] < hi[thin] - lo[thin]) thin = d;
+        if (hi[d] - lo[d] > hi[lng] - lo[lng]) lng = d;
+    }
+    if (thin == lng) lng = (thin + 1) % 3;
+    // The window starts at the centre and reaches window_ahead_m along the longest extent.
+    double bl[12], step = 0.01 * c->def.window_radius_m;
+    for (int d = 0; d < 3; d++) {
+        double half = d == thin ? 0.6 * (hi[d] - lo[d]) : 0.0;
+        bl[6 + d] = ctr[d] - half; // p1
+        bl[9 + d] = ctr[d] + half; // q1
+        bl[d] = bl[6 + d] - (d == lng ? step : 0.0);
+        bl[3 + d] = bl[9 + d] - (d == lng ? step : 0.0);
+    }
+    unsigned char* mask = hs_calloc((size_t)c->n_free + 1, 1);
+    int* dofs = hs_alloc(sizeof(int) * ((size_t)c->n_free + 1));
+    if (mask && dofs) {
+        double org[3], dir[3];
+        memcpy(c->x, c->mesh->x0, sizeof(double) * 3 * (size_t)c->n); // rest positions
+        choose_window(c, bl, mask, org, dir);
+        int nd = 0;
+        for (int k = 0; k < c->n_free; k++)
+            if (mask[k]) dofs[nd++] = k;
+        double sd = -1, sw = -1;
+        hs_err e;
+        if (nd > 0 && hs_cholesky_order_shares(c->a, mask, nd, dofs, &sd, &sw, &e) == HS_OK &&
+            sd > 0) {
+            c->wstats.probe_share_default = sd;
+            c->wstats.probe_share_window = sw;
+            c->win_off = sw > c->def.window_accept_ratio * sd;
+            c->wstats.off = c->win_off;
+        }
+    }
+    hs_free(mask);
+    hs_free(dofs);
+}
+
 hs_status hs_cut_create(hs_mesh* mesh, const unsigned char* fixed, const hs_cut_def* def,
                         hs_cut** out, hs_err* err) {
     if (!out) return hs_err_set(err, HS_ERR_INVALID, "cut: out is NULL");
@@ -687,9 +750,12 @@ hs_status hs_cut_create(hs_mesh* mesh, const unsigned char* fixed, const hs_cut_
             // guard refused) leaves L partly recomputed, so refactor it.
             if (ps != HS_OK && ps != HS_ERR_NOMEM) st = hs_cut_refactor(c);
         }
+        if (st == HS_OK && def->window_accept_ratio > 0 && def->window_radius_m > 0 &&
+            partial_policy(c) && hs_cholesky_is_supernodal(c->factor))
+            probe_window(c);
         // A helper thread that cannot start leaves the refactor on one thread.
         if (st == HS_OK && (def->factor_policy == HS_CUT_FACTOR_PARTIAL || c->auto_partial))
-            (void)hs_cholesky_set_partial_threads(c->factor, def->factor_threads);
+            (void)hs_cholesky_set_partial_threads(c->factor, factor_threads(c));
     }
     if (st != HS_OK) {
         hs_cut_destroy(&c);
@@ -1296,10 +1362,6 @@ int hs_cut_window_due(const hs_cut* c) {
     // PARTIAL on a factor too small to be supernodal: no partial refactor (its sweeps
     // refactor, which is cheap there), so a window's build would fail. Never due.
     if (partial_policy(c) && !hs_cholesky_is_supernodal(c->factor)) return 0;
-    // A first window to be judged (window_accept_ratio) waits until the blade cuts: one
-    // chosen while it approaches would hold a few boundary dofs and say little about the mesh.
-    if (partial_policy(c) && c->def.window_accept_ratio > 0 && !c->have_win && c->last_changed == 0)
-        return 0;
     if (c->win_stale) return 1;
     // Ahead of time: the blade has used up window_due_fraction of the window's reach along its
     // travel, or (PARTIAL) its midpoint has left the window's strip (or there is none yet),
@@ -1345,17 +1407,6 @@ static hs_status window_begin(hs_cut* c, hs_err* err) {
     else
         hs_cut_assemble(c, c->bg_a);
     choose_window(c, c->blade, c->bg_win, c->bg_org, c->bg_dir);
-    // The first window is kept only if it pays: the share a partial refactor of all its dofs
-    // (every sweep inside it at once) redoes, in the new order against the current one.
-    c->est_old = c->est_new = -1;
-    if (c->def.window_accept_ratio > 0 && partial_policy(c) && !c->have_win) {
-        if (!c->est && !(c->est = hs_alloc(sizeof(int) * ((size_t)c->n_free + 1))))
-            return hs_err_set(err, HS_ERR_NOMEM, "cut: window rebuild: out of memory");
-        c->n_est = 0;
-        for (int d = 0; d < c->n_free; d++)
-            if (c->bg_win[d]) c->est[c->n_est++] = d;
-        c->est_old = hs_cholesky_partial_share_of(c->factor, c->n_est, c->est);
-    }
     c->n_accp = c->n_accm = c->n_accs = 0;
     c->n_bgu = c->bg_all = 0;
     c->bg_applied = 0;
@@ -1434,8 +1485,6 @@ static hs_status window_build(hs_cut* c, hs_err* err) {
         // dofs finish refactors (a short path when they lie in the new window).
         st = hs_cholesky_create_last_partial(c->bg_a, c->bg_win, &c->bg_f, err);
         if (st == HS_OK && !hs_cholesky_is_supernodal(c->bg_f)) st = HS_ERR_UNSUPPORTED;
-        if (st == HS_OK && c->est_old > 0)
-            c->est_new = hs_cholesky_partial_share_of(c->bg_f, c->n_est, c->est);
     } else {
         st = hs_cholesky_create_last(c->bg_a, c->bg_win, &c->bg_f, err);
         if (st == HS_OK) st = hs_cholesky_prepare_updates(c->bg_f, 0);
@@ -1459,18 +1508,6 @@ static hs_status window_finish(hs_cut* c, int* swapped, hs_err* err) {
         c->n_bgu = c->bg_all = 0;
         hs_cholesky_destroy(&c->bg_f);
         return hs_err_set(err, st, "cut: window build failed: %s", hs_status_str(st));
-    }
-    if (!c->have_win && c->est_old > 0 && c->est_new >= 0 &&
-        c->est_new > c->def.window_accept_ratio * c->est_old) {
-        // Windows do not pay on this mesh: the sweeps keep the factor they have (K's changes
-        // are in it) and no window is built again.
-        for (int i = 0; i < c->n_bgu; i++) c->bg_pos[c->bg_set[i]] = -1;
-        c->n_bgu = c->bg_all = 0;
-        c->wstats.refused++;
-        c->win_off = 1;
-        c->wstats.off = 1;
-        hs_cholesky_destroy(&c->bg_f);
-        return HS_OK;
     }
     if (partial_policy(c)) {
         // K itself is current (or reassembled here): refactor the dofs it changed in since
@@ -1501,7 +1538,7 @@ static hs_status window_finish(hs_cut* c, int* swapped, hs_err* err) {
     hs_cholesky* old = c->factor;
     c->factor = c->bg_f;
     c->bg_f = old;
-    if (partial_policy(c)) (void)hs_cholesky_set_partial_threads(c->factor, c->def.factor_threads);
+    if (partial_policy(c)) (void)hs_cholesky_set_partial_threads(c->factor, factor_threads(c));
     memcpy(c->win, c->bg_win, (size_t)c->n_free);
     memcpy(c->win_org, c->bg_org, sizeof c->win_org);
     memcpy(c->win_dir, c->bg_dir, sizeof c->win_dir);
@@ -1586,7 +1623,7 @@ void hs_cut_window_stats_get(const hs_cut* c, hs_cut_window_stats* out) {
     if (!c) return;
     *out = c->wstats;
     out->running = c->wt_running;
-    int ended = c->wstats.swapped + c->wstats.failed + c->wstats.refused;
+    int ended = c->wstats.swapped + c->wstats.failed;
     out->build_ms = ended > 0 ? c->wt_ms_sum / ended : 0;
 }
 
@@ -1612,7 +1649,7 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
             return hs_err_set(err, HS_ERR_INVALID, "cut: displacement of node %d is not finite",
                               k / 3);
     }
-    c->n_removed = c->n_moved = c->n_changed = c->n_pins = c->last_changed = 0;
+    c->n_removed = c->n_moved = c->n_changed = c->n_pins = 0;
 
     // 1. Crossing test against the two triangles of the swept quad.
     double lo[3], hi[3];
@@ -1834,7 +1871,6 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
         can_update = union_dofs(c, m) * per < c->refactor_ms;
     }
     r.changed_elements = need;
-    c->last_changed = need;
     if (can_update && c->n_track > 0 && m > 0 && c->cmode == HS_CUT_COMPLIANCE_WOODBURY) {
         st = update_compliance(c, m, 1);
         if (st != HS_OK) {

@@ -104,7 +104,8 @@ typedef struct pass_stats {
     double dense_ms, refactor_ms;
     double share; // PARTIAL: mean share of a full factorisation's flops recomputed
     int reps;     // repetitions of the pass (fresh meshes)
-    int refused;  // built windows not swapped in (window_accept_ratio)
+    int off;      // window_accept_ratio's probe turned windows off
+    double probe_default, probe_window; // its shares
 } pass_stats;
 
 /// Two parallel partial cuts (80 % of the width, so no piece comes free) at 40 % and 60 % of
@@ -261,9 +262,11 @@ static int run_once(const cut_case* cc, const hs_bench_args* args, hs_cut_factor
         hs_cut_window_stats ws;
         hs_cut_window_stats_get(c, &ws);
         ps->builds += ws.builds;
-        acc->build_sum += ws.build_ms * (ws.swapped + ws.failed + ws.refused);
-        acc->build_n += ws.swapped + ws.failed + ws.refused;
-        ps->refused += ws.refused;
+        acc->build_sum += ws.build_ms * (ws.swapped + ws.failed);
+        acc->build_n += ws.swapped + ws.failed;
+        ps->off = ws.off;
+        ps->probe_default = ws.probe_share_default;
+        ps->probe_window = ws.probe_share_window;
         failures += ws.failed;
     }
     free(fixed);
@@ -327,10 +330,11 @@ static int run_case(const cut_case* cc, const hs_bench_args* args) {
     rc |= run_pass(cc, args, HS_CUT_FACTOR_UPDATE, 1, 0, 0, 0, NULL, 1, &wu);
     rc |= run_pass(cc, args, HS_CUT_FACTOR_AUTO, 1, 0, 0, 0, NULL, 1, &wa);
     rc |= run_pass(cc, args, HS_CUT_FACTOR_UPDATE, 2, 0, 0, 0, NULL, 1, &wb);
-    // PARTIAL with a background window: its partial refactors on one thread, the builds on
-    // the other core; paced, against the plain PARTIAL pass paced the same way.
-    rc |= run_pass(cc, args, HS_CUT_FACTOR_PARTIAL, 2, 0, 1, 0, NULL, 1, &pw);
-    rc |= run_pass(cc, args, HS_CUT_FACTOR_PARTIAL, 2, 1, 1, 0, NULL, 0, &pp);
+    // PARTIAL with the automatic window (hs_cut_def_auto_window): where its probe keeps
+    // windows, partial refactors on one thread and the builds on the other core, else plain
+    // PARTIAL on the default threads; paced, against the plain PARTIAL pass paced the same way.
+    rc |= run_pass(cc, args, HS_CUT_FACTOR_PARTIAL, 2, 0, 0, 0, NULL, 1, &pw);
+    rc |= run_pass(cc, args, HS_CUT_FACTOR_PARTIAL, 2, 1, 0, 0, NULL, 0, &pp);
     rc |= run_pass(cc, args, HS_CUT_FACTOR_PARTIAL, 0, 1, 0, 0, NULL, 0, &pn);
     const pass_stats* p1 = &one.ps;
     hs_mesh* m = NULL;
@@ -380,10 +384,11 @@ static int run_case(const cut_case* cc, const hs_bench_args* args) {
         fprintf(stderr,
                 "cut: %s: background window (PARTIAL%s): step p50 %.3f ms p99 %.3f ms max %.3f "
                 "ms, %.2f of a factorisation's flops, %d refactored; %d builds of %.1f ms on a "
-                "second thread, %d swapped in, %d refused as not paying; %d steps in %d passes\n",
+                "second thread, %d swapped in (probe: share %.3f in the window's order against "
+                "%.3f: windows %s); %d steps in %d passes\n",
                 cc->name, k ? ", one sweep per 10 ms" : ", sweeps back to back", w->p50, w->p99,
-                w->max, w->share, w->refactors, w->builds, w->build_ms, w->rewindows, w->refused,
-                w->steps, w->reps);
+                w->max, w->share, w->refactors, w->builds, w->build_ms, w->rewindows,
+                w->probe_window, w->probe_default, w->off ? "off" : "kept", w->steps, w->reps);
     }
     fprintf(stderr,
             "cut: %s: PARTIAL without a window (default factor threads), one sweep per 10 ms: "
