@@ -166,17 +166,12 @@ static int run_once(const cut_case* cc, const hs_bench_args* args, hs_cut_factor
         hs_cut_def_auto_window(&def, m); // kept only where it pays (window_accept_ratio)
         def.window_background = def.window_thread = window == 2;
     } else if (window) {
-        // Window sized by the mean edge length h: the nodes a step touches lie within about
-        // 2 h of the blade; 14 h ahead, a window lasts about 20 steps (tuned on plate5043).
-        double h = 0;
-        for (int t = 0; t < m->n_tets; t++) {
-            const double *a = m->x0 + 3 * m->tets[4 * t], *b = m->x0 + 3 * m->tets[4 * t + 1];
-            h += sqrt((a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1]) +
-                      (a[2] - b[2]) * (a[2] - b[2]));
-        }
-        h /= m->n_tets;
-        def.window_radius_m = 2.0 * h;
-        def.window_ahead_m = 14.0 * h;
+        // The low-rank policies: radius 2 h (the auto window's 3 h covers PARTIAL's wider
+        // changes), 14 h ahead (a window lasts about 20 steps on plate5043), due halfway.
+        hs_cut_def_auto_window(&def, m);
+        def.window_radius_m *= 2.0 / 3.0;
+        def.window_due_fraction = 0.5;
+        def.window_accept_ratio = 0;
         def.window_background = def.window_thread = window == 2;
     }
     hs_cut *c = NULL, *c2 = NULL;
