@@ -126,7 +126,8 @@ typedef struct hs_cut_def {
 } hs_cut_def;
 
 /// Turn on an update window sized to the mesh, rebuilt by the cut's own thread and kept only
-/// where it pays (PARTIAL, or AUTO taking it): with h the mean edge length, radius 3 h (a
+/// where it pays (PARTIAL, or AUTO taking it): with h the mean length of the tets' first
+/// edges (the mesh's edge length), radius 3 h (a
 /// sweep's changes reach ~2.7 h from the blade), 14 h ahead, due a third of the way in,
 /// window_background and window_thread on, window_accept_ratio 0.5 (tuned on hapsim-bench
 /// cut: on plate5043 a sweep then redoes ~5 % of a factorisation instead of 25 %).

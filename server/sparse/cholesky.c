@@ -2216,20 +2216,3 @@ hs_status hs_cholesky_order_shares(const hs_csc* a, const unsigned char* last, i
     hs_free(perm);
     return st;
 }
-
-double hs_cholesky_partial_share_of(hs_cholesky* f, int n_dofs, const int* dofs) {
-    struct hs_partial* p = f ? f->part : NULL;
-    if (!p || !f->pinv || n_dofs < 0 || (n_dofs > 0 && !dofs) || !(p->total_flops > 0)) return -1;
-    for (int k = 0; k < n_dofs; k++)
-        if (dofs[k] < 0 || dofs[k] >= f->n) return -1;
-    double done = 0;
-    for (int k = 0; k < n_dofs; k++)
-        for (int s = p->col_super[f->pinv[dofs[k]]]; s >= 0 && !p->mark[s]; s = p->parent[s]) {
-            p->mark[s] = 1;
-            done += p->flops[s];
-        }
-    for (int k = 0; k < n_dofs; k++) // clear the marks along the same paths
-        for (int s = p->col_super[f->pinv[dofs[k]]]; s >= 0 && p->mark[s]; s = p->parent[s])
-            p->mark[s] = 0;
-    return done / p->total_flops;
-}
