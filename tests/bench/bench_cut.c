@@ -108,16 +108,15 @@ typedef struct pass_stats {
     double probe_default, probe_window; // its shares
 } pass_stats;
 
-/// Two parallel partial cuts (80 % of the width, so no piece comes free) at 40 % and 60 % of
-/// the length, each the wound forming step by step under the blade (about 0.6 element of travel
-/// per step), with the given factor policy. Returns 0 on success.
-/// window: 0 none; 1 rebuilt in the sweep when left; 2 rebuilt by the cut's own window thread
-/// (window_thread: begin and finish count in the sweep they run in, the build runs while the
-/// sweeps go on). paced: one
-/// sweep per 10 ms, as in a 100 Hz deformation loop (the server runs up to 60 Hz), after 30
-/// steps of the blade travelling towards the plate; else sweeps back to back. threads:
-/// hs_cut_def.factor_threads. twin (no window): a second cut with twin->threads factor threads
-/// takes every sweep too, the two in alternating order, its times into twin->ps.
+/// A pass: two parallel partial cuts (80 % of the width, so no piece comes free) at 40 % and
+/// 60 % of the length, each the wound forming step by step under the blade (about 0.6 element
+/// of travel per step), with the given factor policy. window: 0 none; 1 rebuilt in the sweep when
+/// left; 2 rebuilt by the cut's own window thread (window_thread: begin and finish count in the
+/// sweep they run in, the build runs while the sweeps go on). paced: one sweep per 10 ms, as in a
+/// 100 Hz deformation loop (the server runs up to 60 Hz), after 30 steps of the blade travelling
+/// towards the plate; else sweeps back to back. threads: hs_cut_def.factor_threads. twin (no
+/// window): a second cut with twin->threads factor threads takes every sweep too, the two in
+/// alternating order, its times into twin->ps.
 typedef struct twin_pass {
     int threads;
     pass_stats ps;
@@ -134,6 +133,7 @@ typedef struct pass_acc {
 } pass_acc;
 
 /// One repetition of a pass (a fresh mesh and cut), its samples appended to acc, sums to ps.
+/// Returns 0 on success.
 static int run_once(const cut_case* cc, const hs_bench_args* args, hs_cut_factor_policy policy,
                     int window, int paced, int threads, int measure_reference, twin_pass* twin,
                     pass_stats* ps, pass_acc* acc) {
@@ -282,14 +282,15 @@ static int run_pass(const cut_case* cc, const hs_bench_args* args, hs_cut_factor
     if (twin) memset(&twin->ps, 0, sizeof twin->ps);
     pass_acc* acc = calloc(1, sizeof *acc);
     if (!acc) return 1;
-    int rc = 0, done = 0;
-    for (; !rc && (reps > 0 ? done < reps : done < 8 && ps->steps < 100); done++) {
+    int rc = 0;
+    while (!rc && (reps > 0 ? ps->reps < reps : ps->reps < 8 && ps->steps < 100)) {
         int before = ps->steps;
-        rc = run_once(cc, args, policy, window, paced, threads, measure_reference && done == 0,
+        rc = run_once(cc, args, policy, window, paced, threads, measure_reference && ps->reps == 0,
                       twin, ps, acc);
+        ps->reps++;
+        // Stop when a pass adds nothing or another like it would not fit.
         if (ps->steps == before || ps->steps + (ps->steps - before) > MAX_STEPS) break;
     }
-    ps->reps = done;
     if (ps->steps) {
         ps->removed_per_step = (double)acc->removed / ps->steps;
         ps->changes = (double)acc->chg / ps->steps;
