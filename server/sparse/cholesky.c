@@ -1503,6 +1503,11 @@ static void free_partial(struct hs_partial** pp) {
     *pp = NULL;
 }
 
+// Cost of recomputing a supernode of nc columns and m rows below them: potrf, trsm, syrk.
+static double supernode_flops(int nc, int m) {
+    return (double)nc * nc * nc / 3.0 + (double)m * nc * nc + (double)m * m * nc;
+}
+
 // Build the maps of a supernodal factor L for a matrix with a's pattern (both halves stored).
 static hs_status build_partial(const cholmod_factor* L, const hs_csc* a, struct hs_partial** out) {
     const int n = (int)L->n, ns = (int)L->nsuper;
@@ -1544,7 +1549,7 @@ static hs_status build_partial(const cholmod_factor* L, const hs_csc* a, struct 
         if (m > 0) p->child_start[p->parent[s] + 1]++;
         p->rel_start[s + 1] = p->rel_start[s] + m;
         p->u_start[s + 1] = p->u_start[s] + (size_t)m * (size_t)m;
-        p->flops[s] = (double)nc * nc * nc / 3.0 + (double)m * nc * nc + (double)m * m * nc;
+        p->flops[s] = supernode_flops(nc, m);
         p->total_flops += p->flops[s];
     }
     for (int s = 0; s < ns; s++) p->child_start[s + 1] += p->child_start[s];
@@ -2126,7 +2131,7 @@ double hs_cholesky_partial_share(const hs_cholesky* f) {
 }
 
 // Share of a factorisation's flops the paths from dofs to the root hold in a symbolic
-// supernodal factor L (the flops build_partial counts). -1 when out of memory.
+// supernodal factor L (the tree and costs build_partial derives). -1 when out of memory.
 static double symbolic_path_share(const cholmod_factor* L, int n_dofs, const int* dofs) {
     const int n = (int)L->n, ns = (int)L->nsuper;
     const int *super = L->super, *pi = L->pi, *ls = L->s, *perm = L->Perm;
@@ -2144,7 +2149,7 @@ static double symbolic_path_share(const cholmod_factor* L, int n_dofs, const int
         for (int s = 0; s < ns; s++) {
             int nc = super[s + 1] - super[s], m = pi[s + 1] - pi[s] - nc;
             parent[s] = m > 0 ? col_super[ls[pi[s] + nc]] : -1;
-            flops[s] = (double)nc * nc * nc / 3.0 + (double)m * nc * nc + (double)m * m * nc;
+            flops[s] = supernode_flops(nc, m);
             total += flops[s];
         }
         for (int k = 0; k < n_dofs; k++)
