@@ -93,17 +93,19 @@ typedef struct hs_haptic_sim_stats {
     int64_t cut_removed;       ///< tets removed so far
     int64_t topology_version;  ///< cut topology version (0 before the first cut)
     int64_t cut_failures;      ///< sweeps or compliance rebuilds that failed (state kept)
-    double cut_ms_last;     ///< last changing cut step: sweep + body sync + topology hand-over, ms
-    double cut_ms_max;      ///< worst of them, ms
-    double sweep_ms_last;   ///< of the last, the sweep (geometry, + factor update if kept), ms
-    double comp_ms_last;    ///< the last haptic compliance rebuild (background worker), ms
-    int64_t comp_version;   ///< topology version the compliance was built on (0: uncut)
-    int64_t comp_rebuilds;  ///< rebuilds swapped in
-    int64_t comp_discarded; ///< rebuilds dropped because a newer cut came meanwhile
-    int comp_building;      ///< 1 while a rebuild runs beside the deformation thread
-    int64_t loops;          ///< deformation-loop passes (it keeps going during rebuilds)
-    double cut_force_n[3];  ///< cutting resistance on the blade in the newest snapshot, N
-    int cutting;            ///< 1 when the newest sweep cut tissue
+    double cut_ms_last;      ///< last changing cut step: sweep + body sync + topology hand-over, ms
+    double cut_ms_max;       ///< worst of them, ms
+    double sweep_ms_last;    ///< of the last, the sweep (geometry, + factor update if kept), ms
+    double comp_ms_last;     ///< the last haptic compliance rebuild (background worker), ms
+    int64_t comp_version;    ///< topology version the compliance was built on (0: uncut)
+    int64_t comp_rebuilds;   ///< rebuilds swapped in
+    int64_t comp_discarded;  ///< rebuilds dropped because a newer cut came meanwhile
+    int comp_building;       ///< 1 while a rebuild runs beside the deformation thread
+    int64_t loops;           ///< deformation-loop passes (it keeps going during rebuilds)
+    double cut_force_n[3];   ///< cutting resistance on the blade in the newest snapshot, N
+    int cutting;             ///< 1 when the newest sweep cut tissue
+    double free_relax_w;     ///< relaxation of the contact-free surface in use (<= free_relax)
+    int64_t free_relax_cuts; ///< steps whose growing correction cut it (a diverging iteration)
 } hs_haptic_sim_stats;
 
 typedef struct hs_haptic_sim hs_haptic_sim;

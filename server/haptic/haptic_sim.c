@@ -106,6 +106,8 @@ typedef struct deform_status {
     int cutting;
     int64_t loops, comp_version, comp_rebuilds, comp_discarded;
     int comp_building;
+    double relax_w;
+    int64_t relax_cuts;
 } deform_status;
 
 // A boundary triangle and its distance from the tool (snapshot search).
@@ -167,6 +169,7 @@ struct hs_haptic_sim {
     double* rot;          // [9n] node rotations at the current state (identity for linear)
     double* q;            // [3n] contact-free positions of smesh's surface nodes (relaxed)
     int q_reset;          // the surface changed: set q exactly at the next snapshot
+    double relax_e;       // largest correction |target - q| of the last snapshot (< 0: none yet)
     int* near_node;       // [n+1] scratch (triangle adjacency)
     near_tri* near_tri;   // [tri_cap] triangles within reach of the tool, scratch
     int* cand_of;         // [n] candidate index of a node while a snapshot is built, else -1
@@ -296,6 +299,20 @@ static void node_rot(hs_haptic_sim* h, int node, double r[9]) {
     }
 }
 
+// A correction counts as diverging when it grows RELAX_GROWTH-fold in a step and exceeds this
+// share of the probe radius: the body's ringing under a held probe stays well inside both.
+#define RELAX_FLOOR  0.25
+#define RELAX_GROWTH 1.5
+
+// The contact-free position of a surface node: x - R (C R^T g) (h->v holds C R^T g).
+static void free_target(const hs_haptic_sim* h, int node, double t[3]) {
+    const double* xs = h->x + 3 * (size_t)node;
+    const double* uc = h->v + 3 * (size_t)node;
+    const double* R = h->rot + 9 * (size_t)node;
+    for (int a = 0; a < 3; ++a)
+        t[a] = xs[a] - (R[3 * a] * uc[0] + R[3 * a + 1] * uc[1] + R[3 * a + 2] * uc[2]);
+}
+
 // Build and publish the snapshot around tool position p from the body's current state.
 static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
     const hs_mesh* mesh = h->mesh;
@@ -336,18 +353,40 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
     // under-relaxed defect correction, which keeps converging where a large indentation makes
     // the true compliance much larger than the rest-state one (see docs/haptics.md).
     // A new surface (after a cut) starts from its exact target: its new nodes have no history.
-    const double w = h->q_reset ? 1.0 : h->def.probe.free_relax;
+    // Safeguard: where the body answers a force much less (or more) than C predicts (beyond
+    // ~0.8 r deep; after a cut, pieces the compliance leaves out that still tie the body
+    // together) the iteration diverges through the body's dynamics, and q ran 0.5 m off within
+    // three steps (a 10 N kick). So a correction that grows 1.5x (past r / 4) cuts w 4x, down to
+    // free_relax / 64; one that shrinks lets it recover 1.25x per step.
+    double e = 0;
+    for (int si = 0; si < ns; ++si) {
+        double t[3];
+        free_target(h, sm->surf_nodes[si], t);
+        const double* q = h->q + 3 * (size_t)sm->surf_nodes[si];
+        double d2 = 0;
+        for (int a = 0; a < 3; ++a) d2 += (t[a] - q[a]) * (t[a] - q[a]);
+        if (d2 > e) e = d2;
+    }
+    e = sqrt(e);
+    const double w_max = h->def.probe.free_relax, w_min = w_max / 64;
+    if (h->q_reset) {
+        h->st.relax_w = w_max;
+        h->relax_e = -1;
+    } else if (h->relax_e >= 0 && e > RELAX_GROWTH * h->relax_e && e > RELAX_FLOOR * r) {
+        h->st.relax_w = fmax(w_min, 0.25 * h->st.relax_w);
+        h->st.relax_cuts++;
+    } else if (h->relax_e >= 0 && e < h->relax_e) {
+        h->st.relax_w = fmin(w_max, 1.25 * h->st.relax_w);
+    }
+    const double w = h->q_reset ? 1.0 : h->st.relax_w;
+    h->relax_e = h->q_reset ? -1 : e;
     h->q_reset = 0;
     for (int si = 0; si < ns; ++si) {
         int node = sm->surf_nodes[si];
-        const double* xs = h->x + 3 * node;
-        const double* uc = h->v + 3 * node;
-        const double* R = h->rot + 9 * (size_t)node;
+        double t[3];
+        free_target(h, node, t);
         double* q = h->q + 3 * (size_t)node;
-        for (int a = 0; a < 3; ++a) {
-            double t = xs[a] - (R[3 * a] * uc[0] + R[3 * a + 1] * uc[1] + R[3 * a + 2] * uc[2]);
-            q[a] += w * (t - q[a]);
-        }
+        for (int a = 0; a < 3; ++a) q[a] += w * (t[a] - q[a]);
     }
 
     // Contact surface: the boundary triangles (all three vertices contactable) within reach of
@@ -944,6 +983,8 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
     for (size_t i = 0; i < n; ++i) h->cand_of[i] = -1;
     if (build_tri_adjacency(h) != HS_OK) goto nomem;
     memcpy(h->q, mesh->x0, 3 * n * sizeof(double));
+    h->st.relax_w = def->probe.free_relax;
+    h->relax_e = -1;
 
     h->frame_size = sizeof(int64_t) + 3 * n * sizeof(double);
     s = hs_triple_buffer_create(sizeof(sim_snapshot), &h->snap, err);
@@ -1259,6 +1300,8 @@ void hs_haptic_sim_stats_get(hs_haptic_sim* h, hs_haptic_sim_stats* out) {
     out->comp_rebuilds = ds.comp_rebuilds;
     out->comp_discarded = ds.comp_discarded;
     out->comp_building = ds.comp_building;
+    out->free_relax_w = ds.relax_w;
+    out->free_relax_cuts = ds.relax_cuts;
     memcpy(out->cut_force_n, ds.cut_force_n, sizeof out->cut_force_n);
     out->cutting = ds.cutting;
     out->topology_version = atomic_load(&h->topo_version);
