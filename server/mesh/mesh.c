@@ -890,3 +890,101 @@ hs_status hs_mesh_write_vtk(const hs_mesh* m, const double* u, const char* path,
     bad |= fclose(f) != 0;
     return bad ? hs_err_set(err, HS_ERR_IO, "%s: write failed", path) : HS_OK;
 }
+
+// ---------------------------------------------------------------------------------------------
+// Held pieces
+
+// 1 when c is off the line through a and b (a != b), at the cut's tolerance.
+static int off_line(const double* a, const double* b, const double* c) {
+    double d1[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
+    double d2[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+    double x[3] = {d1[1] * d2[2] - d1[2] * d2[1], d1[2] * d2[0] - d1[0] * d2[2],
+                   d1[0] * d2[1] - d1[1] * d2[0]};
+    double l1 = d1[0] * d1[0] + d1[1] * d1[1] + d1[2] * d1[2];
+    double l2 = d2[0] * d2[0] + d2[1] * d2[1] + d2[2] * d2[2];
+    return x[0] * x[0] + x[1] * x[1] + x[2] * x[2] > 1e-12 * l1 * l2;
+}
+
+int hs_mesh_admit_held_pieces(int n_nodes, const double* x0, int n_tets, int* tets, int n_kept,
+                              const unsigned char* anchor) {
+    if (n_nodes < 0 || n_tets < 0 || n_kept < 0 || n_kept > n_tets ||
+        (n_tets > 0 && (!tets || !x0)))
+        return -1;
+    for (int k = 0; k < 4 * n_tets; ++k)
+        if (tets[k] < 0 || tets[k] >= n_nodes) return -1;
+    const int nc = n_tets - n_kept;
+    if (nc == 0) return n_kept;
+    int* cand = tets + 4 * (size_t)n_kept;
+    unsigned char* held = hs_calloc((size_t)n_nodes + 1, 1);
+    unsigned char* in = hs_calloc((size_t)nc, 1); // admitted
+    int* par = hs_alloc((size_t)nc * sizeof(int));
+    int* fa = hs_alloc((size_t)nc * sizeof(int));
+    int* fb = hs_alloc((size_t)nc * sizeof(int));
+    unsigned char* ok = hs_alloc((size_t)nc);
+    face_key* fk = hs_alloc(4 * (size_t)nc * sizeof(face_key));
+    int* copy = hs_alloc(4 * (size_t)nc * sizeof(int));
+    int result = -1;
+    if (!held || !in || !par || !fa || !fb || !ok || !fk || !copy) goto done;
+    for (int v = 0; v < n_nodes && anchor; ++v) held[v] = anchor[v] != 0;
+    for (int k = 0; k < 4 * n_kept; ++k) held[tets[k]] = 1;
+    // Pieces: candidates joined through shared faces.
+    for (int i = 0; i < nc; ++i) {
+        par[i] = i;
+        for (int f = 0; f < 4; ++f) {
+            face_key* key = fk + 4 * i + f;
+            for (int j = 0, m = 0; j < 4; ++j)
+                if (j != f) key->k[m++] = cand[4 * i + j];
+            sort3(key->k);
+            key->slot = 4 * i + f;
+            key->parity = 0;
+        }
+    }
+    qsort(fk, 4 * (size_t)nc, sizeof *fk, cmp_face_key);
+    for (int k = 1; k < 4 * nc; ++k)
+        if (!memcmp(fk[k].k, fk[k - 1].k, sizeof fk[k].k)) {
+            int r0 = find_root(par, fk[k - 1].slot / 4), r1 = find_root(par, fk[k].slot / 4);
+            if (r0 != r1) par[r1] = r0;
+        }
+    // Admit the pieces three non-collinear held nodes hold, round by round.
+    int admitted = 0, changed = 1;
+    while (changed) {
+        changed = 0;
+        for (int i = 0; i < nc; ++i) fa[i] = fb[i] = -1, ok[i] = 0;
+        for (int i = 0; i < nc; ++i) {
+            int r = find_root(par, i);
+            for (int a = 0; a < 4 && !in[i] && !ok[r]; ++a) {
+                int v = cand[4 * i + a];
+                if (!held[v] || fa[r] == v || fb[r] == v) continue;
+                if (fa[r] < 0)
+                    fa[r] = v;
+                else if (fb[r] < 0)
+                    fb[r] = v;
+                else
+                    ok[r] = off_line(x0 + 3 * fa[r], x0 + 3 * fb[r], x0 + 3 * v);
+            }
+        }
+        for (int i = 0; i < nc; ++i) {
+            if (in[i] || !ok[find_root(par, i)]) continue;
+            in[i] = 1;
+            ++admitted;
+            changed = 1;
+            for (int a = 0; a < 4; ++a) held[cand[4 * i + a]] = 1;
+        }
+    }
+    // Admitted candidates first.
+    memcpy(copy, cand, 4 * (size_t)nc * sizeof(int));
+    for (int pass = 0, k = 0; pass < 2; ++pass)
+        for (int i = 0; i < nc; ++i)
+            if (in[i] == (pass == 0)) memcpy(cand + 4 * k++, copy + 4 * i, 4 * sizeof(int));
+    result = n_kept + admitted;
+done:
+    hs_free(held);
+    hs_free(in);
+    hs_free(par);
+    hs_free(fa);
+    hs_free(fb);
+    hs_free(ok);
+    hs_free(fk);
+    hs_free(copy);
+    return result;
+}
