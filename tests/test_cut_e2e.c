@@ -308,30 +308,35 @@ static int test_blade_drag(void) {
     ENSURE(loops_building1 - loops_building0 > 10); // ... beside the loop, not in it
     // ... and it is the compliance of the cut body: diagonal blocks as a fresh one's.
     // The compliance keeps the live tets with a node the cuts did not pin (pieces cut free or
-    // hanging on by an edge or a vertex move in the body, which holds nothing new), and holds
-    // the fixed nodes and those no kept tet uses.
+    // hanging on by an edge or a vertex move in the body, which holds nothing new) and the
+    // pinned pieces three non-collinear kept or fixed nodes hold, and holds the fixed nodes and
+    // those no kept tet uses.
     unsigned char* pin = hs_calloc((size_t)n, 1);
     unsigned char* fix2 = hs_alloc((size_t)n);
     int* live = hs_alloc(4 * (size_t)ntet * sizeof(int));
     ENSURE(pin && fix2 && live);
     int pinned = hs_haptic_sim_cut_pinned(sim, pin);
     memset(fix2, 1, (size_t)n);
-    int nlive = 0, left_out = 0;
-    for (int e = 0; e < ntet; ++e) {
-        if (gone[e]) continue;
-        const int* te = m->tets + 4 * e;
-        if (pin[te[0]] && pin[te[1]] && pin[te[2]] && pin[te[3]]) {
-            left_out++;
-            continue;
+    int nlive = 0, nall = 0;
+    for (int pass = 0; pass < 2; ++pass)
+        for (int e = 0; e < ntet; ++e) {
+            const int* te = m->tets + 4 * e;
+            int all_pinned = pin[te[0]] && pin[te[1]] && pin[te[2]] && pin[te[3]];
+            if (gone[e] || all_pinned != pass) continue;
+            memcpy(live + 4 * nall++, te, 4 * sizeof(int));
+            nlive += !all_pinned;
         }
-        memcpy(live + 4 * nlive++, te, 4 * sizeof(int));
-        for (int a = 0; a < 4; ++a) fix2[te[a]] = 0;
-    }
+    int pinned_tets = nall - nlive;
+    nlive = hs_mesh_admit_held_pieces(n, m->x0, nall, live, nlive, fixed);
+    ENSURE(nlive >= nall - pinned_tets);
+    int left_out = nall - nlive;
+    for (int k = 0; k < 4 * nlive; ++k) fix2[live[k]] = 0;
     for (int i = 0; i < n; ++i) fix2[i] |= fixed[i];
     hs_mesh* lm = NULL;
     ENSURE(hs_mesh_create(n, m->x0, nlive, live, &lm, &err) == HS_OK);
     hs_compliance* fresh = NULL;
-    printf("  %d pinned nodes, %d live tets of pinned pieces left out\n", pinned, left_out);
+    printf("  %d pinned nodes; of %d live tets of pinned pieces %d held and kept, %d left out\n",
+           pinned, pinned_tets, pinned_tets - left_out, left_out);
     ENSURE(hs_compliance_create(lm, &d.body.fem, fix2, d.probe.cache_nodes, &fresh, &err) == HS_OK);
     hs_free(fix2);
     const hs_compliance* cc = hs_haptic_sim_compliance(sim);

@@ -195,12 +195,13 @@ struct hs_haptic_sim {
     // a worker builds mesh + compliance from it, and the deformation thread swaps the result
     // in when the topology has not moved on meanwhile (else it is dropped).
     pthread_t cw_thread;
-    int cw_running;     // started and not yet joined (deformation thread)
-    atomic_int cw_done; // worker: the result fields below are final
-    int64_t cw_version; // topology version the job was copied at
-    double* cw_x0;      // [3n] job input
-    int* cw_tets;       // [4 n_tets] job input
-    int cw_ntets;
+    int cw_running;        // started and not yet joined (deformation thread)
+    atomic_int cw_done;    // worker: the result fields below are final
+    int64_t cw_version;    // topology version the job was copied at
+    double* cw_x0;         // [3n] job input
+    int* cw_tets;          // [4 n_tets] job input
+    int cw_ntets;          // kept tets first (cw_tets[0, cw_ntets)), then the pinned pieces'
+    int cw_nall;           // live tets in cw_tets
     unsigned char* cw_fix; // [n] job input: fixed0 + floating pieces
     hs_mesh* cw_mesh;      // job output
     hs_compliance* cw_comp;
@@ -550,6 +551,13 @@ static void* comp_worker(void* arg) {
     hs_err err = {0};
     hs_mesh* m = NULL;
     hs_compliance* c = NULL;
+    const int n = h->mesh->n_nodes;
+    int kept =
+        hs_mesh_admit_held_pieces(n, h->cw_x0, h->cw_nall, h->cw_tets, h->cw_ntets, h->fixed0);
+    if (kept >= 0) h->cw_ntets = kept; // else (no memory) without the held pieces
+    memset(h->cw_fix, 1, (size_t)n);
+    for (int k = 0; k < 4 * h->cw_ntets; ++k) h->cw_fix[h->cw_tets[k]] = 0;
+    for (int i = 0; i < n; ++i) h->cw_fix[i] |= h->fixed0[i];
     hs_status s = hs_mesh_create(h->mesh->n_nodes, h->cw_x0, h->cw_ntets, h->cw_tets, &m, &err);
     if (s == HS_OK)
         s = hs_compliance_create(m, &h->def.body.fem, h->cw_fix, h->def.probe.cache_nodes, &c,
@@ -581,19 +589,19 @@ static int comp_start(hs_haptic_sim* h) {
     // the body, which cannot gain fixed nodes, lets such a piece move with its mass. Its tets
     // are therefore left out: a hinge carries no static load, and holding the piece would
     // stiffen the anchored side through the shared nodes (3-4x the body's force, measured).
-    // Nodes no kept tet uses are held (and not contactable).
-    int k = 0;
-    memset(h->cw_fix, 1, (size_t)n);
+    // But a pinned piece that hangs on both lips of a cut ties them together in the body, so
+    // the worker takes back every piece three non-collinear nodes of the kept tets (or fixed
+    // nodes) hold: left out, C is softer than the body there (docs/cutting.md). Nodes no kept
+    // tet uses are held (and not contactable). The pinned pieces' tets follow the kept ones.
+    int k = 0, kd = live->n_tets;
     for (int e = 0; e < live->n_tets; ++e) {
         const int* t = live->tets + 4 * e;
         int free_node = 0;
         for (int a = 0; a < 4; ++a) free_node |= !hs_cut_node_pinned(h->cut, t[a]);
-        if (!free_node) continue;
-        memcpy(h->cw_tets + 4 * k++, t, 4 * sizeof(int));
-        for (int a = 0; a < 4; ++a) h->cw_fix[t[a]] = 0;
+        memcpy(h->cw_tets + 4 * (free_node ? k++ : --kd), t, 4 * sizeof(int));
     }
     h->cw_ntets = k;
-    for (int i = 0; i < n; ++i) h->cw_fix[i] |= h->fixed0[i];
+    h->cw_nall = live->n_tets;
     h->cw_version = hs_cut_topology_version(h->cut);
     h->cw_mesh = NULL;
     h->cw_comp = NULL;
