@@ -497,8 +497,10 @@ static void probe_move(probe_run* pr, const double to[3], int ticks, unsigned bu
 /// the cut will run, it feels the intact patch; after a full cut across and the compliance
 /// rebuild it feels the cut tissue, softer, and in both cases the force of the rest-state
 /// contact on that body. While the compliance is stale there is no contact at all, and the
-/// contact that appears when it is swapped in is blended.
-static int test_probe_after_cut(void) {
+/// contact that appears when it is swapped in is blended. min_travel_m: the blade's sweep step;
+/// tol: how far the cut press may be from the rest contact on the rebuilt compliance.
+static int probe_after_cut(double min_travel_m, double tol) {
+    (void)tol; // unchecked under TSan
     int64_t bytes = hs_byte_count();
     hs_mesh* m = NULL;
     unsigned char* fixed = NULL;
@@ -513,6 +515,7 @@ static int test_probe_after_cut(void) {
     ENSURE(hs_haptic_sim_create(m, &d, fixed, &sim, &err) == HS_OK);
     hs_haptic_cut_def cd = blade_def();
     cd.probe_when_released = 1;
+    cd.min_travel_m = min_travel_m;
     ENSURE(hs_haptic_sim_enable_cutting(sim, m, &cd, &err) == HS_OK);
     // Reference before the cut: the sim's own (uncut) compliance, read while stopped.
     double* x0 = hs_alloc(3 * (size_t)n * sizeof(double));
@@ -577,7 +580,7 @@ static int test_probe_after_cut(void) {
     // Softer: 0.40x when the cut separates the patch, 0.84x seen when the keep-tet rule left a
     // bridging tet (then the rest contact on that body is higher too).
     ENSURE(f_cut > 0.001 && f_cut < f_uncut);
-    ENSURE(fabs(f_cut - f_ref1[2]) <= 0.1 * f_ref1[2]); // and it is the cut body's answer
+    ENSURE(fabs(f_cut - f_ref1[2]) <= tol * f_ref1[2]); // and it is the cut body's answer
 #endif
 #ifndef __SANITIZE_THREAD__ // TSan stretches a loop pass past the 4 ms the check relies on
     ENSURE(pr.stale_in_tissue > 5 && pr.stale_force == 0); // no contact on a stale compliance
@@ -594,4 +597,19 @@ static int test_probe_after_cut(void) {
     return 0;
 }
 
-HS_TEST_MAIN(HS_CASE(test_enable_errors), HS_CASE(test_blade_drag), HS_CASE(test_probe_after_cut))
+static int test_probe_after_cut(void) {
+    return probe_after_cut(hs_haptic_cut_default_def().min_travel_m, 0.1);
+}
+
+/// The same in 0.2 mm sweeps, which leave more pinned pieces on both lips of the cut: the case
+/// where the contact-free correction ran away (a kick of up to 10 N on the held probe) and where,
+/// before the compliance took back the held pieces, the held press missed the rest contact by
+/// more than 25 % in 52 of 348 runs (docs/haptics.md, "Safeguard"). The no-kick and
+/// no-stale-contact checks are as strict as above; the press within 25 % (17 % the worst seen
+/// since, in 1 of 73 runs).
+static int test_probe_after_fine_cut(void) {
+    return probe_after_cut(0.0002, 0.25);
+}
+
+HS_TEST_MAIN(HS_CASE(test_enable_errors), HS_CASE(test_blade_drag), HS_CASE(test_probe_after_cut),
+             HS_CASE(test_probe_after_fine_cut))

@@ -300,8 +300,9 @@ static void node_rot(hs_haptic_sim* h, int node, double r[9]) {
     }
 }
 
-// A correction counts as diverging when it grows RELAX_GROWTH-fold in a step and exceeds this
-// share of the probe radius: the body's ringing under a held probe stays well inside both.
+// A correction counts as diverging when it grows RELAX_GROWTH-fold in a step and exceeds twice
+// the body's largest displacement plus this share of the probe radius: a converging one is
+// about the contact's displacement or less.
 #define RELAX_FLOOR  0.25
 #define RELAX_GROWTH 1.5
 
@@ -357,23 +358,27 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
     // Safeguard: where the body answers a force much less (or more) than C predicts (beyond
     // ~0.8 r deep; after a cut, pieces the compliance leaves out that still tie the body
     // together) the iteration diverges through the body's dynamics, and q ran 0.5 m off within
-    // three steps (a 10 N kick). So a correction that grows 1.5x (past r / 4) cuts w 4x, down to
-    // free_relax / 64; one that shrinks lets it recover 1.25x per step.
-    double e = 0;
+    // three steps (a 10 N kick). So a correction that grows 1.5x past 2 |u|max + r / 4 cuts w 4x,
+    // down to free_relax / 64; one that shrinks lets it recover 1.25x per step.
+    double e = 0, um = 0;
     for (int si = 0; si < ns; ++si) {
+        int node = sm->surf_nodes[si];
         double t[3];
-        free_target(h, sm->surf_nodes[si], t);
-        const double* q = h->q + 3 * (size_t)sm->surf_nodes[si];
-        double d2 = 0;
+        free_target(h, node, t);
+        const double* q = h->q + 3 * (size_t)node;
+        const double* un = u + 3 * (size_t)node;
+        double d2 = 0, u2 = un[0] * un[0] + un[1] * un[1] + un[2] * un[2];
         for (int a = 0; a < 3; ++a) d2 += (t[a] - q[a]) * (t[a] - q[a]);
         if (d2 > e) e = d2;
+        if (u2 > um) um = u2;
     }
     e = sqrt(e);
+    um = sqrt(um);
     const double w_max = h->def.probe.free_relax, w_min = w_max / 64;
     if (h->q_reset) {
         h->st.relax_w = w_max;
         h->relax_e = -1;
-    } else if (h->relax_e >= 0 && e > RELAX_GROWTH * h->relax_e && e > RELAX_FLOOR * r) {
+    } else if (h->relax_e >= 0 && e > RELAX_GROWTH * h->relax_e && e > 2 * um + RELAX_FLOOR * r) {
         h->st.relax_w = fmax(w_min, 0.25 * h->st.relax_w);
         h->st.relax_cuts++;
     } else if (h->relax_e >= 0 && e < h->relax_e) {
