@@ -165,7 +165,7 @@ struct hs_haptic_sim {
     int* tri_list;        // [3 tri_cap]
     double* x;            // [3n] current positions
     double* g;            // [3n] force holding the current shape beyond the non-contact loads
-    double* v;            // [3n] C g (in the rest frame of each node)
+    double* v;            // [3n] C g (in the rest frame of each node), then the surface targets
     double* rot;          // [9n] node rotations at the current state (identity for linear)
     double* q;            // [3n] contact-free positions of smesh's surface nodes (relaxed)
     int q_reset;          // the surface changed: set q exactly at the next snapshot
@@ -306,15 +306,6 @@ static void node_rot(hs_haptic_sim* h, int node, double r[9]) {
 #define RELAX_FLOOR  0.25
 #define RELAX_GROWTH 1.5
 
-// The contact-free position of a surface node: x - R (C R^T g) (h->v holds C R^T g).
-static void free_target(const hs_haptic_sim* h, int node, double t[3]) {
-    const double* xs = h->x + 3 * (size_t)node;
-    const double* uc = h->v + 3 * (size_t)node;
-    const double* R = h->rot + 9 * (size_t)node;
-    for (int a = 0; a < 3; ++a)
-        t[a] = xs[a] - (R[3 * a] * uc[0] + R[3 * a + 1] * uc[1] + R[3 * a + 2] * uc[2]);
-}
-
 // Build and publish the snapshot around tool position p from the body's current state.
 static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
     const hs_mesh* mesh = h->mesh;
@@ -356,15 +347,20 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
     // the true compliance much larger than the rest-state one (see docs/haptics.md).
     // A new surface (after a cut) starts from its exact target: its new nodes have no history.
     // Safeguard: where the body answers a force much less (or more) than C predicts (beyond
-    // ~0.8 r deep; after a cut, pieces the compliance leaves out that still tie the body
-    // together) the iteration diverges through the body's dynamics, and q ran 0.5 m off within
-    // three steps (a 10 N kick). So a correction that grows 1.5x past 2 |u|max + r / 4 cuts w 4x,
-    // down to free_relax / 64; one that shrinks lets it recover 1.25x per step.
+    // ~0.8 r deep; after cuts whose pieces C and the body hold differently) the iteration
+    // diverges through the body's dynamics: q ran 0.5 m off within three steps (a 10 N kick).
+    // So a correction that grows 1.5x past 2 |u|max + r / 4 cuts w 4x, down to free_relax / 64;
+    // one that shrinks lets it recover 1.25x per step.
+    // The targets x - R (C R^T g) replace C R^T g in h->v (nothing else reads it).
     double e = 0, um = 0;
     for (int si = 0; si < ns; ++si) {
         int node = sm->surf_nodes[si];
-        double t[3];
-        free_target(h, node, t);
+        const double* xs = h->x + 3 * (size_t)node;
+        double* t = h->v + 3 * (size_t)node;
+        const double* R = h->rot + 9 * (size_t)node;
+        const double uc[3] = {t[0], t[1], t[2]};
+        for (int a = 0; a < 3; ++a)
+            t[a] = xs[a] - (R[3 * a] * uc[0] + R[3 * a + 1] * uc[1] + R[3 * a + 2] * uc[2]);
         const double* q = h->q + 3 * (size_t)node;
         const double* un = u + 3 * (size_t)node;
         double d2 = 0, u2 = un[0] * un[0] + un[1] * un[1] + un[2] * un[2];
@@ -377,7 +373,6 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
     const double w_max = h->def.probe.free_relax, w_min = w_max / 64;
     if (h->q_reset) {
         h->st.relax_w = w_max;
-        h->relax_e = -1;
     } else if (h->relax_e >= 0 && e > RELAX_GROWTH * h->relax_e && e > 2 * um + RELAX_FLOOR * r) {
         h->st.relax_w = fmax(w_min, 0.25 * h->st.relax_w);
         h->st.relax_cuts++;
@@ -389,8 +384,7 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
     h->q_reset = 0;
     for (int si = 0; si < ns; ++si) {
         int node = sm->surf_nodes[si];
-        double t[3];
-        free_target(h, node, t);
+        const double* t = h->v + 3 * (size_t)node;
         double* q = h->q + 3 * (size_t)node;
         for (int a = 0; a < 3; ++a) q[a] += w * (t[a] - q[a]);
     }
