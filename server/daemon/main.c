@@ -9,6 +9,7 @@
 #include <unistd.h>
 
 #include "server.h"
+#include "hapsim/sparse.h"
 
 static int stop_pipe[2] = {-1, -1};
 
@@ -43,6 +44,7 @@ static void usage(FILE* f) {
 }
 
 int main(int argc, char** argv) {
+    hs_sparse_blas_select(argv); // before any thread: it may re-execute the program
     // SIGINT/SIGTERM write one byte to a pipe the net loop polls (async-signal-safe), whichever
     // thread the kernel picks (libraries start threads before main, so masks cannot steer it).
     if (pipe(stop_pipe) != 0) {

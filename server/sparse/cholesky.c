@@ -10,10 +10,13 @@
 
 #include <cholmod.h>
 #include <dlfcn.h>
+#include <errno.h>
 #include <math.h>
 #include <pthread.h>
 #include <sched.h>
 #include <stdatomic.h>
+#include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 #include <sys/mman.h>
 #include <unistd.h>
@@ -1437,6 +1440,37 @@ hs_status hs_sparse_set_threads(int n) {
     tl_threads = 0;
     apply_thread_limit();
     return set_blas || set_levels ? HS_OK : HS_ERR_UNSUPPORTED;
+}
+
+const char* hs_sparse_blas_core(void) {
+    const char* (*core)(void);
+    *(void**)&core = dlsym(RTLD_DEFAULT, "openblas_get_corename");
+    const char* name = core ? core() : NULL;
+    return name ? name : "not OpenBLAS";
+}
+
+hs_status hs_sparse_blas_select(char** argv) {
+    if (!argv || !argv[0] || getenv("OPENBLAS_CORETYPE")) return HS_OK;
+    // OpenBLAS's fallbacks for a model it does not know; all predate AVX2.
+    static const char* const generic[] = {"Prescott", "Core2", "Penryn", "Dunnington", "Nehalem"};
+    const char* core = hs_sparse_blas_core();
+    int fallback = 0;
+    for (size_t i = 0; i < sizeof generic / sizeof generic[0]; ++i)
+        fallback |= !strcmp(core, generic[i]);
+    __builtin_cpu_init();
+    if (!fallback || !__builtin_cpu_supports("avx2") || !__builtin_cpu_supports("fma"))
+        return HS_OK;
+    fprintf(stderr,
+            "%s: OpenBLAS runs its generic %s kernels on this AVX2 processor; restarting with "
+            "OPENBLAS_CORETYPE=Haswell (set OPENBLAS_CORETYPE to choose otherwise)\n",
+            argv[0], core);
+    fflush(NULL);
+    if (setenv("OPENBLAS_CORETYPE", "Haswell", 1) != 0) return HS_ERR_UNSUPPORTED;
+    execv("/proc/self/exe", argv);
+    unsetenv("OPENBLAS_CORETYPE"); // the exec failed: run on as loaded, and say so
+    fprintf(stderr, "%s: could not restart (%s); running on the %s kernels\n", argv[0],
+            strerror(errno), core);
+    return HS_ERR_UNSUPPORTED;
 }
 
 // ---------------------------------------------------------------------------------------------

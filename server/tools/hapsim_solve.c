@@ -4,6 +4,7 @@
 #include "hapsim/body.h"
 #include "hapsim/mesh.h"
 #include "hapsim/mooney.h"
+#include "hapsim/sparse.h"
 
 #include <errno.h>
 #include <math.h>
@@ -83,6 +84,7 @@ typedef struct plane_fix {
 } plane_fix;
 
 int main(int argc, char** argv) {
+    hs_sparse_blas_select(argv); // before any thread: it may re-execute the program
     const char *mesh_path = NULL, *out_path = NULL, *vtk_path = NULL;
     hs_body_def def = hs_body_default_def();
     def.fem.material.youngs_pa = 3000;

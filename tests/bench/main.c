@@ -1,6 +1,7 @@
 // hapsim-bench: benchmarks that print CSV. Targets live in docs/benchmarks.md, not in tests.
 #define _POSIX_C_SOURCE 200809L
 #include "bench.h"
+#include "hapsim/sparse.h"
 
 #include <stdio.h>
 #include <stdlib.h>
@@ -41,7 +42,14 @@ typedef struct bench_cmd {
     const char* what;
 } bench_cmd;
 
+static int bench_blas(const hs_bench_args* a) {
+    (void)a;
+    printf("blas_core\n%s\n", hs_sparse_blas_core());
+    return 0;
+}
+
 static const bench_cmd cmds[] = {
+    {"blas", bench_blas, "the BLAS kernels in use (hs_sparse_blas_select may have chosen them)"},
     {"core", hs_bench_core, "FEM step cost per model and mesh (issue 2)"},
     {"accuracy", hs_bench_accuracy, "run time against error per model, solver, dt (issue 6)"},
     {"stress", hs_bench_stress, "numerical stress cases: NaN, energy, inversion (issue 6)"},
@@ -64,6 +72,7 @@ static void usage(FILE* f) {
 }
 
 int main(int argc, char** argv) {
+    hs_sparse_blas_select(argv); // before any thread: it may re-execute the program
     if (argc < 2 || !strcmp(argv[1], "-h") || !strcmp(argv[1], "--help")) {
         usage(argc < 2 ? stderr : stdout);
         return argc < 2 ? 1 : 0;
@@ -80,8 +89,11 @@ int main(int argc, char** argv) {
         }
     }
     int all = !strcmp(argv[1], "all"), found = 0, rc = 0;
+    if (strcmp(argv[1], "blas"))
+        fprintf(stderr, "hapsim-bench: BLAS kernels %s\n", hs_sparse_blas_core());
     for (size_t i = 0; i < sizeof cmds / sizeof cmds[0]; ++i) {
         if (!all && strcmp(argv[1], cmds[i].name)) continue;
+        if (all && cmds[i].fn == bench_blas) continue;
         found = 1;
         if (all) printf("# %s\n", cmds[i].name);
         fflush(stdout);

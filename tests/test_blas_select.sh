@@ -1,0 +1,35 @@
+#!/usr/bin/env bash
+# hs_sparse_blas_select as the programs run it: OpenBLAS's generic fallback kernels are replaced
+# by its AVX2 ones on an AVX2 processor, and a user's OPENBLAS_CORETYPE is never overridden.
+set -u
+BENCH="$1"
+T=$(mktemp -d); trap 'rm -rf "$T"' EXIT
+fail=0; pass=0
+check() { # name, condition (0 = ok)
+  if [ "$2" -eq 0 ]; then pass=$((pass+1)); else echo "FAIL: $1"; fail=$((fail+1)); fi
+}
+core() { sed -n 2p "$T/out"; }
+
+OPENBLAS_CORETYPE=Prescott "$BENCH" blas > "$T/out" 2> "$T/err"; check "blas command exits 0" $?
+if [ "$(core)" = "not OpenBLAS" ]; then
+  echo "SKIP: the BLAS behind libblas.so.3 is not OpenBLAS"; exit 0
+fi
+[ "$(core)" = Prescott ]; check "a set OPENBLAS_CORETYPE is kept (got '$(core)')" $?
+! grep -q restarting "$T/err"; check "no restart when OPENBLAS_CORETYPE is set" $?
+
+env -u OPENBLAS_CORETYPE "$BENCH" blas > "$T/out" 2> "$T/err"; check "unset: exits 0" $?
+if grep -qw avx2 /proc/cpuinfo && grep -qw fma /proc/cpuinfo; then
+  case "$(core)" in
+    Prescott|Core2|Penryn|Dunnington|Nehalem) false ;;
+    *) true ;;
+  esac
+  check "AVX2 processor runs AVX2-era kernels (got '$(core)')" $?
+  if grep -q restarting "$T/err"; then
+    [ "$(core)" = Haswell ]; check "after a restart the kernels are Haswell's (got '$(core)')" $?
+    [ "$(grep -c restarting "$T/err")" -eq 1 ]; check "exactly one restart" $?
+  fi
+else
+  ! grep -q restarting "$T/err"; check "no AVX2: no restart" $?
+fi
+echo "blas_select: $pass passed, $fail failed (kernels: $(core))"
+[ $fail -eq 0 ]
