@@ -20,7 +20,8 @@ fi
 env -u OPENBLAS_CORETYPE "$BENCH" blas > "$T/out" 2> "$T/err"; check "unset: exits 0" $?
 if grep -qw avx2 /proc/cpuinfo && grep -qw fma /proc/cpuinfo; then
   case "$(core)" in
-    Prescott|Core2|Penryn|Dunnington|Nehalem) false ;;
+    Katmai|Coppermine|Northwood|Prescott|Banias|Atom|Core2|Penryn|Dunnington|Nehalem|Sandybridge|\
+    Athlon|Opteron|Opteron_SSE3|Barcelona|Nano|Bobcat|Bulldozer|Piledriver|Steamroller) false ;;
     *) true ;;
   esac
   check "AVX2 processor runs AVX2-era kernels (got '$(core)')" $?

@@ -217,13 +217,14 @@ const char* hs_sparse_blas_core(void);
 
 /// OpenBLAS chooses its kernels when it loads, from the processor's model number. On a model it
 /// does not know (OpenBLAS 0.3.21 of Debian 12 on a family 6 model 207 Xeon, say) it falls back
-/// to its generic SSE3 kernels ("Prescott"), which factor 1.5-2.5x slower than its AVX2 ones
-/// (docs/benchmarks.md). If that happened, OPENBLAS_CORETYPE is unset and the processor has
-/// AVX2 and FMA, this re-executes the running program (/proc/self/exe, same argv and
-/// environment) with OPENBLAS_CORETYPE=Haswell, after one line on stderr; it returns only when
-/// nothing was to be done (HS_OK) or the exec failed (HS_ERR_UNSUPPORTED, the program runs on).
-/// A set OPENBLAS_CORETYPE, whatever its value, is the user's choice and is kept, which also
-/// stops a second exec. Call first thing in main, before any thread starts.
+/// to its generic SSE3 kernels ("Prescott"): CHOLMOD's factorisation and the cut step then take
+/// about 1.5x the time they take on its AVX2 kernels (docs/benchmarks.md). If the kernels in
+/// use predate AVX2 (that fallback or any older set), OPENBLAS_CORETYPE is unset and the
+/// processor has AVX2 and FMA, this re-executes the running program (/proc/self/exe, same argv
+/// and environment) with OPENBLAS_CORETYPE=Haswell, after one line on stderr; it returns only
+/// when nothing was to be done (HS_OK) or the exec failed (HS_ERR_UNSUPPORTED, the program runs
+/// on). A set OPENBLAS_CORETYPE, whatever its value, is the user's choice and is kept, which
+/// also stops a second exec. Call first thing in main, before any thread starts.
 /// @param argv main's argv (NULL-terminated) | Thread: main, alone | Allocates: no
 hs_status hs_sparse_blas_select(char** argv);
 

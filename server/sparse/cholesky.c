@@ -1451,8 +1451,13 @@ const char* hs_sparse_blas_core(void) {
 
 hs_status hs_sparse_blas_select(char** argv) {
     if (!argv || !argv[0] || getenv("OPENBLAS_CORETYPE")) return HS_OK;
-    // OpenBLAS's fallbacks for a model it does not know; all predate AVX2.
-    static const char* const generic[] = {"Prescott", "Core2", "Penryn", "Dunnington", "Nehalem"};
+    // OpenBLAS's kernel sets that predate AVX2 (its fallback for an unknown model is one of
+    // them); on an AVX2 processor any of them means the detection failed.
+    static const char* const generic[] = {
+        "Katmai",      "Coppermine", "Northwood", "Prescott",     "Banias",
+        "Atom",        "Core2",      "Penryn",    "Dunnington",   "Nehalem",
+        "Sandybridge", "Athlon",     "Opteron",   "Opteron_SSE3", "Barcelona",
+        "Nano",        "Bobcat",     "Bulldozer", "Piledriver",   "Steamroller"};
     const char* core = hs_sparse_blas_core();
     int fallback = 0;
     for (size_t i = 0; i < sizeof generic / sizeof generic[0]; ++i)
@@ -1461,7 +1466,7 @@ hs_status hs_sparse_blas_select(char** argv) {
     if (!fallback || !__builtin_cpu_supports("avx2") || !__builtin_cpu_supports("fma"))
         return HS_OK;
     fprintf(stderr,
-            "%s: OpenBLAS runs its generic %s kernels on this AVX2 processor; restarting with "
+            "%s: OpenBLAS runs its %s kernels, older than this AVX2 processor; restarting with "
             "OPENBLAS_CORETYPE=Haswell (set OPENBLAS_CORETYPE to choose otherwise)\n",
             argv[0], core);
     fflush(NULL);
