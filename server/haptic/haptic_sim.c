@@ -202,7 +202,7 @@ struct hs_haptic_sim {
     int* cw_tets;          // [4 n_tets] job input
     int cw_ntets;          // kept tets first (cw_tets[0, cw_ntets)), then the pinned pieces'
     int cw_nall;           // live tets in cw_tets
-    unsigned char* cw_fix; // [n] job input: fixed0 + floating pieces
+    unsigned char* cw_fix; // [n] worker: fixed0 + nodes no kept tet uses
     hs_mesh* cw_mesh;      // job output
     hs_compliance* cw_comp;
     hs_status cw_status;
