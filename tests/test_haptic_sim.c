@@ -498,14 +498,11 @@ static int corotated_hold(void) {
     return 0;
 }
 
-// Pop the telemetry; note the rt clock of the tick that picked up pose `seq`. Returns the
-// number of records popped (into rec[] while there is room).
-static int pop_telemetry(hs_haptic_sim* sim, int64_t seq, int64_t* pick_ns,
-                         hs_haptic_telemetry* rec, int cap) {
+// Pop the telemetry into rec[] (while there is room); returns the number of records popped.
+static int pop_telemetry(hs_haptic_sim* sim, hs_haptic_telemetry* rec, int cap) {
     hs_haptic_telemetry t;
     int n = 0;
     while (hs_spsc_ring_pop(hs_haptic_sim_telemetry(sim), &t)) {
-        if (t.pose_new && t.pose_seq == seq) *pick_ns = t.now_ns;
         if (n < cap) rec[n] = t;
         n++;
     }
@@ -514,7 +511,7 @@ static int pop_telemetry(hs_haptic_sim* sim, int64_t seq, int64_t* pick_ns,
 
 // Poses stop while in contact: the force is zero by timeout + ramp after the last pose, on the
 // rt thread's clock (its contract: exactly, however late its ticks come), and soon after on the
-// wall clock.
+// wall clock. Every rt record from the last pose on is kept and checked after the run.
 static int watchdog(void) {
     liver L;
     ENSURE(load_liver(&L) == 0);
@@ -527,37 +524,58 @@ static int watchdog(void) {
     harness hn;
     harness_init(&hn, sim);
     double p[3];
-    int64_t pick_ns = -1;
-    hs_haptic_telemetry rec[8];
+    enum { CAP = 4096 };
+    hs_haptic_telemetry* rec = malloc(CAP * sizeof *rec);
+    ENSURE(rec != NULL);
+    int n = 0;
     for (int i = 0; i <= 400; ++i) {
         tool_at(&L, r, -0.003 + 0.009 * i / 400.0, 0, p);
         harness_tick(&hn, p);
-        pop_telemetry(sim, hn.seq, &pick_ns, rec, 0);
+        n = pop_telemetry(sim, rec, CAP); // keep the last batch: it may hold the last pickup
+        if (n > CAP) n = CAP;
     }
     double f_before = norm3(hn.out.force_n);
     ENSURE(f_before > 0.05);
-    const int64_t last = hn.last_feed_ns;
+    const int64_t last = hn.last_feed_ns, seq = hn.seq;
     const double limit_s = d.safety.watchdog_timeout_s + d.safety.ramp_s;
-    double t_zero = -1, f_mid = -1, t_zero_rt = -1;
-    int late_nonzero = 0, after = 0;
-    for (int i = 0; i < 200; ++i) {
+    // Silence until the rt clock is 200 ms past the last pose (bounded: 2 s of harness ticks).
+    for (int i = 0; i < 2000; ++i) {
         harness_tick(&hn, NULL);
-        int k = pop_telemetry(sim, hn.seq, &pick_ns, rec, 8);
-        for (int j = 0; j < k && j < 8 && pick_ns > 0; ++j) {
-            double s = (double)(rec[j].now_ns - pick_ns) * 1e-9;
-            if (s < limit_s + 1e-6) continue;
-            after++;
-            if (norm3(rec[j].force_n) != 0) late_nonzero++;
-            if (t_zero_rt < 0) t_zero_rt = s;
-        }
-        double since = (double)(hn.out.stamp_ns - last) * 1e-9;
-        if (since < d.safety.watchdog_timeout_s * 0.8 && since > 0) f_mid = norm3(hn.out.force_n);
-        if (t_zero < 0 && norm3(hn.out.force_n) == 0 && since > 0) t_zero = since;
+        n += pop_telemetry(sim, rec + (n < CAP ? n : CAP), n < CAP ? CAP - n : 0);
+        if (n > 0 && n <= CAP && rec[n - 1].now_ns - last > 200000000) break;
+    }
+    ENSURE(n <= CAP);
+    // Read from the records, not from this thread's samples of the output: a late harness
+    // tick must not hide or shift a tick. The pickup of the last pose starts the rt clock;
+    // the wall clock runs from the last pose's stamp.
+    int64_t pick_ns = -1;
+    int after = 0, late_nonzero = 0, bad = -1;
+    double t_zero_rt = -1, t_zero = -1, f_mid = -1;
+    for (int j = 0; j < n; ++j) {
+        if (rec[j].pose_new && rec[j].pose_seq == seq) pick_ns = rec[j].now_ns;
+        if (pick_ns < 0) continue;
+        double since = (double)(rec[j].now_ns - last) * 1e-9;
+        if (since > 0 && since < d.safety.watchdog_timeout_s * 0.8) f_mid = norm3(rec[j].force_n);
+        if (t_zero < 0 && since > 0 && norm3(rec[j].force_n) == 0) t_zero = since;
+        double s = (double)(rec[j].now_ns - pick_ns) * 1e-9;
+        if (s < limit_s + 1e-6) continue;
+        after++;
+        if (t_zero_rt < 0) t_zero_rt = s;
+        if (norm3(rec[j].force_n) != 0 && late_nonzero++ == 0) bad = j;
     }
     printf("  force %.3g N before, %.3g N during the tolerated silence; rt clock: %d ticks at or "
            "past %.0f ms after the pose's pickup, %d with force (first at %.1f ms); wall clock: "
            "zero %.1f ms after the last pose\n",
            f_before, f_mid, after, limit_s * 1e3, late_nonzero, t_zero_rt * 1e3, t_zero * 1e3);
+    for (int j = bad - 3; bad >= 0 && j <= bad + 1 && j < n; ++j) {
+        if (j < 0) continue;
+        printf("  record %d: tick %lld at %.3f ms after pickup, dt %.3f ms, pose %lld (new %d), "
+               "gain %.3g, safety 0x%x, |F| %.4g N\n",
+               j, (long long)rec[j].tick, (rec[j].now_ns - pick_ns) * 1e-6, rec[j].dt_s * 1e3,
+               (long long)rec[j].pose_seq, rec[j].pose_new, rec[j].gain, (unsigned)rec[j].safety,
+               norm3(rec[j].force_n));
+    }
+    free(rec);
     ENSURE(f_mid > 0.5 * f_before); // still rendered while silence is tolerated
     ENSURE(pick_ns > 0 && after > 100 && late_nonzero == 0);
     // Wall clock: the pickup and the zero tick may each come late on a shared machine.
