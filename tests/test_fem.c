@@ -890,12 +890,46 @@ static int test_mass_and_active(void) {
     hs_fem_forces(fem, f);
     ENSURE(vnorm(f, 3 * n) == 0);
     ENSURE(st.energy_j == 0);
+    for (int i = 0; i < n; i++) ENSURE(m[i] == 0);
     hs_csc* a = NULL;
     ENSURE(hs_fem_create_matrix(fem, &a) == HS_OK);
-    hs_fem_assemble(fem, 1.0, 1.0, a);
+    hs_fem_assemble(fem, 1.0, 0.0, a);
     ENSURE(vnorm(a->val, a->nnz) == 0);
-    // one element back: forces are its own and sum to zero
+    // ... but each node holds the mass it had on the diagonal of a dynamic system (and nothing
+    // off it), so that system stays definite
+    ENSURE(hs_fem_held_nodes(fem) == n);
+    // the rest-state assembly too (it has no locking-free form: a second model without it)
+    cfg c2 = {"cor", HS_MODEL_COROTATED, HS_ROTATION_POLAR, 0};
+    hs_fem_def def2 = make_def(&c2, 1e4, 0.45);
+    def2.material.density_kg_m3 = 960;
+    hs_fem* fem2 = NULL;
+    ENSURE(hs_fem_create(&b.mesh, &def2, dof, 3 * n, &fem2, NULL) == HS_OK);
+    for (int e = 0; e < b.mesh.n_tets; e++) hs_fem_set_element_active(fem2, e, 0);
+    ENSURE(hs_fem_held_nodes(fem2) == n);
+    hs_csc* a2 = NULL;
+    ENSURE(hs_fem_create_matrix(fem2, &a2) == HS_OK);
+    for (int pass = 0; pass < 2; pass++) {
+        hs_csc* ap = pass == 0 ? a : a2;
+        if (pass == 0)
+            hs_fem_assemble(fem, 1.0, 1.0, ap);
+        else
+            ENSURE(hs_fem_assemble_rest(fem2, 1.0, 1.0, ap) == HS_OK);
+        int diag_pos = 0;
+        for (int j = 0; j < ap->n; j++)
+            for (int p = ap->colp[j]; p < ap->colp[j + 1]; p++) {
+                if (ap->rowi[p] == j)
+                    diag_pos += ap->val[p] > 0;
+                else
+                    ENSURE(ap->val[p] == 0);
+            }
+        ENSURE(diag_pos == 3 * n);
+    }
+    hs_csc_destroy(&a2);
+    hs_fem_destroy(&fem2);
+    // one element back: its nodes have mass again and hold none; forces are its own and sum
+    // to zero
     hs_fem_set_element_active(fem, 7, 1);
+    ENSURE(hs_fem_held_nodes(fem) == n - 4);
     hs_fem_update(fem, x, &st);
     hs_fem_forces(fem, f);
     ENSURE(vnorm(f, 3 * n) > 0);

@@ -97,8 +97,13 @@ hs_status hs_fem_add_rest_elements(const hs_fem* fem, int n, const int* tets, do
                                    double mcoef, double s, hs_csc* a);
 /// y = K_t x for all 3n dofs (constrained included) at the last update. Allocates: no.
 void hs_fem_apply_tangent(const hs_fem* fem, const double* x, double* y);
-/// Lumped mass per node, kg ([n]).
+/// Lumped mass per node, kg ([n]); 0 for a node with no active element.
 const double* hs_fem_lumped_mass(const hs_fem* fem);
+/// Nodes that have lost their last active element. Each keeps the mass it had on the diagonal
+/// of the system matrices (hs_fem_assemble, hs_fem_assemble_rest with mcoef != 0) but has no
+/// inertia and no gravity load: in a dynamic step it stays where it is, with no pin spring.
+/// A static solve (mcoef 0) with such nodes is singular.
+int hs_fem_held_nodes(const hs_fem* fem);
 /// Rotation of node i (polar part of the volume-weighted mean deformation gradient of its
 /// tets) at the last update; identity for linear. Row-major 3x3.
 void hs_fem_node_rotation(const hs_fem* fem, int node, double r[9] /* OUT */);

@@ -411,8 +411,12 @@ hs_status hs_body_change_elements(hs_body* b, int n_off, const int* off, int n_m
                                      b->a);
         return s;
     }
+    const int held0 = hs_fem_held_nodes(b->fem);
     for (int k = 0; k < n_off; k++) hs_fem_set_element_active(b->fem, off[k], 0);
     b->updated = 0;
+    // A node lost its last element: its held mass enters the diagonal, which no element share
+    // carries, so the next solve refactors (rare: the cut pins a node, or drops a piece).
+    if (hs_fem_held_nodes(b->fem) != held0) keep = 0, a_rest = 0;
     const uint64_t v1 = hs_fem_stiffness_version(b->fem);
     if (a_rest && hs_fem_add_rest_elements(b->fem, n_new, list, b->factor_kcoef, b->factor_mcoef,
                                            1.0, b->a) != HS_OK)

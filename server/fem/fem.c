@@ -45,6 +45,8 @@ struct hs_fem {
     // nodes
     double* f;     // [3n] elastic forces, N
     double* mass;  // [n] lumped mass, kg
+    double* held;  // [n] mass a node had when its last element went (system diagonal only)
+    int n_held;    // nodes with held mass
     int* nt_start; // [n+1] node -> element incidence (CSR)
     int* nt;       // element of each incidence
 
@@ -100,12 +102,12 @@ hs_fem_def hs_fem_default_def(void) {
 void hs_fem_destroy(hs_fem** pfem) {
     if (!pfem || !*pfem) return;
     hs_fem* m = *pfem;
-    void* ptrs[] = {m->dof,      m->tet,       m->g,          m->vol0,   m->active,   m->F,
-                    m->R,        m->S,         m->det,        m->f,      m->mass,     m->nt_start,
-                    m->nt,       m->adj_start, m->adj,        m->blkpos, m->elem_pos, m->diag_pos,
-                    m->mirror,   m->low_of,    m->ring_start, m->ring,   m->nt_slot,  m->pair_start,
-                    m->pair_blk, m->theta_e,   m->w,          m->pbar,   m->vn,       m->theta_n,
-                    m->cvec,     m->kscale};
+    void* ptrs[] = {m->dof,        m->tet,      m->g,         m->vol0,       m->active, m->F,
+                    m->R,          m->S,        m->det,       m->f,          m->mass,   m->held,
+                    m->nt_start,   m->nt,       m->adj_start, m->adj,        m->blkpos, m->elem_pos,
+                    m->diag_pos,   m->mirror,   m->low_of,    m->ring_start, m->ring,   m->nt_slot,
+                    m->pair_start, m->pair_blk, m->theta_e,   m->w,          m->pbar,   m->vn,
+                    m->theta_n,    m->cvec,     m->kscale};
     for (size_t i = 0; i < sizeof ptrs / sizeof ptrs[0]; i++) hs_free(ptrs[i]);
     hs_free(m);
     *pfem = NULL;
@@ -169,14 +171,24 @@ static hs_status nomem(hs_err* err) {
     return hs_err_set(err, HS_ERR_NOMEM, "fem: out of memory");
 }
 
-/// Recompute the lumped mass of node i from its active elements.
+/// Recompute the lumped mass of node i from its active elements. A node whose last element
+/// goes keeps that mass on the system diagonal only (`held`): with no force and no inertia it
+/// stays where it is, and a dynamic system stays definite without a pin spring.
 static void node_mass(hs_fem* m, int i) {
     double s = 0;
     for (int p = m->nt_start[i]; p < m->nt_start[i + 1]; p++) {
         int e = m->nt[p];
         if (m->active[e]) s += m->vol0[e];
     }
-    m->mass[i] = 0.25 * m->def.material.density_kg_m3 * s;
+    double mass = 0.25 * m->def.material.density_kg_m3 * s;
+    if (mass == 0 && m->mass[i] > 0 && m->held[i] == 0) {
+        m->held[i] = m->mass[i];
+        m->n_held++;
+    } else if (mass > 0 && m->held[i] > 0) {
+        m->held[i] = 0;
+        m->n_held--;
+    }
+    m->mass[i] = mass;
 }
 
 static hs_status build_incidence(hs_fem* m) {
@@ -449,8 +461,9 @@ hs_status hs_fem_create(const hs_mesh* mesh, const hs_fem_def* def, const int* d
     m->det = hs_alloc(sizeof(double) * (size_t)ne);
     m->f = hs_calloc(3 * (size_t)n, sizeof(double));
     m->mass = hs_calloc((size_t)n, sizeof(double));
+    m->held = hs_calloc((size_t)n + 1, sizeof(double));
     if (!m->dof || !seen || !m->tet || !m->g || !m->vol0 || !m->kscale || !m->active || !m->F ||
-        !m->R || !m->S || !m->det || !m->f || !m->mass) {
+        !m->R || !m->S || !m->det || !m->f || !m->mass || !m->held) {
         hs_free(seen);
         st = nomem(err);
         goto fail;
@@ -551,6 +564,10 @@ hs_status hs_fem_create_matrix(const hs_fem* fem, hs_csc** out) {
 const double* hs_fem_lumped_mass(const hs_fem* fem) {
     HS_ASSERT(fem);
     return fem->mass;
+}
+
+int hs_fem_held_nodes(const hs_fem* fem) {
+    return fem ? fem->n_held : 0;
 }
 
 void hs_fem_set_element_active(hs_fem* fem, int tet, int active) {
@@ -1016,7 +1033,7 @@ void hs_fem_assemble(const hs_fem* m, double kcoef, double mcoef, hs_csc* a) {
         for (int i = 0; i < m->n; i++)
             for (int c = 0; c < 3; c++) {
                 int p = m->diag_pos[3 * i + c];
-                if (p >= 0) val[p] += mcoef * m->mass[i];
+                if (p >= 0) val[p] += mcoef * (m->mass[i] + m->held[i]);
             }
     }
     mirror_upper(m, val);
@@ -1053,6 +1070,11 @@ hs_status hs_fem_assemble_rest(const hs_fem* m, double kcoef, double mcoef, hs_c
         rest_blocks(m, e, kcoef, mcoef, kb);
         scatter_blocks(m, e, kb, 1.0, a->val);
     }
+    for (int i = 0; mcoef != 0.0 && m->n_held > 0 && i < m->n; i++)
+        for (int c = 0; c < 3; c++) {
+            int p = m->diag_pos[3 * i + c];
+            if (p >= 0) a->val[p] += mcoef * m->held[i];
+        }
     mirror_upper(m, a->val);
     return HS_OK;
 }
