@@ -191,11 +191,10 @@ int64_t hs_haptic_sim_take_topology(hs_haptic_sim* sim, double* x0 /* OUT [3n] *
                                     int* tris /* OUT */, int tri_cap, int* n_tris /* OUT */,
                                     hs_haptic_cut_event* ev /* OUT, may be NULL */);
 
-/// Nodes the cuts pinned: every node of a piece cut free of the fixed region or left hanging on
-/// by an edge or a vertex. The body lets such pieces move with their mass; the compliance
-/// leaves out the tets made only of pinned nodes (so the probe does not touch those pieces),
-/// except the pieces three non-collinear nodes of the kept tets or fixed nodes hold (one that
-/// hangs on both lips of a cut: the body is tied there too; hs_mesh_admit_held_pieces).
+/// Nodes the cuts pinned: nodes left without a tet (the cut removes every tet it crosses, and
+/// every piece the fixed region does not hold). The body holds each where it was
+/// (hs_fem_held_nodes); no live tet uses one, so the compliance holds them and the probe cannot
+/// touch them.
 /// Sets pinned[n_nodes] to 1 / 0 and returns how many (0 without cutting). Only while stopped.
 int hs_haptic_sim_cut_pinned(hs_haptic_sim* sim, unsigned char* pinned /* OUT [n] */);
 /// The compliance (read-only use from the control thread only while the sim is stopped).

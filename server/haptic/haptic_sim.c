@@ -50,8 +50,8 @@ hs_haptic_cut_def hs_haptic_cut_default_def(void) {
     // each sweep by hs_body_change_elements), and the haptic compliance is rebuilt from the
     // live mesh. Keeping the cut's updated cost ~12 ms of a ~13 ms sweep on the skin patch.
     d.cut.factor_policy = HS_CUT_FACTOR_NONE;
-    d.cut.orphan = HS_CUT_ORPHAN_KEEP_TET;
-    d.cut.fragment = HS_CUT_FRAGMENT_FIX;
+    d.cut.orphan = HS_CUT_ORPHAN_PIN;
+    d.cut.fragment = HS_CUT_FRAGMENT_DROP;
     d.blade_b[2] = 0.01;
     d.toughness_n_m = 20.0;
     d.max_force_n = 1.5;
@@ -200,8 +200,7 @@ struct hs_haptic_sim {
     int64_t cw_version;    // topology version the job was copied at
     double* cw_x0;         // [3n] job input
     int* cw_tets;          // [4 n_tets] job input
-    int cw_ntets;          // kept tets first (cw_tets[0, cw_ntets)), then the pinned pieces'
-    int cw_nall;           // live tets in cw_tets
+    int cw_ntets;          // live tets in cw_tets
     unsigned char* cw_fix; // [n] worker: fixed0 + nodes no kept tet uses
     hs_mesh* cw_mesh;      // job output
     hs_compliance* cw_comp;
@@ -551,9 +550,6 @@ static void* comp_worker(void* arg) {
     hs_mesh* m = NULL;
     hs_compliance* c = NULL;
     const int n = h->mesh->n_nodes;
-    int kept =
-        hs_mesh_admit_held_pieces(n, h->cw_x0, h->cw_nall, h->cw_tets, h->cw_ntets, h->fixed0);
-    if (kept >= 0) h->cw_ntets = kept; // else (no memory) without the held pieces
     memset(h->cw_fix, 1, (size_t)n);
     for (int k = 0; k < 4 * h->cw_ntets; ++k) h->cw_fix[h->cw_tets[k]] = 0;
     for (int i = 0; i < n; ++i) h->cw_fix[i] |= h->fixed0[i];
@@ -583,24 +579,11 @@ static int comp_start(hs_haptic_sim* h) {
     if (!live || live->n_tets > h->mesh->n_tets) return 0;
     const int n = h->mesh->n_nodes;
     memcpy(h->cw_x0, live->x0, 3 * (size_t)n * sizeof(double));
-    // The compliance sees the pieces anchored to the fixed region. The cut pins every node of
-    // a piece that is not (cut free, or hanging on by an edge or a vertex: a mechanism), while
-    // the body, which cannot gain fixed nodes, lets such a piece move with its mass. Its tets
-    // are therefore left out: a hinge carries no static load, and holding the piece would
-    // stiffen the anchored side through the shared nodes (3-4x the body's force, measured).
-    // But a pinned piece that hangs on both lips of a cut ties them together in the body, so
-    // the worker takes back every piece three non-collinear nodes of the kept tets (or fixed
-    // nodes) hold: left out, C is softer than the body there (docs/cutting.md). Nodes no kept
-    // tet uses are held (and not contactable). The pinned pieces' tets follow the kept ones.
-    int k = 0, kd = live->n_tets;
-    for (int e = 0; e < live->n_tets; ++e) {
-        const int* t = live->tets + 4 * e;
-        int free_node = 0;
-        for (int a = 0; a < 4; ++a) free_node |= !hs_cut_node_pinned(h->cut, t[a]);
-        memcpy(h->cw_tets + 4 * (free_node ? k++ : --kd), t, 4 * sizeof(int));
-    }
-    h->cw_ntets = k;
-    h->cw_nall = live->n_tets;
+    // The compliance sees the body's elements: the cut drops every piece the fixed region does
+    // not hold and pins only nodes left without a tet, so the live tets are all held. Nodes no
+    // live tet uses are held (and not contactable).
+    memcpy(h->cw_tets, live->tets, 4 * (size_t)live->n_tets * sizeof(int));
+    h->cw_ntets = live->n_tets;
     h->cw_version = hs_cut_topology_version(h->cut);
     h->cw_mesh = NULL;
     h->cw_comp = NULL;
@@ -1093,9 +1076,12 @@ hs_status hs_haptic_sim_enable_cutting(hs_haptic_sim* h, hs_mesh* mesh,
                           "hs_haptic_sim_enable_cutting: blade of zero length, or toughness, "
                           "force cap or travel negative");
     h->cdef = *def;
-    // The body has no pin springs: a node must keep a tet and a freed piece keeps its mass.
-    h->cdef.cut.orphan = HS_CUT_ORPHAN_KEEP_TET;
-    h->cdef.cut.fragment = HS_CUT_FRAGMENT_FIX;
+    // Every cut tet goes and a node left without one is held where it is (the body keeps its
+    // mass on the diagonal: hs_fem_held_nodes); a piece no fixed node holds goes too. The
+    // paper's keep-tet rule left fine cuts joined through kept tets, where the body and the
+    // haptic compliance then disagreed (docs/haptics.md).
+    h->cdef.cut.orphan = HS_CUT_ORPHAN_PIN;
+    h->cdef.cut.fragment = HS_CUT_FRAGMENT_DROP;
     h->cdef.cut.material = h->def.body.fem.material;
     const size_t n = (size_t)mesh->n_nodes, nt = (size_t)mesh->n_tets;
     // A retry after a failed call starts clean.
