@@ -669,53 +669,6 @@ static int AllocFailure(void) {
     return 0;
 }
 
-// Does tets[0, n) hold a tet with these four nodes (in any order)?
-static int has_tet(const int* tets, int n, const int want[4]) {
-    for (int e = 0; e < n; ++e) {
-        int hit = 0;
-        for (int a = 0; a < 4; ++a)
-            for (int b = 0; b < 4; ++b) hit += tets[4 * e + a] == want[b];
-        if (hit == 4) return 1;
-    }
-    return 0;
-}
-
-/// Held pieces: two kept tets A and B and candidates that hang on them by edges and vertices.
-/// Held (admitted): P (edge of A + vertex of B), R (only through P, in the second round), the
-/// face-joined S1 + S2 (neither alone), U (three non-collinear anchors). Not held: Q (an edge of
-/// B only: it could rotate), T (three collinear anchors).
-static int AdmitHeldPieces(void) {
-    const double x[] = {0,  0, 0, 1,  0, 0, 0,  1, 0, 0,  0, 1, 3,  0, 0, 4,  0, 0,
-                        3,  1, 0, 3,  0, 1, 2,  1, 1, 5,  1, 1, 5,  2, 0, 4,  2, 2,
-                        9,  9, 9, 1,  2, 3, 2,  3, 4, 9,  8, 9, 10, 0, 0, 11, 0, 0,
-                        12, 0, 0, 11, 1, 0, 20, 0, 0, 21, 0, 0, 20, 1, 0, 20, 0, 1};
-    const int A[4] = {0, 1, 2, 3}, B[4] = {4, 5, 6, 7}, P[4] = {1, 2, 4, 8}, Q[4] = {5, 6, 9, 10},
-              R[4] = {8, 3, 7, 11}, S1[4] = {0, 3, 13, 14}, S2[4] = {3, 13, 14, 5},
-              T[4] = {16, 17, 18, 19}, U[4] = {20, 21, 22, 23};
-    const int* order[] = {A, B, Q, R, S2, T, P, U, S1}; // candidates mixed up
-    int tets[4 * 9];
-    for (int e = 0; e < 9; ++e) memcpy(tets + 4 * e, order[e], sizeof A);
-    unsigned char anchor[24] = {0};
-    anchor[16] = anchor[17] = anchor[18] = 1; // collinear
-    anchor[20] = anchor[21] = anchor[22] = 1;
-    int kept = hs_mesh_admit_held_pieces(24, x, 9, tets, 2, anchor);
-    ENSURE(kept == 7);
-    ENSURE(has_tet(tets, 2, A) && has_tet(tets, 2, B)); // the kept ones stay first
-    const int* in[] = {P, R, S1, S2, U};
-    for (int k = 0; k < 5; ++k) ENSURE(has_tet(tets, kept, in[k]));
-    ENSURE(has_tet(tets + 4 * kept, 2, Q) && has_tet(tets + 4 * kept, 2, T));
-    // Without R's way in through P (P gone), R stays out too; S1 alone is not held.
-    const int* order2[] = {A, B, R, S1};
-    for (int e = 0; e < 4; ++e) memcpy(tets + 4 * e, order2[e], sizeof A);
-    ENSURE(hs_mesh_admit_held_pieces(24, x, 4, tets, 2, NULL) == 2);
-    // Nothing to admit; bad arguments.
-    ENSURE(hs_mesh_admit_held_pieces(24, x, 2, tets, 2, NULL) == 2);
-    ENSURE(hs_mesh_admit_held_pieces(24, x, 4, tets, 5, NULL) == -1);
-    tets[5] = 24;
-    ENSURE(hs_mesh_admit_held_pieces(24, x, 4, tets, 2, NULL) == -1);
-    return 0;
-}
-
 HS_TEST_MAIN(HS_CASE(SharedMeshes), HS_CASE(BoxMesh), HS_CASE(CheckDetectsCorruption),
              HS_CASE(Repairs), HS_CASE(InvalidInput), HS_CASE(MalformedFiles), HS_CASE(RoundTrip),
-             HS_CASE(AllocFailure), HS_CASE(AdmitHeldPieces))
+             HS_CASE(AllocFailure))

@@ -102,16 +102,6 @@ int hs_mesh_select_box(const hs_mesh* mesh, const double box_min[3], const doubl
 int hs_mesh_select_plane(const hs_mesh* mesh, int axis, int side, double tol_m,
                          unsigned char* mask);
 
-/// Admit held pieces. tets[4 n_tets]: the first n_kept are kept, the rest candidates. A piece
-/// is a face-connected group of candidates; it is held when its nodes that are anchors
-/// (anchor[v] = 1) or belong to kept tets include three non-collinear ones (at x0): then its tets
-/// move into the kept range (the order within each range is not kept), and so on until no
-/// piece is admitted (a piece can hold the next). A piece hanging on by an edge or a vertex is
-/// not held: it could rotate, and a stiffness with it would be singular.
-/// Returns the new n_kept, or -1 on bad arguments or no memory. Allocates: yes (scratch)
-int hs_mesh_admit_held_pieces(int n_nodes, const double* x0, int n_tets, int* tets, int n_kept,
-                              const unsigned char* anchor);
-
 #ifdef __cplusplus
 }
 #endif
