@@ -1384,11 +1384,52 @@ static int test_factor_none(void) {
     return 0;
 }
 
+/// Whether pins hold (pins_hold), under FIX on a box held at x = 0: a first cut across frees
+/// the far part, whose nodes FIX pins; a second cut across splits that part in two. With pins
+/// holding (default: K has their springs) both halves are held by the pins; without (a body
+/// with no pin springs, as the simulator's) neither is, and both are free pieces.
+static int test_pins_hold(void) {
+    int64_t bytes = hs_byte_count();
+    for (int hold = 0; hold < 2; hold++) {
+        hs_mesh* m = NULL;
+        hs_err e;
+        ENSURE(hs_mesh_create_box(0.08, 0.04, 0.01, 8, 4, 2, &m, &e) == HS_OK);
+        unsigned char* fixed = hs_calloc((size_t)m->n_nodes, 1);
+        hs_mesh_select_plane(m, 0, -1, 1e-6, fixed);
+        hs_cut_def def = hs_cut_default_def();
+        def.fragment = HS_CUT_FRAGMENT_FIX;
+        def.pins_hold = hold;
+        def.factor_policy = HS_CUT_FACTOR_NONE;
+        hs_cut* c = NULL;
+        ENSURE(hs_cut_create(m, fixed, &def, &c, &e) == HS_OK);
+        int frag[2] = {0, 0};
+        for (int k = 0; k < 2; k++) { // across y at x = 25 mm, then at x = 55 mm
+            const double x = k ? 0.0551 : 0.0251;
+            const double p0[3] = {x, -0.01, -0.005}, q0[3] = {x, -0.01, 0.015};
+            const double p1[3] = {x, 0.05, -0.005}, q1[3] = {x, 0.05, 0.015};
+            hs_cut_result r;
+            hs_status st = hs_cut_sweep(c, p0, q0, p1, q1, NULL, &r, &e);
+            if (st != HS_OK) printf("  %s\n", e.msg);
+            ENSURE(st == HS_OK);
+            frag[k] = r.fragments;
+        }
+        printf("  pins_hold %d: free pieces after the first cut %d, after the second %d\n", hold,
+               frag[0], frag[1]);
+        ENSURE(frag[0] == 1);
+        ENSURE(frag[1] == (hold ? 0 : 2));
+        hs_cut_destroy(&c);
+        hs_free(fixed);
+        hs_mesh_destroy(&m);
+    }
+    ENSURE(hs_byte_count() == bytes);
+    return 0;
+}
+
 HS_TEST_MAIN(HS_CASE(test_force_model), HS_CASE(test_skin_full_separation),
              HS_CASE(test_skin_wound_angle), HS_CASE(test_consistency),
              HS_CASE(test_aggregated_update), HS_CASE(test_window_background),
              HS_CASE(test_window_thread), HS_CASE(test_window_pays), HS_CASE(test_rules),
-             HS_CASE(test_factor_none), HS_CASE(test_piece_check),
+             HS_CASE(test_pins_hold), HS_CASE(test_factor_none), HS_CASE(test_piece_check),
              HS_CASE(test_deformed_and_bad_input), HS_CASE(test_dynamic_body),
              HS_CASE(test_body_follows_cut), HS_CASE(test_alloc_faults),
              HS_CASE(test_liver_random_cuts))

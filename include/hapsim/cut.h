@@ -82,6 +82,10 @@ typedef struct hs_cut_def {
     hs_material material;     ///< material of the linear stiffness kept factorised
     hs_cut_orphan orphan;     ///< orphan vertex rule
     hs_cut_fragment fragment; ///< free piece rule
+    /// 1 (default): a pinned node holds a piece like a fixed one (K has its spring). 0: only
+    /// fixed nodes hold, for a caller whose own body has no pin springs (a piece FIX pinned
+    /// still moves there, so it must not hold the next one).
+    int pins_hold;
     double min_volume_ratio;  ///< guard: V_after / V_before of each remaining incident tet
     double min_quality;       ///< guard: floor of 6 sqrt(2) V / l_rms^3 (1 = regular tet)
     int max_bisections;       ///< guard: halvings of a move before it is dropped

@@ -147,6 +147,7 @@ hs_cut_def hs_cut_default_def(void) {
     d.material = hs_fem_default_def().material;
     d.orphan = HS_CUT_ORPHAN_PIN;
     d.fragment = HS_CUT_FRAGMENT_DROP;
+    d.pins_hold = 1;
     d.min_volume_ratio = 0.1;
     d.min_quality = 0.02;
     d.max_bisections = 8;
@@ -854,6 +855,7 @@ hs_status hs_cut_solve(hs_cut* c, const double* f, double* u) {
 }
 
 static int find_pieces(hs_cut* c);
+static int find_root(int* parent, int i);
 
 hs_status hs_cut_validate(hs_cut* c, hs_err* err) {
     hs_status st = hs_cut_update_live(c, err);
@@ -887,8 +889,19 @@ hs_status hs_cut_validate(hs_cut* c, hs_err* err) {
             return hs_err_set(err, HS_ERR_INVALID, "cut: live x0 of node %d out of sync", i);
     }
     // Every piece held since the first sweep that removed tets (the fast check's claim),
-    // recounted over all tets.
+    // recounted over all tets; where pins do not hold, a piece FIX left has every node pinned.
     int loose = c->pieces_checked ? find_pieces(c) : 0;
+    if (loose && !c->def.pins_hold && c->def.fragment == HS_CUT_FRAGMENT_FIX) {
+        const int* T = c->mesh->tets;
+        for (int e = 0; e < c->ne; e++) {
+            if (!c->active[e] || c->anch[find_root(c->tparent, e)]) continue;
+            for (int a = 0; a < 4; a++)
+                if (!c->pinned[T[4 * e + a]])
+                    return hs_err_set(err, HS_ERR_INVALID,
+                                      "cut: node %d of a free piece is not pinned", T[4 * e + a]);
+        }
+        loose = 0;
+    }
     if (loose)
         return hs_err_set(err, HS_ERR_INVALID,
                           "cut: %d piece(s) without three non-collinear fixed or pinned nodes",
@@ -1043,9 +1056,9 @@ static void remove_tet(hs_cut* c, int e, int counted) {
 
 /// Free pieces. Tets sharing a face move as one rigid body in the kernel of K, so the pieces
 /// are the face-connected sets of active tets (a piece hanging on by an edge or a vertex can
-/// still rotate: K would be singular). A piece is held when its fixed (or pinned) nodes include
-/// three non-collinear ones. Labels them (union-find roots in tparent; anch at a root: held) and
-/// returns the number not held.
+/// still rotate: K would be singular). A piece is held when its fixed (or pinned, with
+/// pins_hold) nodes include three non-collinear ones. Labels them (union-find roots in tparent;
+/// anch at a root: held) and returns the number not held.
 static int find_pieces(hs_cut* c) {
     const int* T = c->mesh->tets;
     const double* x0 = c->mesh->x0;
@@ -1069,7 +1082,7 @@ static int find_pieces(hs_cut* c) {
         int r = find_root(par, e);
         for (int a = 0; a < 4 && !c->anch[r]; a++) {
             int v = T[4 * e + a];
-            if (!c->fixed[v] && !c->pinned[v]) continue;
+            if (!c->fixed[v] && !(c->pinned[v] && c->def.pins_hold)) continue;
             if (c->fa[r] < 0 || c->fa[r] == v) {
                 c->fa[r] = v;
             } else if (c->fb[r] < 0 || c->fb[r] == v) {
