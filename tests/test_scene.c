@@ -24,7 +24,7 @@ static int liver_scene_loads(void) {
     ENSURE(s.n_fixed == 1 && s.fixed[0].kind == HS_FIXED_PLANE && s.fixed[0].normal[1] == 1.0);
     ENSURE(s.n_tools == 1 && s.tools[0].kind == HS_TOOL_PROBE && s.tools[0].radius == 0.005);
     ENSURE(s.gravity[2] == 0.0 && s.n_devices == 1 && s.has_workspace);
-    ENSURE(s.feature_haptics && !s.feature_cutting && s.feature_visual);
+    ENSURE(s.feature_haptics && !s.feature_cutting && s.feature_visual && !s.cut_free_pieces_fall);
     ENSURE(s.haptic_hz == 1000.0 && s.sim_hz == 60.0 && s.watchdog_s == 0.1);
     ENSURE(strcmp(s.prefix, HAPSIM_DEFAULT_PREFIX) == 0);
     ENSURE(strcmp(s.haptic_url, HAPSIM_DEFAULT_HAPTIC_URL) == 0);
@@ -65,10 +65,11 @@ static int defaults_and_paths(void) {
         "{\"mesh\": \"m.msh\", \"fixed\": [{\"type\": \"plane\", \"point\": [0,0,0],"
         " \"normal\": [0,0,2]}], \"tools\": [{\"kind\": \"probe\", \"radius\": 0.004},"
         " {\"kind\": \"scalpel\", \"blade_a\": [0,0,0], \"blade_b\": [0,0,0.02]}],"
-        " \"features\": {\"cutting\": true}, \"lcm\": {\"prefix\": \"\"}}";
+        " \"features\": {\"cutting\": true}, \"cutting\": {\"free_pieces\": \"fall\"},"
+        " \"lcm\": {\"prefix\": \"\"}}";
     ENSURE(hs_scene_parse(cut, "c.json", 0, &s, &err) == HS_OK);
     ENSURE(s.fixed[0].normal[2] == 1.0 && s.n_tools == 2 && s.tools[1].kind == HS_TOOL_SCALPEL);
-    ENSURE(s.feature_cutting == 1 && s.prefix[0] == '\0');
+    ENSURE(s.feature_cutting == 1 && s.cut_free_pieces_fall == 1 && s.prefix[0] == '\0');
     ENSURE(strcmp(hs_scene_model_name(HS_MODEL_STVK), "stvk") == 0);
     return 0;
 }
@@ -138,6 +139,10 @@ static int malformed_names_file_line_key(void) {
                        HS_ERR_PARSE, "'tools[0].blade_b': equals blade_a", NULL) == 0);
     ENSURE(expect_fail(HEAD "\"features\": {\"cutting\": true}}", HS_ERR_PARSE,
                        "'features.cutting': is on but no tool is a scalpel", NULL) == 0);
+    ENSURE(expect_fail(HEAD "\"cutting\": {\"free_pieces\": \"fix\"}}", HS_ERR_PARSE,
+                       "'cutting.free_pieces': must be one of: drop | fall", NULL) == 0);
+    ENSURE(expect_fail(HEAD "\"cutting\": {\"orphans\": \"pin\"}}", HS_ERR_PARSE,
+                       "'cutting.orphans'", NULL) == 0);
     ENSURE(expect_fail(HEAD "\"tools\": [], \"features\": {\"haptics\": true}}", HS_ERR_PARSE,
                        "'features.haptics'", NULL) == 0);
     ENSURE(expect_fail(HEAD "\"lcm\": {\"mesh_url\": \"udpm://239.255.76.67:7667?ttl=0\"}}",

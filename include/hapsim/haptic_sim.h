@@ -140,7 +140,11 @@ struct hs_spsc_ring;
 struct hs_spsc_ring* hs_haptic_sim_telemetry(hs_haptic_sim* sim);
 /// Cutting with a scalpel. Initialise with hs_haptic_cut_default_def().
 typedef struct hs_haptic_cut_def {
-    hs_cut_def cut;          ///< cut rules; orphan and fragment rules are forced to KEEP_TET / FIX
+    /// Cut rules. The orphan rule is forced to PIN (the body holds such a node where it is). The
+    /// fragment rule: DROP (default: a piece the fixed region does not hold leaves the scene) or
+    /// FIX (it stays in the body with its mass and falls under gravity or drifts; the
+    /// compliance leaves it out, so the probe does not touch it).
+    hs_cut_def cut;
     double blade_a[3];       ///< blade start, tool frame, m
     double blade_b[3];       ///< blade end, tool frame, m
     double toughness_n_m;    ///< cutting force per metre of mesh edge cut in one sweep, N/m
@@ -191,10 +195,10 @@ int64_t hs_haptic_sim_take_topology(hs_haptic_sim* sim, double* x0 /* OUT [3n] *
                                     int* tris /* OUT */, int tri_cap, int* n_tris /* OUT */,
                                     hs_haptic_cut_event* ev /* OUT, may be NULL */);
 
-/// Nodes the cuts pinned: nodes left without a tet (the cut removes every tet it crosses, and
-/// every piece the fixed region does not hold). The body holds each where it was
-/// (hs_fem_held_nodes); no live tet uses one, so the compliance holds them and the probe cannot
-/// touch them.
+/// Nodes the cuts pinned: nodes left without a tet (the cut removes every tet it crosses; the
+/// body holds each where it was, hs_fem_held_nodes), and under FIX every node of a piece the
+/// fixed region does not hold (the body lets the piece move). The compliance holds every node
+/// no tet of a held piece uses; the probe cannot touch those.
 /// Sets pinned[n_nodes] to 1 / 0 and returns how many (0 without cutting). Only while stopped.
 int hs_haptic_sim_cut_pinned(hs_haptic_sim* sim, unsigned char* pinned /* OUT [n] */);
 /// The compliance (read-only use from the control thread only while the sim is stopped).

@@ -83,8 +83,11 @@ typedef struct hs_scene {
     double visual_hz; ///< Hz, mesh delta / tool state publishing rate
     double status_hz; ///< Hz, server_status rate
 
-    int feature_haptics;   ///< 1: run the rt thread and answer poses with forces
-    int feature_cutting;   ///< 1: allocate and run cutting (needs a scalpel tool)
+    int feature_haptics; ///< 1: run the rt thread and answer poses with forces
+    int feature_cutting; ///< 1: allocate and run cutting (needs a scalpel tool)
+    /// cutting.free_pieces: 0 "drop" (a piece cut free of the fixed region leaves the scene),
+    /// 1 "fall" (it stays, with its mass, and falls under gravity; the probe does not touch it)
+    int cut_free_pieces_fall;
     int feature_visual;    ///< 1: publish mesh topology / keyframes / deltas
     double force_max_n;    ///< N, force magnitude clamp
     double force_rate_max; ///< N/s, force rate clamp

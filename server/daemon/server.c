@@ -335,6 +335,8 @@ static hs_status world_create(const hs_scene* sc, int realtime, world* w, hs_err
             sc->force_max_n < w->cdef.max_force_n ? sc->force_max_n : w->cdef.max_force_n;
         // A scene listing a probe as well: the released blade probes the (cut) tissue.
         w->cdef.probe_when_released = w->probe_tool >= 0;
+        w->cdef.cut.fragment =
+            sc->cut_free_pieces_fall ? HS_CUT_FRAGMENT_FIX : HS_CUT_FRAGMENT_DROP;
         w->tri_cap = 4 * m->n_tets;
         w->ctris = hs_alloc(3 * (size_t)w->tri_cap * sizeof(int) + 1);
         w->vis_of = hs_alloc(n * sizeof(int32_t) + 1);
@@ -1333,8 +1335,10 @@ void hs_server_print_summary(hs_server* s) {
         for (int k = 0; k < 3; ++k)
             l += (tl->blade_b[k] - tl->blade_a[k]) * (tl->blade_b[k] - tl->blade_a[k]);
         printf("  cutting  scalpel (tool %d, blade %.1f mm) cuts while button 0 is held; "
-               "resistance %g N/m of edge cut, cap %g N; topology events on %s\n",
-               w->scalpel, sqrt(l) * 1e3, w->cdef.toughness_n_m, w->cdef.max_force_n, s->ch_tevent);
+               "resistance %g N/m of edge cut, cap %g N; pieces cut free %s; topology events on "
+               "%s\n",
+               w->scalpel, sqrt(l) * 1e3, w->cdef.toughness_n_m, w->cdef.max_force_n,
+               w->cdef.cut.fragment == HS_CUT_FRAGMENT_FIX ? "fall" : "are dropped", s->ch_tevent);
     }
     if (w->visual)
         printf("  visual   %d nodes, %d triangles, %g Hz deltas, keyframe + topology every 1 s "

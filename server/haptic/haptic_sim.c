@@ -189,6 +189,7 @@ struct hs_haptic_sim {
     double bp[3], bq[3]; // blade ends at the last sweep, m
     double cut_force[3]; // resistance in the newest snapshot, N
     int comp_stale;      // the compliance predates the newest cut (rebuilt once the blade stops)
+    int wake_steps;      // steps the body takes whatever its speed: a cut moves its equilibrium
     int engaged;         // the blade's buttons are held (cutting on)
     hs_mesh* comp_mesh;  // the mesh h->comp was built on once cuts replaced it (owned)
     // Background compliance rebuild: the deformation thread copies the live mesh into cw_*,
@@ -200,8 +201,8 @@ struct hs_haptic_sim {
     int64_t cw_version;    // topology version the job was copied at
     double* cw_x0;         // [3n] job input
     int* cw_tets;          // [4 n_tets] job input
-    int cw_ntets;          // live tets in cw_tets
-    unsigned char* cw_fix; // [n] worker: fixed0 + nodes no kept tet uses
+    int cw_ntets;          // tets in cw_tets: the live ones of held pieces
+    unsigned char* cw_fix; // [n] worker: fixed0 + nodes no tet of cw_tets uses
     hs_mesh* cw_mesh;      // job output
     hs_compliance* cw_comp;
     hs_status cw_status;
@@ -579,11 +580,19 @@ static int comp_start(hs_haptic_sim* h) {
     if (!live || live->n_tets > h->mesh->n_tets) return 0;
     const int n = h->mesh->n_nodes;
     memcpy(h->cw_x0, live->x0, 3 * (size_t)n * sizeof(double));
-    // The compliance sees the body's elements: the cut drops every piece the fixed region does
-    // not hold and pins only nodes left without a tet, so the live tets are all held. Nodes no
-    // live tet uses are held (and not contactable).
-    memcpy(h->cw_tets, live->tets, 4 * (size_t)live->n_tets * sizeof(int));
-    h->cw_ntets = live->n_tets;
+    // The compliance sees the pieces the fixed region holds. Under DROP those are all the live
+    // tets (the cut pins only nodes left without a tet). Under FIX the cut pins every node of
+    // a piece it does not hold, and the body lets that piece move with its mass: its tets are
+    // left out (a piece hanging on by a hinge carries no static load). Nodes no tet kept here
+    // uses are held (and not contactable).
+    int k = 0;
+    for (int e = 0; e < live->n_tets; ++e) {
+        const int* t = live->tets + 4 * e;
+        int free_node = h->cdef.cut.fragment == HS_CUT_FRAGMENT_DROP;
+        for (int a = 0; a < 4; ++a) free_node |= !hs_cut_node_pinned(h->cut, t[a]);
+        if (free_node) memcpy(h->cw_tets + 4 * k++, t, 4 * sizeof(int));
+    }
+    h->cw_ntets = k;
     h->cw_version = hs_cut_topology_version(h->cut);
     h->cw_mesh = NULL;
     h->cw_comp = NULL;
@@ -773,7 +782,6 @@ static void* deform_main(void* arg) {
         int fresh = hs_triple_buffer_read_copy(h->contact, &c);
         (void)fresh;
         int loaded = c.n > 0 || h->applied_n > 0;
-        int moving = loaded || max_speed(h) > h->def.sleep_speed_m_s;
         int64_t t0 = hs_now_ns();
         int rebuild = 0, cut_changed = 0;
         h->st.loops++;
@@ -782,7 +790,12 @@ static void* deform_main(void* arg) {
             int64_t before = h->st.cut_steps;
             rebuild = cut_step(h) || swapped;
             cut_changed = h->st.cut_steps != before;
+            // A body at rest under gravity or pre-stress is no longer in equilibrium after a
+            // cut (a lip opens, a piece cut free falls): it must step before it may sleep.
+            if (cut_changed) h->wake_steps = 10;
         }
+        int moving = loaded || h->wake_steps > 0 || max_speed(h) > h->def.sleep_speed_m_s;
+        if (h->wake_steps > 0) h->wake_steps--;
         if (moving) {
             // The forces rt computed from the last snapshot drive this step.
             apply_contact(h, &c);
@@ -1076,12 +1089,16 @@ hs_status hs_haptic_sim_enable_cutting(hs_haptic_sim* h, hs_mesh* mesh,
                           "hs_haptic_sim_enable_cutting: blade of zero length, or toughness, "
                           "force cap or travel negative");
     h->cdef = *def;
+    if (def->cut.fragment != HS_CUT_FRAGMENT_DROP && def->cut.fragment != HS_CUT_FRAGMENT_FIX)
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "hs_haptic_sim_enable_cutting: cut.fragment %d is neither DROP nor FIX",
+                          (int)def->cut.fragment);
     // Every cut tet goes and a node left without one is held where it is (the body keeps its
-    // mass on the diagonal: hs_fem_held_nodes); a piece no fixed node holds goes too. The
-    // paper's keep-tet rule left fine cuts joined through kept tets, where the body and the
-    // haptic compliance then disagreed (docs/haptics.md).
+    // mass on the diagonal: hs_fem_held_nodes). The paper's keep-tet rule left fine cuts
+    // joined through kept tets, where the body and the haptic compliance then disagreed
+    // (docs/haptics.md). A piece no fixed node holds goes (DROP) or stays in the body (FIX).
     h->cdef.cut.orphan = HS_CUT_ORPHAN_PIN;
-    h->cdef.cut.fragment = HS_CUT_FRAGMENT_DROP;
+    h->cdef.cut.pins_hold = 0; // the body has no pin springs
     h->cdef.cut.material = h->def.body.fem.material;
     const size_t n = (size_t)mesh->n_nodes, nt = (size_t)mesh->n_tets;
     // A retry after a failed call starts clean.

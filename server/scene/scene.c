@@ -38,6 +38,7 @@ void hs_scene_default(hs_scene* s) {
     s->status_hz = 2.0;
     s->feature_haptics = 1;
     s->feature_cutting = 0;
+    s->cut_free_pieces_fall = 0;
     s->feature_visual = 1;
     s->force_max_n = 3.3;
     s->force_rate_max = 500.0;
@@ -472,6 +473,13 @@ static hs_status parse_rest(const ctx* c, const cJSON* root, hs_scene* s) {
         TRY(get_bool(c, o, "features", "cutting", &s->feature_cutting));
         TRY(get_bool(c, o, "features", "visual_mesh", &s->feature_visual));
     }
+    TRY(get_obj(c, root, "", "cutting", &o));
+    if (o) {
+        static const char* const keys[] = {"free_pieces", NULL};
+        TRY(check_keys(c, o, "cutting", keys));
+        static const char* const rules[] = {"drop", "fall"};
+        TRY(get_enum(c, o, "cutting", "free_pieces", rules, 2, 0, &s->cut_free_pieces_fall));
+    }
     TRY(get_obj(c, root, "", "haptics", &o));
     if (o) {
         static const char* const keys[] = {"force_max_n", "force_rate_max_n_per_s", "watchdog_ms",
@@ -531,9 +539,9 @@ static hs_status resolve_mesh(const ctx* c, const cJSON* item, const char* scene
 
 static hs_status parse_root(const ctx* c, const cJSON* root, int check_files, hs_scene* s) {
     if (!cJSON_IsObject(root)) return fail(c, root, "(top level)", "must be an object { ... }");
-    static const char* const keys[] = {"name",  "mesh",     "units_scale", "material", "model",
-                                       "fixed", "gravity",  "tools",       "devices",  "workspace",
-                                       "rates", "features", "haptics",     "lcm",      NULL};
+    static const char* const keys[] = {
+        "name",    "mesh",      "units_scale", "material", "model",   "fixed", "gravity", "tools",
+        "devices", "workspace", "rates",       "features", "haptics", "lcm",   "cutting", NULL};
     TRY(check_keys(c, root, "", keys));
     char mesh[HS_SCENE_PATH_MAX];
     TRY(get_str(c, root, "", "mesh", mesh, sizeof mesh, 1));
