@@ -1290,7 +1290,9 @@ static int liver_random_cuts(hs_cut_factor_policy policy, int window) {
            policy == HS_CUT_FACTOR_PARTIAL ? "partial" : "low-rank", window ? " + window" : "",
            cutting, total_removed, m->n_tets, fragments, refactored, hs_cut_live_mesh(c)->n_tets,
            swaps, worst, max_ms);
-    ENSURE(cutting > 200);
+    // Sweeps that removed tets: the organ is used up within 1000 (187-269 seen, fewer since a
+    // sweep also takes the tets its moves leave across the blade).
+    ENSURE(cutting > 150);
     ENSURE(!window || swaps > 50);
     hs_free(f);
     hs_free(u);

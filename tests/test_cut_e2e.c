@@ -309,7 +309,10 @@ static int test_blade_drag(void) {
 #endif
     printf("  deformation loop passes while the compliance was rebuilt: %lld\n",
            (long long)(loops_building1 - loops_building0));
-    ENSURE(loops_building1 - loops_building0 > 10); // ... beside the loop, not in it
+    // ... beside the loop, not in it: a loop the rebuild blocked would pass once. After a cut the
+    // body steps (paced at 60 Hz) for a while, so a ~0.1 s rebuild sees 4-6 passes, more when
+    // the loop only polls.
+    ENSURE(loops_building1 - loops_building0 >= 3);
     // ... and it is the compliance of the cut body: diagonal blocks as a fresh one's, on every
     // live tet, holding the fixed nodes and those no live tet uses. The cut pins only nodes
     // left without a tet (and drops pieces the fixed ends do not hold), so no live tet has one.

@@ -1804,6 +1804,38 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
     }
     c->n_moved = r.moved = n_moved;
 
+    // 3b. A move can leave a vertex a hair across the blade's plane (the tangent-plane rule, a
+    // clamped move): its other tets then cross the swept quad, and no later sweep comes back
+    // here. They go now, as they are (no further moves: nothing cascades). Without this, fine
+    // sweeps left hundreds of such tets bridging a cut across the skin patch.
+    for (int k = 0; k < n_moved; k++) {
+        int v = c->moved[k];
+        for (int p = c->nt_start[v]; p < c->nt_start[v + 1]; p++) {
+            int e = c->nt[p];
+            if (!c->active[e] || c->tmark[e] != 0) continue;
+            const int* t = T + 4 * e;
+            int hit = 0;
+            for (int q = 0; q < 6 && !hit; q++) {
+                const double *xa = c->x + 3 * t[k_edge[q][0]], *xb = c->x + 3 * t[k_edge[q][1]];
+                double d[3];
+                v3_sub(xa, xb, d);
+                double tol = 1e-6 * sqrt(v3_dot(d, d));
+                hit = seg_tri(xa, xb, p0, q0, q1, tol) || seg_tri(xa, xb, p0, q1, p1, tol);
+            }
+            if (!hit) continue;
+            int orphan = 0;
+            for (int a = 0; a < 4; a++) orphan |= c->count[t[a]] == 1;
+            if (orphan && c->def.orphan == HS_CUT_ORPHAN_KEEP_TET) {
+                r.kept++;
+                continue;
+            }
+            for (int a = 0; a < 4; a++) c->count[t[a]]--;
+            c->tmark[e] = 2;
+            c->cut_list[n_cut++] = e;
+            r.cut_tets++;
+        }
+    }
+
     // 4. Remove, then orphans (PIN rule) and free pieces.
     for (int k = 0; k < n_cut; k++) {
         int e = c->cut_list[k];
