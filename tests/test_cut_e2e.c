@@ -613,8 +613,8 @@ static int test_probe_after_fine_cut(void) {
 /// default) takes its tets out and holds its nodes exactly where they were; FIX (the scene's
 /// "free_pieces": "fall") keeps its tets in the body, every node pinned in the cut. Either way
 /// the compliance leaves the strip out (no contactable node) and nothing goes non-finite.
-/// Without gravity: under gravity (0.5-2 m/s^2) the lips sag after the first cut, and the
-/// second cut the strip wholly free in 2 of 6 runs (2026-11-26; see docs/cutting.md).
+/// Without gravity: under gravity the lips sag after the first cut and the second does not
+/// always cut the strip wholly free (docs/cutting.md, "In the server").
 static int free_piece(int fall) {
     int64_t bytes = hs_byte_count();
     hs_mesh* m = NULL;

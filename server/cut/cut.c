@@ -1640,6 +1640,15 @@ void hs_cut_window_stats_get(const hs_cut* c, hs_cut_window_stats* out) {
     out->build_ms = ended > 0 ? c->wt_ms_sum / ended : 0;
 }
 
+/// 1 when edge ab crosses the swept quad S = {p0, q0, q1, p1} (its two triangles), with a
+/// tolerance relative to the edge's length.
+static int edge_crosses(const double* xa, const double* xb, const double* const S[4]) {
+    double d[3];
+    v3_sub(xa, xb, d);
+    double tol = 1e-6 * sqrt(v3_dot(d, d));
+    return seg_tri(xa, xb, S[0], S[1], S[2], tol) || seg_tri(xa, xb, S[0], S[2], S[3], tol);
+}
+
 hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const double p1[3],
                        const double q1[3], double* u, hs_cut_result* res, hs_err* err) {
     hs_cut_result r;
@@ -1692,11 +1701,7 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
         int hit = 0;
         for (int k = 0; k < 6; k++) {
             int a = t[k_edge[k][0]], b = t[k_edge[k][1]];
-            const double *xa = c->x + 3 * a, *xb = c->x + 3 * b;
-            double d[3];
-            v3_sub(xa, xb, d);
-            double tol = 1e-6 * sqrt(v3_dot(d, d));
-            if (seg_tri(xa, xb, p0, q0, q1, tol) || seg_tri(xa, xb, p0, q1, p1, tol)) {
+            if (edge_crosses(c->x + 3 * a, c->x + 3 * b, S)) {
                 hit = 1;
                 c->edges[2 * n_edges] = a < b ? a : b;
                 c->edges[2 * n_edges + 1] = a < b ? b : a;
@@ -1815,13 +1820,8 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
             if (!c->active[e] || c->tmark[e] != 0) continue;
             const int* t = T + 4 * e;
             int hit = 0;
-            for (int q = 0; q < 6 && !hit; q++) {
-                const double *xa = c->x + 3 * t[k_edge[q][0]], *xb = c->x + 3 * t[k_edge[q][1]];
-                double d[3];
-                v3_sub(xa, xb, d);
-                double tol = 1e-6 * sqrt(v3_dot(d, d));
-                hit = seg_tri(xa, xb, p0, q0, q1, tol) || seg_tri(xa, xb, p0, q1, p1, tol);
-            }
+            for (int q = 0; q < 6 && !hit; q++)
+                hit = edge_crosses(c->x + 3 * t[k_edge[q][0]], c->x + 3 * t[k_edge[q][1]], S);
             if (!hit) continue;
             int orphan = 0;
             for (int a = 0; a < 4; a++) orphan |= c->count[t[a]] == 1;
