@@ -86,10 +86,10 @@ typedef struct hs_cut_def {
     /// fixed nodes hold, for a caller whose own body has no pin springs (a piece FIX pinned
     /// still moves there, so it must not hold the next one).
     int pins_hold;
-    double min_volume_ratio;  ///< guard: V_after / V_before of each remaining incident tet
-    double min_quality;       ///< guard: floor of 6 sqrt(2) V / l_rms^3 (1 = regular tet)
-    int max_bisections;       ///< guard: halvings of a move before it is dropped
-    int tangent_surface;      ///< 1: surface vertices move only in their tangent plane (paper)
+    double min_volume_ratio; ///< guard: V_after / V_before of each remaining incident tet
+    double min_quality;      ///< guard: floor of 6 sqrt(2) V / l_rms^3 (1 = regular tet)
+    int max_bisections;      ///< guard: halvings of a move before it is dropped
+    int tangent_surface;     ///< 1: surface vertices move only in their tangent plane (paper)
     hs_cut_factor_policy factor_policy; ///< how K's factor follows the cuts
     int validate;                       ///< 1: hs_mesh_check + own checks after every sweep
     /// Update window (UPDATE / AUTO / PARTIAL; 0: off). The factor is ordered with the free
