@@ -787,6 +787,9 @@ static void* deform_main(void* arg) {
         h->st.loops++;
         if (h->cut) {
             int swapped = comp_poll(h, 0);
+            // Say so before the snapshot with the new contact goes out (a step may come
+            // first): a reader never sees that contact while the status still says stale.
+            if (swapped) hs_triple_buffer_write(h->status, &h->st);
             int64_t before = h->st.cut_steps;
             rebuild = cut_step(h) || swapped;
             cut_changed = h->st.cut_steps != before;
@@ -1088,11 +1091,11 @@ hs_status hs_haptic_sim_enable_cutting(hs_haptic_sim* h, hs_mesh* mesh,
         return hs_err_set(err, HS_ERR_INVALID,
                           "hs_haptic_sim_enable_cutting: blade of zero length, or toughness, "
                           "force cap or travel negative");
-    h->cdef = *def;
     if (def->cut.fragment != HS_CUT_FRAGMENT_DROP && def->cut.fragment != HS_CUT_FRAGMENT_FIX)
         return hs_err_set(err, HS_ERR_INVALID,
                           "hs_haptic_sim_enable_cutting: cut.fragment %d is neither DROP nor FIX",
                           (int)def->cut.fragment);
+    h->cdef = *def;
     // Every cut tet goes and a node left without one is held where it is (the body keeps its
     // mass on the diagonal: hs_fem_held_nodes). The paper's keep-tet rule left fine cuts
     // joined through kept tets, where the body and the haptic compliance then disagreed
