@@ -678,14 +678,14 @@ static int free_piece(int fall) {
         strip++;
         pinned += pin[i];
         contactable += hs_compliance_contactable(cc, i);
-        fell += (u1[3 * i + 2] - u0[3 * i + 2]) / 1000; // mean over ~200 nodes, below
+        fell += u1[3 * i + 2] - u0[3 * i + 2]; // summed here, the mean below
         for (int a = 0; a < 3; ++a) {
             ENSURE(isfinite(u1[3 * i + a]));
             moved = fmax(moved, fabs(u1[3 * i + a] - u0[3 * i + a]));
             since_pre = fmax(since_pre, fabs(u1[3 * i + a] - upre[3 * i + a]));
         }
     }
-    fell = strip > 0 ? fell * 1000 / strip : 0;
+    fell = strip > 0 ? fell / strip : 0;
     printf("  %s: %lld tets removed of %d; the strip's %d nodes: %d pinned, %d contactable; "
            "over %lld body steps after the cut they moved %.3g mm down on average, at most "
            "%.3g mm (%.3g mm since before the second cut)\n",
