@@ -3,6 +3,7 @@
 #include "hapsim/fem.h"
 
 #include "element.h"
+#include "polar4.h"
 
 #include <float.h>
 #include <math.h>
@@ -226,117 +227,18 @@ int hs_polar_higham_ex(const double f[9], double r[9], double tol, int max_iter,
 }
 
 // ---------------------------------------------------------------------------------------------
-// Four warm polar steps at once. The hot loop of a co-rotated update is one Newton step per
-// element; scalar, it costs about twice the rest of the element update. GCC vector extensions
-// keep the code portable (SSE2: two instructions per operation; AVX2 clone: one) and, with
-// -ffp-contract=off, each lane performs exactly the scalar code's operations.
+// Four warm polar steps at once (polar4.h), gathered from and scattered to the callers' arrays.
 
-typedef double v4d __attribute__((vector_size(32)));
-typedef long long v4l __attribute__((vector_size(32)));
-
-/// ||I - X^T X||_F^2 of each lane, the operations of orth_err.
-static inline __attribute__((always_inline)) void orth_err2_4(const v4d x[9], v4d* out) {
-    v4d e[9];
-    for (int i = 0; i < 3; i++)
-        for (int j = 0; j < 3; j++)
-            e[3 * i + j] = x[i] * x[j] + x[3 + i] * x[3 + j] + x[6 + i] * x[6 + j];
-    e[0] -= 1.0;
-    e[4] -= 1.0;
-    e[8] -= 1.0;
-    v4d s = {0, 0, 0, 0};
-    for (int k = 0; k < 9; k++) s += e[k] * e[k];
-    *out = s;
-}
-
-static inline __attribute__((always_inline)) int any4(const v4l* m) {
-    return ((*m)[0] | (*m)[1] | (*m)[2] | (*m)[3]) != 0;
-}
-
-// Control flow as lane masks (-1 true, 0 false): `act` iterating, `acc` accepted; a lane in
-// neither has left for the scalar code.
 static inline __attribute__((always_inline)) void
 polar_warm4_body(const double* const f_[4], double* const r_[4], double* const rtf_[4], double tol,
                  int max_iter, int trusted, int itl[4]) {
-    v4d f[9], x[9], y[9], s[9];
+    v4d f[9], x[9], y[9];
     for (int k = 0; k < 9; k++) {
         f[k] = (v4d){f_[0][k], f_[1][k], f_[2][k], f_[3][k]};
         x[k] = (v4d){r_[0][k], r_[1][k], r_[2][k], r_[3][k]};
     }
-    v4d fn2 = {0, 0, 0, 0}; // m3_fro2
-    for (int k = 0; k < 9; k++) fn2 += f[k] * f[k];
-    if (!(tol > 0)) tol = 1e-12;
-    const v4d tol2 = tol * tol * fn2 / 3.0;
-    v4d prev = {INFINITY, INFINITY, INFINITY, INFINITY};
-    v4l act = (fn2 > 0) & (fn2 <= DBL_MAX), acc = {0, 0, 0, 0}, itv = {0, 0, 0, 0};
-    if (!trusted) { // the scalar entry check: r a rotation to 1e-3
-        v4d oe;
-        orth_err2_4(x, &oe);
-        v4d dx = x[0] * (x[4] * x[8] - x[5] * x[7]) - x[1] * (x[3] * x[8] - x[5] * x[6]) +
-                 x[2] * (x[3] * x[7] - x[4] * x[6]);
-        v4l ok = dx > 0;
-        for (int l = 0; l < 4; l++) ok[l] &= -(long long)(sqrt(oe[l]) <= 1e-3);
-        act &= ok;
-    }
-    for (int it = 0; it <= max_iter && any4(&act); it++) {
-        for (int i = 0; i < 3; i++)
-            for (int j = 0; j < 3; j++)
-                y[3 * i + j] = x[i] * f[j] + x[3 + i] * f[3 + j] + x[6 + i] * f[6 + j];
-        v4d a0 = 0.5 * (y[7] - y[5]), a1 = 0.5 * (y[2] - y[6]), a2 = 0.5 * (y[3] - y[1]);
-        v4d skew2 = a0 * a0 + a1 * a1 + a2 * a2;
-        for (int i = 0; i < 3; i++)
-            for (int j = 0; j < 3; j++) s[3 * i + j] = 0.5 * (y[3 * i + j] + y[3 * j + i]);
-        v4l conv = act & (skew2 <= tol2);
-        if (any4(&conv)) {
-            // spd3(s) and, for an untrusted start, the orthogonality of x
-            v4d sm2 = s[0] * s[4] - s[1] * s[3];
-            v4d sdet = s[0] * (s[4] * s[8] - s[5] * s[7]) - s[1] * (s[3] * s[8] - s[5] * s[6]) +
-                       s[2] * (s[3] * s[7] - s[4] * s[6]);
-            v4l ok = (s[0] > 0) & (sm2 > 0) & (sdet > 0);
-            if (!trusted) {
-                v4d oe;
-                orth_err2_4(x, &oe);
-                for (int l = 0; l < 4; l++) ok[l] &= -(long long)(sqrt(oe[l]) <= tol);
-            }
-            acc |= conv & ok; // x stays; y is recomputed from it unchanged
-        }
-        // Not yet converged: stalled (-> cold start) or out of iterations leave; others step.
-        v4l step = act & ~conv & ~(skew2 > 0.25 * prev);
-        if (it >= max_iter) step &= (v4l){0, 0, 0, 0};
-        prev = (v4d)(((v4l)skew2 & step) | ((v4l)prev & ~step));
-        v4d tr = s[0] + s[4] + s[8];
-        v4d m[9] = {tr - s[0], -s[1], -s[2], -s[3], tr - s[4], -s[5], -s[6], -s[7], tr - s[8]};
-        v4d dm = m[0] * (m[4] * m[8] - m[5] * m[7]) - m[1] * (m[3] * m[8] - m[5] * m[6]) +
-                 m[2] * (m[3] * m[7] - m[4] * m[6]);
-        step &= dm > 0;
-        act = step;
-        if (!any4(&step)) break;
-        v4d mc[9];
-        mc[0] = m[4] * m[8] - m[5] * m[7];
-        mc[1] = m[5] * m[6] - m[3] * m[8];
-        mc[2] = m[3] * m[7] - m[4] * m[6];
-        mc[3] = m[2] * m[7] - m[1] * m[8];
-        mc[4] = m[0] * m[8] - m[2] * m[6];
-        mc[5] = m[1] * m[6] - m[0] * m[7];
-        mc[6] = m[1] * m[5] - m[2] * m[4];
-        mc[7] = m[2] * m[3] - m[0] * m[5];
-        mc[8] = m[0] * m[4] - m[1] * m[3];
-        v4d idm = 1.0 / dm, c[3];
-        for (int i = 0; i < 3; i++)
-            c[i] = idm * (mc[3 * i] * a0 + mc[3 * i + 1] * a1 + mc[3 * i + 2] * a2);
-        v4d c2 = c[0] * c[0] + c[1] * c[1] + c[2] * c[2];
-        v4d kk = 2.0 / (1.0 + c2), d = 1.0 - kk * c2;
-        v4d q[9] = {d + kk * c[0] * c[0],      kk * (c[0] * c[1] - c[2]), kk * (c[0] * c[2] + c[1]),
-                    kk * (c[1] * c[0] + c[2]), d + kk * c[1] * c[1],      kk * (c[1] * c[2] - c[0]),
-                    kk * (c[2] * c[0] - c[1]), kk * (c[2] * c[1] + c[0]), d + kk * c[2] * c[2]};
-        for (int i = 0; i < 3; i++) {
-            v4d xi[3] = {x[3 * i], x[3 * i + 1], x[3 * i + 2]};
-            for (int j = 0; j < 3; j++) {
-                v4d xn = xi[0] * q[j] + xi[1] * q[3 + j] + xi[2] * q[6 + j];
-                x[3 * i + j] = (v4d)(((v4l)xn & step) | ((v4l)x[3 * i + j] & ~step));
-            }
-        }
-        itv -= step; // +1 where stepped
-    }
+    v4l itv, acc = {-1, -1, -1, -1};
+    polar4_core(f, x, y, tol, max_iter, trusted, &acc, &itv);
     // Accepted lanes: x and the y computed from it last. Others keep their start.
     for (int l = 0; l < 4; l++) {
         if (!acc[l]) {

@@ -13,6 +13,7 @@
 
 #include "element.h"
 #include "fem_internal.h"
+#include "polar4.h"
 
 #include <float.h>
 #include <limits.h>
@@ -41,6 +42,8 @@ struct hs_fem {
     double* R;             // [9ne] rotation (co-rotated); warm start of the next update
     double* S;             // [9ne] second Piola-Kirchhoff stress (StVK), Pa
     double* det;           // [ne] det F
+    double* nsum;          // [9n] co-rotated: sum of vol0 F over each node's active tets
+    uint64_t nsum_stamp;   // 1 + k_version of the update that made nsum (0: none)
 
     // nodes
     double* f;     // [3n] elastic forces, N
@@ -107,7 +110,7 @@ void hs_fem_destroy(hs_fem** pfem) {
                     m->nt_start,   m->nt,       m->adj_start, m->adj,        m->blkpos, m->elem_pos,
                     m->diag_pos,   m->mirror,   m->low_of,    m->ring_start, m->ring,   m->nt_slot,
                     m->pair_start, m->pair_blk, m->theta_e,   m->w,          m->pbar,   m->vn,
-                    m->theta_n,    m->cvec,     m->kscale};
+                    m->theta_n,    m->cvec,     m->kscale,    m->nsum};
     for (size_t i = 0; i < sizeof ptrs / sizeof ptrs[0]; i++) hs_free(ptrs[i]);
     hs_free(m);
     *pfem = NULL;
@@ -459,11 +462,12 @@ hs_status hs_fem_create(const hs_mesh* mesh, const hs_fem_def* def, const int* d
     m->R = hs_alloc(sizeof(double) * 9 * (size_t)ne);
     m->S = hs_calloc(9 * (size_t)ne, sizeof(double));
     m->det = hs_alloc(sizeof(double) * (size_t)ne);
+    m->nsum = hs_calloc(9 * (size_t)n + 1, sizeof(double));
     m->f = hs_calloc(3 * (size_t)n, sizeof(double));
     m->mass = hs_calloc((size_t)n, sizeof(double));
     m->held = hs_calloc((size_t)n + 1, sizeof(double));
     if (!m->dof || !seen || !m->tet || !m->g || !m->vol0 || !m->kscale || !m->active || !m->F ||
-        !m->R || !m->S || !m->det || !m->f || !m->mass || !m->held) {
+        !m->R || !m->S || !m->det || !m->nsum || !m->f || !m->mass || !m->held) {
         hs_free(seen);
         st = nomem(err);
         goto fail;
@@ -673,162 +677,279 @@ static inline __attribute__((always_inline)) void element_F(const hs_fem* m, con
 
 static const double k_eye[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
 
-/// Co-rotated, polar: F, det F and the rotation of the active elements e0 .. e0 + 3, the warm
-/// Newton steps four at a time (hs_polar_warm4, bit-identical to the scalar iteration); rtf[k]
-/// receives R^T F of element e0 + k, its[k] its polar iterations.
-static void corot_rotations4(hs_fem* m, const double* x, int e0, int ne, double rtf[4][9],
-                             int its[4]) {
-    const double* fp[4];
-    double* rp[4];
-    double* yp[4];
-    double pad_r[9], pad_y[9];
-    int lane_k[4], nl = 0;
-    for (int k = 0; k < 4 && e0 + k < ne; k++) {
-        int e = e0 + k;
-        if (!m->active[e]) continue;
-        double* F = m->F + 9 * e;
-        element_F(m, x, e, F);
-        double det = m3_det(F);
-        m->det[e] = det;
-        if (!(det > 0)) {
-            its[k] = element_rotation(m, e, F, det, rtf[k]); // inverted: the chosen remedy
-            continue;
-        }
-        fp[nl] = F;
-        rp[nl] = m->R + 9 * e;
-        yp[nl] = rtf[k];
-        lane_k[nl++] = k;
-    }
-    if (nl == 0) return;
-    memcpy(pad_r, k_eye, sizeof pad_r);
-    for (int l = nl; l < 4; l++) fp[l] = k_eye, rp[l] = pad_r, yp[l] = pad_y;
-    int it[4];
-    hs_polar_warm4(fp, rp, yp, m->def.polar_tol, m->def.polar_max_iter, 1, it);
-    for (int l = 0; l < nl; l++) {
-        int k = lane_k[l], e = e0 + k;
-        // -1: left the warm phase; the scalar code from the same (untouched) start
-        its[k] = it[l] >= 0 ? it[l] : element_rotation(m, e, m->F + 9 * e, m->det[e], rtf[k]);
+/// Adds vol0 F of element e to its nodes' sums, in element order: the order in which
+/// node_mean_f sums a node's tets (nt lists them by element), so the same numbers.
+static inline __attribute__((always_inline)) void node_sums_add(hs_fem* m, int e,
+                                                                const double F[9]) {
+    const int* t = m->tet + 4 * e;
+    const double w = m->vol0[e];
+    v4d f0, f1;
+    memcpy(&f0, F, sizeof f0);
+    memcpy(&f1, F + 4, sizeof f1);
+    f0 *= w; // w * F[k] in each component: three loads and stores a node instead of nine
+    f1 *= w;
+    const double f8 = w * F[8];
+    for (int a = 0; a < 4; a++) {
+        double* s = m->nsum + 9 * t[a];
+        v4d s0, s1;
+        memcpy(&s0, s, sizeof s0);
+        memcpy(&s1, s + 4, sizeof s1);
+        s0 += f0;
+        s1 += f1;
+        memcpy(s, &s0, sizeof s0);
+        memcpy(s + 4, &s1, sizeof s1);
+        s[8] += f8;
     }
 }
 
-// The element loop of hs_fem_update; `batch` (a constant at each call): co-rotated + polar, the
-// rotations of 4 elements at a time, then each element as the other models.
-static inline __attribute__((always_inline)) void update_all(hs_fem* m, const double* x,
-                                                             const int batch) {
-    const int ne = m->ne, n = m->n;
+/// Running sums of the element loop.
+typedef struct {
+    double energy, vsum, vmin, vmax;
+    int inverted, n_active, pmax;
+} loop_acc;
+
+/// One active element of any model: F, its stress and its nodal forces into m->f.
+static inline __attribute__((always_inline)) void element_one(hs_fem* m, const double* x, int e,
+                                                              loop_acc* acc) {
     const double mu = m->mu, lam = m->lam_el;
     const hs_model model = m->def.model;
-    memset(m->f, 0, sizeof(double) * 3 * (size_t)n);
-    double energy = 0, vsum = 0, vmin = INFINITY, vmax = -INFINITY;
-    int inverted = 0, n_active = 0, pmax = 0;
-    double rtf4[4][9];
-    int its4[4];
+    const int* t = m->tet + 4 * e;
+    const double* g = m->g + 12 * e;
+    double F[9];
+    element_F(m, x, e, F);
+    memcpy(m->F + 9 * e, F, sizeof F);
+    if (model == HS_MODEL_COROTATED) node_sums_add(m, e, F);
+    double det = m3_det(F);
+    m->det[e] = det;
+    acc->n_active++;
+    acc->vsum += det;
+    if (det < acc->vmin) acc->vmin = det;
+    if (det > acc->vmax) acc->vmax = det;
+    if (!(det > 0)) acc->inverted++;
+    const double V = m->vol0[e] * m->kscale[e];
 
-    for (int e = 0; e < ne; e++) {
-        if (batch && (e & 3) == 0) corot_rotations4(m, x, e, ne, rtf4, its4);
-        if (!m->active[e]) continue;
-        const int* t = m->tet + 4 * e;
-        const double* g = m->g + 12 * e;
-        double F[9]; // not read in the batched path (co-rotated: rtf4 holds R^T F)
-        double det;
-        if (batch) {
-            det = m->det[e];
+    double P[9]; // first Piola-Kirchhoff stress, Pa
+    if (model == HS_MODEL_STVK) {
+        double C[9], Ev[9], S[9];
+        m3_mul_tn(F, F, C);
+        for (int k = 0; k < 9; k++) Ev[k] = 0.5 * C[k];
+        Ev[0] -= 0.5;
+        Ev[4] -= 0.5;
+        Ev[8] -= 0.5;
+        double tr = Ev[0] + Ev[4] + Ev[8];
+        for (int k = 0; k < 9; k++) S[k] = 2.0 * mu * Ev[k];
+        S[0] += lam * tr;
+        S[4] += lam * tr;
+        S[8] += lam * tr;
+        memcpy(m->S + 9 * e, S, sizeof S);
+        m3_mul(F, S, P);
+        acc->energy += V * (mu * m3_fro2(Ev) + 0.5 * lam * tr * tr);
+        if (m->anp) {
+            double cof[9];
+            m3_cofactor(F, cof); // d det F / dF
+            m->theta_e[e] = det - 1.0;
+            double* w = m->w + 12 * e;
+            for (int a = 0; a < 4; a++) m3_vec(cof, g + 3 * a, w + 3 * a);
+        }
+    } else {
+        // Linear and co-rotated: small strain of the (unrotated) displacement gradient.
+        const double* r = NULL;
+        double H[9];
+        if (model == HS_MODEL_COROTATED) {
+            int it = element_rotation(m, e, F, det, H);
+            if (it > acc->pmax) acc->pmax = it;
+            r = m->R + 9 * e;
         } else {
-            element_F(m, x, e, F);
-            memcpy(m->F + 9 * e, F, sizeof F);
-            det = m3_det(F);
-            m->det[e] = det;
+            memcpy(H, F, sizeof H);
         }
-        n_active++;
-        vsum += det;
-        if (det < vmin) vmin = det;
-        if (det > vmax) vmax = det;
-        if (!(det > 0)) inverted++;
-        const double V = m->vol0[e] * m->kscale[e];
-
-        double P[9]; // first Piola-Kirchhoff stress, Pa
-        if (model == HS_MODEL_STVK) {
-            double C[9], Ev[9], S[9];
-            m3_mul_tn(F, F, C);
-            for (int k = 0; k < 9; k++) Ev[k] = 0.5 * C[k];
-            Ev[0] -= 0.5;
-            Ev[4] -= 0.5;
-            Ev[8] -= 0.5;
-            double tr = Ev[0] + Ev[4] + Ev[8];
-            for (int k = 0; k < 9; k++) S[k] = 2.0 * mu * Ev[k];
-            S[0] += lam * tr;
-            S[4] += lam * tr;
-            S[8] += lam * tr;
-            memcpy(m->S + 9 * e, S, sizeof S);
-            m3_mul(F, S, P);
-            energy += V * (mu * m3_fro2(Ev) + 0.5 * lam * tr * tr);
-            if (m->anp) {
-                double cof[9];
-                m3_cofactor(F, cof); // d det F / dF
-                m->theta_e[e] = det - 1.0;
-                double* w = m->w + 12 * e;
-                for (int a = 0; a < 4; a++) m3_vec(cof, g + 3 * a, w + 3 * a);
-            }
-        } else {
-            // Linear and co-rotated: small strain of the (unrotated) displacement gradient.
-            const double* r = NULL;
-            double H[9];
-            if (model == HS_MODEL_COROTATED) {
-                int it;
-                if (batch) {
-                    memcpy(H, rtf4[e & 3], sizeof H);
-                    it = its4[e & 3];
-                } else {
-                    it = element_rotation(m, e, F, det, H);
-                }
-                if (it > pmax) pmax = it;
-                r = m->R + 9 * e;
-            } else {
-                memcpy(H, F, sizeof H);
-            }
-            H[0] -= 1.0;
-            H[4] -= 1.0;
-            H[8] -= 1.0;
-            double eps[9], sig[9];
-            for (int i = 0; i < 3; i++)
-                for (int j = 0; j < 3; j++) eps[3 * i + j] = 0.5 * (H[3 * i + j] + H[3 * j + i]);
-            double tr = eps[0] + eps[4] + eps[8];
-            for (int k = 0; k < 9; k++) sig[k] = 2.0 * mu * eps[k];
-            sig[0] += lam * tr;
-            sig[4] += lam * tr;
-            sig[8] += lam * tr;
-            if (r)
-                m3_mul(r, sig, P);
-            else
-                memcpy(P, sig, sizeof P);
-            energy += V * (mu * m3_fro2(eps) + 0.5 * lam * tr * tr);
-            if (m->anp) {
-                m->theta_e[e] = tr;
-                double* w = m->w + 12 * e;
-                for (int a = 0; a < 4; a++) {
-                    if (r)
-                        m3_vec(r, g + 3 * a, w + 3 * a);
-                    else
-                        memcpy(w + 3 * a, g + 3 * a, 3 * sizeof(double));
-                }
+        H[0] -= 1.0;
+        H[4] -= 1.0;
+        H[8] -= 1.0;
+        double eps[9], sig[9];
+        for (int i = 0; i < 3; i++)
+            for (int j = 0; j < 3; j++) eps[3 * i + j] = 0.5 * (H[3 * i + j] + H[3 * j + i]);
+        double tr = eps[0] + eps[4] + eps[8];
+        for (int k = 0; k < 9; k++) sig[k] = 2.0 * mu * eps[k];
+        sig[0] += lam * tr;
+        sig[4] += lam * tr;
+        sig[8] += lam * tr;
+        if (r)
+            m3_mul(r, sig, P);
+        else
+            memcpy(P, sig, sizeof P);
+        acc->energy += V * (mu * m3_fro2(eps) + 0.5 * lam * tr * tr);
+        if (m->anp) {
+            m->theta_e[e] = tr;
+            double* w = m->w + 12 * e;
+            for (int a = 0; a < 4; a++) {
+                if (r)
+                    m3_vec(r, g + 3 * a, w + 3 * a);
+                else
+                    memcpy(w + 3 * a, g + 3 * a, 3 * sizeof(double));
             }
         }
-        // f_a = -V P g_a; node 0 balances the others.
-        double f0[3] = {0, 0, 0};
-        for (int a = 1; a < 4; a++) {
-            double pg[3];
-            m3_vec(P, g + 3 * a, pg);
-            double* fa = m->f + 3 * t[a];
-            for (int c = 0; c < 3; c++) {
-                fa[c] -= V * pg[c];
-                f0[c] += V * pg[c];
-            }
-        }
-        double* fz = m->f + 3 * t[0];
-        fz[0] += f0[0];
-        fz[1] += f0[1];
-        fz[2] += f0[2];
     }
+    // f_a = -V P g_a; node 0 balances the others.
+    double f0[3] = {0, 0, 0};
+    for (int a = 1; a < 4; a++) {
+        double pg[3];
+        m3_vec(P, g + 3 * a, pg);
+        double* fa = m->f + 3 * t[a];
+        for (int c = 0; c < 3; c++) {
+            fa[c] -= V * pg[c];
+            f0[c] += V * pg[c];
+        }
+    }
+    double* fz = m->f + 3 * t[0];
+    fz[0] += f0[0];
+    fz[1] += f0[1];
+    fz[2] += f0[2];
+}
+
+// Four elements at once, linear or co-rotated with the polar rotation: the operations of
+// element_one in each lane, in the same order (so bit-identical results), on GCC vectors; the
+// warm polar steps are polar4_core on registers, with no gather of F or scatter of R^T F. Only
+// the nodal sums are scalar, lane by lane in element order. A lane that is inactive, inverted
+// or leaves the warm polar phase is done by element_one at its place in that order.
+static inline __attribute__((always_inline)) void elements4(hs_fem* m, const double* x, int e0,
+                                                            const int corot, loop_acc* acc) {
+    const int* t[4];
+    const double* g[4];
+    for (int l = 0; l < 4; l++) {
+        t[l] = m->tet + 4 * (e0 + l);
+        g[l] = m->g + 12 * (e0 + l);
+    }
+    // F = sum_a (x_a - x_0) g_a^T, in element_F's order (from 0, a = 1, 2, 3)
+    v4d F[9], ga[4][3] = {{{0}}}; // ga[0]: only the locking-free term reads it
+    for (int a = 1; a < 4; a++)
+        for (int j = 0; j < 3; j++)
+            ga[a][j] = (v4d){g[0][3 * a + j], g[1][3 * a + j], g[2][3 * a + j], g[3][3 * a + j]};
+    for (int k = 0; k < 9; k++) F[k] = (v4d){0, 0, 0, 0};
+    for (int a = 1; a < 4; a++) {
+        for (int i = 0; i < 3; i++) {
+            v4d d = (v4d){
+                x[3 * t[0][a] + i] - x[3 * t[0][0] + i], x[3 * t[1][a] + i] - x[3 * t[1][0] + i],
+                x[3 * t[2][a] + i] - x[3 * t[2][0] + i], x[3 * t[3][a] + i] - x[3 * t[3][0] + i]};
+            F[3 * i] += d * ga[a][0];
+            F[3 * i + 1] += d * ga[a][1];
+            F[3 * i + 2] += d * ga[a][2];
+        }
+    }
+    v4d det = F[0] * (F[4] * F[8] - F[5] * F[7]) - F[1] * (F[3] * F[8] - F[5] * F[6]) +
+              F[2] * (F[3] * F[7] - F[4] * F[6]);
+    v4l lanes = det > 0;
+    for (int l = 0; l < 4; l++) lanes[l] &= -(long long)(m->active[e0 + l] != 0);
+    v4d H[9], R[9];
+    v4l itv = {0, 0, 0, 0};
+    if (corot) {
+        for (int k = 0; k < 9; k++) {
+            const double* r = m->R + 9 * e0 + k;
+            R[k] = (v4d){r[0], r[9], r[18], r[27]};
+        }
+        polar4_core(F, R, H, m->def.polar_tol, m->def.polar_max_iter, 1, &lanes, &itv);
+    } else {
+        for (int k = 0; k < 9; k++) H[k] = F[k];
+    }
+    const double mu = m->mu, lam = m->lam_el;
+    H[0] -= 1.0;
+    H[4] -= 1.0;
+    H[8] -= 1.0;
+    v4d eps[9], sig[9], P[9];
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) eps[3 * i + j] = 0.5 * (H[3 * i + j] + H[3 * j + i]);
+    v4d tr = eps[0] + eps[4] + eps[8];
+    for (int k = 0; k < 9; k++) sig[k] = 2.0 * mu * eps[k];
+    sig[0] += lam * tr;
+    sig[4] += lam * tr;
+    sig[8] += lam * tr;
+    if (corot) {
+        for (int i = 0; i < 3; i++)
+            for (int j = 0; j < 3; j++)
+                P[3 * i + j] =
+                    R[3 * i] * sig[j] + R[3 * i + 1] * sig[3 + j] + R[3 * i + 2] * sig[6 + j];
+    } else {
+        for (int k = 0; k < 9; k++) P[k] = sig[k];
+    }
+    v4d V = {m->vol0[e0] * m->kscale[e0], m->vol0[e0 + 1] * m->kscale[e0 + 1],
+             m->vol0[e0 + 2] * m->kscale[e0 + 2], m->vol0[e0 + 3] * m->kscale[e0 + 3]};
+    v4d fro = {0, 0, 0, 0};
+    for (int k = 0; k < 9; k++) fro += eps[k] * eps[k];
+    v4d en = V * (mu * fro + 0.5 * lam * tr * tr);
+    // V P g_a, a = 1, 2, 3, and node 0's balance
+    v4d vpg[3][3], f0[3] = {{0, 0, 0, 0}, {0, 0, 0, 0}, {0, 0, 0, 0}};
+    for (int a = 1; a < 4; a++) {
+        for (int c = 0; c < 3; c++) {
+            v4d pg = P[3 * c] * ga[a][0] + P[3 * c + 1] * ga[a][1] + P[3 * c + 2] * ga[a][2];
+            vpg[a - 1][c] = V * pg;
+            f0[c] += vpg[a - 1][c];
+        }
+    }
+    v4d W[4][3];
+    if (m->anp) {
+        for (int j = 0; j < 3; j++) ga[0][j] = (v4d){g[0][j], g[1][j], g[2][j], g[3][j]};
+        for (int a = 0; a < 4; a++)
+            for (int c = 0; c < 3; c++)
+                W[a][c] =
+                    corot ? R[3 * c] * ga[a][0] + R[3 * c + 1] * ga[a][1] + R[3 * c + 2] * ga[a][2]
+                          : ga[a][c];
+    }
+    for (int l = 0; l < 4; l++) {
+        const int e = e0 + l;
+        if (!m->active[e]) continue;
+        if (!lanes[l]) { // inverted, or the warm polar phase gave up: the scalar code
+            element_one(m, x, e, acc);
+            continue;
+        }
+        double* Fe = m->F + 9 * e;
+        for (int k = 0; k < 9; k++) Fe[k] = F[k][l];
+        if (corot) node_sums_add(m, e, Fe);
+        m->det[e] = det[l];
+        acc->n_active++;
+        acc->vsum += det[l];
+        if (det[l] < acc->vmin) acc->vmin = det[l];
+        if (det[l] > acc->vmax) acc->vmax = det[l];
+        if (corot) {
+            double* Re = m->R + 9 * e;
+            for (int k = 0; k < 9; k++) Re[k] = R[k][l];
+            if ((int)itv[l] > acc->pmax) acc->pmax = (int)itv[l];
+        }
+        acc->energy += en[l];
+        if (m->anp) {
+            m->theta_e[e] = tr[l];
+            double* w = m->w + 12 * e;
+            for (int a = 0; a < 4; a++)
+                for (int c = 0; c < 3; c++) w[3 * a + c] = W[a][c][l];
+        }
+        for (int a = 1; a < 4; a++) {
+            double* fa = m->f + 3 * t[l][a];
+            fa[0] -= vpg[a - 1][0][l];
+            fa[1] -= vpg[a - 1][1][l];
+            fa[2] -= vpg[a - 1][2][l];
+        }
+        double* fz = m->f + 3 * t[l][0];
+        fz[0] += f0[0][l];
+        fz[1] += f0[1][l];
+        fz[2] += f0[2][l];
+    }
+}
+
+enum { LOOP_SCALAR, LOOP_LINEAR4, LOOP_COROT4 };
+
+// The element loop of hs_fem_update; `kind` (a constant at each call) chooses elements4 for
+// linear and co-rotated + polar, element_one for the rest and the last ne mod 4 elements.
+static inline __attribute__((always_inline)) void update_all(hs_fem* m, const double* x,
+                                                             const int kind) {
+    const int ne = m->ne, n = m->n;
+    memset(m->f, 0, sizeof(double) * 3 * (size_t)n);
+    const int corot = m->def.model == HS_MODEL_COROTATED;
+    if (corot) memset(m->nsum, 0, sizeof(double) * 9 * (size_t)n);
+    loop_acc acc = {0, 0, INFINITY, -INFINITY, 0, 0, 0};
+    int first = 0; // of the elements left to element_one
+    if (kind != LOOP_SCALAR)
+        for (; first + 4 <= ne; first += 4) elements4(m, x, first, kind == LOOP_COROT4, &acc);
+    for (int e = first; e < ne; e++)
+        if (m->active[e]) element_one(m, x, e, &acc);
+    double energy = acc.energy;
 
     if (m->anp) {
         // Nodal volumetric strain: volume-weighted mean of the incident element strains.
@@ -879,21 +1000,44 @@ static inline __attribute__((always_inline)) void update_all(hs_fem* m, const do
         }
     }
 
-    m->stats.inverted = inverted;
-    m->stats.volume_ratio_mean = n_active ? vsum / n_active : 1.0;
-    m->stats.volume_ratio_min = n_active ? vmin : 1.0;
-    m->stats.volume_ratio_max = n_active ? vmax : 1.0;
-    m->stats.polar_iters_max = pmax;
+    m->nsum_stamp = corot ? m->k_version + 1 : 0;
+    m->stats.inverted = acc.inverted;
+    m->stats.volume_ratio_mean = acc.n_active ? acc.vsum / acc.n_active : 1.0;
+    m->stats.volume_ratio_min = acc.n_active ? acc.vmin : 1.0;
+    m->stats.volume_ratio_max = acc.n_active ? acc.vmax : 1.0;
+    m->stats.polar_iters_max = acc.pmax;
     m->stats.energy_j = energy;
+}
+
+// elements4 in AVX2 (one instruction per vector operation) where the processor has it.
+__attribute__((target("avx2"))) static void update_linear4_avx2(hs_fem* m, const double* x) {
+    update_all(m, x, LOOP_LINEAR4);
+}
+__attribute__((target("avx2"))) static void update_corot4_avx2(hs_fem* m, const double* x) {
+    update_all(m, x, LOOP_COROT4);
+}
+static void update_linear4_base(hs_fem* m, const double* x) {
+    update_all(m, x, LOOP_LINEAR4);
+}
+static void update_corot4_base(hs_fem* m, const double* x) {
+    update_all(m, x, LOOP_COROT4);
 }
 
 void hs_fem_update(hs_fem* m, const double* x, hs_fem_stats* stats) {
     HS_ASSERT(m && x);
-    // Two specialised copies, so the linear and StVK loop carries nothing of the batching.
+    const int avx2 = __builtin_cpu_supports("avx2");
     if (m->def.model == HS_MODEL_COROTATED && m->def.rotation == HS_ROTATION_POLAR)
-        update_all(m, x, 1);
+        (avx2 ? update_corot4_avx2 : update_corot4_base)(m, x);
+    else if (m->def.model == HS_MODEL_LINEAR)
+        (avx2 ? update_linear4_avx2 : update_linear4_base)(m, x);
     else
-        update_all(m, x, 0);
+        update_all(m, x, LOOP_SCALAR);
+    if (stats) *stats = m->stats;
+}
+
+void hs_fem_update_scalar(hs_fem* m, const double* x, hs_fem_stats* stats) {
+    HS_ASSERT(m && x);
+    update_all(m, x, LOOP_SCALAR);
     if (stats) *stats = m->stats;
 }
 
@@ -1198,6 +1342,8 @@ void hs_fem_node_rotation_warm(const hs_fem* m, int node, double r[9]) {
 
 static inline __attribute__((always_inline)) void node_rotations(const hs_fem* m, double* rot) {
     const double tol = m->def.polar_tol;
+    // The sums of the last update, unless the elements changed since (a cut): then gather.
+    const int have_sums = m->nsum_stamp == m->k_version + 1;
     double sums[4][9], ys[4][9], pad_r[9];
     for (int i0 = 0; i0 < m->n; i0 += 4) {
         const double* fp[4];
@@ -1206,8 +1352,10 @@ static inline __attribute__((always_inline)) void node_rotations(const hs_fem* m
         int nl = 0;
         for (int i = i0; i < i0 + 4 && i < m->n; i++) {
             double* r = rot + 9 * (size_t)i;
-            double* sum = sums[nl];
-            if (!node_mean_f(m, i, sum)) {
+            const double* sum = sums[nl];
+            if (have_sums) {
+                sum = m->nsum + 9 * (size_t)i;
+            } else if (!node_mean_f(m, i, sums[nl])) {
                 m3_identity(r);
                 continue;
             }

@@ -8,4 +8,8 @@
 /// bit-identical results; the warm polar steps run four nodes at a time.
 void hs_fem_node_rotations_warm(const hs_fem* fem, double* rot);
 
+/// hs_fem_update one element at a time: the reference that the four-wide element pass of
+/// hs_fem_update (linear, co-rotated with the polar rotation) must match bit for bit.
+void hs_fem_update_scalar(hs_fem* fem, const double* x, hs_fem_stats* stats);
+
 #endif
