@@ -85,20 +85,21 @@ HS_INLINE void polar4_core(const v4d f[9], v4d x[9], v4d y[9], double tol, int m
         prev = (v4d)(((v4l)skew2 & step) | ((v4l)prev & ~step));
         v4d tr = s[0] + s[4] + s[8];
         v4d m[9] = {tr - s[0], -s[1], -s[2], -s[3], tr - s[4], -s[5], -s[6], -s[7], tr - s[8]};
-        v4d dm = m[0] * (m[4] * m[8] - m[5] * m[7]) - m[1] * (m[3] * m[8] - m[5] * m[6]) +
-                 m[2] * (m[3] * m[7] - m[4] * m[6]);
-        step &= dm > 0;
-        act = step;
-        if (!any4(&step)) break;
+        // m is symmetric bit for bit (s is), so its cofactor is: six entries, and det m from
+        // the first row (x - (-y) = x + y and a (-b) = -(a b) exactly: the scalar's numbers).
         v4d mc[9];
         mc[0] = m[4] * m[8] - m[5] * m[7];
         mc[1] = m[5] * m[6] - m[3] * m[8];
         mc[2] = m[3] * m[7] - m[4] * m[6];
-        mc[3] = m[2] * m[7] - m[1] * m[8];
+        v4d dm = m[0] * mc[0] + m[1] * mc[1] + m[2] * mc[2];
+        step &= dm > 0;
+        act = step;
+        if (!any4(&step)) break;
+        mc[3] = mc[1];
         mc[4] = m[0] * m[8] - m[2] * m[6];
         mc[5] = m[1] * m[6] - m[0] * m[7];
-        mc[6] = m[1] * m[5] - m[2] * m[4];
-        mc[7] = m[2] * m[3] - m[0] * m[5];
+        mc[6] = mc[2];
+        mc[7] = mc[5];
         mc[8] = m[0] * m[4] - m[1] * m[3];
         v4d idm = 1.0 / dm, c[3];
         for (int i = 0; i < 3; i++)
@@ -108,11 +109,12 @@ HS_INLINE void polar4_core(const v4d f[9], v4d x[9], v4d y[9], double tol, int m
         v4d q[9] = {d + kk * c[0] * c[0],      kk * (c[0] * c[1] - c[2]), kk * (c[0] * c[2] + c[1]),
                     kk * (c[1] * c[0] + c[2]), d + kk * c[1] * c[1],      kk * (c[1] * c[2] - c[0]),
                     kk * (c[2] * c[0] - c[1]), kk * (c[2] * c[1] + c[0]), d + kk * c[2] * c[2]};
+        const int all = (step[0] & step[1] & step[2] & step[3]) != 0;
         for (int i = 0; i < 3; i++) {
             v4d xi[3] = {x[3 * i], x[3 * i + 1], x[3 * i + 2]};
             for (int j = 0; j < 3; j++) {
                 v4d xn = xi[0] * q[j] + xi[1] * q[3 + j] + xi[2] * q[6 + j];
-                x[3 * i + j] = (v4d)(((v4l)xn & step) | ((v4l)x[3 * i + j] & ~step));
+                x[3 * i + j] = all ? xn : (v4d)(((v4l)xn & step) | ((v4l)x[3 * i + j] & ~step));
             }
         }
         itv -= step; // +1 where stepped
