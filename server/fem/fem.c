@@ -820,7 +820,8 @@ static inline __attribute__((always_inline)) void elements4(hs_fem* m, const dou
         g[l] = m->g + 12 * (e0 + l);
     }
     // F = sum_a (x_a - x_0) g_a^T, in element_F's order (from 0, a = 1, 2, 3)
-    v4d F[9], ga[4][3] = {{{0}}}; // ga[0]: only the locking-free term reads it
+    // ga[0] is read only by the locking-free term; {0}: GCC warns maybe-uninitialized otherwise
+    v4d F[9], ga[4][3] = {{{0}}};
     for (int a = 1; a < 4; a++)
         for (int j = 0; j < 3; j++)
             ga[a][j] = (v4d){g[0][3 * a + j], g[1][3 * a + j], g[2][3 * a + j], g[3][3 * a + j]};
@@ -1344,8 +1345,31 @@ static inline __attribute__((always_inline)) void node_rotations(const hs_fem* m
     const double tol = m->def.polar_tol;
     // The sums of the last update, unless the elements changed since (a cut): then gather.
     const int have_sums = m->nsum_stamp == m->k_version + 1;
+    int first = 0; // of the nodes left to the loop below
+    if (have_sums) {
+        // Four contiguous nodes at once, the warm steps on registers (as hs_polar_warm4).
+        for (; first + 4 <= m->n; first += 4) {
+            const double* S = m->nsum + 9 * (size_t)first;
+            double* r = rot + 9 * (size_t)first;
+            v4d f[9] = {{0}}, x[9], y[9]; // {0}: GCC's false maybe-uninitialized
+            for (int k = 0; k < 9; k++) {
+                f[k] = (v4d){S[k], S[9 + k], S[18 + k], S[27 + k]};
+                x[k] = (v4d){r[k], r[9 + k], r[18 + k], r[27 + k]};
+            }
+            v4d det = f[0] * (f[4] * f[8] - f[5] * f[7]) - f[1] * (f[3] * f[8] - f[5] * f[6]) +
+                      f[2] * (f[3] * f[7] - f[4] * f[6]);
+            v4l lanes = det > 0, itv;
+            polar4_core(f, x, y, tol, 20, 0, &lanes, &itv);
+            for (int l = 0; l < 4; l++) {
+                if (lanes[l])
+                    for (int k = 0; k < 9; k++) r[9 * l + k] = x[k][l];
+                else // det <= 0 (the SVD) or not a warm result: the scalar code, same start
+                    hs_polar_higham(S + 9 * l, r + 9 * l, tol, 20);
+            }
+        }
+    }
     double sums[4][9], ys[4][9], pad_r[9];
-    for (int i0 = 0; i0 < m->n; i0 += 4) {
+    for (int i0 = first; i0 < m->n; i0 += 4) {
         const double* fp[4];
         double* rp[4];
         double* yp[4];
