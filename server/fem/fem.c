@@ -702,6 +702,24 @@ static inline __attribute__((always_inline)) void node_sums_add(hs_fem* m, int e
     }
 }
 
+// Linear and co-rotated stress: H = F - I or R^T F - I -> small strain eps, its trace and the
+// stress sig. One text for double and v4d, so the four-wide pass performs the one-element
+// code's operations in the same order (bit-identical results).
+#define SMALL_STRAIN_STRESS(H, eps, tr, sig, mu, lam)                                              \
+    do {                                                                                           \
+        (H)[0] -= 1.0;                                                                             \
+        (H)[4] -= 1.0;                                                                             \
+        (H)[8] -= 1.0;                                                                             \
+        for (int i_ = 0; i_ < 3; i_++)                                                             \
+            for (int j_ = 0; j_ < 3; j_++)                                                         \
+                (eps)[3 * i_ + j_] = 0.5 * ((H)[3 * i_ + j_] + (H)[3 * j_ + i_]);                  \
+        (tr) = (eps)[0] + (eps)[4] + (eps)[8];                                                     \
+        for (int k_ = 0; k_ < 9; k_++) (sig)[k_] = 2.0 * (mu) * (eps)[k_];                         \
+        (sig)[0] += (lam) * (tr);                                                                  \
+        (sig)[4] += (lam) * (tr);                                                                  \
+        (sig)[8] += (lam) * (tr);                                                                  \
+    } while (0)
+
 /// Running sums of the element loop.
 typedef struct {
     double energy, vsum, vmin, vmax;
@@ -762,17 +780,8 @@ static inline __attribute__((always_inline)) void element_one(hs_fem* m, const d
         } else {
             memcpy(H, F, sizeof H);
         }
-        H[0] -= 1.0;
-        H[4] -= 1.0;
-        H[8] -= 1.0;
-        double eps[9], sig[9];
-        for (int i = 0; i < 3; i++)
-            for (int j = 0; j < 3; j++) eps[3 * i + j] = 0.5 * (H[3 * i + j] + H[3 * j + i]);
-        double tr = eps[0] + eps[4] + eps[8];
-        for (int k = 0; k < 9; k++) sig[k] = 2.0 * mu * eps[k];
-        sig[0] += lam * tr;
-        sig[4] += lam * tr;
-        sig[8] += lam * tr;
+        double eps[9], sig[9], tr;
+        SMALL_STRAIN_STRESS(H, eps, tr, sig, mu, lam);
         if (r)
             m3_mul(r, sig, P);
         else
@@ -852,17 +861,8 @@ static inline __attribute__((always_inline)) void elements4(hs_fem* m, const dou
         for (int k = 0; k < 9; k++) H[k] = F[k];
     }
     const double mu = m->mu, lam = m->lam_el;
-    H[0] -= 1.0;
-    H[4] -= 1.0;
-    H[8] -= 1.0;
-    v4d eps[9], sig[9], P[9];
-    for (int i = 0; i < 3; i++)
-        for (int j = 0; j < 3; j++) eps[3 * i + j] = 0.5 * (H[3 * i + j] + H[3 * j + i]);
-    v4d tr = eps[0] + eps[4] + eps[8];
-    for (int k = 0; k < 9; k++) sig[k] = 2.0 * mu * eps[k];
-    sig[0] += lam * tr;
-    sig[4] += lam * tr;
-    sig[8] += lam * tr;
+    v4d eps[9], sig[9], P[9], tr;
+    SMALL_STRAIN_STRESS(H, eps, tr, sig, mu, lam);
     if (corot) {
         for (int i = 0; i < 3; i++)
             for (int j = 0; j < 3; j++)
