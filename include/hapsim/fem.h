@@ -41,8 +41,11 @@ typedef struct hs_material {
 typedef struct hs_fem_def {
     hs_model model;
     hs_material material;
-    hs_rotation rotation;   ///< co-rotated only
-    double polar_tol;       ///< co-rotated + POLAR: stop when ||I - X^T X||_F <= tol
+    hs_rotation rotation; ///< co-rotated only
+    /// co-rotated + POLAR, a relative rotation error (default 1e-6): the warm iteration stops
+    /// when |axial(skew(X^T F))| <= tol ||F||_F / sqrt(3), the cold one when
+    /// ||I - X^T X||_F <= tol (docs/fem.md, Rotations)
+    double polar_tol;
     int polar_max_iter;     ///< co-rotated + POLAR: iteration cap per element per update
     hs_inversion inversion; ///< what an inverted element does
     int locking_free;       ///< 1: average nodal pressure (ANP) volumetric term, see docs
