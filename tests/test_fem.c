@@ -622,6 +622,9 @@ static int test_element_pass(void) {
                    sa.volume_ratio_min == sb.volume_ratio_min &&
                    sa.volume_ratio_max == sb.volume_ratio_max);
             saw_inverted |= sa.inverted > 0;
+            // the 3 rad turn sends lanes back to the scalar code, whose cold iterations show
+            // (warm steps alone: 2 here; measured with a counter: 365 of the 378 elements)
+            if (def.model == HS_MODEL_COROTATED && step == 3) ENSURE(sa.polar_iters_max >= 4);
             if (def.model == HS_MODEL_COROTATED) {
                 hs_fem_node_rotations_warm(A, ra);
                 hs_fem_node_rotations_warm(B, rb);
