@@ -709,8 +709,103 @@ static int RestIsQuiet(void) {
     return 0;
 }
 
+// A step's polar tolerance (hs_body_def.step_polar_tol): the warped transient of a large bend
+// with the static tolerance (1e-6) and the step default (1e-4). The looser one takes fewer
+// Newton steps per element and moves the result far less than the step's own error; 0 means
+// fem.polar_tol; the static solve keeps fem.polar_tol; a reset body steps as a new one.
+static hs_body* bend_body(const hs_mesh* m, const unsigned char* fx, double step_tol,
+                          hs_solver_kind solver) {
+    hs_body_def d = hs_body_default_def();
+    d.fem.model = HS_MODEL_COROTATED;
+    d.fem.material.youngs_pa = 2e4;
+    d.fem.material.poisson = 0.45;
+    d.gravity[2] = -9.81;
+    d.dt = 1.0 / 60;
+    d.solver = solver;
+    d.step_polar_tol = step_tol;
+    hs_body* b = NULL;
+    return hs_body_create(m, &d, fx, &b, NULL) == HS_OK ? b : NULL;
+}
+
+static int StepPolarTol(void) {
+    hs_mesh* m = NULL;
+    ENSURE(hs_mesh_create_box(0.1, 0.02, 0.02, 12, 3, 3, &m, NULL) == HS_OK);
+    unsigned char* fx = clamp_x0(m);
+    const int n3 = 3 * m->n_nodes;
+    // a: fem.polar_tol (0), b: 1e-6 given, c: the default 1e-4; e: the exact tangent (direct
+    // solver, 1e-6), against which the warped step's own error shows.
+    hs_body* a = bend_body(m, fx, 0, HS_SOLVER_WARPED);
+    hs_body* b = bend_body(m, fx, 1e-6, HS_SOLVER_WARPED);
+    hs_body* c = bend_body(m, fx, hs_body_default_def().step_polar_tol, HS_SOLVER_WARPED);
+    hs_body* e = bend_body(m, fx, 0, HS_SOLVER_DIRECT);
+    ENSURE(a && b && c && e);
+    ENSURE(hs_body_default_def().step_polar_tol == 1e-4);
+    int it_a = 0, it_c = 0;
+    double worst = 0, solver = 0;
+    for (int k = 0; k < 30; ++k) {
+        hs_step_stats sa, sb, sc;
+        ENSURE(hs_body_step(a, &sa) == HS_OK && hs_body_step(b, &sb) == HS_OK &&
+               hs_body_step(c, &sc) == HS_OK && hs_body_step(e, NULL) == HS_OK);
+        it_a += sa.fem.polar_iters_max;
+        it_c += sc.fem.polar_iters_max;
+        ENSURE(!memcmp(hs_body_displacement(a), hs_body_displacement(b), n3 * sizeof(double)));
+        const double* ua = hs_body_displacement(a);
+        worst = fmax(worst, rel_diff(hs_body_displacement(c), ua, n3));
+        solver = fmax(solver, rel_diff(ua, hs_body_displacement(e), n3));
+    }
+    const double tip = end_mean(m, hs_body_displacement(a), 2);
+    printf("  30 steps: tip %.4e m; worst Newton steps per update summed: tol 1e-6 %d, 1e-4 %d; "
+           "largest relative difference of u: 1e-4 against 1e-6 %.2e, warped against direct "
+           "%.2e\n",
+           tip, it_a, it_c, worst, solver);
+    ENSURE(tip < -0.01);           // a bend: the rotations move every step
+    ENSURE(it_c < it_a);           // fewer Newton steps
+    ENSURE(worst > 0);             // the tolerance reached the step...
+    ENSURE(worst < 1e-3 * solver); // ...and moved it far less than the step's own error
+    hs_body_destroy(&e);
+
+    // Reset: c from rest again steps exactly as a new body.
+    hs_body* fresh = bend_body(m, fx, 1e-4, HS_SOLVER_WARPED);
+    ENSURE(fresh);
+    hs_body_reset(c);
+    for (int k = 0; k < 10; ++k) ENSURE(hs_body_step(c, NULL) == HS_OK);
+    for (int k = 0; k < 10; ++k) ENSURE(hs_body_step(fresh, NULL) == HS_OK);
+    ENSURE(!memcmp(hs_body_displacement(c), hs_body_displacement(fresh), n3 * sizeof(double)));
+
+    // The static solve uses fem.polar_tol, whatever the step's: a (1e-6 given by the fem)
+    // against a body whose steps would accept rotations 10 % off.
+    hs_body* loose = bend_body(m, fx, 0.1, HS_SOLVER_WARPED);
+    ENSURE(loose);
+    hs_body_reset(a);
+    ENSURE(hs_body_solve_static(a, NULL) == HS_OK);
+    ENSURE(hs_body_solve_static(loose, NULL) == HS_OK);
+    ENSURE(!memcmp(hs_body_displacement(a), hs_body_displacement(loose), n3 * sizeof(double)));
+
+    // Bad tolerances are refused and change nothing.
+    hs_body_def d = hs_body_default_def();
+    hs_body* bad = NULL;
+    d.step_polar_tol = -1e-4;
+    ENSURE(hs_body_create(m, &d, fx, &bad, NULL) == HS_ERR_INVALID && !bad);
+    d.step_polar_tol = NAN;
+    ENSURE(hs_body_create(m, &d, fx, &bad, NULL) == HS_ERR_INVALID && !bad);
+    hs_fem* fem = hs_body_fem(a);
+    ENSURE(hs_fem_set_polar_tol(fem, 0) == HS_ERR_INVALID);
+    ENSURE(hs_fem_set_polar_tol(fem, NAN) == HS_ERR_INVALID);
+    ENSURE(hs_fem_set_polar_tol(fem, INFINITY) == HS_ERR_INVALID);
+    ENSURE(hs_fem_set_polar_tol(fem, 1e-3) == HS_OK);
+
+    hs_body_destroy(&a);
+    hs_body_destroy(&b);
+    hs_body_destroy(&c);
+    hs_body_destroy(&fresh);
+    hs_body_destroy(&loose);
+    hs_mesh_destroy(&m);
+    free(fx);
+    return 0;
+}
+
 HS_TEST_MAIN(HS_CASE(PrescribedBarReaction), HS_CASE(LinearSeesElementChanges),
-             HS_CASE(OrphanHeldInPlace), HS_CASE(RestIsQuiet), HS_CASE(WarpedSolver),
-             HS_CASE(WarpedPcgTracksDirect), HS_CASE(SolversAgree), HS_CASE(NoAllocAndErrors),
-             HS_CASE(EnergyNeverGrows), HS_CASE(LargeStepNoEnergyGain), HS_CASE(InvertedRecovers),
-             HS_CASE(SelfWeightVolume), HS_CASE(CantileverTimoshenko))
+             HS_CASE(OrphanHeldInPlace), HS_CASE(RestIsQuiet), HS_CASE(StepPolarTol),
+             HS_CASE(WarpedSolver), HS_CASE(WarpedPcgTracksDirect), HS_CASE(SolversAgree),
+             HS_CASE(NoAllocAndErrors), HS_CASE(EnergyNeverGrows), HS_CASE(LargeStepNoEnergyGain),
+             HS_CASE(InvertedRecovers), HS_CASE(SelfWeightVolume), HS_CASE(CantileverTimoshenko))

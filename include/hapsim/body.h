@@ -36,6 +36,10 @@ typedef struct hs_body_def {
     double static_tol;     ///< static: stop at ||r|| <= tol * ||r_first|| (paper's rule)
     int static_max_iter;   ///< static: Newton iteration cap per load step
     int static_load_steps; ///< static: load increments (1 = full load at once)
+    /// co-rotated + POLAR: the polar tolerance in hs_body_step (default 1e-4; 0: fem.polar_tol).
+    /// A step's own error (one linearised solve per step) is far larger, so the static solve's
+    /// 1e-6 would only cost Newton steps per element (docs/fem.md, Rotations in a step).
+    double step_polar_tol;
     /// Threads of the partial refactor after element changes (hs_body_change_elements): 1, or
     /// 2 to share its large supernodes with a helper thread (hs_cholesky_set_partial_threads);
     /// 0: 2 when two or more processors are online, else 1.
@@ -45,7 +49,7 @@ typedef struct hs_body_def {
 
 /// Defaults: hs_fem_default_def(), no gravity, dt 10 ms, direct solver, PCG warped-factor
 /// preconditioner with 20 iterations and tol 1e-8 when chosen, static tol 1e-8, 100 iterations,
-/// 1 load step, factor threads by the processors online.
+/// 1 load step, step polar tol 1e-4, factor threads by the processors online.
 hs_body_def hs_body_default_def(void);
 
 /// Statistics of one step or static solve.
@@ -86,7 +90,8 @@ hs_status hs_body_step(hs_body* b, hs_step_stats* stats /* OUT, may be NULL */);
 /// Static equilibrium f_el(u) + f_ext = 0 by Newton (co-rotated: its fixed-rotation tangent),
 /// with backtracking line search and def.static_load_steps increments. Velocities are reset.
 hs_status hs_body_solve_static(hs_body* b, hs_step_stats* stats /* OUT, may be NULL */);
-/// Back to rest: u = 0, velocity 0 (forces and prescribed values kept).
+/// Back to rest: u = 0, velocity 0, rotations identity: from here it steps as a new body
+/// (forces and prescribed values kept).
 void hs_body_reset(hs_body* b);
 /// Displacement u, m, [3n], valid until the next step/solve/reset.
 const double* hs_body_displacement(const hs_body* b);

@@ -128,6 +128,13 @@ hs_status hs_fem_refresh_elements(hs_fem* fem, const int* tets, int n);
 /// Grows whenever an element is activated, deactivated, rescaled or refreshed: a caller may
 /// keep an assembled matrix of the (state-independent) linear model while it is unchanged.
 uint64_t hs_fem_stiffness_version(const hs_fem* fem);
+/// Element rotations back to the identity, as after hs_fem_create: the warm start of the next
+/// update. A rotation is accepted within polar_tol of the polar factor, so the start shows at
+/// that level; hs_body_reset calls this so that a reset body steps exactly as a new one.
+void hs_fem_reset_rotations(hs_fem* fem);
+/// Set hs_fem_def.polar_tol for the next updates (the body uses a looser one in dynamic
+/// steps, hs_body_def.step_polar_tol). HS_ERR_INVALID (nothing changed) unless tol > 0.
+hs_status hs_fem_set_polar_tol(hs_fem* fem, double tol);
 /// Release; accepts NULL, sets *fem = NULL.
 void hs_fem_destroy(hs_fem** fem);
 

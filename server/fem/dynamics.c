@@ -76,6 +76,7 @@ hs_body_def hs_body_default_def(void) {
     d.static_tol = 1e-8;
     d.static_max_iter = 100;
     d.static_load_steps = 1;
+    d.step_polar_tol = 1e-4;
     d.cookie = HS_BODY_COOKIE;
     return d;
 }
@@ -174,6 +175,9 @@ hs_status hs_body_create(const hs_mesh* mesh, const hs_body_def* def, const unsi
                           def->dt);
     if (def->static_load_steps < 1 || def->static_max_iter < 1 || def->pcg_max_iter < 1)
         return hs_err_set(err, HS_ERR_INVALID, "hs_body_create: iteration counts must be >= 1");
+    if (!(def->step_polar_tol >= 0) || !isfinite(def->step_polar_tol))
+        return hs_err_set(err, HS_ERR_INVALID, "hs_body_create: step_polar_tol %g (>= 0)",
+                          def->step_polar_tol);
     if (def->factor_threads < 0 || def->factor_threads > 2)
         return hs_err_set(err, HS_ERR_INVALID, "hs_body_create: factor threads %d (0, 1 or 2)",
                           def->factor_threads);
@@ -322,6 +326,9 @@ void hs_body_reset(hs_body* b) {
     memset(b->u, 0, n3 * sizeof(double));
     memset(b->v, 0, n3 * sizeof(double));
     memset(b->du_prev, 0, n3 * sizeof(double));
+    // The rotations' warm starts too: results depend on them within the polar tolerance.
+    hs_fem_reset_rotations(b->fem);
+    if (b->rot) memset(b->rot, 0, 9 * (size_t)b->n * sizeof(double));
     b->updated = 0;
 }
 
@@ -497,6 +504,12 @@ hs_status hs_body_rest_factor_difference(hs_body* b, double* rel) {
     return s;
 }
 
+// The polar tolerance of the updates to come: the static solve's (fem.polar_tol) or a step's.
+static void use_polar_tol(hs_body* b, int step) {
+    double tol = step && b->def.step_polar_tol > 0 ? b->def.step_polar_tol : b->def.fem.polar_tol;
+    (void)hs_fem_set_polar_tol(b->fem, tol); // both validated at create
+}
+
 // Evaluate the model at x0 + u (w is scratch for positions).
 static void update_model(hs_body* b) {
     const double* x0 = b->mesh->x0;
@@ -666,6 +679,7 @@ hs_status hs_body_step(hs_body* b, hs_step_stats* stats) {
     const int n3 = 3 * b->n;
     const double* m = hs_fem_lumped_mass(b->fem);
 
+    use_polar_tol(b, 1);
     if (!b->updated) update_model(b);
     // rhs = dt^2 (f_ext + f_el) + M du_prev - (dt beta + dt^2) K_fp du_p
     residual(b, b->r);
@@ -800,6 +814,7 @@ hs_status hs_body_solve_static(hs_body* b, hs_step_stats* stats) {
     memset(b->v, 0, (size_t)n3 * sizeof(double));
     memset(b->du_prev, 0, (size_t)n3 * sizeof(double));
     memcpy(b->save, b->u, (size_t)n3 * sizeof(double)); // prescribed values at the start
+    use_polar_tol(b, 0);
     update_model(b);
 
     for (int ls = 1; ls <= steps && result == HS_OK; ++ls) {

@@ -635,6 +635,18 @@ uint64_t hs_fem_stiffness_version(const hs_fem* fem) {
     return fem->k_version;
 }
 
+void hs_fem_reset_rotations(hs_fem* fem) {
+    HS_ASSERT(fem);
+    for (int e = 0; e < fem->ne; e++) m3_identity(fem->R + 9 * (size_t)e);
+}
+
+hs_status hs_fem_set_polar_tol(hs_fem* fem, double tol) {
+    HS_ASSERT(fem);
+    if (!(tol > 0) || !isfinite(tol)) return HS_ERR_INVALID;
+    fem->def.polar_tol = tol;
+    return HS_OK;
+}
+
 // ---------------------------------------------------------------------------------------------
 // Evaluation
 

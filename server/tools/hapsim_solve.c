@@ -39,7 +39,7 @@ static const char* usage =
     "  --max-iter N           static Newton iteration cap per load step (default 100)\n"
     "  --load-steps N         static load increments (default 1)\n"
     "  --rotation polar|svd   co-rotated rotation method (default polar)\n"
-    "  --polar-tol T          polar iteration tolerance (default 1e-6)\n"
+    "  --polar-tol T          polar iteration tolerance (default 1e-6 --static, 1e-4 steps)\n"
     "  --inversion fallback|reflect   inverted-element remedy (default fallback)\n"
     "  --damping ALPHA,BETA   Rayleigh damping C = alpha M + beta K (default 0,0)\n"
     "  --solver direct|pcg|warped  linear solver (default direct, CHOLMOD; warped: one\n"
@@ -230,6 +230,7 @@ int main(int argc, char** argv) {
             ++i;
             if (!parse_doubles(argv[i], &def.fem.polar_tol, 1) || def.fem.polar_tol <= 0)
                 BAD("a positive tolerance");
+            def.step_polar_tol = def.fem.polar_tol; // the one given, static or steps
         } else if (!strcmp(a, "--inversion")) {
             NEED_ARG();
             ++i;
