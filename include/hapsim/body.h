@@ -38,7 +38,7 @@ typedef struct hs_body_def {
     int static_load_steps; ///< static: load increments (1 = full load at once)
     /// co-rotated + POLAR: the polar tolerance in hs_body_step (default 1e-4; 0: fem.polar_tol).
     /// A step's own error (one linearised solve per step) is far larger, so the static solve's
-    /// 1e-6 would only cost Newton steps per element (docs/fem.md, Rotations in a step).
+    /// 1e-6 would only cost Newton steps per element (docs/fem.md, "The tolerance in a step").
     double step_polar_tol;
     /// Threads of the partial refactor after element changes (hs_body_change_elements): 1, or
     /// 2 to share its large supernodes with a helper thread (hs_cholesky_set_partial_threads);

@@ -82,6 +82,7 @@ HS_INLINE void polar4_core(const v4d f[9], v4d x[9], v4d y[9], double tol, int m
         // Not yet converged: stalled (-> cold start) or out of iterations leave; others step.
         v4l step = act & ~conv & ~(skew2 > 0.25 * prev);
         if (it >= max_iter) step &= (v4l){0, 0, 0, 0};
+        if (!any4(&step)) break; // the common end: every lane accepted, no system to form
         prev = (v4d)(((v4l)skew2 & step) | ((v4l)prev & ~step));
         v4d tr = s[0] + s[4] + s[8];
         v4d m[9] = {tr - s[0], -s[1], -s[2], -s[3], tr - s[4], -s[5], -s[6], -s[7], tr - s[8]};
