@@ -507,7 +507,7 @@ hs_status hs_body_rest_factor_difference(hs_body* b, double* rel) {
 // The polar tolerance of the updates to come: the static solve's (fem.polar_tol) or a step's.
 static void use_polar_tol(hs_body* b, int step) {
     double tol = step && b->def.step_polar_tol > 0 ? b->def.step_polar_tol : b->def.fem.polar_tol;
-    (void)hs_fem_set_polar_tol(b->fem, tol); // both validated at create
+    (void)hs_fem_set_polar_tol(b->fem, tol); // > 0 where used: co-rotated, checked at create
 }
 
 // Evaluate the model at x0 + u (w is scratch for positions).
