@@ -483,18 +483,23 @@ typedef struct probe_run {
     int64_t prev_seq; // rt tick of the previous output
     double max_step;  // largest tick-to-tick force change, N (consecutive ticks only)
     int step_pairs;   // consecutive-tick pairs seen
-    // > 0: steps count only from this many ticks after the status shows the release taken
-    // (the blade's cutting force blends out over those; late under sanitizers)
+    // > 0: force steps and stale-compliance forces count only from this many ticks after the
+    // status shows the release taken (the blade's cutting force blends out over those; late
+    // under sanitizers)
     int steps_after_release;
     int since_release;    // ticks since the release was first seen (-1: not yet)
     int stale_when_gated; // the compliance was still stale when steps began to count
     double fz_sum;        // sum of f_z over the averaging window
     int fz_n;
-    int stale_in_tissue; // ticks the tool was in the tissue while the compliance was stale
-    double stale_force;  // largest force in those ticks (after the blend-out), N
+    int stale_in_tissue; // checks the tool was in the tissue on a stale compliance (blended out)
+    double stale_force;  // largest force at those checks, N
     int prev_stale;      // the previous check: stale, in the tissue, and the force then
     double prev_force;
 } probe_run;
+
+static int blending_out(const probe_run* pr) {
+    return pr->steps_after_release > 0 && pr->since_release < pr->steps_after_release;
+}
 
 // Move the tool in a straight line to `to` over `ticks` ms (buttons held or not), then average
 // f_z over the last `avg` of them.
@@ -517,9 +522,7 @@ static void probe_move(probe_run* pr, const double to[3], int ticks, unsigned bu
         if (!hs_haptic_sim_take_output(pr->sim, &out)) continue;
         const double* f = out.force_n;
         // A late test thread sees one output for several ticks: only consecutive ticks count.
-        const int gated =
-            pr->steps_after_release > 0 && pr->since_release < pr->steps_after_release;
-        if (pr->have_prev && out.seq == pr->prev_seq + 1 && !gated) {
+        if (pr->have_prev && out.seq == pr->prev_seq + 1 && !blending_out(pr)) {
             double d[3] = {f[0] - pr->prev[0], f[1] - pr->prev[1], f[2] - pr->prev[2]};
             pr->max_step = fmax(pr->max_step, sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]));
             pr->step_pairs++;
@@ -547,13 +550,12 @@ static void probe_move(probe_run* pr, const double to[3], int ticks, unsigned bu
             }
             // A force sample counts as taken on a stale compliance when the status still says
             // stale at the next check, 4 ms later (the loop says so before it publishes the
-            // snapshot with the new contact), after the first 5 such checks (the blend-out).
+            // snapshot with the new contact); samples from the blend-out are not taken.
             if (stale && pr->prev_stale) {
                 pr->stale_in_tissue++;
-                if (pr->stale_in_tissue > 5)
-                    pr->stale_force = fmax(pr->stale_force, pr->prev_force);
+                pr->stale_force = fmax(pr->stale_force, pr->prev_force);
             }
-            pr->prev_stale = stale && pr->at[2] < tissue_top;
+            pr->prev_stale = stale && pr->at[2] < tissue_top && !blending_out(pr);
             pr->prev_force = sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]);
         }
     }
