@@ -486,7 +486,7 @@ typedef struct probe_run {
     // > 0: force steps and stale-compliance forces count only from this many ticks after the
     // status shows the release taken (the blade's cutting force blends out over those; late
     // under sanitizers)
-    int steps_after_release;
+    int blend_out_ticks;
     int since_release;    // ticks since the release was first seen (-1: not yet)
     int stale_when_gated; // the compliance was still stale when steps began to count
     double fz_sum;        // sum of f_z over the averaging window
@@ -498,7 +498,7 @@ typedef struct probe_run {
 } probe_run;
 
 static int blending_out(const probe_run* pr) {
-    return pr->steps_after_release > 0 && pr->since_release < pr->steps_after_release;
+    return pr->blend_out_ticks > 0 && pr->since_release < pr->blend_out_ticks;
 }
 
 // Move the tool in a straight line to `to` over `ticks` ms (buttons held or not), then average
@@ -544,8 +544,8 @@ static void probe_move(probe_run* pr, const double to[3], int ticks, unsigned bu
             if (released(&st)) {
                 int was = pr->since_release;
                 pr->since_release = was < 0 ? 0 : was + 4;
-                if (pr->steps_after_release > 0 && was < pr->steps_after_release &&
-                    pr->since_release >= pr->steps_after_release)
+                if (pr->blend_out_ticks > 0 && was < pr->blend_out_ticks &&
+                    pr->since_release >= pr->blend_out_ticks)
                     pr->stale_when_gated = st.comp_version != st.topology_version;
             }
             // A force sample counts as taken on a stale compliance when the status still says
@@ -622,7 +622,7 @@ static int probe_after_cut(double min_travel_m, double tol) {
     pr.max_step = 0;
     pr.step_pairs = 0;
     pr.since_release = -1;
-    pr.steps_after_release = d.blend_ticks + 8; // two status checks of margin
+    pr.blend_out_ticks = d.blend_ticks + 8; // two status checks of margin
     probe_move(&pr, above, 30, 0, 0, top + r);
     probe_move(&pr, press, 20, 0, 0, top + r);
     hs_haptic_sim_stats st;
