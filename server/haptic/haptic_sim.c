@@ -869,6 +869,25 @@ static hs_status build_tri_adjacency(hs_haptic_sim* h) {
     return HS_OK;
 }
 
+/// The cutting workspace, allocated by hs_haptic_sim_enable_cutting (again on each call).
+static void free_cut_scratch(hs_haptic_sim* h) {
+    hs_free(h->cw_x0);
+    hs_free(h->cw_tets);
+    hs_free(h->cw_fix);
+    hs_free(h->cu);
+    hs_free(h->cv);
+    hs_free(h->t_x0);
+    hs_free(h->t_tris);
+    hs_free(h->t_removed);
+    hs_free(h->t_moved);
+    hs_free(h->t_mflag);
+    hs_free(h->r_gone);
+    hs_free(h->r_keys);
+    hs_free(h->r_sorted);
+    hs_free(h->r_start);
+    hs_free(h->r_cur);
+}
+
 void hs_haptic_sim_destroy(hs_haptic_sim** ph) {
     if (!ph || !*ph) return;
     hs_haptic_sim* h = *ph;
@@ -896,21 +915,7 @@ void hs_haptic_sim_destroy(hs_haptic_sim** ph) {
     hs_triple_buffer_destroy(&h->cpose);
     hs_cut_destroy(&h->cut);
     hs_free(h->fixed0);
-    hs_free(h->cw_x0);
-    hs_free(h->cw_tets);
-    hs_free(h->cw_fix);
-    hs_free(h->cu);
-    hs_free(h->cv);
-    hs_free(h->t_x0);
-    hs_free(h->t_tris);
-    hs_free(h->t_removed);
-    hs_free(h->t_moved);
-    hs_free(h->t_mflag);
-    hs_free(h->r_gone);
-    hs_free(h->r_keys);
-    hs_free(h->r_sorted);
-    hs_free(h->r_start);
-    hs_free(h->r_cur);
+    free_cut_scratch(h);
     if (h->tmx_init) pthread_mutex_destroy(&h->tmx);
     hs_free(h);
     *ph = NULL;
@@ -1105,21 +1110,7 @@ hs_status hs_haptic_sim_enable_cutting(hs_haptic_sim* h, hs_mesh* mesh,
     h->cdef.cut.material = h->def.body.fem.material;
     const size_t n = (size_t)mesh->n_nodes, nt = (size_t)mesh->n_tets;
     // A retry after a failed call starts clean.
-    hs_free(h->cw_x0);
-    hs_free(h->cw_tets);
-    hs_free(h->cw_fix);
-    hs_free(h->cu);
-    hs_free(h->cv);
-    hs_free(h->t_x0);
-    hs_free(h->t_tris);
-    hs_free(h->t_removed);
-    hs_free(h->t_moved);
-    hs_free(h->t_mflag);
-    hs_free(h->r_gone);
-    hs_free(h->r_keys);
-    hs_free(h->r_sorted);
-    hs_free(h->r_start);
-    hs_free(h->r_cur);
+    free_cut_scratch(h);
     hs_triple_buffer_destroy(&h->cpose);
     h->cw_x0 = hs_calloc(3 * n, sizeof(double));
     h->cw_tets = hs_calloc(4 * nt + 1, sizeof(int));
