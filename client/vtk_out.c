@@ -29,6 +29,16 @@ static hs_status finish(FILE* f, const char* tmp, const char* path, hs_err* err)
     return HS_OK;
 }
 
+/// Opens "<path>.tmp" (its name into tmp) for writing.
+static hs_status open_tmp(const char* path, char* tmp, size_t cap, FILE** out, hs_err* err) {
+    if (snprintf(tmp, cap, "%s.tmp", path) >= (int)cap) {
+        errno = ENAMETOOLONG;
+        return io_fail(err, path, "path too long");
+    }
+    *out = fopen(tmp, "w");
+    return *out ? HS_OK : io_fail(err, tmp, "cannot create");
+}
+
 void hs_view_displacement(const hs_client_mesh* m, float* disp) {
     for (int32_t i = 0; i < m->n_vis; i++) {
         double s = 0;
@@ -48,12 +58,9 @@ static void floats(FILE* f, const float* v, int64_t n, int per_line) {
 
 hs_status hs_vtu_write(const char* path, const hs_client_mesh* m, const float* disp, hs_err* err) {
     char tmp[4200];
-    if (snprintf(tmp, sizeof tmp, "%s.tmp", path) >= (int)sizeof tmp) {
-        errno = ENAMETOOLONG;
-        return io_fail(err, path, "path too long");
-    }
-    FILE* f = fopen(tmp, "w");
-    if (!f) return io_fail(err, tmp, "cannot create");
+    FILE* f = NULL;
+    hs_status st = open_tmp(path, tmp, sizeof tmp, &f, err);
+    if (st != HS_OK) return st;
     fprintf(f,
             "<?xml version=\"1.0\"?>\n"
             "<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" "
@@ -96,12 +103,9 @@ hs_status hs_vtu_write(const char* path, const hs_client_mesh* m, const float* d
 hs_status hs_pvd_write(const char* path, int32_t n, const char* const* files, const double* times,
                        hs_err* err) {
     char tmp[4200];
-    if (snprintf(tmp, sizeof tmp, "%s.tmp", path) >= (int)sizeof tmp) {
-        errno = ENAMETOOLONG;
-        return io_fail(err, path, "path too long");
-    }
-    FILE* f = fopen(tmp, "w");
-    if (!f) return io_fail(err, tmp, "cannot create");
+    FILE* f = NULL;
+    hs_status st = open_tmp(path, tmp, sizeof tmp, &f, err);
+    if (st != HS_OK) return st;
     fprintf(f, "<?xml version=\"1.0\"?>\n<VTKFile type=\"Collection\" version=\"0.1\" "
                "byte_order=\"LittleEndian\">\n<Collection>\n");
     for (int32_t i = 0; i < n; i++)

@@ -177,6 +177,8 @@ static int test_vtk_series(void) {
     if (!keep) remove(pvd);
     ENSURE(hs_vtu_write("/nonexistent/dir/x.vtu", &m, stress, &err) == HS_ERR_IO);
     ENSURE(strstr(err.msg, "/nonexistent/dir/x.vtu") != NULL);
+    ENSURE(hs_pvd_write("/nonexistent/dir/x.pvd", 3, files, times, &err) == HS_ERR_IO);
+    ENSURE(strstr(err.msg, "/nonexistent/dir/x.pvd") != NULL);
     return 0;
 }
 
