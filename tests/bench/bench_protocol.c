@@ -37,6 +37,7 @@ typedef struct rtt_side {
     hs_net_bus* bus;
     int64_t want_seq;
     int64_t got_ns;
+    int64_t pub_us; // the answer's utime: when it was published, on this machine's monotonic clock
 } rtt_side;
 
 static void on_force(const lcm_recv_buf_t* rb, const char* ch, const hapsim_tool_force_t* f,
@@ -44,7 +45,10 @@ static void on_force(const lcm_recv_buf_t* rb, const char* ch, const hapsim_tool
     (void)rb;
     (void)ch;
     rtt_side* s = u;
-    if (f->pose_seq == s->want_seq && !s->got_ns) s->got_ns = hs_now_ns();
+    if (f->pose_seq == s->want_seq && !s->got_ns) {
+        s->got_ns = hs_now_ns();
+        s->pub_us = f->utime;
+    }
 }
 
 typedef struct mesh_count {
@@ -111,8 +115,10 @@ static void send_pose(hs_net_bus* bus, int64_t seq, const double p[3]) {
     hapsim_tool_pose_t_publish(hs_net_bus_lcm(bus), PFX "TOOL_POSE", &m);
 }
 
-// One pose, wait for its force (at most 20 ms). Returns the round trip in us, or -1.
-static double one_rtt(rtt_side* s, hs_net_bus* mesh, int64_t seq, const double p[3]) {
+// One pose, wait for its force (at most 20 ms). Returns the round trip in us, or -1; *out_us
+// gets the outbound part (send to the answer's publish), the rest is the return path.
+static double one_rtt(rtt_side* s, hs_net_bus* mesh, int64_t seq, const double p[3],
+                      double* out_us) {
     s->want_seq = seq;
     s->got_ns = 0;
     int64_t t0 = hs_now_ns();
@@ -121,6 +127,7 @@ static double one_rtt(rtt_side* s, hs_net_bus* mesh, int64_t seq, const double p
         hs_net_bus_handle(s->bus, 1);
         if (mesh) hs_net_bus_handle(mesh, 0);
     }
+    if (out_us) *out_us = (double)s->pub_us - (double)t0 * 1e-3;
     return s->got_ns ? (double)(s->got_ns - t0) * 1e-3 : -1;
 }
 
@@ -173,6 +180,8 @@ static int run_inside(const hs_bench_args* a) {
     rtt_side sv = {0}, ec = {0};
     hs_net_bus* mesh = NULL;
     int rc = 1;
+    // round trips, server (s) and echo (e), with their outbound and return ("back") parts
+    double *rs = NULL, *re = NULL, *os = NULL, *bs = NULL, *oe = NULL, *be = NULL;
     mesh_count mc;
     memset(&mc, 0, sizeof mc);
     if (hs_net_bus_create(SRV_H, &sv.bus, &err) != HS_OK ||
@@ -195,9 +204,9 @@ static int run_inside(const hs_bench_args* a) {
     }
     int64_t seq = 0, eseq = 0;
     int64_t end = hs_now_ns() + 30000000000LL;
-    while (hs_now_ns() < end && one_rtt(&sv, NULL, ++seq, free_p) < 0) {
+    while (hs_now_ns() < end && one_rtt(&sv, NULL, ++seq, free_p, NULL) < 0) {
     }
-    while (hs_now_ns() < end && one_rtt(&ec, NULL, ++eseq, free_p) < 0) {
+    while (hs_now_ns() < end && one_rtt(&ec, NULL, ++eseq, free_p, NULL) < 0) {
     }
     if (hs_now_ns() >= end) {
         fprintf(stderr, "protocol: server or echo did not answer within 30 s\n");
@@ -213,8 +222,16 @@ static int run_inside(const hs_bench_args* a) {
         wait_until(t, sv.bus, mesh);
     }
     const int n_rtt = a->quick ? 2000 : 10000, block = 250;
-    double* rs = malloc(sizeof(double) * (size_t)n_rtt);
-    double* re = malloc(sizeof(double) * (size_t)n_rtt);
+    rs = malloc(sizeof(double) * (size_t)n_rtt);
+    re = malloc(sizeof(double) * (size_t)n_rtt);
+    os = malloc(sizeof(double) * (size_t)n_rtt);
+    bs = malloc(sizeof(double) * (size_t)n_rtt);
+    oe = malloc(sizeof(double) * (size_t)n_rtt);
+    be = malloc(sizeof(double) * (size_t)n_rtt);
+    if (!rs || !re || !os || !bs || !oe || !be) {
+        fprintf(stderr, "protocol: out of memory\n");
+        goto done;
+    }
     int ns = 0, ne = 0, lost_s = 0, lost_e = 0;
     memset(&mc, 0, sizeof mc);
     int64_t m0 = hs_now_ns();
@@ -225,19 +242,26 @@ static int run_inside(const hs_bench_args* a) {
         // A slow 1 mm wobble keeps the tissue moving (mesh deltas) and the contact live.
         double w = 0.001 * sin(2 * M_PI * 0.5 * (double)i * 1e-3);
         for (int k = 0; k < 3; ++k) p[k] = press[k] + w * N399[k] / l;
+        double out = 0;
         if (server) {
-            double r = one_rtt(&sv, mesh, ++seq, p);
-            if (r >= 0)
+            double r = one_rtt(&sv, mesh, ++seq, p, &out);
+            if (r >= 0) {
+                os[ns] = out;
+                bs[ns] = r - out;
                 rs[ns++] = r;
-            else
+            } else {
                 lost_s++;
+            }
         } else {
             send_pose(sv.bus, ++seq, p); // keep the server's device live during echo blocks
-            double r = one_rtt(&ec, mesh, ++eseq, p);
-            if (r >= 0)
+            double r = one_rtt(&ec, mesh, ++eseq, p, &out);
+            if (r >= 0) {
+                oe[ne] = out;
+                be[ne] = r - out;
                 re[ne++] = r;
-            else
+            } else {
                 lost_e++;
+            }
         }
         t += 1000000;
         wait_until(t, sv.bus, mesh);
@@ -245,17 +269,25 @@ static int run_inside(const hs_bench_args* a) {
     double mesh_s = (double)(hs_now_ns() - m0) * 1e-9;
     int64_t total = mc.msgs + mc.lost;
     printf("rtt_us_p50,rtt_us_p99,bare_lcm_rtt_us_p50,bare_lcm_rtt_us_p99,mesh_vertices,"
-           "mesh_msgs_per_s,mesh_loss_pct\n");
-    printf("%.1f,%.1f,%.1f,%.1f,%lld,%.1f,%.2f\n", hs_bench_percentile(rs, (size_t)ns, 50),
-           hs_bench_percentile(rs, (size_t)ns, 99), hs_bench_percentile(re, (size_t)ne, 50),
-           hs_bench_percentile(re, (size_t)ne, 99), (long long)mc.n_vis, (double)mc.msgs / mesh_s,
-           total ? 100.0 * (double)mc.lost / (double)total : 0.0);
+           "mesh_msgs_per_s,mesh_loss_pct,out_us_p50,back_us_p50,bare_out_us_p50,"
+           "bare_back_us_p50\n");
+    printf("%.1f,%.1f,%.1f,%.1f,%lld,%.1f,%.2f,%.1f,%.1f,%.1f,%.1f\n",
+           hs_bench_percentile(rs, (size_t)ns, 50), hs_bench_percentile(rs, (size_t)ns, 99),
+           hs_bench_percentile(re, (size_t)ne, 50), hs_bench_percentile(re, (size_t)ne, 99),
+           (long long)mc.n_vis, (double)mc.msgs / mesh_s,
+           total ? 100.0 * (double)mc.lost / (double)total : 0.0,
+           hs_bench_percentile(os, (size_t)ns, 50), hs_bench_percentile(bs, (size_t)ns, 50),
+           hs_bench_percentile(oe, (size_t)ne, 50), hs_bench_percentile(be, (size_t)ne, 50));
     fprintf(stderr, "protocol: %d server and %d echo round trips (%d / %d unanswered in 20 ms)\n",
             ns, ne, lost_s, lost_e);
-    free(rs);
-    free(re);
     rc = 0;
 done:
+    free(rs);
+    free(re);
+    free(os);
+    free(bs);
+    free(oe);
+    free(be);
     hs_net_bus_destroy(&sv.bus);
     hs_net_bus_destroy(&ec.bus);
     hs_net_bus_destroy(&mesh);
