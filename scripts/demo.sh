@@ -43,9 +43,22 @@ until grep -q "running;" "$log" 2>/dev/null; do
     [ $i -lt 200 ] || { echo "demo: hapsim-server not ready after 20 s" >&2; exit 1; }
     sleep 0.1
 done
-sed 's/^/  /' "$log"
-echo "demo: hapsim-stylus on $script (about 45 s); live server status:"
-"$stylus" --script "$script" --trace "$trace" --realtime
+# The server's live line (stderr) is rewritten in place and ends without a newline; on a
+# terminal, clear it before each line printed here, so that the two do not run together.
+clr=
+if [ -t 1 ] && [ -t 2 ]; then clr=$(printf '\r\033[K'); fi
+show() { while IFS= read -r line; do printf '%s%s\n' "$clr" "$line"; done; }
+sed 's/^/  /' "$log" | show
+echo "demo: hapsim-stylus on $script (about 45 s); live server status:" | show
+rcf=$out/.stylus-status
+{
+    rc=0
+    stdbuf -oL "$stylus" --script "$script" --trace "$trace" --realtime 2>&1 || rc=$?
+    echo $rc >"$rcf"
+} | show
+rc=$(cat "$rcf")
+rm -f "$rcf"
+[ "$rc" = 0 ] || { echo "demo: hapsim-stylus failed (exit status $rc)" >&2; exit 1; }
 kill -INT $spid 2>/dev/null || true
 wait $spid 2>/dev/null || true
 trap - EXIT INT TERM
