@@ -9,8 +9,9 @@
 #  - a client joining after the cut (it missed every event) ends with the server's newest
 #    topology: triangle count changed, no orphan or out-of-range reference (client late);
 #  - hapsim-view still writes frames of the cut mesh;
-#  - after the cut, set is refused (the sim cannot be rebuilt on a cut mesh) and reset reloads
-#    the uncut scene (new topology version, set works again);
+#  - after the cut, set and a scene that fails to build are refused (the sim cannot be rebuilt
+#    on a cut mesh) and leave the cut simulation running; reset reloads the uncut scene (new
+#    topology version, set works again);
 #  - the force the stylus received is finite, the blade felt resistance, and it changes by at
 #    most MAX_STEP_N per ms of the time between the two forces (a late stylus tick, or a force
 #    that arrives after a stall of the server, spans several server ticks): the cutting force
@@ -119,6 +120,20 @@ echo "$steady" | awk '{ exit !($1 > 0.003 && $1 < 0.1) }' || fail "steady probe 
 # After a cut the simulation cannot be rebuilt on the mesh: set is refused, reset reloads it.
 $ctl -q set youngs_pa 60000 2>"$tmp/set.err" && fail "set after a cut was accepted"
 grep -q "cut" "$tmp/set.err" || fail "set after a cut: $(cat "$tmp/set.err")"
+# A scene that fails to build (it fixes no node) is refused too.
+cat >"$tmp/nofix.json" <<EOF
+{ "name": "no fixed node", "mesh": "$src/scenes/skin/skin_patch_synthetic.msh",
+  "fixed": [{ "type": "box", "min": [5, 5, 5], "max": [6, 6, 6] }],
+  "tools": [{ "kind": "probe", "radius": 0.003 }], "devices": 1 }
+EOF
+$ctl -q load-scene "$tmp/nofix.json" 2>"$tmp/load.err" && fail "a scene fixing no node was loaded"
+grep -q "select no node" "$tmp/load.err" || fail "bad load-scene: $(cat "$tmp/load.err")"
+# Both refusals left the cut simulation running (the rt loop is still there).
+$ctl status >"$tmp/status_refused.txt" 2>&1 || fail "no status after the refusals"
+grep -q "^rt " "$tmp/status_refused.txt" ||
+    fail "the refused commands stopped the simulation: $(head -5 "$tmp/status_refused.txt")"
+grep -q "^topology version $ver " "$tmp/status_refused.txt" ||
+    fail "the refusals changed the topology: $(sed -n 2p "$tmp/status_refused.txt")"
 $ctl -q reset || fail "reset after a cut: rc $?"
 $ctl status >"$tmp/status2.txt" 2>&1 || fail "no status after reset"
 grep -q "^server   running" "$tmp/status2.txt" || fail "not running after reset"

@@ -498,15 +498,34 @@ static int poses_in_forces_out(void) {
     ENSURE(dot_n(c.force.force) > 0.02);
 
     // E-stop: zero at once, even while pressed; a repeated request id is not executed again.
+    const double f_full = dot_n(c.force.force);
     int64_t id = 0;
     ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_ESTOP, NULL, NULL, NULL, NULL, &id) ==
            HAPSIM_COMMAND_ACK_T_STATUS_OK);
     stream(&c, 0.004, 0.004, 50);
     ENSURE(norm3(c.force.force) == 0.0 && c.force.state == HAPSIM_TOOL_FORCE_T_STATE_STOPPED);
+    // The release ramps the force back in over at least the 10 ms safety ramp: the server
+    // released after t_rel, so an answer received within 10 ms of it has a gain below 1.
+    int64_t t_rel = hs_now_ns();
     ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_ESTOP_RELEASE, NULL, NULL, NULL, NULL, NULL) ==
            HAPSIM_COMMAND_ACK_T_STATUS_OK);
+    double pr[3];
+    probe_at(0.004, pr);
+    send_pose(&c, pr, 0);
+    for (int64_t end = hs_now_ns() + 500000000LL; c.force.pose_seq != c.seq && hs_now_ns() < end;)
+        hs_net_bus_handle(c.h, 1);
+    ENSURE(c.force.pose_seq == c.seq);
+    double dt_rel_ms = (double)(c.force_rx_ns - t_rel) * 1e-6;
+    printf("  e-stop released: first force %.4f N along n, %.2f ms after the release was sent "
+           "(%.4f N before the stop), state %d\n",
+           dot_n(c.force.force), dt_rel_ms, f_full, c.force.state);
+    if (dt_rel_ms < 10.0) {
+        ENSURE(c.force.state == HAPSIM_TOOL_FORCE_T_STATE_RAMP);
+        ENSURE(norm3(c.force.force) <= 1.5 * fabs(f_full) * dt_rel_ms / 10.0 + 1e-4);
+    }
     stream(&c, 0.004, 0.004, 300);
     ENSURE(dot_n(c.force.force) > 0.02);
+    ENSURE(c.force.state == HAPSIM_TOOL_FORCE_T_STATE_CONTACT);
     int acks = c.n_ack;
     send_command(&c, id, HAPSIM_COMMAND_T_KIND_ESTOP, NULL, NULL, NULL, NULL); // duplicate
     ENSURE(wait_more(&c, &c.n_ack, 2000) && c.n_ack == acks + 1);

@@ -121,6 +121,7 @@ struct hs_server {
 
     int paused, estop;
     int64_t pause_ns;
+    int64_t estop_release_ns;    // forces ramp back in from here (the rt chain never saw the stop)
     hs_haptic_model pause_model; // output model at the pause, ramped to zero
 
     int64_t topo_version, keyframe_id, frame_step, key_ns, sim_step_base;
@@ -261,13 +262,17 @@ static void sim_def_from_scene(const hs_scene* sc, int realtime, hs_haptic_sim_d
     d->lock_memory = realtime;
 }
 
-// (Re)create the sim of w from w->def, with the body state u/v when keep. Not started.
+static hs_status refuse_cut(hs_err* err) {
+    return hs_err_set(err, HS_ERR_INVALID,
+                      "the mesh was cut: the simulation cannot be rebuilt on it (RESET reloads "
+                      "the uncut scene)");
+}
+
+// (Re)create the sim of w from w->def, with the body state u/v when keep. Not started. A cut
+// world is refused with its sim left as it is.
 static hs_status world_sim_create(world* w, int keep, hs_err* err) {
+    if (w->cut_made) return refuse_cut(err);
     hs_haptic_sim_destroy(&w->sim);
-    if (w->cut_made)
-        return hs_err_set(err, HS_ERR_INVALID,
-                          "the mesh was cut: the simulation cannot be rebuilt on it (RESET "
-                          "reloads the uncut scene)");
     hs_status s = hs_haptic_sim_create(w->mesh, &w->def, w->fixed, &w->sim, err);
     if (s != HS_OK) return s;
     if (w->cutting) {
@@ -455,15 +460,32 @@ static int state_of(const hs_haptic_output* o, const hs_haptic_model* m, uint32_
     return active ? HAPSIM_TOOL_FORCE_T_STATE_CONTACT : HAPSIM_TOOL_FORCE_T_STATE_FREE;
 }
 
+static void scale_model(hs_haptic_model* m, double g) {
+    for (int k = 0; k < 3; ++k) m->force_n[k] *= g;
+    for (int k = 0; k < 9; ++k) m->stiffness_n_m[k] *= g;
+}
+
 // The paused model at time t: the model at the pause scaled down linearly to zero.
 static hs_haptic_model paused_model(const hs_server* s, int64_t t, const double pos[3]) {
     double g = 1.0 - (double)(t - s->pause_ns) * 1e-9 / PAUSE_RAMP_S;
     if (g <= 0) return zero_model();
     hs_haptic_model m;
     hs_haptic_model_reanchor(&s->pause_model, pos, &m);
-    for (int k = 0; k < 3; ++k) m.force_n[k] *= g;
-    for (int k = 0; k < 9; ++k) m.stiffness_n_m[k] *= g;
+    scale_model(&m, g);
     return m;
+}
+
+// Gain on the rt model at time t after an ESTOP_RELEASE: 0 -> 1 over the safety ramp, or
+// slower if the force limit at the rate limit needs longer (a resume ramps in the same way,
+// through its new sim's watchdog).
+static double estop_gain(const hs_server* s, int64_t t) {
+    if (s->estop) return 0.0;
+    const hs_safety_def* sd = &s->w.def.safety;
+    double ramp = sd->ramp_s;
+    if (sd->max_rate_n_s > 0 && sd->max_force_n / sd->max_rate_n_s > ramp)
+        ramp = sd->max_force_n / sd->max_rate_n_s;
+    double g = (double)(t - s->estop_release_ns) * 1e-9 / ramp;
+    return g >= 1.0 ? 1.0 : g > 0.0 ? g : 0.0;
 }
 
 static void drain_outputs(hs_server* s) {
@@ -498,6 +520,11 @@ static void publish_rt_output(hs_server* s) {
     hs_haptic_model m = s->estop ? zero_model() : s->out.model;
     clamp_model(&m, s->w.scene.force_max_n);
     int state = s->estop ? HAPSIM_TOOL_FORCE_T_STATE_STOPPED : state_of(&s->out, &m, ds->buttons);
+    double g = estop_gain(s, t);
+    if (!s->estop && g < 1.0) {
+        scale_model(&m, g);
+        state = HAPSIM_TOOL_FORCE_T_STATE_RAMP;
+    }
     int i = ring_find(s, s->out.pose_seq);
     publish_force(s, 0, &m, state, i >= 0 ? s->ring_seq[i] : 0, i >= 0 ? s->ring_utime[i] : 0, 0);
 }
@@ -539,6 +566,11 @@ static void answer_pose(hs_server* s, const hs_net_pose* p, int64_t rx_ns) {
             hs_haptic_model_reanchor(&s->out.model, p->position, &m);
             clamp_model(&m, w->scene.force_max_n);
             state = state_of(&s->out, &m, p->buttons);
+            double g = estop_gain(s, rx_ns);
+            if (g < 1.0) {
+                scale_model(&m, g);
+                state = HAPSIM_TOOL_FORCE_T_STATE_RAMP;
+            }
         }
     }
     if (s->estop) {
@@ -996,6 +1028,7 @@ static void after_rebuild(hs_server* s, int keep) {
 static hs_status rebuild_sim(hs_server* s, int keep, hs_err* err) {
     world* w = &s->w;
     if (!w->haptics) return HS_OK;
+    if (w->cut_made) return refuse_cut(err); // before stopping the sim, which could not return
     if (s->paused) {
         if (!keep) {
             memset(w->u, 0, 3 * (size_t)w->mesh->n_nodes * sizeof(double));
@@ -1072,18 +1105,14 @@ static int load_scene(hs_server* s, const char* path, char* msg, size_t cap) {
         snprintf(msg, cap, "%s", err.msg);
         return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
     }
+    // Build the new world (its sim not started) while the old one still runs: a scene that
+    // fails here leaves the running simulation as it was, cut or not.
     world nw;
-    int paused = s->paused;
-    // The new world's sim must not compete with the old one for the device: stop the old first.
-    world_sim_stop(&s->w);
     if (world_create(&sc, s->opt.realtime, &nw, &err) != HS_OK) {
         snprintf(msg, cap, "%s", err.msg);
-        if (!paused && s->w.haptics) {
-            hs_err e2 = {0};
-            if (world_sim_create(&s->w, 1, &e2) == HS_OK) hs_haptic_sim_start(s->w.sim, &e2);
-        }
         return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
     }
+    world_sim_stop(&s->w);
     world_destroy(&s->w);
     s->w = nw;
     s->paused = 0;
@@ -1151,6 +1180,7 @@ static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap)
         return HAPSIM_COMMAND_ACK_T_STATUS_OK;
     }
     case HAPSIM_COMMAND_T_KIND_ESTOP_RELEASE:
+        if (s->estop) s->estop_release_ns = hs_now_ns(); // a repeated release does not re-ramp
         s->estop = 0;
         return HAPSIM_COMMAND_ACK_T_STATUS_OK;
     case HAPSIM_COMMAND_T_KIND_REQUEST_TOPOLOGY:
