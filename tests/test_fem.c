@@ -1330,8 +1330,44 @@ static int test_timing(void) {
     return 0;
 }
 
+// Nodes no tet uses (a body fixes them) have a ring of their own only: 60 of them beside one tet
+// overran build_rings' scratch array (ASan: heap-buffer-overflow), which sized it by tets alone.
+static int test_unused_nodes(void) {
+    enum { N = 64 };
+    double x[3 * N] = {0}, xs[3 * N], f[3 * N];
+    x[3] = x[7] = x[11] = 0.01; // nodes 0-3: a 1 cm corner tet; the rest unused
+    for (int i = 4; i < N; i++) {
+        x[3 * i] = 0.02 + 0.01 * i;
+        x[3 * i + 1] = x[3 * i + 2] = 0.02;
+    }
+    int tets[4] = {0, 1, 2, 3}, dof[3 * N];
+    for (int k = 0; k < 3 * N; k++) dof[k] = k;
+    for (int anp = 0; anp < 2; anp++) {
+        hs_mesh* mesh = NULL;
+        ENSURE(hs_mesh_create(N, x, 1, tets, &mesh, NULL) == HS_OK);
+        hs_fem_def def = hs_fem_default_def();
+        def.model = HS_MODEL_COROTATED;
+        def.locking_free = anp;
+        hs_fem* fem = NULL;
+        ENSURE(hs_fem_create(mesh, &def, dof, 3 * N, &fem, NULL) == HS_OK);
+        memcpy(xs, x, sizeof xs);
+        xs[3] += 0.001; // stretch along x by 10 %
+        hs_fem_update(fem, xs, NULL);
+        hs_fem_forces(fem, f);
+        ENSURE(f[3] < 0); // pulls node 1 back
+        for (int k = 12; k < 3 * N; k++) ENSURE(f[k] == 0.0);
+        hs_csc* a = NULL;
+        ENSURE(hs_fem_create_matrix(fem, &a) == HS_OK);
+        hs_csc_destroy(&a);
+        hs_fem_destroy(&fem);
+        hs_mesh_destroy(&mesh);
+    }
+    return 0;
+}
+
 HS_TEST_MAIN(HS_CASE(test_patch), HS_CASE(test_rigid_rotation), HS_CASE(test_tangent_fd),
              HS_CASE(test_corot_tangent), HS_CASE(test_polar), HS_CASE(test_polar_batched),
              HS_CASE(test_element_pass), HS_CASE(test_locking), HS_CASE(test_inversion),
              HS_CASE(test_inversion_dynamic), HS_CASE(test_mass_and_active), HS_CASE(test_no_alloc),
-             HS_CASE(test_errors), HS_CASE(test_shared_meshes), HS_CASE(test_timing))
+             HS_CASE(test_errors), HS_CASE(test_unused_nodes), HS_CASE(test_shared_meshes),
+             HS_CASE(test_timing))

@@ -217,8 +217,9 @@ static hs_status build_incidence(hs_fem* m) {
 static hs_status build_rings(hs_fem* m) {
     int n = m->n;
     m->ring_start = hs_calloc((size_t)n + 1, sizeof(int));
-    int cap = 4 * m->nt_start[n] + 1;
-    int* tmp = hs_alloc(sizeof(int) * (size_t)cap);
+    // Before de-duplication a node writes itself and 4 entries per incident tet.
+    size_t cap = (size_t)n + 4 * (size_t)m->nt_start[n] + 1;
+    int* tmp = hs_alloc(sizeof(int) * cap);
     if (!m->ring_start || !tmp) {
         hs_free(tmp);
         return HS_ERR_NOMEM;
@@ -426,7 +427,7 @@ hs_status hs_fem_create(const hs_mesh* mesh, const hs_fem_def* def, const int* d
         return hs_err_set(err, HS_ERR_INVALID, "fem: empty mesh (%d nodes, %d tets)", mesh->n_nodes,
                           mesh->n_tets);
     int n = mesh->n_nodes, ne = mesh->n_tets;
-    if (n > INT_MAX / 3 || ne > INT_MAX / 16)
+    if (n > INT_MAX / 3 || ne > INT_MAX / 78) // 78 scatter positions per tet (elem_pos)
         return hs_err_set(err, HS_ERR_UNSUPPORTED, "fem: mesh too large (%d nodes, %d tets)", n,
                           ne);
     if (n_free < 0 || n_free > 3 * n)
