@@ -1,6 +1,8 @@
 // hapsim body: a deformable body on a tet mesh with boundary conditions, time stepping and
 // static equilibrium. Owns its FEM model, matrix, factorisation and solver workspaces.
-// Used by one thread at a time (the deformation thread); no allocation after create.
+// Used by one thread at a time (the deformation thread). Allocation: at create, plus the factor
+// and its workspaces at the first step or solve that needs them (a first refactorisation adds a
+// second buffer); after that, steps and solves allocate nothing.
 #ifndef HAPSIM_BODY_H
 #define HAPSIM_BODY_H
 
@@ -117,7 +119,8 @@ void hs_body_reaction(hs_body* b, int node, double f[3] /* OUT */);
 /// (no such factor, locking_free, a downdate that lost definiteness) the next step refactors as
 /// before. Call after every sweep, before hs_body_set_state; replaces hs_cut_sync_fem for a
 /// body. HS_ERR_INVALID (nothing changed) for an index out of range or a moved element with rest
-/// volume <= 0. Allocates: the element blocks, on growth.
+/// volume <= 0. An element listed twice counts once; one both moved and going off goes off.
+/// Allocates: the element blocks, on growth, and an element mark array on the first call.
 hs_status hs_body_change_elements(hs_body* b, int n_off, const int* off, int n_moved,
                                   const int* moved, int* low_rank /* OUT */);
 /// Factor updates (partial refactors or low-rank updates) hs_body_change_elements has made.

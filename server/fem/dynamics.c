@@ -3,8 +3,9 @@
 //
 // DESIGN. Fixed dofs are eliminated: the matrix and the solver see only free dofs; prescribed
 // displacements enter through the residual (f_el is evaluated at the full configuration, and the
-// tangent coupling K_fp du_p is moved to the right-hand side). Everything is allocated in
-// hs_body_create; steps and solves allocate nothing (CHOLMOD workspaces are reused).
+// tangent coupling K_fp du_p is moved to the right-hand side). Everything but the factor is
+// allocated in hs_body_create; the factor and its workspaces come with the first step or solve
+// that needs them, and are reused after that.
 #include "hapsim/body.h"
 
 #include "fem_internal.h"
@@ -34,6 +35,7 @@ struct hs_body {
     double a_kcoef, a_mcoef;           // coefficients `a` was last assembled with
     uint64_t a_version;                // and the stiffness version
     int a_valid;                       // 1 once `a` has been assembled
+    int a_is_rest; // 1 while `a` holds the rest-state matrix (the warped safeguard, cut updates)
     hs_pcg* pcg;
 
     double* u;       // [3n] displacement
@@ -49,6 +51,7 @@ struct hs_body {
     double* save;    // [3n] scratch to keep u while the rest state is evaluated
     double* rot;     // [9n] node rotations for the warped preconditioner (row-major)
     double* dprev0;  // [3n] warped solver: du_prev kept for a step redone exactly
+    double* v0;      // [3n] and v
     double* tmp_f;   // [n_free] scratch for the warped preconditioner
     double* rhs_f;   // [n_free]
     double* x_f;     // [n_free]
@@ -57,9 +60,10 @@ struct hs_body {
     hs_fem_stats fem_stats;
     // hs_body_change_elements: element blocks (new ones first, then old) and their free dofs.
     int cap_blk;
-    double* blk_k; // [144 cap_blk]
-    int* blk_d;    // [12 cap_blk]
-    int* blk_e;    // [cap_blk] scratch element list
+    double* blk_k;        // [144 cap_blk]
+    int* blk_d;           // [12 cap_blk]
+    int* blk_e;           // [cap_blk] scratch element list
+    unsigned char* emark; // [n_tets] zero between calls: each element listed once
     int64_t lowrank_updates;
     double p_floor; // J: energy of a 1e-10 strain over the body, the line search's noise floor
 };
@@ -91,6 +95,7 @@ void hs_body_destroy(hs_body** pb) {
     hs_free(b->blk_k);
     hs_free(b->blk_d);
     hs_free(b->blk_e);
+    hs_free(b->emark);
     hs_free(b->dof);
     hs_free(b->free_to_full);
     hs_free(b->fixed);
@@ -108,6 +113,7 @@ void hs_body_destroy(hs_body** pb) {
     hs_free(b->rot);
     hs_free(b->tmp_f);
     hs_free(b->dprev0);
+    hs_free(b->v0);
     hs_free(b->rhs_f);
     hs_free(b->x_f);
     hs_free(b);
@@ -260,7 +266,8 @@ hs_status hs_body_create(const hs_mesh* mesh, const hs_body_def* def, const unsi
     }
     if (def->solver == HS_SOLVER_WARPED) {
         b->dprev0 = hs_alloc(n3 * sizeof(double));
-        if (!b->dprev0) goto nomem;
+        b->v0 = hs_alloc(n3 * sizeof(double));
+        if (!b->dprev0 || !b->v0) goto nomem;
     }
     if (def->solver == HS_SOLVER_PCG) {
         s = hs_pcg_create(nf, &b->pcg);
@@ -380,12 +387,13 @@ hs_status hs_body_change_elements(hs_body* b, int n_off, const int* off, int n_m
         if (moved[k] < 0 || moved[k] >= ne) return HS_ERR_INVALID;
     hs_status s = grow_blocks(b, n_off + 2 * n_moved);
     if (s != HS_OK) return s;
+    if (!b->emark && !(b->emark = hs_calloc((size_t)ne, 1))) return HS_ERR_NOMEM;
     const uint64_t v0 = hs_fem_stiffness_version(b->fem);
     // A factor of the rest-state matrix as it is now follows by low rank; `a` too where it
     // holds that matrix (the warped solver's safeguard reads it; the linear model caches it).
     int keep = b->factor && b->factor_rest && b->factor_version == v0;
-    int a_rest = keep && b->a_kcoef == b->factor_kcoef && b->a_mcoef == b->factor_mcoef &&
-                 b->a_version == v0 &&
+    int a_rest = keep && b->a_is_rest && b->a_kcoef == b->factor_kcoef &&
+                 b->a_mcoef == b->factor_mcoef && b->a_version == v0 &&
                  (b->def.solver == HS_SOLVER_WARPED || b->def.fem.model == HS_MODEL_LINEAR);
     if (b->def.solver == HS_SOLVER_WARPED && !a_rest) keep = 0; // its safeguard reads `a`
     // With `a` kept current, a supernodal factor is refactored in part (only the supernodes the
@@ -395,15 +403,25 @@ hs_status hs_body_change_elements(hs_body* b, int n_off, const int* off, int n_m
     const int partial =
         keep && a_rest && hs_cholesky_is_supernodal(b->factor) &&
         hs_cholesky_partial_bytes(b->factor) <= 32 * hs_cholesky_factor_nnz(b->factor);
-    // Old shares (slots n_new ..): the moved elements and the active ones going off.
-    int n_new = 0, n_old = 0;
-    for (int k = 0; k < n_moved; k++)
-        if (hs_fem_element_active(b->fem, moved[k])) n_new++;
+    // Old shares (slots n_new ..): the moved elements and the active ones going off, each once
+    // (a repeat would take its share out twice); one both moved and going off only goes off.
+    unsigned char* mk = b->emark;
     int* list = b->blk_e;
-    for (int k = 0; k < n_moved; k++)
-        if (hs_fem_element_active(b->fem, moved[k])) list[n_old++] = moved[k];
-    for (int k = 0; k < n_off; k++)
-        if (hs_fem_element_active(b->fem, off[k])) list[n_old++] = off[k];
+    int n_old = 0;
+    for (int k = 0; k < n_off; k++) mk[off[k]] = 2;
+    for (int k = 0; k < n_moved; k++) {
+        int e = moved[k];
+        if (!mk[e] && hs_fem_element_active(b->fem, e)) list[n_old++] = e;
+        mk[e] |= 1;
+    }
+    const int n_new = n_old;
+    for (int k = 0; k < n_off; k++) {
+        int e = off[k];
+        if (mk[e] != 4 && hs_fem_element_active(b->fem, e)) list[n_old++] = e;
+        mk[e] = 4;
+    }
+    for (int k = 0; k < n_off; k++) mk[off[k]] = 0;
+    for (int k = 0; k < n_moved; k++) mk[moved[k]] = 0;
     for (int k = 0; keep && !partial && k < n_old; k++)
         keep = rest_block(b, n_new + k, list[k]) == HS_OK;
     if (!keep) a_rest = 0;
@@ -457,7 +475,7 @@ hs_status hs_body_change_elements(hs_body* b, int n_off, const int* off, int n_m
     if (keep && a_rest)
         b->a_version = v1;
     else
-        b->a_valid = 0, b->a_version = 0;
+        b->a_valid = 0, b->a_version = 0, b->a_is_rest = 0;
     return HS_OK;
 }
 
@@ -560,6 +578,7 @@ static void assemble(hs_body* b, double kcoef, double mcoef) {
         return;
     hs_fem_assemble(b->fem, kcoef, mcoef, b->a);
     b->a_valid = 1;
+    b->a_is_rest = b->def.fem.model == HS_MODEL_LINEAR; // else the tangent at this update
     b->a_kcoef = kcoef;
     b->a_mcoef = mcoef;
     b->a_version = v;
@@ -621,13 +640,16 @@ static hs_status solve_system(hs_body* b, double kcoef, double mcoef, hs_step_st
     // PCG and warped: the factor (if any) is the rest-state matrix with these coefficients.
     const int one_solve = b->def.solver == HS_SOLVER_WARPED;
     const int warped = one_solve || b->def.precond == HS_PRECOND_WARPED;
+    // The warped step's safeguard also reads `a` as the rest matrix: an exact step whose
+    // refactor failed left the tangent there (and the rest factor in place), so redo both.
     if ((b->def.precond == HS_PRECOND_FACTOR || warped) &&
         (!b->factor || !b->factor_rest || b->factor_kcoef != kcoef || b->factor_mcoef != mcoef ||
-         b->factor_version != hs_fem_stiffness_version(b->fem))) {
+         b->factor_version != hs_fem_stiffness_version(b->fem) || (one_solve && !b->a_is_rest))) {
         // The rest-state matrix straight from the element rest data (R = I exactly); with the
         // locking-free term, which that cannot give, evaluate the model at u = 0 instead.
         if (hs_fem_assemble_rest(b->fem, kcoef, mcoef, b->a) == HS_OK) {
             b->a_valid = linear; // the linear model's cached tangent is this matrix
+            b->a_is_rest = 1;
             b->a_kcoef = kcoef;
             b->a_mcoef = mcoef;
             b->a_version = hs_fem_stiffness_version(b->fem);
@@ -639,6 +661,7 @@ static hs_status solve_system(hs_body* b, double kcoef, double mcoef, hs_step_st
             memset(b->u, 0, 3 * (size_t)b->n * sizeof(double));
             update_model(b);
             s = refresh_factor(b, kcoef, mcoef, &st->refactors, 1);
+            b->a_is_rest = 1; // assembled at u = 0
             memcpy(b->u, keep, 3 * (size_t)b->n * sizeof(double));
             update_model(b);
             if (s != HS_OK) return s;
@@ -701,7 +724,10 @@ hs_status hs_body_step(hs_body* b, hs_step_stats* stats) {
     }
     int exact = 0;
     if (!any_presc) memcpy(b->save, b->u, (size_t)n3 * sizeof(double));
-    if (b->dprev0) memcpy(b->dprev0, b->du_prev, (size_t)n3 * sizeof(double));
+    if (b->dprev0) {
+        memcpy(b->dprev0, b->du_prev, (size_t)n3 * sizeof(double));
+        memcpy(b->v0, b->v, (size_t)n3 * sizeof(double));
+    }
 retry:;
     hs_status s = solve_system(b, kcoef, mcoef, &st, exact);
     if (s == HS_OK && !all_finite(b->x_f, b->n_free)) s = HS_ERR_NUMERIC;
@@ -784,6 +810,7 @@ retry:;
         st.exact_fallbacks++;
         memcpy(b->u, b->save, (size_t)n3 * sizeof(double));
         memcpy(b->du_prev, b->dprev0, (size_t)n3 * sizeof(double));
+        memcpy(b->v, b->v0, (size_t)n3 * sizeof(double)); // the trials above wrote it
         update_model(b);
         goto retry;
     }
