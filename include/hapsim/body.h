@@ -86,11 +86,14 @@ void hs_body_set_load_scale(hs_body* b, double s);
 hs_status hs_body_set_prescribed(hs_body* b, int node, const double u[3]);
 /// One implicit Euler step of size def.dt:
 /// (M + dt C + dt^2 K) du = dt^2 (f_ext + f_el(u)) + M du_prev, linearised once per step,
-/// then shortened if needed so the incremental potential decreases (no energy gain from the
-/// linearisation at large dt or large rotations).
+/// then halved if needed until the incremental potential decreases (no energy gain from the
+/// linearisation at large dt or large rotations): at most 8 times, the last (1/256 of the step)
+/// taken unchecked; the warped solver redoes a step whose first 4 trials fail with the exact
+/// tangent. A failed step (error status) leaves u and v as they were.
 hs_status hs_body_step(hs_body* b, hs_step_stats* stats /* OUT, may be NULL */);
 /// Static equilibrium f_el(u) + f_ext = 0 by Newton (co-rotated: its fixed-rotation tangent),
 /// with backtracking line search and def.static_load_steps increments. Velocities are reset.
+/// Unlike a step, a solve that fails or does not converge may leave u at its last iterate.
 hs_status hs_body_solve_static(hs_body* b, hs_step_stats* stats /* OUT, may be NULL */);
 /// Back to rest: u = 0, velocity 0, rotations identity: from here it steps as a new body
 /// (forces and prescribed values kept).
