@@ -1427,6 +1427,125 @@ static int test_pins_hold(void) {
     return 0;
 }
 
+/// A sweep that fails after it changed the mesh (here: the compliance update cannot allocate)
+/// still reports the change (topology version, a valid live mesh), and the next sweep first
+/// rebuilds the factor it left behind (before: 8 % off a fresh factor, for good).
+static int test_failed_sweep_recovers(void) {
+    hs_mesh* m = NULL;
+    hs_err e;
+    ENSURE(hs_mesh_create_box(0.06, 0.06, 0.01, 6, 6, 2, &m, &e) == HS_OK);
+    const int n = m->n_nodes;
+    unsigned char* fixed = hs_calloc((size_t)n, 1);
+    hs_mesh_select_plane(m, 0, -1, 1e-6, fixed);
+    hs_cut_def def = hs_cut_default_def();
+    def.factor_policy = HS_CUT_FACTOR_UPDATE;
+    def.validate = 0;
+    hs_cut* c = NULL;
+    ENSURE(hs_cut_create(m, fixed, &def, &c, &e) == HS_OK);
+    int* tr = hs_alloc(sizeof(int) * (size_t)n);
+    int nt = 0;
+    for (int i = 0; i < n; i++)
+        if (m->x0[3 * i + 2] > 0.01 - 1e-9) tr[nt++] = i;
+    ENSURE(hs_cut_track_compliance(c, nt, tr, HS_CUT_COMPLIANCE_WOODBURY) == HS_OK);
+    double p0[3] = {0.033, 0.005, 0.004}, q0[3] = {0.033, 0.005, 0.02};
+    double p1[3] = {0.033, 0.012, 0.004}, q1[3] = {0.033, 0.012, 0.02};
+    hs_cut_result r;
+    int64_t v0 = hs_cut_topology_version(c);
+    hs_alloc_fail_after(1);
+    hs_status st = hs_cut_sweep(c, p0, q0, p1, q1, NULL, &r, &e);
+    hs_alloc_fail_after(0);
+    printf("  failed sweep: status %d (%s), %d tets removed\n", (int)st, e.msg,
+           hs_cut_last_removed(c, NULL));
+    ENSURE(st != HS_OK && hs_cut_last_removed(c, NULL) > 0);
+    ENSURE(hs_cut_topology_version(c) > v0);
+    ENSURE(hs_cut_validate(c, &e) == HS_OK);
+    for (int k = 0; k < 3; k++) {
+        p0[1] = q0[1] = p1[1];
+        p1[1] = q1[1] = p1[1] + 0.007;
+        ENSURE(hs_cut_sweep(c, p0, q0, p1, q1, NULL, &r, &e) == HS_OK);
+        double d = factor_vs_fresh(c);
+        printf("  next sweep %d: %d removed, factor vs a fresh one %.2e\n", k, r.removed, d);
+        ENSURE(d < 1e-9);
+    }
+    hs_free(tr);
+    hs_cut_destroy(&c);
+    hs_free(fixed);
+    hs_mesh_destroy(&m);
+    return 0;
+}
+
+/// The short piece check after a sweep that took the last tets of a fixed node: that node held
+/// its piece and now holds nothing, so the full check must run (before, it was skipped and a
+/// piece with two holding nodes stayed, hinged). Random short blades near the node, until it
+/// happened three times; the validator must pass every time.
+static int test_piece_check_lost_hold(void) {
+    uint64_t g = 88172645463325252ull;
+    int found = 0, trials = 0;
+    for (; trials < 5000 && found < 3; trials++) {
+        hs_mesh* m = NULL;
+        hs_err e;
+        ENSURE(hs_mesh_create_box(0.03, 0.03, 0.01, 3, 3, 1, &m, &e) == HS_OK);
+        const int n = m->n_nodes, ne = m->n_tets;
+        // Three non-collinear fixed nodes on x = 0; C the one with the fewest tets.
+        int cnt[64] = {0}, sel[64], ns = 0;
+        for (int t = 0; t < 4 * ne; t++) cnt[m->tets[t]]++;
+        for (int i = 0; i < n; i++)
+            if (m->x0[3 * i] < 1e-9) sel[ns++] = i;
+        int C = sel[0], A = -1, B = -1;
+        for (int k = 0; k < ns; k++)
+            if (cnt[sel[k]] < cnt[C]) C = sel[k];
+        for (int k = 0; k < ns; k++) {
+            int i = sel[k];
+            double dy = m->x0[3 * i + 1] - m->x0[3 * C + 1],
+                   dz = m->x0[3 * i + 2] - m->x0[3 * C + 2];
+            if (i != C && A < 0 && fabs(dy) > 0.02 && fabs(dz) < 1e-9) A = i;
+            if (i != C && B < 0 && fabs(dy) > 0.02 && fabs(dz) > 0.005) B = i;
+        }
+        ENSURE(A >= 0 && B >= 0);
+        unsigned char* fixed = hs_calloc((size_t)n, 1);
+        fixed[A] = fixed[B] = fixed[C] = 1;
+        hs_cut_def def = hs_cut_default_def();
+        def.factor_policy = HS_CUT_FACTOR_NONE;
+        def.validate = 0;
+        hs_cut* c = NULL;
+        ENSURE(hs_cut_create(m, fixed, &def, &c, &e) == HS_OK);
+        hs_cut_result r;
+        // A first cut away from C (the full check runs: every piece held), then one near C.
+        double a0[3] = {0.025, 0.012, -0.01}, b0[3] = {0.025, 0.012, 0.02};
+        double a1[3] = {0.025, 0.018, -0.01}, b1[3] = {0.025, 0.018, 0.02};
+        ENSURE(hs_cut_sweep(c, a0, b0, a1, b1, NULL, &r, &e) == HS_OK);
+        double p0[3], q0[3], p1[3], q1[3];
+        for (int d = 0; d < 3; d++) {
+            double u[3];
+            for (int q = 0; q < 3; q++) {
+                g ^= g << 13, g ^= g >> 7, g ^= g << 17;
+                u[q] = (double)(g >> 11) / 9007199254740992.0 - 0.5;
+            }
+            double ctr = m->x0[3 * C + d] + u[0] * 0.012, bl = u[1] * 0.02, mv = u[2] * 0.01;
+            p0[d] = ctr - bl, q0[d] = ctr + bl, p1[d] = p0[d] + mv, q1[d] = q0[d] + mv;
+        }
+        if (hs_cut_sweep(c, p0, q0, p1, q1, NULL, &r, &e) == HS_OK && r.removed > 0) {
+            int left = 0;
+            for (int t = 0; t < ne; t++)
+                if (hs_cut_tet_active(c, t))
+                    for (int a = 0; a < 4; a++) left += m->tets[4 * t + a] == C;
+            if (left == 0) {
+                found++;
+                hs_status vs = hs_cut_validate(c, &e);
+                printf("  trial %d: fixed node %d lost its last tet; %d fragment(s), piece check "
+                       "visited %d tets; validate %d %s\n",
+                       trials, C, r.fragments, r.piece_check_tets, (int)vs, vs ? e.msg : "");
+                ENSURE(vs == HS_OK);
+            }
+        }
+        hs_cut_destroy(&c);
+        hs_free(fixed);
+        hs_mesh_destroy(&m);
+    }
+    ENSURE(found == 3);
+    return 0;
+}
+
 HS_TEST_MAIN(HS_CASE(test_force_model), HS_CASE(test_skin_full_separation),
              HS_CASE(test_skin_wound_angle), HS_CASE(test_consistency),
              HS_CASE(test_aggregated_update), HS_CASE(test_window_background),
@@ -1434,4 +1553,5 @@ HS_TEST_MAIN(HS_CASE(test_force_model), HS_CASE(test_skin_full_separation),
              HS_CASE(test_pins_hold), HS_CASE(test_factor_none), HS_CASE(test_piece_check),
              HS_CASE(test_deformed_and_bad_input), HS_CASE(test_dynamic_body),
              HS_CASE(test_body_follows_cut), HS_CASE(test_alloc_faults),
+             HS_CASE(test_failed_sweep_recovers), HS_CASE(test_piece_check_lost_hold),
              HS_CASE(test_liver_random_cuts))

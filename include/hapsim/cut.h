@@ -182,11 +182,13 @@ void hs_cut_destroy(hs_cut** cut);
 /// u ([3n], m, may be NULL for a body at rest) is the current displacement: crossings use
 /// x0 + u, and moved vertices get u updated so x0 + u lands where the move puts it.
 /// On a negative status nothing in the mesh changed if err names the input; a failure after
-/// the geometry changed (a failed refactor) is reported and leaves a consistent mesh.
+/// the geometry changed (a failed refactor) is reported and leaves a consistent mesh: the
+/// topology version grows and the next sweep first refactors (and re-solves tracked blocks).
 /// Thread: deformation | Allocates: only for more element changes than any earlier sweep, when
 /// the first update converts the factor, when a window is rebuilt in the sweep, while a
-/// background window is being built (its record grows), and in the live mesh rebuild when
-/// def.validate is on
+/// background window is being built (its record grows), in the live mesh rebuild when
+/// def.validate is on, and in every re-solve of tracked compliance blocks (RESOLVE, or a
+/// partial refactor)
 hs_status hs_cut_sweep(hs_cut* cut, const double p0[3], const double q0[3], const double p1[3],
                        const double q1[3], double* u, hs_cut_result* res /* OUT, may be NULL */,
                        hs_err* err);
@@ -298,7 +300,7 @@ typedef enum hs_cut_compliance_mode {
 /// them current on every later sweep. Replaces an earlier set. HS_ERR_INVALID without a
 /// factor (NONE). When the factor follows by partial refactor (PARTIAL, or AUTO where it takes
 /// it) the blocks are re-solved whatever the mode: Woodbury needs the low-rank columns.
-/// Allocates: yes.
+/// On failure nothing is tracked. Allocates: yes.
 hs_status hs_cut_track_compliance(hs_cut* cut, int n, const int* nodes,
                                   hs_cut_compliance_mode mode);
 /// Block C_kk (m/N, row-major) of tracked node index k (0..n-1 of the tracked set).

@@ -33,9 +33,10 @@ struct hs_cut {
     hs_cholesky* factor;
     double k_pin; // pin spring, N/m (mean diagonal of K)
     int updates_since_refactor;
-    double refactor_ms;        // measured numeric refactor of this factor, ms (running mean)
-    int auto_partial;          // AUTO chose the partial refactor at create
-    int a_stale;               // `a` no longer holds K (a sweep failed half way): reassemble
+    double refactor_ms; // measured numeric refactor of this factor, ms (running mean)
+    int auto_partial;   // AUTO chose the partial refactor at create
+    int a_stale;        // `a` no longer holds K (a sweep failed half way): reassemble
+    int factor_stale;   // a sweep failed after the mesh changed: the next one refactors first
     double update_ms_per_rank; // measured update cost per rank-1 column, ms (running mean)
 
     hs_mesh* live;  // active tets only
@@ -1105,7 +1106,8 @@ static int find_pieces(hs_cut* c) {
 /// 1 when the last removals cannot have freed a piece, found without visiting every tet. If
 /// the active tets next to the removed ones are still face-connected among themselves, so is
 /// their piece: a path that ran through removed tets goes round through those neighbours. And if
-/// no removed tet held a fixed or pinned node that still has tets, every piece keeps its hold.
+/// no removed tet held a fixed or pinned node, every piece keeps its hold (one that did may now
+/// hold another piece, or, with no tets left, none).
 /// Multi-source search from the neighbours, fronts merged by union-find; it stops when one
 /// group is left, or gives up (0: run the full check) when a group runs out of tets to expand
 /// (it is a piece of its own) or it has visited a quarter of the tets. Needs every piece held
@@ -1117,7 +1119,7 @@ static int pieces_still_held(hs_cut* c, int* visited) {
     for (int k = 0; k < c->n_removed; k++)
         for (int a = 0; a < 4; a++) {
             int v = T[4 * c->removed[k] + a];
-            if ((c->fixed[v] || c->pinned[v]) && c->count[v] > 0) return 0;
+            if (c->fixed[v] || c->pinned[v]) return 0;
         }
     if (++c->stamp == 0) { // wrapped: clear the marks once
         memset(c->tstamp, 0, sizeof(unsigned) * (size_t)c->ne);
@@ -1662,6 +1664,15 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
             if (!isfinite(S[k][d]) || fabs(S[k][d]) > 1e6)
                 return hs_err_set(err, HS_ERR_INVALID, "cut: blade point %d coordinate %d is %g", k,
                                   d, S[k][d]);
+    if (c->factor && c->factor_stale) {
+        r.refactored = 1;
+        hs_status fs = hs_cut_refactor(c);
+        if (fs == HS_OK && c->n_track > 0) fs = update_compliance(c, 0, 0);
+        if (fs != HS_OK)
+            return hs_err_set(err, fs, "cut: rebuilding the factor a failed sweep left: %s",
+                              hs_status_str(fs));
+        c->factor_stale = 0;
+    }
     const int n = c->n, ne = c->ne;
     double* x0 = c->mesh->x0;
     const int* T = c->mesh->tets;
@@ -1826,7 +1837,10 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
             int orphan = 0;
             for (int a = 0; a < 4; a++) orphan |= c->count[t[a]] == 1;
             if (orphan && c->def.orphan == HS_CUT_ORPHAN_KEEP_TET) {
-                r.kept++;
+                int seen = 0; // counted already from an earlier moved vertex of e
+                for (int j = 0; j < k && !seen; j++)
+                    for (int a = 0; a < 4; a++) seen |= t[a] == c->moved[j];
+                if (!seen) r.kept++;
                 continue;
             }
             for (int a = 0; a < 4; a++) c->count[t[a]]--;
@@ -1851,6 +1865,12 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
     r.removed = c->n_removed;
     r.pinned = c->n_pins;
     r.geometry_ms = (double)(hs_now_ns() - t0) * 1e-6;
+    const int mesh_changed = c->n_removed > 0 || n_moved > 0;
+    if (mesh_changed) { // whatever fails below, the mesh did change
+        c->version++;
+        c->live_dirty = 1;
+    }
+    int factor_done = 0;
 
     // 5. Element changes: removed tets, remaining tets around moved vertices, pins.
     int64_t t1 = hs_now_ns();
@@ -1988,16 +2008,15 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
         }
     }
     r.factor_ms = (double)(hs_now_ns() - t1) * 1e-6;
+    factor_done = 1;
 
     // 6. Checks (the live mesh is rebuilt here only when validating, else on first use).
     int64_t t2 = hs_now_ns();
-    if (c->n_removed > 0 || n_moved > 0) {
-        c->version++;
-        c->live_dirty = 1;
-        if (c->def.validate) st = hs_cut_validate(c, err);
-    }
+    if (mesh_changed && c->def.validate) st = hs_cut_validate(c, err);
     r.mesh_ms = (double)(hs_now_ns() - t2) * 1e-6;
 done:
+    // A failure in step 5 can leave the factor (and tracked blocks) without this change.
+    if (st != HS_OK && !factor_done && mesh_changed && c->factor) c->factor_stale = 1;
     memcpy(c->blade, p0, 3 * sizeof(double));
     memcpy(c->blade + 3, q0, 3 * sizeof(double));
     memcpy(c->blade + 6, p1, 3 * sizeof(double));
@@ -2072,8 +2091,8 @@ hs_status hs_cut_track_compliance(hs_cut* c, int n, const int* nodes, hs_cut_com
     if (!c->zbuf) c->zbuf = hs_alloc(sizeof(double) * (size_t)c->n_free * HS_CUT_BATCH);
     if (!c->track || !c->cblk || !c->dset || !c->dpos || !c->zbuf) return HS_ERR_NOMEM;
     memcpy(c->track, nodes, sizeof(int) * (size_t)n);
-    c->n_track = n;
-    c->cap_d = 0; // zt depends on n_track: regrow
+    c->n_track = n; // resolve_blocks reads it
+    c->cap_d = 0;   // zt depends on n_track: regrow
     hs_free(c->zd);
     hs_free(c->zt);
     hs_free(c->kdd);
@@ -2084,6 +2103,7 @@ hs_status hs_cut_track_compliance(hs_cut* c, int n, const int* nodes, hs_cut_com
     int64_t t0 = hs_now_ns();
     hs_status st = resolve_blocks(c, 0, n);
     c->cms = (double)(hs_now_ns() - t0) * 1e-6;
+    if (st != HS_OK) c->n_track = 0; // the blocks were not computed: track nothing
     return st;
 }
 

@@ -2,13 +2,16 @@
 //
 // DESIGN. The deformation thread (this file, `deform_main`) owns the body, the compliance and
 // every work array; the rt thread runs the rt helper's haptic tick with `probe_eval` as its
-// force source. Crossing, all lock-free and fixed-size:
+// force source. Crossing, lock-free and fixed-size:
 //   snap   (triple buffer, deformation -> rt):  hs_contact_snapshot, newest wins
 //   contact(triple buffer, rt -> deformation):  hs_contact, the newest tick's contact
 //   frame  (triple buffer, deformation -> reader): step number + u[3n]
 //   status (triple buffer, deformation -> control): hs_haptic_sim_stats without the rt part
 //   pose / output through the rt helper's memory device.
-// The deformation thread allocates nothing after create; the rt tick allocates nothing at all.
+// With cutting on, the topology a cut step shares with the net thread is handed over under a
+// mutex (`tmx`; never taken by the rt thread), and the compliance rebuild after a cut allocates
+// (the live mesh, its worker thread). Otherwise the deformation thread allocates nothing after
+// create; the rt tick never allocates or locks.
 #define _POSIX_C_SOURCE 200809L
 #include "hapsim/haptic_sim.h"
 
@@ -724,20 +727,22 @@ static int cut_step(hs_haptic_sim* h) {
     double f[3] = {0, 0, 0};
     if (s == HS_OK)
         hs_cut_force(cd->toughness_n_m, res.cut_length_m, travel, cd->max_force_n, f);
-    else {
+    else
         h->st.cut_failures++;
-        (void)hs_cut_sync_fem(h->cut, hs_body_fem(h->body)); // what the failed sweep did change
-    }
-    int changed = s == HS_OK && (res.removed > 0 || res.moved > 0);
+    // A sweep that failed after it changed the mesh still changed it (its topology version
+    // grew): the body, the compliance and the net thread follow it all the same.
+    int changed = res.removed > 0 || res.moved > 0;
     h->st.cutting = res.cut_tets > 0;
+    if (!changed && s != HS_OK) (void)hs_cut_sync_fem(h->cut, hs_body_fem(h->body));
     if (changed) {
         double sweep_ms = (double)(hs_now_ns() - t0) * 1e-6;
         memcpy(h->cv, hs_body_velocity(h->body), n3 * sizeof(double));
         // The body follows the sweep (by a low-rank update of its factor when it keeps a
-        // rest-state one); should that fail, mirror every removal and refactor instead.
+        // rest-state one); after a failed sweep, or should that fail, mirror every removal and
+        // refactor instead.
         const int *off, *mv;
         int n_off = hs_cut_last_removed(h->cut, &off), n_mv = hs_cut_last_changed(h->cut, &mv);
-        if (hs_body_change_elements(h->body, n_off, off, n_mv, mv, NULL) != HS_OK &&
+        if ((s != HS_OK || hs_body_change_elements(h->body, n_off, off, n_mv, mv, NULL) != HS_OK) &&
             hs_cut_sync_fem(h->cut, hs_body_fem(h->body)) != HS_OK)
             h->st.cut_failures++;
         hs_body_set_state(h->body, h->cu, h->cv);
