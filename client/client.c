@@ -514,12 +514,20 @@ hs_status hs_client_command(hs_client* c, int32_t kind, int n_args, const char* 
     ack->status = HAPSIM_COMMAND_ACK_T_STATUS_PENDING;
     int64_t t0 = hs_client_now_us(), deadline = t0 + (int64_t)timeout_ms * 1000, next_send = t0;
     int pending = 0;
+    // Encoded on the stack (lcm-gen's _publish mallocs a buffer per message); the server takes
+    // at most 8 arguments of 64 + 256 bytes, well inside this.
+    uint8_t buf[4096];
     for (;;) {
         int64_t now = hs_client_now_us();
         if (now >= next_send) {
             m.utime = wall_us();
             m.seq = c->command_seq++;
-            if (hapsim_command_t_publish(c->bus[1], c->ch_command, &m) != 0)
+            int len = hapsim_command_t_encoded_size(&m);
+            if (len > (int)sizeof buf)
+                return fail(err, HS_ERR_INVALID, "hs_client_command: %d bytes encoded (at most %d)",
+                            len, (int)sizeof buf);
+            if (hapsim_command_t_encode(buf, 0, len, &m) != len ||
+                lcm_publish(c->bus[1], c->ch_command, buf, (unsigned)len) != 0)
                 return fail(err, HS_ERR_IO, "hs_client_command: publish on %s failed",
                             c->ch_command);
             ack->attempts++;

@@ -440,6 +440,7 @@ static void* loop_main(void* arg) {
     hs_stylus_device dev;
     hs_stylus_device_init(&dev, &a->def, a->script->start_m);
     hapsim_tool_pose_t pose;
+    uint8_t pbuf[128]; // one encoded pose (100 bytes)
     memset(&pose, 0, sizeof pose);
     pose.session = a->session;
     pose.device_id = a->opt.device_id;
@@ -492,7 +493,10 @@ static void* loop_main(void* arg) {
         pose.buttons = (int32_t)buttons;
         if (seg >= 0 && seg < a->script->n_segments)
             memcpy(pose.orientation, a->script->seg[seg].quat_wxyz, sizeof pose.orientation);
-        hapsim_tool_pose_t_publish(a->lcm, a->pose_channel, &pose);
+        // Encoded on the stack: lcm-gen's _publish mallocs a buffer per message.
+        int len = hapsim_tool_pose_t_encoded_size(&pose);
+        if (len <= (int)sizeof pbuf && hapsim_tool_pose_t_encode(pbuf, 0, len, &pose) == len)
+            lcm_publish(a->lcm, a->pose_channel, pbuf, (unsigned)len);
 
         const double* f = tick.f_applied;
         atomic_store_explicit(&a->force_mn,
