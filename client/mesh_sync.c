@@ -1,6 +1,7 @@
 // Mesh synchronisation state machine (docs/protocol.md "Watching the mesh", docs/client.md).
 // Two topologies are kept: the one shown and a newer one waiting for its first keyframe, so the
 // visible mesh is always a topology with positions that belong to it.
+#include <math.h>
 #include <string.h>
 
 #include "wire.h"
@@ -218,6 +219,13 @@ static hs_sync_result on_delta(hs_mesh_sync* s, const void* buf, size_t len) {
     if (w.index.n > 0 && hs_wire_i32_at(w.index, w.index.n - 1) >= s->shown.n_vis)
         return HS_SYNC_MALFORMED; // indices increase: the last is the largest
     if (w.seq <= s->last_delta_seq) return HS_SYNC_STALE;
+    // Keyframe and delta are each finite, but their float sum can overflow: check first.
+    for (int32_t j = 0; j < w.index.n; j++) {
+        int32_t i = hs_wire_i32_at(w.index, j);
+        for (int k = 0; k < 3; k++)
+            if (!isfinite(s->kf[3 * i + k] + hs_wire_f32_at(w.delta, 3 * j + k)))
+                return HS_SYNC_MALFORMED;
+    }
     if (s->shown.n_vis) memcpy(s->pos, s->kf, (size_t)s->shown.n_vis * 3 * sizeof(float));
     for (int32_t j = 0; j < w.index.n; j++) {
         int32_t i = hs_wire_i32_at(w.index, j);

@@ -738,7 +738,46 @@ static int test_status_decode(void) {
     return 0;
 }
 
-HS_TEST_MAIN(HS_CASE(test_lossless_follows_server), HS_CASE(test_loss_converges),
-             HS_CASE(test_late_join), HS_CASE(test_wrong_versions_ignored),
-             HS_CASE(test_malformed_counted), HS_CASE(test_local_model), HS_CASE(test_force_ranges),
-             HS_CASE(test_status_decode))
+// A keyframe and a delta each finite whose float sum is not: the delta is malformed and the
+// shown mesh keeps its keyframe position (before, it became +inf).
+static int test_delta_sum_overflow(void) {
+    static uint8_t buf[4096];
+    hs_mesh_sync* s = NULL;
+    ENSURE(hs_mesh_sync_create(&s, NULL) == HS_OK);
+    int32_t vis[1] = {0};
+    float rest[3] = {0, 0, 0}, pos[3] = {3e38f, 0, 0}, d[3] = {3e38f, 0, 0};
+    hapsim_mesh_topology_t t = {0};
+    t.utime = 1;
+    t.n_nodes = t.n_vis = 1;
+    t.vis_nodes = vis;
+    t.n_rest = 3;
+    t.rest_position = rest;
+    int n = hapsim_mesh_topology_t_encode(buf, 0, sizeof buf, &t);
+    ENSURE(hs_mesh_sync_feed(s, HS_SYNC_TOPOLOGY, buf, (size_t)n) != HS_SYNC_MALFORMED);
+    hapsim_mesh_state_t k = {0};
+    k.utime = 2;
+    k.keyframe_id = 1;
+    k.n_pos = 3;
+    k.position = pos;
+    n = hapsim_mesh_state_t_encode(buf, 0, sizeof buf, &k);
+    ENSURE(hs_mesh_sync_feed(s, HS_SYNC_STATE, buf, (size_t)n) == HS_SYNC_APPLIED);
+    int32_t idx[1] = {0};
+    hapsim_mesh_delta_t dm = {0};
+    dm.utime = 3;
+    dm.seq = 1;
+    dm.keyframe_id = 1;
+    dm.n_changed = 1;
+    dm.index = idx;
+    dm.n_delta = 3;
+    dm.delta = d;
+    n = hapsim_mesh_delta_t_encode(buf, 0, sizeof buf, &dm);
+    ENSURE(hs_mesh_sync_feed(s, HS_SYNC_DELTA, buf, (size_t)n) == HS_SYNC_MALFORMED);
+    ENSURE(hs_mesh_sync_mesh(s)->position[0] == 3e38f);
+    hs_mesh_sync_destroy(&s);
+    return 0;
+}
+
+HS_TEST_MAIN(HS_CASE(test_lossless_follows_server), HS_CASE(test_delta_sum_overflow),
+             HS_CASE(test_loss_converges), HS_CASE(test_late_join),
+             HS_CASE(test_wrong_versions_ignored), HS_CASE(test_malformed_counted),
+             HS_CASE(test_local_model), HS_CASE(test_force_ranges), HS_CASE(test_status_decode))
