@@ -137,10 +137,17 @@ static hs_status fail(const ctx* c, const cJSON* item, const char* key, const ch
     return hs_err_set(c->err, HS_ERR_PARSE, "%s: key '%s': %s", c->file, key, what);
 }
 
+#define HS_SCENE_MAX_KEYS 256
+
 // Every member must be in allowed (NULL-terminated) or start with '_' (a comment); no repeats.
 static hs_status check_keys(const ctx* c, const cJSON* obj, const char* path,
                             const char* const* allowed) {
     char key[128];
+    int count = 0; // the repeat check is quadratic: bound it
+    for (const cJSON* m = obj->child; m; m = m->next)
+        if (++count > HS_SCENE_MAX_KEYS)
+            return fail(c, m, path[0] ? path : "(top level)", "more than %d keys in one object",
+                        HS_SCENE_MAX_KEYS);
     for (const cJSON* m = obj->child; m; m = m->next) {
         const char* name = m->string ? m->string : "";
         snprintf(key, sizeof key, "%s%s%s", path, path[0] ? "." : "", name);
@@ -585,19 +592,21 @@ hs_status hs_scene_parse(const char* text, const char* path, int check_files, hs
         return hs_err_set(err, HS_ERR_INVALID, "scene path longer than %zu bytes",
                           sizeof out->path - 1);
     snprintf(out->path, sizeof out->path, "%s", path);
+    // A UTF-8 byte order mark is not JSON: cJSON skips it, and so must the line/key finder.
+    const char* json = strncmp(text, "\xEF\xBB\xBF", 3) == 0 ? text + 3 : text;
     const char* end = NULL;
-    cJSON* root = cJSON_ParseWithOpts(text, &end, 1);
+    cJSON* root = cJSON_ParseWithOpts(json, &end, 1);
     if (!root) {
-        const char* at = end ? end : text;
-        int line = line_at(text, at);
+        const char* at = end ? end : json;
+        int line = line_at(json, at);
         const char* ls = at;
-        while (ls > text && ls[-1] != '\n') --ls;
+        while (ls > json && ls[-1] != '\n') --ls;
         int shown = 0; // the rest of that line, at most 20 bytes
         while (shown < 20 && at[shown] && at[shown] != '\n' && at[shown] != '\r') ++shown;
         return hs_err_set(err, HS_ERR_PARSE, "%s:%d:%d: malformed JSON near '%.*s'", path, line,
                           (int)(at - ls) + 1, shown, at);
     }
-    ctx c = {path, text, root, err};
+    ctx c = {path, json, root, err};
     // Keep the scene name we can show when the file gives none: the file name.
     hs_status st = parse_root(&c, root, check_files, out);
     cJSON_Delete(root);
