@@ -563,8 +563,10 @@ int hs_script_runner_eval(hs_script_runner* r, double t_s, const double force_n[
     uint32_t ev = 0;
     double t = t_s - r->t_off_s;
     int seg = hs_script_eval(s, t, pos_m, vel_m_s, buttons, &r->hint);
-    // A touch searched earlier ended without a force: continue from where it stopped.
-    if (r->touch_seg >= 0 && seg != r->touch_seg) {
+    // A touch searched earlier ended without a force: continue from where it stopped. (The
+    // last segment of a script stays the current one after its end: check the time too.)
+    if (r->touch_seg >= 0 &&
+        (seg != r->touch_seg || t >= s->seg[r->touch_seg].t0_s + s->seg[r->touch_seg].dur_s)) {
         const hs_script_segment* g = &s->seg[r->touch_seg];
         for (int i = 0; i < 3; ++i) r->off_m[i] += g->to_m[i] - g->touch_ref_m[i];
         r->touch_seg = -1;

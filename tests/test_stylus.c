@@ -930,6 +930,30 @@ static int script_touch(void) {
     ENSURE(run_touch(-0.05, "", tr, s, &sum) == 0);
     ENSURE(sum.touches_found == 0 && sum.touches_missed == 1 && sum.peak_force_n == 0);
     ENSURE_NEAR(sum.duration_s, s->duration_s + 0.5 - 1e-3, 1e-6);
+    // A touch that is the script's last command and finds nothing is a miss too (it stayed
+    // the current segment after its end, so the miss went unreported).
+    {
+        hs_script* s2 = NULL;
+        ENSURE(hs_script_create(&s2, &err) == HS_OK);
+        ENSURE(parse(s2, "start 0 0 0.02\ntouch 0 0 1 0.01 0.01\n", &err) == 0);
+        hs_stylus_def def2 = test_def();
+        hs_offline_def off = {0};
+        off.surface.point_m[2] = -0.05;
+        off.surface.normal[2] = 1;
+        off.surface.stiffness_n_m = 300;
+        off.surface.radius_m = 0.002;
+        off.surface.timeout_s = 0.05;
+        off.dt_s = 1e-3;
+        off.period_ticks = 1;
+        off.delay_ticks = 1;
+        hs_stylus_trace_destroy(&tr);
+        ENSURE(hs_stylus_trace_create(20000, &tr, &err) == HS_OK);
+        ENSURE(hs_stylus_run_offline(s2, &def2, &off, tr, NULL, &err) == HS_OK);
+        hs_stylus_summary sum2;
+        hs_stylus_trace_summary(tr, s2, &sum2);
+        ENSURE(sum2.touches_found == 0 && sum2.touches_missed == 1);
+        hs_script_destroy(&s2);
+    }
     // With a `surface` plane at z = 0 the script's positions are relative to it: the final
     // move_to (20 mm above the plane) ends 20 mm above the found surface.
     hs_stylus_trace_destroy(&tr);
