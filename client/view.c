@@ -203,15 +203,15 @@ int main(int argc, char** argv) {
         } else if (!strcmp(a, "--rate")) {
             NEED_VAL;
             v.rate = strtod(val, &e);
-            if (e == val || *e || !(v.rate >= 0) || v.rate > 1000) {
-                fprintf(stderr, "hapsim-view: --rate '%s': expected 0 .. 1000 Hz\n", val);
+            if (e == val || *e || !(v.rate == 0 || (v.rate >= 0.001 && v.rate <= 1000))) {
+                fprintf(stderr, "hapsim-view: --rate '%s': expected 0, or 0.001 .. 1000 Hz\n", val);
                 return 1;
             }
         } else if (!strcmp(a, "--duration")) {
             NEED_VAL;
             duration = strtod(val, &e);
-            if (e == val || *e || !(duration >= 0) || !isfinite(duration)) {
-                fprintf(stderr, "hapsim-view: --duration '%s': expected seconds >= 0\n", val);
+            if (e == val || *e || !(duration >= 0 && duration <= 1e9)) {
+                fprintf(stderr, "hapsim-view: --duration '%s': expected 0 .. 1e9 seconds\n", val);
                 return 1;
             }
         } else if (!strcmp(a, "--dmax")) {

@@ -34,6 +34,15 @@ fail() {
 }
 cd "$src" || exit 1
 
+# Flags out of range are refused with exit 1 (a duration or rate whose microseconds overflow an
+# int64 once stopped the viewer at once or turned its output off).
+for bad in "--duration 1e13" "--duration -1" "--rate 1e-30" "--rate 2000"; do
+    # shellcheck disable=SC2086
+    "$bin/hapsim-view" $bad >"$tmp/bad.txt" 2>&1
+    rc=$?
+    [ $rc = 1 ] && grep -q "expected" "$tmp/bad.txt" || fail "hapsim-view $bad: rc $rc, $(cat "$tmp/bad.txt")"
+done
+
 "$bin/hapsim-server" scenes/liver/liver.json --duration 30 --quiet >"$tmp/server.log" 2>&1 &
 server_pid=$!
 ctl="$bin/hapsim-ctl --timeout 3000"
