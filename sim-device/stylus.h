@@ -351,7 +351,7 @@ typedef struct hs_offline_def {
     hs_halfspace surface; ///< the stand-in server
     double dt_s;          ///< tick, s (1 ms)
     int period_ticks;     ///< the half-space answers every period_ticks poses (>= 1)
-    int delay_ticks;      ///< an answer arrives delay_ticks after its pose (0..63)
+    int delay_ticks;      ///< an answer arrives delay_ticks after its pose (1..63)
     double duration_s;    ///< run length, s (<= 0: the script's duration + 0.5 s)
 } hs_offline_def;
 

@@ -206,6 +206,19 @@ void hs_stylus_summary_print(FILE* f, const hs_stylus_summary* s, const char* tr
     if (trace_path) fprintf(f, "hapsim-stylus: trace: %s\n", trace_path);
 }
 
+// One line into buf: 1, or 0 at the end of the file, or -1 when it does not fit (the rest of
+// it is skipped, so the line count stays right).
+static int next_line(FILE* f, char* buf, int cap) {
+    if (!fgets(buf, cap, f)) return 0;
+    size_t n = strlen(buf);
+    if (n + 1 < (size_t)cap || buf[n - 1] == '\n') return 1;
+    int ch = fgetc(f);
+    if (ch == EOF || ch == '\n') return 1; // it just fitted
+    while ((ch = fgetc(f)) != EOF && ch != '\n') {
+    }
+    return -1;
+}
+
 hs_status hs_stylus_trace_read_csv(const char* path, hs_stylus_trace** out, hs_err* err) {
     *out = NULL;
     FILE* f = fopen(path, "r");
@@ -219,7 +232,12 @@ hs_status hs_stylus_trace_read_csv(const char* path, hs_stylus_trace** out, hs_e
         return hs_err_set(err, HS_ERR_PARSE, "%s:1: not a hapsim-stylus trace (header differs)",
                           path);
     }
-    while (fgets(line, sizeof line, f) && line[0] != '#') rows++;
+    for (int r; (r = next_line(f, line, sizeof line)) != 0 && line[0] != '#'; rows++)
+        if (r < 0) {
+            fclose(f);
+            return hs_err_set(err, HS_ERR_PARSE, "%s:%lld: line longer than %d bytes", path,
+                              (long long)(rows + 2), (int)sizeof line - 1);
+        }
     if (rows == 0) {
         fclose(f);
         return hs_err_set(err, HS_ERR_PARSE, "%s: no rows", path);
@@ -233,7 +251,7 @@ hs_status hs_stylus_trace_read_csv(const char* path, hs_stylus_trace** out, hs_e
     rewind(f);
     if (!fgets(line, sizeof line, f)) rows = 0;
     for (int64_t k = 0; k < rows; ++k) {
-        if (!fgets(line, sizeof line, f)) break;
+        if (next_line(f, line, sizeof line) <= 0) break;
         double v[17];
         char* at = line;
         int ok = 1;
