@@ -111,6 +111,12 @@ static int ModelEval(void) {
     hs_haptic_model_reanchor(&m, far, &r);
     ENSURE(r.stiffness_n_m[0] == 0 && r.radius_m == 0);
     ENSURE(hs_haptic_model_stiffness_bound(&m) == 200.0);
+    { // not symmetric: every row sums to 1, yet |K (1,0,0)| = sqrt(3)
+        hs_haptic_model u = m;
+        memset(u.stiffness_n_m, 0, sizeof u.stiffness_n_m);
+        u.stiffness_n_m[0] = u.stiffness_n_m[3] = u.stiffness_n_m[6] = 1.0;
+        ENSURE(hs_haptic_model_stiffness_bound(&u) >= sqrt(3.0) - 1e-12);
+    }
     ENSURE(hs_haptic_model_finite(&m));
     m.stiffness_n_m[5] = NAN;
     ENSURE(!hs_haptic_model_finite(&m));
@@ -260,6 +266,11 @@ static int WatchdogRamps(void) {
         g = ng;
     }
     ENSURE(g == 1.0 && w.trips == 1);
+    // A trip (a fault, e.g. a non-finite pose): zero at once, and no way back without a fresh
+    // pose (it used to ramp back in within 10 ms on the last good pose alone).
+    hs_watchdog_trip(&w);
+    for (int i = 0; i < 30; ++i, t += 1000000) ENSURE(hs_watchdog_update(&w, 0, t, 1e-3) == 0);
+    ENSURE(hs_watchdog_update(&w, 1, t, 1e-3) > 0);
     return 0;
 }
 

@@ -53,7 +53,7 @@ void hs_haptic_model_reanchor(const hs_haptic_model* m, const double tool_m[3],
                               hs_haptic_model* out /* OUT */);
 /// 1 when every number in m is finite, else 0. Thread: any | Allocates: no
 int hs_haptic_model_finite(const hs_haptic_model* m);
-/// Largest absolute row sum of K, N/m: an upper bound of |K d| / |d| used in jump bounds.
+/// sqrt(||K||_1 ||K||_inf), N/m: an upper bound of |K d| / |d| for any K (used in jump bounds).
 double hs_haptic_model_stiffness_bound(const hs_haptic_model* m);
 
 /// What leaves the server every tick: the force to render now and the local model to render

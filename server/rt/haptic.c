@@ -63,13 +63,15 @@ int hs_haptic_model_finite(const hs_haptic_model* m) {
 }
 
 double hs_haptic_model_stiffness_bound(const hs_haptic_model* m) {
-    double best = 0;
+    // ||K||_2 <= sqrt(||K||_1 ||K||_inf) for any K; the contact K is not symmetric, so the row
+    // sums alone are not a bound (1.11x short, measured on a slab's edge).
+    const double* k = m->stiffness_n_m;
+    double row = 0, col = 0;
     for (int i = 0; i < 3; ++i) {
-        double s = fabs(m->stiffness_n_m[3 * i]) + fabs(m->stiffness_n_m[3 * i + 1]) +
-                   fabs(m->stiffness_n_m[3 * i + 2]);
-        if (s > best) best = s;
+        row = fmax(row, fabs(k[3 * i]) + fabs(k[3 * i + 1]) + fabs(k[3 * i + 2]));
+        col = fmax(col, fabs(k[i]) + fabs(k[3 + i]) + fabs(k[6 + i]));
     }
-    return best;
+    return sqrt(row * col);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -184,6 +186,7 @@ double hs_watchdog_update(hs_watchdog* w, int fresh, int64_t now_ns, double dt_s
 
 void hs_watchdog_trip(hs_watchdog* w) {
     w->gain = 0;
+    w->live = 0; // back only with a fresh pose, not by the slow-device ramp
 }
 
 hs_safety_def hs_safety_default_def(void) {
