@@ -321,6 +321,18 @@ static int columns_and_cache(void) {
         if (!hs_compliance_has_column(c, nodes[i])) absent = i;
     ENSURE(absent >= 0);
     ENSURE(hs_compliance_surface_displacement(c, 1, nodes + absent, f, us) == -1);
+    // A new column must not evict one asked for later in the same call (B below was the least
+    // recently used when A needed a slot: evicted, while C and D, not asked for, stayed).
+    hs_compliance_destroy(&c);
+    ENSURE(hs_compliance_create(mesh, &fd, fixed, 3, &c, &err) == HS_OK);
+    const int A = nodes[0], B = nodes[1], cd[2] = {nodes[2], nodes[3]}, ab[2] = {A, B};
+    hs_compliance_begin_step(c);
+    ENSURE(hs_compliance_ensure(c, 1, &B, 8) == 1);
+    hs_compliance_begin_step(c);
+    ENSURE(hs_compliance_ensure(c, 2, cd, 8) == 2);
+    hs_compliance_begin_step(c);
+    ENSURE(hs_compliance_ensure(c, 2, ab, 1) == 2);
+    ENSURE(hs_compliance_has_column(c, A) && hs_compliance_has_column(c, B));
     free(us);
     hs_compliance_destroy(&c);
     hs_mesh_destroy(&mesh);

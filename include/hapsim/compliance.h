@@ -45,7 +45,8 @@ typedef struct hs_compliance hs_compliance;
 
 /// Factor the rest-state stiffness of a linear model with def's material over the free dofs
 /// (fixed[i] != 0 or an unused node: eliminated) and precompute every surface node's diagonal
-/// block, in batches of right-hand sides. cache_nodes (>= 1): column blocks kept at once.
+/// block (sparse solves along the factor's elimination tree, hs_cholesky_inverse_diag3).
+/// cache_nodes (>= 1): column blocks kept at once.
 /// Thread: one at a time | Allocates: yes. @param out OUT
 hs_status hs_compliance_create(const hs_mesh* mesh, const hs_fem_def* def,
                                const unsigned char* fixed, int cache_nodes, hs_compliance** out,

@@ -2,7 +2,8 @@
 //
 // DESIGN. Owned by the deformation thread. K0 is the rest-state stiffness of a linear model
 // over the free dofs (the body's dof map), factored once with CHOLMOD. Diagonal blocks of all
-// surface nodes come from batched solves with unit right-hand sides at set-up. Column blocks
+// surface nodes come from the factor's sparse inverse-diagonal solves at set-up
+// (hs_cholesky_inverse_diag3). Column blocks
 // C(:, k) restricted to the surface rows live in a cache of fixed capacity with least-recently
 // used eviction; a per-step epoch pins the columns in use so one snapshot's columns never
 // evict each other. Everything is allocated in create.
@@ -238,6 +239,12 @@ static hs_status flush_batch(hs_compliance* c, int nb) {
 
 int hs_compliance_ensure(hs_compliance* c, int n, const int* nodes, int max_new) {
     int have = 0, nb = 0, added = 0;
+    // Pin every cached column asked for first, so that a new one cannot evict a later node's.
+    for (int i = 0; i < n; ++i) {
+        HS_ASSERT(nodes[i] >= 0 && nodes[i] < c->n);
+        int slot = c->node_slot[nodes[i]];
+        if (slot >= 0) c->slot_used[slot] = c->epoch;
+    }
     for (int i = 0; i < n; ++i) {
         int node = nodes[i];
         HS_ASSERT(node >= 0 && node < c->n);

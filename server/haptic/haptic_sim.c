@@ -1047,7 +1047,8 @@ fail:
 hs_status hs_haptic_sim_start(hs_haptic_sim* h, hs_err* err) {
     if (h->thread_started)
         return hs_err_set(err, HS_ERR_INVALID, "hs_haptic_sim_start: already started");
-    // First snapshot before rt runs, around the origin; the thread refreshes it at the tool.
+    // No snapshot is built here: rt reads the empty initial one (no contact nodes) until the
+    // thread publishes its first at the tool.
     memset(&h->st.contact, 0, sizeof h->st.contact);
     atomic_store(&h->stop, 0);
     if (pthread_create(&h->thread, NULL, deform_main, h) != 0)

@@ -6,7 +6,8 @@
 //      condensed-compliance contact plugs in here; hs_model_source serves models published by
 //      another thread);
 //   3. blend when the source's seq changed (a new snapshot), so the force never jumps;
-//   4. safety chain: NaN guard, watchdog gain, magnitude clamp, rate clamp;
+//   4. safety chain: NaN guard, magnitude clamp, rate clamp, then the watchdog gain (last,
+//      so that it alone decides when the force is zero);
 //   5. write force + local model to the device and one telemetry record to a ring.
 // Owns: the blend and safety state, the last good pose (rt thread only). Crosses: pose in and
 // output out through the device; telemetry out through an SPSC ring (a full ring drops the
