@@ -526,6 +526,16 @@ static int UpdownMatchesFreshFactor(void) {
     for (int q = 0; q < 144; q++) dk[q] = -dk[q];
     ENSURE(hs_cholesky_update_elements(t.f, 1, dk, dofs) == HS_OK);
     ENSURE_SMALL(compare_with_fresh(t.f, t.a, t.b, t.x, x2), 1e-8);
+    // Non-finite C is refused before the factor changes; an update that overflows is reported
+    // and the factor refuses to solve until a refactor (both returned OK, factor poisoned).
+    double nan_val[1] = {NAN}, huge_val[1] = {1e200};
+    ENSURE(hs_cholesky_updown(t.f, 1, 1, big_colp, big_rowi, nan_val) == HS_ERR_NUMERIC);
+    ENSURE(hs_cholesky_solve(t.f, t.b, t.x) == HS_OK);
+    ENSURE_SMALL(rel_residual(t.a, t.x, t.b, t.r), 1e-10);
+    ENSURE(hs_cholesky_updown(t.f, 1, 1, big_colp, big_rowi, huge_val) == HS_ERR_NUMERIC);
+    ENSURE(hs_cholesky_solve(t.f, t.b, t.x) != HS_OK);
+    ENSURE(hs_cholesky_refactor(t.f, t.a) == HS_OK);
+    ENSURE(hs_cholesky_solve(t.f, t.b, t.x) == HS_OK);
 
     free(x2);
     fixture_free(&t);

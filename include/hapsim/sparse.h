@@ -161,7 +161,9 @@ hs_status hs_cholesky_prepare_updates(hs_cholesky* f, int max_elems);
 /// rows unique within a column, any order. Returns HS_ERR_NOT_POSDEF if a downdate leaves the
 /// matrix indefinite or singular (a pivot below 1e-10 of its value at the last full factor,
 /// e.g. a fragment cut free of every fixed node): the factor is then unusable (solves return
-/// HS_ERR_NOT_POSDEF) until the next successful refactor.
+/// HS_ERR_NOT_POSDEF) until the next successful refactor. A non-finite value in C is refused
+/// with HS_ERR_NUMERIC before the factor is touched; an update whose pivots overflow gives
+/// HS_ERR_NUMERIC and leaves the factor unusable likewise.
 /// Allocates: only when C is larger than any earlier call (see prepare).
 hs_status hs_cholesky_updown(hs_cholesky* f, int update, int n_cols, const int* colp,
                              const int* rowi, const double* val);

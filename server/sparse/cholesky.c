@@ -1092,9 +1092,10 @@ static hs_status apply_updown(hs_cholesky* f, int update, int ncol, int* cp, int
     }
     // Fill outside the pattern moves columns and ends the supernodal layout.
     f->blocked = f->blocked && ldl_has_super_layout(f->spare, f->L);
-    if (!update && !pivots_ok(f)) {
+    // A downdate can lose definiteness; an update can overflow (finite values that are huge).
+    if (!pivots_ok(f)) {
         f->broken = 1;
-        return HS_ERR_NOT_POSDEF;
+        return update ? HS_ERR_NUMERIC : HS_ERR_NOT_POSDEF;
     }
     return HS_OK;
 }
@@ -1115,6 +1116,7 @@ hs_status hs_cholesky_updown(hs_cholesky* f, int update, int n_cols, const int* 
     for (int j = 0; j < n_cols; j++) {
         for (int p = colp[j]; p < colp[j + 1]; p++) {
             if (rowi[p] < 0 || rowi[p] >= f->n) return HS_ERR_INVALID;
+            if (!isfinite(val[p])) return HS_ERR_NUMERIC; // before L is touched
             f->ci_p[p] = f->pinv[rowi[p]];
             f->cx_p[p] = val[p];
         }
