@@ -23,6 +23,10 @@ grep -q -- "--fix-box" "$T/help"; check "help lists --fix-box" $?
 [ $rc -eq 1 ] && grep -q "exactly one" "$T/err"; check "static and steps together refused" $?
 "$SOLVE" --mesh "$MESH" --model linear --static --fix-box 9,9,9,10,10,10 --out "$T/o.csv" 2> "$T/err"; rc=$?
 [ $rc -eq 1 ] && grep -q "no node is fixed" "$T/err"; check "empty fixed region explained" $?
+for bad in z,min,nan z,min,inf z,min,0.01junk w,min,1 z,mid,1 z,min,-1; do
+  "$SOLVE" --mesh "$MESH" --model linear --static --fix-plane "$bad" --out "$T/o.csv" 2> "$T/err"; rc=$?
+  [ $rc -eq 1 ] && grep -q "AXIS,SIDE,TOL" "$T/err"; check "--fix-plane $bad refused" $?
+done
 printf '$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n2\n1 0 0 x\n' > "$T/bad.msh"
 "$SOLVE" --mesh "$T/bad.msh" --model linear --static --fix-plane z,min,1 --out "$T/o.csv" 2> "$T/err"; rc=$?
 [ $rc -eq 1 ] && grep -q "bad.msh:6" "$T/err"; check "malformed mesh names file and line" $?

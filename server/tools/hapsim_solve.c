@@ -183,11 +183,14 @@ int main(int argc, char** argv) {
             NEED_ARG();
             ++i;
             if (n_planes == 8) BAD("at most 8 planes");
-            char axis[8], side[8];
+            const char* v = argv[i];
             double tol;
-            if (sscanf(argv[i], "%1[xyz],%3[minax],%lf", axis, side, &tol) != 3 || tol < 0 ||
-                (strcmp(side, "min") && strcmp(side, "max")))
+            // AXIS,SIDE,TOL: the tolerance parsed as every other number (finite, nothing after)
+            if (!strchr("xyz", v[0]) || !v[0] || v[1] != ',' ||
+                (strncmp(v + 2, "min,", 4) && strncmp(v + 2, "max,", 4)) ||
+                !parse_doubles(v + 6, &tol, 1) || tol < 0)
                 BAD("AXIS,SIDE,TOL as in x,min,1e-6");
+            const char axis[1] = {v[0]}, side[2] = {v[2], v[3]};
             planes[n_planes].axis = axis[0] - 'x';
             planes[n_planes].side = side[1] == 'i' ? -1 : 1;
             planes[n_planes].tol = tol;
@@ -313,7 +316,10 @@ int main(int argc, char** argv) {
         for (int i = 0; i < mesh->n_nodes; ++i) fixed[i] |= mask[i];
     }
     for (int p = 0; p < n_planes; ++p) {
-        hs_mesh_select_plane(mesh, planes[p].axis, planes[p].side, planes[p].tol, mask);
+        if (hs_mesh_select_plane(mesh, planes[p].axis, planes[p].side, planes[p].tol, mask) < 0) {
+            fprintf(stderr, "hapsim-solve: --fix-plane %d: invalid\n", p + 1);
+            return 1;
+        }
         for (int i = 0; i < mesh->n_nodes; ++i) fixed[i] |= mask[i];
     }
     int n_fixed = 0;
