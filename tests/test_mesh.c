@@ -669,6 +669,33 @@ static int AllocFailure(void) {
     return 0;
 }
 
+// hs_mesh_finalize that fails part way puts the tets back as they were (it had dropped a
+// duplicate and flipped a tet before the overlap was found), and one that would leave no tet
+// is an error, not a repaired mesh.
+static int FinalizeFailsCleanly(void) {
+    double x[] = {0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0.2, 0.2, -1, 1, 1, 1};
+    int tets[] = {0, 1, 2, 3, 0, 2, 1, 4, 1, 2, 3, 5};
+    hs_mesh* m = NULL;
+    hs_err e = {0};
+    ENSURE(hs_mesh_create(6, x, 3, tets, &m, &e) == HS_OK);
+    m->x0[3 * 4 + 2] = 0.5;                        // tet 1 now overlaps tet 0
+    memcpy(m->tets + 8, m->tets, 4 * sizeof(int)); // tet 2 a copy of tet 0
+    int before[12];
+    memcpy(before, m->tets, sizeof before);
+    ENSURE(hs_mesh_finalize(m, &e) < 0 && strstr(e.msg, "overlap"));
+    ENSURE(m->n_tets == 3 && memcmp(before, m->tets, sizeof before) == 0);
+    ENSURE(m->report.duplicate_tets == 0 && m->node_tet == NULL && m->n_tris == 0);
+    hs_mesh_destroy(&m);
+    // Every tet degenerate (coordinates scaled by 1e-70): an error, the tets kept.
+    ENSURE(hs_mesh_create_box(1, 1, 1, 2, 2, 2, &m, &e) == HS_OK);
+    for (int i = 0; i < 3 * m->n_nodes; ++i) m->x0[i] *= 1e-70;
+    const int nt = m->n_tets;
+    ENSURE(hs_mesh_finalize(m, &e) == HS_ERR_INVALID && strstr(e.msg, "no valid tetrahedra"));
+    ENSURE(m->n_tets == nt);
+    hs_mesh_destroy(&m);
+    return 0;
+}
+
 HS_TEST_MAIN(HS_CASE(SharedMeshes), HS_CASE(BoxMesh), HS_CASE(CheckDetectsCorruption),
              HS_CASE(Repairs), HS_CASE(InvalidInput), HS_CASE(MalformedFiles), HS_CASE(RoundTrip),
-             HS_CASE(AllocFailure))
+             HS_CASE(AllocFailure), HS_CASE(FinalizeFailsCleanly))

@@ -75,7 +75,9 @@ hs_status hs_mesh_create_box(double lx, double ly, double lz, int nx, int ny, in
 /// Recompute the derived fields after nodes or tets changed. Reorients, drops degenerate
 /// and duplicate tets (counted in report; HS_WARN_MESH_REPAIRED if any). Returns
 /// HS_ERR_INVALID for out-of-range indices, non-finite or |x| > 1e30 coordinates, a face shared
-/// by more than two tets, or two tets on the same side of a face (overlap).
+/// by more than two tets, two tets on the same side of a face (overlap), or no tet left after
+/// the repairs. On an error the tets and their count are as they were and the derived fields
+/// are cleared (the mesh reads as not finalized).
 hs_status hs_mesh_finalize(hs_mesh* mesh, hs_err* err);
 
 /// Check invariants (orientation, ranges, surface closed and consistent, adjacency). Returns

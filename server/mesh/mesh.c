@@ -383,13 +383,20 @@ hs_status hs_mesh_finalize(hs_mesh* m, hs_err* err) {
     tet_key* keys = hs_alloc(((size_t)m->n_tets + 1) * sizeof(tet_key));
     tet_key* sorted = hs_alloc(((size_t)m->n_tets + 1) * sizeof(tet_key));
     int* bucket = hs_calloc((size_t)nn + 2, sizeof(int));
-    if (!keep || !keys || !sorted || !bucket) {
+    // The tets are repaired in place: a failure below puts them back (the arrays stay where
+    // they are; derived data is then cleared: the mesh reads as not finalized).
+    int* backup = hs_alloc(4 * (size_t)m->n_tets * sizeof(int) + sizeof(int));
+    if (!keep || !keys || !sorted || !bucket || !backup) {
         hs_free(keep);
         hs_free(keys);
         hs_free(sorted);
         hs_free(bucket);
+        hs_free(backup);
         return hs_err_set(err, HS_ERR_NOMEM, "mesh: out of memory");
     }
+    const int n_tets0 = m->n_tets;
+    const hs_mesh_report report0 = m->report;
+    memcpy(backup, m->tets, 4 * (size_t)n_tets0 * sizeof(int));
     free_derived(m);
 
     for (int d = 0; d < 3; ++d) {
@@ -462,8 +469,21 @@ hs_status hs_mesh_finalize(hs_mesh* m, hs_err* err) {
     hs_free(sorted);
     hs_free(bucket);
 
-    hs_status st = build_derived(m, err);
-    if (st != HS_OK) return st;
+    hs_status st =
+        n > 0 || n_tets0 == 0
+            ? build_derived(m, err)
+            : hs_err_set(err, HS_ERR_INVALID,
+                         "no valid tetrahedra: %d degenerate (volume <= %g m^3), %d duplicate",
+                         r->degenerate_tets, tiny, r->duplicate_tets);
+    if (st != HS_OK) {
+        free_derived(m);
+        memcpy(m->tets, backup, 4 * (size_t)n_tets0 * sizeof(int));
+        m->n_tets = n_tets0;
+        m->report = report0;
+        hs_free(backup);
+        return st;
+    }
+    hs_free(backup);
     return r->reoriented_tets || r->degenerate_tets || r->duplicate_tets ? HS_WARN_MESH_REPAIRED
                                                                          : HS_OK;
 }
