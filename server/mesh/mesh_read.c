@@ -211,6 +211,15 @@ static int rd_double(lexer* lx, int any, const char* what, double* v) {
     return 1;
 }
 
+// A node coordinate: finite, and within the mesh's limit (hs_mesh_finalize would refuse it
+// later, but only by node index and without the line).
+static int rd_coord(lexer* lx, int any, const char* what, double* v) {
+    if (!rd_double(lx, any, what, v)) return 0;
+    if (fabs(*v) > 1e30)
+        return lx_fail(lx, lx->line, HS_ERR_PARSE, "%s %g is beyond 1e30 m", what, *v);
+    return 1;
+}
+
 // A declared count must fit in the bytes left (each item takes at least min_bytes) and in the
 // mesh limits; checked before anything is allocated for it.
 static int check_count(lexer* lx, long long n, size_t min_bytes, int line, const char* what) {
@@ -360,8 +369,8 @@ static int msh_nodes_v2(lexer* lx, builder* b) {
         double* x = b->x + 3 * i;
         if (!record(lx, i, n, "nodes")) return 0;
         b->line[i] = lx->line;
-        if (!rd_int(lx, 0, 1, LLONG_MAX, "node id", &id) || !rd_double(lx, 0, "x coordinate", x) ||
-            !rd_double(lx, 0, "y coordinate", x + 1) || !rd_double(lx, 0, "z coordinate", x + 2) ||
+        if (!rd_int(lx, 0, 1, LLONG_MAX, "node id", &id) || !rd_coord(lx, 0, "x coordinate", x) ||
+            !rd_coord(lx, 0, "y coordinate", x + 1) || !rd_coord(lx, 0, "z coordinate", x + 2) ||
             !end_line(lx, "a node"))
             return 0;
         b->id[i] = id;
@@ -405,9 +414,8 @@ static int msh_nodes_v4(lexer* lx, builder* b) {
         for (long long j = 0; j < m; ++j) {
             double* x = b->x + 3 * (filled + j);
             double uvw;
-            if (!record(lx, j, m, "node coordinates") || !rd_double(lx, 0, "x coordinate", x) ||
-                !rd_double(lx, 0, "y coordinate", x + 1) ||
-                !rd_double(lx, 0, "z coordinate", x + 2))
+            if (!record(lx, j, m, "node coordinates") || !rd_coord(lx, 0, "x coordinate", x) ||
+                !rd_coord(lx, 0, "y coordinate", x + 1) || !rd_coord(lx, 0, "z coordinate", x + 2))
                 return 0;
             for (long long q = 0; q < (param ? dim : 0); ++q)
                 if (!rd_double(lx, 0, "parametric coordinate", &uvw)) return 0;
@@ -617,8 +625,8 @@ static int tetgen_nodes(lexer* lx, builder* b) {
         double* x = b->x + 3 * i;
         if (!record(lx, i, n, "points")) return 0;
         b->line[i] = lx->line;
-        if (!rd_int(lx, 0, 0, LLONG_MAX, "point id", &id) || !rd_double(lx, 0, "x coordinate", x) ||
-            !rd_double(lx, 0, "y coordinate", x + 1) || !rd_double(lx, 0, "z coordinate", x + 2))
+        if (!rd_int(lx, 0, 0, LLONG_MAX, "point id", &id) || !rd_coord(lx, 0, "x coordinate", x) ||
+            !rd_coord(lx, 0, "y coordinate", x + 1) || !rd_coord(lx, 0, "z coordinate", x + 2))
             return 0;
         for (long long k = 0; k < nattr; ++k)
             if (!rd_double(lx, 0, "attribute", &attr)) return 0;
@@ -849,7 +857,7 @@ static hs_status parse_vtk(lexer* lx, hs_mesh** out) {
                 !alloc_nodes(lx, &b, n))
                 goto fail;
             for (long long i = 0; i < 3 * n; ++i)
-                if (!rd_double(lx, 1, "point coordinate", b.x + i)) goto fail;
+                if (!rd_coord(lx, 1, "point coordinate", b.x + i)) goto fail;
         } else if (tok_is_nocase(&t, "CELLS")) {
             if (!b.x || have_cells) {
                 lx_fail(lx, hl, HS_ERR_PARSE,
