@@ -6,8 +6,7 @@
 
 typedef struct hs_bench_args {
     int quick;          ///< --quick: the small, fast subset
-    const char* out;    ///< --out FILE: CSV also written here (NULL: stdout only)
-    const char* meshes; ///< directory with the shared meshes
+    const char* meshes; ///< --meshes DIR: directory with the shared meshes
 } hs_bench_args;
 
 /// Each subcommand prints CSV with a header to stdout and returns 0 on success.

@@ -117,7 +117,11 @@ static int run_case(const hs_bench_args* a, const core_case* c, const core_cfg* 
         double t0 = hs_bench_thread_ms();
         s = hs_body_step(body, &st);
         double t1 = hs_bench_thread_ms();
-        if (s < 0) break;
+        if (s < 0) {
+            fprintf(stderr, "%s (%s, %s): step %d failed: %s\n", c->name, cfg->label,
+                    cfg->solver_label, k, hs_status_str(s));
+            break;
+        }
         if (k >= warm) ms[k - warm] = t1 - t0, iters += st.linear_iterations;
     }
     double tip = 0;
@@ -148,12 +152,15 @@ static int cmp_double(const void* x, const void* y) {
 // Cost of co-rotation from runs as above (one body at a time, so each keeps the caches to
 // itself) but alternated, linear then warped, `pairs` times: the median ratio of the pairs is
 // less at the mercy of a load change between two runs than the single pair above.
-static void alternating_ratio(const hs_bench_args* a, const core_case* c, const core_cfg* lin,
-                              const core_cfg* cor, int pairs) {
+static int alternating_ratio(const hs_bench_args* a, const core_case* c, const core_cfg* lin,
+                             const core_cfg* cor, int pairs) {
     double tl[8], tw[8], r[8];
     if (pairs > 8) pairs = 8;
     for (int p = 0; p < pairs; ++p) {
-        if (run_case(a, c, lin, &tl[p], 0) || run_case(a, c, cor, &tw[p], 0)) return;
+        if (run_case(a, c, lin, &tl[p], 0) || run_case(a, c, cor, &tw[p], 0)) {
+            fprintf(stderr, "%s: alternating runs: a run failed, no ratio\n", c->name);
+            return 1;
+        }
         r[p] = tw[p] / tl[p];
     }
     qsort(tl, (size_t)pairs, sizeof(double), cmp_double);
@@ -164,6 +171,7 @@ static void alternating_ratio(const hs_bench_args* a, const core_case* c, const 
             "ratio per pair: median %.2fx (%.2f-%.2f)\n",
             c->name, pairs, lin->solver_label, tl[0], tl[pairs - 1], cor->solver_label, tw[0],
             tw[pairs - 1], r[pairs / 2], r[0], r[pairs - 1]);
+    return 0;
 }
 
 // Cost of co-rotation with the load shared: the linear body (constant factor) and the warped
@@ -171,8 +179,8 @@ static void alternating_ratio(const hs_bench_args* a, const core_case* c, const 
 // both see the same machine; the ratio of each pair, then its median. Caveat: the two bodies'
 // factors (13 MB each at 10k tets) evict each other, so the back-solve, the same on both sides,
 // is slower than in single-body runs and the ratio reads lower than theirs.
-static void paired_ratio(const hs_bench_args* a, const core_case* c, const core_cfg* lin,
-                         const core_cfg* cor) {
+static int paired_ratio(const hs_bench_args* a, const core_case* c, const core_cfg* lin,
+                        const core_cfg* cor) {
     hs_mesh *m0 = NULL, *m1 = NULL;
     unsigned char *f0 = NULL, *f1 = NULL;
     hs_body* b0 = make_body(a, c, lin, &m0, &f0);
@@ -200,7 +208,11 @@ static void paired_ratio(const hs_bench_args* a, const core_case* c, const core_
                 "ratio per pair: median %.2fx (quartiles %.2f-%.2f)\n",
                 c->name, lin->solver_label, t[steps / 2], cor->solver_label, t[steps + steps / 2],
                 t[2 * steps + steps / 2], t[2 * steps + steps / 4], t[2 * steps + 3 * steps / 4]);
+    } else {
+        fprintf(stderr, "%s: stepped alternately: %s after %d of %d steps, no ratio\n", c->name,
+                b1 && t ? "a step failed" : "set-up failed", n, steps);
     }
+    int rc = n != steps;
     free(t);
     hs_body_destroy(&b1);
     hs_body_destroy(&b0);
@@ -208,6 +220,7 @@ static void paired_ratio(const hs_bench_args* a, const core_case* c, const core_
     free(f0);
     hs_mesh_destroy(&m1);
     hs_mesh_destroy(&m0);
+    return rc;
 }
 
 int hs_bench_core(const hs_bench_args* a) {
@@ -231,8 +244,8 @@ int hs_bench_core(const hs_bench_args* a) {
                 "%s: corotated/linear step time: pcg3-warped %.2fx the same pcg3-warped solver, "
                 "%.2fx linear's constant factor; warped %.2fx linear's constant factor\n",
                 cases[i].name, t[3] / t[1], t[3] / t[0], t[5] / t[0]);
-        alternating_ratio(a, &cases[i], &cfgs[0], &cfgs[5], 5);
-        paired_ratio(a, &cases[i], &cfgs[0], &cfgs[5]);
+        rc |= alternating_ratio(a, &cases[i], &cfgs[0], &cfgs[5], 5);
+        rc |= paired_ratio(a, &cases[i], &cfgs[0], &cfgs[5]);
     }
     return rc;
 }

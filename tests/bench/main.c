@@ -77,8 +77,12 @@ int main(int argc, char** argv) {
         usage(argc < 2 ? stderr : stdout);
         return argc < 2 ? 1 : 0;
     }
-    hs_bench_args a = {0, NULL, HS_SHARED_MESHES};
+    hs_bench_args a = {0, HS_SHARED_MESHES};
     for (int i = 2; i < argc; ++i) {
+        if (!strcmp(argv[i], "-h") || !strcmp(argv[i], "--help")) {
+            usage(stdout);
+            return 0;
+        }
         if (!strcmp(argv[i], "--quick"))
             a.quick = 1;
         else if (!strcmp(argv[i], "--meshes") && i + 1 < argc)
