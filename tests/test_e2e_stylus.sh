@@ -176,7 +176,7 @@ kill_stylus)
         END { if (n) printf "%d forces, peak %.3g N, state RAMP, over the first %.1f ms", n, pk, (t2 - p0) / 1000 }' "$tmp/k.txt")
     if [ -n "$spur" ]; then
         applied=$(rows "$tmp/b.csv" '$16 == 0 && ('"$F"') > m { m = '"$F"' } END { printf "%.3g", m }')
-        skip "clean resume blocked by a server bug: after the watchdog zeroed the killed session, the restarted session (in free space, 15 mm above the liver) got $spur after its first pose (the old contact model ramped back in at the new pose; the stylus applied up to $applied N); everything else checked above"
+        fail "clean resume: after the watchdog zeroed the killed session, the restarted session (in free space, 15 mm above the liver) got $spur after its first pose (the old contact model ramped back in at the new pose; the stylus applied up to $applied N)"
     fi
     ;;
 kill_server)
@@ -201,7 +201,8 @@ kill_server)
         END { printf "server killed: force %.3g N at the last model, zero %.1f ms after it arrived (max after %.3g N)\n", fb, 1000 * (tz - ta), fmax_after
               exit !(ta > 0 && fb > 0.05 && tz > 0 && tz - ta <= 0.1015) }' ||
         fail "the stylus force did not reach zero within 100 ms"
-    rows "$tmp/k.csv" '$1 > 0.2 && $14 < 0 { bad++ } END { exit bad > 0 }'
+    rows "$tmp/k.csv" '$1 > 0.2 && $14 < 0 { bad++ } END { exit bad > 0 }' ||
+        fail "model age negative after 0.2 s"
     ;;
 golden)
     # Committed reference traces (tests/golden/regenerate.sh): offline (deterministic, exact)

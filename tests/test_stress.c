@@ -80,24 +80,25 @@ static int stress_corotated_energy_never_grows(void) {
     return 0;
 }
 
-// Inverted elements (driven through inversion by random loads, or every element mirrored)
-// recover: none left at the end, for both inversion remedies.
+// Inverted elements recover: the fold-through cases start with every element mirrored and end
+// with none inverted, for both inversion remedies. The random-forces cases invert none in
+// these runs (the step's energy safeguard stops the overshoots; 0 in every case, 2026-11-27):
+// for them this checks only that nothing fails and nothing is left inverted.
 static int stress_inversion_recovers(void) {
     run_suite();
-    int seen = 0, inverted_somewhere = 0;
+    int seen = 0, folds = 0;
     for (int i = 0; i < g_all.n; ++i) {
         const hs_stress_result* r = &g_all.r[i];
         if (!is(r, "fold-through") && !is(r, "random-forces")) continue;
         ++seen;
         ENSURE(r->failures == 0);
         ENSURE(r->inverted_left == 0);
-        if (is(r, "fold-through")) ENSURE(r->inverted_max == 60 * 4); // every element at start
-        inverted_somewhere += r->inverted_max > 0;
+        if (is(r, "fold-through")) {
+            ENSURE(r->inverted_max == 60 * 4); // every element at the start
+            ++folds;
+        }
     }
-    ENSURE(seen == 8);
-    // The fold-through cases start fully inverted; random loads may or may not invert elements
-    // (the step's energy safeguard stops most overshoots).
-    ENSURE(inverted_somewhere >= 3);
+    ENSURE(seen == 8 && folds == 4);
     return 0;
 }
 

@@ -481,8 +481,9 @@ static void print_row(const char* scene, const acc_cfg* c, int tets, const acc_r
 }
 
 // Run one configuration on p against uref/fref and print its row.
-static void run_cfg(const char* scene, const acc_problem* p, const acc_cfg* c, const double* uref,
-                    const double* fref, double settle_max_s) {
+// Returns 1 when the configuration failed (its row says `failed`).
+static int run_cfg(const char* scene, const acc_problem* p, const acc_cfg* c, const double* uref,
+                   const double* fref, double settle_max_s) {
     int n = p->mesh->n_nodes;
     double* u = calloc(3 * (size_t)n, sizeof(double));
     double* w = calloc(3 * (size_t)n, sizeof(double));
@@ -500,6 +501,7 @@ static void run_cfg(const char* scene, const acc_problem* p, const acc_cfg* c, c
     print_row(scene, c, p->mesh->n_tets, &r);
     free(u);
     free(w);
+    return bad != 0;
 }
 
 // Progress line with the reference's tip motion (largest downward displacement).
@@ -544,12 +546,12 @@ static int cantilever(const char* scene, double heavy, box_dims ref, const box_d
             if (quick &&
                 (static_cfgs[c].locking_free || !strcmp(static_cfgs[c].option, "static;polar1e-4")))
                 continue;
-            run_cfg(scene, &p, &static_cfgs[c], uref, NULL, 0);
+            rc |= run_cfg(scene, &p, &static_cfgs[c], uref, NULL, 0);
         }
         if (k == dyn_mesh)
             for (size_t c = 0; c < sizeof dyn_cfgs / sizeof *dyn_cfgs; ++c) {
                 if (quick && (dyn_cfgs[c].dt < 0.005 || dyn_cfgs[c].locking_free)) continue;
-                run_cfg(scene, &p, &dyn_cfgs[c], uref, NULL, 3.0);
+                rc |= run_cfg(scene, &p, &dyn_cfgs[c], uref, NULL, 3.0);
             }
         free(uref);
         problem_free(&p);
@@ -590,7 +592,7 @@ static int cantilever_vs_mr(const char* scene, double heavy, const box_dims* mes
         if (solve_mooney(&p, 1e-10, -1, uref, NULL, NULL) == 0) {
             print_tip(scene, p.mesh, uref);
             for (size_t c = 0; c < sizeof cfgs / sizeof *cfgs; ++c)
-                run_cfg(scene, &p, &cfgs[c], uref, NULL, 3.0);
+                rc |= run_cfg(scene, &p, &cfgs[c], uref, NULL, 3.0);
         } else {
             rc = 1;
         }
@@ -617,12 +619,12 @@ static int organ(const char* scene, scene_kind kind, const char* path, int quick
     for (size_t c = 0; c < sizeof static_cfgs / sizeof *static_cfgs; ++c) {
         if ((int)static_cfgs[c].fem_model == MR) continue; // it is the reference
         if (quick && (static_cfgs[c].locking_free || static_cfgs[c].polar_tol == 1e-4)) continue;
-        run_cfg(scene, &p, &static_cfgs[c], uref, fref, 0);
+        rc |= run_cfg(scene, &p, &static_cfgs[c], uref, fref, 0);
     }
     if (kind == SC_LIVER)
         for (size_t c = 0; c < sizeof dyn_cfgs / sizeof *dyn_cfgs; ++c) {
             if (quick && (dyn_cfgs[c].dt < 0.005 || dyn_cfgs[c].locking_free)) continue;
-            run_cfg(scene, &p, &dyn_cfgs[c], uref, fref, 3.0);
+            rc |= run_cfg(scene, &p, &dyn_cfgs[c], uref, fref, 3.0);
         }
     free(uref);
     problem_free(&p);
