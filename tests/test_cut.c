@@ -13,6 +13,7 @@
 #include <pthread.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 #include <time.h>
 
 #define MM 1e-3
@@ -25,9 +26,12 @@ static double urand(void) { // xorshift64*, uniform in [0, 1)
     return (double)((g_rng * 2685821657736338717ull) >> 11) / 9007199254740992.0;
 }
 
+// The skin patch is bundled in scenes/skin; other meshes come from the shared folder beside
+// the project (absent on a user's machine).
 static hs_mesh* load_shared(const char* name) {
     char path[512];
-    snprintf(path, sizeof path, "%s/%s", HS_SHARED_MESHES, name);
+    snprintf(path, sizeof path, "%s/scenes/skin/%s", HS_SOURCE_DIR, name);
+    if (access(path, R_OK) != 0) snprintf(path, sizeof path, "%s/%s", HS_SHARED_MESHES, name);
     hs_mesh* m = NULL;
     hs_err e;
     if (hs_mesh_load(path, &m, &e) < 0) {
