@@ -297,6 +297,18 @@ static void world_sim_stop(world* w) {
     hs_haptic_sim_destroy(&w->sim);
 }
 
+static void apply_cut(hs_server* s);
+
+// Stop and destroy the sim, first passing on a cut its threads finished after the net loop
+// last looked (else it would be lost, and the sim could be rebuilt on a cut mesh).
+static void server_sim_stop(hs_server* s) {
+    world* w = &s->w;
+    if (!w->sim) return;
+    hs_haptic_sim_stop(w->sim);
+    if (w->cutting && hs_haptic_sim_topology_version(w->sim) != w->cut_seen) apply_cut(s);
+    world_sim_stop(w);
+}
+
 static hs_status world_create(const hs_scene* sc, int realtime, world* w, hs_err* err) {
     memset(w, 0, sizeof *w);
     w->scene = *sc;
@@ -1028,12 +1040,11 @@ static void after_rebuild(hs_server* s, int keep) {
 static hs_status rebuild_sim(hs_server* s, int keep, hs_err* err) {
     world* w = &s->w;
     if (!w->haptics) return HS_OK;
+    if (w->sim && w->cutting && hs_haptic_sim_topology_version(w->sim) != w->cut_seen)
+        apply_cut(s);                        // a cut not yet passed on counts too
     if (w->cut_made) return refuse_cut(err); // before stopping the sim, which could not return
     if (s->paused) {
-        if (!keep) {
-            memset(w->u, 0, 3 * (size_t)w->mesh->n_nodes * sizeof(double));
-            memset(w->v, 0, 3 * (size_t)w->mesh->n_nodes * sizeof(double));
-        }
+        if (!keep) after_rebuild(s, 0); // at rest now: say so (a keyframe), not at the resume
         return HS_OK;
     }
     world_sim_stop(w);
@@ -1122,8 +1133,8 @@ static int load_scene(hs_server* s, const char* path, char* msg, size_t cap) {
         snprintf(msg, cap, "%s", err.msg);
         return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
     }
+    publish_topology(s); // before the keyframe (after_rebuild), which a client matches to it
     after_rebuild(s, 0);
-    publish_topology(s);
     snprintf(msg, cap, "loaded %s (%d nodes); buses and prefix unchanged", sc.name,
              s->w.mesh->n_nodes);
     return HAPSIM_COMMAND_ACK_T_STATUS_OK;
@@ -1147,7 +1158,7 @@ static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap)
         drain_outputs(s);
         s->pause_model = s->have_out ? s->out.model : zero_model();
         s->pause_ns = hs_now_ns();
-        world_sim_stop(w);
+        server_sim_stop(s);
         s->paused = 1;
         return HAPSIM_COMMAND_ACK_T_STATUS_OK;
     case HAPSIM_COMMAND_T_KIND_RESUME:
@@ -1444,7 +1455,6 @@ hs_status hs_server_run(hs_server* s, hs_err* err) {
     int64_t t = hs_now_ns();
     s->start_ns = s->stat_ns = s->last_iter_ns = t;
     int64_t end = s->opt.duration_s > 0 ? t + (int64_t)(s->opt.duration_s * 1e9) : INT64_MAX;
-    int64_t visual_ns = (int64_t)(1e9 / w->scene.visual_hz);
     int64_t next_visual = t, next_status = t, next_topo = t, next_key = t, next_live = t;
     publish_topology(s);
     hs_status rc = HS_OK;
@@ -1510,6 +1520,7 @@ hs_status hs_server_run(hs_server* s, hs_err* err) {
         if (t >= next_visual) {
             publish_frame(s, t);
             publish_tool_states(s, t);
+            const int64_t visual_ns = (int64_t)(1e9 / w->scene.visual_hz); // a load may change it
             next_visual += visual_ns;
             if (next_visual < t) next_visual = t + visual_ns;
         }
