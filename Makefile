@@ -27,10 +27,12 @@ deps:
 	  fi; \
 	fi
 
-$(BUILD)/CMakeCache.txt:
+# build/Makefile appears only when a configure succeeds (the cache is written even when it
+# fails, which would block every later make); the packages come first even under make -j.
+$(BUILD)/Makefile: | deps
 	cmake -S . -B $(BUILD) -DCMAKE_BUILD_TYPE=RelWithDebInfo $(CMAKE_ARGS)
 
-configure: deps $(BUILD)/CMakeCache.txt
+configure: deps $(BUILD)/Makefile
 
 build: configure
 	cmake --build $(BUILD) -j $(JOBS)
