@@ -14,6 +14,18 @@ static unsigned char* clamp_x0(const hs_mesh* m) {
     return f;
 }
 
+// The shared aneurysm vessel as the tests run it: soft co-rotated tissue sagging under gravity.
+static hs_body_def vessel_def(hs_solver_kind solver) {
+    hs_body_def d = hs_body_default_def();
+    d.fem.model = HS_MODEL_COROTATED;
+    d.fem.material.youngs_pa = 5e4;
+    d.fem.material.poisson = 0.45;
+    d.fem.material.density_kg_m3 = 1060;
+    d.gravity[2] = -9.81;
+    d.solver = solver;
+    return d;
+}
+
 // |a - b| / |b| (infinite when b is zero).
 static double rel_diff(const double* a, const double* b, int n) {
     double num = 0, den = 0;
@@ -560,13 +572,7 @@ static int WarpedSolver(void) {
         unsigned char* vf = calloc((size_t)vm->n_nodes, 1);
         hs_mesh_select_plane(vm, 2, -1, 0.1 * (vm->bbox_max[2] - vm->bbox_min[2]), vf);
         for (int c = 0; c < 2; ++c) {
-            hs_body_def d = hs_body_default_def();
-            d.fem.model = HS_MODEL_COROTATED;
-            d.fem.material.youngs_pa = 5e4;
-            d.fem.material.poisson = 0.45;
-            d.fem.material.density_kg_m3 = 1060;
-            d.gravity[2] = -9.81;
-            d.solver = c ? HS_SOLVER_WARPED : HS_SOLVER_DIRECT;
+            hs_body_def d = vessel_def(c ? HS_SOLVER_WARPED : HS_SOLVER_DIRECT);
             hs_body* b = NULL;
             ENSURE(hs_body_create(vm, &d, vf, &b, NULL) == HS_OK);
             hs_step_stats st;
@@ -857,13 +863,7 @@ static int FailedFallbackKeepsState(void) {
     }
     unsigned char* vf = calloc((size_t)vm->n_nodes, 1);
     hs_mesh_select_plane(vm, 2, -1, 0.1 * (vm->bbox_max[2] - vm->bbox_min[2]), vf);
-    hs_body_def d = hs_body_default_def();
-    d.fem.model = HS_MODEL_COROTATED;
-    d.fem.material.youngs_pa = 5e4;
-    d.fem.material.poisson = 0.45;
-    d.fem.material.density_kg_m3 = 1060;
-    d.gravity[2] = -9.81;
-    d.solver = HS_SOLVER_WARPED;
+    hs_body_def d = vessel_def(HS_SOLVER_WARPED);
     hs_body* b = NULL;
     ENSURE(hs_body_create(vm, &d, vf, &b, NULL) == HS_OK);
     ENSURE(hs_body_step(b, NULL) == HS_OK); // the first factor

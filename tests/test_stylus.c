@@ -882,14 +882,10 @@ static int bundled_scripts(void) {
 
 // touch: the search stops where the handle first feels the surface, and everything after it
 // is shifted there (space) and brought forward (time); a search that finds nothing says so.
-static int run_touch(double surface_z, const char* surface_line, hs_stylus_trace* tr, hs_script* s,
-                     hs_stylus_summary* sum) {
+// Parse text into s and run it offline against a plane at z = surface_z (300 N/m).
+static int run_offline_text(const char* text, double surface_z, hs_stylus_trace* tr, hs_script* s,
+                            hs_stylus_summary* sum) {
     hs_err err = {0};
-    char text[512];
-    snprintf(text, sizeof text,
-             "%sstart 0 0 0.02\nmove_to 0 0 0.01 0.02\ntouch 0 0 1 0.03 0.004\nhold 0.2\n"
-             "press 0 0 1 0.004 0.005\nhold 1\nrelease 0.005\nmove_to 0 0 0.02 0.02\n",
-             surface_line);
     if (parse(s, text, &err)) return 1;
     hs_stylus_def def = test_def();
     hs_offline_def off = {0};
@@ -904,6 +900,16 @@ static int run_touch(double surface_z, const char* surface_line, hs_stylus_trace
     if (hs_stylus_run_offline(s, &def, &off, tr, NULL, &err)) return 1;
     hs_stylus_trace_summary(tr, s, sum);
     return 0;
+}
+
+static int run_touch(double surface_z, const char* surface_line, hs_stylus_trace* tr, hs_script* s,
+                     hs_stylus_summary* sum) {
+    char text[512];
+    snprintf(text, sizeof text,
+             "%sstart 0 0 0.02\nmove_to 0 0 0.01 0.02\ntouch 0 0 1 0.03 0.004\nhold 0.2\n"
+             "press 0 0 1 0.004 0.005\nhold 1\nrelease 0.005\nmove_to 0 0 0.02 0.02\n",
+             surface_line);
+    return run_offline_text(text, surface_z, tr, s, sum);
 }
 
 static int script_touch(void) {
@@ -948,22 +954,11 @@ static int script_touch(void) {
     {
         hs_script* s2 = NULL;
         ENSURE(hs_script_create(&s2, &err) == HS_OK);
-        ENSURE(parse(s2, "start 0 0 0.02\ntouch 0 0 1 0.01 0.01\n", &err) == 0);
-        hs_stylus_def def2 = test_def();
-        hs_offline_def off = {0};
-        off.surface.point_m[2] = -0.05;
-        off.surface.normal[2] = 1;
-        off.surface.stiffness_n_m = 300;
-        off.surface.radius_m = 0.002;
-        off.surface.timeout_s = 0.05;
-        off.dt_s = 1e-3;
-        off.period_ticks = 1;
-        off.delay_ticks = 1;
         hs_stylus_trace_destroy(&tr);
         ENSURE(hs_stylus_trace_create(20000, &tr, &err) == HS_OK);
-        ENSURE(hs_stylus_run_offline(s2, &def2, &off, tr, NULL, &err) == HS_OK);
         hs_stylus_summary sum2;
-        hs_stylus_trace_summary(tr, s2, &sum2);
+        ENSURE(run_offline_text("start 0 0 0.02\ntouch 0 0 1 0.01 0.01\n", -0.05, tr, s2, &sum2) ==
+               0);
         ENSURE(sum2.touches_found == 0 && sum2.touches_missed == 1);
         hs_script_destroy(&s2);
     }
