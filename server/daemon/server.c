@@ -34,17 +34,18 @@
 #include "base/spsc_ring.h"
 #include "rt/haptic_rt.h"
 
-#define MAX_DEV       HS_SCENE_MAX_DEVICES
-#define POSE_RING     64           // fed poses remembered for echoing in rt-output forces
-#define KEYFRAME_NS   1000000000LL // keyframe and topology period
-#define DELTA_EPS_M   1e-5f        // m: a visual node is listed in a delta when it moved more
-#define LIVE_NS       500000000LL  // live status line period
-#define PAUSE_RAMP_S  0.02         // forces ramp to zero over this after PAUSE, s
-#define RT_GAP_NS     1500000LL    // publish rt outputs when no force went out for this long
-#define HANDLE_BATCH  256          // messages handled per bus per loop iteration
-#define POSE_QUEUE    8192         // LCM subscription queue (default 30 drops bursts)
-#define COMMAND_QUEUE 1024
-#define CUT_SAMPLES   1024 // cut step times kept for the quantiles (cut steps take ms, not us)
+#define MAX_DEV        HS_SCENE_MAX_DEVICES
+#define POSE_RING      64           // fed poses remembered for echoing in rt-output forces
+#define KEYFRAME_NS    1000000000LL // keyframe and topology period
+#define DELTA_EPS_M    1e-5f        // m: a visual node is listed in a delta when it moved more
+#define LIVE_NS        500000000LL  // live status line period
+#define PAUSE_RAMP_S   0.02         // forces ramp to zero over this after PAUSE, s
+#define SIM_HIST_SCALE 16           // the deformation loop's histograms: 16 us bins
+#define RT_GAP_NS      1500000LL    // publish rt outputs when no force went out for this long
+#define HANDLE_BATCH   256          // messages handled per bus per loop iteration
+#define POSE_QUEUE     8192         // LCM subscription queue (default 30 drops bursts)
+#define COMMAND_QUEUE  1024
+#define CUT_SAMPLES    1024 // cut step times kept for the quantiles (cut steps take ms, not us)
 
 // Everything that depends on the scene: rebuilt by load_scene, swapped only when complete.
 typedef struct world {
@@ -143,6 +144,8 @@ struct hs_server {
     hs_rt_hist* h_handle; // pose handling (validate, feed, reply), window
     hs_rt_hist* h_diff;   // scratch for windowed rt histograms
     hs_rt_hist* h_simper; // deformation step period as seen by the net thread, window
+    // h_step and h_simper hold ns / SIM_HIST_SCALE: 16 us bins over 0-64 ms (1 us bins end at
+    // 4 ms, below a 60 Hz period, so every sample fell in the overflow and read as the max)
     int64_t last_step_ns;
     int64_t live_prev_ticks, live_prev_t;
     int64_t net_iters, last_iter_ns, last_steps;
@@ -858,14 +861,14 @@ static void publish_status(hs_server* s, int64_t t) {
         smax[ns++] = (float)hist_max_us(s->h_diff);
         lname[nl] = "sim";
         rate[nl] = (float)((double)(a->steps - b->steps) / win);
-        p50[nl] = (float)hs_rt_hist_quantile_us(s->h_simper, 0.5);
-        p99[nl] = (float)hs_rt_hist_quantile_us(s->h_simper, 0.99);
-        pmax[nl] = (float)hist_max_us(s->h_simper);
+        p50[nl] = (float)(SIM_HIST_SCALE * hs_rt_hist_quantile_us(s->h_simper, 0.5));
+        p99[nl] = (float)(SIM_HIST_SCALE * hs_rt_hist_quantile_us(s->h_simper, 0.99));
+        pmax[nl] = (float)(SIM_HIST_SCALE * hist_max_us(s->h_simper));
         over[nl++] = a->step_failures;
         sname[ns] = "sim_step";
-        s50[ns] = (float)hs_rt_hist_quantile_us(s->h_step, 0.5);
-        s99[ns] = (float)hs_rt_hist_quantile_us(s->h_step, 0.99);
-        smax[ns++] = (float)hist_max_us(s->h_step);
+        s50[ns] = (float)(SIM_HIST_SCALE * hs_rt_hist_quantile_us(s->h_step, 0.5));
+        s99[ns] = (float)(SIM_HIST_SCALE * hs_rt_hist_quantile_us(s->h_step, 0.99));
+        smax[ns++] = (float)(SIM_HIST_SCALE * hist_max_us(s->h_step));
         if (w->cutting) { // since start: cut steps are rare
             sname[ns] = "cut";
             s50[ns] = (float)(cut_quantile(s, 0.5) * 1e3);
@@ -1504,9 +1507,10 @@ hs_status hs_server_run(hs_server* s, hs_err* err) {
             hs_haptic_sim_stats st;
             hs_haptic_sim_stats_get(w->sim, &st);
             if (st.steps != s->last_steps) {
-                hist_add(s->h_step, (int64_t)(st.step_ms_last * 1e6));
+                hist_add(s->h_step, (int64_t)(st.step_ms_last * 1e6) / SIM_HIST_SCALE);
                 if (s->last_step_ns && st.steps > s->last_steps)
-                    hist_add(s->h_simper, (t - s->last_step_ns) / (st.steps - s->last_steps));
+                    hist_add(s->h_simper,
+                             (t - s->last_step_ns) / (st.steps - s->last_steps) / SIM_HIST_SCALE);
                 s->last_steps = st.steps;
                 s->last_step_ns = t;
             }
