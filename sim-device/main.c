@@ -461,6 +461,10 @@ static void* loop_main(void* arg) {
     const int64_t start_ns = ts_ns(&next);
     int64_t last_ns = start_ns - period_ns;
     while (!atomic_load_explicit(&g_stop, memory_order_relaxed)) {
+        // Take the model before reading the clock: the receive thread stamps its arrival, so a
+        // model taken after `now` could be younger than `now` (negative age, read as "none").
+        hs_stylus_model m;
+        int got_model = hs_stylus_mailbox_take(&a->mailbox, &m);
         int64_t now = hs_now_ns();
         double t = (double)(now - start_ns) * 1e-9;
         // Without --duration: 0.5 s after the script, whose end moves when a touch finds the
@@ -472,8 +476,7 @@ static void* loop_main(void* arg) {
         hist[err_us < BINS ? err_us : BINS]++;
         last_ns = now;
 
-        hs_stylus_model m;
-        if (hs_stylus_mailbox_take(&a->mailbox, &m)) hs_stylus_device_set_model(&dev, &m);
+        if (got_model) hs_stylus_device_set_model(&dev, &m);
         double target[3], tvel[3];
         uint32_t buttons;
         uint32_t events;
