@@ -145,6 +145,7 @@ static int server_alive(void) {
 
 // What the tests read from server_status_t, copied into fixed storage.
 typedef struct status_info {
+    int32_t state;
     int n_loops;
     char loop_name[8][16];
     float rate_hz[8];
@@ -165,8 +166,8 @@ typedef struct client {
     hapsim_tool_force_t force; // newest (arrays are fixed-size)
     int64_t force_rx_ns;
     // status
-    int n_status;
-    status_info* status; // newest
+    int n_status, n_loading; // n_loading: statuses saying STATE_LOADING
+    status_info* status;     // newest
     // acks
     int n_ack;
     int64_t ack_id[64];
@@ -209,6 +210,8 @@ static void on_status(const lcm_recv_buf_t* rb, const char* ch, const hapsim_ser
     if (!c->status) c->status = calloc(1, sizeof *c->status);
     status_info* i = c->status;
     memset(i, 0, sizeof *i);
+    i->state = s->state;
+    c->n_loading += s->state == HAPSIM_SERVER_STATUS_T_STATE_LOADING;
     for (int k = 0; k < s->n_loops && k < 8; ++k) {
         snprintf(i->loop_name[k], sizeof i->loop_name[k], "%s", s->loop_name[k]);
         i->rate_hz[k] = s->rate_hz[k];
@@ -552,6 +555,15 @@ static int poses_in_forces_out(void) {
     for (int i = 0; i < c.status->n_loops; ++i)
         if (!strcmp(c.status->loop_name[i], "rt")) has_rt = c.status->rate_hz[i] > 500;
     ENSURE(has_rt);
+    ENSURE(c.status->state == HAPSIM_SERVER_STATUS_T_STATE_RUNNING && c.n_loading == 0);
+
+    // Load a scene: the net loop stands still while it is built, so one LOADING status goes out
+    // before (ahead of the final ack on the same bus), and RUNNING after.
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_LOAD_SCENE, "path", scene, NULL, NULL, NULL) ==
+           HAPSIM_COMMAND_ACK_T_STATUS_OK);
+    ENSURE(c.n_loading == 1);
+    ENSURE(wait_more(&c, &c.n_status, 2000));
+    ENSURE(c.status->state == HAPSIM_SERVER_STATUS_T_STATE_RUNNING && c.n_loading == 1);
     ENSURE(stop_server() == 0);
     client_close(&c);
     return 0;

@@ -121,6 +121,7 @@ struct hs_server {
     int have_out;
 
     int paused, estop;
+    const char* loading; // path of the scene being built: the status says STATE_LOADING
     int64_t pause_ns;
     int64_t estop_release_ns;    // forces ramp back in from here (the rt chain never saw the stop)
     hs_haptic_model pause_model; // output model at the pause, ramped to zero
@@ -828,7 +829,8 @@ static void publish_status(hs_server* s, int64_t t) {
     m.utime = now_us();
     m.seq = ++s->seq_status;
     m.uptime_us = (t - s->start_ns) / 1000;
-    m.state = s->estop    ? HAPSIM_SERVER_STATUS_T_STATE_ESTOP
+    m.state = s->loading  ? HAPSIM_SERVER_STATUS_T_STATE_LOADING
+              : s->estop  ? HAPSIM_SERVER_STATUS_T_STATE_ESTOP
               : s->paused ? HAPSIM_SERVER_STATUS_T_STATE_PAUSED
                           : HAPSIM_SERVER_STATUS_T_STATE_RUNNING;
     m.scene = w->scene.path;
@@ -974,6 +976,7 @@ static void publish_status(hs_server* s, int64_t t) {
     if (w->sim && s->st_prev->step_failures)
         WARN("%lld deformation steps failed", (long long)s->st_prev->step_failures);
     if (s->estop) WARN("e-stop latched: every force is zero");
+    if (s->loading) WARN("loading %s: forces stop until it is built", s->loading);
     if (w->sim && s->st_prev->cut_failures)
         WARN("%lld cut steps failed (mesh kept consistent)", (long long)s->st_prev->cut_failures);
 #undef WARN
@@ -1112,7 +1115,7 @@ static int set_param(hs_server* s, const char* name, double v, char* msg, size_t
     return HAPSIM_COMMAND_ACK_T_STATUS_OK;
 }
 
-static int load_scene(hs_server* s, const char* path, char* msg, size_t cap) {
+static int load_scene_now(hs_server* s, const char* path, char* msg, size_t cap) {
     hs_scene sc;
     hs_err err = {0};
     if (hs_scene_load(path, &sc, &err) != HS_OK) {
@@ -1132,15 +1135,32 @@ static int load_scene(hs_server* s, const char* path, char* msg, size_t cap) {
     s->paused = 0;
     reset_limits(s);
     s->topo_version++;
-    if (s->w.sim && hs_haptic_sim_start(s->w.sim, &err) != HS_OK) {
-        snprintf(msg, cap, "%s", err.msg);
-        return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
+    int started = !s->w.sim || hs_haptic_sim_start(s->w.sim, &err) == HS_OK;
+    if (!started) { // the old world is gone: keep the new one paused, so RESUME can retry
+        world_sim_stop(&s->w);
+        s->pause_model = zero_model();
+        s->pause_ns = hs_now_ns();
+        s->paused = 1;
     }
     publish_topology(s); // before the keyframe (after_rebuild), which a client matches to it
     after_rebuild(s, 0);
+    if (!started) {
+        snprintf(msg, cap, "loaded %.100s but its simulation did not start (%.300s): paused, "
+                 "RESUME retries", sc.name, err.msg);
+        return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
+    }
     snprintf(msg, cap, "loaded %s (%d nodes); buses and prefix unchanged", sc.name,
              s->w.mesh->n_nodes);
     return HAPSIM_COMMAND_ACK_T_STATUS_OK;
+}
+
+// The net loop stands still while a scene is built (forces stop; devices time out to zero):
+// say so first, so a visualiser can show it.
+static int load_scene(hs_server* s, const char* path, char* msg, size_t cap) {
+    s->loading = path ? path : "(no path)";
+    publish_status(s, hs_now_ns());
+    s->loading = NULL;
+    return load_scene_now(s, path, msg, cap);
 }
 
 static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap) {
