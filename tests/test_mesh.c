@@ -489,6 +489,22 @@ static const bad_case k_bad[] = {
      "t.ele:3:", "no linear tetrahedra (1 other elements skipped)"},
     {"tetgen", "4 3 0 0 # header\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1e400\n", "", HS_ERR_PARSE,
      "t.node:5:", "bad z coordinate"},
+
+    // Face errors found after reading name the lines and the file's ids, past a skipped
+    // triangle and a removed degenerate tet (which shift the tets' internal numbers).
+    {"msh",
+     MSH_HEAD "$Nodes\n5\n11 0 0 0\n12 1 0 0\n13 0 1 0\n14 0 0 1\n15 0.2 0.2 0.5\n$EndNodes\n"
+              "$Elements\n4\n5 2 0 11 12 13\n6 4 0 11 12 13 13\n10 4 0 11 12 13 14\n"
+              "20 4 0 11 12 13 15\n$EndElements\n",
+     NULL, HS_ERR_INVALID, "f:16: element 10 and element 20 (line 17) overlap",
+     "same side of their shared face (nodes 11 12 13)"},
+    {"tetgen", "6 3 0 0\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n5 0 0 -1\n6 0.2 0.2 0.5\n",
+     "3 4 0\n1 1 2 3 4\n2 1 3 2 5\n3 1 2 3 6\n", HS_ERR_INVALID,
+     "t.ele:2: element 1, element ", "and 1 more share one face (nodes 1 2 3): not a volume mesh"},
+    {"vtk",
+     VTK_HEAD "POINTS 5 double\n0 0 0 1 0 0\n0 1 0 0 0 1\n0.2 0.2 0.5\n"
+              "CELLS 3 14\n3 0 1 2\n4 0 1 2 3\n4 0 1 2 4\nCELL_TYPES 3\n5\n10\n10\n",
+     NULL, HS_ERR_INVALID, "f: cell 1 and cell 2 overlap", "(nodes 0 1 2)"},
 };
 
 // Every malformed input fails with the right status and "<file>:<line>: <problem>".

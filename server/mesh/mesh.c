@@ -180,7 +180,8 @@ static void tet_quality(const double* x, const int* tet, double* min_dihedral_de
 // Finalize: repair, then derive.
 
 // Builds every derived array from valid, positively oriented, distinct tets.
-static hs_status build_derived(hs_mesh* m, hs_err* err) {
+// fault (may be NULL) gets a face error's tets and nodes, tets numbered as in m.
+static hs_status build_derived(hs_mesh* m, hs_mesh_fault* fault, hs_err* err) {
     const int nn = m->n_nodes, nt = m->n_tets;
     hs_status st = HS_ERR_NOMEM;
     face_key* faces = NULL;
@@ -282,15 +283,20 @@ static hs_status build_derived(hs_mesh* m, hs_err* err) {
             if (b - a == 1) {
                 bnd[faces[a].slot] = 1;
                 ++n_tris;
-            } else if (b - a > 2) {
-                st = hs_err_set(err, HS_ERR_INVALID, "face (%d,%d,%d) is shared by %d tets",
-                                faces[a].k[0], faces[a].k[1], faces[a].k[2], b - a);
-                goto fail;
-            } else if (faces[a].parity == faces[a + 1].parity) {
-                st = hs_err_set(err, HS_ERR_INVALID,
-                                "tets %d and %d lie on the same side of face (%d,%d,%d) (overlap)",
-                                faces[a].slot / 4, faces[a + 1].slot / 4, faces[a].k[0],
-                                faces[a].k[1], faces[a].k[2]);
+            } else if (b - a > 2 || faces[a].parity == faces[a + 1].parity) {
+                if (fault)
+                    *fault = (hs_mesh_fault){{faces[a].slot / 4, faces[a + 1].slot / 4},
+                                             {faces[a].k[0], faces[a].k[1], faces[a].k[2]},
+                                             b - a};
+                if (b - a > 2)
+                    st = hs_err_set(err, HS_ERR_INVALID, "face (%d,%d,%d) is shared by %d tets",
+                                    faces[a].k[0], faces[a].k[1], faces[a].k[2], b - a);
+                else
+                    st = hs_err_set(
+                        err, HS_ERR_INVALID,
+                        "tets %d and %d lie on the same side of face (%d,%d,%d) (overlap)",
+                        faces[a].slot / 4, faces[a + 1].slot / 4, faces[a].k[0], faces[a].k[1],
+                        faces[a].k[2]);
                 goto fail;
             }
             a = b;
@@ -362,7 +368,9 @@ fail:
     return st;
 }
 
-hs_status hs_mesh_finalize(hs_mesh* m, hs_err* err) {
+// hs_mesh_finalize; fault (may be NULL) gets a face error in input tet numbers.
+static hs_status finalize(hs_mesh* m, hs_mesh_fault* fault, hs_err* err) {
+    if (fault) *fault = (hs_mesh_fault){{-1, -1}, {-1, -1, -1}, 0};
     if (!m) return hs_err_set(err, HS_ERR_INVALID, "mesh is NULL");
     const int nn = m->n_nodes;
     if (nn < 0 || m->n_tets < 0 || nn > HS_MESH_MAX_COUNT || m->n_tets > HS_MESH_MAX_COUNT)
@@ -386,12 +394,14 @@ hs_status hs_mesh_finalize(hs_mesh* m, hs_err* err) {
     // The tets are repaired in place: a failure below puts them back (the arrays stay where
     // they are; derived data is then cleared: the mesh reads as not finalized).
     int* backup = hs_alloc(4 * (size_t)m->n_tets * sizeof(int) + sizeof(int));
-    if (!keep || !keys || !sorted || !bucket || !backup) {
+    int* orig = hs_alloc(((size_t)m->n_tets + 1) * sizeof(int)); // kept tet -> input tet
+    if (!keep || !keys || !sorted || !bucket || !backup || !orig) {
         hs_free(keep);
         hs_free(keys);
         hs_free(sorted);
         hs_free(bucket);
         hs_free(backup);
+        hs_free(orig);
         return hs_err_set(err, HS_ERR_NOMEM, "mesh: out of memory");
     }
     const int n_tets0 = m->n_tets;
@@ -461,7 +471,7 @@ hs_status hs_mesh_finalize(hs_mesh* m, hs_err* err) {
     for (int t = 0; t < m->n_tets; ++t)
         if (keep[t]) {
             if (n != t) memcpy(m->tets + 4 * n, m->tets + 4 * t, 4 * sizeof(int));
-            ++n;
+            orig[n++] = t;
         }
     m->n_tets = n;
     hs_free(keep);
@@ -471,10 +481,13 @@ hs_status hs_mesh_finalize(hs_mesh* m, hs_err* err) {
 
     hs_status st =
         n > 0 || n_tets0 == 0
-            ? build_derived(m, err)
+            ? build_derived(m, fault, err)
             : hs_err_set(err, HS_ERR_INVALID,
                          "no valid tetrahedra: %d degenerate (volume <= %g m^3), %d duplicate",
                          r->degenerate_tets, tiny, r->duplicate_tets);
+    if (fault && fault->n_sharing)
+        for (int k = 0; k < 2; ++k) fault->tet[k] = orig[fault->tet[k]];
+    hs_free(orig);
     if (st != HS_OK) {
         free_derived(m);
         memcpy(m->tets, backup, 4 * (size_t)n_tets0 * sizeof(int));
@@ -488,8 +501,13 @@ hs_status hs_mesh_finalize(hs_mesh* m, hs_err* err) {
                                                                          : HS_OK;
 }
 
+hs_status hs_mesh_finalize(hs_mesh* m, hs_err* err) {
+    return finalize(m, NULL, err);
+}
+
 hs_status hs_mesh_adopt(int n_nodes, double* x0, int n_tets, int* tets, int skipped, hs_mesh** out,
-                        hs_err* err) {
+                        hs_mesh_fault* fault, hs_err* err) {
+    if (fault) *fault = (hs_mesh_fault){{-1, -1}, {-1, -1, -1}, 0};
     *out = NULL;
     hs_mesh* m = hs_calloc(1, sizeof(hs_mesh));
     if (!m) {
@@ -502,7 +520,7 @@ hs_status hs_mesh_adopt(int n_nodes, double* x0, int n_tets, int* tets, int skip
     m->x0 = x0;
     m->tets = tets;
     m->report.skipped_elements = skipped;
-    hs_status st = hs_mesh_finalize(m, err);
+    hs_status st = finalize(m, fault, err);
     if (st >= 0 && m->n_tets == 0)
         st = hs_err_set(err, HS_ERR_INVALID, "no valid tetrahedra (%d degenerate, %d duplicate)",
                         m->report.degenerate_tets, m->report.duplicate_tets);
@@ -531,7 +549,7 @@ hs_status hs_mesh_create(int n_nodes, const double* x0, int n_tets, const int* t
     }
     if (n_nodes) memcpy(x, x0, (size_t)3 * n_nodes * sizeof(double));
     if (n_tets) memcpy(t, tets, (size_t)4 * n_tets * sizeof(int));
-    return hs_mesh_adopt(n_nodes, x, n_tets, t, 0, out, err);
+    return hs_mesh_adopt(n_nodes, x, n_tets, t, 0, out, NULL, err);
 }
 
 hs_status hs_mesh_create_box(double lx, double ly, double lz, int nx, int ny, int nz, hs_mesh** out,
@@ -585,7 +603,7 @@ hs_status hs_mesh_create_box(double lx, double ly, double lz, int nx, int ny, in
                     tp += 4;
                 }
             }
-    return hs_mesh_adopt(n_nodes, x, n_tets, tets, 0, out, err);
+    return hs_mesh_adopt(n_nodes, x, n_tets, tets, 0, out, NULL, err);
 }
 
 // ---------------------------------------------------------------------------------------------

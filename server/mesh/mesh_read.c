@@ -255,7 +255,10 @@ typedef struct builder {
     int* line;     // [n_nodes] line each node was read on
     id_pair* map;  // [n_nodes] sorted by id
     int n_tets;
-    int* tets; // [4 capacity]
+    int* tets;         // [4 capacity]
+    int* tline;        // [capacity] line of each tet (0 for VTK cells)
+    long long* tid;    // [capacity] file id of each tet (VTK: cell index)
+    int by_index;      // VTK: nodes and cells are named by 0-based index, no line each
     int skipped;
 } builder;
 
@@ -265,6 +268,8 @@ static void builder_free(builder* b) {
     hs_free(b->line);
     hs_free(b->map);
     hs_free(b->tets);
+    hs_free(b->tline);
+    hs_free(b->tid);
     memset(b, 0, sizeof *b);
 }
 
@@ -285,7 +290,9 @@ static int alloc_nodes(lexer* lx, builder* b, long long n) {
 
 static int alloc_tets(lexer* lx, builder* b, long long capacity) {
     b->tets = hs_alloc(((size_t)capacity * 4 + 1) * sizeof(int));
-    return b->tets ? 1 : nomem(lx);
+    b->tline = hs_alloc(((size_t)capacity + 1) * sizeof(int));
+    b->tid = hs_alloc(((size_t)capacity + 1) * sizeof(long long));
+    return b->tets && b->tline && b->tid ? 1 : nomem(lx);
 }
 
 static int cmp_id_pair(const void* pa, const void* pb) {
@@ -331,6 +338,10 @@ static int rd_tet_node(lexer* lx, builder* b, long long lo, int c, long long ele
         return lx_fail(lx, t.line, HS_ERR_PARSE, "element %lld references unknown node %lld", elem,
                        id);
     b->tets[4 * b->n_tets + c] = b->map[lo_i].idx;
+    if (c == 0) {
+        b->tline[b->n_tets] = t.line;
+        b->tid[b->n_tets] = elem;
+    }
     return 1;
 }
 
@@ -345,14 +356,40 @@ static hs_status builder_finish(lexer* lx, builder* b, hs_mesh** out) {
     int* tets = b->tets;
     b->x = NULL;
     b->tets = NULL;
-    int n_nodes = b->n_nodes, n_tets = b->n_tets, skipped = b->skipped;
-    builder_free(b);
-    hs_status st = hs_mesh_adopt(n_nodes, x, n_tets, tets, skipped, out, lx->err);
+    hs_mesh_fault f;
+    hs_status st = hs_mesh_adopt(b->n_nodes, x, b->n_tets, tets, b->skipped, out, &f, lx->err);
     if (st < 0 && st != HS_ERR_NOMEM && lx->err) {
         char msg[sizeof lx->err->msg];
         memcpy(msg, lx->err->msg, sizeof msg);
-        snprintf(lx->err->msg, sizeof lx->err->msg, "%s: %.400s", lx->name, msg);
+        if (f.n_sharing) {
+            // A face error in the file's own terms: lines, element and node ids.
+            char e0[64], e1[64], face[80];
+            long long nid[3];
+            for (int k = 0; k < 3; ++k) nid[k] = b->by_index ? f.node[k] : b->id[f.node[k]];
+            snprintf(face, sizeof face, "nodes %lld %lld %lld", nid[0], nid[1], nid[2]);
+            if (b->by_index) {
+                snprintf(e0, sizeof e0, "%s: cell %lld", lx->name, b->tid[f.tet[0]]);
+                snprintf(e1, sizeof e1, "cell %lld", b->tid[f.tet[1]]);
+            } else {
+                snprintf(e0, sizeof e0, "%s:%d: element %lld", lx->name, b->tline[f.tet[0]],
+                         b->tid[f.tet[0]]);
+                snprintf(e1, sizeof e1, "element %lld (line %d)", b->tid[f.tet[1]],
+                         b->tline[f.tet[1]]);
+            }
+            if (f.n_sharing == 2)
+                snprintf(lx->err->msg, sizeof lx->err->msg,
+                         "%.200s and %s overlap: both lie on the same side of their shared face "
+                         "(%s)",
+                         e0, e1, face);
+            else
+                snprintf(lx->err->msg, sizeof lx->err->msg,
+                         "%.200s, %s and %d more share one face (%s): not a volume mesh", e0, e1,
+                         f.n_sharing - 2, face);
+        } else {
+            snprintf(lx->err->msg, sizeof lx->err->msg, "%s: %.400s", lx->name, msg);
+        }
     }
+    builder_free(b);
     return st;
 }
 
@@ -797,7 +834,7 @@ static int vtk_skip_field(lexer* lx, int hl) {
 }
 
 static hs_status parse_vtk(lexer* lx, hs_mesh** out) {
-    builder b = {0};
+    builder b = {.by_index = 1};
     vtk_cells c = {0};
     tok t;
     char buf[48];
@@ -896,7 +933,8 @@ static hs_status parse_vtk(lexer* lx, hs_mesh** out) {
                     goto fail;
                 }
                 memcpy(b.tets + 4 * b.n_tets, c.conn + c.start[i], 4 * sizeof(int));
-                ++b.n_tets;
+                b.tline[b.n_tets] = 0;
+                b.tid[b.n_tets++] = i;
             }
             have_types = 1;
         } else if (tok_is_nocase(&t, "METADATA")) {
