@@ -840,6 +840,65 @@ static int test_free_piece_fall_rule(void) {
     return free_piece(1);
 }
 
+// Feed engaged blade poses at x = 1 mm, z = 2 mm for `ticks` ms, y moving from ya to yb.
+static void blade_feed(hs_haptic_sim* sim, hs_haptic_pose* pose, double ya, double yb, int ticks) {
+    struct timespec t;
+    clock_gettime(CLOCK_MONOTONIC, &t);
+    for (int k = 1; k <= ticks; ++k) {
+        pose->seq++;
+        pose->stamp_ns = hs_now_ns();
+        pose->pos_m[0] = 0.001;
+        pose->pos_m[1] = ya + (yb - ya) * k / ticks;
+        pose->pos_m[2] = 0.002;
+        pose->buttons = 1u;
+        hs_haptic_sim_feed_pose(sim, pose);
+        sleep_until(&t, 1000000);
+    }
+}
+
+// A sim stopped in a cut and started again (the server's pause and resume of a cut world)
+// cuts on, but the blade starts afresh: no sweep spans the stop, even with the blade held down
+// and moved 40 mm across the patch meanwhile.
+static int test_restart_mid_cut(void) {
+    int64_t bytes = hs_byte_count();
+    hs_mesh* m = NULL;
+    unsigned char* fixed = NULL;
+    ENSURE(skin_with_ends_fixed(&m, &fixed) == 0);
+    hs_haptic_sim_def d = sim_def();
+    hs_haptic_sim* sim = NULL;
+    hs_err err = {0};
+    ENSURE(hs_haptic_sim_create(m, &d, fixed, &sim, &err) == HS_OK);
+    hs_haptic_cut_def cd = blade_def();
+    ENSURE(hs_haptic_sim_enable_cutting(sim, m, &cd, &err) == HS_OK);
+    ENSURE(hs_haptic_sim_start(sim, &err) == HS_OK);
+    hs_haptic_pose pose;
+    memset(&pose, 0, sizeof pose);
+    pose.quat_wxyz[0] = 1;
+    blade_feed(sim, &pose, -0.05, -0.02, 750); // in from the edge (y = -40 mm), 20 mm deep
+    blade_feed(sim, &pose, -0.02, -0.02, 300);
+    int64_t v1 = hs_haptic_sim_topology_version(sim);
+    hs_haptic_sim_stop(sim);
+    int64_t v_stop = hs_haptic_sim_topology_version(sim);
+    ENSURE(hs_haptic_sim_start(sim, &err) == HS_OK);
+    blade_feed(sim, &pose, 0.02, 0.02, 400); // held still 40 mm on, the blade down
+    int64_t v2 = hs_haptic_sim_topology_version(sim);
+    blade_feed(sim, &pose, 0.02, 0.03, 250); // then moved: it cuts again
+    blade_feed(sim, &pose, 0.03, 0.03, 300);
+    int64_t v3 = hs_haptic_sim_topology_version(sim);
+    hs_haptic_sim_stats st;
+    hs_haptic_sim_stats_get(sim, &st);
+    printf("  topology version: %lld after the first cut (%lld at the stop), %lld after the "
+           "restart with the blade held 40 mm on, %lld after moving it 10 mm; %lld cut failures\n",
+           (long long)v1, (long long)v_stop, (long long)v2, (long long)v3,
+           (long long)st.cut_failures);
+    hs_haptic_sim_destroy(&sim);
+    hs_mesh_destroy(&m);
+    hs_free(fixed);
+    ENSURE(v1 > 0 && v2 == v_stop && v3 > v2 && st.cut_failures == 0);
+    ENSURE(hs_byte_count() == bytes);
+    return 0;
+}
+
 HS_TEST_MAIN(HS_CASE(test_enable_errors), HS_CASE(test_blade_drag), HS_CASE(test_probe_after_cut),
              HS_CASE(test_probe_after_fine_cut), HS_CASE(test_free_piece_dropped),
-             HS_CASE(test_free_piece_fall_rule))
+             HS_CASE(test_free_piece_fall_rule), HS_CASE(test_restart_mid_cut))

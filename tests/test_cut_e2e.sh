@@ -134,6 +134,20 @@ grep -q "^rt " "$tmp/status_refused.txt" ||
     fail "the refused commands stopped the simulation: $(head -5 "$tmp/status_refused.txt")"
 grep -q "^topology version $ver " "$tmp/status_refused.txt" ||
     fail "the refusals changed the topology: $(sed -n 2p "$tmp/status_refused.txt")"
+# Pause and resume go on with the cut simulation itself (it cannot be rebuilt on the cut mesh).
+$ctl -q pause || fail "pause after a cut: rc $?"
+$ctl status >"$tmp/status_paused.txt" 2>&1 || fail "no status while paused"
+grep -q "^server   paused" "$tmp/status_paused.txt" ||
+    fail "not paused: $(head -3 "$tmp/status_paused.txt")"
+$ctl -q resume 2>"$tmp/resume.err" || fail "resume after a cut: $(cat "$tmp/resume.err")"
+$ctl status >"$tmp/status_resumed.txt" 2>&1 || fail "no status after the resume"
+grep -q "^server   running" "$tmp/status_resumed.txt" &&
+    awk '$1 == "rt" && $2 > 100 { ok = 1 } END { exit !ok }' "$tmp/status_resumed.txt" ||
+    fail "the cut simulation did not resume: $(head -5 "$tmp/status_resumed.txt")"
+grep -q "^topology version $ver " "$tmp/status_resumed.txt" ||
+    fail "pause and resume changed the topology: $(sed -n 2p "$tmp/status_resumed.txt")"
+echo "resumed after the cut:"
+sed -n '1,5p' "$tmp/status_resumed.txt"
 $ctl -q reset || fail "reset after a cut: rc $?"
 $ctl status >"$tmp/status2.txt" 2>&1 || fail "no status after reset"
 grep -q "^server   running" "$tmp/status2.txt" || fail "not running after reset"

@@ -117,7 +117,8 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
                                const unsigned char* fixed, hs_haptic_sim** out, hs_err* err);
 /// Stop if running, then release; accepts NULL, sets *sim = NULL.
 void hs_haptic_sim_destroy(hs_haptic_sim** sim);
-/// Start the deformation thread and the rt thread. Once only. Thread: control
+/// Start the deformation thread and the rt thread; again after hs_haptic_sim_stop, going on
+/// from the kept state (the blade starts afresh: no sweep spans the stop). Thread: control
 hs_status hs_haptic_sim_start(hs_haptic_sim* sim, hs_err* err);
 /// Stop both threads and join them. Idempotent. Thread: control | Blocks: yes
 void hs_haptic_sim_stop(hs_haptic_sim* sim);

@@ -56,9 +56,11 @@ typedef struct world {
     int haptics; // sim allocated
     int visual;  // mesh publishing on
     hs_haptic_sim_def def;
-    hs_haptic_sim* sim; // NULL: haptics off, or paused
-    double* u;          // [3n] newest displacement frame, m
-    double* v;          // [3n] velocity saved across a rebuild, m/s
+    hs_haptic_sim* sim;  // NULL: haptics off, or paused
+    hs_haptic_sim* held; // a cut world's sim while paused: stopped and kept (a cut mesh cannot
+                         // be rebuilt on), for RESUME to start again
+    double* u;           // [3n] newest displacement frame, m
+    double* v;           // [3n] velocity saved across a rebuild, m/s
     int n_vis;
     int32_t* vis_nodes; // [n_vis]
     float* rest;        // [3 n_vis]
@@ -223,6 +225,7 @@ static int fixed_mask(const hs_scene* sc, const hs_mesh* m, unsigned char* fixed
 
 static void world_destroy(world* w) {
     hs_haptic_sim_destroy(&w->sim);
+    hs_haptic_sim_destroy(&w->held);
     hs_mesh_destroy(&w->mesh);
     hs_free(w->fixed);
     hs_free(w->u);
@@ -290,27 +293,40 @@ static hs_status world_sim_create(world* w, int keep, hs_err* err) {
     return HS_OK;
 }
 
-// Stop the sim and keep its body state in w->u / w->v.
-static void world_sim_stop(world* w) {
-    if (!w->sim) return;
-    hs_haptic_sim_stop(w->sim);
+// Copy a stopped sim's body state to w->u / w->v.
+static void world_save_state(world* w) {
     hs_body* b = hs_haptic_sim_body(w->sim);
     size_t n3 = 3 * (size_t)w->mesh->n_nodes;
     memcpy(w->u, hs_body_displacement(b), n3 * sizeof(double));
     memcpy(w->v, hs_body_velocity(b), n3 * sizeof(double));
+}
+
+// Stop the sim and keep its body state in w->u / w->v.
+static void world_sim_stop(world* w) {
+    if (!w->sim) return;
+    hs_haptic_sim_stop(w->sim);
+    world_save_state(w);
     hs_haptic_sim_destroy(&w->sim);
 }
 
 static void apply_cut(hs_server* s);
 
-// Stop and destroy the sim, first passing on a cut its threads finished after the net loop
-// last looked (else it would be lost, and the sim could be rebuilt on a cut mesh).
-static void server_sim_stop(hs_server* s) {
+// PAUSE: stop the sim keeping its body state, first passing on a cut its threads finished
+// after the net loop last looked (else it would be lost, and the sim could be rebuilt on a cut
+// mesh). A cut world keeps the stopped sim itself for RESUME to start again; any other is
+// rebuilt from the kept state then.
+static void server_sim_pause(hs_server* s) {
     world* w = &s->w;
     if (!w->sim) return;
     hs_haptic_sim_stop(w->sim);
     if (w->cutting && hs_haptic_sim_topology_version(w->sim) != w->cut_seen) apply_cut(s);
-    world_sim_stop(w);
+    if (!w->cut_made) {
+        world_sim_stop(w);
+        return;
+    }
+    world_save_state(w);
+    w->held = w->sim;
+    w->sim = NULL;
 }
 
 static hs_status world_create(const hs_scene* sc, int realtime, world* w, hs_err* err) {
@@ -1145,8 +1161,10 @@ static int load_scene_now(hs_server* s, const char* path, char* msg, size_t cap)
     publish_topology(s); // before the keyframe (after_rebuild), which a client matches to it
     after_rebuild(s, 0);
     if (!started) {
-        snprintf(msg, cap, "loaded %.100s but its simulation did not start (%.300s): paused, "
-                 "RESUME retries", sc.name, err.msg);
+        snprintf(msg, cap,
+                 "loaded %.100s but its simulation did not start (%.300s): paused, "
+                 "RESUME retries",
+                 sc.name, err.msg);
         return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
     }
     snprintf(msg, cap, "loaded %s (%d nodes); buses and prefix unchanged", sc.name,
@@ -1181,13 +1199,25 @@ static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap)
         drain_outputs(s);
         s->pause_model = s->have_out ? s->out.model : zero_model();
         s->pause_ns = hs_now_ns();
-        server_sim_stop(s);
+        server_sim_pause(s);
         s->paused = 1;
         return HAPSIM_COMMAND_ACK_T_STATUS_OK;
     case HAPSIM_COMMAND_T_KIND_RESUME:
         if (!s->paused) return HAPSIM_COMMAND_ACK_T_STATUS_OK;
         s->paused = 0;
-        if (w->haptics) {
+        if (w->held) { // a cut world: its own sim goes on (step count and statistics too)
+            w->sim = w->held;
+            w->held = NULL;
+            if (hs_haptic_sim_start(w->sim, &err) != HS_OK) {
+                w->held = w->sim;
+                w->sim = NULL;
+                snprintf(msg, cap, "%s", err.msg);
+                s->paused = 1;
+                return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
+            }
+            s->have_out = 0;
+            hs_haptic_sim_stats_get(w->sim, s->st_prev); // status windows start at the resume
+        } else if (w->haptics) {
             if (world_sim_create(w, 1, &err) != HS_OK ||
                 hs_haptic_sim_start(w->sim, &err) != HS_OK) {
                 snprintf(msg, cap, "%s", err.msg);

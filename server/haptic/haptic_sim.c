@@ -194,6 +194,7 @@ struct hs_haptic_sim {
     int comp_stale;      // the compliance predates the newest cut (rebuilt once the blade stops)
     int wake_steps;      // steps the body takes whatever its speed: a cut moves its equilibrium
     int engaged;         // the blade's buttons are held (cutting on)
+    int64_t pose_floor;  // poses up to this seq came before a restart: the blade ignores them
     hs_mesh* comp_mesh;  // the mesh h->comp was built on once cuts replaced it (owned)
     // Background compliance rebuild: the deformation thread copies the live mesh into cw_*,
     // a worker builds mesh + compliance from it, and the deformation thread swaps the result
@@ -668,7 +669,7 @@ static void share_topology(hs_haptic_sim* h, const double quad[12]) {
 static int cut_step(hs_haptic_sim* h) {
     hs_haptic_pose pose;
     hs_triple_buffer_read_copy(h->cpose, &pose);
-    if (pose.seq <= 0) return 0;
+    if (pose.seq <= 0 || pose.seq <= h->pose_floor) return 0;
     const hs_haptic_cut_def* cd = &h->cdef;
     int engaged = !cd->engage_buttons || (pose.buttons & cd->engage_buttons);
     // Pressing or releasing switches the probe contact (probe_when_released): a snapshot is due.
@@ -1050,6 +1051,14 @@ hs_status hs_haptic_sim_start(hs_haptic_sim* h, hs_err* err) {
     // No snapshot is built here: rt reads the empty initial one (no contact nodes) until the
     // thread publishes its first at the tool.
     memset(&h->st.contact, 0, sizeof h->st.contact);
+    // After a stop, the blade starts again at the first pose fed from now on: no sweep spans
+    // the gap, not even from the last pose fed before it.
+    h->blade_have = 0;
+    if (h->cpose) {
+        hs_haptic_pose last;
+        hs_triple_buffer_read_copy(h->cpose, &last);
+        h->pose_floor = last.seq;
+    }
     atomic_store(&h->stop, 0);
     if (pthread_create(&h->thread, NULL, deform_main, h) != 0)
         return hs_err_set(err, HS_ERR_UNSUPPORTED,

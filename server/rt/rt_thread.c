@@ -114,7 +114,7 @@ static void* rt_main(void* arg) {
     int64_t prev = start;
     int64_t deadline = start + period;
     atomic_store_explicit(&L->start_ns, start, memory_order_relaxed);
-    int64_t n = 0;
+    int64_t n = atomic_load_explicit(&L->ticks, memory_order_relaxed); // a restart counts on
     while (!atomic_load_explicit(&L->stop, memory_order_acquire) &&
            (max_ticks == 0 || n < max_ticks)) {
         struct timespec ts = {(time_t)(deadline / 1000000000), (long)(deadline % 1000000000)};
@@ -189,7 +189,10 @@ static int lock_memory(void) {
 
 hs_status hs_rt_loop_start(hs_rt_loop* L, hs_err* err) {
     if (!L) return hs_err_set(err, HS_ERR_INVALID, "hs_rt_loop_start: loop is NULL");
-    if (L->started) return hs_err_set(err, HS_ERR_INVALID, "hs_rt_loop_start: already started");
+    if (L->started && !L->joined)
+        return hs_err_set(err, HS_ERR_INVALID, "hs_rt_loop_start: already started");
+    L->started = L->joined = 0; // a stopped loop starts again
+    atomic_store(&L->stop, 0);
     uint32_t obtained = 0;
     if (L->def.lock_memory && lock_memory()) obtained |= HS_RT_MLOCKED;
     atomic_store(&L->running, 1);

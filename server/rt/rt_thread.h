@@ -44,7 +44,8 @@ typedef struct hs_rt_def {
     int lock_memory;   ///< 1 (default): mlockall(MCL_CURRENT | MCL_FUTURE) when permitted. It is
                        ///< process-wide and kept; skipped in sanitizer builds and when the
                        ///< RLIMIT_MEMLOCK limit would make later allocations fail
-    int64_t max_ticks; ///< stop by itself after this many ticks; 0: run until hs_rt_loop_stop
+    int64_t max_ticks; ///< stop by itself after this many ticks (in all, across restarts); 0:
+                       ///< run until hs_rt_loop_stop
     hs_rt_tick tick;   ///< the work
     int cookie;        ///< set by hs_rt_default_def
 } hs_rt_def;
@@ -59,7 +60,8 @@ typedef struct hs_rt_loop hs_rt_loop;
 hs_status hs_rt_loop_create(const hs_rt_def* def, hs_rt_loop** out, hs_err* err);
 /// Stop if running, then release; accepts NULL or *loop == NULL and sets *loop = NULL.
 void hs_rt_loop_destroy(hs_rt_loop** loop);
-/// Start the thread (once per loop). Thread: control | Allocates: thread stack
+/// Start the thread; again after a stop, when the tick count and statistics go on from where
+/// they were. Thread: control | Allocates: thread stack
 hs_status hs_rt_loop_start(hs_rt_loop* loop, hs_err* err);
 /// Ask the loop to stop (atomic flag, seen within one period) and join it. Idempotent.
 /// Thread: control | Blocks: yes (join)
