@@ -156,7 +156,7 @@ kill_stylus)
         END { printf "%.0f", l }' "$tmp/k.txt")
     awk -v L="$last" '$1 == "force" && $7 == L && !ta { ta = $2; fc = $6 }
          $1 == "force" && ta && $2 > ta && $6 == 0 && $5 == 3 && !tz { tz = $2 }
-         END { printf "stylus killed: %.3g N answered to its last pose; zero STOPPED force %.1f ms later (bound 180 ms = watchdog 100 + ramp 20 + 60)\n", fc, (tz - ta) / 1000
+         END { printf "stylus killed: %.3g N answered to its last pose; zero STOPPED force %.1f ms later (bound 180 ms = watchdog 100 + ramp 10 + 70)\n", fc, (tz - ta) / 1000
                exit !(ta > 0 && fc > 0.05 && tz > 0 && tz - ta <= 180000) }' "$tmp/k.txt" ||
         fail "the server did not zero the device within 180 ms of the last pose"
     # The restarted session resumes cleanly: the server answers it, no force before its touch,

@@ -39,8 +39,9 @@ static void usage(FILE* f) {
             "  --quiet           no start-up summary and no exit line\n"
             "  -h, --help        this text\n"
             "\n"
-            "Exit status: 0 after SIGINT/SIGTERM or --duration, 1 on a bad scene or a run-time\n"
-            "failure (the message names the file, line and key), 2 on a bad command line.\n");
+            "Exit status: 0 after SIGINT/SIGTERM or --duration; 1 on a bad scene (the message\n"
+            "names the file, line and key), a bad --prefix, equal haptic and mesh URLs or a\n"
+            "run-time failure; 2 on an unknown option, a missing or bad value, or no scene.\n");
 }
 
 int main(int argc, char** argv) {
