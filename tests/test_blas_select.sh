@@ -32,5 +32,9 @@ if grep -qw avx2 /proc/cpuinfo && grep -qw fma /proc/cpuinfo; then
 else
   ! grep -q restarting "$T/err"; check "no AVX2: no restart" $?
 fi
+# Asked for its usage, a program prints it and does not restart.
+env -u OPENBLAS_CORETYPE "$BENCH" --help > "$T/out" 2> "$T/err"; check "--help exits 0" $?
+grep -q "^usage:" "$T/out"; check "--help prints the usage" $?
+! grep -q restarting "$T/err"; check "--help: no restart" $?
 echo "blas_select: $pass passed, $fail failed (kernels: $(core))"
 [ $fail -eq 0 ]

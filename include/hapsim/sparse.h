@@ -226,7 +226,8 @@ const char* hs_sparse_blas_core(void);
 /// and environment) with OPENBLAS_CORETYPE=Haswell, after one line on stderr; it returns only
 /// when nothing was to be done (HS_OK) or the exec failed (HS_ERR_UNSUPPORTED, the program runs
 /// on). A set OPENBLAS_CORETYPE, whatever its value, is the user's choice and is kept, which
-/// also stops a second exec. Call first thing in main, before any thread starts.
+/// also stops a second exec; so does -h or --help among the arguments. Call first thing in
+/// main, before any thread starts.
 /// @param argv main's argv (NULL-terminated) | Thread: main, alone | Allocates: no
 hs_status hs_sparse_blas_select(char** argv);
 

@@ -1453,6 +1453,8 @@ const char* hs_sparse_blas_core(void) {
 
 hs_status hs_sparse_blas_select(char** argv) {
     if (!argv || !argv[0] || getenv("OPENBLAS_CORETYPE")) return HS_OK;
+    for (char** a = argv + 1; *a; ++a) // a program asked for its usage computes nothing
+        if (!strcmp(*a, "-h") || !strcmp(*a, "--help")) return HS_OK;
     // OpenBLAS's kernel sets that predate AVX2 (its fallback for an unknown model is one of
     // them); on an AVX2 processor any of them means the detection failed.
     static const char* const generic[] = {
