@@ -94,7 +94,7 @@ typedef struct app {
     int64_t session;
     hs_stylus_rx_state rx; // receive thread only
     // Counters shared with main (relaxed: statistics only).
-    atomic_llong rx_forces, rx_rejected, rx_other_device;
+    atomic_llong rx_forces, rx_rejected, rx_other_device, rx_other_session;
     atomic_llong ticks, overruns, late_max_us;
     atomic_llong force_mn, period_p99_us, latency_us;
     atomic_int loop_done;
@@ -377,6 +377,8 @@ static void on_force(const lcm_recv_buf_t* rbuf, const char* channel,
         atomic_store_explicit(&a->latency_us, m.latency_us, memory_order_relaxed);
     } else if (r == HS_RX_OTHER_DEVICE) {
         atomic_fetch_add_explicit(&a->rx_other_device, 1, memory_order_relaxed);
+    } else if (r == HS_RX_OTHER_SESSION) {
+        atomic_fetch_add_explicit(&a->rx_other_session, 1, memory_order_relaxed);
     } else {
         atomic_fetch_add_explicit(&a->rx_rejected, 1, memory_order_relaxed);
     }
@@ -656,6 +658,7 @@ static int run_live(app* a) {
     if (a->session == 0) a->session = 1;
     hs_stylus_mailbox_init(&a->mailbox);
     hs_stylus_rx_init(&a->rx, a->opt.device_id);
+    a->rx.since_utime = wall_us(); // before the first pose goes out
     if (!a->opt.quiet)
         printf("hapsim-stylus: device %d (tool %d), session %" PRId64 ", %s on %s -> %s, %s %.1f "
                "s at %.0f Hz\n",
@@ -705,10 +708,11 @@ static int run_live(app* a) {
         fprintf(stderr, "hapsim-stylus: the LCM receive loop failed; no forces after that\n");
     if (rc) return rc;
     if (!a->opt.quiet) {
-        printf("hapsim-stylus: %lld forces received, %lld rejected, %lld for other devices; "
-               "%lld overruns (worst %lld us late)%s\n",
+        printf("hapsim-stylus: %lld forces received, %lld rejected, %lld for other devices, "
+               "%lld for earlier sessions; %lld overruns (worst %lld us late)%s\n",
                (long long)atomic_load(&a->rx_forces), (long long)atomic_load(&a->rx_rejected),
-               (long long)atomic_load(&a->rx_other_device), (long long)atomic_load(&a->overruns),
+               (long long)atomic_load(&a->rx_other_device),
+               (long long)atomic_load(&a->rx_other_session), (long long)atomic_load(&a->overruns),
                (long long)atomic_load(&a->late_max_us),
                atomic_load(&g_stop) ? "; stopped by signal" : "");
         if (a->opt.realtime)

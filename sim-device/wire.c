@@ -16,6 +16,8 @@ static hs_stylus_rx count(hs_stylus_rx_state* st, hs_stylus_rx r) {
 hs_stylus_rx hs_stylus_rx_force(hs_stylus_rx_state* st, const hapsim_tool_force_t* msg,
                                 int64_t now_ns, int64_t wall_us, hs_stylus_model* out) {
     if (msg->device_id != st->device_id) return count(st, HS_RX_OTHER_DEVICE);
+    if (st->since_utime > 0 && msg->pose_utime > 0 && msg->pose_utime < st->since_utime)
+        return count(st, HS_RX_OTHER_SESSION);
     hs_stylus_model m;
     memset(&m, 0, sizeof m);
     m.seq = msg->seq;

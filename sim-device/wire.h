@@ -1,6 +1,7 @@
 // hapsim-stylus wire edge: tool_force messages (msgs/tool_force_t.lcm) into device models, with
-// the checks a driver owes the network: another device's message is skipped; non-finite
-// numbers, a negative radius or timeout, an unknown state, or an older seq are dropped.
+// the checks a driver owes the network: another device's message, or an answer to a pose sent
+// before this driver started (another session's), is skipped; non-finite numbers, a negative
+// radius or timeout, an unknown state, or an older seq are dropped.
 #ifndef HS_STYLUS_WIRE_H
 #define HS_STYLUS_WIRE_H
 
@@ -15,10 +16,11 @@ extern "C" {
 
 /// What became of one received tool_force.
 typedef enum hs_stylus_rx {
-    HS_RX_OK = 0,           ///< accepted: *out holds the model
-    HS_RX_OTHER_DEVICE = 1, ///< for another device id: ignored
-    HS_RX_INVALID = 2,      ///< non-finite, negative radius or timeout, unknown state
-    HS_RX_REORDERED = 3,    ///< seq not newer than the last accepted one
+    HS_RX_OK = 0,            ///< accepted: *out holds the model
+    HS_RX_OTHER_DEVICE = 1,  ///< for another device id: ignored
+    HS_RX_INVALID = 2,       ///< non-finite, negative radius or timeout, unknown state
+    HS_RX_REORDERED = 3,     ///< seq not newer than the last accepted one
+    HS_RX_OTHER_SESSION = 4, ///< answers a pose older than since_utime (an earlier session's)
 } hs_stylus_rx;
 
 /// Receive-side state of one device. Initialise with hs_stylus_rx_init.
@@ -26,7 +28,11 @@ typedef struct hs_stylus_rx_state {
     int device_id;    ///< our device id
     int have_seq;     ///< 1 once a message was accepted
     int64_t last_seq; ///< seq of the last accepted message
-    int64_t count[4]; ///< messages per hs_stylus_rx outcome
+    /// Wall-clock us this driver started at (0: not checked). The server goes on answering a
+    /// replaced session's last poses for a while (its rt outputs ramp to zero); those are not
+    /// this driver's model.
+    int64_t since_utime;
+    int64_t count[5]; ///< messages per hs_stylus_rx outcome
 } hs_stylus_rx_state;
 
 /// A far smaller seq than the last one means the server restarted (accepted, not reordered).

@@ -1191,6 +1191,17 @@ static int wire_rx(void) {
     ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
     ENSURE(st.count[HS_RX_OK] == 5 && st.count[HS_RX_REORDERED] == 2);
     ENSURE(st.count[HS_RX_OTHER_DEVICE] == 1 && st.count[HS_RX_INVALID] == 5);
+    // Started at since_utime: an answer to an older pose is another session's, skipped before
+    // any other check; one to a newer pose, or one naming no pose (e-stop), is taken.
+    st.since_utime = f.pose_utime + 1;
+    f = good_force(7);
+    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OTHER_SESSION);
+    f.pose_utime = st.since_utime;
+    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
+    f = good_force(8);
+    f.pose_utime = 0;
+    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
+    ENSURE(st.count[HS_RX_OTHER_SESSION] == 1 && st.count[HS_RX_OK] == 7);
 
     // Through LCM's encoder and decoder (in-process memq://), the model arrives unchanged.
     lcm_t* lcm = lcm_create("memq://");
