@@ -105,10 +105,22 @@ press)
 passivity)
     # Press-hold-release, then press 4 mm, drag 10 mm and back, release: the net energy into
     # the handle (the stylus sums f . dp per tick) stays below 2 % of the energy that went in.
+    # Passivity is a property of rendering a live model: a run in which the machine stalled so
+    # long that the stylus's model timed out (it fades the force out, timeout_ticks > 0; never
+    # seen on a quiet machine, seen with three busy processes on two cores) is run again, up to
+    # three times, and judged on a run without such a stall.
+    live_run() { # TRACE SCRIPT LOG
+        for attempt in 1 2 3; do
+            stylus "$1" "$2" >"$3" 2>&1 || fail "stylus rc $?: $(cat "$3")"
+            stalls=$(summary "$1" timeout_ticks)
+            [ "$stalls" = 0 ] && return 0
+            echo "$(basename "$2"): the model timed out on $stalls ticks (latency p99 $(summary "$1" latency_p99_us) us): the machine stalled; run $attempt of 3"
+        done
+        fail "$(basename "$2"): the model timed out in all three runs (a stalled machine, or the server)"
+    }
     start_server 1
-    stylus "$tmp/ph.csv" "$golden/press_short.probe" --quiet || fail "stylus (press_short)"
-    stylus "$tmp/pdr.csv" "$scripts/press_drag_release.probe" >"$tmp/sty.log" 2>&1 ||
-        fail "stylus rc $?: $(cat "$tmp/sty.log")"
+    live_run "$tmp/ph.csv" "$golden/press_short.probe" "$tmp/sty_ph.log"
+    live_run "$tmp/pdr.csv" "$scripts/press_drag_release.probe" "$tmp/sty.log"
     stop_server 1
     cat "$tmp/sty.log"
     energy() { # TRACE NAME
@@ -126,7 +138,7 @@ passivity)
     ;;
 kill_stylus)
     # kill -9 the stylus in the hold: the server zeroes the device within watchdog (100 ms) +
-    # ramp (20 ms) + 60 ms of publishing slack, seen in the server's tool_force messages.
+    # ramp (10 ms) + 70 ms of publishing slack, seen in the server's tool_force messages.
     command -v lcm-logger >/dev/null || skip "lcm-logger not found (Debian: liblcm-bin)"
     start_server 1
     lcm-logger --lcm-url="$H" -q "$tmp/k.lcmlog" >"$tmp/lgr.log" 2>&1 &
