@@ -499,8 +499,8 @@ static const bad_case k_bad[] = {
      NULL, HS_ERR_INVALID, "f:16: element 10 and element 20 (line 17) overlap",
      "same side of their shared face (nodes 11 12 13)"},
     {"tetgen", "6 3 0 0\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n5 0 0 -1\n6 0.2 0.2 0.5\n",
-     "3 4 0\n1 1 2 3 4\n2 1 3 2 5\n3 1 2 3 6\n", HS_ERR_INVALID,
-     "t.ele:2: element 1, element ", "and 1 more share one face (nodes 1 2 3): not a volume mesh"},
+     "3 4 0\n1 1 2 3 4\n2 1 3 2 5\n3 1 2 3 6\n", HS_ERR_INVALID, "t.ele:2: element 1, element ",
+     "and 1 more share one face (nodes 1 2 3): not a volume mesh"},
     {"vtk",
      VTK_HEAD "POINTS 5 double\n0 0 0 1 0 0\n0 1 0 0 0 1\n0.2 0.2 0.5\n"
               "CELLS 3 14\n3 0 1 2\n4 0 1 2 3\n4 0 1 2 4\nCELL_TYPES 3\n5\n10\n10\n",

@@ -255,10 +255,10 @@ typedef struct builder {
     int* line;     // [n_nodes] line each node was read on
     id_pair* map;  // [n_nodes] sorted by id
     int n_tets;
-    int* tets;         // [4 capacity]
-    int* tline;        // [capacity] line of each tet (0 for VTK cells)
-    long long* tid;    // [capacity] file id of each tet (VTK: cell index)
-    int by_index;      // VTK: nodes and cells are named by 0-based index, no line each
+    int* tets;      // [4 capacity]
+    int* tline;     // [capacity] line of each tet (0 for VTK cells)
+    long long* tid; // [capacity] file id of each tet (VTK: cell index)
+    int by_index;   // VTK: nodes and cells are named by 0-based index, no line each
     int skipped;
 } builder;
 
