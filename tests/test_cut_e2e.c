@@ -55,6 +55,20 @@ static hs_haptic_cut_def blade_def(void) {
     return cd;
 }
 
+// Create a sim on m with cutting on and start it; 0 on success (*sim is set either way).
+static int start_cutting_sim(hs_mesh* m, const unsigned char* fixed, const hs_haptic_sim_def* d,
+                             const hs_haptic_cut_def* cd, hs_haptic_sim** sim) {
+    hs_err err = {0};
+    *sim = NULL;
+    if (hs_haptic_sim_create(m, d, fixed, sim, &err) != HS_OK ||
+        hs_haptic_sim_enable_cutting(*sim, m, cd, &err) != HS_OK ||
+        hs_haptic_sim_start(*sim, &err) != HS_OK) {
+        printf("  cutting sim: %s\n", err.msg);
+        return 1;
+    }
+    return 0;
+}
+
 /// Bad definitions are refused with a message and leave the sim usable and leak-free.
 static int test_enable_errors(void) {
     int64_t bytes = hs_byte_count();
@@ -169,12 +183,10 @@ static int test_blade_drag(void) {
     ENSURE(skin_with_ends_fixed(&m, &fixed) == 0);
     const int n = m->n_nodes, ntet = m->n_tets;
     hs_haptic_sim_def d = sim_def();
+    hs_haptic_cut_def cd = blade_def();
     hs_haptic_sim* sim = NULL;
     hs_err err = {0};
-    ENSURE(hs_haptic_sim_create(m, &d, fixed, &sim, &err) == HS_OK);
-    hs_haptic_cut_def cd = blade_def();
-    ENSURE(hs_haptic_sim_enable_cutting(sim, m, &cd, &err) == HS_OK);
-    ENSURE(hs_haptic_sim_start(sim, &err) == HS_OK);
+    ENSURE(start_cutting_sim(m, fixed, &d, &cd, &sim) == 0);
 
     double* x0 = hs_alloc(3 * (size_t)n * sizeof(double));
     int* tris = hs_alloc(3 * 4 * (size_t)ntet * sizeof(int));
@@ -705,13 +717,10 @@ static int free_piece(int fall) {
     hs_haptic_sim_def d = sim_def();
     d.body.fem.material.youngs_pa = 50000; // the skin scene's: sags ~10 mm, within the blade
     d.body.gravity[2] = -2.0;
-    hs_haptic_sim* sim = NULL;
-    hs_err err = {0};
-    ENSURE(hs_haptic_sim_create(m, &d, fixed, &sim, &err) == HS_OK);
     hs_haptic_cut_def cd = blade_def();
     cd.cut.fragment = fall ? HS_CUT_FRAGMENT_FIX : HS_CUT_FRAGMENT_DROP;
-    ENSURE(hs_haptic_sim_enable_cutting(sim, m, &cd, &err) == HS_OK);
-    ENSURE(hs_haptic_sim_start(sim, &err) == HS_OK);
+    hs_haptic_sim* sim = NULL;
+    ENSURE(start_cutting_sim(m, fixed, &d, &cd, &sim) == 0);
     probe_run pr;
     memset(&pr, 0, sizeof pr);
     pr.sim = sim;
@@ -865,12 +874,10 @@ static int test_restart_mid_cut(void) {
     unsigned char* fixed = NULL;
     ENSURE(skin_with_ends_fixed(&m, &fixed) == 0);
     hs_haptic_sim_def d = sim_def();
+    hs_haptic_cut_def cd = blade_def();
     hs_haptic_sim* sim = NULL;
     hs_err err = {0};
-    ENSURE(hs_haptic_sim_create(m, &d, fixed, &sim, &err) == HS_OK);
-    hs_haptic_cut_def cd = blade_def();
-    ENSURE(hs_haptic_sim_enable_cutting(sim, m, &cd, &err) == HS_OK);
-    ENSURE(hs_haptic_sim_start(sim, &err) == HS_OK);
+    ENSURE(start_cutting_sim(m, fixed, &d, &cd, &sim) == 0);
     hs_haptic_pose pose;
     memset(&pose, 0, sizeof pose);
     pose.quat_wxyz[0] = 1;

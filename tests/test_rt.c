@@ -360,6 +360,16 @@ static void counting_tick(void* ctx, const hs_rt_clock* clk) {
     }
 }
 
+// A 1 kHz loop definition whose tick is counting_tick on a zeroed c.
+static hs_rt_def counting_def(count_tick* c) {
+    memset(c, 0, sizeof *c);
+    c->period_s = 1e-3;
+    hs_rt_def def = hs_rt_default_def();
+    def.tick.fn = counting_tick;
+    def.tick.ctx = c;
+    return def;
+}
+
 static int check_stats(const hs_rt_stats* s, int64_t ticks) {
     ENSURE(s->ticks == ticks);
     ENSURE(hs_rt_hist_total(&s->tick) == (uint64_t)ticks);
@@ -405,11 +415,7 @@ static int LoopTiming(void) {
     ENSURE(hs_rt_loop_create(&bad, &L, &err) == HS_ERR_INVALID);
 
     count_tick c;
-    memset(&c, 0, sizeof c);
-    c.period_s = 1e-3;
-    hs_rt_def def = hs_rt_default_def();
-    def.tick.fn = counting_tick;
-    def.tick.ctx = &c;
+    hs_rt_def def = counting_def(&c);
     ENSURE(hs_rt_loop_create(&def, &L, &err) == HS_OK);
     int64_t t0 = hs_now_ns();
     ENSURE(hs_rt_loop_start(L, &err) == HS_OK);
@@ -441,11 +447,7 @@ static int LoopTiming(void) {
 static int LoopRestarts(void) {
     int64_t bytes = hs_byte_count();
     count_tick c;
-    memset(&c, 0, sizeof c);
-    c.period_s = 1e-3;
-    hs_rt_def def = hs_rt_default_def();
-    def.tick.fn = counting_tick;
-    def.tick.ctx = &c;
+    hs_rt_def def = counting_def(&c);
     hs_rt_loop* L = NULL;
     ENSURE(hs_rt_loop_create(&def, &L, NULL) == HS_OK);
     ENSURE(hs_rt_loop_start(L, NULL) == HS_OK);
@@ -475,13 +477,9 @@ static int LoopRestarts(void) {
 
 static int LoopOverrunCatchUp(void) {
     count_tick c;
-    memset(&c, 0, sizeof c);
-    c.period_s = 1e-3;
+    hs_rt_def def = counting_def(&c);
     c.slow_every = 50;
     c.slow_ns = 3500000; // 3.5 periods
-    hs_rt_def def = hs_rt_default_def();
-    def.tick.fn = counting_tick;
-    def.tick.ctx = &c;
     def.max_ticks = 800;
     hs_rt_loop* L = NULL;
     ENSURE(hs_rt_loop_create(&def, &L, NULL) == HS_OK);
