@@ -1069,6 +1069,25 @@ static hs_status rebuild_sim(hs_server* s, int keep, hs_err* err) {
         if (!keep) after_rebuild(s, 0); // at rest now: say so (a keyframe), not at the resume
         return HS_OK;
     }
+    if (w->sim && w->cutting) {
+        // A cut can land between the look above and the stop: look again once stopped. If one
+        // did, the same sim goes on with it (a stopped sim starts again) and the rebuild is
+        // refused, as for a cut seen before.
+        hs_haptic_sim_stop(w->sim);
+        if (hs_haptic_sim_topology_version(w->sim) != w->cut_seen) {
+            apply_cut(s);
+            hs_err e2 = {0};
+            if (hs_haptic_sim_start(w->sim, &e2) != HS_OK) { // kept, paused: RESUME retries
+                world_save_state(w);
+                w->held = w->sim;
+                w->sim = NULL;
+                s->pause_model = zero_model();
+                s->pause_ns = hs_now_ns();
+                s->paused = 1;
+            }
+            return refuse_cut(err);
+        }
+    }
     world_sim_stop(w);
     if (!keep) {
         memset(w->u, 0, 3 * (size_t)w->mesh->n_nodes * sizeof(double));
