@@ -152,10 +152,18 @@ static void on_ack(hs_client* c, const void* buf, size_t len) {
         c->st.malformed++;
         return;
     }
+    c->st.acks++;
+    // One entry per request: a final ack replaces a PENDING one, and the first final one stays
+    // (a retry's copies, "not executed again", would push it out of the ring).
+    for (int i = 0; i < c->n_acks; i++) {
+        hs_wire_ack* e = &c->acks[(c->ack_head - 1 - i + 2 * ACK_RING) % ACK_RING];
+        if (e->request_id != a.request_id) continue;
+        if (e->status == HAPSIM_COMMAND_ACK_T_STATUS_PENDING) *e = a;
+        return;
+    }
     c->acks[c->ack_head] = a;
     c->ack_head = (c->ack_head + 1) % ACK_RING;
     if (c->n_acks < ACK_RING) c->n_acks++;
-    c->st.acks++;
 }
 
 static void on_status(hs_client* c, const void* buf, size_t len) {
