@@ -22,6 +22,7 @@ struct hs_mesh_sync {
     float *kf, *pos, *stress; // [3 cap_kf], [3 cap_pos], [cap_stress]
     size_t cap_kf, cap_pos, cap_stress;
     int has_stress;
+    uint64_t shown_hash; // of the positions and stress at the last frame
     int64_t kf_id, last_delta_seq;
     int have_seq[4];
     int64_t last_seq[4];
@@ -93,9 +94,21 @@ int64_t hs_mesh_sync_newest_topology(const hs_mesh_sync* s) {
     return s->ready ? s->shown.version : -1;
 }
 
+// FNV-1a over n bytes, continuing from h.
+static uint64_t fnv1a(uint64_t h, const void* p, size_t n) {
+    const unsigned char* b = p;
+    for (size_t i = 0; i < n; i++) h = (h ^ b[i]) * 1099511628211ull;
+    return h;
+}
+
 static void update_view(hs_mesh_sync* s, int64_t utime, int64_t sim_step, double sim_time) {
     hs_client_mesh* v = &s->view;
     const topo* t = &s->shown;
+    // A frame is a change of what is shown: the periodic keyframe of a mesh at rest is not one.
+    uint64_t h = fnv1a(14695981039346656037ull, s->pos, (size_t)t->n_vis * 3 * sizeof(float));
+    if (s->has_stress) h = fnv1a(h, s->stress, (size_t)t->n_vis * sizeof(float));
+    if (!v->ready || v->topology_version != t->version || h != s->shown_hash) v->frame++;
+    s->shown_hash = h;
     v->ready = 1;
     v->topology_version = t->version;
     v->keyframe_id = s->kf_id;
@@ -103,7 +116,6 @@ static void update_view(hs_mesh_sync* s, int64_t utime, int64_t sim_step, double
     v->sim_step = sim_step;
     v->sim_time = sim_time;
     v->utime = utime;
-    v->frame++;
     v->n_nodes = t->n_nodes;
     v->n_vis = t->n_vis;
     v->n_tri = t->n_tri;

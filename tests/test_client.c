@@ -348,6 +348,18 @@ static int test_late_join(void) {
     ENSURE(hs_mesh_sync_feed(s, HS_SYNC_STATE, k0.buf, (size_t)k0.len) == HS_SYNC_STALE);
     ENSURE(hs_mesh_sync_feed(s, HS_SYNC_DELTA, d0.buf, (size_t)d0.len) == HS_SYNC_STALE);
     ENSURE(memcmp(m->position, pos, sizeof pos) == 0);
+    // A new keyframe of the same shape (the periodic keyframe of a mesh at rest) is applied but
+    // is no new frame (hapsim-view wrote identical files for each); one that moves a node is.
+    int64_t f0 = m->frame;
+    msg k1 = enc_state(11, 4, 8, 4, pos, 0);
+    ENSURE(hs_mesh_sync_feed(s, HS_SYNC_STATE, k1.buf, (size_t)k1.len) == HS_SYNC_APPLIED);
+    ENSURE(m->keyframe_id == 8 && m->frame == f0);
+    pos[0] += 0.5f;
+    msg k2 = enc_state(12, 4, 9, 4, pos, 0);
+    ENSURE(hs_mesh_sync_feed(s, HS_SYNC_STATE, k2.buf, (size_t)k2.len) == HS_SYNC_APPLIED);
+    ENSURE(m->keyframe_id == 9 && m->frame == f0 + 1);
+    free(k1.buf);
+    free(k2.buf);
     free(d0.buf);
     free(k0.buf);
     free(t0.buf);

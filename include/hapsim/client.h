@@ -120,7 +120,8 @@ typedef struct hs_client_mesh {
     int64_t sim_step;         ///< server deformation step of these positions
     double sim_time;          ///< s, simulated time of these positions
     int64_t utime;            ///< us, server clock of the message that made these positions
-    int64_t frame;            ///< increments on every change of the visible mesh
+    int64_t frame;            ///< increments on every change of the visible mesh (topology,
+                              ///< positions or stress; a keyframe of the same shape is none)
     int32_t n_nodes;          ///< nodes of the server's volume mesh
     int32_t n_vis;            ///< visual nodes
     int32_t n_tri;            ///< surface triangles
