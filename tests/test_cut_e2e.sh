@@ -9,6 +9,8 @@
 #  - a client joining after the cut (it missed every event) ends with the server's newest
 #    topology: triangle count changed, no orphan or out-of-range reference (client late);
 #  - hapsim-view still writes frames of the cut mesh;
+#  - sets sent every 0.3 s during a second drag (after the reset) are accepted until the first
+#    cut and refused after it, and no cut is lost (a late client gets a consistent mesh);
 #  - after the cut, set and a scene that fails to build are refused (the sim cannot be rebuilt
 #    on a cut mesh) and leave the cut simulation running; reset reloads the uncut scene (new
 #    topology version, set works again);
@@ -36,7 +38,9 @@ done
 tmp=$(mktemp -d /tmp/hs_cut_e2e.XXXXXX)
 server_pid=""
 watch_pid=""
+stylus_pid=""
 cleanup() {
+    [ -n "$stylus_pid" ] && kill "$stylus_pid" 2>/dev/null
     [ -n "$watch_pid" ] && kill "$watch_pid" 2>/dev/null
     [ -n "$server_pid" ] && kill "$server_pid" 2>/dev/null
     wait 2>/dev/null
@@ -52,7 +56,7 @@ fail() {
 cd "$src" || exit 1
 ORIG_TRIS=1920 # boundary triangles of skin_patch_synthetic.msh (its ATTRIBUTION file)
 
-"$bin/hapsim-server" scenes/skin/skin.json --duration 50 >"$tmp/server.log" 2>&1 &
+"$bin/hapsim-server" scenes/skin/skin.json --duration 90 >"$tmp/server.log" 2>&1 &
 server_pid=$!
 ctl="$bin/hapsim-ctl --timeout 3000"
 $bin/hapsim-ctl --timeout 10000 status >"$tmp/status0.txt" 2>&1 || fail "no server status"
@@ -159,6 +163,39 @@ grep -q "^server   running" "$tmp/status2.txt" || fail "not running after reset"
 ver2=$(sed -n 's/^topology version \([0-9]*\).*/\1/p' "$tmp/status2.txt")
 [ "$ver2" -gt "$ver" ] || fail "reset did not publish a new topology version ($ver2 after $ver)"
 $ctl -q set youngs_pa 60000 || fail "set after reset: rc $?"
+
+# A `set` while the blade cuts: sent every 0.3 s during a second drag across the reloaded patch
+# (each set rebuilds the simulation; much more often and the rebuilds leave the blade too little
+# time to cut at all).
+# A set rebuilds the simulation; a cut finished while the rebuild stopped the old one was lost
+# (the new sim was built on the cut mesh, the topology version stayed put and a late client never
+# got a consistent mesh). Now: sets before the first cut succeed, those after it are refused,
+# nothing else; the cuts are passed on; a client joining afterwards gets a consistent mesh.
+"$bin/hapsim-stylus" --script scenes/skin/scripts/cut_then_press.probe --quiet \
+    >"$tmp/stylus2.log" 2>&1 &
+stylus_pid=$!
+ok=0 refused=0 other=0 after_refusal=0 i=0
+while kill -0 $stylus_pid 2>/dev/null && [ $i -lt 400 ]; do
+    out=$($bin/hapsim-ctl --timeout 2000 set youngs_pa 50000 2>&1)
+    case $? in
+    0) ok=$((ok + 1)); [ $refused -gt 0 ] && after_refusal=$((after_refusal + 1)) ;;
+    3) refused=$((refused + 1)); echo "$out" | grep -q cut || other=$((other + 1)) ;;
+    *) other=$((other + 1)); echo "set: $out" ;;
+    esac
+    i=$((i + 1))
+    sleep 0.3
+done
+wait $stylus_pid || fail "hapsim-stylus (second drag) rc $?: $(cat "$tmp/stylus2.log")"
+stylus_pid=""
+echo "set during the second cut: $ok accepted, $refused refused (cut), $other other, $after_refusal accepted after a refusal"
+$ctl status >"$tmp/status3.txt" 2>&1 || fail "no status after the second cut"
+ver3=$(sed -n 's/^topology version \([0-9]*\).*/\1/p' "$tmp/status3.txt")
+echo "topology version $ver3 (after the reset: $ver2)"
+[ -n "$ver3" ] && [ "$ver3" -gt "$ver2" ] || fail "the second cut was lost: topology version '$ver3'"
+[ $refused -gt 0 ] && [ $other = 0 ] && [ $after_refusal = 0 ] ||
+    fail "sets: $ok accepted, $refused refused, $other other, $after_refusal accepted after a refusal"
+"$client" late 8 $ORIG_TRIS >"$tmp/late2.log" 2>&1 || fail "late client: $(cat "$tmp/late2.log")"
+echo "late2: $(tail -n 1 "$tmp/late2.log")"
 
 kill -TERM $server_pid
 wait $server_pid
