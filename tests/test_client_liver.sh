@@ -32,6 +32,15 @@ $ctl set bad 1 2>/dev/null
 rc=$?
 [ $rc = 3 ] || fail "refused set: rc $rc (want 3)"
 $ctl status | grep -q "scene fake-liver" || fail "status"
+# The examples' arguments: --help is usage (it read as 0 s), a word or a partial circle an error.
+for ex in hapsim-example-driver hapsim-example-viewer; do
+    "$bin/$ex" --help | grep -q "^usage: $ex" || fail "$ex --help: no usage"
+    "$bin/$ex" abc 2>/dev/null
+    rc=$?
+    [ $rc = 2 ] || fail "$ex abc: rc $rc (want 2)"
+done
+"$bin/hapsim-example-driver" 1 0 0 2>/dev/null
+[ $? = 2 ] || fail "driver with a partial circle did not refuse"
 # The example driver: a 1 cm circle 2.3 mm inside the stand-in's half-space (300 N/m) gets
 # forces near 0.69 N along +y back through the local model.
 "$bin/hapsim-example-driver" 1.5 -0.060 0.066 -0.015 0.010 >"$tmp/driver.log" 2>&1 ||

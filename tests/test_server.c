@@ -566,6 +566,18 @@ static int poses_in_forces_out(void) {
     ENSURE(c.status->state == HAPSIM_SERVER_STATUS_T_STATE_RUNNING && c.n_loading == 1);
     ENSURE(stop_server() == 0);
     client_close(&c);
+    // The e-stop's retried copy is a retry answered again, not a rejected message.
+    char log[600], text[8192] = {0};
+    snprintf(log, sizeof log, "%s/server-forces.log", tmpdir);
+    FILE* f = fopen(log, "r");
+    ENSURE(f);
+    size_t n = fread(text, 1, sizeof text - 1, f);
+    fclose(f);
+    text[n] = '\0';
+    const char* end_line = strstr(text, "hapsim-server: stopped after");
+    ENSURE(end_line);
+    printf("  %.*s", (int)strcspn(end_line, "\n") + 1, end_line);
+    ENSURE(strstr(end_line, " 0 messages rejected, 1 command retries answered again"));
     return 0;
 }
 

@@ -7,18 +7,46 @@
 #define _POSIX_C_SOURCE 200809L
 #include <hapsim/client.h>
 #include <math.h>
+#include <stdbool.h>
 #include <stdio.h>
 #include <stdlib.h>
+#include <string.h>
 #include <time.h>
 
+static const char usage[] = "usage: hapsim-example-driver [SECONDS] [CX CY CZ RADIUS]\n"
+                            "  a circle of probe poses at 1 kHz (defaults 3 s; a 1 cm circle at\n"
+                            "  (-0.060, 0.068, -0.015) m, above the bundled liver)\n";
+
+// A whole, finite number, or false (atof would read "--help" as 0 and run for 0 s).
+static bool parse_number(const char* s, double* out) {
+    char* end = NULL;
+    double v = strtod(s, &end);
+    if (end == s || *end != '\0' || !isfinite(v)) return false;
+    *out = v;
+    return true;
+}
+
 int main(int argc, char** argv) {
-    double seconds = argc > 1 ? atof(argv[1]) : 3.0;
+    double seconds = 3.0;
     double cx = -0.060, cy = 0.068, cz = -0.015, r = 0.010;
-    if (argc > 5) {
-        cx = atof(argv[2]);
-        cy = atof(argv[3]);
-        cz = atof(argv[4]);
-        r = atof(argv[5]);
+    double* args[] = {&seconds, &cx, &cy, &cz, &r};
+    if (argc > 1 && (!strcmp(argv[1], "-h") || !strcmp(argv[1], "--help"))) {
+        fputs(usage, stdout);
+        return 0;
+    }
+    if (argc != 1 && argc != 2 && argc != 6) {
+        fprintf(stderr, "driver: expected 0, 1 or 5 arguments, got %d\n%s", argc - 1, usage);
+        return 2;
+    }
+    for (int i = 1; i < argc; i++)
+        if (!parse_number(argv[i], args[i - 1])) {
+            fprintf(stderr, "driver: argument %d '%s' is not a finite number\n%s", i, argv[i],
+                    usage);
+            return 2;
+        }
+    if (seconds < 0) {
+        fprintf(stderr, "driver: SECONDS must be >= 0, got %g\n", seconds);
+        return 2;
     }
     hs_client_config cfg;
     hs_client_config_default(&cfg);

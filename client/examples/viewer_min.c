@@ -5,6 +5,7 @@
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
+#include <string.h>
 
 static void on_mesh(hs_client* c, const hs_client_mesh* m, void* user) {
     (void)c;
@@ -28,7 +29,20 @@ static void on_mesh(hs_client* c, const hs_client_mesh* m, void* user) {
 }
 
 int main(int argc, char** argv) {
-    double seconds = argc > 1 ? atof(argv[1]) : 5.0;
+    double seconds = 5.0;
+    if (argc > 1 && (!strcmp(argv[1], "-h") || !strcmp(argv[1], "--help"))) {
+        puts("usage: hapsim-example-viewer [SECONDS]   (default 5)");
+        return 0;
+    }
+    if (argc > 1) { // strtod, not atof: a word must not read as 0 s
+        char* end = NULL;
+        seconds = strtod(argv[1], &end);
+        if (argc > 2 || end == argv[1] || *end != '\0' || !isfinite(seconds) || seconds < 0) {
+            fprintf(stderr, "viewer: expected [SECONDS], a number >= 0; got '%s'%s\n", argv[1],
+                    argc > 2 ? " and more" : "");
+            return 2;
+        }
+    }
     hs_client_config cfg;
     hs_client_config_default(&cfg);
     cfg.haptic_url = ""; // a visualiser needs only the mesh bus

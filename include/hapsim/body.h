@@ -93,7 +93,8 @@ hs_status hs_body_set_prescribed(hs_body* b, int node, const double u[3]);
 hs_status hs_body_step(hs_body* b, hs_step_stats* stats /* OUT, may be NULL */);
 /// Static equilibrium f_el(u) + f_ext = 0 by Newton (co-rotated: its fixed-rotation tangent),
 /// with backtracking line search and def.static_load_steps increments. Velocities are reset.
-/// Unlike a step, a solve that fails or does not converge may leave u at its last iterate.
+/// An error status (a factorisation failed, NaN/Inf) leaves u and v as they were;
+/// HS_WARN_NOT_CONVERGED leaves u at the last iterate, the best the solve found.
 hs_status hs_body_solve_static(hs_body* b, hs_step_stats* stats /* OUT, may be NULL */);
 /// Back to rest: u = 0, velocity 0, rotations identity: from here it steps as a new body
 /// (forces and prescribed values kept).

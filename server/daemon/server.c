@@ -1479,6 +1479,17 @@ void hs_server_print_summary(hs_server* s) {
     fflush(stdout);
 }
 
+static uint64_t retried_total(const hs_server* s) {
+    return s->cst.counters.rejected[HS_NET_REJ_DUPLICATE];
+}
+
+// Messages refused, for the console: a command's retried copy (same request id) is answered with
+// its first ack, not an error, so it is counted apart (status still lists it as "duplicate").
+static uint64_t rejected_total(const hs_server* s) {
+    return hs_net_counters_rejected(&s->pst.counters) +
+           hs_net_counters_rejected(&s->cst.counters) - retried_total(s);
+}
+
 static void live_line(hs_server* s, int64_t t) {
     world* w = &s->w;
     double rate = 0, jit = 0, step_ms = 0;
@@ -1493,8 +1504,7 @@ static void live_line(hs_server* s, int64_t t) {
         jit = hs_rt_hist_quantile_us(&st.rt.period_err, 0.99);
         step_ms = st.step_ms_last;
     }
-    uint64_t rej =
-        hs_net_counters_rejected(&s->pst.counters) + hs_net_counters_rejected(&s->cst.counters);
+    uint64_t rej = rejected_total(s);
     fprintf(stderr,
             "\rhapsim-server: rt %6.1f Hz  jitter p99 %5.0f us  force %5.2f N  sim step %5.2f ms  "
             "poses %lld  rejected %llu%s   ",
@@ -1618,12 +1628,11 @@ hs_status hs_server_run(hs_server* s, hs_err* err) {
     if (s->w.sim) hs_haptic_sim_stop(s->w.sim);
     if (s->opt.live) fprintf(stderr, "\n");
     if (!s->opt.quiet) {
-        uint64_t rej =
-            hs_net_counters_rejected(&s->pst.counters) + hs_net_counters_rejected(&s->cst.counters);
         printf("hapsim-server: stopped after %.1f s: %lld poses accepted, %lld forces sent, "
-               "%llu messages rejected\n",
+               "%llu messages rejected, %llu command retries answered again\n",
                (double)(hs_now_ns() - s->start_ns) * 1e-9, (long long)s->poses_total,
-               (long long)s->forces_total, (unsigned long long)rej);
+               (long long)s->forces_total, (unsigned long long)rejected_total(s),
+               (unsigned long long)retried_total(s));
         if (s->w.cutting)
             printf("hapsim-server: %lld cut steps (topology events), topology version %lld; cut "
                    "step p50 %.1f ms, p99 %.1f ms, max %.1f ms (deformation thread: sweep, "

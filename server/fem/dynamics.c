@@ -860,9 +860,9 @@ hs_status hs_body_solve_static(hs_body* b, hs_step_stats* stats) {
     hs_status result = HS_OK;
     double ratio = 0;
 
-    memset(b->v, 0, (size_t)n3 * sizeof(double));
-    memset(b->du_prev, 0, (size_t)n3 * sizeof(double));
-    memcpy(b->save, b->u, (size_t)n3 * sizeof(double)); // prescribed values at the start
+    // The start: prescribed values ramp from it, and a failed solve goes back to it. The
+    // velocities are not read here, so they are cleared only when the solve succeeds.
+    memcpy(b->save, b->u, (size_t)n3 * sizeof(double));
     use_polar_tol(b, 0);
     update_model(b);
 
@@ -957,6 +957,13 @@ hs_status hs_body_solve_static(hs_body* b, hs_step_stats* stats) {
         if (result == HS_OK && !converged) result = HS_WARN_NOT_CONVERGED;
     }
     b->load_scale = full_scale;
+    if (result < 0) { // an error: the body as it was (a warning keeps the usable last iterate)
+        memcpy(b->u, b->save, (size_t)n3 * sizeof(double));
+        update_model(b);
+    } else {
+        memset(b->v, 0, (size_t)n3 * sizeof(double));
+        memset(b->du_prev, 0, (size_t)n3 * sizeof(double));
+    }
     st.residual = ratio;
     st.fem = b->fem_stats;
     st.wall_ms = (double)(hs_now_ns() - t0) * 1e-6;
