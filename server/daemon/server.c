@@ -1486,8 +1486,8 @@ static uint64_t retried_total(const hs_server* s) {
 // Messages refused, for the console: a command's retried copy (same request id) is answered with
 // its first ack, not an error, so it is counted apart (status still lists it as "duplicate").
 static uint64_t rejected_total(const hs_server* s) {
-    return hs_net_counters_rejected(&s->pst.counters) +
-           hs_net_counters_rejected(&s->cst.counters) - retried_total(s);
+    return hs_net_counters_rejected(&s->pst.counters) + hs_net_counters_rejected(&s->cst.counters) -
+           retried_total(s);
 }
 
 static void live_line(hs_server* s, int64_t t) {
