@@ -270,10 +270,11 @@ hs_status hs_stylus_run_offline(const hs_script* script, const hs_stylus_def* de
     if (!(off->dt_s > 0 && off->dt_s < 1) || off->period_ticks < 1 || off->delay_ticks < 1 ||
         off->delay_ticks > MAX_DELAY || !(off->surface.stiffness_n_m >= 0) ||
         !(off->surface.radius_m >= 0) || !(off->surface.timeout_s >= 0) ||
-        !finite3(off->surface.point_m) || !(fabs(norm3(off->surface.normal) - 1) < 1e-6))
+        !finite3(off->surface.point_m) || !(fabs(norm3(off->surface.normal) - 1) < 1e-6) ||
+        !(off->duration_s <= 1e7))
         return hs_err_set(err, HS_ERR_INVALID,
                           "offline: need 0 < dt < 1 s, period >= 1, 1 <= delay <= %d, "
-                          "stiffness/radius/timeout >= 0, a unit normal",
+                          "stiffness/radius/timeout >= 0, a unit normal, duration <= 1e7 s",
                           MAX_DELAY);
 
     hs_stylus_device dev;
@@ -293,6 +294,7 @@ hs_status hs_stylus_run_offline(const hs_script* script, const hs_stylus_def* de
         // touch finds the surface early.
         double duration = off->duration_s > 0 ? off->duration_s : hs_script_runner_end(&run) + 0.5;
         if (k >= (int64_t)ceil(duration / off->dt_s - 1e-9)) break;
+        if (off->stop && atomic_load_explicit(off->stop, memory_order_relaxed)) break;
         int64_t now = base_ns + k * dt_ns;
         int slot = (int)(k % (MAX_DELAY + 1));
         if (has_pending[slot]) {

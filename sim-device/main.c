@@ -156,16 +156,27 @@ static int parse_double(const char* s, double* v) {
     return 1;
 }
 
+// n comma-separated numbers; an empty field ("1,,2") is an error, not skipped.
 static int parse_list(const char* s, double* v, int n) {
     char buf[256];
-    snprintf(buf, sizeof buf, "%s", s);
-    int i = 0;
-    for (char *save = NULL, *tok = strtok_r(buf, ",", &save); tok;
-         tok = strtok_r(NULL, ",", &save)) {
-        if (i == n || !parse_double(tok, &v[i])) return 0;
-        ++i;
+    if (strlen(s) >= sizeof buf) return 0;
+    memcpy(buf, s, strlen(s) + 1);
+    char* p = buf;
+    for (int i = 0; i < n; ++i) {
+        char* comma = strchr(p, ',');
+        if ((comma != NULL) != (i < n - 1)) return 0; // too few or too many fields
+        if (comma) *comma = '\0';
+        if (!parse_double(p, &v[i])) return 0;
+        p = comma + 1;
     }
-    return i == n;
+    return 1;
+}
+
+// The channel prefix the server accepts: [A-Z0-9_]*.
+static int prefix_ok(const char* p) {
+    for (; *p; ++p)
+        if (!((*p >= 'A' && *p <= 'Z') || (*p >= '0' && *p <= '9') || *p == '_')) return 0;
+    return 1;
 }
 
 static int parse_int(const char* s, int lo, int hi, int* v) {
@@ -247,6 +258,7 @@ static int parse_options(int argc, char** argv, options* o, hs_stylus_def* def) 
     o->offline_timeout = 0.05;
     double ms;
     int c, idx = -1;
+    const char *offline_only = NULL, *live_only = NULL; // a flag the chosen mode would ignore
     opterr = 0;
     while ((c = getopt_long(argc, argv, "h", longopts, &idx)) != -1) {
         const char* a = optarg;
@@ -257,9 +269,11 @@ static int parse_options(int argc, char** argv, options* o, hs_stylus_def* def) 
             break;
         case O_URL:
             o->haptic_url = a;
+            live_only = "--haptic-url";
             break;
         case O_PREFIX:
             o->prefix = a;
+            ok = prefix_ok(a);
             break;
         case O_DEVICE:
             ok = parse_int(a, 0, 1 << 20, &o->device_id);
@@ -271,7 +285,8 @@ static int parse_options(int argc, char** argv, options* o, hs_stylus_def* def) 
             o->trace = a;
             break;
         case O_DURATION:
-            ok = parse_double(a, &o->duration_s) && o->duration_s > 0;
+            // At most 1e7 s, as the server: beyond, ticks would overflow the tick count.
+            ok = parse_double(a, &o->duration_s) && o->duration_s > 0 && o->duration_s <= 1e7;
             break;
         case O_ORIGIN:
             ok = o->has_origin = parse_list(a, o->origin, 3);
@@ -310,10 +325,12 @@ static int parse_options(int argc, char** argv, options* o, hs_stylus_def* def) 
             break;
         case O_REALTIME:
             o->realtime = 1;
+            live_only = "--realtime";
             break;
         case O_STATUS_URL:
             o->status_url = a;
             o->status = 1;
+            live_only = "--status-url";
             break;
         case O_QUIET:
             o->quiet = 1;
@@ -323,23 +340,30 @@ static int parse_options(int argc, char** argv, options* o, hs_stylus_def* def) 
             break;
         case O_PLANE:
             ok = o->has_plane = parse_list(a, o->plane, 6);
+            offline_only = "--offline-plane";
             break;
         case O_DELAY:
             ok = parse_int(a, 1, 63, &o->offline_delay);
+            offline_only = "--offline-delay";
             break;
         case O_PERIOD:
             ok = parse_int(a, 1, 1000, &o->offline_period);
+            offline_only = "--offline-period";
             break;
         case O_RADIUS:
             ok = parse_double(a, &o->offline_radius) && o->offline_radius >= 0;
+            offline_only = "--offline-radius";
             break;
         case 'h':
         case O_HELP:
             usage(stdout);
             return 1;
-        default:
-            fprintf(stderr, "hapsim-stylus: unknown option or missing value: %s\n",
-                    argv[optind - 1]);
+        default: // getopt_long sets optopt to the short option it did not know, else 0
+            if (optopt > 0 && optopt < 256 && optopt != 'h')
+                fprintf(stderr, "hapsim-stylus: unknown option -%c\n", optopt);
+            else
+                fprintf(stderr, "hapsim-stylus: unknown option or missing value: %s\n",
+                        argv[optind - 1]);
             usage(stderr);
             return 2;
         }
@@ -356,6 +380,13 @@ static int parse_options(int argc, char** argv, options* o, hs_stylus_def* def) 
     }
     if (!o->script) {
         fprintf(stderr, "hapsim-stylus: --script FILE is required (see --help)\n");
+        return 2;
+    }
+    if (o->offline_k > 0 ? live_only != NULL : offline_only != NULL) {
+        fprintf(stderr, "hapsim-stylus: %s has no effect %s\n",
+                o->offline_k > 0 ? live_only : offline_only,
+                o->offline_k > 0 ? "in an offline run (--offline-stiffness)"
+                                 : "without --offline-stiffness");
         return 2;
     }
     return 0;
@@ -571,6 +602,7 @@ static int run_offline(app* a) {
     off.surface.stiffness_n_m = a->opt.offline_k;
     off.surface.radius_m = a->opt.offline_radius;
     off.surface.timeout_s = a->opt.offline_timeout;
+    off.stop = &g_stop; // SIGINT / SIGTERM: the trace so far is still written
     if (a->opt.has_plane) {
         double* p = a->opt.plane;
         double l = sqrt(p[3] * p[3] + p[4] * p[4] + p[5] * p[5]);
@@ -728,6 +760,17 @@ int main(int argc, char** argv) {
     hs_stylus_def def = hs_stylus_default_def();
     int pr = parse_options(argc, argv, &a.opt, &def);
     if (pr) return pr == 1 ? 0 : 2;
+    // The trace is written at the end: a folder that cannot take it is said now, not after the
+    // run.
+    char dir[4096];
+    snprintf(dir, sizeof dir, "%s", a.opt.trace);
+    char* slash = strrchr(dir, '/');
+    if (slash) slash[slash == dir ? 1 : 0] = '\0';
+    if (access(slash ? dir : ".", W_OK) != 0) {
+        fprintf(stderr, "hapsim-stylus: --trace %s: cannot write in %s: %s\n", a.opt.trace,
+                slash ? dir : ".", strerror(errno));
+        return 1;
+    }
     hs_err err = {0};
     if (hs_script_create(&a.script, &err) || hs_script_parse_file(a.script, a.opt.script, &err)) {
         fprintf(stderr, "hapsim-stylus: %s\n", err.msg);

@@ -348,11 +348,12 @@ int hs_stylus_trace_compare(const hs_stylus_trace* ref, const hs_stylus_trace* r
 
 /// Offline run options.
 typedef struct hs_offline_def {
-    hs_halfspace surface; ///< the stand-in server
-    double dt_s;          ///< tick, s (1 ms)
-    int period_ticks;     ///< the half-space answers every period_ticks poses (>= 1)
-    int delay_ticks;      ///< an answer arrives delay_ticks after its pose (1..63)
-    double duration_s;    ///< run length, s (<= 0: the script's duration + 0.5 s)
+    hs_halfspace surface;   ///< the stand-in server
+    double dt_s;            ///< tick, s (1 ms)
+    int period_ticks;       ///< the half-space answers every period_ticks poses (>= 1)
+    int delay_ticks;        ///< an answer arrives delay_ticks after its pose (1..63)
+    double duration_s;      ///< run length, s (<= 0: the script's duration + 0.5 s; <= 1e7)
+    const atomic_int* stop; ///< the run ends early once this reads nonzero (a signal); may be NULL
 } hs_offline_def;
 
 /// Run script on device def against the offline half-space; rows into trace (may be NULL).

@@ -225,6 +225,25 @@ golden)
         "$bin/hapsim-trace-diff" "$golden/$s-offline.csv" "$tmp/$s-offline.csv" --abs 1e-6 --rel 0 ||
             fail "offline $s differs from its golden trace"
     done
+    # An offline run ends on SIGTERM with its trace written (it ran on, deaf to signals); bad
+    # options are refused before any work (a 1e300 s duration ran 0 ticks and exited 0; empty
+    # list fields were skipped; an offline flag without --offline-stiffness started a live run).
+    sty="$bin/hapsim-stylus --script $golden/press_short.probe"
+    $sty --offline-stiffness 300 --duration 1e7 --trace "$tmp/long.csv" >"$tmp/long.log" 2>&1 &
+    long=$!
+    sleep 1
+    kill -TERM $long
+    wait $long || fail "offline run ended by SIGTERM: rc $?"
+    [ "$(wc -l <"$tmp/long.csv")" -gt 1000 ] || fail "offline run ended by SIGTERM: no trace rows"
+    for bad in "--offline-stiffness 300 --duration 1e300" "--workspace 0.1,,0.1,0.1" \
+        "--origin 0,0" "--offline-plane 0,0,0,0,1,0" "--offline-stiffness 300 --realtime" \
+        "--prefix lower"; do
+        # shellcheck disable=SC2086 # the options split on purpose
+        $sty $bad --trace "$tmp/bad.csv" 2>"$tmp/bad.log"
+        rc=$?
+        [ $rc = 2 ] || fail "hapsim-stylus $bad: rc $rc (want 2): $(cat "$tmp/bad.log")"
+    done
+    [ ! -e "$tmp/bad.csv" ] || fail "a refused run wrote a trace"
     start_server 1
     for s in press_short press_drag_short; do
         stylus "$tmp/$s-live.csv" "$golden/$s.probe" --quiet || fail "live $s"
