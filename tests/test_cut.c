@@ -319,6 +319,8 @@ static int test_consistency(void) {
         int nt = 0;
         for (int i = 0; i < n; i++)
             if (m->x0[3 * i + 2] > 0.01 - 1e-9) track[nt++] = i;
+        // An unknown mode is refused (it was kept, and the blocks went stale after sweeps).
+        ENSURE(hs_cut_track_compliance(c, nt, track, (hs_cut_compliance_mode)7) == HS_ERR_INVALID);
         ENSURE(hs_cut_track_compliance(c, nt, track, (hs_cut_compliance_mode)mode) == HS_OK);
         double wms = 0, min_share = 1;
         int with_change = 0;

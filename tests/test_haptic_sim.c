@@ -169,6 +169,21 @@ static int no_pose_no_force(void) {
     bad = liver_def(HS_MODEL_LINEAR, 0.01);
     bad.probe.cache_nodes = 8;
     ENSURE(hs_haptic_sim_create(L.mesh, &bad, L.fixed, &sim, &err) == HS_ERR_INVALID);
+    // Sleeps longer than 1 s would hold up a stop (a 15 s idle poll blocked it 14.7 s; an
+    // infinite one spun the deformation thread); so would a 2 s step.
+    const double bad_poll[] = {15, INFINITY, NAN, 0};
+    for (int k = 0; k < 4; ++k) {
+        bad = liver_def(HS_MODEL_LINEAR, 0.01);
+        bad.idle_poll_s = bad_poll[k];
+        ENSURE(hs_haptic_sim_create(L.mesh, &bad, L.fixed, &sim, &err) == HS_ERR_INVALID);
+    }
+    bad = liver_def(HS_MODEL_LINEAR, 0.01);
+    bad.body.dt = 2;
+    ENSURE(hs_haptic_sim_create(L.mesh, &bad, L.fixed, &sim, &err) == HS_ERR_INVALID);
+    bad = liver_def(HS_MODEL_LINEAR, 0.01);
+    bad.rate_hz = 1e12;
+    ENSURE(hs_haptic_sim_create(L.mesh, &bad, L.fixed, &sim, &err) == HS_ERR_INVALID);
+    ENSURE(strstr(err.msg, "idle poll"));
     hs_haptic_sim_def raw;
     memset(&raw, 0, sizeof raw);
     ENSURE(hs_haptic_sim_create(L.mesh, &raw, L.fixed, &sim, &err) == HS_ERR_INVALID);

@@ -732,6 +732,19 @@ static int FinalizeFailsCleanly(void) {
     ENSURE(hs_mesh_finalize(m, &e) == HS_ERR_INVALID && strstr(e.msg, "no valid tetrahedra"));
     ENSURE(m->n_tets == nt);
     hs_mesh_destroy(&m);
+    // The checks before any work (a NaN coordinate, a node index out of range) clear the
+    // derived data too: the surface of the previous finalize stayed.
+    for (int bad = 0; bad < 2; ++bad) {
+        ENSURE(hs_mesh_create_box(1, 1, 1, 2, 2, 2, &m, &e) == HS_OK);
+        ENSURE(m->n_tris > 0 && m->node_used);
+        if (bad)
+            m->tets[5] = m->n_nodes;
+        else
+            m->x0[0] = NAN;
+        ENSURE(hs_mesh_finalize(m, &e) == HS_ERR_INVALID);
+        ENSURE(m->n_tris == 0 && !m->tris && !m->node_used && !m->node_tet);
+        hs_mesh_destroy(&m);
+    }
     return 0;
 }
 

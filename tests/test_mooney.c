@@ -487,6 +487,20 @@ static int mooney_bad_input(void) {
     ENSURE(hs_mooney_set_prescribed(m, u) == HS_ERR_INVALID);
     double g[3] = {0, INFINITY, 0};
     ENSURE(hs_mooney_set_gravity(m, g) == HS_ERR_INVALID);
+    // Finite but absurd: the residual norm overflowed and the solve read it as converged.
+    g[1] = -1e200;
+    ENSURE(hs_mooney_set_gravity(m, g) == HS_ERR_INVALID);
+    u[0] = 1e200;
+    ENSURE(hs_mooney_set_forces(m, u) == HS_ERR_INVALID);
+    // A refused (inverting) state loses nothing: the solve still works from the old one (it
+    // kept the inverted u, and every later solve failed).
+    for (int i = 0; i < n; i++) u[3 * i] = -2.0 * mesh->x0[3 * i];
+    ENSURE(hs_mooney_set_displacement(m, u, &err) == HS_ERR_NUMERIC);
+    for (int d = 0; d < 3 * n; d++) ENSURE(hs_mooney_displacement(m)[d] == 0);
+    g[1] = -9.81;
+    ENSURE(hs_mooney_set_gravity(m, g) == HS_OK);
+    hs_mooney_stats st;
+    ENSURE(hs_mooney_solve_static(m, &st, &err) == HS_OK);
     free(u);
     free(line);
     free(fixed);

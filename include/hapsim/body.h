@@ -28,14 +28,14 @@ typedef enum hs_solver_kind {
 /// Body options. Initialise with hs_body_default_def().
 typedef struct hs_body_def {
     hs_fem_def fem;        ///< element model and material
-    double gravity[3];     ///< m/s^2
-    double dt;             ///< time step for hs_body_step, s
+    double gravity[3];     ///< m/s^2, each component within +-1e3
+    double dt;             ///< time step for hs_body_step, s, in (0, 1e3]
     hs_solver_kind solver; ///< linear solver for steps and Newton iterations
     hs_precond precond;    ///< PCG only: NONE, JACOBI, FACTOR (rest-state factor) or WARPED
                            ///< (rest-state factor rotated by the node rotations)
     int pcg_max_iter;      ///< PCG iterations per solve (a small fixed count is a valid mode)
-    double pcg_tol;        ///< PCG relative residual
-    double static_tol;     ///< static: stop at ||r|| <= tol * ||r_first|| (paper's rule)
+    double pcg_tol;        ///< PCG relative residual, in (0, 1)
+    double static_tol;     ///< static: stop at ||r|| <= tol * ||r_first|| (paper's rule), [0, 1)
     int static_max_iter;   ///< static: Newton iteration cap per load step
     int static_load_steps; ///< static: load increments (1 = full load at once)
     /// co-rotated + POLAR: the polar tolerance in hs_body_step (default 1e-4; 0: fem.polar_tol).
@@ -80,9 +80,10 @@ hs_status hs_body_set_force(hs_body* b, int node, const double f[3]);
 /// Remove all external nodal forces (gravity stays).
 void hs_body_clear_forces(hs_body* b);
 /// Scale applied to gravity and nodal forces (load stepping, ramps). Default 1.
-void hs_body_set_load_scale(hs_body* b, double s);
+/// HS_ERR_INVALID (nothing changed) if s is not finite.
+hs_status hs_body_set_load_scale(hs_body* b, double s);
 /// Prescribed displacement of a fixed node, m. HS_ERR_INVALID (nothing changed) if the node
-/// is not fixed or a component is not finite.
+/// is not fixed or a component is not finite or above 1e3 m.
 hs_status hs_body_set_prescribed(hs_body* b, int node, const double u[3]);
 /// One implicit Euler step of size def.dt:
 /// (M + dt C + dt^2 K) du = dt^2 (f_ext + f_el(u)) + M du_prev, linearised once per step,
@@ -102,7 +103,9 @@ void hs_body_reset(hs_body* b);
 /// Displacement u, m, [3n], valid until the next step/solve/reset.
 const double* hs_body_displacement(const hs_body* b);
 /// Overwrite the state (u [3n], velocity v [3n] or NULL for zero). Prescribed dofs keep theirs.
-void hs_body_set_state(hs_body* b, const double* u, const double* v);
+/// HS_ERR_INVALID (nothing changed) if a free dof's u is not finite or above 1e3 m, or its v
+/// is not finite.
+hs_status hs_body_set_state(hs_body* b, const double* u, const double* v);
 /// Velocity, m/s, [3n] (du/dt of the last step).
 const double* hs_body_velocity(const hs_body* b);
 /// Kinetic energy 1/2 v^T M v, J.

@@ -298,9 +298,9 @@ typedef enum hs_cut_compliance_mode {
 
 /// Track nodes[n] (any nodes; fixed ones give zero blocks): compute their blocks now and keep
 /// them current on every later sweep. Replaces an earlier set. HS_ERR_INVALID without a
-/// factor (NONE). When the factor follows by partial refactor (PARTIAL, or AUTO where it takes
-/// it) the blocks are re-solved whatever the mode: Woodbury needs the low-rank columns.
-/// On failure nothing is tracked. Allocates: yes.
+/// factor (NONE) or for an unknown mode (nothing changed then). When the factor follows by partial
+/// refactor (PARTIAL, or AUTO where it takes it) the blocks are re-solved whatever the mode:
+/// Woodbury needs the low-rank columns. On failure nothing is tracked. Allocates: yes.
 hs_status hs_cut_track_compliance(hs_cut* cut, int n, const int* nodes,
                                   hs_cut_compliance_mode mode);
 /// Block C_kk (m/N, row-major) of tracked node index k (0..n-1 of the tracked set).

@@ -107,6 +107,8 @@ const double* hs_fem_lumped_mass(const hs_fem* fem);
 /// inertia and no gravity load: in a dynamic step it stays where it is, with no pin spring.
 /// A static solve (mcoef 0) with such nodes is singular.
 int hs_fem_held_nodes(const hs_fem* fem);
+/// The mass each held node keeps on the diagonal, kg ([n]; 0 for every other node).
+const double* hs_fem_held_mass(const hs_fem* fem);
 /// Rotation of node i (polar part of the volume-weighted mean deformation gradient of its
 /// tets) at the last update; identity for linear. Row-major 3x3.
 void hs_fem_node_rotation(const hs_fem* fem, int node, double r[9] /* OUT */);

@@ -47,15 +47,16 @@ hs_probe_def hs_probe_default_def(void);
 
 /// Everything the in-process haptic simulation needs. Initialise with hs_haptic_sim_default_def.
 typedef struct hs_haptic_sim_def {
-    hs_body_def body;       ///< body model, material, dt (the deformation step and its pacing)
+    hs_body_def body;       ///< body model, material, dt (the deformation step and its pacing;
+                            ///< at most 1 s)
     hs_probe_def probe;     ///< probe sphere and compliance cache
     hs_safety_def safety;   ///< force clamps and watchdog
-    double rate_hz;         ///< rt tick rate, Hz
+    double rate_hz;         ///< rt tick rate, Hz (1..1e5)
     int fifo_priority;      ///< SCHED_FIFO priority to ask for (0: do not ask)
     int lock_memory;        ///< 1: mlockall when permitted
     int blend_ticks;        ///< blend length on a new snapshot, ticks
     double sleep_speed_m_s; ///< the body counts as at rest below this largest nodal speed, m/s
-    double idle_poll_s;     ///< deformation thread wake-up period while at rest, s
+    double idle_poll_s;     ///< deformation thread wake-up period while at rest, s (<= 1)
     /// Optional hooks run on the rt thread before its first and after its last tick (tests use
     /// them to mark the thread, e.g. for allocation counting); may be NULL.
     void (*rt_on_start)(void* ctx);

@@ -65,14 +65,18 @@ typedef struct hs_mooney hs_mooney;
 hs_status hs_mooney_create(const hs_mesh* mesh, const hs_mooney_def* def,
                            const unsigned char* fixed, hs_mooney** out, hs_err* err);
 /// Total external nodal forces, N ([3n]; NULL clears). Scaled by the load factor.
+/// HS_ERR_INVALID (nothing changed) if a component is not finite or above 1e9 N.
 hs_status hs_mooney_set_forces(hs_mooney* m, const double* f);
-/// Gravity acceleration, m/s^2 (rho g, lumped V/4 per node). HS_ERR_INVALID if not finite.
+/// Gravity acceleration, m/s^2 (rho g, lumped V/4 per node). HS_ERR_INVALID (nothing changed)
+/// if a component is not finite or above 1e3 m/s^2.
 hs_status hs_mooney_set_gravity(hs_mooney* m, const double g[3]);
 /// Total prescribed displacements of fixed nodes, m ([3n]; entries of free nodes ignored;
-/// NULL = zero). Reached by the same load factor as the forces.
+/// NULL = zero). Reached by the same load factor as the forces. HS_ERR_INVALID (nothing
+/// changed) if an entry is not finite or above 1e3 m.
 hs_status hs_mooney_set_prescribed(hs_mooney* m, const double* u);
 /// Set the current state (initial guess), m ([3n]); pressures follow from their equation.
 /// Resets the load factor to 0 (the next solve applies the full load in load_steps).
+/// A u that is not finite, above 1e3 m, or inverts an element is refused; the state stays.
 hs_status hs_mooney_set_displacement(hs_mooney* m, const double* u, hs_err* err);
 /// Solve the static problem for the full load from the current state in def.load_steps
 /// increments. Returns HS_OK, HS_ERR_NOT_CONVERGED (state = last converged increment),

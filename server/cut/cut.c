@@ -2077,6 +2077,9 @@ static hs_status resolve_blocks(hs_cut* c, int k0, int cnt) {
 
 hs_status hs_cut_track_compliance(hs_cut* c, int n, const int* nodes, hs_cut_compliance_mode mode) {
     if (!c || !c->factor || n < 0 || (n > 0 && !nodes)) return HS_ERR_INVALID;
+    // An unknown mode would match neither update and leave the blocks stale without a word.
+    if (mode != HS_CUT_COMPLIANCE_WOODBURY && mode != HS_CUT_COMPLIANCE_RESOLVE)
+        return HS_ERR_INVALID;
     for (int k = 0; k < n; k++)
         if (nodes[k] < 0 || nodes[k] >= c->n) return HS_ERR_INVALID;
     hs_free(c->track);

@@ -16,6 +16,9 @@
 
 #define HS_BODY_COOKIE      0x48424459
 #define HS_BODY_MAX_FORCE_N 1e9 // beyond this a nodal force is a bug, not a load
+#define HS_BODY_MAX_GRAVITY 1e3 // m/s^2 per component (100 g), as scenes allow
+#define HS_BODY_MAX_DT      1e3 // s; beyond, a step's terms overflow
+#define HS_BODY_MAX_U       1e3 // m: a prescribed or set displacement beyond is a bug
 
 struct hs_body {
     const hs_mesh* mesh;
@@ -177,9 +180,18 @@ hs_status hs_body_create(const hs_mesh* mesh, const hs_body_def* def, const unsi
     if (def->cookie != HS_BODY_COOKIE)
         return hs_err_set(err, HS_ERR_INVALID,
                           "hs_body_create: definition not initialised with hs_body_default_def()");
-    if (!(def->dt > 0) || !isfinite(def->dt))
-        return hs_err_set(err, HS_ERR_INVALID, "hs_body_create: dt must be positive, got %g",
-                          def->dt);
+    if (!(def->dt > 0) || !(def->dt <= HS_BODY_MAX_DT))
+        return hs_err_set(err, HS_ERR_INVALID, "hs_body_create: dt must be in (0, %g] s, got %g",
+                          HS_BODY_MAX_DT, def->dt);
+    for (int c = 0; c < 3; ++c)
+        if (!(fabs(def->gravity[c]) <= HS_BODY_MAX_GRAVITY))
+            return hs_err_set(err, HS_ERR_INVALID,
+                              "hs_body_create: gravity[%d] %g m/s^2 (finite, |g| <= %g)", c,
+                              def->gravity[c], HS_BODY_MAX_GRAVITY);
+    if (!(def->pcg_tol > 0 && def->pcg_tol < 1) || !(def->static_tol >= 0 && def->static_tol < 1))
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "hs_body_create: pcg_tol %g must be in (0, 1), static_tol %g in [0, 1)",
+                          def->pcg_tol, def->static_tol);
     if (def->static_load_steps < 1 || def->static_max_iter < 1 || def->pcg_max_iter < 1)
         return hs_err_set(err, HS_ERR_INVALID, "hs_body_create: iteration counts must be >= 1");
     if (!(def->step_polar_tol >= 0) || !isfinite(def->step_polar_tol))
@@ -298,14 +310,16 @@ void hs_body_clear_forces(hs_body* b) {
     memset(b->f_ext, 0, 3 * (size_t)b->n * sizeof(double));
 }
 
-void hs_body_set_load_scale(hs_body* b, double s) {
+hs_status hs_body_set_load_scale(hs_body* b, double s) {
+    if (!isfinite(s)) return HS_ERR_INVALID;
     b->load_scale = s;
+    return HS_OK;
 }
 
 hs_status hs_body_set_prescribed(hs_body* b, int node, const double u[3]) {
     if (node < 0 || node >= b->n || !b->fixed[node]) return HS_ERR_INVALID;
     for (int c = 0; c < 3; ++c)
-        if (!isfinite(u[c])) return HS_ERR_INVALID;
+        if (!(fabs(u[c]) <= HS_BODY_MAX_U)) return HS_ERR_INVALID;
     for (int c = 0; c < 3; ++c) b->up[3 * node + c] = u[c];
     return HS_OK;
 }
@@ -340,7 +354,10 @@ void hs_body_reset(hs_body* b) {
     b->updated = 0;
 }
 
-void hs_body_set_state(hs_body* b, const double* u, const double* v) {
+hs_status hs_body_set_state(hs_body* b, const double* u, const double* v) {
+    for (int k = 0; k < 3 * b->n; ++k)
+        if (b->dof[k] >= 0 && (!(fabs(u[k]) <= HS_BODY_MAX_U) || (v && !isfinite(v[k]))))
+            return HS_ERR_INVALID;
     for (int k = 0; k < 3 * b->n; ++k) {
         if (b->dof[k] < 0) continue;
         b->u[k] = u[k];
@@ -348,6 +365,7 @@ void hs_body_set_state(hs_body* b, const double* u, const double* v) {
         b->du_prev[k] = b->v[k] * b->def.dt;
     }
     b->updated = 0;
+    return HS_OK;
 }
 
 static hs_status grow_blocks(hs_body* b, int n) {
@@ -541,22 +559,27 @@ static void update_model(hs_body* b) {
 // Full residual r = s (f_ext + m g) + f_el at the last update.
 static void residual(hs_body* b, double* r) {
     const double* m = hs_fem_lumped_mass(b->fem);
+    const double* held = hs_fem_held_mass(b->fem);
     const double s = b->load_scale;
     for (int i = 0; i < b->n; ++i)
         for (int c = 0; c < 3; ++c) {
             int k = 3 * i + c;
-            r[k] = s * (b->f_ext[k] + m[i] * b->def.gravity[c]) + b->f_el[k];
+            // A held node (no element left) takes no load: with only its held mass on the
+            // diagonal a force would fling it away.
+            double f = held[i] > 0 ? 0.0 : b->f_ext[k];
+            r[k] = s * (f + m[i] * b->def.gravity[c]) + b->f_el[k];
         }
 }
 
 // Total potential energy W(u) - s (f_ext + m g) . u at the last update, J.
 static double potential(const hs_body* b) {
     const double* m = hs_fem_lumped_mass(b->fem);
+    const double* held = hs_fem_held_mass(b->fem);
     double w = 0;
     for (int i = 0; i < b->n; ++i)
         for (int c = 0; c < 3; ++c) {
             int k = 3 * i + c;
-            w += (b->f_ext[k] + m[i] * b->def.gravity[c]) * b->u[k];
+            w += ((held[i] > 0 ? 0.0 : b->f_ext[k]) + m[i] * b->def.gravity[c]) * b->u[k];
         }
     return b->fem_stats.energy_j - b->load_scale * w;
 }
@@ -885,6 +908,10 @@ hs_status hs_body_solve_static(hs_body* b, hs_step_stats* stats) {
         }
         double r0 = norm_free(b, b->r), rn = r0;
         ratio = 0;
+        if (!isfinite(r0)) { // a NaN here would read as converged below
+            result = HS_ERR_NUMERIC;
+            break;
+        }
         if (any) {
             for (int j = 0; j < b->n_free; ++j) {
                 b->rhs_f[j] = b->r[b->free_to_full[j]];

@@ -157,8 +157,11 @@ static hs_status check_def(const hs_fem_def* d, hs_err* err) {
     if (!(m->density_kg_m3 >= 0) || !isfinite(m->density_kg_m3))
         return hs_err_set(err, HS_ERR_INVALID, "fem: density must be >= 0 (got %g kg/m^3)",
                           m->density_kg_m3);
-    if (!(m->rayleigh_mass >= 0) || !(m->rayleigh_stiffness >= 0))
-        return hs_err_set(err, HS_ERR_INVALID, "fem: Rayleigh coefficients must be >= 0");
+    if (!(m->rayleigh_mass >= 0) || !(m->rayleigh_stiffness >= 0) || !isfinite(m->rayleigh_mass) ||
+        !isfinite(m->rayleigh_stiffness))
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "fem: Rayleigh coefficients must be finite and >= 0 (got %g, %g)",
+                          m->rayleigh_mass, m->rayleigh_stiffness);
     if (d->model == HS_MODEL_COROTATED && d->rotation == HS_ROTATION_POLAR &&
         (!(d->polar_tol > 0) || d->polar_max_iter < 1))
         return hs_err_set(err, HS_ERR_INVALID,
@@ -573,6 +576,10 @@ const double* hs_fem_lumped_mass(const hs_fem* fem) {
 
 int hs_fem_held_nodes(const hs_fem* fem) {
     return fem ? fem->n_held : 0;
+}
+
+const double* hs_fem_held_mass(const hs_fem* fem) {
+    return fem->held;
 }
 
 void hs_fem_set_element_active(hs_fem* fem, int tet, int active) {

@@ -731,19 +731,31 @@ static int all_finite(const double* v, int n) {
     return 1;
 }
 
+// Bounds beyond which a load is a bug, not a load (as hs_body's): the residual norms would
+// overflow and read as converged.
+#define MOONEY_MAX_FORCE_N 1e9
+#define MOONEY_MAX_GRAVITY 1e3
+#define MOONEY_MAX_U       1e3
+
+static int all_within(const double* x, int n, double bound) {
+    for (int i = 0; i < n; i++)
+        if (!(fabs(x[i]) <= bound)) return 0;
+    return 1;
+}
+
 hs_status hs_mooney_set_forces(hs_mooney* m, const double* f) {
     if (!m) return HS_ERR_INVALID;
     if (!f) {
         memset(m->f_nodal, 0, sizeof(double) * 3 * (size_t)m->n);
         return HS_OK;
     }
-    if (!all_finite(f, 3 * m->n)) return HS_ERR_INVALID;
+    if (!all_within(f, 3 * m->n, MOONEY_MAX_FORCE_N)) return HS_ERR_INVALID;
     memcpy(m->f_nodal, f, sizeof(double) * 3 * (size_t)m->n);
     return HS_OK;
 }
 
 hs_status hs_mooney_set_gravity(hs_mooney* m, const double g[3]) {
-    if (!m || !g || !all_finite(g, 3)) return HS_ERR_INVALID;
+    if (!m || !g || !all_within(g, 3, MOONEY_MAX_GRAVITY)) return HS_ERR_INVALID;
     memset(m->f_grav, 0, sizeof(double) * 3 * (size_t)m->n);
     for (int e = 0; e < m->nt; e++) {
         double w = m->def.density_kg_m3 * m->vol[e] * 0.25;
@@ -755,7 +767,7 @@ hs_status hs_mooney_set_gravity(hs_mooney* m, const double g[3]) {
 
 hs_status hs_mooney_set_prescribed(hs_mooney* m, const double* u) {
     if (!m) return HS_ERR_INVALID;
-    if (u && !all_finite(u, 3 * m->n)) return HS_ERR_INVALID;
+    if (u && !all_within(u, 3 * m->n, MOONEY_MAX_U)) return HS_ERR_INVALID;
     for (int d = 0; d < 3 * m->n; d++) m->up_new[d] = (u && m->dof_map[d] < 0) ? u[d] : 0.0;
     return HS_OK;
 }
@@ -983,6 +995,9 @@ static hs_status solve_increment(hs_mooney* m, double s, hs_mooney_stats* stats,
     stats->final_ratio = 0.0;
     int iters = 0;
     double floor_abs = 1e-12 * qscale(m);
+    if (!isfinite(r0) || !isfinite(floor_abs)) // an overflow would read as converged
+        return hs_err_set(err, HS_ERR_NUMERIC, "%s:%d: residual not finite at increment start",
+                          __FILE__, __LINE__);
     if (r0 <= floor_abs && !gap_nz) goto converged;
     while (iters < m->def.max_newton_iter) {
         if (m->n_free > 0) {
@@ -1129,16 +1144,21 @@ hs_status hs_mooney_set_displacement(hs_mooney* m, const double* u, hs_err* err)
     if (!m || !u)
         return hs_err_set(err, HS_ERR_INVALID, "%s:%d: m and u must not be NULL", __FILE__,
                           __LINE__);
-    if (!all_finite(u, 3 * m->n))
-        return hs_err_set(err, HS_ERR_INVALID, "%s:%d: displacement has NaN or Inf", __FILE__,
-                          __LINE__);
-    memcpy(m->u, u, sizeof(double) * 3 * (size_t)m->n);
-    memset(m->f_prev, 0, sizeof(double) * 3 * (size_t)m->n);
-    memset(m->up_prev, 0, sizeof(double) * 3 * (size_t)m->n);
-    if (mooney_update(m, 0))
+    if (!all_within(u, 3 * m->n, MOONEY_MAX_U))
+        return hs_err_set(err, HS_ERR_INVALID, "%s:%d: displacement has NaN, Inf or above %g m",
+                          __FILE__, __LINE__, MOONEY_MAX_U);
+    const size_t n3 = 3 * (size_t)m->n;
+    memcpy(m->u_old, m->u, sizeof(double) * n3);
+    memcpy(m->u, u, sizeof(double) * n3);
+    if (mooney_update(m, 0)) { // refused: the state as it was
+        memcpy(m->u, m->u_old, sizeof(double) * n3);
+        mooney_update(m, 0);
         return hs_err_set(err, HS_ERR_NUMERIC,
                           "%s:%d: displacement inverts or degenerates an element", __FILE__,
                           __LINE__);
+    }
+    memset(m->f_prev, 0, sizeof(double) * n3);
+    memset(m->up_prev, 0, sizeof(double) * n3);
     return HS_OK;
 }
 

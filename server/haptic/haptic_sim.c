@@ -955,12 +955,15 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
         return hs_err_set(err, HS_ERR_INVALID,
                           "hs_haptic_sim_create: probe column budget, validity radius or timeout "
                           "invalid");
-    if (!(def->rate_hz > 0) || def->blend_ticks < 1 || !(def->idle_poll_s > 0) ||
+    // The threads sleep a tick, a step or an idle poll at a time and stopping waits for that
+    // sleep: each is at most 1 s (a 1e6 s poll made stop block for days, Inf spun the thread).
+    if (!(def->rate_hz >= 1 && def->rate_hz <= 1e5) || def->blend_ticks < 1 ||
+        !(def->idle_poll_s > 0 && def->idle_poll_s <= 1) || !(def->body.dt <= 1) ||
         !(def->sleep_speed_m_s >= 0))
         return hs_err_set(err, HS_ERR_INVALID,
-                          "hs_haptic_sim_create: rate %g Hz, blend %d ticks or idle poll %g s "
-                          "invalid",
-                          def->rate_hz, def->blend_ticks, def->idle_poll_s);
+                          "hs_haptic_sim_create: rate %g Hz (1..1e5), blend %d ticks (>= 1), "
+                          "idle poll %g s or body dt %g s (each in (0, 1]) invalid",
+                          def->rate_hz, def->blend_ticks, def->idle_poll_s, def->body.dt);
     if (!hs_safety_def_valid(&def->safety))
         return hs_err_set(err, HS_ERR_INVALID,
                           "hs_haptic_sim_create: safety definition invalid (use "

@@ -372,6 +372,7 @@ fail:
 static hs_status finalize(hs_mesh* m, hs_mesh_fault* fault, hs_err* err) {
     if (fault) *fault = (hs_mesh_fault){{-1, -1}, {-1, -1, -1}, 0};
     if (!m) return hs_err_set(err, HS_ERR_INVALID, "mesh is NULL");
+    free_derived(m); // first: every error below leaves the mesh reading as not finalized
     const int nn = m->n_nodes;
     if (nn < 0 || m->n_tets < 0 || nn > HS_MESH_MAX_COUNT || m->n_tets > HS_MESH_MAX_COUNT)
         return hs_err_set(err, HS_ERR_INVALID, "bad counts: %d nodes, %d tets", nn, m->n_tets);
@@ -407,7 +408,6 @@ static hs_status finalize(hs_mesh* m, hs_mesh_fault* fault, hs_err* err) {
     const int n_tets0 = m->n_tets;
     const hs_mesh_report report0 = m->report;
     memcpy(backup, m->tets, 4 * (size_t)n_tets0 * sizeof(int));
-    free_derived(m);
 
     for (int d = 0; d < 3; ++d) {
         m->bbox_min[d] = nn ? INFINITY : 0.0;
