@@ -592,6 +592,20 @@ static int bad_input(void) {
         ENSURE(hs_byte_count() == b);
     }
     ENSURE(reached_ok && failures > 40);
+    // A non-finite force is refused and v left as it was (NaN went through as a result).
+    ENSURE(hs_compliance_create(mesh, &fd, fixed, 8, &c, &err) == HS_OK);
+    const size_t n3 = 3 * (size_t)mesh->n_nodes;
+    double* g = calloc(n3, sizeof(double));
+    double* v = calloc(n3, sizeof(double));
+    int free_node = 0;
+    while (fixed[free_node]) free_node++;
+    g[3 * free_node + 2] = NAN;
+    ENSURE(hs_compliance_apply(c, g, v) == HS_ERR_INVALID);
+    for (size_t k = 0; k < n3; ++k) ENSURE(v[k] == 0);
+    g[3 * free_node + 2] = -1.0;
+    ENSURE(hs_compliance_apply(c, g, v) == HS_OK && v[3 * free_node + 2] < 0);
+    free(g);
+    free(v);
     hs_compliance_destroy(&c);
     free(all);
     hs_mesh_destroy(&mesh);

@@ -208,6 +208,11 @@ static int Clamps(void) {
     ENSURE_NEAR(norm3(f), 10, 1e-12);
     ENSURE_NEAR(f[0] / f[1], 0.75, 1e-12); // direction kept
     ENSURE(hs_force_clamp_magnitude(f, 10.5) == 0);
+    // Finite but huge: clamped along its direction (the squares overflowed and it became zero).
+    double huge[3] = {3e200, -4e200, 0};
+    ENSURE(hs_force_clamp_magnitude(huge, 10) == 1);
+    ENSURE_NEAR(huge[0], 6, 1e-12);
+    ENSURE_NEAR(huge[1], -8, 1e-12);
 
     hs_rate_clamp rc = {{0, 0, 0}, 1000.0};
     double g[3] = {0, 0, 5};

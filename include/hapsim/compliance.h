@@ -37,6 +37,10 @@ extern "C" {
 /// Contact points considered: within this many probe radii of the centre (a point outside the
 /// sphere can be carried into it by the push on its neighbours: the sphere's flank).
 #define HS_CONTACT_BAND 2.0
+/// Past HS_MAX_CONTACT, a solved point's penetration tapers to zero over this many probe radii
+/// (or less: the band's width beyond r) as its depth nears the deepest point left out, so the
+/// force is continuous when the deepest points change places.
+#define HS_CONTACT_TAPER 0.05
 
 // ---------------------------------------------------------------------------------------------
 // Condensed compliance (deformation thread).
@@ -83,7 +87,8 @@ int hs_compliance_block(const hs_compliance* c, int i, int j, double out[9] /* O
 int hs_compliance_surface_displacement(const hs_compliance* c, int n, const int* nodes,
                                        const double* f, double* u_surf /* OUT [3*n_surf] */);
 /// v = C g for a full force vector g[3n] (m/N times N): one sparse solve over the free dofs,
-/// zero at fixed nodes. v may alias g. Allocates: no.
+/// zero at fixed nodes. v may alias g. HS_ERR_INVALID (v untouched) if a free dof's g is not
+/// finite. Allocates: no.
 hs_status hs_compliance_apply(hs_compliance* c, const double* g, double* v /* OUT [3n] */);
 /// Forces f[3m] at nodes[m] that impose displacements d[3m]: f = C_SS^-1 d, with each block
 /// rotated R_i C_ij R_j^T when rot ([9m] row-major per node) is given. Solves the missing

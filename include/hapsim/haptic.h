@@ -104,7 +104,8 @@ void hs_haptic_blend_reset(hs_haptic_blend* b);
 int hs_vec3_finite(const double v[3]);
 /// NaN/Inf guard: a non-finite f becomes zero and *count (may be NULL) grows. Returns 1 if zeroed.
 int hs_force_guard_finite(double f_n[3], int64_t* count);
-/// Scale f down to |f| <= max_n (max_n >= 0). Returns 1 if it was clamped.
+/// Scale f down to |f| <= max_n (max_n >= 0), keeping its direction (also when |f| overflows).
+/// Returns 1 if it was clamped. Thread: any | Allocates: no
 int hs_force_clamp_magnitude(double f_n[3], double max_n);
 
 /// Rate clamp state: the last force that left the filter.

@@ -319,6 +319,8 @@ int hs_compliance_surface_displacement(const hs_compliance* c, int n, const int*
 
 hs_status hs_compliance_apply(hs_compliance* c, const double* g, double* v) {
     for (int k = 0; k < 3 * c->n; ++k)
+        if (c->dof[k] >= 0 && !isfinite(g[k])) return HS_ERR_INVALID; // v untouched
+    for (int k = 0; k < 3 * c->n; ++k)
         if (c->dof[k] >= 0) c->rhs[c->dof[k]] = g[k];
     hs_status s = hs_cholesky_solve(c->chol, c->rhs, c->sol);
     if (s != HS_OK) return s;

@@ -322,15 +322,20 @@ static void solve(const hs_contact_snapshot* s, const double tool_m[3], int warm
     const double band = fmin(near, r + 1.5 * (r - cand[order[0]].rho));
     feat set[M];
     int m = 0, nv = 0, vtx[M]; // local vertices: candidate indices
-    for (int i = 0; i < nc && m < M && cand[order[i]].rho < band; ++i) {
-        feat* f = &cand[order[i]];
+    double rho_out = INFINITY; // the deepest point in the band the cap left out
+    int sel = 0;
+    for (; sel < nc && m < M && cand[order[sel]].rho < band; ++sel) {
+        feat* f = &cand[order[sel]];
         int add = 0;
         for (int k = 0; k < f->kind; ++k) {
             int j = 0;
             while (j < nv && vtx[j] != f->v[k]) ++j;
             if (j == nv) ++add;
         }
-        if (nv + add > M) continue;
+        if (nv + add > M) {
+            if (rho_out == INFINITY) rho_out = f->rho;
+            continue;
+        }
         for (int k = 0; k < f->kind; ++k) {
             int j = 0;
             while (j < nv && vtx[j] != f->v[k]) ++j;
@@ -365,10 +370,19 @@ static void solve(const hs_contact_snapshot* s, const double tool_m[3], int warm
     wc.nv = nv;
     wc.eps = eps;
     wc.approx = 0;
+    if (sel < nc && m == M && cand[order[sel]].rho < band && cand[order[sel]].rho < rho_out)
+        rho_out = cand[order[sel]].rho;
+    // Past the cap, which points are solved changes with the tool (the deepest swap places):
+    // a point's penetration is tapered to zero as its depth nears that of the deepest point
+    // left out, so a swap at equal depth moves no force (it jumped 0.1 N for 1 um). The taper
+    // is at most band - r wide, so a point entering the band and left out moves none either.
+    const double taper = fmin(HS_CONTACT_TAPER * r, band - r);
     double delta[M];
-    for (int i = 0; i < m; ++i) {
-        delta[i] = r - set[i].rho;
-        wc.have[i] = 0;
+    for (int k = 0; k < m; ++k) {
+        delta[k] = r - set[k].rho;
+        if (delta[k] > 0 && rho_out < INFINITY)
+            delta[k] *= fmin(1.0, fmax(0.0, (rho_out - set[k].rho) / taper));
+        wc.have[k] = 0;
     }
 
     // Start from the previous tick's contact when given (it rarely changes between ticks:

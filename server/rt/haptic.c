@@ -134,6 +134,11 @@ int hs_force_guard_finite(double f_n[3], int64_t* count) {
 int hs_force_clamp_magnitude(double f_n[3], double max_n) {
     double n = norm3(f_n);
     if (n <= max_n) return 0;
+    if (isinf(n) && hs_vec3_finite(f_n)) { // squares overflow: scale first, keep the direction
+        double a = fmax(fabs(f_n[0]), fmax(fabs(f_n[1]), fabs(f_n[2])));
+        for (int i = 0; i < 3; ++i) f_n[i] /= a;
+        n = norm3(f_n);
+    }
     double s = max_n > 0 ? max_n / n : 0;
     for (int i = 0; i < 3; ++i) f_n[i] *= s;
     return 1;
