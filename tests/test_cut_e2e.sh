@@ -12,8 +12,8 @@
 #  - sets sent every 0.3 s during a second drag (after the reset) are accepted until the first
 #    cut and refused after it, and no cut is lost (a late client gets a consistent mesh);
 #  - after the cut, set and a scene that fails to build are refused (the sim cannot be rebuilt
-#    on a cut mesh) and leave the cut simulation running; reset reloads the uncut scene (new
-#    topology version, set works again);
+#    on a cut mesh) and leave the cut simulation running, but the force limits (no rebuild)
+#    are accepted; reset reloads the uncut scene (new topology version, set works again);
 #  - the force the stylus received is finite, the blade felt resistance, and it changes by at
 #    most MAX_STEP_N per ms of the time between the two forces (a late stylus tick, or a force
 #    that arrives after a stall of the server, spans several server ticks): the cutting force
@@ -124,6 +124,9 @@ echo "$steady" | awk '{ exit !($1 > 0.003 && $1 < 0.1) }' || fail "steady probe 
 # After a cut the simulation cannot be rebuilt on the mesh: set is refused, reset reloads it.
 $ctl -q set youngs_pa 60000 2>"$tmp/set.err" && fail "set after a cut was accepted"
 grep -q "cut" "$tmp/set.err" || fail "set after a cut: $(cat "$tmp/set.err")"
+# Force limits need no rebuild: they can be changed after a cut (they were refused with it).
+$ctl -q set force_max_n 2 || fail "set force_max_n after a cut: rc $?"
+$ctl -q set watchdog_ms 150 || fail "set watchdog_ms after a cut: rc $?"
 # A scene that fails to build (it fixes no node) is refused too.
 cat >"$tmp/nofix.json" <<EOF
 { "name": "no fixed node", "mesh": "$src/scenes/skin/skin_patch_synthetic.msh",

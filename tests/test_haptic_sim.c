@@ -259,6 +259,42 @@ static int press_hold_release(void) {
     ENSURE(f_hold[0] * L.n[0] + f_hold[1] * L.n[1] + f_hold[2] * L.n[2] > 0); // pushes out
     ENSURE(st.contact.n >= 1 && frame_step > 0);
 
+    // New force limits while pressed, without a rebuild: half the held force at 20 N/s. The
+    // force comes down to the limit at the rate limit (telemetry, every rt tick), then back up
+    // when the limits are restored.
+    hs_safety_def lim = d.safety;
+    lim.max_force_n = 0.5 * norm3(f_hold);
+    lim.max_rate_n_s = 20;
+    hs_safety_def bad_lim = lim;
+    bad_lim.max_force_n = NAN;
+    ENSURE(hs_haptic_sim_set_safety(sim, &bad_lim) == HS_ERR_INVALID);
+    ENSURE(hs_haptic_sim_set_safety(sim, &lim) == HS_OK);
+    hs_haptic_telemetry tl;
+    while (hs_spsc_ring_pop(hs_haptic_sim_telemetry(sim), &tl)) {
+    }
+    double prev_f = -1, step_max = 0, f_last = 0;
+    for (int i = 0; i < 300; ++i) {
+        harness_tick(&hn, p);
+        while (hs_spsc_ring_pop(hs_haptic_sim_telemetry(sim), &tl)) {
+            f_last = norm3(tl.force_n);
+            // the rate limit over this tick's measured period (a late tick may take more)
+            double over = prev_f >= 0 ? fabs(f_last - prev_f) - 20 * tl.dt_s : 0;
+            if (over > step_max) step_max = over;
+            prev_f = f_last;
+        }
+    }
+    printf("  limit %.4f N at 20 N/s while held: |F| %.4f N after 0.3 s, largest tick change "
+           "beyond 20 N/s x its period %.2g N\n",
+           lim.max_force_n, f_last, step_max);
+    ENSURE(f_last <= lim.max_force_n * (1 + 1e-9) && f_last > 0.9 * lim.max_force_n);
+    ENSURE(step_max <= 1e-9);
+    ENSURE(hs_haptic_sim_set_safety(sim, &d.safety) == HS_OK);
+    for (int i = 0; i < 100; ++i) {
+        harness_tick(&hn, p);
+        drain(sim);
+    }
+    ENSURE(fabs(norm3(hn.out.force_n) - norm3(f_hold)) < 0.05 * norm3(f_hold));
+
     // Release: jump 3 cm out. The force is zero within the blend time (+ 3 ticks of latency)
     // of the later of the release and the last model change: a snapshot arriving just after
     // the release restarts the blend from the frozen contact model (seen on a loaded machine:

@@ -179,6 +179,10 @@ typedef struct hs_safety {
 
 /// Initialise from a valid def (HS_ASSERT otherwise).
 void hs_safety_init(hs_safety* s, const hs_safety_def* def);
+/// New limits from a valid def (HS_ASSERT otherwise), keeping the state: the watchdog's gain
+/// and the last output, so a lower force limit is reached at the rate limit, not in one step.
+/// Thread: owner only | Allocates: no
+void hs_safety_set_limits(hs_safety* s, const hs_safety_def* def);
 /// Filter one tick's force f_n in place ([3], N). pose_fresh: a new valid pose arrived this tick;
 /// pose_ok: 0 when the pose was non-finite (the output is zeroed and the watchdog tripped).
 /// The rate clamp limits the force before the watchdog gain, which scales it last: a zero gain

@@ -123,6 +123,12 @@ void hs_haptic_sim_destroy(hs_haptic_sim** sim);
 hs_status hs_haptic_sim_start(hs_haptic_sim* sim, hs_err* err);
 /// Stop both threads and join them. Idempotent. Thread: control | Blocks: yes
 void hs_haptic_sim_stop(hs_haptic_sim* sim);
+/// New force limits (magnitude, rate, watchdog) without a rebuild, running or stopped: the rt
+/// thread takes them at its next tick, keeping its state, so a lower force limit is reached at
+/// the rate limit. HS_ERR_INVALID (nothing changed) for an invalid def. A cutting sim's blade
+/// keeps the force limit it was created with as its own cap.
+/// Thread: control | Allocates: no | Blocks: no
+hs_status hs_haptic_sim_set_safety(hs_haptic_sim* sim, const hs_safety_def* safety);
 
 /// Hand a tool pose to the rt thread (newest wins; pose->seq must grow).
 /// Thread: one feeder | Allocates: no | Lock-free: yes | Blocks: no

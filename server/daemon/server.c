@@ -1133,6 +1133,21 @@ static int set_param(hs_server* s, const char* name, double v, char* msg, size_t
                  name, v);
         return HAPSIM_COMMAND_ACK_T_STATUS_INVALID;
     }
+    // Force limits go to the running sim (and a paused cut one) without a rebuild: no gap in
+    // the force, and they can be changed after a cut, when the sim cannot be rebuilt.
+    if (!strcmp(name, "force_max_n") || !strcmp(name, "force_rate_max_n_per_s") ||
+        !strcmp(name, "watchdog_ms")) {
+        hs_haptic_sim* live[2] = {w->sim, w->held};
+        for (int k = 0; k < 2; ++k)
+            if (live[k] && hs_haptic_sim_set_safety(live[k], &d.safety) != HS_OK) {
+                snprintf(msg, cap, "%s = %g: limits refused by the simulation", name, v);
+                return HAPSIM_COMMAND_ACK_T_STATUS_INVALID;
+            }
+        w->def = d;
+        w->scene = sc;
+        snprintf(msg, cap, "%s = %g", name, v);
+        return HAPSIM_COMMAND_ACK_T_STATUS_OK;
+    }
     hs_haptic_sim_def old_d = w->def;
     hs_scene old_sc = w->scene;
     w->def = d;

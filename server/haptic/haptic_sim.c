@@ -1048,6 +1048,13 @@ fail:
     return s;
 }
 
+hs_status hs_haptic_sim_set_safety(hs_haptic_sim* h, const hs_safety_def* safety) {
+    if (!h || !safety) return HS_ERR_INVALID;
+    hs_status st = hs_haptic_rt_set_safety(h->hrt, safety);
+    if (st == HS_OK) h->def.safety = *safety;
+    return st;
+}
+
 hs_status hs_haptic_sim_start(hs_haptic_sim* h, hs_err* err) {
     if (h->thread_started)
         return hs_err_set(err, HS_ERR_INVALID, "hs_haptic_sim_start: already started");

@@ -218,6 +218,14 @@ void hs_safety_init(hs_safety* s, const hs_safety_def* def) {
     s->rate.max_rate_n_s = def->max_rate_n_s;
 }
 
+void hs_safety_set_limits(hs_safety* s, const hs_safety_def* def) {
+    HS_ASSERT(hs_safety_def_valid(def));
+    s->def = *def;
+    s->watchdog.timeout_s = def->watchdog_timeout_s;
+    s->watchdog.ramp_s = def->ramp_s;
+    s->rate.max_rate_n_s = def->max_rate_n_s;
+}
+
 static uint32_t safety_zero(hs_safety* s, double f_n[3]) {
     f_n[0] = f_n[1] = f_n[2] = 0;
     memset(s->rate.prev_n, 0, sizeof s->rate.prev_n);

@@ -18,6 +18,7 @@ typedef struct counters_atomic {
 struct hs_haptic_rt {
     hs_haptic_rt_def def;
     hs_spsc_ring* telemetry;
+    hs_triple_buffer* limits; // new hs_safety_def values, writer -> rt thread
     // rt thread only:
     hs_haptic_blend blend;
     int stopped; // the watchdog held the output at zero on the last tick
@@ -67,6 +68,12 @@ hs_status hs_haptic_rt_create(const hs_haptic_rt_def* def, hs_haptic_rt** out, h
             return st;
         }
     }
+    hs_status st = hs_triple_buffer_create(sizeof(hs_safety_def), &h->limits, err);
+    if (st != HS_OK) {
+        hs_spsc_ring_destroy(&h->telemetry);
+        hs_free(h);
+        return st;
+    }
     h->def = *def;
     hs_haptic_blend_init(&h->blend, def->blend_ticks);
     hs_safety_init(&h->safety, &def->safety);
@@ -77,12 +84,19 @@ hs_status hs_haptic_rt_create(const hs_haptic_rt_def* def, hs_haptic_rt** out, h
 void hs_haptic_rt_destroy(hs_haptic_rt** h) {
     if (!h || !*h) return;
     hs_spsc_ring_destroy(&(*h)->telemetry);
+    hs_triple_buffer_destroy(&(*h)->limits);
     hs_free(*h);
     *h = NULL;
 }
 
 hs_spsc_ring* hs_haptic_rt_telemetry(hs_haptic_rt* h) {
     return h->telemetry;
+}
+
+hs_status hs_haptic_rt_set_safety(hs_haptic_rt* h, const hs_safety_def* def) {
+    if (!h || !def || !hs_safety_def_valid(def)) return HS_ERR_INVALID;
+    hs_triple_buffer_write(h->limits, def);
+    return HS_OK;
 }
 
 static void store(_Atomic int64_t* a, int64_t v) {
@@ -169,7 +183,9 @@ static void haptic_tick(void* ctx, const hs_rt_clock* clk) {
         }
     }
 
-    // 4. safety
+    // 4. safety (with the newest limits)
+    hs_safety_def lim;
+    if (hs_triple_buffer_read_copy(h->limits, &lim)) hs_safety_set_limits(&h->safety, &lim);
     uint32_t flags = hs_safety_apply(&h->safety, f, fresh, pose_ok, clk->now_ns, clk->dt_s);
     double gain = h->safety.watchdog.gain;
     // After a full watchdog stop there is no force to blend from: a resumed device (perhaps
@@ -189,7 +205,7 @@ static void haptic_tick(void* ctx, const hs_rt_clock* clk) {
     }
     memcpy(model.force_n, f, sizeof model.force_n);
     memcpy(model.anchor_m, h->pose.pos_m, sizeof model.anchor_m);
-    if (!(model.timeout_s > 0)) model.timeout_s = h->def.safety.watchdog_timeout_s;
+    if (!(model.timeout_s > 0)) model.timeout_s = h->safety.def.watchdog_timeout_s;
 
     // 5. out
     hs_haptic_output out;

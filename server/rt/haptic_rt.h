@@ -86,6 +86,10 @@ hs_rt_tick hs_haptic_rt_tick(hs_haptic_rt* h);
 hs_spsc_ring* hs_haptic_rt_telemetry(hs_haptic_rt* h);
 /// Copy the counters out. Thread: any | Allocates: no | Lock-free: yes | Blocks: no
 void hs_haptic_rt_get_counters(const hs_haptic_rt* h, hs_haptic_rt_counters* out /* OUT */);
+/// New safety limits while the loop runs (or stands): the rt thread takes them at its next tick,
+/// keeping the watchdog and rate state (hs_safety_set_limits). HS_ERR_INVALID (nothing changed)
+/// for an invalid def. Thread: one writer thread | Allocates: no | Lock-free: yes | Blocks: no
+hs_status hs_haptic_rt_set_safety(hs_haptic_rt* h, const hs_safety_def* def);
 
 // ---------------------------------------------------------------------------------------------
 // Model source: a force source that evaluates the newest hs_haptic_model published by another
