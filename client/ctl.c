@@ -31,8 +31,9 @@ static void usage(FILE* f) {
                "  --timeout MS         give up after MS milliseconds (3000)\n"
                "  --retry MS           re-send an unanswered command every MS milliseconds (250)\n"
                "  -q, --quiet          print nothing on success\n"
-               "  -h, --help           this text\n\n"
-               "exit status: 0 ok, 1 bad usage, 2 no server / timeout, 3 command rejected\n");
+               "  -h, --help           this text (anywhere on the line)\n\n"
+               "exit status: 0 ok, 1 bad usage (also a --mesh-url LCM cannot open),\n"
+               "2 no server / timeout, 3 command rejected\n");
 }
 
 static void print_status(const hs_client_status* s, int64_t age_us) {
@@ -67,12 +68,15 @@ static void print_status(const hs_client_status* s, int64_t age_us) {
 int main(int argc, char** argv) {
     const char *mesh_url = NULL, *prefix = NULL;
     int timeout_ms = 3000, retry_ms = 250, quiet = 0, i = 1;
-    for (; i < argc && argv[i][0] == '-'; i++) {
-        const char* a = argv[i];
-        if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
+    // Asking for help is never a usage error, also after the command ("status --help").
+    for (int j = 1; j < argc; j++)
+        if (!strcmp(argv[j], "-h") || !strcmp(argv[j], "--help")) {
             usage(stdout);
             return EXIT_OK;
-        } else if (!strcmp(a, "-q") || !strcmp(a, "--quiet")) {
+        }
+    for (; i < argc && argv[i][0] == '-'; i++) {
+        const char* a = argv[i];
+        if (!strcmp(a, "-q") || !strcmp(a, "--quiet")) {
             quiet = 1;
             continue;
         }
@@ -161,8 +165,10 @@ int main(int argc, char** argv) {
     hs_err err = {0};
     hs_status st = hs_client_create(&cfg, &c, &err);
     if (st != HS_OK) {
+        // Nothing was sent yet: a prefix or a URL that LCM cannot open is a bad value, not a
+        // missing server (the message names the URL).
         fprintf(stderr, "hapsim-ctl: %s\n", err.msg);
-        return st == HS_ERR_INVALID ? EXIT_USAGE : EXIT_NO_SERVER;
+        return EXIT_USAGE;
     }
     int rc = EXIT_OK;
     if (table[k].kind == 0) {

@@ -37,12 +37,12 @@ static void usage(FILE* f) {
             "  --vtk             write the VTK series\n"
             "  --duration S      stop after S seconds (0: until SIGINT/SIGTERM)\n"
             "  --view AZ,EL      camera azimuth about +z from +x and elevation, degrees (30,20)\n"
-            "  --size WxH        PNG size in pixels (640x480)\n"
+            "  --size WxH        PNG size in pixels, decimal integers 16 .. 8192 (640x480)\n"
             "  --dmax M          displacement shown red, m (0.01); 0 is blue\n"
             "  --mesh-url URL    mesh bus (" HAPSIM_DEFAULT_MESH_URL "&recv_buf_size=...)\n"
             "  --prefix P        channel prefix (" HAPSIM_DEFAULT_PREFIX ")\n"
             "  --status          live status line on stderr (default when stderr is a terminal)\n"
-            "  --quiet           no status line and no summary\n"
+            "  --quiet           no status line and no summary (wins over --status)\n"
             "  -h, --help        this text\n\n"
             "kill -USR1 <pid> writes a snapshot now. Exit status: 0 ok, 1 bad usage,\n"
             "2 no mesh received before the end, 3 output could not be written.\n");
@@ -75,6 +75,22 @@ static int parse_pair(const char* s, char sep, double* a, double* b) {
     const char* t = e + 1;
     *b = strtod(t, &e);
     return e == t || *e || !isfinite(*a) || !isfinite(*b) ? -1 : 0;
+}
+
+// WxH in decimal digits only (strtod also read 0x10 as 16 and 1e2 as 100), 16 .. 8192 each.
+static int parse_size(const char* s, int* w, int* h) {
+    long v[2];
+    for (int k = 0; k < 2; k++) {
+        if (*s < '0' || *s > '9') return -1;
+        for (v[k] = 0; *s >= '0' && *s <= '9'; s++)
+            if ((v[k] = 10 * v[k] + (*s - '0')) > 8192) return -1;
+        if (*s != (k ? '\0' : 'x')) return -1;
+        s++;
+    }
+    if (v[0] < 16 || v[1] < 16) return -1;
+    *w = (int)v[0];
+    *h = (int)v[1];
+    return 0;
 }
 
 static int write_frame(viewer* v, const hs_client_mesh* m) {
@@ -178,7 +194,7 @@ int main(int argc, char** argv) {
     v.el = 20;
     v.width = 640;
     v.height = 480;
-    v.status = isatty(2);
+    int status = isatty(2);
     v.last_frame_written = -1;
     double duration = 0;
     const char *mesh_url = NULL, *prefix = NULL;
@@ -230,14 +246,10 @@ int main(int argc, char** argv) {
             }
         } else if (!strcmp(a, "--size")) {
             NEED_VAL;
-            double w, h;
-            if (parse_pair(val, 'x', &w, &h) || w < 16 || h < 16 || w > 8192 || h > 8192 ||
-                w != floor(w) || h != floor(h)) {
+            if (parse_size(val, &v.width, &v.height)) {
                 fprintf(stderr, "hapsim-view: --size '%s': expected WxH, 16 .. 8192 pixels\n", val);
                 return 1;
             }
-            v.width = (int)w;
-            v.height = (int)h;
         } else if (!strcmp(a, "--mesh-url")) {
             NEED_VAL;
             mesh_url = val;
@@ -249,34 +261,18 @@ int main(int argc, char** argv) {
         } else if (!strcmp(a, "--vtk")) {
             v.vtk = 1;
         } else if (!strcmp(a, "--status")) {
-            v.status = 1;
+            status = 1;
         } else if (!strcmp(a, "--quiet")) {
             v.quiet = 1;
-            v.status = 0;
         } else {
             fprintf(stderr, "hapsim-view: unknown option '%s' (see --help)\n", a);
             return 1;
         }
     }
     if (!v.png && !v.vtk) v.png = v.vtk = 1;
-    if (mkdir(v.out, 0777) != 0 && errno != EEXIST) {
-        fprintf(stderr, "hapsim-view: cannot create %s: %s\n", v.out, strerror(errno));
-        return 3;
-    }
-    hs_err err = {0};
-    if (v.png && hs_image_create(v.width, v.height, &v.img, &err) != HS_OK) {
-        fprintf(stderr, "hapsim-view: %s\n", err.msg);
-        return 3;
-    }
-    char path[4200];
-    snprintf(path, sizeof path, "%s/frames.csv", v.out);
-    v.index = fopen(path, "w");
-    if (!v.index) {
-        fprintf(stderr, "hapsim-view: cannot create %s: %s\n", path, strerror(errno));
-        return 3;
-    }
-    fprintf(v.index, "index,png,vtu,sim_time_s,sim_step,topology_version,keyframe_id,max_disp_m\n");
+    v.status = status && !v.quiet; // in either order
 
+    // The client checks --prefix and --mesh-url: before anything is created on disk.
     hs_client_config cfg;
     hs_client_config_default(&cfg);
     cfg.haptic_url = "";
@@ -284,10 +280,26 @@ int main(int argc, char** argv) {
     cfg.prefix = prefix;
     cfg.subscribe = HS_CLIENT_SUB_MESH | HS_CLIENT_SUB_STATUS;
     hs_client* c = NULL;
+    hs_err err = {0};
     if (hs_client_create(&cfg, &c, &err) != HS_OK) {
         fprintf(stderr, "hapsim-view: %s\n", err.msg);
         return 1;
     }
+    char path[4200];
+    snprintf(path, sizeof path, "%s/frames.csv", v.out);
+    if (mkdir(v.out, 0777) != 0 && errno != EEXIST) {
+        fprintf(stderr, "hapsim-view: cannot create %s: %s\n", v.out, strerror(errno));
+    } else if (v.png && hs_image_create(v.width, v.height, &v.img, &err) != HS_OK) {
+        fprintf(stderr, "hapsim-view: %s\n", err.msg);
+    } else if (!(v.index = fopen(path, "w"))) {
+        fprintf(stderr, "hapsim-view: cannot create %s: %s\n", path, strerror(errno));
+    }
+    if (!v.index) {
+        hs_image_destroy(&v.img);
+        hs_client_destroy(&c);
+        return 3;
+    }
+    fprintf(v.index, "index,png,vtu,sim_time_s,sim_step,topology_version,keyframe_id,max_disp_m\n");
     struct sigaction sa;
     memset(&sa, 0, sizeof sa);
     sa.sa_handler = on_signal;

@@ -10,6 +10,13 @@ check() { # name, condition (0 = ok)
 }
 core() { sed -n 2p "$T/out"; }
 
+# Options before or after the command; a missing value is named as such.
+"$BENCH" --quick blas > "$T/out" 2> "$T/err"; rc=$?
+check "--quick before the command: rc $rc, $(cat "$T/err")" $rc
+"$BENCH" blas --meshes > /dev/null 2> "$T/err"; rc=$?
+[ $rc -eq 1 ] && grep -q "missing value for --meshes" "$T/err"; rc=$?
+check "--meshes without a value named: $(cat "$T/err")" $rc
+
 OPENBLAS_CORETYPE=Prescott "$BENCH" blas > "$T/out" 2> "$T/err"; check "blas command exits 0" $?
 if [ "$(core)" = "not OpenBLAS" ]; then
   echo "SKIP: the BLAS behind libblas.so.3 is not OpenBLAS"; exit 77

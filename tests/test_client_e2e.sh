@@ -2,8 +2,10 @@
 # End to end (run through tests/netns.sh: private network namespace, multicast on lo, ttl=0):
 # hapsim-server on the liver scene, hapsim-view writing PNG + VTK, hapsim-ctl commands and
 # status, hapsim-stylus pressing the liver 5 mm (press_hold.probe). Checks: every command gets
-# its ack (exit codes 0 / 3 / 2 / 1 as documented), the PNGs change where the probe presses and
-# not on the far side (test_client_press), the VTK series loads in meshio / Python's XML parser.
+# its ack (exit codes 0 / 3 / 2 / 1 as documented), bad command lines of hapsim-view and
+# hapsim-ctl are refused before anything is created or sent, the PNGs change where the probe
+# presses and not on the far side (test_client_press), the VTK series loads in meshio / Python's
+# XML parser.
 #   tests/test_client_e2e.sh BIN_DIR SOURCE_DIR
 # Exit 77 (skip) when hapsim-server or hapsim-stylus is not built.
 set -u
@@ -41,6 +43,33 @@ for bad in "--duration 1e13" "--duration -1" "--rate 1e-30" "--rate 2000"; do
     "$bin/hapsim-view" $bad >"$tmp/bad.txt" 2>&1
     rc=$?
     [ $rc = 1 ] && grep -q "expected" "$tmp/bad.txt" || fail "hapsim-view $bad: rc $rc, $(cat "$tmp/bad.txt")"
+done
+# --quiet wins over --status in either order (--quiet --status printed status lines).
+for order in "--quiet --status" "--status --quiet"; do
+    # shellcheck disable=SC2086
+    "$bin/hapsim-view" --out "$tmp/quiet" $order --duration 1.2 >"$tmp/bad.txt" 2>&1
+    ! grep -q "fps" "$tmp/bad.txt" || fail "hapsim-view $order printed a status line"
+done
+# A bad value is refused before the output folder or frames.csv exists.
+"$bin/hapsim-view" --out "$tmp/pfx" --prefix lower --duration 0.5 >"$tmp/bad.txt" 2>&1
+rc=$?
+[ $rc = 1 ] && [ ! -e "$tmp/pfx" ] || fail "hapsim-view --prefix lower: rc $rc, $(ls "$tmp/pfx" 2>&1)"
+# --size is decimal integers (0x10x16 read as 16x16: strtod takes hex).
+for bad in 0x10x16 1e2x100 16.0x16 +16x16 " 16x16"; do
+    "$bin/hapsim-view" --out "$tmp/size" --size "$bad" --duration 0.5 >"$tmp/bad.txt" 2>&1
+    rc=$?
+    [ $rc = 1 ] && grep -q "expected WxH" "$tmp/bad.txt" || fail "hapsim-view --size '$bad': rc $rc, $(cat "$tmp/bad.txt")"
+done
+# hapsim-ctl: a bus LCM cannot open is a bad value (exit 1, URL named), not "no server";
+# -h/--help anywhere prints the usage.
+"$bin/hapsim-ctl" --timeout 400 --mesh-url bogus://x status >"$tmp/bad.txt" 2>&1
+rc=$?
+[ $rc = 1 ] && grep -q "bogus://x" "$tmp/bad.txt" || fail "hapsim-ctl --mesh-url bogus://x: rc $rc, $(cat "$tmp/bad.txt")"
+for args in "status --help" "set -h" "--timeout 400 reset --help"; do
+    # shellcheck disable=SC2086
+    "$bin/hapsim-ctl" $args >"$tmp/bad.txt" 2>&1
+    rc=$?
+    [ $rc = 0 ] && grep -q "^usage: hapsim-ctl" "$tmp/bad.txt" || fail "hapsim-ctl $args: rc $rc, $(cat "$tmp/bad.txt")"
 done
 
 "$bin/hapsim-server" scenes/liver/liver.json --duration 30 --quiet >"$tmp/server.log" 2>&1 &

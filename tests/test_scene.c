@@ -150,6 +150,11 @@ static int malformed_names_file_line_key(void) {
                        "'features.haptics'", NULL) == 0);
     ENSURE(expect_fail(HEAD "\"lcm\": {\"mesh_url\": \"udpm://239.255.76.67:7667?ttl=0\"}}",
                        HS_ERR_PARSE, "'lcm.mesh_url': must differ", NULL) == 0);
+    // Options after '?' (ttl, recv_buf_size) do not make a second bus: same group and port.
+    ENSURE(expect_fail(HEAD "\"lcm\": {\"mesh_url\": \"udpm://239.255.76.67:7667?ttl=1\"}}",
+                       HS_ERR_PARSE, "'lcm.mesh_url': must differ", NULL) == 0);
+    ENSURE(expect_fail(HEAD "\"lcm\": {\"haptic_url\": \"udpm://239.255.76.67:7668\"}}",
+                       HS_ERR_PARSE, "'lcm.mesh_url': must differ", NULL) == 0);
     ENSURE(expect_fail(HEAD "\"lcm\": {\"prefix\": \"hapsim.\"}}", HS_ERR_PARSE,
                        "'lcm.prefix': may contain only", NULL) == 0);
     ENSURE(expect_fail(HEAD "\"lcm\": {\"haptic_url\": \"localhost\"}}", HS_ERR_PARSE,
@@ -169,6 +174,19 @@ static int malformed_names_file_line_key(void) {
     snprintf(big + len, 40000 - len, "\"devices\": 1}");
     ENSURE(expect_fail(big, HS_ERR_PARSE, "more than 256 keys in one object", NULL) == 0);
     free(big);
+    return 0;
+}
+
+// Two URLs are one bus when LCM would open the same provider, group and port.
+static int same_bus(void) {
+    ENSURE(hs_scene_same_bus("udpm://239.255.76.67:7667", "udpm://239.255.76.67:7667?ttl=0"));
+    ENSURE(hs_scene_same_bus("udpm://239.255.76.67:7667?ttl=0", "udpm://?recv_buf_size=9"));
+    ENSURE(hs_scene_same_bus("udpm://239.255.76.67:0x1DF3", "udpm://239.255.76.67:7667"));
+    ENSURE(!hs_scene_same_bus("udpm://239.255.76.67:7667?ttl=0", "udpm://239.255.76.67:7668"));
+    ENSURE(!hs_scene_same_bus("udpm://239.255.76.67:7667", "udpm://239.255.76.68:7667"));
+    ENSURE(!hs_scene_same_bus("udpm://239.255.76.67:7667", "tcpq://239.255.76.67:7667"));
+    ENSURE(hs_scene_same_bus("file:///tmp/a.log?mode=w", "file:///tmp/a.log"));
+    ENSURE(!hs_scene_same_bus("file:///tmp/a.log", "file:///tmp/b.log"));
     return 0;
 }
 
@@ -220,4 +238,5 @@ static int files_and_truncation(void) {
 }
 
 HS_TEST_MAIN(HS_CASE(liver_scene_loads), HS_CASE(defaults_and_paths),
-             HS_CASE(malformed_names_file_line_key), HS_CASE(files_and_truncation))
+             HS_CASE(malformed_names_file_line_key), HS_CASE(files_and_truncation),
+             HS_CASE(same_bus))

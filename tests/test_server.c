@@ -2,7 +2,8 @@
 // multicast, inside a private network namespace (tests/netns.sh; ttl=0, private ports).
 // Poses in -> forces out on the liver, the watchdog, commands with acks, a 10k-vertex keyframe,
 // delta loss recovered at the next keyframe, a 100k-message flood of malformed payloads with
-// exact reject counters and a bitwise-identical mesh, a malformed scene. Every wait is bounded.
+// exact reject counters and a bitwise-identical mesh, a malformed scene, refused command lines.
+// Every wait is bounded.
 #define _GNU_SOURCE
 #include <errno.h>
 #include <signal.h>
@@ -990,6 +991,84 @@ static int malformed_scene_exits_1(void) {
     return 0;
 }
 
-HS_TEST_MAIN(HS_CASE(malformed_scene_exits_1), HS_CASE(poses_in_forces_out),
-             HS_CASE(mesh_10k_arrives_whole), HS_CASE(dropped_deltas_recover),
-             HS_CASE(flood_leaves_server_intact))
+// Runs hapsim-server with argv (after the scene) for at most 8 s; its exit status (-1: still
+// running, killed) and its output in text.
+static int run_server_args(const char* scene, const char* const* args, char* text, size_t cap) {
+    char log[600];
+    snprintf(log, sizeof log, "%s/server-args.log", tmpdir);
+    static char store[16][400]; // execv takes char*: copies rather than casts
+    char* argv[16] = {store[0], store[1]};
+    snprintf(store[0], sizeof store[0], "%s", HS_SERVER_BIN);
+    snprintf(store[1], sizeof store[1], "%s", scene);
+    int n = 2;
+    for (; args[n - 2] && n < 15; ++n) {
+        snprintf(store[n], sizeof store[n], "%s", args[n - 2]);
+        argv[n] = store[n];
+    }
+    argv[n] = NULL;
+    kill_child();
+    fflush(stdout);
+    child = fork();
+    if (child < 0) return -2;
+    if (child == 0) {
+        FILE* f = freopen(log, "w", stdout);
+        (void)f;
+        dup2(fileno(stdout), 2);
+        execv(HS_SERVER_BIN, argv);
+        _exit(127);
+    }
+    int st = -1;
+    int64_t end = hs_now_ns() + 8000000000LL;
+    while (hs_now_ns() < end) {
+        int w = 0;
+        if (waitpid(child, &w, WNOHANG) == child) {
+            st = WIFEXITED(w) ? WEXITSTATUS(w) : -1;
+            child = -1;
+            break;
+        }
+        usleep(10000);
+    }
+    kill_child();
+    FILE* f = fopen(log, "r");
+    size_t k = f ? fread(text, 1, cap - 1, f) : 0;
+    if (f) fclose(f);
+    text[k] = '\0';
+    printf("  exit %d: %s", st, text);
+    return st;
+}
+
+// Command lines the server must refuse before it opens a bus (each would otherwise run 2 s).
+static int bad_command_lines_refused(void) {
+    char scene[512], text[4096];
+    snprintf(scene, sizeof scene, "%s/liver.json", tmpdir);
+    liver_scene(scene, NULL);
+    // One group and port, only the options differ: both buses would be one.
+    const char* same[] = {"--haptic-url", "udpm://239.255.76.93:7793",
+                          "--mesh-url",   "udpm://239.255.76.93:7793?ttl=0",
+                          "--duration",   "2",
+                          "--quiet",      NULL};
+    ENSURE(run_server_args(scene, same, text, sizeof text) == 1);
+    ENSURE(strstr(text, "same bus") && strstr(text, "udpm://239.255.76.93:7793?ttl=0"));
+    // 300 bytes: cut to 255 it would lose its recv_buf_size.
+    char url[320];
+    int n = snprintf(url, sizeof url, "%s", URL_M "&");
+    while (n < 280) n += snprintf(url + n, sizeof url - (size_t)n, "a=1&");
+    snprintf(url + n, sizeof url - (size_t)n, "recv_buf_size=4194304");
+    const char* mlong[] = {"--haptic-url", URL_H, "--mesh-url", url,
+                           "--duration",   "2",   "--quiet",    NULL};
+    ENSURE(run_server_args(scene, mlong, text, sizeof text) == 1);
+    ENSURE(strstr(text, "--mesh-url") && strstr(text, "longer than 255 bytes"));
+    const char* hlong[] = {"--haptic-url", url, "--mesh-url", URL_M,
+                           "--duration",   "2", "--quiet",    NULL};
+    ENSURE(run_server_args(scene, hlong, text, sizeof text) == 1);
+    ENSURE(strstr(text, "--haptic-url") && strstr(text, "longer than 255 bytes"));
+    // Beyond the limit: the message says the limit.
+    const char* dur[] = {"--duration", "1e8", NULL};
+    ENSURE(run_server_args(scene, dur, text, sizeof text) == 2);
+    ENSURE(strstr(text, "--duration") && strstr(text, "1e7"));
+    return 0;
+}
+
+HS_TEST_MAIN(HS_CASE(malformed_scene_exits_1), HS_CASE(bad_command_lines_refused),
+             HS_CASE(poses_in_forces_out), HS_CASE(mesh_10k_arrives_whole),
+             HS_CASE(dropped_deltas_recover), HS_CASE(flood_leaves_server_intact))

@@ -33,6 +33,40 @@ printf '$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n2\n1 0 0 x\n' > "$T/bad.ms
 "$SOLVE" --mesh "$T/missing.msh" --model linear --static --fix-plane z,min,1 --out "$T/o.csv" 2> "$T/err"; rc=$?
 [ $rc -eq 1 ] && grep -q "missing.msh" "$T/err"; check "missing file named" $?
 
+# An output that cannot be written is refused before the solve (it failed after it): no summary.
+for flag in --out --vtk; do
+  "$SOLVE" --mesh "$MESH" --model linear --static --fix-plane y,min,0.005 --out "$T/o.csv" \
+    $flag /nonexistent/d.x > "$T/sum" 2> "$T/err"; rc=$?
+  [ $rc -eq 1 ] && grep -q "cannot write /nonexistent/d.x" "$T/err" && [ ! -s "$T/sum" ]
+  check "$flag into a missing folder refused before the solve" $?
+done
+"$SOLVE" --mesh "$MESH" --model linear --static --fix-plane y,min,0.005 --out "$T" > "$T/sum" 2> "$T/err"; rc=$?
+[ $rc -eq 1 ] && grep -q "cannot write" "$T/err" && [ ! -s "$T/sum" ]; check "--out a folder refused" $?
+# A flag the chosen model, mode or solver never reads is a bad command line, named with why.
+ignored() { # flag, args...
+  flag=$1; shift
+  "$SOLVE" --mesh "$MESH" --fix-plane y,min,0.005 --out "$T/o.csv" "$@" > /dev/null 2> "$T/err"; rc=$?
+  [ $rc -eq 1 ] && grep -q -- "$flag has no effect" "$T/err"; check "$* refused naming $flag" $?
+}
+ignored --dt --model linear --static --dt 0.01
+ignored --damping --model corotated --static --damping 0.1,0.01
+ignored --tol --model linear --steps 2 --dt 0.01 --tol 1e-6
+ignored --max-iter --model linear --steps 2 --dt 0.01 --max-iter 5
+ignored --load-steps --model linear --steps 2 --dt 0.01 --load-steps 2
+ignored --precond --model linear --static --precond jacobi
+ignored --pcg-iters --model corotated --steps 2 --dt 0.01 --solver warped --pcg-iters 5
+ignored --locking-free --model mooney --static --locking-free
+ignored --solver --model mooney --static --solver pcg
+ignored --beta --model corotated --static --beta 1
+ignored --rotation --model linear --static --rotation svd
+ignored --inversion --model stvk --static --inversion reflect
+ignored --polar-tol --model linear --static --polar-tol 1e-6
+# ... and where it is read, it is accepted.
+"$SOLVE" --mesh "$MESH" --model linear --fix-plane y,min,0.005 --steps 2 --dt 0.01 --solver warped \
+  --polar-tol 1e-5 --damping 0.1,0.01 --out "$T/o.csv" > /dev/null; check "warped steps take --polar-tol and --damping" $?
+"$SOLVE" --mesh "$MESH" --model stvk --fix-plane y,min,0.005 --static --solver pcg --pcg-iters 50 \
+  --precond factor --tol 1e-6 --locking-free --out "$T/o.csv" > /dev/null; check "static pcg takes --precond, --pcg-iters" $?
+
 # A real solve: header + one line per node, finite numbers, summary printed.
 "$SOLVE" --mesh "$MESH" --model corotated --E 50000 --nu 0.45 --density 1060 --gravity 0,0,-9.81 \
   --fix-plane y,min,0.005 --static --load-steps 2 --out "$T/u.csv" > "$T/sum"; check "corotated static solves" $?

@@ -110,6 +110,11 @@ hs_status hs_scene_load(const char* path, hs_scene* out /* OUT */, hs_err* err);
 hs_status hs_scene_parse(const char* text, const char* path, int check_files,
                          hs_scene* out /* OUT */, hs_err* err);
 
+/// 1 when two LCM URLs open the same bus: same provider and network (group and port), whatever
+/// their options after '?' (ttl, recv_buf_size); "udpm://" is LCM's default 239.255.76.67:7667.
+/// Thread: any | Allocates: no
+int hs_scene_same_bus(const char* a, const char* b);
+
 /// Short names used in scene files: "linear", "corotated", "stvk"; "probe", "scalpel"; ...
 const char* hs_scene_model_name(hs_model m);
 

@@ -30,18 +30,20 @@ static void usage(FILE* f) {
             "options:\n"
             "  --haptic-url URL  haptic bus: poses in, forces out (scene lcm.haptic_url)\n"
             "  --mesh-url URL    mesh bus: mesh, tool state, commands, acks, status\n"
-            "                    (scene lcm.mesh_url; must differ from the haptic URL)\n"
+            "                    (scene lcm.mesh_url; another bus than the haptic URL: a\n"
+            "                    different group or port, options after '?' do not count)\n"
             "  --prefix P        channel prefix [A-Z0-9_]* (scene lcm.prefix)\n"
             "  --realtime        ask for SCHED_FIFO (priority 80) and mlockall for the rt thread;\n"
             "                    falls back to ordinary scheduling when refused and says so\n"
-            "  --duration S      stop by itself after S seconds\n"
+            "  --duration S      stop by itself after S seconds (at most 1e7)\n"
             "  --live            one status line on stderr, rewritten in place twice a second\n"
             "  --quiet           no start-up summary and no exit line\n"
             "  -h, --help        this text\n"
             "\n"
             "Exit status: 0 after SIGINT/SIGTERM or --duration; 1 on a bad scene (the message\n"
-            "names the file, line and key), a bad --prefix, equal haptic and mesh URLs or a\n"
-            "run-time failure; 2 on an unknown option, a missing or bad value, or no scene.\n");
+            "names the file, line and key), a bad --prefix, a URL longer than 255 bytes,\n"
+            "haptic and mesh URLs on the same bus or a run-time failure; 2 on an unknown\n"
+            "option, a missing or bad value, or no scene.\n");
 }
 
 int main(int argc, char** argv) {
@@ -86,7 +88,7 @@ int main(int argc, char** argv) {
             char* end = NULL;
             o.duration_s = strtod(argv[++i], &end);
             if (end == argv[i] || *end || !(o.duration_s > 0) || o.duration_s > 1e7) {
-                fprintf(stderr, "hapsim-server: --duration '%s': a number of seconds > 0\n",
+                fprintf(stderr, "hapsim-server: --duration '%s': seconds, > 0 and at most 1e7\n",
                         argv[i]);
                 return 2;
             }

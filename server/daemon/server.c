@@ -1348,6 +1348,13 @@ hs_status hs_server_create(const hs_server_opts* opts, hs_server** out, hs_err* 
     hs_scene sc;
     hs_status st = hs_scene_load(opts->scene_path, &sc, err);
     if (st != HS_OK) return st;
+    // A longer URL would be cut to fit (losing e.g. its recv_buf_size): refuse it.
+    if (opts->haptic_url && strlen(opts->haptic_url) >= sizeof sc.haptic_url)
+        return hs_err_set(err, HS_ERR_INVALID, "--haptic-url: longer than %zu bytes",
+                          sizeof sc.haptic_url - 1);
+    if (opts->mesh_url && strlen(opts->mesh_url) >= sizeof sc.mesh_url)
+        return hs_err_set(err, HS_ERR_INVALID, "--mesh-url: longer than %zu bytes",
+                          sizeof sc.mesh_url - 1);
     if (opts->prefix && !prefix_ok(opts->prefix))
         return hs_err_set(err, HS_ERR_INVALID, "--prefix '%s': must match [A-Z0-9_]{0,47}",
                           opts->prefix);
@@ -1358,10 +1365,11 @@ hs_status hs_server_create(const hs_server_opts* opts, hs_server** out, hs_err* 
              opts->haptic_url ? opts->haptic_url : sc.haptic_url);
     snprintf(s->mesh_url, sizeof s->mesh_url, "%s", opts->mesh_url ? opts->mesh_url : sc.mesh_url);
     snprintf(s->prefix, sizeof s->prefix, "%s", opts->prefix ? opts->prefix : sc.prefix);
-    if (!strcmp(s->haptic_url, s->mesh_url)) {
+    if (hs_scene_same_bus(s->haptic_url, s->mesh_url)) {
         st = hs_err_set(err, HS_ERR_INVALID,
-                        "haptic and mesh URLs are both '%s': use two buses (different ports)",
-                        s->haptic_url);
+                        "haptic URL '%s' and mesh URL '%s' are the same bus (group and port): use "
+                        "two buses (different ports)",
+                        s->haptic_url, s->mesh_url);
         goto fail;
     }
     st = channels(s, err);

@@ -1,12 +1,15 @@
 // Scene files: JSON (cJSON) -> hs_scene. Every value is type- and range-checked; unknown and
 // repeated keys are errors (a typo must not silently fall back to a default). Errors name the
 // file, the line and the key path, e.g. "liver.json:7: key 'material.poisson': ...".
+#define _DEFAULT_SOURCE // inet_aton
 #include "hapsim/scene.h"
 
+#include <arpa/inet.h>
 #include <cJSON.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
 
@@ -525,10 +528,45 @@ static hs_status parse_rest(const ctx* c, const cJSON* root, hs_scene* s) {
             return fail(c, cJSON_GetObjectItemCaseSensitive(o, "mesh_url"), "lcm.mesh_url",
                         "is not an LCM URL (provider://address...)");
     }
-    if (strcmp(s->haptic_url, s->mesh_url) == 0)
+    if (hs_scene_same_bus(s->haptic_url, s->mesh_url))
         return fail(c, o ? cJSON_GetObjectItemCaseSensitive(o, "mesh_url") : NULL, "lcm.mesh_url",
                     "must differ from lcm.haptic_url (separate buses, different ports)");
     return HS_OK;
+}
+
+// udpm's network as LCM reads it: empty is its default group and port, the address by
+// inet_aton, the port by strtol base 0 (so 7667 and 0x1DF3 are one port). -1: compare as text.
+static int udpm_network(const char* s, size_t n, uint32_t* addr, long* port) {
+    char buf[HS_SCENE_URL_MAX];
+    if (n == 0) {
+        s = "239.255.76.67:7667";
+        n = strlen(s);
+    }
+    if (n >= sizeof buf) return -1;
+    memcpy(buf, s, n);
+    buf[n] = '\0';
+    char* colon = strchr(buf, ':');
+    if (!colon) return -1;
+    *colon = '\0';
+    struct in_addr ia;
+    char* e;
+    *port = strtol(colon + 1, &e, 0);
+    if (!inet_aton(buf, &ia) || e == colon + 1 || *e) return -1;
+    *addr = ia.s_addr;
+    return 0;
+}
+
+int hs_scene_same_bus(const char* a, const char* b) {
+    static const char udpm[] = "udpm://";
+    const size_t nu = sizeof udpm - 1;
+    size_t na = strcspn(a, "?"), nb = strcspn(b, "?"); // options (ttl, ...) are no other bus
+    if (na >= nu && nb >= nu && !strncmp(a, udpm, nu) && !strncmp(b, udpm, nu)) {
+        uint32_t ga, gb;
+        long pa, pb;
+        if (!udpm_network(a + nu, na - nu, &ga, &pa) && !udpm_network(b + nu, nb - nu, &gb, &pb))
+            return ga == gb && pa == pb;
+    }
+    return na == nb && !strncmp(a, b, na);
 }
 
 // Relative mesh paths are relative to the scene file's folder.

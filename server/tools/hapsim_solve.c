@@ -11,6 +11,8 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
 static const char* usage =
     "usage: hapsim-solve --mesh FILE --model linear|corotated|stvk|mooney [options] --out "
@@ -44,14 +46,19 @@ static const char* usage =
     "  --damping ALPHA,BETA   Rayleigh damping C = alpha M + beta K (default 0,0)\n"
     "  --solver direct|pcg|warped  linear solver (default direct, CHOLMOD; warped: one\n"
     "                         rotated rest-factor solve per step, exact tangent when --static)\n"
-    "  --precond none|jacobi|factor   PCG preconditioner (default factor: rest-state Cholesky)\n"
+    "  --precond none|jacobi|factor|warped   PCG preconditioner (default warped: the\n"
+    "                         rest-state Cholesky factor turned by the node rotations)\n"
     "  --pcg-iters N          PCG iterations per solve (default 20)\n"
     "  --vtk FILE             also write the deformed mesh as legacy VTK\n"
     "  --out FILE             displacement CSV (required)\n"
     "  -q, --quiet            no summary\n"
     "  -h, --help             this text\n"
     "\n"
-    "Exit status: 0 solved, 1 bad arguments or input, 2 solver failure, 3 not converged.\n";
+    "A flag that the chosen model, mode or solver does not read (e.g. --dt with --static,\n"
+    "--precond without --solver pcg) is refused. The outputs' folders are checked first.\n"
+    "\n"
+    "Exit status: 0 solved, 1 bad arguments or input (also an output that cannot be\n"
+    "written), 2 solver failure, 3 not converged.\n";
 
 static int parse_doubles(const char* s, double* v, int n) {
     const char* p = s;
@@ -78,6 +85,48 @@ static int parse_int(const char* s, int* v) {
     return 1;
 }
 
+// Whether a new file can be made at path (or an existing one rewritten): checked before the
+// solve, which is otherwise lost when the output fails. 0 with errno set when not.
+static int writable(const char* path) {
+    struct stat sb;
+    if (stat(path, &sb) == 0) {
+        if (S_ISDIR(sb.st_mode)) {
+            errno = EISDIR;
+            return 0;
+        }
+        return access(path, W_OK) == 0;
+    }
+    if (errno != ENOENT) return 0;
+    char dir[4096];
+    const char* slash = strrchr(path, '/');
+    if (!slash)
+        snprintf(dir, sizeof dir, ".");
+    else
+        snprintf(dir, sizeof dir, "%.*s", slash == path ? 1 : (int)(slash - path), path);
+    return access(dir, W_OK | X_OK) == 0;
+}
+
+// Flags that only some models, modes or solvers read (a bit each, in the order of flag_name).
+enum {
+    F_DT = 1 << 0,
+    F_DAMPING = 1 << 1,
+    F_TOL = 1 << 2,
+    F_MAX_ITER = 1 << 3,
+    F_LOAD_STEPS = 1 << 4,
+    F_SOLVER = 1 << 5,
+    F_PRECOND = 1 << 6,
+    F_PCG_ITERS = 1 << 7,
+    F_LOCKING_FREE = 1 << 8,
+    F_BETA = 1 << 9,
+    F_ROTATION = 1 << 10,
+    F_INVERSION = 1 << 11,
+    F_POLAR_TOL = 1 << 12,
+};
+static const char* const flag_name[] = {"--dt",           "--damping", "--tol",      "--max-iter",
+                                        "--load-steps",   "--solver",  "--precond",  "--pcg-iters",
+                                        "--locking-free", "--beta",    "--rotation", "--inversion",
+                                        "--polar-tol"};
+
 typedef struct plane_fix {
     int axis, side;
     double tol;
@@ -91,6 +140,7 @@ int main(int argc, char** argv) {
     def.fem.material.poisson = 0.45;
     def.fem.material.density_kg_m3 = 1000;
     int have_model = 0, do_static = 0, steps = 0, quiet = 0, have_dt = 0, mooney = 0;
+    unsigned given = 0; // F_* flags on the command line
     double beta = 0;
     double boxes[8][6];
     int n_boxes = 0;
@@ -121,6 +171,7 @@ int main(int argc, char** argv) {
             do_static = 1;
         } else if (!strcmp(a, "--locking-free")) {
             def.fem.locking_free = 1;
+            given |= F_LOCKING_FREE;
         } else if (!strcmp(a, "--mesh")) {
             NEED_ARG();
             mesh_path = argv[++i];
@@ -154,6 +205,7 @@ int main(int argc, char** argv) {
             NEED_ARG();
             ++i;
             if (!parse_doubles(argv[i], &beta, 1) || beta < 0) BAD("a stabilisation >= 0");
+            given |= F_BETA;
         } else if (!strcmp(a, "--nu")) {
             NEED_ARG();
             ++i;
@@ -204,21 +256,25 @@ int main(int argc, char** argv) {
             ++i;
             if (!parse_doubles(argv[i], &def.dt, 1) || def.dt <= 0) BAD("a positive time step");
             have_dt = 1;
+            given |= F_DT;
         } else if (!strcmp(a, "--tol")) {
             NEED_ARG();
             ++i;
             if (!parse_doubles(argv[i], &def.static_tol, 1) || def.static_tol <= 0)
                 BAD("a positive tolerance");
+            given |= F_TOL;
         } else if (!strcmp(a, "--max-iter")) {
             NEED_ARG();
             ++i;
             if (!parse_int(argv[i], &def.static_max_iter) || def.static_max_iter < 1)
                 BAD("a positive count");
+            given |= F_MAX_ITER;
         } else if (!strcmp(a, "--load-steps")) {
             NEED_ARG();
             ++i;
             if (!parse_int(argv[i], &def.static_load_steps) || def.static_load_steps < 1)
                 BAD("a positive count");
+            given |= F_LOAD_STEPS;
         } else if (!strcmp(a, "--rotation")) {
             NEED_ARG();
             ++i;
@@ -228,12 +284,14 @@ int main(int argc, char** argv) {
                 def.fem.rotation = HS_ROTATION_SVD;
             else
                 BAD("polar or svd");
+            given |= F_ROTATION;
         } else if (!strcmp(a, "--polar-tol")) {
             NEED_ARG();
             ++i;
             if (!parse_doubles(argv[i], &def.fem.polar_tol, 1) || def.fem.polar_tol <= 0)
                 BAD("a positive tolerance");
             def.step_polar_tol = def.fem.polar_tol; // the one given, static or steps
+            given |= F_POLAR_TOL;
         } else if (!strcmp(a, "--inversion")) {
             NEED_ARG();
             ++i;
@@ -243,6 +301,7 @@ int main(int argc, char** argv) {
                 def.fem.inversion = HS_INVERSION_KEEP_REFLECTION;
             else
                 BAD("fallback or reflect");
+            given |= F_INVERSION;
         } else if (!strcmp(a, "--damping")) {
             NEED_ARG();
             ++i;
@@ -250,6 +309,7 @@ int main(int argc, char** argv) {
             if (!parse_doubles(argv[i], d, 2) || d[0] < 0 || d[1] < 0) BAD("ALPHA,BETA >= 0");
             def.fem.material.rayleigh_mass = d[0];
             def.fem.material.rayleigh_stiffness = d[1];
+            given |= F_DAMPING;
         } else if (!strcmp(a, "--solver")) {
             NEED_ARG();
             ++i;
@@ -261,6 +321,7 @@ int main(int argc, char** argv) {
                 def.solver = HS_SOLVER_WARPED;
             else
                 BAD("direct, pcg or warped");
+            given |= F_SOLVER;
         } else if (!strcmp(a, "--precond")) {
             NEED_ARG();
             ++i;
@@ -270,13 +331,17 @@ int main(int argc, char** argv) {
                 def.precond = HS_PRECOND_JACOBI;
             else if (!strcmp(argv[i], "factor"))
                 def.precond = HS_PRECOND_FACTOR;
+            else if (!strcmp(argv[i], "warped"))
+                def.precond = HS_PRECOND_WARPED;
             else
-                BAD("none, jacobi or factor");
+                BAD("none, jacobi, factor or warped");
+            given |= F_PRECOND;
         } else if (!strcmp(a, "--pcg-iters")) {
             NEED_ARG();
             ++i;
             if (!parse_int(argv[i], &def.pcg_max_iter) || def.pcg_max_iter < 1)
                 BAD("a positive count");
+            given |= F_PCG_ITERS;
         } else {
             fprintf(stderr, "hapsim-solve: unknown option '%s' (see --help)\n", a);
             return 1;
@@ -298,6 +363,47 @@ int main(int argc, char** argv) {
         fprintf(stderr, "hapsim-solve: --steps needs --dt\n");
         return 1;
     }
+    // A flag that nothing reads in this run would be silently ignored: refuse it, saying why.
+    // Mooney has its own Newton solver and law; a static solve has no time step and no damping
+    // (the warped solver solves it with the exact tangent); the element rotations are the
+    // co-rotated model's, polar_tol also the warped node rotations'.
+    const int pcg = def.solver == HS_SOLVER_PCG, corot = def.fem.model == HS_MODEL_COROTATED;
+    const int polar = (corot && def.fem.rotation == HS_ROTATION_POLAR) ||
+                      (!do_static && def.solver == HS_SOLVER_WARPED) ||
+                      (pcg && def.precond == HS_PRECOND_WARPED);
+    const struct {
+        unsigned flags;
+        int unread;
+        const char* why;
+    } rules[] = {
+        {F_LOCKING_FREE | F_SOLVER | F_PRECOND | F_PCG_ITERS | F_ROTATION | F_INVERSION |
+             F_POLAR_TOL,
+         mooney, "--model mooney has its own solver and material law"},
+        {F_BETA, !mooney, "only --model mooney reads it"},
+        {F_DT | F_DAMPING, do_static, "--static has no time step and no damping"},
+        {F_TOL | F_MAX_ITER | F_LOAD_STEPS, !do_static, "only --static reads it"},
+        {F_PRECOND | F_PCG_ITERS, !pcg, "only --solver pcg reads it"},
+        {F_ROTATION | F_INVERSION, !corot, "only --model corotated reads it"},
+        {F_POLAR_TOL, !polar,
+         "only the co-rotated model's polar rotations and warped node rotations (--solver "
+         "warped steps, --solver pcg's default preconditioner) read it"},
+    };
+    for (size_t r = 0; r < sizeof rules / sizeof rules[0]; ++r) {
+        unsigned bad = rules[r].unread ? given & rules[r].flags : 0;
+        if (bad) {
+            int b = 0;
+            while (!(bad & 1u << b)) ++b;
+            fprintf(stderr, "hapsim-solve: %s has no effect here: %s\n", flag_name[b],
+                    rules[r].why);
+            return 1;
+        }
+    }
+    const char* outs[2] = {out_path, vtk_path};
+    for (int k = 0; k < 2; ++k)
+        if (outs[k] && !writable(outs[k])) {
+            fprintf(stderr, "hapsim-solve: cannot write %s: %s\n", outs[k], strerror(errno));
+            return 1;
+        }
 
     hs_err err = {0};
     hs_mesh* mesh = NULL;

@@ -64,39 +64,50 @@ static const bench_cmd cmds[] = {
 };
 
 static void usage(FILE* f) {
-    fprintf(f, "usage: hapsim-bench <command>|all [--quick] [--meshes DIR]\n\ncommands:\n");
+    fprintf(f, "usage: hapsim-bench [--quick] [--meshes DIR] <command>|all\n\ncommands:\n");
     for (size_t i = 0; i < sizeof cmds / sizeof cmds[0]; ++i)
         fprintf(f, "  %-10s %s\n", cmds[i].name, cmds[i].what);
-    fprintf(f, "\nEach prints CSV with a header on stdout; progress goes to stderr.\n"
+    fprintf(f, "\nOptions may come before or after the command.\n"
+               "Each prints CSV with a header on stdout; progress goes to stderr.\n"
                "Run on an otherwise idle machine; compare ratios measured in one run.\n");
 }
 
 int main(int argc, char** argv) {
     hs_sparse_blas_select(argv); // before any thread: it may re-execute the program
-    if (argc < 2 || !strcmp(argv[1], "-h") || !strcmp(argv[1], "--help")) {
-        usage(argc < 2 ? stderr : stdout);
-        return argc < 2 ? 1 : 0;
-    }
     hs_bench_args a = {0, HS_SHARED_MESHES};
-    for (int i = 2; i < argc; ++i) {
+    const char* cmd = NULL; // options may come before or after it
+    for (int i = 1; i < argc; ++i) {
         if (!strcmp(argv[i], "-h") || !strcmp(argv[i], "--help")) {
             usage(stdout);
             return 0;
         }
-        if (!strcmp(argv[i], "--quick"))
+        if (!strcmp(argv[i], "--quick")) {
             a.quick = 1;
-        else if (!strcmp(argv[i], "--meshes") && i + 1 < argc)
+        } else if (!strcmp(argv[i], "--meshes")) {
+            if (i + 1 >= argc) {
+                fprintf(stderr, "hapsim-bench: missing value for --meshes\n");
+                return 1;
+            }
             a.meshes = argv[++i];
-        else {
+        } else if (argv[i][0] == '-') {
             fprintf(stderr, "hapsim-bench: unknown option '%s'\n", argv[i]);
             return 1;
+        } else if (cmd) {
+            fprintf(stderr, "hapsim-bench: one command only (got '%s' and '%s')\n", cmd, argv[i]);
+            return 1;
+        } else {
+            cmd = argv[i];
         }
     }
-    int all = !strcmp(argv[1], "all"), found = 0, rc = 0;
-    if (strcmp(argv[1], "blas"))
+    if (!cmd) {
+        usage(stderr);
+        return 1;
+    }
+    int all = !strcmp(cmd, "all"), found = 0, rc = 0;
+    if (strcmp(cmd, "blas"))
         fprintf(stderr, "hapsim-bench: BLAS kernels %s\n", hs_sparse_blas_core());
     for (size_t i = 0; i < sizeof cmds / sizeof cmds[0]; ++i) {
-        if (!all && strcmp(argv[1], cmds[i].name)) continue;
+        if (!all && strcmp(cmd, cmds[i].name)) continue;
         if (all && cmds[i].fn == bench_blas) continue;
         found = 1;
         if (all) printf("# %s\n", cmds[i].name);
@@ -104,7 +115,7 @@ int main(int argc, char** argv) {
         rc |= cmds[i].fn(&a);
     }
     if (!found) {
-        fprintf(stderr, "hapsim-bench: unknown command '%s'\n", argv[1]);
+        fprintf(stderr, "hapsim-bench: unknown command '%s'\n", cmd);
         usage(stderr);
         return 1;
     }
