@@ -26,6 +26,16 @@ static hs_body_def vessel_def(hs_solver_kind solver) {
     return d;
 }
 
+// A co-rotated beam's definition: Young's modulus E, gravity along -z, the given solver.
+static hs_body_def beam_def(double youngs_pa, hs_solver_kind solver) {
+    hs_body_def d = hs_body_default_def();
+    d.fem.model = HS_MODEL_COROTATED;
+    d.fem.material.youngs_pa = youngs_pa;
+    d.gravity[2] = -9.81;
+    d.solver = solver;
+    return d;
+}
+
 // |a - b| / |b| (infinite when b is zero).
 static double rel_diff(const double* a, const double* b, int n) {
     double num = 0, den = 0;
@@ -239,11 +249,7 @@ static int SolversAgree(void) {
         hs_mesh* m = NULL;
         ENSURE(hs_mesh_create_box(0.1, 0.02, 0.02, 10, 2, 2, &m, NULL) == HS_OK);
         unsigned char* fx = clamp_x0(m);
-        hs_body_def d = hs_body_default_def();
-        d.fem.model = HS_MODEL_COROTATED;
-        d.fem.material.youngs_pa = 1e4;
-        d.gravity[2] = -9.81;
-        d.solver = solver ? HS_SOLVER_PCG : HS_SOLVER_DIRECT;
+        hs_body_def d = beam_def(1e4, solver ? HS_SOLVER_PCG : HS_SOLVER_DIRECT);
         d.pcg_max_iter = 200;
         d.pcg_tol = 1e-12;
         hs_body* b = NULL;
@@ -331,11 +337,7 @@ static int OrphanHeldInPlace(void) {
             for (int a = 0; a < 4; ++a)
                 if (m->tets[4 * e + a] == node && n_off < 32) off[n_off++] = e, a = 4;
         ENSURE(n_off > 0 && n_off < 32);
-        hs_body_def d = hs_body_default_def();
-        d.fem.model = HS_MODEL_COROTATED;
-        d.fem.material.youngs_pa = 1e4;
-        d.gravity[2] = -9.81;
-        d.solver = solver ? HS_SOLVER_WARPED : HS_SOLVER_DIRECT;
+        hs_body_def d = beam_def(1e4, solver ? HS_SOLVER_WARPED : HS_SOLVER_DIRECT);
         unsigned char* fref = malloc((size_t)m->n_nodes);
         memcpy(fref, fx, (size_t)m->n_nodes);
         fref[node] = 1;
@@ -401,10 +403,7 @@ static int BadInputRefused(void) {
         ENSURE(hs_body_create(m, &d, fx, &b, &e) == HS_ERR_INVALID && !b);
         if (bad == 0) printf("  %s\n", e.msg);
     }
-    hs_body_def d = hs_body_default_def();
-    d.fem.model = HS_MODEL_COROTATED;
-    d.fem.material.youngs_pa = 1e6;
-    d.gravity[2] = -9.81;
+    hs_body_def d = beam_def(1e6, HS_SOLVER_DIRECT);
     ENSURE(hs_body_create(m, &d, fx, &b, NULL) == HS_OK);
     const size_t n3 = 3 * (size_t)m->n_nodes;
     ENSURE(hs_body_set_load_scale(b, NAN) == HS_ERR_INVALID);
@@ -970,11 +969,7 @@ static int FailedStaticKeepsState(void) {
     hs_mesh* m = NULL;
     ENSURE(hs_mesh_create_box(0.1, 0.02, 0.02, 12, 3, 3, &m, NULL) == HS_OK);
     unsigned char* fx = clamp_x0(m);
-    hs_body_def d = hs_body_default_def();
-    d.fem.model = HS_MODEL_COROTATED;
-    d.fem.material.youngs_pa = 2e4;
-    d.gravity[2] = -9.81;
-    d.solver = HS_SOLVER_WARPED;
+    hs_body_def d = beam_def(2e4, HS_SOLVER_WARPED);
     hs_body* b = NULL;
     ENSURE(hs_body_create(m, &d, fx, &b, NULL) == HS_OK);
     ENSURE(hs_body_step(b, NULL) == HS_OK); // moving under gravity: v is not zero

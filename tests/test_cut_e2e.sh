@@ -134,7 +134,7 @@ cat >"$tmp/nofix.json" <<EOF
   "tools": [{ "kind": "probe", "radius": 0.003 }], "devices": 1 }
 EOF
 $ctl -q load-scene "$tmp/nofix.json" 2>"$tmp/load.err" && fail "a scene fixing no node was loaded"
-grep -q "select no node" "$tmp/load.err" || fail "bad load-scene: $(cat "$tmp/load.err")"
+grep -q "selects no node" "$tmp/load.err" || fail "bad load-scene: $(cat "$tmp/load.err")"
 # Both refusals left the cut simulation running (the rt loop is still there).
 $ctl status >"$tmp/status_refused.txt" 2>&1 || fail "no status after the refusals"
 grep -q "^rt " "$tmp/status_refused.txt" ||

@@ -193,6 +193,21 @@ static int BoxMesh(void) {
     ENSURE(hs_mesh_select_plane(m, 2, +1, 1e-9, mask) == (nx + 1) * (ny + 1));
     ENSURE(mask[m->n_nodes - 1] == 1 && mask[0] == 0);
     ENSURE(hs_mesh_select_plane(m, 1, -1, 1.5 * h, mask) == 2 * (nx + 1) * (nz + 1));
+    { // A stray unreferenced node 6 mm below (kept: counted in the report) does not move the
+        // min side: it made the region select nothing but itself.
+        double* x = malloc(sizeof(double) * 3 * (size_t)(m->n_nodes + 1));
+        memcpy(x, m->x0, sizeof(double) * 3 * (size_t)m->n_nodes);
+        x[3 * m->n_nodes] = x[3 * m->n_nodes + 1] = 0.5 * h;
+        x[3 * m->n_nodes + 2] = -0.006;
+        hs_mesh* stray = NULL;
+        ENSURE(hs_mesh_create(m->n_nodes + 1, x, m->n_tets, m->tets, &stray, &err) >= 0);
+        unsigned char* sm = malloc((size_t)stray->n_nodes);
+        ENSURE(hs_mesh_select_plane(stray, 2, -1, 1e-9, sm) >= (nx + 1) * (ny + 1));
+        for (int i = 0; i < m->n_nodes; ++i) ENSURE(sm[i] == (m->x0[3 * i + 2] < 1e-9));
+        free(sm);
+        free(x);
+        hs_mesh_destroy(&stray);
+    }
     ENSURE(hs_mesh_select_plane(m, 3, -1, 0.0, mask) == -1);
     ENSURE(hs_mesh_select_plane(m, 0, 0, 0.0, mask) == -1);
     const double lo[3] = {-1.0, -1.0, -1.0}, hi[3] = {0.5 * h, 1.0, 1.0};

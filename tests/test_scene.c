@@ -104,10 +104,10 @@ static int malformed_names_file_line_key(void) {
     ENSURE(expect_fail(HEAD "\"material\": {\"poisson\": \"a\"}}", HS_ERR_PARSE,
                        "t.json:4:", "'material.poisson': must be a number") == 0);
     ENSURE(expect_fail(HEAD "\"material\": {\n \"poisson\": 0.5}}", HS_ERR_PARSE,
-                       "t.json:5:", "'material.poisson': must be in (-1, 0.5)") == 0);
+                       "t.json:5:", "'material.poisson': must be in (-1, 0.4999]") == 0);
     // The same after a UTF-8 byte order mark (it was taken for the '{': line 3).
     ENSURE(expect_fail("\xEF\xBB\xBF" HEAD "\"material\": {\n \"poisson\": 0.5}}", HS_ERR_PARSE,
-                       "t.json:5:", "'material.poisson': must be in (-1, 0.5)") == 0);
+                       "t.json:5:", "'material.poisson': must be in (-1, 0.4999]") == 0);
     ENSURE(expect_fail(HEAD "\"material\": {\n\n \"young\": 5}}", HS_ERR_PARSE,
                        "t.json:6:", "'material.young': unknown key") == 0);
     ENSURE(expect_fail(HEAD "\"devices\": 1,\n\"devices\": 2}", HS_ERR_PARSE,
@@ -148,6 +148,32 @@ static int malformed_names_file_line_key(void) {
                        "'cutting.orphans'", NULL) == 0);
     ENSURE(expect_fail(HEAD "\"tools\": [], \"features\": {\"haptics\": true}}", HS_ERR_PARSE,
                        "'features.haptics'", NULL) == 0);
+    // Each fixed region keeps its line, for the server's messages about what it selects.
+    hs_scene sp;
+    hs_err pe = {0};
+    ENSURE(hs_scene_parse(HEAD "\"devices\": 1}", "t.json", 0, &sp, &pe) == HS_OK);
+    ENSURE(sp.n_fixed == 1 && sp.fixed[0].line == 3);
+    // Without a features object the message still has a line (the tools').
+    ENSURE(expect_fail(HEAD "\"tools\": []}", HS_ERR_PARSE, "t.json:4: key 'features.haptics'",
+                       NULL) == 0);
+    // Cutting needs haptics (it loaded, said it cut, and never did).
+    ENSURE(expect_fail(HEAD "\"tools\": [{\"kind\": \"scalpel\", \"blade_a\": [0,0,0], "
+                            "\"blade_b\": [0,0,0.01]}],\n\"features\": {\"haptics\": false, "
+                            "\"cutting\": true}}",
+                       HS_ERR_PARSE, "t.json:5: key 'features.cutting': needs features.haptics",
+                       NULL) == 0);
+    // One probe and one scalpel: a second probe's tool_id was answered as the first probe.
+    ENSURE(expect_fail(HEAD "\"tools\": [{\"kind\": \"probe\", \"radius\": 0.005},\n "
+                            "{\"kind\": \"probe\", \"radius\": 0.02}]}",
+                       HS_ERR_PARSE, "t.json:5: key 'tools[1]': a second probe", NULL) == 0);
+    // A visual rate whose period overflows the server's clock (1e-12 Hz stalled its loop), a
+    // Poisson ratio where the volumetric term swamps the rest, a modulus no probe can feel.
+    ENSURE(expect_fail(HEAD "\"rates\": {\"visual_hz\": 1e-12}}", HS_ERR_PARSE,
+                       "'rates.visual_hz': must be in [0.1, 240]", NULL) == 0);
+    ENSURE(expect_fail(HEAD "\"material\": {\"poisson\": 0.4999999999}}", HS_ERR_PARSE,
+                       "'material.poisson'", NULL) == 0);
+    ENSURE(expect_fail(HEAD "\"material\": {\"youngs_pa\": 1e-300}}", HS_ERR_PARSE,
+                       "'material.youngs_pa': must be in [1, 1e+12]", NULL) == 0);
     ENSURE(expect_fail(HEAD "\"lcm\": {\"mesh_url\": \"udpm://239.255.76.67:7667?ttl=0\"}}",
                        HS_ERR_PARSE, "'lcm.mesh_url': must differ", NULL) == 0);
     // Options after '?' (ttl, recv_buf_size) do not make a second bus: same group and port.

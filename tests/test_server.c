@@ -615,6 +615,11 @@ static int mesh_10k_arrives_whole(void) {
     for (int i = 0; i < 20; ++i) send_pose(&c, p, 0);
     pump_ms(&c, 200);
     ENSURE(c.n_force == 0);
+    // An unknown parameter is INVALID here too (the haptics-off answer FAILED came first).
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_SET_PARAM, "name", "bogus", "value", "1", NULL) ==
+           HAPSIM_COMMAND_ACK_T_STATUS_INVALID);
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_SET_PARAM, "name", "youngs_pa", "value", "5000",
+                   NULL) == HAPSIM_COMMAND_ACK_T_STATUS_FAILED);
     ENSURE(wait_more(&c, &c.n_status, 2000));
     ENSURE(c.status->poses_received[0] == 20);
     for (int i = 0; i < c.status->n_loops; ++i) ENSURE(strcmp(c.status->loop_name[i], "rt") != 0);
@@ -961,24 +966,28 @@ static int flood_leaves_server_intact(void) {
     return 0;
 }
 
+// Waits up to ns for the server child to exit: its exit status, or -1 (still running, or
+// killed by a signal).
+static int wait_exit(int64_t ns) {
+    int64_t end = hs_now_ns() + ns;
+    while (hs_now_ns() < end) {
+        int w = 0;
+        if (waitpid(child, &w, WNOHANG) == child) {
+            child = -1;
+            return WIFEXITED(w) ? WEXITSTATUS(w) : -1;
+        }
+        usleep(10000);
+    }
+    return -1;
+}
+
 static int malformed_scene_exits_1(void) {
     char scene[512];
     snprintf(scene, sizeof scene, "%s/bad.json", tmpdir);
     write_file(scene, "{\n  \"mesh\": \"x.msh\",\n  \"material\": {\"poisson\": 0.7},\n"
                       "  \"fixed\": []\n}\n");
     ENSURE(start_server(scene, "bad") == 0);
-    int st = -1;
-    int64_t end = hs_now_ns() + 5000000000LL;
-    while (hs_now_ns() < end) {
-        int w = 0;
-        if (waitpid(child, &w, WNOHANG) == child) {
-            st = WIFEXITED(w) ? WEXITSTATUS(w) : -1;
-            child = -1;
-            break;
-        }
-        usleep(10000);
-    }
-    ENSURE(st == 1);
+    ENSURE(wait_exit(5000000000LL) == 1);
     char log[600], text[2048] = {0};
     snprintf(log, sizeof log, "%s/server-bad.log", tmpdir);
     FILE* f = fopen(log, "r");
@@ -988,6 +997,32 @@ static int malformed_scene_exits_1(void) {
     text[n] = '\0';
     printf("  %s", text);
     ENSURE(strstr(text, "bad.json:") && strstr(text, "key '"));
+    // A region that selects no node is named with its line, even beside one that does (it was
+    // ignored); regions that fix every node are named as such (the message came from the body).
+    const char* regions[2][2] = {
+        {"[{\"type\": \"bbox_side\", \"axis\": \"y\", \"side\": \"min\", \"depth\": 0.01},\n"
+         "            {\"type\": \"box\", \"min\": [5, 5, 5], \"max\": [6, 6, 6]}]",
+         "regions0.json:3: key 'fixed[1]': the region selects no node"},
+        {"[{\"type\": \"box\", \"min\": [-1, -1, -1], \"max\": [1, 1, 1]}]",
+         "regions1.json: key 'fixed': the regions fix every node"}};
+    for (int k = 0; k < 2; ++k) {
+        char body[1024];
+        snprintf(scene, sizeof scene, "%s/regions%d.json", tmpdir, k);
+        snprintf(body, sizeof body,
+                 "{ \"mesh\": \"%s/scenes/liver/liver2.msh\",\n  \"fixed\": %s,\n"
+                 "  \"tools\": [{\"kind\": \"probe\", \"radius\": 0.005}], \"devices\": 1 }\n",
+                 HS_SOURCE_DIR, regions[k][0]);
+        write_file(scene, body);
+        ENSURE(start_server(scene, "bad") == 0);
+        ENSURE(wait_exit(5000000000LL) == 1);
+        f = fopen(log, "r");
+        ENSURE(f);
+        n = fread(text, 1, sizeof text - 1, f);
+        fclose(f);
+        text[n] = '\0';
+        printf("  %s", text);
+        ENSURE(strstr(text, regions[k][1]));
+    }
     return 0;
 }
 
@@ -1017,17 +1052,7 @@ static int run_server_args(const char* scene, const char* const* args, char* tex
         execv(HS_SERVER_BIN, argv);
         _exit(127);
     }
-    int st = -1;
-    int64_t end = hs_now_ns() + 8000000000LL;
-    while (hs_now_ns() < end) {
-        int w = 0;
-        if (waitpid(child, &w, WNOHANG) == child) {
-            st = WIFEXITED(w) ? WEXITSTATUS(w) : -1;
-            child = -1;
-            break;
-        }
-        usleep(10000);
-    }
+    int st = wait_exit(8000000000LL);
     kill_child();
     FILE* f = fopen(log, "r");
     size_t k = f ? fread(text, 1, cap - 1, f) : 0;

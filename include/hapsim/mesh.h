@@ -99,7 +99,8 @@ void hs_mesh_destroy(hs_mesh** mesh);
 int hs_mesh_select_box(const hs_mesh* mesh, const double box_min[3], const double box_max[3],
                        unsigned char* mask);
 
-/// Mark nodes within tol_m of the bbox min (side -1) or max (side +1) along axis 0..2.
+/// Mark nodes within tol_m of the used nodes' min (side -1) or max (side +1) along axis 0..2
+/// (an unreferenced node does not move the side).
 /// Returns how many, or -1 on bad args. @param mask  OUT: [n_nodes] 1 selected, 0 not
 int hs_mesh_select_plane(const hs_mesh* mesh, int axis, int side, double tol_m,
                          unsigned char* mask);

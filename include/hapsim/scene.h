@@ -37,6 +37,7 @@ typedef struct hs_scene_fixed {
     int axis;         ///< BBOX_SIDE: 0 = x, 1 = y, 2 = z
     int side;         ///< BBOX_SIDE: -1 = min side, +1 = max side
     double depth;     ///< m, BBOX_SIDE: slab thickness measured from that side
+    int line;         ///< line of the region in the scene file (for messages; 0 if unknown)
 } hs_scene_fixed;
 
 typedef enum hs_tool_kind {

@@ -194,7 +194,10 @@ static double hist_max_us(const hs_rt_hist* h) {
 // ---------------------------------------------------------------------------------------------
 // World: mesh, fixed nodes, visual set, sim
 
-static int fixed_mask(const hs_scene* sc, const hs_mesh* m, unsigned char* fixed) {
+// The union of the scene's fixed regions over the used nodes; how many, or -1 (out of memory).
+// *empty: the first region that selects no used node, or -1.
+static int fixed_mask(const hs_scene* sc, const hs_mesh* m, unsigned char* fixed, int* empty) {
+    *empty = -1;
     unsigned char* sel = hs_calloc((size_t)m->n_nodes, 1);
     if (!sel) return -1;
     memset(fixed, 0, (size_t)m->n_nodes);
@@ -215,7 +218,12 @@ static int fixed_mask(const hs_scene* sc, const hs_mesh* m, unsigned char* fixed
         } else {
             hs_mesh_select_plane(m, f->axis, f->side, f->depth, sel);
         }
-        for (int i = 0; i < m->n_nodes; ++i) fixed[i] |= sel[i] && m->node_used[i];
+        int any = 0;
+        for (int i = 0; i < m->n_nodes; ++i) {
+            fixed[i] |= sel[i] && m->node_used[i];
+            any |= sel[i] && m->node_used[i];
+        }
+        if (!any && *empty < 0) *empty = r;
     }
     hs_free(sel);
     int n = 0;
@@ -345,12 +353,22 @@ static hs_status world_create(const hs_scene* sc, int realtime, world* w, hs_err
     w->u = hs_calloc(3 * n, sizeof(double));
     w->v = hs_calloc(3 * n, sizeof(double));
     if (!w->fixed || !w->u || !w->v) goto nomem;
-    w->n_fixed = fixed_mask(sc, m, w->fixed);
+    int empty = -1, used = 0;
+    w->n_fixed = fixed_mask(sc, m, w->fixed, &empty);
     if (w->n_fixed < 0) goto nomem;
-    if (w->n_fixed == 0) {
+    for (size_t i = 0; i < n; ++i) used += m->node_used[i] != 0;
+    if (empty >= 0) { // a region that misses the mesh is a mistake even when others select
         s = hs_err_set(err, HS_ERR_INVALID,
-                       "%s: key 'fixed': the regions select no node of %s (a free body has no "
-                       "rest position)",
+                       "%s:%d: key 'fixed[%d]': the region selects no node of %s (mesh bounding "
+                       "box [%g, %g] x [%g, %g] x [%g, %g] m)",
+                       sc->path, sc->fixed[empty].line, empty, sc->mesh_path, m->bbox_min[0],
+                       m->bbox_max[0], m->bbox_min[1], m->bbox_max[1], m->bbox_min[2],
+                       m->bbox_max[2]);
+        goto fail;
+    }
+    if (w->n_fixed == used) {
+        s = hs_err_set(err, HS_ERR_INVALID,
+                       "%s: key 'fixed': the regions fix every node of %s (nothing left to move)",
                        sc->path, sc->mesh_path);
         goto fail;
     }
@@ -1103,10 +1121,6 @@ static int set_param(hs_server* s, const char* name, double v, char* msg, size_t
     world* w = &s->w;
     hs_haptic_sim_def d = w->def;
     hs_scene sc = w->scene;
-    if (!w->haptics) {
-        snprintf(msg, cap, "haptics are off in this scene: no run-time parameters");
-        return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
-    }
     if (!strcmp(name, "probe_radius_m") && v > 0 && v <= 0.1) {
         d.probe.radius_m = v;
         for (int t = 0; t < sc.n_tools; ++t)
@@ -1120,10 +1134,10 @@ static int set_param(hs_server* s, const char* name, double v, char* msg, size_t
     } else if (!strcmp(name, "watchdog_ms") && v >= 1 && v <= 10000) {
         d.safety.watchdog_timeout_s = v * 1e-3;
         sc.watchdog_s = v * 1e-3;
-    } else if (!strcmp(name, "youngs_pa") && v > 0 && v <= 1e9) {
+    } else if (!strcmp(name, "youngs_pa") && v >= 1 && v <= 1e9) {
         d.body.fem.material.youngs_pa = v;
         sc.material.youngs_pa = v;
-    } else if (!strcmp(name, "poisson") && v > -1 && v < 0.5) {
+    } else if (!strcmp(name, "poisson") && v > -1 && v <= 0.4999) { // as scenes allow
         d.body.fem.material.poisson = v;
         sc.material.poisson = v;
     } else {
@@ -1132,6 +1146,10 @@ static int set_param(hs_server* s, const char* name, double v, char* msg, size_t
                  "force_rate_max_n_per_s, watchdog_ms, youngs_pa, poisson)",
                  name, v);
         return HAPSIM_COMMAND_ACK_T_STATUS_INVALID;
+    }
+    if (!w->haptics) { // after the name check: an unknown name is INVALID in any scene
+        snprintf(msg, cap, "haptics are off in this scene: no run-time parameters");
+        return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
     }
     // Force limits go to the running sim (and a paused cut one) without a rebuild: no gap in
     // the force, and they can be changed after a cut, when the sim cannot be rebuilt.

@@ -895,10 +895,18 @@ int hs_mesh_select_box(const hs_mesh* m, const double box_min[3], const double b
 int hs_mesh_select_plane(const hs_mesh* m, int axis, int side, double tol_m, unsigned char* mask) {
     if (!m || !mask || axis < 0 || axis > 2 || (side != -1 && side != 1) || !(tol_m >= 0.0))
         return -1;
+    // The side of the nodes that tets use: a stray unreferenced node (kept, and in the bbox)
+    // must not move it (6 mm below a liver it made a region fix 23 nodes instead of 69).
+    double lo = INFINITY, hi = -INFINITY;
+    for (int i = 0; i < m->n_nodes; ++i)
+        if (!m->node_used || m->node_used[i]) {
+            lo = min_d(lo, m->x0[3 * i + axis]);
+            hi = max_d(hi, m->x0[3 * i + axis]);
+        }
     int n = 0;
     for (int i = 0; i < m->n_nodes; ++i) {
         double c = m->x0[3 * i + axis];
-        mask[i] = side < 0 ? c <= m->bbox_min[axis] + tol_m : c >= m->bbox_max[axis] - tol_m;
+        mask[i] = side < 0 ? c <= lo + tol_m : c >= hi - tol_m;
         n += mask[i];
     }
     return n;

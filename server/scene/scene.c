@@ -140,6 +140,13 @@ static hs_status fail(const ctx* c, const cJSON* item, const char* key, const ch
     return hs_err_set(c->err, HS_ERR_PARSE, "%s: key '%s': %s", c->file, key, what);
 }
 
+// Line of item in the text (for messages made after parsing), 0 if not found.
+static int item_line(const ctx* c, const cJSON* item) {
+    const char* at = NULL;
+    walk(c->root, c->text, item, &at);
+    return at ? line_at(c->text, at) : 0;
+}
+
 #define HS_SCENE_MAX_KEYS 256
 
 // Every member must be in allowed (NULL-terminated) or start with '_' (a comment); no repeats.
@@ -303,8 +310,10 @@ static hs_status parse_material(const ctx* c, const cJSON* root, hs_scene* s) {
         "youngs_pa", "poisson", "density_kg_m3", "rayleigh_mass", "rayleigh_stiffness", NULL};
     TRY(check_keys(c, m, "material", keys));
     hs_material* mat = &s->material;
-    TRY(get_num(c, m, "material", "youngs_pa", 0.0, 1e12, 1, 0, &mat->youngs_pa));
-    TRY(get_num(c, m, "material", "poisson", -1.0, 0.5, 1, 1, &mat->poisson));
+    // Tissue is 0.1 kPa-1 MPa; below 1 Pa a probe feels nothing. Above 0.4999 the volumetric
+    // stiffness swamps the rest (0.4999999999 gave 3.3 N jumps and a probe through the tissue).
+    TRY(get_num(c, m, "material", "youngs_pa", 1.0, 1e12, 0, 0, &mat->youngs_pa));
+    TRY(get_num(c, m, "material", "poisson", -1.0, 0.4999, 1, 0, &mat->poisson));
     TRY(get_num(c, m, "material", "density_kg_m3", 0.0, 1e5, 1, 0, &mat->density_kg_m3));
     TRY(get_num(c, m, "material", "rayleigh_mass", 0.0, 1e4, 0, 0, &mat->rayleigh_mass));
     TRY(get_num(c, m, "material", "rayleigh_stiffness", 0.0, 10.0, 0, 0, &mat->rayleigh_stiffness));
@@ -354,6 +363,7 @@ static hs_status parse_fixed(const ctx* c, const cJSON* root, hs_scene* s) {
         if (!cJSON_IsObject(r)) return fail(c, r, path, "must be an object {\"type\": ...}");
         hs_scene_fixed* f = &s->fixed[i];
         memset(f, 0, sizeof *f);
+        f->line = item_line(c, r);
         static const char* const kinds[] = {"plane", "box", "bbox_side"};
         int k = 0;
         TRY(get_enum(c, r, path, "type", kinds, 3, 1, &k));
@@ -415,7 +425,7 @@ static hs_status parse_tools(const ctx* c, const cJSON* root, hs_scene* s) {
     if (n > HS_SCENE_MAX_TOOLS)
         return fail(c, arr, "tools", "at most %d tools, got %d", HS_SCENE_MAX_TOOLS, n);
     s->n_tools = 0;
-    int i = 0;
+    int i = 0, count[2] = {0, 0};
     for (const cJSON* t = arr->child; t; t = t->next, ++i) {
         char path[48];
         snprintf(path, sizeof path, "tools[%d]", i);
@@ -426,6 +436,11 @@ static hs_status parse_tools(const ctx* c, const cJSON* root, hs_scene* s) {
         int k = 0;
         TRY(get_enum(c, t, path, "kind", kinds, 2, 1, &k));
         tool->kind = (hs_tool_kind)k;
+        // The server simulates one probe and one scalpel (the button chooses between them); a
+        // second of a kind would be validated as a tool_id and then answered as the first.
+        if (count[k]++ > 0)
+            return fail(c, t, path, "a second %s: a scene has at most one probe and one scalpel",
+                        kinds[k]);
         char key[64];
         if (tool->kind == HS_TOOL_PROBE) {
             static const char* const keys[] = {"kind", "radius", NULL};
@@ -472,7 +487,8 @@ static hs_status parse_rest(const ctx* c, const cJSON* root, hs_scene* s) {
         TRY(check_keys(c, o, "rates", keys));
         TRY(get_num(c, o, "rates", "haptic_hz", 100.0, 10000.0, 0, 0, &s->haptic_hz));
         TRY(get_num(c, o, "rates", "sim_hz", 1.0, 2000.0, 0, 0, &s->sim_hz));
-        TRY(get_num(c, o, "rates", "visual_hz", 0.0, 240.0, 1, 0, &s->visual_hz));
+        // 0.1 Hz at least: its period in ns must fit the server's clock arithmetic.
+        TRY(get_num(c, o, "rates", "visual_hz", 0.1, 240.0, 0, 0, &s->visual_hz));
         TRY(get_num(c, o, "rates", "status_hz", 0.1, 100.0, 0, 0, &s->status_hz));
     }
     TRY(get_obj(c, root, "", "features", &o));
@@ -604,17 +620,21 @@ static hs_status parse_root(const ctx* c, const cJSON* root, int check_files, hs
     TRY(get_int(c, root, "", "devices", 0, HS_SCENE_MAX_DEVICES, &s->n_devices));
     TRY(parse_rest(c, root, s));
 
-    // Cross-checks: what a feature needs must be there.
+    // Cross-checks: what a feature needs must be there. The error points at features, else at
+    // tools, else at the top (line 1), so it always has a line.
+    const cJSON* where = cJSON_GetObjectItemCaseSensitive(root, "features");
+    if (!where) where = cJSON_GetObjectItemCaseSensitive(root, "tools");
+    if (!where) where = root->child ? root->child : root;
+    if (s->feature_cutting && !s->feature_haptics)
+        return fail(c, where, "features.cutting",
+                    "needs features.haptics (the blade is moved by a device's poses)");
     if (s->feature_cutting) {
         int scalpel = 0;
         for (int i = 0; i < s->n_tools; ++i) scalpel |= s->tools[i].kind == HS_TOOL_SCALPEL;
-        if (!scalpel)
-            return fail(c, cJSON_GetObjectItemCaseSensitive(root, "features"), "features.cutting",
-                        "is on but no tool is a scalpel");
+        if (!scalpel) return fail(c, where, "features.cutting", "is on but no tool is a scalpel");
     }
     if (s->feature_haptics && (s->n_tools < 1 || s->n_devices < 1))
-        return fail(c, cJSON_GetObjectItemCaseSensitive(root, "features"), "features.haptics",
-                    "is on but the scene has no tools or no devices");
+        return fail(c, where, "features.haptics", "is on but the scene has no tools or no devices");
     if (s->sim_hz > s->haptic_hz)
         return fail(c, cJSON_GetObjectItemCaseSensitive(root, "rates"), "rates.sim_hz",
                     "must not exceed rates.haptic_hz");
