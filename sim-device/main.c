@@ -795,12 +795,14 @@ int main(int argc, char** argv) {
         for (int k = 0; k < 3; ++k)
             out |= fabs(q[k] - def.origin_m[k]) > 0.5 * def.workspace_m[k] + 1e-9;
         if (out) {
+            int line = i < 0 ? a.script->start_line : a.script->seg[i].line;
+            char where[64] = " the default start:"; // no start line: no line to name
+            if (line > 0) snprintf(where, sizeof where, "%d:", line);
             fprintf(stderr,
-                    "hapsim-stylus: warning: %s:%d: target (%.4f, %.4f, %.4f) m is outside the "
+                    "hapsim-stylus: warning: %s:%s target (%.4f, %.4f, %.4f) m is outside the "
                     "workspace box (%.3f x %.3f x %.3f m around %.4f, %.4f, %.4f)\n",
-                    a.script->name, i < 0 ? a.script->start_line : a.script->seg[i].line, q[0],
-                    q[1], q[2], def.workspace_m[0], def.workspace_m[1], def.workspace_m[2],
-                    def.origin_m[0], def.origin_m[1], def.origin_m[2]);
+                    a.script->name, where, q[0], q[1], q[2], def.workspace_m[0], def.workspace_m[1],
+                    def.workspace_m[2], def.origin_m[0], def.origin_m[1], def.origin_m[2]);
             break;
         }
     }

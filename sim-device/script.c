@@ -598,11 +598,16 @@ int hs_script_runner_eval(hs_script_runner* r, double t_s, const double force_n[
             r->found++;
             ev |= HS_TOUCH_FOUND;
             seg = hs_script_eval(s, g->t0_s + g->dur_s, pos_m, vel_m_s, buttons, &r->hint);
-            if (seg == (int)(g - s->seg)) { // the touch was the last segment: stay put
-                memcpy(pos_m, g->touch_ref_m, 3 * sizeof(double));
-                if (vel_m_s) vel_m_s[0] = vel_m_s[1] = vel_m_s[2] = 0;
-            }
         }
+    }
+    // Past the end of a touch that ends the script (found or missed), hs_script_eval stays at
+    // its full search depth: hold at its reference point instead, which the offset moves to
+    // where the contact began or where the search stopped (it went max_depth further).
+    const double t_now = t_s - r->t_off_s;
+    if (seg >= 0 && s->seg[seg].cmd == HS_CMD_TOUCH && r->touch_seg < 0 &&
+        t_now >= s->seg[seg].t0_s + s->seg[seg].dur_s) {
+        memcpy(pos_m, s->seg[seg].touch_ref_m, 3 * sizeof(double));
+        if (vel_m_s) vel_m_s[0] = vel_m_s[1] = vel_m_s[2] = 0;
     }
     for (int i = 0; i < 3; ++i) pos_m[i] += r->off_m[i];
     if (events) *events = ev;

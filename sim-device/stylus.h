@@ -339,7 +339,8 @@ typedef struct hs_trace_diff {
 
 /// Compare the applied force of run against ref at ref's sample times (run linearly
 /// interpolated, so runs with jittery ticks compare fairly). Returns 1 when every sample passes
-/// and run covers ref's duration (within 10 ms), else 0.
+/// and run spans ref from max(its start, tol->skip_s) to its end, within 10 ms at each end,
+/// else 0.
 int hs_stylus_trace_compare(const hs_stylus_trace* ref, const hs_stylus_trace* run,
                             const hs_trace_tol* tol, hs_trace_diff* out /* OUT */);
 

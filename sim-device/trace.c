@@ -313,7 +313,10 @@ int hs_stylus_trace_compare(const hs_stylus_trace* ref, const hs_stylus_trace* r
     }
     out->allowed_n = tol->abs_n + tol->rel * out->ref_peak_n;
     double t_end_run = run->row[run->rows - 1].t_s, t_end_ref = ref->row[ref->rows - 1].t_s;
-    out->coverage_s = (t_end_run < t_end_ref ? t_end_run : t_end_ref) - ref->row[0].t_s;
+    double t0_run = run->row[0].t_s, t0_ref = ref->row[0].t_s;
+    out->coverage_s =
+        (t_end_run < t_end_ref ? t_end_run : t_end_ref) - (t0_run > t0_ref ? t0_run : t0_ref);
+    if (out->coverage_s < 0) out->coverage_s = 0;
     double sum2 = 0;
     int64_t j = 0;
     for (int64_t k = 0; k < ref->rows; ++k) {
@@ -340,6 +343,10 @@ int hs_stylus_trace_compare(const hs_stylus_trace* ref, const hs_stylus_trace* r
         out->samples++;
     }
     out->rms_err_n = out->samples ? sqrt(sum2 / (double)out->samples) : 0;
-    int covered = t_end_run >= t_end_ref - 0.010;
+    // The run must span the compared part of the reference at both ends, within 10 ms (a live
+    // run's ticks fall where its clock puts them): a run missing the reference's start skipped
+    // those samples and passed.
+    double t_first = t0_ref > tol->skip_s ? t0_ref : tol->skip_s;
+    int covered = t_end_run >= t_end_ref - 0.010 && t0_run <= t_first + 0.010;
     return out->samples > 0 && out->failed == 0 && covered;
 }

@@ -13,8 +13,9 @@ static void usage(FILE* f) {
     fprintf(f, "usage: hapsim-trace-diff REF.csv RUN.csv [--abs N] [--rel R] [--skip S]\n"
                "Compares the applied force of a hapsim-stylus trace with a reference trace at\n"
                "the reference's times. Passes (exit 0) when |F_run - F_ref| <= abs + rel * peak\n"
-               "|F_ref| at every sample after --skip seconds and the run lasts as long as the\n"
-               "reference; else exit 1 (2: bad arguments or unreadable traces).\n"
+               "|F_ref| at every sample after --skip seconds and the run spans the reference\n"
+               "from --skip to its end (within 10 ms at each end); else exit 1 (2: bad\n"
+               "arguments or unreadable traces).\n"
                "  --abs N   absolute tolerance, N (default 0.01)\n"
                "  --rel R   tolerance relative to the reference's peak force (default 0.02)\n"
                "  --skip S  ignore the first S seconds (default 0)\n");

@@ -730,6 +730,18 @@ static int trace_compare(void) {
     ENSURE(hs_stylus_trace_create(1000, &part, &err) == HS_OK);
     for (int64_t i = 0; i < 1000; ++i) hs_stylus_trace_add(part, hs_stylus_trace_row(a, i));
     ENSURE(hs_stylus_trace_compare(a, part, &tol, &d) == 0 && d.failed == 0);
+    // Nor one that starts late (its samples before the run were left out and it passed), unless
+    // --skip leaves that part out on purpose.
+    hs_stylus_trace* late = NULL;
+    ENSURE(hs_stylus_trace_create(4000, &late, &err) == HS_OK);
+    for (int64_t i = 1000; i < hs_stylus_trace_rows(a); ++i)
+        hs_stylus_trace_add(late, hs_stylus_trace_row(a, i));
+    ENSURE(hs_stylus_trace_compare(a, late, &tol, &d) == 0 && d.failed == 0);
+    ENSURE(d.coverage_s < hs_stylus_trace_row(a, hs_stylus_trace_rows(a) - 1)->t_s - 0.9);
+    tol.skip_s = hs_stylus_trace_row(a, 1000)->t_s;
+    ENSURE(hs_stylus_trace_compare(a, late, &tol, &d) == 1);
+    tol.skip_s = 0;
+    hs_stylus_trace_destroy(&late);
     // Malformed files.
     FILE* f = fopen(path, "w");
     ENSURE(f != NULL);
@@ -960,6 +972,21 @@ static int script_touch(void) {
         ENSURE(run_offline_text("start 0 0 0.02\ntouch 0 0 1 0.01 0.01\n", -0.05, tr, s2, &sum2) ==
                0);
         ENSURE(sum2.touches_found == 0 && sum2.touches_missed == 1);
+        // After the miss the target stays where the search stopped (z = 0.01): it went on to
+        // max_depth further (z = 0), 10 mm of travel for a 10 mm search.
+        const hs_stylus_tick* end = hs_stylus_trace_row(tr, hs_stylus_trace_rows(tr) - 1);
+        ENSURE_NEAR(end->target_m[2], 0.01, 1e-12);
+        // Found as the last command: it holds where the contact began (no press); it went
+        // max_depth beyond and pressed 0.88 N for a 0.02 N touch.
+        hs_stylus_trace_destroy(&tr);
+        ENSURE(hs_stylus_trace_create(20000, &tr, &err) == HS_OK);
+        ENSURE(run_offline_text("start 0 0 0.01\ntouch 0 0 1 0.005 0.01\n", 0.007, tr, s2, &sum2) ==
+               0);
+        end = hs_stylus_trace_row(tr, hs_stylus_trace_rows(tr) - 1);
+        printf("  touch last, found: peak %.3f N, final target z %.4f m\n", sum2.peak_force_n,
+               end->target_m[2]);
+        ENSURE(sum2.touches_found == 1 && sum2.peak_force_n < 0.1);
+        ENSURE(end->target_m[2] > 0.0065 && end->target_m[2] < 0.0075);
         hs_script_destroy(&s2);
     }
     // With a `surface` plane at z = 0 the script's positions are relative to it: the final
