@@ -35,6 +35,9 @@ struct hs_client {
     hs_client_callbacks cb;
     void* user;
     int64_t handled; // messages handled (for poll's return value)
+    // Callbacks run inside lcm_handle, which LCM does not allow to re-enter (it asserts) and
+    // whose dispatch must not see its lcm_t destroyed: poll and destroy check these.
+    int in_poll, destroy_refused;
     // Driver side.
     int64_t pose_seq[HS_CLIENT_MAX_DEVICES];
     hs_force_renderer force[HS_CLIENT_MAX_DEVICES];
@@ -330,6 +333,10 @@ bad:
 void hs_client_destroy(hs_client** pc) {
     if (!pc || !*pc) return;
     hs_client* c = *pc;
+    if (c->in_poll) { // from a callback: refused, the running poll reports it
+        c->destroy_refused = 1;
+        return;
+    }
     for (int b = 0; b < 2; b++)
         if (c->bus[b]) lcm_destroy(c->bus[b]);
     hs_mesh_sync_destroy(&c->mesh);
@@ -345,11 +352,15 @@ void hs_client_set_callbacks(hs_client* c, const hs_client_callbacks* cb, void* 
     c->user = user;
 }
 
+struct _lcm_t* hs_client_lcm(hs_client* c, int bus) {
+    return bus >= 0 && bus < 2 ? c->bus[bus] : NULL;
+}
+
 int hs_client_fileno(const hs_client* c, int bus) {
     return bus >= 0 && bus < 2 && c->bus[bus] ? lcm_get_fileno(c->bus[bus]) : -1;
 }
 
-int hs_client_poll(hs_client* c, int timeout_ms, hs_err* err) {
+static int poll_buses(hs_client* c, int timeout_ms, hs_err* err) {
     struct pollfd fds[2];
     int map[2], nf = 0;
     for (int b = 0; b < 2; b++)
@@ -374,9 +385,25 @@ int hs_client_poll(hs_client* c, int timeout_ms, hs_err* err) {
                 return fail(err, HS_ERR_IO, "hs_client_poll: LCM socket error");
             if ((fds[i].revents & POLLIN) && lcm_handle(c->bus[map[i]]) != 0)
                 return fail(err, HS_ERR_IO, "hs_client_poll: lcm_handle failed");
+            if (c->destroy_refused)
+                return fail(err, HS_ERR_INVALID,
+                            "hs_client_destroy called from a callback: refused (the handle is "
+                            "still open; destroy it after hs_client_poll returns)");
         }
     }
     return (int)(c->handled - start);
+}
+
+int hs_client_poll(hs_client* c, int timeout_ms, hs_err* err) {
+    if (c->in_poll)
+        return fail(err, HS_ERR_INVALID,
+                    "hs_client_poll: called from a callback (already inside hs_client_poll)");
+    c->in_poll = 1;
+    c->destroy_refused = 0;
+    int r = poll_buses(c, timeout_ms, err);
+    c->in_poll = 0;
+    c->destroy_refused = 0;
+    return r;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -539,6 +566,8 @@ hs_status hs_client_command(hs_client* c, int32_t kind, int n_args, const char* 
                 return fail(err, HS_ERR_IO, "hs_client_command: publish on %s failed",
                             c->ch_command);
             ack->attempts++;
+            // From a callback (inside hs_client_poll) nothing can be waited for: sent once.
+            if (c->in_poll) return HS_OK;
             // After PENDING the server is working on it: ask again less often.
             next_send = now + (int64_t)retry_ms * 1000 * (pending ? 4 : 1);
         }

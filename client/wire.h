@@ -75,4 +75,8 @@ void* hs_client_alloc(size_t n);
 void* hs_client_calloc(size_t count, size_t size);
 void hs_client_free(void* p);
 
+/// The LCM handle of a client's bus (0 haptic, 1 mesh), NULL when not open: lets the memq://
+/// tests publish server messages into a client.
+struct _lcm_t* hs_client_lcm(hs_client* c, int bus);
+
 #endif

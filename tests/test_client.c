@@ -1,12 +1,17 @@
 // libhapsim-client without a network: the mesh-sync state machine fed with encoded messages
 // (late join, 30 % loss, wrong versions, server restart, malformed and random input), the
-// wire decoders, the local force model and its blending, the status decoder.
+// wire decoders, the local force model and its blending, the status decoder; and the connection
+// on in-process memq:// buses (callbacks re-entering the client, forces of a restarted server,
+// a malformed status).
+#include <lcm/lcm.h>
 #include <stdint.h>
 #include <stdlib.h>
 
 #include "hapsim/client.h"
 #include "wire.h"
+#include "hapsim_channels.h"
 #include "hapsim_command_ack_t.h"
+#include "hapsim_command_t.h"
 #include "hapsim_mesh_delta_t.h"
 #include "hapsim_mesh_state_t.h"
 #include "hapsim_mesh_topology_t.h"
@@ -789,7 +794,134 @@ static int test_delta_sum_overflow(void) {
     return 0;
 }
 
-HS_TEST_MAIN(HS_CASE(test_lossless_follows_server), HS_CASE(test_delta_sum_overflow),
-             HS_CASE(test_loss_converges), HS_CASE(test_late_join),
-             HS_CASE(test_wrong_versions_ignored), HS_CASE(test_malformed_counted),
-             HS_CASE(test_local_model), HS_CASE(test_force_ranges), HS_CASE(test_status_decode))
+// ---------------------------------------------------------------------------------------------
+// The connection on memq:// buses: the test publishes the server's messages into the client.
+
+static hs_client* memq_client(uint32_t subscribe) {
+    hs_client_config cfg;
+    hs_client_config_default(&cfg);
+    cfg.haptic_url = "memq://";
+    cfg.mesh_url = "memq://";
+    cfg.subscribe = subscribe;
+    hs_client* c = NULL;
+    return hs_client_create(&cfg, &c, NULL) == HS_OK ? c : NULL;
+}
+
+static void put(hs_client* c, int bus, const char* suffix, const void* buf, int len) {
+    char ch[HAPSIM_CHANNEL_MAX];
+    hapsim_channel_name(ch, sizeof ch, HAPSIM_DEFAULT_PREFIX, suffix);
+    lcm_publish(hs_client_lcm(c, bus), ch, buf, (unsigned)len);
+}
+
+// A tool_force for device 0 (server clock utime, us) pushing fx newtons.
+static void put_force(hs_client* c, int64_t seq, int64_t utime, double fx) {
+    hapsim_tool_force_t f;
+    memset(&f, 0, sizeof f);
+    f.utime = utime;
+    f.seq = seq;
+    f.model_version = seq;
+    f.state = HAPSIM_TOOL_FORCE_T_STATE_CONTACT;
+    f.force[0] = fx;
+    f.validity_radius = 0.01;
+    f.timeout_us = 50000;
+    uint8_t buf[512];
+    put(c, 0, HAPSIM_CH_TOOL_FORCE, buf, hapsim_tool_force_t_encode(buf, 0, sizeof buf, &f));
+}
+
+static void put_status(hs_client* c, int64_t seq, const char* scene) {
+    hapsim_server_status_t s;
+    memset(&s, 0, sizeof s);
+    s.utime = seq;
+    s.seq = seq;
+    s.scene = (char*)(uintptr_t)scene; // the encoder only reads
+    s.warnings = "rt loop overrun";
+    uint8_t buf[1024];
+    put(c, 1, HAPSIM_CH_SERVER_STATUS, buf, hapsim_server_status_t_encode(buf, 0, sizeof buf, &s));
+}
+
+typedef struct reentry {
+    int forces, nested_poll, destroy_kept, commands_seen;
+    hs_status command;
+    hs_client_ack ack;
+    char msg[512];
+} reentry;
+
+static void reenter_poll(hs_client* c, int32_t dev, const hs_local_model* m, void* user) {
+    (void)dev;
+    (void)m;
+    reentry* r = user;
+    r->forces++;
+    hs_err e = {0};
+    r->nested_poll = hs_client_poll(c, 0, &e);
+    snprintf(r->msg, sizeof r->msg, "%s", e.msg);
+}
+
+static void reenter_destroy(hs_client* c, int32_t dev, const hs_local_model* m, void* user) {
+    (void)dev;
+    (void)m;
+    reentry* r = user;
+    r->forces++;
+    hs_client* p = c;
+    hs_client_destroy(&p);
+    r->destroy_kept = p == c;
+}
+
+static void reenter_command(hs_client* c, const hs_client_status* st, void* user) {
+    (void)st;
+    reentry* r = user;
+    hs_err e = {0};
+    r->command =
+        hs_client_command(c, HAPSIM_COMMAND_T_KIND_ESTOP, 0, NULL, NULL, 200, 50, &r->ack, &e);
+}
+
+static void count_command(const lcm_recv_buf_t* rb, const char* ch, void* user) {
+    (void)rb;
+    (void)ch;
+    ((reentry*)user)->commands_seen++;
+}
+
+// A callback that polls, commands or destroys its own client: before, LCM aborted
+// (lcm_handle re-entered on the bus it is handling) or the destroy crashed in LCM's dispatch.
+static int test_callback_reentry(void) {
+    int64_t bytes0 = hs_client_byte_count();
+    hs_client* c = memq_client(HS_CLIENT_SUB_FORCE | HS_CLIENT_SUB_STATUS | HS_CLIENT_SUB_COMMANDS);
+    ENSURE(c);
+    reentry r = {0};
+    hs_err e = {0};
+    // A nested poll is refused with a status; the outer poll handles both messages.
+    hs_client_set_callbacks(c, &(hs_client_callbacks){.on_force = reenter_poll}, &r);
+    put_force(c, 1, 1000, 1.0);
+    put_force(c, 2, 2000, 1.0);
+    ENSURE(hs_client_poll(c, 100, &e) == 2);
+    ENSURE(r.forces == 2 && r.nested_poll == HS_ERR_INVALID && strstr(r.msg, "callback"));
+    // A command from a callback is published once without waiting: PENDING, one attempt.
+    char ch[HAPSIM_CHANNEL_MAX];
+    hapsim_channel_name(ch, sizeof ch, HAPSIM_DEFAULT_PREFIX, HAPSIM_CH_COMMAND);
+    ENSURE(lcm_subscribe(hs_client_lcm(c, 1), ch, count_command, &r));
+    hs_client_set_callbacks(c, &(hs_client_callbacks){.on_status = reenter_command}, &r);
+    put_status(c, 1, "x");
+    put_status(c, 2, "x");
+    ENSURE(hs_client_poll(c, 100, &e) >= 2);
+    hs_client_poll(c, 0, &e);
+    ENSURE(r.command == HS_OK && r.ack.status == HAPSIM_COMMAND_ACK_T_STATUS_PENDING);
+    ENSURE(r.ack.attempts == 1 && r.commands_seen == 2);
+    // A destroy from a callback is refused: the handle stays, the poll says why.
+    hs_client_set_callbacks(c, &(hs_client_callbacks){.on_force = reenter_destroy}, &r);
+    r.forces = 0;
+    put_force(c, 3, 3000, 1.0);
+    memset(&e, 0, sizeof e);
+    ENSURE(hs_client_poll(c, 100, &e) == HS_ERR_INVALID && strstr(e.msg, "hs_client_destroy"));
+    ENSURE(r.forces == 1 && r.destroy_kept);
+    hs_client_stats cs;
+    hs_client_stats_get(c, &cs);
+    ENSURE(cs.forces == 3);
+    hs_client_destroy(&c);
+    ENSURE(c == NULL && hs_client_byte_count() == bytes0);
+    return 0;
+}
+
+HS_TEST_MAIN(HS_CASE(test_callback_reentry), HS_CASE(test_lossless_follows_server),
+             HS_CASE(test_delta_sum_overflow), HS_CASE(test_loss_converges),
+             HS_CASE(test_late_join), HS_CASE(test_wrong_versions_ignored),
+             HS_CASE(test_malformed_counted), HS_CASE(test_local_model), HS_CASE(test_force_ranges),
+             HS_CASE(test_status_decode))

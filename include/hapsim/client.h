@@ -241,7 +241,9 @@ typedef struct hs_client_config {
 void hs_client_config_default(hs_client_config* cfg /* OUT */);
 
 /// Callbacks, all optional (NULL), called inside hs_client_poll on the polling thread. The
-/// pointers passed are valid during the call only.
+/// pointers passed are valid during the call only. A callback may use its handle, except that
+/// it cannot wait for it: hs_client_poll there returns HS_ERR_INVALID, hs_client_command sends
+/// once without waiting, and hs_client_destroy is refused (see each).
 typedef struct hs_client_callbacks {
     void (*on_mesh)(hs_client* c, const hs_client_mesh* mesh, void* user); ///< visible mesh changed
     void (*on_force)(hs_client* c, int32_t device_id, const hs_local_model* m, void* user);
@@ -255,6 +257,8 @@ typedef struct hs_client_callbacks {
 /// Thread: any (the handle then belongs to the creating thread) | Allocates: yes
 hs_status hs_client_create(const hs_client_config* cfg, hs_client** out /* OUT */, hs_err* err);
 /// Close the buses and free everything; accepts NULL and *c == NULL; sets *c = NULL.
+/// From a callback it is refused (LCM is dispatching on the buses): nothing is freed, *c is
+/// kept, and the running hs_client_poll stops and returns HS_ERR_INVALID saying so.
 void hs_client_destroy(hs_client** c);
 
 /// Set the callbacks (copied) and their user pointer. Thread: the polling thread
@@ -262,7 +266,9 @@ void hs_client_set_callbacks(hs_client* c, const hs_client_callbacks* cb, void* 
 
 /// Wait up to timeout_ms (0: do not wait, < 0: forever) for traffic on either bus, then handle
 /// everything that is ready. Returns the number of LCM messages handled (>= 0), or a negative
-/// hs_status on a socket failure. Thread: the polling thread | Allocates: only on topology growth
+/// hs_status on a socket failure. From a callback (already inside hs_client_poll) it handles
+/// nothing and returns HS_ERR_INVALID. Thread: the polling thread | Allocates: only on topology
+/// growth
 int hs_client_poll(hs_client* c, int timeout_ms, hs_err* err);
 
 /// The LCM socket of a bus (0 haptic, 1 mesh) for a caller's own poll loop, -1 when not open.
@@ -342,6 +348,8 @@ typedef struct hs_client_ack {
 /// its ack); after a PENDING ack waits for the final one. Returns HS_OK when a final ack arrived
 /// (look at ack->status: the server may have refused), HS_ERR_INVALID for bad arguments
 /// (checked locally as the server would), HS_ERR_IO when no final ack came within timeout_ms.
+/// From a callback it cannot wait: it publishes the command once and returns HS_OK with
+/// ack->status STATUS_PENDING and attempts 1 (no retry, the final ack is not reported).
 /// Thread: the polling thread | Allocates: no
 hs_status hs_client_command(hs_client* c, int32_t kind, int n_args, const char* const* keys,
                             const char* const* values, int timeout_ms, int retry_ms,
