@@ -41,6 +41,7 @@ struct hs_client {
     // Driver side.
     int64_t pose_seq[HS_CLIENT_MAX_DEVICES];
     hs_force_renderer force[HS_CLIENT_MAX_DEVICES];
+    int64_t force_utime[HS_CLIENT_MAX_DEVICES]; // server utime of the model held
     int64_t latency_us[HS_CLIENT_MAX_DEVICES];
     // Visualiser side.
     hs_mesh_sync* mesh;
@@ -127,8 +128,9 @@ void hs_client_config_default(hs_client_config* cfg) {
 
 static void on_force(hs_client* c, const void* buf, size_t len) {
     int32_t dev;
+    int64_t utime;
     hs_local_model m;
-    if (hs_wire_force_decode(buf, len, &dev, &m)) {
+    if (hs_wire_force_decode(buf, len, &dev, &utime, &m)) {
         c->st.malformed++;
         return;
     }
@@ -137,13 +139,15 @@ static void on_force(hs_client* c, const void* buf, size_t len) {
         return;
     }
     hs_force_renderer* r = &c->force[dev];
-    // An older seq is a reorder, unless far older: the server restarted.
-    if (r->model.valid && m.seq <= r->model.seq && r->model.seq - m.seq < 100000) {
+    // A seq not newer is a reorder or a repeat if its utime is at most a reorder window older;
+    // a later or far earlier utime is a restarted server (seq from 1, another clock).
+    if (r->model.valid && m.seq <= r->model.seq && hs_wire_reordered(utime, c->force_utime[dev])) {
         c->st.forces_stale++;
         return;
     }
     m.arrival_us = hs_client_now_us();
     hs_force_renderer_push(r, &m);
+    c->force_utime[dev] = utime;
     c->latency_us[dev] = m.pose_utime > 0 ? wall_us() - m.pose_utime : -1;
     c->st.forces++;
     if (c->cb.on_force) c->cb.on_force(c, dev, &r->model, c->user);

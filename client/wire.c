@@ -285,11 +285,13 @@ int hs_wire_ack_decode(const void* buf, size_t len, hs_wire_ack* o) {
                : -1;
 }
 
-int hs_wire_force_decode(const void* buf, size_t len, int32_t* device_id, hs_local_model* m) {
+int hs_wire_force_decode(const void* buf, size_t len, int32_t* device_id, int64_t* utime,
+                         hs_local_model* m) {
     rd r;
     if (!rd_begin(&r, buf, len, __hapsim_tool_force_t_get_hash())) return -1;
     memset(m, 0, sizeof *m);
-    rd_i64(&r); // utime: server clock, not comparable with ours
+    int64_t t = rd_i64(&r); // server clock, not comparable with ours
+    if (utime) *utime = t;
     m->seq = rd_i64(&r);
     *device_id = rd_i32(&r);
     m->pose_seq = rd_i64(&r);

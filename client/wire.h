@@ -68,7 +68,20 @@ int hs_wire_ack_decode(const void* buf, size_t len, hs_wire_ack* out);
 #define HS_WIRE_TIMEOUT_MAX_US    60000000
 
 /// tool_force into a local model (arrival_us left 0); also checks state, and the ranges above.
-int hs_wire_force_decode(const void* buf, size_t len, int32_t* device_id, hs_local_model* out);
+/// *utime (may be NULL) gets the message's utime (server clock).
+int hs_wire_force_decode(const void* buf, size_t len, int32_t* device_id, int64_t* utime,
+                         hs_local_model* out);
+
+/// us: how much older (utime) than the newest one a message of the same server can arrive
+/// (reordered on the network). A seq that did not grow with a utime later than the newest, or
+/// older than this, comes from a restarted server (another clock after a reboot or on another
+/// host).
+#define HS_WIRE_REORDER_US 1000000
+
+/// 1 when utime is within HS_WIRE_REORDER_US at or before newest (no overflow).
+static inline int hs_wire_reordered(int64_t utime, int64_t newest) {
+    return utime <= newest && (uint64_t)newest - (uint64_t)utime <= HS_WIRE_REORDER_US;
+}
 
 /// Counted allocation of the client library (hs_client_byte_count).
 void* hs_client_alloc(size_t n);

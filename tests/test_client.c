@@ -612,7 +612,7 @@ static int force_decodes(const hapsim_tool_force_t* f) {
     int len = hapsim_tool_force_t_encode(buf, 0, (int)sizeof buf, f);
     int32_t dev;
     hs_local_model m;
-    return len > 0 && hs_wire_force_decode(buf, (size_t)len, &dev, &m) == 0;
+    return len > 0 && hs_wire_force_decode(buf, (size_t)len, &dev, NULL, &m) == 0;
 }
 
 static int test_force_ranges(void) {
@@ -920,8 +920,53 @@ static int test_callback_reentry(void) {
     return 0;
 }
 
-HS_TEST_MAIN(HS_CASE(test_callback_reentry), HS_CASE(test_lossless_follows_server),
-             HS_CASE(test_delta_sum_overflow), HS_CASE(test_loss_converges),
-             HS_CASE(test_late_join), HS_CASE(test_wrong_versions_ignored),
-             HS_CASE(test_malformed_counted), HS_CASE(test_local_model), HS_CASE(test_force_ranges),
-             HS_CASE(test_status_decode))
+// Force of the model held for device 0 (what was accepted; rendering blends versions).
+static double force_x(hs_client* c) {
+    hs_local_model m;
+    return hs_client_force_model(c, 0, &m) ? m.force[0] : -1;
+}
+
+// A restarted server counts its force seq from 1 again: before, its forces were dropped as
+// stale until the seq passed the old one's (or fell 100000 behind, ~100 s at 1 kHz). Its clock
+// (utime) tells: later on the same host, unrelated (earlier) after a reboot or on another host.
+static int test_force_restart(void) {
+    hs_client* c = memq_client(HS_CLIENT_SUB_FORCE);
+    ENSURE(c);
+    hs_err e = {0};
+    hs_client_stats st;
+    const int64_t T = 3600000000LL; // the old server has been up an hour
+    put_force(c, 50000, T, 2.0);
+    ENSURE(hs_client_poll(c, 100, &e) == 1 && force_x(c) == 2.0);
+    // Reordered and repeated forces of the same server stay refused.
+    put_force(c, 49999, T - 1000, 9.0);
+    put_force(c, 50000, T, 9.0);
+    put_force(c, 10, T - 900000, 9.0);
+    ENSURE(hs_client_poll(c, 100, &e) == 3 && force_x(c) == 2.0);
+    hs_client_stats_get(c, &st);
+    ENSURE(st.forces == 1 && st.forces_stale == 3);
+    // Restarted on the same host: seq from 1, a later clock.
+    put_force(c, 1, T + 5000000, 5.0);
+    ENSURE(hs_client_poll(c, 100, &e) == 1 && force_x(c) == 5.0);
+    put_force(c, 2, T + 5001000, 6.0);
+    ENSURE(hs_client_poll(c, 100, &e) == 1 && force_x(c) == 6.0);
+    // Restarted after a reboot (or on another host): seq from 1, an earlier clock.
+    put_force(c, 1, 60000000, 7.0);
+    ENSURE(hs_client_poll(c, 100, &e) == 1 && force_x(c) == 7.0);
+    hs_local_model m;
+    ENSURE(hs_client_force_model(c, 0, &m) && m.seq == 1);
+    // A restart whose clock lands just behind the old one (within the reorder window) is
+    // refused until its clock passes the old server's last force: at most that window.
+    put_force(c, 1, 60000000 - 500000, 8.0);
+    put_force(c, 2, 60000000 + 1000, 8.5);
+    ENSURE(hs_client_poll(c, 100, &e) == 2 && force_x(c) == 8.5);
+    hs_client_stats_get(c, &st);
+    ENSURE(st.forces == 5 && st.forces_stale == 4);
+    hs_client_destroy(&c);
+    return 0;
+}
+
+HS_TEST_MAIN(HS_CASE(test_callback_reentry), HS_CASE(test_force_restart),
+             HS_CASE(test_lossless_follows_server), HS_CASE(test_delta_sum_overflow),
+             HS_CASE(test_loss_converges), HS_CASE(test_late_join),
+             HS_CASE(test_wrong_versions_ignored), HS_CASE(test_malformed_counted),
+             HS_CASE(test_local_model), HS_CASE(test_force_ranges), HS_CASE(test_status_decode))
