@@ -24,9 +24,13 @@ struct hs_mesh_sync {
     int has_stress;
     uint64_t shown_hash; // of the positions and stress at the last frame
     int64_t kf_id, last_delta_seq;
+    int64_t kf_seq, kf_utime; // seq and utime of the keyframe shown
     int have_seq[4];
     int64_t last_seq[4];
-    int64_t last_topo_utime; // utime of the newest topology message seen
+    // Restart detection: seq and utime of the newest topology in order, and whether a keyframe
+    // showed a restarted server (its topology is then taken whatever its version).
+    int have_topo, restart_seen;
+    int64_t topo_seq, topo_utime;
     hs_client_mesh view;
     hs_sync_stats st;
 };
@@ -154,12 +158,21 @@ static int track_seq(hs_mesh_sync* s, int kind, int64_t seq) {
 static hs_sync_result on_topology(hs_mesh_sync* s, const void* buf, size_t len) {
     hs_wire_topology w;
     if (hs_wire_topology_decode(buf, len, &w)) return HS_SYNC_MALFORMED;
-    // A seq that went backwards with a later utime is a restarted server (a reordered message
-    // has an earlier utime): its topology is taken whatever its version.
-    int back = track_seq(s, HS_SYNC_TOPOLOGY, w.seq);
-    int restarted = back && w.utime > s->last_topo_utime;
-    if (w.utime > s->last_topo_utime) s->last_topo_utime = w.utime;
+    track_seq(s, HS_SYNC_TOPOLOGY, w.seq);
     int64_t newest = hs_mesh_sync_newest_topology(s);
+    // One server's seq and utime grow together and its version never goes back; a reordered
+    // message is at most HS_WIRE_REORDER_US older. Anything else is a restarted server (seq
+    // from 1, its clock later, or unrelated after a reboot or on another host): its topology
+    // is taken whatever its version.
+    int restarted = s->restart_seen;
+    if (!s->have_topo || w.seq > s->topo_seq || !hs_wire_reordered(w.utime, s->topo_utime)) {
+        if (s->have_topo && (w.seq <= s->topo_seq || w.utime < s->topo_utime ||
+                             (newest >= 0 && w.topology_version < newest)))
+            restarted = 1;
+        s->have_topo = 1;
+        s->topo_seq = w.seq;
+        s->topo_utime = w.utime;
+    }
     if (!restarted && newest >= 0 && w.topology_version <= newest)
         return w.topology_version == newest ? HS_SYNC_HELD : HS_SYNC_STALE;
     // Make room first; a failed allocation leaves the visible mesh as it was.
@@ -174,6 +187,7 @@ static hs_sync_result on_topology(hs_mesh_sync* s, const void* buf, size_t len) 
         grow((void**)&s->pos, &s->cap_pos, nv, 3 * sizeof(float), keep) ||
         grow((void**)&s->stress, &s->cap_stress, nv, sizeof(float), keep)) {
         if (s->ready) update_pointers(s);
+        s->restart_seen = restarted; // so the next copy is taken
         return HS_SYNC_NOMEM;
     }
     if (s->ready) update_pointers(s);
@@ -187,6 +201,7 @@ static hs_sync_result on_topology(hs_mesh_sync* s, const void* buf, size_t len) 
     for (int32_t i = 0; i < 3 * w.n_tri; i++) p->tri[i] = hs_wire_i32_at(w.tri, i);
     for (int32_t i = 0; i < 4 * w.n_tet; i++) p->tet[i] = hs_wire_i32_at(w.tet, i);
     s->has_pending = 1;
+    s->restart_seen = 0;
     s->st.topologies++;
     return HS_SYNC_HELD;
 }
@@ -197,6 +212,8 @@ static void take_keyframe(hs_mesh_sync* s, const hs_wire_state* w) {
     s->has_stress = w->stress.n > 0;
     for (int32_t i = 0; i < w->stress.n; i++) s->stress[i] = hs_wire_f32_at(w->stress, i);
     s->kf_id = w->keyframe_id;
+    s->kf_seq = w->seq;
+    s->kf_utime = w->utime;
     s->last_delta_seq = -1;
     update_view(s, w->utime, w->sim_step, w->sim_time);
 }
@@ -215,9 +232,17 @@ static hs_sync_result on_state(hs_mesh_sync* s, const void* buf, size_t len) {
         take_keyframe(s, &w);
         return HS_SYNC_APPLIED;
     }
-    if (!s->ready || w.topology_version != s->shown.version) return HS_SYNC_MISMATCH;
+    if (!s->ready || w.topology_version != s->shown.version || s->restart_seen)
+        return HS_SYNC_MISMATCH;
     if (w.pos.n != 3 * s->shown.n_vis) return HS_SYNC_MALFORMED;
-    if (w.keyframe_id <= s->kf_id) return HS_SYNC_STALE;
+    if (w.keyframe_id <= s->kf_id) {
+        // Reordered or repeated; else a keyframe id that went back while seq or utime did not
+        // is a restarted server: wait for its topology (the held one is the old server's).
+        if (w.seq <= s->kf_seq && hs_wire_reordered(w.utime, s->kf_utime)) return HS_SYNC_STALE;
+        s->restart_seen = 1;
+        s->has_pending = 0;
+        return HS_SYNC_MISMATCH;
+    }
     take_keyframe(s, &w);
     return HS_SYNC_APPLIED;
 }
@@ -226,7 +251,8 @@ static hs_sync_result on_delta(hs_mesh_sync* s, const void* buf, size_t len) {
     hs_wire_delta w;
     if (hs_wire_delta_decode(buf, len, &w)) return HS_SYNC_MALFORMED;
     track_seq(s, HS_SYNC_DELTA, w.seq);
-    if (!s->ready || w.topology_version != s->shown.version || w.keyframe_id != s->kf_id)
+    if (!s->ready || w.topology_version != s->shown.version || w.keyframe_id != s->kf_id ||
+        s->restart_seen)
         return HS_SYNC_MISMATCH;
     if (w.index.n > 0 && hs_wire_i32_at(w.index, w.index.n - 1) >= s->shown.n_vis)
         return HS_SYNC_MALFORMED; // indices increase: the last is the largest

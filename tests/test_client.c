@@ -454,6 +454,78 @@ static int test_wrong_versions_ignored(void) {
     return 0;
 }
 
+// Feed one message and free it.
+static hs_sync_result feed1(hs_mesh_sync* s, msg m) {
+    hs_sync_result r = hs_mesh_sync_feed(s, m.kind, m.buf, (size_t)m.len);
+    free(m.buf);
+    return r;
+}
+// Server utime (us) of the next encoded message.
+static void at(int64_t utime) {
+    g_clock = utime - 1000;
+}
+
+// A restarted server's mesh is taken whatever its clock: before, a topology was taken as a
+// restart only with a later utime, so after a reboot or from another host (the server's
+// CLOCK_MONOTONIC reads earlier) the mesh froze; and a restart whose seq did not go back (the
+// client missed its first messages) was never seen. Reordered messages stay stale.
+static int test_mesh_restart(void) {
+    float rest[12] = {0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1}, a[12], b[12];
+    int32_t tri[6] = {0, 1, 2, 0, 2, 3};
+    for (int i = 0; i < 12; i++) a[i] = rest[i] + 1, b[i] = rest[i] + 2;
+    const int64_t H = 7200000000LL; // the old server has been up two hours
+    hs_mesh_sync* s = NULL;
+    ENSURE(hs_mesh_sync_create(&s, NULL) == HS_OK);
+    const hs_client_mesh* m = hs_mesh_sync_mesh(s);
+    hs_sync_stats st;
+    // Reboot: the new server (same scene, version 1) reads 60 s, keyframe ids from 1.
+    at(H);
+    ENSURE(feed1(s, enc_topology(3600, 1, 4, rest, 2, tri)) == HS_SYNC_HELD);
+    ENSURE(feed1(s, enc_state(5000, 1, 5000, 4, a, 0)) == HS_SYNC_APPLIED);
+    at(60000000);
+    ENSURE(feed1(s, enc_state(1, 1, 1, 4, b, 0)) < 0); // waits for its topology
+    ENSURE(m->keyframe_id == 5000 && m->position[0] == a[0]);
+    ENSURE(feed1(s, enc_topology(1, 1, 4, rest, 2, tri)) == HS_SYNC_HELD);
+    ENSURE(feed1(s, enc_state(2, 1, 2, 4, b, 0)) == HS_SYNC_APPLIED);
+    ENSURE(m->keyframe_id == 2 && m->position[0] == b[0]);
+    ENSURE(feed1(s, enc_delta(1, 1, 2, 4, b, a)) == HS_SYNC_APPLIED && m->position[0] == a[0]);
+    hs_mesh_sync_stats(s, &st);
+    ENSURE(st.topologies == 2);
+    // Reordered within the server: an older keyframe, a repeated topology, a topology of an
+    // older version: stale or held, nothing taken.
+    at(60000000 + 500);
+    ENSURE(feed1(s, enc_state(1, 1, 1, 4, a, 0)) == HS_SYNC_STALE);
+    at(60000900); // before the new server's topology
+    ENSURE(feed1(s, enc_topology(0, 0, 4, rest, 2, tri)) == HS_SYNC_STALE);
+    at(70000000);
+    ENSURE(feed1(s, enc_topology(5, 1, 4, rest, 2, tri)) == HS_SYNC_HELD);
+    ENSURE(feed1(s, enc_state(4, 1, 4, 4, a, 0)) == HS_SYNC_APPLIED && m->keyframe_id == 4);
+    at(70000500); // sent before keyframe 4
+    ENSURE(feed1(s, enc_state(3, 1, 3, 4, b, 0)) == HS_SYNC_STALE && m->keyframe_id == 4);
+    hs_mesh_sync_stats(s, &st);
+    ENSURE(st.topologies == 2);
+    // Restart on the same host, its first messages missed (seq and utime both ahead): its
+    // topology version went back (the old server had cut to 5).
+    at(80000000);
+    ENSURE(feed1(s, enc_topology(6, 5, 4, rest, 2, tri)) == HS_SYNC_HELD);
+    ENSURE(feed1(s, enc_state(5, 5, 40, 4, a, 0)) == HS_SYNC_APPLIED && m->topology_version == 5);
+    at(90000000);
+    ENSURE(feed1(s, enc_topology(10, 1, 4, rest, 2, tri)) == HS_SYNC_HELD);
+    ENSURE(hs_mesh_sync_newest_topology(s) == 1);
+    ENSURE(feed1(s, enc_state(12, 1, 12, 4, b, 0)) == HS_SYNC_APPLIED);
+    ENSURE(m->topology_version == 1 && m->keyframe_id == 12 && m->position[0] == b[0]);
+    // The same with the same version: its keyframe id went back while seq and utime went on,
+    // so its next topology is taken whatever its version.
+    at(100000000);
+    ENSURE(feed1(s, enc_state(20, 1, 3, 4, a, 0)) == HS_SYNC_MISMATCH && m->keyframe_id == 12);
+    ENSURE(feed1(s, enc_topology(20, 1, 4, rest, 2, tri)) == HS_SYNC_HELD);
+    ENSURE(feed1(s, enc_state(21, 1, 4, 4, a, 0)) == HS_SYNC_APPLIED && m->keyframe_id == 4);
+    hs_mesh_sync_stats(s, &st);
+    ENSURE(st.topologies == 5);
+    hs_mesh_sync_destroy(&s);
+    return 0;
+}
+
 // Truncations and fingerprint changes of valid messages are always malformed; random bytes and
 // bit flips never crash and never leave an inconsistent mesh; memory returns to its start.
 static int test_malformed_counted(void) {
@@ -966,7 +1038,8 @@ static int test_force_restart(void) {
 }
 
 HS_TEST_MAIN(HS_CASE(test_callback_reentry), HS_CASE(test_force_restart),
-             HS_CASE(test_lossless_follows_server), HS_CASE(test_delta_sum_overflow),
-             HS_CASE(test_loss_converges), HS_CASE(test_late_join),
-             HS_CASE(test_wrong_versions_ignored), HS_CASE(test_malformed_counted),
-             HS_CASE(test_local_model), HS_CASE(test_force_ranges), HS_CASE(test_status_decode))
+             HS_CASE(test_mesh_restart), HS_CASE(test_lossless_follows_server),
+             HS_CASE(test_delta_sum_overflow), HS_CASE(test_loss_converges),
+             HS_CASE(test_late_join), HS_CASE(test_wrong_versions_ignored),
+             HS_CASE(test_malformed_counted), HS_CASE(test_local_model), HS_CASE(test_force_ranges),
+             HS_CASE(test_status_decode))

@@ -154,12 +154,15 @@ typedef struct hs_sync_stats {
 hs_status hs_mesh_sync_create(hs_mesh_sync** out /* OUT */, hs_err* err);
 /// Release; accepts NULL and *s == NULL; sets *s = NULL. Thread: the owner
 void hs_mesh_sync_destroy(hs_mesh_sync** s);
-/// Feed one message (raw bytes, fingerprint first). Rules (docs/protocol.md "Watching the mesh"):
-/// a topology with a newer version (or any version when its seq went backwards with a later
-/// utime: the server restarted) is held until a keyframe of that version arrives; a keyframe is
-/// shown when its topology version is held and its keyframe_id is newer; a delta only when topology
-/// version and keyframe_id match the shown keyframe and its seq is newer. Never crashes on any
-/// bytes. Thread: the owner | Allocates: only when a topology needs larger arrays
+/// Feed one message (raw bytes, fingerprint first). Rules (docs/client.md "Watching the mesh"):
+/// a topology with a newer version (or any version from a restarted server) is held until a
+/// keyframe of that version arrives; a keyframe is shown when its topology version is held and
+/// its keyframe_id is newer; a delta only when topology version and keyframe_id match the shown
+/// keyframe and its seq is newer. A restarted server: a topology whose seq and utime do not both
+/// go on from the newest one (other than a reorder: seq not newer, utime at most 1 s older) or
+/// whose version went back; or a keyframe whose id went back while its seq or utime went on
+/// (the shown version then waits for the next topology). Never crashes on any bytes.
+/// Thread: the owner | Allocates: only when a topology needs larger arrays
 hs_sync_result hs_mesh_sync_feed(hs_mesh_sync* s, hs_sync_kind kind, const void* buf, size_t len);
 /// The visible mesh (valid until the next feed). Thread: the owner | Allocates: no
 const hs_client_mesh* hs_mesh_sync_mesh(const hs_mesh_sync* s);
