@@ -17,6 +17,8 @@
 #include "hapsim_tool_pose_t.h"
 #include "wire.h"
 
+// Refused forces counting up one after another this many times are another server's stream.
+#define STALE_RUN_RESTART 8
 enum { CH_FORCE, CH_TOPOLOGY, CH_STATE, CH_DELTA, CH_EVENT, CH_STATUS, CH_ACK, CH_COUNT };
 #define ACK_RING 16
 
@@ -42,6 +44,8 @@ struct hs_client {
     int64_t pose_seq[HS_CLIENT_MAX_DEVICES];
     hs_force_renderer force[HS_CLIENT_MAX_DEVICES];
     int64_t force_utime[HS_CLIENT_MAX_DEVICES]; // server utime of the model held
+    int stale_run[HS_CLIENT_MAX_DEVICES];       // refused forces in a row, seq counting up
+    int64_t stale_seq[HS_CLIENT_MAX_DEVICES];   // seq of the last refused one
     int64_t latency_us[HS_CLIENT_MAX_DEVICES];
     // Visualiser side.
     hs_mesh_sync* mesh;
@@ -142,9 +146,16 @@ static void on_force(hs_client* c, const void* buf, size_t len) {
     // A seq not newer is a reorder or a repeat if its utime is at most a reorder window older;
     // a later or far earlier utime is a restarted server (seq from 1, another clock).
     if (r->model.valid && m.seq <= r->model.seq && hs_wire_reordered(utime, c->force_utime[dev])) {
-        c->st.forces_stale++;
-        return;
+        // ... unless they keep coming, counting up: a restart whose clock tells nothing.
+        int run = c->stale_run[dev] > 0 && m.seq > c->stale_seq[dev] ? c->stale_run[dev] + 1 : 1;
+        c->stale_run[dev] = run;
+        c->stale_seq[dev] = m.seq;
+        if (run < STALE_RUN_RESTART) {
+            c->st.forces_stale++;
+            return;
+        }
     }
+    c->stale_run[dev] = 0;
     m.arrival_us = hs_client_now_us();
     hs_force_renderer_push(r, &m);
     c->force_utime[dev] = utime;

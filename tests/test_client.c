@@ -1033,6 +1033,14 @@ static int test_force_restart(void) {
     ENSURE(hs_client_poll(c, 100, &e) == 2 && force_x(c) == 8.5);
     hs_client_stats_get(c, &st);
     ENSURE(st.forces == 5 && st.forces_stale == 4);
+    // A restart whose clock says nothing (the same utime as the old server's last force): its
+    // forces keep counting up behind the held one; the 8th in a row is taken.
+    put_force(c, 100, 70000000, 1.0);
+    for (int i = 1; i <= 8; i++) put_force(c, i, 70000000, 3.0);
+    ENSURE(hs_client_poll(c, 100, &e) == 9 && force_x(c) == 3.0);
+    ENSURE(hs_client_force_model(c, 0, &m) && m.seq == 8);
+    hs_client_stats_get(c, &st);
+    ENSURE(st.forces == 7 && st.forces_stale == 11);
     hs_client_destroy(&c);
     return 0;
 }
