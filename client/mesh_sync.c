@@ -35,15 +35,33 @@ struct hs_mesh_sync {
     hs_sync_stats st;
 };
 
-// Replace *p by a block of n elements of size sz keeping the first keep elements.
-static int grow(void** p, size_t* cap, size_t n, size_t sz, size_t keep) {
-    if (n <= *cap) return 0;
-    void* q = hs_client_calloc(n, sz);
-    if (!q) return -1;
-    if (*p && keep) memcpy(q, *p, keep * sz);
-    hs_client_free(*p);
-    *p = q;
-    *cap = n;
+// One array that may have to grow: to n elements of size sz, keeping the first keep.
+typedef struct growth {
+    void** p;
+    size_t* cap;
+    size_t n, sz, keep;
+    void* q; // the new block, until swapped in
+} growth;
+
+// Allocate every block that must grow, then swap them all in; a failed allocation frees the
+// new blocks and changes nothing (HS_SYNC_NOMEM keeps the state).
+static int grow_all(growth* g, int n) {
+    for (int i = 0; i < n; i++) {
+        g[i].q = NULL;
+        if (g[i].n <= *g[i].cap) continue;
+        g[i].q = hs_client_calloc(g[i].n, g[i].sz);
+        if (!g[i].q) {
+            for (int j = 0; j < i; j++) hs_client_free(g[j].q);
+            return -1;
+        }
+    }
+    for (int i = 0; i < n; i++) {
+        if (!g[i].q) continue;
+        if (*g[i].p && g[i].keep) memcpy(g[i].q, *g[i].p, g[i].keep * g[i].sz);
+        hs_client_free(*g[i].p);
+        *g[i].p = g[i].q;
+        *g[i].cap = g[i].n;
+    }
     return 0;
 }
 
@@ -179,14 +197,14 @@ static hs_sync_result on_topology(hs_mesh_sync* s, const void* buf, size_t len) 
     topo* p = &s->pending;
     size_t nv = (size_t)w.n_vis, nt = (size_t)w.n_tri, ntet = (size_t)w.n_tet;
     size_t keep = s->ready ? (size_t)s->shown.n_vis : 0; // kf/pos/stress hold the shown mesh
-    if (grow((void**)&p->vis, &p->cap_vis, nv, sizeof(int32_t), 0) ||
-        grow((void**)&p->rest, &p->cap_rest, nv, 3 * sizeof(float), 0) ||
-        grow((void**)&p->tri, &p->cap_tri, nt, 3 * sizeof(int32_t), 0) ||
-        grow((void**)&p->tet, &p->cap_tet, ntet, 4 * sizeof(int32_t), 0) ||
-        grow((void**)&s->kf, &s->cap_kf, nv, 3 * sizeof(float), keep) ||
-        grow((void**)&s->pos, &s->cap_pos, nv, 3 * sizeof(float), keep) ||
-        grow((void**)&s->stress, &s->cap_stress, nv, sizeof(float), keep)) {
-        if (s->ready) update_pointers(s);
+    growth g[] = {{(void**)&p->vis, &p->cap_vis, nv, sizeof(int32_t), 0, NULL},
+                  {(void**)&p->rest, &p->cap_rest, nv, 3 * sizeof(float), 0, NULL},
+                  {(void**)&p->tri, &p->cap_tri, nt, 3 * sizeof(int32_t), 0, NULL},
+                  {(void**)&p->tet, &p->cap_tet, ntet, 4 * sizeof(int32_t), 0, NULL},
+                  {(void**)&s->kf, &s->cap_kf, nv, 3 * sizeof(float), keep, NULL},
+                  {(void**)&s->pos, &s->cap_pos, nv, 3 * sizeof(float), keep, NULL},
+                  {(void**)&s->stress, &s->cap_stress, nv, sizeof(float), keep, NULL}};
+    if (grow_all(g, (int)(sizeof g / sizeof g[0]))) {
         s->restart_seen = restarted; // so the next copy is taken
         return HS_SYNC_NOMEM;
     }

@@ -18,8 +18,15 @@
 // Counted allocation: a 16-byte header keeps the size so free can subtract it.
 
 static atomic_llong g_bytes;
+static atomic_llong g_fail_countdown;
+
+void hs_client_alloc_fail_after(int64_t n) {
+    atomic_store(&g_fail_countdown, n > 0 ? n : 0);
+}
 
 void* hs_client_alloc(size_t n) {
+    if (atomic_load(&g_fail_countdown) > 0 && atomic_fetch_sub(&g_fail_countdown, 1) == 1)
+        return NULL;
     if (n > SIZE_MAX - 16) return NULL;
     unsigned char* p = malloc(n + 16);
     if (!p) return NULL;

@@ -87,6 +87,8 @@ static inline int hs_wire_reordered(int64_t utime, int64_t newest) {
 void* hs_client_alloc(size_t n);
 void* hs_client_calloc(size_t count, size_t size);
 void hs_client_free(void* p);
+/// Fault injection for tests: the n-th allocation from now fails (n <= 0: none).
+void hs_client_alloc_fail_after(int64_t n);
 
 /// The LCM handle of a client's bus (0 haptic, 1 mesh), NULL when not open: lets the memq://
 /// tests publish server messages into a client.

@@ -526,6 +526,51 @@ static int test_mesh_restart(void) {
     return 0;
 }
 
+// A topology whose arrays cannot be allocated leaves everything as it was (client.h): before,
+// the held topology's arrays were replaced one by one until one allocation failed, and the
+// held topology showed zeroed node ids once its keyframe arrived.
+static int test_topology_nomem(void) {
+    int64_t bytes0 = hs_client_byte_count();
+    enum { BIG = 1000 };
+    static float big_rest[3 * BIG];
+    static int32_t big_tri[3 * BIG];
+    float rest[12] = {0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1}, kf[12];
+    int32_t tri[6] = {0, 1, 2, 0, 2, 3};
+    for (int i = 0; i < 12; i++) kf[i] = rest[i] + 0.5f;
+    int failures = 0;
+    for (int k = 1; k <= 8; k++) { // the k-th allocation of the big topology fails
+        hs_mesh_sync* s = NULL;
+        ENSURE(hs_mesh_sync_create(&s, NULL) == HS_OK);
+        const hs_client_mesh* m = hs_mesh_sync_mesh(s);
+        ENSURE(feed1(s, enc_topology(1, 1, 3, rest, 1, tri)) == HS_SYNC_HELD);
+        ENSURE(feed1(s, enc_state(1, 1, 1, 3, kf, 1)) == HS_SYNC_APPLIED);
+        ENSURE(feed1(s, enc_topology(2, 2, 4, rest, 2, tri)) == HS_SYNC_HELD);
+        uint64_t h0 = mesh_hash(m);
+        msg t3 = enc_topology(3, 3, BIG, big_rest, BIG, big_tri);
+        hs_client_alloc_fail_after(k);
+        hs_sync_result r = feed1(s, t3);
+        hs_client_alloc_fail_after(0);
+        if (r == HS_SYNC_HELD) { // fewer allocations than k: nothing failed
+            hs_mesh_sync_destroy(&s);
+            break;
+        }
+        ENSURE(r == HS_SYNC_NOMEM);
+        failures++;
+        ENSURE(hs_mesh_sync_newest_topology(s) == 2 && mesh_hash(m) == h0);
+        ENSURE(m->topology_version == 1 && m->n_vis == 3 && m->stress && m->stress[2] == 200);
+        // The held topology 2 is intact: its keyframe shows exactly what it sent.
+        ENSURE(feed1(s, enc_state(2, 2, 2, 4, kf, 0)) == HS_SYNC_APPLIED);
+        ENSURE(m->topology_version == 2 && m->n_vis == 4 && m->n_tri == 2);
+        for (int i = 0; i < 4; i++) ENSURE(m->vis_nodes[i] == i + 5);
+        ENSURE(memcmp(m->rest, rest, sizeof rest) == 0 &&
+               memcmp(m->triangles, tri, sizeof tri) == 0);
+        ENSURE(memcmp(m->position, kf, sizeof kf) == 0 && consistent(m) == 0);
+        hs_mesh_sync_destroy(&s);
+    }
+    ENSURE(failures >= 4 && hs_client_byte_count() == bytes0);
+    return 0;
+}
+
 // Truncations and fingerprint changes of valid messages are always malformed; random bytes and
 // bit flips never crash and never leave an inconsistent mesh; memory returns to its start.
 static int test_malformed_counted(void) {
@@ -1046,8 +1091,8 @@ static int test_force_restart(void) {
 }
 
 HS_TEST_MAIN(HS_CASE(test_callback_reentry), HS_CASE(test_force_restart),
-             HS_CASE(test_mesh_restart), HS_CASE(test_lossless_follows_server),
-             HS_CASE(test_delta_sum_overflow), HS_CASE(test_loss_converges),
-             HS_CASE(test_late_join), HS_CASE(test_wrong_versions_ignored),
-             HS_CASE(test_malformed_counted), HS_CASE(test_local_model), HS_CASE(test_force_ranges),
-             HS_CASE(test_status_decode))
+             HS_CASE(test_mesh_restart), HS_CASE(test_topology_nomem),
+             HS_CASE(test_lossless_follows_server), HS_CASE(test_delta_sum_overflow),
+             HS_CASE(test_loss_converges), HS_CASE(test_late_join),
+             HS_CASE(test_wrong_versions_ignored), HS_CASE(test_malformed_counted),
+             HS_CASE(test_local_model), HS_CASE(test_force_ranges), HS_CASE(test_status_decode))
