@@ -49,7 +49,7 @@ struct hs_client {
     int64_t latency_us[HS_CLIENT_MAX_DEVICES];
     // Visualiser side.
     hs_mesh_sync* mesh;
-    hs_client_status status;
+    hs_client_status status, status_rx; // newest good one; decoding scratch
     int have_status;
     int64_t status_arrival_us;
     // Commands.
@@ -185,11 +185,12 @@ static void on_ack(hs_client* c, const void* buf, size_t len) {
 }
 
 static void on_status(hs_client* c, const void* buf, size_t len) {
-    if (hs_client_status_decode(buf, len, &c->status) != HS_OK) {
-        c->have_status = 0;
+    // Decoded aside: a malformed status must not erase the last good one.
+    if (hs_client_status_decode(buf, len, &c->status_rx) != HS_OK) {
         c->st.malformed++;
         return;
     }
+    c->status = c->status_rx;
     c->have_status = 1;
     c->status_arrival_us = hs_client_now_us();
     c->st.statuses++;

@@ -1090,8 +1090,30 @@ static int test_force_restart(void) {
     return 0;
 }
 
+// A malformed server_status is counted and dropped; the last good one stays (before, the
+// decoder wrote into the stored status and one corrupt datagram erased it).
+static int test_status_kept(void) {
+    hs_client* c = memq_client(HS_CLIENT_SUB_STATUS);
+    ENSURE(c);
+    hs_err e = {0};
+    hs_client_status st;
+    put_status(c, 7, "liver.json");
+    ENSURE(hs_client_poll(c, 100, &e) == 1 && hs_client_status_latest(c, &st, NULL));
+    ENSURE(st.seq == 7 && !strcmp(st.scene, "liver.json"));
+    put(c, 1, HAPSIM_CH_SERVER_STATUS, "junk", 4);
+    ENSURE(hs_client_poll(c, 100, &e) == 1);
+    memset(&st, 0, sizeof st);
+    ENSURE(hs_client_status_latest(c, &st, NULL));
+    ENSURE(st.seq == 7 && !strcmp(st.scene, "liver.json"));
+    hs_client_stats cs;
+    hs_client_stats_get(c, &cs);
+    ENSURE(cs.malformed == 1 && cs.statuses == 1);
+    hs_client_destroy(&c);
+    return 0;
+}
+
 HS_TEST_MAIN(HS_CASE(test_callback_reentry), HS_CASE(test_force_restart),
-             HS_CASE(test_mesh_restart), HS_CASE(test_topology_nomem),
+             HS_CASE(test_mesh_restart), HS_CASE(test_topology_nomem), HS_CASE(test_status_kept),
              HS_CASE(test_lossless_follows_server), HS_CASE(test_delta_sum_overflow),
              HS_CASE(test_loss_converges), HS_CASE(test_late_join),
              HS_CASE(test_wrong_versions_ignored), HS_CASE(test_malformed_counted),

@@ -317,8 +317,9 @@ int64_t hs_client_force_latency_us(const hs_client* c, int32_t device_id);
 const hs_client_mesh* hs_client_mesh_view(const hs_client* c);
 /// Mesh channel counters. Thread: the polling thread | Allocates: no
 void hs_client_mesh_stats(const hs_client* c, hs_sync_stats* out /* OUT */);
-/// Newest server status; returns false when none arrived. *age_us (may be NULL) is how long ago
-/// it arrived. Thread: the polling thread | Allocates: no
+/// Newest server status (a malformed one is dropped and keeps the last good one); returns false
+/// when none arrived. *age_us (may be NULL) is how long ago it arrived. Thread: the polling thread
+/// | Allocates: no
 bool hs_client_status_latest(const hs_client* c, hs_client_status* out /* OUT */, int64_t* age_us);
 
 /// Client-wide counters.
