@@ -157,6 +157,17 @@ static void update_pointers(hs_mesh_sync* s) {
     s->view.stress = s->has_stress ? s->stress : NULL;
 }
 
+// A keyframe id or topology version (counted one by one by the server) more than this ahead,
+// plus one per ms of server time since the reference message, is a corrupt message: taken, it
+// would make every later keyframe stale or topology older (as the server's pose seq check).
+#define MAX_JUMP 1000000
+
+static int too_far(int64_t from, int64_t to, int64_t utime, int64_t ref_utime) {
+    if (to <= from) return 0;
+    uint64_t ms = utime > ref_utime ? ((uint64_t)utime - (uint64_t)ref_utime) / 1000 : 0;
+    return (uint64_t)to - (uint64_t)from > MAX_JUMP + ms;
+}
+
 // Seq bookkeeping per channel: gaps count as loss; returns 1 when seq went backwards.
 static int track_seq(hs_mesh_sync* s, int kind, int64_t seq) {
     int back = 0;
@@ -176,17 +187,22 @@ static int track_seq(hs_mesh_sync* s, int kind, int64_t seq) {
 static hs_sync_result on_topology(hs_mesh_sync* s, const void* buf, size_t len) {
     hs_wire_topology w;
     if (hs_wire_topology_decode(buf, len, &w)) return HS_SYNC_MALFORMED;
-    track_seq(s, HS_SYNC_TOPOLOGY, w.seq);
     int64_t newest = hs_mesh_sync_newest_topology(s);
     // One server's seq and utime grow together and its version never goes back; a reordered
     // message is at most HS_WIRE_REORDER_US older. Anything else is a restarted server (seq
     // from 1, its clock later, or unrelated after a reboot or on another host): its topology
     // is taken whatever its version.
     int restarted = s->restart_seen;
-    if (!s->have_topo || w.seq > s->topo_seq || !hs_wire_reordered(w.utime, s->topo_utime)) {
-        if (s->have_topo && (w.seq <= s->topo_seq || w.utime < s->topo_utime ||
-                             (newest >= 0 && w.topology_version < newest)))
-            restarted = 1;
+    int reordered =
+        s->have_topo && w.seq <= s->topo_seq && hs_wire_reordered(w.utime, s->topo_utime);
+    if (!reordered && s->have_topo &&
+        (w.seq <= s->topo_seq || w.utime < s->topo_utime ||
+         (newest >= 0 && w.topology_version < newest)))
+        restarted = 1;
+    if (!restarted && newest >= 0 && too_far(newest, w.topology_version, w.utime, s->topo_utime))
+        return HS_SYNC_MALFORMED;
+    track_seq(s, HS_SYNC_TOPOLOGY, w.seq);
+    if (!reordered) {
         s->have_topo = 1;
         s->topo_seq = w.seq;
         s->topo_utime = w.utime;
@@ -239,8 +255,12 @@ static void take_keyframe(hs_mesh_sync* s, const hs_wire_state* w) {
 static hs_sync_result on_state(hs_mesh_sync* s, const void* buf, size_t len) {
     hs_wire_state w;
     if (hs_wire_state_decode(buf, len, &w)) return HS_SYNC_MALFORMED;
+    int promote = s->has_pending && w.topology_version == s->pending.version;
+    if (!promote && s->ready && w.topology_version == s->shown.version &&
+        too_far(s->kf_id, w.keyframe_id, w.utime, s->kf_utime))
+        return HS_SYNC_MALFORMED;
     track_seq(s, HS_SYNC_STATE, w.seq);
-    if (s->has_pending && w.topology_version == s->pending.version) {
+    if (promote) {
         if (w.pos.n != 3 * s->pending.n_vis) return HS_SYNC_MALFORMED;
         topo t = s->shown; // promote: swap storage, no allocation
         s->shown = s->pending;

@@ -526,6 +526,39 @@ static int test_mesh_restart(void) {
     return 0;
 }
 
+// A decodable message whose keyframe_id or topology_version is far ahead (a corrupt datagram,
+// bit 62 set) is malformed: before, it was shown (or held) and every later keyframe was stale
+// or every later topology older. A far jump after as much server time is plausible.
+static int test_far_jump(void) {
+    float rest[12] = {0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1}, a[12], b[12];
+    int32_t tri[6] = {0, 1, 2, 0, 2, 3};
+    for (int i = 0; i < 12; i++) a[i] = rest[i] + 1, b[i] = rest[i] + 2;
+    const int64_t far = (int64_t)1 << 62;
+    hs_mesh_sync* s = NULL;
+    ENSURE(hs_mesh_sync_create(&s, NULL) == HS_OK);
+    const hs_client_mesh* m = hs_mesh_sync_mesh(s);
+    at(1000000);
+    ENSURE(feed1(s, enc_topology(1, 1, 4, rest, 2, tri)) == HS_SYNC_HELD);
+    ENSURE(feed1(s, enc_state(1, 1, 1, 4, a, 0)) == HS_SYNC_APPLIED);
+    ENSURE(feed1(s, enc_state(2, 1, 2 | far, 4, b, 0)) == HS_SYNC_MALFORMED);
+    ENSURE(m->keyframe_id == 1 && m->position[0] == a[0]);
+    ENSURE(feed1(s, enc_state(3, 1, 1000010, 4, b, 0)) == HS_SYNC_MALFORMED); // 2 ms on
+    ENSURE(feed1(s, enc_state(4, 1, 3, 4, b, 0)) == HS_SYNC_APPLIED && m->keyframe_id == 3);
+    ENSURE(feed1(s, enc_topology(2, 1 | far, 4, rest, 2, tri)) == HS_SYNC_MALFORMED);
+    ENSURE(hs_mesh_sync_newest_topology(s) == 1);
+    ENSURE(feed1(s, enc_topology(3, 2, 4, rest, 2, tri)) == HS_SYNC_HELD);
+    ENSURE(feed1(s, enc_state(5, 2, 4, 4, a, 0)) == HS_SYNC_APPLIED && m->topology_version == 2);
+    // An hour later (a client cut off for that long): two million keyframes on is plausible.
+    at(1000000 + 3600000000LL);
+    ENSURE(feed1(s, enc_state(6, 2, 2000004, 4, b, 0)) == HS_SYNC_APPLIED);
+    ENSURE(m->keyframe_id == 2000004);
+    hs_sync_stats st;
+    hs_mesh_sync_stats(s, &st);
+    ENSURE(st.malformed == 3);
+    hs_mesh_sync_destroy(&s);
+    return 0;
+}
+
 // A topology whose arrays cannot be allocated leaves everything as it was (client.h): before,
 // the held topology's arrays were replaced one by one until one allocation failed, and the
 // held topology showed zeroed node ids once its keyframe arrived.
@@ -1113,8 +1146,9 @@ static int test_status_kept(void) {
 }
 
 HS_TEST_MAIN(HS_CASE(test_callback_reentry), HS_CASE(test_force_restart),
-             HS_CASE(test_mesh_restart), HS_CASE(test_topology_nomem), HS_CASE(test_status_kept),
-             HS_CASE(test_lossless_follows_server), HS_CASE(test_delta_sum_overflow),
-             HS_CASE(test_loss_converges), HS_CASE(test_late_join),
-             HS_CASE(test_wrong_versions_ignored), HS_CASE(test_malformed_counted),
-             HS_CASE(test_local_model), HS_CASE(test_force_ranges), HS_CASE(test_status_decode))
+             HS_CASE(test_mesh_restart), HS_CASE(test_topology_nomem), HS_CASE(test_far_jump),
+             HS_CASE(test_status_kept), HS_CASE(test_lossless_follows_server),
+             HS_CASE(test_delta_sum_overflow), HS_CASE(test_loss_converges),
+             HS_CASE(test_late_join), HS_CASE(test_wrong_versions_ignored),
+             HS_CASE(test_malformed_counted), HS_CASE(test_local_model), HS_CASE(test_force_ranges),
+             HS_CASE(test_status_decode))

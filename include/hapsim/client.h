@@ -161,7 +161,9 @@ void hs_mesh_sync_destroy(hs_mesh_sync** s);
 /// keyframe and its seq is newer. A restarted server: a topology whose seq and utime do not both
 /// go on from the newest one (other than a reorder: seq not newer, utime at most 1 s older) or
 /// whose version went back; or a keyframe whose id went back while its seq or utime went on
-/// (the shown version then waits for the next topology). Never crashes on any bytes.
+/// (the shown version then waits for the next topology). A topology version or keyframe_id
+/// more than 1e6 + 1 per ms of server time (utime) ahead of the newest is a corrupt message:
+/// HS_SYNC_MALFORMED. Never crashes on any bytes.
 /// Thread: the owner | Allocates: only when a topology needs larger arrays
 hs_sync_result hs_mesh_sync_feed(hs_mesh_sync* s, hs_sync_kind kind, const void* buf, size_t len);
 /// The visible mesh (valid until the next feed). Thread: the owner | Allocates: no
