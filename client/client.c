@@ -102,7 +102,7 @@ static int64_t wall_us(void) {
 }
 
 int64_t hs_client_age_us(int64_t utime) {
-    int64_t a = wall_us() - utime, b = hs_client_now_us() - utime;
+    int64_t a = hs_wire_sub_sat(wall_us(), utime), b = hs_wire_sub_sat(hs_client_now_us(), utime);
     if (a >= -1000000 && a < 3600000000LL) return a < 0 ? 0 : a;
     if (b >= -1000000 && b < 3600000000LL) return b < 0 ? 0 : b;
     return -1;

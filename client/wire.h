@@ -78,6 +78,13 @@ int hs_wire_force_decode(const void* buf, size_t len, int32_t* device_id, int64_
 /// host).
 #define HS_WIRE_REORDER_US 1000000
 
+/// a - b saturated to the int64 range (clocks at its ends must not overflow).
+static inline int64_t hs_wire_sub_sat(int64_t a, int64_t b) {
+    if (b < 0 && a > INT64_MAX + b) return INT64_MAX;
+    if (b > 0 && a < INT64_MIN + b) return INT64_MIN;
+    return a - b;
+}
+
 /// 1 when utime is within HS_WIRE_REORDER_US at or before newest (no overflow).
 static inline int hs_wire_reordered(int64_t utime, int64_t newest) {
     return utime <= newest && (uint64_t)newest - (uint64_t)utime <= HS_WIRE_REORDER_US;

@@ -3,6 +3,7 @@
 // wire decoders, the local force model and its blending, the status decoder; and the connection
 // on in-process memq:// buses (callbacks re-entering the client, forces of a restarted server,
 // a malformed status).
+#include <float.h>
 #include <lcm/lcm.h>
 #include <stdint.h>
 #include <stdlib.h>
@@ -838,6 +839,46 @@ static int test_force_ranges(void) {
     return 0;
 }
 
+// A device position far away is clamped to the validity sphere: before, |d| overflowed beyond
+// ~1.3e154 m and the stiffness term vanished. Clocks at the ends of int64 do not overflow
+// (signed overflow, caught by the HS_SANITIZE build) in the age and the blend.
+static int test_model_extremes(void) {
+    hs_local_model m;
+    memset(&m, 0, sizeof m);
+    m.valid = 1;
+    m.state = HAPSIM_TOOL_FORCE_T_STATE_CONTACT;
+    m.validity_radius = 0.01;
+    m.timeout_us = 50000;
+    m.stiffness[0] = m.stiffness[4] = -1000; // -10 N on the sphere
+    double f[3], xs[] = {1.0, 1e100, 1e154, 1e155, 1e200, 1e300, DBL_MAX};
+    for (size_t i = 0; i < sizeof xs / sizeof xs[0]; i++) {
+        double p[3] = {xs[i], 0, 0};
+        ENSURE(hs_local_model_eval(&m, p, 0, f) == 1.0);
+        ENSURE_NEAR(f[0], -10.0, 1e-12);
+        double q[3] = {-xs[i], -xs[i], 0}; // diagonal: both components at 10 / sqrt(2)
+        ENSURE(hs_local_model_eval(&m, q, 0, f) == 1.0);
+        ENSURE_NEAR(f[0], 10.0 / sqrt(2.0), 1e-12);
+        ENSURE_NEAR(f[1], 10.0 / sqrt(2.0), 1e-12);
+    }
+    ENSURE(hs_client_age_us(INT64_MIN) == -1 && hs_client_age_us(INT64_MAX) == -1);
+    // now_us at INT64_MIN lies before the blend start: the old model, not the new one.
+    hs_force_renderer r;
+    hs_force_renderer_init(&r);
+    m.stiffness[0] = m.stiffness[4] = 0;
+    m.force[0] = 1.0;
+    m.arrival_us = 5;
+    hs_force_renderer_push(&r, &m);
+    m.model_version = 2;
+    m.force[0] = 3.0;
+    hs_force_renderer_push(&r, &m);
+    double p[3] = {0, 0, 0};
+    ENSURE(hs_force_renderer_eval(&r, p, INT64_MIN, f) == HAPSIM_TOOL_FORCE_T_STATE_CONTACT);
+    ENSURE(f[0] == 1.0);
+    ENSURE(hs_force_renderer_eval(&r, p, INT64_MAX, f) == HAPSIM_TOOL_FORCE_T_STATE_CONTACT);
+    ENSURE(f[0] == 0.0); // long timed out
+    return 0;
+}
+
 // ---------------------------------------------------------------------------------------------
 // Status decoding.
 
@@ -985,6 +1026,19 @@ static void put_status(hs_client* c, int64_t seq, const char* scene) {
     s.seq = seq;
     s.scene = (char*)(uintptr_t)scene; // the encoder only reads
     s.warnings = "rt loop overrun";
+    // Empty arrays, but not NULL: lcm-gen's encoder memcpys from them (UBSan: NULL argument).
+    static char* names[1];
+    static float fz[1];
+    static int64_t iz[1];
+    static int32_t ids[1];
+    static int8_t live[1];
+    s.loop_name = s.step_name = s.reject_channel = s.reject_reason = names;
+    s.rate_hz = s.period_p50_us = s.period_p99_us = s.period_max_us = fz;
+    s.step_p50_us = s.step_p99_us = s.step_max_us = fz;
+    s.pose_age_ms = s.latency_p50_us = s.latency_p99_us = s.force_norm = fz;
+    s.overruns = s.poses_received = s.poses_lost = s.reject_count = iz;
+    s.device_id = ids;
+    s.device_live = live;
     uint8_t buf[1024];
     put(c, 1, HAPSIM_CH_SERVER_STATUS, buf, hapsim_server_status_t_encode(buf, 0, sizeof buf, &s));
 }
@@ -1147,8 +1201,8 @@ static int test_status_kept(void) {
 
 HS_TEST_MAIN(HS_CASE(test_callback_reentry), HS_CASE(test_force_restart),
              HS_CASE(test_mesh_restart), HS_CASE(test_topology_nomem), HS_CASE(test_far_jump),
-             HS_CASE(test_status_kept), HS_CASE(test_lossless_follows_server),
-             HS_CASE(test_delta_sum_overflow), HS_CASE(test_loss_converges),
-             HS_CASE(test_late_join), HS_CASE(test_wrong_versions_ignored),
-             HS_CASE(test_malformed_counted), HS_CASE(test_local_model), HS_CASE(test_force_ranges),
-             HS_CASE(test_status_decode))
+             HS_CASE(test_model_extremes), HS_CASE(test_status_kept),
+             HS_CASE(test_lossless_follows_server), HS_CASE(test_delta_sum_overflow),
+             HS_CASE(test_loss_converges), HS_CASE(test_late_join),
+             HS_CASE(test_wrong_versions_ignored), HS_CASE(test_malformed_counted),
+             HS_CASE(test_local_model), HS_CASE(test_force_ranges), HS_CASE(test_status_decode))

@@ -61,7 +61,8 @@ typedef struct hs_local_model {
 
 /// F(p) = force + stiffness * d, d = p - anchor clamped to |d| <= validity_radius; full strength
 /// until timeout_us after arrival, then a linear ramp to zero over another timeout_us; zero for
-/// STATE_STOPPED or an invalid model. Writes f[3] (N); returns the strength factor in [0, 1].
+/// STATE_STOPPED or an invalid model (|d| is computed without overflow: any finite p, however
+/// far, is clamped). Writes f[3] (N); returns the strength factor in [0, 1].
 /// Never a non-finite force: a non-finite p, or a hand-built model whose F would overflow, gives
 /// zero (and returns 0). Thread: any | Allocates: no
 double hs_local_model_eval(const hs_local_model* m, const double p[3], int64_t now_us,
@@ -81,8 +82,9 @@ void hs_force_renderer_init(hs_force_renderer* r);
 /// Take a new model (blend starts when model_version differs from the current one).
 /// Thread: the caller owning r | Allocates: no
 void hs_force_renderer_push(hs_force_renderer* r, const hs_local_model* m);
-/// Blended, timed-out force at p (m) now (us); writes f[3] (N); returns the newest model's state
-/// (-1 before any model). Thread: the caller owning r | Allocates: no
+/// Blended, timed-out force at p (m) now (us, any int64: differences saturate); writes f[3] (N);
+/// returns the newest model's state (-1 before any model).
+/// Thread: the caller owning r | Allocates: no
 int32_t hs_force_renderer_eval(const hs_force_renderer* r, const double p[3], int64_t now_us,
                                double f[3] /* OUT */);
 
@@ -285,7 +287,8 @@ int64_t hs_client_now_us(void);
 
 /// Age (us) of a server timestamp (utime) when the server runs on this host: now - utime on
 /// CLOCK_REALTIME (the LCM convention) or, if that is implausible (not within -1 s .. 1 h), on
-/// CLOCK_MONOTONIC; -1 when neither fits (another host). Thread: any | Allocates: no
+/// CLOCK_MONOTONIC; -1 when neither fits (another host; any int64 utime, no overflow).
+/// Thread: any | Allocates: no
 int64_t hs_client_age_us(int64_t utime);
 
 /// A pose to send (the client fills utime, seq and session).
