@@ -17,6 +17,8 @@
 #include "hapsim_tool_pose_t.h"
 #include "wire.h"
 
+// Refused forces counting up one after another this many times are another server's stream.
+#define STALE_RUN_RESTART 8
 enum { CH_FORCE, CH_TOPOLOGY, CH_STATE, CH_DELTA, CH_EVENT, CH_STATUS, CH_ACK, CH_COUNT };
 #define ACK_RING 16
 
@@ -35,13 +37,19 @@ struct hs_client {
     hs_client_callbacks cb;
     void* user;
     int64_t handled; // messages handled (for poll's return value)
+    // Callbacks run inside lcm_handle, which LCM does not allow to re-enter (it asserts) and
+    // whose dispatch must not see its lcm_t destroyed: poll and destroy check these.
+    int in_poll, destroy_refused;
     // Driver side.
     int64_t pose_seq[HS_CLIENT_MAX_DEVICES];
     hs_force_renderer force[HS_CLIENT_MAX_DEVICES];
+    int64_t force_utime[HS_CLIENT_MAX_DEVICES]; // server utime of the model held
+    int stale_run[HS_CLIENT_MAX_DEVICES];       // refused forces in a row, seq counting up
+    int64_t stale_seq[HS_CLIENT_MAX_DEVICES];   // seq of the last refused one
     int64_t latency_us[HS_CLIENT_MAX_DEVICES];
     // Visualiser side.
     hs_mesh_sync* mesh;
-    hs_client_status status;
+    hs_client_status status, status_rx; // newest good one; decoding scratch
     int have_status;
     int64_t status_arrival_us;
     // Commands.
@@ -94,7 +102,7 @@ static int64_t wall_us(void) {
 }
 
 int64_t hs_client_age_us(int64_t utime) {
-    int64_t a = wall_us() - utime, b = hs_client_now_us() - utime;
+    int64_t a = hs_wire_sub_sat(wall_us(), utime), b = hs_wire_sub_sat(hs_client_now_us(), utime);
     if (a >= -1000000 && a < 3600000000LL) return a < 0 ? 0 : a;
     if (b >= -1000000 && b < 3600000000LL) return b < 0 ? 0 : b;
     return -1;
@@ -124,8 +132,9 @@ void hs_client_config_default(hs_client_config* cfg) {
 
 static void on_force(hs_client* c, const void* buf, size_t len) {
     int32_t dev;
+    int64_t utime;
     hs_local_model m;
-    if (hs_wire_force_decode(buf, len, &dev, &m)) {
+    if (hs_wire_force_decode(buf, len, &dev, &utime, &m)) {
         c->st.malformed++;
         return;
     }
@@ -134,13 +143,22 @@ static void on_force(hs_client* c, const void* buf, size_t len) {
         return;
     }
     hs_force_renderer* r = &c->force[dev];
-    // An older seq is a reorder, unless far older: the server restarted.
-    if (r->model.valid && m.seq <= r->model.seq && r->model.seq - m.seq < 100000) {
-        c->st.forces_stale++;
-        return;
+    // A seq not newer is a reorder or a repeat if its utime is at most a reorder window older;
+    // a later or far earlier utime is a restarted server (seq from 1, another clock).
+    if (r->model.valid && m.seq <= r->model.seq && hs_wire_reordered(utime, c->force_utime[dev])) {
+        // ... unless they keep coming, counting up: a restart whose clock tells nothing.
+        int run = c->stale_run[dev] > 0 && m.seq > c->stale_seq[dev] ? c->stale_run[dev] + 1 : 1;
+        c->stale_run[dev] = run;
+        c->stale_seq[dev] = m.seq;
+        if (run < STALE_RUN_RESTART) {
+            c->st.forces_stale++;
+            return;
+        }
     }
+    c->stale_run[dev] = 0;
     m.arrival_us = hs_client_now_us();
     hs_force_renderer_push(r, &m);
+    c->force_utime[dev] = utime;
     c->latency_us[dev] = m.pose_utime > 0 ? wall_us() - m.pose_utime : -1;
     c->st.forces++;
     if (c->cb.on_force) c->cb.on_force(c, dev, &r->model, c->user);
@@ -167,11 +185,12 @@ static void on_ack(hs_client* c, const void* buf, size_t len) {
 }
 
 static void on_status(hs_client* c, const void* buf, size_t len) {
-    if (hs_client_status_decode(buf, len, &c->status) != HS_OK) {
-        c->have_status = 0;
+    // Decoded aside: a malformed status must not erase the last good one.
+    if (hs_client_status_decode(buf, len, &c->status_rx) != HS_OK) {
         c->st.malformed++;
         return;
     }
+    c->status = c->status_rx;
     c->have_status = 1;
     c->status_arrival_us = hs_client_now_us();
     c->st.statuses++;
@@ -330,6 +349,10 @@ bad:
 void hs_client_destroy(hs_client** pc) {
     if (!pc || !*pc) return;
     hs_client* c = *pc;
+    if (c->in_poll) { // from a callback: refused, the running poll reports it
+        c->destroy_refused = 1;
+        return;
+    }
     for (int b = 0; b < 2; b++)
         if (c->bus[b]) lcm_destroy(c->bus[b]);
     hs_mesh_sync_destroy(&c->mesh);
@@ -345,11 +368,15 @@ void hs_client_set_callbacks(hs_client* c, const hs_client_callbacks* cb, void* 
     c->user = user;
 }
 
+struct _lcm_t* hs_client_lcm(hs_client* c, int bus) {
+    return bus >= 0 && bus < 2 ? c->bus[bus] : NULL;
+}
+
 int hs_client_fileno(const hs_client* c, int bus) {
     return bus >= 0 && bus < 2 && c->bus[bus] ? lcm_get_fileno(c->bus[bus]) : -1;
 }
 
-int hs_client_poll(hs_client* c, int timeout_ms, hs_err* err) {
+static int poll_buses(hs_client* c, int timeout_ms, hs_err* err) {
     struct pollfd fds[2];
     int map[2], nf = 0;
     for (int b = 0; b < 2; b++)
@@ -374,9 +401,25 @@ int hs_client_poll(hs_client* c, int timeout_ms, hs_err* err) {
                 return fail(err, HS_ERR_IO, "hs_client_poll: LCM socket error");
             if ((fds[i].revents & POLLIN) && lcm_handle(c->bus[map[i]]) != 0)
                 return fail(err, HS_ERR_IO, "hs_client_poll: lcm_handle failed");
+            if (c->destroy_refused)
+                return fail(err, HS_ERR_INVALID,
+                            "hs_client_destroy called from a callback: refused (the handle is "
+                            "still open; destroy it after hs_client_poll returns)");
         }
     }
     return (int)(c->handled - start);
+}
+
+int hs_client_poll(hs_client* c, int timeout_ms, hs_err* err) {
+    if (c->in_poll)
+        return fail(err, HS_ERR_INVALID,
+                    "hs_client_poll: called from a callback (already inside hs_client_poll)");
+    c->in_poll = 1;
+    c->destroy_refused = 0;
+    int r = poll_buses(c, timeout_ms, err);
+    c->in_poll = 0;
+    c->destroy_refused = 0;
+    return r;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -539,6 +582,8 @@ hs_status hs_client_command(hs_client* c, int32_t kind, int n_args, const char* 
                 return fail(err, HS_ERR_IO, "hs_client_command: publish on %s failed",
                             c->ch_command);
             ack->attempts++;
+            // From a callback (inside hs_client_poll) nothing can be waited for: sent once.
+            if (c->in_poll) return HS_OK;
             // After PENDING the server is working on it: ask again less often.
             next_send = now + (int64_t)retry_ms * 1000 * (pending ? 4 : 1);
         }

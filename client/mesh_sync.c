@@ -24,22 +24,44 @@ struct hs_mesh_sync {
     int has_stress;
     uint64_t shown_hash; // of the positions and stress at the last frame
     int64_t kf_id, last_delta_seq;
+    int64_t kf_seq, kf_utime; // seq and utime of the keyframe shown
     int have_seq[4];
     int64_t last_seq[4];
-    int64_t last_topo_utime; // utime of the newest topology message seen
+    // Restart detection: seq and utime of the newest topology in order, and whether a keyframe
+    // showed a restarted server (its topology is then taken whatever its version).
+    int have_topo, restart_seen;
+    int64_t topo_seq, topo_utime;
     hs_client_mesh view;
     hs_sync_stats st;
 };
 
-// Replace *p by a block of n elements of size sz keeping the first keep elements.
-static int grow(void** p, size_t* cap, size_t n, size_t sz, size_t keep) {
-    if (n <= *cap) return 0;
-    void* q = hs_client_calloc(n, sz);
-    if (!q) return -1;
-    if (*p && keep) memcpy(q, *p, keep * sz);
-    hs_client_free(*p);
-    *p = q;
-    *cap = n;
+// One array that may have to grow: to n elements of size sz, keeping the first keep.
+typedef struct growth {
+    void** p;
+    size_t* cap;
+    size_t n, sz, keep;
+    void* q; // the new block, until swapped in
+} growth;
+
+// Allocate every block that must grow, then swap them all in; a failed allocation frees the
+// new blocks and changes nothing (HS_SYNC_NOMEM keeps the state).
+static int grow_all(growth* g, int n) {
+    for (int i = 0; i < n; i++) {
+        g[i].q = NULL;
+        if (g[i].n <= *g[i].cap) continue;
+        g[i].q = hs_client_calloc(g[i].n, g[i].sz);
+        if (!g[i].q) {
+            for (int j = 0; j < i; j++) hs_client_free(g[j].q);
+            return -1;
+        }
+    }
+    for (int i = 0; i < n; i++) {
+        if (!g[i].q) continue;
+        if (*g[i].p && g[i].keep) memcpy(g[i].q, *g[i].p, g[i].keep * g[i].sz);
+        hs_client_free(*g[i].p);
+        *g[i].p = g[i].q;
+        *g[i].cap = g[i].n;
+    }
     return 0;
 }
 
@@ -135,6 +157,17 @@ static void update_pointers(hs_mesh_sync* s) {
     s->view.stress = s->has_stress ? s->stress : NULL;
 }
 
+// A keyframe id or topology version (counted one by one by the server) more than this ahead,
+// plus one per ms of server time since the reference message, is a corrupt message: taken, it
+// would make every later keyframe stale or topology older (as the server's pose seq check).
+#define MAX_JUMP 1000000
+
+static int too_far(int64_t from, int64_t to, int64_t utime, int64_t ref_utime) {
+    if (to <= from) return 0;
+    uint64_t ms = utime > ref_utime ? ((uint64_t)utime - (uint64_t)ref_utime) / 1000 : 0;
+    return (uint64_t)to - (uint64_t)from > MAX_JUMP + ms;
+}
+
 // Seq bookkeeping per channel: gaps count as loss; returns 1 when seq went backwards.
 static int track_seq(hs_mesh_sync* s, int kind, int64_t seq) {
     int back = 0;
@@ -154,26 +187,41 @@ static int track_seq(hs_mesh_sync* s, int kind, int64_t seq) {
 static hs_sync_result on_topology(hs_mesh_sync* s, const void* buf, size_t len) {
     hs_wire_topology w;
     if (hs_wire_topology_decode(buf, len, &w)) return HS_SYNC_MALFORMED;
-    // A seq that went backwards with a later utime is a restarted server (a reordered message
-    // has an earlier utime): its topology is taken whatever its version.
-    int back = track_seq(s, HS_SYNC_TOPOLOGY, w.seq);
-    int restarted = back && w.utime > s->last_topo_utime;
-    if (w.utime > s->last_topo_utime) s->last_topo_utime = w.utime;
     int64_t newest = hs_mesh_sync_newest_topology(s);
+    // One server's seq and utime grow together and its version never goes back; a reordered
+    // message is at most HS_WIRE_REORDER_US older. Anything else is a restarted server (seq
+    // from 1, its clock later, or unrelated after a reboot or on another host): its topology
+    // is taken whatever its version.
+    int restarted = s->restart_seen;
+    int reordered =
+        s->have_topo && w.seq <= s->topo_seq && hs_wire_reordered(w.utime, s->topo_utime);
+    if (!reordered && s->have_topo &&
+        (w.seq <= s->topo_seq || w.utime < s->topo_utime ||
+         (newest >= 0 && w.topology_version < newest)))
+        restarted = 1;
+    if (!restarted && newest >= 0 && too_far(newest, w.topology_version, w.utime, s->topo_utime))
+        return HS_SYNC_MALFORMED;
+    track_seq(s, HS_SYNC_TOPOLOGY, w.seq);
+    if (!reordered) {
+        s->have_topo = 1;
+        s->topo_seq = w.seq;
+        s->topo_utime = w.utime;
+    }
     if (!restarted && newest >= 0 && w.topology_version <= newest)
         return w.topology_version == newest ? HS_SYNC_HELD : HS_SYNC_STALE;
     // Make room first; a failed allocation leaves the visible mesh as it was.
     topo* p = &s->pending;
     size_t nv = (size_t)w.n_vis, nt = (size_t)w.n_tri, ntet = (size_t)w.n_tet;
     size_t keep = s->ready ? (size_t)s->shown.n_vis : 0; // kf/pos/stress hold the shown mesh
-    if (grow((void**)&p->vis, &p->cap_vis, nv, sizeof(int32_t), 0) ||
-        grow((void**)&p->rest, &p->cap_rest, nv, 3 * sizeof(float), 0) ||
-        grow((void**)&p->tri, &p->cap_tri, nt, 3 * sizeof(int32_t), 0) ||
-        grow((void**)&p->tet, &p->cap_tet, ntet, 4 * sizeof(int32_t), 0) ||
-        grow((void**)&s->kf, &s->cap_kf, nv, 3 * sizeof(float), keep) ||
-        grow((void**)&s->pos, &s->cap_pos, nv, 3 * sizeof(float), keep) ||
-        grow((void**)&s->stress, &s->cap_stress, nv, sizeof(float), keep)) {
-        if (s->ready) update_pointers(s);
+    growth g[] = {{(void**)&p->vis, &p->cap_vis, nv, sizeof(int32_t), 0, NULL},
+                  {(void**)&p->rest, &p->cap_rest, nv, 3 * sizeof(float), 0, NULL},
+                  {(void**)&p->tri, &p->cap_tri, nt, 3 * sizeof(int32_t), 0, NULL},
+                  {(void**)&p->tet, &p->cap_tet, ntet, 4 * sizeof(int32_t), 0, NULL},
+                  {(void**)&s->kf, &s->cap_kf, nv, 3 * sizeof(float), keep, NULL},
+                  {(void**)&s->pos, &s->cap_pos, nv, 3 * sizeof(float), keep, NULL},
+                  {(void**)&s->stress, &s->cap_stress, nv, sizeof(float), keep, NULL}};
+    if (grow_all(g, (int)(sizeof g / sizeof g[0]))) {
+        s->restart_seen = restarted; // so the next copy is taken
         return HS_SYNC_NOMEM;
     }
     if (s->ready) update_pointers(s);
@@ -187,6 +235,7 @@ static hs_sync_result on_topology(hs_mesh_sync* s, const void* buf, size_t len) 
     for (int32_t i = 0; i < 3 * w.n_tri; i++) p->tri[i] = hs_wire_i32_at(w.tri, i);
     for (int32_t i = 0; i < 4 * w.n_tet; i++) p->tet[i] = hs_wire_i32_at(w.tet, i);
     s->has_pending = 1;
+    s->restart_seen = 0;
     s->st.topologies++;
     return HS_SYNC_HELD;
 }
@@ -197,6 +246,8 @@ static void take_keyframe(hs_mesh_sync* s, const hs_wire_state* w) {
     s->has_stress = w->stress.n > 0;
     for (int32_t i = 0; i < w->stress.n; i++) s->stress[i] = hs_wire_f32_at(w->stress, i);
     s->kf_id = w->keyframe_id;
+    s->kf_seq = w->seq;
+    s->kf_utime = w->utime;
     s->last_delta_seq = -1;
     update_view(s, w->utime, w->sim_step, w->sim_time);
 }
@@ -204,8 +255,12 @@ static void take_keyframe(hs_mesh_sync* s, const hs_wire_state* w) {
 static hs_sync_result on_state(hs_mesh_sync* s, const void* buf, size_t len) {
     hs_wire_state w;
     if (hs_wire_state_decode(buf, len, &w)) return HS_SYNC_MALFORMED;
+    int promote = s->has_pending && w.topology_version == s->pending.version;
+    if (!promote && s->ready && w.topology_version == s->shown.version &&
+        too_far(s->kf_id, w.keyframe_id, w.utime, s->kf_utime))
+        return HS_SYNC_MALFORMED;
     track_seq(s, HS_SYNC_STATE, w.seq);
-    if (s->has_pending && w.topology_version == s->pending.version) {
+    if (promote) {
         if (w.pos.n != 3 * s->pending.n_vis) return HS_SYNC_MALFORMED;
         topo t = s->shown; // promote: swap storage, no allocation
         s->shown = s->pending;
@@ -215,9 +270,17 @@ static hs_sync_result on_state(hs_mesh_sync* s, const void* buf, size_t len) {
         take_keyframe(s, &w);
         return HS_SYNC_APPLIED;
     }
-    if (!s->ready || w.topology_version != s->shown.version) return HS_SYNC_MISMATCH;
+    if (!s->ready || w.topology_version != s->shown.version || s->restart_seen)
+        return HS_SYNC_MISMATCH;
     if (w.pos.n != 3 * s->shown.n_vis) return HS_SYNC_MALFORMED;
-    if (w.keyframe_id <= s->kf_id) return HS_SYNC_STALE;
+    if (w.keyframe_id <= s->kf_id) {
+        // Reordered or repeated; else a keyframe id that went back while seq or utime did not
+        // is a restarted server: wait for its topology (the held one is the old server's).
+        if (w.seq <= s->kf_seq && hs_wire_reordered(w.utime, s->kf_utime)) return HS_SYNC_STALE;
+        s->restart_seen = 1;
+        s->has_pending = 0;
+        return HS_SYNC_MISMATCH;
+    }
     take_keyframe(s, &w);
     return HS_SYNC_APPLIED;
 }
@@ -226,7 +289,8 @@ static hs_sync_result on_delta(hs_mesh_sync* s, const void* buf, size_t len) {
     hs_wire_delta w;
     if (hs_wire_delta_decode(buf, len, &w)) return HS_SYNC_MALFORMED;
     track_seq(s, HS_SYNC_DELTA, w.seq);
-    if (!s->ready || w.topology_version != s->shown.version || w.keyframe_id != s->kf_id)
+    if (!s->ready || w.topology_version != s->shown.version || w.keyframe_id != s->kf_id ||
+        s->restart_seen)
         return HS_SYNC_MISMATCH;
     if (w.index.n > 0 && hs_wire_i32_at(w.index, w.index.n - 1) >= s->shown.n_vis)
         return HS_SYNC_MALFORMED; // indices increase: the last is the largest

@@ -12,6 +12,13 @@ double hs_local_model_eval(const hs_local_model* m, const double p[3], int64_t n
     double d[3] = {p[0] - m->anchor[0], p[1] - m->anchor[1], p[2] - m->anchor[2]};
     double n = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
     if (n > m->validity_radius) { // evaluate on the validity sphere, never extrapolate
+        if (isinf(n)) { // |d| beyond ~1.3e154 m overflows squared: scale by the largest first
+            double mx = fmax(fabs(d[0]), fmax(fabs(d[1]), fabs(d[2])));
+            if (isfinite(mx)) {
+                for (int i = 0; i < 3; i++) d[i] /= mx;
+                n = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+            }
+        }
         double s = n > 0 ? m->validity_radius / n : 0;
         for (int i = 0; i < 3; i++) d[i] *= s;
     }
@@ -53,7 +60,7 @@ int32_t hs_force_renderer_eval(const hs_force_renderer* r, const double p[3], in
                                double f[3]) {
     hs_local_model_eval(&r->model, p, now_us, f);
     if (!r->model.valid) return -1;
-    int64_t t = now_us - r->blend_start_us;
+    int64_t t = hs_wire_sub_sat(now_us, r->blend_start_us);
     if (r->old_model.valid && r->blend_us > 0 && t < r->blend_us) {
         double w = t <= 0 ? 0 : (double)t / (double)r->blend_us, fo[3];
         hs_local_model_eval(&r->old_model, p, now_us, fo);

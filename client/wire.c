@@ -18,8 +18,15 @@
 // Counted allocation: a 16-byte header keeps the size so free can subtract it.
 
 static atomic_llong g_bytes;
+static atomic_llong g_fail_countdown;
+
+void hs_client_alloc_fail_after(int64_t n) {
+    atomic_store(&g_fail_countdown, n > 0 ? n : 0);
+}
 
 void* hs_client_alloc(size_t n) {
+    if (atomic_load(&g_fail_countdown) > 0 && atomic_fetch_sub(&g_fail_countdown, 1) == 1)
+        return NULL;
     if (n > SIZE_MAX - 16) return NULL;
     unsigned char* p = malloc(n + 16);
     if (!p) return NULL;
@@ -285,11 +292,13 @@ int hs_wire_ack_decode(const void* buf, size_t len, hs_wire_ack* o) {
                : -1;
 }
 
-int hs_wire_force_decode(const void* buf, size_t len, int32_t* device_id, hs_local_model* m) {
+int hs_wire_force_decode(const void* buf, size_t len, int32_t* device_id, int64_t* utime,
+                         hs_local_model* m) {
     rd r;
     if (!rd_begin(&r, buf, len, __hapsim_tool_force_t_get_hash())) return -1;
     memset(m, 0, sizeof *m);
-    rd_i64(&r); // utime: server clock, not comparable with ours
+    int64_t t = rd_i64(&r); // server clock, not comparable with ours
+    if (utime) *utime = t;
     m->seq = rd_i64(&r);
     *device_id = rd_i32(&r);
     m->pose_seq = rd_i64(&r);

@@ -68,11 +68,37 @@ int hs_wire_ack_decode(const void* buf, size_t len, hs_wire_ack* out);
 #define HS_WIRE_TIMEOUT_MAX_US    60000000
 
 /// tool_force into a local model (arrival_us left 0); also checks state, and the ranges above.
-int hs_wire_force_decode(const void* buf, size_t len, int32_t* device_id, hs_local_model* out);
+/// *utime (may be NULL) gets the message's utime (server clock).
+int hs_wire_force_decode(const void* buf, size_t len, int32_t* device_id, int64_t* utime,
+                         hs_local_model* out);
+
+/// us: how much older (utime) than the newest one a message of the same server can arrive
+/// (reordered on the network). A seq that did not grow with a utime later than the newest, or
+/// older than this, comes from a restarted server (another clock after a reboot or on another
+/// host).
+#define HS_WIRE_REORDER_US 1000000
+
+/// a - b saturated to the int64 range (clocks at its ends must not overflow).
+static inline int64_t hs_wire_sub_sat(int64_t a, int64_t b) {
+    if (b < 0 && a > INT64_MAX + b) return INT64_MAX;
+    if (b > 0 && a < INT64_MIN + b) return INT64_MIN;
+    return a - b;
+}
+
+/// 1 when utime is within HS_WIRE_REORDER_US at or before newest (no overflow).
+static inline int hs_wire_reordered(int64_t utime, int64_t newest) {
+    return utime <= newest && (uint64_t)newest - (uint64_t)utime <= HS_WIRE_REORDER_US;
+}
 
 /// Counted allocation of the client library (hs_client_byte_count).
 void* hs_client_alloc(size_t n);
 void* hs_client_calloc(size_t count, size_t size);
 void hs_client_free(void* p);
+/// Fault injection for tests: the n-th allocation from now fails (n <= 0: none).
+void hs_client_alloc_fail_after(int64_t n);
+
+/// The LCM handle of a client's bus (0 haptic, 1 mesh), NULL when not open: lets the memq://
+/// tests publish server messages into a client.
+struct _lcm_t* hs_client_lcm(hs_client* c, int bus);
 
 #endif

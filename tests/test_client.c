@@ -1,12 +1,18 @@
 // libhapsim-client without a network: the mesh-sync state machine fed with encoded messages
 // (late join, 30 % loss, wrong versions, server restart, malformed and random input), the
-// wire decoders, the local force model and its blending, the status decoder.
+// wire decoders, the local force model and its blending, the status decoder; and the connection
+// on in-process memq:// buses (callbacks re-entering the client, forces of a restarted server,
+// a malformed status).
+#include <float.h>
+#include <lcm/lcm.h>
 #include <stdint.h>
 #include <stdlib.h>
 
 #include "hapsim/client.h"
 #include "wire.h"
+#include "hapsim_channels.h"
 #include "hapsim_command_ack_t.h"
+#include "hapsim_command_t.h"
 #include "hapsim_mesh_delta_t.h"
 #include "hapsim_mesh_state_t.h"
 #include "hapsim_mesh_topology_t.h"
@@ -449,6 +455,156 @@ static int test_wrong_versions_ignored(void) {
     return 0;
 }
 
+// Feed one message and free it.
+static hs_sync_result feed1(hs_mesh_sync* s, msg m) {
+    hs_sync_result r = hs_mesh_sync_feed(s, m.kind, m.buf, (size_t)m.len);
+    free(m.buf);
+    return r;
+}
+// Server utime (us) of the next encoded message.
+static void at(int64_t utime) {
+    g_clock = utime - 1000;
+}
+
+// A restarted server's mesh is taken whatever its clock: before, a topology was taken as a
+// restart only with a later utime, so after a reboot or from another host (the server's
+// CLOCK_MONOTONIC reads earlier) the mesh froze; and a restart whose seq did not go back (the
+// client missed its first messages) was never seen. Reordered messages stay stale.
+static int test_mesh_restart(void) {
+    float rest[12] = {0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1}, a[12], b[12];
+    int32_t tri[6] = {0, 1, 2, 0, 2, 3};
+    for (int i = 0; i < 12; i++) a[i] = rest[i] + 1, b[i] = rest[i] + 2;
+    const int64_t H = 7200000000LL; // the old server has been up two hours
+    hs_mesh_sync* s = NULL;
+    ENSURE(hs_mesh_sync_create(&s, NULL) == HS_OK);
+    const hs_client_mesh* m = hs_mesh_sync_mesh(s);
+    hs_sync_stats st;
+    // Reboot: the new server (same scene, version 1) reads 60 s, keyframe ids from 1.
+    at(H);
+    ENSURE(feed1(s, enc_topology(3600, 1, 4, rest, 2, tri)) == HS_SYNC_HELD);
+    ENSURE(feed1(s, enc_state(5000, 1, 5000, 4, a, 0)) == HS_SYNC_APPLIED);
+    at(60000000);
+    ENSURE(feed1(s, enc_state(1, 1, 1, 4, b, 0)) < 0); // waits for its topology
+    ENSURE(m->keyframe_id == 5000 && m->position[0] == a[0]);
+    ENSURE(feed1(s, enc_topology(1, 1, 4, rest, 2, tri)) == HS_SYNC_HELD);
+    ENSURE(feed1(s, enc_state(2, 1, 2, 4, b, 0)) == HS_SYNC_APPLIED);
+    ENSURE(m->keyframe_id == 2 && m->position[0] == b[0]);
+    ENSURE(feed1(s, enc_delta(1, 1, 2, 4, b, a)) == HS_SYNC_APPLIED && m->position[0] == a[0]);
+    hs_mesh_sync_stats(s, &st);
+    ENSURE(st.topologies == 2);
+    // Reordered within the server: an older keyframe, a repeated topology, a topology of an
+    // older version: stale or held, nothing taken.
+    at(60000000 + 500);
+    ENSURE(feed1(s, enc_state(1, 1, 1, 4, a, 0)) == HS_SYNC_STALE);
+    at(60000900); // before the new server's topology
+    ENSURE(feed1(s, enc_topology(0, 0, 4, rest, 2, tri)) == HS_SYNC_STALE);
+    at(70000000);
+    ENSURE(feed1(s, enc_topology(5, 1, 4, rest, 2, tri)) == HS_SYNC_HELD);
+    ENSURE(feed1(s, enc_state(4, 1, 4, 4, a, 0)) == HS_SYNC_APPLIED && m->keyframe_id == 4);
+    at(70000500); // sent before keyframe 4
+    ENSURE(feed1(s, enc_state(3, 1, 3, 4, b, 0)) == HS_SYNC_STALE && m->keyframe_id == 4);
+    hs_mesh_sync_stats(s, &st);
+    ENSURE(st.topologies == 2);
+    // Restart on the same host, its first messages missed (seq and utime both ahead): its
+    // topology version went back (the old server had cut to 5).
+    at(80000000);
+    ENSURE(feed1(s, enc_topology(6, 5, 4, rest, 2, tri)) == HS_SYNC_HELD);
+    ENSURE(feed1(s, enc_state(5, 5, 40, 4, a, 0)) == HS_SYNC_APPLIED && m->topology_version == 5);
+    at(90000000);
+    ENSURE(feed1(s, enc_topology(10, 1, 4, rest, 2, tri)) == HS_SYNC_HELD);
+    ENSURE(hs_mesh_sync_newest_topology(s) == 1);
+    ENSURE(feed1(s, enc_state(12, 1, 12, 4, b, 0)) == HS_SYNC_APPLIED);
+    ENSURE(m->topology_version == 1 && m->keyframe_id == 12 && m->position[0] == b[0]);
+    // The same with the same version: its keyframe id went back while seq and utime went on,
+    // so its next topology is taken whatever its version.
+    at(100000000);
+    ENSURE(feed1(s, enc_state(20, 1, 3, 4, a, 0)) == HS_SYNC_MISMATCH && m->keyframe_id == 12);
+    ENSURE(feed1(s, enc_topology(20, 1, 4, rest, 2, tri)) == HS_SYNC_HELD);
+    ENSURE(feed1(s, enc_state(21, 1, 4, 4, a, 0)) == HS_SYNC_APPLIED && m->keyframe_id == 4);
+    hs_mesh_sync_stats(s, &st);
+    ENSURE(st.topologies == 5);
+    hs_mesh_sync_destroy(&s);
+    return 0;
+}
+
+// A decodable message whose keyframe_id or topology_version is far ahead (a corrupt datagram,
+// bit 62 set) is malformed: before, it was shown (or held) and every later keyframe was stale
+// or every later topology older. A far jump after as much server time is plausible.
+static int test_far_jump(void) {
+    float rest[12] = {0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1}, a[12], b[12];
+    int32_t tri[6] = {0, 1, 2, 0, 2, 3};
+    for (int i = 0; i < 12; i++) a[i] = rest[i] + 1, b[i] = rest[i] + 2;
+    const int64_t far = (int64_t)1 << 62;
+    hs_mesh_sync* s = NULL;
+    ENSURE(hs_mesh_sync_create(&s, NULL) == HS_OK);
+    const hs_client_mesh* m = hs_mesh_sync_mesh(s);
+    at(1000000);
+    ENSURE(feed1(s, enc_topology(1, 1, 4, rest, 2, tri)) == HS_SYNC_HELD);
+    ENSURE(feed1(s, enc_state(1, 1, 1, 4, a, 0)) == HS_SYNC_APPLIED);
+    ENSURE(feed1(s, enc_state(2, 1, 2 | far, 4, b, 0)) == HS_SYNC_MALFORMED);
+    ENSURE(m->keyframe_id == 1 && m->position[0] == a[0]);
+    ENSURE(feed1(s, enc_state(3, 1, 1000010, 4, b, 0)) == HS_SYNC_MALFORMED); // 2 ms on
+    ENSURE(feed1(s, enc_state(4, 1, 3, 4, b, 0)) == HS_SYNC_APPLIED && m->keyframe_id == 3);
+    ENSURE(feed1(s, enc_topology(2, 1 | far, 4, rest, 2, tri)) == HS_SYNC_MALFORMED);
+    ENSURE(hs_mesh_sync_newest_topology(s) == 1);
+    ENSURE(feed1(s, enc_topology(3, 2, 4, rest, 2, tri)) == HS_SYNC_HELD);
+    ENSURE(feed1(s, enc_state(5, 2, 4, 4, a, 0)) == HS_SYNC_APPLIED && m->topology_version == 2);
+    // An hour later (a client cut off for that long): two million keyframes on is plausible.
+    at(1000000 + 3600000000LL);
+    ENSURE(feed1(s, enc_state(6, 2, 2000004, 4, b, 0)) == HS_SYNC_APPLIED);
+    ENSURE(m->keyframe_id == 2000004);
+    hs_sync_stats st;
+    hs_mesh_sync_stats(s, &st);
+    ENSURE(st.malformed == 3);
+    hs_mesh_sync_destroy(&s);
+    return 0;
+}
+
+// A topology whose arrays cannot be allocated leaves everything as it was (client.h): before,
+// the held topology's arrays were replaced one by one until one allocation failed, and the
+// held topology showed zeroed node ids once its keyframe arrived.
+static int test_topology_nomem(void) {
+    int64_t bytes0 = hs_client_byte_count();
+    enum { BIG = 1000 };
+    static float big_rest[3 * BIG];
+    static int32_t big_tri[3 * BIG];
+    float rest[12] = {0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1}, kf[12];
+    int32_t tri[6] = {0, 1, 2, 0, 2, 3};
+    for (int i = 0; i < 12; i++) kf[i] = rest[i] + 0.5f;
+    int failures = 0;
+    for (int k = 1; k <= 8; k++) { // the k-th allocation of the big topology fails
+        hs_mesh_sync* s = NULL;
+        ENSURE(hs_mesh_sync_create(&s, NULL) == HS_OK);
+        const hs_client_mesh* m = hs_mesh_sync_mesh(s);
+        ENSURE(feed1(s, enc_topology(1, 1, 3, rest, 1, tri)) == HS_SYNC_HELD);
+        ENSURE(feed1(s, enc_state(1, 1, 1, 3, kf, 1)) == HS_SYNC_APPLIED);
+        ENSURE(feed1(s, enc_topology(2, 2, 4, rest, 2, tri)) == HS_SYNC_HELD);
+        uint64_t h0 = mesh_hash(m);
+        msg t3 = enc_topology(3, 3, BIG, big_rest, BIG, big_tri);
+        hs_client_alloc_fail_after(k);
+        hs_sync_result r = feed1(s, t3);
+        hs_client_alloc_fail_after(0);
+        if (r == HS_SYNC_HELD) { // fewer allocations than k: nothing failed
+            hs_mesh_sync_destroy(&s);
+            break;
+        }
+        ENSURE(r == HS_SYNC_NOMEM);
+        failures++;
+        ENSURE(hs_mesh_sync_newest_topology(s) == 2 && mesh_hash(m) == h0);
+        ENSURE(m->topology_version == 1 && m->n_vis == 3 && m->stress && m->stress[2] == 200);
+        // The held topology 2 is intact: its keyframe shows exactly what it sent.
+        ENSURE(feed1(s, enc_state(2, 2, 2, 4, kf, 0)) == HS_SYNC_APPLIED);
+        ENSURE(m->topology_version == 2 && m->n_vis == 4 && m->n_tri == 2);
+        for (int i = 0; i < 4; i++) ENSURE(m->vis_nodes[i] == i + 5);
+        ENSURE(memcmp(m->rest, rest, sizeof rest) == 0 &&
+               memcmp(m->triangles, tri, sizeof tri) == 0);
+        ENSURE(memcmp(m->position, kf, sizeof kf) == 0 && consistent(m) == 0);
+        hs_mesh_sync_destroy(&s);
+    }
+    ENSURE(failures >= 4 && hs_client_byte_count() == bytes0);
+    return 0;
+}
+
 // Truncations and fingerprint changes of valid messages are always malformed; random bytes and
 // bit flips never crash and never leave an inconsistent mesh; memory returns to its start.
 static int test_malformed_counted(void) {
@@ -607,7 +763,7 @@ static int force_decodes(const hapsim_tool_force_t* f) {
     int len = hapsim_tool_force_t_encode(buf, 0, (int)sizeof buf, f);
     int32_t dev;
     hs_local_model m;
-    return len > 0 && hs_wire_force_decode(buf, (size_t)len, &dev, &m) == 0;
+    return len > 0 && hs_wire_force_decode(buf, (size_t)len, &dev, NULL, &m) == 0;
 }
 
 static int test_force_ranges(void) {
@@ -680,6 +836,46 @@ static int test_force_ranges(void) {
     ENSURE(hs_local_model_eval(&m, p, INT64_MAX, fo) == 0 && fo[0] == 0);
     m.arrival_us = INT64_MAX; // arrived "in the future": full strength, as before
     ENSURE(hs_local_model_eval(&m, p, INT64_MIN, fo) == 1.0 && isfinite(fo[0]));
+    return 0;
+}
+
+// A device position far away is clamped to the validity sphere: before, |d| overflowed beyond
+// ~1.3e154 m and the stiffness term vanished. Clocks at the ends of int64 do not overflow
+// (signed overflow, caught by the HS_SANITIZE build) in the age and the blend.
+static int test_model_extremes(void) {
+    hs_local_model m;
+    memset(&m, 0, sizeof m);
+    m.valid = 1;
+    m.state = HAPSIM_TOOL_FORCE_T_STATE_CONTACT;
+    m.validity_radius = 0.01;
+    m.timeout_us = 50000;
+    m.stiffness[0] = m.stiffness[4] = -1000; // -10 N on the sphere
+    double f[3], xs[] = {1.0, 1e100, 1e154, 1e155, 1e200, 1e300, DBL_MAX};
+    for (size_t i = 0; i < sizeof xs / sizeof xs[0]; i++) {
+        double p[3] = {xs[i], 0, 0};
+        ENSURE(hs_local_model_eval(&m, p, 0, f) == 1.0);
+        ENSURE_NEAR(f[0], -10.0, 1e-12);
+        double q[3] = {-xs[i], -xs[i], 0}; // diagonal: both components at 10 / sqrt(2)
+        ENSURE(hs_local_model_eval(&m, q, 0, f) == 1.0);
+        ENSURE_NEAR(f[0], 10.0 / sqrt(2.0), 1e-12);
+        ENSURE_NEAR(f[1], 10.0 / sqrt(2.0), 1e-12);
+    }
+    ENSURE(hs_client_age_us(INT64_MIN) == -1 && hs_client_age_us(INT64_MAX) == -1);
+    // now_us at INT64_MIN lies before the blend start: the old model, not the new one.
+    hs_force_renderer r;
+    hs_force_renderer_init(&r);
+    m.stiffness[0] = m.stiffness[4] = 0;
+    m.force[0] = 1.0;
+    m.arrival_us = 5;
+    hs_force_renderer_push(&r, &m);
+    m.model_version = 2;
+    m.force[0] = 3.0;
+    hs_force_renderer_push(&r, &m);
+    double p[3] = {0, 0, 0};
+    ENSURE(hs_force_renderer_eval(&r, p, INT64_MIN, f) == HAPSIM_TOOL_FORCE_T_STATE_CONTACT);
+    ENSURE(f[0] == 1.0);
+    ENSURE(hs_force_renderer_eval(&r, p, INT64_MAX, f) == HAPSIM_TOOL_FORCE_T_STATE_CONTACT);
+    ENSURE(f[0] == 0.0); // long timed out
     return 0;
 }
 
@@ -789,7 +985,224 @@ static int test_delta_sum_overflow(void) {
     return 0;
 }
 
-HS_TEST_MAIN(HS_CASE(test_lossless_follows_server), HS_CASE(test_delta_sum_overflow),
+// ---------------------------------------------------------------------------------------------
+// The connection on memq:// buses: the test publishes the server's messages into the client.
+
+static hs_client* memq_client(uint32_t subscribe) {
+    hs_client_config cfg;
+    hs_client_config_default(&cfg);
+    cfg.haptic_url = "memq://";
+    cfg.mesh_url = "memq://";
+    cfg.subscribe = subscribe;
+    hs_client* c = NULL;
+    return hs_client_create(&cfg, &c, NULL) == HS_OK ? c : NULL;
+}
+
+static void put(hs_client* c, int bus, const char* suffix, const void* buf, int len) {
+    char ch[HAPSIM_CHANNEL_MAX];
+    hapsim_channel_name(ch, sizeof ch, HAPSIM_DEFAULT_PREFIX, suffix);
+    lcm_publish(hs_client_lcm(c, bus), ch, buf, (unsigned)len);
+}
+
+// A tool_force for device 0 (server clock utime, us) pushing fx newtons.
+static void put_force(hs_client* c, int64_t seq, int64_t utime, double fx) {
+    hapsim_tool_force_t f;
+    memset(&f, 0, sizeof f);
+    f.utime = utime;
+    f.seq = seq;
+    f.model_version = seq;
+    f.state = HAPSIM_TOOL_FORCE_T_STATE_CONTACT;
+    f.force[0] = fx;
+    f.validity_radius = 0.01;
+    f.timeout_us = 50000;
+    uint8_t buf[512];
+    put(c, 0, HAPSIM_CH_TOOL_FORCE, buf, hapsim_tool_force_t_encode(buf, 0, sizeof buf, &f));
+}
+
+static void put_status(hs_client* c, int64_t seq, const char* scene) {
+    hapsim_server_status_t s;
+    memset(&s, 0, sizeof s);
+    s.utime = seq;
+    s.seq = seq;
+    s.scene = (char*)(uintptr_t)scene; // the encoder only reads
+    s.warnings = "rt loop overrun";
+    // Empty arrays, but not NULL: lcm-gen's encoder memcpys from them (UBSan: NULL argument).
+    static char* names[1];
+    static float fz[1];
+    static int64_t iz[1];
+    static int32_t ids[1];
+    static int8_t live[1];
+    s.loop_name = s.step_name = s.reject_channel = s.reject_reason = names;
+    s.rate_hz = s.period_p50_us = s.period_p99_us = s.period_max_us = fz;
+    s.step_p50_us = s.step_p99_us = s.step_max_us = fz;
+    s.pose_age_ms = s.latency_p50_us = s.latency_p99_us = s.force_norm = fz;
+    s.overruns = s.poses_received = s.poses_lost = s.reject_count = iz;
+    s.device_id = ids;
+    s.device_live = live;
+    uint8_t buf[1024];
+    put(c, 1, HAPSIM_CH_SERVER_STATUS, buf, hapsim_server_status_t_encode(buf, 0, sizeof buf, &s));
+}
+
+typedef struct reentry {
+    int forces, nested_poll, destroy_kept, commands_seen;
+    hs_status command;
+    hs_client_ack ack;
+    char msg[512];
+} reentry;
+
+static void reenter_poll(hs_client* c, int32_t dev, const hs_local_model* m, void* user) {
+    (void)dev;
+    (void)m;
+    reentry* r = user;
+    r->forces++;
+    hs_err e = {0};
+    r->nested_poll = hs_client_poll(c, 0, &e);
+    snprintf(r->msg, sizeof r->msg, "%s", e.msg);
+}
+
+static void reenter_destroy(hs_client* c, int32_t dev, const hs_local_model* m, void* user) {
+    (void)dev;
+    (void)m;
+    reentry* r = user;
+    r->forces++;
+    hs_client* p = c;
+    hs_client_destroy(&p);
+    r->destroy_kept = p == c;
+}
+
+static void reenter_command(hs_client* c, const hs_client_status* st, void* user) {
+    (void)st;
+    reentry* r = user;
+    hs_err e = {0};
+    r->command =
+        hs_client_command(c, HAPSIM_COMMAND_T_KIND_ESTOP, 0, NULL, NULL, 200, 50, &r->ack, &e);
+}
+
+static void count_command(const lcm_recv_buf_t* rb, const char* ch, void* user) {
+    (void)rb;
+    (void)ch;
+    ((reentry*)user)->commands_seen++;
+}
+
+// A callback that polls, commands or destroys its own client: before, LCM aborted
+// (lcm_handle re-entered on the bus it is handling) or the destroy crashed in LCM's dispatch.
+static int test_callback_reentry(void) {
+    int64_t bytes0 = hs_client_byte_count();
+    hs_client* c = memq_client(HS_CLIENT_SUB_FORCE | HS_CLIENT_SUB_STATUS | HS_CLIENT_SUB_COMMANDS);
+    ENSURE(c);
+    reentry r = {0};
+    hs_err e = {0};
+    // A nested poll is refused with a status; the outer poll handles both messages.
+    hs_client_set_callbacks(c, &(hs_client_callbacks){.on_force = reenter_poll}, &r);
+    put_force(c, 1, 1000, 1.0);
+    put_force(c, 2, 2000, 1.0);
+    ENSURE(hs_client_poll(c, 100, &e) == 2);
+    ENSURE(r.forces == 2 && r.nested_poll == HS_ERR_INVALID && strstr(r.msg, "callback"));
+    // A command from a callback is published once without waiting: PENDING, one attempt.
+    char ch[HAPSIM_CHANNEL_MAX];
+    hapsim_channel_name(ch, sizeof ch, HAPSIM_DEFAULT_PREFIX, HAPSIM_CH_COMMAND);
+    ENSURE(lcm_subscribe(hs_client_lcm(c, 1), ch, count_command, &r));
+    hs_client_set_callbacks(c, &(hs_client_callbacks){.on_status = reenter_command}, &r);
+    put_status(c, 1, "x");
+    put_status(c, 2, "x");
+    ENSURE(hs_client_poll(c, 100, &e) >= 2);
+    hs_client_poll(c, 0, &e);
+    ENSURE(r.command == HS_OK && r.ack.status == HAPSIM_COMMAND_ACK_T_STATUS_PENDING);
+    ENSURE(r.ack.attempts == 1 && r.commands_seen == 2);
+    // A destroy from a callback is refused: the handle stays, the poll says why.
+    hs_client_set_callbacks(c, &(hs_client_callbacks){.on_force = reenter_destroy}, &r);
+    r.forces = 0;
+    put_force(c, 3, 3000, 1.0);
+    memset(&e, 0, sizeof e);
+    ENSURE(hs_client_poll(c, 100, &e) == HS_ERR_INVALID && strstr(e.msg, "hs_client_destroy"));
+    ENSURE(r.forces == 1 && r.destroy_kept);
+    hs_client_stats cs;
+    hs_client_stats_get(c, &cs);
+    ENSURE(cs.forces == 3);
+    hs_client_destroy(&c);
+    ENSURE(c == NULL && hs_client_byte_count() == bytes0);
+    return 0;
+}
+
+// Force of the model held for device 0 (what was accepted; rendering blends versions).
+static double force_x(hs_client* c) {
+    hs_local_model m;
+    return hs_client_force_model(c, 0, &m) ? m.force[0] : -1;
+}
+
+// A restarted server counts its force seq from 1 again: before, its forces were dropped as
+// stale until the seq passed the old one's (or fell 100000 behind, ~100 s at 1 kHz). Its clock
+// (utime) tells: later on the same host, unrelated (earlier) after a reboot or on another host.
+static int test_force_restart(void) {
+    hs_client* c = memq_client(HS_CLIENT_SUB_FORCE);
+    ENSURE(c);
+    hs_err e = {0};
+    hs_client_stats st;
+    const int64_t T = 3600000000LL; // the old server has been up an hour
+    put_force(c, 50000, T, 2.0);
+    ENSURE(hs_client_poll(c, 100, &e) == 1 && force_x(c) == 2.0);
+    // Reordered and repeated forces of the same server stay refused.
+    put_force(c, 49999, T - 1000, 9.0);
+    put_force(c, 50000, T, 9.0);
+    put_force(c, 10, T - 900000, 9.0);
+    ENSURE(hs_client_poll(c, 100, &e) == 3 && force_x(c) == 2.0);
+    hs_client_stats_get(c, &st);
+    ENSURE(st.forces == 1 && st.forces_stale == 3);
+    // Restarted on the same host: seq from 1, a later clock.
+    put_force(c, 1, T + 5000000, 5.0);
+    ENSURE(hs_client_poll(c, 100, &e) == 1 && force_x(c) == 5.0);
+    put_force(c, 2, T + 5001000, 6.0);
+    ENSURE(hs_client_poll(c, 100, &e) == 1 && force_x(c) == 6.0);
+    // Restarted after a reboot (or on another host): seq from 1, an earlier clock.
+    put_force(c, 1, 60000000, 7.0);
+    ENSURE(hs_client_poll(c, 100, &e) == 1 && force_x(c) == 7.0);
+    hs_local_model m;
+    ENSURE(hs_client_force_model(c, 0, &m) && m.seq == 1);
+    // A restart whose clock lands just behind the old one (within the reorder window) is
+    // refused until its clock passes the old server's last force: at most that window.
+    put_force(c, 1, 60000000 - 500000, 8.0);
+    put_force(c, 2, 60000000 + 1000, 8.5);
+    ENSURE(hs_client_poll(c, 100, &e) == 2 && force_x(c) == 8.5);
+    hs_client_stats_get(c, &st);
+    ENSURE(st.forces == 5 && st.forces_stale == 4);
+    // A restart whose clock says nothing (the same utime as the old server's last force): its
+    // forces keep counting up behind the held one; the 8th in a row is taken.
+    put_force(c, 100, 70000000, 1.0);
+    for (int i = 1; i <= 8; i++) put_force(c, i, 70000000, 3.0);
+    ENSURE(hs_client_poll(c, 100, &e) == 9 && force_x(c) == 3.0);
+    ENSURE(hs_client_force_model(c, 0, &m) && m.seq == 8);
+    hs_client_stats_get(c, &st);
+    ENSURE(st.forces == 7 && st.forces_stale == 11);
+    hs_client_destroy(&c);
+    return 0;
+}
+
+// A malformed server_status is counted and dropped; the last good one stays (before, the
+// decoder wrote into the stored status and one corrupt datagram erased it).
+static int test_status_kept(void) {
+    hs_client* c = memq_client(HS_CLIENT_SUB_STATUS);
+    ENSURE(c);
+    hs_err e = {0};
+    hs_client_status st;
+    put_status(c, 7, "liver.json");
+    ENSURE(hs_client_poll(c, 100, &e) == 1 && hs_client_status_latest(c, &st, NULL));
+    ENSURE(st.seq == 7 && !strcmp(st.scene, "liver.json"));
+    put(c, 1, HAPSIM_CH_SERVER_STATUS, "junk", 4);
+    ENSURE(hs_client_poll(c, 100, &e) == 1);
+    memset(&st, 0, sizeof st);
+    ENSURE(hs_client_status_latest(c, &st, NULL));
+    ENSURE(st.seq == 7 && !strcmp(st.scene, "liver.json"));
+    hs_client_stats cs;
+    hs_client_stats_get(c, &cs);
+    ENSURE(cs.malformed == 1 && cs.statuses == 1);
+    hs_client_destroy(&c);
+    return 0;
+}
+
+HS_TEST_MAIN(HS_CASE(test_callback_reentry), HS_CASE(test_force_restart),
+             HS_CASE(test_mesh_restart), HS_CASE(test_topology_nomem), HS_CASE(test_far_jump),
+             HS_CASE(test_model_extremes), HS_CASE(test_status_kept),
+             HS_CASE(test_lossless_follows_server), HS_CASE(test_delta_sum_overflow),
              HS_CASE(test_loss_converges), HS_CASE(test_late_join),
              HS_CASE(test_wrong_versions_ignored), HS_CASE(test_malformed_counted),
              HS_CASE(test_local_model), HS_CASE(test_force_ranges), HS_CASE(test_status_decode))

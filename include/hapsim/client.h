@@ -61,7 +61,8 @@ typedef struct hs_local_model {
 
 /// F(p) = force + stiffness * d, d = p - anchor clamped to |d| <= validity_radius; full strength
 /// until timeout_us after arrival, then a linear ramp to zero over another timeout_us; zero for
-/// STATE_STOPPED or an invalid model. Writes f[3] (N); returns the strength factor in [0, 1].
+/// STATE_STOPPED or an invalid model (|d| is computed without overflow: any finite p, however
+/// far, is clamped). Writes f[3] (N); returns the strength factor in [0, 1].
 /// Never a non-finite force: a non-finite p, or a hand-built model whose F would overflow, gives
 /// zero (and returns 0). Thread: any | Allocates: no
 double hs_local_model_eval(const hs_local_model* m, const double p[3], int64_t now_us,
@@ -81,8 +82,9 @@ void hs_force_renderer_init(hs_force_renderer* r);
 /// Take a new model (blend starts when model_version differs from the current one).
 /// Thread: the caller owning r | Allocates: no
 void hs_force_renderer_push(hs_force_renderer* r, const hs_local_model* m);
-/// Blended, timed-out force at p (m) now (us); writes f[3] (N); returns the newest model's state
-/// (-1 before any model). Thread: the caller owning r | Allocates: no
+/// Blended, timed-out force at p (m) now (us, any int64: differences saturate); writes f[3] (N);
+/// returns the newest model's state (-1 before any model).
+/// Thread: the caller owning r | Allocates: no
 int32_t hs_force_renderer_eval(const hs_force_renderer* r, const double p[3], int64_t now_us,
                                double f[3] /* OUT */);
 
@@ -154,12 +156,17 @@ typedef struct hs_sync_stats {
 hs_status hs_mesh_sync_create(hs_mesh_sync** out /* OUT */, hs_err* err);
 /// Release; accepts NULL and *s == NULL; sets *s = NULL. Thread: the owner
 void hs_mesh_sync_destroy(hs_mesh_sync** s);
-/// Feed one message (raw bytes, fingerprint first). Rules (docs/protocol.md "Watching the mesh"):
-/// a topology with a newer version (or any version when its seq went backwards with a later
-/// utime: the server restarted) is held until a keyframe of that version arrives; a keyframe is
-/// shown when its topology version is held and its keyframe_id is newer; a delta only when topology
-/// version and keyframe_id match the shown keyframe and its seq is newer. Never crashes on any
-/// bytes. Thread: the owner | Allocates: only when a topology needs larger arrays
+/// Feed one message (raw bytes, fingerprint first). Rules (docs/client.md "Watching the mesh"):
+/// a topology with a newer version (or any version from a restarted server) is held until a
+/// keyframe of that version arrives; a keyframe is shown when its topology version is held and
+/// its keyframe_id is newer; a delta only when topology version and keyframe_id match the shown
+/// keyframe and its seq is newer. A restarted server: a topology whose seq and utime do not both
+/// go on from the newest one (other than a reorder: seq not newer, utime at most 1 s older) or
+/// whose version went back; or a keyframe whose id went back while its seq or utime went on
+/// (the shown version then waits for the next topology). A topology version or keyframe_id
+/// more than 1e6 + 1 per ms of server time (utime) ahead of the newest is a corrupt message:
+/// HS_SYNC_MALFORMED. Never crashes on any bytes.
+/// Thread: the owner | Allocates: only when a topology needs larger arrays
 hs_sync_result hs_mesh_sync_feed(hs_mesh_sync* s, hs_sync_kind kind, const void* buf, size_t len);
 /// The visible mesh (valid until the next feed). Thread: the owner | Allocates: no
 const hs_client_mesh* hs_mesh_sync_mesh(const hs_mesh_sync* s);
@@ -241,7 +248,9 @@ typedef struct hs_client_config {
 void hs_client_config_default(hs_client_config* cfg /* OUT */);
 
 /// Callbacks, all optional (NULL), called inside hs_client_poll on the polling thread. The
-/// pointers passed are valid during the call only.
+/// pointers passed are valid during the call only. A callback may use its handle, except that
+/// it cannot wait for it: hs_client_poll there returns HS_ERR_INVALID, hs_client_command sends
+/// once without waiting, and hs_client_destroy is refused (see each).
 typedef struct hs_client_callbacks {
     void (*on_mesh)(hs_client* c, const hs_client_mesh* mesh, void* user); ///< visible mesh changed
     void (*on_force)(hs_client* c, int32_t device_id, const hs_local_model* m, void* user);
@@ -255,6 +264,8 @@ typedef struct hs_client_callbacks {
 /// Thread: any (the handle then belongs to the creating thread) | Allocates: yes
 hs_status hs_client_create(const hs_client_config* cfg, hs_client** out /* OUT */, hs_err* err);
 /// Close the buses and free everything; accepts NULL and *c == NULL; sets *c = NULL.
+/// From a callback it is refused (LCM is dispatching on the buses): nothing is freed, *c is
+/// kept, and the running hs_client_poll stops and returns HS_ERR_INVALID saying so.
 void hs_client_destroy(hs_client** c);
 
 /// Set the callbacks (copied) and their user pointer. Thread: the polling thread
@@ -262,7 +273,9 @@ void hs_client_set_callbacks(hs_client* c, const hs_client_callbacks* cb, void* 
 
 /// Wait up to timeout_ms (0: do not wait, < 0: forever) for traffic on either bus, then handle
 /// everything that is ready. Returns the number of LCM messages handled (>= 0), or a negative
-/// hs_status on a socket failure. Thread: the polling thread | Allocates: only on topology growth
+/// hs_status on a socket failure. From a callback (already inside hs_client_poll) it handles
+/// nothing and returns HS_ERR_INVALID. Thread: the polling thread | Allocates: only on topology
+/// growth
 int hs_client_poll(hs_client* c, int timeout_ms, hs_err* err);
 
 /// The LCM socket of a bus (0 haptic, 1 mesh) for a caller's own poll loop, -1 when not open.
@@ -274,7 +287,8 @@ int64_t hs_client_now_us(void);
 
 /// Age (us) of a server timestamp (utime) when the server runs on this host: now - utime on
 /// CLOCK_REALTIME (the LCM convention) or, if that is implausible (not within -1 s .. 1 h), on
-/// CLOCK_MONOTONIC; -1 when neither fits (another host). Thread: any | Allocates: no
+/// CLOCK_MONOTONIC; -1 when neither fits (another host; any int64 utime, no overflow).
+/// Thread: any | Allocates: no
 int64_t hs_client_age_us(int64_t utime);
 
 /// A pose to send (the client fills utime, seq and session).
@@ -308,8 +322,9 @@ int64_t hs_client_force_latency_us(const hs_client* c, int32_t device_id);
 const hs_client_mesh* hs_client_mesh_view(const hs_client* c);
 /// Mesh channel counters. Thread: the polling thread | Allocates: no
 void hs_client_mesh_stats(const hs_client* c, hs_sync_stats* out /* OUT */);
-/// Newest server status; returns false when none arrived. *age_us (may be NULL) is how long ago
-/// it arrived. Thread: the polling thread | Allocates: no
+/// Newest server status (a malformed one is dropped and keeps the last good one); returns false
+/// when none arrived. *age_us (may be NULL) is how long ago it arrived. Thread: the polling thread
+/// | Allocates: no
 bool hs_client_status_latest(const hs_client* c, hs_client_status* out /* OUT */, int64_t* age_us);
 
 /// Client-wide counters.
@@ -318,7 +333,9 @@ typedef struct hs_client_stats {
     int64_t malformed;    ///< dropped by validation (all channels)
     int64_t forces;       ///< tool_force messages accepted
     int64_t forces_other; ///< tool_force for a device id outside 0..MAX_DEVICES-1
-    int64_t forces_stale; ///< tool_force not newer than the last one of its device
+    int64_t forces_stale; ///< tool_force not newer (seq) than the last of its device and at
+                          ///< most 1 s older (utime): reordered (newer utime or older: restart;
+                          ///< so is the 8th refused in a row with seq counting up)
     int64_t poses_sent;   ///< tool_pose published
     int64_t statuses;     ///< server_status accepted
     int64_t acks;         ///< command acks accepted
@@ -342,6 +359,8 @@ typedef struct hs_client_ack {
 /// its ack); after a PENDING ack waits for the final one. Returns HS_OK when a final ack arrived
 /// (look at ack->status: the server may have refused), HS_ERR_INVALID for bad arguments
 /// (checked locally as the server would), HS_ERR_IO when no final ack came within timeout_ms.
+/// From a callback it cannot wait: it publishes the command once and returns HS_OK with
+/// ack->status STATUS_PENDING and attempts 1 (no retry, the final ack is not reported).
 /// Thread: the polling thread | Allocates: no
 hs_status hs_client_command(hs_client* c, int32_t kind, int n_args, const char* const* keys,
                             const char* const* values, int timeout_ms, int retry_ms,

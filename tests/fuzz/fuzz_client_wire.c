@@ -96,7 +96,7 @@ int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
         } else if (kind == 4) {
             int32_t dev;
             hs_local_model m;
-            if (hs_wire_force_decode(msg, len, &dev, &m) == 0) {
+            if (hs_wire_force_decode(msg, len, &dev, NULL, &m) == 0) {
                 if (!m.valid || m.state < 0 || m.state > 3 || !(m.validity_radius >= 0)) abort();
                 m.arrival_us = now;
                 hs_force_renderer_push(&r, &m);
