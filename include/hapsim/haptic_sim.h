@@ -153,9 +153,12 @@ typedef struct hs_haptic_cut_def {
     /// FIX (it stays in the body with its mass and falls under gravity or drifts; the
     /// compliance leaves it out, so the probe does not touch it).
     hs_cut_def cut;
-    double blade_a[3];       ///< blade start, tool frame, m
-    double blade_b[3];       ///< blade end, tool frame, m
-    double toughness_n_m;    ///< cutting force per metre of mesh edge cut in one sweep, N/m
+    double blade_a[3]; ///< blade start, tool frame, m
+    double blade_b[3]; ///< blade end, tool frame, m
+    /// Cutting force per metre of mesh edge cut per min_travel_m of blade travel, N/m (a
+    /// longer sweep's edge length is scaled down to min_travel_m: the force does not grow with
+    /// the speed). A blade still for 50 ms feels none.
+    double toughness_n_m;
     double max_force_n;      ///< cutting force cap, N
     double min_travel_m;     ///< blade travel (either end) gathered before a sweep runs, m
     uint32_t engage_buttons; ///< the blade cuts while any of these pose buttons is held (0: always)

@@ -1241,6 +1241,9 @@ static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap)
     case HAPSIM_COMMAND_T_KIND_RESET:
         if (w->cut_made) return load_scene(s, w->scene.path, msg, cap); // the uncut mesh
         if (rebuild_sim(s, 0, &err) != HS_OK) {
+            // A cut the deformation thread finished after the look above: rebuild_sim passed
+            // it on and refused; the uncut scene is reloaded as for any cut mesh.
+            if (w->cut_made) return load_scene(s, w->scene.path, msg, cap);
             snprintf(msg, cap, "%s", err.msg);
             return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
         }
@@ -1675,16 +1678,16 @@ hs_status hs_server_run(hs_server* s, hs_err* err) {
                (long long)s->forces_total, (unsigned long long)rejected_total(s),
                (unsigned long long)retried_total(s));
         if (s->w.cutting)
-            printf("hapsim-server: %lld cut steps (topology events), topology version %lld; cut "
-                   "step p50 %.1f ms, p99 %.1f ms, max %.1f ms (deformation thread: sweep, "
-                   "body sync, topology hand-over)\n",
+            printf("hapsim-server: %lld cut steps (topology events, over every reset), "
+                   "topology version %lld; cut step p50 %.1f ms, p99 %.1f ms, max %.1f ms "
+                   "(deformation thread: sweep, body sync, topology hand-over)\n",
                    (long long)s->cut_events, (long long)s->topo_version, cut_quantile(s, 0.5),
                    cut_quantile(s, 0.99), cut_quantile(s, 1.0));
         if (s->w.cutting && s->w.sim) {
             hs_haptic_sim_stats st;
             hs_haptic_sim_stats_get(s->w.sim, &st);
-            printf("hapsim-server: %lld tets removed; last sweep alone %.1f ms; haptic compliance "
-                   "rebuilt after the blade left in %.1f ms\n",
+            printf("hapsim-server: %lld tets removed since the last reset or load; last sweep "
+                   "alone %.1f ms; haptic compliance rebuilt after the blade left in %.1f ms\n",
                    (long long)st.cut_removed, st.sweep_ms_last, st.comp_ms_last);
         }
         fflush(stdout);

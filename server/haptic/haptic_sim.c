@@ -35,6 +35,10 @@
 #define SIM_COOKIE       0x48534d31
 #define CUT_COOKIE       0x48534354
 #define CUT_FORCE_SMOOTH 0.3 // weight of the newest sweep's resistance
+// A blade that moved less than CUT_STILL_M in CUT_STILL_NS (1 mm/s) has stopped: it cuts
+// nothing, so it feels no resistance (it kept the last sweep's for as long as it stood).
+#define CUT_STILL_M  5e-5
+#define CUT_STILL_NS 50000000LL
 
 // What crosses to rt: the contact snapshot and the cutting resistance computed with it, in one
 // buffer so a new resistance always comes with a new model version (rt blends across it).
@@ -195,6 +199,9 @@ struct hs_haptic_sim {
     int wake_steps;      // steps the body takes whatever its speed: a cut moves its equilibrium
     int engaged;         // the blade's buttons are held (cutting on)
     int64_t pose_floor;  // poses up to this seq came before a restart: the blade ignores them
+    int started_once;    // hs_haptic_sim_start ran before (a restart resets the rt side)
+    int64_t still_ns;    // when the blade last moved CUT_STILL_M; longer still: no resistance
+    double still_p[3];   // the blade point then, m
     hs_mesh* comp_mesh;  // the mesh h->comp was built on once cuts replaced it (owned)
     // Background compliance rebuild: the deformation thread copies the live mesh into cw_*,
     // a worker builds mesh + compliance from it, and the deformation thread swaps the result
@@ -699,11 +706,22 @@ static int cut_step(hs_haptic_sim* h) {
         p1[k] = pose.pos_m[k] + ra[k];
         q1[k] = pose.pos_m[k] + rb[k];
     }
+    int64_t now = hs_now_ns();
     if (!h->blade_have) {
         memcpy(h->bp, p1, sizeof p1);
         memcpy(h->bq, q1, sizeof q1);
+        memcpy(h->still_p, p1, sizeof p1);
+        h->still_ns = now;
         h->blade_have = 1;
         return flipped;
+    }
+    if (dist3(p1, h->still_p) > CUT_STILL_M) {
+        memcpy(h->still_p, p1, sizeof p1);
+        h->still_ns = now;
+    } else if (now - h->still_ns > CUT_STILL_NS && memcmp(h->cut_force, zero, sizeof zero)) {
+        memset(h->cut_force, 0, sizeof h->cut_force); // rt blends it out
+        memset(h->st.cut_force_n, 0, sizeof h->st.cut_force_n);
+        return 1;
     }
     double tp = dist3(p1, h->bp), tq = dist3(q1, h->bq);
     if ((tp > tq ? tp : tq) < cd->min_travel_m) return 0;
@@ -726,8 +744,13 @@ static int cut_step(hs_haptic_sim* h) {
     memcpy(h->bp, p1, sizeof p1);
     memcpy(h->bq, q1, sizeof q1);
     double f[3] = {0, 0, 0};
+    // The edge length a sweep crosses grows with its length, which is the blade's travel in a
+    // step (at least min_travel_m): per min_travel_m of travel, so that the force follows the
+    // tissue and not the speed (it doubled from 0.5 to 1 mm sweeps).
+    double tlen = sqrt(travel[0] * travel[0] + travel[1] * travel[1] + travel[2] * travel[2]);
+    double per = cd->min_travel_m > 0 && tlen > cd->min_travel_m ? cd->min_travel_m / tlen : 1.0;
     if (s == HS_OK)
-        hs_cut_force(cd->toughness_n_m, res.cut_length_m, travel, cd->max_force_n, f);
+        hs_cut_force(cd->toughness_n_m, res.cut_length_m * per, travel, cd->max_force_n, f);
     else
         h->st.cut_failures++;
     // A sweep that failed after it changed the mesh still changed it (its topology version
@@ -1062,13 +1085,27 @@ hs_status hs_haptic_sim_start(hs_haptic_sim* h, hs_err* err) {
     // thread publishes its first at the tool.
     memset(&h->st.contact, 0, sizeof h->st.contact);
     // After a stop, the blade starts again at the first pose fed from now on: no sweep spans
-    // the gap, not even from the last pose fed before it.
+    // the gap, not even from the last pose fed before it; and with no resistance (it held the
+    // last sweep's, felt at once on resume with the blade lifted out meanwhile).
     h->blade_have = 0;
     if (h->cpose) {
         hs_haptic_pose last;
         hs_triple_buffer_read_copy(h->cpose, &last);
         h->pose_floor = last.seq;
     }
+    if (h->started_once) {
+        memset(h->cut_force, 0, sizeof h->cut_force);
+        memset(h->st.cut_force_n, 0, sizeof h->st.cut_force_n);
+        // rt reads an empty snapshot, as at the first start, until the thread publishes one at
+        // the tool; it blends nothing from before the stop and ramps in from zero. Both
+        // threads are stopped: this thread may write what they own.
+        sim_snapshot* wrap = hs_triple_buffer_back(h->snap);
+        memset(wrap, 0, sizeof *wrap);
+        wrap->s.version = ++h->version;
+        hs_triple_buffer_publish(h->snap);
+        hs_haptic_rt_restart(h->hrt);
+    }
+    h->started_once = 1;
     atomic_store(&h->stop, 0);
     if (pthread_create(&h->thread, NULL, deform_main, h) != 0)
         return hs_err_set(err, HS_ERR_UNSUPPORTED,

@@ -93,6 +93,12 @@ hs_spsc_ring* hs_haptic_rt_telemetry(hs_haptic_rt* h) {
     return h->telemetry;
 }
 
+void hs_haptic_rt_restart(hs_haptic_rt* h) {
+    hs_haptic_blend_reset(&h->blend);
+    memset(h->safety.rate.prev_n, 0, sizeof h->safety.rate.prev_n);
+    hs_watchdog_trip(&h->safety.watchdog);
+}
+
 hs_status hs_haptic_rt_set_safety(hs_haptic_rt* h, const hs_safety_def* def) {
     if (!h || !def || !hs_safety_def_valid(def)) return HS_ERR_INVALID;
     hs_triple_buffer_write(h->limits, def);

@@ -90,6 +90,10 @@ void hs_haptic_rt_get_counters(const hs_haptic_rt* h, hs_haptic_rt_counters* out
 /// keeping the watchdog and rate state (hs_safety_set_limits). HS_ERR_INVALID (nothing changed)
 /// for an invalid def. Thread: one writer thread | Allocates: no | Lock-free: yes | Blocks: no
 hs_status hs_haptic_rt_set_safety(hs_haptic_rt* h, const hs_safety_def* def);
+/// Before the loop starts again after a stop: nothing is blended from the output before the
+/// stop, and the force ramps in from zero (the watchdog's ramp) as for a new device.
+/// Thread: control, while the loop is stopped | Allocates: no
+void hs_haptic_rt_restart(hs_haptic_rt* h);
 
 // ---------------------------------------------------------------------------------------------
 // Model source: a force source that evaluates the newest hs_haptic_model published by another
