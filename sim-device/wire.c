@@ -34,10 +34,14 @@ hs_stylus_rx hs_stylus_rx_force(hs_stylus_rx_state* st, const hapsim_tool_force_
     if (!hs_stylus_model_valid(&m) || msg->state < HAPSIM_TOOL_FORCE_T_STATE_FREE ||
         msg->state > HAPSIM_TOOL_FORCE_T_STATE_STOPPED)
         return count(st, HS_RX_INVALID);
-    if (st->have_seq && msg->seq <= st->last_seq && st->last_seq - msg->seq < HS_RX_RESTART_GAP)
+    // A restarted server's seq starts again from 1: told by its clock (it counted as a reorder
+    // until the new seq passed the old one, up to ~100 s at 1 kHz).
+    if (st->have_seq && msg->seq <= st->last_seq && st->last_seq - msg->seq < HS_RX_RESTART_GAP &&
+        msg->utime <= st->last_utime && st->last_utime - msg->utime <= HS_RX_REORDER_US)
         return count(st, HS_RX_REORDERED);
     st->have_seq = 1;
     st->last_seq = msg->seq;
+    st->last_utime = msg->utime;
     m.arrival_ns = now_ns;
     m.latency_us = msg->pose_utime > 0 ? wall_us - msg->pose_utime : -1;
     *out = m;

@@ -25,9 +25,10 @@ typedef enum hs_stylus_rx {
 
 /// Receive-side state of one device. Initialise with hs_stylus_rx_init.
 typedef struct hs_stylus_rx_state {
-    int device_id;    ///< our device id
-    int have_seq;     ///< 1 once a message was accepted
-    int64_t last_seq; ///< seq of the last accepted message
+    int device_id;      ///< our device id
+    int have_seq;       ///< 1 once a message was accepted
+    int64_t last_seq;   ///< seq of the last accepted message
+    int64_t last_utime; ///< its server utime, us
     /// Wall-clock us this driver started at (0: not checked). The server goes on answering a
     /// replaced session's last poses for a while (its rt outputs ramp to zero); those are not
     /// this driver's model.
@@ -35,8 +36,11 @@ typedef struct hs_stylus_rx_state {
     int64_t count[5]; ///< messages per hs_stylus_rx outcome
 } hs_stylus_rx_state;
 
-/// A far smaller seq than the last one means the server restarted (accepted, not reordered).
+/// A seq not newer than the last one is a reorder or a repeat when its server utime is at most
+/// HS_RX_REORDER_US older; a later utime, or one far older (a reboot, another host), means a
+/// restarted server (seq from 1 again): accepted. So is a seq HS_RX_RESTART_GAP behind.
 #define HS_RX_RESTART_GAP 100000
+#define HS_RX_REORDER_US  1000000
 
 /// Start with no message seen, for device_id.
 void hs_stylus_rx_init(hs_stylus_rx_state* st, int device_id);

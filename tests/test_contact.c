@@ -468,7 +468,7 @@ static int caps(void) {
 // solved changes with the tool position; the force must not jump when it does. A 20 mm probe
 // 6 mm deep in a 12 x 12-cell slab (48 points penetrating), dragged 1 um a step over 3 mm
 // within one snapshot: the largest force change of a step, against what the local stiffness
-// predicts for 1 um. (Before the points near the cap were tapered: 0.18 N in one step.)
+// predicts for 1 um. (Before the points near the cap were tapered: 0.1 N in one step.)
 static int cap_continuous(void) {
     hs_mesh* mesh = NULL;
     hs_err err = {0};

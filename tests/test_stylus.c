@@ -1217,6 +1217,21 @@ static int wire_rx(void) {
     f = good_force(1);
     ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
     ENSURE(st.count[HS_RX_OK] == 5 && st.count[HS_RX_REORDERED] == 2);
+    // ... also soon after it started (seq 1 after 500, not 100000 behind): its clock tells,
+    // later on the same host, far earlier on another; within a second earlier it is a reorder.
+    f = good_force(500);
+    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
+    f = good_force(3);
+    f.utime += 1000;
+    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OK); // it was reordered
+    f = good_force(2);
+    f.utime += 500;
+    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_REORDERED);
+    f = good_force(1);
+    f.utime -= 5000000;
+    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
+    st.count[HS_RX_OK] -= 3;
+    st.count[HS_RX_REORDERED] -= 1;
     ENSURE(st.count[HS_RX_OTHER_DEVICE] == 1 && st.count[HS_RX_INVALID] == 5);
     // Started at since_utime: an answer to an older pose is another session's, skipped before
     // any other check; one to a newer pose, or one naming no pose (e-stop), is taken.

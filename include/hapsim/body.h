@@ -75,7 +75,8 @@ typedef struct hs_body hs_body;
 hs_status hs_body_create(const hs_mesh* mesh, const hs_body_def* def, const unsigned char* fixed,
                          hs_body** out, hs_err* err);
 /// Constant external force on node i, N (replaces the previous value). HS_ERR_INVALID (and
-/// nothing changed) for a bad node, a non-finite component or one above 1e9 N.
+/// nothing changed) for a bad node, a non-finite component or one above 1e9 N. A node that has
+/// lost its last element (hs_fem_held_nodes) takes no force while it has none.
 hs_status hs_body_set_force(hs_body* b, int node, const double f[3]);
 /// Remove all external nodal forces (gravity stays).
 void hs_body_clear_forces(hs_body* b);

@@ -335,7 +335,7 @@ typedef struct hs_client_stats {
     int64_t forces_other; ///< tool_force for a device id outside 0..MAX_DEVICES-1
     int64_t forces_stale; ///< tool_force not newer (seq) than the last of its device and at
                           ///< most 1 s older (utime): reordered (newer utime or older: restart;
-                          ///< so is the 8th refused in a row with seq counting up)
+                          ///< after 7 refused in a row with seq counting up, the next is taken)
     int64_t poses_sent;   ///< tool_pose published
     int64_t statuses;     ///< server_status accepted
     int64_t acks;         ///< command acks accepted

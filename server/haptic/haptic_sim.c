@@ -201,8 +201,8 @@ struct hs_haptic_sim {
     int64_t pose_floor;  // poses up to this seq came before a restart: the blade ignores them
     int started_once;    // hs_haptic_sim_start ran before (a restart resets the rt side)
     int64_t still_ns;    // when the blade last moved CUT_STILL_M; longer still: no resistance
-    double still_p[3];   // the blade point then, m
-    hs_mesh* comp_mesh;  // the mesh h->comp was built on once cuts replaced it (owned)
+    double still_p[3], still_q[3]; // the blade ends then, m
+    hs_mesh* comp_mesh;            // the mesh h->comp was built on once cuts replaced it (owned)
     // Background compliance rebuild: the deformation thread copies the live mesh into cw_*,
     // a worker builds mesh + compliance from it, and the deformation thread swaps the result
     // in when the topology has not moved on meanwhile (else it is dropped).
@@ -711,12 +711,14 @@ static int cut_step(hs_haptic_sim* h) {
         memcpy(h->bp, p1, sizeof p1);
         memcpy(h->bq, q1, sizeof q1);
         memcpy(h->still_p, p1, sizeof p1);
+        memcpy(h->still_q, q1, sizeof q1);
         h->still_ns = now;
         h->blade_have = 1;
         return flipped;
     }
-    if (dist3(p1, h->still_p) > CUT_STILL_M) {
-        memcpy(h->still_p, p1, sizeof p1);
+    if (dist3(p1, h->still_p) > CUT_STILL_M || dist3(q1, h->still_q) > CUT_STILL_M) {
+        memcpy(h->still_p, p1, sizeof p1); // either end: a blade turning about one moves
+        memcpy(h->still_q, q1, sizeof q1);
         h->still_ns = now;
     } else if (now - h->still_ns > CUT_STILL_NS && memcmp(h->cut_force, zero, sizeof zero)) {
         memset(h->cut_force, 0, sizeof h->cut_force); // rt blends it out
