@@ -117,6 +117,18 @@ static int start_server(const char* scene, const char* tag) {
     return 0;
 }
 
+// The server log of start_server(..., tag) into text (NUL-terminated); 0, or -1 if unreadable.
+static int read_server_log(const char* tag, char* text, size_t cap) {
+    char log[600];
+    snprintf(log, sizeof log, "%s/server-%s.log", tmpdir, tag);
+    FILE* f = fopen(log, "r");
+    if (!f) return -1;
+    size_t n = fread(text, 1, cap - 1, f);
+    fclose(f);
+    text[n] = '\0';
+    return 0;
+}
+
 // SIGTERM; returns the exit status (or -1 if it did not exit within 5 s).
 static int stop_server(void) {
     if (child <= 0) return -1;
@@ -568,13 +580,8 @@ static int poses_in_forces_out(void) {
     ENSURE(stop_server() == 0);
     client_close(&c);
     // The e-stop's retried copy is a retry answered again, not a rejected message.
-    char log[600], text[8192] = {0};
-    snprintf(log, sizeof log, "%s/server-forces.log", tmpdir);
-    FILE* f = fopen(log, "r");
-    ENSURE(f);
-    size_t n = fread(text, 1, sizeof text - 1, f);
-    fclose(f);
-    text[n] = '\0';
+    char text[8192];
+    ENSURE(read_server_log("forces", text, sizeof text) == 0);
     const char* end_line = strstr(text, "hapsim-server: stopped after");
     ENSURE(end_line);
     printf("  %.*s", (int)strcspn(end_line, "\n") + 1, end_line);
@@ -988,13 +995,8 @@ static int malformed_scene_exits_1(void) {
                       "  \"fixed\": []\n}\n");
     ENSURE(start_server(scene, "bad") == 0);
     ENSURE(wait_exit(5000000000LL) == 1);
-    char log[600], text[2048] = {0};
-    snprintf(log, sizeof log, "%s/server-bad.log", tmpdir);
-    FILE* f = fopen(log, "r");
-    ENSURE(f);
-    size_t n = fread(text, 1, sizeof text - 1, f);
-    fclose(f);
-    text[n] = '\0';
+    char text[2048];
+    ENSURE(read_server_log("bad", text, sizeof text) == 0);
     printf("  %s", text);
     ENSURE(strstr(text, "bad.json:") && strstr(text, "key '"));
     // A region that selects no node is named with its line, even beside one that does (it was
@@ -1015,11 +1017,7 @@ static int malformed_scene_exits_1(void) {
         write_file(scene, body);
         ENSURE(start_server(scene, "bad") == 0);
         ENSURE(wait_exit(5000000000LL) == 1);
-        f = fopen(log, "r");
-        ENSURE(f);
-        n = fread(text, 1, sizeof text - 1, f);
-        fclose(f);
-        text[n] = '\0';
+        ENSURE(read_server_log("bad", text, sizeof text) == 0);
         printf("  %s", text);
         ENSURE(strstr(text, regions[k][1]));
     }
