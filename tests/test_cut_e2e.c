@@ -14,6 +14,34 @@ static double norm3(const double v[3]) {
     return sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
 }
 
+// The sim a case runs, so that a case failing half-way (ENSURE returns at once) does not leave
+// its threads running, and allocating, under the next case's byte count.
+static hs_haptic_sim* g_running;
+
+static hs_status create_sim(const hs_mesh* m, const hs_haptic_sim_def* d,
+                            const unsigned char* fixed, hs_haptic_sim** sim, hs_err* err) {
+    hs_status s = hs_haptic_sim_create(m, d, fixed, sim, err);
+    if (s == HS_OK) g_running = *sim;
+    return s;
+}
+
+static void destroy_sim(hs_haptic_sim** sim) {
+    if (*sim == g_running) g_running = NULL;
+    hs_haptic_sim_destroy(sim);
+}
+
+// A case, then the sim it left running if it failed (its mesh must still exist: every case
+// destroys its sim before its mesh).
+#define GUARDED(fn)                                                                                \
+    static int fn##_guarded(void) {                                                                \
+        int rc = fn();                                                                             \
+        if (g_running) {                                                                           \
+            printf("  (stopped the sim the case left running)\n");                                 \
+            hs_haptic_sim_destroy(&g_running);                                                     \
+        }                                                                                          \
+        return rc;                                                                                 \
+    }
+
 static hs_mesh* load_skin(void) {
     hs_mesh* m = NULL;
     hs_err e;
@@ -65,7 +93,7 @@ static int start_cutting_sim(hs_mesh* m, const unsigned char* fixed, const hs_ha
                              const hs_haptic_cut_def* cd, hs_haptic_sim** sim) {
     hs_err err = {0};
     *sim = NULL;
-    if (hs_haptic_sim_create(m, d, fixed, sim, &err) != HS_OK ||
+    if (create_sim(m, d, fixed, sim, &err) != HS_OK ||
         hs_haptic_sim_enable_cutting(*sim, m, cd, &err) != HS_OK ||
         hs_haptic_sim_start(*sim, &err) != HS_OK) {
         printf("  cutting sim: %s\n", err.msg);
@@ -86,7 +114,7 @@ static int test_enable_errors(void) {
     hs_haptic_sim_def d = sim_def();
     hs_haptic_sim* sim = NULL;
     hs_err err = {0};
-    ENSURE(hs_haptic_sim_create(m, &d, fixed, &sim, &err) == HS_OK);
+    ENSURE(create_sim(m, &d, fixed, &sim, &err) == HS_OK);
     hs_haptic_cut_def cd = hs_haptic_cut_default_def();
     ENSURE(hs_haptic_sim_enable_cutting(sim, m, NULL, &err) == HS_ERR_INVALID);
     hs_haptic_cut_def raw;
@@ -119,7 +147,7 @@ static int test_enable_errors(void) {
     ENSURE(!memcmp(x0, m->x0, 3 * (size_t)m->n_nodes * sizeof(double)));
     hs_free(x0);
     hs_free(tris);
-    hs_haptic_sim_destroy(&sim);
+    destroy_sim(&sim);
     ENSURE(sim == NULL);
     hs_free(fixed);
     hs_mesh_destroy(&m);
@@ -434,7 +462,7 @@ static int test_blade_drag(void) {
     hs_free(removed);
     hs_free(moved);
     hs_free(gone);
-    hs_haptic_sim_destroy(&sim);
+    destroy_sim(&sim);
     hs_free(fixed);
     hs_mesh_destroy(&m);
     ENSURE(hs_byte_count() == bytes);
@@ -609,7 +637,7 @@ static int probe_after_cut(double min_travel_m, double tol) {
     d.body.fem.material.youngs_pa = 50000; // the skin scene's
     hs_haptic_sim* sim = NULL;
     hs_err err = {0};
-    ENSURE(hs_haptic_sim_create(m, &d, fixed, &sim, &err) == HS_OK);
+    ENSURE(create_sim(m, &d, fixed, &sim, &err) == HS_OK);
     hs_haptic_cut_def cd = blade_def();
     cd.probe_when_released = 1;
     cd.min_travel_m = min_travel_m;
@@ -701,7 +729,7 @@ static int probe_after_cut(double min_travel_m, double tol) {
 #endif
     hs_free(x0);
     hs_free(tris);
-    hs_haptic_sim_destroy(&sim);
+    destroy_sim(&sim);
     hs_free(fixed);
     hs_mesh_destroy(&m);
     ENSURE(hs_byte_count() == bytes);
@@ -852,7 +880,7 @@ static int free_piece(int fall) {
     hs_free(u1);
     hs_free(upre);
     hs_free(pin);
-    hs_haptic_sim_destroy(&sim);
+    destroy_sim(&sim);
     hs_free(fixed);
     hs_mesh_destroy(&m);
     ENSURE(hs_byte_count() == bytes);
@@ -936,7 +964,7 @@ static int test_restart_mid_cut(void) {
            "after the restart %.3f N\n",
            (long long)v1, (long long)v_stop, (long long)v2, (long long)v3,
            (long long)st.cut_failures, f_moving, f_still, f_restart);
-    hs_haptic_sim_destroy(&sim);
+    destroy_sim(&sim);
     hs_mesh_destroy(&m);
     hs_free(fixed);
     ENSURE(v1 > 0 && v2 == v_stop && v3 > v2 && st.cut_failures == 0);
@@ -977,7 +1005,7 @@ static double mean_cut_force(double speed_m_s) {
         }
         mean = sum / ticks;
     }
-    hs_haptic_sim_destroy(&sim);
+    destroy_sim(&sim);
     hs_mesh_destroy(&m);
     hs_free(fixed);
     return mean;
@@ -1003,7 +1031,19 @@ static int test_force_speed(void) {
     return 0;
 }
 
-HS_TEST_MAIN(HS_CASE(test_enable_errors), HS_CASE(test_blade_drag), HS_CASE(test_probe_after_cut),
-             HS_CASE(test_probe_after_fine_cut), HS_CASE(test_free_piece_dropped),
-             HS_CASE(test_free_piece_fall_rule), HS_CASE(test_restart_mid_cut),
-             HS_CASE(test_force_speed))
+GUARDED(test_enable_errors)
+GUARDED(test_blade_drag)
+GUARDED(test_probe_after_cut)
+GUARDED(test_probe_after_fine_cut)
+GUARDED(test_free_piece_dropped)
+GUARDED(test_free_piece_fall_rule)
+GUARDED(test_restart_mid_cut)
+GUARDED(test_force_speed)
+
+#define GUARDED_CASE(fn)                                                                           \
+    { #fn, fn##_guarded }
+
+HS_TEST_MAIN(GUARDED_CASE(test_enable_errors), GUARDED_CASE(test_blade_drag),
+             GUARDED_CASE(test_probe_after_cut), GUARDED_CASE(test_probe_after_fine_cut),
+             GUARDED_CASE(test_free_piece_dropped), GUARDED_CASE(test_free_piece_fall_rule),
+             GUARDED_CASE(test_restart_mid_cut), GUARDED_CASE(test_force_speed))
