@@ -302,6 +302,12 @@ hs_status hs_client_create(const hs_client_config* cfg, hs_client** out, hs_err*
         murl = mesh_url;
     }
     uint32_t sb = cfg->subscribe;
+    const char* why = hapsim_url_problem(hurl);
+    if (why || (why = hapsim_url_problem(murl))) {
+        s = fail(err, HS_ERR_INVALID, "hs_client_create: LCM URL '%s' %s",
+                 hapsim_url_problem(hurl) ? hurl : murl, why);
+        goto bad;
+    }
     if (hurl[0]) {
         c->bus[0] = lcm_create(hurl);
         if (!c->bus[0]) {

@@ -6,6 +6,7 @@
 #define HAPSIM_CHANNELS_H
 
 #include <stddef.h>
+#include <stdlib.h>
 #include <string.h>
 
 /// Default channel prefix; several servers on one LAN differ by prefix (and port).
@@ -44,6 +45,27 @@ static inline int hapsim_channel_name(char* out, size_t cap, const char* prefix,
     if (np) memcpy(out, prefix, np);
     memcpy(out + np, suffix, ns + 1);
     return 0;
+}
+
+/// Why url cannot serve as a hapsim bus, or NULL. A udpm URL that names a group must name a
+/// port other than 0 (udpm://GROUP:PORT): without one LCM 1.3.1 uses port 0, a random port (in a
+/// private namespace a publisher and a receiver on such URLs never met, and the receiver's
+/// lcm_create hung). "udpm://" alone is LCM's default group and port; other providers and
+/// malformed ports are left to LCM.
+static inline const char* hapsim_url_problem(const char* url) {
+    static const char udpm[] = "udpm://";
+    if (!url || strncmp(url, udpm, sizeof udpm - 1)) return NULL;
+    const char* net = url + sizeof udpm - 1;
+    size_t n = strcspn(net, "?");
+    if (n == 0) return NULL;
+    const char* colon = memchr(net, ':', n);
+    if (!colon || colon + 1 == net + n)
+        return "names a group but no port (write udpm://GROUP:PORT: without a port LCM binds a "
+               "random one and no other program hears the bus)";
+    char* end;
+    if (strtol(colon + 1, &end, 0) == 0 && end != colon + 1)
+        return "has port 0 (LCM binds a random port: no other program hears the bus)";
+    return NULL;
 }
 
 #endif

@@ -1179,6 +1179,26 @@ static int test_force_restart(void) {
 
 // A malformed server_status is counted and dropped; the last good one stays (before, the
 // decoder wrote into the stored status and one corrupt datagram erased it).
+// A udpm URL with a group and no port (or port 0) is refused: LCM 1.3.1 binds a random port, so
+// the client would hear nothing (and a receiver's lcm_create hung in a private namespace).
+static int test_url_without_port(void) {
+    static const char* const bad[][2] = {{"udpm://239.255.76.67?ttl=0", "memq://"},
+                                         {"memq://", "udpm://239.255.76.67"},
+                                         {"memq://", "udpm://239.255.76.67:0?recv_buf_size=9"}};
+    for (int i = 0; i < 3; ++i) {
+        hs_client_config cfg;
+        hs_client_config_default(&cfg);
+        cfg.haptic_url = bad[i][0];
+        cfg.mesh_url = bad[i][1];
+        hs_client* c = NULL;
+        hs_err e = {0};
+        ENSURE(hs_client_create(&cfg, &c, &e) == HS_ERR_INVALID && c == NULL);
+        ENSURE(strstr(e.msg, i == 0 ? bad[i][0] : bad[i][1]) &&
+               strstr(e.msg, i == 2 ? "port 0" : "no port"));
+    }
+    return 0;
+}
+
 static int test_status_kept(void) {
     hs_client* c = memq_client(HS_CLIENT_SUB_STATUS);
     ENSURE(c);
@@ -1199,9 +1219,9 @@ static int test_status_kept(void) {
     return 0;
 }
 
-HS_TEST_MAIN(HS_CASE(test_callback_reentry), HS_CASE(test_force_restart),
-             HS_CASE(test_mesh_restart), HS_CASE(test_topology_nomem), HS_CASE(test_far_jump),
-             HS_CASE(test_model_extremes), HS_CASE(test_status_kept),
+HS_TEST_MAIN(HS_CASE(test_url_without_port), HS_CASE(test_callback_reentry),
+             HS_CASE(test_force_restart), HS_CASE(test_mesh_restart), HS_CASE(test_topology_nomem),
+             HS_CASE(test_far_jump), HS_CASE(test_model_extremes), HS_CASE(test_status_kept),
              HS_CASE(test_lossless_follows_server), HS_CASE(test_delta_sum_overflow),
              HS_CASE(test_loss_converges), HS_CASE(test_late_join),
              HS_CASE(test_wrong_versions_ignored), HS_CASE(test_malformed_counted),

@@ -65,6 +65,15 @@ done
 "$bin/hapsim-ctl" --timeout 400 --mesh-url bogus://x status >"$tmp/bad.txt" 2>&1
 rc=$?
 [ $rc = 1 ] && grep -q "bogus://x" "$tmp/bad.txt" || fail "hapsim-ctl --mesh-url bogus://x: rc $rc, $(cat "$tmp/bad.txt")"
+# A group without a port is refused (LCM 1.3.1 would bind a random port: ctl said only "LCM self
+# test failed" before, the server hung).
+"$bin/hapsim-ctl" --timeout 400 --mesh-url "udpm://239.255.76.67?ttl=0" status >"$tmp/bad.txt" 2>&1
+rc=$?
+[ $rc = 1 ] && grep -q "no port" "$tmp/bad.txt" || fail "hapsim-ctl --mesh-url without a port: rc $rc, $(cat "$tmp/bad.txt")"
+"$bin/hapsim-stylus" --script scenes/liver/scripts/press_hold.probe --haptic-url "udpm://239.255.76.67" \
+    --duration 0.5 >"$tmp/bad.txt" 2>&1
+rc=$?
+[ $rc = 2 ] && grep -q "no port" "$tmp/bad.txt" || fail "hapsim-stylus --haptic-url without a port: rc $rc, $(cat "$tmp/bad.txt")"
 for args in "status --help" "set -h" "--timeout 400 reset --help"; do
     # shellcheck disable=SC2086
     "$bin/hapsim-ctl" $args >"$tmp/bad.txt" 2>&1

@@ -37,7 +37,7 @@ static int defaults_and_paths(void) {
     hs_scene s, d;
     hs_err err = {0};
     hs_scene_default(&d);
-    // The defaults agree with the protocol's (scene does not link the message library).
+    // The defaults are the protocol's.
     ENSURE(strcmp(d.haptic_url, HAPSIM_DEFAULT_HAPTIC_URL) == 0);
     ENSURE(strcmp(d.mesh_url, HAPSIM_DEFAULT_MESH_URL) == 0);
     ENSURE(strcmp(d.prefix, HAPSIM_DEFAULT_PREFIX) == 0);
@@ -185,6 +185,13 @@ static int malformed_names_file_line_key(void) {
                        "'lcm.prefix': may contain only", NULL) == 0);
     ENSURE(expect_fail(HEAD "\"lcm\": {\"haptic_url\": \"localhost\"}}", HS_ERR_PARSE,
                        "'lcm.haptic_url': is not an LCM URL", NULL) == 0);
+    // A group without a port is a random port to LCM 1.3.1 (a bus no one hears; accepted before).
+    ENSURE(expect_fail(HEAD "\"lcm\": {\"haptic_url\": \"udpm://239.255.76.67?ttl=0\"}}",
+                       HS_ERR_PARSE, "'lcm.haptic_url': names a group but no port", NULL) == 0);
+    ENSURE(expect_fail(HEAD "\"lcm\": {\"mesh_url\": \"udpm://239.255.76.67:\"}}", HS_ERR_PARSE,
+                       "'lcm.mesh_url': names a group but no port", NULL) == 0);
+    ENSURE(expect_fail(HEAD "\"lcm\": {\"mesh_url\": \"udpm://239.255.76.67:0x0?ttl=0\"}}",
+                       HS_ERR_PARSE, "'lcm.mesh_url': has port 0", NULL) == 0);
     ENSURE(expect_fail(HEAD "\"rates\": {\"haptic_hz\": 100, \"sim_hz\": 200}}", HS_ERR_PARSE,
                        "'rates.sim_hz'", NULL) == 0);
     ENSURE(expect_fail(HEAD "\"rates\": {\"haptic_hz\": 1e400}}", HS_ERR_PARSE, "'rates.haptic_hz'",

@@ -1072,6 +1072,13 @@ static int bad_command_lines_refused(void) {
                           "--quiet",      NULL};
     ENSURE(run_server_args(scene, same, text, sizeof text) == 1);
     ENSURE(strstr(text, "same bus") && strstr(text, "udpm://239.255.76.93:7793?ttl=0"));
+    // A group without a port: LCM 1.3.1 would bind a random port (no one would hear the server).
+    const char* noport[] = {"--haptic-url", "udpm://239.255.76.93?ttl=0",
+                            "--mesh-url",   URL_M,
+                            "--duration",   "2",
+                            "--quiet",      NULL};
+    ENSURE(run_server_args(scene, noport, text, sizeof text) == 1);
+    ENSURE(strstr(text, "udpm://239.255.76.93?ttl=0") && strstr(text, "no port"));
     // 300 bytes: cut to 255 it would lose its recv_buf_size.
     char url[320];
     int n = snprintf(url, sizeof url, "%s", URL_M "&");

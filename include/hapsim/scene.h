@@ -113,8 +113,9 @@ hs_status hs_scene_parse(const char* text, const char* path, int check_files,
 
 /// 1 when two LCM URLs open the same bus: same provider and network (group and port), whatever
 /// their options after '?' (ttl, recv_buf_size); "udpm://" is LCM's default 239.255.76.67:7667.
-/// A udpm URL with a group and no port, and other providers, are compared as text (what LCM
-/// does without a port was not established: a test of it hung), so such a pair may be one bus.
+/// Other providers are compared as text. A udpm URL with a group and no port (also compared as
+/// text) is refused by hs_scene_parse and every hapsim program (hapsim_url_problem: LCM 1.3.1
+/// binds a random port; docs/protocol.md).
 /// Thread: any | Allocates: no
 int hs_scene_same_bus(const char* a, const char* b);
 

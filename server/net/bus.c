@@ -1,6 +1,8 @@
 // LCM bus wrapper: create, poll()-based handle, URL and kernel buffer queries.
 #include "bus.h"
 
+#include "hapsim_channels.h"
+
 #include <errno.h>
 #include <poll.h>
 #include <stdio.h>
@@ -16,6 +18,8 @@ hs_status hs_net_bus_create(const char* url, hs_net_bus** out, hs_err* err) {
     *out = NULL;
     if (!url || strlen(url) >= sizeof((hs_net_bus*)0)->url)
         return hs_err_set(err, HS_ERR_INVALID, "LCM URL missing or longer than 255 bytes");
+    const char* why = hapsim_url_problem(url);
+    if (why) return hs_err_set(err, HS_ERR_INVALID, "LCM URL '%s' %s", url, why);
     hs_net_bus* b = hs_calloc(1, sizeof *b);
     if (!b) return hs_err_set(err, HS_ERR_NOMEM, "out of memory opening LCM bus %s", url);
     snprintf(b->url, sizeof b->url, "%s", url);

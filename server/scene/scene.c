@@ -13,11 +13,8 @@
 #include <string.h>
 #include <unistd.h>
 
-// Same defaults as msgs/hapsim_channels.h (checked by tests/test_scene.c); scene does not link
-// the message library.
-#define DEFAULT_HAPTIC_URL "udpm://239.255.76.67:7667?ttl=0"
-#define DEFAULT_MESH_URL   "udpm://239.255.76.67:7668?ttl=0"
-#define DEFAULT_PREFIX     "HAPSIM_"
+#include "hapsim_channels.h" // defaults and hapsim_url_problem (header only)
+
 #define MAX_SCENE_BYTES    (1 << 20)
 
 void hs_scene_default(hs_scene* s) {
@@ -46,9 +43,9 @@ void hs_scene_default(hs_scene* s) {
     s->force_max_n = 3.3;
     s->force_rate_max = 500.0;
     s->watchdog_s = 0.1;
-    snprintf(s->haptic_url, sizeof s->haptic_url, "%s", DEFAULT_HAPTIC_URL);
-    snprintf(s->mesh_url, sizeof s->mesh_url, "%s", DEFAULT_MESH_URL);
-    snprintf(s->prefix, sizeof s->prefix, "%s", DEFAULT_PREFIX);
+    snprintf(s->haptic_url, sizeof s->haptic_url, "%s", HAPSIM_DEFAULT_HAPTIC_URL);
+    snprintf(s->mesh_url, sizeof s->mesh_url, "%s", HAPSIM_DEFAULT_MESH_URL);
+    snprintf(s->prefix, sizeof s->prefix, "%s", HAPSIM_DEFAULT_PREFIX);
 }
 
 const char* hs_scene_model_name(hs_model m) {
@@ -543,6 +540,13 @@ static hs_status parse_rest(const ctx* c, const cJSON* root, hs_scene* s) {
         if (!strstr(s->mesh_url, "://"))
             return fail(c, cJSON_GetObjectItemCaseSensitive(o, "mesh_url"), "lcm.mesh_url",
                         "is not an LCM URL (provider://address...)");
+        const char* why = hapsim_url_problem(s->haptic_url);
+        if (why)
+            return fail(c, cJSON_GetObjectItemCaseSensitive(o, "haptic_url"), "lcm.haptic_url",
+                        "%s", why);
+        if ((why = hapsim_url_problem(s->mesh_url)))
+            return fail(c, cJSON_GetObjectItemCaseSensitive(o, "mesh_url"), "lcm.mesh_url", "%s",
+                        why);
     }
     if (hs_scene_same_bus(s->haptic_url, s->mesh_url))
         return fail(c, o ? cJSON_GetObjectItemCaseSensitive(o, "mesh_url") : NULL, "lcm.mesh_url",
