@@ -17,6 +17,7 @@
 #include "hapsim_tool_pose_t.h"
 #include "hapsim_tool_state_t.h"
 #include "hapsim_topology_event_t.h"
+#include "net/bus.h"
 #include "net/mesh_frames.h"
 #include "net/validate.h"
 
@@ -790,7 +791,23 @@ static int mesh_frames_roundtrip(void) {
     return 0;
 }
 
-HS_TEST_MAIN(HS_CASE(roundtrip_tool_pose_force_state), HS_CASE(roundtrip_mesh),
+// What a receiver needs for a message of a given size (the server prints it).
+static int size_notes(void) {
+    char note[400];
+    ENSURE(hs_net_size_note("mesh topology", 100000, 212992, 4194304, note, sizeof note) == 0);
+    ENSURE(note[0] == '\0');
+    ENSURE(hs_net_size_note("mesh topology", 400000, 212992, 4194304, note, sizeof note) == 1);
+    ENSURE(strstr(note, "400000 bytes") && strstr(note, "rmem_default (212992)") &&
+           strstr(note, "recv_buf_size=800000"));
+    ENSURE(hs_net_size_note("mesh keyframe", 5000000, 212992, 4194304, note, sizeof note) == 2);
+    ENSURE(strstr(note, "mesh keyframe message") && strstr(note, "rmem_max=10000000") &&
+           strstr(note, "recv_buf_size=10000000"));
+    ENSURE(hs_net_size_note("x", 5000000, -1, -1, note, sizeof note) == 0); // unknown limits
+    ENSURE(hs_net_size_note("x", 5000000, 212992, -1, note, 8) == 1 && strlen(note) == 7);
+    return 0;
+}
+
+HS_TEST_MAIN(HS_CASE(size_notes), HS_CASE(roundtrip_tool_pose_force_state), HS_CASE(roundtrip_mesh),
              HS_CASE(roundtrip_command_ack_status), HS_CASE(pose_accepts_good),
              HS_CASE(pose_rejects_each_reason), HS_CASE(command_accepts_good),
              HS_CASE(command_rejects_each_reason), HS_CASE(flood_counts_add_up),

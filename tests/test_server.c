@@ -631,6 +631,18 @@ static int mesh_10k_arrives_whole(void) {
     ENSURE(c.status->poses_received[0] == 20);
     for (int i = 0; i < c.status->n_loops; ++i) ENSURE(strcmp(c.status->loop_name[i], "rt") != 0);
     ENSURE(stop_server() == 0);
+    // Its topology is larger than a socket's default buffer: the server says what receivers need
+    // (the start-up summary gives the size).
+    char log[4096];
+    ENSURE(read_server_log("mesh10k", log, sizeof log) == 0);
+    int topo_bytes = 0;
+    const char* at = strstr(log, "topology ");
+    while (at && sscanf(at, "topology %d)", &topo_bytes) != 1) at = strstr(at + 1, "topology ");
+    printf("  topology message %d bytes, rmem_default %lld\n", topo_bytes,
+           (long long)hs_net_rmem_default());
+    ENSURE(topo_bytes > 100000);
+    if (hs_net_rmem_default() > 0 && hs_net_rmem_default() < topo_bytes)
+        ENSURE(strstr(log, "note: a mesh topology message is") && strstr(log, "recv_buf_size="));
     client_close(&c);
     hs_mesh_destroy(&box);
     return 0;

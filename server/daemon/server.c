@@ -153,6 +153,8 @@ struct hs_server {
     int64_t live_prev_ticks, live_prev_t;
     int64_t net_iters, last_iter_ns, last_steps;
     int64_t poses_total, forces_total;
+    int64_t rmem_default, rmem_max; // the kernel's, at start, bytes (-1: unknown)
+    int mesh_size_noted;            // the level of the last size note printed (hs_net_size_note)
     double live_force;
     uint32_t rt_obtained;
     int rt_prio;
@@ -645,13 +647,21 @@ static void on_pose(const lcm_recv_buf_t* rb, const char* ch, void* user) {
     hist_add(s->h_handle, hs_now_ns() - t0);
 }
 
-static void publish_topology(hs_server* s) {
-    world* w = &s->w;
-    if (!w->visual) return;
+// A mesh message too large for a receiver's socket buffer is lost without a trace (LCM 1.3.1):
+// say so, once per level (a cut can grow the topology past the next one).
+static void note_mesh_size(hs_server* s, const char* what, int64_t bytes) {
+    char note[400];
+    int level = hs_net_size_note(what, bytes, s->rmem_default, s->rmem_max, note, sizeof note);
+    if (level <= s->mesh_size_noted) return;
+    s->mesh_size_noted = level;
+    fprintf(stderr, "hapsim-server: note: %s\n", note);
+}
+
+// The topology message of the current visual mesh (utime and seq left 0).
+static void fill_topology(const hs_server* s, hapsim_mesh_topology_t* out) {
+    const world* w = &s->w;
     hapsim_mesh_topology_t t;
     memset(&t, 0, sizeof t);
-    t.utime = now_us();
-    t.seq = ++s->seq_topo;
     t.topology_version = s->topo_version;
     t.n_nodes = w->mesh->n_nodes;
     t.n_vis = w->n_vis;
@@ -662,6 +672,16 @@ static void publish_topology(hs_server* s) {
     t.triangles = w->tri;
     t.n_tet_idx = 0;
     t.tets = NULL;
+    *out = t;
+}
+
+static void publish_topology(hs_server* s) {
+    if (!s->w.visual) return;
+    hapsim_mesh_topology_t t;
+    fill_topology(s, &t);
+    t.utime = now_us();
+    t.seq = ++s->seq_topo;
+    note_mesh_size(s, "mesh topology", hapsim_mesh_topology_t_encoded_size(&t));
     hapsim_mesh_topology_t_publish(hs_net_bus_lcm(s->mbus), s->ch_topo, &t);
 }
 
@@ -685,6 +705,7 @@ static void publish_keyframe(hs_server* s) {
     m.position = w->key;
     m.n_stress = 0;
     m.stress = NULL;
+    note_mesh_size(s, "mesh keyframe", hs_net_keyframe_bytes(w->n_vis, 0));
     hapsim_mesh_state_t_publish(hs_net_bus_lcm(s->mbus), s->ch_state, &m);
     s->key_ns = hs_now_ns();
     s->have_key = 1;
@@ -1395,6 +1416,8 @@ hs_status hs_server_create(const hs_server_opts* opts, hs_server** out, hs_err* 
     }
     st = channels(s, err);
     if (st != HS_OK) goto fail;
+    s->rmem_default = hs_net_rmem_default();
+    s->rmem_max = hs_net_rmem_max();
     s->st_prev = hs_calloc(1, sizeof *s->st_prev);
     s->st_now = hs_calloc(1, sizeof *s->st_now);
     s->h_net = hs_calloc(1, sizeof *s->h_net);
@@ -1497,12 +1520,15 @@ void hs_server_print_summary(hs_server* s) {
                w->scalpel, sqrt(l) * 1e3, w->cdef.toughness_n_m, w->cdef.max_force_n,
                w->cdef.cut.fragment == HS_CUT_FRAGMENT_FIX ? "fall" : "are dropped", s->ch_tevent);
     }
-    if (w->visual)
+    if (w->visual) {
+        hapsim_mesh_topology_t t;
+        fill_topology(s, &t);
         printf("  visual   %d nodes, %d triangles, %g Hz deltas, keyframe + topology every 1 s "
-               "(keyframe %lld bytes)\n",
+               "(keyframe %lld bytes, topology %d)\n",
                w->n_vis, w->n_tri_idx / 3, sc->visual_hz,
-               (long long)hs_net_keyframe_bytes(w->n_vis, 0));
-    else
+               (long long)hs_net_keyframe_bytes(w->n_vis, 0),
+               hapsim_mesh_topology_t_encoded_size(&t));
+    } else
         printf("  visual   off: no mesh messages\n");
     printf("  buses    haptic %s  (%s in, %s out)\n", s->haptic_url, s->ch_pose, s->ch_force);
     printf("           mesh   %s  (%s in; mesh, tool state, acks, status out)\n", s->mesh_url,

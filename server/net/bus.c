@@ -75,11 +75,45 @@ int64_t hs_net_url_recv_buf(const char* url) {
     return 0;
 }
 
-int64_t hs_net_rmem_max(void) {
-    FILE* f = fopen("/proc/sys/net/core/rmem_max", "r");
+static int64_t read_sysctl(const char* path) {
+    FILE* f = fopen(path, "r");
     if (!f) return -1;
     long long v = -1;
     if (fscanf(f, "%lld", &v) != 1) v = -1;
     fclose(f);
     return (int64_t)v;
+}
+
+int64_t hs_net_rmem_max(void) {
+    return read_sysctl("/proc/sys/net/core/rmem_max");
+}
+
+int64_t hs_net_rmem_default(void) {
+    return read_sysctl("/proc/sys/net/core/rmem_default");
+}
+
+int hs_net_size_note(const char* what, int64_t bytes, int64_t rmem_default, int64_t rmem_max,
+                     char* out, size_t cap) {
+    // The kernel counts a datagram's overhead against the buffer too: ask for twice the bytes.
+    const long long want = 2 * (long long)bytes;
+    int level = 0;
+    if (rmem_max > 0 && bytes > rmem_max)
+        level = 2;
+    else if (rmem_default > 0 && bytes > rmem_default)
+        level = 1;
+    if (cap) out[0] = '\0';
+    if (level == 2)
+        snprintf(out, cap,
+                 "a %s message is %lld bytes, more than net.core.rmem_max (%lld): no receiver on "
+                 "this host gets it until rmem_max is raised (sysctl -w net.core.rmem_max=%lld) "
+                 "and its URL asks for recv_buf_size=%lld (docs/protocol.md)",
+                 what, (long long)bytes, (long long)rmem_max, want, want);
+    else if (level == 1)
+        snprintf(
+            out, cap,
+            "a %s message is %lld bytes, more than net.core.rmem_default (%lld): only "
+            "receivers whose URL asks for recv_buf_size=%lld or more get it (the hapsim client "
+            "library asks for 4 MB; docs/protocol.md)",
+            what, (long long)bytes, (long long)rmem_default, want);
+    return level;
 }
