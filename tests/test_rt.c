@@ -507,6 +507,78 @@ static int LoopOverrunCatchUp(void) {
     return 0;
 }
 
+// The maximum of a window between two snapshots is the window's, not the run's: the server's
+// status showed a 30 ms tick in every later window (the cumulative max when the window's
+// overflow bin was non-empty).
+static int WindowMaxFromSnapshots(void) {
+    static hs_rt_hist a, b;
+    memset(&a, 0, sizeof a);
+    b = a;
+    ENSURE(hs_rt_hist_window_max_ns(&b, &a) == 0);
+    b.count[10] = 2; // two samples in [10, 11) us
+    ENSURE(hs_rt_hist_window_max_ns(&b, &a) == 11000);
+    // Overflow samples 1..3 (the 2nd 30 ms) before a, 4 and 5 (5 and 6 ms) between a and b.
+    a.count[HS_RT_HIST_BINS] = 3;
+    b.count[HS_RT_HIST_BINS] = 5;
+    const int64_t ns[6] = {0, 4100000, 30000000, 4200000, 5000000, 6000000};
+    for (int k = 1; k <= 5; ++k) {
+        b.recent_ns[k % HS_RT_HIST_RECENT] = ns[k];
+        b.recent_seq[k % HS_RT_HIST_RECENT] = (uint64_t)k;
+    }
+    b.max_ns = 30000000;
+    ENSURE(hs_rt_hist_window_max_ns(&b, &a) == 6000000);
+    b.recent_seq[5 % HS_RT_HIST_RECENT] = 0; // torn: the other one
+    ENSURE(hs_rt_hist_window_max_ns(&b, &a) == 5000000);
+    b.recent_seq[4 % HS_RT_HIST_RECENT] = 0; // none left: the overflow's lower edge
+    ENSURE(hs_rt_hist_window_max_ns(&b, &a) == HS_RT_HIST_BINS * 1000);
+    return 0;
+}
+
+typedef struct stall_tick {
+    _Atomic int64_t n;
+} stall_tick;
+
+// Tick 5 takes 30 ms, tick 600 takes 5 ms, the others nothing.
+static void stalling_tick(void* ctx, const hs_rt_clock* clk) {
+    (void)clk;
+    stall_tick* c = ctx;
+    int64_t n = atomic_fetch_add(&c->n, 1) + 1;
+    int64_t ns = n == 5 ? 30000000 : n == 600 ? 5000000 : 0;
+    int64_t until = hs_now_ns() + ns;
+    while (ns && hs_now_ns() < until) {
+    }
+}
+
+// The same through the rt loop's own histograms.
+static int LoopWindowMax(void) {
+    static hs_rt_stats older, newer;
+    stall_tick c = {0};
+    hs_rt_def def = hs_rt_default_def();
+    def.tick.fn = stalling_tick;
+    def.tick.ctx = &c;
+    def.max_ticks = 700;
+    hs_rt_loop* L = NULL;
+    ENSURE(hs_rt_loop_create(&def, &L, NULL) == HS_OK);
+    ENSURE(hs_rt_loop_start(L, NULL) == HS_OK);
+    int64_t end = hs_now_ns() + 5000000000LL; // the first window: up to the 30 ms tick
+    do {
+        struct timespec ts = {0, 5000000};
+        nanosleep(&ts, NULL);
+        hs_rt_loop_stats(L, &older);
+    } while (atomic_load(&c.n) < 50 && hs_now_ns() < end);
+    hs_rt_loop_wait(L);
+    hs_rt_loop_stats(L, &newer);
+    hs_rt_loop_destroy(&L);
+    int64_t w = hs_rt_hist_window_max_ns(&newer.tick, &older.tick);
+    printf("  tick max: run %.2f ms, second window (ticks %lld..%lld) %.2f ms\n",
+           (double)newer.tick.max_ns * 1e-6, (long long)older.ticks, (long long)newer.ticks,
+           (double)w * 1e-6);
+    ENSURE(older.tick.count[HS_RT_HIST_BINS] == 1 && older.ticks < 600);
+    ENSURE(newer.tick.count[HS_RT_HIST_BINS] == 2 && newer.tick.max_ns >= 30000000);
+    ENSURE(w >= 5000000 && w < 25000000);
+    return 0;
+}
+
 static int BareLoop(void) {
     hs_rt_def def = hs_rt_default_def();
     hs_err err = {0};
@@ -837,5 +909,6 @@ static int CreateFailures(void) {
 
 HS_TEST_MAIN(HS_CASE(CreateFailures), HS_CASE(ModelEval), HS_CASE(BlendNeverJumps), HS_CASE(Clamps),
              HS_CASE(WatchdogRamps), HS_CASE(SafetyChain), HS_CASE(LoopTiming),
-             HS_CASE(LoopRestarts), HS_CASE(LoopOverrunCatchUp), HS_CASE(BareLoop),
-             HS_CASE(HapticLoop), HS_CASE(AllocCounterWorks), HS_CASE(ZeroAlloc))
+             HS_CASE(LoopRestarts), HS_CASE(LoopOverrunCatchUp), HS_CASE(WindowMaxFromSnapshots),
+             HS_CASE(LoopWindowMax), HS_CASE(BareLoop), HS_CASE(HapticLoop),
+             HS_CASE(AllocCounterWorks), HS_CASE(ZeroAlloc))

@@ -194,13 +194,19 @@ uint32_t hs_safety_apply(hs_safety* s, double f_n[3], int pose_fresh, int pose_o
 // ---------------------------------------------------------------------------------------------
 // Loop statistics: fixed-bin histograms from which a reader derives percentiles.
 
-#define HS_RT_HIST_BINS 4000 ///< 1 us bins covering [0, 4 ms); one more bin counts the overflow
+#define HS_RT_HIST_BINS   4000 ///< 1 us bins covering [0, 4 ms); one more bin counts the overflow
+#define HS_RT_HIST_RECENT 32   ///< overflow samples kept, for the maximum of a window
 
 /// Histogram of durations: count[i] holds samples in [i, i+1) us, count[HS_RT_HIST_BINS] the
 /// samples >= 4 ms.
 typedef struct hs_rt_hist {
     uint64_t count[HS_RT_HIST_BINS + 1];
     int64_t max_ns; ///< largest sample, ns
+    /// The newest overflow samples of the rt loop's histograms: the k-th (k from 1, as
+    /// count[HS_RT_HIST_BINS] reached k) is recent_ns[k % HS_RT_HIST_RECENT] with recent_seq
+    /// k there; recent_seq 0 marks an unused (or torn, in a snapshot) slot.
+    int64_t recent_ns[HS_RT_HIST_RECENT];
+    uint64_t recent_seq[HS_RT_HIST_RECENT];
 } hs_rt_hist;
 
 /// Samples in h (sum of all bins).
@@ -208,6 +214,12 @@ uint64_t hs_rt_hist_total(const hs_rt_hist* h);
 /// q-quantile (q in [0, 1]) in us: the upper edge of the bin where it falls (an upper bound),
 /// max_ns for the overflow bin, 0 for an empty histogram.
 double hs_rt_hist_quantile_us(const hs_rt_hist* h, double q);
+/// Largest sample added between two snapshots of one cumulative rt histogram (older taken
+/// first), ns: the upper edge of the highest bin that grew, or, when overflow samples were
+/// added, the largest of them still in recent_ns (all of them unless more than
+/// HS_RT_HIST_RECENT came in between: then of the newest HS_RT_HIST_RECENT, a lower bound).
+/// 0 when nothing was added. Thread: any | Allocates: no
+int64_t hs_rt_hist_window_max_ns(const hs_rt_hist* newer, const hs_rt_hist* older);
 
 /// What the rt loop obtained from the OS (bitwise or).
 enum {

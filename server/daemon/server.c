@@ -179,10 +179,10 @@ static void hist_add(hs_rt_hist* h, int64_t ns) {
     if (ns > h->max_ns) h->max_ns = ns;
 }
 
-// d = a - b (a newer cumulative histogram, b an older one); max taken from a.
+// d = a - b (a newer cumulative histogram, b an older one), with the window's own maximum.
 static void hist_diff(const hs_rt_hist* a, const hs_rt_hist* b, hs_rt_hist* d) {
     for (int i = 0; i <= HS_RT_HIST_BINS; ++i) d->count[i] = a->count[i] - b->count[i];
-    d->max_ns = a->max_ns;
+    d->max_ns = hs_rt_hist_window_max_ns(a, b);
 }
 
 // Largest sample of a window histogram, us (the top non-empty bin's upper edge).

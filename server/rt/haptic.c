@@ -282,6 +282,22 @@ double hs_rt_hist_quantile_us(const hs_rt_hist* h, double q) {
     return (double)h->max_ns * 1e-3;
 }
 
+int64_t hs_rt_hist_window_max_ns(const hs_rt_hist* newer, const hs_rt_hist* older) {
+    const uint64_t lo = older->count[HS_RT_HIST_BINS], hi = newer->count[HS_RT_HIST_BINS];
+    if (hi > lo) {
+        int64_t m = 0;
+        for (int k = 0; k < HS_RT_HIST_RECENT; ++k) {
+            uint64_t seq = newer->recent_seq[k];
+            if (seq > lo && seq <= hi && newer->recent_ns[k] > m) m = newer->recent_ns[k];
+        }
+        // A torn or overwritten ring: at least the overflow's lower edge.
+        return m > 0 ? m : (int64_t)HS_RT_HIST_BINS * 1000;
+    }
+    for (int i = HS_RT_HIST_BINS - 1; i >= 0; --i)
+        if (newer->count[i] > older->count[i]) return (int64_t)(i + 1) * 1000;
+    return 0;
+}
+
 void hs_rt_stats_accumulate(hs_rt_stats* acc, const hs_rt_stats* s) {
     int empty = acc->ticks == 0 && acc->start_ns == 0;
     acc->obtained = empty ? s->obtained : (acc->obtained & s->obtained);

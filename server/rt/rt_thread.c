@@ -32,6 +32,8 @@
 typedef struct rt_hist {
     _Atomic uint64_t count[HS_RT_HIST_BINS + 1];
     _Atomic int64_t max_ns;
+    _Atomic int64_t recent_ns[HS_RT_HIST_RECENT]; // see hs_rt_hist
+    _Atomic uint64_t recent_seq[HS_RT_HIST_RECENT];
 } rt_hist;
 
 struct hs_rt_loop {
@@ -75,8 +77,15 @@ static void hist_add(rt_hist* h, int64_t ns) {
     int64_t bin = ns / 1000;
     if (bin > HS_RT_HIST_BINS) bin = HS_RT_HIST_BINS;
     _Atomic uint64_t* c = &h->count[bin];
-    atomic_store_explicit(c, atomic_load_explicit(c, memory_order_relaxed) + 1,
-                          memory_order_relaxed);
+    const uint64_t k = atomic_load_explicit(c, memory_order_relaxed) + 1;
+    if (bin == HS_RT_HIST_BINS) { // a reader that sees the new seq sees this ns
+        const int slot = (int)(k % HS_RT_HIST_RECENT);
+        atomic_store_explicit(&h->recent_seq[slot], 0, memory_order_relaxed);
+        atomic_thread_fence(memory_order_release);
+        atomic_store_explicit(&h->recent_ns[slot], ns, memory_order_relaxed);
+        atomic_store_explicit(&h->recent_seq[slot], k, memory_order_release);
+    }
+    atomic_store_explicit(c, k, memory_order_relaxed);
     if (ns > atomic_load_explicit(&h->max_ns, memory_order_relaxed))
         atomic_store_explicit(&h->max_ns, ns, memory_order_relaxed);
 }
@@ -85,6 +94,14 @@ static void hist_copy(const rt_hist* h, hs_rt_hist* out) {
     for (int i = 0; i <= HS_RT_HIST_BINS; ++i)
         out->count[i] = atomic_load_explicit(&h->count[i], memory_order_relaxed);
     out->max_ns = atomic_load_explicit(&h->max_ns, memory_order_relaxed);
+    for (int k = 0; k < HS_RT_HIST_RECENT; ++k) { // a slot rewritten meanwhile reads as unused
+        uint64_t s1 = atomic_load_explicit(&h->recent_seq[k], memory_order_acquire);
+        int64_t ns = atomic_load_explicit(&h->recent_ns[k], memory_order_relaxed);
+        atomic_thread_fence(memory_order_acquire);
+        uint64_t s2 = atomic_load_explicit(&h->recent_seq[k], memory_order_relaxed);
+        out->recent_ns[k] = ns;
+        out->recent_seq[k] = s1 == s2 ? s1 : 0;
+    }
 }
 
 static int64_t now_ns(void) {
