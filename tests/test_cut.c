@@ -251,8 +251,8 @@ static int test_straight_cut_drag(void) {
         hs_mesh_select_plane(m, 0, -1, 1e-6, fixed);
         hs_mesh_select_plane(m, 0, +1, 1e-6, far);
         for (int i = 0; i < n; i++) fixed[i] |= far[i];
-        hs_cut_def def = hs_cut_default_def(); // validated after every sweep
-        def.factor_policy = HS_CUT_FACTOR_NONE;  // as in the server
+        hs_cut_def def = hs_cut_default_def();  // validated after every sweep
+        def.factor_policy = HS_CUT_FACTOR_NONE; // as in the server
         hs_cut* c = NULL;
         hs_err e;
         ENSURE(hs_cut_create(m, fixed, &def, &c, &e) == HS_OK);
@@ -1653,10 +1653,11 @@ static int test_piece_check_lost_hold(void) {
 }
 
 HS_TEST_MAIN(HS_CASE(test_force_model), HS_CASE(test_skin_full_separation),
-             HS_CASE(test_skin_wound_angle), HS_CASE(test_straight_cut_drag), HS_CASE(test_consistency),
-             HS_CASE(test_aggregated_update), HS_CASE(test_window_background),
-             HS_CASE(test_window_thread), HS_CASE(test_window_pays), HS_CASE(test_rules),
-             HS_CASE(test_pins_hold), HS_CASE(test_factor_none), HS_CASE(test_piece_check),
+             HS_CASE(test_skin_wound_angle), HS_CASE(test_straight_cut_drag),
+             HS_CASE(test_consistency), HS_CASE(test_aggregated_update),
+             HS_CASE(test_window_background), HS_CASE(test_window_thread),
+             HS_CASE(test_window_pays), HS_CASE(test_rules), HS_CASE(test_pins_hold),
+             HS_CASE(test_factor_none), HS_CASE(test_piece_check),
              HS_CASE(test_deformed_and_bad_input), HS_CASE(test_dynamic_body),
              HS_CASE(test_body_follows_cut), HS_CASE(test_alloc_faults),
              HS_CASE(test_failed_sweep_recovers), HS_CASE(test_piece_check_lost_hold),

@@ -8,7 +8,8 @@
 //    plane projection falls inside the quad moves there; one outside it (ahead of the blade,
 //    beyond its ends) stays, so nothing is dragged along the cut; a surface vertex moves only
 //    within its tangent plane. Moves are mapped to rest space through the inverse of the
-//    vertex's mean deformation gradient, so u keeps the deformation. Cut tets are removed; no vertex is ever created (K keeps its size).
+//    vertex's mean deformation gradient, so u keeps the deformation. Cut tets are removed; no
+//    vertex is ever created (K keeps its size).
 //  - Rules. A removal that would leave a vertex without elements either pins the vertex (default:
 //    it leaves the system, the cut separates fully) or keeps the tet (the paper's rule). A move is
 //    halved until every remaining incident tet keeps a volume ratio and a shape quality, in rest
