@@ -216,6 +216,104 @@ static int test_skin_full_separation(void) {
     return 0;
 }
 
+/// A straight cut across the skin patch (as cut_across.probe: x = 1 mm, tool point at z = 2 mm,
+/// blade 3 mm below to 5 mm above it along the tool axis) in 0.5 mm sweeps, as the server makes
+/// them, with a vertical and a 17-degree tilted blade, validated after every sweep. A vertex of
+/// a cut tet belongs on the cut surface, so over the whole cut it need not move farther than
+/// its distance to the blade's plane (the tangent-plane rule only shortens a move); anything
+/// beyond that is the drag found in review: vertices ahead of the blade went to the quad's
+/// front edge, were dragged along the cut and moved again by later sweeps (11.3 mm tilted, 3.6
+/// mm vertical, against at most 3.45 mm to the plane). Allowed: 5 % of the vertex's shortest
+/// edge beyond it. The patch must come apart in two pieces.
+static int test_straight_cut_drag(void) {
+    int64_t bytes = hs_byte_count();
+    int fail = 0;
+    for (int tilt = 0; tilt < 2; tilt++) {
+        hs_mesh* m = load_shared("skin_patch_synthetic.msh");
+        ENSURE(m);
+        const int n = m->n_nodes;
+        double* xorig = hs_alloc(sizeof(double) * 3 * (size_t)n);
+        memcpy(xorig, m->x0, sizeof(double) * 3 * (size_t)n);
+        double* hmin = hs_alloc(sizeof(double) * (size_t)n);
+        for (int i = 0; i < n; i++) hmin[i] = INFINITY;
+        for (int t = 0; t < m->n_tets; t++)
+            for (int a = 0; a < 4; a++)
+                for (int b = a + 1; b < 4; b++) {
+                    int i = m->tets[4 * t + a], j = m->tets[4 * t + b];
+                    double d[3] = {xorig[3 * i] - xorig[3 * j], xorig[3 * i + 1] - xorig[3 * j + 1],
+                                   xorig[3 * i + 2] - xorig[3 * j + 2]};
+                    double l = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+                    hmin[i] = fmin(hmin[i], l);
+                    hmin[j] = fmin(hmin[j], l);
+                }
+        unsigned char* fixed = hs_calloc((size_t)n, 1);
+        unsigned char* far = hs_calloc((size_t)n, 1);
+        hs_mesh_select_plane(m, 0, -1, 1e-6, fixed);
+        hs_mesh_select_plane(m, 0, +1, 1e-6, far);
+        for (int i = 0; i < n; i++) fixed[i] |= far[i];
+        hs_cut_def def = hs_cut_default_def();  // validated after every sweep
+        def.factor_policy = HS_CUT_FACTOR_NONE; // as in the server
+        hs_cut* c = NULL;
+        hs_err e;
+        ENSURE(hs_cut_create(m, fixed, &def, &c, &e) == HS_OK);
+        // Tool axis (0.3, 0, 1) as cut_across.probe, or vertical; the blade's plane contains
+        // the axis and the travel (y), so its normal is axis x y.
+        double ax[3] = {tilt ? 0.3 : 0.0, 0, 1}, al = sqrt(ax[0] * ax[0] + 1.0);
+        ax[0] /= al, ax[2] /= al;
+        double nrm[3] = {-ax[2], 0, ax[0]};
+        const double tip[3] = {1 * MM, 0, 2 * MM};
+        int removed = 0;
+        for (double y = -0.05; y < 0.05 - 1e-9; y += 0.5 * MM) {
+            double p0[3], q0[3], p1[3], q1[3];
+            for (int d = 0; d < 3; d++) {
+                p0[d] = p1[d] = tip[d] - 3 * MM * ax[d];
+                q0[d] = q1[d] = tip[d] + 5 * MM * ax[d];
+            }
+            p0[1] += y, q0[1] += y, p1[1] += y + 0.5 * MM, q1[1] += y + 0.5 * MM;
+            hs_cut_result r;
+            ENSURE(hs_cut_sweep(c, p0, q0, p1, q1, NULL, &r, &e) == HS_OK);
+            removed += r.removed;
+        }
+        ENSURE(removed > 0);
+        int comps = hs_cut_components(c);
+        ENSURE(hs_cut_live_mesh(c)->n_nodes == n);
+        double worst_move = 0, worst_excess = 0, worst_in = 0;
+        int moved = 0, worst_v = -1;
+        for (int i = 0; i < n; i++) {
+            double d[3], dist = 0, dn = 0;
+            for (int k = 0; k < 3; k++) {
+                d[k] = m->x0[3 * i + k] - xorig[3 * i + k];
+                dist += (xorig[3 * i + k] - tip[k]) * nrm[k];
+                dn += d[k] * nrm[k];
+            }
+            double mv = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+            if (mv == 0) continue;
+            moved++;
+            worst_move = fmax(worst_move, mv);
+            worst_in = fmax(worst_in, sqrt(fmax(0, mv * mv - dn * dn))); // within the plane
+            if ((mv - fabs(dist)) / hmin[i] > worst_excess)
+                worst_excess = (mv - fabs(dist)) / hmin[i], worst_v = i;
+        }
+        printf("  %s blade: %d vertices moved, %d piece(s); largest move %.2f mm, within the "
+               "blade's plane %.2f mm; largest move beyond the plane distance %.2f of the "
+               "shortest edge (node %d)\n",
+               tilt ? "tilted" : "vertical", moved, comps, worst_move / MM, worst_in / MM,
+               worst_excess, worst_v);
+        ENSURE(moved > 20);
+        // Both blades reported first. The drag also left the tilted cut's sides joined.
+        fail |= !(worst_excess <= 0.05) || comps != 2;
+        hs_cut_destroy(&c);
+        hs_free(fixed);
+        hs_free(far);
+        hs_free(hmin);
+        hs_free(xorig);
+        hs_mesh_destroy(&m);
+    }
+    ENSURE(!fail);
+    ENSURE(hs_byte_count() == bytes);
+    return 0;
+}
+
 /// Partial-depth cut from the top of the patch, opened by a 5 mm lateral pull: the wound's faces
 /// separate in a V whose angle is measured from the gap at the top and one layer down.
 static int test_skin_wound_angle(void) {
@@ -1085,7 +1183,7 @@ static int body_follows_cut(int lowrank) {
     }
     ENSURE(hs_cholesky_is_supernodal(hs_body_factor(a)));
     if (lowrank) ENSURE(hs_cholesky_prepare_updates(hs_body_factor(a), 64) == HS_OK);
-    int removed = 0, changed = 0, updates = 0, part = 0;
+    int removed = 0, changed = 0, updates = 0, part = 0, followed = 0;
     double worst_f = 0, worst_u = 0, least_share = 1;
     for (int k = 0; k < 8; k++) { // a partial cut: 25 of the 30 mm width
         double y0 = -0.002 + 0.003 * k, y1 = y0 + 0.003;
@@ -1103,6 +1201,7 @@ static int body_follows_cut(int lowrank) {
         ENSURE(hs_body_change_elements(a, n_off, off, n_mv, mv, &lr) == HS_OK);
         ENSURE(hs_body_change_elements(d, n_off, off, n_mv, mv, &lrd) == HS_OK);
         ENSURE(lrd == 0);
+        followed += lr == 1; // a sweep that cut nothing counts too (an empty change)
         ENSURE(hs_cut_sync_fem(c, hs_body_fem(b)) == HS_OK);
         if (n_off + n_mv > 0) {
             ENSURE(lr == 1);
@@ -1141,7 +1240,8 @@ static int body_follows_cut(int lowrank) {
     printf("\n");
     ENSURE(removed > 0 && updates >= 5);
     ENSURE(lowrank ? !hs_cholesky_is_supernodal(hs_body_factor(a)) : part >= updates - 1);
-    ENSURE(hs_body_lowrank_updates(a) == updates && hs_body_lowrank_updates(d) == 0);
+    ENSURE(hs_body_lowrank_updates(a) == followed && followed >= updates);
+    ENSURE(hs_body_lowrank_updates(d) == 0);
     ENSURE(worst_u <= 1e-8);
     // Bad input changes nothing.
     int bad = m->n_tets;
@@ -1553,10 +1653,11 @@ static int test_piece_check_lost_hold(void) {
 }
 
 HS_TEST_MAIN(HS_CASE(test_force_model), HS_CASE(test_skin_full_separation),
-             HS_CASE(test_skin_wound_angle), HS_CASE(test_consistency),
-             HS_CASE(test_aggregated_update), HS_CASE(test_window_background),
-             HS_CASE(test_window_thread), HS_CASE(test_window_pays), HS_CASE(test_rules),
-             HS_CASE(test_pins_hold), HS_CASE(test_factor_none), HS_CASE(test_piece_check),
+             HS_CASE(test_skin_wound_angle), HS_CASE(test_straight_cut_drag),
+             HS_CASE(test_consistency), HS_CASE(test_aggregated_update),
+             HS_CASE(test_window_background), HS_CASE(test_window_thread),
+             HS_CASE(test_window_pays), HS_CASE(test_rules), HS_CASE(test_pins_hold),
+             HS_CASE(test_factor_none), HS_CASE(test_piece_check),
              HS_CASE(test_deformed_and_bad_input), HS_CASE(test_dynamic_body),
              HS_CASE(test_body_follows_cut), HS_CASE(test_alloc_faults),
              HS_CASE(test_failed_sweep_recovers), HS_CASE(test_piece_check_lost_hold),

@@ -4,11 +4,12 @@
 // DESIGN. Owned by the deformation thread; used by one thread at a time.
 //  - Geometry. The blade is a segment PQ; between two steps it sweeps the quad (P0,Q0,Q1,P1),
 //    split into the triangles (P0,Q0,Q1) and (P0,Q1,P1). A tet is cut when one of its edges (at
-//    the current positions x = x0 + u) crosses the quad. Each vertex of a removed tet moves to
-//    the closest point of the quad (the plane projection when it falls inside, else the nearest
-//    boundary segment); a surface vertex moves only within its tangent plane. Moves are mapped to
-//    rest space through the inverse of the vertex's mean deformation gradient, so u keeps the
-//    deformation. Cut tets are removed; no vertex is ever created (K keeps its size).
+//    the current positions x = x0 + u) crosses the quad. Each vertex of a removed tet whose
+//    plane projection falls inside the quad moves there; one outside it (ahead of the blade,
+//    beyond its ends) stays, so nothing is dragged along the cut; a surface vertex moves only
+//    within its tangent plane. Moves are mapped to rest space through the inverse of the
+//    vertex's mean deformation gradient, so u keeps the deformation. Cut tets are removed; no
+//    vertex is ever created (K keeps its size).
 //  - Rules. A removal that would leave a vertex without elements either pins the vertex (default:
 //    it leaves the system, the cut separates fully) or keeps the tet (the paper's rule). A move is
 //    halved until every remaining incident tet keeps a volume ratio and a shape quality, in rest

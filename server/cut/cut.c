@@ -955,6 +955,33 @@ static int move_ok(const hs_cut* c, int v, const double* X, const double* xv) {
     return 1;
 }
 
+/// Unit normal of triangle (a, b, c); zero when it is degenerate.
+static void unit_normal(const double* a, const double* b, const double* c, double* nv) {
+    double e1[3], e2[3];
+    v3_sub(b, a, e1);
+    v3_sub(c, a, e2);
+    v3_cross(e1, e2, nv);
+    double l = sqrt(v3_dot(nv, nv));
+    for (int d = 0; d < 3; d++) nv[d] = l > 0 ? nv[d] / l : 0.0;
+}
+
+/// Squared shortest edge at v of its active tets, current positions, m^2.
+static double shortest_edge2(const hs_cut* c, int v) {
+    double h = INFINITY;
+    for (int p = c->nt_start[v]; p < c->nt_start[v + 1]; p++) {
+        int e = c->nt[p];
+        if (!c->active[e]) continue;
+        const int* t = c->mesh->tets + 4 * e;
+        for (int a = 0; a < 4; a++) {
+            if (t[a] == v) continue;
+            double d[3];
+            v3_sub(c->x + 3 * t[a], c->x + 3 * v, d);
+            h = fmin(h, v3_dot(d, d));
+        }
+    }
+    return h;
+}
+
 /// Rest-space image of a current-space move: dX = Fbar^-1 dx, Fbar the volume-weighted mean
 /// deformation gradient of v's remaining tets; dX = dx when there is no usable Fbar.
 static void to_rest(const hs_cut* c, int v, const double* dx, double* dX) {
@@ -1769,19 +1796,36 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
     // Surface normals before this sweep's removals (tets marked 2 are still active here).
     if (c->def.tangent_surface)
         for (int k = 0; k < n_cand; k++) surface_normal(c, c->moved[k], c->nrm + 3 * c->moved[k]);
+    double tn[2][3]; // unit normals of the quad's triangles (zero when degenerate)
+    unit_normal(p0, q0, q1, tn[0]);
+    unit_normal(p0, q1, p1, tn[1]);
     int n_moved = 0;
     for (int k = 0; k < n_cand; k++) {
         int v = c->moved[k];
         c->nmark[v] = 0;
         double* xv = c->x + 3 * v;
-        double best[3], cand[3], dx[3];
-        closest_on_tri(xv, p0, q0, q1, best);
-        closest_on_tri(xv, p0, q1, p1, cand);
-        double db[3], dc[3];
-        v3_sub(best, xv, db);
-        v3_sub(cand, xv, dc);
-        if (v3_dot(dc, dc) < v3_dot(db, db)) memcpy(db, dc, sizeof db);
-        memcpy(dx, db, sizeof dx);
+        // Onto the quad's plane where the vertex's projection falls inside one of its
+        // triangles (the nearer if both). A projection outside the quad (a vertex ahead of
+        // the blade, or beyond its ends) has its closest point on the quad's edge, and going
+        // there dragged the vertex along the cut, stretching tets that later sweeps cut and
+        // moved again. Such a vertex stays (its tet still goes); the blade moves it when it
+        // gets there. Not onto the plane either: its uncut tets would then have no edge
+        // across the blade and would stay, joining the two sides.
+        const double h2 = shortest_edge2(c, v);
+        double dx[3], best = INFINITY;
+        for (int tri = 0; tri < 2; tri++) {
+            const double* nk = tn[tri];
+            if (!(v3_dot(nk, nk) > 0)) continue;
+            double cp[3], d[3];
+            closest_on_tri(xv, p0, tri ? q1 : q0, tri ? p1 : q1, cp);
+            v3_sub(cp, xv, d);
+            double along = v3_dot(d, nk), side[3];
+            for (int q = 0; q < 3; q++) side[q] = d[q] - along * nk[q];
+            if (v3_dot(side, side) > 1e-12 * h2 || !(v3_dot(d, d) < best)) continue;
+            best = v3_dot(d, d);
+            memcpy(dx, d, sizeof dx);
+        }
+        if (best == INFINITY) continue;
         if (c->def.tangent_surface) {
             double* nv = c->nrm + 3 * v;
             double nn = v3_dot(nv, nv);
