@@ -510,5 +510,93 @@ static int cap_continuous(void) {
     return 0;
 }
 
+// The cap (above) exactly over the mesh's lines. A closest point on a region boundary is the
+// limit of two distinct points (a face point and its neighbour's edge point, an edge point and
+// its end vertex); counted once there, it freed cap slots that the points on either side fill,
+// and the force spiked for one step. On the 12 x 12-cell slab (5 mm cells, diagonals along
+// x = y) each drag crosses one line exactly at its middle step: a vertical mesh line
+// (x = x6: over an edge), a horizontal one (y = y6) and the perpendicular to the diagonals
+// through (x6, y6) (x + y = x6 + y6, where an edge point leaves its vertex). Every step's
+// force change must stay within what the local stiffness allows plus the taper's own slope
+// (which that stiffness leaves out): a point's tapered penetration moves by at most
+// 1 + 2 (r - rho) / taper per unit of travel, so |dF| <= (1 + 2 depth / taper) |K|_F |dp|.
+static int cap_edges(void) {
+    hs_mesh* mesh = NULL;
+    hs_err err = {0};
+    ENSURE(hs_mesh_create_box(0.06, 0.06, 0.015, 12, 12, 1, &mesh, &err) == HS_OK);
+    unsigned char* fixed = calloc((size_t)mesh->n_nodes, 1);
+    hs_mesh_select_plane(mesh, 2, -1, 1e-9, fixed);
+    hs_fem_def fd = soft_fem();
+    hs_compliance* comp = NULL;
+    ENSURE(hs_compliance_create(mesh, &fd, fixed, 96, &comp, &err) == HS_OK);
+    // The node at (6, 6) and the one diagonal from it: the lines are exact in floating point
+    // (x6 == y6, and the diagonal's steps are equal, so the tie is exactly zero).
+    const double x6 = mesh->x0[3 * (6 + 13 * 6)], y6 = mesh->x0[3 * (6 + 13 * 6) + 1];
+    const double* v7 = mesh->x0 + 3 * (7 + 13 * 7);
+    ENSURE(x6 == y6 && v7[0] - x6 == v7[1] - y6);
+    const double u = 0x1p-9; // 1.95 mm along the perpendicular: off the vertex, exact sums
+    ENSURE((x6 + u) - x6 == -((y6 - u) - y6));
+    // (r mm, depth mm, step dx um, dy um): the drags of the review's scratch program.
+    const double cfg[6][4] = {{20, 6, 1, 0.3},  {20, 4, 1, 1},   {15, 5, 2, 0.5},
+                              {25, 8, 1, -0.7}, {10, 4, 1, 0.2}, {20, 9, -1, 0.4}};
+    const double at[3][2] = {{x6, y6 - 2.2e-3}, {x6 + 1.3e-3, y6}, {x6 + u, y6 - u}};
+    const char* line[3] = {"x", "y", "x+y"};
+    static hs_contact_snapshot snap;
+    const int half = 300;
+    double worst_ratio = 0, worst_jump = 0;
+    int past = 0, total = 0, spikes = 0;
+    int64_t calls0 = hs_alloc_calls();
+    for (int c = 0; c < 6; ++c) {
+        const double r = 1e-3 * cfg[c][0], depth = 1e-3 * cfg[c][1];
+        const double taper = fmin(HS_CONTACT_TAPER * r, r); // the band is at least 2 r wide here
+        const double allow = 1 + 2 * depth / taper;
+        for (int l = 0; l < 3; ++l) {
+            const double mid[3] = {at[l][0], at[l][1], 0.015 + r - depth};
+            make_snapshot(comp, mesh, mid, r, 0, &snap);
+            hs_contact cur, prev;
+            double ratio = 0, jump = 0;
+            int at_k = 0;
+            for (int k = -half; k <= half; ++k) {
+                // k = 0 is exactly on the line (k * step is then exactly 0)
+                double q[3] = {mid[0] + k * 1e-6 * cfg[c][2], mid[1] + k * 1e-6 * cfg[c][3],
+                               mid[2]};
+                hs_contact_solve_from(&snap, q, k > -half ? &prev : NULL, &cur);
+                ENSURE(!cur.failed);
+                past += cur.penetrating > HS_MAX_CONTACT;
+                ++total;
+                if (k > -half) {
+                    double df[3], dp[3];
+                    for (int a = 0; a < 3; ++a) {
+                        df[a] = cur.force_n[a] - prev.force_n[a];
+                        dp[a] = cur.tool_m[a] - prev.tool_m[a];
+                    }
+                    double kdp = fmax(knorm_of(&cur), knorm_of(&prev)) * vnorm(dp, 3);
+                    double rt = vnorm(df, 3) / (allow * kdp + 1e-6);
+                    if (rt > ratio) ratio = rt, at_k = k;
+                    if (rt > 1) ++spikes;
+                    jump = fmax(jump, vnorm(df, 3));
+                }
+                prev = cur;
+            }
+            printf("  r %2.0f mm, %.0f mm deep, step (%+.1f, %+.1f) um across the %-3s line: "
+                   "largest step change %.2e N, %.2f of the allowed (at step %+d)\n",
+                   cfg[c][0], cfg[c][1], cfg[c][2], cfg[c][3], line[l], jump, ratio, at_k);
+            worst_ratio = fmax(worst_ratio, ratio);
+            worst_jump = fmax(worst_jump, jump);
+        }
+    }
+    ENSURE(hs_alloc_calls() == calls0);
+    printf("  %d positions, %d past the cap; %d steps over the bound; largest step change %.2e N, "
+           "worst |dF| / allowed %.2f\n",
+           total, past, spikes, worst_jump, worst_ratio);
+    ENSURE(past > total / 2); // the cap is what is tested
+    ENSURE(worst_ratio <= 1.0);
+    hs_compliance_destroy(&comp);
+    hs_mesh_destroy(&mesh);
+    free(fixed);
+    return 0;
+}
+
 HS_TEST_MAIN(HS_CASE(coarse_drag), HS_CASE(one_point_per_feature), HS_CASE(stiffness_fd),
-             HS_CASE(liver_press_drag), HS_CASE(caps), HS_CASE(cap_continuous))
+             HS_CASE(liver_press_drag), HS_CASE(caps), HS_CASE(cap_continuous),
+             HS_CASE(cap_edges))
