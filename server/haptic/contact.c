@@ -30,7 +30,6 @@
 
 #include <float.h>
 #include <math.h>
-#include <stdint.h>
 #include <string.h>
 
 #define M            HS_MAX_CONTACT
