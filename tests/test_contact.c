@@ -554,18 +554,19 @@ static int cap_continuous(void) {
     return 0;
 }
 
-// Drags the probe from start by step for steps steps within one snapshot taken at snap_at;
-// returns in *ratio the largest step force change over (1 + 2 depth / taper) |K|_F |dp| (the
-// local stiffness plus the taper's slope it leaves out: a tapered point's penetration moves by
-// at most 1 + 2 (r - rho) / taper per unit of travel), in *jump the largest change, N.
+// Drags the probe from start + k0 step to start + k1 step within one snapshot taken at snap_at.
+// st->ratio: the largest step force change over (1 + 2 depth / taper) |K|_F |dp| (the local
+// stiffness plus the taper's slope it leaves out: a tapered point's penetration moves by at
+// most 1 + 2 (r - rho) / taper per unit of travel), at step st->at; st->over: steps above 1;
+// st->jump: the largest change, N; st->past: positions past the cap.
 typedef struct drag_stats {
     double ratio, jump;
     int at, over, past, total;
 } drag_stats;
 
 static int cap_drag(hs_compliance* comp, const hs_mesh* mesh, double r, double depth,
-                    const double snap_at[2], const double start[2], const double step[2],
-                    int k0, int k1, drag_stats* st) {
+                    const double snap_at[2], const double start[2], const double step[2], int k0,
+                    int k1, drag_stats* st) {
     static hs_contact_snapshot snap;
     const double z = 0.015 + r - depth;
     const double mid[3] = {snap_at[0], snap_at[1], z};
@@ -682,5 +683,4 @@ static int cap_edges(void) {
 }
 
 HS_TEST_MAIN(HS_CASE(coarse_drag), HS_CASE(one_point_per_feature), HS_CASE(stiffness_fd),
-             HS_CASE(liver_press_drag), HS_CASE(caps), HS_CASE(cap_continuous),
-             HS_CASE(cap_edges))
+             HS_CASE(liver_press_drag), HS_CASE(caps), HS_CASE(cap_continuous), HS_CASE(cap_edges))

@@ -4,16 +4,16 @@
 // The probe is a smooth sphere, so the contact is frictionless. The tissue is its surface, not
 // its nodes: every listed triangle contributes one contact point, its closest point x_i to the
 // centre p, x_i = sum_a w_ia q_a over its vertices' contact-free positions q_a (barycentric
-// weights; the point lies on a vertex, an edge or the face interior, and a point shared by
-// several triangles counts once). Each point is pushed along n_i: away from the centre,
-// n_i = (x_i - p) / rho_i, rho_i = |x_i - p| (the smallest displacement that resolves the
-// penetration), and for a face-interior point the inward face normal with the signed distance
-// rho_i = N . (p - q_a) (the same while the centre is in front of the face, and still defined
-// when it reaches or passes the contact-free surface). A force lambda_i n_i at point i puts
-// w_ia lambda_i n_i on vertex a; vertex a moves by u_a = sum_b C_ab f_b, the point by
-// sum_a w_ia u_a, so to first order its distance from the centre along n_i becomes
-// rho_i + (W lambda)_i with W_ij = sum_a sum_b w_ia w_jb n_i^T C_ab n_j. Contact is the linear
-// complementarity problem
+// weights; the point lies on a vertex, an edge or the face interior; a point shared by several
+// triangles is solved once but takes a cap slot per triangle). Each point is pushed along n_i:
+// away from the centre, n_i = (x_i - p) / rho_i, rho_i = |x_i - p| (the smallest displacement
+// that resolves the penetration), and for a face-interior point the inward face normal with
+// the signed distance rho_i = N . (p - q_a) (the same while the centre is in front of the
+// face, and still defined when it reaches or passes the contact-free surface). A force
+// lambda_i n_i at point i puts w_ia lambda_i n_i on vertex a; vertex a moves by
+// u_a = sum_b C_ab f_b, the point by sum_a w_ia u_a, so to first order its distance from the
+// centre along n_i becomes rho_i + (W lambda)_i with W_ij = sum_a sum_b w_ia w_jb n_i^T C_ab n_j.
+// Contact is the linear complementarity problem
 //     w = (W + eps I) lambda - delta >= 0,  lambda >= 0,  w . lambda = 0,  delta_i = r - rho_i,
 // every point ends on or outside the sphere, only pushed, and pushed only where it touches.
 // eps (HS_CONTACT_SOFTNESS x the nodes' mean diagonal compliance, a constant of the snapshot)
