@@ -318,7 +318,7 @@ static void solve(const hs_contact_snapshot* s, const double tool_m[3], int warm
     // coincide changes abruptly (an edge point leaving its vertex while another triangle keeps
     // that vertex, or two region boundaries a rounding apart), each triangle's point and depth
     // move continuously, so counting triangles keeps the taper below continuous (merging them
-    // in the count freed slots: one-step force jumps of up to 0.66 N on the 12 x 12 slab).
+    // in the count freed slots: one-step force jumps of up to 0.64 N on the 12 x 12 slab).
     const double band = fmin(near, r + 1.5 * (r - cand[order[0]].rho));
     feat set[M];
     int m = 0, nv = 0, vtx[M]; // local vertices: candidate indices
@@ -329,7 +329,7 @@ static void solve(const hs_contact_snapshot* s, const double tool_m[3], int warm
         feat* f = &cand[order[sel]];
         int same = 0;
         for (int j = 0; j < m && !same; ++j) same = same_point(&set[j], f);
-        if (same) { // solved once, counted twice
+        if (same) { // solved once, counted once per triangle
             ++slots;
             continue;
         }
