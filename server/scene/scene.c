@@ -15,7 +15,7 @@
 
 #include "hapsim_channels.h" // defaults and hapsim_url_problem (header only)
 
-#define MAX_SCENE_BYTES    (1 << 20)
+#define MAX_SCENE_BYTES (1 << 20)
 
 void hs_scene_default(hs_scene* s) {
     memset(s, 0, sizeof *s);
