@@ -302,10 +302,10 @@ hs_status hs_client_create(const hs_client_config* cfg, hs_client** out, hs_err*
         murl = mesh_url;
     }
     uint32_t sb = cfg->subscribe;
-    const char* why = hapsim_url_problem(hurl);
-    if (why || (why = hapsim_url_problem(murl))) {
-        s = fail(err, HS_ERR_INVALID, "hs_client_create: LCM URL '%s' %s",
-                 hapsim_url_problem(hurl) ? hurl : murl, why);
+    const char* bad_url = hapsim_url_problem(hurl) ? hurl : murl;
+    const char* why = hapsim_url_problem(bad_url);
+    if (why) {
+        s = fail(err, HS_ERR_INVALID, "hs_client_create: LCM URL '%s' %s", bad_url, why);
         goto bad;
     }
     if (hurl[0]) {

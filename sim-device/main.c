@@ -382,10 +382,10 @@ static int parse_options(int argc, char** argv, options* o, hs_stylus_def* def) 
         fprintf(stderr, "hapsim-stylus: --script FILE is required (see --help)\n");
         return 2;
     }
-    const char* why = hapsim_url_problem(o->haptic_url);
-    if (why || (o->status_url && (why = hapsim_url_problem(o->status_url)))) {
-        fprintf(stderr, "hapsim-stylus: LCM URL '%s' %s\n",
-                hapsim_url_problem(o->haptic_url) ? o->haptic_url : o->status_url, why);
+    const char* bad_url = hapsim_url_problem(o->haptic_url) ? o->haptic_url : o->status_url;
+    const char* why = hapsim_url_problem(bad_url);
+    if (why) {
+        fprintf(stderr, "hapsim-stylus: LCM URL '%s' %s\n", bad_url, why);
         return 2;
     }
     if (o->offline_k > 0 ? live_only != NULL : offline_only != NULL) {
