@@ -660,19 +660,17 @@ static void note_mesh_size(hs_server* s, const char* what, int64_t bytes) {
 // The topology message of the current visual mesh (utime and seq left 0).
 static void fill_topology(const hs_server* s, hapsim_mesh_topology_t* out) {
     const world* w = &s->w;
-    hapsim_mesh_topology_t t;
-    memset(&t, 0, sizeof t);
-    t.topology_version = s->topo_version;
-    t.n_nodes = w->mesh->n_nodes;
-    t.n_vis = w->n_vis;
-    t.vis_nodes = w->vis_nodes;
-    t.n_rest = 3 * w->n_vis;
-    t.rest_position = w->rest;
-    t.n_tri_idx = w->n_tri_idx;
-    t.triangles = w->tri;
-    t.n_tet_idx = 0;
-    t.tets = NULL;
-    *out = t;
+    memset(out, 0, sizeof *out);
+    out->topology_version = s->topo_version;
+    out->n_nodes = w->mesh->n_nodes;
+    out->n_vis = w->n_vis;
+    out->vis_nodes = w->vis_nodes;
+    out->n_rest = 3 * w->n_vis;
+    out->rest_position = w->rest;
+    out->n_tri_idx = w->n_tri_idx;
+    out->triangles = w->tri;
+    out->n_tet_idx = 0;
+    out->tets = NULL;
 }
 
 static void publish_topology(hs_server* s) {
