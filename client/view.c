@@ -357,7 +357,17 @@ int main(int argc, char** argv) {
         rc = 3;
     if (v.status) fputc('\n', stderr);
     if (rc == 0 && !m->ready) {
-        fprintf(stderr, "hapsim-view: no mesh received (is hapsim-server running on this bus?)\n");
+        hs_sync_stats s;
+        hs_client_mesh_stats(c, &s);
+        if (s.received[HS_SYNC_STATE] > 0 && s.topologies == 0)
+            fprintf(stderr,
+                    "hapsim-view: %lld keyframes but no topology received: a topology larger than "
+                    "this socket's receive buffer is lost (see the server's note on message sizes; "
+                    "raise net.core.rmem_max and the mesh URL's recv_buf_size, docs/protocol.md)\n",
+                    (long long)s.received[HS_SYNC_STATE]);
+        else
+            fprintf(stderr,
+                    "hapsim-view: no mesh received (is hapsim-server running on this bus?)\n");
         rc = 2;
     }
     if (!v.quiet) {

@@ -5,7 +5,9 @@
 // SET_PARAM of "bad" is refused;
 // LOAD_SCENE is answered PENDING, then OK 300 ms later. Random bytes go out on the mesh and force
 // channels too. Links the server's mesh reader (a test tool, not the client).
-//   test_client_fakesrv MESH SECONDS
+// With a third argument no-topology it never publishes the topology (as when a receiver's
+// socket buffer is too small for it).
+//   test_client_fakesrv MESH SECONDS [no-topology]
 #define _POSIX_C_SOURCE 200809L
 #include <lcm/lcm.h>
 #include <math.h>
@@ -118,10 +120,11 @@ static void on_pose(const lcm_recv_buf_t* rb, const char* ch, const hapsim_tool_
 }
 
 int main(int argc, char** argv) {
-    if (argc != 3) {
-        fprintf(stderr, "usage: test_client_fakesrv MESH SECONDS\n");
+    if (argc < 3 || argc > 4 || (argc == 4 && strcmp(argv[3], "no-topology"))) {
+        fprintf(stderr, "usage: test_client_fakesrv MESH SECONDS [no-topology]\n");
         return 2;
     }
+    const int send_topology = argc == 3;
     hs_mesh* mesh = NULL;
     hs_err err = {0};
     if (hs_mesh_load(argv[1], &mesh, &err) < 0) {
@@ -183,7 +186,7 @@ int main(int argc, char** argv) {
             for (int k = 0; k < 3; k++) pos[3 * i + k] = (float)(rest[3 * i + k] - w * nrm[k]);
         }
         step++;
-        if (now >= next_top) {
+        if (send_topology && now >= next_top) {
             top.utime = now;
             top.seq = seq_t++;
             hapsim_mesh_topology_t_publish(lcm, "HAPSIM_MESH_TOPOLOGY", &top);
