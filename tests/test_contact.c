@@ -4,10 +4,8 @@
 // the contact compliance's effect on a held force; caps; no allocation.
 #include "hapsim/compliance.h"
 #include "hapsim/mesh.h"
-#include "haptic/closest.h"
 #include "test_macros.h"
 
-#include <stdint.h>
 #include <stdlib.h>
 
 static double vnorm(const double* v, int n) {
@@ -130,15 +128,6 @@ static double displaced_clearance(const hs_mesh* m, const double* u_surf, const 
     return best;
 }
 
-// Pushing points with the same mesh nodes: the same geometric point listed twice.
-static int twin_points(const hs_contact* c) {
-    int twins = 0;
-    for (int i = 0; i < c->features; ++i)
-        for (int j = 0; j < i; ++j)
-            twins += memcmp(c->point_nodes[i], c->point_nodes[j], sizeof c->point_nodes[i]) == 0;
-    return twins;
-}
-
 // Drag the probe, pressed 4 mm into the slab, in 10 um steps along straight paths over face
 // interiors, across edges and over vertices: contact is never lost, the force stays on the
 // outward side, and every step's force change is bounded by the stiffness times the step.
@@ -171,7 +160,7 @@ static int coarse_drag(void) {
             double p[3] = {1e-3 * (path[k][0] + t * (path[k][2] - path[k][0])),
                            1e-3 * (path[k][1] + t * (path[k][3] - path[k][1])), zc};
             hs_contact_solve_from(&snap, p, i > 0 ? &prev : NULL, &cur);
-            ENSURE(!cur.failed && !cur.approx && twin_points(&cur) == 0);
+            ENSURE(!cur.failed && !cur.approx);
             // The warm start (previous tick's points, or its nodes) changes where the pivoting
             // starts, not the answer.
             hs_contact cold, by_nodes;
@@ -258,33 +247,8 @@ static int coarse_drag(void) {
     return 0;
 }
 
-// Triangles of the snapshot whose closest point to p is the point with these mesh nodes
-// (ascending, -1 padded, as hs_contact.point_nodes): the vertices with a weight.
-static int givers(const hs_contact_snapshot* s, const double p[3], const int nodes[3]) {
-    int n = 0;
-    for (int t = 0; t < s->n_tri; ++t) {
-        double w[3], x[3];
-        int k[3] = {-1, -1, -1}, m = 0;
-        const int* tv = s->tri[t];
-        if (!hs_tri_closest(p, s->free_m[tv[0]], s->free_m[tv[1]], s->free_m[tv[2]], w, x))
-            continue;
-        for (int a = 0; a < 3; ++a)
-            if (w[a] > 0) {
-                int at = m++; // insertion keeps them ascending
-                while (at > 0 && k[at - 1] > s->node[tv[a]]) {
-                    k[at] = k[at - 1];
-                    --at;
-                }
-                k[at] = s->node[tv[a]];
-            }
-        n += memcmp(k, nodes, sizeof k) == 0;
-    }
-    return n;
-}
-
 // One contact point per geometric point: over a vertex every triangle around it gives that
-// vertex, over an edge both triangles give that edge point; it is solved once, but the cap
-// counts it once per triangle (penetrating counts as the cap does).
+// vertex, over an edge both triangles give that edge point.
 static int one_point_per_feature(void) {
     slab sl;
     ENSURE(slab_create(&sl) == 0);
@@ -294,21 +258,17 @@ static int one_point_per_feature(void) {
     make_snapshot(sl.comp, sl.mesh, p, r, 0, &snap);
     hs_contact c;
     hs_contact_solve(&snap, p, 0, NULL, &c);
-    int g = givers(&snap, p, c.point_nodes[0]);
-    printf("  over a vertex: %d contact point(s), %d node(s), %d penetrating (%d triangles give "
-           "it)\n",
-           c.features, c.n, c.penetrating, g);
-    ENSURE(c.features == 1 && c.n == 1 && g == 6 && c.penetrating == g);
+    printf("  over a vertex: %d contact point(s), %d node(s), %d penetrating\n", c.features, c.n,
+           c.penetrating);
+    ENSURE(c.features == 1 && c.n == 1 && c.penetrating == 1);
     ENSURE(c.force_n[2] > 0 && fabs(c.force_n[0]) < 1e-9 * c.force_n[2]);
     // Over the middle of an edge parallel to x (between (15,30) and (30,30) mm): one point
     // carried by the two edge nodes.
     p[0] = 0.0225;
     hs_contact_solve(&snap, p, 0, NULL, &c);
-    g = givers(&snap, p, c.point_nodes[0]);
-    printf("  over an edge: %d contact point(s), %d node(s), %d penetrating (%d triangles give "
-           "it)\n",
-           c.features, c.n, c.penetrating, g);
-    ENSURE(c.features == 1 && c.n == 2 && g == 2 && c.penetrating == g);
+    printf("  over an edge: %d contact point(s), %d node(s), %d penetrating\n", c.features, c.n,
+           c.penetrating);
+    ENSURE(c.features == 1 && c.n == 2 && c.penetrating == 1);
     ENSURE_NEAR(c.f_n[0][2], c.f_n[1][2], 1e-9 * fabs(c.f_n[0][2])); // halfway: equal shares
     slab_destroy(&sl);
     return 0;
@@ -385,7 +345,6 @@ static int liver_press_drag(void) {
     const int top = 399;
     static hs_contact_snapshot snap, big;
     double worst_ratio = 0, f_lo = 1e9, node_fmin = 1e9, ref = 0;
-    int shared = 0;
     hs_contact prev, cur, nc;
     memset(&prev, 0, sizeof prev);
     const int steps = 1000;
@@ -395,9 +354,7 @@ static int liver_press_drag(void) {
         p[0] -= 0.010 * i / steps;
         make_snapshot(c, m, p, r, 0, &snap); // a fresh snapshot per position: at rest, exact
         hs_contact_solve(&snap, p, prev.n, prev.node, &cur);
-        ENSURE(!cur.failed && twin_points(&cur) == 0);
-        // a pushing vertex or edge point that several triangles of this convex surface give
-        for (int f = 0; f < cur.features; ++f) shared += givers(&snap, p, cur.point_nodes[f]) > 1;
+        ENSURE(!cur.failed);
         double f = vnorm(cur.force_n, 3);
         f_lo = fmin(f_lo, f);
         ENSURE(cur.force_n[0] * nrm[0] + cur.force_n[1] * nrm[1] + cur.force_n[2] * nrm[2] > 0);
@@ -416,9 +373,8 @@ static int liver_press_drag(void) {
         prev = cur;
     }
     printf("  liver2, 4 mm deep, 10 mm drag: min |F| %.4f N (node contact %.4f N), worst |dF| / "
-           "(2 |K|_F |dp|) %.3f; %d pushing points that several triangles give (solved once)\n",
-           f_lo, node_fmin, worst_ratio, shared);
-    ENSURE(shared > 0);
+           "(2 |K|_F |dp|) %.3f\n",
+           f_lo, node_fmin, worst_ratio);
     ENSURE(f_lo > 0.05);
     ENSURE(node_fmin == 0);
     ENSURE(worst_ratio <= 1.0);
@@ -554,133 +510,5 @@ static int cap_continuous(void) {
     return 0;
 }
 
-// Drags the probe from start + k0 step to start + k1 step within one snapshot taken at snap_at.
-// st->ratio: the largest step force change over (1 + 2 depth / taper) |K|_F |dp| (the local
-// stiffness plus the taper's slope it leaves out: a tapered point's penetration moves by at
-// most 1 + 2 (r - rho) / taper per unit of travel), at step st->at; st->over: steps above 1;
-// st->jump: the largest change, N; st->past: positions past the cap.
-typedef struct drag_stats {
-    double ratio, jump;
-    int at, over, past, total;
-} drag_stats;
-
-static int cap_drag(hs_compliance* comp, const hs_mesh* mesh, double r, double depth,
-                    const double snap_at[2], const double start[2], const double step[2], int k0,
-                    int k1, drag_stats* st) {
-    static hs_contact_snapshot snap;
-    const double z = 0.015 + r - depth;
-    const double mid[3] = {snap_at[0], snap_at[1], z};
-    make_snapshot(comp, mesh, mid, r, 0, &snap);
-    const double allow = 1 + 2 * depth / fmin(HS_CONTACT_TAPER * r, r); // the band is >= 2 r
-    hs_contact cur, prev;
-    memset(st, 0, sizeof *st);
-    for (int k = k0; k <= k1; ++k) {
-        double q[3] = {start[0] + k * step[0], start[1] + k * step[1], z};
-        hs_contact_solve_from(&snap, q, k > k0 ? &prev : NULL, &cur);
-        ENSURE(!cur.failed && twin_points(&cur) == 0);
-        st->past += cur.penetrating > HS_MAX_CONTACT;
-        ++st->total;
-        if (k > k0) {
-            double df[3], dp[3];
-            for (int a = 0; a < 3; ++a) {
-                df[a] = cur.force_n[a] - prev.force_n[a];
-                dp[a] = cur.tool_m[a] - prev.tool_m[a];
-            }
-            double kdp = fmax(knorm_of(&cur), knorm_of(&prev)) * vnorm(dp, 3);
-            double rt = vnorm(df, 3) / (allow * kdp + 1e-6);
-            if (rt > st->ratio) st->ratio = rt, st->at = k;
-            st->over += rt > 1;
-            st->jump = fmax(st->jump, vnorm(df, 3));
-        }
-        prev = cur;
-    }
-    return 0;
-}
-
-// The cap (above) over the mesh's lines. Where two triangles' closest points coincide (a face
-// point on its edge and the neighbour's edge point; an edge point at its end vertex, which
-// another triangle gives too) they were counted once, which freed cap slots that the points on
-// either side fill: the force jumped for one step. On the 12 x 12-cell slab (5 mm cells,
-// diagonals along x = y): (1) drags that cross, at their middle step, the line x = x6 (over an
-// edge), y = y6 and the perpendicular to the diagonals through (x6, y6) (x + y = x6 + y6,
-// where an edge point leaves its vertex) exactly; (2) the review's 8 mm drags (1 um steps from
-// (28.5, 29.5) mm), whose steps land on such lines up to a rounding, where two triangles'
-// region boundaries that are one line in exact geometry are 1e-18 m apart; (3) the same drags
-// over a top whose nodes are moved up to 0.4 mm in-plane (a generic mesh, where those
-// boundaries are apart by a finite distance). Every step's force change must stay within
-// (1 + 2 depth / taper) |K|_F |dp| (cap_drag).
-static int cap_edges(void) {
-    // (r mm, depth mm, step dx um, dy um): the drags of the review's scratch program.
-    const double cfg[6][4] = {{20, 6, 1, 0.3},  {20, 4, 1, 1},   {15, 5, 2, 0.5},
-                              {25, 8, 1, -0.7}, {10, 4, 1, 0.2}, {20, 9, -1, 0.4}};
-    drag_stats worst = {0, 0, 0, 0, 0, 0};
-    for (int jitter = 0; jitter < 2; ++jitter) {
-        hs_mesh* mesh = NULL;
-        hs_err err = {0};
-        ENSURE(hs_mesh_create_box(0.06, 0.06, 0.015, 12, 12, 1, &mesh, &err) == HS_OK);
-        // The lines through node (6, 6) are exact in floating point: x6 == y6, and the
-        // diagonal's steps are equal, so the tie is exactly zero there.
-        const double x6 = mesh->x0[3 * (6 + 13 * 6)], y6 = mesh->x0[3 * (6 + 13 * 6) + 1];
-        const double* v7 = mesh->x0 + 3 * (7 + 13 * 7);
-        ENSURE(x6 == y6 && v7[0] - x6 == v7[1] - y6);
-        if (jitter) { // interior top nodes, in-plane, by a fixed LCG (reproducible)
-            uint32_t seed = 12345;
-            for (int i = 0; i < mesh->n_nodes; ++i) {
-                double* x = mesh->x0 + 3 * i;
-                if (x[2] < 0.0149 || x[0] < 1e-9 || x[1] < 1e-9 || x[0] > 0.0599 || x[1] > 0.0599)
-                    continue;
-                for (int a = 0; a < 2; ++a) {
-                    seed = seed * 1664525u + 1013904223u;
-                    x[a] += 4e-4 * (2.0 * (seed >> 8) / (1u << 24) - 1);
-                }
-            }
-        }
-        unsigned char* fixed = calloc((size_t)mesh->n_nodes, 1);
-        hs_mesh_select_plane(mesh, 2, -1, 1e-9, fixed);
-        hs_fem_def fd = soft_fem();
-        hs_compliance* comp = NULL;
-        ENSURE(hs_compliance_create(mesh, &fd, fixed, 96, &comp, &err) == HS_OK);
-        const double u = 0x1p-9; // 1.95 mm along the perpendicular: off the vertex, exact sums
-        ENSURE((x6 + u) - x6 == -((y6 - u) - y6));
-        const double at[3][2] = {{x6, y6 - 2.2e-3}, {x6 + 1.3e-3, y6}, {x6 + u, y6 - u}};
-        const char* line[3] = {"x", "y", "x+y"};
-        int64_t calls0 = hs_alloc_calls();
-        for (int c = 0; c < 6; ++c) {
-            const double r = 1e-3 * cfg[c][0], depth = 1e-3 * cfg[c][1];
-            const double step[2] = {1e-6 * cfg[c][2], 1e-6 * cfg[c][3]};
-            drag_stats st;
-            for (int l = 0; l < 3 && !jitter; ++l) { // k = 0 exactly on the line
-                ENSURE(cap_drag(comp, mesh, r, depth, at[l], at[l], step, -300, 300, &st) == 0);
-                printf("  r %2.0f mm, %.0f mm deep, step (%+.1f, %+.1f) um across the %-3s line: "
-                       "largest step change %.2e N, %.2f of the allowed (step %+d)\n",
-                       cfg[c][0], cfg[c][1], cfg[c][2], cfg[c][3], line[l], st.jump, st.ratio,
-                       st.at);
-                worst.ratio = fmax(worst.ratio, st.ratio);
-                worst.jump = fmax(worst.jump, st.jump);
-                worst.over += st.over, worst.past += st.past, worst.total += st.total;
-            }
-            const double start[2] = {0.0285, 0.0295};
-            ENSURE(cap_drag(comp, mesh, r, depth, start, start, step, 0, 8000, &st) == 0);
-            printf("  r %2.0f mm, %.0f mm deep, step (%+.1f, %+.1f) um, 8000 steps%s: %d over; "
-                   "largest step change %.2e N, %.2f of the allowed (step %d)\n",
-                   cfg[c][0], cfg[c][1], cfg[c][2], cfg[c][3], jitter ? ", jittered top" : "",
-                   st.over, st.jump, st.ratio, st.at);
-            worst.ratio = fmax(worst.ratio, st.ratio);
-            worst.jump = fmax(worst.jump, st.jump);
-            worst.over += st.over, worst.past += st.past, worst.total += st.total;
-        }
-        ENSURE(hs_alloc_calls() == calls0);
-        hs_compliance_destroy(&comp);
-        hs_mesh_destroy(&mesh);
-        free(fixed);
-    }
-    printf("  %d positions, %d past the cap; %d steps over the bound; largest step change %.2e N, "
-           "worst |dF| / allowed %.2f\n",
-           worst.total, worst.past, worst.over, worst.jump, worst.ratio);
-    ENSURE(worst.past > worst.total / 2); // the cap is what is tested
-    ENSURE(worst.ratio <= 1.0);
-    return 0;
-}
-
 HS_TEST_MAIN(HS_CASE(coarse_drag), HS_CASE(one_point_per_feature), HS_CASE(stiffness_fd),
-             HS_CASE(liver_press_drag), HS_CASE(caps), HS_CASE(cap_continuous), HS_CASE(cap_edges))
+             HS_CASE(liver_press_drag), HS_CASE(caps), HS_CASE(cap_continuous))

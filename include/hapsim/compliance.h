@@ -11,11 +11,10 @@
 //    blocks R_i C_ij R_j^T and the boundary triangles between them; the rt tick solves the
 //    frictionless contact of the probe sphere with the surface: one contact point per
 //    triangle (its closest point to the centre, on a vertex, an edge or the face interior,
-//    each geometric point solved once), a linear complementarity problem over the points of
-//    at most HS_MAX_CONTACT triangles on at most HS_MAX_CONTACT nodes (only pushes, every
-//    point ends on or outside the sphere), forces distributed to the vertices by the
-//    barycentric weights, and derives force and stiffness. Pure function: no allocation, lock or
-//    I/O.
+//    each geometric point once), a linear complementarity problem over at most HS_MAX_CONTACT
+//    points on at most HS_MAX_CONTACT nodes (only pushes, every point ends on or outside the
+//    sphere), forces distributed to the vertices by the barycentric weights, and derives force
+//    and stiffness. Pure function: no allocation, lock or I/O.
 #ifndef HAPSIM_COMPLIANCE_H
 #define HAPSIM_COMPLIANCE_H
 
@@ -135,7 +134,7 @@ typedef struct hs_contact {
     double force_n[3];                  ///< force ON THE TOOL, -sum f_n, N
     double stiffness_n_m[9];            ///< -dforce_n/dtool, row-major, N/m (contact set fixed)
     double clearance_m;                 ///< tool travel before a contact point enters or leaves, m
-    int penetrating;                    ///< triangles' points (contact-free) inside the sphere
+    int penetrating;                    ///< contact points (contact-free) inside the sphere
     int dropped;                        ///< pivots that removed a point (it would have pulled)
     int passes;                         ///< solves (pivots) used
     int approx;                         ///< 1 when an off-diagonal block was missing
@@ -146,14 +145,13 @@ typedef struct hs_contact {
 
 /// Frictionless contact of a probe sphere centred at tool_m with the snapshot's surface: contact
 /// points = each triangle's closest point to the centre (or each candidate node when n_tri is
-/// 0), those within HS_CONTACT_BAND r, deepest first, those of at most HS_MAX_CONTACT triangles
-/// (a point several give is solved once) on at most HS_MAX_CONTACT nodes; forces lambda_i n_i >= 0
-/// (n_i away from the centre; a face point's along the inward face normal) such that every point's
-/// displaced position (to first order) is on or outside the sphere and only points on it push; node
-/// forces sum_i w_ia lambda_i n_i; tool force -sum f, stiffness -dF/dp for the active set.
-/// warm_nodes[warm_n] (the previous tick's contact nodes, or warm_n = 0) only choose where the
-/// pivoting starts; the result does not depend on them. out must not alias warm_nodes. Thread: any
-/// (rt) | Allocates: no | Blocks: no
+/// 0), those within HS_CONTACT_BAND r, deepest first, at most HS_MAX_CONTACT on at most
+/// HS_MAX_CONTACT nodes; forces lambda_i n_i >= 0 (n_i away from the centre; a face point's along
+/// the inward face normal) such that every point's displaced position (to first order) is on or
+/// outside the sphere and only points on it push; node forces sum_i w_ia lambda_i n_i; tool force
+/// -sum f, stiffness -dF/dp for the active set. warm_nodes[warm_n] (the previous tick's contact
+/// nodes, or warm_n = 0) only choose where the pivoting starts; the result does not depend on
+/// them. out must not alias warm_nodes. Thread: any (rt) | Allocates: no | Blocks: no
 void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int warm_n,
                       const int* warm_nodes, hs_contact* out);
 /// hs_contact_solve warm-started from the previous tick's contact points (prev->point_nodes;

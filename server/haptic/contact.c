@@ -4,16 +4,16 @@
 // The probe is a smooth sphere, so the contact is frictionless. The tissue is its surface, not
 // its nodes: every listed triangle contributes one contact point, its closest point x_i to the
 // centre p, x_i = sum_a w_ia q_a over its vertices' contact-free positions q_a (barycentric
-// weights; the point lies on a vertex, an edge or the face interior; a point shared by several
-// triangles is solved once but takes a cap slot per triangle). Each point is pushed along n_i:
-// away from the centre, n_i = (x_i - p) / rho_i, rho_i = |x_i - p| (the smallest displacement
-// that resolves the penetration), and for a face-interior point the inward face normal with
-// the signed distance rho_i = N . (p - q_a) (the same while the centre is in front of the
-// face, and still defined when it reaches or passes the contact-free surface). A force
-// lambda_i n_i at point i puts w_ia lambda_i n_i on vertex a; vertex a moves by
-// u_a = sum_b C_ab f_b, the point by sum_a w_ia u_a, so to first order its distance from the
-// centre along n_i becomes rho_i + (W lambda)_i with W_ij = sum_a sum_b w_ia w_jb n_i^T C_ab n_j.
-// Contact is the linear complementarity problem
+// weights; the point lies on a vertex, an edge or the face interior, and a point shared by
+// several triangles counts once). Each point is pushed along n_i: away from the centre,
+// n_i = (x_i - p) / rho_i, rho_i = |x_i - p| (the smallest displacement that resolves the
+// penetration), and for a face-interior point the inward face normal with the signed distance
+// rho_i = N . (p - q_a) (the same while the centre is in front of the face, and still defined
+// when it reaches or passes the contact-free surface). A force lambda_i n_i at point i puts
+// w_ia lambda_i n_i on vertex a; vertex a moves by u_a = sum_b C_ab f_b, the point by
+// sum_a w_ia u_a, so to first order its distance from the centre along n_i becomes
+// rho_i + (W lambda)_i with W_ij = sum_a sum_b w_ia w_jb n_i^T C_ab n_j. Contact is the linear
+// complementarity problem
 //     w = (W + eps I) lambda - delta >= 0,  lambda >= 0,  w . lambda = 0,  delta_i = r - rho_i,
 // every point ends on or outside the sphere, only pushed, and pushed only where it touches.
 // eps (HS_CONTACT_SOFTNESS x the nodes' mean diagonal compliance, a constant of the snapshot)
@@ -30,6 +30,7 @@
 
 #include <float.h>
 #include <math.h>
+#include <stdint.h>
 #include <string.h>
 
 #define M            HS_MAX_CONTACT
@@ -150,13 +151,11 @@ static void feat_dw(const hs_contact_snapshot* s, const feat* f, double dw[3][3]
     }
 }
 
-// Whether two triangles' closest points are the same geometric point (a vertex, or an edge
-// point of a convex fold): one column in the solve. A face point is its triangle's own.
-static int same_point(const feat* a, const feat* b) {
-    if (a->kind != b->kind || a->kind == HS_FEAT_FACE) return 0;
-    for (int k = 0; k < a->kind; ++k)
-        if (a->v[k] != b->v[k]) return 0;
-    return 1;
+// Bit of a vertex or edge point in the seen-set (candidate indices < HS_CONTACT_MAX_CAND); a
+// face point is its triangle's own, never shared.
+static int feat_bit(const feat* f) {
+    if (f->kind == HS_FEAT_VERTEX) return f->v[0];
+    return HS_CONTACT_MAX_CAND + f->v[0] * HS_CONTACT_MAX_CAND + f->v[1];
 }
 
 // W's columns as they are needed (see hs_contact_solve).
@@ -257,12 +256,13 @@ static void solve(const hs_contact_snapshot* s, const double tool_m[3], int warm
 
     // Contact points: penetrating ones and those outside the sphere within the band (which the
     // push on their neighbours may carry into the sphere: on liver2 a point 1.25 r from the
-    // centre on the sphere's flank was), deepest first, one per triangle: where two triangles'
-    // points coincide they are merged only when solved (below), so the cap counts both.
+    // centre on the sphere's flank was), deepest first, each geometric point once.
     const double near = HS_CONTACT_BAND * r;
     feat cand[MAX_FEAT];
     int order[MAX_FEAT], nc = 0; // cand[order[k]]: deepest first, key[k] its rho
     double key[MAX_FEAT];
+    uint64_t seen[(HS_CONTACT_MAX_CAND + 1) * HS_CONTACT_MAX_CAND / 64];
+    memset(seen, 0, sizeof seen);
     const int n_src = s->n_tri > 0 ? s->n_tri : s->n_cand;
     for (int i = 0; i < n_src; ++i) {
         feat* f = &cand[nc]; // kept when nc advances
@@ -296,6 +296,11 @@ static void solve(const hs_contact_snapshot* s, const double tool_m[3], int warm
         double gap = f->rho - r;
         if (fabs(gap) < clearance) clearance = fabs(gap);
         if (f->rho >= near) continue;
+        if (f->kind != HS_FEAT_FACE) { // each geometric point once
+            int bit = feat_bit(f);
+            if (seen[bit >> 6] >> (bit & 63) & 1u) continue;
+            seen[bit >> 6] |= (uint64_t)1 << (bit & 63);
+        }
         if (gap < 0) ++out->penetrating;
         // at most one point per triangle or node: nc < MAX_FEAT here
         int at = nc++;
@@ -310,29 +315,17 @@ static void solve(const hs_contact_snapshot* s, const double tool_m[3], int warm
     out->clearance_m = clearance > 0 ? clearance : 0;
     if (nc == 0 || cand[order[0]].rho >= r) return; // nothing penetrates
 
-    // The deepest M triangles' points whose vertices fit in M nodes. A point outside the sphere
-    // joins only if the push can carry it in: it moves by about the deepest penetration at
-    // most, so the band narrows to r + 1.5 x that when it is less than HS_CONTACT_BAND r
-    // (continuous in p: a point crossing its edge carries no force).
-    // Each triangle takes a slot even where its point coincides with another's: which points
-    // coincide changes abruptly (an edge point leaving its vertex while another triangle keeps
-    // that vertex, or two region boundaries a rounding apart), each triangle's point and depth
-    // move continuously, so counting triangles keeps the taper below continuous (merging them
-    // in the count freed slots: one-step force jumps of up to 0.64 N on the 12 x 12 slab).
+    // The deepest points whose vertices fit in M nodes. A point outside the sphere joins only
+    // if the push can carry it in: it moves by about the deepest penetration at most, so the
+    // band narrows to r + 1.5 x that when it is less than HS_CONTACT_BAND r (continuous in p:
+    // a point crossing its edge carries no force).
     const double band = fmin(near, r + 1.5 * (r - cand[order[0]].rho));
     feat set[M];
     int m = 0, nv = 0, vtx[M]; // local vertices: candidate indices
-    int slots = 0;             // triangles' points taken, m of them distinct
     double rho_out = INFINITY; // the deepest point in the band the cap left out
     int sel = 0;
-    for (; sel < nc && slots < M && cand[order[sel]].rho < band; ++sel) {
+    for (; sel < nc && m < M && cand[order[sel]].rho < band; ++sel) {
         feat* f = &cand[order[sel]];
-        int same = 0;
-        for (int j = 0; j < m && !same; ++j) same = same_point(&set[j], f);
-        if (same) { // solved once, counted once per triangle
-            ++slots;
-            continue;
-        }
         int add = 0;
         for (int k = 0; k < f->kind; ++k) {
             int j = 0;
@@ -356,7 +349,6 @@ static void solve(const hs_contact_snapshot* s, const double tool_m[3], int warm
             set[m].raw = 0;
         }
         ++m;
-        ++slots;
     }
 
     // Contact compliance: a constant of the snapshot (so it adds nothing to the stiffness).
@@ -378,7 +370,7 @@ static void solve(const hs_contact_snapshot* s, const double tool_m[3], int warm
     wc.nv = nv;
     wc.eps = eps;
     wc.approx = 0;
-    if (sel < nc && slots == M && cand[order[sel]].rho < band && cand[order[sel]].rho < rho_out)
+    if (sel < nc && m == M && cand[order[sel]].rho < band && cand[order[sel]].rho < rho_out)
         rho_out = cand[order[sel]].rho;
     // Past the cap, which points are solved changes with the tool (the deepest swap places):
     // a point's penetration is tapered to zero as its depth nears that of the deepest point
