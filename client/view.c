@@ -359,12 +359,18 @@ int main(int argc, char** argv) {
     if (rc == 0 && !m->ready) {
         hs_sync_stats s;
         hs_client_mesh_stats(c, &s);
-        if (s.received[HS_SYNC_STATE] > 0 && s.topologies == 0)
+        const long long keys = (long long)s.received[HS_SYNC_STATE];
+        if (keys > 0 && s.received[HS_SYNC_TOPOLOGY] == 0)
             fprintf(stderr,
                     "hapsim-view: %lld keyframes but no topology received: a topology larger than "
                     "this socket's receive buffer is lost (see the server's note on message sizes; "
                     "raise net.core.rmem_max and the mesh URL's recv_buf_size, docs/protocol.md)\n",
-                    (long long)s.received[HS_SYNC_STATE]);
+                    keys);
+        else if (keys > 0 && s.topologies == 0) // the sync refused what came (counted as bad)
+            fprintf(stderr,
+                    "hapsim-view: %lld keyframes but no topology accepted: %lld topology messages "
+                    "came, none usable (malformed, or no memory for them)\n",
+                    keys, (long long)s.received[HS_SYNC_TOPOLOGY]);
         else
             fprintf(stderr,
                     "hapsim-view: no mesh received (is hapsim-server running on this bus?)\n");

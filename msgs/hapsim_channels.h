@@ -63,8 +63,10 @@ static inline const char* hapsim_url_problem(const char* url) {
         return "names a group but no port (write udpm://GROUP:PORT: without a port LCM binds a "
                "random one and no other program hears the bus)";
     char* end;
-    if (strtol(colon + 1, &end, 0) == 0 && end != colon + 1)
-        return "has port 0 (LCM binds a random port: no other program hears the bus)";
+    long port = strtol(colon + 1, &end, 0);
+    if (end != colon + 1 && (port <= 0 || port > 65535)) // LCM keeps it in an int: 2^32 is 0
+        return "has port 0 or one outside 1..65535 (LCM would bind a random port: no other "
+               "program hears the bus)";
     return NULL;
 }
 

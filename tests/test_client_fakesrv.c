@@ -6,8 +6,8 @@
 // LOAD_SCENE is answered PENDING, then OK 300 ms later. Random bytes go out on the mesh and force
 // channels too. Links the server's mesh reader (a test tool, not the client).
 // With a third argument no-topology it never publishes the topology (as when a receiver's
-// socket buffer is too small for it).
-//   test_client_fakesrv MESH SECONDS [no-topology]
+// socket buffer is too small for it) but still its garbage; no-topology-at-all sends neither.
+//   test_client_fakesrv MESH SECONDS [no-topology | no-topology-at-all]
 #define _POSIX_C_SOURCE 200809L
 #include <lcm/lcm.h>
 #include <math.h>
@@ -120,11 +120,14 @@ static void on_pose(const lcm_recv_buf_t* rb, const char* ch, const hapsim_tool_
 }
 
 int main(int argc, char** argv) {
-    if (argc < 3 || argc > 4 || (argc == 4 && strcmp(argv[3], "no-topology"))) {
-        fprintf(stderr, "usage: test_client_fakesrv MESH SECONDS [no-topology]\n");
+    if (argc < 3 || argc > 4 ||
+        (argc == 4 && strcmp(argv[3], "no-topology") && strcmp(argv[3], "no-topology-at-all"))) {
+        fprintf(stderr,
+                "usage: test_client_fakesrv MESH SECONDS [no-topology | no-topology-at-all]\n");
         return 2;
     }
     const int send_topology = argc == 3;
+    const int junk_topology = argc == 3 || !strcmp(argv[3], "no-topology");
     hs_mesh* mesh = NULL;
     hs_err err = {0};
     if (hs_mesh_load(argv[1], &mesh, &err) < 0) {
@@ -228,8 +231,8 @@ int main(int argc, char** argv) {
         // Garbage on the mesh and haptic channels: clients must count and drop it.
         uint8_t junk[64];
         for (int k = 0; k < 64; k++) junk[k] = (uint8_t)(rand() & 0xff);
-        lcm_publish(lcm, step % 2 ? "HAPSIM_MESH_DELTA" : "HAPSIM_MESH_TOPOLOGY", junk,
-                    (unsigned)(8 + rand() % 56));
+        lcm_publish(lcm, step % 2 || !junk_topology ? "HAPSIM_MESH_DELTA" : "HAPSIM_MESH_TOPOLOGY",
+                    junk, (unsigned)(8 + rand() % 56));
         lcm_publish(hs.lcm, "HAPSIM_TOOL_FORCE", junk, (unsigned)(rand() % 64));
         if (cs.load_id && now >= cs.load_done_us) {
             hapsim_command_ack_t a;

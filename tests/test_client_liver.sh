@@ -56,17 +56,24 @@ rc=$?
 srv=
 cat "$tmp/srv.log"
 [ $rc = 0 ] || fail "fake server: a command was executed twice or not at all (rc $rc)"
-# Keyframes without their topology (lost to a small socket buffer): the view says so rather
-# than "no mesh received".
-"$bin/test_client_fakesrv" "$src/scenes/liver/liver2.msh" 3 no-topology >"$tmp/srv2.log" 2>&1 &
-srv=$!
-"$bin/hapsim-view" --out "$tmp/view2" --duration 2 --quiet >"$tmp/view2.log" 2>&1
-rc=$?
-kill $srv 2>/dev/null
-wait $srv 2>/dev/null
-srv=
-[ $rc = 2 ] && grep -q "keyframes but no topology received" "$tmp/view2.log" ||
-    fail "hapsim-view without a topology: rc $rc, $(cat "$tmp/view2.log")"
+# Keyframes without their topology: none came (lost to a small socket buffer), or only the
+# stand-in's garbage on its channel; the view says which rather than "no mesh received".
+for mode in no-topology-at-all no-topology; do
+    "$bin/test_client_fakesrv" "$src/scenes/liver/liver2.msh" 3 $mode >"$tmp/srv2.log" 2>&1 &
+    srv=$!
+    "$bin/hapsim-view" --out "$tmp/view2-$mode" --duration 2 --quiet >"$tmp/view2.log" 2>&1
+    rc=$?
+    kill $srv 2>/dev/null
+    wait $srv 2>/dev/null
+    srv=
+    if [ $mode = no-topology ]; then
+        want="keyframes but no topology accepted: [1-9][0-9]* topology messages came, none usable"
+    else
+        want="keyframes but no topology received: a topology larger than"
+    fi
+    [ $rc = 2 ] && grep -q "$want" "$tmp/view2.log" ||
+        fail "hapsim-view, stand-in $mode: rc $rc, $(cat "$tmp/view2.log")"
+done
 "$bin/test_client_press" "$tmp/view" -0.0602,0.0633,-0.0146 0.060,0.040,-0.010 || fail "pictures"
 "$src/tests/test_client_vtk.sh" none "$tmp/view" || fail "VTK series"
 echo OK

@@ -796,8 +796,9 @@ static int size_notes(void) {
     char note[400];
     ENSURE(hs_net_size_note("mesh topology", 100000, 212992, 4194304, note, sizeof note) == 0);
     ENSURE(note[0] == '\0');
+    ENSURE(hs_net_size_note("mesh topology", 150000, 212992, 4194304, note, sizeof note) == 1);
     ENSURE(hs_net_size_note("mesh topology", 400000, 212992, 4194304, note, sizeof note) == 1);
-    ENSURE(strstr(note, "400000 bytes") && strstr(note, "rmem_default (212992)") &&
+    ENSURE(strstr(note, "400000 bytes") && strstr(note, "rmem_default (212992,") &&
            strstr(note, "recv_buf_size=800000"));
     ENSURE(hs_net_size_note("mesh keyframe", 5000000, 212992, 4194304, note, sizeof note) == 2);
     ENSURE(strstr(note, "mesh keyframe message") && strstr(note, "rmem_max=10000000") &&

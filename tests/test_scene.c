@@ -191,7 +191,9 @@ static int malformed_names_file_line_key(void) {
     ENSURE(expect_fail(HEAD "\"lcm\": {\"mesh_url\": \"udpm://239.255.76.67:\"}}", HS_ERR_PARSE,
                        "'lcm.mesh_url': names a group but no port", NULL) == 0);
     ENSURE(expect_fail(HEAD "\"lcm\": {\"mesh_url\": \"udpm://239.255.76.67:0x0?ttl=0\"}}",
-                       HS_ERR_PARSE, "'lcm.mesh_url': has port 0", NULL) == 0);
+                       HS_ERR_PARSE, "'lcm.mesh_url': has port 0 or one outside", NULL) == 0);
+    ENSURE(expect_fail(HEAD "\"lcm\": {\"mesh_url\": \"udpm://239.255.76.67:4294967296\"}}",
+                       HS_ERR_PARSE, "outside 1..65535", NULL) == 0); // an int in LCM: 0
     ENSURE(expect_fail(HEAD "\"rates\": {\"haptic_hz\": 100, \"sim_hz\": 200}}", HS_ERR_PARSE,
                        "'rates.sim_hz'", NULL) == 0);
     ENSURE(expect_fail(HEAD "\"rates\": {\"haptic_hz\": 1e400}}", HS_ERR_PARSE, "'rates.haptic_hz'",

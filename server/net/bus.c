@@ -99,7 +99,7 @@ int hs_net_size_note(const char* what, int64_t bytes, int64_t rmem_default, int6
     int level = 0;
     if (rmem_max > 0 && bytes > rmem_max)
         level = 2;
-    else if (rmem_default > 0 && bytes > rmem_default)
+    else if (rmem_default > 0 && want > rmem_default)
         level = 1;
     if (cap) out[0] = '\0';
     if (level == 2)
@@ -111,9 +111,10 @@ int hs_net_size_note(const char* what, int64_t bytes, int64_t rmem_default, int6
     else if (level == 1)
         snprintf(
             out, cap,
-            "a %s message is %lld bytes, more than net.core.rmem_default (%lld): only "
-            "receivers whose URL asks for recv_buf_size=%lld or more get it (the hapsim client "
-            "library asks for 4 MB; docs/protocol.md)",
+            "a %s message is %lld bytes, more than half of net.core.rmem_default (%lld, a "
+            "socket's buffer when it asks for none): only receivers whose URL asks for "
+            "recv_buf_size=%lld or more surely get it (the hapsim client library asks for 4 MB; "
+            "docs/protocol.md)",
             what, (long long)bytes, (long long)rmem_default, want);
     return level;
 }

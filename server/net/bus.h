@@ -43,8 +43,10 @@ int64_t hs_net_rmem_default(void);
 
 /// Whether a message of `bytes` reaches a receiver on this host, given the kernel's
 /// rmem_default and rmem_max (-1: unknown). LCM 1.3.1 loses a fragmented message that overflows
-/// the receiving socket's buffer. 0: a socket that asks for nothing gets it (out is ""); 1: only
-/// a receiver whose URL asks for recv_buf_size gets it; 2: none does until rmem_max is raised.
+/// the receiving socket's buffer, and the kernel charges a datagram's overhead too, so a message
+/// needs about twice its bytes. 0: a socket that asks for nothing gets it (out is ""); 1: only a
+/// receiver whose URL asks for recv_buf_size surely gets it; 2: none does until rmem_max is
+/// raised.
 /// For 1 and 2 out[cap] says so and what to do; `what` names the message.
 /// Thread: any | Allocates: no
 int hs_net_size_note(const char* what, int64_t bytes, int64_t rmem_default, int64_t rmem_max,

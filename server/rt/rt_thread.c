@@ -85,14 +85,18 @@ static void hist_add(rt_hist* h, int64_t ns) {
         atomic_store_explicit(&h->recent_ns[slot], ns, memory_order_relaxed);
         atomic_store_explicit(&h->recent_seq[slot], k, memory_order_release);
     }
-    atomic_store_explicit(c, k, memory_order_relaxed);
+    // Release for the overflow bin: a reader that sees count k sees sample k in the ring.
+    atomic_store_explicit(c, k,
+                          bin == HS_RT_HIST_BINS ? memory_order_release : memory_order_relaxed);
     if (ns > atomic_load_explicit(&h->max_ns, memory_order_relaxed))
         atomic_store_explicit(&h->max_ns, ns, memory_order_relaxed);
 }
 
 static void hist_copy(const rt_hist* h, hs_rt_hist* out) {
-    for (int i = 0; i <= HS_RT_HIST_BINS; ++i)
+    for (int i = 0; i < HS_RT_HIST_BINS; ++i)
         out->count[i] = atomic_load_explicit(&h->count[i], memory_order_relaxed);
+    out->count[HS_RT_HIST_BINS] = // acquire: then the ring holds every sample counted
+        atomic_load_explicit(&h->count[HS_RT_HIST_BINS], memory_order_acquire);
     out->max_ns = atomic_load_explicit(&h->max_ns, memory_order_relaxed);
     for (int k = 0; k < HS_RT_HIST_RECENT; ++k) { // a slot rewritten meanwhile reads as unused
         uint64_t s1 = atomic_load_explicit(&h->recent_seq[k], memory_order_acquire);
