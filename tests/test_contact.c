@@ -510,17 +510,6 @@ static int cap_continuous(void) {
     return 0;
 }
 
-static double tet_vol6(const double* x, const int* t) {
-    double a[3], b[3], c[3];
-    for (int k = 0; k < 3; k++) {
-        a[k] = x[3 * t[1] + k] - x[3 * t[0] + k];
-        b[k] = x[3 * t[2] + k] - x[3 * t[0] + k];
-        c[k] = x[3 * t[3] + k] - x[3 * t[0] + k];
-    }
-    return a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0]) +
-           a[2] * (b[0] * c[1] - b[1] * c[0]);
-}
-
 // A surface vertex shared by more triangles than the cap has points: a disc of N = 24 wedges
 // round a centre vertex, 15 mm thick, its bottom held, a 10 mm sphere 3 mm deep over the centre
 // and up to 1.2 mm beside it. The force stays that of the tissue (1.7-1.8 N). A cap counting one
@@ -545,7 +534,7 @@ static int fan_vertex(void) {
                         {1 + i, 1 + j, 1 + N, 2 + N + i},
                         {1 + j, 1 + N, 2 + N + i, 2 + N + j}};
         for (int k = 0; k < 3; k++) {
-            if (tet_vol6(x, t3[k]) < 0) {
+            if (hs_tet_volume(x, t3[k]) < 0) {
                 int sw = t3[k][0];
                 t3[k][0] = t3[k][1];
                 t3[k][1] = sw;
