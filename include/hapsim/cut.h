@@ -145,7 +145,10 @@ hs_cut_def hs_cut_default_def(void);
 
 /// What one sweep did.
 typedef struct hs_cut_result {
-    int cut_tets;  ///< tets with an edge crossing the sweep
+    int cut_tets; ///< tets with an edge crossing the sweep, or removed at a hinge
+    /// Vertices on the blade's plane where it passed that still had tets on both sides (the
+    /// sides stayed joined there); the smaller side's tets at each were removed.
+    int hinges;
     int removed;   ///< tets removed (cut ones + dropped fragments)
     int kept;      ///< cut tets kept by ORPHAN_KEEP_TET
     int moved;     ///< vertices moved

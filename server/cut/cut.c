@@ -56,6 +56,7 @@ struct hs_cut {
     int n_removed;
     int* moved; // [n] moved by the last sweep
     int n_moved;
+    int* onb;     // [n] this sweep: vertices near the blade's plane, to check for hinges
     int* changed; // [ne] active tets whose rest data changed in the last sweep
     int n_changed;
     int* pins; // [n] nodes pinned by the last sweep
@@ -194,7 +195,7 @@ void hs_cut_destroy(hs_cut** pc) {
                  c->sol,    c->dk,       c->edof,     c->track,  c->cblk,     c->dset, c->dpos,
                  c->zbuf,   c->zd,       c->zt,       c->kdd,    c->wrk,      c->piv,  c->win,
                  c->bg_win, c->accp_k,   c->accm_k,   c->accp_d, c->accm_d,   c->accs, c->bg_pos,
-                 c->bg_set, c->bg_k,     c->bg_d,     c->tstamp, c->gopen};
+                 c->bg_set, c->bg_k,     c->bg_d,     c->tstamp, c->gopen,    c->onb};
     if (c->has_lock) pthread_mutex_destroy(&c->bg_lock);
     for (size_t i = 0; i < sizeof p / sizeof p[0]; i++) hs_free(p[i]);
     hs_free(c);
@@ -630,6 +631,7 @@ hs_status hs_cut_create(hs_mesh* mesh, const unsigned char* fixed, const hs_cut_
     c->cut_list = hs_alloc(sizeof(int) * (size_t)ne);
     c->removed = hs_alloc(sizeof(int) * (size_t)ne);
     c->moved = hs_alloc(sizeof(int) * (size_t)n);
+    c->onb = hs_alloc(sizeof(int) * (size_t)n);
     c->changed = hs_alloc(sizeof(int) * (size_t)ne);
     c->pins = hs_alloc(sizeof(int) * (size_t)n);
     c->edges = hs_alloc(sizeof(int) * 12 * (size_t)ne);
@@ -644,7 +646,7 @@ hs_status hs_cut_create(hs_mesh* mesh, const unsigned char* fixed, const hs_cut_
     if (!c->tstamp || !c->gopen || !c->fixed || !c->pinned || !c->active || !c->count ||
         !c->nt_start || !c->nt || !c->vol_orig || !c->q_orig || !c->dof || !c->live_tet || !c->x ||
         !c->x0_old || !c->nrm || !c->tmark || !c->nmark || !c->cut_list || !c->removed ||
-        !c->moved || !c->changed || !c->pins || !c->edges || !c->parent || !c->fnbr ||
+        !c->moved || !c->onb || !c->changed || !c->pins || !c->edges || !c->parent || !c->fnbr ||
         !c->tparent || !c->fa || !c->fb || !c->anch || grow_elems(c, 256) != HS_OK) {
         hs_cut_destroy(&c);
         return nomem(err);
@@ -1678,6 +1680,43 @@ static int edge_crosses(const double* xa, const double* xb, const double* const 
     return seg_tri(xa, xb, S[0], S[1], S[2], tol) || seg_tri(xa, xb, S[0], S[2], S[3], tol);
 }
 
+/// The quad triangle (0 or 1) whose plane v lies on, within tol, with its projection inside the
+/// triangle; -1 if none.
+static int on_blade(const double* xv, const double* const S[4], double tn[2][3], double tol) {
+    for (int tri = 0; tri < 2; tri++) {
+        const double* nk = tn[tri];
+        if (!(v3_dot(nk, nk) > 0)) continue;
+        double cp[3], d[3];
+        closest_on_tri(xv, S[0], S[tri + 1], S[tri + 2], cp);
+        v3_sub(cp, xv, d);
+        double along = v3_dot(d, nk);
+        if (fabs(along) > tol) continue;
+        double side[3];
+        for (int q = 0; q < 3; q++) side[q] = d[q] - along * nk[q];
+        if (v3_dot(side, side) <= tol * tol) return tri;
+    }
+    return -1;
+}
+
+/// Which side of the plane (point o, unit normal nk) tet e lies on at its vertex v, which is on
+/// the plane: 0 (+), 1 (-), -1 for both or neither. A vertex counts on a side beyond 1e-6 of its
+/// edge to v, the tolerance of the crossing test.
+static int tet_side(const hs_cut* c, int e, int v, const double* o, const double* nk) {
+    const int* t = c->mesh->tets + 4 * e;
+    int pos = 0, neg = 0;
+    for (int a = 0; a < 4; a++) {
+        if (t[a] == v) continue;
+        const double* xw = c->x + 3 * t[a];
+        double d[3], l[3];
+        v3_sub(xw, o, d);
+        v3_sub(xw, c->x + 3 * v, l);
+        double s = v3_dot(d, nk), tol = 1e-6 * sqrt(v3_dot(l, l));
+        pos |= s > tol;
+        neg |= s < -tol;
+    }
+    return pos && !neg ? 0 : neg && !pos ? 1 : -1;
+}
+
 hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const double p1[3],
                        const double q1[3], double* u, hs_cut_result* res, hs_err* err) {
     hs_cut_result r;
@@ -1718,7 +1757,10 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
         hi[d] = fmax(fmax(p0[d], q0[d]), fmax(p1[d], q1[d]));
     }
     static const int k_edge[6][2] = {{0, 1}, {0, 2}, {0, 3}, {1, 2}, {1, 3}, {2, 3}};
-    int n_cut = 0, n_edges = 0;
+    double tn[2][3]; // unit normals of the quad's triangles (zero when degenerate)
+    unit_normal(p0, q0, q1, tn[0]);
+    unit_normal(p0, q1, p1, tn[1]);
+    int n_cut = 0, n_edges = 0, n_onb = 0;
     for (int e = 0; e < ne; e++) {
         if (!c->active[e]) continue;
         const int* t = T + 4 * e;
@@ -1736,6 +1778,19 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
         if (tl[0] > hi[0] || th[0] < lo[0] || tl[1] > hi[1] || th[1] < lo[1] || tl[2] > hi[2] ||
             th[2] < lo[2])
             continue;
+        // Vertices near the blade's plane (within 1e-6 of this tet's size, a bound on their
+        // own tolerance below): checked for hinges in 3c.
+        double ext = (th[0] - tl[0]) + (th[1] - tl[1]) + (th[2] - tl[2]);
+        for (int a = 0; a < 4; a++) {
+            int v = t[a];
+            if (c->nmark[v]) continue;
+            double d[3];
+            v3_sub(c->x + 3 * v, p0, d);
+            if (fabs(v3_dot(d, tn[0])) <= 1e-6 * ext || fabs(v3_dot(d, tn[1])) <= 1e-6 * ext) {
+                c->nmark[v] = 1;
+                c->onb[n_onb++] = v;
+            }
+        }
         int hit = 0;
         for (int k = 0; k < 6; k++) {
             int a = t[k_edge[k][0]], b = t[k_edge[k][1]];
@@ -1751,6 +1806,7 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
             c->cut_list[n_cut++] = e;
         }
     }
+    for (int k = 0; k < n_onb; k++) c->nmark[c->onb[k]] = 0;
     r.cut_tets = n_cut;
     if (n_edges > 0) {
         qsort(c->edges, (size_t)n_edges, 2 * sizeof(int), cmp_edge);
@@ -1796,9 +1852,6 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
     // Surface normals before this sweep's removals (tets marked 2 are still active here).
     if (c->def.tangent_surface)
         for (int k = 0; k < n_cand; k++) surface_normal(c, c->moved[k], c->nrm + 3 * c->moved[k]);
-    double tn[2][3]; // unit normals of the quad's triangles (zero when degenerate)
-    unit_normal(p0, q0, q1, tn[0]);
-    unit_normal(p0, q1, p1, tn[1]);
     int n_moved = 0;
     for (int k = 0; k < n_cand; k++) {
         int v = c->moved[k];
@@ -1885,6 +1938,49 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
                 for (int j = 0; j < k && !seen; j++)
                     for (int a = 0; a < 4; a++) seen |= t[a] == c->moved[j];
                 if (!seen) r.kept++;
+                continue;
+            }
+            for (int a = 0; a < 4; a++) c->count[t[a]]--;
+            c->tmark[e] = 2;
+            c->cut_list[n_cut++] = e;
+            r.cut_tets++;
+        }
+    }
+
+    // 3c. Hinges. A vertex on the blade's plane (moved there, or lying there) where the blade
+    // passed, with tets left on both sides, would keep the sides joined: no edge from it counts
+    // as crossing, and its tets on the far side touch the blade only at it (with 0.2 mm sweeps
+    // the skin patch's cut stayed in one piece). The smaller side's tets there go, as they are.
+    for (int k = 0; k < n_moved; k++) {
+        int v = c->moved[k];
+        if (!c->nmark[v]) c->onb[n_onb++] = v;
+        c->nmark[v] = 1;
+    }
+    for (int k = 0; k < n_onb; k++) {
+        int v = c->onb[k];
+        c->nmark[v] = 0;
+        if (c->fixed[v] || c->pinned[v]) continue;
+        double h2 = shortest_edge2(c, v);
+        int tri = isfinite(h2) ? on_blade(c->x + 3 * v, S, tn, 1e-6 * sqrt(h2)) : -1;
+        if (tri < 0) continue;
+        double vol[2] = {0, 0};
+        for (int p = c->nt_start[v]; p < c->nt_start[v + 1]; p++) {
+            int e = c->nt[p], side;
+            if (c->active[e] && c->tmark[e] == 0 && (side = tet_side(c, e, v, p0, tn[tri])) >= 0)
+                vol[side] += c->vol_orig[e];
+        }
+        if (!(vol[0] > 0 && vol[1] > 0)) continue;
+        const int drop = vol[0] < vol[1] ? 0 : 1;
+        r.hinges++;
+        for (int p = c->nt_start[v]; p < c->nt_start[v + 1]; p++) {
+            int e = c->nt[p];
+            if (!c->active[e] || c->tmark[e] != 0 || tet_side(c, e, v, p0, tn[tri]) != drop)
+                continue;
+            const int* t = T + 4 * e;
+            int orphan = 0;
+            for (int a = 0; a < 4; a++) orphan |= c->count[t[a]] == 1;
+            if (orphan && c->def.orphan == HS_CUT_ORPHAN_KEEP_TET) {
+                r.kept++;
                 continue;
             }
             for (int a = 0; a < 4; a++) c->count[t[a]]--;
