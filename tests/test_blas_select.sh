@@ -17,6 +17,11 @@ check "--quick before the command: rc $rc, $(cat "$T/err")" $rc
 [ $rc -eq 1 ] && grep -q "missing value for --meshes" "$T/err"; rc=$?
 check "--meshes without a value named: $(cat "$T/err")" $rc
 
+# A mesh missing from --meshes is taken from scenes/ when bundled (liver2 here).
+"$BENCH" haptic --quick --meshes "$T/none" > "$T/out" 2> "$T/err"; rc=$?
+[ $rc -eq 0 ] && grep -q '^liver2,' "$T/out"; rc=$?
+check "bundled liver2 used when --meshes lacks it: $(tail -n 2 "$T/err")" $rc
+
 OPENBLAS_CORETYPE=Prescott "$BENCH" blas > "$T/out" 2> "$T/err"; check "blas command exits 0" $?
 if [ "$(core)" = "not OpenBLAS" ]; then
   echo "SKIP: the BLAS behind libblas.so.3 is not OpenBLAS"; exit 77

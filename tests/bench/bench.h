@@ -20,6 +20,10 @@ int hs_bench_cut(const hs_bench_args* a);
 /// hapsim-server round trip vs a bare LCM echo, in a private network namespace (issue 4).
 int hs_bench_protocol(const hs_bench_args* a);
 
+/// Path of a mesh file: DIR/file (--meshes) when it can be read, else the copy bundled in
+/// scenes/ (liver2, the skin patch), else DIR/file (whose load error then names it). Returns buf.
+const char* hs_bench_mesh_path(const hs_bench_args* a, const char* file, char* buf, size_t size);
+
 /// p-th percentile (0..100) of v[n] (sorts v in place).
 double hs_bench_percentile(double* v, size_t n, double p);
 /// CPU time of the calling thread, ms (CLOCK_THREAD_CPUTIME_ID).

@@ -637,7 +637,7 @@ int hs_bench_accuracy(const hs_bench_args* a) {
     fflush(stdout);
     int rc = 0;
     char vessel[1024], liver[1024];
-    snprintf(vessel, sizeof vessel, "%s/aneurysm_vessel.msh", a->meshes);
+    hs_bench_mesh_path(a, "aneurysm_vessel.msh", vessel, sizeof vessel);
     snprintf(liver, sizeof liver, "%s/liver2.msh", HS_SCENES_DIR "/liver");
     if (a->quick) {
         box_dims m[] = {{10, 2, 2}};

@@ -59,8 +59,7 @@ static hs_body* make_body(const hs_bench_args* a, const core_case* c, const core
     *fixed_out = NULL;
     if (c->file) {
         char path[1024];
-        snprintf(path, sizeof path, "%s/%s", a->meshes, c->file);
-        s = hs_mesh_load(path, &mesh, &err);
+        s = hs_mesh_load(hs_bench_mesh_path(a, c->file, path, sizeof path), &mesh, &err);
     } else {
         s = hs_mesh_create_box(0.1, 0.02, 0.02, c->nx, c->ny, c->nz, &mesh, &err);
     }

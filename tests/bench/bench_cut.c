@@ -39,8 +39,7 @@ typedef struct cut_case {
 static hs_status load_mesh(const cut_case* cc, const hs_bench_args* args, hs_mesh** m, hs_err* e) {
     if (!cc->file) return hs_mesh_create_box(cc->lx, cc->ly, cc->lz, cc->nx, cc->ny, cc->nz, m, e);
     char path[1024];
-    snprintf(path, sizeof path, "%s/%s", args->meshes, cc->file);
-    return hs_mesh_load(path, m, e);
+    return hs_mesh_load(hs_bench_mesh_path(args, cc->file, path, sizeof path), m, e);
 }
 
 /// Dense inversion of K (dpotrf + dpotri), ms; negative when skipped or failed.

@@ -232,8 +232,7 @@ static int run_mesh(const hs_bench_args* a, const haptic_case* hc) {
     hs_err err = {0};
     hs_mesh* m = NULL;
     char path[1024];
-    snprintf(path, sizeof path, "%s/%s", a->meshes, hc->file);
-    if (hs_mesh_load(path, &m, &err) < 0) {
+    if (hs_mesh_load(hs_bench_mesh_path(a, hc->file, path, sizeof path), &m, &err) < 0) {
         fprintf(stderr, "hapsim-bench haptic: %s: %s\n", hc->name, err.msg);
         return 1;
     }

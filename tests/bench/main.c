@@ -8,6 +8,19 @@
 #include <string.h>
 #include <sys/resource.h>
 #include <time.h>
+#include <unistd.h>
+
+const char* hs_bench_mesh_path(const hs_bench_args* a, const char* file, char* buf, size_t size) {
+    static const char* const bundled[] = {HS_SCENES_DIR "/liver", HS_SCENES_DIR "/skin"};
+    for (size_t k = 0; k < sizeof bundled / sizeof bundled[0]; ++k) {
+        snprintf(buf, size, "%s/%s", bundled[k], file);
+        if (access(buf, R_OK) == 0) break;
+    }
+    char own[1024];
+    snprintf(own, sizeof own, "%s/%s", a->meshes, file);
+    if (access(own, R_OK) == 0 || access(buf, R_OK) != 0) snprintf(buf, size, "%s", own);
+    return buf;
+}
 
 double hs_bench_thread_ms(void) {
     struct timespec ts;
@@ -69,7 +82,10 @@ static void usage(FILE* f) {
         fprintf(f, "  %-10s %s\n", cmds[i].name, cmds[i].what);
     fprintf(f, "\nOptions may come before or after the command.\n"
                "Each prints CSV with a header on stdout; progress goes to stderr.\n"
-               "Run on an otherwise idle machine; compare ratios measured in one run.\n");
+               "Run on an otherwise idle machine; compare ratios measured in one run.\n"
+               "--meshes DIR holds the organ meshes (default: the shared meshes beside the\n"
+               "source tree); a mesh not there is taken from scenes/ when bundled (liver2,\n"
+               "the skin patch), and a case whose mesh is missing fails with its path.\n");
 }
 
 int main(int argc, char** argv) {
