@@ -20,7 +20,9 @@ typedef enum hs_model {
 
 typedef enum hs_rotation {
     HS_ROTATION_POLAR = 0, ///< Higham's iteration X <- X (I + (I - X^T X)/2), warm-started
-    HS_ROTATION_SVD = 1,   ///< rotation from the SVD of F (exact up to round-off)
+    /// rotation from the SVD of F, kept while the element's last one is still F's polar factor
+    /// to polar_tol (the polar method's acceptance test)
+    HS_ROTATION_SVD = 1,
 } hs_rotation;
 
 typedef enum hs_inversion {
@@ -42,9 +44,10 @@ typedef struct hs_fem_def {
     hs_model model;
     hs_material material;
     hs_rotation rotation; ///< co-rotated only
-    /// co-rotated + POLAR, a relative rotation error (default 1e-6): the warm iteration stops
-    /// when |axial(skew(X^T F))| <= tol ||F||_F / sqrt(3), the cold one when
-    /// ||I - X^T X||_F <= tol (docs/fem.md, Rotations)
+    /// co-rotated, a relative rotation error (default 1e-6): the warm iteration stops (and SVD
+    /// keeps an element's rotation) when |axial(skew(X^T F))| <= tol ||F||_F / sqrt(3) and X^T F
+    /// is positive definite; the cold iteration when ||I - X^T X||_F <= tol (docs/fem.md,
+    /// Rotations)
     double polar_tol;
     int polar_max_iter;     ///< co-rotated + POLAR: iteration cap per element per update
     hs_inversion inversion; ///< what an inverted element does

@@ -141,6 +141,15 @@ static int spd3(const double s[9]) {
 // Higham steps then remove the round-off drift from orthogonality. The result is accepted only
 // if X^T F is symmetric positive definite (the defining property of the polar factor); any
 // failure falls back to the cold Higham iteration, then to the SVD.
+int hs_polar_accepts(const double rtf[9], double fn2, double tol) {
+    const double* y = rtf;
+    double a[3] = {0.5 * (y[7] - y[5]), 0.5 * (y[2] - y[6]), 0.5 * (y[3] - y[1])}, s[9];
+    if (!(v3_dot(a, a) <= tol * tol * fn2 / 3.0)) return 0;
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) s[3 * i + j] = 0.5 * (y[3 * i + j] + y[3 * j + i]);
+    return spd3(s);
+}
+
 int hs_polar_higham(const double f[9], double r[9], double tol, int max_iter) {
     return hs_polar_higham_ex(f, r, tol, max_iter, 0, NULL);
 }

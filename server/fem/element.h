@@ -78,6 +78,11 @@ static inline double v3_dot(const double a[3], const double b[3]) {
 /// V's columns the eigenvectors (row-major: v[3*i+k] is component i of vector k).
 void hs_sym_eig3(const double a[9], double w[3], double v[9]);
 
+/// 1 when a rotation R is accepted as F's polar factor to tol, given rtf = R^T F and
+/// fn2 = ||F||^2: the skew part of R^T F within tol (relative to F's rms singular value) and its
+/// symmetric part positive definite; the test that ends hs_polar_higham_ex's warm phase.
+int hs_polar_accepts(const double rtf[9], double fn2, double tol);
+
 /// hs_polar_higham; trusted = 1 skips checking that r is a rotation (the caller made it);
 /// rtf (may be NULL) receives R^T F at the result.
 int hs_polar_higham_ex(const double f[9], double r[9], double tol, int max_iter, int trusted,
