@@ -893,6 +893,11 @@ static int StepPolarTol(void) {
     ENSURE(hs_body_create(m, &d, fx, &bad, NULL) == HS_ERR_INVALID && !bad);
     d.step_polar_tol = NAN;
     ENSURE(hs_body_create(m, &d, fx, &bad, NULL) == HS_ERR_INVALID && !bad);
+    d = hs_body_default_def(); // SVD reads polar_tol too: 0 would never keep a rotation
+    d.fem.model = HS_MODEL_COROTATED;
+    d.fem.rotation = HS_ROTATION_SVD;
+    d.fem.polar_tol = 0;
+    ENSURE(hs_body_create(m, &d, fx, &bad, NULL) == HS_ERR_INVALID && !bad);
     hs_fem* fem = hs_body_fem(a);
     ENSURE(hs_fem_set_polar_tol(fem, 0) == HS_ERR_INVALID);
     ENSURE(hs_fem_set_polar_tol(fem, NAN) == HS_ERR_INVALID);

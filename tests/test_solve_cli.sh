@@ -62,6 +62,8 @@ ignored --rotation --model linear --static --rotation svd
 ignored --inversion --model stvk --static --inversion reflect
 ignored --polar-tol --model linear --static --polar-tol 1e-6
 # ... and where it is read, it is accepted.
+"$SOLVE" --mesh "$MESH" --model corotated --rotation svd --fix-plane y,min,0.005 --static \
+  --polar-tol 1e-5 --out "$T/o.csv" > /dev/null; check "svd rotations take --polar-tol" $?
 "$SOLVE" --mesh "$MESH" --model linear --fix-plane y,min,0.005 --steps 2 --dt 0.01 --solver warped \
   --polar-tol 1e-5 --damping 0.1,0.01 --out "$T/o.csv" > /dev/null; check "warped steps take --polar-tol and --damping" $?
 "$SOLVE" --mesh "$MESH" --model stvk --fix-plane y,min,0.005 --static --solver pcg --pcg-iters 50 \

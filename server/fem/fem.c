@@ -162,8 +162,10 @@ static hs_status check_def(const hs_fem_def* d, hs_err* err) {
         return hs_err_set(err, HS_ERR_INVALID,
                           "fem: Rayleigh coefficients must be finite and >= 0 (got %g, %g)",
                           m->rayleigh_mass, m->rayleigh_stiffness);
-    if (d->model == HS_MODEL_COROTATED && d->rotation == HS_ROTATION_POLAR &&
-        (!(d->polar_tol > 0) || d->polar_max_iter < 1))
+    // SVD reads polar_tol too (how far a kept rotation may be from F's polar factor).
+    if (d->model == HS_MODEL_COROTATED &&
+        (!(d->polar_tol > 0) || !isfinite(d->polar_tol) ||
+         (d->rotation == HS_ROTATION_POLAR && d->polar_max_iter < 1)))
         return hs_err_set(err, HS_ERR_INVALID,
                           "fem: polar_tol must be > 0 and polar_max_iter >= 1 (got %g, %d)",
                           d->polar_tol, d->polar_max_iter);

@@ -41,7 +41,9 @@ static const char* usage =
     "  --max-iter N           static Newton iteration cap per load step (default 100)\n"
     "  --load-steps N         static load increments (default 1)\n"
     "  --rotation polar|svd   co-rotated rotation method (default polar)\n"
-    "  --polar-tol T          polar iteration tolerance (default 1e-6 --static, 1e-4 steps)\n"
+    "  --polar-tol T          rotation tolerance: the polar iteration's; with svd, how far an\n"
+    "                         element's kept rotation may be from F's polar factor before a\n"
+    "                         new SVD (default 1e-6 --static, 1e-4 steps)\n"
     "  --inversion fallback|reflect   inverted-element remedy (default fallback)\n"
     "  --damping ALPHA,BETA   Rayleigh damping C = alpha M + beta K (default 0,0)\n"
     "  --solver direct|pcg|warped  linear solver (default direct, CHOLMOD; warped: one\n"
@@ -368,8 +370,7 @@ int main(int argc, char** argv) {
     // (the warped solver solves it with the exact tangent); the element rotations are the
     // co-rotated model's, polar_tol also the warped node rotations'.
     const int pcg = def.solver == HS_SOLVER_PCG, corot = def.fem.model == HS_MODEL_COROTATED;
-    const int polar = (corot && def.fem.rotation == HS_ROTATION_POLAR) ||
-                      (!do_static && def.solver == HS_SOLVER_WARPED) ||
+    const int polar = corot || (!do_static && def.solver == HS_SOLVER_WARPED) ||
                       (pcg && def.precond == HS_PRECOND_WARPED);
     const struct {
         unsigned flags;
@@ -385,8 +386,8 @@ int main(int argc, char** argv) {
         {F_PRECOND | F_PCG_ITERS, !pcg, "only --solver pcg reads it"},
         {F_ROTATION | F_INVERSION, !corot, "only --model corotated reads it"},
         {F_POLAR_TOL, !polar,
-         "only the co-rotated model's polar rotations and warped node rotations (--solver "
-         "warped steps, --solver pcg's default preconditioner) read it"},
+         "only the co-rotated model's rotations and warped node rotations (--solver warped "
+         "steps, --solver pcg's default preconditioner) read it"},
     };
     for (size_t r = 0; r < sizeof rules / sizeof rules[0]; ++r) {
         unsigned bad = rules[r].unread ? given & rules[r].flags : 0;

@@ -444,7 +444,7 @@ static const acc_cfg static_cfgs[] = {
     {"corotated", "static;polar1e-2", HS_MODEL_COROTATED, HS_ROTATION_POLAR, 1e-2, 0, 0, 0, 0, 0},
     {"corotated", "static;polar1e-4", HS_MODEL_COROTATED, HS_ROTATION_POLAR, 1e-4, 0, 0, 0, 0, 0},
     {"corotated", "static;polar1e-6", HS_MODEL_COROTATED, HS_ROTATION_POLAR, 1e-6, 0, 0, 0, 0, 0},
-    {"corotated", "static;svd", HS_MODEL_COROTATED, HS_ROTATION_SVD, 0, 0, 0, 0, 0, 0},
+    {"corotated", "static;svd", HS_MODEL_COROTATED, HS_ROTATION_SVD, 1e-6, 0, 0, 0, 0, 0},
     {"corotated-lf", "static;polar1e-6", HS_MODEL_COROTATED, HS_ROTATION_POLAR, 1e-6, 1, 0, 0, 0,
      0},
     {"stvk", "static", HS_MODEL_STVK, HS_ROTATION_POLAR, 1e-6, 0, 0, 0, 0, 0},
