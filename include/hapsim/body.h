@@ -38,7 +38,8 @@ typedef struct hs_body_def {
     double static_tol;     ///< static: stop at ||r|| <= tol * ||r_first|| (paper's rule), [0, 1)
     int static_max_iter;   ///< static: Newton iteration cap per load step
     int static_load_steps; ///< static: load increments (1 = full load at once)
-    /// co-rotated + POLAR: the polar tolerance in hs_body_step (default 1e-4; 0: fem.polar_tol).
+    /// co-rotated: the rotation tolerance (fem.polar_tol) in hs_body_step (default 1e-4; 0:
+    /// fem.polar_tol); with SVD rotations, how far a kept rotation may be from F's polar factor.
     /// A step's own error (one linearised solve per step) is far larger, so the static solve's
     /// 1e-6 would only cost Newton steps per element (docs/fem.md, "The tolerance in a step").
     double step_polar_tol;

@@ -147,7 +147,8 @@ hs_cut_def hs_cut_default_def(void);
 typedef struct hs_cut_result {
     int cut_tets; ///< tets with an edge crossing the sweep, or removed at a hinge
     /// Vertices on the blade's plane where it passed that still had tets on both sides (the
-    /// sides stayed joined there); the smaller side's tets at each were removed.
+    /// sides stayed joined there) and lost the smaller side's tets there. Tets ORPHAN_KEEP_TET
+    /// keeps at a hinge are not counted in `kept`.
     int hinges;
     int removed;   ///< tets removed (cut ones + dropped fragments)
     int kept;      ///< cut tets kept by ORPHAN_KEEP_TET

@@ -1680,20 +1680,36 @@ static int edge_crosses(const double* xa, const double* xb, const double* const 
     return seg_tri(xa, xb, S[0], S[1], S[2], tol) || seg_tri(xa, xb, S[0], S[2], S[3], tol);
 }
 
-/// The quad triangle (0 or 1) whose plane v lies on, within tol, with its projection inside the
-/// triangle; -1 if none.
+/// The quad triangle (0 or 1) whose plane v lies on, within tol, with its projection where the
+/// blade passed: inside the triangle or on the quad's trailing edge or diagonal, but more than
+/// tol from the leading edge and from the paths of the blade's ends (a vertex there has tets
+/// on both sides because the cut ends there, not because it joins the cut's sides); -1 if none.
 static int on_blade(const double* xv, const double* const S[4], double tn[2][3], double tol) {
+    // Quad (p0, q0, q1, p1) = S[0..3]; triangles (p0, q0, q1) and (p0, q1, p1). Per triangle,
+    // the edge opposite each vertex: 1 where the blade ends (excluded), 0 where it passed.
+    const int degen0 = !(v3_dot(tn[0], tn[0]) > 0), degen1 = !(v3_dot(tn[1], tn[1]) > 0);
+    const int end[2][3] = {{1, degen1, 0}, {1, 1, 0}}; // tri 0's diagonal leads when tri 1 is flat
     for (int tri = 0; tri < 2; tri++) {
         const double* nk = tn[tri];
-        if (!(v3_dot(nk, nk) > 0)) continue;
-        double cp[3], d[3];
-        closest_on_tri(xv, S[0], S[tri + 1], S[tri + 2], cp);
-        v3_sub(cp, xv, d);
+        if (tri ? degen1 : degen0) continue;
+        const double* P[3] = {S[0], S[tri + 1], S[tri + 2]};
+        double d[3];
+        v3_sub(xv, P[0], d);
         double along = v3_dot(d, nk);
         if (fabs(along) > tol) continue;
-        double side[3];
-        for (int q = 0; q < 3; q++) side[q] = d[q] - along * nk[q];
-        if (v3_dot(side, side) <= tol * tol) return tri;
+        double xp[3];
+        for (int q = 0; q < 3; q++) xp[q] = xv[q] - along * nk[q];
+        int in = 1;
+        for (int a = 0; a < 3 && in; a++) { // signed distance to the edge opposite P[a]
+            const double *b = P[(a + 1) % 3], *c = P[(a + 2) % 3];
+            double e[3], w[3], x[3];
+            v3_sub(c, b, e);
+            v3_sub(xp, b, w);
+            v3_cross(e, w, x);
+            double le = sqrt(v3_dot(e, e)), dist = le > 0 ? v3_dot(x, nk) / le : 0;
+            in = end[tri][a] ? dist > tol : dist >= -tol;
+        }
+        if (in) return tri;
     }
     return -1;
 }
@@ -1786,7 +1802,10 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
             if (c->nmark[v]) continue;
             double d[3];
             v3_sub(c->x + 3 * v, p0, d);
-            if (fabs(v3_dot(d, tn[0])) <= 1e-6 * ext || fabs(v3_dot(d, tn[1])) <= 1e-6 * ext) {
+            int near = 0; // a flat triangle's zero normal would let every vertex in
+            for (int tri = 0; tri < 2; tri++)
+                near |= v3_dot(tn[tri], tn[tri]) > 0 && fabs(v3_dot(d, tn[tri])) <= 1e-6 * ext;
+            if (near) {
                 c->nmark[v] = 1;
                 c->onb[n_onb++] = v;
             }
@@ -1951,6 +1970,7 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
     // passed, with tets left on both sides, would keep the sides joined: no edge from it counts
     // as crossing, and its tets on the far side touch the blade only at it (with 0.2 mm sweeps
     // the skin patch's cut stayed in one piece). The smaller side's tets there go, as they are.
+    for (int k = 0; k < n_onb; k++) c->nmark[c->onb[k]] = 1; // once each: n_onb <= n
     for (int k = 0; k < n_moved; k++) {
         int v = c->moved[k];
         if (!c->nmark[v]) c->onb[n_onb++] = v;
@@ -1971,7 +1991,7 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
         }
         if (!(vol[0] > 0 && vol[1] > 0)) continue;
         const int drop = vol[0] < vol[1] ? 0 : 1;
-        r.hinges++;
+        int went = 0; // ORPHAN_KEEP_TET may keep them all (not counted in `kept`: not cut tets)
         for (int p = c->nt_start[v]; p < c->nt_start[v + 1]; p++) {
             int e = c->nt[p];
             if (!c->active[e] || c->tmark[e] != 0 || tet_side(c, e, v, p0, tn[tri]) != drop)
@@ -1979,15 +1999,14 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
             const int* t = T + 4 * e;
             int orphan = 0;
             for (int a = 0; a < 4; a++) orphan |= c->count[t[a]] == 1;
-            if (orphan && c->def.orphan == HS_CUT_ORPHAN_KEEP_TET) {
-                r.kept++;
-                continue;
-            }
+            if (orphan && c->def.orphan == HS_CUT_ORPHAN_KEEP_TET) continue;
             for (int a = 0; a < 4; a++) c->count[t[a]]--;
             c->tmark[e] = 2;
             c->cut_list[n_cut++] = e;
             r.cut_tets++;
+            went = 1;
         }
+        r.hinges += went;
     }
 
     // 4. Remove, then orphans (PIN rule) and free pieces.

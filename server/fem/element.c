@@ -133,14 +133,6 @@ static int spd3(const double s[9]) {
     return s[0] > 0 && s[0] * s[4] - s[1] * s[3] > 0 && m3_det(s) > 0;
 }
 
-// Warm start. Higham's iteration converges to the polar factor of the matrix it starts from,
-// so a previous rotation cannot be its start (it is already orthogonal: nothing would move).
-// Instead the previous rotation X is corrected by Newton steps on the condition "X^T F is
-// symmetric": with Y = X^T F, S = sym(Y), a = axial(skew(Y)), the correction X <- X Q(w),
-// w = 2 (tr(S) I - S)^-1 a, Q the Cayley rotation, converges quadratically when X is near R.
-// Higham steps then remove the round-off drift from orthogonality. The result is accepted only
-// if X^T F is symmetric positive definite (the defining property of the polar factor); any
-// failure falls back to the cold Higham iteration, then to the SVD.
 int hs_polar_accepts(const double rtf[9], double fn2, double tol) {
     const double* y = rtf;
     double a[3] = {0.5 * (y[7] - y[5]), 0.5 * (y[2] - y[6]), 0.5 * (y[3] - y[1])}, s[9];
@@ -150,6 +142,14 @@ int hs_polar_accepts(const double rtf[9], double fn2, double tol) {
     return spd3(s);
 }
 
+// Warm start. Higham's iteration converges to the polar factor of the matrix it starts from,
+// so a previous rotation cannot be its start (it is already orthogonal: nothing would move).
+// Instead the previous rotation X is corrected by Newton steps on the condition "X^T F is
+// symmetric": with Y = X^T F, S = sym(Y), a = axial(skew(Y)), the correction X <- X Q(w),
+// w = 2 (tr(S) I - S)^-1 a, Q the Cayley rotation, converges quadratically when X is near R.
+// Higham steps then remove the round-off drift from orthogonality. The result is accepted only
+// if X^T F is symmetric positive definite (the defining property of the polar factor); any
+// failure falls back to the cold Higham iteration, then to the SVD.
 int hs_polar_higham(const double f[9], double r[9], double tol, int max_iter) {
     return hs_polar_higham_ex(f, r, tol, max_iter, 0, NULL);
 }
