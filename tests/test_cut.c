@@ -41,6 +41,22 @@ static hs_mesh* load_shared(const char* name) {
     return m;
 }
 
+/// The nodes on both x ends of m's bounding box (hs_calloc'd mask): held, the cut between.
+static unsigned char* held_x_ends(const hs_mesh* m) {
+    unsigned char* fixed = hs_calloc((size_t)m->n_nodes, 1);
+    unsigned char* far = hs_calloc((size_t)m->n_nodes, 1);
+    if (!fixed || !far) {
+        hs_free(fixed);
+        hs_free(far);
+        return NULL;
+    }
+    hs_mesh_select_plane(m, 0, -1, 1e-6, fixed);
+    hs_mesh_select_plane(m, 0, +1, 1e-6, far);
+    for (int i = 0; i < m->n_nodes; i++) fixed[i] |= far[i];
+    hs_free(far);
+    return fixed;
+}
+
 /// Max relative difference of solves with the cut's factor and a fresh factor of the matrix
 /// assembled from scratch, over a few random right-hand sides.
 static double factor_vs_fresh(hs_cut* c) {
@@ -155,11 +171,7 @@ static int test_skin_full_separation(void) {
     const int n = m->n_nodes;
     double* xorig = hs_alloc(sizeof(double) * 3 * (size_t)n);
     memcpy(xorig, m->x0, sizeof(double) * 3 * (size_t)n);
-    unsigned char* fixed = hs_calloc((size_t)n, 1);
-    unsigned char* far = hs_calloc((size_t)n, 1);
-    hs_mesh_select_plane(m, 0, -1, 1e-6, fixed);
-    hs_mesh_select_plane(m, 0, +1, 1e-6, far);
-    for (int i = 0; i < n; i++) fixed[i] |= far[i]; // both ends held, the cut between
+    unsigned char* fixed = held_x_ends(m); // the cut between
     hs_cut_def def = hs_cut_default_def();
     hs_cut* c = NULL;
     hs_err e;
@@ -209,7 +221,6 @@ static int test_skin_full_separation(void) {
     hs_free(f);
     hs_free(u);
     hs_free(fixed);
-    hs_free(far);
     hs_free(xorig);
     hs_mesh_destroy(&m);
     ENSURE(hs_byte_count() == bytes);
@@ -252,11 +263,7 @@ static int test_straight_cut_drag(void) {
                     hmin[i] = fmin(hmin[i], l);
                     hmin[j] = fmin(hmin[j], l);
                 }
-        unsigned char* fixed = hs_calloc((size_t)n, 1);
-        unsigned char* far = hs_calloc((size_t)n, 1);
-        hs_mesh_select_plane(m, 0, -1, 1e-6, fixed);
-        hs_mesh_select_plane(m, 0, +1, 1e-6, far);
-        for (int i = 0; i < n; i++) fixed[i] |= far[i];
+        unsigned char* fixed = held_x_ends(m);  // the cut between
         hs_cut_def def = hs_cut_default_def();  // validated after every sweep
         def.factor_policy = HS_CUT_FACTOR_NONE; // as in the server
         hs_cut* c = NULL;
@@ -312,7 +319,6 @@ static int test_straight_cut_drag(void) {
         fail |= (sweep == k_sweep[0] && !(worst_excess <= 0.05)) || comps != 2;
         hs_cut_destroy(&c);
         hs_free(fixed);
-        hs_free(far);
         hs_free(hmin);
         hs_free(xorig);
         hs_mesh_destroy(&m);
@@ -331,11 +337,7 @@ static int test_skin_wound_angle(void) {
     const int n = m->n_nodes;
     double* xorig = hs_alloc(sizeof(double) * 3 * (size_t)n);
     memcpy(xorig, m->x0, sizeof(double) * 3 * (size_t)n);
-    unsigned char* fixed = hs_calloc((size_t)n, 1);
-    unsigned char* far = hs_calloc((size_t)n, 1);
-    hs_mesh_select_plane(m, 0, -1, 1e-6, fixed);
-    hs_mesh_select_plane(m, 0, +1, 1e-6, far);
-    for (int i = 0; i < n; i++) fixed[i] |= far[i];
+    unsigned char* fixed = held_x_ends(m); // the cut between
     hs_cut_def def = hs_cut_default_def();
     hs_cut* c = NULL;
     hs_err e;
@@ -396,7 +398,6 @@ static int test_skin_wound_angle(void) {
     hs_body_destroy(&b);
     hs_cut_destroy(&c);
     hs_free(fixed);
-    hs_free(far);
     hs_free(xorig);
     hs_mesh_destroy(&m);
     ENSURE(hs_byte_count() == bytes);
@@ -411,12 +412,7 @@ static int plane_cut(double zt, int pivot, int out[4]) {
     hs_mesh* m = NULL;
     hs_err e;
     ENSURE(hs_mesh_create_box(0.06, 0.06, 0.01, 6, 6, 2, &m, &e) == HS_OK);
-    const int n = m->n_nodes;
-    unsigned char* fixed = hs_calloc((size_t)n, 1);
-    unsigned char* far = hs_calloc((size_t)n, 1);
-    hs_mesh_select_plane(m, 0, -1, 1e-6, fixed);
-    hs_mesh_select_plane(m, 0, +1, 1e-6, far);
-    for (int i = 0; i < n; i++) fixed[i] |= far[i];
+    unsigned char* fixed = held_x_ends(m); // the cut between
     hs_cut_def def = hs_cut_default_def();
     hs_cut* c = NULL;
     ENSURE(hs_cut_create(m, fixed, &def, &c, &e) == HS_OK);
@@ -449,7 +445,6 @@ static int plane_cut(double zt, int pivot, int out[4]) {
     ENSURE(factor_vs_fresh(c) <= 1e-8);
     hs_cut_destroy(&c);
     hs_free(fixed);
-    hs_free(far);
     hs_mesh_destroy(&m);
     return 0;
 }
