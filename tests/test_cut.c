@@ -404,11 +404,18 @@ static int test_skin_wound_angle(void) {
     return 0;
 }
 
-/// A 6 x 6 x 2-cell plate held at both x ends, cut along its plane of vertices x = 30 mm from
-/// above z = 11 mm down to the blade's tip at zt in 2 mm sweeps, then (pivot) one sweep that
-/// turns the blade about its tip (p0 == p1: a flat triangle in the quad). Reports the hinges,
-/// the tets removed and of them those lying at or below the tip, and the pieces.
-static int plane_cut(double zt, int pivot, int out[4]) {
+/// A 6 x 6 x 2-cell plate held at both x ends, cut along its plane of vertices x = 30 mm by a
+/// blade from its tip at zt up to zq, in 2 mm sweeps from y0 to y1, the tip as the quad's p end
+/// (or q with flip), then (pivot) one sweep that turns the blade about its tip (p0 == p1: a
+/// flat triangle in the quad). Reports the hinges, the tets removed and of them those lying at
+/// or below the tip, and the pieces.
+typedef struct plane_blade {
+    double zt, zq, y0, y1;
+    int flip, pivot;
+} plane_blade;
+
+static int plane_cut(plane_blade b, int out[4]) {
+    const double zt = b.zt;
     hs_mesh* m = NULL;
     hs_err e;
     ENSURE(hs_mesh_create_box(0.06, 0.06, 0.01, 6, 6, 2, &m, &e) == HS_OK);
@@ -417,16 +424,19 @@ static int plane_cut(double zt, int pivot, int out[4]) {
     hs_cut* c = NULL;
     ENSURE(hs_cut_create(m, fixed, &def, &c, &e) == HS_OK);
     memset(out, 0, 4 * sizeof(int));
-    double y = -0.005;
-    for (; y < 0.065 - 1e-9; y += 2 * MM) {
-        double p0[3] = {0.03, y, zt}, q0[3] = {0.03, y, 11 * MM};
-        double p1[3] = {0.03, y + 2 * MM, zt}, q1[3] = {0.03, y + 2 * MM, 11 * MM};
+    for (int k = 0; b.y0 + 2 * MM * k < b.y1 - 1e-9; k++) {
+        double ya = b.y0 + 2 * MM * k, yb = b.y0 + 2 * MM * (k + 1);
+        double t0[3] = {0.03, ya, zt}, u0[3] = {0.03, ya, b.zq};
+        double t1[3] = {0.03, yb, zt}, u1[3] = {0.03, yb, b.zq};
         hs_cut_result r;
-        ENSURE(hs_cut_sweep(c, p0, q0, p1, q1, NULL, &r, &e) == HS_OK);
+        if (b.flip)
+            ENSURE(hs_cut_sweep(c, u0, t0, u1, t1, NULL, &r, &e) == HS_OK);
+        else
+            ENSURE(hs_cut_sweep(c, t0, u0, t1, u1, NULL, &r, &e) == HS_OK);
         out[0] += r.hinges;
         out[1] += r.removed;
     }
-    if (pivot) { // back over the plate about the tip, from y = 30 mm
+    if (b.pivot) { // back over the plate about the tip, from y = 30 mm
         double p[3] = {0.03, 0.03, zt}, q0[3] = {0.03, 0.03, 11 * MM};
         double q1[3] = {0.03, 0.03 + 8 * MM, zt + 2 * MM};
         hs_cut_result r;
@@ -458,21 +468,37 @@ static int plane_cut(double zt, int pivot, int out[4]) {
 /// vertex in: an overflow under ASan) changes nothing it should not.
 static int test_cut_along_mesh_plane(void) {
     int64_t bytes = hs_byte_count();
-    int full[4];
-    ENSURE(plane_cut(-1 * MM, 0, full) == 0);
-    printf("  through: %d hinges, %d tets removed of 432, %d piece(s)\n", full[0], full[1],
-           full[3]);
-    ENSURE(full[0] > 0 && full[3] == 2);
-    // One layer of cells at most: the tets of one side touching the plane.
-    ENSURE(full[1] > 0 && full[1] <= 6 * 6 * 2);
+    // Through the plate: past its faces, or ending exactly on them (nothing lies beyond an end
+    // there, so its vertices are hinges too), starting on vertices or between them.
+    static const plane_blade k_through[] = {
+        {-1 * MM, 11 * MM, -5 * MM, 65 * MM, 0, 0}, {-1 * MM, 11 * MM, -4 * MM, 60 * MM, 0, 0},
+        {0, 11 * MM, -5 * MM, 65 * MM, 0, 0},       {-1 * MM, 10 * MM, -5 * MM, 65 * MM, 1, 0},
+        {0, 10 * MM, -4 * MM, 60 * MM, 1, 0},
+    };
+    for (size_t k = 0; k < sizeof k_through / sizeof k_through[0]; k++) {
+        const plane_blade* b = &k_through[k];
+        int o[4];
+        ENSURE(plane_cut(*b, o) == 0);
+        printf("  through, z %g..%g mm, y %g..%g mm: %d hinges, %d tets removed of 432, %d "
+               "piece(s)\n",
+               b->zt / MM, b->zq / MM, b->y0 / MM, b->y1 / MM, o[0], o[1], o[3]);
+        ENSURE(o[0] > 0 && o[3] == 2);
+        // One layer of cells at most: the tets of one side touching the plane.
+        ENSURE(o[1] > 0 && o[1] <= 6 * 6 * 2);
+    }
+    // Down to the middle layer, the tip as either end of the quad, sweeps starting between
+    // vertices or on them (y0 = -4 mm: p0 lands on y = 0, 10, ... mm).
     static const double k_tip[3] = {5 * MM, 5 * MM + 1e-9, 5 * MM + 1e-7};
     for (int k = 0; k < 3; k++)
-        for (int pivot = 0; pivot < 2; pivot++) {
+        for (int v = 0; v < 8; v++) {
+            plane_blade b = {k_tip[k], 11 * MM,    v & 1 ? -4 * MM : -5 * MM,
+                             65 * MM,  v >> 1 & 1, v >> 2};
             int o[4];
-            ENSURE(plane_cut(k_tip[k], pivot, o) == 0);
-            printf("  tip %.7f mm%s: %d hinges, %d tets removed, %d at or below the tip, %d "
-                   "piece(s)\n",
-                   k_tip[k] / MM, pivot ? ", then a pivot" : "", o[0], o[1], o[2], o[3]);
+            ENSURE(plane_cut(b, o) == 0);
+            printf("  tip %.7f mm as %c, from y %g mm%s: %d hinges, %d tets removed, %d at or "
+                   "below the tip, %d piece(s)\n",
+                   b.zt / MM, b.flip ? 'q' : 'p', b.y0 / MM, b.pivot ? ", then a pivot" : "", o[0],
+                   o[1], o[2], o[3]);
             ENSURE(o[0] > 0 && o[1] > 0); // the upper layer's hinges
             ENSURE(o[2] == 0 && o[3] == 1);
         }

@@ -1680,38 +1680,78 @@ static int edge_crosses(const double* xa, const double* xb, const double* const 
     return seg_tri(xa, xb, S[0], S[1], S[2], tol) || seg_tri(xa, xb, S[0], S[2], S[3], tol);
 }
 
-/// The quad triangle (0 or 1) whose plane v lies on, within tol, with its projection where the
-/// blade passed: inside the triangle or on the quad's trailing edge or diagonal, but more than
-/// tol from the leading edge and from the paths of the blade's ends (a vertex there has tets
-/// on both sides because the cut ends there, not because it joins the cut's sides); -1 if none.
-static int on_blade(const double* xv, const double* const S[4], double tn[2][3], double tol) {
-    // Quad (p0, q0, q1, p1) = S[0..3]; triangles (p0, q0, q1) and (p0, q1, p1). Per triangle,
-    // the edge opposite each vertex: 1 where the blade ends (excluded), 0 where it passed.
-    const int degen0 = !(v3_dot(tn[0], tn[0]) > 0), degen1 = !(v3_dot(tn[1], tn[1]) > 0);
-    const int end[2][3] = {{1, degen1, 0}, {1, 1, 0}}; // tri 0's diagonal leads when tri 1 is flat
-    for (int tri = 0; tri < 2; tri++) {
-        const double* nk = tn[tri];
-        if (tri ? degen1 : degen0) continue;
-        const double* P[3] = {S[0], S[tri + 1], S[tri + 2]};
+/// Distance from x to segment ab.
+static double seg_dist(const double* x, const double* a, const double* b) {
+    double d[3], w[3];
+    v3_sub(b, a, d);
+    v3_sub(x, a, w);
+    double dd = v3_dot(d, d), t = dd > 0 ? v3_dot(w, d) / dd : 0;
+    t = t < 0 ? 0 : t > 1 ? 1 : t;
+    for (int k = 0; k < 3; k++) w[k] -= t * d[k];
+    return sqrt(v3_dot(w, w));
+}
+
+/// The quad triangle (0 or 1) whose plane vertex v lies on, within tol, with its projection
+/// inside the quad where the blade passed; -1 if none. On the quad's leading edge or on the
+/// path of either blade end, the cut ends at v, so its tets on both sides do not make it a
+/// hinge there, unless no tet of v reaches past that edge (the tissue ends there too).
+static int blade_site(const hs_cut* c, int v, const double* const S[4], double tn[2][3],
+                      double tol) {
+    const double* xv = c->x + 3 * v;
+    int tri = -1;
+    double xp[3];
+    for (int k = 0; k < 2 && tri < 0; k++) {
+        const double* nk = tn[k];
+        if (!(v3_dot(nk, nk) > 0)) continue; // a flat triangle (the blade turning about an end)
+        const double* P[3] = {S[0], S[k + 1], S[k + 2]};
         double d[3];
         v3_sub(xv, P[0], d);
         double along = v3_dot(d, nk);
         if (fabs(along) > tol) continue;
-        double xp[3];
         for (int q = 0; q < 3; q++) xp[q] = xv[q] - along * nk[q];
         int in = 1;
-        for (int a = 0; a < 3 && in; a++) { // signed distance to the edge opposite P[a]
-            const double *b = P[(a + 1) % 3], *c = P[(a + 2) % 3];
-            double e[3], w[3], x[3];
-            v3_sub(c, b, e);
-            v3_sub(xp, b, w);
-            v3_cross(e, w, x);
-            double le = sqrt(v3_dot(e, e)), dist = le > 0 ? v3_dot(x, nk) / le : 0;
-            in = end[tri][a] ? dist > tol : dist >= -tol;
+        for (int a = 0; a < 3 && in; a++) { // distance inside the edge opposite P[a]
+            const double *b = P[(a + 1) % 3], *e = P[(a + 2) % 3];
+            double be[3], bx[3], x[3];
+            v3_sub(e, b, be);
+            v3_sub(xp, b, bx);
+            v3_cross(be, bx, x);
+            double l = sqrt(v3_dot(be, be));
+            in = !(l > 0) || v3_dot(x, nk) / l >= -tol;
         }
-        if (in) return tri;
+        if (in) tri = k;
     }
-    return -1;
+    if (tri < 0) return -1;
+    // The leading edge p1q1 and the end paths p0p1, q0q1 (S = p0, q0, q1, p1).
+    static const int k_end[3][2] = {{3, 2}, {0, 3}, {1, 2}};
+    const double* nk = tn[tri];
+    for (int s = 0; s < 3; s++) {
+        const double *a = S[k_end[s][0]], *b = S[k_end[s][1]];
+        if (seg_dist(xp, a, b) > tol) continue;
+        // Inward, within the plane: from the edge towards the quad's centre.
+        double d[3], u[3];
+        v3_sub(b, a, d);
+        for (int q = 0; q < 3; q++) u[q] = 0.25 * (S[0][q] + S[1][q] + S[2][q] + S[3][q]) - a[q];
+        double un = v3_dot(u, nk), dd = v3_dot(d, d);
+        for (int q = 0; q < 3; q++) u[q] -= un * nk[q];
+        double ud = dd > 0 ? v3_dot(u, d) / dd : 0;
+        for (int q = 0; q < 3; q++) u[q] -= ud * d[q];
+        double ul = sqrt(v3_dot(u, u));
+        if (!(ul > 0)) return -1;
+        for (int p = c->nt_start[v]; p < c->nt_start[v + 1]; p++) {
+            int e = c->nt[p];
+            if (!c->active[e] || c->tmark[e] != 0) continue;
+            const int* t = c->mesh->tets + 4 * e;
+            for (int q = 0; q < 4; q++) {
+                const double* xw = c->x + 3 * t[q];
+                double aw[3], vw[3];
+                v3_sub(xw, a, aw);
+                v3_sub(xw, xv, vw);
+                if (v3_dot(aw, u) / ul < -1e-6 * sqrt(v3_dot(vw, vw))) return -1; // past it
+            }
+        }
+    }
+    return tri;
 }
 
 /// Which side of the plane (point o, unit normal nk) tet e lies on at its vertex v, which is on
@@ -1981,7 +2021,7 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
         c->nmark[v] = 0;
         if (c->fixed[v] || c->pinned[v]) continue;
         double h2 = shortest_edge2(c, v);
-        int tri = isfinite(h2) ? on_blade(c->x + 3 * v, S, tn, 1e-6 * sqrt(h2)) : -1;
+        int tri = isfinite(h2) ? blade_site(c, v, S, tn, 1e-6 * sqrt(h2)) : -1;
         if (tri < 0) continue;
         double vol[2] = {0, 0};
         for (int p = c->nt_start[v]; p < c->nt_start[v + 1]; p++) {
