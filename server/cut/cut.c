@@ -1738,17 +1738,37 @@ static int blade_site(const hs_cut* c, int v, const double* const S[4], double t
         for (int q = 0; q < 3; q++) u[q] -= ud * d[q];
         double ul = sqrt(v3_dot(u, u));
         if (!(ul > 0)) return -1;
+        // The tissue in the blade's plane: where v's tets meet it (their vertices on it, their
+        // edges' crossings). Their corners off the plane would project past a tilted blade's
+        // end lying on a face, where the plane's section does not reach.
         for (int p = c->nt_start[v]; p < c->nt_start[v + 1]; p++) {
             int e = c->nt[p];
             if (!c->active[e] || c->tmark[e] != 0) continue;
             const int* t = c->mesh->tets + 4 * e;
+            double sd[4], tl[4];
             for (int q = 0; q < 4; q++) {
-                const double* xw = c->x + 3 * t[q];
-                double aw[3], vw[3];
-                v3_sub(xw, a, aw);
-                v3_sub(xw, xv, vw);
-                if (v3_dot(aw, u) / ul < -1e-6 * sqrt(v3_dot(vw, vw))) return -1; // past it
+                double w[3];
+                v3_sub(c->x + 3 * t[q], S[0], w);
+                sd[q] = v3_dot(w, nk);
+                v3_sub(c->x + 3 * t[q], xv, w);
+                tl[q] = 1e-6 * sqrt(v3_dot(w, w));
             }
+            for (int q = 0; q < 4; q++)
+                for (int r = q; r < 4; r++) {
+                    double x[3], aw[3], vw[3];
+                    if (r == q) { // a vertex on the plane
+                        if (fabs(sd[q]) > tl[q] + tol) continue;
+                        memcpy(x, c->x + 3 * t[q], sizeof x);
+                    } else { // an edge crossing it
+                        if (!(sd[q] * sd[r] < 0)) continue;
+                        const double *xa = c->x + 3 * t[q], *xb = c->x + 3 * t[r];
+                        double f = sd[q] / (sd[q] - sd[r]);
+                        for (int k = 0; k < 3; k++) x[k] = xa[k] + f * (xb[k] - xa[k]);
+                    }
+                    v3_sub(x, a, aw);
+                    v3_sub(x, xv, vw);
+                    if (v3_dot(aw, u) / ul < -1e-6 * sqrt(v3_dot(vw, vw)) - tol) return -1;
+                }
         }
     }
     return tri;
