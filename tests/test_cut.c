@@ -412,7 +412,7 @@ static int test_skin_wound_angle(void) {
 typedef struct plane_blade {
     double zt, zq, y0, y1;
     int flip, pivot;
-    double tilt;
+    double tilt, dx; // dx: the blade's tip at x = 30 mm + dx
 } plane_blade;
 
 static int plane_cut(plane_blade b, int out[4]) {
@@ -427,9 +427,9 @@ static int plane_cut(plane_blade b, int out[4]) {
     memset(out, 0, 4 * sizeof(int));
     for (int k = 0; b.y0 + 2 * MM * k < b.y1 - 1e-9; k++) {
         double ya = b.y0 + 2 * MM * k, yb = b.y0 + 2 * MM * (k + 1);
-        const double xq = 0.03 + b.tilt * (b.zq - zt);
-        double t0[3] = {0.03, ya, zt}, u0[3] = {xq, ya, b.zq};
-        double t1[3] = {0.03, yb, zt}, u1[3] = {xq, yb, b.zq};
+        const double xt = 0.03 + b.dx, xq = xt + b.tilt * (b.zq - zt);
+        double t0[3] = {xt, ya, zt}, u0[3] = {xq, ya, b.zq};
+        double t1[3] = {xt, yb, zt}, u1[3] = {xq, yb, b.zq};
         hs_cut_result r;
         if (b.flip)
             ENSURE(hs_cut_sweep(c, u0, t0, u1, t1, NULL, &r, &e) == HS_OK);
@@ -475,13 +475,13 @@ static int test_cut_along_mesh_plane(void) {
     // two leaning, the tip on the bottom face (the tets' corners off the blade's plane, taken
     // for tissue past its end, left those tip vertices joining the sides).
     static const plane_blade k_through[] = {
-        {-1 * MM, 11 * MM, -5 * MM, 65 * MM, 0, 0, 0},
-        {-1 * MM, 11 * MM, -4 * MM, 60 * MM, 0, 0, 0},
-        {0, 11 * MM, -5 * MM, 65 * MM, 0, 0, 0},
-        {-1 * MM, 10 * MM, -5 * MM, 65 * MM, 1, 0, 0},
-        {0, 10 * MM, -4 * MM, 60 * MM, 1, 0, 0},
-        {0, 11 * MM, -5 * MM, 65 * MM, 0, 0, 0.05},
-        {0, 11 * MM, -5 * MM, 65 * MM, 0, 0, 0.3},
+        {-1 * MM, 11 * MM, -5 * MM, 65 * MM, 0, 0, 0, 0},
+        {-1 * MM, 11 * MM, -4 * MM, 60 * MM, 0, 0, 0, 0},
+        {0, 11 * MM, -5 * MM, 65 * MM, 0, 0, 0, 0},
+        {-1 * MM, 10 * MM, -5 * MM, 65 * MM, 1, 0, 0, 0},
+        {0, 10 * MM, -4 * MM, 60 * MM, 1, 0, 0, 0},
+        {0, 11 * MM, -5 * MM, 65 * MM, 0, 0, 0.05, 0},
+        {0, 11 * MM, -5 * MM, 65 * MM, 0, 0, 0.3, 0},
     };
     for (size_t k = 0; k < sizeof k_through / sizeof k_through[0]; k++) {
         const plane_blade* b = &k_through[k];
@@ -499,8 +499,8 @@ static int test_cut_along_mesh_plane(void) {
     static const double k_tip[3] = {5 * MM, 5 * MM + 1e-9, 5 * MM + 1e-7};
     for (int k = 0; k < 3; k++)
         for (int v = 0; v < 8; v++) {
-            plane_blade b = {k_tip[k], 11 * MM, v & 1 ? -4 * MM : -5 * MM, 65 * MM, v >> 1 & 1,
-                             v >> 2,   0};
+            plane_blade b = {
+                k_tip[k], 11 * MM, v & 1 ? -4 * MM : -5 * MM, 65 * MM, v >> 1 & 1, v >> 2, 0, 0};
             int o[4];
             ENSURE(plane_cut(b, o) == 0);
             printf("  tip %.7f mm as %c, from y %g mm%s: %d hinges, %d tets removed, %d at or "
@@ -510,6 +510,18 @@ static int test_cut_along_mesh_plane(void) {
             ENSURE(o[0] > 0 && o[1] > 0); // the upper layer's hinges
             ENSURE(o[2] == 0 && o[3] == 1);
         }
+    // Off the vertex plane (x = 31 mm), the tip exactly on the middle layer: that layer's edges
+    // cross the blade's plane on the tip's path, which counted as a crossing (18 tets below the
+    // tip went).
+    for (int tilt = 0; tilt < 2; tilt++) {
+        plane_blade b = {5 * MM, 11 * MM, -5 * MM, 65 * MM, 0, 0, 0.3 * tilt, 1 * MM};
+        int o[4];
+        ENSURE(plane_cut(b, o) == 0);
+        printf("  tip on the middle layer at x = 31 mm, tilt %g: %d tets removed, %d at or below "
+               "the tip, %d piece(s)\n",
+               b.tilt, o[1], o[2], o[3]);
+        ENSURE(o[1] > 0 && o[2] == 0 && o[3] == 1);
+    }
     // A 1 x 4 x 2-cell bar swept whole at once, by a blade turning about its tip and by a full
     // quad: every vertex is a candidate, and the moved ones were listed again, past the list's
     // n entries (a heap overflow under ASan, found in review).

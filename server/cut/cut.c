@@ -290,10 +290,21 @@ static void closest_on_tri(const double* p, const double* a, const double* b, co
     for (int k = 0; k < 3; k++) out[k] = a[k] + ab[k] * v + ac[k] * w;
 }
 
+/// Distance from x to segment ab.
+static double seg_dist(const double* x, const double* a, const double* b) {
+    double d[3], w[3];
+    v3_sub(b, a, d);
+    v3_sub(x, a, w);
+    double dd = v3_dot(d, d), t = dd > 0 ? v3_dot(w, d) / dd : 0;
+    t = t < 0 ? 0 : t > 1 ? 1 : t;
+    for (int k = 0; k < 3; k++) w[k] -= t * d[k];
+    return sqrt(v3_dot(w, w));
+}
+
 /// 1 when segment (a, b) crosses triangle (t0, t1, t2): endpoints strictly on opposite sides
-/// (beyond tol, m) and the crossing point inside or on the triangle.
+/// (beyond tol, m) and the crossing point (x, may be NULL) inside or on the triangle.
 static int seg_tri(const double* a, const double* b, const double* t0, const double* t1,
-                   const double* t2, double tol) {
+                   const double* t2, double tol, double* xo) {
     double e1[3], e2[3], n[3];
     v3_sub(t1, t0, e1);
     v3_sub(t2, t0, e2);
@@ -316,6 +327,7 @@ static int seg_tri(const double* a, const double* b, const double* t0, const dou
         v3_cross(ei, xi, c);
         if (v3_dot(c, n) < -1e-12 * nn * sqrt(v3_dot(ei, ei))) return 0;
     }
+    if (xo) memcpy(xo, x, sizeof x);
     return 1;
 }
 
@@ -1672,23 +1684,16 @@ void hs_cut_window_stats_get(const hs_cut* c, hs_cut_window_stats* out) {
 }
 
 /// 1 when edge ab crosses the swept quad S = {p0, q0, q1, p1} (its two triangles), with a
-/// tolerance relative to the edge's length.
+/// tolerance relative to the edge's length. A crossing on the path of either blade end
+/// (within 1e-9 of the edge's length) does not count: the blade ends there and only touches
+/// the edge (a tip running exactly along a layer of vertices cut the tets below it).
 static int edge_crosses(const double* xa, const double* xb, const double* const S[4]) {
-    double d[3];
+    double d[3], x[3];
     v3_sub(xa, xb, d);
-    double tol = 1e-6 * sqrt(v3_dot(d, d));
-    return seg_tri(xa, xb, S[0], S[1], S[2], tol) || seg_tri(xa, xb, S[0], S[2], S[3], tol);
-}
-
-/// Distance from x to segment ab.
-static double seg_dist(const double* x, const double* a, const double* b) {
-    double d[3], w[3];
-    v3_sub(b, a, d);
-    v3_sub(x, a, w);
-    double dd = v3_dot(d, d), t = dd > 0 ? v3_dot(w, d) / dd : 0;
-    t = t < 0 ? 0 : t > 1 ? 1 : t;
-    for (int k = 0; k < 3; k++) w[k] -= t * d[k];
-    return sqrt(v3_dot(w, w));
+    double len = sqrt(v3_dot(d, d)), tol = 1e-6 * len;
+    if (!seg_tri(xa, xb, S[0], S[1], S[2], tol, x) && !seg_tri(xa, xb, S[0], S[2], S[3], tol, x))
+        return 0;
+    return seg_dist(x, S[0], S[3]) > 1e-9 * len && seg_dist(x, S[1], S[2]) > 1e-9 * len;
 }
 
 /// The quad triangle (0 or 1) whose plane vertex v lies on, within tol, with its projection
