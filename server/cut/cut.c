@@ -1798,6 +1798,19 @@ static int tet_side(const hs_cut* c, int e, int v, const double* o, const double
     return pos && !neg ? 0 : neg && !pos ? 1 : -1;
 }
 
+/// Marks tet e to go this sweep (2), its nodes' counts taken now so later tets of the sweep see
+/// the orphan risk; 0 (nothing changed) when ORPHAN_KEEP_TET keeps it because a node would be
+/// left without a tet.
+static int take_tet(hs_cut* c, int e) {
+    const int* t = c->mesh->tets + 4 * e;
+    int orphan = 0;
+    for (int a = 0; a < 4; a++) orphan |= c->count[t[a]] == 1;
+    if (orphan && c->def.orphan == HS_CUT_ORPHAN_KEEP_TET) return 0;
+    for (int a = 0; a < 4; a++) c->count[t[a]]--;
+    c->tmark[e] = 2;
+    return 1;
+}
+
 hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const double p1[3],
                        const double q1[3], double* u, hs_cut_result* res, hs_err* err) {
     hs_cut_result r;
@@ -1907,18 +1920,11 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
     // 2. Removal set with the orphan rule (counts are decremented as tets go).
     for (int k = 0; k < n_cut; k++) {
         int e = c->cut_list[k];
-        const int* t = T + 4 * e;
-        int orphan = 0;
-        for (int a = 0; a < 4; a++) orphan |= c->count[t[a]] == 1;
-        if (orphan && c->def.orphan == HS_CUT_ORPHAN_KEEP_TET) {
+        // The move step below ignores tets marked 2 (going); step 4 deactivates them.
+        if (!take_tet(c, e)) {
             c->tmark[e] = 0;
             r.kept++;
-            continue;
         }
-        // Counted now so later tets of this sweep see the orphan risk; the move step below
-        // ignores tets marked 2 (going), and step 4 deactivates them.
-        for (int a = 0; a < 4; a++) c->count[t[a]]--;
-        c->tmark[e] = 2;
     }
 
     // 3. Vertex moves onto the swept surface (vertices of tets being removed).
@@ -2015,17 +2021,13 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
             for (int q = 0; q < 6 && !hit; q++)
                 hit = edge_crosses(c->x + 3 * t[k_edge[q][0]], c->x + 3 * t[k_edge[q][1]], S);
             if (!hit) continue;
-            int orphan = 0;
-            for (int a = 0; a < 4; a++) orphan |= c->count[t[a]] == 1;
-            if (orphan && c->def.orphan == HS_CUT_ORPHAN_KEEP_TET) {
+            if (!take_tet(c, e)) {
                 int seen = 0; // counted already from an earlier moved vertex of e
                 for (int j = 0; j < k && !seen; j++)
                     for (int a = 0; a < 4; a++) seen |= t[a] == c->moved[j];
                 if (!seen) r.kept++;
                 continue;
             }
-            for (int a = 0; a < 4; a++) c->count[t[a]]--;
-            c->tmark[e] = 2;
             c->cut_list[n_cut++] = e;
             r.cut_tets++;
         }
@@ -2061,12 +2063,7 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
             int e = c->nt[p];
             if (!c->active[e] || c->tmark[e] != 0 || tet_side(c, e, v, p0, tn[tri]) != drop)
                 continue;
-            const int* t = T + 4 * e;
-            int orphan = 0;
-            for (int a = 0; a < 4; a++) orphan |= c->count[t[a]] == 1;
-            if (orphan && c->def.orphan == HS_CUT_ORPHAN_KEEP_TET) continue;
-            for (int a = 0; a < 4; a++) c->count[t[a]]--;
-            c->tmark[e] = 2;
+            if (!take_tet(c, e)) continue;
             c->cut_list[n_cut++] = e;
             r.cut_tets++;
             went = 1;
