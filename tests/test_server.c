@@ -185,6 +185,12 @@ typedef struct client {
     int n_ack;
     int64_t ack_id[64];
     int32_t ack_status[64];
+    int64_t ack_utime[64]; // the server's clock
+    // every force received: the server's utime, its norm and state
+    int n_flog;
+    int64_t flog_utime[8192];
+    double flog_norm[8192];
+    int32_t flog_state[8192];
     // mesh
     int n_topo, n_key, n_delta;
     int64_t topo_version;
@@ -213,6 +219,12 @@ static void on_force(const lcm_recv_buf_t* rb, const char* ch, const hapsim_tool
     c->force = *f;
     c->force_rx_ns = hs_now_ns();
     c->n_force++;
+    if (c->n_flog < 8192) {
+        c->flog_utime[c->n_flog] = f->utime;
+        c->flog_norm[c->n_flog] =
+            sqrt(f->force[0] * f->force[0] + f->force[1] * f->force[1] + f->force[2] * f->force[2]);
+        c->flog_state[c->n_flog++] = f->state;
+    }
 }
 
 static void on_status(const lcm_recv_buf_t* rb, const char* ch, const hapsim_server_status_t* s,
@@ -248,6 +260,7 @@ static void on_ack(const lcm_recv_buf_t* rb, const char* ch, const hapsim_comman
     client* c = u;
     c->ack_id[c->n_ack % 64] = a->request_id;
     c->ack_status[c->n_ack % 64] = a->status;
+    c->ack_utime[c->n_ack % 64] = a->utime;
     c->n_ack++;
 }
 
@@ -570,13 +583,14 @@ static int poses_in_forces_out(void) {
     ENSURE(has_rt);
     ENSURE(c.status->state == HAPSIM_SERVER_STATUS_T_STATE_RUNNING && c.n_loading == 0);
 
-    // Load a scene: the net loop stands still while it is built, so one LOADING status goes out
-    // before (ahead of the final ack on the same bus), and RUNNING after.
+    // Load a scene: a LOADING status goes out at once (ahead of the final ack on the same bus),
+    // more while it is built, and RUNNING after.
     ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_LOAD_SCENE, "path", scene, NULL, NULL, NULL) ==
            HAPSIM_COMMAND_ACK_T_STATUS_OK);
-    ENSURE(c.n_loading == 1);
+    const int loading = c.n_loading;
+    ENSURE(loading >= 1);
     ENSURE(wait_more(&c, &c.n_status, 2000));
-    ENSURE(c.status->state == HAPSIM_SERVER_STATUS_T_STATE_RUNNING && c.n_loading == 1);
+    ENSURE(c.status->state == HAPSIM_SERVER_STATUS_T_STATE_RUNNING && c.n_loading == loading);
     ENSURE(stop_server() == 0);
     client_close(&c);
     // The e-stop's retried copy is a retry answered again, not a rejected message.
@@ -586,6 +600,122 @@ static int poses_in_forces_out(void) {
     ENSURE(end_line);
     printf("  %.*s", (int)strcspn(end_line, "\n") + 1, end_line);
     ENSURE(strstr(end_line, " 0 messages rejected, 1 command retries answered again"));
+    return 0;
+}
+
+// The ack of request id with a status other than PENDING (final), or PENDING; its index in the
+// client's ack ring, or -1.
+static int find_ack(const client* c, int64_t id, int final) {
+    for (int i = 0; i < 64 && i < c->n_ack; ++i)
+        if (c->ack_id[i] == id &&
+            (c->ack_status[i] != HAPSIM_COMMAND_ACK_T_STATUS_PENDING) == (final != 0))
+            return i;
+    return -1;
+}
+
+// Press 4 mm at ~1 kHz until request id has its final ack (at most 10 s); after its PENDING
+// ack, send `then` (a command kind, 0: none) once as request then_id. Returns the final ack's
+// index or -1.
+static int press_until_final(client* c, int64_t id, int then, int64_t then_id) {
+    int sent = 0;
+    int64_t end = hs_now_ns() + 10000000000LL;
+    while (hs_now_ns() < end) {
+        double p[3];
+        probe_at(0.004, p);
+        send_pose(c, p, 0);
+        int64_t next = hs_now_ns() + 1000000;
+        while (hs_now_ns() < next) {
+            hs_net_bus_handle(c->h, 0);
+            hs_net_bus_handle(c->m, 0);
+        }
+        if (then && !sent && find_ack(c, id, 0) >= 0) {
+            send_command(c, then_id, then, NULL, NULL, NULL, NULL);
+            sent = 1;
+        }
+        int f = find_ack(c, id, 1);
+        if (f >= 0) return f;
+    }
+    return -1;
+}
+
+// Forces the server sent strictly between two of its times (us); how many, and how many of
+// them nonzero.
+static int forces_between(const client* c, int64_t t0, int64_t t1, int* nonzero) {
+    int n = 0;
+    *nonzero = 0;
+    for (int i = 0; i < c->n_flog; ++i)
+        if (c->flog_utime[i] > t0 && c->flog_utime[i] < t1) {
+            n++;
+            *nonzero += c->flog_norm[i] != 0.0;
+        }
+    return n;
+}
+
+// LOAD_SCENE is built on a thread of its own: the running scene goes on answering poses until
+// the new one is swapped in, an e-stop sent during the build acts before the swap, and a scene
+// that fails to load leaves the running one as it was. (The net loop used to stand still for
+// the whole build: no forces, no status and no e-stop until the new scene ran.)
+static int load_goes_on_answering(void) {
+    char scene[512];
+    snprintf(scene, sizeof scene, "%s/liver_load.json", tmpdir);
+    liver_scene(scene, NULL);
+    ENSURE(start_server(scene, "load") == 0);
+    client c;
+    ENSURE(client_open(&c) == 0);
+    ENSURE(wait_up(&c));
+    stream(&c, -0.010, 0.004, 500);
+    stream(&c, 0.004, 0.004, 300);
+    ENSURE(dot_n(c.force.force) > 0.02);
+
+    int64_t load_id = ++next_request, stop_id = ++next_request;
+    send_command(&c, load_id, HAPSIM_COMMAND_T_KIND_LOAD_SCENE, "path", scene, NULL, NULL);
+    int fin = press_until_final(&c, load_id, HAPSIM_COMMAND_T_KIND_ESTOP, stop_id);
+    ENSURE(fin >= 0 && c.ack_status[fin] == HAPSIM_COMMAND_ACK_T_STATUS_OK);
+    int pend = find_ack(&c, load_id, 0), est = find_ack(&c, stop_id, 1);
+    ENSURE(pend >= 0 && est >= 0 && c.ack_status[est] == HAPSIM_COMMAND_ACK_T_STATUS_OK);
+    int64_t t_pend = c.ack_utime[pend], t_stop = c.ack_utime[est], t_fin = c.ack_utime[fin];
+    int nz_build = 0, nz_stopped = 0;
+    int n_build = forces_between(&c, t_pend, t_stop, &nz_build);
+    int n_stopped = forces_between(&c, t_stop, t_fin, &nz_stopped);
+    printf("  load: built in %.1f ms; %d forces before the e-stop (%d nonzero), %d after it "
+           "(%d nonzero), e-stop acked %.1f ms before the swap, %d LOADING statuses\n",
+           (double)(t_fin - t_pend) * 1e-3, n_build, nz_build, n_stopped, nz_stopped,
+           (double)(t_fin - t_stop) * 1e-3, c.n_loading);
+    ENSURE(t_pend < t_stop && t_stop < t_fin); // the e-stop did not wait for the build
+    ENSURE(n_build + n_stopped >= 3);          // the running scene answered during the build
+    ENSURE(nz_stopped == 0);                   // and stopped at once
+    ENSURE(c.n_loading >= 1);
+    // The swap keeps the latch; the release ramps the new scene's force in.
+    stream(&c, 0.004, 0.004, 100);
+    ENSURE(norm3(c.force.force) == 0.0 && c.force.state == HAPSIM_TOOL_FORCE_T_STATE_STOPPED);
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_ESTOP_RELEASE, NULL, NULL, NULL, NULL, NULL) ==
+           HAPSIM_COMMAND_ACK_T_STATUS_OK);
+    stream(&c, 0.004, 0.004, 500);
+    ENSURE(dot_n(c.force.force) > 0.02);
+
+    // A scene that cannot be loaded: FAILED naming it, and the running scene went on.
+    char bad[600];
+    snprintf(bad, sizeof bad, "%s/no_such_scene.json", tmpdir);
+    int64_t bad_id = ++next_request;
+    send_command(&c, bad_id, HAPSIM_COMMAND_T_KIND_LOAD_SCENE, "path", bad, NULL, NULL);
+    fin = press_until_final(&c, bad_id, 0, 0);
+    ENSURE(fin >= 0 && c.ack_status[fin] == HAPSIM_COMMAND_ACK_T_STATUS_FAILED);
+    stream(&c, 0.004, 0.004, 200);
+    ENSURE(dot_n(c.force.force) > 0.02 && c.force.state == HAPSIM_TOOL_FORCE_T_STATE_CONTACT);
+    ENSURE(wait_more(&c, &c.n_status, 2000));
+    ENSURE(c.status->state == HAPSIM_SERVER_STATUS_T_STATE_RUNNING);
+
+    // A load, then at once a command that must act on the new scene: it waits for the swap.
+    int64_t load2 = ++next_request;
+    send_command(&c, load2, HAPSIM_COMMAND_T_KIND_LOAD_SCENE, "path", scene, NULL, NULL);
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_SET_PARAM, "name", "force_max_n", "value", "0.01",
+                   NULL) == HAPSIM_COMMAND_ACK_T_STATUS_OK);
+    fin = find_ack(&c, load2, 1);
+    ENSURE(fin >= 0 && c.ack_status[fin] == HAPSIM_COMMAND_ACK_T_STATUS_OK);
+    stream(&c, 0.004, 0.004, 400);
+    ENSURE(norm3(c.force.force) <= 0.01 + 1e-12); // the limit holds in the new scene
+    ENSURE(stop_server() == 0);
+    client_close(&c);
     return 0;
 }
 
@@ -1112,5 +1242,6 @@ static int bad_command_lines_refused(void) {
 }
 
 HS_TEST_MAIN(HS_CASE(malformed_scene_exits_1), HS_CASE(bad_command_lines_refused),
-             HS_CASE(poses_in_forces_out), HS_CASE(mesh_10k_arrives_whole),
-             HS_CASE(dropped_deltas_recover), HS_CASE(flood_leaves_server_intact))
+             HS_CASE(poses_in_forces_out), HS_CASE(load_goes_on_answering),
+             HS_CASE(mesh_10k_arrives_whole), HS_CASE(dropped_deltas_recover),
+             HS_CASE(flood_leaves_server_intact))

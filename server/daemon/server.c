@@ -7,6 +7,8 @@
 #include <errno.h>
 #include <math.h>
 #include <poll.h>
+#include <pthread.h>
+#include <stdatomic.h>
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -88,6 +90,22 @@ typedef struct world {
     int cut_made;        // 1 once the mesh was cut (the sim cannot be rebuilt on it)
 } world;
 
+// A LOAD_SCENE builds its world on this thread while the running one goes on answering (the net
+// loop would otherwise stand still for the whole build: no forces, no status, no e-stop).
+typedef struct loader {
+    pthread_t th;
+    int active;      // started and not yet joined
+    atomic_int done; // the thread has finished: st, err and nw are its results
+    int realtime;
+    char path[HS_NET_CMD_VALUE_MAX];
+    int64_t request_id; // its final ack goes out at the swap
+    int32_t kind;
+    hs_scene sc;
+    world nw; // built, not started; the net thread swaps it in
+    hs_status st;
+    hs_err err;
+} loader;
+
 typedef struct dev_state {
     int64_t force_seq;
     int64_t last_rx_ns;  // newest accepted pose, CLOCK_MONOTONIC
@@ -124,6 +142,7 @@ struct hs_server {
 
     int paused, estop;
     const char* loading; // path of the scene being built: the status says STATE_LOADING
+    loader load;         // a LOAD_SCENE being built on its own thread
     int64_t pause_ns;
     int64_t estop_release_ns;    // forces ramp back in from here (the rt chain never saw the stop)
     hs_haptic_model pause_model; // output model at the pause, ramped to zero
@@ -882,10 +901,11 @@ static void publish_status(hs_server* s, int64_t t) {
     m.utime = now_us();
     m.seq = ++s->seq_status;
     m.uptime_us = (t - s->start_ns) / 1000;
-    m.state = s->loading  ? HAPSIM_SERVER_STATUS_T_STATE_LOADING
-              : s->estop  ? HAPSIM_SERVER_STATUS_T_STATE_ESTOP
-              : s->paused ? HAPSIM_SERVER_STATUS_T_STATE_PAUSED
-                          : HAPSIM_SERVER_STATUS_T_STATE_RUNNING;
+    // An e-stop latched while a scene loads shows: it is the state that matters to the hand.
+    m.state = s->estop     ? HAPSIM_SERVER_STATUS_T_STATE_ESTOP
+              : s->loading ? HAPSIM_SERVER_STATUS_T_STATE_LOADING
+              : s->paused  ? HAPSIM_SERVER_STATUS_T_STATE_PAUSED
+                           : HAPSIM_SERVER_STATUS_T_STATE_RUNNING;
     m.scene = w->scene.path;
     m.topology_version = s->topo_version;
 
@@ -1029,7 +1049,7 @@ static void publish_status(hs_server* s, int64_t t) {
     if (w->sim && s->st_prev->step_failures)
         WARN("%lld deformation steps failed", (long long)s->st_prev->step_failures);
     if (s->estop) WARN("e-stop latched: every force is zero");
-    if (s->loading) WARN("loading %s: forces stop until it is built", s->loading);
+    if (s->loading) WARN("loading %s: the running scene goes on until it is built", s->loading);
     if (w->sim && s->st_prev->cut_failures)
         WARN("%lld cut steps failed (mesh kept consistent)", (long long)s->st_prev->cut_failures);
 #undef WARN
@@ -1202,23 +1222,13 @@ static int set_param(hs_server* s, const char* name, double v, char* msg, size_t
     return HAPSIM_COMMAND_ACK_T_STATUS_OK;
 }
 
-static int load_scene_now(hs_server* s, const char* path, char* msg, size_t cap) {
-    hs_scene sc;
+// Swap the built world nw in for the running one and start it; the final ack's status.
+static int swap_world(hs_server* s, world* nw, char* msg, size_t cap) {
     hs_err err = {0};
-    if (hs_scene_load(path, &sc, &err) != HS_OK) {
-        snprintf(msg, cap, "%s", err.msg);
-        return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
-    }
-    // Build the new world (its sim not started) while the old one still runs: a scene that
-    // fails here leaves the running simulation as it was, cut or not.
-    world nw;
-    if (world_create(&sc, s->opt.realtime, &nw, &err) != HS_OK) {
-        snprintf(msg, cap, "%s", err.msg);
-        return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
-    }
     world_sim_stop(&s->w);
     world_destroy(&s->w);
-    s->w = nw;
+    s->w = *nw;
+    memset(nw, 0, sizeof *nw);
     s->paused = 0;
     reset_limits(s);
     s->topo_version++;
@@ -1235,21 +1245,87 @@ static int load_scene_now(hs_server* s, const char* path, char* msg, size_t cap)
         snprintf(msg, cap,
                  "loaded %.100s but its simulation did not start (%.300s): paused, "
                  "RESUME retries",
-                 sc.name, err.msg);
+                 s->w.scene.name, err.msg);
         return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
     }
-    snprintf(msg, cap, "loaded %s (%d nodes); buses and prefix unchanged", sc.name,
+    snprintf(msg, cap, "loaded %s (%d nodes); buses and prefix unchanged", s->w.scene.name,
              s->w.mesh->n_nodes);
     return HAPSIM_COMMAND_ACK_T_STATUS_OK;
 }
 
-// The net loop stands still while a scene is built (forces stop; devices time out to zero):
-// say so first, so a visualiser can show it.
+// Load and build a scene on the net thread (RESET of a cut world), then swap. Built while the
+// old world still exists: a scene that fails leaves the running simulation as it was.
 static int load_scene(hs_server* s, const char* path, char* msg, size_t cap) {
     s->loading = path ? path : "(no path)";
-    publish_status(s, hs_now_ns());
+    publish_status(s, hs_now_ns()); // the net loop stands still now: say so first
     s->loading = NULL;
-    return load_scene_now(s, path, msg, cap);
+    hs_scene sc;
+    hs_err err = {0};
+    if (hs_scene_load(path, &sc, &err) != HS_OK) {
+        snprintf(msg, cap, "%s", err.msg);
+        return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
+    }
+    world nw;
+    if (world_create(&sc, s->opt.realtime, &nw, &err) != HS_OK) {
+        snprintf(msg, cap, "%s", err.msg);
+        return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
+    }
+    return swap_world(s, &nw, msg, cap);
+}
+
+static void* loader_main(void* arg) {
+    loader* L = arg;
+    L->st = hs_scene_load(L->path, &L->sc, &L->err);
+    if (L->st == HS_OK) L->st = world_create(&L->sc, L->realtime, &L->nw, &L->err);
+    atomic_store(&L->done, 1);
+    return NULL;
+}
+
+#define LOAD_STARTED (-100) // not an ack status: the final ack follows from finish_load
+
+// LOAD_SCENE from a client: build on the loader thread; the net loop goes on (forces from the
+// running scene, status saying LOADING, e-stops) and swaps when it is built. Returns
+// LOAD_STARTED when started (the final ack follows from finish_load), else the final status (the
+// build ran here: no thread could be started).
+static int load_scene_start(hs_server* s, const hs_net_command* c, char* msg, size_t cap) {
+    loader* L = &s->load;
+    const char* path = hs_net_command_arg(c, "path");
+    snprintf(L->path, sizeof L->path, "%s", path ? path : "");
+    L->request_id = c->request_id;
+    L->kind = c->kind;
+    L->realtime = s->opt.realtime;
+    L->st = HS_OK;
+    memset(&L->err, 0, sizeof L->err);
+    atomic_store(&L->done, 0);
+    s->loading = L->path;
+    publish_status(s, hs_now_ns());
+    if (pthread_create(&L->th, NULL, loader_main, L) == 0) {
+        L->active = 1;
+        return LOAD_STARTED;
+    }
+    s->loading = NULL;
+    return load_scene(s, path, msg, cap);
+}
+
+// Join the loader (waiting if it is still building), swap its world in and send the final ack.
+// stopping: the server is shutting down; the built world is dropped and the ack says so.
+static void finish_load(hs_server* s, int stopping) {
+    loader* L = &s->load;
+    if (!L->active) return;
+    pthread_join(L->th, NULL);
+    L->active = 0;
+    s->loading = NULL;
+    char msg[600];
+    int st = HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
+    if (L->st != HS_OK)
+        snprintf(msg, sizeof msg, "%s", L->err.msg);
+    else if (stopping)
+        snprintf(msg, sizeof msg, "the server stopped before %.400s was swapped in", L->path);
+    else
+        st = swap_world(s, &L->nw, msg, sizeof msg);
+    world_destroy(&L->nw); // zeroed by the swap; a dropped build is freed here
+    hs_net_dedup_set_status(&s->cst.dedup, L->request_id, st);
+    if (s->mbus) send_ack(s, L->request_id, L->kind, st, msg);
 }
 
 static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap) {
@@ -1304,7 +1380,7 @@ static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap)
         }
         return HAPSIM_COMMAND_ACK_T_STATUS_OK;
     case HAPSIM_COMMAND_T_KIND_LOAD_SCENE:
-        return load_scene(s, hs_net_command_arg(c, "path"), msg, cap);
+        return load_scene_start(s, c, msg, cap);
     case HAPSIM_COMMAND_T_KIND_SET_PARAM:
         return set_param(s, hs_net_command_arg(c, "name"), c->number, msg, cap);
     case HAPSIM_COMMAND_T_KIND_ESTOP: {
@@ -1348,9 +1424,14 @@ static void on_command(const lcm_recv_buf_t* rb, const char* ch, void* user) {
         return;
     }
     char msg[600];
+    // Every command but the e-stop's two acts after a load in progress, as if it had been
+    // built here: wait for it and swap it in first.
+    if (c.kind != HAPSIM_COMMAND_T_KIND_ESTOP && c.kind != HAPSIM_COMMAND_T_KIND_ESTOP_RELEASE)
+        finish_load(s, 0);
     if (c.kind == HAPSIM_COMMAND_T_KIND_LOAD_SCENE)
         send_ack(s, c.request_id, c.kind, HAPSIM_COMMAND_ACK_T_STATUS_PENDING, "loading");
     int st = execute(s, &c, msg, sizeof msg);
+    if (st == LOAD_STARTED) return; // being built on the loader thread: finish_load acks it
     hs_net_dedup_set_status(&s->cst.dedup, c.request_id, st);
     send_ack(s, c.request_id, c.kind, st, msg);
 }
@@ -1464,6 +1545,7 @@ fail:
 void hs_server_destroy(hs_server** ps) {
     if (!ps || !*ps) return;
     hs_server* s = *ps;
+    finish_load(s, 1);
     world_destroy(&s->w);
     hs_net_bus_destroy(&s->hbus);
     hs_net_bus_destroy(&s->mbus);
@@ -1621,6 +1703,7 @@ hs_status hs_server_run(hs_server* s, hs_err* err) {
         if (w->sim && s->dev[0].seen && t - s->dev[0].last_rx_ns < 2000000000LL &&
             wait_ns > 1000000)
             wait_ns = 1000000;
+        if (s->load.active && wait_ns > 2000000) wait_ns = 2000000; // look for its end
         int timeout = wait_ns <= 0 ? 0 : (int)((wait_ns + 999999) / 1000000);
         struct pollfd pf[3] = {{lcm_get_fileno(hs_net_bus_lcm(s->hbus)), POLLIN, 0},
                                {lcm_get_fileno(hs_net_bus_lcm(s->mbus)), POLLIN, 0},
@@ -1646,6 +1729,7 @@ hs_status hs_server_run(hs_server* s, hs_err* err) {
             rc = hs_err_set(err, HS_ERR_IO, "lcm_handle failed on %s", s->mesh_url);
             break;
         }
+        if (s->load.active && atomic_load(&s->load.done)) finish_load(s, 0);
         w = &s->w; // a load_scene replaces the world
         drain_outputs(s);
         publish_rt_output(s);
@@ -1693,6 +1777,7 @@ hs_status hs_server_run(hs_server* s, hs_err* err) {
         }
         if (t >= end) s->stop = 1;
     }
+    finish_load(s, 1);
     if (s->w.sim) hs_haptic_sim_stop(s->w.sim);
     if (s->opt.live) fprintf(stderr, "\n");
     if (!s->opt.quiet) {
