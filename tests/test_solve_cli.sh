@@ -22,7 +22,7 @@ grep -q -- "--fix-box" "$T/help"; check "help lists --fix-box" $?
 "$SOLVE" --mesh "$MESH" --model linear --static --steps 3 --dt 0.01 --out "$T/o.csv" 2> "$T/err"; rc=$?
 [ $rc -eq 1 ] && grep -q "exactly one" "$T/err"; check "static and steps together refused" $?
 "$SOLVE" --mesh "$MESH" --model linear --static --fix-box 9,9,9,10,10,10 --out "$T/o.csv" 2> "$T/err"; rc=$?
-[ $rc -eq 1 ] && grep -q "no node is fixed" "$T/err"; check "empty fixed region explained" $?
+[ $rc -eq 1 ] && grep -q "no node of a tet is fixed" "$T/err"; check "empty fixed region explained" $?
 for bad in z,min,nan z,min,inf z,min,0.01junk w,min,1 z,mid,1 z,min,-1; do
   "$SOLVE" --mesh "$MESH" --model linear --static --fix-plane "$bad" --out "$T/o.csv" 2> "$T/err"; rc=$?
   [ $rc -eq 1 ] && grep -q "AXIS,SIDE,TOL" "$T/err"; check "--fix-plane $bad refused" $?
@@ -80,5 +80,47 @@ grep -q "max |u|" "$T/sum"; check "summary printed" $?
   --fix-plane y,min,0.005 --static --load-steps 2 --out "$T/m.csv" > /dev/null; check "mooney static solves" $?
 "$SOLVE" --mesh "$MESH" --model linear --E 20000 --gravity 0,0,-9.81 --fix-plane y,min,0.005 \
   --steps 5 --dt 0.01 --solver pcg --precond jacobi --out "$T/d.csv" > /dev/null; check "dynamics with pcg" $?
+
+# Found in review (2026-11-28); each failed before.
+# A write that fails says why and the summary does not claim it.
+if [ -w /dev/full ]; then
+  "$SOLVE" --mesh "$MESH" --model linear --static --fix-plane y,min,0.005 --out /dev/full \
+    > "$T/sum" 2> "$T/err"; rc=$?
+  [ $rc -eq 1 ] && grep -q "error writing /dev/full: No space" "$T/err" && \
+    grep -q "wrote           nothing" "$T/sum"; check "a failed write is not reported as written" $?
+fi
+# The last --model counts.
+"$SOLVE" --mesh "$MESH" --model mooney --model linear --fix-plane y,min,0.005 --static \
+  --out "$T/o.csv" > "$T/sum" 2> "$T/err"; rc=$?
+[ $rc -eq 0 ] && grep -q "volume ratio    mean" "$T/sum"; check "the last --model counts" $?
+# --out and --vtk the same file: refused.
+"$SOLVE" --mesh "$MESH" --model linear --static --fix-plane y,min,0.005 --out "$T/same" \
+  --vtk "$T/same" > /dev/null 2> "$T/err"; rc=$?
+[ $rc -eq 1 ] && grep -q "same file" "$T/err"; check "--out and --vtk the same file refused" $?
+# One tet and a node no tet uses (node 5): fixing only that node fixes nothing.
+printf '$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n5\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n5 0 0 -5\n$EndNodes\n$Elements\n1\n1 4 2 0 1 1 2 3 4\n$EndElements\n' > "$T/unref.msh"
+"$SOLVE" --mesh "$T/unref.msh" --model linear --static --gravity 0,0,-9.81 \
+  --fix-box -1,-1,-6,1,1,-4 --out "$T/o.csv" > /dev/null 2> "$T/err"; rc=$?
+[ $rc -eq 1 ] && grep -q "no node of a tet is fixed" "$T/err"; check "a fixed unused node fixes nothing" $?
+# Two fixed nodes (collinear): rigid rotation about their line is free, no static solution;
+# every model refuses the static solve (linear wrote |u| ~ 1e14 m), dynamics is fine.
+for model in linear corotated stvk mooney; do
+  "$SOLVE" --mesh "$T/unref.msh" --model $model --static --gravity 0,0,-9.81 \
+    --fix-box -0.1,-0.1,-0.1,1.1,0.1,0.1 --out "$T/o.csv" > /dev/null 2> "$T/err"; rc=$?
+  [ $rc -eq 1 ] && grep -q "rigid motion is free" "$T/err"; check "$model: collinear fixed nodes refused for --static" $?
+done
+"$SOLVE" --mesh "$T/unref.msh" --model corotated --steps 3 --dt 0.01 --gravity 0,0,-9.81 \
+  --fix-box -0.1,-0.1,-0.1,1.1,0.1,0.1 --out "$T/o.csv" > /dev/null; check "collinear fixed nodes: dynamics runs" $?
+# Every node fixed: refused for every model (mooney returned u = 0 with exit 0).
+for model in linear mooney; do
+  "$SOLVE" --mesh "$MESH" --model $model --static --fix-box -10,-10,-10,10,10,10 \
+    --out "$T/o.csv" > /dev/null 2> "$T/err"; rc=$?
+  [ $rc -eq 1 ] && grep -q "nothing is left to move" "$T/err"; check "$model: every node fixed refused" $?
+done
+# A solve that fails writes nothing (the CSV was written and "wrote" printed).
+"$SOLVE" --mesh "$MESH" --model linear --E 1e308 --static --fix-plane y,min,0.005 \
+  --out "$T/failed.csv" > "$T/sum" 2> "$T/err"; rc=$?
+[ $rc -eq 2 ] && [ ! -e "$T/failed.csv" ] && grep -q "wrote           nothing" "$T/sum"
+check "a failed solve writes nothing" $?
 echo "$pass passed, $fail failed"
 [ $fail -eq 0 ]

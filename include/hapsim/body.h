@@ -99,6 +99,10 @@ hs_status hs_body_step(hs_body* b, hs_step_stats* stats /* OUT, may be NULL */);
 /// An error status (a factorisation failed, NaN/Inf) leaves u and v as they were;
 /// HS_WARN_NOT_CONVERGED leaves u at the last iterate, the best the solve found.
 hs_status hs_body_solve_static(hs_body* b, hs_step_stats* stats /* OUT, may be NULL */);
+/// Whether the static problem has a unique solution: every connected piece of the active
+/// elements holds three non-collinear fixed nodes. Else HS_ERR_INVALID, naming a tet of the
+/// free piece in err (may be NULL); hs_body_solve_static then refuses with that status.
+hs_status hs_body_check_static(const hs_body* b, hs_err* err);
 /// Back to rest: u = 0, velocity 0, rotations identity: from here it steps as a new body
 /// (forces and prescribed values kept).
 void hs_body_reset(hs_body* b);

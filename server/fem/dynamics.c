@@ -25,7 +25,6 @@ struct hs_body {
     hs_body_def def;
     int n;                // nodes
     int n_free;           // free dofs
-    int n_user_fixed;     // nodes fixed by the caller (unused nodes are fixed too, silently)
     int* dof;             // [3n] free index or -1
     int* free_to_full;    // [n_free]
     unsigned char* fixed; // [n]
@@ -239,7 +238,6 @@ hs_status hs_body_create(const hs_mesh* mesh, const hs_body_def* def, const unsi
         // Unused nodes carry no stiffness: fix them so the system stays SPD.
         int fx = (fixed && fixed[i]) || (mesh->node_used && !mesh->node_used[i]);
         b->fixed[i] = (unsigned char)fx;
-        b->n_user_fixed += fixed && fixed[i];
         for (int c = 0; c < 3; ++c) b->dof[3 * i + c] = fx ? -1 : nf++;
     }
     b->n_free = nf;
@@ -866,12 +864,17 @@ static double position_floor(const hs_body* b) {
     return 4 * DBL_EPSILON * sqrt(acc);
 }
 
+hs_status hs_body_check_static(const hs_body* b, hs_err* err) {
+    HS_ASSERT(b);
+    return hs_check_constrained(b->mesh, hs_fem_active_elements(b->fem), b->dof, err);
+}
+
 hs_status hs_body_solve_static(hs_body* b, hs_step_stats* stats) {
     hs_step_stats st;
     memset(&st, 0, sizeof st);
-    if (b->n_user_fixed == 0) {
+    if (hs_body_check_static(b, NULL) != HS_OK) {
         // Rigid motions are free: the static problem is singular. Say so rather than let the
-        // factorisation produce garbage.
+        // factorisation produce garbage (or "converge" on a linear model turned 1e14 m).
         if (stats) *stats = st;
         return HS_ERR_INVALID;
     }

@@ -593,6 +593,10 @@ void hs_fem_set_element_active(hs_fem* fem, int tet, int active) {
     for (int a = 0; a < 4; a++) node_mass(fem, fem->tet[4 * tet + a]);
 }
 
+const unsigned char* hs_fem_active_elements(const hs_fem* fem) {
+    return fem->active;
+}
+
 int hs_fem_element_active(const hs_fem* fem, int tet) {
     return fem && tet >= 0 && tet < fem->ne && fem->active[tet];
 }
@@ -1444,4 +1448,87 @@ void hs_fem_node_rotations_warm(const hs_fem* m, double* rot) {
         node_rotations_avx2(m, rot);
     else
         node_rotations_base(m, rot);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Whether a static problem has a unique solution (fem_internal.h).
+
+static int uf_find(int* parent, int i) {
+    while (parent[i] != i) i = parent[i] = parent[parent[i]];
+    return i;
+}
+
+hs_status hs_check_constrained(const hs_mesh* mesh, const unsigned char* active, const int* dof_map,
+                               hs_err* err) {
+    const int n = mesh->n_nodes, nt = mesh->n_tets;
+    int* parent = hs_alloc(sizeof(int) * (size_t)n);
+    int* first = hs_alloc(sizeof(int) * (size_t)n);      // per root: a fixed node, or -1
+    int* second = hs_alloc(sizeof(int) * (size_t)n);     // per root: farthest fixed node from first
+    double* span = hs_calloc((size_t)n, sizeof(double)); // per root: bbox diagonal^2
+    char* in = hs_calloc((size_t)n, 1);                  // the node is in an active tet
+    hs_status st = HS_OK;
+    if (!parent || !first || !second || !span || !in) {
+        st = hs_err_set(err, HS_ERR_NOMEM, "%s:%d: out of memory", __FILE__, __LINE__);
+        goto done;
+    }
+    for (int i = 0; i < n; i++) parent[i] = i, first[i] = second[i] = -1;
+    for (int e = 0; e < nt; e++) {
+        if (active && !active[e]) continue;
+        const int* t = mesh->tets + 4 * e;
+        for (int a = 0; a < 4; a++) in[t[a]] = 1;
+        for (int a = 1; a < 4; a++) {
+            int x = uf_find(parent, t[0]), y = uf_find(parent, t[a]);
+            if (x != y) parent[x] = y;
+        }
+    }
+    const double* x0 = mesh->x0;
+#define D2(i, j)                                                                                   \
+    ((x0[3 * (i)] - x0[3 * (j)]) * (x0[3 * (i)] - x0[3 * (j)]) +                                   \
+     (x0[3 * (i) + 1] - x0[3 * (j) + 1]) * (x0[3 * (i) + 1] - x0[3 * (j) + 1]) +                   \
+     (x0[3 * (i) + 2] - x0[3 * (j) + 2]) * (x0[3 * (i) + 2] - x0[3 * (j) + 2]))
+    // pass 1: a fixed node per piece, and the piece's size
+    for (int i = 0; i < n; i++) {
+        if (in[i]) {
+            int r = uf_find(parent, i);
+            if (dof_map[3 * i] < 0 && first[r] < 0) first[r] = i;
+            if (first[r] >= 0) span[r] = fmax(span[r], D2(i, first[r]));
+        }
+    }
+    // pass 2: the fixed node farthest from the first one
+    for (int i = 0; i < n; i++) {
+        int r = uf_find(parent, i);
+        if (dof_map[3 * i] >= 0 || first[r] < 0 || i == first[r]) continue;
+        if (second[r] < 0 || D2(i, first[r]) > D2(second[r], first[r])) second[r] = i;
+    }
+    // pass 3: a fixed node off the line through the two, by more than 1e-6 of the piece size
+    for (int i = 0; i < n; i++) {
+        int r = uf_find(parent, i);
+        if (first[r] < 0 || second[r] < 0 || dof_map[3 * i] >= 0) continue;
+        const double *a = x0 + 3 * first[r], *b = x0 + 3 * second[r], *c = x0 + 3 * i;
+        double u[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
+        double v[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+        double w[3] = {u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2],
+                       u[0] * v[1] - u[1] * v[0]};
+        double d2 =
+            (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]) / (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]);
+        if (d2 > 1e-12 * span[r]) second[r] = -2; // marks the piece as constrained
+    }
+#undef D2
+    for (int e = 0; e < nt && st == HS_OK; e++) {
+        if (active && !active[e]) continue;
+        int r = uf_find(parent, mesh->tets[4 * e]);
+        if (second[r] != -2)
+            st = hs_err_set(err, HS_ERR_INVALID,
+                            "the piece of the mesh containing tet %d has %s: rigid motion is "
+                            "free, so it has no static equilibrium (fix at least 3 non-collinear "
+                            "nodes of every piece)",
+                            e, first[r] < 0 ? "no fixed node" : "only collinear fixed nodes");
+    }
+done:
+    hs_free(in);
+    hs_free(parent);
+    hs_free(first);
+    hs_free(second);
+    hs_free(span);
+    return st;
 }

@@ -17,6 +17,7 @@
 //   [ -E A0^-1 B        W^-1 + E A0^-1 E^T   ] [q ] = [0]
 // whose Schur complement on du is exactly S (Woodbury); see docs/mooney.md.
 #include "hapsim/mooney.h"
+#include "fem_internal.h"
 #include "hapsim/sparse.h"
 
 #include <math.h>
@@ -413,83 +414,6 @@ nomem:
                       __LINE__);
 }
 
-static int uf_find(int* parent, int i) {
-    while (parent[i] != i) i = parent[i] = parent[parent[i]];
-    return i;
-}
-
-// Every connected piece of the mesh needs three non-collinear fixed nodes, or rigid motion
-// is free and the static problem has no unique solution.
-static hs_status check_constrained(hs_mooney* m, hs_err* err) {
-    const hs_mesh* mesh = m->mesh;
-    int n = m->n;
-    int* parent = hs_alloc(sizeof(int) * (size_t)n);
-    int* first = hs_alloc(sizeof(int) * (size_t)n);      // per root: a fixed node, or -1
-    int* second = hs_alloc(sizeof(int) * (size_t)n);     // per root: farthest fixed node from first
-    double* span = hs_calloc((size_t)n, sizeof(double)); // per root: bbox diagonal^2
-    hs_status st = HS_OK;
-    if (!parent || !first || !second || !span) {
-        st = hs_err_set(err, HS_ERR_NOMEM, "%s:%d: out of memory", __FILE__, __LINE__);
-        goto done;
-    }
-    for (int i = 0; i < n; i++) parent[i] = i, first[i] = second[i] = -1;
-    for (int e = 0; e < m->nt; e++) {
-        const int* t = mesh->tets + 4 * e;
-        for (int a = 1; a < 4; a++) {
-            int x = uf_find(parent, t[0]), y = uf_find(parent, t[a]);
-            if (x != y) parent[x] = y;
-        }
-    }
-    const double* x0 = mesh->x0;
-#define D2(i, j)                                                                                   \
-    ((x0[3 * (i)] - x0[3 * (j)]) * (x0[3 * (i)] - x0[3 * (j)]) +                                   \
-     (x0[3 * (i) + 1] - x0[3 * (j) + 1]) * (x0[3 * (i) + 1] - x0[3 * (j) + 1]) +                   \
-     (x0[3 * (i) + 2] - x0[3 * (j) + 2]) * (x0[3 * (i) + 2] - x0[3 * (j) + 2]))
-    // pass 1: a fixed node per piece, and the piece's size
-    for (int i = 0; i < n; i++) {
-        if (!mesh->node_tet_start || mesh->node_tet_start[i + 1] > mesh->node_tet_start[i]) {
-            int r = uf_find(parent, i);
-            if (m->dof_map[3 * i] < 0 && first[r] < 0) first[r] = i;
-            if (first[r] >= 0) span[r] = fmax(span[r], D2(i, first[r]));
-        }
-    }
-    // pass 2: the fixed node farthest from the first one
-    for (int i = 0; i < n; i++) {
-        int r = uf_find(parent, i);
-        if (m->dof_map[3 * i] >= 0 || first[r] < 0 || i == first[r]) continue;
-        if (second[r] < 0 || D2(i, first[r]) > D2(second[r], first[r])) second[r] = i;
-    }
-    // pass 3: a fixed node off the line through the two, by more than 1e-6 of the piece size
-    for (int i = 0; i < n; i++) {
-        int r = uf_find(parent, i);
-        if (first[r] < 0 || second[r] < 0 || m->dof_map[3 * i] >= 0) continue;
-        const double *a = x0 + 3 * first[r], *b = x0 + 3 * second[r], *c = x0 + 3 * i;
-        double u[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
-        double v[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
-        double w[3] = {u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2],
-                       u[0] * v[1] - u[1] * v[0]};
-        double d2 =
-            (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]) / (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]);
-        if (d2 > 1e-12 * span[r]) second[r] = -2; // marks the piece as constrained
-    }
-#undef D2
-    for (int e = 0; e < m->nt && st == HS_OK; e++) {
-        int r = uf_find(parent, mesh->tets[4 * e]);
-        if (second[r] != -2)
-            st = hs_err_set(err, HS_ERR_INVALID,
-                            "%s:%d: the piece of the mesh containing tet %d has %s: rigid motion "
-                            "is free (fix at least 3 non-collinear nodes of every piece)",
-                            __FILE__, __LINE__, e,
-                            first[r] < 0 ? "no fixed node" : "only collinear fixed nodes");
-    }
-done:
-    hs_free(parent);
-    hs_free(first);
-    hs_free(second);
-    hs_free(span);
-    return st;
-}
-
 static hs_status build_stiffness_pattern(hs_mooney* m, hs_err* err) {
     const hs_mesh* mesh = m->mesh;
     int* tf = NULL;
@@ -668,7 +592,7 @@ hs_status hs_mooney_create(const hs_mesh* mesh, const hs_mooney_def* def,
     MOONEY_ALLOC(m->bf, m->n_k);
     MOONEY_ALLOC(m->xf, m->n_k);
     if (m->def.beta > 0 && (st = build_pressure_matrix(m, err)) != HS_OK) goto fail;
-    if ((st = check_constrained(m, err)) != HS_OK) goto fail;
+    if ((st = hs_check_constrained(m->mesh, NULL, m->dof_map, err)) != HS_OK) goto fail;
     if (nf > 0 && (st = build_stiffness_pattern(m, err)) != HS_OK) goto fail;
     // Analyse and factorise at rest now, so solving allocates nothing and an unconstrained
     // body is reported here.

@@ -108,6 +108,14 @@ static int writable(const char* path) {
     return access(dir, W_OK | X_OK) == 0;
 }
 
+// Whether two paths name one file: the same string, or an existing file reached twice.
+static int same_file(const char* a, const char* b) {
+    if (!strcmp(a, b)) return 1;
+    struct stat sa, sb;
+    return stat(a, &sa) == 0 && stat(b, &sb) == 0 && sa.st_dev == sb.st_dev &&
+           sa.st_ino == sb.st_ino;
+}
+
 // Flags that only some models, modes or solvers read (a bit each, in the order of flag_name).
 enum {
     F_DT = 1 << 0,
@@ -186,6 +194,7 @@ int main(int argc, char** argv) {
         } else if (!strcmp(a, "--model")) {
             NEED_ARG();
             ++i;
+            mooney = 0; // the last --model given counts
             if (!strcmp(argv[i], "linear"))
                 def.fem.model = HS_MODEL_LINEAR;
             else if (!strcmp(argv[i], "corotated"))
@@ -405,18 +414,29 @@ int main(int argc, char** argv) {
             fprintf(stderr, "hapsim-solve: cannot write %s: %s\n", outs[k], strerror(errno));
             return 1;
         }
-
-    hs_err err = {0};
-    hs_mesh* mesh = NULL;
-    if (hs_mesh_load(mesh_path, &mesh, &err) < 0) {
-        fprintf(stderr, "hapsim-solve: %s\n", err.msg);
+    if (vtk_path && same_file(out_path, vtk_path)) {
+        fprintf(stderr, "hapsim-solve: --out and --vtk name the same file (%s)\n", out_path);
         return 1;
     }
-    unsigned char* fixed = calloc((size_t)mesh->n_nodes, 1);
-    unsigned char* mask = calloc((size_t)mesh->n_nodes, 1);
+
+    // From here on every exit goes through `done`, which frees what was made.
+    int rc = 0;
+    hs_err err = {0};
+    hs_mesh* mesh = NULL;
+    unsigned char *fixed = NULL, *mask = NULL;
+    hs_body* body = NULL;
+    hs_mooney* mr = NULL;
+    if (hs_mesh_load(mesh_path, &mesh, &err) < 0) {
+        fprintf(stderr, "hapsim-solve: %s\n", err.msg);
+        rc = 1;
+        goto done;
+    }
+    fixed = calloc((size_t)mesh->n_nodes, 1);
+    mask = calloc((size_t)mesh->n_nodes, 1);
     if (!fixed || !mask) {
         fprintf(stderr, "hapsim-solve: out of memory\n");
-        return 1;
+        rc = 1;
+        goto done;
     }
     for (int b = 0; b < n_boxes; ++b) {
         hs_mesh_select_box(mesh, boxes[b], boxes[b] + 3, mask);
@@ -425,24 +445,35 @@ int main(int argc, char** argv) {
     for (int p = 0; p < n_planes; ++p) {
         if (hs_mesh_select_plane(mesh, planes[p].axis, planes[p].side, planes[p].tol, mask) < 0) {
             fprintf(stderr, "hapsim-solve: --fix-plane %d: invalid\n", p + 1);
-            return 1;
+            rc = 1;
+            goto done;
         }
         for (int i = 0; i < mesh->n_nodes; ++i) fixed[i] |= mask[i];
     }
-    int n_fixed = 0;
-    for (int i = 0; i < mesh->n_nodes; ++i) n_fixed += fixed[i] != 0;
+    // Only nodes of a tet count: a node no tet uses carries nothing and holds nothing.
+    int n_fixed = 0, n_used = 0;
+    for (int i = 0; i < mesh->n_nodes; ++i) {
+        n_used += mesh->node_used[i] != 0;
+        n_fixed += fixed[i] && mesh->node_used[i];
+    }
     if (n_fixed == 0) {
         fprintf(stderr,
-                "hapsim-solve: no node is fixed: give --fix-box or --fix-plane that "
+                "hapsim-solve: no node of a tet is fixed: give --fix-box or --fix-plane that "
                 "contains nodes (bbox %g,%g,%g .. %g,%g,%g)\n",
                 mesh->bbox_min[0], mesh->bbox_min[1], mesh->bbox_min[2], mesh->bbox_max[0],
                 mesh->bbox_max[1], mesh->bbox_max[2]);
-        return 1;
+        rc = 1;
+        goto done;
+    }
+    if (n_fixed == n_used) {
+        fprintf(stderr,
+                "hapsim-solve: the fixed regions hold every node of the mesh's %d tets: "
+                "nothing is left to move\n",
+                mesh->n_tets);
+        rc = 1;
+        goto done;
     }
 
-    hs_body* body = NULL;
-    hs_mooney* mr = NULL;
-    int rc = 0;
     hs_step_stats st = {0};
     double total_ms = 0;
     int iters = 0, lin_iters = 0;
@@ -459,7 +490,8 @@ int main(int argc, char** argv) {
         if (hs_mooney_create(mesh, &md, fixed, &mr, &err) < 0 ||
             hs_mooney_set_gravity(mr, def.gravity) < 0) {
             fprintf(stderr, "hapsim-solve: %s\n", err.msg);
-            return 1;
+            rc = 1;
+            goto done;
         }
         hs_mooney_stats ms;
         s = hs_mooney_solve_static(mr, &ms, &err);
@@ -470,9 +502,11 @@ int main(int argc, char** argv) {
         st.fem.volume_ratio_max = ms.volume_ratio_max;
         st.fem.volume_ratio_mean = ms.volume_ratio_total; // whole-mesh ratio for this model
     } else {
-        if (hs_body_create(mesh, &def, fixed, &body, &err) < 0) {
+        if (hs_body_create(mesh, &def, fixed, &body, &err) < 0 ||
+            (do_static && hs_body_check_static(body, &err) != HS_OK)) {
             fprintf(stderr, "hapsim-solve: %s\n", err.msg);
-            return 1;
+            rc = 1;
+            goto done;
         }
         if (do_static) {
             s = hs_body_solve_static(body, &st);
@@ -498,23 +532,30 @@ int main(int argc, char** argv) {
         rc = 3;
     }
 
+    // A failed solve writes nothing: its state is not an answer.
     const double* u = mooney ? hs_mooney_displacement(mr) : hs_body_displacement(body);
-    FILE* f = fopen(out_path, "w");
-    if (!f) {
-        fprintf(stderr, "hapsim-solve: cannot write %s: %s\n", out_path, strerror(errno));
-        rc = 1;
-    } else {
-        fprintf(f, "ux,uy,uz\n");
-        for (int i = 0; i < mesh->n_nodes; ++i)
-            fprintf(f, "%.9e,%.9e,%.9e\n", u[3 * i], u[3 * i + 1], u[3 * i + 2]);
-        if (fclose(f) != 0) {
-            fprintf(stderr, "hapsim-solve: error writing %s\n", out_path);
+    int wrote = 0;
+    if (rc != 2) {
+        FILE* f = fopen(out_path, "w");
+        if (!f) {
+            fprintf(stderr, "hapsim-solve: cannot write %s: %s\n", out_path, strerror(errno));
+            rc = 1;
+        } else {
+            fprintf(f, "ux,uy,uz\n");
+            for (int i = 0; i < mesh->n_nodes; ++i)
+                fprintf(f, "%.9e,%.9e,%.9e\n", u[3 * i], u[3 * i + 1], u[3 * i + 2]);
+            int bad = ferror(f);
+            if (fclose(f) != 0 || bad) {
+                fprintf(stderr, "hapsim-solve: error writing %s: %s\n", out_path, strerror(errno));
+                rc = 1;
+            } else {
+                wrote = 1;
+            }
+        }
+        if (vtk_path && hs_mesh_write_vtk(mesh, u, vtk_path, &err) < 0) {
+            fprintf(stderr, "hapsim-solve: %s\n", err.msg);
             rc = 1;
         }
-    }
-    if (vtk_path && hs_mesh_write_vtk(mesh, u, vtk_path, &err) < 0) {
-        fprintf(stderr, "hapsim-solve: %s\n", err.msg);
-        rc = 1;
     }
     if (!quiet) {
         double umax = 0;
@@ -531,14 +572,18 @@ int main(int argc, char** argv) {
                mooney ? "total" : "mean", st.fem.volume_ratio_mean, st.fem.volume_ratio_min,
                st.fem.volume_ratio_max, st.fem.inverted);
         if (do_static)
-            printf("iterations      %d Newton (residual ratio %.2e)%s\n", iters, st.residual,
-                   def.solver == HS_SOLVER_PCG ? "" : "");
+            printf("iterations      %d Newton (residual ratio %.2e)\n", iters, st.residual);
         else
-            printf("steps           %d x %g s\n", steps, def.dt);
+            printf("steps           %d x %g s, %d Newton iterations\n", steps, def.dt, iters);
         if (def.solver == HS_SOLVER_PCG) printf("pcg iterations  %d\n", lin_iters);
         printf("time            %.3f ms%s\n", total_ms, do_static ? "" : " (sum of steps)");
-        printf("wrote           %s\n", out_path);
+        if (wrote)
+            printf("wrote           %s\n", out_path);
+        else
+            printf("wrote           nothing (%s)\n",
+                   rc == 2 ? "the solve failed" : "the output failed");
     }
+done:
     hs_body_destroy(&body);
     hs_mooney_destroy(&mr);
     hs_mesh_destroy(&mesh);
