@@ -1055,6 +1055,181 @@ static int FailedStaticKeepsState(void) {
     return 0;
 }
 
+// Found in review (2026-11-28), each failing before.
+
+// StVK under axial compression on a mesh small enough for a simplicial factor: the indefinite
+// tangent was reported as NaN/Inf there, so the step did not go on with its last good factor
+// and failed from step 3 on (197 of 200).
+static int StvkCompressionKeepsStepping(void) {
+    hs_mesh* m = NULL;
+    ENSURE(hs_mesh_create_box(0.1, 0.02, 0.02, 10, 2, 2, &m, NULL) == HS_OK);
+    unsigned char* fx = clamp_x0(m);
+    hs_body_def d = hs_body_default_def();
+    d.fem.model = HS_MODEL_STVK;
+    d.fem.material.youngs_pa = 5e4;
+    d.fem.material.rayleigh_mass = 1.0;
+    d.dt = 0.01;
+    hs_body* b = NULL;
+    ENSURE(hs_body_create(m, &d, fx, &b, NULL) == HS_OK);
+    ENSURE(!hs_cholesky_is_supernodal(hs_body_factor(b)));
+    int tip = 0;
+    for (int i = 0; i < m->n_nodes; ++i) tip += m->x0[3 * i] > 0.1 - 1e-9;
+    for (int i = 0; i < m->n_nodes; ++i)
+        if (m->x0[3 * i] > 0.1 - 1e-9)
+            ENSURE(hs_body_set_force(b, i, (double[3]){-6.0 / tip, 0, -0.2 / tip}) == HS_OK);
+    int fails = 0;
+    for (int k = 0; k < 200; ++k) fails += hs_body_step(b, NULL) != HS_OK;
+    double ux = end_mean(m, hs_body_displacement(b), 0);
+    printf("  200 steps: %d failed; end face moved %.4f m along x\n", fails, ux);
+    ENSURE(fails == 0 && ux < -0.01);
+    hs_body_destroy(&b);
+    free(fx);
+    hs_mesh_destroy(&m);
+    return 0;
+}
+
+// A static solve whose factorisation fails (out of memory) left K in the system matrix, which
+// the linear model's later steps read as kcoef K + mcoef M in their safeguard: every step was
+// cut back 8 times. Now, wherever the solve fails, they step as a body started from the same
+// state.
+static int FailedStaticThenSteps(void) {
+    hs_mesh* m = NULL;
+    ENSURE(hs_mesh_create_box(0.1, 0.02, 0.02, 8, 2, 2, &m, NULL) == HS_OK);
+    unsigned char* fx = clamp_x0(m);
+    hs_body_def d = hs_body_default_def();
+    d.fem.model = HS_MODEL_LINEAR;
+    d.fem.locking_free = 1;
+    d.fem.material.youngs_pa = 2e4;
+    d.fem.material.rayleigh_stiffness = 0.01;
+    d.gravity[2] = -9.81;
+    const int n3 = 3 * m->n_nodes;
+    int failed = 0, cuts = 0;
+    double worst = 0;
+    for (int k = 1; k <= 400; ++k) {
+        hs_body *a = NULL, *c = NULL;
+        ENSURE(hs_body_create(m, &d, fx, &a, NULL) == HS_OK);
+        ENSURE(hs_body_create(m, &d, fx, &c, NULL) == HS_OK);
+        for (int j = 0; j < 5; ++j) ENSURE(hs_body_step(a, NULL) == HS_OK);
+        hs_alloc_fail_after(k);
+        hs_status s = hs_body_solve_static(a, NULL);
+        hs_alloc_fail_after(0);
+        if (s >= 0) { // k allocations were enough
+            hs_body_destroy(&a);
+            hs_body_destroy(&c);
+            break;
+        }
+        failed++;
+        ENSURE(hs_body_set_state(c, hs_body_displacement(a), hs_body_velocity(a)) == HS_OK);
+        for (int j = 0; j < 4; ++j) {
+            hs_step_stats sa;
+            ENSURE(hs_body_step(a, &sa) == HS_OK && hs_body_step(c, NULL) == HS_OK);
+            cuts += sa.line_search_cuts;
+            worst = fmax(worst, rel_diff(hs_body_displacement(a), hs_body_displacement(c), n3));
+        }
+        hs_body_destroy(&a);
+        hs_body_destroy(&c);
+    }
+    printf("  %d static solves failed; the 4 steps after each: %d halvings, u at most %.2g from "
+           "the same state stepped afresh\n",
+           failed, cuts, worst);
+    ENSURE(failed > 0 && cuts == 0 && worst < 1e-12);
+    free(fx);
+    hs_mesh_destroy(&m);
+    return 0;
+}
+
+// A step whose state is not finite is refused and leaves u and v as they were: the last,
+// unchecked halving returned HS_OK with a NaN energy (StVK with the locking-free term at nu
+// 0.4999999999, dt 1000 s) or Inf in v (E 1e-10 Pa, no mass, dt 1e-12 s).
+static int NonFiniteStepRefused(void) {
+    hs_mesh* m = NULL;
+    ENSURE(hs_mesh_create_box(0.1, 0.02, 0.02, 6, 2, 2, &m, NULL) == HS_OK);
+    unsigned char* fx = clamp_x0(m);
+    const size_t n3 = 3 * (size_t)m->n_nodes;
+    double* u0 = malloc(n3 * sizeof(double));
+    double* v0 = malloc(n3 * sizeof(double));
+    const double cfg[2][3] = {{3000, 1000, 1000}, {1e-10, 1e-12, 0}}; // E, dt, density
+    for (int c = 0; c < 2; ++c) {
+        hs_body_def d = hs_body_default_def();
+        d.fem.model = HS_MODEL_STVK;
+        d.fem.locking_free = 1;
+        d.fem.material.youngs_pa = cfg[c][0];
+        d.fem.material.poisson = 0.4999999999;
+        d.fem.material.density_kg_m3 = cfg[c][2];
+        d.gravity[2] = -9.81;
+        d.dt = cfg[c][1];
+        hs_body* b = NULL;
+        ENSURE(hs_body_create(m, &d, fx, &b, NULL) == HS_OK);
+        for (int i = 0; i < m->n_nodes; ++i)
+            if (m->x0[3 * i] > 0.1 - 1e-9)
+                ENSURE(hs_body_set_force(b, i, (double[3]){0, 0, -1e-3}) == HS_OK);
+        int refused = 0;
+        for (int k = 0; k < 6; ++k) {
+            memcpy(u0, hs_body_displacement(b), n3 * sizeof(double));
+            memcpy(v0, hs_body_velocity(b), n3 * sizeof(double));
+            hs_status s = hs_body_step(b, NULL);
+            const double *u = hs_body_displacement(b), *v = hs_body_velocity(b);
+            for (size_t j = 0; j < n3; ++j) ENSURE(isfinite(u[j]) && isfinite(v[j]));
+            if (s < 0) {
+                refused++;
+                ENSURE(memcmp(u0, u, n3 * sizeof(double)) == 0);
+                ENSURE(memcmp(v0, v, n3 * sizeof(double)) == 0);
+            } else {
+                ENSURE(isfinite(hs_body_elastic_energy(b)));
+            }
+        }
+        printf("  E %g Pa, dt %g s: %d of 6 steps refused, the state finite throughout\n",
+               cfg[c][0], cfg[c][1], refused);
+        ENSURE(refused > 0);
+        hs_body_destroy(&b);
+    }
+    free(u0);
+    free(v0);
+    free(fx);
+    hs_mesh_destroy(&m);
+    return 0;
+}
+
+// Rigid motion left free by the fixed nodes (one node, two: a free axis) has no static
+// equilibrium: refused, naming the piece (the linear model ran 100 iterations to ~1e13 m).
+static int UnderConstrainedStaticRefused(void) {
+    hs_mesh* m = NULL;
+    ENSURE(hs_mesh_create_box(0.1, 0.02, 0.02, 8, 2, 2, &m, NULL) == HS_OK);
+    const size_t n3 = 3 * (size_t)m->n_nodes;
+    for (int nfix = 1; nfix <= 3; ++nfix) {
+        // Nodes of the x = 0 face: (0,0,0), (0,0.02,0), then (0,0,0.02) off their line.
+        unsigned char* fx = calloc((size_t)m->n_nodes, 1);
+        const double want[3][3] = {{0, 0, 0}, {0, 0.02, 0}, {0, 0, 0.02}};
+        for (int i = 0; i < m->n_nodes; ++i)
+            for (int k = 0; k < nfix; ++k)
+                if (fabs(m->x0[3 * i] - want[k][0]) + fabs(m->x0[3 * i + 1] - want[k][1]) +
+                        fabs(m->x0[3 * i + 2] - want[k][2]) <
+                    1e-12)
+                    fx[i] = 1;
+        hs_body_def d = hs_body_default_def();
+        d.fem.model = HS_MODEL_LINEAR;
+        d.gravity[2] = -9.81;
+        hs_body* b = NULL;
+        ENSURE(hs_body_create(m, &d, fx, &b, NULL) == HS_OK);
+        hs_err e = {0};
+        hs_status chk = hs_body_check_static(b, &e);
+        hs_status s = hs_body_solve_static(b, NULL);
+        if (nfix < 3) {
+            printf("  %d fixed: %s\n", nfix, e.msg);
+            ENSURE(chk == HS_ERR_INVALID && strstr(e.msg, "rigid motion is free"));
+            ENSURE(s == HS_ERR_INVALID);
+            for (size_t j = 0; j < n3; ++j) ENSURE(hs_body_displacement(b)[j] == 0);
+            ENSURE(hs_body_step(b, NULL) == HS_OK); // dynamics has the mass
+        } else {
+            ENSURE(chk == HS_OK && s >= 0);
+        }
+        hs_body_destroy(&b);
+        free(fx);
+    }
+    hs_mesh_destroy(&m);
+    return 0;
+}
+
 HS_TEST_MAIN(HS_CASE(PrescribedBarReaction), HS_CASE(LinearSeesElementChanges),
              HS_CASE(OrphanHeldInPlace), HS_CASE(RestIsQuiet), HS_CASE(StepPolarTol),
              HS_CASE(WarpedSolver), HS_CASE(WarpedPcgTracksDirect), HS_CASE(SolversAgree),
@@ -1062,4 +1237,6 @@ HS_TEST_MAIN(HS_CASE(PrescribedBarReaction), HS_CASE(LinearSeesElementChanges),
              HS_CASE(InvertedRecovers), HS_CASE(SelfWeightVolume), HS_CASE(SvdStaticConverges),
              HS_CASE(CantileverTimoshenko), HS_CASE(ElementListsRepeat),
              HS_CASE(FailedFallbackKeepsState), HS_CASE(FailedStaticKeepsState),
-             HS_CASE(BadInputRefused))
+             HS_CASE(BadInputRefused), HS_CASE(StvkCompressionKeepsStepping),
+             HS_CASE(FailedStaticThenSteps), HS_CASE(NonFiniteStepRefused),
+             HS_CASE(UnderConstrainedStaticRefused))

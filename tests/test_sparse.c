@@ -1013,6 +1013,37 @@ static int UpdateFaultInjection(void) {
 
 // Small matrices get a simplicial factor from CHOLMOD; update mode and refactor work there too,
 // and an empty matrix is valid.
+// A simplicial factor (LDL^T) takes negative pivots where LL^T stops: still NOT_POSDEF, as
+// the body's step relies on to go on with its last good factor (it said NUMERIC, found in
+// review: a StVK bar under compression then failed every later step).
+static int SimplicialNotPosdef(void) {
+    int64_t bytes0 = hs_byte_count();
+    fixture t;
+    ENSURE(fixture_make(&t, 4, 3, 3, 1e-3) == 0);
+    ENSURE(!hs_cholesky_is_supernodal(t.f));
+    int n = t.a->n;
+    hs_csc *bad = NULL, *nan_a = NULL;
+    ENSURE(hs_csc_clone(t.a, &bad) == HS_OK && hs_csc_clone(t.a, &nan_a) == HS_OK);
+    bad->val[hs_csc_find(bad, n / 2, n / 2)] = -100.0;
+    nan_a->val[hs_csc_find(nan_a, n / 3, n / 3)] = NAN;
+    ENSURE(hs_cholesky_refactor(t.f, bad) == HS_ERR_NOT_POSDEF);
+    ENSURE(hs_cholesky_solve(t.f, t.b, t.x) == HS_OK); // the good factor is kept
+    ENSURE_SMALL(rel_residual(t.a, t.x, t.b, t.r), 1e-12);
+    ENSURE(hs_cholesky_refactor(t.f, nan_a) == HS_ERR_NUMERIC);
+    ENSURE(hs_cholesky_solve(t.f, t.b, t.x) == HS_OK);
+    ENSURE_SMALL(rel_residual(t.a, t.x, t.b, t.r), 1e-12);
+    hs_cholesky* f2 = NULL;
+    hs_err err = {0};
+    ENSURE(hs_cholesky_create(bad, &f2, &err) == HS_ERR_NOT_POSDEF);
+    ENSURE(f2 == NULL && strstr(err.msg, "not positive definite") != NULL);
+    ENSURE(hs_cholesky_create(nan_a, &f2, &err) == HS_ERR_NUMERIC && f2 == NULL);
+    hs_csc_destroy(&bad);
+    hs_csc_destroy(&nan_a);
+    fixture_free(&t);
+    ENSURE(hs_byte_count() == bytes0);
+    return 0;
+}
+
 static int SmallAndEmpty(void) {
     int64_t bytes0 = hs_byte_count();
     fixture t;
@@ -1203,9 +1234,9 @@ static int InverseDiagBlocks(void) {
 }
 
 HS_TEST_MAIN(HS_CASE(CscPatternAndSpmv), HS_CASE(CscBadInput), HS_CASE(CholeskySolve),
-             HS_CASE(CholeskyRefactor), HS_CASE(CholeskyNotPosdefKeepsFactor),
-             HS_CASE(SolveAllocatesNothing), HS_CASE(ThreadControl),
-             HS_CASE(CholeskyFaultInjection), HS_CASE(PcgConverges),
+             HS_CASE(SimplicialNotPosdef), HS_CASE(CholeskyRefactor),
+             HS_CASE(CholeskyNotPosdefKeepsFactor), HS_CASE(SolveAllocatesNothing),
+             HS_CASE(ThreadControl), HS_CASE(CholeskyFaultInjection), HS_CASE(PcgConverges),
              HS_CASE(UpdownMatchesFreshFactor), HS_CASE(AggregatedUpdates),
              HS_CASE(OrderedLastWindow), HS_CASE(PartialRefactor), HS_CASE(CreateLastPartial),
              HS_CASE(FreeFragmentDetected), HS_CASE(UpdateFaultInjection), HS_CASE(SmallAndEmpty),

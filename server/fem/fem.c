@@ -1522,7 +1522,10 @@ hs_status hs_check_constrained(const hs_mesh* mesh, const unsigned char* active,
                             "the piece of the mesh containing tet %d has %s: rigid motion is "
                             "free, so it has no static equilibrium (fix at least 3 non-collinear "
                             "nodes of every piece)",
-                            e, first[r] < 0 ? "no fixed node" : "only collinear fixed nodes");
+                            e,
+                            first[r] < 0    ? "no fixed node"
+                            : second[r] < 0 ? "one fixed node"
+                                            : "only collinear fixed nodes");
     }
 done:
     hs_free(in);

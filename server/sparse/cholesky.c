@@ -188,9 +188,12 @@ static void set_matrix_view(hs_cholesky* f, const hs_csc* m, const cholmod_facto
     a->packed = 1;
 }
 
-// Diagonal of L (LL^T) or D (LDL^T): 0 if any entry is not finite and positive. O(n).
-static int factor_diag_ok(const cholmod_factor* L) {
+// Diagonal of L (LL^T) or D (LDL^T): HS_ERR_NUMERIC if an entry is not finite (NaN/Inf in
+// the matrix), else HS_ERR_NOT_POSDEF if one is not positive (a simplicial LDL^T takes
+// negative pivots where LL^T stops), else HS_OK. O(n).
+static hs_status factor_diag_status(const cholmod_factor* L) {
     const double* x = L->x;
+    int neg = 0;
     if (L->is_super) {
         const int* super = L->super;
         const int* pi = L->pi;
@@ -200,17 +203,19 @@ static int factor_diag_ok(const cholmod_factor* L) {
             int nsrow = pi[s + 1] - pi[s];
             for (int j = 0; j < k2 - k1; j++) {
                 double d = x[px[s] + (size_t)j * (size_t)nsrow + (size_t)j];
-                if (!(d > 0.0 && d < INFINITY)) return 0;
+                if (!isfinite(d)) return HS_ERR_NUMERIC;
+                neg |= !(d > 0.0);
             }
         }
-        return 1;
+    } else {
+        const int* p = L->p;
+        for (size_t j = 0; j < L->n; j++) {
+            double d = x[p[j]];
+            if (!isfinite(d)) return HS_ERR_NUMERIC;
+            neg |= !(d > 0.0);
+        }
     }
-    const int* p = L->p;
-    for (size_t j = 0; j < L->n; j++) {
-        double d = x[p[j]];
-        if (!(d > 0.0 && d < INFINITY)) return 0;
-    }
-    return 1;
+    return neg ? HS_ERR_NOT_POSDEF : HS_OK;
 }
 
 // FNV-1a over the row indices: a pattern with the same column counts but other rows would
@@ -384,7 +389,14 @@ static hs_status create_factor(const hs_csc* a, int natural, const unsigned char
         st = fail_from_cholmod(f, err, "numeric factorisation");
         goto fail;
     }
-    if (!factor_diag_ok(f->L)) {
+    st = factor_diag_status(f->L);
+    if (st == HS_ERR_NOT_POSDEF) {
+        st = hs_err_set(err, HS_ERR_NOT_POSDEF,
+                        "%s:%d: matrix (n %d) is not positive definite (a pivot <= 0)", __FILE__,
+                        __LINE__, a->n);
+        goto fail;
+    }
+    if (st != HS_OK) {
         st = hs_err_set(err, HS_ERR_NUMERIC,
                         "%s:%d: factor has a non-finite diagonal (NaN/Inf "
                         "in the matrix?)",
@@ -542,7 +554,8 @@ hs_status hs_cholesky_refactor(hs_cholesky* f, const hs_csc* a) {
     cholmod_factorize(&f->a, f->spare, &f->c);
     hs_status st = map_status(f->c.status);
     if (st != HS_OK) return st;
-    if (!factor_diag_ok(f->spare)) return HS_ERR_NUMERIC;
+    st = factor_diag_status(f->spare);
+    if (st != HS_OK) return st;
     if (f->updatable && f->spare->is_super) {
         // Update mode keeps the spare supernodal: CHOLMOD's simplicial refactor is 5-10x
         // slower on 3D meshes than a supernodal one plus this O(nnz(L)) copy.
