@@ -2,9 +2,11 @@
 #include "hapsim/mesh.h"
 #include "test_macros.h"
 
+#include <errno.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 static const char* const k_shared[] = {"liver2", "liver_coarse", "aneurysm_vessel",
@@ -397,6 +399,21 @@ static const bad_case k_bad[] = {
      "f:7:", "bad z coordinate 'abc'"},
     {"msh", MSH_HEAD "$Nodes\n1\n1 0 0 1e999\n$EndNodes\n", NULL, HS_ERR_PARSE, "f:6:", "finite"},
     {"msh", MSH_HEAD "$Nodes\n1\n1 0 nan 0\n$EndNodes\n", NULL, HS_ERR_PARSE, "f:6:", "finite"},
+    {"msh", MSH_HEAD "$Nodes\n1\n1 0 0 0x1p0\n$EndNodes\n", NULL, HS_ERR_PARSE,
+     "f:6:", "bad z coordinate"}, // decimal only (strtod took hexadecimal)
+    // Elements other than tets are checked as tets are (found in review, 2026-11-28): a known
+    // type names exactly its nodes, each one known.
+    {"msh", MSH_HEAD MSH_NODES "$Elements\n2\n1 2 2 0 1 1 2 999\n2 4 2 0 1 1 2 3 4\n$EndElements\n",
+     NULL, HS_ERR_PARSE, "f:13:", "unknown node 999"},
+    {"msh",
+     MSH_HEAD MSH_NODES "$Elements\n2\n1 2 2 0 1 1 2 3 junk\n2 4 2 0 1 1 2 3 4\n$EndElements\n",
+     NULL, HS_ERR_PARSE, "f:13:", "unexpected 'junk' after an element"},
+    {"msh", MSH_HEAD MSH_NODES "$Elements\n2\n1 2 2 0 1 1 2\n2 4 2 0 1 1 2 3 4\n$EndElements\n",
+     NULL, HS_ERR_PARSE, "f:13:", "element 1 has only 2 of 3 nodes"},
+    {"msh",
+     MSH41_HEAD "$Nodes\n1 4 1 4\n3 1 0 4\n1\n2\n3\n4\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n$EndNodes\n"
+                "$Elements\n2 2 1 2\n2 1 2 1\n1 1 2 999\n3 1 4 1\n2 1 2 3 4\n$EndElements\n",
+     NULL, HS_ERR_PARSE, "f:19:", "unknown node 999"},
     {"msh", MSH_HEAD "$Nodes\n3\n1 0 0 0\n2 1 0 0\n$EndNodes\n", NULL, HS_ERR_PARSE,
      "f:8:", "section ends after 2 of 3 nodes"},
     {"msh", MSH_HEAD "$Nodes\n1\n1 0 0 0\n2 1 0 0\n$EndNodes\n", NULL, HS_ERR_PARSE,
@@ -462,7 +479,12 @@ static const bad_case k_bad[] = {
     {"vtk", VTK_HEAD VTK_PTS "CELLS 1 4\n3 0 1 2\nCELL_TYPES 1\n10\n", NULL, HS_ERR_PARSE,
      "f:11:", "tetra (type 10) with 3 points"},
     {"vtk", VTK_HEAD VTK_PTS "CELLS 1 4\n3 0 1 2\nCELL_TYPES 1\n5\n", NULL, HS_ERR_PARSE,
-     "f:11:", "no linear tetrahedra (1 other elements skipped)"},
+     "f:12:", "no linear tetrahedra (1 other elements skipped)"},
+    // Found in review (2026-11-28): what follows CELL_TYPES is read too, not ignored.
+    {"vtk", VTK_HEAD VTK_PTS "CELLS 1 5\n4 0 1 2 3\nCELL_TYPES 1\n10\nPOINTS 3 float\n", NULL,
+     HS_ERR_PARSE, "f:12:", "second POINTS section"},
+    {"vtk", VTK_HEAD VTK_PTS "CELLS 1 5\n4 0 1 2 3\nCELL_TYPES 1\n10\nGARBAGE\n", NULL,
+     HS_ERR_PARSE, "f:12:", "unexpected 'GARBAGE'"},
     {"vtk", VTK_HEAD VTK_PTS "CELLS 1 5\n4 0 1 2 3\n", NULL, HS_ERR_PARSE,
      "f:10:", "missing CELL_TYPES section"},
     {"vtk", VTK_HEAD "POINTS 2 float\n0 0 0 1 0\n", NULL, HS_ERR_PARSE,
@@ -643,6 +665,29 @@ static int RoundTrip(void) {
     ENSURE(hs_mesh_load("test_mesh_tmp.ele", &m, &err) == HS_ERR_IO);
     ENSURE(strstr(err.msg, "test_mesh_tmp.node: cannot open"));
     remove("test_mesh_tmp.ele");
+    // Upper-case names: the other file is looked for in the same case (it was "x.node").
+    ENSURE(write_text("TEST_MESH_TMP.NODE", &t) && write_text("TEST_MESH_TMP.ELE", &e));
+    ENSURE(hs_mesh_load("TEST_MESH_TMP.NODE", &m, &err) == HS_OK);
+    ENSURE(same_mesh(ref, m) == 0);
+    hs_mesh_destroy(&m);
+    ENSURE(hs_mesh_load("TEST_MESH_TMP.ELE", &m, &err) == HS_OK);
+    hs_mesh_destroy(&m);
+    remove("TEST_MESH_TMP.NODE");
+    remove("TEST_MESH_TMP.ELE");
+    // A decimal of 70 digits is a number like any other (refused as too long before).
+    t.len = 0;
+    put(&t,
+        MSH_HEAD "$Nodes\n4\n1 0 0 0\n2 1.%069d 0 0\n3 0 1 0\n4 0 0 1\n$EndNodes\n"
+                 "$Elements\n1\n1 4 2 0 1 1 2 3 4\n$EndElements\n",
+        1);
+    ENSURE(hs_mesh_parse("long", "msh", t.s, t.len, &m, &err) == HS_OK);
+    ENSURE(m->x0[3] == 1.0);
+    hs_mesh_destroy(&m);
+    // A directory is named as one (it was "read error").
+    ENSURE(mkdir("test_mesh_dir.msh", 0700) == 0 || errno == EEXIST);
+    ENSURE(hs_mesh_load("test_mesh_dir.msh", &m, &err) == HS_ERR_IO && m == NULL);
+    ENSURE(strstr(err.msg, "test_mesh_dir.msh") && strstr(err.msg, "directory"));
+    rmdir("test_mesh_dir.msh");
 
     // VTK written by hs_mesh_write_vtk (with a displacement field, which the reader skips).
     double* u = calloc((size_t)3 * nn, sizeof(double));

@@ -4,6 +4,7 @@
 // stays proportional to the input. Errors read "<file>:<line>: <problem>".
 #include "mesh_internal.h"
 
+#include <errno.h>
 #include <limits.h>
 #include <math.h>
 #include <stdarg.h>
@@ -172,10 +173,13 @@ static int parse_ll(const tok* t, long long* v) {
     return 1;
 }
 
-// Finite decimal number; 0 if malformed, too long, infinite or NaN.
+// Finite decimal number; 0 if malformed, too long, infinite or NaN. strtod alone would take
+// hexadecimal ("0x1p0") too.
 static int parse_double(const tok* t, double* v) {
-    char buf[64];
+    char buf[512];
     if (t->len == 0 || t->len >= sizeof buf) return 0;
+    for (size_t i = 0; i < t->len; ++i)
+        if (t->s[i] == 'x' || t->s[i] == 'X') return 0;
     memcpy(buf, t->s, t->len);
     buf[t->len] = '\0';
     char* e = NULL;
@@ -317,12 +321,15 @@ static int build_map(lexer* lx, builder* b) {
 }
 
 // Reads a node id on the current line and stores its index as tet corner c.
-static int rd_tet_node(lexer* lx, builder* b, long long lo, int c, long long elem) {
+// Reads node id c of an element of k nodes and returns its index in *idx (or fails).
+static int rd_elem_node(lexer* lx, builder* b, long long lo, int c, int k, long long elem, int* idx,
+                        int* line) {
     tok t;
     char buf[48];
     long long id;
     if (!tok_line(lx, &t))
-        return lx_fail(lx, lx->line, HS_ERR_PARSE, "element %lld has only %d of 4 nodes", elem, c);
+        return lx_fail(lx, lx->line, HS_ERR_PARSE, "element %lld has only %d of %d nodes", elem, c,
+                       k);
     if (!parse_ll(&t, &id) || id < lo)
         return lx_fail(lx, t.line, HS_ERR_PARSE, "element %lld: bad node id '%s'", elem,
                        tok_text(&t, buf));
@@ -337,12 +344,43 @@ static int rd_tet_node(lexer* lx, builder* b, long long lo, int c, long long ele
     if (lo_i == b->n_nodes || b->map[lo_i].id != id)
         return lx_fail(lx, t.line, HS_ERR_PARSE, "element %lld references unknown node %lld", elem,
                        id);
-    b->tets[4 * b->n_tets + c] = b->map[lo_i].idx;
+    *idx = b->map[lo_i].idx;
+    *line = t.line;
+    return 1;
+}
+
+static int rd_tet_node(lexer* lx, builder* b, long long lo, int c, long long elem) {
+    int idx, line;
+    if (!rd_elem_node(lx, b, lo, c, 4, elem, &idx, &line)) return 0;
+    b->tets[4 * b->n_tets + c] = idx;
     if (c == 0) {
-        b->tline[b->n_tets] = t.line;
+        b->tline[b->n_tets] = line;
         b->tid[b->n_tets] = elem;
     }
     return 1;
+}
+
+// Nodes of Gmsh element type `type` (1-31, the types Gmsh writes), or 0 when not known.
+static int gmsh_type_nodes(long long type) {
+    static const unsigned char k[32] = {0,  2,  3,  4,  4, 8, 6,  5,  3,  6, 9,
+                                        10, 27, 18, 14, 1, 8, 20, 15, 13, 9, 10,
+                                        12, 15, 15, 21, 4, 5, 6,  20, 35, 56};
+    return type >= 1 && type <= 31 ? k[type] : 0;
+}
+
+// The node ids of a skipped (not linear tet) element: a known type must name exactly its
+// nodes, each one known, as a tet's must; an unknown type's line is skipped unread.
+static int skip_element_nodes(lexer* lx, builder* b, long long type, long long elem) {
+    const int k = gmsh_type_nodes(type);
+    if (!k) {
+        skip_line(lx);
+        return 1;
+    }
+    for (int c = 0; c < k; ++c) {
+        int idx, line;
+        if (!rd_elem_node(lx, b, 1, c, k, elem, &idx, &line)) return 0;
+    }
+    return end_line(lx, "an element");
 }
 
 static hs_status builder_finish(lexer* lx, builder* b, hs_mesh** out) {
@@ -477,14 +515,14 @@ static int msh_elements_v2(lexer* lx, builder* b) {
             !rd_int(lx, 0, LLONG_MIN, LLONG_MAX, "element id", &id) ||
             !rd_int(lx, 0, 1, INT_MAX, "element type", &type))
             return 0;
-        if (type != 4) { // not a linear tet: the line is skipped whole
-            ++b->skipped;
-            skip_line(lx);
-            continue;
-        }
         if (!rd_int(lx, 0, 0, 1000, "tag count", &ntags)) return 0;
         for (long long k = 0; k < ntags; ++k)
             if (!rd_int(lx, 0, LLONG_MIN, LLONG_MAX, "tag", &tag)) return 0;
+        if (type != 4) { // not a linear tet: checked, counted, not kept
+            ++b->skipped;
+            if (!skip_element_nodes(lx, b, type, id)) return 0;
+            continue;
+        }
         for (int c = 0; c < 4; ++c)
             if (!rd_tet_node(lx, b, 1, c, id)) return 0;
         if (!end_line(lx, "a tetrahedron")) return 0;
@@ -519,12 +557,12 @@ static int msh_elements_v4(lexer* lx, builder* b) {
                            "element blocks hold more than the %lld elements declared", n);
         for (long long j = 0; j < m; ++j) {
             if (!record(lx, j, m, "elements")) return 0;
+            if (!rd_int(lx, 0, 1, LLONG_MAX, "element tag", &id)) return 0;
             if (type != 4) {
                 ++b->skipped;
-                skip_line(lx);
+                if (!skip_element_nodes(lx, b, type, id)) return 0;
                 continue;
             }
-            if (!rd_int(lx, 0, 1, LLONG_MAX, "element tag", &id)) return 0;
             for (int c = 0; c < 4; ++c)
                 if (!rd_tet_node(lx, b, 1, c, id)) return 0;
             if (!end_line(lx, "a tetrahedron")) return 0;
@@ -876,7 +914,7 @@ static hs_status parse_vtk(lexer* lx, hs_mesh** out) {
     }
     if (!end_line(lx, "DATASET")) goto fail;
 
-    while (!have_types && tok_any(lx, &t)) {
+    while (tok_any(lx, &t)) {
         int hl = t.line;
         long long n, type;
         if (tok_is_nocase(&t, "POINTS")) {
@@ -906,8 +944,9 @@ static hs_status parse_vtk(lexer* lx, hs_mesh** out) {
                 goto fail;
             have_cells = 1;
         } else if (tok_is_nocase(&t, "CELL_TYPES")) {
-            if (!have_cells) {
-                lx_fail(lx, hl, HS_ERR_PARSE, "CELL_TYPES before CELLS");
+            if (!have_cells || have_types) {
+                lx_fail(lx, hl, HS_ERR_PARSE,
+                        have_types ? "second CELL_TYPES section" : "CELL_TYPES before CELLS");
                 goto fail;
             }
             if (!rd_int(lx, 0, 0, LLONG_MAX, "cell type count", &n) ||
@@ -1007,7 +1046,7 @@ static hs_status read_file(const char* path, char** data, size_t* len, hs_err* e
     *data = NULL;
     *len = 0;
     FILE* f = fopen(path, "rb");
-    if (!f) return hs_err_set(err, HS_ERR_IO, "%s: cannot open", path);
+    if (!f) return hs_err_set(err, HS_ERR_IO, "%s: cannot open: %s", path, strerror(errno));
     size_t cap = (size_t)1 << 16, n = 0;
     char* buf = hs_alloc(cap);
     hs_status st = buf ? HS_OK : hs_err_set(err, HS_ERR_NOMEM, "%s: out of memory", path);
@@ -1029,7 +1068,8 @@ static hs_status read_file(const char* path, char** data, size_t* len, hs_err* e
         size_t got = fread(buf + n, 1, cap - n, f);
         n += got;
         if (got == 0) {
-            if (ferror(f)) st = hs_err_set(err, HS_ERR_IO, "%s: read error", path);
+            if (ferror(f))
+                st = hs_err_set(err, HS_ERR_IO, "%s: read error: %s", path, strerror(errno));
             break;
         }
     }
@@ -1073,9 +1113,15 @@ hs_status hs_mesh_load(const char* path, hs_mesh** out, hs_err* err) {
     if (has_ext(path, ".node") || has_ext(path, ".ele")) {
         size_t n = strlen(path), base = n - (has_ext(path, ".node") ? 5 : 4);
         if (base > 4000) return hs_err_set(err, HS_ERR_INVALID, "path too long");
+        // The other file's extension in the case of the one given (MESH.NODE -> MESH.ELE).
+        const int upper = path[n - 1] >= 'A' && path[n - 1] <= 'Z';
         char node_path[4100], ele_path[4100];
-        snprintf(node_path, sizeof node_path, "%.*s.node", (int)base, path);
-        snprintf(ele_path, sizeof ele_path, "%.*s.ele", (int)base, path);
+        snprintf(node_path, sizeof node_path, "%.*s%s", (int)base, path, upper ? ".NODE" : ".node");
+        snprintf(ele_path, sizeof ele_path, "%.*s%s", (int)base, path, upper ? ".ELE" : ".ele");
+        if (has_ext(path, ".node"))
+            memcpy(node_path + base, path + base, 5);
+        else
+            memcpy(ele_path + base, path + base, 4);
         char* ele = NULL;
         size_t ele_len = 0;
         st = read_file(node_path, &data, &len, err);
