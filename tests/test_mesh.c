@@ -414,6 +414,14 @@ static const bad_case k_bad[] = {
      MSH41_HEAD "$Nodes\n1 4 1 4\n3 1 0 4\n1\n2\n3\n4\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n$EndNodes\n"
                 "$Elements\n2 2 1 2\n2 1 2 1\n1 1 2 999\n3 1 4 1\n2 1 2 3 4\n$EndElements\n",
      NULL, HS_ERR_PARSE, "f:19:", "unknown node 999"},
+    // 4.1 headers: tags outside the declared [min, max]; tets in an entity of dimension 1.
+    {"msh",
+     MSH41_HEAD "$Nodes\n1 4 1 3\n3 1 0 4\n1\n2\n3\n4\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n$EndNodes\n",
+     NULL, HS_ERR_PARSE, "f:10:", "node tag 4 out of range [1, 3]"},
+    {"msh",
+     MSH41_HEAD "$Nodes\n1 4 1 4\n3 1 0 4\n1\n2\n3\n4\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n$EndNodes\n"
+                "$Elements\n1 1 1 1\n1 1 4 1\n1 1 2 3 4\n$EndElements\n",
+     NULL, HS_ERR_PARSE, "f:18:", "tetrahedra in an entity of dimension 1"},
     {"msh", MSH_HEAD "$Nodes\n3\n1 0 0 0\n2 1 0 0\n$EndNodes\n", NULL, HS_ERR_PARSE,
      "f:8:", "section ends after 2 of 3 nodes"},
     {"msh", MSH_HEAD "$Nodes\n1\n1 0 0 0\n2 1 0 0\n$EndNodes\n", NULL, HS_ERR_PARSE,

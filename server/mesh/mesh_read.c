@@ -458,8 +458,8 @@ static int msh_nodes_v4(lexer* lx, builder* b) {
     int hl = lx->line;
     if (!rd_int(lx, 0, 0, LLONG_MAX, "entity block count", &nb) ||
         !rd_int(lx, 0, 0, LLONG_MAX, "node count", &n) ||
-        !rd_int(lx, 0, 0, LLONG_MAX, "min node tag", &lo) ||
-        !rd_int(lx, 0, 0, LLONG_MAX, "max node tag", &hi) || !end_line(lx, "the node header") ||
+        !rd_int(lx, 0, n > 0, LLONG_MAX, "min node tag", &lo) ||
+        !rd_int(lx, 0, n > 0, LLONG_MAX, "max node tag", &hi) || !end_line(lx, "the node header") ||
         !check_count(lx, nb, 8, hl, "node block") || !check_count(lx, n, 8, hl, "node") ||
         !alloc_nodes(lx, b, n))
         return 0;
@@ -482,8 +482,7 @@ static int msh_nodes_v4(lexer* lx, builder* b) {
         for (long long j = 0; j < m; ++j) {
             if (!record(lx, j, m, "node tags")) return 0;
             b->line[filled + j] = lx->line;
-            if (!rd_int(lx, 0, 1, LLONG_MAX, "node tag", &id) || !end_line(lx, "a node tag"))
-                return 0;
+            if (!rd_int(lx, 0, lo, hi, "node tag", &id) || !end_line(lx, "a node tag")) return 0;
             b->id[filled + j] = id;
         }
         for (long long j = 0; j < m; ++j) {
@@ -536,8 +535,8 @@ static int msh_elements_v4(lexer* lx, builder* b) {
     int hl = lx->line;
     if (!rd_int(lx, 0, 0, LLONG_MAX, "entity block count", &nb) ||
         !rd_int(lx, 0, 0, LLONG_MAX, "element count", &n) ||
-        !rd_int(lx, 0, 0, LLONG_MAX, "min element tag", &lo) ||
-        !rd_int(lx, 0, 0, LLONG_MAX, "max element tag", &hi) ||
+        !rd_int(lx, 0, n > 0, LLONG_MAX, "min element tag", &lo) ||
+        !rd_int(lx, 0, n > 0, LLONG_MAX, "max element tag", &hi) ||
         !end_line(lx, "the element header") || !check_count(lx, nb, 8, hl, "element block") ||
         !check_count(lx, n, 4, hl, "element") || !alloc_tets(lx, b, n))
         return 0;
@@ -555,9 +554,12 @@ static int msh_elements_v4(lexer* lx, builder* b) {
         if (m > n - filled)
             return lx_fail(lx, bl, HS_ERR_PARSE,
                            "element blocks hold more than the %lld elements declared", n);
+        if (type == 4 && dim != 3)
+            return lx_fail(lx, bl, HS_ERR_PARSE,
+                           "a block of tetrahedra in an entity of dimension %lld", dim);
         for (long long j = 0; j < m; ++j) {
             if (!record(lx, j, m, "elements")) return 0;
-            if (!rd_int(lx, 0, 1, LLONG_MAX, "element tag", &id)) return 0;
+            if (!rd_int(lx, 0, lo, hi, "element tag", &id)) return 0;
             if (type != 4) {
                 ++b->skipped;
                 if (!skip_element_nodes(lx, b, type, id)) return 0;
