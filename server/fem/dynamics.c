@@ -591,12 +591,35 @@ static double norm_free(const hs_body* b, const double* full) {
 
 // a = kcoef K + mcoef M at the last update. The linear model's matrix depends only on the
 // coefficients and the elements, so it is assembled again only when one of them changed.
+// Held nodes (no element left) carry their held mass on the diagonal. A static matrix (mcoef
+// 0) has none there: its factorisation failed and Newton went on with a stale factor (100
+// iterations, not converged; found in review). Pin them with the mean diagonal: they take no
+// load, so their update is zero either way.
+static void pin_held(hs_body* b, double mcoef) {
+    if (mcoef != 0.0 || hs_fem_held_nodes(b->fem) == 0) return;
+    const double* held = hs_fem_held_mass(b->fem);
+    hs_csc* a = b->a;
+    double sum = 0;
+    int k = 0;
+    for (int j = 0; j < a->n; ++j) {
+        int p = hs_csc_find(a, j, j);
+        if (p >= 0 && a->val[p] > 0) sum += a->val[p], ++k;
+    }
+    const double pin = k ? sum / k : 1.0;
+    for (int i = 0; i < b->n; ++i)
+        for (int c = 0; c < 3 && held[i] > 0 && b->dof[3 * i] >= 0; ++c) {
+            int p = hs_csc_find(a, b->dof[3 * i + c], b->dof[3 * i + c]);
+            if (p >= 0) a->val[p] += pin;
+        }
+}
+
 static void assemble(hs_body* b, double kcoef, double mcoef) {
     uint64_t v = hs_fem_stiffness_version(b->fem);
     if (b->def.fem.model == HS_MODEL_LINEAR && b->a_valid && b->a_kcoef == kcoef &&
         b->a_mcoef == mcoef && b->a_version == v)
         return;
     hs_fem_assemble(b->fem, kcoef, mcoef, b->a);
+    pin_held(b, mcoef);
     b->a_valid = 1;
     b->a_is_rest = b->def.fem.model == HS_MODEL_LINEAR; // else the tangent at this update
     b->a_kcoef = kcoef;
@@ -673,6 +696,7 @@ static hs_status solve_system(hs_body* b, double kcoef, double mcoef, hs_step_st
         // The rest-state matrix straight from the element rest data (R = I exactly); with the
         // locking-free term, which that cannot give, evaluate the model at u = 0 instead.
         if (hs_fem_assemble_rest(b->fem, kcoef, mcoef, b->a) == HS_OK) {
+            pin_held(b, mcoef);
             b->a_valid = linear; // the linear model's cached tangent is this matrix
             b->a_is_rest = 1;
             b->a_kcoef = kcoef;

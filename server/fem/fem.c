@@ -1172,30 +1172,6 @@ static void mirror_upper(const hs_fem* m, double* val) {
     for (int w = 0; w < m->n_mirror; w++) val[m->mirror[2 * w]] = val[m->mirror[2 * w + 1]];
 }
 
-// Held nodes (no element left) carry their held mass on the diagonal. A static system (mcoef
-// 0) has none: there they get the mean diagonal of the others, a pin. They take no load, so
-// their update is zero either way; without it the static K was singular, its factorisation
-// failed and Newton went on with a stale factor (100 iterations, not converged).
-static void held_diagonal(const hs_fem* m, double mcoef, double* val) {
-    if (m->n_held == 0) return;
-    double pin = 0;
-    if (mcoef == 0.0) {
-        double sum = 0;
-        int k = 0;
-        for (int i = 0; i < m->n; i++)
-            for (int c = 0; c < 3 && m->held[i] == 0; c++) {
-                int p = m->diag_pos[3 * i + c];
-                if (p >= 0 && val[p] > 0) sum += val[p], k++;
-            }
-        pin = k ? sum / k : 1.0;
-    }
-    for (int i = 0; i < m->n; i++)
-        for (int c = 0; c < 3 && m->held[i] > 0; c++) {
-            int p = m->diag_pos[3 * i + c];
-            if (p >= 0) val[p] += mcoef != 0.0 ? mcoef * m->held[i] : pin;
-        }
-}
-
 void hs_fem_assemble(const hs_fem* m, double kcoef, double mcoef, hs_csc* a) {
     HS_ASSERT(m && a && a->n == m->n_free && a->nnz == m->nnz);
     memset(a->val, 0, sizeof(double) * (size_t)a->nnz);
@@ -1234,10 +1210,9 @@ void hs_fem_assemble(const hs_fem* m, double kcoef, double mcoef, hs_csc* a) {
         for (int i = 0; i < m->n; i++)
             for (int c = 0; c < 3; c++) {
                 int p = m->diag_pos[3 * i + c];
-                if (p >= 0) val[p] += mcoef * m->mass[i];
+                if (p >= 0) val[p] += mcoef * (m->mass[i] + m->held[i]);
             }
     }
-    held_diagonal(m, mcoef, val);
     mirror_upper(m, val);
 }
 
@@ -1272,7 +1247,11 @@ hs_status hs_fem_assemble_rest(const hs_fem* m, double kcoef, double mcoef, hs_c
         rest_blocks(m, e, kcoef, mcoef, kb);
         scatter_blocks(m, e, kb, 1.0, a->val);
     }
-    held_diagonal(m, mcoef, a->val);
+    for (int i = 0; mcoef != 0.0 && m->n_held > 0 && i < m->n; i++)
+        for (int c = 0; c < 3; c++) {
+            int p = m->diag_pos[3 * i + c];
+            if (p >= 0) a->val[p] += mcoef * m->held[i];
+        }
     mirror_upper(m, a->val);
     return HS_OK;
 }
