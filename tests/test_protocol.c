@@ -617,6 +617,20 @@ static int command_rejects_each_reason(void) {
     n = encode_command(b, sizeof b, 1000 + HS_NET_DEDUP_SIZE - 1, HAPSIM_COMMAND_T_KIND_PAUSE, 0,
                        NULL, NULL, "");
     ENSURE(hs_net_validate_command(&s, b, n, &c, NULL) == HS_NET_REJ_DUPLICATE);
+    // An id still PENDING (a scene load) outlives finished ones: 100 commands later it is
+    // still a duplicate, and its final status still lands.
+    n = encode_command(b, sizeof b, 77, HAPSIM_COMMAND_T_KIND_LOAD_SCENE, 1, k1, v1, "");
+    ENSURE(hs_net_validate_command(&s, b, n, &c, NULL) == HS_NET_ACCEPT);
+    for (int i = 0; i < 100; ++i) {
+        n = encode_command(b, sizeof b, 2000 + i, HAPSIM_COMMAND_T_KIND_ESTOP_RELEASE, 0, NULL,
+                           NULL, "");
+        ENSURE(hs_net_validate_command(&s, b, n, &c, NULL) == HS_NET_ACCEPT);
+        ENSURE(hs_net_dedup_set_status(&s.dedup, 2000 + i, HAPSIM_COMMAND_ACK_T_STATUS_OK) == 0);
+    }
+    n = encode_command(b, sizeof b, 77, HAPSIM_COMMAND_T_KIND_LOAD_SCENE, 1, k1, v1, "");
+    ENSURE(hs_net_validate_command(&s, b, n, &c, &prev) == HS_NET_REJ_DUPLICATE);
+    ENSURE(prev == HAPSIM_COMMAND_ACK_T_STATUS_PENDING);
+    ENSURE(hs_net_dedup_set_status(&s.dedup, 77, HAPSIM_COMMAND_ACK_T_STATUS_OK) == 0);
     ENSURE(s.counters.received == s.counters.accepted + hs_net_counters_rejected(&s.counters));
     for (int r = 0; r < HS_NET_REJ_COUNT; ++r) ENSURE(strlen(hs_net_reject_name(r)) > 0);
     ENSURE(strcmp(hs_net_reject_name(HS_NET_REJ_SEQ), "seq") == 0);

@@ -620,9 +620,10 @@ static int find_ack(const client* c, int64_t id, int final) {
 }
 
 // Press 4 mm at ~1 kHz until request id has its final ack (at most 10 s); after its PENDING
-// ack, send `then` (a command kind, 0: none) once as request then_id. Returns the final ack's
-// index or -1.
-static int press_until_final(client* c, int64_t id, int then, int64_t then_id) {
+// ack, send `then` (a command kind, 0: none) once as request then_id, and `then2` as then2_id
+// after it. Returns the final ack's index or -1.
+static int press_until_final2(client* c, int64_t id, int then, int64_t then_id, int then2,
+                              int64_t then2_id) {
     int sent = 0;
     int64_t end = hs_now_ns() + 10000000000LL;
     while (hs_now_ns() < end) {
@@ -636,12 +637,17 @@ static int press_until_final(client* c, int64_t id, int then, int64_t then_id) {
         }
         if (then && !sent && find_ack(c, id, 0) >= 0) {
             send_command(c, then_id, then, NULL, NULL, NULL, NULL);
+            if (then2) send_command(c, then2_id, then2, NULL, NULL, NULL, NULL);
             sent = 1;
         }
         int f = find_ack(c, id, 1);
         if (f >= 0) return f;
     }
     return -1;
+}
+
+static int press_until_final(client* c, int64_t id, int then, int64_t then_id) {
+    return press_until_final2(c, id, then, then_id, 0, 0);
 }
 
 // Forces the server sent strictly between two of its times (us); how many, and how many of
@@ -673,12 +679,20 @@ static int load_goes_on_answering(void) {
     stream(&c, 0.004, 0.004, 300);
     ENSURE(dot_n(c.force.force) > 0.02);
 
-    int64_t load_id = ++next_request, stop_id = ++next_request;
+    // During the build: a command that waits for the new scene (REQUEST_TOPOLOGY: kept, run at
+    // the swap), then an e-stop, which must not wait behind it (it did: the first version
+    // joined the loader for any such command, and the loop stood still; found in review).
+    int64_t load_id = ++next_request, topo_id = ++next_request, stop_id = ++next_request;
     send_command(&c, load_id, HAPSIM_COMMAND_T_KIND_LOAD_SCENE, "path", scene, NULL, NULL);
-    int fin = press_until_final(&c, load_id, HAPSIM_COMMAND_T_KIND_ESTOP, stop_id);
+    int fin = press_until_final2(&c, load_id, HAPSIM_COMMAND_T_KIND_REQUEST_TOPOLOGY, topo_id,
+                                 HAPSIM_COMMAND_T_KIND_ESTOP, stop_id);
     ENSURE(fin >= 0 && c.ack_status[fin] == HAPSIM_COMMAND_ACK_T_STATUS_OK);
     int pend = find_ack(&c, load_id, 0), est = find_ack(&c, stop_id, 1);
     ENSURE(pend >= 0 && est >= 0 && c.ack_status[est] == HAPSIM_COMMAND_ACK_T_STATUS_OK);
+    pump_ms(&c, 50);
+    int tpend = find_ack(&c, topo_id, 0), tfin = find_ack(&c, topo_id, 1);
+    ENSURE(tpend >= 0 && tfin >= 0 && c.ack_status[tfin] == HAPSIM_COMMAND_ACK_T_STATUS_OK);
+    ENSURE(c.ack_utime[tpend] < c.ack_utime[est] && c.ack_utime[fin] <= c.ack_utime[tfin]);
     int64_t t_pend = c.ack_utime[pend], t_stop = c.ack_utime[est], t_fin = c.ack_utime[fin];
     int nz_build = 0, nz_stopped = 0;
     int n_build = forces_between(&c, t_pend, t_stop, &nz_build);

@@ -48,6 +48,7 @@
 #define POSE_QUEUE     8192         // LCM subscription queue (default 30 drops bursts)
 #define COMMAND_QUEUE  1024
 #define CUT_SAMPLES    1024 // cut step times kept for the quantiles (cut steps take ms, not us)
+#define LOAD_QUEUE     32   // commands kept while a scene loads; more make the net loop wait
 
 // Everything that depends on the scene: rebuilt by load_scene, swapped only when complete.
 typedef struct world {
@@ -104,6 +105,10 @@ typedef struct loader {
     world nw; // built, not started; the net thread swaps it in
     hs_status st;
     hs_err err;
+    // Commands that came during the build (all but the e-stop's two), run in order at the swap
+    // so that they act on the new scene while the loop goes on answering meanwhile.
+    int q_head, q_len;
+    hs_net_command queued[LOAD_QUEUE];
 } loader;
 
 typedef struct dev_state {
@@ -1307,6 +1312,8 @@ static int load_scene_start(hs_server* s, const hs_net_command* c, char* msg, si
     return load_scene(s, path, msg, cap);
 }
 
+static void run_command(hs_server* s, const hs_net_command* c, int pending_sent);
+
 // Join the loader (waiting if it is still building), swap its world in and send the final ack.
 // stopping: the server is shutting down; the built world is dropped and the ack says so.
 static void finish_load(hs_server* s, int stopping) {
@@ -1326,6 +1333,21 @@ static void finish_load(hs_server* s, int stopping) {
     world_destroy(&L->nw); // zeroed by the swap; a dropped build is freed here
     hs_net_dedup_set_status(&s->cst.dedup, L->request_id, st);
     if (s->mbus) send_ack(s, L->request_id, L->kind, st, msg);
+    // The commands that came meanwhile, in order, until one starts another load (the rest then
+    // wait for that one).
+    while (L->q_head < L->q_len && !L->active) {
+        const hs_net_command* c = &L->queued[L->q_head++];
+        if (stopping) {
+            hs_net_dedup_set_status(&s->cst.dedup, c->request_id,
+                                    HAPSIM_COMMAND_ACK_T_STATUS_FAILED);
+            if (s->mbus)
+                send_ack(s, c->request_id, c->kind, HAPSIM_COMMAND_ACK_T_STATUS_FAILED,
+                         "the server stopped before it ran");
+            continue;
+        }
+        run_command(s, c, 1);
+    }
+    if (L->q_head == L->q_len) L->q_head = L->q_len = 0;
 }
 
 static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap) {
@@ -1423,17 +1445,33 @@ static void on_command(const lcm_recv_buf_t* rb, const char* ch, void* user) {
                      hs_net_reject_name(r));
         return;
     }
+    // Every command but the e-stop's two acts after a load in progress, on the new scene: it
+    // is kept (PENDING) and runs at the swap. A full queue makes the loop wait for the build.
+    loader* L = &s->load;
+    if (L->active && c.kind != HAPSIM_COMMAND_T_KIND_ESTOP &&
+        c.kind != HAPSIM_COMMAND_T_KIND_ESTOP_RELEASE) {
+        if (L->q_len < LOAD_QUEUE) {
+            L->queued[L->q_len++] = c;
+            send_ack(s, c.request_id, c.kind, HAPSIM_COMMAND_ACK_T_STATUS_PENDING,
+                     "runs when the scene being loaded is in");
+            return;
+        }
+        finish_load(s, 0); // may start another load from the queue: then wait for that too
+        while (L->active) finish_load(s, 0);
+    }
+    run_command(s, &c, 0);
+}
+
+// Execute an accepted command and send its final ack; LOAD_SCENE sends a PENDING one first
+// (unless one went out already) and its final one from finish_load.
+static void run_command(hs_server* s, const hs_net_command* c, int pending_sent) {
     char msg[600];
-    // Every command but the e-stop's two acts after a load in progress, as if it had been
-    // built here: wait for it and swap it in first.
-    if (c.kind != HAPSIM_COMMAND_T_KIND_ESTOP && c.kind != HAPSIM_COMMAND_T_KIND_ESTOP_RELEASE)
-        finish_load(s, 0);
-    if (c.kind == HAPSIM_COMMAND_T_KIND_LOAD_SCENE)
-        send_ack(s, c.request_id, c.kind, HAPSIM_COMMAND_ACK_T_STATUS_PENDING, "loading");
-    int st = execute(s, &c, msg, sizeof msg);
+    if (c->kind == HAPSIM_COMMAND_T_KIND_LOAD_SCENE && !pending_sent)
+        send_ack(s, c->request_id, c->kind, HAPSIM_COMMAND_ACK_T_STATUS_PENDING, "loading");
+    int st = execute(s, c, msg, sizeof msg);
     if (st == LOAD_STARTED) return; // being built on the loader thread: finish_load acks it
-    hs_net_dedup_set_status(&s->cst.dedup, c.request_id, st);
-    send_ack(s, c.request_id, c.kind, st, msg);
+    hs_net_dedup_set_status(&s->cst.dedup, c->request_id, st);
+    send_ack(s, c->request_id, c->kind, st, msg);
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -224,11 +224,23 @@ int hs_net_dedup_set_status(hs_net_dedup* d, int64_t request_id, int32_t status)
     return 0;
 }
 
+// Overwrites the oldest entry, but keeps one still PENDING (a scene being loaded, a command
+// queued behind it) while a finished one can go instead: its final status must find it, and
+// a retry of it must not run it again (64 e-stops during a load pushed it out).
 static void dedup_add(hs_net_dedup* d, int64_t id, int32_t kind) {
-    d->id[d->head] = id;
-    d->kind[d->head] = kind;
-    d->status[d->head] = HAPSIM_COMMAND_ACK_T_STATUS_PENDING;
-    d->head = (d->head + 1) % HS_NET_DEDUP_SIZE;
+    int slot = d->head;
+    if (d->count == HS_NET_DEDUP_SIZE)
+        for (int k = 0; k < HS_NET_DEDUP_SIZE; ++k) {
+            int j = (d->head + k) % HS_NET_DEDUP_SIZE;
+            if (d->status[j] != HAPSIM_COMMAND_ACK_T_STATUS_PENDING) {
+                slot = j;
+                break;
+            }
+        }
+    d->id[slot] = id;
+    d->kind[slot] = kind;
+    d->status[slot] = HAPSIM_COMMAND_ACK_T_STATUS_PENDING;
+    d->head = (slot + 1) % HS_NET_DEDUP_SIZE;
     if (d->count < HS_NET_DEDUP_SIZE) d->count++;
 }
 
