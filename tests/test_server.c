@@ -1163,25 +1163,41 @@ static int malformed_scene_exits_1(void) {
     ENSURE(strstr(text, "bad.json:") && strstr(text, "key '"));
     // A region that selects no node is named with its line, even beside one that does (it was
     // ignored); regions that fix every node are named as such (the message came from the body).
-    const char* regions[2][2] = {
+    // Errors found after parsing name the scene's line and key too (found in review,
+    // 2026-11-28): regions that leave rigid motion free ("stiffness not positive definite"),
+    // a units_scale that crushes the mesh, a mesh file that is not a mesh (its own file:line
+    // only).
+    char garbage[600];
+    snprintf(garbage, sizeof garbage, "%s/garbage.msh", tmpdir);
+    write_file(garbage, "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\nmany\n");
+    const char* liver = HS_SOURCE_DIR "/scenes/liver/liver2.msh";
+    const char* regions[5][4] = {
         {"[{\"type\": \"bbox_side\", \"axis\": \"y\", \"side\": \"min\", \"depth\": 0.01},\n"
          "            {\"type\": \"box\", \"min\": [5, 5, 5], \"max\": [6, 6, 6]}]",
-         "regions0.json:3: key 'fixed[1]': the region selects no node"},
-        {"[{\"type\": \"box\", \"min\": [-1, -1, -1], \"max\": [1, 1, 1]}]",
-         "regions1.json: key 'fixed': the regions fix every node"}};
-    for (int k = 0; k < 2; ++k) {
+         "", liver, "regions0.json:3: key 'fixed[1]': the region selects no node"},
+        {"[{\"type\": \"box\", \"min\": [-1, -1, -1], \"max\": [1, 1, 1]}]", "", liver,
+         "regions1.json:2: key 'fixed': the regions fix every node"},
+        {"[{\"type\": \"bbox_side\", \"axis\": \"y\", \"side\": \"max\", \"depth\": 0}]", "", liver,
+         "regions2.json:2: key 'fixed': the piece of the mesh containing tet"},
+        {"[{\"type\": \"bbox_side\", \"axis\": \"y\", \"side\": \"min\", \"depth\": 0.01}]",
+         ",\n  \"units_scale\": 1e-300", liver, "regions3.json:4: key 'units_scale' (1e-300): "},
+        {"[{\"type\": \"bbox_side\", \"axis\": \"y\", \"side\": \"min\", \"depth\": 0.01}]", "",
+         garbage, "key 'mesh': "}};
+    for (int k = 0; k < 5; ++k) {
         char body[1024];
         snprintf(scene, sizeof scene, "%s/regions%d.json", tmpdir, k);
         snprintf(body, sizeof body,
-                 "{ \"mesh\": \"%s/scenes/liver/liver2.msh\",\n  \"fixed\": %s,\n"
-                 "  \"tools\": [{\"kind\": \"probe\", \"radius\": 0.005}], \"devices\": 1 }\n",
-                 HS_SOURCE_DIR, regions[k][0]);
+                 "{ \"mesh\": \"%s\",\n  \"fixed\": %s,\n"
+                 "  \"tools\": [{\"kind\": \"probe\", \"radius\": 0.005}], \"devices\": 1%s }\n",
+                 regions[k][2], regions[k][0], regions[k][1]);
         write_file(scene, body);
         ENSURE(start_server(scene, "bad") == 0);
         ENSURE(wait_exit(5000000000LL) == 1);
         ENSURE(read_server_log("bad", text, sizeof text) == 0);
         printf("  %s", text);
-        ENSURE(strstr(text, regions[k][1]));
+        ENSURE(strstr(text, regions[k][3]));
+        if (k == 4)
+            ENSURE(strstr(text, "regions4.json:1: key 'mesh'") && strstr(text, "garbage.msh:5"));
     }
     return 0;
 }

@@ -152,6 +152,12 @@ int hs_polar_higham(const double f[9], double r[9], double tol, int max_iter);
 /// Rotation from the SVD of F with det R = +1 (reflection kept in the stretch).
 void hs_polar_svd(const double f[9], double r[9] /* OUT */);
 
+/// HS_OK when every connected piece of the mesh holds three non-collinear nodes with
+/// fixed[i] != 0: else rigid motion is free, the stiffness is singular and there is no static
+/// equilibrium (nor a compliance); HS_ERR_INVALID naming a tet of the free piece.
+/// Thread: any | Allocates: temporarily
+hs_status hs_fem_check_fixed(const hs_mesh* mesh, const unsigned char* fixed, hs_err* err);
+
 #ifdef __cplusplus
 }
 #endif

@@ -15,6 +15,7 @@
 #include <string.h>
 #include <unistd.h>
 
+#include "hapsim/fem.h"
 #include "hapsim/haptic.h"
 #include "hapsim/haptic_sim.h"
 #include "hapsim/mesh.h"
@@ -366,12 +367,18 @@ static void server_sim_pause(hs_server* s) {
 static hs_status world_create(const hs_scene* sc, int realtime, world* w, hs_err* err) {
     memset(w, 0, sizeof *w);
     w->scene = *sc;
-    hs_status s = hs_mesh_load(sc->mesh_path, &w->mesh, err);
-    if (s < 0) return s;
+    // Mesh errors name the mesh file and line; say which scene key led there too.
+    hs_err e2 = {0};
+    hs_status s = hs_mesh_load(sc->mesh_path, &w->mesh, &e2);
+    if (s < 0) return hs_err_set(err, s, "%s:%d: key 'mesh': %s", sc->path, sc->mesh_line, e2.msg);
     if (sc->units_scale != 1.0) {
         for (int i = 0; i < 3 * w->mesh->n_nodes; ++i) w->mesh->x0[i] *= sc->units_scale;
-        s = hs_mesh_finalize(w->mesh, err);
-        if (s < 0) goto fail;
+        s = hs_mesh_finalize(w->mesh, &e2);
+        if (s < 0) {
+            s = hs_err_set(err, s, "%s:%d: key 'units_scale' (%g): %s", sc->path, sc->units_line,
+                           sc->units_scale, e2.msg);
+            goto fail;
+        }
     }
     const hs_mesh* m = w->mesh;
     size_t n = (size_t)m->n_nodes;
@@ -394,8 +401,9 @@ static hs_status world_create(const hs_scene* sc, int realtime, world* w, hs_err
     }
     if (w->n_fixed == used) {
         s = hs_err_set(err, HS_ERR_INVALID,
-                       "%s: key 'fixed': the regions fix every node of %s (nothing left to move)",
-                       sc->path, sc->mesh_path);
+                       "%s:%d: key 'fixed': the regions fix every node of %s (nothing left to "
+                       "move)",
+                       sc->path, sc->fixed_line, sc->mesh_path);
         goto fail;
     }
 
@@ -461,6 +469,12 @@ static hs_status world_create(const hs_scene* sc, int realtime, world* w, hs_err
     if (sc->feature_haptics && !w->haptics)
         w->probe_note = "haptics on but the scene has no probe tool or no device: not run";
     if (w->haptics) {
+        // The compliance is the inverse of the static stiffness: rigid motion left free by the
+        // fixed regions makes it singular (it said "stiffness not positive definite").
+        if ((s = hs_fem_check_fixed(m, w->fixed, &e2)) != HS_OK) {
+            s = hs_err_set(err, s, "%s:%d: key 'fixed': %s", sc->path, sc->fixed_line, e2.msg);
+            goto fail;
+        }
         sim_def_from_scene(sc, realtime, &w->def);
         s = world_sim_create(w, 0, err);
         if (s != HS_OK) goto fail;

@@ -1535,3 +1535,13 @@ done:
     hs_free(span);
     return st;
 }
+
+hs_status hs_fem_check_fixed(const hs_mesh* mesh, const unsigned char* fixed, hs_err* err) {
+    if (!mesh || !fixed) return hs_err_set(err, HS_ERR_INVALID, "hs_fem_check_fixed: NULL");
+    int* map = hs_alloc(3 * (size_t)mesh->n_nodes * sizeof(int) + 1);
+    if (!map) return nomem(err);
+    for (int i = 0; i < mesh->n_nodes; i++) map[3 * i] = fixed[i] ? -1 : 0;
+    hs_status st = hs_check_constrained(mesh, NULL, map, err);
+    hs_free(map);
+    return st;
+}

@@ -616,6 +616,9 @@ static hs_status parse_root(const ctx* c, const cJSON* root, int check_files, hs
         return fail(c, mesh_item, "mesh", "cannot read mesh file '%s'", s->mesh_path);
     TRY(get_str(c, root, "", "name", s->name, sizeof s->name, 0));
     TRY(get_num(c, root, "", "units_scale", 0.0, 1e3, 1, 0, &s->units_scale));
+    s->mesh_line = item_line(c, mesh_item);
+    s->units_line = item_line(c, cJSON_GetObjectItemCaseSensitive(root, "units_scale"));
+    s->fixed_line = item_line(c, cJSON_GetObjectItemCaseSensitive(root, "fixed"));
     TRY(parse_material(c, root, s));
     TRY(parse_model(c, root, s));
     TRY(parse_fixed(c, root, s));
