@@ -440,7 +440,7 @@ static int BadInputRefused(void) {
     ENSURE(hs_mesh_create_box(0.1, 0.02, 0.02, 10, 2, 2, &m, NULL) == HS_OK);
     unsigned char* fx = clamp_x0(m);
     hs_body* b = NULL;
-    for (int bad = 0; bad < 9; ++bad) {
+    for (int bad = 0; bad < 11; ++bad) {
         hs_body_def d = hs_body_default_def();
         if (bad == 0) d.gravity[2] = NAN;
         if (bad == 1) d.gravity[0] = -1e300;
@@ -451,6 +451,8 @@ static int BadInputRefused(void) {
         if (bad == 6) d.static_tol = INFINITY;
         if (bad == 7) d.fem.material.rayleigh_mass = INFINITY;
         if (bad == 8) d.fem.material.rayleigh_stiffness = INFINITY;
+        if (bad == 9) d.fem.material.youngs_pa = 1e300, d.fem.material.poisson = 0.49;
+        if (bad == 10) d.fem.material.youngs_pa = 1e300, d.fem.material.poisson = -0.9999;
         hs_err e = {0};
         ENSURE(hs_body_create(m, &d, fx, &b, &e) == HS_ERR_INVALID && !b);
         if (bad == 0) printf("  %s\n", e.msg);

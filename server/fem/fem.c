@@ -154,6 +154,16 @@ static hs_status check_def(const hs_fem_def* d, hs_err* err) {
     if (!(m->poisson > -1.0 && m->poisson < 0.5))
         return hs_err_set(err, HS_ERR_INVALID, "fem: Poisson ratio must be in (-1, 0.5) (got %g)",
                           m->poisson);
+    // Finite E and nu can still overflow the Lame parameters (E 1e300 Pa near nu 0.5 or -1):
+    // the energy at rest was then NaN. Bound them far beyond any tissue (or steel, 1e11 Pa).
+    const double mu = m->youngs_pa / (2 * (1 + m->poisson)),
+                 lam = m->youngs_pa * m->poisson / ((1 + m->poisson) * (1 - 2 * m->poisson)),
+                 kap = m->youngs_pa / (3 * (1 - 2 * m->poisson));
+    if (!(mu <= 1e20 && fabs(lam) <= 1e20 && kap <= 1e20))
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "fem: E %g Pa with nu %g gives moduli beyond 1e20 Pa (mu %g, lambda "
+                          "%g, bulk %g)",
+                          m->youngs_pa, m->poisson, mu, lam, kap);
     if (!(m->density_kg_m3 >= 0) || !isfinite(m->density_kg_m3))
         return hs_err_set(err, HS_ERR_INVALID, "fem: density must be >= 0 (got %g kg/m^3)",
                           m->density_kg_m3);
