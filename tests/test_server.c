@@ -183,9 +183,10 @@ typedef struct client {
     status_info* status;     // newest
     // acks
     int n_ack;
-    int64_t ack_id[64];
-    int32_t ack_status[64];
-    int64_t ack_utime[64]; // the server's clock
+#define ACK_RING 256 // acks remembered (a load with 40 commands queued behind it: 80)
+    int64_t ack_id[ACK_RING];
+    int32_t ack_status[ACK_RING];
+    int64_t ack_utime[ACK_RING]; // the server's clock
     // every force received: the server's utime, its norm and state
     int n_flog;
     int64_t flog_utime[8192];
@@ -258,9 +259,9 @@ static void on_ack(const lcm_recv_buf_t* rb, const char* ch, const hapsim_comman
     (void)rb;
     (void)ch;
     client* c = u;
-    c->ack_id[c->n_ack % 64] = a->request_id;
-    c->ack_status[c->n_ack % 64] = a->status;
-    c->ack_utime[c->n_ack % 64] = a->utime;
+    c->ack_id[c->n_ack % ACK_RING] = a->request_id;
+    c->ack_status[c->n_ack % ACK_RING] = a->status;
+    c->ack_utime[c->n_ack % ACK_RING] = a->utime;
     c->n_ack++;
 }
 
@@ -450,7 +451,7 @@ static int command(client* c, int kind, const char* k1, const char* v1, const ch
         while (hs_now_ns() < end) {
             hs_net_bus_handle(c->m, 1);
             hs_net_bus_handle(c->h, 0);
-            for (int i = 0; i < 64 && i < c->n_ack; ++i)
+            for (int i = 0; i < ACK_RING && i < c->n_ack; ++i)
                 if (c->ack_id[i] == id) {
                     if (c->ack_status[i] != HAPSIM_COMMAND_ACK_T_STATUS_PENDING)
                         return c->ack_status[i];
@@ -612,7 +613,7 @@ static int poses_in_forces_out(void) {
 // The ack of request id with a status other than PENDING (final), or PENDING; its index in the
 // client's ack ring, or -1.
 static int find_ack(const client* c, int64_t id, int final) {
-    for (int i = 0; i < 64 && i < c->n_ack; ++i)
+    for (int i = 0; i < ACK_RING && i < c->n_ack; ++i)
         if (c->ack_id[i] == id &&
             (c->ack_status[i] != HAPSIM_COMMAND_ACK_T_STATUS_PENDING) == (final != 0))
             return i;
@@ -622,8 +623,8 @@ static int find_ack(const client* c, int64_t id, int final) {
 // Press 4 mm at ~1 kHz until request id has its final ack (at most 10 s); after its PENDING
 // ack, send `then` (a command kind, 0: none) once as request then_id, and `then2` as then2_id
 // after it. Returns the final ack's index or -1.
-static int press_until_final2(client* c, int64_t id, int then, int64_t then_id, int then2,
-                              int64_t then2_id) {
+static int press_until_final3(client* c, int64_t id, int then, int64_t then_id, int then_n,
+                              int then2, int64_t then2_id) {
     int sent = 0;
     int64_t end = hs_now_ns() + 10000000000LL;
     while (hs_now_ns() < end) {
@@ -636,7 +637,8 @@ static int press_until_final2(client* c, int64_t id, int then, int64_t then_id, 
             hs_net_bus_handle(c->m, 0);
         }
         if (then && !sent && find_ack(c, id, 0) >= 0) {
-            send_command(c, then_id, then, NULL, NULL, NULL, NULL);
+            for (int k = 0; k < then_n; ++k)
+                send_command(c, then_id + k, then, NULL, NULL, NULL, NULL);
             if (then2) send_command(c, then2_id, then2, NULL, NULL, NULL, NULL);
             sent = 1;
         }
@@ -644,6 +646,11 @@ static int press_until_final2(client* c, int64_t id, int then, int64_t then_id, 
         if (f >= 0) return f;
     }
     return -1;
+}
+
+static int press_until_final2(client* c, int64_t id, int then, int64_t then_id, int then2,
+                              int64_t then2_id) {
+    return press_until_final3(c, id, then, then_id, 1, then2, then2_id);
 }
 
 static int press_until_final(client* c, int64_t id, int then, int64_t then_id) {
@@ -734,6 +741,30 @@ static int load_goes_on_answering(void) {
     ENSURE(fin >= 0 && c.ack_status[fin] == HAPSIM_COMMAND_ACK_T_STATUS_OK);
     stream(&c, 0.004, 0.004, 400);
     ENSURE(norm3(c.force.force) <= 0.01 + 1e-12); // the limit holds in the new scene
+
+    // More commands during a load than are kept (32): the rest are refused at once (busy), and
+    // an e-stop after them is still acked before the swap (the loop waited for the build).
+    next_request += 100;
+    int64_t load3 = ++next_request, many = next_request + 1, stop3 = next_request + 60;
+    next_request += 100;
+    send_command(&c, load3, HAPSIM_COMMAND_T_KIND_LOAD_SCENE, "path", scene, NULL, NULL);
+    fin = press_until_final3(&c, load3, HAPSIM_COMMAND_T_KIND_REQUEST_TOPOLOGY, many, 40,
+                             HAPSIM_COMMAND_T_KIND_ESTOP, stop3);
+    ENSURE(fin >= 0 && c.ack_status[fin] == HAPSIM_COMMAND_ACK_T_STATUS_OK);
+    pump_ms(&c, 200);
+    est = find_ack(&c, stop3, 1);
+    ENSURE(est >= 0 && c.ack_utime[est] < c.ack_utime[fin]);
+    int ok = 0, busy = 0;
+    for (int k = 0; k < 40; ++k) {
+        int a = find_ack(&c, many + k, 1);
+        ENSURE(a >= 0);
+        ok += c.ack_status[a] == HAPSIM_COMMAND_ACK_T_STATUS_OK;
+        busy += c.ack_status[a] == HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
+    }
+    printf("  40 commands during a load: %d run after the swap, %d refused as busy; e-stop "
+           "acked %.1f ms before the swap\n",
+           ok, busy, (double)(c.ack_utime[fin] - c.ack_utime[est]) * 1e-3);
+    ENSURE(ok + busy == 40 && ok <= 32);
     ENSURE(stop_server() == 0);
     client_close(&c);
     return 0;

@@ -97,6 +97,10 @@ fi
 "$SOLVE" --mesh "$MESH" --model linear --static --fix-plane y,min,0.005 --out "$T/same" \
   --vtk "$T/same" > /dev/null 2> "$T/err"; rc=$?
 [ $rc -eq 1 ] && grep -q "same file" "$T/err"; check "--out and --vtk the same file refused" $?
+( cd "$T" && "$SOLVE" --mesh "$MESH" --model linear --static --fix-plane y,min,0.005 --out new \
+  --vtk ./new > /dev/null 2> "$T/err" ); rc=$?
+[ $rc -eq 1 ] && grep -q "same file" "$T/err" && [ ! -e "$T/new" ]
+check "--out F --vtk ./F (F new) refused" $?
 # One tet and a node no tet uses (node 5): fixing only that node fixes nothing.
 printf '$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n5\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n5 0 0 -5\n$EndNodes\n$Elements\n1\n1 4 2 0 1 1 2 3 4\n$EndElements\n' > "$T/unref.msh"
 "$SOLVE" --mesh "$T/unref.msh" --model linear --static --gravity 0,0,-9.81 \
@@ -117,8 +121,12 @@ for model in linear mooney; do
     --out "$T/o.csv" > /dev/null 2> "$T/err"; rc=$?
   [ $rc -eq 1 ] && grep -q "nothing is left to move" "$T/err"; check "$model: every node fixed refused" $?
 done
-# A solve that fails writes nothing (the CSV was written and "wrote" printed).
+# Moduli that overflow are refused up front (E 1e308 Pa: the solve failed on NaN).
 "$SOLVE" --mesh "$MESH" --model linear --E 1e308 --static --fix-plane y,min,0.005 \
+  --out "$T/o.csv" > /dev/null 2> "$T/err"; rc=$?
+[ $rc -eq 1 ] && grep -q "beyond 1e20 Pa" "$T/err"; check "E 1e308 refused" $?
+# A solve that fails writes nothing (the CSV was written and "wrote" printed).
+"$SOLVE" --mesh "$MESH" --model stvk --E 1e-300 --gravity 0,1000,0 --static --fix-plane y,min,0.005 \
   --out "$T/failed.csv" > "$T/sum" 2> "$T/err"; rc=$?
 [ $rc -eq 2 ] && [ ! -e "$T/failed.csv" ] && grep -q "wrote           nothing" "$T/sum"
 check "a failed solve writes nothing" $?

@@ -1361,7 +1361,10 @@ static void finish_load(hs_server* s, int stopping) {
         }
         run_command(s, c, 1);
     }
-    if (L->q_head == L->q_len) L->q_head = L->q_len = 0;
+    // What waits for a load started from the queue moves to the front: full room for more.
+    memmove(L->queued, L->queued + L->q_head, (size_t)(L->q_len - L->q_head) * sizeof *L->queued);
+    L->q_len -= L->q_head;
+    L->q_head = 0;
 }
 
 static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap) {
@@ -1468,10 +1471,14 @@ static void on_command(const lcm_recv_buf_t* rb, const char* ch, void* user) {
             L->queued[L->q_len++] = c;
             send_ack(s, c.request_id, c.kind, HAPSIM_COMMAND_ACK_T_STATUS_PENDING,
                      "runs when the scene being loaded is in");
-            return;
+        } else { // waiting here would stop the loop (poses, e-stops) until the build ends
+            hs_net_dedup_set_status(&s->cst.dedup, c.request_id,
+                                    HAPSIM_COMMAND_ACK_T_STATUS_FAILED);
+            send_ack(s, c.request_id, c.kind, HAPSIM_COMMAND_ACK_T_STATUS_FAILED,
+                     "busy: a scene is loading and 32 commands wait for it; send again (a new "
+                     "request id) when it is in");
         }
-        finish_load(s, 0); // may start another load from the queue: then wait for that too
-        while (L->active) finish_load(s, 0);
+        return;
     }
     run_command(s, &c, 0);
 }

@@ -1,12 +1,13 @@
 // hapsim-solve: load a mesh, fix a region, apply gravity, and solve statically or run implicit
 // dynamics with a chosen element model. Writes the nodal displacement as CSV.
-#define _POSIX_C_SOURCE 200809L
+#define _XOPEN_SOURCE 700 // realpath, stat
 #include "hapsim/body.h"
 #include "hapsim/mesh.h"
 #include "hapsim/mooney.h"
 #include "hapsim/sparse.h"
 
 #include <errno.h>
+#include <limits.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -108,9 +109,26 @@ static int writable(const char* path) {
     return access(dir, W_OK | X_OK) == 0;
 }
 
-// Whether two paths name one file: the same string, or an existing file reached twice.
+// path as its folder's real path and its own name ("out" and "./out" alike, existing or not);
+// 0 when the folder cannot be resolved.
+static int canonical(const char* path, char* out, size_t cap) {
+    const char* slash = strrchr(path, '/');
+    char dir[4096], real[PATH_MAX];
+    if (!slash)
+        snprintf(dir, sizeof dir, ".");
+    else
+        snprintf(dir, sizeof dir, "%.*s", slash == path ? 1 : (int)(slash - path), path);
+    if (!realpath(dir, real)) return 0;
+    int n = snprintf(out, cap, "%s/%s", real, slash ? slash + 1 : path);
+    return n > 0 && (size_t)n < cap;
+}
+
+// Whether two paths name one file: the same place (spelt either way), or an existing file
+// reached twice (a link).
 static int same_file(const char* a, const char* b) {
     if (!strcmp(a, b)) return 1;
+    char ca[8192], cb[8192];
+    if (canonical(a, ca, sizeof ca) && canonical(b, cb, sizeof cb) && !strcmp(ca, cb)) return 1;
     struct stat sa, sb;
     return stat(a, &sa) == 0 && stat(b, &sb) == 0 && sa.st_dev == sb.st_dev &&
            sa.st_ino == sb.st_ino;
