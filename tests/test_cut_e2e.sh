@@ -13,7 +13,8 @@
 #    cut and refused after it, and no cut is lost (a late client gets a consistent mesh);
 #  - after the cut, set and a scene that fails to build are refused (the sim cannot be rebuilt
 #    on a cut mesh) and leave the cut simulation running, but the force limits (no rebuild)
-#    are accepted; reset reloads the uncut scene (new topology version, set works again);
+#    are accepted; reset reloads the uncut scene (new topology version, set works again) while
+#    the cut one goes on answering a stylus (largest force age < 40 ms);
 #  - the force the stylus received is finite, the blade felt resistance, and it changes by at
 #    most MAX_STEP_N per ms of the time between the two forces (a late stylus tick, or a force
 #    that arrives after a stall of the server, spans several server ticks): the cutting force
@@ -157,8 +158,25 @@ echo "resumed after the cut:"
 sed -n '1,5p' "$tmp/status_resumed.txt"
 # Retried every 10 ms, the reset (a scene load, ~100 ms) is sent several times; the answer shown
 # is the executed command's, not a later copy's "duplicate request_id: not executed again".
+# The uncut scene is built beside the running one: a stylus held above the patch meanwhile
+# goes on getting forces (built on the net thread, the reset left it none for ~100 ms).
+cat >"$tmp/hold.probe" <<EOF
+units mm
+origin 0 0 10
+start 12 0 20
+hold 2.5
+EOF
+"$bin/hapsim-stylus" --script "$tmp/hold.probe" >"$tmp/stylus_reset.log" 2>&1 &
+stylus_pid=$!
+sleep 1
 out=$($bin/hapsim-ctl --timeout 3000 --retry 10 reset) || fail "reset after a cut: rc $?"
 echo "$out"
+wait $stylus_pid || fail "hapsim-stylus (held during the reset) rc $?: $(cat "$tmp/stylus_reset.log")"
+stylus_pid=""
+age=$(sed -n 's/.*max model age \([0-9.]*\) ms.*/\1/p' "$tmp/stylus_reset.log")
+echo "largest force age across the reset: $age ms"
+echo "$age" | awk '{ exit !($1 >= 0 && $1 < 40) }' ||
+    fail "no force for $age ms across the reset: $(cat "$tmp/stylus_reset.log")"
 echo "$out" | grep -q "attempts" && echo "$out" | grep -q "loaded" ||
     fail "the reset's answer is not the executed command's: $out"
 $ctl status >"$tmp/status2.txt" 2>&1 || fail "no status after reset"

@@ -99,8 +99,8 @@ typedef struct loader {
     int active;      // started and not yet joined
     atomic_int done; // the thread has finished: st, err and nw are its results
     int realtime;
-    char path[HS_NET_CMD_VALUE_MAX];
-    int64_t request_id; // its final ack goes out at the swap
+    char path[HS_SCENE_PATH_MAX]; // a LOAD_SCENE's argument or, for RESET, the running scene's
+    int64_t request_id;           // its final ack goes out at the swap
     int32_t kind;
     hs_scene sc;
     world nw; // built, not started; the net thread swaps it in
@@ -1302,13 +1302,13 @@ static void* loader_main(void* arg) {
 
 #define LOAD_STARTED (-100) // not an ack status: the final ack follows from finish_load
 
-// LOAD_SCENE from a client: build on the loader thread; the net loop goes on (forces from the
-// running scene, status saying LOADING, e-stops) and swaps when it is built. Returns
-// LOAD_STARTED when started (the final ack follows from finish_load), else the final status (the
-// build ran here: no thread could be started).
-static int load_scene_start(hs_server* s, const hs_net_command* c, char* msg, size_t cap) {
+// LOAD_SCENE from a client, or RESET of a cut world (the uncut scene again): build on the loader
+// thread; the net loop goes on (forces from the running scene, status saying LOADING, e-stops)
+// and swaps when it is built. Returns LOAD_STARTED when started (the final ack follows from
+// finish_load), else the final status (the build ran here: no thread could be started).
+static int load_scene_start(hs_server* s, const char* path, const hs_net_command* c, char* msg,
+                            size_t cap) {
     loader* L = &s->load;
-    const char* path = hs_net_command_arg(c, "path");
     snprintf(L->path, sizeof L->path, "%s", path ? path : "");
     L->request_id = c->request_id;
     L->kind = c->kind;
@@ -1323,7 +1323,7 @@ static int load_scene_start(hs_server* s, const hs_net_command* c, char* msg, si
         return LOAD_STARTED;
     }
     s->loading = NULL;
-    return load_scene(s, path, msg, cap);
+    return load_scene(s, L->path, msg, cap);
 }
 
 static void run_command(hs_server* s, const hs_net_command* c, int pending_sent);
@@ -1373,11 +1373,11 @@ static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap)
     msg[0] = '\0';
     switch (c->kind) {
     case HAPSIM_COMMAND_T_KIND_RESET:
-        if (w->cut_made) return load_scene(s, w->scene.path, msg, cap); // the uncut mesh
+        if (w->cut_made) return load_scene_start(s, w->scene.path, c, msg, cap); // uncut mesh
         if (rebuild_sim(s, 0, &err) != HS_OK) {
             // A cut the deformation thread finished after the look above: rebuild_sim passed
             // it on and refused; the uncut scene is reloaded as for any cut mesh.
-            if (w->cut_made) return load_scene(s, w->scene.path, msg, cap);
+            if (w->cut_made) return load_scene_start(s, w->scene.path, c, msg, cap);
             snprintf(msg, cap, "%s", err.msg);
             return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
         }
@@ -1419,7 +1419,7 @@ static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap)
         }
         return HAPSIM_COMMAND_ACK_T_STATUS_OK;
     case HAPSIM_COMMAND_T_KIND_LOAD_SCENE:
-        return load_scene_start(s, c, msg, cap);
+        return load_scene_start(s, hs_net_command_arg(c, "path"), c, msg, cap);
     case HAPSIM_COMMAND_T_KIND_SET_PARAM:
         return set_param(s, hs_net_command_arg(c, "name"), c->number, msg, cap);
     case HAPSIM_COMMAND_T_KIND_ESTOP: {
@@ -1463,7 +1463,7 @@ static void on_command(const lcm_recv_buf_t* rb, const char* ch, void* user) {
         return;
     }
     // Every command but the e-stop's two acts after a load in progress, on the new scene: it
-    // is kept (PENDING) and runs at the swap. A full queue makes the loop wait for the build.
+    // is kept (PENDING) and runs at the swap. Past LOAD_QUEUE of them, the rest are refused.
     loader* L = &s->load;
     if (L->active && c.kind != HAPSIM_COMMAND_T_KIND_ESTOP &&
         c.kind != HAPSIM_COMMAND_T_KIND_ESTOP_RELEASE) {
@@ -1490,7 +1490,12 @@ static void run_command(hs_server* s, const hs_net_command* c, int pending_sent)
     if (c->kind == HAPSIM_COMMAND_T_KIND_LOAD_SCENE && !pending_sent)
         send_ack(s, c->request_id, c->kind, HAPSIM_COMMAND_ACK_T_STATUS_PENDING, "loading");
     int st = execute(s, c, msg, sizeof msg);
-    if (st == LOAD_STARTED) return; // being built on the loader thread: finish_load acks it
+    if (st == LOAD_STARTED) { // being built on the loader thread: finish_load acks it
+        if (c->kind != HAPSIM_COMMAND_T_KIND_LOAD_SCENE && !pending_sent) // RESET of a cut world
+            send_ack(s, c->request_id, c->kind, HAPSIM_COMMAND_ACK_T_STATUS_PENDING,
+                     "reloading the uncut scene");
+        return;
+    }
     hs_net_dedup_set_status(&s->cst.dedup, c->request_id, st);
     send_ack(s, c->request_id, c->kind, st, msg);
 }
