@@ -177,7 +177,7 @@ age=$(sed -n 's/.*max model age \([0-9.]*\) ms.*/\1/p' "$tmp/stylus_reset.log")
 echo "largest force age across the reset: $age ms"
 echo "$age" | awk '{ exit !($1 >= 0 && $1 < 40) }' ||
     fail "no force for $age ms across the reset: $(cat "$tmp/stylus_reset.log")"
-echo "$out" | grep -q "attempts" && echo "$out" | grep -q "loaded" ||
+echo "$out" | grep -q "attempts" && echo "$out" | grep -q "rebuilt at rest" ||
     fail "the reset's answer is not the executed command's: $out"
 $ctl status >"$tmp/status2.txt" 2>&1 || fail "no status after reset"
 grep -q "^server   running" "$tmp/status2.txt" || fail "not running after reset"

@@ -333,6 +333,10 @@ static int client_open(client* c) {
     c->s_key = hapsim_mesh_state_t_subscribe(hs_net_bus_lcm(c->m), PREFIX "MESH_STATE", on_key, c);
     c->s_delta =
         hapsim_mesh_delta_t_subscribe(hs_net_bus_lcm(c->m), PREFIX "MESH_DELTA", on_delta, c);
+    // LCM queues 30 messages per subscription and drops the newest beyond: a burst of acks (a
+    // load with 41 commands behind it) lost its last ones when this client ran late.
+    hapsim_command_ack_t_subscription_set_queue_capacity(c->s_ack, 1024);
+    hapsim_tool_force_t_subscription_set_queue_capacity(c->s_force, 1024);
     return 0;
 }
 
@@ -620,12 +624,9 @@ static int find_ack(const client* c, int64_t id, int final) {
     return -1;
 }
 
-// Press 4 mm at ~1 kHz until request id has its final ack (at most 10 s); after its PENDING
-// ack, send `then` (a command kind, 0: none) once as request then_id, and `then2` as then2_id
-// after it. Returns the final ack's index or -1.
-static int press_until_final3(client* c, int64_t id, int then, int64_t then_id, int then_n,
-                              int then2, int64_t then2_id) {
-    int sent = 0;
+// Press 4 mm at ~1 kHz until request id has its final ack (at most 10 s). Returns the final
+// ack's index or -1.
+static int press_until_final(client* c, int64_t id) {
     int64_t end = hs_now_ns() + 10000000000LL;
     while (hs_now_ns() < end) {
         double p[3];
@@ -636,25 +637,10 @@ static int press_until_final3(client* c, int64_t id, int then, int64_t then_id, 
             hs_net_bus_handle(c->h, 0);
             hs_net_bus_handle(c->m, 0);
         }
-        if (then && !sent && find_ack(c, id, 0) >= 0) {
-            for (int k = 0; k < then_n; ++k)
-                send_command(c, then_id + k, then, NULL, NULL, NULL, NULL);
-            if (then2) send_command(c, then2_id, then2, NULL, NULL, NULL, NULL);
-            sent = 1;
-        }
         int f = find_ack(c, id, 1);
         if (f >= 0) return f;
     }
     return -1;
-}
-
-static int press_until_final2(client* c, int64_t id, int then, int64_t then_id, int then2,
-                              int64_t then2_id) {
-    return press_until_final3(c, id, then, then_id, 1, then2, then2_id);
-}
-
-static int press_until_final(client* c, int64_t id, int then, int64_t then_id) {
-    return press_until_final2(c, id, then, then_id, 0, 0);
 }
 
 // Forces the server sent strictly between two of its times (us); how many, and how many of
@@ -688,11 +674,14 @@ static int load_goes_on_answering(void) {
 
     // During the build: a command that waits for the new scene (REQUEST_TOPOLOGY: kept, run at
     // the swap), then an e-stop, which must not wait behind it (it did: the first version
-    // joined the loader for any such command, and the loop stood still; found in review).
+    // joined the loader for any such command, and the loop stood still; found in review). Both
+    // are sent right behind the load, so they are waiting when the build starts (sent after its
+    // PENDING ack by a client slow to run on a loaded machine, they came after a short build).
     int64_t load_id = ++next_request, topo_id = ++next_request, stop_id = ++next_request;
     send_command(&c, load_id, HAPSIM_COMMAND_T_KIND_LOAD_SCENE, "path", scene, NULL, NULL);
-    int fin = press_until_final2(&c, load_id, HAPSIM_COMMAND_T_KIND_REQUEST_TOPOLOGY, topo_id,
-                                 HAPSIM_COMMAND_T_KIND_ESTOP, stop_id);
+    send_command(&c, topo_id, HAPSIM_COMMAND_T_KIND_REQUEST_TOPOLOGY, NULL, NULL, NULL, NULL);
+    send_command(&c, stop_id, HAPSIM_COMMAND_T_KIND_ESTOP, NULL, NULL, NULL, NULL);
+    int fin = press_until_final(&c, load_id);
     ENSURE(fin >= 0 && c.ack_status[fin] == HAPSIM_COMMAND_ACK_T_STATUS_OK);
     int pend = find_ack(&c, load_id, 0), est = find_ack(&c, stop_id, 1);
     ENSURE(pend >= 0 && est >= 0 && c.ack_status[est] == HAPSIM_COMMAND_ACK_T_STATUS_OK);
@@ -725,7 +714,7 @@ static int load_goes_on_answering(void) {
     snprintf(bad, sizeof bad, "%s/no_such_scene.json", tmpdir);
     int64_t bad_id = ++next_request;
     send_command(&c, bad_id, HAPSIM_COMMAND_T_KIND_LOAD_SCENE, "path", bad, NULL, NULL);
-    fin = press_until_final(&c, bad_id, 0, 0);
+    fin = press_until_final(&c, bad_id);
     ENSURE(fin >= 0 && c.ack_status[fin] == HAPSIM_COMMAND_ACK_T_STATUS_FAILED);
     stream(&c, 0.004, 0.004, 200);
     ENSURE(dot_n(c.force.force) > 0.02 && c.force.state == HAPSIM_TOOL_FORCE_T_STATE_CONTACT);
@@ -747,9 +736,14 @@ static int load_goes_on_answering(void) {
     next_request += 100;
     int64_t load3 = ++next_request, many = next_request + 1, stop3 = next_request + 60;
     next_request += 100;
+    // Sent right behind the load, not after its PENDING ack: they are then already waiting when
+    // the build starts, so they arrive during it even when this client is slow to run (waiting
+    // for the ack, a build finished on a loaded machine before they came: all 40 ran).
     send_command(&c, load3, HAPSIM_COMMAND_T_KIND_LOAD_SCENE, "path", scene, NULL, NULL);
-    fin = press_until_final3(&c, load3, HAPSIM_COMMAND_T_KIND_REQUEST_TOPOLOGY, many, 40,
-                             HAPSIM_COMMAND_T_KIND_ESTOP, stop3);
+    for (int k = 0; k < 40; ++k)
+        send_command(&c, many + k, HAPSIM_COMMAND_T_KIND_REQUEST_TOPOLOGY, NULL, NULL, NULL, NULL);
+    send_command(&c, stop3, HAPSIM_COMMAND_T_KIND_ESTOP, NULL, NULL, NULL, NULL);
+    fin = press_until_final(&c, load3);
     ENSURE(fin >= 0 && c.ack_status[fin] == HAPSIM_COMMAND_ACK_T_STATUS_OK);
     pump_ms(&c, 200);
     est = find_ack(&c, stop3, 1);
@@ -765,6 +759,28 @@ static int load_goes_on_answering(void) {
            "acked %.1f ms before the swap\n",
            ok, busy, (double)(c.ack_utime[fin] - c.ack_utime[est]) * 1e-3);
     ENSURE(ok + busy == 40 && ok <= 32);
+
+    // RESET is built beside the running scene as well (the net loop stood still for the rebuild,
+    // no PENDING ack, no force), from the scene as set: a limit set before it holds after it.
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_ESTOP_RELEASE, NULL, NULL, NULL, NULL, NULL) ==
+           HAPSIM_COMMAND_ACK_T_STATUS_OK);
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_SET_PARAM, "name", "force_max_n", "value", "0.05",
+                   NULL) == HAPSIM_COMMAND_ACK_T_STATUS_OK);
+    stream(&c, 0.004, 0.004, 300);
+    ENSURE(dot_n(c.force.force) > 0.02);
+    int64_t reset_id = ++next_request;
+    send_command(&c, reset_id, HAPSIM_COMMAND_T_KIND_RESET, NULL, NULL, NULL, NULL);
+    fin = press_until_final(&c, reset_id);
+    ENSURE(fin >= 0 && c.ack_status[fin] == HAPSIM_COMMAND_ACK_T_STATUS_OK);
+    pend = find_ack(&c, reset_id, 0);
+    ENSURE(pend >= 0);
+    int nz_reset = 0;
+    int n_reset = forces_between(&c, c.ack_utime[pend], c.ack_utime[fin], &nz_reset);
+    printf("  reset: built in %.1f ms, %d forces meanwhile (%d nonzero)\n",
+           (double)(c.ack_utime[fin] - c.ack_utime[pend]) * 1e-3, n_reset, nz_reset);
+    ENSURE(nz_reset >= 3);
+    stream(&c, 0.004, 0.004, 500);
+    ENSURE(dot_n(c.force.force) > 0.02 && norm3(c.force.force) <= 0.05 + 1e-12);
     ENSURE(stop_server() == 0);
     client_close(&c);
     return 0;

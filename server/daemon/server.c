@@ -100,6 +100,7 @@ typedef struct loader {
     atomic_int done; // the thread has finished: st, err and nw are its results
     int realtime;
     char path[HS_SCENE_PATH_MAX]; // a LOAD_SCENE's argument or, for RESET, the running scene's
+    int have_sc;                  // RESET: sc is the running scene (with its set parameters)
     int64_t request_id;           // its final ack goes out at the swap
     int32_t kind;
     hs_scene sc;
@@ -1242,7 +1243,8 @@ static int set_param(hs_server* s, const char* name, double v, char* msg, size_t
 }
 
 // Swap the built world nw in for the running one and start it; the final ack's status.
-static int swap_world(hs_server* s, world* nw, char* msg, size_t cap) {
+// reset: nw is the running scene rebuilt at rest (RESET), not a LOAD_SCENE.
+static int swap_world(hs_server* s, world* nw, int reset, char* msg, size_t cap) {
     hs_err err = {0};
     world_sim_stop(&s->w);
     world_destroy(&s->w);
@@ -1267,20 +1269,27 @@ static int swap_world(hs_server* s, world* nw, char* msg, size_t cap) {
                  s->w.scene.name, err.msg);
         return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
     }
-    snprintf(msg, cap, "loaded %s (%d nodes); buses and prefix unchanged", s->w.scene.name,
-             s->w.mesh->n_nodes);
+    if (reset)
+        snprintf(msg, cap, "reset: %s rebuilt at rest (%d nodes)", s->w.scene.name,
+                 s->w.mesh->n_nodes);
+    else
+        snprintf(msg, cap, "loaded %s (%d nodes); buses and prefix unchanged", s->w.scene.name,
+                 s->w.mesh->n_nodes);
     return HAPSIM_COMMAND_ACK_T_STATUS_OK;
 }
 
-// Load and build a scene on the net thread (RESET of a cut world), then swap. Built while the
-// old world still exists: a scene that fails leaves the running simulation as it was.
-static int load_scene(hs_server* s, const char* path, char* msg, size_t cap) {
+// Load (sc NULL: from path) and build a scene on the net thread, then swap: where no loader
+// thread could be started. Built while the old world still exists: a scene that fails leaves
+// the running simulation as it was.
+static int load_scene(hs_server* s, const char* path, const hs_scene* from, char* msg, size_t cap) {
     s->loading = path ? path : "(no path)";
     publish_status(s, hs_now_ns()); // the net loop stands still now: say so first
     s->loading = NULL;
     hs_scene sc;
     hs_err err = {0};
-    if (hs_scene_load(path, &sc, &err) != HS_OK) {
+    if (from)
+        sc = *from;
+    else if (hs_scene_load(path, &sc, &err) != HS_OK) {
         snprintf(msg, cap, "%s", err.msg);
         return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
     }
@@ -1289,12 +1298,12 @@ static int load_scene(hs_server* s, const char* path, char* msg, size_t cap) {
         snprintf(msg, cap, "%s", err.msg);
         return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
     }
-    return swap_world(s, &nw, msg, cap);
+    return swap_world(s, &nw, from != NULL, msg, cap);
 }
 
 static void* loader_main(void* arg) {
     loader* L = arg;
-    L->st = hs_scene_load(L->path, &L->sc, &L->err);
+    L->st = L->have_sc ? HS_OK : hs_scene_load(L->path, &L->sc, &L->err);
     if (L->st == HS_OK) L->st = world_create(&L->sc, L->realtime, &L->nw, &L->err);
     atomic_store(&L->done, 1);
     return NULL;
@@ -1302,14 +1311,17 @@ static void* loader_main(void* arg) {
 
 #define LOAD_STARTED (-100) // not an ack status: the final ack follows from finish_load
 
-// LOAD_SCENE from a client, or RESET of a cut world (the uncut scene again): build on the loader
-// thread; the net loop goes on (forces from the running scene, status saying LOADING, e-stops)
-// and swaps when it is built. Returns LOAD_STARTED when started (the final ack follows from
-// finish_load), else the final status (the build ran here: no thread could be started).
-static int load_scene_start(hs_server* s, const char* path, const hs_net_command* c, char* msg,
-                            size_t cap) {
+// LOAD_SCENE from a client (path), or RESET (from: the running scene, rebuilt at rest): build on
+// the loader thread; the net loop goes on (forces from the running scene, status saying
+// LOADING, e-stops) and swaps when it is built. Returns LOAD_STARTED when started (the final
+// ack follows from finish_load), else the final status (the build ran here: no thread could be
+// started).
+static int load_scene_start(hs_server* s, const char* path, const hs_scene* from,
+                            const hs_net_command* c, char* msg, size_t cap) {
     loader* L = &s->load;
-    snprintf(L->path, sizeof L->path, "%s", path ? path : "");
+    snprintf(L->path, sizeof L->path, "%s", from ? from->path : path ? path : "");
+    L->have_sc = from != NULL;
+    if (from) L->sc = *from;
     L->request_id = c->request_id;
     L->kind = c->kind;
     L->realtime = s->opt.realtime;
@@ -1323,7 +1335,7 @@ static int load_scene_start(hs_server* s, const char* path, const hs_net_command
         return LOAD_STARTED;
     }
     s->loading = NULL;
-    return load_scene(s, L->path, msg, cap);
+    return load_scene(s, L->path, from, msg, cap);
 }
 
 static void run_command(hs_server* s, const hs_net_command* c, int pending_sent);
@@ -1343,7 +1355,7 @@ static void finish_load(hs_server* s, int stopping) {
     else if (stopping)
         snprintf(msg, sizeof msg, "the server stopped before %.400s was swapped in", L->path);
     else
-        st = swap_world(s, &L->nw, msg, sizeof msg);
+        st = swap_world(s, &L->nw, L->have_sc, msg, sizeof msg);
     world_destroy(&L->nw); // zeroed by the swap; a dropped build is freed here
     hs_net_dedup_set_status(&s->cst.dedup, L->request_id, st);
     if (s->mbus) send_ack(s, L->request_id, L->kind, st, msg);
@@ -1373,11 +1385,15 @@ static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap)
     msg[0] = '\0';
     switch (c->kind) {
     case HAPSIM_COMMAND_T_KIND_RESET:
-        if (w->cut_made) return load_scene_start(s, w->scene.path, c, msg, cap); // uncut mesh
+        // A running simulation, or a cut mesh: the scene (with its set parameters, on the mesh
+        // read again: uncut) is built at rest beside the running one and swapped in. Paused,
+        // or haptics off: nothing to build, only the state to clear.
+        if (w->cut_made || (w->haptics && !s->paused))
+            return load_scene_start(s, NULL, &w->scene, c, msg, cap);
         if (rebuild_sim(s, 0, &err) != HS_OK) {
             // A cut the deformation thread finished after the look above: rebuild_sim passed
-            // it on and refused; the uncut scene is reloaded as for any cut mesh.
-            if (w->cut_made) return load_scene_start(s, w->scene.path, c, msg, cap);
+            // it on and refused; the uncut scene is built as for any cut mesh.
+            if (w->cut_made) return load_scene_start(s, NULL, &w->scene, c, msg, cap);
             snprintf(msg, cap, "%s", err.msg);
             return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
         }
@@ -1419,7 +1435,7 @@ static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap)
         }
         return HAPSIM_COMMAND_ACK_T_STATUS_OK;
     case HAPSIM_COMMAND_T_KIND_LOAD_SCENE:
-        return load_scene_start(s, hs_net_command_arg(c, "path"), c, msg, cap);
+        return load_scene_start(s, hs_net_command_arg(c, "path"), NULL, c, msg, cap);
     case HAPSIM_COMMAND_T_KIND_SET_PARAM:
         return set_param(s, hs_net_command_arg(c, "name"), c->number, msg, cap);
     case HAPSIM_COMMAND_T_KIND_ESTOP: {
@@ -1491,9 +1507,9 @@ static void run_command(hs_server* s, const hs_net_command* c, int pending_sent)
         send_ack(s, c->request_id, c->kind, HAPSIM_COMMAND_ACK_T_STATUS_PENDING, "loading");
     int st = execute(s, c, msg, sizeof msg);
     if (st == LOAD_STARTED) { // being built on the loader thread: finish_load acks it
-        if (c->kind != HAPSIM_COMMAND_T_KIND_LOAD_SCENE && !pending_sent) // RESET of a cut world
+        if (c->kind != HAPSIM_COMMAND_T_KIND_LOAD_SCENE && !pending_sent) // RESET
             send_ack(s, c->request_id, c->kind, HAPSIM_COMMAND_ACK_T_STATUS_PENDING,
-                     "reloading the uncut scene");
+                     "building the scene at rest");
         return;
     }
     hs_net_dedup_set_status(&s->cst.dedup, c->request_id, st);
