@@ -6,6 +6,7 @@
 // Every wait is bounded.
 #define _GNU_SOURCE
 #include <errno.h>
+#include <math.h>
 #include <signal.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -780,6 +781,24 @@ static int load_goes_on_answering(void) {
            (double)(c.ack_utime[fin] - c.ack_utime[pend]) * 1e-3, n_reset, nz_reset);
     ENSURE(nz_reset >= 3);
     stream(&c, 0.004, 0.004, 500);
+    ENSURE(dot_n(c.force.force) > 0.02 && norm3(c.force.force) <= 0.05 + 1e-12);
+
+    // A `set` that rebuilds the simulation (youngs_pa) is built beside it too (the body's state
+    // goes over at the swap: not checked here; frames right after it were as deformed with the
+    // new body started at rest, which re-deforms within a frame under the pressed probe).
+    int64_t set_id = ++next_request;
+    send_command(&c, set_id, HAPSIM_COMMAND_T_KIND_SET_PARAM, "name", "youngs_pa", "value",
+                 "30000");
+    fin = press_until_final(&c, set_id);
+    ENSURE(fin >= 0 && c.ack_status[fin] == HAPSIM_COMMAND_ACK_T_STATUS_OK);
+    pend = find_ack(&c, set_id, 0);
+    ENSURE(pend >= 0);
+    int nz_set = 0;
+    int n_set = forces_between(&c, c.ack_utime[pend], c.ack_utime[fin], &nz_set);
+    printf("  set youngs_pa: built in %.1f ms, %d forces meanwhile (%d nonzero)\n",
+           (double)(c.ack_utime[fin] - c.ack_utime[pend]) * 1e-3, n_set, nz_set);
+    ENSURE(nz_set >= 3);
+    stream(&c, 0.004, 0.004, 300);
     ENSURE(dot_n(c.force.force) > 0.02 && norm3(c.force.force) <= 0.05 + 1e-12);
     ENSURE(stop_server() == 0);
     client_close(&c);

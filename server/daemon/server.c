@@ -92,6 +92,8 @@ typedef struct world {
     int cut_made;        // 1 once the mesh was cut (the sim cannot be rebuilt on it)
 } world;
 
+#define LOAD_STARTED (-100) // not an ack status: the final ack follows from finish_load
+
 // A LOAD_SCENE builds its world on this thread while the running one goes on answering (the net
 // loop would otherwise stand still for the whole build: no forces, no status, no e-stop).
 typedef struct loader {
@@ -100,7 +102,9 @@ typedef struct loader {
     atomic_int done; // the thread has finished: st, err and nw are its results
     int realtime;
     char path[HS_SCENE_PATH_MAX]; // a LOAD_SCENE's argument or, for RESET, the running scene's
-    int have_sc;                  // RESET: sc is the running scene (with its set parameters)
+    int have_sc;                  // RESET, SET_PARAM: sc is the running scene as set
+    int keep;                     // SET_PARAM: the running body's state goes on in the new one
+    char ok_msg[128];             // SET_PARAM: the final ack's message when swapped in
     int64_t request_id;           // its final ack goes out at the swap
     int32_t kind;
     hs_scene sc;
@@ -1176,7 +1180,13 @@ static hs_status rebuild_sim(hs_server* s, int keep, hs_err* err) {
     return st;
 }
 
-static int set_param(hs_server* s, const char* name, double v, char* msg, size_t cap) {
+static int loader_begin(hs_server* s, const char* path, const hs_scene* from,
+                        const hs_net_command* c, int keep);
+static int swap_world(hs_server* s, world* nw, int reset, char* msg, size_t cap);
+
+static int set_param(hs_server* s, const hs_net_command* c, char* msg, size_t cap) {
+    const char* name = hs_net_command_arg(c, "name");
+    double v = c->number;
     world* w = &s->w;
     hs_haptic_sim_def d = w->def;
     hs_scene sc = w->scene;
@@ -1224,6 +1234,21 @@ static int set_param(hs_server* s, const char* name, double v, char* msg, size_t
         w->scene = sc;
         snprintf(msg, cap, "%s = %g", name, v);
         return HAPSIM_COMMAND_ACK_T_STATUS_OK;
+    }
+    // A running simulation on an uncut mesh: the scene as set is built beside it on the loader
+    // thread, and the body's state goes over at the swap (finish_load). Otherwise (paused: it
+    // is rebuilt at the resume; or no thread) here.
+    if (w->sim && w->cutting && hs_haptic_sim_topology_version(w->sim) != w->cut_seen)
+        apply_cut(s); // a cut not yet passed on counts too
+    if (w->cut_made) {
+        hs_err e = {0};
+        refuse_cut(&e);
+        snprintf(msg, cap, "%s", e.msg);
+        return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
+    }
+    if (w->sim && !s->paused) {
+        snprintf(s->load.ok_msg, sizeof s->load.ok_msg, "%s = %g", name, v);
+        if (loader_begin(s, NULL, &sc, c, 1) == 0) return LOAD_STARTED;
     }
     hs_haptic_sim_def old_d = w->def;
     hs_scene old_sc = w->scene;
@@ -1309,19 +1334,17 @@ static void* loader_main(void* arg) {
     return NULL;
 }
 
-#define LOAD_STARTED (-100) // not an ack status: the final ack follows from finish_load
-
-// LOAD_SCENE from a client (path), or RESET (from: the running scene, rebuilt at rest): build on
-// the loader thread; the net loop goes on (forces from the running scene, status saying
-// LOADING, e-stops) and swaps when it is built. Returns LOAD_STARTED when started (the final
-// ack follows from finish_load), else the final status (the build ran here: no thread could be
-// started).
-static int load_scene_start(hs_server* s, const char* path, const hs_scene* from,
-                            const hs_net_command* c, char* msg, size_t cap) {
+// Start building a world on the loader thread: LOAD_SCENE (path), RESET (from: the running
+// scene as set, at rest) or SET_PARAM (from, keep: the body's state goes on at the swap). The
+// net loop goes on (forces from the running scene, status saying LOADING, e-stops) and
+// finish_load swaps it in. 0 when started, -1 when no thread could be started.
+static int loader_begin(hs_server* s, const char* path, const hs_scene* from,
+                        const hs_net_command* c, int keep) {
     loader* L = &s->load;
     snprintf(L->path, sizeof L->path, "%s", from ? from->path : path ? path : "");
     L->have_sc = from != NULL;
     if (from) L->sc = *from;
+    L->keep = keep;
     L->request_id = c->request_id;
     L->kind = c->kind;
     L->realtime = s->opt.realtime;
@@ -1332,10 +1355,71 @@ static int load_scene_start(hs_server* s, const char* path, const hs_scene* from
     publish_status(s, hs_now_ns());
     if (pthread_create(&L->th, NULL, loader_main, L) == 0) {
         L->active = 1;
-        return LOAD_STARTED;
+        return 0;
     }
     s->loading = NULL;
-    return load_scene(s, L->path, from, msg, cap);
+    return -1;
+}
+
+// LOAD_SCENE or RESET: LOAD_STARTED (the final ack follows from finish_load), else the final
+// status (the build ran here: no thread could be started).
+static int load_scene_start(hs_server* s, const char* path, const hs_scene* from,
+                            const hs_net_command* c, char* msg, size_t cap) {
+    if (loader_begin(s, path, from, c, 0) == 0) return LOAD_STARTED;
+    return load_scene(s, s->load.path, from, msg, cap);
+}
+
+// SET_PARAM's swap: the running body's state goes on in nw (the scene as set, same mesh). A cut
+// made during the build refuses it (the state is on a cut mesh) and the cut simulation goes on.
+static int swap_keep(hs_server* s, world* nw, char* msg, size_t cap) {
+    world* w = &s->w;
+    if (!w->sim || s->paused || nw->mesh->n_nodes != w->mesh->n_nodes) {
+        snprintf(msg, cap, "%s",
+                 !w->sim || s->paused ? "the simulation stopped during the rebuild: not applied"
+                                      : "the mesh file changed during the rebuild: not applied");
+        return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
+    }
+    hs_haptic_sim_stop(w->sim);
+    if (w->cutting && hs_haptic_sim_topology_version(w->sim) != w->cut_seen) apply_cut(s);
+    if (w->cut_made) {
+        hs_err e = {0};
+        refuse_cut(&e);
+        snprintf(msg, cap, "%s", e.msg);
+        if (hs_haptic_sim_start(w->sim, &e) != HS_OK) { // kept, paused: RESUME retries
+            world_save_state(w);
+            w->held = w->sim;
+            w->sim = NULL;
+            s->pause_model = zero_model();
+            s->pause_ns = hs_now_ns();
+            s->paused = 1;
+        }
+        return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
+    }
+    world_sim_stop(w); // its state into w->u, w->v
+    size_t n3 = 3 * (size_t)w->mesh->n_nodes;
+    memcpy(nw->u, w->u, n3 * sizeof(double));
+    memcpy(nw->v, w->v, n3 * sizeof(double));
+    if (nw->sim) hs_body_set_state(hs_haptic_sim_body(nw->sim), nw->u, nw->v);
+    world_destroy(w);
+    s->w = *nw;
+    memset(nw, 0, sizeof *nw);
+    reset_limits(s);
+    hs_err err = {0};
+    if (s->w.sim && hs_haptic_sim_start(s->w.sim, &err) != HS_OK) {
+        world_sim_stop(&s->w);
+        s->pause_model = zero_model();
+        s->pause_ns = hs_now_ns();
+        s->paused = 1;
+        snprintf(msg, cap,
+                 "%s applied but the simulation did not start (%.300s): paused, "
+                 "RESUME retries",
+                 s->load.ok_msg, err.msg);
+        after_rebuild(s, 1);
+        return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
+    }
+    after_rebuild(s, 1);
+    snprintf(msg, cap, "%s", s->load.ok_msg);
+    return HAPSIM_COMMAND_ACK_T_STATUS_OK;
 }
 
 static void run_command(hs_server* s, const hs_net_command* c, int pending_sent);
@@ -1355,7 +1439,8 @@ static void finish_load(hs_server* s, int stopping) {
     else if (stopping)
         snprintf(msg, sizeof msg, "the server stopped before %.400s was swapped in", L->path);
     else
-        st = swap_world(s, &L->nw, L->have_sc, msg, sizeof msg);
+        st = L->keep ? swap_keep(s, &L->nw, msg, sizeof msg)
+                     : swap_world(s, &L->nw, L->have_sc, msg, sizeof msg);
     world_destroy(&L->nw); // zeroed by the swap; a dropped build is freed here
     hs_net_dedup_set_status(&s->cst.dedup, L->request_id, st);
     if (s->mbus) send_ack(s, L->request_id, L->kind, st, msg);
@@ -1437,7 +1522,7 @@ static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap)
     case HAPSIM_COMMAND_T_KIND_LOAD_SCENE:
         return load_scene_start(s, hs_net_command_arg(c, "path"), NULL, c, msg, cap);
     case HAPSIM_COMMAND_T_KIND_SET_PARAM:
-        return set_param(s, hs_net_command_arg(c, "name"), c->number, msg, cap);
+        return set_param(s, c, msg, cap);
     case HAPSIM_COMMAND_T_KIND_ESTOP: {
         s->estop = 1;
         hs_haptic_model z = zero_model();
@@ -1507,9 +1592,10 @@ static void run_command(hs_server* s, const hs_net_command* c, int pending_sent)
         send_ack(s, c->request_id, c->kind, HAPSIM_COMMAND_ACK_T_STATUS_PENDING, "loading");
     int st = execute(s, c, msg, sizeof msg);
     if (st == LOAD_STARTED) { // being built on the loader thread: finish_load acks it
-        if (c->kind != HAPSIM_COMMAND_T_KIND_LOAD_SCENE && !pending_sent) // RESET
+        if (c->kind != HAPSIM_COMMAND_T_KIND_LOAD_SCENE && !pending_sent) // RESET, SET_PARAM
             send_ack(s, c->request_id, c->kind, HAPSIM_COMMAND_ACK_T_STATUS_PENDING,
-                     "building the scene at rest");
+                     c->kind == HAPSIM_COMMAND_T_KIND_RESET ? "building the scene at rest"
+                                                            : "rebuilding the simulation");
         return;
     }
     hs_net_dedup_set_status(&s->cst.dedup, c->request_id, st);
