@@ -34,7 +34,6 @@
 #include <lcm/lcm.h>
 
 #include "hapsim_channels.h"
-#include "hapsim_server_status_t.h"
 #include "hapsim_tool_force_t.h"
 #include "hapsim_tool_pose_t.h"
 #include "stylus.h"
@@ -101,8 +100,8 @@ typedef struct app {
     atomic_int rx_failed;
     atomic_int rt_granted; // bit 0: SCHED_FIFO, bit 1: mlockall
     // From the server's status (--status-url): rt loop rate (mHz), rt period p99 (us), the
-    // slowest step's p99 (us), status messages seen.
-    atomic_llong srv_rate_mhz, srv_p99_us, srv_step_p99_us, srv_status_count;
+    // slowest step's p99 (us), status messages seen, malformed ones dropped.
+    atomic_llong srv_rate_mhz, srv_p99_us, srv_step_p99_us, srv_status_count, srv_status_bad;
 } app;
 
 static void usage(FILE* f) {
@@ -421,22 +420,21 @@ static void on_force(const lcm_recv_buf_t* rbuf, const char* channel,
     }
 }
 
-// The server's own view, for the status line only (the mesh bus is the server's, trusted).
-static void on_status(const lcm_recv_buf_t* rbuf, const char* channel,
-                      const hapsim_server_status_t* msg, void* user) {
-    (void)rbuf;
+// The server's own view, for the status line only. Decoded with every length checked (lcm-gen's
+// decoder leaves a string without its NUL, read past by strcmp); a malformed one is counted.
+static void on_status(const lcm_recv_buf_t* rbuf, const char* channel, void* user) {
     (void)channel;
     app* a = user;
-    for (int i = 0; i < msg->n_loops; ++i) {
-        if (msg->loop_name[i] && strcmp(msg->loop_name[i], "rt") == 0) {
-            atomic_store(&a->srv_rate_mhz, llround(1e3 * msg->rate_hz[i]));
-            atomic_store(&a->srv_p99_us, llround(msg->period_p99_us[i]));
-        }
+    hs_stylus_srv_status s;
+    if (hs_stylus_status_decode(rbuf->data, rbuf->data_size, &s) != 0) {
+        atomic_fetch_add(&a->srv_status_bad, 1);
+        return;
     }
-    double worst = 0;
-    for (int i = 0; i < msg->n_steps; ++i)
-        if (msg->step_p99_us[i] > worst) worst = msg->step_p99_us[i];
-    atomic_store(&a->srv_step_p99_us, llround(worst));
+    if (s.has_rt) {
+        atomic_store(&a->srv_rate_mhz, llround(1e3 * s.rt_rate_hz));
+        atomic_store(&a->srv_p99_us, llround(s.rt_p99_us));
+    }
+    atomic_store(&a->srv_step_p99_us, llround(s.step_p99_us));
     atomic_fetch_add(&a->srv_status_count, 1);
 }
 
@@ -651,6 +649,8 @@ static void print_status(app* a, double t, double rate_hz) {
                 (long long)atomic_load(&a->srv_step_p99_us));
     else if (a->status_lcm)
         fprintf(stderr, "  | no server status yet");
+    if (a->status_lcm && atomic_load(&a->srv_status_bad) > 0)
+        fprintf(stderr, " (%lld malformed)", (long long)atomic_load(&a->srv_status_bad));
     fprintf(stderr, "   ");
     fflush(stderr);
 }
@@ -673,7 +673,7 @@ static int run_live(app* a) {
     }
     hapsim_tool_force_t_subscription_t* sub =
         hapsim_tool_force_t_subscribe(a->lcm, a->force_channel, on_force, a);
-    hapsim_server_status_t_subscription_t* status_sub = NULL;
+    lcm_subscription_t* status_sub = NULL;
     if (a->opt.status_url) {
         a->status_lcm = lcm_create(a->opt.status_url);
         if (!a->status_lcm || hapsim_channel_name(a->status_channel, sizeof a->status_channel,
@@ -684,8 +684,7 @@ static int run_live(app* a) {
             lcm_destroy(a->lcm);
             return 1;
         }
-        status_sub =
-            hapsim_server_status_t_subscribe(a->status_lcm, a->status_channel, on_status, a);
+        status_sub = lcm_subscribe(a->status_lcm, a->status_channel, on_status, a);
     }
     // A session id per start, so the server can tell a restarted stylus from a replayed one.
     uint64_t r = (uint64_t)hs_now_ns() ^ ((uint64_t)getpid() << 32) ^ (uint64_t)wall_us();
@@ -738,7 +737,7 @@ static int run_live(app* a) {
     lcm_destroy(a->lcm);
     a->lcm = NULL;
     if (a->status_lcm) {
-        hapsim_server_status_t_unsubscribe(a->status_lcm, status_sub);
+        lcm_unsubscribe(a->status_lcm, status_sub);
         lcm_destroy(a->status_lcm);
         a->status_lcm = NULL;
     }

@@ -5,6 +5,7 @@
 #ifndef HS_STYLUS_WIRE_H
 #define HS_STYLUS_WIRE_H
 
+#include <stddef.h>
 #include <stdint.h>
 
 #include "hapsim_tool_force_t.h"
@@ -41,6 +42,20 @@ typedef struct hs_stylus_rx_state {
 /// restarted server (seq from 1 again): accepted. So is a seq HS_RX_RESTART_GAP behind.
 #define HS_RX_RESTART_GAP 100000
 #define HS_RX_REORDER_US  1000000
+
+/// What the status line shows of a SERVER_STATUS (msgs/server_status_t.lcm).
+typedef struct hs_stylus_srv_status {
+    int has_rt;         ///< 1 when a loop named "rt" was reported
+    double rt_rate_hz;  ///< its measured rate
+    double rt_p99_us;   ///< its period p99
+    double step_p99_us; ///< the slowest step's p99 (0 without steps)
+} hs_stylus_srv_status;
+
+/// Decode SERVER_STATUS bytes with every length checked (lcm-gen's decoder does not check that
+/// strings end in a NUL within their length): wrong hash, a count out of range, a string that
+/// is not NUL-terminated, a non-finite float, short or trailing bytes: -1, nothing read past
+/// len. Returns 0 and fills *out otherwise. Thread: any | Allocates: no
+int hs_stylus_status_decode(const void* buf, size_t len, hs_stylus_srv_status* out /* OUT */);
 
 /// Start with no message seen, for device_id.
 void hs_stylus_rx_init(hs_stylus_rx_state* st, int device_id);

@@ -7,6 +7,8 @@
 #include "test_macros.h"
 #include "wire.h"
 
+#include "hapsim_server_status_t.h"
+
 #include <lcm/lcm.h>
 #include <pthread.h>
 #include <stdlib.h>
@@ -1264,8 +1266,69 @@ static int wire_rx(void) {
     return 0;
 }
 
+// SERVER_STATUS (--status-url): a valid one is read; malformed bytes are refused without a read
+// past them (lcm-gen's decoder takes a loop name without its NUL; strcmp then overran the heap).
+static int status_decode(void) {
+    hapsim_server_status_t m;
+    memset(&m, 0, sizeof m);
+    char scene[] = "liver.json", warn[] = "";
+    char *loops[] = {"sim", "rt"}, *steps[] = {"rt_tick", "sim_step"};
+    float rate[] = {60, 999.5f}, p50[] = {1, 2}, p99[] = {3, 41}, mx[] = {5, 6};
+    float sp50[] = {1, 2}, sp99[] = {70, 900}, smax[] = {8, 9};
+    int64_t over[] = {0, 1};
+    m.scene = scene;
+    m.warnings = warn;
+    m.n_loops = 2;
+    m.loop_name = loops;
+    m.rate_hz = rate;
+    m.period_p50_us = p50;
+    m.period_p99_us = p99;
+    m.period_max_us = mx;
+    m.overruns = over;
+    m.n_steps = 2;
+    m.step_name = steps;
+    m.step_p50_us = sp50;
+    m.step_p99_us = sp99;
+    m.step_max_us = smax;
+    static uint8_t buf[4096];
+    int len = hapsim_server_status_t_encode(buf, 0, (int)sizeof buf, &m);
+    ENSURE(len > 0);
+    hs_stylus_srv_status s;
+    ENSURE(hs_stylus_status_decode(buf, (size_t)len, &s) == 0);
+    ENSURE(s.has_rt && s.rt_rate_hz == 999.5 && s.rt_p99_us == 41 && s.step_p99_us == 900);
+    // Short or with a byte left over: refused.
+    for (int cut = 0; cut < len; ++cut) ENSURE(hs_stylus_status_decode(buf, (size_t)cut, &s) != 0);
+    ENSURE(hs_stylus_status_decode(buf, (size_t)len + 1, &s) != 0);
+    // "rt" without its NUL (length 2; the rest moves up a byte): refused.
+    static const uint8_t rt[] = {0, 0, 0, 3, 'r', 't', 0};
+    uint8_t* at = NULL;
+    for (int i = 0; i + 7 <= len && !at; ++i)
+        if (memcmp(buf + i, rt, sizeof rt) == 0) at = buf + i;
+    ENSURE(at != NULL);
+    at[3] = 2;
+    memmove(at + 6, at + 7, (size_t)(buf + len - (at + 7)));
+    // Copied to a buffer of exactly its size, so ASan sees any read past the end.
+    uint8_t* bad = malloc((size_t)len - 1);
+    ENSURE(bad != NULL);
+    memcpy(bad, buf, (size_t)len - 1);
+    ENSURE(hs_stylus_status_decode(bad, (size_t)len - 1, &s) != 0 && !s.has_rt);
+    // A NaN rate, a negative count: refused.
+    ENSURE(hapsim_server_status_t_encode(buf, 0, (int)sizeof buf, &m) == len);
+    rate[1] = NAN;
+    ENSURE(hapsim_server_status_t_encode(buf, 0, (int)sizeof buf, &m) == len);
+    ENSURE(hs_stylus_status_decode(buf, (size_t)len, &s) != 0);
+    rate[1] = 999.5f;
+    ENSURE(hapsim_server_status_t_encode(buf, 0, (int)sizeof buf, &m) == len);
+    ENSURE(hs_stylus_status_decode(buf, (size_t)len, &s) == 0);
+    buf[len - 5] = 0xff; // the warnings' length (an empty string is 4 + 1 bytes at the end)
+    ENSURE(hs_stylus_status_decode(buf, (size_t)len, &s) != 0);
+    free(bad);
+    return 0;
+}
+
 HS_TEST_MAIN(HS_CASE(script_good), HS_CASE(script_errors), HS_CASE(script_trajectory),
              HS_CASE(script_touch), HS_CASE(script_garbage), HS_CASE(device_tracks_target),
              HS_CASE(device_wall), HS_CASE(local_model), HS_CASE(server_timeout),
              HS_CASE(passivity), HS_CASE(trace_file), HS_CASE(trace_compare),
-             HS_CASE(bundled_scripts), HS_CASE(def_check), HS_CASE(mailbox), HS_CASE(wire_rx))
+             HS_CASE(bundled_scripts), HS_CASE(def_check), HS_CASE(mailbox), HS_CASE(wire_rx),
+             HS_CASE(status_decode))
