@@ -35,12 +35,15 @@ hs_stylus_rx hs_stylus_rx_force(hs_stylus_rx_state* st, const hapsim_tool_force_
     m.radius_m = msg->validity_radius;
     m.timeout_s = msg->timeout_us >= 0 ? (double)msg->timeout_us * 1e-6 : -1;
     if (!hs_stylus_model_valid(&m) || msg->state < HAPSIM_TOOL_FORCE_T_STATE_FREE ||
-        msg->state > HAPSIM_TOOL_FORCE_T_STATE_STOPPED)
+        msg->state > HAPSIM_TOOL_FORCE_T_STATE_STOPPED || msg->seq < 0)
         return count(st, HS_RX_INVALID);
     // A restarted server's seq starts again from 1: told by its clock (it counted as a reorder
-    // until the new seq passed the old one, up to ~100 s at 1 kHz).
-    if (st->have_seq && msg->seq <= st->last_seq && st->last_seq - msg->seq < HS_RX_RESTART_GAP &&
-        msg->utime <= st->last_utime && st->last_utime - msg->utime <= HS_RX_REORDER_US)
+    // until the new seq passed the old one, up to ~100 s at 1 kHz). The differences are taken
+    // unsigned where they are >= 0: exact, and no signed overflow for any network value.
+    if (st->have_seq && msg->seq <= st->last_seq &&
+        (uint64_t)st->last_seq - (uint64_t)msg->seq < HS_RX_RESTART_GAP &&
+        msg->utime <= st->last_utime &&
+        (uint64_t)st->last_utime - (uint64_t)msg->utime <= HS_RX_REORDER_US)
         return count(st, HS_RX_REORDERED);
     st->have_seq = 1;
     st->last_seq = msg->seq;

@@ -1,7 +1,7 @@
 // hapsim-stylus wire edge: tool_force messages (msgs/tool_force_t.lcm) into device models, with
 // the checks a driver owes the network: another device's message, or an answer to a pose sent
 // before this driver started (another session's), is skipped; non-finite numbers, a negative
-// radius or timeout, an unknown state, or an older seq are dropped.
+// radius, timeout or seq, an unknown state, or an older seq are dropped.
 #ifndef HS_STYLUS_WIRE_H
 #define HS_STYLUS_WIRE_H
 
@@ -19,7 +19,7 @@ extern "C" {
 typedef enum hs_stylus_rx {
     HS_RX_OK = 0,            ///< accepted: *out holds the model
     HS_RX_OTHER_DEVICE = 1,  ///< for another device id: ignored
-    HS_RX_INVALID = 2,       ///< non-finite, negative radius or timeout, unknown state
+    HS_RX_INVALID = 2,       ///< non-finite, negative radius, timeout or seq, unknown state
     HS_RX_REORDERED = 3,     ///< seq not newer than the last accepted one
     HS_RX_OTHER_SESSION = 4, ///< answers a pose older than since_utime (an earlier session's)
 } hs_stylus_rx;

@@ -1142,7 +1142,7 @@ static hapsim_tool_force_t good_force(int64_t seq) {
     f.utime = 1700000000000000;
     f.seq = seq;
     f.device_id = 2;
-    f.pose_seq = 40 + seq;
+    f.pose_seq = seq < INT64_MAX - 40 ? 40 + seq : seq;
     f.pose_utime = 1700000000000000 - 150;
     f.model_version = 9;
     f.state = HAPSIM_TOOL_FORCE_T_STATE_CONTACT;
@@ -1246,6 +1246,28 @@ static int wire_rx(void) {
     f.pose_utime = 0;
     ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
     ENSURE(st.count[HS_RX_OTHER_SESSION] == 1 && st.count[HS_RX_OK] == 7);
+    // Extreme seq and utime from the network: no signed overflow (UBSan), the right verdict. A
+    // negative seq is invalid (it was a "reorder" of 5 - INT64_MIN, overflowed).
+    hs_stylus_rx_init(&st, 2);
+    f = good_force(5);
+    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
+    f = good_force(INT64_MIN + 1);
+    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_INVALID);
+    f = good_force(-1);
+    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_INVALID);
+    f = good_force(4); // a clock far older: a restarted server, accepted
+    f.utime = INT64_MIN + 1;
+    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
+    f = good_force(3); // then one from the far future is newer: accepted
+    f.utime = INT64_MAX;
+    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
+    f = good_force(INT64_MAX);
+    f.utime = INT64_MAX;
+    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
+    f = good_force(0); // INT64_MAX behind, same clock: a restart
+    f.utime = INT64_MAX;
+    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
+    ENSURE(st.count[HS_RX_INVALID] == 2 && st.count[HS_RX_OK] == 5);
 
     // Through LCM's encoder and decoder (in-process memq://), the model arrives unchanged.
     lcm_t* lcm = lcm_create("memq://");
