@@ -400,13 +400,14 @@ static int parse_options(int argc, char** argv, options* o, hs_stylus_def* def) 
 // ---------------------------------------------------------------------------------------------
 // Receive thread.
 
-static void on_force(const lcm_recv_buf_t* rbuf, const char* channel,
-                     const hapsim_tool_force_t* msg, void* user) {
-    (void)rbuf;
+// Raw subscription: lcm-gen's subscriber printed an error per undecodable message and dropped
+// it uncounted; here it is one more rejected message.
+static void on_force(const lcm_recv_buf_t* rbuf, const char* channel, void* user) {
     (void)channel;
     app* a = user;
     hs_stylus_model m;
-    hs_stylus_rx r = hs_stylus_rx_force(&a->rx, msg, hs_now_ns(), wall_us(), &m);
+    hs_stylus_rx r =
+        hs_stylus_rx_bytes(&a->rx, rbuf->data, rbuf->data_size, hs_now_ns(), wall_us(), &m);
     if (r == HS_RX_OK) {
         hs_stylus_mailbox_put(&a->mailbox, &m);
         atomic_fetch_add_explicit(&a->rx_forces, 1, memory_order_relaxed);
@@ -671,8 +672,7 @@ static int run_live(app* a) {
                 a->opt.haptic_url);
         return 1;
     }
-    hapsim_tool_force_t_subscription_t* sub =
-        hapsim_tool_force_t_subscribe(a->lcm, a->force_channel, on_force, a);
+    lcm_subscription_t* sub = lcm_subscribe(a->lcm, a->force_channel, on_force, a);
     lcm_subscription_t* status_sub = NULL;
     if (a->opt.status_url) {
         a->status_lcm = lcm_create(a->opt.status_url);
@@ -680,7 +680,7 @@ static int run_live(app* a) {
                                                   a->opt.prefix, HAPSIM_CH_SERVER_STATUS)) {
             fprintf(stderr, "hapsim-stylus: cannot open --status-url '%s'\n", a->opt.status_url);
             if (a->status_lcm) lcm_destroy(a->status_lcm);
-            hapsim_tool_force_t_unsubscribe(a->lcm, sub);
+            lcm_unsubscribe(a->lcm, sub);
             lcm_destroy(a->lcm);
             return 1;
         }
@@ -733,7 +733,7 @@ static int run_live(app* a) {
         }
         pthread_join(rx, NULL);
     }
-    hapsim_tool_force_t_unsubscribe(a->lcm, sub);
+    lcm_unsubscribe(a->lcm, sub);
     lcm_destroy(a->lcm);
     a->lcm = NULL;
     if (a->status_lcm) {

@@ -1,6 +1,7 @@
 // tool_force -> hs_stylus_model, with the driver-side checks (wire.h).
 #include "wire.h"
 
+#include <limits.h>
 #include <math.h>
 #include <string.h>
 
@@ -52,6 +53,15 @@ hs_stylus_rx hs_stylus_rx_force(hs_stylus_rx_state* st, const hapsim_tool_force_
     m.latency_us = msg->pose_utime > 0 ? wall_us - msg->pose_utime : -1;
     *out = m;
     return count(st, HS_RX_OK);
+}
+
+hs_stylus_rx hs_stylus_rx_bytes(hs_stylus_rx_state* st, const void* buf, size_t len, int64_t now_ns,
+                                int64_t wall_us, hs_stylus_model* out) {
+    hapsim_tool_force_t msg;
+    // No strings or variable arrays in tool_force: decode allocates nothing.
+    if (!buf || len > INT_MAX || hapsim_tool_force_t_decode(buf, 0, (int)len, &msg) != (int)len)
+        return count(st, HS_RX_UNDECODABLE);
+    return hs_stylus_rx_force(st, &msg, now_ns, wall_us, out);
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -22,6 +22,7 @@ typedef enum hs_stylus_rx {
     HS_RX_INVALID = 2,       ///< non-finite, negative radius, timeout or seq, unknown state
     HS_RX_REORDERED = 3,     ///< seq not newer than the last accepted one
     HS_RX_OTHER_SESSION = 4, ///< answers a pose older than since_utime (an earlier session's)
+    HS_RX_UNDECODABLE = 5,   ///< not a tool_force: wrong hash, short, or bytes left over
 } hs_stylus_rx;
 
 /// Receive-side state of one device. Initialise with hs_stylus_rx_init.
@@ -34,7 +35,7 @@ typedef struct hs_stylus_rx_state {
     /// replaced session's last poses for a while (its rt outputs ramp to zero); those are not
     /// this driver's model.
     int64_t since_utime;
-    int64_t count[5]; ///< messages per hs_stylus_rx outcome
+    int64_t count[6]; ///< messages per hs_stylus_rx outcome
 } hs_stylus_rx_state;
 
 /// A seq not newer than the last one is a reorder or a repeat when its server utime is at most
@@ -63,6 +64,12 @@ void hs_stylus_rx_init(hs_stylus_rx_state* st, int device_id);
 /// pose_utime > 0, else -1). Thread: the receiving thread | Allocates: no
 hs_stylus_rx hs_stylus_rx_force(hs_stylus_rx_state* st, const hapsim_tool_force_t* msg,
                                 int64_t now_ns, int64_t wall_us, hs_stylus_model* out /* OUT */);
+
+/// hs_stylus_rx_force on the raw bytes of a message (lcm_subscribe): bytes that do not decode
+/// to exactly one tool_force are HS_RX_UNDECODABLE (counted, nothing printed).
+/// Thread: the receiving thread | Allocates: no
+hs_stylus_rx hs_stylus_rx_bytes(hs_stylus_rx_state* st, const void* buf, size_t len, int64_t now_ns,
+                                int64_t wall_us, hs_stylus_model* out /* OUT */);
 
 #ifdef __cplusplus
 }

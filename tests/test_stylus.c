@@ -1162,13 +1162,13 @@ typedef struct rx_ctx {
     int calls;
 } rx_ctx;
 
-static void on_force(const lcm_recv_buf_t* rb, const char* ch, const hapsim_tool_force_t* msg,
-                     void* user) {
-    (void)rb;
+// As hapsim-stylus receives: raw bytes (wall clock 1700000000000000 us, good_force's utime).
+static void on_force(const lcm_recv_buf_t* rb, const char* ch, void* user) {
     (void)ch;
     rx_ctx* c = user;
     hs_stylus_model m;
-    if (hs_stylus_rx_force(&c->st, msg, 77, msg->utime, &m) == HS_RX_OK) c->last = m;
+    if (hs_stylus_rx_bytes(&c->st, rb->data, rb->data_size, 77, 1700000000000000, &m) == HS_RX_OK)
+        c->last = m;
     c->calls++;
 }
 
@@ -1275,15 +1275,28 @@ static int wire_rx(void) {
     static rx_ctx c;
     memset(&c, 0, sizeof c);
     hs_stylus_rx_init(&c.st, 2);
-    hapsim_tool_force_t_subscription_t* sub =
-        hapsim_tool_force_t_subscribe(lcm, "T_TOOL_FORCE", on_force, &c);
+    lcm_subscription_t* sub = lcm_subscribe(lcm, "T_TOOL_FORCE", on_force, &c);
     f = good_force(3);
     ENSURE(hapsim_tool_force_t_publish(lcm, "T_TOOL_FORCE", &f) == 0);
     ENSURE(lcm_handle(lcm) == 0);
     ENSURE(c.calls == 1 && c.st.count[HS_RX_OK] == 1);
     ENSURE(c.last.seq == 3 && c.last.latency_us == 150 && c.last.arrival_ns == 77);
     for (int i = 0; i < 3; ++i) ENSURE(c.last.force_n[i] == f.force[i]);
-    hapsim_tool_force_t_unsubscribe(lcm, sub);
+    // Bytes that are not one tool_force are counted undecodable, the model kept (lcm-gen's
+    // subscriber printed "error -1 decoding" for each and counted nothing).
+    static uint8_t buf[512];
+    int len = hapsim_tool_force_t_encode(buf, 0, (int)sizeof buf, &f);
+    ENSURE(len > 8);
+    ENSURE(lcm_publish(lcm, "T_TOOL_FORCE", buf, 5) == 0);                 // short
+    ENSURE(lcm_publish(lcm, "T_TOOL_FORCE", buf, (unsigned)len - 1) == 0); // truncated
+    ENSURE(lcm_publish(lcm, "T_TOOL_FORCE", buf, (unsigned)len + 1) == 0); // a byte left over
+    buf[0] ^= 1;
+    ENSURE(lcm_publish(lcm, "T_TOOL_FORCE", buf, (unsigned)len) == 0); // wrong hash
+    for (int i = 0; i < 4; ++i) ENSURE(lcm_handle(lcm) == 0);
+    ENSURE(c.calls == 5 && c.st.count[HS_RX_UNDECODABLE] == 4 && c.st.count[HS_RX_OK] == 1);
+    ENSURE(c.last.seq == 3);
+    ENSURE(hs_stylus_rx_bytes(&c.st, NULL, 0, 0, 0, &m) == HS_RX_UNDECODABLE);
+    lcm_unsubscribe(lcm, sub);
     lcm_destroy(lcm);
     return 0;
 }
