@@ -29,6 +29,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include <fcntl.h>
 #include <sys/mman.h>
 
 #include <lcm/lcm.h>
@@ -765,17 +766,19 @@ int main(int argc, char** argv) {
     hs_stylus_def def = hs_stylus_default_def();
     int pr = parse_options(argc, argv, &a.opt, &def);
     if (pr) return pr == 1 ? 0 : 2;
-    // The trace is written at the end: a folder that cannot take it is said now, not after the
-    // run.
-    char dir[4096];
-    snprintf(dir, sizeof dir, "%s", a.opt.trace);
-    char* slash = strrchr(dir, '/');
-    if (slash) slash[slash == dir ? 1 : 0] = '\0';
-    if (access(slash ? dir : ".", W_OK) != 0) {
-        fprintf(stderr, "hapsim-stylus: --trace %s: cannot write in %s: %s\n", a.opt.trace,
-                slash ? dir : ".", strerror(errno));
-        return 1;
+    // The trace is written at the end: a path that cannot take it (a folder, "", a missing or
+    // read-only folder, a file as folder) is a bad command line now, not a lost run. A file
+    // created only for this check is removed again.
+    int fd = open(a.opt.trace, O_WRONLY | O_CREAT | O_EXCL | O_NONBLOCK, 0666);
+    int created = fd >= 0;
+    if (fd < 0 && errno == EEXIST) fd = open(a.opt.trace, O_WRONLY | O_NONBLOCK);
+    if (fd < 0) {
+        fprintf(stderr, "hapsim-stylus: --trace '%s': cannot write the trace there: %s\n",
+                a.opt.trace, strerror(errno));
+        return 2;
     }
+    close(fd);
+    if (created) unlink(a.opt.trace);
     hs_err err = {0};
     if (hs_script_create(&a.script, &err) || hs_script_parse_file(a.script, a.opt.script, &err)) {
         fprintf(stderr, "hapsim-stylus: %s\n", err.msg);

@@ -1,0 +1,38 @@
+#!/bin/sh
+# hapsim-stylus and hapsim-trace-diff command lines, offline (no network): bad values and
+# unusable paths are refused up front with exit 2 and a message.
+#   tests/test_stylus_cli.sh BIN_DIR SOURCE_DIR
+set -u
+bin=$1
+src=$2
+tmp=$(mktemp -d /tmp/hs_stylus_cli.XXXXXX)
+trap 'rm -rf "$tmp"' EXIT
+fail() { echo "FAIL: $*"; exit 1; }
+script=$src/scenes/liver/scripts/press_hold.probe
+sty() { "$bin/hapsim-stylus" --script "$script" --offline-stiffness 300 --quiet "$@"; }
+# want_rc RC WHAT COMMAND...: COMMAND exits RC and, for 2, says something on stderr.
+want_rc() {
+    want=$1
+    what=$2
+    shift 2
+    "$@" >"$tmp/out.log" 2>"$tmp/err.log"
+    rc=$?
+    [ $rc = "$want" ] || fail "$what: rc $rc (want $want): $(cat "$tmp/err.log")"
+    [ "$want" != 2 ] || [ -s "$tmp/err.log" ] || fail "$what: rc 2 without a message"
+}
+
+# --trace that cannot be written: refused before the run (it ran, then failed to write).
+mkdir "$tmp/dir"
+: >"$tmp/file.csv"
+for t in "$tmp/dir" "" "$tmp/file.csv/x.csv" "$tmp/missing/x.csv"; do
+    want_rc 2 "--trace '$t'" sty --trace "$t"
+    grep -q -- "--trace" "$tmp/err.log" || fail "--trace '$t': message names no --trace"
+done
+# A new trace is not left behind by the check when the run is refused later.
+want_rc 1 "missing script" "$bin/hapsim-stylus" --script "$tmp/none.probe" \
+    --offline-stiffness 300 --trace "$tmp/new.csv"
+[ ! -e "$tmp/new.csv" ] || fail "the trace check left an empty trace"
+want_rc 0 "a good run" sty --trace "$tmp/ok.csv"
+[ "$(wc -l <"$tmp/ok.csv")" -gt 1000 ] || fail "a good run wrote no trace rows"
+
+echo "PASS"
