@@ -219,25 +219,50 @@ static int next_line(FILE* f, char* buf, int cap) {
     return -1;
 }
 
+// 1 when line is exactly text, then an end of line ("\n", "\r\n", or none at the end of the
+// file); "\rgarbage" is not an end.
+static int line_is(const char* line, const char* text) {
+    size_t n = strlen(text);
+    if (strncmp(line, text, n) != 0) return 0;
+    line += n;
+    if (*line == '\r') line++;
+    return *line == '\0' || (line[0] == '\n' && line[1] == '\0');
+}
+
 hs_status hs_stylus_trace_read_csv(const char* path, hs_stylus_trace** out, hs_err* err) {
     *out = NULL;
     FILE* f = fopen(path, "r");
     if (!f) return hs_err_set(err, HS_ERR_IO, "%s: cannot open: %s", path, strerror(errno));
     char line[1024];
     int64_t rows = 0;
-    // First pass: check the header and count the rows, so the trace is allocated once.
-    if (!fgets(line, sizeof line, f) ||
-        strncmp(line, hs_stylus_trace_header, strlen(hs_stylus_trace_header)) != 0) {
+    // First pass: check the header and count the rows, so the trace is allocated once. The
+    // header is the whole line (extra columns are another format), and only the trailing summary
+    // may be comments: a '#' line before data rows would cut the trace short unnoticed.
+    if (!fgets(line, sizeof line, f) || !line_is(line, hs_stylus_trace_header)) {
         fclose(f);
         return hs_err_set(err, HS_ERR_PARSE, "%s:1: not a hapsim-stylus trace (header differs)",
                           path);
     }
-    for (int r; (r = next_line(f, line, sizeof line)) != 0 && line[0] != '#'; rows++)
+    int64_t n = 1, comment = 0; // line number of the first '#' line
+    for (int r; (r = next_line(f, line, sizeof line)) != 0;) {
+        n++;
         if (r < 0) {
             fclose(f);
             return hs_err_set(err, HS_ERR_PARSE, "%s:%lld: line longer than %d bytes", path,
-                              (long long)(rows + 2), (int)sizeof line - 1);
+                              (long long)n, (int)sizeof line - 1);
         }
+        if (line[0] == '#') {
+            if (!comment) comment = n;
+        } else if (comment) {
+            fclose(f);
+            return hs_err_set(err, HS_ERR_PARSE,
+                              "%s:%lld: a '#' line before the row at line %lld (only the trailing "
+                              "summary may be comments)",
+                              path, (long long)comment, (long long)n);
+        } else {
+            rows++;
+        }
+    }
     if (rows == 0) {
         fclose(f);
         return hs_err_set(err, HS_ERR_PARSE, "%s: no rows", path);
@@ -258,8 +283,7 @@ hs_status hs_stylus_trace_read_csv(const char* path, hs_stylus_trace** out, hs_e
         for (int i = 0; i < 17 && ok; ++i) {
             char* end = NULL;
             v[i] = strtod(at, &end);
-            ok = end != at && isfinite(v[i]) &&
-                 (*end == (i == 16 ? '\n' : ',') || (i == 16 && (*end == '\0' || *end == '\r')));
+            ok = end != at && isfinite(v[i]) && (i == 16 ? line_is(end, "") : *end == ',');
             at = end + 1;
         }
         const char* bad = ok ? NULL : "expected 17 finite numbers";

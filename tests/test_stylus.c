@@ -757,10 +757,12 @@ static int trace_compare(void) {
     ENSURE(strstr(err.msg, want) != NULL);
     // Rows that parse as numbers but cannot be a trace: the line named, nothing returned.
     static const char* const rows[] = {
-        "0.001,1,2,3,4,5,6,7,8,9,10,11,12,13,14,1e300,16\n", // segment beyond int
-        "0.001,1,2,3,4,5,6,7,8,9,10,11,12,13,14,15,-1\n",    // negative flags
-        "0.001,1,2,3,4,5,6,7,8,9,10,11,12,13,14,2.5,16\n",   // fractional segment
-        "-1,1,2,3,4,5,6,7,8,9,10,11,12,13,14,15,16\n",       // time going backwards
+        "0.001,1,2,3,4,5,6,7,8,9,10,11,12,13,14,1e300,16\n",      // segment beyond int
+        "0.001,1,2,3,4,5,6,7,8,9,10,11,12,13,14,15,-1\n",         // negative flags
+        "0.001,1,2,3,4,5,6,7,8,9,10,11,12,13,14,2.5,16\n",        // fractional segment
+        "-1,1,2,3,4,5,6,7,8,9,10,11,12,13,14,15,16\n",            // time going backwards
+        "0.001,1,2,3,4,5,6,7,8,9,10,11,12,13,14,15,16\rjunk\n",   // not an end of line
+        "# note\n0.002,1,2,3,4,5,6,7,8,9,10,11,12,13,14,15,16\n", // rows after a comment
     };
     for (size_t i = 0; i < sizeof rows / sizeof rows[0]; ++i) {
         f = fopen(path, "w");
@@ -784,6 +786,22 @@ static int trace_compare(void) {
     fclose(f);
     ENSURE(hs_stylus_trace_read_csv(path, &bad, &err) == HS_ERR_PARSE && bad == NULL);
     ENSURE(strstr(err.msg, want) != NULL && strstr(err.msg, "longer than"));
+    // Comments only at the end (the summary); CRLF line ends are fine.
+    f = fopen(path, "w");
+    ENSURE(f != NULL);
+    fprintf(f, "%s\r\n0,1,2,3,4,5,6,7,8,9,10,11,12,13,14,15,16\r\n# a=1\r\n#\n",
+            hs_stylus_trace_header);
+    fclose(f);
+    ENSURE(hs_stylus_trace_read_csv(path, &bad, &err) == HS_OK && hs_stylus_trace_rows(bad) == 1);
+    hs_stylus_trace_destroy(&bad);
+    // A header with an extra column is another format.
+    f = fopen(path, "w");
+    ENSURE(f != NULL);
+    fprintf(f, "%s,extra\n0,1,2,3,4,5,6,7,8,9,10,11,12,13,14,15,16\n", hs_stylus_trace_header);
+    fclose(f);
+    ENSURE(hs_stylus_trace_read_csv(path, &bad, &err) == HS_ERR_PARSE && bad == NULL);
+    snprintf(want, sizeof want, "%s:1:", path);
+    ENSURE(strstr(err.msg, want) != NULL);
     f = fopen(path, "w");
     ENSURE(f != NULL);
     fprintf(f, "time,force\n0,1\n");

@@ -35,4 +35,18 @@ want_rc 1 "missing script" "$bin/hapsim-stylus" --script "$tmp/none.probe" \
 want_rc 0 "a good run" sty --trace "$tmp/ok.csv"
 [ "$(wc -l <"$tmp/ok.csv")" -gt 1000 ] || fail "a good run wrote no trace rows"
 
+# hapsim-trace-diff: only the trailing summary may be comments (a '#' line mid-file cut the
+# reference short and passed); the header is the whole line; a row ends at its line end.
+diff="$bin/hapsim-trace-diff"
+want_rc 0 "trace-diff of a trace with itself" "$diff" "$tmp/ok.csv" "$tmp/ok.csv"
+awk 'NR==3000{print "# note"}{print}' "$tmp/ok.csv" >"$tmp/mid.csv"
+want_rc 2 "trace-diff with a '#' line mid-file" "$diff" "$tmp/mid.csv" "$tmp/ok.csv"
+grep -q "mid.csv:3000:" "$tmp/err.log" || fail "mid-file '#': line not named: $(cat "$tmp/err.log")"
+sed '1s/$/,extra/' "$tmp/ok.csv" >"$tmp/hdr.csv"
+want_rc 2 "trace-diff with an extra header column" "$diff" "$tmp/ok.csv" "$tmp/hdr.csv"
+grep -q "hdr.csv:1:" "$tmp/err.log" || fail "extra column: line not named: $(cat "$tmp/err.log")"
+awk 'NR==5{printf "%s\rgarbage\n", $0; next}{print}' "$tmp/ok.csv" >"$tmp/cr.csv"
+want_rc 2 "trace-diff with a row ending in \\rgarbage" "$diff" "$tmp/cr.csv" "$tmp/ok.csv"
+grep -q "cr.csv:5:" "$tmp/err.log" || fail "\\rgarbage: line not named: $(cat "$tmp/err.log")"
+
 echo "PASS"
