@@ -85,7 +85,8 @@ hs_status hs_stylus_def_check(const hs_stylus_def* d, hs_err* err) {
         NEED(isfinite(d->workspace_m[i]) && d->workspace_m[i] > 0, "workspace_m must be > 0");
         NEED(isfinite(d->origin_m[i]), "origin_m must be finite");
     }
-    NEED(isfinite(d->timeout_s) && d->timeout_s > 0, "timeout_s must be > 0");
+    NEED(isfinite(d->timeout_s) && d->timeout_s > 0 && d->timeout_s <= HS_STYLUS_MAX_TIMEOUT_S,
+         "timeout_s must be in (0, 60] s");
     NEED(isfinite(d->ramp_s) && d->ramp_s > 0 && d->ramp_s <= d->timeout_s,
          "ramp_s must be in (0, timeout_s]");
     NEED(isfinite(d->outside_ramp_s) && d->outside_ramp_s > 0, "outside_ramp_s must be > 0");

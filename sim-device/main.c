@@ -127,7 +127,7 @@ static void usage(FILE* f) {
             "  --max-force N           motor force limit (default 3.3)\n"
             "  --max-rate N/S          motor force rate limit (default 2000)\n"
             "  --workspace X,Y,Z       workspace box, m (default 0.16,0.12,0.07)\n"
-            "  --timeout-ms MS         force is zero at this model age (default 100)\n"
+            "  --timeout-ms MS         force is zero at this model age (default 100, <= 60000)\n"
             "  --ramp-ms MS            ramp-down length within the timeout (default 20)\n"
             "  --realtime              SCHED_FIFO (priority 70) and mlockall for the device loop\n"
             "                          when permitted (else ordinary scheduling, said at the end)\n"
@@ -312,12 +312,12 @@ static int parse_options(int argc, char** argv, options* o, hs_stylus_def* def) 
         case O_WS:
             ok = parse_list(a, def->workspace_m, 3);
             break;
-        case O_TIMEOUT:
-            ok = parse_double(a, &ms);
+        case O_TIMEOUT: // bounded: beyond ~9.2e12 ms the ramp's ns overflowed and was skipped
+            ok = parse_double(a, &ms) && ms > 0 && ms <= 1e3 * HS_STYLUS_MAX_TIMEOUT_S;
             def->timeout_s = ms * 1e-3;
             break;
         case O_RAMP:
-            ok = parse_double(a, &ms);
+            ok = parse_double(a, &ms) && ms > 0 && ms <= 1e3 * HS_STYLUS_MAX_TIMEOUT_S;
             def->ramp_s = ms * 1e-3;
             break;
         case O_STATUS:

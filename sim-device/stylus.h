@@ -183,6 +183,10 @@ typedef struct hs_stylus_def {
     int cookie;                ///< set by hs_stylus_default_def
 } hs_stylus_def;
 
+/// Longest timeout_s (and so ramp_s) a def may have: a device's own timeout is a safety limit
+/// of milliseconds; far above, the ns arithmetic of the ramp overflows (~9.2e9 s).
+#define HS_STYLUS_MAX_TIMEOUT_S 60.0
+
 /// 50 g, 0.2 N s/m, 0.02 N, hand 400 N/m / 8 N s/m, 3.3 N, 2000 N/s, 160 x 120 x 70 mm at the
 /// scene origin, timeout 100 ms with a 20 ms ramp, 20 ms outside ramp, 2 ms substeps.
 hs_stylus_def hs_stylus_default_def(void);

@@ -1099,6 +1099,15 @@ static int def_check(void) {
     ENSURE(hs_stylus_def_check(&d, &err) == HS_OK);
     d.mass_kg = 0;
     ENSURE(hs_stylus_def_check(&d, &err) == HS_ERR_INVALID && strstr(err.msg, "mass_kg"));
+    // A timeout far above a safety limit overflowed the ramp's ns (llround): refused.
+    d = hs_stylus_default_def();
+    d.timeout_s = 1e10;
+    ENSURE(hs_stylus_def_check(&d, &err) == HS_ERR_INVALID && strstr(err.msg, "timeout_s"));
+    d.timeout_s = HS_STYLUS_MAX_TIMEOUT_S;
+    ENSURE(hs_stylus_def_check(&d, &err) == HS_OK);
+    d.timeout_s = 61;
+    ENSURE(hs_stylus_def_check(&d, &err) == HS_ERR_INVALID);
+    d = hs_stylus_default_def();
     d = hs_stylus_default_def();
     d.ramp_s = 2 * d.timeout_s;
     ENSURE(hs_stylus_def_check(&d, &err) == HS_ERR_INVALID && strstr(err.msg, "ramp_s"));

@@ -35,6 +35,15 @@ want_rc 1 "missing script" "$bin/hapsim-stylus" --script "$tmp/none.probe" \
 want_rc 0 "a good run" sty --trace "$tmp/ok.csv"
 [ "$(wc -l <"$tmp/ok.csv")" -gt 1000 ] || fail "a good run wrote no trace rows"
 
+# Durations are bounded (--timeout-ms 1e13 overflowed the ramp's ns and ran without a ramp).
+for bad in "--timeout-ms 1e13" "--timeout-ms 60001" "--timeout-ms 0" "--ramp-ms 1e13" \
+    "--duration 1e8" "--rate 1e6"; do
+    # shellcheck disable=SC2086 # the options split on purpose
+    want_rc 2 "$bad" sty $bad --trace "$tmp/bad.csv"
+    grep -q "bad value" "$tmp/err.log" || fail "$bad: not a 'bad value': $(cat "$tmp/err.log")"
+done
+[ ! -e "$tmp/bad.csv" ] || fail "a refused run wrote a trace"
+
 # hapsim-trace-diff: only the trailing summary may be comments (a '#' line mid-file cut the
 # reference short and passed); the header is the whole line; a row ends at its line end.
 diff="$bin/hapsim-trace-diff"
