@@ -493,19 +493,20 @@ hs_status hs_script_parse_string(hs_script* s, const char* text, const char* nam
 hs_status hs_script_parse_file(hs_script* s, const char* path, hs_err* err) {
     FILE* f = fopen(path, "rb");
     if (!f) return hs_err_set(err, HS_ERR_IO, "%s: cannot open: %s", path, strerror(errno));
-    long size = -1;
-    if (fseek(f, 0, SEEK_END) == 0) size = ftell(f);
-    if (size < 0 || size > (1 << 20) || fseek(f, 0, SEEK_SET) != 0) {
-        fclose(f);
-        return hs_err_set(err, HS_ERR_IO, "%s: not a readable script (or larger than 1 MiB)", path);
-    }
-    char* text = hs_alloc((size_t)size + 1);
+    // Read to the end rather than trusting the size: /proc files say 0 and a pipe has none.
+    const size_t max = 1 << 20;
+    char* text = hs_alloc(max + 2);
     if (!text) {
         fclose(f);
         return hs_err_set(err, HS_ERR_NOMEM, "%s: out of memory", path);
     }
-    size_t got = fread(text, 1, (size_t)size, f);
+    size_t got = fread(text, 1, max + 1, f);
+    int bad = ferror(f);
     fclose(f);
+    if (bad || got > max) {
+        hs_free(text);
+        return hs_err_set(err, HS_ERR_IO, "%s: not a readable script (or larger than 1 MiB)", path);
+    }
     text[got] = '\0';
     hs_status st = HS_OK;
     if (strlen(text) != got)

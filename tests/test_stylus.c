@@ -102,6 +102,18 @@ static int script_good(void) {
     unlink(path);
     ENSURE(hs_script_parse_file(s2, path, &err) == HS_ERR_IO);
     ENSURE(strstr(err.msg, path) != NULL);
+    // Files whose size says 0 are read to their end: /proc/self/status fails on its first line
+    // (it was taken as an empty script); a folder and a file over 1 MiB are refused.
+    ENSURE(hs_script_parse_file(s2, "/proc/self/status", &err) == HS_ERR_PARSE);
+    ENSURE(strstr(err.msg, "/proc/self/status:1:") != NULL);
+    ENSURE(hs_script_parse_file(s2, "/tmp", &err) == HS_ERR_IO);
+    char big[] = "/tmp/hs_stylus_big_XXXXXX";
+    fd = mkstemp(big);
+    ENSURE(fd >= 0);
+    ENSURE(ftruncate(fd, (1 << 20) + 1) == 0);
+    close(fd);
+    ENSURE(hs_script_parse_file(s2, big, &err) == HS_ERR_IO && strstr(err.msg, "1 MiB"));
+    unlink(big);
     hs_script_destroy(&s2);
     hs_script_destroy(&s);
     ENSURE(s == NULL);
