@@ -252,6 +252,16 @@ static hs_status parse_text(parser* p, const char* text, hs_err* err) {
         c = next;
         char* hash = strchr(buf, '#');
         if (hash) *hash = '\0';
+        // An empty comma field ("0,,0", a comma first or last) was merged away, shifting every
+        // later number into the wrong place: an error.
+        for (const char* q = strchr(buf, ','); q; q = strchr(q + 1, ',')) {
+            const char* b = q;
+            while (b > buf && (b[-1] == ' ' || b[-1] == '\t' || b[-1] == '\r')) b--;
+            const char* a = q + 1;
+            while (*a == ' ' || *a == '\t' || *a == '\r') a++;
+            if (b == buf || *a == '\0' || *a == ',')
+                return perr(p, err, "empty field between commas");
+        }
         char* tok[MAX_TOKENS + 1];
         int ntok = 0;
         for (char* q = strtok(buf, " \t\r,"); q; q = strtok(NULL, " \t\r,")) {

@@ -88,6 +88,13 @@ static int script_good(void) {
     // Minimum-jerk timing: T = 1.875 L / v.
     ENSURE_NEAR(s->seg[0].dur_s, 1.875 * 0.010 / 0.020, 1e-12);
 
+    // Commas separate like spaces when every field has a number.
+    hs_script* sc = NULL;
+    ENSURE(hs_script_create(&sc, &err) == HS_OK);
+    ENSURE(parse(sc, "move_to 0.01, 0,0.02 ,\t0.01\r\n", &err) == HS_OK && sc->n_segments == 1);
+    ENSURE(sc->seg[0].to_m[0] == 0.01 && sc->seg[0].to_m[2] == 0.02);
+    hs_script_destroy(&sc);
+
     // A file on disk parses the same and names itself.
     char path[] = "/tmp/hs_stylus_test_XXXXXX";
     int fd = mkstemp(path);
@@ -180,6 +187,12 @@ static int script_errors(void) {
         {"hold 2e6\n", 1, "would last beyond"},
         {"loop 100\n hold 10000\nend\nhold 2\n", 4, "would last beyond"},
         {"profile trapezoid 1e-300\nmove_to 0 0 1 1\n", 2, "would last beyond"},
+        // Empty comma fields were merged: 0,,0 0 0.01 read as move_to 0 0 0 0.01.
+        {"hold 1\nmove_to 0,,0 0 0.01\n", 2, "empty field between commas"},
+        {"move_to 0, ,0 0 0.01\n", 1, "empty field between commas"},
+        {"move_to 0,0,0,0.01,\n", 1, "empty field between commas"},
+        {"move_to 0,0,0,0.01, # note\n", 1, "empty field between commas"},
+        {",move_to 0 0 0 0.01\n", 1, "empty field between commas"},
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; ++i) {
         err.msg[0] = '\0';
