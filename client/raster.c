@@ -157,6 +157,12 @@ int32_t hs_render_mesh(hs_image* img, const hs_camera* cam, const float* pos, in
         // Signed area in pixel space; skip degenerate projections.
         double area = (x[1] - x[0]) * (y[2] - y[0]) - (x[2] - x[0]) * (y[1] - y[0]);
         if (fabs(area) < 1e-12) continue;
+        // Positions are only checked finite: a vertex far off the picture (an exploded or corrupt
+        // mesh) would overflow the int bounds below and make the depth interpolation garbage.
+        if (!(fabs(x[0]) <= HS_RASTER_MAX_PX && fabs(x[1]) <= HS_RASTER_MAX_PX &&
+              fabs(x[2]) <= HS_RASTER_MAX_PX && fabs(y[0]) <= HS_RASTER_MAX_PX &&
+              fabs(y[1]) <= HS_RASTER_MAX_PX && fabs(y[2]) <= HS_RASTER_MAX_PX))
+            continue;
         int x0 = (int)floor(fmin(x[0], fmin(x[1], x[2]))),
             x1 = (int)ceil(fmax(x[0], fmax(x[1], x[2])));
         int y0 = (int)floor(fmin(y[0], fmin(y[1], y[2]))),

@@ -47,9 +47,13 @@ void hs_image_clear(hs_image* img);
 /// Colour map (cool to warm): t in [0, 1] (clamped) -> rgb. Blue for 0, red for 1.
 void hs_colormap(double t, uint8_t rgb[3]);
 
+/// Pixel coordinate beyond which (either sign, x or y) a vertex's triangle is skipped.
+#define HS_RASTER_MAX_PX 1e6
+
 /// Draw triangles tri[3 n_tri] over positions pos[3 n] (m) with a per-vertex scalar[n] mapped
 /// by (s - smin) / (smax - smin) through hs_colormap, times a two-sided Lambert factor
-/// 0.25 + 0.75 |n . eye| (headlight). NULL scalar: uniform grey. Returns triangles drawn.
+/// 0.25 + 0.75 |n . eye| (headlight). NULL scalar: uniform grey. A triangle with a vertex whose
+/// pixel x or y is beyond +-HS_RASTER_MAX_PX is skipped. Returns triangles drawn.
 int32_t hs_render_mesh(hs_image* img, const hs_camera* cam, const float* pos, int32_t n,
                        const int32_t* tri, int32_t n_tri, const float* scalar, float smin,
                        float smax);

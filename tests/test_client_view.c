@@ -91,6 +91,60 @@ static int test_raster_box(void) {
     return 0;
 }
 
+// A vertex far off the picture (positions are only checked finite): its triangle is skipped,
+// the image and depth buffer stay as they were (before: undefined float-to-int conversion, and
+// for a vertex off the top left a sliver drawn with garbage depth).
+static int test_raster_far_vertex(void) {
+    int64_t bytes0 = hs_client_byte_count();
+    hs_image* im = NULL;
+    ENSURE(hs_image_create(200, 160, &im, NULL) == HS_OK);
+    hs_camera cam;
+    hs_camera_fit(&cam, cube_pos, 8, 30, 20, 200, 160);
+    ENSURE(hs_render_mesh(im, &cam, cube_pos, 8, cube_tri, 12, NULL, 0, 1) >= 6);
+    uint8_t* rgb0 = malloc(200 * 160 * 3);
+    float* depth0 = malloc(200 * 160 * sizeof(float));
+    ENSURE(rgb0 && depth0);
+    memcpy(rgb0, im->rgb, 200 * 160 * 3);
+    memcpy(depth0, im->depth, 200 * 160 * sizeof(float));
+    static const double far[] = {3e30, 1e10, 1e38};
+    for (int sr = -1; sr <= 1; sr += 2)
+        for (int su = -1; su <= 1; su += 2)
+            for (int f = 0; f < 3; f++) {
+                // Two vertices in front of the cube's centre, across the direction d = +-right
+                // +-up, and one far along d.
+                float p[9];
+                int32_t t3[3] = {0, 1, 2};
+                for (int k = 0; k < 3; k++) {
+                    double c = cam.center[k] + 2 * cam.eye[k];
+                    double d = sr * cam.right[k] + su * cam.up[k];
+                    double e = su * cam.right[k] - sr * cam.up[k];
+                    p[k] = (float)(c + 0.2 * e);
+                    p[3 + k] = (float)(c - 0.2 * e);
+                    p[6 + k] = (float)(c + far[f] * d);
+                }
+                float sc[3] = {0, 0, 1e30f};
+                ENSURE(hs_render_mesh(im, &cam, p, 3, t3, 1, sc, 0, 1) == 0);
+                ENSURE(memcmp(rgb0, im->rgb, 200 * 160 * 3) == 0);
+                ENSURE(memcmp(depth0, im->depth, 200 * 160 * sizeof(float)) == 0);
+            }
+    // A large but sane triangle (a vertex 100 cube sizes away) is still drawn.
+    float p[9];
+    int32_t t3[3] = {0, 1, 2};
+    for (int k = 0; k < 3; k++) {
+        double c = cam.center[k] + 2 * cam.eye[k];
+        p[k] = (float)(c + 0.2 * (cam.right[k] - cam.up[k]));
+        p[3 + k] = (float)(c - 0.2 * (cam.right[k] - cam.up[k]));
+        p[6 + k] = (float)(c - 100 * (cam.right[k] + cam.up[k]));
+    }
+    ENSURE(hs_render_mesh(im, &cam, p, 3, t3, 1, NULL, 0, 1) == 1);
+    ENSURE(memcmp(rgb0, im->rgb, 200 * 160 * 3) != 0);
+    free(rgb0);
+    free(depth0);
+    hs_image_destroy(&im);
+    ENSURE(hs_client_byte_count() == bytes0);
+    return 0;
+}
+
 static int test_png_round_trip(void) {
     int64_t bytes0 = hs_client_byte_count();
     hs_image *im = NULL, *back = NULL;
@@ -182,4 +236,5 @@ static int test_vtk_series(void) {
     return 0;
 }
 
-HS_TEST_MAIN(HS_CASE(test_raster_box), HS_CASE(test_png_round_trip), HS_CASE(test_vtk_series))
+HS_TEST_MAIN(HS_CASE(test_raster_box), HS_CASE(test_raster_far_vertex),
+             HS_CASE(test_png_round_trip), HS_CASE(test_vtk_series))
