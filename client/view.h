@@ -67,7 +67,8 @@ hs_status hs_png_read(const char* path, hs_image** out, hs_err* err);
 void hs_view_displacement(const hs_client_mesh* m, float* disp);
 /// Write the visible mesh as a VTK XML UnstructuredGrid of its surface triangles (ASCII .vtu):
 /// point data displacement (3 comp), displacement_magnitude and, when sent, stress_von_mises.
-/// Writes to path + ".tmp" then renames. Returns HS_OK or HS_ERR_IO.
+/// Writes to path + ".tmp" then renames. Returns HS_OK, HS_ERR_IO, or HS_ERR_INVALID (nothing
+/// written) when a displacement or disp[i] is beyond float32 (err names the node).
 hs_status hs_vtu_write(const char* path, const hs_client_mesh* m, const float* disp, hs_err* err);
 /// Write a ParaView collection (.pvd) listing files[i] at times[i] (s); atomic (tmp + rename).
 hs_status hs_pvd_write(const char* path, int32_t n, const char* const* files, const double* times,

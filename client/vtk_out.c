@@ -2,6 +2,7 @@
 // collection. Files are written to "<path>.tmp" and renamed, so a reader never sees half a file.
 #define _POSIX_C_SOURCE 200809L
 #include <errno.h>
+#include <float.h>
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
@@ -57,6 +58,25 @@ static void floats(FILE* f, const float* v, int64_t n, int per_line) {
 }
 
 hs_status hs_vtu_write(const char* path, const hs_client_mesh* m, const float* disp, hs_err* err) {
+    // Positions are finite floats, but position - rest can overflow float32 (3e38 - -3e38):
+    // refuse rather than write "inf", which VTK readers reject or misread.
+    for (int32_t i = 0; i < m->n_vis; i++) {
+        int bad = !(fabsf(disp[i]) <= FLT_MAX);
+        for (int k = 0; k < 3; k++)
+            bad |= !(fabs((double)m->position[3 * i + k] - m->rest[3 * i + k]) <= FLT_MAX);
+        if (bad) {
+            if (err) {
+                err->code = HS_ERR_INVALID;
+                snprintf(err->msg, sizeof err->msg,
+                         "%s: not written: node %d displacement overflows float32 (position "
+                         "%.9g %.9g %.9g, rest %.9g %.9g %.9g)",
+                         path, i, (double)m->position[3 * i], (double)m->position[3 * i + 1],
+                         (double)m->position[3 * i + 2], (double)m->rest[3 * i],
+                         (double)m->rest[3 * i + 1], (double)m->rest[3 * i + 2]);
+            }
+            return HS_ERR_INVALID;
+        }
+    }
     char tmp[4200];
     FILE* f = NULL;
     hs_status st = open_tmp(path, tmp, sizeof tmp, &f, err);

@@ -233,6 +233,42 @@ static int test_vtk_series(void) {
     ENSURE(strstr(err.msg, "/nonexistent/dir/x.vtu") != NULL);
     ENSURE(hs_pvd_write("/nonexistent/dir/x.pvd", 3, files, times, &err) == HS_ERR_IO);
     ENSURE(strstr(err.msg, "/nonexistent/dir/x.pvd") != NULL);
+    // Finite positions whose displacement overflows float32 (3e38 - -3e38): refused, nothing
+    // written (before: "inf" in the file and HS_OK).
+    float rest2[24];
+    memcpy(rest2, cube_pos, sizeof rest2);
+    memcpy(pos, cube_pos, sizeof pos);
+    m.rest = rest2;
+    m.stress = NULL;
+    char path[512];
+    snprintf(path, sizeof path, "%s/hs_client_overflow_%d.vtu", dir, (int)getpid());
+    for (int k = 0; k < 2; k++) {
+        memcpy(pos, cube_pos, sizeof pos);
+        memcpy(rest2, cube_pos, sizeof rest2);
+        pos[3 * 3 + 1] = 3e38f;
+        rest2[3 * 3 + 1] = -3e38f;
+        if (k == 1) { // components fit, the magnitude does not
+            pos[3 * 3 + 1] = 3e38f, rest2[3 * 3 + 1] = 0;
+            pos[3 * 3 + 2] = 3e38f, rest2[3 * 3 + 2] = 0;
+        }
+        float disp[8];
+        hs_view_displacement(&m, disp);
+        err.msg[0] = 0;
+        ENSURE(hs_vtu_write(path, &m, disp, &err) == HS_ERR_INVALID);
+        ENSURE(strstr(err.msg, path) != NULL && strstr(err.msg, "node 3") != NULL);
+        ENSURE(access(path, F_OK) != 0);
+        char tmp[600];
+        snprintf(tmp, sizeof tmp, "%s.tmp", path);
+        ENSURE(access(tmp, F_OK) != 0);
+    }
+    // The largest displacement that fits is written.
+    memcpy(rest2, cube_pos, sizeof rest2);
+    memcpy(pos, cube_pos, sizeof pos);
+    pos[3 * 3 + 1] = 3e38f;
+    float disp[8];
+    hs_view_displacement(&m, disp);
+    ENSURE(hs_vtu_write(path, &m, disp, &err) == HS_OK);
+    ENSURE(remove(path) == 0);
     return 0;
 }
 
