@@ -271,6 +271,18 @@ int main(int argc, char** argv) {
     }
     if (!v.png && !v.vtk) v.png = v.vtk = 1;
     v.status = status && !v.quiet; // in either order
+    // An unusable --out is bad usage (exit 1), found before connecting or creating anything.
+    // The length limit keeps "DIR/frame_NNNNNN.vtu.tmp" within the writers' 4200-byte paths.
+    struct stat st_out;
+    if (!v.out[0] || strlen(v.out) > 4000) {
+        fprintf(stderr, "hapsim-view: --out '%.40s%s': expected a folder path of 1 .. 4000 bytes\n",
+                v.out, strlen(v.out) > 40 ? "..." : "");
+        return 1;
+    }
+    if (stat(v.out, &st_out) == 0 && !S_ISDIR(st_out.st_mode)) {
+        fprintf(stderr, "hapsim-view: --out '%s': expected a folder, this is not one\n", v.out);
+        return 1;
+    }
 
     // The client checks --prefix and --mesh-url: before anything is created on disk.
     hs_client_config cfg;

@@ -60,6 +60,17 @@ for bad in 0x10x16 1e2x100 16.0x16 +16x16 " 16x16"; do
     rc=$?
     [ $rc = 1 ] && grep -q "expected WxH" "$tmp/bad.txt" || fail "hapsim-view --size '$bad': rc $rc, $(cat "$tmp/bad.txt")"
 done
+# An unusable --out (empty, too long, an existing file) is bad usage (exit 1; '' exited 3 after
+# connecting). The bogus bus shows it is checked before connecting.
+: >"$tmp/afile"
+long=$(printf '%04001d' 0)
+for bad in "" "$tmp/afile" "$tmp/$long"; do
+    "$bin/hapsim-view" --out "$bad" --mesh-url bogus://x --duration 0.5 >"$tmp/bad.txt" 2>&1
+    rc=$?
+    [ $rc = 1 ] && grep -q "^hapsim-view: --out .*expected" "$tmp/bad.txt" ||
+        fail "hapsim-view --out '$(printf %.60s "$bad")': rc $rc, $(cat "$tmp/bad.txt")"
+done
+[ -f "$tmp/afile" ] && [ ! -s "$tmp/afile" ] || fail "hapsim-view --out FILE changed the file"
 # hapsim-ctl: a bus LCM cannot open is a bad value (exit 1, URL named), not "no server";
 # -h/--help anywhere prints the usage.
 "$bin/hapsim-ctl" --timeout 400 --mesh-url bogus://x status >"$tmp/bad.txt" 2>&1
