@@ -336,9 +336,8 @@ int hs_wire_force_decode(const void* buf, size_t len, int32_t* device_id, int64_
             (void)read(&r);                                                                        \
     }
 
-hs_status hs_client_status_decode(const void* buf, size_t len, hs_client_status* o) {
+static hs_status status_decode(const void* buf, size_t len, hs_client_status* o) {
     rd r;
-    if (!o) return HS_ERR_INVALID;
     memset(o, 0, sizeof *o);
     if (!rd_begin(&r, buf, len, __hapsim_server_status_t_get_hash())) return HS_ERR_PARSE;
     o->utime = rd_i64(&r);
@@ -402,11 +401,16 @@ hs_status hs_client_status_decode(const void* buf, size_t len, hs_client_status*
             rd_str(&r, skip, sizeof skip);
     READ_COLUMN(rd_i64, rejects, count);
     rd_str(&r, o->warnings, sizeof o->warnings);
-    if (rd_end(&r)) {
-        memset(o, 0, sizeof *o);
-        return HS_ERR_PARSE;
-    }
-    return HS_OK;
+    return rd_end(&r) ? HS_ERR_PARSE : HS_OK;
+}
+
+hs_status hs_client_status_decode(const void* buf, size_t len, hs_client_status* o) {
+    if (!o) return HS_ERR_INVALID;
+    hs_status s = status_decode(buf, len, o);
+    // Every error path leaves all zeros: a count read before the failure (n_loops 5000, -1)
+    // must not reach a caller that indexes with it.
+    if (s != HS_OK) memset(o, 0, sizeof *o);
+    return s;
 }
 
 const char* hs_client_state_name(int32_t state) {

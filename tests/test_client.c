@@ -934,8 +934,25 @@ static int test_status_decode(void) {
     ENSURE(o.n_rejects == 1 && !strcmp(o.rejects[0].reason, "nonfinite") &&
            o.rejects[0].count == 5);
     ENSURE(!strcmp(o.warnings, "slow sim") && !strcmp(hs_client_state_name(o.state), "paused"));
-    for (int cut = 0; cut < len; cut += 7)
+    // Every refusal leaves the output all zeros (a count read before the error stayed: n_loops
+    // 5000 or -1 for a caller indexing loops[] with it).
+    static const hs_client_status zero;
+    for (int cut = 0; cut < len; cut += 7) {
         ENSURE(hs_client_status_decode(buf, (size_t)cut, &o) == HS_ERR_PARSE);
+        ENSURE(memcmp(&o, &zero, sizeof o) == 0);
+    }
+    size_t loops_at = 8 + 8 + 8 + 8 + 4 + 4 + strlen(s.scene) + 1 + 8; // n_loops, big-endian
+    static const uint8_t counts[2][4] = {{0, 0, 0x13, 0x88}, {0xff, 0xff, 0xff, 0xff}};
+    for (int c = 0; c < 2; c++) {
+        uint8_t keep[4];
+        memcpy(keep, buf + loops_at, 4);
+        ENSURE(keep[3] == 2);
+        memcpy(buf + loops_at, counts[c], 4);
+        ENSURE(hs_client_status_decode(buf, (size_t)len, &o) == HS_ERR_PARSE);
+        ENSURE(o.n_loops == 0 && memcmp(&o, &zero, sizeof o) == 0);
+        memcpy(buf + loops_at, keep, 4);
+    }
+    ENSURE(hs_client_status_decode(buf, (size_t)len, &o) == HS_OK && o.n_loops == 2);
     buf[len] = 0;
     ENSURE(hs_client_status_decode(buf, (size_t)len + 1, &o) == HS_ERR_PARSE);
     // The scene string without its NUL (last byte of the string replaced).

@@ -213,7 +213,8 @@ typedef struct hs_client_status {
     char warnings[1024];                 ///< newline-separated, "" when all is well
 } hs_client_status;
 
-/// Decode server_status_t bytes with full validation. Returns HS_OK or HS_ERR_PARSE.
+/// Decode server_status_t bytes with full validation. Returns HS_OK or HS_ERR_PARSE (out all
+/// zeros), HS_ERR_INVALID for a NULL out.
 /// Thread: any | Allocates: no
 hs_status hs_client_status_decode(const void* buf, size_t len, hs_client_status* out /* OUT */);
 
