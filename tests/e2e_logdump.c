@@ -9,8 +9,11 @@
 //   pose UTIME SEQ SESSION DEVICE X Y Z
 //   force UTIME SEQ DEVICE STATE |F| POSE_UTIME
 // then `count CHANNEL N` for every channel seen and `bad N` for messages that did not decode.
-// Exit 0, or 1 when the log cannot be opened.
+// Exit 0, or 1 when the log cannot be opened or is not complete (cut off inside an event, bytes
+// that are not an event, or LCM delivered fewer events than the log holds; e2e_lcmlog.h).
+// Any path works, '?' included (LCM gets it as /proc/self/fd/N).
 #define _POSIX_C_SOURCE 200809L
+#include "e2e_lcmlog.h"
 #include "hapsim_tool_force_t.h"
 #include "hapsim_tool_pose_t.h"
 
@@ -27,7 +30,7 @@ typedef struct dump_state {
     int n_ch;
     char ch[MAX_CHANNELS][96];
     long count[MAX_CHANNELS];
-    long bad;
+    long bad, total;
 } dump_state;
 
 static void count_channel(dump_state* s, const char* channel) {
@@ -44,6 +47,7 @@ static void count_channel(dump_state* s, const char* channel) {
 
 static void on_message(const lcm_recv_buf_t* rb, const char* channel, void* user) {
     dump_state* s = user;
+    s->total++;
     count_channel(s, channel);
     if (strcmp(channel, s->pose_ch) == 0) {
         hapsim_tool_pose_t p;
@@ -77,17 +81,15 @@ int main(int argc, char** argv) {
     static dump_state s;
     snprintf(s.pose_ch, sizeof s.pose_ch, "%sTOOL_POSE", prefix);
     snprintf(s.force_ch, sizeof s.force_ch, "%sTOOL_FORCE", prefix);
-    FILE* probe = fopen(argv[1], "rb");
-    if (!probe) {
-        fprintf(stderr, "%s: cannot open %s\n", argv[0], argv[1]);
+    hs_lcmlog log;
+    if (hs_lcmlog_open(argv[1], "", &log) != 0) {
+        fprintf(stderr, "%s: %s\n", argv[0], log.why);
         return 1;
     }
-    fclose(probe);
-    char url[4200];
-    snprintf(url, sizeof url, "file://%s?speed=0", argv[1]);
-    lcm_t* lcm = lcm_create(url);
+    lcm_t* lcm = lcm_create(log.url);
     if (!lcm) {
-        fprintf(stderr, "%s: LCM cannot open %s\n", argv[0], url);
+        fprintf(stderr, "%s: LCM cannot open %s (%s)\n", argv[0], log.url, argv[1]);
+        hs_lcmlog_close(&log);
         return 1;
     }
     // Subscribe before anything is read: the file provider starts reading on the first handle.
@@ -105,5 +107,11 @@ int main(int argc, char** argv) {
     printf("bad %ld\n", s.bad);
     lcm_unsubscribe(lcm, sub);
     lcm_destroy(lcm);
+    hs_lcmlog_close(&log);
+    if (s.total != log.events) {
+        fprintf(stderr, "%s: %s: LCM delivered %ld of the log's %ld events\n", argv[0], argv[1],
+                s.total, log.events);
+        return 1;
+    }
     return 0;
 }

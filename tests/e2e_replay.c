@@ -5,11 +5,14 @@
 //   e2e_replay SCENE LOG [PREFIX]
 //
 // Prints one line per pose of device 0: `replay T_S FX FY FZ |F| POSE_UTIME`, T_S = seconds since
-// the first pose's utime; then `poses N`. The same log gives the same output bit for bit (no
+// the first pose's utime; then `poses N`. Exit 1 when the log is not complete (e2e_lcmlog.h:
+// cut off, not an event, fewer pose messages delivered than it holds); any path works, '?'
+// included. The same log gives the same output bit for bit (no
 // threads, no clocks). It is not the live server: no body dynamics and no co-rotation (the
 // server's co-rotated equilibrium differs by a few per cent at millimetre indentations,
 // docs/haptics.md), so it checks a recorded session's forces, not reproduce them exactly.
 #define _POSIX_C_SOURCE 200809L
+#include "e2e_lcmlog.h"
 #include "hapsim/compliance.h"
 #include "hapsim/mesh.h"
 #include "hapsim/scene.h"
@@ -31,7 +34,7 @@ typedef struct replay {
     hs_contact contact;
     int have_snap;
     int64_t t0_us;
-    long poses;
+    long poses, messages; // device-0 poses answered, messages on the channel
     char channel[96];
 } replay;
 
@@ -87,6 +90,7 @@ static void build_snapshot(replay* r, const double p[3]) {
 static void on_pose(const lcm_recv_buf_t* rb, const char* channel, void* user) {
     (void)channel;
     replay* r = user;
+    r->messages++;
     hapsim_tool_pose_t p;
     if (hapsim_tool_pose_t_decode(rb->data, 0, (int)rb->data_size, &p) < 0) return;
     if (p.device_id == 0) {
@@ -168,12 +172,14 @@ int main(int argc, char** argv) {
         fprintf(stderr, "%s\n", err.msg);
         return 1;
     }
-    FILE* probe = fopen(argv[2], "rb");
-    if (!probe) {
-        fprintf(stderr, "%s: cannot open %s\n", argv[0], argv[2]);
+    // The log is checked before the scene's compliance is built (seconds).
+    static replay r;
+    snprintf(r.channel, sizeof r.channel, "%sTOOL_POSE", argc == 4 ? argv[3] : sc.prefix);
+    hs_lcmlog log;
+    if (hs_lcmlog_open(argv[2], r.channel, &log) != 0) {
+        fprintf(stderr, "%s: %s\n", argv[0], log.why);
         return 1;
     }
-    fclose(probe);
     hs_mesh* mesh = NULL;
     if (hs_mesh_load(sc.mesh_path, &mesh, &err) < 0) {
         fprintf(stderr, "%s\n", err.msg);
@@ -186,7 +192,6 @@ int main(int argc, char** argv) {
             return 1;
         }
     }
-    static replay r;
     r.mesh = mesh;
     r.radius_m = 0.005;
     for (int t = 0; t < sc.n_tools; ++t)
@@ -206,13 +211,9 @@ int main(int argc, char** argv) {
         fprintf(stderr, "%s\n", err.msg);
         return 1;
     }
-    snprintf(r.channel, sizeof r.channel, "%sTOOL_POSE", argc == 4 ? argv[3] : sc.prefix);
-
-    char url[4200];
-    snprintf(url, sizeof url, "file://%s?speed=0", argv[2]);
-    lcm_t* lcm = lcm_create(url);
+    lcm_t* lcm = lcm_create(log.url);
     if (!lcm) {
-        fprintf(stderr, "%s: LCM cannot open %s\n", argv[0], url);
+        fprintf(stderr, "%s: LCM cannot open %s (%s)\n", argv[0], log.url, argv[2]);
         return 1;
     }
     lcm_subscription_t* sub = lcm_subscribe(lcm, r.channel, on_pose, &r);
@@ -230,5 +231,11 @@ int main(int argc, char** argv) {
     hs_free(fixed);
     hs_free(sel);
     hs_mesh_destroy(&mesh);
+    hs_lcmlog_close(&log);
+    if (r.messages != log.channel_events) {
+        fprintf(stderr, "%s: %s: LCM delivered %ld of the log's %ld %s messages\n", argv[0],
+                argv[2], r.messages, log.channel_events, r.channel);
+        return 1;
+    }
     return 0;
 }
