@@ -1103,7 +1103,10 @@ static int flood_run(const char* tag, int flood, float** mesh_out, int* n_vis_ou
     ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_ESTOP_RELEASE, NULL, NULL, NULL, NULL, &dup_id) ==
            HAPSIM_COMMAND_ACK_T_STATUS_OK);
     uint8_t buf[4096];
-    const int total = 100000, per_ms = 25;
+    // 12 per ms: at 25, a receiver slowed by a loaded machine (TSan, or other builds beside)
+    // fell behind LCM's own receive buffers (2000 messages), which drop without a count, and
+    // up to 3,500 more went missing than the kernel reported dropped (2026-11-28).
+    const int total = 50000, per_ms = 12;
     int sent = 0;
     int64_t t0 = hs_now_ns();
     for (int ms = 0; (flood && sent < total) || ms < 1000; ++ms) {
@@ -1192,7 +1195,7 @@ static int flood_leaves_server_intact(void) {
     printf("  %lld sent messages not counted, %lld datagrams dropped by the kernel\n",
            (long long)missing, drops);
     ENSURE(missing <= drops); // nothing the server received went uncounted
-    ENSURE(sum >= 100000);
+    ENSURE(sum >= 50000);
     ENSURE(s_clean->n_rejects == 0);
     ENSURE(nv_clean == nv_flood && nv_clean > 0);
     ENSURE(memcmp(clean, flooded, sizeof(float) * 3 * (size_t)nv_clean) == 0);
