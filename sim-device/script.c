@@ -225,6 +225,16 @@ static hs_status unit_normal(parser* p, hs_err* err, const char* cmd, const doub
     return HS_OK;
 }
 
+// Each argument is bounded, but press depths add up (a press in a loop, then a release): the
+// resulting target is bounded too, else a loop of presses drives it kilometres away.
+static hs_status bounded_target(parser* p, hs_err* err, const char* cmd, const double to[3]) {
+    for (int i = 0; i < 3; ++i)
+        if (!(fabs(to[i]) <= HS_SCRIPT_MAX_LENGTH_M))
+            return perr(p, err, "%s: the target (pressed %g m deep in all) is beyond +-%g m", cmd,
+                        p->depth, HS_SCRIPT_MAX_LENGTH_M);
+    return HS_OK;
+}
+
 typedef struct loop_frame {
     const char* body; // text just after the loop line
     int line;         // line number of the loop command
@@ -353,6 +363,7 @@ static hs_status parse_text(parser* p, const char* text, hs_err* err) {
             memcpy(p->normal, n, sizeof n);
             p->depth += v[3];
             p->pressed = 1;
+            if ((st = bounded_target(p, err, cmd, to))) return st;
             if ((st = emit(p, err, HS_SEG_MOVE, HS_CMD_PRESS, to, v[4], 0, 0))) return st;
         } else if (!strcmp(cmd, "drag")) {
             if ((st = read_args(p, err, tok, ntok, "LLLV", "x y z speed", v))) return st;
@@ -360,6 +371,7 @@ static hs_status parse_text(parser* p, const char* text, hs_err* err) {
             if (!p->pressed) return perr(p, err, "drag: no press is active (press first)");
             double to[3];
             for (int i = 0; i < 3; ++i) to[i] = v[i] - p->normal[i] * p->depth;
+            if ((st = bounded_target(p, err, cmd, to))) return st;
             if ((st = emit(p, err, HS_SEG_MOVE, HS_CMD_DRAG, to, v[3], 0, 0))) return st;
         } else if (!strcmp(cmd, "release")) {
             // release speed [lift]: back out by the pressed depth, plus lift clear of the
@@ -379,6 +391,7 @@ static hs_status parse_text(parser* p, const char* text, hs_err* err) {
             if (!p->pressed) return perr(p, err, "release: no press is active");
             double to[3];
             for (int i = 0; i < 3; ++i) to[i] = p->cur[i] + p->normal[i] * (p->depth + lift);
+            if ((st = bounded_target(p, err, cmd, to))) return st;
             p->pressed = 0;
             p->depth = 0;
             if ((st = emit(p, err, HS_SEG_MOVE, HS_CMD_RELEASE, to, v[0], 0, 0))) return st;

@@ -183,6 +183,11 @@ static int script_errors(void) {
         {"start 1001 0 0\n", 1, "is beyond +-1000 m"},
         {"press 0 0 1 1e4 0.01\n", 1, "is beyond +-1000 m"},
         {"press 0 0 1 0.01 0.01\nrelease 0.01 1001\n", 2, "lift '1001' is beyond"},
+        // Each depth is in bounds but they add up: the target is bounded too.
+        {"loop 2000\n press 0 0 1 1000 1e6\nend\nrelease 1e6\n", 2,
+         "press: the target (pressed 2000 m deep in all) is beyond +-1000 m"},
+        {"press 0 0 1 600 1e6\ndrag 0 0 -600 1e6\n", 2, "drag: the target"},
+        {"start 0 0 999\npress 0 0 1 1 1\nrelease 1 1000\n", 3, "release: the target"},
         {"move_to 0 0 1 1e-300\n", 1, "would last beyond 1e+06 s"},
         {"hold 2e6\n", 1, "would last beyond"},
         {"loop 100\n hold 10000\nend\nhold 2\n", 4, "would last beyond"},
