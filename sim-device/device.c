@@ -63,6 +63,7 @@ hs_stylus_def hs_stylus_default_def(void) {
     d.ramp_s = 0.02;
     d.outside_ramp_s = 0.02;
     d.max_dt_s = 0.002;
+    d.tick_s = 0.001;
     d.cookie = STYLUS_COOKIE;
     return d;
 }
@@ -91,7 +92,24 @@ hs_status hs_stylus_def_check(const hs_stylus_def* d, hs_err* err) {
          "ramp_s must be in (0, timeout_s]");
     NEED(isfinite(d->outside_ramp_s) && d->outside_ramp_s > 0, "outside_ramp_s must be > 0");
     NEED(isfinite(d->max_dt_s) && d->max_dt_s > 0, "max_dt_s must be > 0");
+    NEED(isfinite(d->tick_s) && d->tick_s > 0 && d->tick_s < 1, "tick_s must be in (0, 1) s");
 #undef NEED
+    // Stability of hs_stylus_device_step: per axis, with the spring explicit and the dampers
+    // implicit, x' = x + h v', v' = (v - h k/m x) / (1 + h c/m). Its matrix has determinant
+    // 1 / (1 + h c/m) < 1 and trace 1 + det - h^2 k/m det, stable (Jury) while
+    // k h^2 < 4 m + 2 h c. Beyond it the handle swings ever wider into the workspace walls.
+    // The model's contact stiffness is left out: the motor's magnitude and rate clamps bound
+    // what it can put in (an offline wall of 1e6 N/m runs smoothly at 1 kHz).
+    int n = d->tick_s > d->max_dt_s ? (int)ceil(d->tick_s / d->max_dt_s) : 1;
+    if (n > 1000) n = 1000;
+    double h = d->tick_s / n, c = d->hand_damping_n_s_m + d->viscous_n_s_m;
+    double k_max = (4 * d->mass_kg + 2 * h * c) / (h * h);
+    if (!(d->hand_stiffness_n_m < k_max))
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "stylus def: hand_stiffness_n_m %g N/m is beyond the stability limit "
+                          "%.4g N/m for mass %g kg, damping %g N s/m and %g s ticks (%d substeps): "
+                          "need k h^2 < 4 m + 2 h c",
+                          d->hand_stiffness_n_m, k_max, d->mass_kg, c, d->tick_s, n);
     return HS_OK;
 }
 

@@ -790,6 +790,7 @@ int main(int argc, char** argv) {
                            : a.script->has_origin ? a.script->origin_m
                                                   : a.script->start_m;
     memcpy(def.origin_m, origin, sizeof def.origin_m);
+    def.tick_s = 1.0 / a.opt.rate_hz; // the integrator's stability limit depends on it
     if (hs_stylus_def_check(&def, &err)) {
         fprintf(stderr, "hapsim-stylus: %s\n", err.msg);
         hs_script_destroy(&a.script);

@@ -180,6 +180,7 @@ typedef struct hs_stylus_def {
     double ramp_s;             ///< ramp-down length inside timeout_s, s
     double outside_ramp_s;     ///< outside the validity radius the force ramps to 0 over this, s
     double max_dt_s;           ///< longest integration substep; longer ticks are split, s
+    double tick_s;             ///< nominal tick (1 / loop rate), s: sets the stability limit
     int cookie;                ///< set by hs_stylus_default_def
 } hs_stylus_def;
 
@@ -188,10 +189,13 @@ typedef struct hs_stylus_def {
 #define HS_STYLUS_MAX_TIMEOUT_S 60.0
 
 /// 50 g, 0.2 N s/m, 0.02 N, hand 400 N/m / 8 N s/m, 3.3 N, 2000 N/s, 160 x 120 x 70 mm at the
-/// scene origin, timeout 100 ms with a 20 ms ramp, 20 ms outside ramp, 2 ms substeps.
+/// scene origin, timeout 100 ms with a 20 ms ramp, 20 ms outside ramp, 2 ms substeps, 1 ms
+/// ticks.
 hs_stylus_def hs_stylus_default_def(void);
 /// HS_OK when def came from hs_stylus_default_def and every value is finite and in range;
-/// else HS_ERR_INVALID naming the field.
+/// else HS_ERR_INVALID naming the field. In range includes a stable integrator:
+/// hand_stiffness_n_m h^2 < 4 mass_kg + 2 h (hand_damping + viscous), h the substep of a tick_s
+/// tick.
 hs_status hs_stylus_def_check(const hs_stylus_def* def, hs_err* err);
 
 /// What happened in a tick (bitwise or).

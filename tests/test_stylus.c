@@ -1144,6 +1144,24 @@ static int def_check(void) {
     d = hs_stylus_default_def();
     d.workspace_m[1] = NAN;
     ENSURE(hs_stylus_def_check(&d, &err) == HS_ERR_INVALID && strstr(err.msg, "workspace_m"));
+    // An unstable integrator was accepted: at 1 kHz, 50 g, 8.2 N s/m the limit is
+    // (4 m + 2 h c) / h^2 = 216400 N/m; 5e5 hit the workspace walls 10k ticks, 2e5 is fine.
+    d = hs_stylus_default_def();
+    d.hand_stiffness_n_m = 5e5;
+    ENSURE(hs_stylus_def_check(&d, &err) == HS_ERR_INVALID &&
+           strstr(err.msg, "stability limit 2.164e+05 N/m"));
+    d.hand_stiffness_n_m = 2e5;
+    ENSURE(hs_stylus_def_check(&d, &err) == HS_OK);
+    d = hs_stylus_default_def();
+    d.mass_kg = 2.3e-308;
+    d.hand_stiffness_n_m = 1e10;
+    ENSURE(hs_stylus_def_check(&d, &err) == HS_ERR_INVALID && strstr(err.msg, "stability"));
+    d = hs_stylus_default_def();
+    d.tick_s = 0.1; // 10 Hz: split into 2 ms substeps, so the limit is that of 2 ms
+    d.hand_stiffness_n_m = 5e4;
+    ENSURE(hs_stylus_def_check(&d, &err) == HS_OK);
+    d.hand_stiffness_n_m = 6e4; // (0.2 + 0.0328) / 4e-6 = 58200
+    ENSURE(hs_stylus_def_check(&d, &err) == HS_ERR_INVALID && strstr(err.msg, "50 substeps"));
     hs_stylus_def raw;
     memset(&raw, 0, sizeof raw);
     ENSURE(hs_stylus_def_check(&raw, &err) == HS_ERR_INVALID);

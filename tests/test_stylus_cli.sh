@@ -44,6 +44,16 @@ for bad in "--timeout-ms 1e13" "--timeout-ms 60001" "--timeout-ms 0" "--ramp-ms 
 done
 [ ! -e "$tmp/bad.csv" ] || fail "a refused run wrote a trace"
 
+# Device values beyond the integrator's stability limit were run (the handle bounced between the
+# workspace walls, 1.45 kJ into it): refused, stating the limit. 2e5 N/m at 1 kHz is stable.
+for bad in "--hand-stiffness 5e5" "--mass 2.3e-308 --hand-stiffness 1e10" \
+    "--rate 100 --hand-stiffness 1e5"; do
+    # shellcheck disable=SC2086 # the options split on purpose
+    want_rc 2 "$bad" sty $bad --trace "$tmp/bad.csv"
+    grep -q "stability limit" "$tmp/err.log" || fail "$bad: no limit given: $(cat "$tmp/err.log")"
+done
+want_rc 0 "--hand-stiffness 2e5" sty --hand-stiffness 2e5 --trace "$tmp/stiff.csv"
+
 # hapsim-trace-diff: only the trailing summary may be comments (a '#' line mid-file cut the
 # reference short and passed); the header is the whole line; a row ends at its line end.
 diff="$bin/hapsim-trace-diff"
