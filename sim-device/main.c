@@ -172,6 +172,17 @@ static int parse_list(const char* s, double* v, int n) {
     return 1;
 }
 
+// Scales v (finite) to unit length; 0 when it is zero. Divided by its largest component
+// first: the plain sum of squares overflows for 1e200 and underflows to 0 for 1e-200.
+static int unit_vector(double v[3]) {
+    double big = fmax(fabs(v[0]), fmax(fabs(v[1]), fabs(v[2])));
+    if (!(big > 0)) return 0;
+    for (int i = 0; i < 3; ++i) v[i] /= big;
+    double l = sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+    for (int i = 0; i < 3; ++i) v[i] /= l;
+    return 1;
+}
+
 // The channel prefix the server accepts: [A-Z0-9_]*.
 static int prefix_ok(const char* p) {
     for (; *p; ++p)
@@ -340,6 +351,13 @@ static int parse_options(int argc, char** argv, options* o, hs_stylus_def* def) 
             break;
         case O_PLANE:
             ok = o->has_plane = parse_list(a, o->plane, 6);
+            if (ok && !unit_vector(o->plane + 3)) {
+                fprintf(stderr,
+                        "hapsim-stylus: bad value '%s' for --offline-plane: the normal "
+                        "(NX,NY,NZ) must not be zero\n",
+                        a);
+                return 2;
+            }
             offline_only = "--offline-plane";
             break;
         case O_DELAY:
@@ -610,15 +628,10 @@ static int run_offline(app* a) {
     off.surface.timeout_s = a->opt.offline_timeout;
     off.stop = &g_stop; // SIGINT / SIGTERM: the trace so far is still written
     if (a->opt.has_plane) {
-        double* p = a->opt.plane;
-        double l = sqrt(p[3] * p[3] + p[4] * p[4] + p[5] * p[5]);
-        if (!(l > 0)) {
-            fprintf(stderr, "hapsim-stylus: --offline-plane: the normal must not be zero\n");
-            return 2;
-        }
+        const double* p = a->opt.plane; // its normal made unit by parse_options
         for (int i = 0; i < 3; ++i) {
             off.surface.point_m[i] = p[i];
-            off.surface.normal[i] = p[3 + i] / l;
+            off.surface.normal[i] = p[3 + i];
         }
     } else if (a->script->has_surface) {
         memcpy(off.surface.point_m, a->script->surface_point_m, sizeof off.surface.point_m);

@@ -215,13 +215,17 @@ static hs_status need_positive(parser* p, hs_err* err, const char* cmd, const ch
 
 static hs_status unit_normal(parser* p, hs_err* err, const char* cmd, const double* in,
                              double out[3]) {
-    double l = sqrt(in[0] * in[0] + in[1] * in[1] + in[2] * in[2]);
-    if (!(l > 1e-9)) {
+    // Divided by the largest component first: the plain sum of squares overflows for 1e200
+    // (a zero normal came out) and underflows to 0 for 1e-200.
+    double big = fmax(fabs(in[0]), fmax(fabs(in[1]), fabs(in[2])));
+    if (!(big > 0)) {
         char msg[160];
         snprintf(msg, sizeof msg, "%s: the normal (nx ny nz) must not be zero", cmd);
         return perr(p, err, "%s", msg);
     }
-    for (int i = 0; i < 3; ++i) out[i] = in[i] / l;
+    double u[3] = {in[0] / big, in[1] / big, in[2] / big};
+    double l = sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]);
+    for (int i = 0; i < 3; ++i) out[i] = u[i] / l;
     return HS_OK;
 }
 

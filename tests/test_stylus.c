@@ -217,6 +217,23 @@ static int script_errors(void) {
     return 0;
 }
 
+// A normal of 1e200 overflowed its length (a zero normal came out, the press went nowhere); one
+// of 1e-200 underflowed it and was called zero. Only a zero normal is refused.
+static int script_normals(void) {
+    hs_script* s = NULL;
+    hs_err err = {0};
+    ENSURE(hs_script_create(&s, &err) == HS_OK);
+    ENSURE(parse(s, "surface 0 0 0 0 0 1e-200\npress 1e200 0 1e200 0.01 0.01\n", &err) == HS_OK);
+    ENSURE(s->surface_normal[0] == 0 && s->surface_normal[1] == 0 && s->surface_normal[2] == 1);
+    ENSURE(s->n_segments == 1);
+    ENSURE_NEAR(s->seg[0].to_m[0], -0.01 / sqrt(2), 1e-15);
+    ENSURE_NEAR(s->seg[0].to_m[2], -0.01 / sqrt(2), 1e-15);
+    ENSURE(parse(s, "press -1e-300 0 0 0.01 0.01\n", &err) == HS_OK);
+    ENSURE(s->seg[0].to_m[0] == 0.01);
+    hs_script_destroy(&s);
+    return 0;
+}
+
 // Samples target(t) finely: keyframes are hit, velocity is the derivative of position, and no
 // move exceeds its speed; minimum-jerk peaks at the speed, a trapezoid cruises at it.
 static int script_trajectory(void) {
@@ -1450,9 +1467,9 @@ static int status_decode(void) {
     return 0;
 }
 
-HS_TEST_MAIN(HS_CASE(script_good), HS_CASE(script_errors), HS_CASE(script_trajectory),
-             HS_CASE(script_touch), HS_CASE(script_garbage), HS_CASE(device_tracks_target),
-             HS_CASE(device_wall), HS_CASE(local_model), HS_CASE(server_timeout),
-             HS_CASE(passivity), HS_CASE(trace_file), HS_CASE(trace_compare),
-             HS_CASE(bundled_scripts), HS_CASE(def_check), HS_CASE(mailbox), HS_CASE(wire_rx),
-             HS_CASE(status_decode))
+HS_TEST_MAIN(HS_CASE(script_good), HS_CASE(script_errors), HS_CASE(script_normals),
+             HS_CASE(script_trajectory), HS_CASE(script_touch), HS_CASE(script_garbage),
+             HS_CASE(device_tracks_target), HS_CASE(device_wall), HS_CASE(local_model),
+             HS_CASE(server_timeout), HS_CASE(passivity), HS_CASE(trace_file),
+             HS_CASE(trace_compare), HS_CASE(bundled_scripts), HS_CASE(def_check), HS_CASE(mailbox),
+             HS_CASE(wire_rx), HS_CASE(status_decode))

@@ -54,6 +54,16 @@ for bad in "--hand-stiffness 5e5" "--mass 2.3e-308 --hand-stiffness 1e10" \
 done
 want_rc 0 "--hand-stiffness 2e5" sty --hand-stiffness 2e5 --trace "$tmp/stiff.csv"
 
+# --offline-plane normals: 1e200 overflowed the length (an internal error, exit 1), 1e-200
+# underflowed it ("must not be zero"); only a zero normal is a bad value.
+want_rc 0 "--offline-plane with a 1e200 normal" sty --offline-plane 0,0,0,1e200,1e200,0 \
+    --trace "$tmp/plane.csv"
+want_rc 0 "--offline-plane with a 1e-200 normal" sty --offline-plane 0,0,0,1e-200,0,0 \
+    --trace "$tmp/plane.csv"
+want_rc 2 "--offline-plane with a zero normal" sty --offline-plane 1,2,3,0,0,0 --trace "$tmp/bad.csv"
+grep -q "bad value.*--offline-plane.*must not be zero" "$tmp/err.log" ||
+    fail "zero normal: $(cat "$tmp/err.log")"
+
 # hapsim-trace-diff: only the trailing summary may be comments (a '#' line mid-file cut the
 # reference short and passed); the header is the whole line; a row ends at its line end.
 diff="$bin/hapsim-trace-diff"
