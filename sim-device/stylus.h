@@ -27,7 +27,7 @@ extern "C" {
 #define HS_SCRIPT_MAX_SEGMENTS   4096    ///< after loop expansion
 #define HS_SCRIPT_MAX_LOOP_DEPTH 8       ///< nested loop ... end
 #define HS_SCRIPT_MAX_LINE       512     ///< bytes per line, including the newline
-#define HS_SCRIPT_MAX_EXECUTED   1000000 ///< lines read in all, loops included (no endless parse)
+#define HS_SCRIPT_MAX_EXECUTED   1000000 ///< lines loops read again, in all (no endless parse)
 #define HS_SCRIPT_MAX_LENGTH_M   1e3     ///< |coordinate|, depth, lift, m (after units)
 #define HS_SCRIPT_MAX_DURATION_S 1e6     ///< the whole script, s (a typo, not a session)
 

@@ -234,6 +234,31 @@ static int script_normals(void) {
     return 0;
 }
 
+// 1,000,001 blank lines and no loop were refused as "loops repeat more than 1000000 lines":
+// only lines a loop reads again count toward that bound.
+static int script_many_lines(void) {
+    hs_script* s = NULL;
+    hs_err err = {0};
+    ENSURE(hs_script_create(&s, &err) == HS_OK);
+    const size_t blank = 1000001;
+    char* text = malloc(blank + 64);
+    ENSURE(text != NULL);
+    memset(text, '\n', blank);
+    strcpy(text + blank, "hold 1\n");
+    hs_status st = hs_script_parse_string(s, text, "t.probe", &err);
+    if (st) printf("  %s\n", err.msg);
+    ENSURE(st == HS_OK && s->n_segments == 1 && s->seg[0].line == 1000002);
+    // A loop after them still counts only its repeats: 3 lines x 333333 repeats pass.
+    strcpy(text + blank, "loop 333334\n\n\nend\nhold 1\n");
+    ENSURE(hs_script_parse_string(s, text, "t.probe", &err) == HS_OK);
+    strcpy(text + blank, "loop 333335\n\n\nend\nhold 1\n");
+    ENSURE(hs_script_parse_string(s, text, "t.probe", &err) == HS_ERR_PARSE &&
+           strstr(err.msg, "loops repeat more than 1000000 lines"));
+    free(text);
+    hs_script_destroy(&s);
+    return 0;
+}
+
 // Samples target(t) finely: keyframes are hit, velocity is the derivative of position, and no
 // move exceeds its speed; minimum-jerk peaks at the speed, a trapezoid cruises at it.
 static int script_trajectory(void) {
@@ -1468,8 +1493,8 @@ static int status_decode(void) {
 }
 
 HS_TEST_MAIN(HS_CASE(script_good), HS_CASE(script_errors), HS_CASE(script_normals),
-             HS_CASE(script_trajectory), HS_CASE(script_touch), HS_CASE(script_garbage),
-             HS_CASE(device_tracks_target), HS_CASE(device_wall), HS_CASE(local_model),
-             HS_CASE(server_timeout), HS_CASE(passivity), HS_CASE(trace_file),
+             HS_CASE(script_many_lines), HS_CASE(script_trajectory), HS_CASE(script_touch),
+             HS_CASE(script_garbage), HS_CASE(device_tracks_target), HS_CASE(device_wall),
+             HS_CASE(local_model), HS_CASE(server_timeout), HS_CASE(passivity), HS_CASE(trace_file),
              HS_CASE(trace_compare), HS_CASE(bundled_scripts), HS_CASE(def_check), HS_CASE(mailbox),
              HS_CASE(wire_rx), HS_CASE(status_decode))
