@@ -650,13 +650,16 @@ static int run_offline(app* a) {
 }
 
 static void print_status(app* a, double t, double rate_hz) {
+    // No force received yet (or its latency unknown): "none", not a perfect 0 us.
+    char lat[32] = " none";
+    long long l = (long long)atomic_load(&a->latency_us);
+    if (atomic_load(&a->rx_forces) > 0 && l >= 0) snprintf(lat, sizeof lat, "%5lld us", l);
     fprintf(stderr,
             "\rhapsim-stylus: t %6.1f s  %6.0f Hz  |F| %5.2f N  period err p99 %4lld us  "
-            "overruns %lld  forces rx %lld (bad %lld)  latency %5lld us",
+            "overruns %lld  forces rx %lld (bad %lld)  latency %s",
             t, rate_hz, 1e-3 * (double)atomic_load(&a->force_mn),
             (long long)atomic_load(&a->period_p99_us), (long long)atomic_load(&a->overruns),
-            (long long)atomic_load(&a->rx_forces), (long long)atomic_load(&a->rx_rejected),
-            (long long)atomic_load(&a->latency_us));
+            (long long)atomic_load(&a->rx_forces), (long long)atomic_load(&a->rx_rejected), lat);
     if (a->status_lcm && atomic_load(&a->srv_status_count) > 0)
         fprintf(stderr, "  | server rt %6.1f Hz, period p99 %4lld us, sim step p99 %6lld us",
                 1e-3 * (double)atomic_load(&a->srv_rate_mhz),

@@ -288,7 +288,7 @@ typedef struct hs_stylus_summary {
     double energy_out_j;        ///< sum of the negative parts (<= 0), J
     double latency_p50_us;      ///< median latency over rows that have one, us (-1: none)
     double latency_p99_us;      ///< us (-1: none)
-    double model_age_max_s;     ///< largest model age seen, s
+    double model_age_max_s;     ///< largest model age seen, s (-1: no model)
     int64_t clamp_magnitude;    ///< ticks with HS_TICK_MAGNITUDE
     int64_t clamp_rate;         ///< ticks with HS_TICK_RATE
     int64_t timeouts;           ///< ticks with HS_TICK_TIMEOUT

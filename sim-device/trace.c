@@ -71,6 +71,7 @@ void hs_stylus_trace_summary(const hs_stylus_trace* t, const hs_script* script,
     out->dropped = t->dropped;
     out->steady_segment = -1;
     out->latency_p50_us = out->latency_p99_us = -1;
+    out->model_age_max_s = -1; // none until a row has a model
     // The longest hold: in a press-and-hold script this is where the force settles. Its rows
     // are found by segment index (run time and script time differ after a touch).
     if (script) {
@@ -151,7 +152,8 @@ static void summary_lines(FILE* f, const hs_stylus_summary* s, const char* prefi
     fprintf(f, "%senergy_out_j=%.9g\n", prefix, s->energy_out_j);
     fprintf(f, "%slatency_p50_us=%.1f\n", prefix, s->latency_p50_us);
     fprintf(f, "%slatency_p99_us=%.1f\n", prefix, s->latency_p99_us);
-    fprintf(f, "%smodel_age_max_ms=%.3f\n", prefix, s->model_age_max_s * 1e3);
+    fprintf(f, "%smodel_age_max_ms=%.3f\n", prefix,
+            s->model_age_max_s < 0 ? -1.0 : s->model_age_max_s * 1e3);
     fprintf(f, "%sclamp_magnitude_ticks=%lld\n", prefix, (long long)s->clamp_magnitude);
     fprintf(f, "%sclamp_rate_ticks=%lld\n", prefix, (long long)s->clamp_rate);
     fprintf(f, "%stimeout_ticks=%lld\n", prefix, (long long)s->timeouts);
@@ -189,11 +191,15 @@ void hs_stylus_summary_print(FILE* f, const hs_stylus_summary* s, const char* tr
             "(hold #%d), max step %.4f N/tick\n",
             (long long)s->rows, s->duration_s, s->peak_force_n, s->steady_force_norm_n,
             s->steady_segment, s->max_force_step_n);
+    // Nothing measured (no model received) is "none", not a perfect 0.
+    char lat[64] = "none", age[32] = "none";
+    if (s->latency_p50_us >= 0)
+        snprintf(lat, sizeof lat, "p50 %.0f us p99 %.0f us", s->latency_p50_us, s->latency_p99_us);
+    if (s->model_age_max_s >= 0) snprintf(age, sizeof age, "%.1f ms", s->model_age_max_s * 1e3);
     fprintf(f,
-            "hapsim-stylus: energy into the handle %.3g J (in %.3g, out %.3g); latency p50 %.0f "
-            "us p99 %.0f us; max model age %.1f ms\n",
-            s->energy_j, s->energy_in_j, s->energy_out_j, s->latency_p50_us, s->latency_p99_us,
-            s->model_age_max_s * 1e3);
+            "hapsim-stylus: energy into the handle %.3g J (in %.3g, out %.3g); latency %s; max "
+            "model age %s\n",
+            s->energy_j, s->energy_in_j, s->energy_out_j, lat, age);
     fprintf(f,
             "hapsim-stylus: clamps: magnitude %lld, rate %lld ticks; timeout %lld, workspace "
             "%lld ticks%s\n",

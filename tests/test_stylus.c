@@ -259,6 +259,52 @@ static int script_many_lines(void) {
     return 0;
 }
 
+// Where no model was ever received the summary said "latency p50 -1 us", "max model age
+// 0.0 ms" (a perfect 0); nothing measured is "none".
+static int summary_none(void) {
+    hs_err err = {0};
+    hs_stylus_trace* tr = NULL;
+    ENSURE(hs_stylus_trace_create(16, &tr, &err) == HS_OK);
+    hs_stylus_def def = test_def();
+    hs_stylus_device dev;
+    const double p0[3] = {0, 0, 0};
+    hs_stylus_device_init(&dev, &def, p0);
+    hs_stylus_tick tick;
+    for (int k = 0; k < 10; ++k) {
+        hs_stylus_device_step(&dev, p0, NULL, 1000000 * (int64_t)k, 1e-3, &tick);
+        hs_stylus_trace_add(tr, &tick);
+    }
+    hs_stylus_summary sum;
+    hs_stylus_trace_summary(tr, NULL, &sum);
+    char buf[2048] = "";
+    FILE* f = fmemopen(buf, sizeof buf - 1, "w");
+    ENSURE(f != NULL);
+    hs_stylus_summary_print(f, &sum, NULL);
+    fclose(f);
+    if (!strstr(buf, "latency none; max model age none\n")) printf("  %s", buf);
+    ENSURE(strstr(buf, "latency none; max model age none\n") != NULL);
+    // With a model: the numbers, as before.
+    hs_stylus_model m;
+    memset(&m, 0, sizeof m);
+    m.latency_us = 1500;
+    m.timeout_s = 0.1;
+    m.arrival_ns = 10000000;
+    hs_stylus_device_set_model(&dev, &m);
+    hs_stylus_device_step(&dev, p0, NULL, 12000000, 1e-3, &tick);
+    hs_stylus_trace_add(tr, &tick);
+    hs_stylus_trace_summary(tr, NULL, &sum);
+    memset(buf, 0, sizeof buf);
+    f = fmemopen(buf, sizeof buf - 1, "w");
+    ENSURE(f != NULL);
+    hs_stylus_summary_print(f, &sum, NULL);
+    fclose(f);
+    if (!strstr(buf, "latency p50 1500 us p99 1500 us; max model age 2.0 ms\n"))
+        printf("  %s", buf);
+    ENSURE(strstr(buf, "latency p50 1500 us p99 1500 us; max model age 2.0 ms\n") != NULL);
+    hs_stylus_trace_destroy(&tr);
+    return 0;
+}
+
 // Samples target(t) finely: keyframes are hit, velocity is the derivative of position, and no
 // move exceeds its speed; minimum-jerk peaks at the speed, a trapezoid cruises at it.
 static int script_trajectory(void) {
@@ -1493,8 +1539,9 @@ static int status_decode(void) {
 }
 
 HS_TEST_MAIN(HS_CASE(script_good), HS_CASE(script_errors), HS_CASE(script_normals),
-             HS_CASE(script_many_lines), HS_CASE(script_trajectory), HS_CASE(script_touch),
-             HS_CASE(script_garbage), HS_CASE(device_tracks_target), HS_CASE(device_wall),
-             HS_CASE(local_model), HS_CASE(server_timeout), HS_CASE(passivity), HS_CASE(trace_file),
-             HS_CASE(trace_compare), HS_CASE(bundled_scripts), HS_CASE(def_check), HS_CASE(mailbox),
-             HS_CASE(wire_rx), HS_CASE(status_decode))
+             HS_CASE(script_many_lines), HS_CASE(summary_none), HS_CASE(script_trajectory),
+             HS_CASE(script_touch), HS_CASE(script_garbage), HS_CASE(device_tracks_target),
+             HS_CASE(device_wall), HS_CASE(local_model), HS_CASE(server_timeout),
+             HS_CASE(passivity), HS_CASE(trace_file), HS_CASE(trace_compare),
+             HS_CASE(bundled_scripts), HS_CASE(def_check), HS_CASE(mailbox), HS_CASE(wire_rx),
+             HS_CASE(status_decode))

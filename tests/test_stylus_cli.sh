@@ -64,6 +64,16 @@ want_rc 2 "--offline-plane with a zero normal" sty --offline-plane 1,2,3,0,0,0 -
 grep -q "bad value.*--offline-plane.*must not be zero" "$tmp/err.log" ||
     fail "zero normal: $(cat "$tmp/err.log")"
 
+# With no model ever received (memq://: an in-process bus, no server), the status line and the
+# summary said latency 0 us and max model age 0.0 ms, as if measured: "none".
+want_rc 0 "a live run without a server" "$bin/hapsim-stylus" --script "$script" \
+    --haptic-url memq:// --status --duration 1.2 --trace "$tmp/live.csv"
+tr '\r' '\n' <"$tmp/err.log" | grep -q "forces rx 0 (bad 0)  latency  none" ||
+    fail "status line without forces: $(cat "$tmp/err.log")"
+grep -q "latency none; max model age none" "$tmp/out.log" ||
+    fail "summary without forces: $(cat "$tmp/out.log")"
+grep -q "^# model_age_max_ms=-1.000" "$tmp/live.csv" || fail "trace summary without forces"
+
 # hapsim-trace-diff: only the trailing summary may be comments (a '#' line mid-file cut the
 # reference short and passed); the header is the whole line; a row ends at its line end.
 diff="$bin/hapsim-trace-diff"
