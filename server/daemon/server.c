@@ -1139,6 +1139,20 @@ static void after_rebuild(hs_server* s, int keep) {
     publish_keyframe(s);
 }
 
+// Start the stopped sim of a world found cut (it cannot be rebuilt); one that will not start is
+// kept paused for RESUME to retry.
+static void restart_cut_sim(hs_server* s) {
+    world* w = &s->w;
+    hs_err e = {0};
+    if (hs_haptic_sim_start(w->sim, &e) == HS_OK) return;
+    world_save_state(w);
+    w->held = w->sim;
+    w->sim = NULL;
+    s->pause_model = zero_model();
+    s->pause_ns = hs_now_ns();
+    s->paused = 1;
+}
+
 // Rebuild the running sim from w.def; keep: carry the body state over. Paused: rebuild later.
 static hs_status rebuild_sim(hs_server* s, int keep, hs_err* err) {
     world* w = &s->w;
@@ -1157,15 +1171,7 @@ static hs_status rebuild_sim(hs_server* s, int keep, hs_err* err) {
         hs_haptic_sim_stop(w->sim);
         if (hs_haptic_sim_topology_version(w->sim) != w->cut_seen) {
             apply_cut(s);
-            hs_err e2 = {0};
-            if (hs_haptic_sim_start(w->sim, &e2) != HS_OK) { // kept, paused: RESUME retries
-                world_save_state(w);
-                w->held = w->sim;
-                w->sim = NULL;
-                s->pause_model = zero_model();
-                s->pause_ns = hs_now_ns();
-                s->paused = 1;
-            }
+            restart_cut_sim(s);
             return refuse_cut(err);
         }
     }
@@ -1385,14 +1391,7 @@ static int swap_keep(hs_server* s, world* nw, char* msg, size_t cap) {
         hs_err e = {0};
         refuse_cut(&e);
         snprintf(msg, cap, "%s", e.msg);
-        if (hs_haptic_sim_start(w->sim, &e) != HS_OK) { // kept, paused: RESUME retries
-            world_save_state(w);
-            w->held = w->sim;
-            w->sim = NULL;
-            s->pause_model = zero_model();
-            s->pause_ns = hs_now_ns();
-            s->paused = 1;
-        }
+        restart_cut_sim(s);
         return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
     }
     world_sim_stop(w); // its state into w->u, w->v
