@@ -14,7 +14,8 @@
 #  - after the cut, set and a scene that fails to build are refused (the sim cannot be rebuilt
 #    on a cut mesh) and leave the cut simulation running, but the force limits (no rebuild)
 #    are accepted; reset reloads the uncut scene (new topology version, set works again) while
-#    the cut one goes on answering a stylus (largest force age < 40 ms);
+#    the cut one goes on answering a stylus (largest force age < 40 ms); a reset of the paused
+#    cut scene leaves the uncut one paused, and resume and set work after it;
 #  - the force the stylus received is finite, the blade felt resistance, and it changes by at
 #    most MAX_STEP_N per ms of the time between the two forces (a late stylus tick, or a force
 #    that arrives after a stall of the server, spans several server ticks): the cutting force
@@ -217,6 +218,22 @@ echo "topology version $ver3 (after the reset: $ver2)"
     fail "sets: $ok accepted, $refused refused, $other other, $after_refusal accepted after a refusal"
 "$client" late 8 $ORIG_TRIS >"$tmp/late2.log" 2>&1 || fail "late client: $(cat "$tmp/late2.log")"
 echo "late2: $(tail -n 1 "$tmp/late2.log")"
+
+# A reset of the paused cut scene gives the uncut one at rest, still paused (it used to start
+# running again: forces back although the operator had paused); resume then starts it.
+$ctl -q pause || fail "pause after the second cut: rc $?"
+out=$($ctl reset) || fail "reset while paused: rc $?"
+echo "$out"
+echo "$out" | grep -q "rebuilt at rest.*paused" || fail "reset while paused: $out"
+$ctl status >"$tmp/status4.txt" 2>&1 || fail "no status after the paused reset"
+grep -q "^server   paused" "$tmp/status4.txt" ||
+    fail "the paused reset resumed: $(head -3 "$tmp/status4.txt")"
+ver4=$(sed -n 's/^topology version \([0-9]*\).*/\1/p' "$tmp/status4.txt")
+[ -n "$ver4" ] && [ "$ver4" -gt "$ver3" ] || fail "paused reset: topology version '$ver4' after $ver3"
+$ctl -q resume || fail "resume after the paused reset: rc $?"
+$ctl status >"$tmp/status5.txt" 2>&1 || fail "no status after the resume"
+grep -q "^server   running" "$tmp/status5.txt" || fail "not running: $(head -3 "$tmp/status5.txt")"
+$ctl -q set youngs_pa 60000 || fail "set after the paused reset and resume: rc $?"
 
 kill -TERM $server_pid
 wait $server_pid

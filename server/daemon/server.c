@@ -49,7 +49,7 @@
 #define POSE_QUEUE     8192         // LCM subscription queue (default 30 drops bursts)
 #define COMMAND_QUEUE  1024
 #define CUT_SAMPLES    1024 // cut step times kept for the quantiles (cut steps take ms, not us)
-#define LOAD_QUEUE     32   // commands kept while a scene loads; more make the net loop wait
+#define LOAD_QUEUE     32   // commands kept while a scene loads; more are refused (busy)
 
 // Everything that depends on the scene: rebuilt by load_scene, swapped only when complete.
 typedef struct world {
@@ -1277,6 +1277,7 @@ static int set_param(hs_server* s, const hs_net_command* c, char* msg, size_t ca
 // reset: nw is the running scene rebuilt at rest (RESET), not a LOAD_SCENE.
 static int swap_world(hs_server* s, world* nw, int reset, char* msg, size_t cap) {
     hs_err err = {0};
+    int stay_paused = reset && s->paused; // a reset does not resume; a new scene starts
     world_sim_stop(&s->w);
     world_destroy(&s->w);
     s->w = *nw;
@@ -1284,6 +1285,18 @@ static int swap_world(hs_server* s, world* nw, int reset, char* msg, size_t cap)
     s->paused = 0;
     reset_limits(s);
     s->topo_version++;
+    s->last_cut_steps = 0; // the new sim counts its cut steps from 0
+    if (stay_paused) {     // at rest, paused: RESUME builds the sim from this state
+        world_sim_stop(&s->w);
+        s->pause_model = zero_model();
+        s->pause_ns = hs_now_ns();
+        s->paused = 1;
+        publish_topology(s);
+        after_rebuild(s, 0);
+        snprintf(msg, cap, "reset: %s rebuilt at rest (%d nodes), paused", s->w.scene.name,
+                 s->w.mesh->n_nodes);
+        return HAPSIM_COMMAND_ACK_T_STATUS_OK;
+    }
     int started = !s->w.sim || hs_haptic_sim_start(s->w.sim, &err) == HS_OK;
     if (!started) { // the old world is gone: keep the new one paused, so RESUME can retry
         world_sim_stop(&s->w);
@@ -1295,9 +1308,9 @@ static int swap_world(hs_server* s, world* nw, int reset, char* msg, size_t cap)
     after_rebuild(s, 0);
     if (!started) {
         snprintf(msg, cap,
-                 "loaded %.100s but its simulation did not start (%.300s): paused, "
+                 "%s %.100s but its simulation did not start (%.300s): paused, "
                  "RESUME retries",
-                 s->w.scene.name, err.msg);
+                 reset ? "rebuilt" : "loaded", s->w.scene.name, err.msg);
         return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
     }
     if (reset)
@@ -1375,44 +1388,69 @@ static int load_scene_start(hs_server* s, const char* path, const hs_scene* from
     return load_scene(s, s->load.path, from, msg, cap);
 }
 
-// SET_PARAM's swap: the running body's state goes on in nw (the scene as set, same mesh). A cut
-// made during the build refuses it (the state is on a cut mesh) and the cut simulation goes on.
+// SET_PARAM's swap: the running body's state goes on in nw (the scene as set). A cut made during
+// the build refuses it and the cut simulation goes on untouched; so does a mesh file that no
+// longer holds the running mesh (nw read it again).
 static int swap_keep(hs_server* s, world* nw, char* msg, size_t cap) {
     world* w = &s->w;
-    if (!w->sim || s->paused || nw->mesh->n_nodes != w->mesh->n_nodes) {
-        snprintf(msg, cap, "%s",
-                 !w->sim || s->paused ? "the simulation stopped during the rebuild: not applied"
-                                      : "the mesh file changed during the rebuild: not applied");
+    if (!w->sim || s->paused) {
+        snprintf(msg, cap, "the simulation stopped during the rebuild: not applied");
+        return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
+    }
+    hs_err e = {0};
+    if (w->cutting && hs_haptic_sim_topology_version(w->sim) != w->cut_seen) apply_cut(s);
+    if (w->cut_made) { // before stopping: the running sim goes on as it is
+        refuse_cut(&e);
+        snprintf(msg, cap, "%s", e.msg);
+        return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
+    }
+    // x0r is the net thread's copy of the uncut rest positions; a cutting sim's own tets may
+    // be changing under its deformation thread, so they are compared only without cutting.
+    const hs_mesh *a = w->mesh, *b = nw->mesh;
+    if (b->n_nodes != a->n_nodes || b->n_tets != a->n_tets ||
+        memcmp(nw->x0r, w->x0r, 3 * (size_t)a->n_nodes * sizeof(double)) != 0 ||
+        (!w->cutting && memcmp(b->tets, a->tets, 4 * (size_t)a->n_tets * sizeof(int)) != 0)) {
+        snprintf(msg, cap, "%.400s no longer holds the running mesh: not applied (RESET reads it)",
+                 w->scene.mesh_path);
         return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
     }
     hs_haptic_sim_stop(w->sim);
+    // A cut can land between the look above and the stop: the same sim goes on with it.
     if (w->cutting && hs_haptic_sim_topology_version(w->sim) != w->cut_seen) apply_cut(s);
     if (w->cut_made) {
-        hs_err e = {0};
         refuse_cut(&e);
         snprintf(msg, cap, "%s", e.msg);
         restart_cut_sim(s);
         return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
     }
-    world_sim_stop(w); // its state into w->u, w->v
+    world_save_state(w);
+    if (nw->sim && hs_body_set_state(hs_haptic_sim_body(nw->sim), w->u, w->v) != HS_OK) {
+        snprintf(msg, cap, "the new simulation refused the body's state: not applied");
+        if (hs_haptic_sim_start(w->sim, &e) != HS_OK) { // as a failed rebuild: paused
+            world_sim_stop(w);
+            s->pause_model = zero_model();
+            s->pause_ns = hs_now_ns();
+            s->paused = 1;
+        }
+        return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
+    }
     size_t n3 = 3 * (size_t)w->mesh->n_nodes;
     memcpy(nw->u, w->u, n3 * sizeof(double));
     memcpy(nw->v, w->v, n3 * sizeof(double));
-    if (nw->sim) hs_body_set_state(hs_haptic_sim_body(nw->sim), nw->u, nw->v);
+    hs_haptic_sim_destroy(&w->sim);
     world_destroy(w);
     s->w = *nw;
     memset(nw, 0, sizeof *nw);
     reset_limits(s);
-    hs_err err = {0};
-    if (s->w.sim && hs_haptic_sim_start(s->w.sim, &err) != HS_OK) {
+    s->last_cut_steps = 0; // the new sim counts its cut steps from 0
+    if (s->w.sim && hs_haptic_sim_start(s->w.sim, &e) != HS_OK) {
         world_sim_stop(&s->w);
         s->pause_model = zero_model();
         s->pause_ns = hs_now_ns();
         s->paused = 1;
         snprintf(msg, cap,
-                 "%s applied but the simulation did not start (%.300s): paused, "
-                 "RESUME retries",
-                 s->load.ok_msg, err.msg);
+                 "%s applied but the simulation did not start (%.300s): paused, RESUME retries",
+                 s->load.ok_msg, e.msg);
         after_rebuild(s, 1);
         return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
     }
@@ -1469,15 +1507,13 @@ static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap)
     msg[0] = '\0';
     switch (c->kind) {
     case HAPSIM_COMMAND_T_KIND_RESET:
-        // A running simulation, or a cut mesh: the scene (with its set parameters, on the mesh
-        // read again: uncut) is built at rest beside the running one and swapped in. Paused,
-        // or haptics off: nothing to build, only the state to clear.
+        // A running simulation, or a cut mesh (paused or not: it stays paused): the scene
+        // (with its set parameters, on the mesh read again: uncut) is built at rest beside the
+        // running one and swapped in. Paused uncut, or haptics off: nothing to build, only the
+        // state to clear (rebuild_sim, which then meets no sim that could have cut).
         if (w->cut_made || (w->haptics && !s->paused))
             return load_scene_start(s, NULL, &w->scene, c, msg, cap);
         if (rebuild_sim(s, 0, &err) != HS_OK) {
-            // A cut the deformation thread finished after the look above: rebuild_sim passed
-            // it on and refused; the uncut scene is built as for any cut mesh.
-            if (w->cut_made) return load_scene_start(s, NULL, &w->scene, c, msg, cap);
             snprintf(msg, cap, "%s", err.msg);
             return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
         }

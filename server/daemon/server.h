@@ -9,9 +9,10 @@
 // memory device and answered at once with the rt thread's newest local model evaluated at the
 // new pose (what a driver would render: no extra tick of latency); the rt outputs themselves
 // are published when poses stop arriving (watchdog ramp, e-stop). Commands that rebuild the
-// simulation (reset, pause/resume, set_param) stop and join the sim threads, keep or drop the
-// body state, and start a new sim; load_scene builds the new world on a loader thread while the
-// old one runs, and the net loop swaps it in. The rt thread never waits on the net thread.
+// simulation (pause/resume) stop and join the sim threads, keep the body state, and start a new
+// sim; load_scene, reset and a rebuilding set_param build the new world on a loader thread while
+// the old one runs, and the net loop swaps it in (set_param handing the body state over). The rt
+// thread never waits on the net thread.
 #ifndef HS_DAEMON_SERVER_H
 #define HS_DAEMON_SERVER_H
 
