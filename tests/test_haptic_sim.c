@@ -639,5 +639,47 @@ static int watchdog(void) {
     return 0;
 }
 
-HS_TEST_MAIN(HS_CASE(no_pose_no_force), HS_CASE(press_hold_release), HS_CASE(corotated_hold),
-             HS_CASE(watchdog), HS_CASE(continuity_and_allocs))
+/// A body started at rest under gravity is out of equilibrium: it sags without being touched
+/// (it slept on at the rest shape: the speed test alone, all zero at the start, kept it still).
+static int gravity_sags_untouched(void) {
+    int64_t bytes0 = hs_byte_count();
+    liver L;
+    ENSURE(load_liver(&L) == 0);
+    hs_haptic_sim_def d = liver_def(HS_MODEL_COROTATED, 0.005);
+    d.body.gravity[2] = -9.81;
+    hs_haptic_sim* sim = NULL;
+    hs_err err = {0};
+    ENSURE(hs_haptic_sim_create(L.mesh, &d, L.fixed, &sim, &err) == HS_OK);
+    ENSURE(hs_haptic_sim_start(sim, &err) == HS_OK);
+    harness hn;
+    harness_init(&hn, sim);
+    for (int i = 0; i < 300; ++i) {
+        harness_tick(&hn, NULL);
+        drain(sim);
+    }
+    const int n = L.mesh->n_nodes;
+    double* u = hs_alloc(3 * (size_t)n * sizeof(double));
+    ENSURE(u);
+    int64_t step = 0;
+    ENSURE(hs_haptic_sim_read_frame(sim, u, &step) == 1);
+    double umax = 0, uz = 0;
+    for (int i = 0; i < n; ++i) {
+        umax = fmax(umax, norm3(u + 3 * i));
+        uz = fmin(uz, u[3 * i + 2]);
+    }
+    hs_haptic_sim_stats st;
+    hs_haptic_sim_stats_get(sim, &st);
+    printf("  after 0.3 s: %lld steps, largest displacement %.1f mm (down %.1f mm)\n",
+           (long long)st.steps, umax * 1e3, -uz * 1e3);
+    ENSURE(st.steps >= 10 && step > 0);
+    ENSURE(-uz > 0.01); // down, by centimetres (a liver hanging from one face at 5 kPa)
+    hs_free(u);
+    hs_haptic_sim_destroy(&sim);
+    free_liver(&L);
+    ENSURE(hs_byte_count() == bytes0);
+    return 0;
+}
+
+HS_TEST_MAIN(HS_CASE(no_pose_no_force), HS_CASE(gravity_sags_untouched),
+             HS_CASE(press_hold_release), HS_CASE(corotated_hold), HS_CASE(watchdog),
+             HS_CASE(continuity_and_allocs))

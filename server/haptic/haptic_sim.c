@@ -196,7 +196,8 @@ struct hs_haptic_sim {
     double bp[3], bq[3]; // blade ends at the last sweep, m
     double cut_force[3]; // resistance in the newest snapshot, N
     int comp_stale;      // the compliance predates the newest cut (rebuilt once the blade stops)
-    int wake_steps;      // steps the body takes whatever its speed: a cut moves its equilibrium
+    int wake_steps;      // steps the body takes whatever its speed: a start or a cut moves its
+                         // equilibrium
     int engaged;         // the blade's buttons are held (cutting on)
     int64_t pose_floor;  // poses up to this seq came before a restart: the blade ignores them
     int started_once;    // hs_haptic_sim_start ran before (a restart resets the rt side)
@@ -1108,6 +1109,13 @@ hs_status hs_haptic_sim_start(hs_haptic_sim* h, hs_err* err) {
         hs_haptic_rt_restart(h->hrt);
     }
     h->started_once = 1;
+    // A still body under gravity or displaced (a state handed over) need not be in
+    // equilibrium: it must step before the speed test may put it to sleep (it never sagged).
+    const double* g = h->def.body.gravity;
+    int off_rest = g[0] != 0 || g[1] != 0 || g[2] != 0;
+    const double* u = hs_body_displacement(h->body);
+    for (size_t i = 0; i < 3 * (size_t)h->mesh->n_nodes && !off_rest; ++i) off_rest = u[i] != 0;
+    if (off_rest) h->wake_steps = 10;
     atomic_store(&h->stop, 0);
     if (pthread_create(&h->thread, NULL, deform_main, h) != 0)
         return hs_err_set(err, HS_ERR_UNSUPPORTED,
