@@ -1350,6 +1350,68 @@ static int bad_command_lines_refused(void) {
 // state over: when the mesh file no longer holds the running mesh (edited on disk since the
 // load; same node count) that state would land on other nodes, so the set is refused and the
 // running simulation goes on (it was applied: the rebuild used the mesh in memory before).
+// Largest displacement of the client's shape from the rest shape, m.
+static double max_disp(const client* c) {
+    double d = 0;
+    for (int i = 0; i < c->n_vis; ++i) {
+        double e[3];
+        for (int k = 0; k < 3; ++k) e[k] = (double)c->shape[3 * i + k] - c->rest[3 * i + k];
+        d = fmax(d, norm3(e));
+    }
+    return d;
+}
+
+/// A `set` that rebuilds a running simulation hands the body's state over: the liver sagging
+/// under gravity (heavily damped, settled) keeps its sag across `set youngs_pa` to the value it
+/// has, in the frames right after the swap and later. A body restarted at rest would show the
+/// rest shape there and sag again over ~0.3 s.
+static int set_keeps_body_state(void) {
+    char scene[512], text[2048];
+    snprintf(scene, sizeof scene, "%s/liver_sag.json", tmpdir);
+    snprintf(text, sizeof text,
+             "{ \"mesh\": \"%s/scenes/liver/liver2.msh\",\n"
+             "  \"material\": {\"youngs_pa\": 5000, \"poisson\": 0.45, \"density_kg_m3\": 1060,\n"
+             "               \"rayleigh_mass\": 20, \"rayleigh_stiffness\": 0.01},\n"
+             "  \"fixed\": [{\"type\": \"plane\", \"point\": [0, -0.0433, 0], \"normal\": [0, 1, "
+             "0]}],\n"
+             "  \"gravity\": [0, 0, -9.81],\n"
+             "  \"tools\": [{\"kind\": \"probe\", \"radius\": %g}],\n"
+             "  \"workspace\": {\"min\": [-0.25, -0.2, -0.2], \"max\": [0.25, 0.25, 0.2]} }\n",
+             HS_SOURCE_DIR, PROBE_R);
+    write_file(scene, text);
+    ENSURE(start_server(scene, "sag") == 0);
+    client c;
+    ENSURE(client_open(&c) == 0);
+    ENSURE(wait_up(&c));
+    stream(&c, -0.05, -0.05, 1500); // the tool held 5 cm off the surface
+    double d0 = max_disp(&c);
+    stream(&c, -0.05, -0.05, 500);
+    double sag = max_disp(&c);
+
+    ENSURE(sag > 0.002 && fabs(sag - d0) <= 0.02 * sag); // sagged and settled
+    int64_t id = ++next_request;
+    send_command(&c, id, HAPSIM_COMMAND_T_KIND_SET_PARAM, "name", "youngs_pa", "value", "5000");
+    int fin = -1;
+    for (int k = 0; k < 1000 && fin < 0; ++k) {
+        stream(&c, -0.05, -0.05, 5);
+        fin = find_ack(&c, id, 1);
+    }
+    ENSURE(fin >= 0 && c.ack_status[fin] == HAPSIM_COMMAND_ACK_T_STATUS_OK);
+    ENSURE(find_ack(&c, id, 0) >= 0); // built beside the running sim (PENDING first)
+    double after[3];
+    const int at_ms[3] = {20, 80, 300};
+    for (int k = 0, t = 0; k < 3; t = at_ms[k++]) {
+        stream(&c, -0.05, -0.05, at_ms[k] - t);
+        after[k] = max_disp(&c);
+    }
+    printf("  sag %.2f mm before the set, %.2f / %.2f / %.2f mm 20 / 80 / 300 ms after it\n",
+           sag * 1e3, after[0] * 1e3, after[1] * 1e3, after[2] * 1e3);
+    for (int k = 0; k < 3; ++k) ENSURE(fabs(after[k] - sag) <= 0.05 * sag);
+    ENSURE(stop_server() == 0);
+    client_close(&c);
+    return 0;
+}
+
 static int set_after_mesh_changed(void) {
     char mesh[512], scene[512], src[512];
     snprintf(src, sizeof src, "%s/scenes/liver/liver2.msh", HS_SOURCE_DIR);
@@ -1414,5 +1476,6 @@ static int set_after_mesh_changed(void) {
 
 HS_TEST_MAIN(HS_CASE(malformed_scene_exits_1), HS_CASE(bad_command_lines_refused),
              HS_CASE(poses_in_forces_out), HS_CASE(load_goes_on_answering),
-             HS_CASE(set_after_mesh_changed), HS_CASE(mesh_10k_arrives_whole),
-             HS_CASE(dropped_deltas_recover), HS_CASE(flood_leaves_server_intact))
+             HS_CASE(set_after_mesh_changed), HS_CASE(set_keeps_body_state),
+             HS_CASE(mesh_10k_arrives_whole), HS_CASE(dropped_deltas_recover),
+             HS_CASE(flood_leaves_server_intact))
