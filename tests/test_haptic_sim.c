@@ -639,6 +639,83 @@ static int watchdog(void) {
     return 0;
 }
 
+/// A second sim built for the same body (a rebuild: new material, reset) takes a stopped sim's
+/// rt loop over: its first tick gives the old sim's last force exactly, the watchdog does not
+/// ramp in again, and the force goes on (above half) while the new sim's first snapshot is
+/// built and blended in. Without it the new sim gives zero force until its first snapshot and
+/// then ramps in over the watchdog's ramp.
+static int take_over_keeps_force(void) {
+    liver L;
+    ENSURE(load_liver(&L) == 0);
+    const double r = 0.02;
+    hs_haptic_sim_def d = liver_def(HS_MODEL_LINEAR, r);
+    hs_haptic_sim *a = NULL, *b = NULL;
+    hs_err err = {0};
+    ENSURE(hs_haptic_sim_create(L.mesh, &d, L.fixed, &a, &err) == HS_OK);
+    ENSURE(hs_haptic_sim_create(L.mesh, &d, L.fixed, &b, &err) == HS_OK);
+    ENSURE(hs_haptic_sim_start(a, &err) == HS_OK);
+    ENSURE(hs_haptic_sim_take_over(b, a, &err) == HS_ERR_INVALID); // a runs
+    harness hn;
+    harness_init(&hn, a);
+    double p[3];
+    enum { CAP = 4096 };
+    hs_haptic_telemetry* rec = malloc(CAP * sizeof *rec);
+    ENSURE(rec != NULL);
+    int n = 0;
+    for (int i = 0; i < 600; ++i) {
+        tool_at(&L, r, i < 400 ? -0.003 + 0.009 * i / 400.0 : 0.006, 0, p);
+        harness_tick(&hn, p);
+        int k = pop_telemetry(a, rec, CAP);
+        if (k > 0) n = k < CAP ? k : CAP; // the newest batch: its last record is a's last tick
+    }
+    hs_haptic_sim_stop(a);
+    n += pop_telemetry(a, rec + n, CAP - n); // what the stop left
+    ENSURE(n > 0 && n <= CAP);
+    double f_last[3];
+    memcpy(f_last, rec[n - 1].force_n, sizeof f_last);
+    ENSURE(norm3(f_last) > 0.05 && rec[n - 1].gain == 1);
+    hs_body* ba = hs_haptic_sim_body(a);
+    ENSURE(hs_body_set_state(hs_haptic_sim_body(b), hs_body_displacement(ba),
+                             hs_body_velocity(ba)) == HS_OK);
+    ENSURE(hs_haptic_sim_take_over(b, a, &err) == HS_OK);
+    ENSURE(hs_haptic_sim_start(b, &err) == HS_OK);
+    ENSURE(hs_haptic_sim_take_over(b, a, &err) == HS_ERR_INVALID); // b has run
+    hn.sim = b; // pose seqs go on growing from a's
+    n = 0;
+    for (int i = 0; i < 300; ++i) {
+        harness_tick(&hn, p);
+        n += pop_telemetry(b, rec + (n < CAP ? n : CAP), n < CAP ? CAP - n : 0);
+    }
+    ENSURE(n >= 100 && n <= CAP);
+    double least = INFINITY, step = 0;
+    int ramped = 0, blends = 0;
+    for (int j = 0; j < n; ++j) {
+        least = fmin(least, norm3(rec[j].force_n));
+        ramped += rec[j].gain < 1 || (rec[j].safety & HS_SAFETY_WATCHDOG);
+        if (j > 0) {
+            double e[3] = {rec[j].force_n[0] - rec[j - 1].force_n[0],
+                           rec[j].force_n[1] - rec[j - 1].force_n[1],
+                           rec[j].force_n[2] - rec[j - 1].force_n[2]};
+            step = fmax(step, norm3(e));
+            blends += rec[j].model_seq != rec[j - 1].model_seq;
+        }
+    }
+    double e0[3] = {rec[0].force_n[0] - f_last[0], rec[0].force_n[1] - f_last[1],
+                    rec[0].force_n[2] - f_last[2]};
+    printf("  a's last force %.4f N; b: first tick off by %.3g N, %d ticks, least %.4f N, "
+           "largest step %.4f N, %d ticks below full gain, %d new snapshots\n",
+           norm3(f_last), norm3(e0), n, least, step, ramped, blends);
+    ENSURE(norm3(e0) <= 1e-12 * norm3(f_last)); // the same force, the same tick over
+    ENSURE(ramped == 0 && least >= 0.5 * norm3(f_last));
+    ENSURE(blends >= 1); // b's own snapshots took over from the held model
+    ENSURE(step <= 0.1 * norm3(f_last));
+    free(rec);
+    hs_haptic_sim_destroy(&a);
+    hs_haptic_sim_destroy(&b);
+    free_liver(&L);
+    return 0;
+}
+
 /// A body started at rest under gravity is out of equilibrium: it sags without being touched
 /// (it slept on at the rest shape: the speed test alone, all zero at the start, kept it still).
 static int gravity_sags_untouched(void) {
@@ -682,4 +759,4 @@ static int gravity_sags_untouched(void) {
 
 HS_TEST_MAIN(HS_CASE(no_pose_no_force), HS_CASE(gravity_sags_untouched),
              HS_CASE(press_hold_release), HS_CASE(corotated_hold), HS_CASE(watchdog),
-             HS_CASE(continuity_and_allocs))
+             HS_CASE(take_over_keeps_force), HS_CASE(continuity_and_allocs))

@@ -1412,6 +1412,53 @@ static int set_keeps_body_state(void) {
     return 0;
 }
 
+/// A rebuild of the running scene while the tool presses (set youngs_pa, set probe_radius_m,
+/// reset): every force answered through the swap still pushes back, none says STOPPED. The new
+/// simulation takes the old one's rt loop over (its last model until its own first snapshot,
+/// the device's watchdog gain); before, the answers were zero for 12-29 ms (no output from the
+/// new simulation yet), then ramped in over the watchdog's ramp, then overshot.
+static int rebuild_keeps_force(void) {
+    char scene[512];
+    snprintf(scene, sizeof scene, "%s/liver_rebuild.json", tmpdir);
+    liver_scene(scene, NULL);
+    ENSURE(start_server(scene, "rebuild") == 0);
+    client c;
+    ENSURE(client_open(&c) == 0);
+    ENSURE(wait_up(&c));
+    stream(&c, -0.010, 0.004, 500);
+    const char* const name[3] = {"youngs_pa", "probe_radius_m", NULL}; // NULL: RESET
+    const char* const value[3] = {"10000", "0.006", NULL};
+    for (int k = 0; k < 3; ++k) {
+        stream(&c, 0.004, 0.004, 300);
+        double f0 = norm3(c.force.force);
+        ENSURE(dot_n(c.force.force) > 0.02);
+        int64_t id = ++next_request;
+        int from = c.n_flog;
+        if (name[k])
+            send_command(&c, id, HAPSIM_COMMAND_T_KIND_SET_PARAM, "name", name[k], "value",
+                         value[k]);
+        else
+            send_command(&c, id, HAPSIM_COMMAND_T_KIND_RESET, NULL, NULL, NULL, NULL);
+        int fin = press_until_final(&c, id);
+        ENSURE(fin >= 0 && c.ack_status[fin] == HAPSIM_COMMAND_ACK_T_STATUS_OK);
+        stream(&c, 0.004, 0.004, 100);
+        ENSURE(c.n_flog < 8192);
+        double least = INFINITY;
+        int stopped = 0;
+        for (int i = from; i < c.n_flog; ++i) {
+            least = fmin(least, c.flog_norm[i]);
+            stopped += c.flog_state[i] == HAPSIM_TOOL_FORCE_T_STATE_STOPPED;
+        }
+        printf("  %s: %.3f N before, %d forces through the swap and 100 ms on: least %.3f N, "
+               "%d STOPPED\n",
+               name[k] ? name[k] : "reset", f0, c.n_flog - from, least, stopped);
+        ENSURE(c.n_flog - from >= 50 && stopped == 0 && least >= 0.5 * f0);
+    }
+    ENSURE(stop_server() == 0);
+    client_close(&c);
+    return 0;
+}
+
 static int set_after_mesh_changed(void) {
     char mesh[512], scene[512], src[512];
     snprintf(src, sizeof src, "%s/scenes/liver/liver2.msh", HS_SOURCE_DIR);
@@ -1477,5 +1524,5 @@ static int set_after_mesh_changed(void) {
 HS_TEST_MAIN(HS_CASE(malformed_scene_exits_1), HS_CASE(bad_command_lines_refused),
              HS_CASE(poses_in_forces_out), HS_CASE(load_goes_on_answering),
              HS_CASE(set_after_mesh_changed), HS_CASE(set_keeps_body_state),
-             HS_CASE(mesh_10k_arrives_whole), HS_CASE(dropped_deltas_recover),
-             HS_CASE(flood_leaves_server_intact))
+             HS_CASE(rebuild_keeps_force), HS_CASE(mesh_10k_arrives_whole),
+             HS_CASE(dropped_deltas_recover), HS_CASE(flood_leaves_server_intact))

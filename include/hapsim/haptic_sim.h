@@ -123,6 +123,14 @@ void hs_haptic_sim_destroy(hs_haptic_sim** sim);
 hs_status hs_haptic_sim_start(hs_haptic_sim* sim, hs_err* err);
 /// Stop both threads and join them. Idempotent. Thread: control | Blocks: yes
 void hs_haptic_sim_stop(hs_haptic_sim* sim);
+/// A rebuild of the same scene (new material, reset): before sim's first start, with from
+/// stopped, sim's 1 kHz loop goes on where from's left off: the device's last pose, watchdog
+/// gain and rate clamp (the force does not ramp in again), and from's last force model, given
+/// until sim's deformation thread publishes its first snapshot, which is then blended in. That
+/// thread starts from from's last contact (its forces on the body, the tool position). The
+/// body's state is not taken: hs_body_set_state does that. HS_ERR_INVALID when sim has run,
+/// from runs, or the meshes differ in node count. Thread: control | Allocates: no
+hs_status hs_haptic_sim_take_over(hs_haptic_sim* sim, const hs_haptic_sim* from, hs_err* err);
 /// New force limits (magnitude, rate, watchdog) without a rebuild, running or stopped: the rt
 /// thread takes them at its next tick, keeping its state, so a lower force limit is reached at
 /// the rate limit. HS_ERR_INVALID (nothing changed) for an invalid def. A cutting sim's blade

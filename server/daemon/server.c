@@ -1119,9 +1119,11 @@ static void reset_limits(hs_server* s) {
     }
 }
 
-// A new frame numbering after a rebuild: the sim's step counter restarts.
-static void after_rebuild(hs_server* s, int keep) {
-    s->have_out = 0;
+// A new frame numbering after a rebuild: the sim's step counter restarts. handed: the new sim
+// took the old one's rt loop over, so poses are answered from its last output until the new
+// sim's first (not with zero force).
+static void after_rebuild(hs_server* s, int keep, int handed) {
+    if (!handed) s->have_out = 0;
     s->sim_step_base = keep ? s->frame_step : 0;
     if (!keep) {
         s->frame_step = 0;
@@ -1161,7 +1163,7 @@ static hs_status rebuild_sim(hs_server* s, int keep, hs_err* err) {
         apply_cut(s);                        // a cut not yet passed on counts too
     if (w->cut_made) return refuse_cut(err); // before stopping the sim, which could not return
     if (s->paused) {
-        if (!keep) after_rebuild(s, 0); // at rest now: say so (a keyframe), not at the resume
+        if (!keep) after_rebuild(s, 0, 0); // at rest now: say so (a keyframe), not at the resume
         return HS_OK;
     }
     if (w->sim && w->cutting) {
@@ -1182,7 +1184,7 @@ static hs_status rebuild_sim(hs_server* s, int keep, hs_err* err) {
     }
     hs_status st = world_sim_create(w, keep, err);
     if (st == HS_OK) st = hs_haptic_sim_start(w->sim, err);
-    after_rebuild(s, keep);
+    after_rebuild(s, keep, 0);
     return st;
 }
 
@@ -1278,8 +1280,13 @@ static int set_param(hs_server* s, const hs_net_command* c, char* msg, size_t ca
 static int swap_world(hs_server* s, world* nw, int reset, char* msg, size_t cap) {
     hs_err err = {0};
     int stay_paused = reset && s->paused; // a reset does not resume; a new scene starts
-    world_sim_stop(&s->w);
-    world_destroy(&s->w);
+    world old = s->w; // freed once the new sim runs: the device meanwhile holds its last model
+    if (old.sim) hs_haptic_sim_stop(old.sim);
+    // A reset rebuilds the same scene: its rt loop goes on from the old one's (no gap, no ramp).
+    // It cannot when cuts added nodes; nor does a new scene: their force ramps in from zero.
+    int handed = reset && !stay_paused && old.sim && nw->sim &&
+                 hs_haptic_sim_take_over(nw->sim, old.sim, &err) == HS_OK;
+    memset(&err, 0, sizeof err);
     s->w = *nw;
     memset(nw, 0, sizeof *nw);
     s->paused = 0;
@@ -1287,17 +1294,19 @@ static int swap_world(hs_server* s, world* nw, int reset, char* msg, size_t cap)
     s->topo_version++;
     s->last_cut_steps = 0; // the new sim counts its cut steps from 0
     if (stay_paused) {     // at rest, paused: RESUME builds the sim from this state
+        world_destroy(&old);
         world_sim_stop(&s->w);
         s->pause_model = zero_model();
         s->pause_ns = hs_now_ns();
         s->paused = 1;
         publish_topology(s);
-        after_rebuild(s, 0);
+        after_rebuild(s, 0, 0);
         snprintf(msg, cap, "reset: %s rebuilt at rest (%d nodes), paused", s->w.scene.name,
                  s->w.mesh->n_nodes);
         return HAPSIM_COMMAND_ACK_T_STATUS_OK;
     }
     int started = !s->w.sim || hs_haptic_sim_start(s->w.sim, &err) == HS_OK;
+    world_destroy(&old);
     if (!started) { // the old world is gone: keep the new one paused, so RESUME can retry
         world_sim_stop(&s->w);
         s->pause_model = zero_model();
@@ -1305,7 +1314,7 @@ static int swap_world(hs_server* s, world* nw, int reset, char* msg, size_t cap)
         s->paused = 1;
     }
     publish_topology(s); // before the keyframe (after_rebuild), which a client matches to it
-    after_rebuild(s, 0);
+    after_rebuild(s, 0, handed && started);
     if (!started) {
         snprintf(msg, cap,
                  "%s %.100s but its simulation did not start (%.300s): paused, "
@@ -1424,7 +1433,9 @@ static int swap_keep(hs_server* s, world* nw, char* msg, size_t cap) {
         return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
     }
     world_save_state(w);
-    if (nw->sim && hs_body_set_state(hs_haptic_sim_body(nw->sim), w->u, w->v) != HS_OK) {
+    // The new sim takes the body's state and the rt loop's (no gap and no ramp in the force).
+    if (nw->sim && (hs_body_set_state(hs_haptic_sim_body(nw->sim), w->u, w->v) != HS_OK ||
+                    hs_haptic_sim_take_over(nw->sim, w->sim, &e) != HS_OK)) {
         snprintf(msg, cap, "the new simulation refused the body's state: not applied");
         if (hs_haptic_sim_start(w->sim, &e) != HS_OK) { // as a failed rebuild: paused
             world_sim_stop(w);
@@ -1437,13 +1448,14 @@ static int swap_keep(hs_server* s, world* nw, char* msg, size_t cap) {
     size_t n3 = 3 * (size_t)w->mesh->n_nodes;
     memcpy(nw->u, w->u, n3 * sizeof(double));
     memcpy(nw->v, w->v, n3 * sizeof(double));
-    hs_haptic_sim_destroy(&w->sim);
-    world_destroy(w);
+    world old = *w; // freed once the new sim runs: the device meanwhile holds its last model
     s->w = *nw;
     memset(nw, 0, sizeof *nw);
     reset_limits(s);
     s->last_cut_steps = 0; // the new sim counts its cut steps from 0
-    if (s->w.sim && hs_haptic_sim_start(s->w.sim, &e) != HS_OK) {
+    int started = !s->w.sim || hs_haptic_sim_start(s->w.sim, &e) == HS_OK;
+    world_destroy(&old);
+    if (!started) {
         world_sim_stop(&s->w);
         s->pause_model = zero_model();
         s->pause_ns = hs_now_ns();
@@ -1451,10 +1463,10 @@ static int swap_keep(hs_server* s, world* nw, char* msg, size_t cap) {
         snprintf(msg, cap,
                  "%s applied but the simulation did not start (%.300s): paused, RESUME retries",
                  s->load.ok_msg, e.msg);
-        after_rebuild(s, 1);
+        after_rebuild(s, 1, 0);
         return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
     }
-    after_rebuild(s, 1);
+    after_rebuild(s, 1, s->w.sim != NULL);
     snprintf(msg, cap, "%s", s->load.ok_msg);
     return HAPSIM_COMMAND_ACK_T_STATUS_OK;
 }

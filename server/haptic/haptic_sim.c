@@ -136,6 +136,11 @@ typedef struct probe_src {
     hs_triple_buffer* contact; // writer: rt
     double min_r, max_r, timeout_s;
     hs_contact last; // the previous tick's contact (warm start)
+    // Taken over from a stopped sim: rt gives `held` while the snapshot is still the empty
+    // initial one (hold_version), so the force goes on until the first snapshot at the tool.
+    int hold;
+    int64_t hold_version;
+    hs_haptic_model held;
 } probe_src;
 
 typedef struct face_key {
@@ -251,6 +256,12 @@ static void probe_eval(void* ctx, const hs_rt_clock* clk, const hs_haptic_pose* 
     probe_src* p = ctx;
     const sim_snapshot* ss = hs_triple_buffer_read(p->snap, NULL);
     const hs_contact_snapshot* s = &ss->s;
+    if (p->hold && s->version == p->hold_version) {
+        *out = p->held; // its seq is the one rt blends toward: no new blend until a snapshot
+        out->stamp_ns = clk->now_ns;
+        return;
+    }
+    p->hold = 0;
     hs_contact* c = hs_triple_buffer_back(p->contact);
     hs_contact_solve_from(s, pose->pos_m, &p->last, c);
     p->last = *c;
@@ -1126,6 +1137,27 @@ hs_status hs_haptic_sim_start(hs_haptic_sim* h, hs_err* err) {
         hs_haptic_sim_stop(h);
         return s;
     }
+    return HS_OK;
+}
+
+hs_status hs_haptic_sim_take_over(hs_haptic_sim* h, const hs_haptic_sim* from, hs_err* err) {
+    if (!h || !from || h == from)
+        return hs_err_set(err, HS_ERR_INVALID, "hs_haptic_sim_take_over: NULL or the same sim");
+    if (h->started_once || from->thread_started || hs_rt_loop_running(from->loop))
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "hs_haptic_sim_take_over: the new sim has run, or the old one runs");
+    if (h->mesh->n_nodes != from->mesh->n_nodes)
+        return hs_err_set(err, HS_ERR_INVALID, "hs_haptic_sim_take_over: meshes of %d and %d nodes",
+                          h->mesh->n_nodes, from->mesh->n_nodes);
+    hs_haptic_rt_take_over(h->hrt, from->hrt, &h->src.held);
+    h->src.hold = 1;
+    h->src.hold_version = h->version; // the empty snapshot published at create
+    h->src.last = from->src.last;
+    // The deformation thread's first pass applies the old contact and builds the first
+    // snapshot where the tool is (not at the origin, where an empty contact would put it).
+    hs_contact* c = hs_triple_buffer_back(h->contact);
+    *c = from->src.last;
+    hs_triple_buffer_publish(h->contact);
     return HS_OK;
 }
 

@@ -99,6 +99,23 @@ void hs_haptic_rt_restart(hs_haptic_rt* h) {
     hs_watchdog_trip(&h->safety.watchdog);
 }
 
+void hs_haptic_rt_take_over(hs_haptic_rt* h, const hs_haptic_rt* from, hs_haptic_model* held) {
+    h->blend = from->blend;
+    h->blend.ticks = h->def.blend_ticks;
+    if (h->blend.done > h->blend.ticks) h->blend.done = h->blend.ticks;
+    h->stopped = from->stopped;
+    h->pose = from->pose;
+    h->have_pose = from->have_pose;
+    // The device's state, under h's own limits.
+    const hs_watchdog* fw = &from->safety.watchdog;
+    h->safety.watchdog.gain = fw->gain;
+    h->safety.watchdog.last_fresh_ns = fw->last_fresh_ns;
+    h->safety.watchdog.seen = fw->seen;
+    h->safety.watchdog.live = fw->live;
+    memcpy(h->safety.rate.prev_n, from->safety.rate.prev_n, sizeof h->safety.rate.prev_n);
+    *held = from->blend.last;
+}
+
 hs_status hs_haptic_rt_set_safety(hs_haptic_rt* h, const hs_safety_def* def) {
     if (!h || !def || !hs_safety_def_valid(def)) return HS_ERR_INVALID;
     hs_triple_buffer_write(h->limits, def);

@@ -94,6 +94,12 @@ hs_status hs_haptic_rt_set_safety(hs_haptic_rt* h, const hs_safety_def* def);
 /// stop, and the force ramps in from zero (the watchdog's ramp) as for a new device.
 /// Thread: control, while the loop is stopped | Allocates: no
 void hs_haptic_rt_restart(hs_haptic_rt* h);
+/// Before h's first start, with from's loop stopped (a rebuild of the same scene): h goes on
+/// where from left off: its last pose, watchdog gain and rate clamp (the force does not ramp in
+/// again) and its blend. *held (OUT) = from's last output model before the safety chain,
+/// anchored at its last pose: what h's source should give until it has data of its own.
+/// Thread: control, both loops stopped | Allocates: no
+void hs_haptic_rt_take_over(hs_haptic_rt* h, const hs_haptic_rt* from, hs_haptic_model* held);
 
 // ---------------------------------------------------------------------------------------------
 // Model source: a force source that evaluates the newest hs_haptic_model published by another
