@@ -595,8 +595,11 @@ static void probe_move(probe_run* pr, const double to[3], int ticks, unsigned bu
             const hs_haptic_telemetry* tl = &batch[b];
             const double* g = tl->force_n;
             double fn = sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]);
+            // At full watchdog gain only: a stall of this thread past the watchdog timeout
+            // ramps the force down, which is not the blade's force having faded.
             if (pr->gated && pr->gate_tick < 0 && pr->release_ns > 0 &&
-                tl->now_ns >= pr->release_ns && fn <= RESIDUAL_N) {
+                tl->now_ns >= pr->release_ns && fn <= RESIDUAL_N && tl->gain == 1 &&
+                !(tl->safety & HS_SAFETY_WATCHDOG)) {
                 pr->gate_tick = tl->tick;
                 pr->stale_when_gated = stale;
             }
