@@ -1141,6 +1141,15 @@ static void after_rebuild(hs_server* s, int keep, int handed) {
     publish_keyframe(s);
 }
 
+// Stop the world's sim keeping its state, and pause with zero force: RESUME rebuilds it (a
+// reset kept paused, or a sim that would not start, for RESUME to retry).
+static void pause_stopped(hs_server* s) {
+    world_sim_stop(&s->w);
+    s->pause_model = zero_model();
+    s->pause_ns = hs_now_ns();
+    s->paused = 1;
+}
+
 // Start the stopped sim of a world found cut (it cannot be rebuilt); one that will not start is
 // kept paused for RESUME to retry.
 static void restart_cut_sim(hs_server* s) {
@@ -1295,10 +1304,7 @@ static int swap_world(hs_server* s, world* nw, int reset, char* msg, size_t cap)
     s->last_cut_steps = 0; // the new sim counts its cut steps from 0
     if (stay_paused) {     // at rest, paused: RESUME builds the sim from this state
         world_destroy(&old);
-        world_sim_stop(&s->w);
-        s->pause_model = zero_model();
-        s->pause_ns = hs_now_ns();
-        s->paused = 1;
+        pause_stopped(s);
         publish_topology(s);
         after_rebuild(s, 0, 0);
         snprintf(msg, cap, "reset: %s rebuilt at rest (%d nodes), paused", s->w.scene.name,
@@ -1307,12 +1313,7 @@ static int swap_world(hs_server* s, world* nw, int reset, char* msg, size_t cap)
     }
     int started = !s->w.sim || hs_haptic_sim_start(s->w.sim, &err) == HS_OK;
     world_destroy(&old);
-    if (!started) { // the old world is gone: keep the new one paused, so RESUME can retry
-        world_sim_stop(&s->w);
-        s->pause_model = zero_model();
-        s->pause_ns = hs_now_ns();
-        s->paused = 1;
-    }
+    if (!started) pause_stopped(s); // the old world is gone: paused, so RESUME can retry
     publish_topology(s); // before the keyframe (after_rebuild), which a client matches to it
     after_rebuild(s, 0, handed && started);
     if (!started) {
@@ -1438,10 +1439,7 @@ static int swap_keep(hs_server* s, world* nw, char* msg, size_t cap) {
                     hs_haptic_sim_take_over(nw->sim, w->sim, &e) != HS_OK)) {
         snprintf(msg, cap, "the new simulation refused the body's state: not applied");
         if (hs_haptic_sim_start(w->sim, &e) != HS_OK) { // as a failed rebuild: paused
-            world_sim_stop(w);
-            s->pause_model = zero_model();
-            s->pause_ns = hs_now_ns();
-            s->paused = 1;
+            pause_stopped(s);
         }
         return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
     }
@@ -1456,10 +1454,7 @@ static int swap_keep(hs_server* s, world* nw, char* msg, size_t cap) {
     int started = !s->w.sim || hs_haptic_sim_start(s->w.sim, &e) == HS_OK;
     world_destroy(&old);
     if (!started) {
-        world_sim_stop(&s->w);
-        s->pause_model = zero_model();
-        s->pause_ns = hs_now_ns();
-        s->paused = 1;
+        pause_stopped(s);
         snprintf(msg, cap,
                  "%s applied but the simulation did not start (%.300s): paused, RESUME retries",
                  s->load.ok_msg, e.msg);
