@@ -128,7 +128,8 @@ void hs_haptic_sim_stop(hs_haptic_sim* sim);
 /// gain and rate clamp (the force does not ramp in again), and from's last force model, given
 /// until sim's deformation thread publishes its first snapshot, which is then blended in. That
 /// thread starts from from's last contact (its forces on the body, the tool position). The
-/// body's state is not taken: hs_body_set_state does that. HS_ERR_INVALID when sim has run,
+/// body's state is not taken: hs_body_set_state does that. Pose seqs fed to sim must go on
+/// growing from from's (lower ones are stale and dropped). HS_ERR_INVALID when sim has run,
 /// from runs, or the meshes differ in node count. Thread: control | Allocates: no
 hs_status hs_haptic_sim_take_over(hs_haptic_sim* sim, const hs_haptic_sim* from, hs_err* err);
 /// New force limits (magnitude, rate, watchdog) without a rebuild, running or stopped: the rt

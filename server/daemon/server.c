@@ -1292,8 +1292,9 @@ static int swap_world(hs_server* s, world* nw, int reset, char* msg, size_t cap)
     world old = s->w; // freed once the new sim runs: the device meanwhile holds its last model
     if (old.sim) hs_haptic_sim_stop(old.sim);
     // A reset rebuilds the same scene: its rt loop goes on from the old one's (no gap, no ramp).
-    // It cannot when cuts added nodes; nor does a new scene: their force ramps in from zero.
-    int handed = reset && !stay_paused && old.sim && nw->sim &&
+    // Not after a cut (the old contact and blade force belong to the cut body), nor for a new
+    // scene: their force ramps in from zero.
+    int handed = reset && !stay_paused && old.sim && !old.cut_made && nw->sim &&
                  hs_haptic_sim_take_over(nw->sim, old.sim, &err) == HS_OK;
     memset(&err, 0, sizeof err);
     s->w = *nw;
@@ -1437,7 +1438,7 @@ static int swap_keep(hs_server* s, world* nw, char* msg, size_t cap) {
     // The new sim takes the body's state and the rt loop's (no gap and no ramp in the force).
     if (nw->sim && (hs_body_set_state(hs_haptic_sim_body(nw->sim), w->u, w->v) != HS_OK ||
                     hs_haptic_sim_take_over(nw->sim, w->sim, &e) != HS_OK)) {
-        snprintf(msg, cap, "the new simulation refused the body's state: not applied");
+        snprintf(msg, cap, "the new simulation refused the body's or the rt state: not applied");
         if (hs_haptic_sim_start(w->sim, &e) != HS_OK) { // as a failed rebuild: paused
             pause_stopped(s);
         }

@@ -114,6 +114,10 @@ void hs_haptic_rt_take_over(hs_haptic_rt* h, const hs_haptic_rt* from, hs_haptic
     h->safety.watchdog.live = fw->live;
     memcpy(h->safety.rate.prev_n, from->safety.rate.prev_n, sizeof h->safety.rate.prev_n);
     *held = from->blend.last;
+    // A seq no snapshot has: the new source numbers its snapshots afresh, and its first must
+    // start a blend even when its number equals the old one's.
+    held->seq = -1;
+    h->blend.target_seq = -1;
 }
 
 hs_status hs_haptic_rt_set_safety(hs_haptic_rt* h, const hs_safety_def* def) {
