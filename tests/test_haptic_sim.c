@@ -24,6 +24,8 @@ typedef struct liver {
     double t[3]; // a unit tangent
 } liver;
 
+static void probe_node(liver* L, int k);
+
 static int load_liver(liver* L) {
     hs_err err = {0};
     memset(L, 0, sizeof *L);
@@ -35,11 +37,20 @@ static int load_liver(liver* L) {
     const hs_mesh* m = L->mesh;
     L->fixed = calloc((size_t)m->n_nodes, 1);
     hs_mesh_select_plane(m, 1, -1, 0.010, L->fixed); // as scenes/liver/liver.json
-    L->node = -1;
+    int top = -1;
     for (int s = 0; s < m->n_surf_nodes; ++s) {
         int k = m->surf_nodes[s];
-        if (!L->fixed[k] && (L->node < 0 || m->x0[3 * k + 1] > m->x0[3 * L->node + 1])) L->node = k;
+        if (!L->fixed[k] && (top < 0 || m->x0[3 * k + 1] > m->x0[3 * top + 1])) top = k;
     }
+    probe_node(L, top);
+    return 0;
+}
+
+// Probe at surface node k: its area-weighted outward normal and a tangent.
+static void probe_node(liver* L, int k) {
+    const hs_mesh* m = L->mesh;
+    L->node = k;
+    memset(L->n, 0, sizeof L->n);
     for (int t = 0; t < m->n_tris; ++t) {
         const int* tr = m->tris + 3 * t;
         if (tr[0] != L->node && tr[1] != L->node && tr[2] != L->node) continue;
@@ -57,7 +68,6 @@ static int load_liver(liver* L) {
     for (int a = 0; a < 3; ++a) L->t[a] = ex[a] - dn * L->n[a];
     l = sqrt(L->t[0] * L->t[0] + L->t[1] * L->t[1] + L->t[2] * L->t[2]);
     for (int a = 0; a < 3; ++a) L->t[a] /= l;
-    return 0;
 }
 
 static void free_liver(liver* L) {
@@ -474,12 +484,16 @@ static int continuity_and_allocs(void) {
 // oppose the reactions of a full co-rotated static solve with the contact nodes prescribed at
 // the body's own final displacement (the contact-free correction's fixed point puts the tissue
 // where the contact says it is).
-static int corotated_hold_with(hs_solver_kind solver) {
+// Press a sphere of radius r `depth` deep at `node` (< 0: the top node) in 0.5 s, hold `hold_ms`:
+// the force must settle (the last 0.3 s within 1 %) on the full static co-rotated reaction
+// (within `tol`, relative).
+static int corotated_hold_with(hs_solver_kind solver, int node, double r, double depth,
+                               double rayleigh_mass, int hold_ms, double tol) {
     liver L;
     ENSURE(load_liver(&L) == 0);
-    const double r = 0.03;
+    if (node >= 0) probe_node(&L, node);
     hs_haptic_sim_def d = liver_def(HS_MODEL_COROTATED, r);
-    d.body.fem.material.rayleigh_mass = 30; // overdamped low modes: settles in about a second
+    d.body.fem.material.rayleigh_mass = rayleigh_mass;
     d.body.solver = solver;
     hs_haptic_sim* sim = NULL;
     hs_err err = {0};
@@ -489,16 +503,16 @@ static int corotated_hold_with(hs_solver_kind solver) {
     harness_init(&hn, sim);
     double p[3];
     for (int i = 0; i <= 500; ++i) {
-        tool_at(&L, r, -0.005 + 0.015 * i / 500.0, 0, p);
+        tool_at(&L, r, -0.005 + (depth + 0.005) * i / 500.0, 0, p);
         harness_tick(&hn, p);
         drain(sim);
     }
     double fmin = 1e9, fmax = 0;
-    for (int i = 0; i < 3000; ++i) {
+    for (int i = 0; i < hold_ms; ++i) {
         harness_tick(&hn, p);
         drain(sim);
         double f = norm3(hn.out.force_n);
-        if (i >= 2700) fmin = f < fmin ? f : fmin, fmax = f > fmax ? f : fmax;
+        if (i >= hold_ms - 300) fmin = f < fmin ? f : fmin, fmax = f > fmax ? f : fmax;
     }
     double f_hold[3];
     memcpy(f_hold, hn.out.force_n, sizeof f_hold);
@@ -507,10 +521,10 @@ static int corotated_hold_with(hs_solver_kind solver) {
     double* u = malloc(sizeof(double) * 3 * (size_t)L.mesh->n_nodes);
     hs_haptic_sim_read_frame(sim, u, NULL);
     hs_haptic_sim_stop(sim);
-    printf("  co-rotated (%s solver), 10 mm: |F| = %.4g N (last 0.3 s within %.3g N), %d contact "
-           "nodes\n",
-           solver == HS_SOLVER_WARPED ? "warped" : "direct", norm3(f_hold), fmax - fmin,
-           st.contact.n);
+    printf("  co-rotated (%s solver), r %.0f mm, %.0f mm deep: |F| = %.4g N (last 0.3 s within "
+           "%.3g N), %d contact nodes, relaxation w %.3g\n",
+           solver == HS_SOLVER_WARPED ? "warped" : "direct", r * 1e3, depth * 1e3, norm3(f_hold),
+           fmax - fmin, st.contact.n, st.free_relax_w);
     ENSURE(st.contact.n >= 1 && norm3(f_hold) > 0.05);
     ENSURE(fmax - fmin <= 0.01 * norm3(f_hold));
 
@@ -533,7 +547,7 @@ static int corotated_hold_with(hs_solver_kind solver) {
     double miss[3] = {f_hold[0] + sum[0], f_hold[1] + sum[1], f_hold[2] + sum[2]};
     printf("  full co-rotated reaction |R| = %.4g N, |F + R| / |R| = %.3g %%\n", norm3(sum),
            100 * norm3(miss) / norm3(sum));
-    ENSURE(norm3(miss) <= 0.02 * norm3(sum));
+    ENSURE(norm3(miss) <= tol * norm3(sum));
     hs_body_destroy(&b);
     free(fx);
     free(u);
@@ -542,10 +556,20 @@ static int corotated_hold_with(hs_solver_kind solver) {
     return 0;
 }
 
-// The scene's two solvers: each settles on the full static co-rotated reaction.
+// The scene's two solvers: each settles on the full static co-rotated reaction. Overdamped low
+// modes (Rayleigh mass 30) settle in about a second.
 static int corotated_hold(void) {
-    ENSURE(corotated_hold_with(HS_SOLVER_DIRECT) == 0);
-    ENSURE(corotated_hold_with(HS_SOLVER_WARPED) == 0);
+    ENSURE(corotated_hold_with(HS_SOLVER_DIRECT, -1, 0.03, 0.010, 30, 3000, 0.02) == 0);
+    ENSURE(corotated_hold_with(HS_SOLVER_WARPED, -1, 0.03, 0.010, 30, 3000, 0.02) == 0);
+    return 0;
+}
+
+// The default scene's scripted press (scenes/liver/scripts/press_hold.probe): its 5 mm sphere
+// one radius deep at node 399, as lightly damped as the scene. Large local rotations made the
+// contact-free relaxation overshoot, and the force chattered between 0.16 and 0.30 N until the
+// relaxation learned to slow down when its correction reverses.
+static int corotated_small_deep_hold(void) {
+    ENSURE(corotated_hold_with(HS_SOLVER_DIRECT, 399, 0.005, 0.005, 0.5, 5000, 0.03) == 0);
     return 0;
 }
 
@@ -758,5 +782,6 @@ static int gravity_sags_untouched(void) {
 }
 
 HS_TEST_MAIN(HS_CASE(no_pose_no_force), HS_CASE(gravity_sags_untouched),
-             HS_CASE(press_hold_release), HS_CASE(corotated_hold), HS_CASE(watchdog),
-             HS_CASE(take_over_keeps_force), HS_CASE(continuity_and_allocs))
+             HS_CASE(press_hold_release), HS_CASE(corotated_hold),
+             HS_CASE(corotated_small_deep_hold), HS_CASE(watchdog), HS_CASE(take_over_keeps_force),
+             HS_CASE(continuity_and_allocs))

@@ -181,6 +181,7 @@ struct hs_haptic_sim {
     double* rot;          // [9n] node rotations at the current state (identity for linear)
     double* q;            // [3n] contact-free positions of smesh's surface nodes (relaxed)
     int q_reset;          // the surface changed: set q exactly at the next snapshot
+    double* dq;           // [3n] last snapshot's correction target - q (oscillation test)
     double relax_e;       // largest correction |target - q| of the last snapshot (< 0: none yet)
     int* near_node;       // [n+1] scratch (triangle adjacency)
     near_tri* near_tri;   // [tri_cap] triangles within reach of the tool, scratch
@@ -373,9 +374,9 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
     // ~0.8 r deep; after cuts whose pieces C and the body hold differently) the iteration
     // diverges through the body's dynamics: q ran 0.5 m off within three steps (a 10 N kick).
     // So a correction that grows 1.5x past 2 |u|max + r / 4 cuts w 4x, down to free_relax / 64;
-    // one that shrinks lets it recover 1.25x per step.
+    // one that reverses halves it; one that shrinks without reversing lets it recover 1.25x.
     // The targets x - R (C R^T g) replace C R^T g in h->v (nothing else reads it).
-    double e = 0, um = 0;
+    double e = 0, um = 0, flip = 0, d2sum = 0;
     for (int si = 0; si < ns; ++si) {
         int node = sm->surf_nodes[si];
         const double* xs = h->x + 3 * (size_t)node;
@@ -387,7 +388,14 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
         const double* q = h->q + 3 * (size_t)node;
         const double* un = u + 3 * (size_t)node;
         double d2 = 0, u2 = un[0] * un[0] + un[1] * un[1] + un[2] * un[2];
-        for (int a = 0; a < 3; ++a) d2 += (t[a] - q[a]) * (t[a] - q[a]);
+        double* dp = h->dq + 3 * (size_t)node;
+        for (int a = 0; a < 3; ++a) {
+            double d = t[a] - q[a];
+            d2 += d * d;
+            flip += d * dp[a];
+            dp[a] = d;
+        }
+        d2sum += d2;
         if (d2 > e) e = d2;
         if (u2 > um) um = u2;
     }
@@ -399,7 +407,11 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
     } else if (h->relax_e >= 0 && e > RELAX_GROWTH * h->relax_e && e > 2 * um + RELAX_FLOOR * r) {
         h->st.relax_w = fmax(w_min, 0.25 * h->st.relax_w);
         h->st.relax_cuts++;
-    } else if (h->relax_e >= 0 && e < h->relax_e) {
+    } else if (h->relax_e >= 0 && flip < -0.25 * d2sum) {
+        // The correction reverses from step to step: the iteration overshoots (a deep press
+        // with a small sphere, large local rotations). Halve w until it converges monotonically.
+        h->st.relax_w = fmax(w_min, 0.5 * h->st.relax_w);
+    } else if (h->relax_e >= 0 && e < h->relax_e && flip > 0) {
         h->st.relax_w = fmin(w_max, 1.25 * h->st.relax_w);
     }
     const double w = h->q_reset ? 1.0 : h->st.relax_w;
@@ -952,6 +964,7 @@ void hs_haptic_sim_destroy(hs_haptic_sim** ph) {
     hs_free(h->v);
     hs_free(h->rot);
     hs_free(h->q);
+    hs_free(h->dq);
     hs_free(h->near_node);
     hs_free(h->near_tri);
     hs_free(h->cand_of);
@@ -1027,6 +1040,7 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
     h->v = hs_calloc(3 * n, sizeof(double));
     h->rot = hs_calloc(9 * n, sizeof(double));
     h->q = hs_calloc(3 * n, sizeof(double));
+    h->dq = hs_calloc(3 * n, sizeof(double));
     h->near_node = hs_calloc(n + 1, sizeof(int));
     h->smesh = mesh;
     h->tri_cap = mesh->n_tris;
@@ -1034,7 +1048,7 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
     h->tri_start = hs_calloc(n + 1, sizeof(int));
     h->tri_list = hs_alloc(3 * (size_t)h->tri_cap * sizeof(int) + sizeof(int));
     h->cand_of = hs_alloc((n + 1) * sizeof(int));
-    if (!h->x || !h->g || !h->v || !h->rot || !h->q || !h->near_node || !h->near_tri ||
+    if (!h->x || !h->g || !h->v || !h->rot || !h->q || !h->dq || !h->near_node || !h->near_tri ||
         !h->cand_of || !h->tri_start || !h->tri_list)
         goto nomem;
     for (size_t i = 0; i < n; ++i) h->cand_of[i] = -1;
