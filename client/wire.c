@@ -6,6 +6,8 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "hapsim_wire_read.h"
+
 #include "hapsim_command_ack_t.h"
 #include "hapsim_mesh_delta_t.h"
 #include "hapsim_mesh_state_t.h"
@@ -58,63 +60,28 @@ int64_t hs_client_byte_count(void) {
 // ---------------------------------------------------------------------------------------------
 // Reader.
 
-typedef struct rd {
-    const uint8_t* p;
-    size_t n, off;
-    int bad;
-} rd;
-
-static uint32_t be32(const uint8_t* p) {
-    return (uint32_t)p[0] << 24 | (uint32_t)p[1] << 16 | (uint32_t)p[2] << 8 | (uint32_t)p[3];
+static int64_t rd_i64(hs_rd* r) {
+    const uint8_t* q = hs_rd_take(r, 8);
+    return q ? (int64_t)hs_be64(q) : 0;
 }
-static uint64_t be64(const uint8_t* p) {
-    return (uint64_t)be32(p) << 32 | be32(p + 4);
-}
-
-static const uint8_t* rd_take(rd* r, size_t k) {
-    if (r->bad || r->n - r->off < k) {
-        r->bad = 1;
-        return NULL;
-    }
-    const uint8_t* q = r->p + r->off;
-    r->off += k;
-    return q;
-}
-static int64_t rd_i64(rd* r) {
-    const uint8_t* q = rd_take(r, 8);
-    return q ? (int64_t)be64(q) : 0;
-}
-static int32_t rd_i32(rd* r) {
-    const uint8_t* q = rd_take(r, 4);
-    return q ? (int32_t)be32(q) : 0;
-}
-static int8_t rd_i8(rd* r) {
-    const uint8_t* q = rd_take(r, 1);
+static int8_t rd_i8(hs_rd* r) {
+    const uint8_t* q = hs_rd_take(r, 1);
     return q ? (int8_t)q[0] : 0;
 }
-static double rd_f64(rd* r) {
-    const uint8_t* q = rd_take(r, 8);
+static double rd_f64(hs_rd* r) {
+    const uint8_t* q = hs_rd_take(r, 8);
     if (!q) return 0;
-    uint64_t u = be64(q);
+    uint64_t u = hs_be64(q);
     double d;
     memcpy(&d, &u, 8);
     if (!isfinite(d)) r->bad = 1;
     return d;
 }
-static float rd_f32(rd* r) {
-    const uint8_t* q = rd_take(r, 4);
-    if (!q) return 0;
-    uint32_t u = be32(q);
-    float f;
-    memcpy(&f, &u, 4);
-    if (!isfinite(f)) r->bad = 1;
-    return f;
-}
 // LCM string: int32 length including the NUL, then the bytes; copied (truncated) into out[cap].
-static void rd_str(rd* r, char* out, size_t cap) {
-    int32_t len = rd_i32(r);
+static void rd_str(hs_rd* r, char* out, size_t cap) {
+    int32_t len = hs_rd_i32(r);
     if (len < 1) r->bad = 1;
-    const uint8_t* q = r->bad ? NULL : rd_take(r, (size_t)len);
+    const uint8_t* q = r->bad ? NULL : hs_rd_take(r, (size_t)len);
     if (!q || q[len - 1] != 0 || memchr(q, 0, (size_t)len - 1)) {
         r->bad = 1;
         if (cap) out[0] = 0;
@@ -126,13 +93,13 @@ static void rd_str(rd* r, char* out, size_t cap) {
     out[k] = 0;
 }
 // An array of n 4-byte elements; n must be in [0, max].
-static hs_wire_arr rd_arr4(rd* r, int32_t n, int32_t max) {
+static hs_wire_arr rd_arr4(hs_rd* r, int32_t n, int32_t max) {
     hs_wire_arr a = {NULL, 0};
     if (n < 0 || n > max) {
         r->bad = 1;
         return a;
     }
-    a.p = rd_take(r, (size_t)n * 4);
+    a.p = hs_rd_take(r, (size_t)n * 4);
     a.n = a.p ? n : 0;
     return a;
 }
@@ -141,22 +108,22 @@ static int arr_finite(hs_wire_arr a) {
         if (!isfinite(hs_wire_f32_at(a, i))) return 0;
     return 1;
 }
-static int rd_begin(rd* r, const void* buf, size_t len, int64_t hash) {
+static int rd_begin(hs_rd* r, const void* buf, size_t len, int64_t hash) {
     r->p = buf;
     r->n = buf ? len : 0;
     r->off = 0;
     r->bad = 0;
     return rd_i64(r) == hash && !r->bad;
 }
-static int rd_end(const rd* r) {
+static int rd_end(const hs_rd* r) {
     return !r->bad && r->off == r->n ? 0 : -1;
 }
 
 int32_t hs_wire_i32_at(hs_wire_arr a, int32_t i) {
-    return (int32_t)be32(a.p + (size_t)i * 4);
+    return (int32_t)hs_be32(a.p + (size_t)i * 4);
 }
 float hs_wire_f32_at(hs_wire_arr a, int32_t i) {
-    uint32_t u = be32(a.p + (size_t)i * 4);
+    uint32_t u = hs_be32(a.p + (size_t)i * 4);
     float f;
     memcpy(&f, &u, 4);
     return f;
@@ -169,22 +136,22 @@ float hs_wire_f32_at(hs_wire_arr a, int32_t i) {
 // Mesh messages.
 
 int hs_wire_topology_decode(const void* buf, size_t len, hs_wire_topology* o) {
-    rd r;
+    hs_rd r;
     if (!rd_begin(&r, buf, len, __hapsim_mesh_topology_t_get_hash())) return -1;
     o->utime = rd_i64(&r);
     o->seq = rd_i64(&r);
     o->topology_version = rd_i64(&r);
-    o->n_nodes = rd_i32(&r);
-    o->n_vis = rd_i32(&r);
+    o->n_nodes = hs_rd_i32(&r);
+    o->n_vis = hs_rd_i32(&r);
     if (o->n_nodes < 0 || o->n_vis < 0 || o->n_vis > MAXV) return -1;
     o->vis_nodes = rd_arr4(&r, o->n_vis, MAXV);
-    int32_t n_rest = rd_i32(&r);
+    int32_t n_rest = hs_rd_i32(&r);
     if (n_rest != 3 * o->n_vis) return -1;
     o->rest = rd_arr4(&r, n_rest, MAX3);
-    int32_t n_tri = rd_i32(&r);
+    int32_t n_tri = hs_rd_i32(&r);
     if (n_tri < 0 || n_tri % 3) return -1;
     o->tri = rd_arr4(&r, n_tri, INT32_MAX / 4);
-    int32_t n_tet = rd_i32(&r);
+    int32_t n_tet = hs_rd_i32(&r);
     if (n_tet < 0 || n_tet % 4) return -1;
     o->tet = rd_arr4(&r, n_tet, INT32_MAX / 4);
     if (rd_end(&r)) return -1;
@@ -207,7 +174,7 @@ int hs_wire_topology_decode(const void* buf, size_t len, hs_wire_topology* o) {
 }
 
 int hs_wire_state_decode(const void* buf, size_t len, hs_wire_state* o) {
-    rd r;
+    hs_rd r;
     if (!rd_begin(&r, buf, len, __hapsim_mesh_state_t_get_hash())) return -1;
     o->utime = rd_i64(&r);
     o->seq = rd_i64(&r);
@@ -215,10 +182,10 @@ int hs_wire_state_decode(const void* buf, size_t len, hs_wire_state* o) {
     o->keyframe_id = rd_i64(&r);
     o->sim_step = rd_i64(&r);
     o->sim_time = rd_f64(&r);
-    int32_t n_pos = rd_i32(&r);
+    int32_t n_pos = hs_rd_i32(&r);
     if (n_pos < 0 || n_pos % 3) return -1;
     o->pos = rd_arr4(&r, n_pos, MAX3);
-    int32_t n_stress = rd_i32(&r);
+    int32_t n_stress = hs_rd_i32(&r);
     if (n_stress != 0 && n_stress != n_pos / 3) return -1;
     o->stress = rd_arr4(&r, n_stress, MAXV);
     if (rd_end(&r) || o->seq < 0 || o->topology_version < 0) return -1;
@@ -226,7 +193,7 @@ int hs_wire_state_decode(const void* buf, size_t len, hs_wire_state* o) {
 }
 
 int hs_wire_delta_decode(const void* buf, size_t len, hs_wire_delta* o) {
-    rd r;
+    hs_rd r;
     if (!rd_begin(&r, buf, len, __hapsim_mesh_delta_t_get_hash())) return -1;
     o->utime = rd_i64(&r);
     o->seq = rd_i64(&r);
@@ -234,9 +201,9 @@ int hs_wire_delta_decode(const void* buf, size_t len, hs_wire_delta* o) {
     o->keyframe_id = rd_i64(&r);
     o->sim_step = rd_i64(&r);
     o->sim_time = rd_f64(&r);
-    int32_t n_changed = rd_i32(&r);
+    int32_t n_changed = hs_rd_i32(&r);
     o->index = rd_arr4(&r, n_changed, MAXV);
-    int32_t n_delta = rd_i32(&r);
+    int32_t n_delta = hs_rd_i32(&r);
     if (r.bad || n_delta != 3 * n_changed) return -1;
     o->delta = rd_arr4(&r, n_delta, MAX3);
     if (rd_end(&r) || o->seq < 0 || o->topology_version < 0) return -1;
@@ -250,21 +217,21 @@ int hs_wire_delta_decode(const void* buf, size_t len, hs_wire_delta* o) {
 }
 
 int hs_wire_event_decode(const void* buf, size_t len, hs_wire_event* o) {
-    rd r;
+    hs_rd r;
     if (!rd_begin(&r, buf, len, __hapsim_topology_event_t_get_hash())) return -1;
     o->utime = rd_i64(&r);
     o->seq = rd_i64(&r);
     o->old_version = rd_i64(&r);
     o->new_version = rd_i64(&r);
-    o->device_id = rd_i32(&r);
-    o->n_removed = rd_i32(&r);
+    o->device_id = hs_rd_i32(&r);
+    o->n_removed = hs_rd_i32(&r);
     hs_wire_arr rem = rd_arr4(&r, o->n_removed, INT32_MAX / 4);
-    o->n_moved = rd_i32(&r);
+    o->n_moved = hs_rd_i32(&r);
     hs_wire_arr mv = rd_arr4(&r, o->n_moved, MAXV);
-    int32_t n_rest = rd_i32(&r);
+    int32_t n_rest = hs_rd_i32(&r);
     if (r.bad || n_rest != 3 * o->n_moved) return -1;
     hs_wire_arr mr = rd_arr4(&r, n_rest, MAX3);
-    for (int i = 0; i < 12; i++) rd_f32(&r);
+    for (int i = 0; i < 12; i++) hs_rd_f32(&r);
     if (rd_end(&r) || o->seq < 0 || o->new_version < 0 || o->old_version < 0) return -1;
     for (int32_t i = 0; i < rem.n; i++)
         if (hs_wire_i32_at(rem, i) < 0) return -1;
@@ -277,13 +244,13 @@ int hs_wire_event_decode(const void* buf, size_t len, hs_wire_event* o) {
 // Small messages.
 
 int hs_wire_ack_decode(const void* buf, size_t len, hs_wire_ack* o) {
-    rd r;
+    hs_rd r;
     if (!rd_begin(&r, buf, len, __hapsim_command_ack_t_get_hash())) return -1;
     o->utime = rd_i64(&r);
     o->seq = rd_i64(&r);
     o->request_id = rd_i64(&r);
-    o->kind = rd_i32(&r);
-    o->status = rd_i32(&r);
+    o->kind = hs_rd_i32(&r);
+    o->status = hs_rd_i32(&r);
     rd_str(&r, o->message, sizeof o->message);
     if (rd_end(&r)) return -1;
     return o->status >= HAPSIM_COMMAND_ACK_T_STATUS_FAILED &&
@@ -294,17 +261,17 @@ int hs_wire_ack_decode(const void* buf, size_t len, hs_wire_ack* o) {
 
 int hs_wire_force_decode(const void* buf, size_t len, int32_t* device_id, int64_t* utime,
                          hs_local_model* m) {
-    rd r;
+    hs_rd r;
     if (!rd_begin(&r, buf, len, __hapsim_tool_force_t_get_hash())) return -1;
     memset(m, 0, sizeof *m);
     int64_t t = rd_i64(&r); // server clock, not comparable with ours
     if (utime) *utime = t;
     m->seq = rd_i64(&r);
-    *device_id = rd_i32(&r);
+    *device_id = hs_rd_i32(&r);
     m->pose_seq = rd_i64(&r);
     m->pose_utime = rd_i64(&r);
     m->model_version = rd_i64(&r);
-    m->state = rd_i32(&r);
+    m->state = hs_rd_i32(&r);
     for (int i = 0; i < 3; i++) m->force[i] = rd_f64(&r);
     for (int i = 0; i < 3; i++) m->anchor[i] = rd_f64(&r);
     for (int i = 0; i < 9; i++) m->stiffness[i] = rd_f64(&r);
@@ -337,18 +304,18 @@ int hs_wire_force_decode(const void* buf, size_t len, int32_t* device_id, int64_
     }
 
 static hs_status status_decode(const void* buf, size_t len, hs_client_status* o) {
-    rd r;
+    hs_rd r;
     memset(o, 0, sizeof *o);
     if (!rd_begin(&r, buf, len, __hapsim_server_status_t_get_hash())) return HS_ERR_PARSE;
     o->utime = rd_i64(&r);
     o->seq = rd_i64(&r);
     o->uptime_us = rd_i64(&r);
-    o->state = rd_i32(&r);
+    o->state = hs_rd_i32(&r);
     rd_str(&r, o->scene, sizeof o->scene);
     o->topology_version = rd_i64(&r);
     char skip[8];
     // Loops: name[], then 4 float arrays and one int64 array, each n_loops long.
-    int32_t n = o->n_loops = rd_i32(&r);
+    int32_t n = o->n_loops = hs_rd_i32(&r);
     if (n < 0 || n > 4096) return HS_ERR_PARSE;
     int32_t k = n < HS_CLIENT_STATUS_LOOPS ? n : HS_CLIENT_STATUS_LOOPS;
     for (int32_t i = 0; i < n; i++)
@@ -356,13 +323,13 @@ static hs_status status_decode(const void* buf, size_t len, hs_client_status* o)
             rd_str(&r, o->loops[i].name, sizeof o->loops[i].name);
         else
             rd_str(&r, skip, sizeof skip);
-    READ_COLUMN(rd_f32, loops, rate_hz);
-    READ_COLUMN(rd_f32, loops, p50_us);
-    READ_COLUMN(rd_f32, loops, p99_us);
-    READ_COLUMN(rd_f32, loops, max_us);
+    READ_COLUMN(hs_rd_f32, loops, rate_hz);
+    READ_COLUMN(hs_rd_f32, loops, p50_us);
+    READ_COLUMN(hs_rd_f32, loops, p99_us);
+    READ_COLUMN(hs_rd_f32, loops, max_us);
     READ_COLUMN(rd_i64, loops, overruns);
     // Steps.
-    n = o->n_steps = rd_i32(&r);
+    n = o->n_steps = hs_rd_i32(&r);
     if (r.bad || n < 0 || n > 4096) return HS_ERR_PARSE;
     k = n < HS_CLIENT_STATUS_STEPS ? n : HS_CLIENT_STATUS_STEPS;
     for (int32_t i = 0; i < n; i++)
@@ -370,23 +337,23 @@ static hs_status status_decode(const void* buf, size_t len, hs_client_status* o)
             rd_str(&r, o->steps[i].name, sizeof o->steps[i].name);
         else
             rd_str(&r, skip, sizeof skip);
-    READ_COLUMN(rd_f32, steps, p50_us);
-    READ_COLUMN(rd_f32, steps, p99_us);
-    READ_COLUMN(rd_f32, steps, max_us);
+    READ_COLUMN(hs_rd_f32, steps, p50_us);
+    READ_COLUMN(hs_rd_f32, steps, p99_us);
+    READ_COLUMN(hs_rd_f32, steps, max_us);
     // Devices.
-    n = o->n_devices = rd_i32(&r);
+    n = o->n_devices = hs_rd_i32(&r);
     if (r.bad || n < 0 || n > 4096) return HS_ERR_PARSE;
     k = n < HS_CLIENT_STATUS_DEVICES ? n : HS_CLIENT_STATUS_DEVICES;
-    READ_COLUMN(rd_i32, devices, id);
+    READ_COLUMN(hs_rd_i32, devices, id);
     READ_COLUMN(rd_i8, devices, live);
-    READ_COLUMN(rd_f32, devices, pose_age_ms);
+    READ_COLUMN(hs_rd_f32, devices, pose_age_ms);
     READ_COLUMN(rd_i64, devices, poses_received);
     READ_COLUMN(rd_i64, devices, poses_lost);
-    READ_COLUMN(rd_f32, devices, latency_p50_us);
-    READ_COLUMN(rd_f32, devices, latency_p99_us);
-    READ_COLUMN(rd_f32, devices, force_norm);
+    READ_COLUMN(hs_rd_f32, devices, latency_p50_us);
+    READ_COLUMN(hs_rd_f32, devices, latency_p99_us);
+    READ_COLUMN(hs_rd_f32, devices, force_norm);
     // Rejects.
-    n = o->n_rejects = rd_i32(&r);
+    n = o->n_rejects = hs_rd_i32(&r);
     if (r.bad || n < 0 || n > 4096) return HS_ERR_PARSE;
     k = n < HS_CLIENT_STATUS_REJECTS ? n : HS_CLIENT_STATUS_REJECTS;
     for (int32_t i = 0; i < n; i++)

@@ -6,6 +6,7 @@
 #include <string.h>
 
 #include "hapsim_server_status_t.h"
+#include "hapsim_wire_read.h"
 
 void hs_stylus_rx_init(hs_stylus_rx_state* st, int device_id) {
     memset(st, 0, sizeof *st);
@@ -65,49 +66,21 @@ hs_stylus_rx hs_stylus_rx_bytes(hs_stylus_rx_state* st, const void* buf, size_t 
 }
 
 // ---------------------------------------------------------------------------------------------
-// SERVER_STATUS: a reader that never goes past the end (LCM: big-endian, strings as int32
+// SERVER_STATUS, read with hs_rd (hapsim_wire_read.h; LCM: big-endian, strings as int32
 // length including the NUL, then the bytes).
 
-typedef struct rd {
-    const uint8_t* p;
-    size_t n, off;
-    int bad;
-} rd;
-
-static const uint8_t* rd_take(rd* r, size_t k) {
-    if (r->bad || r->n - r->off < k) {
-        r->bad = 1;
-        return NULL;
-    }
-    const uint8_t* q = r->p + r->off;
-    r->off += k;
-    return q;
-}
-
-static uint64_t rd_u(rd* r, size_t k) {
-    const uint8_t* q = rd_take(r, k);
+static uint64_t rd_u(hs_rd* r, size_t k) {
+    const uint8_t* q = hs_rd_take(r, k);
     uint64_t v = 0;
     for (size_t i = 0; q && i < k; ++i) v = v << 8 | q[i];
     return v;
 }
 
-static int32_t rd_i32(rd* r) {
-    return (int32_t)(uint32_t)rd_u(r, 4);
-}
-
-static float rd_f32(rd* r) {
-    uint32_t u = (uint32_t)rd_u(r, 4);
-    float f;
-    memcpy(&f, &u, 4);
-    if (!isfinite(f)) r->bad = 1;
-    return f;
-}
-
 // Returns the string (NUL-terminated inside its length) or NULL (r->bad set).
-static const char* rd_str(rd* r) {
-    int32_t len = rd_i32(r);
+static const char* rd_str(hs_rd* r) {
+    int32_t len = hs_rd_i32(r);
     if (len < 1) r->bad = 1;
-    const uint8_t* q = r->bad ? NULL : rd_take(r, (size_t)len);
+    const uint8_t* q = r->bad ? NULL : hs_rd_take(r, (size_t)len);
     if (!q || q[len - 1] != 0) {
         r->bad = 1;
         return NULL;
@@ -115,19 +88,19 @@ static const char* rd_str(rd* r) {
     return (const char*)q;
 }
 
-static int32_t rd_count(rd* r) {
-    int32_t n = rd_i32(r);
+static int32_t rd_count(hs_rd* r) {
+    int32_t n = hs_rd_i32(r);
     if (n < 0 || n > 4096) r->bad = 1;
     return r->bad ? 0 : n;
 }
 
-static void rd_skip_f32(rd* r, int32_t n) {
-    for (int32_t i = 0; i < n && !r->bad; ++i) (void)rd_f32(r);
+static void rd_skip_f32(hs_rd* r, int32_t n) {
+    for (int32_t i = 0; i < n && !r->bad; ++i) (void)hs_rd_f32(r);
 }
 
 int hs_stylus_status_decode(const void* buf, size_t len, hs_stylus_srv_status* out) {
     memset(out, 0, sizeof *out);
-    rd r = {buf, buf ? len : 0, 0, 0};
+    hs_rd r = {buf, buf ? len : 0, 0, 0};
     if ((int64_t)rd_u(&r, 8) != __hapsim_server_status_t_get_hash()) return -1;
     (void)rd_u(&r, 8 * 3 + 4); // utime, seq, uptime_us, state
     (void)rd_str(&r);          // scene
@@ -140,36 +113,36 @@ int hs_stylus_status_decode(const void* buf, size_t len, hs_stylus_srv_status* o
         if (s && strcmp(s, "rt") == 0) rt = i; // the last one named rt, as before
     }
     for (int32_t i = 0; i < n; ++i) {
-        float f = rd_f32(&r);
+        float f = hs_rd_f32(&r);
         if (i == rt) out->rt_rate_hz = f;
     }
     rd_skip_f32(&r, n); // p50
     for (int32_t i = 0; i < n; ++i) {
-        float f = rd_f32(&r);
+        float f = hs_rd_f32(&r);
         if (i == rt) out->rt_p99_us = f;
     }
     rd_skip_f32(&r, n); // max
-    (void)rd_take(&r, (size_t)n * 8);
+    (void)hs_rd_take(&r, (size_t)n * 8);
     out->has_rt = rt >= 0;
     // Steps: names, p50, p99, max.
     n = rd_count(&r);
     for (int32_t i = 0; i < n; ++i) (void)rd_str(&r);
     rd_skip_f32(&r, n);
     for (int32_t i = 0; i < n; ++i) {
-        float f = rd_f32(&r);
+        float f = hs_rd_f32(&r);
         if (f > out->step_p99_us) out->step_p99_us = f;
     }
     rd_skip_f32(&r, n);
     // Devices: id (int32), live (int8), age (f), received, lost (int64), p50, p99, force (f).
     n = rd_count(&r);
-    (void)rd_take(&r, (size_t)n * 5);
+    (void)hs_rd_take(&r, (size_t)n * 5);
     rd_skip_f32(&r, n);
-    (void)rd_take(&r, (size_t)n * 16);
+    (void)hs_rd_take(&r, (size_t)n * 16);
     rd_skip_f32(&r, 3 * n);
     // Rejects: channel, reason (strings), count (int64); then the warnings.
     n = rd_count(&r);
     for (int32_t i = 0; i < 2 * n; ++i) (void)rd_str(&r);
-    (void)rd_take(&r, (size_t)n * 8);
+    (void)hs_rd_take(&r, (size_t)n * 8);
     (void)rd_str(&r);
     if (r.bad || r.off != r.n) {
         memset(out, 0, sizeof *out);
