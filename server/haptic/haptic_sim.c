@@ -329,6 +329,8 @@ static void node_rot(hs_haptic_sim* h, int node, double r[9]) {
 // about the contact's displacement or less.
 #define RELAX_FLOOR  0.25
 #define RELAX_GROWTH 1.5
+// A reversing correction below this share of r is round-off and ringing, not an overshoot.
+#define RELAX_TINY 1e-3
 
 // Build and publish the snapshot around tool position p from the body's current state.
 static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
@@ -407,7 +409,7 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
     } else if (h->relax_e >= 0 && e > RELAX_GROWTH * h->relax_e && e > 2 * um + RELAX_FLOOR * r) {
         h->st.relax_w = fmax(w_min, 0.25 * h->st.relax_w);
         h->st.relax_cuts++;
-    } else if (h->relax_e >= 0 && flip < -0.25 * d2sum) {
+    } else if (h->relax_e >= 0 && flip < -0.25 * d2sum && e > RELAX_TINY * r) {
         // The correction reverses from step to step: the iteration overshoots (a deep press
         // with a small sphere, large local rotations). Halve w until it converges monotonically.
         h->st.relax_w = fmax(w_min, 0.5 * h->st.relax_w);
