@@ -101,22 +101,33 @@ static int hold(const hs_mesh* m, const unsigned char* fixed, hs_model model, in
     hs_haptic_sim_stop(sim);
 
     // The full static reaction with the contact nodes held where the sim left them.
-    memcpy(fx, fixed, (size_t)m->n_nodes);
-    for (int i = 0; i < st.contact.n; ++i) fx[st.contact.node[i]] = 1;
     hs_body_def bd = d.body;
     bd.static_load_steps = 3;
     hs_body* b = NULL;
     double sum[3] = {0, 0, 0}, umax = 0;
-    if (hs_body_create(m, &bd, fx, &b, &err) == HS_OK) {
-        for (int i = 0; i < st.contact.n; ++i)
-            hs_body_set_prescribed(b, st.contact.node[i], u + 3 * st.contact.node[i]);
-        hs_body_solve_static(b, NULL);
-        for (int i = 0; i < st.contact.n; ++i) {
-            double rr[3];
-            hs_body_reaction(b, st.contact.node[i], rr);
-            for (int a = 0; a < 3; ++a) sum[a] += rr[a];
-            umax = fmax(umax, norm3(u + 3 * st.contact.node[i]));
-        }
+    int ok = u && fx;
+    if (ok) {
+        memcpy(fx, fixed, (size_t)m->n_nodes);
+        for (int i = 0; i < st.contact.n; ++i) fx[st.contact.node[i]] = 1;
+        ok = hs_body_create(m, &bd, fx, &b, &err) == HS_OK;
+    }
+    for (int i = 0; ok && i < st.contact.n; ++i)
+        ok = hs_body_set_prescribed(b, st.contact.node[i], u + 3 * st.contact.node[i]) == HS_OK;
+    if (ok) ok = hs_body_solve_static(b, NULL) >= 0;
+    for (int i = 0; ok && i < st.contact.n; ++i) {
+        double rr[3];
+        hs_body_reaction(b, st.contact.node[i], rr);
+        for (int a = 0; a < 3; ++a) sum[a] += rr[a];
+        umax = fmax(umax, norm3(u + 3 * st.contact.node[i]));
+    }
+    if (!ok) {
+        fprintf(stderr, "hold_probe: the static reference failed%s%s\n", err.msg[0] ? ": " : "",
+                err.msg);
+        hs_body_destroy(&b);
+        free(fx);
+        free(u);
+        hs_haptic_sim_destroy(&sim);
+        return 1;
     }
     printf("%-10s |F| %.4f N, last 0.5 s range %.4f N; %d contact nodes (largest |u| %.2f mm), "
            "full static reaction %.4f N; relaxation w %.3g (%lld cuts), %lld steps\n",
@@ -130,13 +141,28 @@ static int hold(const hs_mesh* m, const unsigned char* fixed, hs_model model, in
     return 0;
 }
 
+// A whole argument as a finite number.
+static int number(const char* s, double* out) {
+    char* end = NULL;
+    *out = strtod(s, &end);
+    return end != s && *end == 0 && isfinite(*out);
+}
+
 int main(int argc, char** argv) {
     if (argc < 4) {
         fprintf(stderr, "usage: hold_probe NODE RADIUS_M DEPTH_M [HOLD_MS [FREE_RELAX]]\n");
         return 2;
     }
-    int node = atoi(argv[1]), hold_ms = argc > 4 ? atoi(argv[4]) : 5000;
-    double r = atof(argv[2]), depth = atof(argv[3]), free_relax = argc > 5 ? atof(argv[5]) : 0;
+    double node_d = 0, r = 0, depth = 0, hold_d = 5000, free_relax = 0;
+    if (!number(argv[1], &node_d) || !number(argv[2], &r) || !number(argv[3], &depth) ||
+        (argc > 4 && !number(argv[4], &hold_d)) || (argc > 5 && !number(argv[5], &free_relax)) ||
+        node_d < 0 || node_d > 1e8 || hold_d < 0 || hold_d > 600000 || node_d != floor(node_d) ||
+        hold_d != floor(hold_d) || fabs(depth) > 0.1 || free_relax < 0 || free_relax > 1) {
+        fprintf(stderr, "hold_probe: NODE and HOLD_MS are integers, |DEPTH_M| <= 0.1, HOLD_MS "
+                        "<= 600000, FREE_RELAX in [0, 1] (0: the default)\n");
+        return 2;
+    }
+    int node = (int)node_d, hold_ms = (int)hold_d;
     hs_err err = {0};
     hs_mesh* m = NULL;
     if (hs_mesh_load(HS_SOURCE_DIR "/scenes/liver/liver2.msh", &m, &err) < 0) {
@@ -144,6 +170,10 @@ int main(int argc, char** argv) {
         return 1;
     }
     unsigned char* fixed = calloc((size_t)m->n_nodes, 1);
+    if (!fixed) {
+        hs_mesh_destroy(&m);
+        return 1;
+    }
     hs_mesh_select_plane(m, 1, -1, 0.010, fixed); // as scenes/liver/liver.json
     int on_surface = 0;
     for (int s = 0; s < m->n_surf_nodes; ++s) on_surface |= m->surf_nodes[s] == node;
