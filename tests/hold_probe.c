@@ -113,7 +113,11 @@ static int hold(const hs_mesh* m, const unsigned char* fixed, hs_model model, in
     }
     for (int i = 0; ok && i < st.contact.n; ++i)
         ok = hs_body_set_prescribed(b, st.contact.node[i], u + 3 * st.contact.node[i]) == HS_OK;
-    if (ok) ok = hs_body_solve_static(b, NULL) >= 0;
+    hs_status solved = HS_OK;
+    if (ok) {
+        solved = hs_body_solve_static(b, NULL);
+        ok = solved >= 0;
+    }
     for (int i = 0; ok && i < st.contact.n; ++i) {
         double rr[3];
         hs_body_reaction(b, st.contact.node[i], rr);
@@ -121,8 +125,8 @@ static int hold(const hs_mesh* m, const unsigned char* fixed, hs_model model, in
         umax = fmax(umax, norm3(u + 3 * st.contact.node[i]));
     }
     if (!ok) {
-        fprintf(stderr, "hold_probe: the static reference failed%s%s\n", err.msg[0] ? ": " : "",
-                err.msg);
+        fprintf(stderr, "hold_probe: the static reference failed (status %d)%s%s\n", (int)solved,
+                err.msg[0] ? ": " : "", err.msg);
         hs_body_destroy(&b);
         free(fx);
         free(u);
@@ -134,6 +138,8 @@ static int hold(const hs_mesh* m, const unsigned char* fixed, hs_model model, in
            model == HS_MODEL_LINEAR ? "linear" : "corotated", norm3(out.force_n), f_hi - f_lo,
            st.contact.n, umax * 1e3, norm3(sum), st.free_relax_w, (long long)st.free_relax_cuts,
            (long long)st.steps);
+    if (solved == HS_WARN_NOT_CONVERGED)
+        printf("           (the static reference did not converge)\n");
     hs_body_destroy(&b);
     free(fx);
     free(u);
@@ -177,10 +183,10 @@ int main(int argc, char** argv) {
     hs_mesh_select_plane(m, 1, -1, 0.010, fixed); // as scenes/liver/liver.json
     int on_surface = 0;
     for (int s = 0; s < m->n_surf_nodes; ++s) on_surface |= m->surf_nodes[s] == node;
-    if (!on_surface || fixed[node] || !(r > 0) || hold_ms < 500) {
+    if (!on_surface || fixed[node] || !(r > 0) || r > 0.1 || hold_ms < 500) {
         fprintf(stderr,
                 "hold_probe: NODE must be a free surface node of liver2 (0..%d), "
-                "RADIUS_M > 0, HOLD_MS >= 500\n",
+                "RADIUS_M in (0, 0.1], HOLD_MS >= 500\n",
                 m->n_nodes - 1);
         free(fixed);
         hs_mesh_destroy(&m);

@@ -376,7 +376,8 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
     // ~0.8 r deep; after cuts whose pieces C and the body hold differently) the iteration
     // diverges through the body's dynamics: q ran 0.5 m off within three steps (a 10 N kick).
     // So a correction that grows 1.5x past 2 |u|max + r / 4 cuts w 4x, down to free_relax / 64;
-    // one that reverses halves it; one that shrinks without reversing lets it recover 1.25x.
+    // one that reverses (and exceeds r / 1000) halves it; one that shrinks without reversing
+    // lets it recover 1.25x.
     // The targets x - R (C R^T g) replace C R^T g in h->v (nothing else reads it).
     double e = 0, um = 0, flip = 0, d2sum = 0;
     for (int si = 0; si < ns; ++si) {
