@@ -21,23 +21,6 @@ static double norm3(const double* v) {
     return sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
 }
 
-// Area-weighted outward normal of surface node k.
-static void node_normal(const hs_mesh* m, int k, double n[3]) {
-    n[0] = n[1] = n[2] = 0;
-    for (int t = 0; t < m->n_tris; ++t) {
-        const int* tr = m->tris + 3 * t;
-        if (tr[0] != k && tr[1] != k && tr[2] != k) continue;
-        const double *a = m->x0 + 3 * tr[0], *b = m->x0 + 3 * tr[1], *c = m->x0 + 3 * tr[2];
-        double e1[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
-        double e2[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
-        n[0] += e1[1] * e2[2] - e1[2] * e2[1];
-        n[1] += e1[2] * e2[0] - e1[0] * e2[2];
-        n[2] += e1[0] * e2[1] - e1[1] * e2[0];
-    }
-    double l = norm3(n);
-    for (int a = 0; a < 3; ++a) n[a] = l > 0 ? n[a] / l : 0;
-}
-
 // One hold with `model`; prints a line, returns 0 or 1 (could not run).
 static int hold(const hs_mesh* m, const unsigned char* fixed, hs_model model, int node, double r,
                 double depth, int hold_ms, double free_relax) {
@@ -60,7 +43,7 @@ static int hold(const hs_mesh* m, const unsigned char* fixed, hs_model model, in
         return 1;
     }
     double n[3];
-    node_normal(m, node, n);
+    hs_mesh_rest_normal(m, node, n); // a surface node: checked in main
     const double* x = m->x0 + 3 * node;
     struct timespec next;
     clock_gettime(CLOCK_MONOTONIC, &next);

@@ -41,22 +41,6 @@ static int far_node(const hs_mesh* m, const unsigned char* fixed) {
     return best;
 }
 
-static void node_normal(const hs_mesh* m, int node, double n[3]) {
-    n[0] = n[1] = n[2] = 0;
-    for (int t = 0; t < m->n_tris; ++t) {
-        const int* tr = m->tris + 3 * t;
-        if (tr[0] != node && tr[1] != node && tr[2] != node) continue;
-        const double *a = m->x0 + 3 * tr[0], *b = m->x0 + 3 * tr[1], *c = m->x0 + 3 * tr[2];
-        double e1[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
-        double e2[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
-        n[0] += e1[1] * e2[2] - e1[2] * e2[1];
-        n[1] += e1[2] * e2[0] - e1[0] * e2[2];
-        n[2] += e1[0] * e2[1] - e1[1] * e2[0];
-    }
-    double l = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
-    for (int k = 0; k < 3; ++k) n[k] /= l;
-}
-
 // The k surface nodes nearest to node c (c first), excluding fixed ones.
 static int nearest_surface(const hs_mesh* m, const unsigned char* fixed, int c, int k, int* out) {
     int n = 0;
@@ -140,7 +124,7 @@ static int exact_single_node(void) {
            hs_compliance_setup_ms(c));
     int k = far_node(mesh, fixed);
     double n[3];
-    node_normal(mesh, k, n);
+    hs_mesh_rest_normal(mesh, k, n);
     double d[3] = {-0.002 * n[0] + 0.0005, -0.002 * n[1], -0.002 * n[2] - 0.0003};
     double f[3], react[3];
     ENSURE(hs_compliance_solve_set(c, 1, &k, NULL, d, f) == HS_OK);
@@ -217,7 +201,7 @@ static int corotated_5mm(void) {
     ENSURE(hs_compliance_create(mesh, &fd, fixed, 32, &c, &err) == HS_OK);
     int k = far_node(mesh, fixed);
     double n[3], d[3], f[3], react[3], rot[9];
-    node_normal(mesh, k, n);
+    hs_mesh_rest_normal(mesh, k, n);
     for (int a = 0; a < 3; ++a) d[a] = -0.005 * n[a];
     ENSURE(full_reaction(mesh, fixed, HS_MODEL_COROTATED, 1, &k, d, react, rot) == 0);
     ENSURE(hs_compliance_solve_set(c, 1, &k, NULL, d, f) == HS_OK);
@@ -372,7 +356,7 @@ static void rest_snapshot(hs_compliance* c, const hs_mesh* mesh, const double p[
     for (int i = 0; i < n; ++i) {
         s->coupled[i] = (unsigned char)hs_compliance_has_column(c, s->node[i]);
         memcpy(s->free_m[i], mesh->x0 + 3 * s->node[i], 3 * sizeof(double));
-        node_normal(mesh, s->node[i], s->normal[i]);
+        hs_mesh_rest_normal(mesh, s->node[i], s->normal[i]);
         for (int j = 0; j < n; ++j) hs_compliance_block(c, s->node[i], s->node[j], s->c[i][j]);
     }
 }
@@ -387,7 +371,7 @@ static int contact_solve(void) {
     ENSURE(hs_compliance_create(mesh, &fd, fixed, 96, &c, &err) == HS_OK);
     int k = far_node(mesh, fixed);
     double n[3];
-    node_normal(mesh, k, n);
+    hs_mesh_rest_normal(mesh, k, n);
     static hs_contact_snapshot snap;
     const double r = 0.03;
     // Sphere pressed 8 mm into the surface at node k along -n.

@@ -48,25 +48,12 @@ static int load_liver(liver* L) {
 
 // Probe at surface node k: its area-weighted outward normal and a tangent.
 static void probe_node(liver* L, int k) {
-    const hs_mesh* m = L->mesh;
     L->node = k;
-    memset(L->n, 0, sizeof L->n);
-    for (int t = 0; t < m->n_tris; ++t) {
-        const int* tr = m->tris + 3 * t;
-        if (tr[0] != L->node && tr[1] != L->node && tr[2] != L->node) continue;
-        const double *a = m->x0 + 3 * tr[0], *b = m->x0 + 3 * tr[1], *c = m->x0 + 3 * tr[2];
-        double e1[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
-        double e2[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
-        L->n[0] += e1[1] * e2[2] - e1[2] * e2[1];
-        L->n[1] += e1[2] * e2[0] - e1[0] * e2[2];
-        L->n[2] += e1[0] * e2[1] - e1[1] * e2[0];
-    }
-    double l = sqrt(L->n[0] * L->n[0] + L->n[1] * L->n[1] + L->n[2] * L->n[2]);
-    for (int a = 0; a < 3; ++a) L->n[a] /= l;
+    hs_mesh_rest_normal(L->mesh, k, L->n);
     // Tangent: x axis with its normal part removed.
     double ex[3] = {1, 0, 0}, dn = L->n[0];
     for (int a = 0; a < 3; ++a) L->t[a] = ex[a] - dn * L->n[a];
-    l = sqrt(L->t[0] * L->t[0] + L->t[1] * L->t[1] + L->t[2] * L->t[2]);
+    double l = sqrt(L->t[0] * L->t[0] + L->t[1] * L->t[1] + L->t[2] * L->t[2]);
     for (int a = 0; a < 3; ++a) L->t[a] /= l;
 }
 

@@ -185,6 +185,20 @@ static int BoxMesh(void) {
     int inner = 1 + (nx + 1) * (1 + (ny + 1) * 1);
     ENSURE(m->node_nbr_start[inner + 1] - m->node_nbr_start[inner] == 14);
     ENSURE(m->node_surf[inner] == -1);
+    // Rest normals: the mid-face nodes of the top, bottom and x = 0 faces; none inside.
+    double nrm[3];
+    const int top = 2 + (nx + 1) * (1 + (ny + 1) * nz), bottom = 2 + (nx + 1) * 1,
+              side = (nx + 1) * (1 + (ny + 1) * 1);
+    ENSURE(hs_mesh_rest_normal(m, top, nrm) == 0);
+    ENSURE(nrm[0] == 0 && nrm[1] == 0 && nrm[2] == 1);
+    ENSURE(hs_mesh_rest_normal(m, bottom, nrm) == 0);
+    ENSURE(nrm[0] == 0 && nrm[1] == 0 && nrm[2] == -1);
+    ENSURE(hs_mesh_rest_normal(m, side, nrm) == 0);
+    ENSURE_NEAR(nrm[0], -1, 1e-15);
+    ENSURE_SMALL(fabs(nrm[1]) + fabs(nrm[2]), 1e-15);
+    ENSURE(hs_mesh_rest_normal(m, inner, nrm) == -1 && nrm[0] == 0 && nrm[2] == 0);
+    ENSURE(hs_mesh_rest_normal(m, m->n_nodes, nrm) == -1 &&
+           hs_mesh_rest_normal(NULL, 0, nrm) == -1);
     ENSURE(m->node_nbr_start[1] - m->node_nbr_start[0] == 7);
     ENSURE(m->node_tet_start[inner + 1] - m->node_tet_start[inner] == 24);
 

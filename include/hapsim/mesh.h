@@ -105,6 +105,11 @@ int hs_mesh_select_box(const hs_mesh* mesh, const double box_min[3], const doubl
 int hs_mesh_select_plane(const hs_mesh* mesh, int axis, int side, double tol_m,
                          unsigned char* mask);
 
+/// Outward unit normal of surface node `node` at rest: the area-weighted mean of its boundary
+/// triangles' normals (a scan of the boundary: for set-up and tools, not per step).
+/// Returns 0, or -1 (n zeroed) for a bad argument or a node not on the surface.
+int hs_mesh_rest_normal(const hs_mesh* mesh, int node, double n[3]);
+
 #ifdef __cplusplus
 }
 #endif

@@ -912,6 +912,29 @@ int hs_mesh_select_plane(const hs_mesh* m, int axis, int side, double tol_m, uns
     return n;
 }
 
+int hs_mesh_rest_normal(const hs_mesh* m, int node, double n[3]) {
+    if (!n) return -1;
+    n[0] = n[1] = n[2] = 0;
+    if (!m || node < 0 || node >= m->n_nodes || !m->node_surf || m->node_surf[node] < 0) return -1;
+    for (int t = 0; t < m->n_tris; ++t) {
+        const int* tr = m->tris + 3 * t;
+        if (tr[0] != node && tr[1] != node && tr[2] != node) continue;
+        const double *a = m->x0 + 3 * tr[0], *b = m->x0 + 3 * tr[1], *c = m->x0 + 3 * tr[2];
+        double e1[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
+        double e2[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+        n[0] += e1[1] * e2[2] - e1[2] * e2[1];
+        n[1] += e1[2] * e2[0] - e1[0] * e2[2];
+        n[2] += e1[0] * e2[1] - e1[1] * e2[0];
+    }
+    double l = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+    if (!(l > 0)) {
+        n[0] = n[1] = n[2] = 0;
+        return -1;
+    }
+    for (int k = 0; k < 3; ++k) n[k] /= l;
+    return 0;
+}
+
 hs_status hs_mesh_write_vtk(const hs_mesh* m, const double* u, const char* path, hs_err* err) {
     if (!m || !path) return hs_err_set(err, HS_ERR_INVALID, "mesh or path is NULL");
     FILE* f = fopen(path, "w");

@@ -97,19 +97,7 @@ static int probe_node(const hs_mesh* m, const unsigned char* fixed, double n[3])
         int v = m->surf_nodes[s];
         if (!fixed[v] && (k < 0 || m->x0[3 * v + 2] > m->x0[3 * k + 2])) k = v;
     }
-    n[0] = n[1] = n[2] = 0;
-    for (int t = 0; t < m->n_tris; ++t) {
-        const int* tr = m->tris + 3 * t;
-        if (tr[0] != k && tr[1] != k && tr[2] != k) continue;
-        const double *a = m->x0 + 3 * tr[0], *b = m->x0 + 3 * tr[1], *c = m->x0 + 3 * tr[2];
-        double e1[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
-        double e2[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
-        n[0] += e1[1] * e2[2] - e1[2] * e2[1];
-        n[1] += e1[2] * e2[0] - e1[0] * e2[2];
-        n[2] += e1[0] * e2[1] - e1[1] * e2[0];
-    }
-    double l = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
-    for (int a = 0; a < 3; ++a) n[a] /= l;
+    hs_mesh_rest_normal(m, k, n);
     return k;
 }
 
