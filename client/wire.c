@@ -79,16 +79,13 @@ static double rd_f64(hs_rd* r) {
 }
 // LCM string: int32 length including the NUL, then the bytes; copied (truncated) into out[cap].
 static void rd_str(hs_rd* r, char* out, size_t cap) {
-    int32_t len = hs_rd_i32(r);
-    if (len < 1) r->bad = 1;
-    const uint8_t* q = r->bad ? NULL : hs_rd_take(r, (size_t)len);
-    if (!q || q[len - 1] != 0 || memchr(q, 0, (size_t)len - 1)) {
-        r->bad = 1;
-        if (cap) out[0] = 0;
+    const char* q = hs_rd_str(r);
+    if (!cap) return;
+    if (!q) {
+        out[0] = 0;
         return;
     }
-    if (!cap) return;
-    size_t k = (size_t)len - 1 < cap - 1 ? (size_t)len - 1 : cap - 1;
+    size_t len = strlen(q), k = len < cap - 1 ? len : cap - 1;
     memcpy(out, q, k);
     out[k] = 0;
 }

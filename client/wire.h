@@ -10,6 +10,7 @@
 #include <stdint.h>
 
 #include "hapsim/client.h"
+#include "hapsim_wire_read.h" // HS_WIRE_*_MAX
 
 /// A big-endian array on the wire: n elements of 4 bytes at p.
 typedef struct hs_wire_arr {
@@ -60,14 +61,8 @@ int hs_wire_state_decode(const void* buf, size_t len, hs_wire_state* out);
 int hs_wire_delta_decode(const void* buf, size_t len, hs_wire_delta* out);
 int hs_wire_event_decode(const void* buf, size_t len, hs_wire_event* out);
 int hs_wire_ack_decode(const void* buf, size_t len, hs_wire_ack* out);
-/// Ranges a tool_force_t must keep (docs/protocol.md): |F| then stays below ~3e10 N.
-#define HS_WIRE_FORCE_MAX_N       1e4
-#define HS_WIRE_STIFFNESS_MAX_N_M 1e9
-#define HS_WIRE_ANCHOR_MAX_M      1e3
-#define HS_WIRE_RADIUS_MAX_M      10.0
-#define HS_WIRE_TIMEOUT_MAX_US    60000000
-
-/// tool_force into a local model (arrival_us left 0); also checks state, and the ranges above.
+/// tool_force into a local model (arrival_us left 0); also checks state, and the ranges
+/// HS_WIRE_*_MAX (hapsim_wire_read.h).
 /// *utime (may be NULL) gets the message's utime (server clock).
 int hs_wire_force_decode(const void* buf, size_t len, int32_t* device_id, int64_t* utime,
                          hs_local_model* out);

@@ -26,7 +26,7 @@ static inline uint64_t hs_be64(const uint8_t* p) {
 
 /// The next k bytes, or NULL (and bad set) when fewer remain or the reader is already bad.
 static inline const uint8_t* hs_rd_take(hs_rd* r, size_t k) {
-    if (r->bad || r->n - r->off < k) {
+    if (r->bad || r->off > r->n || r->n - r->off < k) {
         r->bad = 1;
         return NULL;
     }
@@ -40,15 +40,40 @@ static inline int32_t hs_rd_i32(hs_rd* r) {
     return q ? (int32_t)hs_be32(q) : 0;
 }
 
-/// A float; a non-finite one sets bad.
+/// A float; a non-finite one sets bad and reads 0 (nothing downstream sees a NaN).
 static inline float hs_rd_f32(hs_rd* r) {
     const uint8_t* q = hs_rd_take(r, 4);
     if (!q) return 0;
     uint32_t u = hs_be32(q);
     float f;
     memcpy(&f, &u, 4);
-    if (!isfinite(f)) r->bad = 1;
+    if (!isfinite(f)) {
+        r->bad = 1;
+        return 0;
+    }
     return f;
 }
+
+/// An LCM string (int32 length including the NUL, then the bytes): its text, NUL-terminated
+/// inside the message, or NULL (bad set) for a length < 1, a missing final NUL or one inside
+/// (a reader that stops at it would see another name than one that counts the length).
+static inline const char* hs_rd_str(hs_rd* r) {
+    int32_t len = hs_rd_i32(r);
+    if (len < 1) r->bad = 1;
+    const uint8_t* q = r->bad ? NULL : hs_rd_take(r, (size_t)len);
+    if (!q || q[len - 1] != 0 || memchr(q, 0, (size_t)len - 1)) {
+        r->bad = 1;
+        return NULL;
+    }
+    return (const char*)q;
+}
+
+/// Ranges a tool_force_t must keep (docs/protocol.md), checked by the client library and the
+/// simulated stylus alike: within them |F| stays below ~3e10 N wherever the device is.
+#define HS_WIRE_FORCE_MAX_N       1e4
+#define HS_WIRE_STIFFNESS_MAX_N_M 1e9
+#define HS_WIRE_ANCHOR_MAX_M      1e3
+#define HS_WIRE_RADIUS_MAX_M      10.0
+#define HS_WIRE_TIMEOUT_MAX_US    60000000
 
 #endif

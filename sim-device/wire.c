@@ -18,6 +18,22 @@ static hs_stylus_rx count(hs_stylus_rx_state* st, hs_stylus_rx r) {
     return r;
 }
 
+// The ranges the client library keeps too (hapsim_wire_read.h): a finite but huge model
+// (1e200 N, or stiffness and radius 1e300) overflowed to a force the device then zeroed, while
+// the message counted as accepted.
+static int in_wire_ranges(const hapsim_tool_force_t* msg) {
+    if (!(msg->validity_radius <= HS_WIRE_RADIUS_MAX_M) ||
+        !(msg->timeout_us <= HS_WIRE_TIMEOUT_MAX_US))
+        return 0;
+    for (int i = 0; i < 3; ++i)
+        if (!(fabs(msg->force[i]) <= HS_WIRE_FORCE_MAX_N) ||
+            !(fabs(msg->anchor[i]) <= HS_WIRE_ANCHOR_MAX_M))
+            return 0;
+    for (int i = 0; i < 9; ++i)
+        if (!(fabs(msg->stiffness[i]) <= HS_WIRE_STIFFNESS_MAX_N_M)) return 0;
+    return 1;
+}
+
 hs_stylus_rx hs_stylus_rx_force(hs_stylus_rx_state* st, const hapsim_tool_force_t* msg,
                                 int64_t now_ns, int64_t wall_us, hs_stylus_model* out) {
     if (msg->device_id != st->device_id) return count(st, HS_RX_OTHER_DEVICE);
@@ -36,7 +52,8 @@ hs_stylus_rx hs_stylus_rx_force(hs_stylus_rx_state* st, const hapsim_tool_force_
     for (int i = 0; i < 9; ++i) m.stiffness[i] = msg->stiffness[i];
     m.radius_m = msg->validity_radius;
     m.timeout_s = msg->timeout_us >= 0 ? (double)msg->timeout_us * 1e-6 : -1;
-    if (!hs_stylus_model_valid(&m) || msg->state < HAPSIM_TOOL_FORCE_T_STATE_FREE ||
+    if (!hs_stylus_model_valid(&m) || !in_wire_ranges(msg) ||
+        msg->state < HAPSIM_TOOL_FORCE_T_STATE_FREE ||
         msg->state > HAPSIM_TOOL_FORCE_T_STATE_STOPPED || msg->seq < 0)
         return count(st, HS_RX_INVALID);
     // A restarted server's seq starts again from 1: told by its clock (it counted as a reorder
@@ -76,18 +93,6 @@ static uint64_t rd_u(hs_rd* r, size_t k) {
     return v;
 }
 
-// Returns the string (NUL-terminated inside its length) or NULL (r->bad set).
-static const char* rd_str(hs_rd* r) {
-    int32_t len = hs_rd_i32(r);
-    if (len < 1) r->bad = 1;
-    const uint8_t* q = r->bad ? NULL : hs_rd_take(r, (size_t)len);
-    if (!q || q[len - 1] != 0) {
-        r->bad = 1;
-        return NULL;
-    }
-    return (const char*)q;
-}
-
 static int32_t rd_count(hs_rd* r) {
     int32_t n = hs_rd_i32(r);
     if (n < 0 || n > 4096) r->bad = 1;
@@ -98,27 +103,35 @@ static void rd_skip_f32(hs_rd* r, int32_t n) {
     for (int32_t i = 0; i < n && !r->bad; ++i) (void)hs_rd_f32(r);
 }
 
+// A rate (Hz) or a time (us) the status line shows: finite is not enough (FLT_MAX us made
+// llround of its ms unspecified), so outside [0, 1e9] the message is malformed.
+static float rd_stat(hs_rd* r) {
+    float f = hs_rd_f32(r);
+    if (!(f >= 0 && f <= 1e9f)) r->bad = 1;
+    return f;
+}
+
 int hs_stylus_status_decode(const void* buf, size_t len, hs_stylus_srv_status* out) {
     memset(out, 0, sizeof *out);
     hs_rd r = {buf, buf ? len : 0, 0, 0};
     if ((int64_t)rd_u(&r, 8) != __hapsim_server_status_t_get_hash()) return -1;
     (void)rd_u(&r, 8 * 3 + 4); // utime, seq, uptime_us, state
-    (void)rd_str(&r);          // scene
+    (void)hs_rd_str(&r);       // scene
     (void)rd_u(&r, 8);         // topology_version
     // Loops: names, then rate, p50, p99, max (float) and overruns (int64), n_loops each.
     int32_t n = rd_count(&r);
     int rt = -1;
     for (int32_t i = 0; i < n; ++i) {
-        const char* s = rd_str(&r);
+        const char* s = hs_rd_str(&r);
         if (s && strcmp(s, "rt") == 0) rt = i; // the last one named rt, as before
     }
     for (int32_t i = 0; i < n; ++i) {
-        float f = hs_rd_f32(&r);
+        float f = rd_stat(&r);
         if (i == rt) out->rt_rate_hz = f;
     }
     rd_skip_f32(&r, n); // p50
     for (int32_t i = 0; i < n; ++i) {
-        float f = hs_rd_f32(&r);
+        float f = rd_stat(&r);
         if (i == rt) out->rt_p99_us = f;
     }
     rd_skip_f32(&r, n); // max
@@ -126,10 +139,10 @@ int hs_stylus_status_decode(const void* buf, size_t len, hs_stylus_srv_status* o
     out->has_rt = rt >= 0;
     // Steps: names, p50, p99, max.
     n = rd_count(&r);
-    for (int32_t i = 0; i < n; ++i) (void)rd_str(&r);
+    for (int32_t i = 0; i < n; ++i) (void)hs_rd_str(&r);
     rd_skip_f32(&r, n);
     for (int32_t i = 0; i < n; ++i) {
-        float f = hs_rd_f32(&r);
+        float f = rd_stat(&r);
         if (f > out->step_p99_us) out->step_p99_us = f;
     }
     rd_skip_f32(&r, n);
@@ -141,9 +154,9 @@ int hs_stylus_status_decode(const void* buf, size_t len, hs_stylus_srv_status* o
     rd_skip_f32(&r, 3 * n);
     // Rejects: channel, reason (strings), count (int64); then the warnings.
     n = rd_count(&r);
-    for (int32_t i = 0; i < 2 * n; ++i) (void)rd_str(&r);
+    for (int32_t i = 0; i < 2 * n; ++i) (void)hs_rd_str(&r);
     (void)hs_rd_take(&r, (size_t)n * 8);
-    (void)rd_str(&r);
+    (void)hs_rd_str(&r);
     if (r.bad || r.off != r.n) {
         memset(out, 0, sizeof *out);
         return -1;

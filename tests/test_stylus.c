@@ -8,7 +8,9 @@
 #include "wire.h"
 
 #include "hapsim_server_status_t.h"
+#include "hapsim_wire_read.h"
 
+#include <float.h>
 #include <lcm/lcm.h>
 #include <pthread.h>
 #include <stdlib.h>
@@ -1372,6 +1374,30 @@ static int wire_rx(void) {
     f = good_force(6);
     f.state = 9;
     ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_INVALID);
+    // Finite but beyond the ranges the client library keeps: refused as there (the device
+    // zeroed the overflowing force of such a model and counted it accepted).
+    hs_stylus_rx_state s2;
+    hs_stylus_rx_init(&s2, 2);
+    f = good_force(6);
+    f.force[0] = 1e200;
+    ENSURE(hs_stylus_rx_force(&s2, &f, 0, 0, &m) == HS_RX_INVALID);
+    f = good_force(6);
+    f.stiffness[4] = 1e300;
+    f.validity_radius = 1e300;
+    ENSURE(hs_stylus_rx_force(&s2, &f, 0, 0, &m) == HS_RX_INVALID);
+    f = good_force(6);
+    f.anchor[1] = -2 * HS_WIRE_ANCHOR_MAX_M;
+    ENSURE(hs_stylus_rx_force(&s2, &f, 0, 0, &m) == HS_RX_INVALID);
+    f = good_force(6);
+    f.timeout_us = HS_WIRE_TIMEOUT_MAX_US + 1;
+    ENSURE(hs_stylus_rx_force(&s2, &f, 0, 0, &m) == HS_RX_INVALID);
+    f = good_force(6); // at the limits: taken
+    f.force[0] = HS_WIRE_FORCE_MAX_N;
+    f.stiffness[4] = HS_WIRE_STIFFNESS_MAX_N_M;
+    f.validity_radius = HS_WIRE_RADIUS_MAX_M;
+    f.timeout_us = HS_WIRE_TIMEOUT_MAX_US;
+    ENSURE(hs_stylus_rx_force(&s2, &f, 0, 0, &m) == HS_RX_OK);
+    ENSURE(s2.count[HS_RX_INVALID] == 4 && s2.count[HS_RX_OK] == 1);
     f = good_force(6);
     f.pose_utime = 0;
     ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
@@ -1534,6 +1560,38 @@ static int status_decode(void) {
     ENSURE(hs_stylus_status_decode(buf, (size_t)len, &s) == 0);
     buf[len - 5] = 0xff; // the warnings' length (an empty string is 4 + 1 bytes at the end)
     ENSURE(hs_stylus_status_decode(buf, (size_t)len, &s) != 0);
+    // Finite but absurd numbers for the status line (FLT_MAX us, a negative rate): refused.
+    float* fields[] = {&rate[1], &p99[1], &sp99[0]};
+    for (int k = 0; k < 3; ++k) {
+        float keep = *fields[k];
+        for (int v = 0; v < 2; ++v) {
+            *fields[k] = v ? -1.0f : FLT_MAX;
+            ENSURE(hapsim_server_status_t_encode(buf, 0, (int)sizeof buf, &m) == len);
+            ENSURE(hs_stylus_status_decode(buf, (size_t)len, &s) != 0 && !s.has_rt);
+        }
+        *fields[k] = keep;
+    }
+    ENSURE(hapsim_server_status_t_encode(buf, 0, (int)sizeof buf, &m) == len);
+    ENSURE(hs_stylus_status_decode(buf, (size_t)len, &s) == 0);
+    // A loop named "rt\0xy" (length 6, a NUL inside): refused, as the client refuses it; it
+    // was read as the rt loop.
+    char odd[] = {'r', 't', 0, 'x', 'y', 0};
+    char* loops2[] = {"sim", odd};
+    m.loop_name = loops2;
+    int len2 = hapsim_server_status_t_encode(buf, 0, (int)sizeof buf, &m);
+    ENSURE(len2 > 0);
+    static const uint8_t rtx[] = {0, 0, 0, 3, 'r', 't', 0};
+    at = NULL;
+    for (int i = 0; i + 7 <= len2 && !at; ++i)
+        if (memcmp(buf + i, rtx, sizeof rtx) == 0) at = buf + i;
+    ENSURE(at != NULL); // lcm-gen wrote strlen + 1 = 3: make the length 6 and add "xy\0"
+    memmove(at + 10, at + 7, (size_t)(buf + len2 - (at + 7)));
+    at[3] = 6;
+    memcpy(at + 7, "xy", 3);
+    len2 += 3;
+    ENSURE(hs_stylus_status_decode(buf, (size_t)len2, &s) != 0 && !s.has_rt);
+    at[7] = 'x', at[6] = 'q'; // "rtqxy": a clean name of the same length is read
+    ENSURE(hs_stylus_status_decode(buf, (size_t)len2, &s) == 0 && !s.has_rt);
     free(bad);
     return 0;
 }
