@@ -88,19 +88,16 @@ static int hold(const hs_mesh* m, const unsigned char* fixed, hs_model model, in
     bd.static_load_steps = 3;
     hs_body* b = NULL;
     double sum[3] = {0, 0, 0}, umax = 0;
-    int ok = u && fx;
-    if (ok) {
+    hs_status solved = u && fx ? HS_OK : HS_ERR_NOMEM; // the first failure, for the message
+    if (solved == HS_OK) {
         memcpy(fx, fixed, (size_t)m->n_nodes);
         for (int i = 0; i < st.contact.n; ++i) fx[st.contact.node[i]] = 1;
-        ok = hs_body_create(m, &bd, fx, &b, &err) == HS_OK;
+        solved = hs_body_create(m, &bd, fx, &b, &err);
     }
-    for (int i = 0; ok && i < st.contact.n; ++i)
-        ok = hs_body_set_prescribed(b, st.contact.node[i], u + 3 * st.contact.node[i]) == HS_OK;
-    hs_status solved = HS_OK;
-    if (ok) {
-        solved = hs_body_solve_static(b, NULL);
-        ok = solved >= 0;
-    }
+    for (int i = 0; solved == HS_OK && i < st.contact.n; ++i)
+        solved = hs_body_set_prescribed(b, st.contact.node[i], u + 3 * st.contact.node[i]);
+    if (solved == HS_OK) solved = hs_body_solve_static(b, NULL);
+    int ok = solved >= 0;
     for (int i = 0; ok && i < st.contact.n; ++i) {
         double rr[3];
         hs_body_reaction(b, st.contact.node[i], rr);

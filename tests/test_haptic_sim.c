@@ -24,7 +24,7 @@ typedef struct liver {
     double t[3]; // a unit tangent
 } liver;
 
-static void probe_node(liver* L, int k);
+static int probe_node(liver* L, int k);
 
 static int load_liver(liver* L) {
     hs_err err = {0};
@@ -42,19 +42,23 @@ static int load_liver(liver* L) {
         int k = m->surf_nodes[s];
         if (!L->fixed[k] && (top < 0 || m->x0[3 * k + 1] > m->x0[3 * top + 1])) top = k;
     }
-    probe_node(L, top);
-    return 0;
+    return probe_node(L, top);
 }
 
-// Probe at surface node k: its area-weighted outward normal and a tangent.
-static void probe_node(liver* L, int k) {
+// Probe at surface node k: its area-weighted outward normal and a tangent. 1 (message printed)
+// unless k is a free surface node.
+static int probe_node(liver* L, int k) {
     L->node = k;
-    hs_mesh_rest_normal(L->mesh, k, L->n);
+    if (k < 0 || k >= L->mesh->n_nodes || L->fixed[k] || hs_mesh_rest_normal(L->mesh, k, L->n)) {
+        printf("  node %d is not a free surface node of liver2\n", k);
+        return 1;
+    }
     // Tangent: x axis with its normal part removed.
     double ex[3] = {1, 0, 0}, dn = L->n[0];
     for (int a = 0; a < 3; ++a) L->t[a] = ex[a] - dn * L->n[a];
     double l = sqrt(L->t[0] * L->t[0] + L->t[1] * L->t[1] + L->t[2] * L->t[2]);
     for (int a = 0; a < 3; ++a) L->t[a] /= l;
+    return 0;
 }
 
 static void free_liver(liver* L) {
@@ -333,7 +337,9 @@ static int press_hold_release(void) {
     ENSURE(hs_body_create(L.mesh, &bd, fx, &b, &err) == HS_OK);
     for (int i = 0; i < st.contact.n; ++i)
         ENSURE(hs_body_set_prescribed(b, st.contact.node[i], st.contact.d_m[i]) == HS_OK);
-    ENSURE(hs_body_solve_static(b, NULL) >= 0);
+    hs_status solved = hs_body_solve_static(b, NULL);
+    if (solved != HS_OK) printf("  the static reference did not converge (status %d)\n", solved);
+    ENSURE(solved == HS_OK); // an unconverged reference would make the comparison meaningless
     double sum[3] = {0, 0, 0};
     for (int i = 0; i < st.contact.n; ++i) {
         double rr[3];
@@ -478,7 +484,7 @@ static int corotated_hold_with(hs_solver_kind solver, int node, double r, double
                                double rayleigh_mass, int hold_ms, double range_tol, double tol) {
     liver L;
     ENSURE(load_liver(&L) == 0);
-    if (node >= 0) probe_node(&L, node);
+    if (node >= 0) ENSURE(probe_node(&L, node) == 0);
     hs_haptic_sim_def d = liver_def(HS_MODEL_COROTATED, r);
     d.body.fem.material.rayleigh_mass = rayleigh_mass;
     d.body.solver = solver;
@@ -500,6 +506,7 @@ static int corotated_hold_with(hs_solver_kind solver, int node, double r, double
     hs_haptic_sim_stats_get(sim, &st);
     const int64_t steps_due = st.steps + (int64_t)(hold_ms * 1e-3 / d.body.dt);
     double ring[300];
+    ENSURE(hold_ms >= 300); // the ring is read whole
     int ticks = 0;
     for (; ticks < hold_ms || (st.steps < steps_due && ticks < 4 * hold_ms); ++ticks) {
         harness_tick(&hn, p);
@@ -532,7 +539,9 @@ static int corotated_hold_with(hs_solver_kind solver, int node, double r, double
     ENSURE(hs_body_create(L.mesh, &bd, fx, &b, &err) == HS_OK);
     for (int i = 0; i < st.contact.n; ++i)
         ENSURE(hs_body_set_prescribed(b, st.contact.node[i], u + 3 * st.contact.node[i]) == HS_OK);
-    ENSURE(hs_body_solve_static(b, NULL) >= 0);
+    hs_status solved = hs_body_solve_static(b, NULL);
+    if (solved != HS_OK) printf("  the static reference did not converge (status %d)\n", solved);
+    ENSURE(solved == HS_OK); // an unconverged reference would make the comparison meaningless
     double sum[3] = {0, 0, 0};
     for (int i = 0; i < st.contact.n; ++i) {
         double rr[3];

@@ -196,7 +196,7 @@ static int BoxMesh(void) {
     ENSURE(hs_mesh_rest_normal(m, side, nrm) == 0);
     ENSURE_NEAR(nrm[0], -1, 1e-15);
     ENSURE_SMALL(fabs(nrm[1]) + fabs(nrm[2]), 1e-15);
-    ENSURE(hs_mesh_rest_normal(m, inner, nrm) == -1 && nrm[0] == 0 && nrm[2] == 0);
+    ENSURE(hs_mesh_rest_normal(m, inner, nrm) == -1 && nrm[0] == 0 && nrm[1] == 0 && nrm[2] == 0);
     ENSURE(hs_mesh_rest_normal(m, m->n_nodes, nrm) == -1 &&
            hs_mesh_rest_normal(NULL, 0, nrm) == -1);
     ENSURE(m->node_nbr_start[1] - m->node_nbr_start[0] == 7);

@@ -107,7 +107,8 @@ int hs_mesh_select_plane(const hs_mesh* mesh, int axis, int side, double tol_m,
 
 /// Outward unit normal of surface node `node` at rest: the area-weighted mean of its boundary
 /// triangles' normals (a scan of the boundary: for set-up and tools, not per step).
-/// Returns 0, or -1 (n zeroed) for a bad argument or a node not on the surface.
+/// Returns 0, or -1 for a bad argument (n zeroed unless NULL), a node not on the surface, or a
+/// surface node whose triangles' normals cancel (two parts touching only there; n zeroed).
 int hs_mesh_rest_normal(const hs_mesh* mesh, int node, double n[3]);
 
 #ifdef __cplusplus
