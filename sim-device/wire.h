@@ -19,7 +19,8 @@ extern "C" {
 typedef enum hs_stylus_rx {
     HS_RX_OK = 0,            ///< accepted: *out holds the model
     HS_RX_OTHER_DEVICE = 1,  ///< for another device id: ignored
-    HS_RX_INVALID = 2,       ///< non-finite, negative radius, timeout or seq, unknown state
+    HS_RX_INVALID = 2,       ///< non-finite, negative radius, timeout or seq, unknown state, or
+                             ///< beyond the wire ranges (HS_WIRE_*_MAX)
     HS_RX_REORDERED = 3,     ///< seq not newer than the last accepted one
     HS_RX_OTHER_SESSION = 4, ///< answers a pose older than since_utime (an earlier session's)
     HS_RX_UNDECODABLE = 5,   ///< not a tool_force: wrong hash, short, or bytes left over
@@ -54,14 +55,16 @@ typedef struct hs_stylus_srv_status {
 
 /// Decode SERVER_STATUS bytes with every length checked (lcm-gen's decoder does not check that
 /// strings end in a NUL within their length): wrong hash, a count out of range, a string that
-/// is not NUL-terminated, a non-finite float, short or trailing bytes: -1, nothing read past
-/// len. Returns 0 and fills *out otherwise. Thread: any | Allocates: no
+/// is not NUL-terminated or holds a NUL, a non-finite float, a shown rate or time outside
+/// [0, 1e9], short or trailing bytes: -1 (*out zeroed), nothing read past len. Returns 0 and
+/// fills *out otherwise. Thread: any | Allocates: no
 int hs_stylus_status_decode(const void* buf, size_t len, hs_stylus_srv_status* out /* OUT */);
 
 /// Start with no message seen, for device_id.
 void hs_stylus_rx_init(hs_stylus_rx_state* st, int device_id);
-/// Check msg and convert it into *out (arrival_ns = now_ns, latency = wall_us - pose_utime when
-/// pose_utime > 0, else -1). Thread: the receiving thread | Allocates: no
+/// Check msg (finite, state known, seq >= 0, within HS_WIRE_*_MAX of hapsim_wire_read.h as the
+/// client library checks) and convert it into *out (arrival_ns = now_ns, latency = wall_us -
+/// pose_utime when pose_utime > 0, else -1). Thread: the receiving thread | Allocates: no
 hs_stylus_rx hs_stylus_rx_force(hs_stylus_rx_state* st, const hapsim_tool_force_t* msg,
                                 int64_t now_ns, int64_t wall_us, hs_stylus_model* out /* OUT */);
 
