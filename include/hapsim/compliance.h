@@ -148,10 +148,12 @@ typedef struct hs_contact {
 /// 0), those within HS_CONTACT_BAND r, deepest first, at most HS_MAX_CONTACT on at most
 /// HS_MAX_CONTACT nodes; forces lambda_i n_i >= 0 (n_i away from the centre; a face point's along
 /// the inward face normal) such that every point's displaced position (to first order) is on or
-/// outside the sphere and only points on it push; node forces sum_i w_ia lambda_i n_i; tool force
-/// -sum f, stiffness -dF/dp for the active set. warm_nodes[warm_n] (the previous tick's contact
-/// nodes, or warm_n = 0) only choose where the pivoting starts; the result does not depend on
-/// them. out must not alias warm_nodes. Thread: any (rt) | Allocates: no | Blocks: no
+/// outside the sphere and only points on it push (an edge or vertex point whose n_i is more
+/// than 75 degrees from its triangle's inward normal pushes through a softer contact, not at
+/// all along the surface or beyond: docs/haptics.md); node forces sum_i w_ia lambda_i n_i; tool
+/// force -sum f, stiffness -dF/dp for the active set. warm_nodes[warm_n] (the previous tick's
+/// contact nodes, or warm_n = 0) only choose where the pivoting starts; the result does not depend
+/// on them. out must not alias warm_nodes. Thread: any (rt) | Allocates: no | Blocks: no
 void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int warm_n,
                       const int* warm_nodes, hs_contact* out);
 /// hs_contact_solve warm-started from the previous tick's contact points (prev->point_nodes;

@@ -41,15 +41,30 @@
 
 // A contact point (feature) of the contact-free surface.
 typedef struct feat {
-    int kind;    // HS_FEAT_VERTEX / EDGE / FACE: how many vertices carry a weight
-    int v[3];    // candidate indices of those vertices, ascending (with kind: the identity)
-    double w[3]; // their barycentric weights
-    int lv[3];   // local vertex index (once selected)
-    int tri;     // the triangle it came from (-1: a node)
-    double n[3]; // unit direction the tissue is pushed along
-    double rho;  // distance of the point from the centre along -n, m (signed on a face)
-    int raw;     // 1 while n is still x - p (not yet divided by rho)
+    int kind;     // HS_FEAT_VERTEX / EDGE / FACE: how many vertices carry a weight
+    int v[3];     // candidate indices of those vertices, ascending (with kind: the identity)
+    double w[3];  // their barycentric weights
+    int lv[3];    // local vertex index (once selected)
+    int tri;      // the triangle it came from (-1: a node)
+    double n[3];  // unit direction the tissue is pushed along
+    double rho;   // distance of the point from the centre along -n, m (signed on a face)
+    int raw;      // 1 while n is still x - p (not yet divided by rho)
+    double fade;  // (0, 1]: how fully the point pushes (FADE_COS below)
+    double nt[3]; // its triangle's outward normal (edge and vertex points)
 } feat;
+
+// An edge or vertex point is pushed away from the centre, n = (x - p) / |x - p|: the sphere's
+// normal while the centre is in front of the surface. Once the centre nears or passes the
+// contact-free surface (a press about r deep) that n turns along the surface or out of the
+// tissue, with a penetration near r: such pushes tore the surface sideways or pulled it out
+// (the linear liver 6 mm under the scene's 5 mm sphere: a node 0.36 m out, the probe pulled in
+// with 2 N). So such a point pushes through a softened contact, fade = cos(n, -N) / FADE_COS
+// times as stiff (N its triangle's outward normal; at most 1): fully within 75 degrees of the
+// inward normal, not at all along the surface or beyond. Continuous in p except where the
+// centre passes the point itself; on a flat surface every press shallower than 3/4 r is as
+// before (docs/haptics.md, "Presses a radius deep").
+#define FADE_COS 0.25
+#define FADE_MIN 1e-6
 
 static void tri_normal(const double* a, const double* b, const double* c, double n[3]) {
     double e1[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
@@ -87,6 +102,7 @@ static int tri_feature(const hs_contact_snapshot* s, int t, const double p[3], d
     }
     if (f->kind == 0) return 0; // no finite weight (a non-finite position)
     double nf[3];
+    f->fade = 1;
     if (f->kind == HS_FEAT_FACE) {
         tri_normal(a, b, c, nf);
         double ap[3] = {p[0] - a[0], p[1] - a[1], p[2] - a[2]};
@@ -167,6 +183,7 @@ typedef struct cols {
     double eps;
     int approx;
     unsigned char have[M];
+    double soft[M];     // a faded point's added compliance, W_jj (1 / fade - 1)
     double cn[M][M][3]; // cn[a][j] = sum_k w_jk C(a, v_jk) n_j: vertex a's move per unit lambda_j
     double w[M * M];    // w[i * M + j] = n_i . sum_k w_ik cn[v_ik][j] (+ eps on the diagonal)
 } cols;
@@ -192,7 +209,9 @@ static void build_col(cols* c, int j) {
         for (int k = 0; k < g->kind; ++k) sum += g->w[k] * hs_dot3(g->n, c->cn[g->lv[k]][j]);
         c->w[i * M + j] = sum;
     }
-    c->w[j * M + j] += c->eps;
+    // A faded point: its compliance grows to W_jj / fade, so it pushes about fade times as hard.
+    c->soft[j] = c->w[j * M + j] * (1.0 / f->fade - 1.0);
+    c->w[j * M + j] += c->soft[j] + c->eps;
     c->have[j] = 1;
 }
 
@@ -283,6 +302,7 @@ static void solve(const hs_contact_snapshot* s, const double tool_m[3], int warm
             f->w[0] = 1;
             f->tri = -1;
             f->raw = 0;
+            f->fade = 1;
             double d[3] = {s->free_m[i][0] - tool_m[0], s->free_m[i][1] - tool_m[1],
                            s->free_m[i][2] - tool_m[2]};
             f->rho = sqrt(hs_dot3(d, d));
@@ -347,6 +367,11 @@ static void solve(const hs_contact_snapshot* s, const double tool_m[3], int warm
             double inv = 1.0 / f->rho;
             for (int k = 0; k < 3; ++k) set[m].n[k] *= inv;
             set[m].raw = 0;
+            // the fade, for the few points selected (n now unit)
+            const int* tv = s->tri[f->tri];
+            tri_normal(s->free_m[tv[0]], s->free_m[tv[1]], s->free_m[tv[2]], set[m].nt);
+            double in = -hs_dot3(set[m].n, set[m].nt); // cosine to the inward normal
+            set[m].fade = fmax(FADE_MIN, fmin(1.0, in / FADE_COS));
         }
         ++m;
     }
@@ -499,6 +524,10 @@ static void solve(const hs_contact_snapshot* s, const double tool_m[3], int warm
     // E_b = sum_j lambda_j (n_j dw_jb + w_jb Dn_j) (= df_b/dp with lambda held), and
     //     dlambda/dp = (W + eps I)^-1 G,  G_i = n_i^T - d(W lambda)_i/dp,
     //     K = sum_i n_i (dlambda_i/dp) + sum_i lambda_i Dn_i.
+    // A faded point adds S_i = W_ii (1 / f_i - 1) to its diagonal, so lambda_i dS_i/dp to
+    // d(W lambda)_i/dp: dS_i = (1 / f_i - 1) dW_ii - W_ii / f_i^2 df_i, with
+    // dW_ii = 2 sum_a (n_i . cn_ai) dw_ia + 2 (sum_a w_ia cn_ai)^T Dn_i and, on the ramp,
+    // df_i = -N_i^T Dn_i / FADE_COS.
     double a[M * M], g[3][M], dn[M][9], dw[M][3][3], e[M][9];
     for (int i = 0; i < k; ++i)
         for (int j = 0; j < k; ++j) a[i * k + j] = w_sym(&wc, ia[i], ia[j]);
@@ -531,6 +560,21 @@ static void solve(const hs_contact_snapshot* s, const double tool_m[3], int warm
             for (int b = 0; b < nv; ++b) {
                 const double* cb = wc.cn[b][ia[i]];
                 d += cb[0] * e[b][c] + cb[1] * e[b][3 + c] + cb[2] * e[b][6 + c];
+            }
+            if (f->fade < 1) {
+                const int j = ia[i];
+                const double l = lambda[j];
+                double own[3] = {0, 0, 0}, dwii = 0, dfi = 0; // own: the point's move per lambda_j
+                for (int q = 0; q < f->kind; ++q) {
+                    const double* cq = wc.cn[f->lv[q]][j];
+                    for (int p = 0; p < 3; ++p) own[p] += f->w[q] * cq[p];
+                    dwii += 2 * hs_dot3(f->n, cq) * dw[i][q][c];
+                }
+                for (int p = 0; p < 3; ++p) dwii += 2 * own[p] * dn[i][3 * p + c];
+                if (f->fade > FADE_MIN)
+                    for (int p = 0; p < 3; ++p) dfi -= f->nt[p] * dn[i][3 * p + c] / FADE_COS;
+                const double wii = wc.soft[j] / (1.0 / f->fade - 1.0);
+                d += l * ((1.0 / f->fade - 1.0) * dwii - wii / (f->fade * f->fade) * dfi);
             }
             gi[c] = f->n[c] - d;
         }
