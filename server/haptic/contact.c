@@ -61,8 +61,10 @@ typedef struct feat {
 // with 2 N). So such a point pushes through a softened contact, fade = cos(n, -N) / FADE_COS
 // times as stiff (N its triangle's outward normal; at most 1): fully within 75 degrees of the
 // inward normal, not at all along the surface or beyond. Continuous in p except where the
-// centre passes the point itself; on a flat surface every press shallower than 3/4 r is as
-// before (docs/haptics.md, "Presses a radius deep").
+// centre passes the point itself, and where a faded point is reported by two triangles as two
+// points at one place (an edge point just leaving its vertex: each copy softened alone, the
+// two push harder than one); on a flat surface no point inside the sphere fades in a press
+// shallower than 3/4 r (docs/haptics.md, "Presses a radius deep").
 #define FADE_COS 0.25
 #define FADE_MIN 1e-6
 
