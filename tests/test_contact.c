@@ -104,6 +104,57 @@ static double knorm_of(const hs_contact* c) {
     return vnorm(c->stiffness_n_m, 9);
 }
 
+// |dF| from prev to cur, and that against 2 |K|_F |dp| (the larger stiffness of the two): a
+// continuous force changes by at most about |K| |dp| per step.
+static double step_ratio(const hs_contact* prev, const hs_contact* cur, double* df_norm) {
+    double df[3], dp[3];
+    for (int a = 0; a < 3; ++a) {
+        df[a] = cur->force_n[a] - prev->force_n[a];
+        dp[a] = cur->tool_m[a] - prev->tool_m[a];
+    }
+    *df_norm = vnorm(df, 3);
+    return *df_norm / (2 * fmax(knorm_of(cur), knorm_of(prev)) * vnorm(dp, 3));
+}
+
+// Largest |K - FD| (central differences, 1e-7 m) of contact c at p, over the directions in
+// which the pushing points stay the same (*checked of 3).
+static double stiffness_fd_error(const hs_contact_snapshot* s, const double p[3],
+                                 const hs_contact* c, int* checked) {
+    const double h = 1e-7;
+    double worst = 0;
+    *checked = 0;
+    for (int b = 0; b < 3; ++b) {
+        double pp[3], pm[3];
+        memcpy(pp, p, sizeof pp);
+        memcpy(pm, p, sizeof pm);
+        pp[b] += h;
+        pm[b] -= h;
+        hs_contact cp, cm;
+        hs_contact_solve(s, pp, 0, NULL, &cp);
+        hs_contact_solve(s, pm, 0, NULL, &cm);
+        if (cp.features != c->features || cm.features != c->features) continue;
+        for (int a = 0; a < 3; ++a) {
+            double fd = -(cp.force_n[a] - cm.force_n[a]) / (2 * h);
+            worst = fmax(worst, fabs(fd - c->stiffness_n_m[3 * a + b]));
+        }
+        ++*checked;
+    }
+    return worst;
+}
+
+// The default liver (liver2, held by its y-min face as the scene holds it) and its compliance.
+static int liver_compliance(hs_mesh** m, unsigned char** fixed, hs_compliance** c) {
+    hs_err err = {0};
+    if (hs_mesh_load(HS_SOURCE_DIR "/scenes/liver/liver2.msh", m, &err) < 0) {
+        printf("  cannot load liver2: %s\n", err.msg);
+        return 1;
+    }
+    *fixed = calloc((size_t)(*m)->n_nodes, 1);
+    for (int i = 0; i < (*m)->n_nodes; ++i) (*fixed)[i] = (*m)->x0[3 * i + 1] <= -0.0433;
+    hs_fem_def fd = soft_fem();
+    return hs_compliance_create(*m, &fd, *fixed, 96, c, &err) != HS_OK;
+}
+
 // Smallest distance from p to the slab's top surface displaced by u_surf (sampled finely on
 // every top triangle): the contact must have pushed the surface out of the sphere.
 static double displaced_clearance(const hs_mesh* m, const double* u_surf, const double p[3]) {
@@ -185,15 +236,8 @@ static int coarse_drag(void) {
             ENSURE(cur.force_n[2] > 0);
             tilt = fmax(tilt, vnorm(cur.force_n, 2) / cur.force_n[2]);
             kinds_seen[cur.features < 3 ? cur.features : 3]++;
-            if (i > 0) {
-                double df[3], dp[3];
-                for (int a = 0; a < 3; ++a) {
-                    df[a] = cur.force_n[a] - prev.force_n[a];
-                    dp[a] = cur.tool_m[a] - prev.tool_m[a];
-                }
-                double bound = 2 * fmax(knorm_of(&cur), knorm_of(&prev)) * vnorm(dp, 3);
-                worst_ratio = fmax(worst_ratio, vnorm(df, 3) / bound);
-            }
+            double dfn;
+            if (i > 0) worst_ratio = fmax(worst_ratio, step_ratio(&prev, &cur, &dfn));
             hs_contact_solve(&node_snap, p, 0, NULL, &nc);
             node_fmin = fmin(node_fmin, vnorm(nc.force_n, 3));
             prev = cur;
@@ -300,23 +344,9 @@ static int stiffness_fd(void) {
         hs_contact_solve(&snap, p, 0, NULL, &c);
         ENSURE(c.features >= 1 && !c.failed);
         multi += c.features > 1;
-        const double h = 1e-7;
-        double km = kmax_of(&c), worst = 0;
-        for (int b = 0; b < 3; ++b) {
-            double pp[3], pm[3];
-            memcpy(pp, p, sizeof pp);
-            memcpy(pm, p, sizeof pm);
-            pp[b] += h;
-            pm[b] -= h;
-            hs_contact cp, cm;
-            hs_contact_solve(&snap, pp, 0, NULL, &cp);
-            hs_contact_solve(&snap, pm, 0, NULL, &cm);
-            ENSURE(cp.features == c.features && cm.features == c.features);
-            for (int a = 0; a < 3; ++a) {
-                double fd = -(cp.force_n[a] - cm.force_n[a]) / (2 * h);
-                worst = fmax(worst, fabs(fd - c.stiffness_n_m[3 * a + b]));
-            }
-        }
+        int checked = 0;
+        double km = kmax_of(&c), worst = stiffness_fd_error(&snap, p, &c, &checked);
+        ENSURE(checked == 3);
         printf("  r %.0f mm, %.0f mm deep at (%.1f, %.1f): %d contact points on %d nodes, "
                "K_zz %.2f N/m, |K - FD| %.2g of max %.3g N/m\n",
                cases[k].r, cases[k].depth, cases[k].x, cases[k].y, c.features, c.n,
@@ -334,17 +364,10 @@ static int stiffness_fd(void) {
 // (the press_drag_release script) the triangle contact keeps the probe (the node contact does
 // not), and the contact compliance moves the held force by far less than 0.1 %.
 static int liver_press_drag(void) {
-    hs_err err = {0};
     hs_mesh* m = NULL;
-    if (hs_mesh_load(HS_SOURCE_DIR "/scenes/liver/liver2.msh", &m, &err) < 0) {
-        printf("  cannot load liver2: %s\n", err.msg);
-        return 1;
-    }
-    unsigned char* fixed = calloc((size_t)m->n_nodes, 1);
-    for (int i = 0; i < m->n_nodes; ++i) fixed[i] = m->x0[3 * i + 1] <= -0.0433;
-    hs_fem_def fd = soft_fem();
+    unsigned char* fixed = NULL;
     hs_compliance* c = NULL;
-    ENSURE(hs_compliance_create(m, &fd, fixed, 96, &c, &err) == HS_OK);
+    ENSURE(liver_compliance(&m, &fixed, &c) == 0);
     const double nrm[3] = {0.105, 0.993, -0.045}, r = 0.005;
     const int top = 399;
     static hs_contact_snapshot snap, big;
@@ -362,15 +385,8 @@ static int liver_press_drag(void) {
         double f = vnorm(cur.force_n, 3);
         f_lo = fmin(f_lo, f);
         ENSURE(cur.force_n[0] * nrm[0] + cur.force_n[1] * nrm[1] + cur.force_n[2] * nrm[2] > 0);
-        if (i > 0) {
-            double df[3], dp[3];
-            for (int a = 0; a < 3; ++a) {
-                df[a] = cur.force_n[a] - prev.force_n[a];
-                dp[a] = cur.tool_m[a] - prev.tool_m[a];
-            }
-            double bound = 2 * fmax(knorm_of(&cur), knorm_of(&prev)) * vnorm(dp, 3);
-            worst_ratio = fmax(worst_ratio, vnorm(df, 3) / bound);
-        }
+        double dfn;
+        if (i > 0) worst_ratio = fmax(worst_ratio, step_ratio(&prev, &cur, &dfn));
         snap.n_tri = 0;
         hs_contact_solve(&snap, p, 0, NULL, &nc);
         node_fmin = fmin(node_fmin, vnorm(nc.force_n, 3));
@@ -434,17 +450,10 @@ static int liver_press_drag(void) {
 // stiffness times the step except where the centre passes the node itself (depth r): the node's
 // own push, full just before, fades out just after (docs/haptics.md: a step of ~0.15 N).
 static int liver_deep_press(void) {
-    hs_err err = {0};
     hs_mesh* m = NULL;
-    if (hs_mesh_load(HS_SOURCE_DIR "/scenes/liver/liver2.msh", &m, &err) < 0) {
-        printf("  cannot load liver2: %s\n", err.msg);
-        return 1;
-    }
-    unsigned char* fixed = calloc((size_t)m->n_nodes, 1);
-    for (int i = 0; i < m->n_nodes; ++i) fixed[i] = m->x0[3 * i + 1] <= -0.0433;
-    hs_fem_def fd = soft_fem();
+    unsigned char* fixed = NULL;
     hs_compliance* c = NULL;
-    ENSURE(hs_compliance_create(m, &fd, fixed, 96, &c, &err) == HS_OK);
+    ENSURE(liver_compliance(&m, &fixed, &c) == 0);
     const double r = 0.005;
     static hs_contact_snapshot snap;
     const int nodes[] = {399, 235};
@@ -472,16 +481,11 @@ static int liver_deep_press(void) {
                 d_max = fmax(d_max, vnorm(cur.d_m[j], 3));
             }
             if (i > 0) {
-                double df[3], dp[3];
-                for (int a = 0; a < 3; ++a) {
-                    df[a] = cur.force_n[a] - prev.force_n[a];
-                    dp[a] = cur.tool_m[a] - prev.tool_m[a];
-                }
-                double bound = 2 * fmax(knorm_of(&cur), knorm_of(&prev)) * vnorm(dp, 3);
+                double dfn, ratio = step_ratio(&prev, &cur, &dfn);
                 if (fabs(depth - r) < 0.02 * r)
-                    step_r = fmax(step_r, vnorm(df, 3));
+                    step_r = fmax(step_r, dfn);
                 else
-                    worst = fmax(worst, vnorm(df, 3) / bound);
+                    worst = fmax(worst, ratio);
             }
             prev = cur;
         }
@@ -506,7 +510,7 @@ static int liver_deep_press(void) {
     for (int k = 0; k < 2; ++k) {
         const double depth = (k ? 1.2 : 0.95) * r;
         double f_min = 1e9, f_max = 0, step = 0, worst = 0;
-        int faded = 0;
+        int above = 0;
         hs_contact prev, cur;
         memset(&prev, 0, sizeof prev);
         for (int i = 0; i <= 1000; ++i) {
@@ -519,41 +523,22 @@ static int liver_deep_press(void) {
             f_min = fmin(f_min, dot3(cur.force_n, nrm));
             f_max = fmax(f_max, vnorm(cur.force_n, 3));
             if (i % 250 == 125) { // the stiffness, with faded points' terms, against FD
-                const double h = 1e-7;
-                for (int b = 0; b < 3; ++b) {
-                    double pp[3], pm[3];
-                    memcpy(pp, p, sizeof pp);
-                    memcpy(pm, p, sizeof pm);
-                    pp[b] += h;
-                    pm[b] -= h;
-                    hs_contact cp, cm;
-                    hs_contact_solve(&snap, pp, 0, NULL, &cp);
-                    hs_contact_solve(&snap, pm, 0, NULL, &cm);
-                    if (cp.features != cur.features || cm.features != cur.features) continue;
-                    for (int a = 0; a < 3; ++a) {
-                        double fdv = -(cp.force_n[a] - cm.force_n[a]) / (2 * h);
-                        fd_worst = fmax(fd_worst,
-                                        fabs(fdv - cur.stiffness_n_m[3 * a + b]) / kmax_of(&cur));
-                    }
-                    ++fd_checked;
-                }
+                int checked = 0;
+                double e = stiffness_fd_error(&snap, p, &cur, &checked);
+                fd_worst = fmax(fd_worst, e / kmax_of(&cur));
+                fd_checked += checked;
             }
             if (i > 0) {
-                double df[3], dp[3];
-                for (int a = 0; a < 3; ++a) {
-                    df[a] = cur.force_n[a] - prev.force_n[a];
-                    dp[a] = cur.tool_m[a] - prev.tool_m[a];
-                }
-                double bound = 2 * fmax(knorm_of(&cur), knorm_of(&prev)) * vnorm(dp, 3);
-                step = fmax(step, vnorm(df, 3));
-                worst = fmax(worst, vnorm(df, 3) / bound);
-                faded += vnorm(df, 3) > bound;
+                double dfn, ratio = step_ratio(&prev, &cur, &dfn);
+                step = fmax(step, dfn);
+                worst = fmax(worst, ratio);
+                above += ratio > 1;
             }
             prev = cur;
         }
         printf("  node 399, %.1f mm deep, 10 mm drag: F.n >= %.4f N, |F| <= %.4f N, largest step "
                "%.4f N, worst |dF| / (2 |K|_F |dp|) %.2f (%d of 1000 steps above 1)\n",
-               depth * 1e3, f_min, f_max, step, worst, faded);
+               depth * 1e3, f_min, f_max, step, worst, above);
         ok_drag = ok_drag && f_min > 0.05 && f_max < 1.0 && step < 0.25 * f_max;
     }
     printf("  stiffness against finite differences on the drags: %d directions, worst %.2g of "
