@@ -185,7 +185,7 @@ typedef struct cols {
     double eps;
     int approx;
     unsigned char have[M];
-    double soft[M];     // a faded point's added compliance, W_jj (1 / fade - 1)
+    double wjj[M];      // W_jj before a faded point's softening (W_jj (1 / fade - 1) added)
     double cn[M][M][3]; // cn[a][j] = sum_k w_jk C(a, v_jk) n_j: vertex a's move per unit lambda_j
     double w[M * M];    // w[i * M + j] = n_i . sum_k w_ik cn[v_ik][j] (+ eps on the diagonal)
 } cols;
@@ -212,8 +212,8 @@ static void build_col(cols* c, int j) {
         c->w[i * M + j] = sum;
     }
     // A faded point: its compliance grows to W_jj / fade, so it pushes about fade times as hard.
-    c->soft[j] = c->w[j * M + j] * (1.0 / f->fade - 1.0);
-    c->w[j * M + j] += c->soft[j] + c->eps;
+    c->wjj[j] = c->w[j * M + j];
+    c->w[j * M + j] += c->wjj[j] * (1.0 / f->fade - 1.0) + c->eps;
     c->have[j] = 1;
 }
 
@@ -575,8 +575,7 @@ static void solve(const hs_contact_snapshot* s, const double tool_m[3], int warm
                 for (int p = 0; p < 3; ++p) dwii += 2 * own[p] * dn[i][3 * p + c];
                 if (f->fade > FADE_MIN)
                     for (int p = 0; p < 3; ++p) dfi -= f->nt[p] * dn[i][3 * p + c] / FADE_COS;
-                const double wii = wc.soft[j] / (1.0 / f->fade - 1.0);
-                d += l * ((1.0 / f->fade - 1.0) * dwii - wii / (f->fade * f->fade) * dfi);
+                d += l * ((1.0 / f->fade - 1.0) * dwii - wc.wjj[j] / (f->fade * f->fade) * dfi);
             }
             gi[c] = f->n[c] - d;
         }
