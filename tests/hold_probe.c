@@ -7,6 +7,7 @@
 #define _POSIX_C_SOURCE 200809L
 #include "hapsim/body.h"
 #include "hapsim/haptic_sim.h"
+#include "liver_haptic.h"
 #include "hapsim/mesh.h"
 #include "base/spsc_ring.h"
 #include "rt/haptic_rt.h"
@@ -24,15 +25,7 @@ static double norm3(const double* v) {
 // One hold with `model`; prints a line, returns 0 or 1 (could not run).
 static int hold(const hs_mesh* m, const unsigned char* fixed, hs_model model, int node, double r,
                 double depth, int hold_ms, double free_relax) {
-    hs_haptic_sim_def d = hs_haptic_sim_default_def();
-    d.body.fem.model = model;
-    d.body.fem.material.youngs_pa = 5000;
-    d.body.fem.material.poisson = 0.45;
-    d.body.fem.material.density_kg_m3 = 1060;
-    d.body.fem.material.rayleigh_mass = 0.5;
-    d.body.fem.material.rayleigh_stiffness = 0.01;
-    d.body.dt = 0.01;
-    d.probe.radius_m = r;
+    hs_haptic_sim_def d = hs_liver_haptic_def(model, r);
     if (free_relax > 0) d.probe.free_relax = free_relax;
     hs_err err = {0};
     hs_haptic_sim* sim = NULL;

@@ -2,6 +2,7 @@
 // through the memory device by this (harness) thread at 1 kHz.
 #define _POSIX_C_SOURCE 200809L
 #include "hapsim/haptic_sim.h"
+#include "liver_haptic.h"
 #include "base/spsc_ring.h"
 #include "rt/haptic_rt.h"
 #include "test_macros.h"
@@ -67,15 +68,7 @@ static void free_liver(liver* L) {
 }
 
 static hs_haptic_sim_def liver_def(hs_model model, double radius) {
-    hs_haptic_sim_def d = hs_haptic_sim_default_def();
-    d.body.fem.model = model;
-    d.body.fem.material.youngs_pa = 5000;
-    d.body.fem.material.poisson = 0.45;
-    d.body.fem.material.density_kg_m3 = 1060;
-    d.body.fem.material.rayleigh_mass = 0.5;
-    d.body.fem.material.rayleigh_stiffness = 0.01;
-    d.body.dt = 0.01;
-    d.probe.radius_m = radius;
+    hs_haptic_sim_def d = hs_liver_haptic_def(model, radius);
     d.rt_on_start = count_on;
     d.rt_on_stop = count_off;
     return d;

@@ -4,6 +4,7 @@
 // machine allows.
 #define _POSIX_C_SOURCE 200809L
 #include "bench.h"
+#include "../liver_haptic.h"
 #include "hapsim/compliance.h"
 #include "hapsim/haptic_sim.h"
 #include "hapsim/mesh.h"
@@ -32,15 +33,7 @@ static const haptic_case cases_quick[] = {{"liver2", "liver2.msh"}};
 static const int targets[] = {1, 4, 16};
 
 static hs_haptic_sim_def bench_def(double radius) {
-    hs_haptic_sim_def d = hs_haptic_sim_default_def();
-    d.body.fem.model = HS_MODEL_COROTATED;
-    d.body.fem.material.youngs_pa = 5000;
-    d.body.fem.material.poisson = 0.45;
-    d.body.fem.material.density_kg_m3 = 1060;
-    d.body.fem.material.rayleigh_mass = 0.5;
-    d.body.fem.material.rayleigh_stiffness = 0.01;
-    d.body.dt = 0.01;
-    d.probe.radius_m = radius;
+    hs_haptic_sim_def d = hs_liver_haptic_def(HS_MODEL_COROTATED, radius);
     d.probe.reach_margin_m = fmax(0.005, 0.5 * radius);
     d.safety.max_force_n = 50; // measure the loop, not the clamp
     d.safety.max_rate_n_s = 1e5;
