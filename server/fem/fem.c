@@ -1385,6 +1385,8 @@ void hs_fem_node_rotation_warm(const hs_fem* m, int node, double r[9]) {
 
 static inline __attribute__((always_inline)) void node_rotations(const hs_fem* m, double* rot) {
     const double tol = m->def.polar_tol;
+    // The starts are trusted (no orthogonality checks): they are this function's own results,
+    // or zeros, which fail the warm phase's definiteness test and go to the scalar code.
     // The sums of the last update, unless the elements changed since (a cut): then gather.
     const int have_sums = m->nsum_stamp == m->k_version + 1;
     int first = 0; // of the nodes left to the loop below
@@ -1401,7 +1403,7 @@ static inline __attribute__((always_inline)) void node_rotations(const hs_fem* m
             v4d det = f[0] * (f[4] * f[8] - f[5] * f[7]) - f[1] * (f[3] * f[8] - f[5] * f[6]) +
                       f[2] * (f[3] * f[7] - f[4] * f[6]);
             v4l lanes = det > 0, itv;
-            polar4_core(f, x, y, tol, 20, 0, &lanes, &itv);
+            polar4_core(f, x, y, tol, 20, 1, &lanes, &itv);
             for (int l = 0; l < 4; l++) {
                 if (lanes[l])
                     for (int k = 0; k < 9; k++) r[9 * l + k] = x[k][l];
@@ -1438,7 +1440,7 @@ static inline __attribute__((always_inline)) void node_rotations(const hs_fem* m
         memcpy(pad_r, k_eye, sizeof pad_r);
         for (int l = nl; l < 4; l++) fp[l] = k_eye, rp[l] = pad_r, yp[l] = ys[l];
         int it[4];
-        hs_polar_warm4(fp, rp, yp, tol, 20, 0, it);
+        hs_polar_warm4(fp, rp, yp, tol, 20, 1, it);
         for (int l = 0; l < nl; l++) // not a warm result: the scalar code from the same start
             if (it[l] < 0) hs_polar_higham(fp[l], rp[l], tol, 20);
     }

@@ -4,8 +4,10 @@
 
 #include "hapsim/fem.h"
 
-/// hs_fem_node_rotation_warm for every node (rot: [9n], previous rotations in, new out), with
-/// bit-identical results; the warm polar steps run four nodes at a time.
+/// hs_fem_node_rotation_warm for every node, the warm polar steps four nodes at a time. rot:
+/// [9n], in: this function's earlier results or zeros (a cold start), taken as rotations
+/// without the orthogonality checks; out: the new rotations, bit-identical to the per-node
+/// call's from such starts.
 void hs_fem_node_rotations_warm(const hs_fem* fem, double* rot);
 
 /// hs_fem_update one element at a time: the reference that the four-wide element pass of
