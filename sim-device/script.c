@@ -430,6 +430,10 @@ static hs_status parse_text(parser* p, const char* text, hs_err* err) {
                 to[i] = p->cur[i] - n[i] * v[3];
                 ref[i] = from[i];
             }
+            for (int i = 0; i < 3; ++i) // start and max_depth in bounds still reach 2000 m
+                if (!(fabs(to[i]) <= HS_SCRIPT_MAX_LENGTH_M))
+                    return perr(p, err, "touch: the search ends beyond +-%g m (max_depth %g m)",
+                                HS_SCRIPT_MAX_LENGTH_M, v[3]);
             if (s->has_surface) {
                 // The expected contact: where the search line crosses the surface plane.
                 const double* m = s->surface_normal;

@@ -190,6 +190,8 @@ static int script_errors(void) {
          "press: the target (pressed 2000 m deep in all) is beyond +-1000 m"},
         {"press 0 0 1 600 1e6\ndrag 0 0 -600 1e6\n", 2, "drag: the target"},
         {"start 0 0 999\npress 0 0 1 1 1\nrelease 1 1000\n", 3, "release: the target"},
+        {"start 0 0 999\ntouch 0 0 -1 1000 1\n", 2, "touch: the search ends beyond +-1000 m"},
+        {"units mm\nstart 0 0 -999000\ntouch 0 0 1 2000 1\n", 3, "touch: the search ends"},
         {"move_to 0 0 1 1e-300\n", 1, "would last beyond 1e+06 s"},
         {"hold 2e6\n", 1, "would last beyond"},
         {"loop 100\n hold 10000\nend\nhold 2\n", 4, "would last beyond"},
