@@ -60,6 +60,9 @@ int32_t hs_force_renderer_eval(const hs_force_renderer* r, const double p[3], in
                                double f[3]) {
     hs_local_model_eval(&r->model, p, now_us, f);
     if (!r->model.valid) return -1;
+    // A stop is zero at once: blending out of the last contact would hand a stopped (e-stopped,
+    // paused) device the old force for another blend_us.
+    if (r->model.state == HAPSIM_TOOL_FORCE_T_STATE_STOPPED) return r->model.state;
     int64_t t = hs_wire_sub_sat(now_us, r->blend_start_us);
     if (r->old_model.valid && r->blend_us > 0 && t < r->blend_us) {
         double w = t <= 0 ? 0 : (double)t / (double)r->blend_us, fo[3];

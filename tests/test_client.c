@@ -753,6 +753,36 @@ static int test_local_model(void) {
     hs_force_renderer_push(&r, &m3);
     hs_force_renderer_eval(&r, p, 9000, f);
     ENSURE_NEAR(f[1], 4.0, 1e-12);
+    // An e-stop (the server's zero model, version 0) is zero at once, not blended out of the
+    // contact (found in review: the full contact force at the stop, then falling over blend_us),
+    // and so is a stop
+    // that comes in the middle of a blend.
+    hs_local_model stop = m3;
+    stop.state = HAPSIM_TOOL_FORCE_T_STATE_STOPPED;
+    stop.model_version = 0;
+    stop.force[1] = 0;
+    stop.arrival_us = 10000;
+    hs_force_renderer_push(&r, &stop);
+    ENSURE(hs_force_renderer_eval(&r, p, 10000, f) == HAPSIM_TOOL_FORCE_T_STATE_STOPPED);
+    ENSURE(f[0] == 0 && f[1] == 0 && f[2] == 0);
+    hs_force_renderer_eval(&r, p, 10000 + r.blend_us / 3, f);
+    ENSURE(f[1] == 0);
+    // After the stop the next contact ramps in from zero.
+    hs_local_model m5 = m3;
+    m5.model_version = 7;
+    m5.arrival_us = 20000;
+    hs_force_renderer_push(&r, &m5);
+    hs_force_renderer_eval(&r, p, 20000 + r.blend_us / 2, f);
+    ENSURE_NEAR(f[1], 2.0, 1e-12);
+    hs_local_model m6 = m5; // a new version starts a blend from 4 N ...
+    m6.model_version = 8;
+    m6.force[1] = 8.0;
+    m6.arrival_us = 30000;
+    hs_force_renderer_push(&r, &m6);
+    stop.arrival_us = 30000 + r.blend_us / 2; // ... and a stop halfway through it
+    hs_force_renderer_push(&r, &stop);
+    hs_force_renderer_eval(&r, p, stop.arrival_us, f);
+    ENSURE(f[1] == 0);
     return 0;
 }
 

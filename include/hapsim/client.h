@@ -69,7 +69,8 @@ double hs_local_model_eval(const hs_local_model* m, const double p[3], int64_t n
                            double f[3] /* OUT */);
 
 /// Model blending: after model_version changes, F = (1 - w) F_old + w F_new with w rising
-/// linearly from 0 to 1 over blend_us (default 3000 us, a few servo ticks).
+/// linearly from 0 to 1 over blend_us (default 3000 us, a few servo ticks). A STATE_STOPPED
+/// model is zero at once, with no blend out of the model before it.
 typedef struct hs_force_renderer {
     hs_local_model old_model; ///< the model before the last version change
     hs_local_model model;     ///< the newest model
