@@ -1445,6 +1445,12 @@ static int rebuild_keeps_force(void) {
     for (int k = 0; k < 3; ++k) {
         stream(&c, 0.004, 0.004, 300);
         double f0 = norm3(c.force.force);
+        if (!(dot_n(c.force.force) > 0.02))
+            printf("  before %s: force %.4f N (along n %.4f N), state %d, pose_seq %lld of %lld, "
+                   "answered %.1f ms ago\n",
+                   name[k] ? name[k] : "reset", f0, dot_n(c.force.force), (int)c.force.state,
+                   (long long)c.force.pose_seq, (long long)c.seq,
+                   (double)(hs_now_ns() - c.force_rx_ns) * 1e-6);
         ENSURE(dot_n(c.force.force) > 0.02);
         int64_t id = ++next_request;
         int from = c.n_flog;
@@ -1468,6 +1474,80 @@ static int rebuild_keeps_force(void) {
                name[k] ? name[k] : "reset", f0, c.n_flog - from, least, stopped);
         ENSURE(c.n_flog - from >= 50 && stopped == 0 && least >= 0.5 * f0);
     }
+    ENSURE(stop_server() == 0);
+    client_close(&c);
+    return 0;
+}
+
+/// The largest force answered since flog entry `from`.
+static double max_force_since(const client* c, int from) {
+    double mx = 0;
+    for (int i = from; i < c->n_flog; ++i) mx = fmax(mx, c->flog_norm[i]);
+    return mx;
+}
+
+/// Paused answers keep the limits a running answer has (found in review): the e-stop release
+/// ramp, also when the release comes right behind the pause, and a lowered force_max_n. Before,
+/// a pause 30 ms into a 330 ms release ramp jumped from 0.016 to 0.067 N, a release sent with a
+/// pause gave 0.059 N at once, and a pause lifted a 0.01 N limit to 0.024 N.
+static int pause_keeps_limits(void) {
+    char scene[512];
+    snprintf(scene, sizeof scene, "%s/liver_pause.json", tmpdir);
+    liver_scene(scene, NULL);
+    ENSURE(start_server(scene, "pause") == 0);
+    client c;
+    ENSURE(client_open(&c) == 0);
+    ENSURE(wait_up(&c));
+    const int OK = HAPSIM_COMMAND_ACK_T_STATUS_OK;
+    // 10 N/s: the release ramp takes force_max_n / 10 N/s (330 ms), longer than the pause's 20 ms
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_SET_PARAM, "name", "force_rate_max_n_per_s", "value",
+                   "10", NULL) == OK);
+    stream(&c, -0.010, 0.004, 500);
+    stream(&c, 0.004, 0.004, 800);
+    double full = norm3(c.force.force);
+    ENSURE(dot_n(c.force.force) > 0.02);
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_ESTOP, NULL, NULL, NULL, NULL, NULL) == OK);
+    stream(&c, 0.004, 0.004, 50);
+    ENSURE(norm3(c.force.force) == 0);
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_ESTOP_RELEASE, NULL, NULL, NULL, NULL, NULL) == OK);
+    stream(&c, 0.004, 0.004, 30);
+    double ramp = norm3(c.force.force);
+    int from = c.n_flog;
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_PAUSE, NULL, NULL, NULL, NULL, NULL) == OK);
+    stream(&c, 0.004, 0.004, 25);
+    double paused = max_force_since(&c, from);
+    printf("  full %.4f N; 30 ms into the release ramp %.4f N; paused then at most %.4f N\n", full,
+           ramp, paused);
+    ENSURE(ramp < 0.5 * full && paused <= 1.2 * ramp + 1e-3);
+
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_RESUME, NULL, NULL, NULL, NULL, NULL) == OK);
+    stream(&c, 0.004, 0.004, 1200);
+    full = norm3(c.force.force);
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_ESTOP, NULL, NULL, NULL, NULL, NULL) == OK);
+    stream(&c, 0.004, 0.004, 20);
+    from = c.n_flog;
+    send_command(&c, ++next_request, HAPSIM_COMMAND_T_KIND_PAUSE, NULL, NULL, NULL, NULL);
+    send_command(&c, ++next_request, HAPSIM_COMMAND_T_KIND_ESTOP_RELEASE, NULL, NULL, NULL, NULL);
+    stream(&c, 0.004, 0.004, 25);
+    paused = max_force_since(&c, from);
+    printf("  full %.4f N; e-stop, then pause and release together: at most %.4f N\n", full,
+           paused);
+    ENSURE(paused <= 0.05 * full);
+
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_RESUME, NULL, NULL, NULL, NULL, NULL) == OK);
+    stream(&c, 0.004, 0.004, 1200);
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_SET_PARAM, "name", "force_rate_max_n_per_s", "value",
+                   "1", NULL) == OK); // the rt output then stays above the new limit
+    stream(&c, 0.004, 0.004, 100);
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_SET_PARAM, "name", "force_max_n", "value", "0.01",
+                   NULL) == OK);
+    stream(&c, 0.004, 0.004, 30);
+    from = c.n_flog;
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_PAUSE, NULL, NULL, NULL, NULL, NULL) == OK);
+    stream(&c, 0.004, 0.004, 30);
+    paused = max_force_since(&c, from);
+    printf("  force_max_n 0.01 N, then paused: at most %.4f N\n", paused);
+    ENSURE(paused <= 0.01 + 1e-9);
     ENSURE(stop_server() == 0);
     client_close(&c);
     return 0;
@@ -1538,5 +1618,6 @@ static int set_after_mesh_changed(void) {
 HS_TEST_MAIN(HS_CASE(malformed_scene_exits_1), HS_CASE(bad_command_lines_refused),
              HS_CASE(poses_in_forces_out), HS_CASE(load_goes_on_answering),
              HS_CASE(set_after_mesh_changed), HS_CASE(set_keeps_body_state),
-             HS_CASE(rebuild_keeps_force), HS_CASE(mesh_10k_arrives_whole),
-             HS_CASE(dropped_deltas_recover), HS_CASE(flood_leaves_server_intact))
+             HS_CASE(rebuild_keeps_force), HS_CASE(pause_keeps_limits),
+             HS_CASE(mesh_10k_arrives_whole), HS_CASE(dropped_deltas_recover),
+             HS_CASE(flood_leaves_server_intact))

@@ -560,16 +560,6 @@ static void scale_model(hs_haptic_model* m, double g) {
     for (int k = 0; k < 9; ++k) m->stiffness_n_m[k] *= g;
 }
 
-// The paused model at time t: the model at the pause scaled down linearly to zero.
-static hs_haptic_model paused_model(const hs_server* s, int64_t t, const double pos[3]) {
-    double g = 1.0 - (double)(t - s->pause_ns) * 1e-9 / PAUSE_RAMP_S;
-    if (g <= 0) return zero_model();
-    hs_haptic_model m;
-    hs_haptic_model_reanchor(&s->pause_model, pos, &m);
-    scale_model(&m, g);
-    return m;
-}
-
 // Gain on the rt model at time t after an ESTOP_RELEASE: 0 -> 1 over the safety ramp, or
 // slower if the force limit at the rate limit needs longer (a resume ramps in the same way,
 // through its new sim's watchdog).
@@ -581,6 +571,20 @@ static double estop_gain(const hs_server* s, int64_t t) {
         ramp = sd->max_force_n / sd->max_rate_n_s;
     double g = (double)(t - s->estop_release_ns) * 1e-9 / ramp;
     return g >= 1.0 ? 1.0 : g > 0.0 ? g : 0.0;
+}
+
+// The paused model at time t: the model at the pause scaled down linearly to zero, under the
+// limits a running answer gets (force_max_n as set now, the e-stop release ramp): without them a
+// pause lifted a lowered limit and cut a release ramp short (found in review: 0.0235 N against a
+// 0.01 N limit; 0.017 -> 0.067 N at a pause 30 ms into a 330 ms ramp).
+static hs_haptic_model paused_model(const hs_server* s, int64_t t, const double pos[3]) {
+    double g = (1.0 - (double)(t - s->pause_ns) * 1e-9 / PAUSE_RAMP_S) * estop_gain(s, t);
+    if (!(g > 0)) return zero_model();
+    hs_haptic_model m;
+    hs_haptic_model_reanchor(&s->pause_model, pos, &m);
+    clamp_model(&m, s->w.scene.force_max_n);
+    scale_model(&m, g);
+    return m;
 }
 
 static void drain_outputs(hs_server* s) {
@@ -1294,7 +1298,11 @@ static int swap_world(hs_server* s, world* nw, int reset, char* msg, size_t cap)
     // A reset rebuilds the same scene: its rt loop goes on from the old one's (no gap, no ramp).
     // Not after a cut (the old contact and blade force belong to the cut body), nor for a new
     // scene: their force ramps in from zero.
-    int handed = reset && !stay_paused && old.sim && !old.cut_made && nw->sim &&
+    // A cut the sim made after the net loop last looked counts too (found in review, by reading:
+    // a window of one loop pass during a drag).
+    int cut = old.cut_made ||
+              (old.sim && old.cutting && hs_haptic_sim_topology_version(old.sim) != old.cut_seen);
+    int handed = reset && !stay_paused && old.sim && !cut && nw->sim &&
                  hs_haptic_sim_take_over(nw->sim, old.sim, &err) == HS_OK;
     memset(&err, 0, sizeof err);
     s->w = *nw;
