@@ -7,6 +7,7 @@
 #include <poll.h>
 #include <stdarg.h>
 #include <stdio.h>
+#include <stdatomic.h>
 #include <string.h>
 #include <time.h>
 #include <unistd.h>
@@ -56,7 +57,15 @@ struct hs_client {
     int64_t next_request_id, command_seq;
     hs_wire_ack acks[ACK_RING];
     int n_acks, ack_head;
+    // The request hs_client_command waits for (0: none) and its ack, kept apart from the ring:
+    // other clients' acks arriving in the same poll could push it out (16 of them did).
+    int64_t wait_id;
+    hs_wire_ack wait_ack;
+    int wait_have;
     hs_client_stats st;
+    // hs_client_send_pose may run on a thread of its own beside the polling one, whose
+    // hs_client_stats_get reads the count (a data race on a plain counter, found in review).
+    atomic_llong poses_sent;
 };
 
 static hs_status fail(hs_err* err, hs_status code, const char* fmt, ...)
@@ -171,6 +180,11 @@ static void on_ack(hs_client* c, const void* buf, size_t len) {
         return;
     }
     c->st.acks++;
+    if (c->wait_id != 0 && a.request_id == c->wait_id &&
+        (!c->wait_have || c->wait_ack.status == HAPSIM_COMMAND_ACK_T_STATUS_PENDING)) {
+        c->wait_ack = a;
+        c->wait_have = 1;
+    }
     // One entry per request: a final ack replaces a PENDING one, and the first final one stays
     // (a retry's copies, "not executed again", would push it out of the ring).
     for (int i = 0; i < c->n_acks; i++) {
@@ -275,6 +289,7 @@ hs_status hs_client_create(const hs_client_config* cfg, hs_client** out, hs_err*
         return fail(err, HS_ERR_INVALID, "hs_client_create: sender longer than 63 bytes");
     hs_client* c = hs_client_calloc(1, sizeof *c);
     if (!c) return fail(err, HS_ERR_NOMEM, "hs_client_create: out of memory");
+    atomic_init(&c->poses_sent, 0);
     snprintf(c->prefix, sizeof c->prefix, "%s", prefix);
     hapsim_channel_name(c->ch_pose, sizeof c->ch_pose, c->prefix, HAPSIM_CH_TOOL_POSE);
     hapsim_channel_name(c->ch_command, sizeof c->ch_command, c->prefix, HAPSIM_CH_COMMAND);
@@ -463,7 +478,7 @@ hs_status hs_client_send_pose(hs_client* c, const hs_client_pose* p, hs_err* err
     if (len > (int)sizeof buf || hapsim_tool_pose_t_encode(buf, 0, len, &m) != len ||
         lcm_publish(c->bus[0], c->ch_pose, buf, (unsigned)len) != 0)
         return fail(err, HS_ERR_IO, "hs_client_send_pose: publish on %s failed", c->ch_pose);
-    c->st.poses_sent++;
+    atomic_fetch_add_explicit(&c->poses_sent, 1, memory_order_relaxed);
     return HS_OK;
 }
 
@@ -501,6 +516,7 @@ bool hs_client_status_latest(const hs_client* c, hs_client_status* out, int64_t*
 }
 void hs_client_stats_get(const hs_client* c, hs_client_stats* out) {
     *out = c->st;
+    out->poses_sent = atomic_load_explicit(&c->poses_sent, memory_order_relaxed);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -555,6 +571,10 @@ hs_status hs_client_command(hs_client* c, int32_t kind, int n_args, const char* 
     memset(&m, 0, sizeof m);
     m.request_id = c->next_request_id++;
     if (c->next_request_id <= 0) c->next_request_id = 1;
+    if (!c->in_poll) { // a command from a callback is sent once and not waited for
+        c->wait_id = m.request_id;
+        c->wait_have = 0;
+    }
     m.kind = kind;
     m.n_args = n_args;
     char *kb[8], *vb[8]; // lcm-gen's type wants char**; the encoder only reads them
@@ -593,7 +613,8 @@ hs_status hs_client_command(hs_client* c, int32_t kind, int n_args, const char* 
             // After PENDING the server is working on it: ask again less often.
             next_send = now + (int64_t)retry_ms * 1000 * (pending ? 4 : 1);
         }
-        const hs_wire_ack* a = find_ack(c, m.request_id);
+        const hs_wire_ack* a =
+            c->wait_have && c->wait_id == m.request_id ? &c->wait_ack : find_ack(c, m.request_id);
         if (a) {
             ack->status = a->status;
             snprintf(ack->message, sizeof ack->message, "%s", a->message);

@@ -3,6 +3,9 @@ hs_add_test(client hapsim_client)
 # White-box cases (the wire decoders' ranges) include the client's internal wire.h.
 target_include_directories(test_client PRIVATE ${PROJECT_SOURCE_DIR}/client)
 set_tests_properties(client PROPERTIES TIMEOUT 60)
+# A pose-sending thread beside the polling one, on its own so that make test-tsan runs it.
+add_test(NAME client_threads COMMAND test_client test_pose_thread)
+set_tests_properties(client_threads PROPERTIES TIMEOUT 120 LABELS tsan)
 hs_add_test(client_view hs_view)
 set_tests_properties(client_view PROPERTIES TIMEOUT 60)
 # VTK output read back by meshio / Python's XML parser (not our code).

@@ -342,7 +342,8 @@ typedef struct hs_client_stats {
     int64_t statuses;     ///< server_status accepted
     int64_t acks;         ///< command acks accepted
 } hs_client_stats;
-/// Counters. Thread: the polling thread | Allocates: no
+/// Counters. Thread: the polling thread (poses_sent may be counted meanwhile by a thread that
+/// only sends poses) | Allocates: no
 void hs_client_stats_get(const hs_client* c, hs_client_stats* out /* OUT */);
 
 /// A command's answer.
