@@ -14,6 +14,7 @@
 
 #include "hapsim_channels.h"
 #include "hapsim_command_ack_t.h"
+#include "hapsim_command_rules.h"
 #include "hapsim_command_t.h"
 #include "hapsim_tool_pose_t.h"
 #include "wire.h"
@@ -285,8 +286,10 @@ hs_status hs_client_create(const hs_client_config* cfg, hs_client** out, hs_err*
     if (!prefix_ok(prefix))
         return fail(err, HS_ERR_INVALID,
                     "hs_client_create: prefix '%s' must be [A-Z0-9_]*, at most 47 bytes", prefix);
-    if (cfg->sender && strlen(cfg->sender) > 63)
-        return fail(err, HS_ERR_INVALID, "hs_client_create: sender longer than 63 bytes");
+    if (cfg->sender &&
+        (strlen(cfg->sender) > HAPSIM_CMD_SENDER_MAX || !hapsim_cmd_text_ok(cfg->sender)))
+        return fail(err, HS_ERR_INVALID,
+                    "hs_client_create: sender longer than 63 bytes or with control bytes");
     hs_client* c = hs_client_calloc(1, sizeof *c);
     if (!c) return fail(err, HS_ERR_NOMEM, "hs_client_create: out of memory");
     atomic_init(&c->poses_sent, 0);
@@ -522,23 +525,6 @@ void hs_client_stats_get(const hs_client* c, hs_client_stats* out) {
 // ---------------------------------------------------------------------------------------------
 // Commands.
 
-static int key_ok(const char* k) {
-    size_t n = strlen(k);
-    if (n < 1 || n > 63) return 0;
-    for (size_t i = 0; i < n; i++)
-        if (!((k[i] >= 'a' && k[i] <= 'z') || (k[i] >= '0' && k[i] <= '9') || k[i] == '_' ||
-              k[i] == '.'))
-            return 0;
-    return 1;
-}
-static int value_ok(const char* v) {
-    size_t n = strlen(v);
-    if (n > 255) return 0;
-    for (size_t i = 0; i < n; i++)
-        if ((unsigned char)v[i] < 0x20 || v[i] == 0x7f) return 0;
-    return 1;
-}
-
 static const hs_wire_ack* find_ack(const hs_client* c, int64_t id) {
     for (int i = 0; i < c->n_acks; i++) {
         int k = (c->ack_head - 1 - i + 2 * ACK_RING) % ACK_RING;
@@ -558,13 +544,18 @@ hs_status hs_client_command(hs_client* c, int32_t kind, int n_args, const char* 
     if (n_args < 0 || n_args > 8 || (n_args && (!keys || !values)))
         return fail(err, HS_ERR_INVALID, "hs_client_command: n_args %d not in 0..8", n_args);
     for (int i = 0; i < n_args; i++) {
-        if (!keys[i] || !key_ok(keys[i]))
+        if (!keys[i] || !hapsim_cmd_key_ok(keys[i]))
             return fail(err, HS_ERR_INVALID, "hs_client_command: key %d must be [a-z0-9_.]{1,63}",
                         i);
-        if (!values[i] || !value_ok(values[i]))
+        if (!values[i] || strlen(values[i]) > HAPSIM_CMD_TEXT_MAX || !hapsim_cmd_text_ok(values[i]))
             return fail(err, HS_ERR_INVALID,
                         "hs_client_command: value of '%s' must be 0..255 printable bytes", keys[i]);
     }
+    // What the server would refuse as INVALID is refused here (its rules, shared).
+    double number;
+    const char* why;
+    if (hapsim_cmd_args_check(kind, n_args, keys, values, &number, &why) != HAPSIM_CMD_ARGS_OK)
+        return fail(err, HS_ERR_INVALID, "hs_client_command: %s", why);
     if (timeout_ms <= 0) timeout_ms = 2000;
     if (retry_ms <= 0) retry_ms = 250;
     hapsim_command_t m;

@@ -1223,6 +1223,74 @@ static int test_ack_among_many(void) {
     return 0;
 }
 
+static void count_sent(const lcm_recv_buf_t* rb, const char* ch, void* user) {
+    (void)rb;
+    (void)ch;
+    ++*(int*)user;
+}
+
+// A command the server would refuse as INVALID is refused before it is sent (the header's
+// promise; found in review: repeated keys, the wrong keys for a kind and a SET_PARAM value
+// that is not a number went out and came back INVALID).
+static int test_command_checked_locally(void) {
+    hs_client* c = memq_client(HS_CLIENT_SUB_COMMANDS);
+    ENSURE(c);
+    int sent = 0;
+    char ch[HAPSIM_CHANNEL_MAX];
+    hapsim_channel_name(ch, sizeof ch, HAPSIM_DEFAULT_PREFIX, HAPSIM_CH_COMMAND);
+    ENSURE(lcm_subscribe(hs_client_lcm(c, 1), ch, count_sent, &sent));
+    static const struct {
+        int kind, n;
+        const char *k[3], *v[3], *why;
+    } bad[] = {
+        {HAPSIM_COMMAND_T_KIND_SET_PARAM, 2, {"name", "value"}, {"youngs_pa", "abc"}, "number"},
+        {HAPSIM_COMMAND_T_KIND_SET_PARAM, 2, {"name", "value"}, {"youngs_pa", "5e3x"}, "number"},
+        {HAPSIM_COMMAND_T_KIND_SET_PARAM, 2, {"name", "value"}, {"youngs_pa", "1e999"}, "finite"},
+        {HAPSIM_COMMAND_T_KIND_SET_PARAM, 2, {"name", "value"}, {"youngs_pa", ""}, "two"},
+        {HAPSIM_COMMAND_T_KIND_SET_PARAM, 2, {"name", "value"}, {"Youngs", "1"}, "two"},
+        {HAPSIM_COMMAND_T_KIND_SET_PARAM, 1, {"name"}, {"youngs_pa"}, "two"},
+        {HAPSIM_COMMAND_T_KIND_SET_PARAM, 3, {"name", "value", "x"}, {"a", "1", "2"}, "two"},
+        {HAPSIM_COMMAND_T_KIND_SET_PARAM, 2, {"name", "name"}, {"a", "b"}, "twice"},
+        {HAPSIM_COMMAND_T_KIND_PAUSE, 1, {"now"}, {"1"}, "no arguments"},
+        {HAPSIM_COMMAND_T_KIND_LOAD_SCENE, 1, {"path"}, {""}, "path"},
+        {HAPSIM_COMMAND_T_KIND_LOAD_SCENE, 1, {"file"}, {"a.json"}, "path"},
+        {HAPSIM_COMMAND_T_KIND_LOAD_SCENE, 2, {"path", "x"}, {"a.json", "1"}, "path"},
+    };
+    for (size_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {
+        hs_client_ack ack;
+        hs_err e = {0};
+        ENSURE(hs_client_command(c, bad[i].kind, bad[i].n, bad[i].k, bad[i].v, 50, 10, &ack, &e) ==
+               HS_ERR_INVALID);
+        if (!strstr(e.msg, bad[i].why)) printf("  case %zu: '%s'\n", i, e.msg);
+        ENSURE(strstr(e.msg, bad[i].why));
+    }
+    hs_client_poll(c, 0, NULL);
+    ENSURE(sent == 0);
+    // Well-formed ones go out (no server answers here: a timeout after one send).
+    const char* k[2] = {"name", "value"};
+    const char* v[2] = {"youngs_pa", " 5e3"};
+    const char* path[1] = {"scenes/liver/liver.json"};
+    const char* pk[1] = {"path"};
+    hs_client_ack ack;
+    ENSURE(hs_client_command(c, HAPSIM_COMMAND_T_KIND_SET_PARAM, 2, k, v, 30, 100, &ack, NULL) ==
+           HS_ERR_IO);
+    ENSURE(hs_client_command(c, HAPSIM_COMMAND_T_KIND_LOAD_SCENE, 1, pk, path, 30, 100, &ack,
+                             NULL) == HS_ERR_IO);
+    ENSURE(hs_client_command(c, HAPSIM_COMMAND_T_KIND_PAUSE, 0, NULL, NULL, 30, 100, &ack, NULL) ==
+           HS_ERR_IO);
+    hs_client_poll(c, 0, NULL);
+    ENSURE(sent == 3);
+    hs_client_destroy(&c);
+    // A sender with a control byte is refused at creation, as the server refuses its commands.
+    hs_client_config cfg;
+    hs_client_config_default(&cfg);
+    cfg.haptic_url = "memq://";
+    cfg.mesh_url = "memq://";
+    cfg.sender = "bench\trig";
+    ENSURE(hs_client_create(&cfg, &c, NULL) == HS_ERR_INVALID && c == NULL);
+    return 0;
+}
+
 static void* send_poses(void* arg) {
     hs_client* c = arg;
     hs_client_pose p = {.orientation = {1, 0, 0, 0}};
@@ -1356,7 +1424,8 @@ static int test_status_kept(void) {
 }
 
 HS_TEST_MAIN(HS_CASE(test_url_without_port), HS_CASE(test_callback_reentry),
-             HS_CASE(test_ack_among_many), HS_CASE(test_pose_thread), HS_CASE(test_force_restart),
+             HS_CASE(test_ack_among_many), HS_CASE(test_pose_thread),
+             HS_CASE(test_command_checked_locally), HS_CASE(test_force_restart),
              HS_CASE(test_mesh_restart), HS_CASE(test_topology_nomem), HS_CASE(test_far_jump),
              HS_CASE(test_model_extremes), HS_CASE(test_status_kept),
              HS_CASE(test_lossless_follows_server), HS_CASE(test_delta_sum_overflow),

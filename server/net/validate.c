@@ -5,6 +5,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "hapsim_command_rules.h"
 #include "hapsim_command_t.h"
 #include "hapsim_command_ack_t.h"
 #include "hapsim_tool_pose_t.h"
@@ -244,48 +245,23 @@ static void dedup_add(hs_net_dedup* d, int64_t id, int32_t kind) {
     if (d->count < HS_NET_DEDUP_SIZE) d->count++;
 }
 
-static int key_ok(const char* k) {
-    if (k[0] == '\0') return 0;
-    for (const char* c = k; *c; ++c)
-        if (!((*c >= 'a' && *c <= 'z') || (*c >= '0' && *c <= '9') || *c == '_' || *c == '.'))
-            return 0;
-    return 1;
-}
-
-static int text_ok(const char* s) {
-    for (const unsigned char* c = (const unsigned char*)s; *c; ++c)
-        if (*c < 0x20 || *c == 0x7f) return 0;
-    return 1;
-}
-
-// Arguments each kind requires (exactly these keys, nothing else).
+// Arguments each kind requires (exactly these keys, nothing else): the rules the client
+// library checks too (hapsim_command_rules.h).
 static hs_net_reject command_args(hs_net_command* c) {
+    const char *k[HS_NET_CMD_MAX_ARGS], *v[HS_NET_CMD_MAX_ARGS];
     for (int i = 0; i < c->n_args; ++i) {
-        if (!key_ok(c->keys[i]) || !text_ok(c->values[i])) return HS_NET_REJ_ARGUMENT;
-        for (int j = 0; j < i; ++j)
-            if (strcmp(c->keys[i], c->keys[j]) == 0) return HS_NET_REJ_ARGUMENT;
+        k[i] = c->keys[i];
+        v[i] = c->values[i];
     }
-    if (!text_ok(c->sender)) return HS_NET_REJ_ARGUMENT;
-    switch (c->kind) {
-    case HAPSIM_COMMAND_T_KIND_LOAD_SCENE: {
-        const char* path = hs_net_command_arg(c, "path");
-        if (c->n_args != 1 || !path || path[0] == '\0') return HS_NET_REJ_ARGUMENT;
+    if (!hapsim_cmd_text_ok(c->sender)) return HS_NET_REJ_ARGUMENT;
+    const char* why;
+    switch (hapsim_cmd_args_check(c->kind, c->n_args, k, v, &c->number, &why)) {
+    case HAPSIM_CMD_ARGS_OK:
         return HS_NET_ACCEPT;
-    }
-    case HAPSIM_COMMAND_T_KIND_SET_PARAM: {
-        const char* name = hs_net_command_arg(c, "name");
-        const char* value = hs_net_command_arg(c, "value");
-        if (c->n_args != 2 || !name || !value || !key_ok(name) || value[0] == '\0')
-            return HS_NET_REJ_ARGUMENT;
-        char* end = NULL;
-        double v = strtod(value, &end);
-        if (end == value || *end != '\0') return HS_NET_REJ_ARGUMENT;
-        if (!isfinite(v)) return HS_NET_REJ_NONFINITE;
-        c->number = v;
-        return HS_NET_ACCEPT;
-    }
+    case HAPSIM_CMD_ARGS_NONFINITE:
+        return HS_NET_REJ_NONFINITE;
     default:
-        return c->n_args == 0 ? HS_NET_ACCEPT : HS_NET_REJ_ARGUMENT;
+        return HS_NET_REJ_ARGUMENT;
     }
 }
 
