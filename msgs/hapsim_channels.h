@@ -50,8 +50,8 @@ static inline int hapsim_channel_name(char* out, size_t cap, const char* prefix,
 /// Why url cannot serve as a hapsim bus, or NULL. A udpm URL that names a group must name a
 /// port other than 0 (udpm://GROUP:PORT): without one LCM 1.3.1 uses port 0, a random port (in a
 /// private namespace a publisher and a receiver on such URLs never met, and the receiver's
-/// lcm_create hung). "udpm://" alone is LCM's default group and port; other providers and
-/// malformed ports are left to LCM.
+/// lcm_create hung), and the port must be a number alone ("7667x" is port 7667 to LCM).
+/// "udpm://" alone is LCM's default group and port; other providers are left to LCM.
 static inline const char* hapsim_url_problem(const char* url) {
     static const char udpm[] = "udpm://";
     if (!url || strncmp(url, udpm, sizeof udpm - 1)) return NULL;
@@ -64,7 +64,11 @@ static inline const char* hapsim_url_problem(const char* url) {
                "random one and no other program hears the bus)";
     char* end;
     long port = strtol(colon + 1, &end, 0);
-    if (end != colon + 1 && (port <= 0 || port > 65535)) // LCM keeps it in an int: 2^32 is 0
+    // LCM reads the port with strtol too and ignores what follows: "7667x" is port 7667, which
+    // another URL's text would not show (found in review: a mesh bus on the haptic one).
+    if (end == colon + 1 || end != net + n)
+        return "has a port that is not a number alone (write udpm://GROUP:PORT, options after ?)";
+    if (port <= 0 || port > 65535) // LCM keeps it in an int: 2^32 is 0
         return "has port 0 or one outside 1..65535 (LCM would bind a random port: no other "
                "program hears the bus)";
     return NULL;

@@ -100,6 +100,16 @@ static int malformed_names_file_line_key(void) {
                        "t.json:3:", "malformed JSON") == 0);
     ENSURE(expect_fail("", HS_ERR_PARSE, "t.json:1:", "malformed") == 0);
     ENSURE(expect_fail("{\"mesh\": \"m.msh\"} trailing", HS_ERR_PARSE, "t.json:1:", NULL) == 0);
+    // Lines that end in \r\n or a lone \r (old Mac files) count as lines: the lone \r ones all
+    // said line 1 before.
+#define FIXED "\"fixed\": [{\"type\": \"box\", \"min\": [0,0,0], \"max\": [1,1,1]}],"
+    ENSURE(expect_fail("{\r\"mesh\": \"m.msh\",\r" FIXED "\r\"devices\": 99}", HS_ERR_PARSE,
+                       "t.json:4:", "'devices'") == 0);
+    ENSURE(expect_fail("{\r\n\"mesh\": \"m.msh\",\r\n" FIXED "\r\n\"devices\": 99}", HS_ERR_PARSE,
+                       "t.json:4:", "'devices'") == 0);
+#undef FIXED
+    ENSURE(expect_fail("{\r  \"mesh\": \"m.msh\"\r  \"fixed\": []\r}", HS_ERR_PARSE,
+                       "t.json:3:3:", "malformed JSON") == 0);
     // Keys: each problem names the key path and the line it is on.
     ENSURE(expect_fail(HEAD "\"material\": {\"poisson\": \"a\"}}", HS_ERR_PARSE,
                        "t.json:4:", "'material.poisson': must be a number") == 0);
@@ -194,6 +204,14 @@ static int malformed_names_file_line_key(void) {
                        HS_ERR_PARSE, "'lcm.mesh_url': has port 0 or one outside", NULL) == 0);
     ENSURE(expect_fail(HEAD "\"lcm\": {\"mesh_url\": \"udpm://239.255.76.67:4294967296\"}}",
                        HS_ERR_PARSE, "outside 1..65535", NULL) == 0); // an int in LCM: 0
+    // LCM reads "7667x" as port 7667: the haptic bus's, which the text comparison missed.
+    ENSURE(expect_fail(HEAD "\"lcm\": {\"mesh_url\": \"udpm://239.255.76.67:7667x?ttl=0\"}}",
+                       HS_ERR_PARSE, "'lcm.mesh_url': has a port that is not a number alone",
+                       NULL) == 0);
+    ENSURE(expect_fail(HEAD "\"lcm\": {\"haptic_url\": \"udpm://239.255.76.67:abc\"}}",
+                       HS_ERR_PARSE, "not a number alone", NULL) == 0);
+    ENSURE(expect_fail(HEAD "\"lcm\": {\"mesh_url\": \"udpm://239.255.76.67:7668 \"}}",
+                       HS_ERR_PARSE, "not a number alone", NULL) == 0);
     ENSURE(expect_fail(HEAD "\"rates\": {\"haptic_hz\": 100, \"sim_hz\": 200}}", HS_ERR_PARSE,
                        "'rates.sim_hz'", NULL) == 0);
     ENSURE(expect_fail(HEAD "\"rates\": {\"haptic_hz\": 1e400}}", HS_ERR_PARSE, "'rates.haptic_hz'",

@@ -106,10 +106,11 @@ static const char* walk(const cJSON* it, const char* p, const cJSON* target, con
     return p;
 }
 
+// Lines end at \n, \r\n or a lone \r (old Mac files: found in review, every error said line 1).
 static int line_at(const char* text, const char* at) {
     int line = 1;
     for (const char* p = text; p < at && *p; ++p)
-        if (*p == '\n') ++line;
+        if (*p == '\n' || (*p == '\r' && p[1] != '\n')) ++line;
     return line;
 }
 
@@ -665,7 +666,7 @@ hs_status hs_scene_parse(const char* text, const char* path, int check_files, hs
         const char* at = end ? end : json;
         int line = line_at(json, at);
         const char* ls = at;
-        while (ls > json && ls[-1] != '\n') --ls;
+        while (ls > json && ls[-1] != '\n' && ls[-1] != '\r') --ls;
         int shown = 0; // the rest of that line, at most 20 bytes
         while (shown < 20 && at[shown] && at[shown] != '\n' && at[shown] != '\r') ++shown;
         return hs_err_set(err, HS_ERR_PARSE, "%s:%d:%d: malformed JSON near '%.*s'", path, line,
