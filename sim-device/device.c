@@ -215,6 +215,10 @@ void hs_stylus_device_step(hs_stylus_device* d, const double target_m[3],
         for (int i = 0; i < 3; ++i) f[i] = d->prev_force_n[i] + df[i] * (dmax / dfn);
         flags |= HS_TICK_RATE;
     }
+    // Zero where the rules above ask for zero (timed out, STOPPED, long outside): the rate clamp
+    // smooths a force, it must not keep one on (found in review: at 10 N/s it held 2.8 N
+    // 100 ms after the model arrived, and 2.98 N 2 ms after a stop).
+    if (!(d->gain > 0)) f[0] = f[1] = f[2] = 0;
     memcpy(d->prev_force_n, f, sizeof f);
     d->outside_s = (flags & HS_TICK_OUTSIDE) ? d->outside_s + dt_s : 0;
 

@@ -645,6 +645,58 @@ static int server_timeout(void) {
     return 0;
 }
 
+// With a slow rate clamp (10 N/s: 3 N takes 300 ms, longer than the timeout's ramp) the
+// force is still exactly zero from the device's timeout on, and at once for STATE_STOPPED: the
+// clamp smooths a force, it must not keep one on (found in review: 2.8 N 100 ms after the
+// model's arrival, 2.98 N 2 ms after a stop).
+static int slow_rate_still_stops(void) {
+    hs_stylus_def def = test_def();
+    def.max_rate_n_s = 10;
+    hs_err err = {0};
+    ENSURE(hs_stylus_def_check(&def, &err) == HS_OK);
+    double p0[3] = {0, 0, 0};
+    hs_stylus_device dev;
+    hs_stylus_device_init(&dev, &def, p0);
+    hs_stylus_model m;
+    memset(&m, 0, sizeof m);
+    m.seq = 1;
+    m.version = 1;
+    m.state = 1;
+    m.force_n[2] = 3.0; // everywhere (radius 0)
+    m.timeout_s = 0.03;
+    hs_stylus_tick tick;
+    int64_t now = 1000000000;
+    for (int round = 0; round < 2; round++) {
+        for (int k = 0; k < 400; k++) { // fresh models every tick: the force builds up
+            now += 1000000;
+            m.arrival_ns = now;
+            m.seq++;
+            hs_stylus_device_set_model(&dev, &m);
+            hs_stylus_device_step(&dev, dev.pos_m, NULL, now, 1e-3, &tick);
+        }
+        ENSURE(norm3(tick.f_applied) > 2.9);
+        if (round == 0) { // the server goes quiet
+            int64_t last = m.arrival_ns;
+            for (int k = 1; k <= 200; k++) {
+                now = last + (int64_t)k * 1000000;
+                hs_stylus_device_step(&dev, dev.pos_m, NULL, now, 1e-3, &tick);
+                if (now - last >= (int64_t)llround(def.timeout_s * 1e9))
+                    ENSURE(norm3(tick.f_applied) == 0);
+            }
+        } else { // the server stops
+            hs_stylus_model stop = m;
+            stop.state = 3;
+            stop.seq++;
+            now += 1000000;
+            stop.arrival_ns = now;
+            hs_stylus_device_set_model(&dev, &stop);
+            hs_stylus_device_step(&dev, dev.pos_m, NULL, now, 1e-3, &tick);
+            ENSURE(norm3(tick.f_applied) == 0 && norm3(dev.prev_force_n) == 0);
+        }
+    }
+    return 0;
+}
+
 // Passivity: a press-drag-release cycle against the elastic half-space puts back no more
 // energy than it took: |net work into the handle| stays below 1 % of the energy the surface
 // stored and returned. A deliberately active setup (long delay, stiff surface) must fail it.
@@ -1602,6 +1654,6 @@ HS_TEST_MAIN(HS_CASE(script_good), HS_CASE(script_errors), HS_CASE(script_normal
              HS_CASE(script_many_lines), HS_CASE(summary_none), HS_CASE(script_trajectory),
              HS_CASE(script_touch), HS_CASE(script_garbage), HS_CASE(device_tracks_target),
              HS_CASE(device_wall), HS_CASE(local_model), HS_CASE(server_timeout),
-             HS_CASE(passivity), HS_CASE(trace_file), HS_CASE(trace_compare),
-             HS_CASE(bundled_scripts), HS_CASE(def_check), HS_CASE(mailbox), HS_CASE(wire_rx),
-             HS_CASE(status_decode))
+             HS_CASE(slow_rate_still_stops), HS_CASE(passivity), HS_CASE(trace_file),
+             HS_CASE(trace_compare), HS_CASE(bundled_scripts), HS_CASE(def_check), HS_CASE(mailbox),
+             HS_CASE(wire_rx), HS_CASE(status_decode))
