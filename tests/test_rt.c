@@ -224,6 +224,16 @@ static int Clamps(void) {
     g[2] = 3.0;
     ENSURE(hs_rate_clamp_apply(&rc, g, 1e-3) == 0);
     ENSURE(g[2] == 3.0 && rc.prev_n[2] == 3.0);
+    // A difference that overflows (finite ends 3.4e308 apart): a step along it, not NaN (found in
+    // review: Inf * 0 gave NaN, and a public filter must never output one).
+    hs_rate_clamp big = {{-1.7e308, 0, 0}, 1000.0};
+    double far[3] = {1.7e308, 0, 0};
+    ENSURE(hs_rate_clamp_apply(&big, far, 1e-3) == 1);
+    ENSURE(hs_vec3_finite(far) && far[0] == -1.7e308 && far[1] == 0 && far[2] == 0); // 1 N < ulp
+    hs_rate_clamp diag = {{-1e308, -1e308, 0}, 1000.0};
+    double far2[3] = {1e308, 1e308, 0};
+    ENSURE(hs_rate_clamp_apply(&diag, far2, 1e-3) == 1 && hs_vec3_finite(far2));
+    ENSURE(far2[0] == far2[1]);
 
     int64_t count = 0;
     double h[3] = {1, NAN, 2};
@@ -907,8 +917,105 @@ static int CreateFailures(void) {
     return 0;
 }
 
+// ---------------------------------------------------------------------------------------------
+// Take-over: a new rt loop goes on from an old one's last force.
+
+typedef struct fixed_src {
+    hs_haptic_model m;
+} fixed_src;
+
+static void fixed_eval(void* ctx, const hs_rt_clock* clk, const hs_haptic_pose* pose,
+                       hs_haptic_model* out) {
+    (void)clk;
+    hs_haptic_model_reanchor(&((fixed_src*)ctx)->m, pose->pos_m, out);
+}
+
+typedef struct tdrive {
+    hs_memdev* dev;
+    fixed_src src;
+    hs_haptic_rt* h;
+    hs_rt_tick tick;
+} tdrive;
+
+static int tdrive_create(tdrive* d) {
+    memset(d, 0, sizeof *d);
+    ENSURE(hs_memdev_create(&d->dev, NULL) == HS_OK);
+    hs_haptic_rt_def def = hs_haptic_rt_default_def();
+    def.device = hs_memdev_device(d->dev);
+    def.source.eval = fixed_eval;
+    def.source.ctx = &d->src;
+    ENSURE(hs_haptic_rt_create(&def, &d->h, NULL) == HS_OK);
+    d->tick = hs_haptic_rt_tick(d->h);
+    return 0;
+}
+
+static void tdrive_destroy(tdrive* d) {
+    hs_haptic_rt_destroy(&d->h);
+    hs_memdev_destroy(&d->dev);
+}
+
+// One tick at t (ns) with a fresh pose at the origin; the force's z.
+static double tdrive_step(tdrive* d, int64_t* seq, int64_t t) {
+    hs_haptic_pose p;
+    memset(&p, 0, sizeof p);
+    p.seq = ++*seq;
+    p.stamp_ns = t;
+    p.quat_wxyz[0] = 1;
+    hs_memdev_feed_pose(d->dev, &p);
+    hs_rt_clock c = {*seq, t, t, 1e-3};
+    d->tick.fn(d->tick.ctx, &c);
+    hs_haptic_output o;
+    memset(&o, 0, sizeof o);
+    hs_memdev_take_output(d->dev, &o);
+    return o.force_n[2];
+}
+
+// The old loop stops in the middle of a blend (0 -> 2 N, half way): the new one, holding the
+// old one's last model, goes on from the last force, not back toward the blend's start (found
+// in review: 1.0 N, then 0.6, 0.7, ... 1.0 N; a step of 0.4 N where the blend allows 0.2 N).
+static int TakeOverMidBlend(void) {
+    tdrive a, b;
+    ENSURE(tdrive_create(&a) == 0 && tdrive_create(&b) == 0);
+    int64_t seq = 0, t = 1000000000;
+    a.src.m.seq = 1;
+    a.src.m.radius_m = 0.01;
+    a.src.m.timeout_s = 1;
+    double f = 0;
+    for (int i = 0; i < 300; ++i) f = tdrive_step(&a, &seq, t += 1000000); // watchdog at full
+    ENSURE(fabs(f) < 1e-12);
+    a.src.m.seq = 2;
+    a.src.m.force_n[2] = 2.0;
+    int half = hs_haptic_rt_default_def().blend_ticks / 2;
+    for (int i = 0; i < half; ++i) f = tdrive_step(&a, &seq, t += 1000000);
+    ENSURE(f > 0.5 && f < 1.5);
+    hs_haptic_model held;
+    hs_haptic_rt_take_over(b.h, a.h, &held);
+    b.src.m = held; // what the new sim's source answers until its first snapshot
+    double prev = f;
+    for (int i = 0; i < 20; ++i) {
+        double g = tdrive_step(&b, &seq, t += 1000000);
+        if (fabs(g - f) > 1e-9)
+            printf("  tick %d after the take-over: %.4f N (last %.4f)\n", i, g, f);
+        ENSURE(fabs(g - f) <= 1e-9 && fabs(g - prev) <= 1e-9);
+        prev = g;
+    }
+    // The new sim's first snapshot then blends in from there.
+    b.src.m.seq = 1;
+    b.src.m.force_n[2] = 3.0;
+    int ticks = hs_haptic_rt_default_def().blend_ticks;
+    for (int i = 0; i < ticks; ++i) {
+        double g = tdrive_step(&b, &seq, t += 1000000);
+        ENSURE(g - prev <= (3.0 - f) / ticks + 1e-9 && g >= prev - 1e-12);
+        prev = g;
+    }
+    ENSURE(fabs(prev - 3.0) < 1e-9);
+    tdrive_destroy(&a);
+    tdrive_destroy(&b);
+    return 0;
+}
+
 HS_TEST_MAIN(HS_CASE(CreateFailures), HS_CASE(ModelEval), HS_CASE(BlendNeverJumps), HS_CASE(Clamps),
              HS_CASE(WatchdogRamps), HS_CASE(SafetyChain), HS_CASE(LoopTiming),
              HS_CASE(LoopRestarts), HS_CASE(LoopOverrunCatchUp), HS_CASE(WindowMaxFromSnapshots),
              HS_CASE(LoopWindowMax), HS_CASE(BareLoop), HS_CASE(HapticLoop),
-             HS_CASE(AllocCounterWorks), HS_CASE(ZeroAlloc))
+             HS_CASE(AllocCounterWorks), HS_CASE(ZeroAlloc), HS_CASE(TakeOverMidBlend))

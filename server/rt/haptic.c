@@ -149,9 +149,23 @@ int hs_rate_clamp_apply(hs_rate_clamp* rc, double f_n[3], double dt_s) {
     double step = rc->max_rate_n_s * (dt_s > 0 ? dt_s : 0);
     double n = norm3(d);
     int clamped = 0;
-    if (n > step) {
+    if (n > step && isfinite(n)) {
         double s = n > 0 ? step / n : 0;
         for (int i = 0; i < 3; ++i) f_n[i] = rc->prev_n[i] + d[i] * s;
+        clamped = 1;
+    } else if (n > step) { // the difference overflowed (found in review: Inf * 0 gave NaN)
+        double h[3], a = 0;
+        for (int i = 0; i < 3; ++i) {
+            h[i] = 0.5 * f_n[i] - 0.5 * rc->prev_n[i];
+            a = fmax(a, fabs(h[i]));
+        }
+        if (a > 0 && isfinite(a)) {
+            for (int i = 0; i < 3; ++i) h[i] /= a;
+            double s = step / norm3(h);
+            for (int i = 0; i < 3; ++i) f_n[i] = rc->prev_n[i] + h[i] * s;
+        } else {
+            memcpy(f_n, rc->prev_n, sizeof rc->prev_n); // not finite: hold
+        }
         clamped = 1;
     }
     memcpy(rc->prev_n, f_n, sizeof rc->prev_n);

@@ -100,9 +100,13 @@ void hs_haptic_rt_restart(hs_haptic_rt* h) {
 }
 
 void hs_haptic_rt_take_over(hs_haptic_rt* h, const hs_haptic_rt* from, hs_haptic_model* held) {
-    h->blend = from->blend;
-    h->blend.ticks = h->def.blend_ticks;
-    if (h->blend.done > h->blend.ticks) h->blend.done = h->blend.ticks;
+    // The held model is the old loop's last output, reached: a blend the old loop was in the
+    // middle of is over (copied, it went on from its start toward the held model, so the force
+    // first fell back toward that start; found in review).
+    hs_haptic_blend_init(&h->blend, h->def.blend_ticks);
+    h->blend.from = from->blend.last;
+    h->blend.last = from->blend.last;
+    h->blend.started = 1;
     h->stopped = from->stopped;
     h->pose = from->pose;
     h->have_pose = from->have_pose;

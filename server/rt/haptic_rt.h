@@ -96,7 +96,8 @@ hs_status hs_haptic_rt_set_safety(hs_haptic_rt* h, const hs_safety_def* def);
 void hs_haptic_rt_restart(hs_haptic_rt* h);
 /// Before h's first start, with from's loop stopped (a rebuild of the same scene): h goes on
 /// where from left off: its last pose, watchdog gain and rate clamp (the force does not ramp in
-/// again) and its blend. *held (OUT) = from's last output model before the safety chain,
+/// again) and its last output, reached (a blend from was in the middle of is over; the next
+/// snapshot blends from there). *held (OUT) = from's last output model before the safety chain,
 /// anchored at its last pose: what h's source should give until it has data of its own.
 /// Thread: control, both loops stopped | Allocates: no
 void hs_haptic_rt_take_over(hs_haptic_rt* h, const hs_haptic_rt* from, hs_haptic_model* held);
