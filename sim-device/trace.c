@@ -212,17 +212,23 @@ void hs_stylus_summary_print(FILE* f, const hs_stylus_summary* s, const char* tr
     if (trace_path) fprintf(f, "hapsim-stylus: trace: %s\n", trace_path);
 }
 
-// One line into buf: 1, or 0 at the end of the file, or -1 when it does not fit (the rest of
-// it is skipped, so the line count stays right).
+// One line into buf, its '\n' kept: 1, or 0 at the end of the file, -1 when it does not fit,
+// -2 when it holds a NUL byte (strings would end there and hide what follows: found in
+// review); the rest of a refused line is skipped, so the line count stays right.
 static int next_line(FILE* f, char* buf, int cap) {
-    if (!fgets(buf, cap, f)) return 0;
-    size_t n = strlen(buf);
-    if (n + 1 < (size_t)cap || buf[n - 1] == '\n') return 1;
-    int ch = fgetc(f);
-    if (ch == EOF || ch == '\n') return 1; // it just fitted
-    while ((ch = fgetc(f)) != EOF && ch != '\n') {
+    int n = 0, ch, r = 1;
+    while ((ch = getc(f)) != EOF && ch != '\n') {
+        if (ch == '\0')
+            r = -2;
+        else if (n + 2 > cap) // room for the '\n' and the NUL
+            r = r == 1 ? -1 : r;
+        else
+            buf[n++] = (char)ch;
     }
-    return -1;
+    if (ch == EOF && n == 0 && r == 1) return 0;
+    if (ch == '\n') buf[n++] = '\n';
+    buf[n] = '\0';
+    return r;
 }
 
 // 1 when line is exactly text, then an end of line ("\n", "\r\n", or none at the end of the
@@ -244,7 +250,7 @@ hs_status hs_stylus_trace_read_csv(const char* path, hs_stylus_trace** out, hs_e
     // First pass: check the header and count the rows, so the trace is allocated once. The
     // header is the whole line (extra columns are another format), and only the trailing summary
     // may be comments: a '#' line before data rows would cut the trace short unnoticed.
-    if (!fgets(line, sizeof line, f) || !line_is(line, hs_stylus_trace_header)) {
+    if (next_line(f, line, sizeof line) != 1 || !line_is(line, hs_stylus_trace_header)) {
         fclose(f);
         return hs_err_set(err, HS_ERR_PARSE, "%s:1: not a hapsim-stylus trace (header differs)",
                           path);
@@ -254,8 +260,11 @@ hs_status hs_stylus_trace_read_csv(const char* path, hs_stylus_trace** out, hs_e
         n++;
         if (r < 0) {
             fclose(f);
+            if (r == -2)
+                return hs_err_set(err, HS_ERR_PARSE, "%s:%lld: a NUL byte in the line", path,
+                                  (long long)n);
             return hs_err_set(err, HS_ERR_PARSE, "%s:%lld: line longer than %d bytes", path,
-                              (long long)n, (int)sizeof line - 1);
+                              (long long)n, (int)sizeof line - 2);
         }
         if (line[0] == '#') {
             if (!comment) comment = n;
@@ -280,7 +289,7 @@ hs_status hs_stylus_trace_read_csv(const char* path, hs_stylus_trace** out, hs_e
         return st;
     }
     rewind(f);
-    if (!fgets(line, sizeof line, f)) rows = 0;
+    if (next_line(f, line, sizeof line) != 1) rows = 0;
     for (int64_t k = 0; k < rows; ++k) {
         if (next_line(f, line, sizeof line) <= 0) break;
         double v[17];

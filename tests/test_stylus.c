@@ -960,6 +960,26 @@ static int trace_compare(void) {
     fclose(f);
     ENSURE(hs_stylus_trace_read_csv(path, &bad, &err) == HS_ERR_PARSE && bad == NULL);
     ENSURE(strstr(err.msg, want) != NULL && strstr(err.msg, "longer than"));
+    // A NUL byte ends the C string early: junk behind it passed as a good row, and a header
+    // with junk behind a NUL as the header (found in review). Refused, line named.
+    for (int where = 0; where < 2; where++) {
+        f = fopen(path, "w");
+        ENSURE(f != NULL);
+        const char junk[] = "\0,this is junk 1e300 nan\n";
+        if (where == 0) {
+            fprintf(f, "%s\n0,1,2,3,4,5,6,7,8,9,10,11,12,13,14,15,16", hs_stylus_trace_header);
+            fwrite(junk, 1, sizeof junk - 1, f);
+        } else {
+            fprintf(f, "%s", hs_stylus_trace_header);
+            fwrite(junk, 1, sizeof junk - 1, f);
+            fprintf(f, "0,1,2,3,4,5,6,7,8,9,10,11,12,13,14,15,16\n");
+        }
+        fclose(f);
+        ENSURE(hs_stylus_trace_read_csv(path, &bad, &err) == HS_ERR_PARSE && bad == NULL);
+        snprintf(want, sizeof want, "%s:%d:", path, where == 0 ? 2 : 1);
+        ENSURE(strstr(err.msg, want) != NULL);
+    }
+    snprintf(want, sizeof want, "%s:3:", path);
     // Comments only at the end (the summary); CRLF line ends are fine.
     f = fopen(path, "w");
     ENSURE(f != NULL);
