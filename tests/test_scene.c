@@ -204,6 +204,14 @@ static int malformed_names_file_line_key(void) {
                        HS_ERR_PARSE, "'lcm.mesh_url': has port 0 or one outside", NULL) == 0);
     ENSURE(expect_fail(HEAD "\"lcm\": {\"mesh_url\": \"udpm://239.255.76.67:4294967296\"}}",
                        HS_ERR_PARSE, "outside 1..65535", NULL) == 0); // an int in LCM: 0
+    // A \u0000 escape cut the mesh path short ("m.msh\u0000junk" loaded m.msh) and a raw
+    // newline inside a string passed: JSON allows neither.
+    ENSURE(expect_fail("{\"mesh\": \"m.msh\\u0000junk\", \"fixed\": []}", HS_ERR_PARSE,
+                       "t.json:1:", "\\u0000 inside a string") == 0);
+    ENSURE(expect_fail(HEAD "\"name\": \"a\nb\"}", HS_ERR_PARSE,
+                       "t.json:4:", "a control byte inside a string") == 0);
+    ENSURE(expect_fail(HEAD "\"name\": \"tab\there\"}", HS_ERR_PARSE,
+                       "t.json:4:", "control byte") == 0);
     // LCM reads "7667x" as port 7667: the haptic bus's, which the text comparison missed.
     ENSURE(expect_fail(HEAD "\"lcm\": {\"mesh_url\": \"udpm://239.255.76.67:7667x?ttl=0\"}}",
                        HS_ERR_PARSE, "'lcm.mesh_url': has a port that is not a number alone",

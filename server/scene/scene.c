@@ -649,6 +649,30 @@ static hs_status parse_root(const ctx* c, const cJSON* root, int check_files, hs
     return HS_OK;
 }
 
+// JSON strings hold no control bytes, and a \u0000 escape would end the C string cJSON returns
+// (found in review: "m.msh\u0000junk" loaded as m.msh; a raw newline inside a name passed).
+// Called on text cJSON parsed, so its strings are well formed; NULL, or where and why.
+static const char* bad_in_string(const char* json, const char** why) {
+    int in = 0;
+    for (const char* p = json; *p; ++p) {
+        if (!in) {
+            in = *p == '"';
+        } else if (*p == '"') {
+            in = 0;
+        } else if ((unsigned char)*p < 0x20) {
+            *why = "a control byte inside a string (write \\n, \\t, ...)";
+            return p;
+        } else if (*p == '\\') {
+            if (!strncmp(p + 1, "u0000", 5)) {
+                *why = "\\u0000 inside a string (it would end the text there)";
+                return p;
+            }
+            if (p[1]) ++p; // the escaped character
+        }
+    }
+    return NULL;
+}
+
 hs_status hs_scene_parse(const char* text, const char* path, int check_files, hs_scene* out,
                          hs_err* err) {
     hs_scene_default(out);
@@ -671,6 +695,12 @@ hs_status hs_scene_parse(const char* text, const char* path, int check_files, hs
         while (shown < 20 && at[shown] && at[shown] != '\n' && at[shown] != '\r') ++shown;
         return hs_err_set(err, HS_ERR_PARSE, "%s:%d:%d: malformed JSON near '%.*s'", path, line,
                           (int)(at - ls) + 1, shown, at);
+    }
+    const char* why = "";
+    const char* bad = bad_in_string(json, &why);
+    if (bad) {
+        cJSON_Delete(root);
+        return hs_err_set(err, HS_ERR_PARSE, "%s:%d: %s", path, line_at(json, bad), why);
     }
     ctx c = {path, json, root, err};
     // Keep the scene name we can show when the file gives none: the file name.
