@@ -267,7 +267,8 @@ static void probe_eval(void* ctx, const hs_rt_clock* clk, const hs_haptic_pose* 
     hs_contact_solve_from(s, pose->pos_m, &p->last, c);
     p->last = *c;
     hs_triple_buffer_publish(p->contact);
-    hs_contact_model(c, p->min_r, p->max_r, p->timeout_s, out);
+    // From the copy: the published slot is the deformation thread's to read now.
+    hs_contact_model(&p->last, p->min_r, p->max_r, p->timeout_s, out);
     for (int k = 0; k < 3; ++k) out->force_n[k] += ss->cut_force_n[k];
     out->stamp_ns = clk->now_ns;
 }
