@@ -220,7 +220,7 @@ static int next_line(FILE* f, char* buf, int cap) {
     while ((ch = getc(f)) != EOF && ch != '\n') {
         if (ch == '\0')
             r = -2;
-        else if (n + 2 > cap) // room for the '\n' and the NUL
+        else if (n + 2 >= cap) // keep room for the '\n' and the NUL
             r = r == 1 ? -1 : r;
         else
             buf[n++] = (char)ch;
