@@ -1302,13 +1302,8 @@ static void* send_poses(void* arg) {
 // polling thread reads the counters (client_threads runs this under ThreadSanitizer: the pose
 // count was a plain int64 written by one thread and copied by the other).
 static int test_pose_thread(void) {
-    hs_client_config cfg;
-    hs_client_config_default(&cfg);
-    cfg.haptic_url = "memq://";
-    cfg.mesh_url = "";
-    cfg.subscribe = HS_CLIENT_SUB_FORCE;
-    hs_client* c = NULL;
-    ENSURE(hs_client_create(&cfg, &c, NULL) == HS_OK);
+    hs_client* c = memq_client(HS_CLIENT_SUB_FORCE);
+    ENSURE(c);
     pthread_t t;
     ENSURE(pthread_create(&t, NULL, send_poses, c) == 0);
     int64_t last = 0;
