@@ -13,6 +13,7 @@
 #include <stdint.h>
 
 #include "hapsim/base.h"
+#include "hapsim_command_rules.h" // the command limits
 
 #ifdef __cplusplus
 extern "C" {
@@ -104,10 +105,11 @@ void hs_net_pose_state_init(hs_net_pose_state* s);
 hs_net_reject hs_net_validate_pose(const hs_net_limits* lim, hs_net_pose_state* st, const void* buf,
                                    int64_t len, int64_t now_us, hs_net_pose* out /* OUT */);
 
-#define HS_NET_CMD_MAX_ARGS   8
-#define HS_NET_CMD_KEY_MAX    64  ///< bytes including the NUL
-#define HS_NET_CMD_VALUE_MAX  256 ///< bytes including the NUL
-#define HS_NET_CMD_SENDER_MAX 64  ///< bytes including the NUL
+// The protocol's limits (msgs/hapsim_command_rules.h, shared with the client), with the NUL.
+#define HS_NET_CMD_MAX_ARGS   HAPSIM_CMD_MAX_ARGS
+#define HS_NET_CMD_KEY_MAX    (HAPSIM_CMD_KEY_MAX + 1)
+#define HS_NET_CMD_VALUE_MAX  (HAPSIM_CMD_TEXT_MAX + 1)
+#define HS_NET_CMD_SENDER_MAX (HAPSIM_CMD_SENDER_MAX + 1)
 
 /// A validated command (command on the wire), in fixed storage.
 typedef struct hs_net_command {
