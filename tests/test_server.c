@@ -1488,8 +1488,9 @@ static double max_force_since(const client* c, int from) {
 
 /// Paused answers keep the limits a running answer has (found in review): the e-stop release
 /// ramp, also when the release comes right behind the pause, and a lowered force_max_n. Before,
-/// a pause 30 ms into a 330 ms release ramp jumped from 0.016 to 0.067 N, a release sent with a
-/// pause gave 0.059 N at once, and a pause lifted a 0.01 N limit to 0.024 N.
+/// a pause 30 ms into a 330 ms release ramp jumped from 0.016 to 0.083 N (this test on the old
+/// server; it stops there); the reviewer's scratch test also had a release sent with a pause
+/// give 0.059 N at once, and a pause lift a 0.01 N limit to 0.024 N.
 static int pause_keeps_limits(void) {
     char scene[512];
     snprintf(scene, sizeof scene, "%s/liver_pause.json", tmpdir);

@@ -575,8 +575,8 @@ static double estop_gain(const hs_server* s, int64_t t) {
 
 // The paused model at time t: the model at the pause scaled down linearly to zero, under the
 // limits a running answer gets (force_max_n as set now, the e-stop release ramp): without them a
-// pause lifted a lowered limit and cut a release ramp short (found in review: 0.0235 N against a
-// 0.01 N limit; 0.017 -> 0.067 N at a pause 30 ms into a 330 ms ramp).
+// pause lifted a lowered limit and cut a release ramp short (tests/test_server.c
+// pause_keeps_limits has the numbers).
 static hs_haptic_model paused_model(const hs_server* s, int64_t t, const double pos[3]) {
     double g = (1.0 - (double)(t - s->pause_ns) * 1e-9 / PAUSE_RAMP_S) * estop_gain(s, t);
     if (!(g > 0)) return zero_model();
