@@ -716,7 +716,7 @@ static hs_status solve_system(hs_body* b, double kcoef, double mcoef, hs_step_st
             if (s != HS_OK) return s;
         }
     }
-    if (warped) hs_fem_node_rotations_warm(b->fem, b->rot);
+    if (warped) hs_fem_tangent_rotations(b->fem, b->rot);
     if (one_solve) {
         // `a` keeps the rest-state matrix the factor was made from (the step's safeguard
         // measures du.K du with it).

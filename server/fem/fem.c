@@ -42,8 +42,8 @@ struct hs_fem {
     double* R;             // [9ne] rotation (co-rotated); warm start of the next update
     double* S;             // [9ne] second Piola-Kirchhoff stress (StVK), Pa
     double* det;           // [ne] det F
-    double* nsum;          // [9n] co-rotated: sum of vol0 F over each node's active tets
-    uint64_t nsum_stamp;   // 1 + k_version of the update that made nsum (0: none)
+    double* qsum;          // [4n] co-rotated: sum of vol0 q(R) over each node's active tets
+    uint64_t qsum_stamp;   // 1 + k_version of the update that made qsum (0: none)
 
     // nodes
     double* f;     // [3n] elastic forces, N
@@ -110,7 +110,7 @@ void hs_fem_destroy(hs_fem** pfem) {
                     m->nt_start,   m->nt,       m->adj_start, m->adj,        m->blkpos, m->elem_pos,
                     m->diag_pos,   m->mirror,   m->low_of,    m->ring_start, m->ring,   m->nt_slot,
                     m->pair_start, m->pair_blk, m->theta_e,   m->w,          m->pbar,   m->vn,
-                    m->theta_n,    m->cvec,     m->kscale,    m->nsum};
+                    m->theta_n,    m->cvec,     m->kscale,    m->qsum};
     for (size_t i = 0; i < sizeof ptrs / sizeof ptrs[0]; i++) hs_free(ptrs[i]);
     hs_free(m);
     *pfem = NULL;
@@ -478,12 +478,12 @@ hs_status hs_fem_create(const hs_mesh* mesh, const hs_fem_def* def, const int* d
     m->R = hs_alloc(sizeof(double) * 9 * (size_t)ne);
     m->S = hs_calloc(9 * (size_t)ne, sizeof(double));
     m->det = hs_alloc(sizeof(double) * (size_t)ne);
-    m->nsum = hs_calloc(9 * (size_t)n + 1, sizeof(double));
+    m->qsum = hs_calloc(4 * (size_t)n + 1, sizeof(double));
     m->f = hs_calloc(3 * (size_t)n, sizeof(double));
     m->mass = hs_calloc((size_t)n, sizeof(double));
     m->held = hs_calloc((size_t)n + 1, sizeof(double));
     if (!m->dof || !seen || !m->tet || !m->g || !m->vol0 || !m->kscale || !m->active || !m->F ||
-        !m->R || !m->S || !m->det || !m->nsum || !m->f || !m->mass || !m->held) {
+        !m->R || !m->S || !m->det || !m->qsum || !m->f || !m->mass || !m->held) {
         hs_free(seen);
         st = nomem(err);
         goto fail;
@@ -717,30 +717,39 @@ static inline __attribute__((always_inline)) void element_F(const hs_fem* m, con
     }
 }
 
-static const double k_eye[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+// The warped solver's node rotations are the chordal means of the rotations of each node's
+// tets: quaternions summed, then normalised. A rotation R with quaternion (w, x, y, z), w >= 0,
+// gives 4 w (w, x, y, z) = (1 + tr R, R21 - R12, R02 - R20, R10 - R01) without a square root;
+// weighted by the rest volume. t returns 1 + tr R = 4 w^2: a tet turned by more than 90
+// degrees (t < 2) has a w too small to tell its quaternion from its opposite, and the caller
+// makes q[0] -inf (see QUAT_ROTATION). One text for double and v4d (bit-identical lanes).
+#define ELEMENT_QUAT(R, vol, q, t)                                                                 \
+    do {                                                                                           \
+        (t) = 1.0 + (R)[0] + (R)[4] + (R)[8];                                                      \
+        (q)[0] = (vol) * (t);                                                                      \
+        (q)[1] = (vol) * ((R)[7] - (R)[5]);                                                        \
+        (q)[2] = (vol) * ((R)[2] - (R)[6]);                                                        \
+        (q)[3] = (vol) * ((R)[3] - (R)[1]);                                                        \
+    } while (0)
 
-/// Adds vol0 F of element e to its nodes' sums, in element order: the order in which
-/// node_mean_f sums a node's tets (nt lists them by element), so the same numbers.
-static inline __attribute__((always_inline)) void node_sums_add(hs_fem* m, int e,
-                                                                const double F[9]) {
+// ELEMENT_QUAT of element e, the scalar text.
+static inline __attribute__((always_inline)) void element_quat(const hs_fem* m, int e,
+                                                               double q[4]) {
+    double t;
+    ELEMENT_QUAT(m->R + 9 * (size_t)e, m->vol0[e], q, t);
+    if (!(t >= 2.0)) q[0] = -INFINITY;
+}
+
+/// Adds q (4 doubles) to the quaternion sums of element e's nodes, in element order: the
+/// order in which node_quat_sum sums a node's tets (nt lists them by element).
+static inline __attribute__((always_inline)) void node_quat_add(hs_fem* m, int e, v4d q) {
     const int* t = m->tet + 4 * e;
-    const double w = m->vol0[e];
-    v4d f0, f1;
-    memcpy(&f0, F, sizeof f0);
-    memcpy(&f1, F + 4, sizeof f1);
-    f0 *= w; // w * F[k] in each component: three loads and stores a node instead of nine
-    f1 *= w;
-    const double f8 = w * F[8];
     for (int a = 0; a < 4; a++) {
-        double* s = m->nsum + 9 * t[a];
-        v4d s0, s1;
+        double* s = m->qsum + 4 * t[a];
+        v4d s0;
         memcpy(&s0, s, sizeof s0);
-        memcpy(&s1, s + 4, sizeof s1);
-        s0 += f0;
-        s1 += f1;
+        s0 += q;
         memcpy(s, &s0, sizeof s0);
-        memcpy(s + 4, &s1, sizeof s1);
-        s[8] += f8;
     }
 }
 
@@ -778,7 +787,6 @@ static inline __attribute__((always_inline)) void element_one(hs_fem* m, const d
     double F[9];
     element_F(m, x, e, F);
     memcpy(m->F + 9 * e, F, sizeof F);
-    if (model == HS_MODEL_COROTATED) node_sums_add(m, e, F);
     double det = m3_det(F);
     m->det[e] = det;
     acc->n_active++;
@@ -819,6 +827,9 @@ static inline __attribute__((always_inline)) void element_one(hs_fem* m, const d
             int it = element_rotation(m, e, F, det, H);
             if (it > acc->pmax) acc->pmax = it;
             r = m->R + 9 * e;
+            double q[4];
+            element_quat(m, e, q);
+            node_quat_add(m, e, (v4d){q[0], q[1], q[2], q[3]});
         } else {
             memcpy(H, F, sizeof H);
         }
@@ -927,6 +938,15 @@ static inline __attribute__((always_inline)) void elements4(hs_fem* m, const dou
             f0[c] += vpg[a - 1][c];
         }
     }
+    v4d Q[4]; // the lanes' quaternions (ELEMENT_QUAT), one vector per lane
+    if (corot) {
+        v4d vol = {m->vol0[e0], m->vol0[e0 + 1], m->vol0[e0 + 2], m->vol0[e0 + 3]}, q[4], tq;
+        ELEMENT_QUAT(R, vol, q, tq);
+        const v4l small = ~(tq >= 2.0); // as element_quat: -inf
+        const v4d ninf = {-INFINITY, -INFINITY, -INFINITY, -INFINITY};
+        q[0] = (v4d)(((v4l)q[0] & ~small) | ((v4l)ninf & small));
+        for (int l = 0; l < 4; l++) Q[l] = (v4d){q[0][l], q[1][l], q[2][l], q[3][l]};
+    }
     v4d W[4][3];
     if (m->anp) {
         for (int j = 0; j < 3; j++) ga[0][j] = (v4d){g[0][j], g[1][j], g[2][j], g[3][j]};
@@ -945,7 +965,7 @@ static inline __attribute__((always_inline)) void elements4(hs_fem* m, const dou
         }
         double* Fe = m->F + 9 * e;
         for (int k = 0; k < 9; k++) Fe[k] = F[k][l];
-        if (corot) node_sums_add(m, e, Fe);
+        if (corot) node_quat_add(m, e, Q[l]);
         m->det[e] = det[l];
         acc->n_active++;
         acc->vsum += det[l];
@@ -985,7 +1005,7 @@ static inline __attribute__((always_inline)) void update_all(hs_fem* m, const do
     const int ne = m->ne, n = m->n;
     memset(m->f, 0, sizeof(double) * 3 * (size_t)n);
     const int corot = m->def.model == HS_MODEL_COROTATED;
-    if (corot) memset(m->nsum, 0, sizeof(double) * 9 * (size_t)n);
+    if (corot) memset(m->qsum, 0, sizeof(double) * 4 * (size_t)n);
     loop_acc acc = {0, 0, INFINITY, -INFINITY, 0, 0, 0};
     int first = 0; // of the elements left to element_one
     if (kind != LOOP_SCALAR)
@@ -1043,7 +1063,7 @@ static inline __attribute__((always_inline)) void update_all(hs_fem* m, const do
         }
     }
 
-    m->nsum_stamp = corot ? m->k_version + 1 : 0;
+    m->qsum_stamp = corot ? m->k_version + 1 : 0;
     m->stats.inverted = acc.inverted;
     m->stats.volume_ratio_mean = acc.n_active ? acc.vsum / acc.n_active : 1.0;
     m->stats.volume_ratio_min = acc.n_active ? acc.vmin : 1.0;
@@ -1383,83 +1403,89 @@ void hs_fem_node_rotation_warm(const hs_fem* m, int node, double r[9]) {
         m3_identity(r);
 }
 
-static inline __attribute__((always_inline)) void node_rotations(const hs_fem* m, double* rot) {
-    const double tol = m->def.polar_tol;
-    // The starts are trusted (no orthogonality checks): they are this function's own results,
-    // or zeros, which fail the warm phase's definiteness test and go to the scalar code.
-    // The sums of the last update, unless the elements changed since (a cut): then gather.
-    const int have_sums = m->nsum_stamp == m->k_version + 1;
+// The rotation of an unnormalised quaternion (w, x, y, z) into R (row-major), and in ok
+// whether to use it: w > 0 (not -inf: no tet at the node turned by more than 90 degrees; not
+// 0: some tet) and a turn of at most 90 degrees (2 w^2 >= |q|^2, implied by the first for a
+// sum of such quaternions). One text for double and v4d (bit-identical lanes).
+#define QUAT_ROTATION(w, x, y, z, R, ok)                                                           \
+    do {                                                                                           \
+        const __typeof__(w) n2_ = (w) * (w) + (x) * (x) + (y) * (y) + (z) * (z);                   \
+        (ok) = ((w) > 0) & (2.0 * (w) * (w) >= n2_);                                               \
+        const __typeof__(w) s_ = 2.0 / n2_;                                                        \
+        (R)[0] = 1.0 - s_ * ((y) * (y) + (z) * (z));                                               \
+        (R)[1] = s_ * ((x) * (y) - (w) * (z));                                                     \
+        (R)[2] = s_ * ((x) * (z) + (w) * (y));                                                     \
+        (R)[3] = s_ * ((x) * (y) + (w) * (z));                                                     \
+        (R)[4] = 1.0 - s_ * ((x) * (x) + (z) * (z));                                               \
+        (R)[5] = s_ * ((y) * (z) - (w) * (x));                                                     \
+        (R)[6] = s_ * ((x) * (z) - (w) * (y));                                                     \
+        (R)[7] = s_ * ((y) * (z) + (w) * (x));                                                     \
+        (R)[8] = 1.0 - s_ * ((x) * (x) + (y) * (y));                                               \
+    } while (0)
+
+// Sum of ELEMENT_QUAT over the node's active tets, in element order (as the update adds them).
+static void node_quat_sum(const hs_fem* m, int node, double q[4]) {
+    double acc[4] = {0, 0, 0, 0};
+    for (int p = m->nt_start[node]; p < m->nt_start[node + 1]; p++) {
+        int e = m->nt[p];
+        if (!m->active[e]) continue;
+        double qe[4];
+        element_quat(m, e, qe);
+        for (int k = 0; k < 4; k++) acc[k] += qe[k];
+    }
+    memcpy(q, acc, sizeof acc);
+}
+
+void hs_fem_tangent_rotation(const hs_fem* m, int node, double r[9]) {
+    HS_ASSERT(m && node >= 0 && node < m->n);
+    if (m->def.model == HS_MODEL_COROTATED) {
+        double q[4], R[9];
+        int ok;
+        node_quat_sum(m, node, q);
+        QUAT_ROTATION(q[0], q[1], q[2], q[3], R, ok);
+        if (ok) {
+            memcpy(r, R, sizeof R);
+            return;
+        }
+    }
+    hs_fem_node_rotation_warm(m, node, r); // StVK, a larger turn, no active tet
+}
+
+static inline __attribute__((always_inline)) void tangent_rotations(const hs_fem* m, double* rot) {
     int first = 0; // of the nodes left to the loop below
-    if (have_sums) {
-        // Four contiguous nodes at once, the warm steps on registers (as hs_polar_warm4).
-        for (; first + 4 <= m->n; first += 4) {
-            const double* S = m->nsum + 9 * (size_t)first;
+    // The sums of the last update, unless the elements changed since (a cut): then gather.
+    if (m->def.model == HS_MODEL_COROTATED && m->qsum_stamp == m->k_version + 1) {
+        for (; first + 4 <= m->n; first += 4) { // four contiguous nodes at once
+            const double* q = m->qsum + 4 * (size_t)first;
             double* r = rot + 9 * (size_t)first;
-            v4d f[9] = {{0}}, x[9], y[9]; // {0}: GCC's false maybe-uninitialized
-            for (int k = 0; k < 9; k++) {
-                f[k] = (v4d){S[k], S[9 + k], S[18 + k], S[27 + k]};
-                x[k] = (v4d){r[k], r[9 + k], r[18 + k], r[27 + k]};
-            }
-            v4d det = f[0] * (f[4] * f[8] - f[5] * f[7]) - f[1] * (f[3] * f[8] - f[5] * f[6]) +
-                      f[2] * (f[3] * f[7] - f[4] * f[6]);
-            v4l lanes = det > 0, itv;
-            polar4_core(f, x, y, tol, 20, 1, &lanes, &itv);
+            v4d w = {q[0], q[4], q[8], q[12]}, x = {q[1], q[5], q[9], q[13]},
+                y = {q[2], q[6], q[10], q[14]}, z = {q[3], q[7], q[11], q[15]}, R[9];
+            v4l ok;
+            QUAT_ROTATION(w, x, y, z, R, ok);
             for (int l = 0; l < 4; l++) {
-                if (lanes[l])
-                    for (int k = 0; k < 9; k++) r[9 * l + k] = x[k][l];
-                else // det <= 0 (the SVD) or not a warm result: the scalar code, same start
-                    hs_polar_higham(S + 9 * l, r + 9 * l, tol, 20);
+                if (ok[l])
+                    for (int k = 0; k < 9; k++) r[9 * l + k] = R[k][l];
+                else
+                    hs_fem_node_rotation_warm(m, first + l, r + 9 * l);
             }
         }
     }
-    double sums[4][9], ys[4][9], pad_r[9];
-    for (int i0 = first; i0 < m->n; i0 += 4) {
-        const double* fp[4];
-        double* rp[4];
-        double* yp[4];
-        int nl = 0;
-        for (int i = i0; i < i0 + 4 && i < m->n; i++) {
-            double* r = rot + 9 * (size_t)i;
-            const double* sum = sums[nl];
-            if (have_sums) {
-                sum = m->nsum + 9 * (size_t)i;
-            } else if (!node_mean_f(m, i, sums[nl])) {
-                m3_identity(r);
-                continue;
-            }
-            if (!(m3_det(sum) > 0)) {
-                hs_polar_higham(sum, r, tol, 20); // SVD
-                continue;
-            }
-            fp[nl] = sum;
-            rp[nl] = r;
-            yp[nl] = ys[nl];
-            nl++;
-        }
-        if (nl == 0) continue;
-        memcpy(pad_r, k_eye, sizeof pad_r);
-        for (int l = nl; l < 4; l++) fp[l] = k_eye, rp[l] = pad_r, yp[l] = ys[l];
-        int it[4];
-        hs_polar_warm4(fp, rp, yp, tol, 20, 1, it);
-        for (int l = 0; l < nl; l++) // not a warm result: the scalar code from the same start
-            if (it[l] < 0) hs_polar_higham(fp[l], rp[l], tol, 20);
-    }
+    for (int i = first; i < m->n; i++) hs_fem_tangent_rotation(m, i, rot + 9 * (size_t)i);
 }
 
-// The gathers of node_mean_f take about half of this: an AVX2 clone sums 4 components at once.
-__attribute__((target("avx2"))) static void node_rotations_avx2(const hs_fem* m, double* rot) {
-    node_rotations(m, rot);
+__attribute__((target("avx2"))) static void tangent_rotations_avx2(const hs_fem* m, double* rot) {
+    tangent_rotations(m, rot);
 }
 
-static void node_rotations_base(const hs_fem* m, double* rot) {
-    node_rotations(m, rot);
+static void tangent_rotations_base(const hs_fem* m, double* rot) {
+    tangent_rotations(m, rot);
 }
 
-void hs_fem_node_rotations_warm(const hs_fem* m, double* rot) {
+void hs_fem_tangent_rotations(const hs_fem* m, double* rot) {
     if (__builtin_cpu_supports("avx2"))
-        node_rotations_avx2(m, rot);
+        tangent_rotations_avx2(m, rot);
     else
-        node_rotations_base(m, rot);
+        tangent_rotations_base(m, rot);
 }
 
 // ---------------------------------------------------------------------------------------------

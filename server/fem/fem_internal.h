@@ -4,11 +4,15 @@
 
 #include "hapsim/fem.h"
 
-/// hs_fem_node_rotation_warm for every node, the warm polar steps four nodes at a time. rot:
-/// [9n], in: this function's earlier results or zeros (a cold start), taken as rotations
-/// without the orthogonality checks; out: the new rotations, bit-identical to the per-node
-/// call's from such starts.
-void hs_fem_node_rotations_warm(const hs_fem* fem, double* rot);
+/// The warped solver's rotation of a node at the last update (row-major; r: in the previous
+/// one, out the new one). Co-rotated: the chordal mean of its active tets' rotations (their
+/// quaternions weighted by rest volume, summed, normalised); where that mean turns by more
+/// than 90 degrees, or for StVK, hs_fem_node_rotation_warm from r (the polar part of the mean
+/// deformation gradient). Linear: identity.
+void hs_fem_tangent_rotation(const hs_fem* fem, int node, double r[9]);
+/// hs_fem_tangent_rotation for every node, bit-identical, from the quaternion sums the update
+/// made (four nodes at a time) unless elements changed since. rot: [9n], in/out.
+void hs_fem_tangent_rotations(const hs_fem* fem, double* rot);
 
 /// hs_fem_update one element at a time: the reference that the four-wide element pass of
 /// hs_fem_update (linear, co-rotated with the polar rotation) must match bit for bit.
