@@ -149,23 +149,25 @@ static hs_status renumber_dofs(hs_body* b, hs_err* err) {
 
 // z = R K0^-1 R^T r with R the block-diagonal node rotations: the rest-state factor follows
 // the local rotation of the tissue, so PCG keeps converging under large rotations where the
-// plain rest factor (a rotated stiff mode seen as a soft one) does not.
+// plain rest factor (a rotated stiff mode seen as a soft one) does not. tmp_f keeps
+// K0^-1 R^T r = R^T z, which the warped step's safeguard needs.
 static hs_status warped_precond(void* ctx, const double* r, double* z) {
     hs_body* b = ctx;
+    double* t = b->tmp_f;
     for (int i = 0; i < b->n; ++i) {
         const int* d = b->dof + 3 * i;
         if (d[0] < 0) continue; // a node is fixed in all three components or none
         const double* q = b->rot + 9 * i;
         for (int c = 0; c < 3; ++c)
-            b->tmp_f[d[c]] = q[c] * r[d[0]] + q[3 + c] * r[d[1]] + q[6 + c] * r[d[2]];
+            t[d[c]] = q[c] * r[d[0]] + q[3 + c] * r[d[1]] + q[6 + c] * r[d[2]];
     }
-    hs_status s = hs_cholesky_solve(b->factor, b->tmp_f, z);
+    hs_status s = hs_cholesky_solve(b->factor, t, t);
     if (s != HS_OK) return s;
     for (int i = 0; i < b->n; ++i) {
         const int* d = b->dof + 3 * i;
         if (d[0] < 0) continue;
         const double* q = b->rot + 9 * i;
-        double t0 = z[d[0]], t1 = z[d[1]], t2 = z[d[2]];
+        double t0 = t[d[0]], t1 = t[d[1]], t2 = t[d[2]];
         for (int c = 0; c < 3; ++c) z[d[c]] = q[3 * c] * t0 + q[3 * c + 1] * t1 + q[3 * c + 2] * t2;
     }
     return HS_OK;
@@ -805,18 +807,9 @@ retry:;
         p0 = potential(b) + md / (2 * dt * dt);
         if (be > 0) { // du.K du from the assembled A = kcoef K + mcoef M
             const double* xs = b->x_f;
-            if (b->def.solver == HS_SOLVER_WARPED && !exact) {
-                // The step's tangent is R K0 R^T and `a` holds A0: measure R^T du with it.
-                for (int i = 0; i < b->n; ++i) {
-                    const int* d = b->dof + 3 * i;
-                    if (d[0] < 0) continue;
-                    const double* q = b->rot + 9 * i;
-                    for (int c = 0; c < 3; ++c)
-                        b->tmp_f[d[c]] =
-                            q[c] * b->x_f[d[0]] + q[3 + c] * b->x_f[d[1]] + q[6 + c] * b->x_f[d[2]];
-                }
-                xs = b->tmp_f;
-            }
+            // The step's tangent is R K0 R^T and `a` holds A0: measure R^T du with it, which
+            // the solve left in tmp_f.
+            if (b->def.solver == HS_SOLVER_WARPED && !exact) xs = b->tmp_f;
             hs_csc_spmv(b->a, xs, b->y);
             double xax = 0;
             for (int j = 0; j < b->n_free; ++j) xax += xs[j] * b->y[j];
