@@ -634,6 +634,13 @@ static int test_polar_batched(void) {
            "rotation\n",
            curl_polar, curl_quat);
     ENSURE(curl_polar > 0 && curl_quat > 0);
+    // after hs_fem_reset_rotations the update's sums are stale: the batched call must not use
+    // them (it did: every node kept the last turn)
+    hs_fem_reset_rotations(fem);
+    for (int v = 0; v < n; v++) hs_fem_tangent_rotation(fem, v, r1 + 9 * v);
+    memcpy(r2, r1, sizeof(double) * 9 * (size_t)n);
+    hs_fem_tangent_rotations(fem, r2);
+    ENSURE(memcmp(r1, r2, sizeof(double) * 9 * (size_t)n) == 0);
     hs_fem_destroy(&fem);
     free(r1);
     free(r2);

@@ -662,6 +662,7 @@ uint64_t hs_fem_stiffness_version(const hs_fem* fem) {
 void hs_fem_reset_rotations(hs_fem* fem) {
     HS_ASSERT(fem);
     for (int e = 0; e < fem->ne; e++) m3_identity(fem->R + 9 * (size_t)e);
+    fem->qsum_stamp = 0; // the quaternion sums were made from the rotations just dropped
 }
 
 hs_status hs_fem_set_polar_tol(hs_fem* fem, double tol) {

@@ -6,9 +6,9 @@
 
 /// The warped solver's rotation of a node at the last update (row-major; r: in the previous
 /// one, out the new one). Co-rotated: the chordal mean of its active tets' rotations (their
-/// quaternions weighted by rest volume, summed, normalised); where that mean turns by more
-/// than 90 degrees, or for StVK, hs_fem_node_rotation_warm from r (the polar part of the mean
-/// deformation gradient). Linear: identity.
+/// quaternions, weighted by rest volume times 4 cos(angle / 2), summed, normalised); where that
+/// mean turns by more than 90 degrees, or for StVK, hs_fem_node_rotation_warm from r (the polar
+/// part of the mean deformation gradient). Linear: identity.
 void hs_fem_tangent_rotation(const hs_fem* fem, int node, double r[9]);
 /// hs_fem_tangent_rotation for every node, bit-identical, from the quaternion sums the update
 /// made (four nodes at a time) unless elements changed since. rot: [9n], in/out.
