@@ -240,14 +240,14 @@ int hs_polar_higham_ex(const double f[9], double r[9], double tol, int max_iter,
 
 static inline __attribute__((always_inline)) void
 polar_warm4_body(const double* const f_[4], double* const r_[4], double* const rtf_[4], double tol,
-                 int max_iter, int trusted, int itl[4]) {
+                 int max_iter, int itl[4]) {
     v4d f[9], x[9], y[9];
     for (int k = 0; k < 9; k++) {
         f[k] = (v4d){f_[0][k], f_[1][k], f_[2][k], f_[3][k]};
         x[k] = (v4d){r_[0][k], r_[1][k], r_[2][k], r_[3][k]};
     }
     v4l itv, acc = {-1, -1, -1, -1};
-    polar4_core(f, x, y, tol, max_iter, trusted, &acc, &itv);
+    polar4_core(f, x, y, tol, max_iter, &acc, &itv);
     // Accepted lanes: x and the y computed from it last. Others keep their start.
     for (int l = 0; l < 4; l++) {
         if (!acc[l]) {
@@ -265,19 +265,19 @@ polar_warm4_body(const double* const f_[4], double* const r_[4], double* const r
 __attribute__((target("avx2"))) static void polar_warm4_avx2(const double* const f[4],
                                                              double* const r[4],
                                                              double* const rtf[4], double tol,
-                                                             int max_iter, int trusted, int it[4]) {
-    polar_warm4_body(f, r, rtf, tol, max_iter, trusted, it);
+                                                             int max_iter, int it[4]) {
+    polar_warm4_body(f, r, rtf, tol, max_iter, it);
 }
 
 static void polar_warm4_base(const double* const f[4], double* const r[4], double* const rtf[4],
-                             double tol, int max_iter, int trusted, int it[4]) {
-    polar_warm4_body(f, r, rtf, tol, max_iter, trusted, it);
+                             double tol, int max_iter, int it[4]) {
+    polar_warm4_body(f, r, rtf, tol, max_iter, it);
 }
 
 void hs_polar_warm4(const double* const f[4], double* const r[4], double* const rtf[4], double tol,
-                    int max_iter, int trusted, int it[4]) {
+                    int max_iter, int it[4]) {
     if (__builtin_cpu_supports("avx2"))
-        polar_warm4_avx2(f, r, rtf, tol, max_iter, trusted, it);
+        polar_warm4_avx2(f, r, rtf, tol, max_iter, it);
     else
-        polar_warm4_base(f, r, rtf, tol, max_iter, trusted, it);
+        polar_warm4_base(f, r, rtf, tol, max_iter, it);
 }

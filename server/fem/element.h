@@ -88,14 +88,16 @@ int hs_polar_accepts(const double rtf[9], double fn2, double tol);
 int hs_polar_higham_ex(const double f[9], double r[9], double tol, int max_iter, int trusted,
                        double rtf[9]);
 
-/// The warm phase of hs_polar_higham_ex on 4 matrices at once: lane l reads F from f[l] and
-/// its start from r[l] (row-major 3x3 each); the caller has checked det F > 0. Lane-wise the
-/// same IEEE operations in the same order as the scalar code, so an accepted lane's rotation
-/// (written to r[l]) and R^T F (to rtf[l]) are bit-identical to hs_polar_higham_ex's, and
-/// it[l] is its iteration count. it[l] = -1 where the scalar code would leave the warm phase
-/// (degenerate F, cold start, SVD, orthogonality correction): r[l] is left as it was, and the
-/// caller redoes that lane with hs_polar_higham_ex. Unused lanes may point at f = r = I.
+/// The warm phase of hs_polar_higham_ex with a trusted start on 4 matrices at once, through
+/// polar4_core (the co-rotated element pass runs it on registers; this wraps it for arrays, for
+/// test_fem): lane l reads F from f[l] and its start, a rotation, from r[l] (row-major 3x3
+/// each); the caller has checked det F > 0. Lane-wise the same IEEE operations in the same
+/// order as the scalar code, so an accepted lane's rotation (written to r[l]) and R^T F (to
+/// rtf[l]) are bit-identical to hs_polar_higham_ex's, and it[l] is its iteration count. it[l] = -1
+/// where the scalar code would leave the warm phase (degenerate F, cold start, SVD, orthogonality
+/// correction): r[l] is left as it was, and the caller redoes that lane with hs_polar_higham_ex.
+/// Unused lanes may point at f = r = I.
 void hs_polar_warm4(const double* const f[4], double* const r[4], double* const rtf[4], double tol,
-                    int max_iter, int trusted, int it[4]);
+                    int max_iter, int it[4]);
 
 #endif

@@ -910,7 +910,7 @@ static inline __attribute__((always_inline)) void elements4(hs_fem* m, const dou
             const double* r = m->R + 9 * e0 + k;
             R[k] = (v4d){r[0], r[9], r[18], r[27]};
         }
-        polar4_core(F, R, H, m->def.polar_tol, m->def.polar_max_iter, 1, &lanes, &itv);
+        polar4_core(F, R, H, m->def.polar_tol, m->def.polar_max_iter, &lanes, &itv);
     } else {
         for (int k = 0; k < 9; k++) H[k] = F[k];
     }

@@ -13,31 +13,18 @@ typedef long long v4l __attribute__((vector_size(32)));
 
 #define HS_INLINE static inline __attribute__((always_inline))
 
-/// ||I - X^T X||_F^2 of each lane, the operations of orth_err.
-HS_INLINE void orth_err2_4(const v4d x[9], v4d* out) {
-    v4d e[9];
-    for (int i = 0; i < 3; i++)
-        for (int j = 0; j < 3; j++)
-            e[3 * i + j] = x[i] * x[j] + x[3 + i] * x[3 + j] + x[6 + i] * x[6 + j];
-    e[0] -= 1.0;
-    e[4] -= 1.0;
-    e[8] -= 1.0;
-    v4d s = {0, 0, 0, 0};
-    for (int k = 0; k < 9; k++) s += e[k] * e[k];
-    *out = s;
-}
-
 HS_INLINE int any4(const v4l* m) {
     return ((*m)[0] | (*m)[1] | (*m)[2] | (*m)[3]) != 0;
 }
 
-/// Warm polar steps of the lanes in *lanes (-1 true, 0 false): x holds each lane's start and
-/// receives its rotation, y receives X^T F of it. *lanes returns the accepted ones; itv[l] counts
+/// Warm polar steps of the lanes in *lanes (-1 true, 0 false): x holds each lane's start, a
+/// rotation (hs_polar_higham_ex's trusted start: no orthogonality checks), and receives its
+/// rotation, y receives X^T F of it. *lanes returns the accepted ones; itv[l] counts
 /// the Newton steps of lane l. A lane not accepted (stalled, out of iterations, not the polar
 /// factor) keeps neither x nor y meaningful: the caller redoes it with the scalar code from
 /// its stored start.
-HS_INLINE void polar4_core(const v4d f[9], v4d x[9], v4d y[9], double tol, int max_iter,
-                           int trusted, v4l* lanes, v4l* itv_out) {
+HS_INLINE void polar4_core(const v4d f[9], v4d x[9], v4d y[9], double tol, int max_iter, v4l* lanes,
+                           v4l* itv_out) {
     v4l act = *lanes;
     for (int k = 0; k < 9; k++) y[k] = (v4d){0, 0, 0, 0}; // defined if no lane iterates
     v4d s[9];
@@ -48,15 +35,6 @@ HS_INLINE void polar4_core(const v4d f[9], v4d x[9], v4d y[9], double tol, int m
     v4d prev = {INFINITY, INFINITY, INFINITY, INFINITY};
     v4l acc = {0, 0, 0, 0}, itv = {0, 0, 0, 0};
     act &= (fn2 > 0) & (fn2 <= DBL_MAX);
-    if (!trusted) { // the scalar entry check: x a rotation to 1e-3
-        v4d oe;
-        orth_err2_4(x, &oe);
-        v4d dx = x[0] * (x[4] * x[8] - x[5] * x[7]) - x[1] * (x[3] * x[8] - x[5] * x[6]) +
-                 x[2] * (x[3] * x[7] - x[4] * x[6]);
-        v4l ok = dx > 0;
-        for (int l = 0; l < 4; l++) ok[l] &= -(long long)(sqrt(oe[l]) <= 1e-3);
-        act &= ok;
-    }
     for (int it = 0; it <= max_iter && any4(&act); it++) {
         for (int i = 0; i < 3; i++)
             for (int j = 0; j < 3; j++)
@@ -67,16 +45,11 @@ HS_INLINE void polar4_core(const v4d f[9], v4d x[9], v4d y[9], double tol, int m
             for (int j = 0; j < 3; j++) s[3 * i + j] = 0.5 * (y[3 * i + j] + y[3 * j + i]);
         v4l conv = act & (skew2 <= tol2);
         if (any4(&conv)) {
-            // spd3(s) and, for an untrusted start, the orthogonality of x
+            // spd3(s)
             v4d sm2 = s[0] * s[4] - s[1] * s[3];
             v4d sdet = s[0] * (s[4] * s[8] - s[5] * s[7]) - s[1] * (s[3] * s[8] - s[5] * s[6]) +
                        s[2] * (s[3] * s[7] - s[4] * s[6]);
             v4l ok = (s[0] > 0) & (sm2 > 0) & (sdet > 0);
-            if (!trusted) {
-                v4d oe;
-                orth_err2_4(x, &oe);
-                for (int l = 0; l < 4; l++) ok[l] &= -(long long)(sqrt(oe[l]) <= tol);
-            }
             acc |= conv & ok; // x stays; y is recomputed from it unchanged
         }
         // Not yet converged: stalled (-> cold start) or out of iterations leave; others step.
