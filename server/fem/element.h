@@ -93,10 +93,10 @@ int hs_polar_higham_ex(const double f[9], double r[9], double tol, int max_iter,
 /// test_fem): lane l reads F from f[l] and its start, a rotation, from r[l] (row-major 3x3
 /// each); the caller has checked det F > 0. Lane-wise the same IEEE operations in the same
 /// order as the scalar code, so an accepted lane's rotation (written to r[l]) and R^T F (to
-/// rtf[l]) are bit-identical to hs_polar_higham_ex's, and it[l] is its iteration count. it[l] = -1
-/// where the scalar code would leave the warm phase (degenerate F, cold start, SVD, orthogonality
-/// correction): r[l] is left as it was, and the caller redoes that lane with hs_polar_higham_ex.
-/// Unused lanes may point at f = r = I.
+/// rtf[l]) are bit-identical to hs_polar_higham_ex's, and it[l] is its iteration count.
+/// it[l] = -1 where the scalar code would leave the warm phase (degenerate F, stalled or out of
+/// iterations, then cold start or SVD): r[l] is left as it was, and the caller redoes that lane
+/// with hs_polar_higham_ex. Unused lanes may point at f = r = I.
 void hs_polar_warm4(const double* const f[4], double* const r[4], double* const rtf[4], double tol,
                     int max_iter, int it[4]);
 
