@@ -79,7 +79,7 @@ static void build_snapshot(replay* r, const double p[3]) {
     for (int i = 0; i < n; ++i) {
         s->node[i] = cand[i];
         s->coupled[i] = (unsigned char)(have == n);
-        memcpy(s->free_m[i], m->x0 + 3 * cand[i], sizeof s->free_m[i]);
+        memcpy(s->surf_m[i], m->x0 + 3 * cand[i], sizeof s->surf_m[i]);
         memcpy(s->normal[i], r->normal + 3 * cand[i], sizeof s->normal[i]);
         for (int j = 0; j < n; ++j) hs_compliance_block(r->comp, cand[i], cand[j], s->c[i][j]);
     }

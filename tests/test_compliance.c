@@ -355,7 +355,7 @@ static void rest_snapshot(hs_compliance* c, const hs_mesh* mesh, const double p[
     hs_compliance_ensure(c, n, s->node, n);
     for (int i = 0; i < n; ++i) {
         s->coupled[i] = (unsigned char)hs_compliance_has_column(c, s->node[i]);
-        memcpy(s->free_m[i], mesh->x0 + 3 * s->node[i], 3 * sizeof(double));
+        memcpy(s->surf_m[i], mesh->x0 + 3 * s->node[i], 3 * sizeof(double));
         hs_mesh_rest_normal(mesh, s->node[i], s->normal[i]);
         for (int j = 0; j < n; ++j) hs_compliance_block(c, s->node[i], s->node[j], s->c[i][j]);
     }
@@ -404,7 +404,7 @@ static int contact_solve(void) {
                 for (int b = 0; b < 3; ++b) u[a] += blk[3 * a + b] * con.f_n[j][b];
         }
         double q[3], rho, nn[3];
-        for (int a = 0; a < 3; ++a) q[a] = snap.free_m[i][a] - p[a];
+        for (int a = 0; a < 3; ++a) q[a] = snap.surf_m[i][a] - p[a];
         rho = vnorm(q, 3);
         for (int a = 0; a < 3; ++a) nn[a] = q[a] / rho;
         double dist = rho + nn[0] * u[0] + nn[1] * u[1] + nn[2] * u[2];

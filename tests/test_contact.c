@@ -86,7 +86,7 @@ static void make_snapshot(hs_compliance* c, const hs_mesh* mesh, const double p[
     hs_compliance_ensure(c, n, s->node, n);
     for (int i = 0; i < n; ++i) {
         s->coupled[i] = (unsigned char)hs_compliance_has_column(c, s->node[i]);
-        memcpy(s->free_m[i], mesh->x0 + 3 * s->node[i], 3 * sizeof(double));
+        memcpy(s->surf_m[i], mesh->x0 + 3 * s->node[i], 3 * sizeof(double));
         if (hs_mesh_rest_normal(mesh, s->node[i], s->normal[i]) != 0) s->normal[i][2] = 1;
         for (int j = 0; j < n; ++j) hs_compliance_block(c, s->node[i], s->node[j], s->c[i][j]);
     }

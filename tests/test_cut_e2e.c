@@ -501,7 +501,7 @@ static int rest_force(hs_compliance* c, const double* x0, const int* tris, int n
     if (hs_compliance_ensure(c, nc, s.node, nc) != nc) return 0;
     for (int i = 0; i < nc; ++i) {
         s.coupled[i] = 1;
-        memcpy(s.free_m[i], x0 + 3 * s.node[i], sizeof s.free_m[i]);
+        memcpy(s.surf_m[i], x0 + 3 * s.node[i], sizeof s.surf_m[i]);
         s.normal[i][2] = 1; // only read for a node at the exact centre
         for (int j = 0; j < nc; ++j) hs_compliance_block(c, s.node[i], s.node[j], s.c[i][j]);
     }

@@ -7,7 +7,8 @@
 //    every surface node: one 3-rhs sparse solve) are computed on demand and kept in a bounded
 //    cache, allocated up front. Never a dense surface-by-surface matrix.
 //  - hs_contact_snapshot + hs_contact_solve (rt thread): the deformation thread packs, for the
-//    few surface nodes near the tool, their contact-free positions, normals, the rotated
+//    few surface nodes near the tool, their current (deformed) positions, the displacement the
+//    contact forces already in the body cause there, normals, the rotated
 //    blocks R_i C_ij R_j^T and the boundary triangles between them; the rt tick solves the
 //    frictionless contact of the probe sphere with the surface: one contact point per
 //    triangle (its closest point to the centre, on a vertex, an edge or the face interior,
@@ -109,13 +110,19 @@ typedef struct hs_contact_snapshot {
     int n_cand;            ///< candidates (<= HS_CONTACT_MAX_CAND)
     int node[HS_CONTACT_MAX_CAND];              ///< mesh node index
     unsigned char coupled[HS_CONTACT_MAX_CAND]; ///< 1 when the node's column block is known
-    double free_m[HS_CONTACT_MAX_CAND][3];      ///< contact-free position, m
+    /// Position the contact geometry is taken on (closest points, push directions), m: the
+    /// deformed surface, so a press deeper than r still finds the surface around the sphere.
+    double surf_m[HS_CONTACT_MAX_CAND][3];
+    /// Displacement the contact forces already applied to the body cause at the node (to first
+    /// order, C f), m: surf_m - pre_m is the contact-free position the gaps are measured from.
+    /// All zero: the surface is contact-free (the linearisation about the rest shape).
+    double pre_m[HS_CONTACT_MAX_CAND][3];
     double normal[HS_CONTACT_MAX_CAND][3];      ///< outward unit surface normal
     /// Boundary triangles whose three vertices are candidates (0: node contact, every
     /// candidate a contact point).
     int n_tri;
     int tri[HS_CONTACT_MAX_TRI][3]; ///< candidate indices, counter-clockwise seen from outside
-    /// Bounding sphere of each triangle's contact-free vertices: centre (m), radius (m); lets
+    /// Bounding sphere of each triangle's surf_m vertices: centre (m), radius (m); lets
     /// the rt solve skip far triangles (hs_contact_snapshot_bound_tris).
     double tri_bound[HS_CONTACT_MAX_TRI][4];
     /// Rotated compliance R_i C_ij R_j^T, row-major 3x3, m/N: exact on the diagonal and where
@@ -163,13 +170,14 @@ void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int 
 void hs_contact_solve_from(const hs_contact_snapshot* s, const double tool_m[3],
                            const hs_contact* prev, hs_contact* out);
 /// Fill s->n_tri/tri with the boundary triangles of mesh whose three vertices are all among
-/// s->node[0..n_cand) (mesh order, at most HS_CONTACT_MAX_TRI), and their bounds (free_m must
+/// s->node[0..n_cand) (mesh order, at most HS_CONTACT_MAX_TRI), and their bounds (surf_m must
 /// be set). For tools and tests that build snapshots themselves. Returns n_tri.
 /// Thread: any | Allocates: no
 int hs_contact_snapshot_add_tris(hs_contact_snapshot* s, const hs_mesh* mesh);
-/// Set s->tri_bound from s->tri and s->free_m (after either changed). Allocates: no
+/// Set s->tri_bound from s->tri and s->surf_m (after either changed). Allocates: no
 void hs_contact_snapshot_bound_tris(hs_contact_snapshot* s);
-/// The local model of a contact: anchor = tool, force, stiffness, validity radius =
+/// The local model of a contact: anchor = tool, force, stiffness (the passive part of the
+/// contact's: symmetric, positive semi-definite as -dF/dp), validity radius =
 /// clamp(clearance, min_radius_m, max_radius_m), timeout. Thread: any | Allocates: no
 void hs_contact_model(const hs_contact* c, double min_radius_m, double max_radius_m,
                       double timeout_s, hs_haptic_model* m /* OUT */);

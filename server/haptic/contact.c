@@ -41,16 +41,18 @@
 
 // A contact point (feature) of the contact-free surface.
 typedef struct feat {
-    int kind;     // HS_FEAT_VERTEX / EDGE / FACE: how many vertices carry a weight
-    int v[3];     // candidate indices of those vertices, ascending (with kind: the identity)
-    double w[3];  // their barycentric weights
-    int lv[3];    // local vertex index (once selected)
-    int tri;      // the triangle it came from (-1: a node)
-    double n[3];  // unit direction the tissue is pushed along
-    double rho;   // distance of the point from the centre along -n, m (signed on a face)
-    int raw;      // 1 while n is still x - p (not yet divided by rho)
-    double fade;  // (0, 1]: how fully the point pushes (FADE_COS below)
-    double nt[3]; // its triangle's outward normal (edge and vertex points)
+    int kind;      // HS_FEAT_VERTEX / EDGE / FACE: how many vertices carry a weight
+    int v[3];      // candidate indices of those vertices, ascending (with kind: the identity)
+    double w[3];   // their barycentric weights
+    int lv[3];     // local vertex index (once selected)
+    int tri;       // the triangle it came from (-1: a node)
+    double n[3];   // unit direction the tissue is pushed along
+    double rho;    // distance of the point from the centre along -n, m (signed on a face)
+    double rho_e;  // rho less the push already applied there (n . pre): what the gap is
+    double pre[3]; // sum_k w_k pre_m[v_k]: the point's displacement under the applied forces
+    int raw;       // 1 while n is still x - p (not yet divided by rho)
+    double fade;   // (0, 1]: how fully the point pushes (FADE_COS below)
+    double nt[3];  // its triangle's outward normal (edge and vertex points)
 } feat;
 
 // An edge or vertex point is pushed away from the centre, n = (x - p) / |x - p|: the sphere's
@@ -78,13 +80,21 @@ static void tri_normal(const double* a, const double* b, const double* c, double
     for (int k = 0; k < 3; ++k) n[k] = l > 0 ? n[k] / l : 0;
 }
 
+// The point's share of the displacement the applied forces cause (zero on a contact-free
+// snapshot): the gap is measured from where the point would be without them.
+static void feat_pre(const hs_contact_snapshot* s, feat* f) {
+    f->pre[0] = f->pre[1] = f->pre[2] = 0;
+    for (int k = 0; k < f->kind; ++k)
+        for (int a = 0; a < 3; ++a) f->pre[a] += f->w[k] * s->pre_m[f->v[k]][a];
+}
+
 // The contact point of triangle t for centre p; 0 when the triangle gives none (degenerate, or
 // the centre more than r behind its face: a face on the far side of a thin part).
 static int tri_feature(const hs_contact_snapshot* s, int t, const double p[3], double r, feat* f) {
     const int* tv = s->tri[t];
     for (int k = 0; k < 3; ++k)
         if (tv[k] < 0 || tv[k] >= s->n_cand) return 0; // not a candidate: ignore the triangle
-    const double *a = s->free_m[tv[0]], *b = s->free_m[tv[1]], *c = s->free_m[tv[2]];
+    const double *a = s->surf_m[tv[0]], *b = s->surf_m[tv[1]], *c = s->surf_m[tv[2]];
     double w[3], x[3];
     if (!hs_tri_closest(p, a, b, c, w, x)) return 0;
     f->kind = 0;
@@ -103,6 +113,7 @@ static int tri_feature(const hs_contact_snapshot* s, int t, const double p[3], d
         f->w[at] = w[k];
     }
     if (f->kind == 0) return 0; // no finite weight (a non-finite position)
+    feat_pre(s, f);
     double nf[3];
     f->fade = 1;
     if (f->kind == HS_FEAT_FACE) {
@@ -111,6 +122,7 @@ static int tri_feature(const hs_contact_snapshot* s, int t, const double p[3], d
         f->rho = hs_dot3(nf, ap);
         if (f->rho <= -r) return 0;
         for (int k = 0; k < 3; ++k) f->n[k] = -nf[k];
+        f->rho_e = f->rho - hs_dot3(f->n, f->pre);
         return 1;
     }
     double d[3] = {x[0] - p[0], x[1] - p[1], x[2] - p[2]};
@@ -118,10 +130,12 @@ static int tri_feature(const hs_contact_snapshot* s, int t, const double p[3], d
     if (f->rho > 1e-9 * r) {
         for (int k = 0; k < 3; ++k) f->n[k] = d[k]; // normalised once selected (few are)
         f->raw = 1;
+        f->rho_e = f->rho - hs_dot3(d, f->pre) / f->rho;
     } else {
         f->rho = 0;
         tri_normal(a, b, c, nf);
         for (int k = 0; k < 3; ++k) f->n[k] = -nf[k];
+        f->rho_e = -hs_dot3(f->n, f->pre);
     }
     return 1;
 }
@@ -133,7 +147,7 @@ static void feat_dn(const hs_contact_snapshot* s, const feat* f, double dn[9]) {
     if (f->kind == HS_FEAT_FACE || !(f->rho > 0)) return;
     double t[3] = {0, 0, 0};
     if (f->kind == HS_FEAT_EDGE) {
-        const double *a = s->free_m[f->v[0]], *b = s->free_m[f->v[1]];
+        const double *a = s->surf_m[f->v[0]], *b = s->surf_m[f->v[1]];
         for (int k = 0; k < 3; ++k) t[k] = b[k] - a[k];
         double l = sqrt(hs_dot3(t, t));
         for (int k = 0; k < 3; ++k) t[k] /= l;
@@ -148,7 +162,7 @@ static void feat_dn(const hs_contact_snapshot* s, const feat* f, double dn[9]) {
 static void feat_dw(const hs_contact_snapshot* s, const feat* f, double dw[3][3]) {
     memset(dw, 0, 9 * sizeof(double));
     if (f->kind == HS_FEAT_EDGE) {
-        const double *a = s->free_m[f->v[0]], *b = s->free_m[f->v[1]];
+        const double *a = s->surf_m[f->v[0]], *b = s->surf_m[f->v[1]];
         double e[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
         double l2 = hs_dot3(e, e);
         for (int k = 0; k < 3; ++k) {
@@ -156,7 +170,7 @@ static void feat_dw(const hs_contact_snapshot* s, const feat* f, double dw[3][3]
             dw[0][k] = -e[k] / l2;
         }
     } else if (f->kind == HS_FEAT_FACE) {
-        const double *a = s->free_m[f->v[0]], *b = s->free_m[f->v[1]], *c = s->free_m[f->v[2]];
+        const double *a = s->surf_m[f->v[0]], *b = s->surf_m[f->v[1]], *c = s->surf_m[f->v[2]];
         double e1[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
         double e2[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
         double g11 = hs_dot3(e1, e1), g12 = hs_dot3(e1, e2), g22 = hs_dot3(e2, e2);
@@ -285,16 +299,21 @@ static void solve(const hs_contact_snapshot* s, const double tool_m[3], int warm
     uint64_t seen[(HS_CONTACT_MAX_CAND + 1) * HS_CONTACT_MAX_CAND / 64];
     memset(seen, 0, sizeof seen);
     const int n_src = s->n_tri > 0 ? s->n_tri : s->n_cand;
+    // A point's gap is at most its largest preload less than its distance: triangles farther
+    // than the band by that much cannot reach the sphere.
+    double pre_max = 0;
+    for (int i = 0; i < s->n_cand; ++i) pre_max = fmax(pre_max, hs_dot3(s->pre_m[i], s->pre_m[i]));
+    pre_max = sqrt(pre_max);
     for (int i = 0; i < n_src; ++i) {
         feat* f = &cand[nc]; // kept when nc advances
         if (s->n_tri > 0) {
             // Beyond the band by its bounding sphere: only a bound on the clearance.
             const double* b = s->tri_bound[i];
             double d[3] = {b[0] - tool_m[0], b[1] - tool_m[1], b[2] - tool_m[2]};
-            double lim = near + b[3], d2 = hs_dot3(d, d);
+            double lim = near + b[3] + pre_max, d2 = hs_dot3(d, d);
             if (d2 >= lim * lim) {
-                double far = clearance + r + b[3];
-                if (d2 < far * far) clearance = sqrt(d2) - b[3] - r;
+                double far = clearance + r + b[3] + pre_max;
+                if (d2 < far * far) clearance = sqrt(d2) - b[3] - r - pre_max;
                 continue;
             }
             if (!tri_feature(s, i, tool_m, r, f)) continue;
@@ -305,8 +324,8 @@ static void solve(const hs_contact_snapshot* s, const double tool_m[3], int warm
             f->tri = -1;
             f->raw = 0;
             f->fade = 1;
-            double d[3] = {s->free_m[i][0] - tool_m[0], s->free_m[i][1] - tool_m[1],
-                           s->free_m[i][2] - tool_m[2]};
+            double d[3] = {s->surf_m[i][0] - tool_m[0], s->surf_m[i][1] - tool_m[1],
+                           s->surf_m[i][2] - tool_m[2]};
             f->rho = sqrt(hs_dot3(d, d));
             if (f->rho > 1e-9 * (r > 0 ? r : 1)) {
                 for (int k = 0; k < 3; ++k) f->n[k] = d[k] / f->rho;
@@ -314,10 +333,12 @@ static void solve(const hs_contact_snapshot* s, const double tool_m[3], int warm
                 f->rho = 0;
                 for (int k = 0; k < 3; ++k) f->n[k] = -s->normal[i][k];
             }
+            feat_pre(s, f);
+            f->rho_e = f->rho - hs_dot3(f->n, f->pre);
         }
-        double gap = f->rho - r;
+        double gap = f->rho_e - r;
         if (fabs(gap) < clearance) clearance = fabs(gap);
-        if (f->rho >= near) continue;
+        if (f->rho_e >= near) continue;
         if (f->kind != HS_FEAT_FACE) { // each geometric point once
             int bit = feat_bit(f);
             if (seen[bit >> 6] >> (bit & 63) & 1u) continue;
@@ -326,27 +347,27 @@ static void solve(const hs_contact_snapshot* s, const double tool_m[3], int warm
         if (gap < 0) ++out->penetrating;
         // at most one point per triangle or node: nc < MAX_FEAT here
         int at = nc++;
-        while (at > 0 && key[at - 1] > f->rho) {
+        while (at > 0 && key[at - 1] > f->rho_e) {
             order[at] = order[at - 1];
             key[at] = key[at - 1];
             --at;
         }
         order[at] = nc - 1;
-        key[at] = f->rho;
+        key[at] = f->rho_e;
     }
     out->clearance_m = clearance > 0 ? clearance : 0;
-    if (nc == 0 || cand[order[0]].rho >= r) return; // nothing penetrates
+    if (nc == 0 || cand[order[0]].rho_e >= r) return; // nothing penetrates
 
     // The deepest points whose vertices fit in M nodes. A point outside the sphere joins only
     // if the push can carry it in: it moves by about the deepest penetration at most, so the
     // band narrows to r + 1.5 x that when it is less than HS_CONTACT_BAND r (continuous in p:
     // a point crossing its edge carries no force).
-    const double band = fmin(near, r + 1.5 * (r - cand[order[0]].rho));
+    const double band = fmin(near, r + 1.5 * (r - cand[order[0]].rho_e));
     feat set[M];
     int m = 0, nv = 0, vtx[M]; // local vertices: candidate indices
     double rho_out = INFINITY; // the deepest point in the band the cap left out
     int sel = 0;
-    for (; sel < nc && m < M && cand[order[sel]].rho < band; ++sel) {
+    for (; sel < nc && m < M && cand[order[sel]].rho_e < band; ++sel) {
         feat* f = &cand[order[sel]];
         int add = 0;
         for (int k = 0; k < f->kind; ++k) {
@@ -355,7 +376,7 @@ static void solve(const hs_contact_snapshot* s, const double tool_m[3], int warm
             if (j == nv) ++add;
         }
         if (nv + add > M) {
-            if (rho_out == INFINITY) rho_out = f->rho;
+            if (rho_out == INFINITY) rho_out = f->rho_e;
             continue;
         }
         for (int k = 0; k < f->kind; ++k) {
@@ -371,7 +392,7 @@ static void solve(const hs_contact_snapshot* s, const double tool_m[3], int warm
             set[m].raw = 0;
             // the fade, for the few points selected (n now unit)
             const int* tv = s->tri[f->tri];
-            tri_normal(s->free_m[tv[0]], s->free_m[tv[1]], s->free_m[tv[2]], set[m].nt);
+            tri_normal(s->surf_m[tv[0]], s->surf_m[tv[1]], s->surf_m[tv[2]], set[m].nt);
             double in = -hs_dot3(set[m].n, set[m].nt); // cosine to the inward normal
             set[m].fade = fmax(FADE_MIN, fmin(1.0, in / FADE_COS));
         }
@@ -397,8 +418,8 @@ static void solve(const hs_contact_snapshot* s, const double tool_m[3], int warm
     wc.nv = nv;
     wc.eps = eps;
     wc.approx = 0;
-    if (sel < nc && m == M && cand[order[sel]].rho < band && cand[order[sel]].rho < rho_out)
-        rho_out = cand[order[sel]].rho;
+    if (sel < nc && m == M && cand[order[sel]].rho_e < band && cand[order[sel]].rho_e < rho_out)
+        rho_out = cand[order[sel]].rho_e;
     // Past the cap, which points are solved changes with the tool (the deepest swap places):
     // a point's penetration is tapered to zero as its depth nears that of the deepest point
     // left out, so a swap at equal depth moves no force (it jumped 0.1 N for 1 um). The taper
@@ -406,9 +427,9 @@ static void solve(const hs_contact_snapshot* s, const double tool_m[3], int warm
     const double taper = fmin(HS_CONTACT_TAPER * r, band - r);
     double delta[M];
     for (int k = 0; k < m; ++k) {
-        delta[k] = r - set[k].rho;
+        delta[k] = r - set[k].rho_e;
         if (delta[k] > 0 && rho_out < INFINITY)
-            delta[k] *= fmin(1.0, fmax(0.0, (rho_out - set[k].rho) / taper));
+            delta[k] *= fmin(1.0, fmax(0.0, (rho_out - set[k].rho_e) / taper));
         wc.have[k] = 0;
     }
 
@@ -519,9 +540,11 @@ static void solve(const hs_contact_snapshot* s, const double tool_m[3], int warm
     }
 
     // Stiffness K = -dF/dp with the active set and the points' features fixed. F = -sum_i
-    // lambda_i n_i, (W + eps I) lambda = delta over the active set, d delta_i/dp = n_i^T (the
-    // point slides in its feature, perpendicular to n_i), so with lambda held
-    //     d(W lambda)_i/dp = U_i^T Dn_i + sum_a (n_i . u_a) dw_ia + sum_b cn_bi^T E_b,
+    // lambda_i n_i, (W + eps I) lambda = delta over the active set, delta_i = r - rho_i +
+    // n_i . P_i (P_i = sum_a w_ia pre_a), d delta_i/dp = n_i^T + P_i^T Dn_i + sum_a (n_i .
+    // pre_a) dw_ia (the point slides in its feature, perpendicular to n_i), so with lambda held
+    //     d(W lambda - delta)_i/dp + n_i^T = (U_i - P_i)^T Dn_i + sum_a (n_i . (u_a - pre_a)) dw_ia
+    //                                         + sum_b cn_bi^T E_b,
     // U_i = sum_a w_ia u_a (the point's displacement), Dn_i = dn_i/dp, dw_ia = dw_ia/dp,
     // E_b = sum_j lambda_j (n_j dw_jb + w_jb Dn_j) (= df_b/dp with lambda held), and
     //     dlambda/dp = (W + eps I)^-1 G,  G_i = n_i^T - d(W lambda)_i/dp,
@@ -552,13 +575,17 @@ static void solve(const hs_contact_snapshot* s, const double tool_m[3], int warm
     }
     for (int i = 0; i < k; ++i) {
         const feat* f = &set[ia[i]];
-        double gi[3], ui[3] = {0, 0, 0};
-        for (int q = 0; q < f->kind; ++q)
+        double gi[3], ui[3] = {0, 0, 0}, nq[3] = {0, 0, 0}; // nq[q] = n . (u - pre) at vertex q
+        for (int q = 0; q < f->kind; ++q) {
+            const double* pq = s->pre_m[f->v[q]];
             for (int p = 0; p < 3; ++p) ui[p] += f->w[q] * uv[f->lv[q]][p];
+            nq[q] = hs_dot3(f->n, uv[f->lv[q]]) - hs_dot3(f->n, pq);
+        }
+        for (int p = 0; p < 3; ++p) ui[p] -= f->pre[p];
         for (int c = 0; c < 3; ++c) {
             double d = 0;
             for (int p = 0; p < 3; ++p) d += ui[p] * dn[i][3 * p + c];
-            for (int q = 0; q < f->kind; ++q) d += hs_dot3(f->n, uv[f->lv[q]]) * dw[i][q][c];
+            for (int q = 0; q < f->kind; ++q) d += nq[q] * dw[i][q][c];
             for (int b = 0; b < nv; ++b) {
                 const double* cb = wc.cn[b][ia[i]];
                 d += cb[0] * e[b][c] + cb[1] * e[b][3 + c] + cb[2] * e[b][6 + c];
@@ -630,10 +657,10 @@ void hs_contact_snapshot_bound_tris(hs_contact_snapshot* s) {
             continue;
         }
         for (int k = 0; k < 3; ++k)
-            b[k] = (s->free_m[tv[0]][k] + s->free_m[tv[1]][k] + s->free_m[tv[2]][k]) / 3;
+            b[k] = (s->surf_m[tv[0]][k] + s->surf_m[tv[1]][k] + s->surf_m[tv[2]][k]) / 3;
         double r2 = 0;
         for (int j = 0; j < 3; ++j) {
-            const double* q = s->free_m[tv[j]];
+            const double* q = s->surf_m[tv[j]];
             double d[3] = {q[0] - b[0], q[1] - b[1], q[2] - b[2]};
             r2 = fmax(r2, hs_dot3(d, d));
         }
@@ -649,7 +676,11 @@ void hs_contact_model(const hs_contact* c, double min_radius_m, double max_radiu
         m->force_n[k] = c->force_n[k];
         m->anchor_m[k] = c->tool_m[k];
     }
-    memcpy(m->stiffness_n_m, c->stiffness_n_m, sizeof m->stiffness_n_m);
+    // The contact field is not exactly conservative (the point geometry turns with the tool), so
+    // -dF/dp has a small antisymmetric part and, near edges, negative directions: a driver
+    // rendering it would gain energy. The model sent is its passive part, the nearest
+    // symmetric positive semi-definite matrix (docs/protocol.md: dF/dp negative semi-definite).
+    hs_mat3_psd_part(c->stiffness_n_m, m->stiffness_n_m);
     double rad = c->clearance_m;
     if (rad < min_radius_m) rad = min_radius_m;
     if (rad > max_radius_m) rad = max_radius_m;

@@ -63,4 +63,46 @@ static inline void hs_mat3_rotate(const double r[9], const double c[9], const do
     hs_mat3_mul_bt(t, r2, out);
 }
 
+/// The nearest symmetric positive semi-definite matrix to a (Frobenius norm): its symmetric
+/// part with negative eigenvalues set to zero (cyclic Jacobi on the 3x3). out may alias a.
+static inline void hs_mat3_psd_part(const double a[9], double out[9]) {
+    double s[9], v[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+    for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j) s[3 * i + j] = 0.5 * (a[3 * i + j] + a[3 * j + i]);
+    for (int sweep = 0; sweep < 12; ++sweep) {
+        double off = s[1] * s[1] + s[2] * s[2] + s[5] * s[5];
+        double scale = s[0] * s[0] + s[4] * s[4] + s[8] * s[8];
+        if (!(off > 1e-30 * scale)) break;
+        for (int p = 0; p < 2; ++p)
+            for (int q = p + 1; q < 3; ++q) {
+                double apq = s[3 * p + q];
+                if (apq == 0) continue;
+                double theta = (s[3 * q + q] - s[3 * p + p]) / (2 * apq);
+                double t = (theta >= 0 ? 1.0 : -1.0) / (fabs(theta) + sqrt(theta * theta + 1));
+                double c = 1 / sqrt(t * t + 1), sn = t * c;
+                for (int k = 0; k < 3; ++k) { // s <- J^T s J, columns then rows
+                    double skp = s[3 * k + p], skq = s[3 * k + q];
+                    s[3 * k + p] = c * skp - sn * skq;
+                    s[3 * k + q] = sn * skp + c * skq;
+                }
+                for (int k = 0; k < 3; ++k) {
+                    double spk = s[3 * p + k], sqk = s[3 * q + k];
+                    s[3 * p + k] = c * spk - sn * sqk;
+                    s[3 * q + k] = sn * spk + c * sqk;
+                }
+                for (int k = 0; k < 3; ++k) {
+                    double vkp = v[3 * k + p], vkq = v[3 * k + q];
+                    v[3 * k + p] = c * vkp - sn * vkq;
+                    v[3 * k + q] = sn * vkp + c * vkq;
+                }
+            }
+    }
+    double w[3];
+    for (int k = 0; k < 3; ++k) w[k] = s[4 * k] > 0 ? s[4 * k] : 0;
+    for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j)
+            out[3 * i + j] = v[3 * i] * w[0] * v[3 * j] + v[3 * i + 1] * w[1] * v[3 * j + 1] +
+                             v[3 * i + 2] * w[2] * v[3 * j + 2];
+}
+
 #endif

@@ -182,12 +182,15 @@ struct hs_haptic_sim {
     double* q;            // [3n] contact-free positions of smesh's surface nodes (relaxed)
     int q_reset;          // the surface changed: set q exactly at the next snapshot
     double* dq;           // [3n] last snapshot's correction target - q (oscillation test)
+    double* pre;          // [3n] the contact geometry's preload R C R^T f at candidates (relaxed)
+    int64_t* pre_at;      // [n] snapshot version pre was last set at
     double relax_e;       // largest correction |target - q| of the last snapshot (< 0: none yet)
     int* near_node;       // [n+1] scratch (triangle adjacency)
     near_tri* near_tri;   // [tri_cap] triangles within reach of the tool, scratch
     int* cand_of;         // [n] candidate index of a node while a snapshot is built, else -1
     int applied_n;        // contact forces in the body now
     int applied_node[HS_MAX_CONTACT];
+    double applied_f[HS_MAX_CONTACT][3]; // N
     int64_t version;
     deform_status st; // deformation thread's copy, published through `status`
 
@@ -333,6 +336,49 @@ static void node_rot(hs_haptic_sim* h, int node, double r[9]) {
 // A reversing correction below this share of r is round-off and ringing, not an overshoot.
 #define RELAX_TINY 1e-3
 
+// Weight of the newest preload in the relaxed one: the geometry follows the forces rt found on
+// it, a fixed-point iteration that can swing from step to step unrelaxed.
+#define PRELOAD_RELAX 0.5
+
+// The contact geometry: where the applied contact forces hold the surface, q + R C R^T f
+// (pre_m = R C R^T f, relaxed from snapshot to snapshot), the quasi-static shape of the press
+// rather than the body's dynamic one, which rings and would shake the contact's normals with
+// it. surf_m holds q on entry. A contact node without a compliance block to a candidate (no
+// column cached for either) adds nothing there.
+static void preload_surface(hs_haptic_sim* h, hs_contact_snapshot* s) {
+    for (int i = 0; i < s->n_cand; ++i) {
+        double pre[3] = {0, 0, 0};
+        const double* ri = h->rot + 9 * (size_t)s->node[i];
+        for (int k = 0; k < h->applied_n; ++k) {
+            const int node = h->applied_node[k];
+            const double* f = h->applied_f[k];
+            int j = 0;
+            while (j < s->n_cand && s->node[j] != node) ++j;
+            double blk[9];
+            const double* b = blk;
+            if (j < s->n_cand) {
+                b = s->c[i][j];
+            } else {
+                double raw[9];
+                if (!hs_compliance_block(h->comp, s->node[i], node, raw)) continue;
+                hs_mat3_rotate(ri, raw, h->rot + 9 * (size_t)node, blk);
+            }
+            for (int a = 0; a < 3; ++a)
+                pre[a] += b[3 * a] * f[0] + b[3 * a + 1] * f[1] + b[3 * a + 2] * f[2];
+        }
+        const int node = s->node[i];
+        double* ps = h->pre + 3 * (size_t)node;
+        const double w = h->pre_at[node] == s->version - 1 ? PRELOAD_RELAX : 1.0;
+        h->pre_at[node] = s->version;
+        for (int a = 0; a < 3; ++a) {
+            ps[a] += w * (pre[a] - ps[a]);
+            s->pre_m[i][a] = ps[a];
+            s->surf_m[i][a] += ps[a];
+        }
+    }
+    hs_contact_snapshot_bound_tris(s);
+}
+
 // Build and publish the snapshot around tool position p from the body's current state.
 static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
     const hs_mesh* mesh = h->mesh;
@@ -429,11 +475,14 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
     }
 
     // Contact surface: the boundary triangles (all three vertices contactable) within reach of
-    // the tool on the contact-free surface, nearest first, and their vertices as the
+    // the tool on the current (deformed) surface, nearest first, and their vertices as the
     // candidates, until either list is full (a linear scan: microseconds per step; this plays
     // the role of the per-step acceleration structure, which at these sizes would cost more
-    // than it saves). Every contact-free surface point within `cover` of p is on a listed
-    // triangle.
+    // than it saves). Every surface point within `cover` of p is on a listed triangle. The
+    // geometry is the deformed surface, not the contact-free one: pressed deeper than r, the
+    // contact-free surface lies behind the centre and its closest points say nothing about
+    // where the tissue touches the sphere, while the deformed surface wraps it (the gap is
+    // still measured from the contact-free positions: pre_m below).
     sim_snapshot* wrap = hs_triple_buffer_back(h->snap);
     memcpy(wrap->cut_force_n, h->cut_force, sizeof wrap->cut_force_n);
     hs_contact_snapshot* s = &wrap->s;
@@ -448,9 +497,9 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
             !hs_compliance_contactable(h->comp, tv[1]) ||
             !hs_compliance_contactable(h->comp, tv[2]))
             continue;
-        const double* a = h->q + 3 * (size_t)tv[0];
-        const double* b = h->q + 3 * (size_t)tv[1];
-        const double* c = h->q + 3 * (size_t)tv[2];
+        const double* a = h->x + 3 * (size_t)tv[0];
+        const double* b = h->x + 3 * (size_t)tv[1];
+        const double* c = h->x + 3 * (size_t)tv[2];
         double wb[3], x[3];
         if (!hs_tri_closest(p, a, b, c, wb, x)) continue;
         double dist = dist3(x, p);
@@ -498,10 +547,9 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
         s->node[i] = node;
         s->coupled[i] = (unsigned char)hs_compliance_has_column(h->comp, node);
         coupled += s->coupled[i];
-        memcpy(s->free_m[i], h->q + 3 * (size_t)node, sizeof s->free_m[i]);
+        memcpy(s->surf_m[i], h->q + 3 * (size_t)node, sizeof s->surf_m[i]);
         node_normal(h, node, s->normal[i]);
     }
-    hs_contact_snapshot_bound_tris(s);
     for (int i = 0; i < n_cand; ++i) {
         const double* ri = h->rot + 9 * (size_t)nodes[i];
         for (int j = i; j < n_cand; ++j) {
@@ -525,6 +573,7 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
             }
         }
     }
+    preload_surface(h, s);
     s->stamp_ns = hs_now_ns();
     hs_triple_buffer_publish(h->snap);
     h->st.snapshots++;
@@ -541,6 +590,7 @@ static void apply_contact(hs_haptic_sim* h, const hs_contact* c) {
     h->applied_n = 0;
     for (int k = 0; k < c->n; ++k) {
         h->applied_node[k] = c->node[k];
+        memcpy(h->applied_f[k], c->f_n[k], sizeof h->applied_f[k]);
         hs_body_set_force(h->body, c->node[k], c->f_n[k]);
     }
     h->applied_n = c->n;
@@ -969,6 +1019,8 @@ void hs_haptic_sim_destroy(hs_haptic_sim** ph) {
     hs_free(h->rot);
     hs_free(h->q);
     hs_free(h->dq);
+    hs_free(h->pre);
+    hs_free(h->pre_at);
     hs_free(h->near_node);
     hs_free(h->near_tri);
     hs_free(h->cand_of);
@@ -1045,6 +1097,8 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
     h->rot = hs_calloc(9 * n, sizeof(double));
     h->q = hs_calloc(3 * n, sizeof(double));
     h->dq = hs_calloc(3 * n, sizeof(double));
+    h->pre = hs_calloc(3 * n, sizeof(double));
+    h->pre_at = hs_calloc(n + 1, sizeof(int64_t));
     h->near_node = hs_calloc(n + 1, sizeof(int));
     h->smesh = mesh;
     h->tri_cap = mesh->n_tris;
@@ -1052,8 +1106,8 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
     h->tri_start = hs_calloc(n + 1, sizeof(int));
     h->tri_list = hs_alloc(3 * (size_t)h->tri_cap * sizeof(int) + sizeof(int));
     h->cand_of = hs_alloc((n + 1) * sizeof(int));
-    if (!h->x || !h->g || !h->v || !h->rot || !h->q || !h->dq || !h->near_node || !h->near_tri ||
-        !h->cand_of || !h->tri_start || !h->tri_list)
+    if (!h->x || !h->g || !h->v || !h->rot || !h->q || !h->dq || !h->pre || !h->pre_at ||
+        !h->near_node || !h->near_tri || !h->cand_of || !h->tri_start || !h->tri_list)
         goto nomem;
     for (size_t i = 0; i < n; ++i) h->cand_of[i] = -1;
     if (build_tri_adjacency(h) != HS_OK) goto nomem;

@@ -73,7 +73,7 @@ static int rest_contacts(hs_compliance* c, const hs_mesh* m, int k, const double
     hs_compliance_ensure(c, nc, s->node, nc);
     for (int i = 0; i < nc; ++i) {
         s->coupled[i] = (unsigned char)hs_compliance_has_column(c, s->node[i]);
-        memcpy(s->free_m[i], m->x0 + 3 * s->node[i], 3 * sizeof(double));
+        memcpy(s->surf_m[i], m->x0 + 3 * s->node[i], 3 * sizeof(double));
         memcpy(s->normal[i], n, 3 * sizeof(double));
         for (int j = 0; j < nc; ++j) hs_compliance_block(c, s->node[i], s->node[j], s->c[i][j]);
     }
@@ -267,9 +267,9 @@ static void contact_worst_case(void) {
         double th = 0.5 * (i + 1) / HS_MAX_CONTACT, ph = 2.4 * i;
         s.node[i] = i;
         s.coupled[i] = 1;
-        s.free_m[i][0] = 0.008 * sin(th) * cos(ph);
-        s.free_m[i][1] = 0.008 * sin(th) * sin(ph);
-        s.free_m[i][2] = -0.008 * cos(th);
+        s.surf_m[i][0] = 0.008 * sin(th) * cos(ph);
+        s.surf_m[i][1] = 0.008 * sin(th) * sin(ph);
+        s.surf_m[i][2] = -0.008 * cos(th);
         s.normal[i][2] = 1;
         for (int j = 0; j < HS_MAX_CONTACT; ++j)
             for (int p = 0; p < 3; ++p)
