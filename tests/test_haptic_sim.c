@@ -780,7 +780,160 @@ static int gravity_sags_untouched(void) {
     return 0;
 }
 
+// ---------------------------------------------------------------------------------------------
+// Deep presses: along the outward normal down to max(3 r, 15 mm), held at every r (and at the
+// last depth), co-rotated. The held force grows with depth and pushes out of the tissue, the
+// holds settle, and no tick changes the force by more than the local stiffness times the
+// motion plus 0.02 N (docs/haptics.md).
+
+typedef struct deep_case {
+    const char* name;
+    hs_mesh* mesh;
+    unsigned char* fixed;
+    hs_haptic_sim_def def;
+    int node;
+    double n[3];
+} deep_case;
+
+static int HOLD_STEPS = 60;
+static int deep_press_run(const deep_case* dc) {
+    const double r = dc->def.probe.radius_m;
+    const double dmax = fmax(3 * r, 0.015);
+    double stations[8];
+    int ns = 0;
+    for (double dd = r; dd < dmax - 1e-9 && ns < 7; dd += r) stations[ns++] = dd;
+    stations[ns++] = dmax;
+    hs_haptic_sim* sim = NULL;
+    hs_err err = {0};
+    ENSURE(hs_haptic_sim_create(dc->mesh, &dc->def, dc->fixed, &sim, &err) == HS_OK);
+    ENSURE(hs_haptic_sim_start(sim, &err) == HS_OK);
+    harness hn;
+    harness_init(&hn, sim);
+    const double* x0 = dc->mesh->x0 + 3 * dc->node;
+    const double speed = 0.010; // m/s
+    double depth = -0.002, prev_p[3], prev_f[3] = {0, 0, 0}, prev_k = 0, worst = 0;
+    double held[8], spread[8];
+    int bad_dir = 0, ramped = 0;
+    uint32_t prev_safety = 0;
+    for (int a = 0; a < 3; ++a) prev_p[a] = x0[a] + (r - depth) * dc->n[a];
+    for (int st = 0; st < ns; ++st) {
+        double fmn = 1e9, fmx = -1e9, sum = 0;
+        int cnt = 0;
+        // The hold is counted in deformation steps (each one an iteration of the contact's
+        // geometry and of the co-rotated correction), so a loaded machine holds longer.
+        int64_t steps0 = -1, held_steps = 0;
+        int t_end = 1 << 30;
+        for (int t = 0; t < t_end; ++t) {
+            if (depth == stations[st] && t % 50 == 0) {
+                hs_haptic_sim_stats now;
+                hs_haptic_sim_stats_get(sim, &now);
+                if (steps0 < 0) steps0 = now.steps;
+                held_steps = now.steps - steps0;
+                // At most 10 s (a deformation thread that stopped stepping fails below).
+                if ((held_steps >= HOLD_STEPS || t > 10000) && t_end == 1 << 30) t_end = t + 100;
+            }
+            if (depth < stations[st]) depth = fmin(stations[st], depth + speed * 1e-3);
+            double p[3];
+            for (int a = 0; a < 3; ++a) p[a] = x0[a] + (r - depth) * dc->n[a];
+            harness_tick(&hn, p);
+            drain(sim);
+            const double* f = hn.out.force_n;
+            double df[3] = {f[0] - prev_f[0], f[1] - prev_f[1], f[2] - prev_f[2]};
+            double dp[3] = {p[0] - prev_p[0], p[1] - prev_p[1], p[2] - prev_p[2]};
+            // A harness stalled past the watchdog (a loaded machine) ramps the force down and
+            // in again: those ticks and the one after say nothing about the contact.
+            const int ramp = (hn.out.safety | prev_safety) & HS_SAFETY_WATCHDOG;
+            prev_safety = hn.out.safety;
+            if (ramp) ++ramped;
+            double excess = ramp ? 0 : norm3(df) - (prev_k * norm3(dp) + 0.02);
+            if (excess > worst) worst = excess;
+            if (excess > 0 && getenv("HS_DEEP_DEBUG"))
+                printf("    jump at depth %.3f mm: |F| %.4f -> %.4f N, K %.1f N/m, |dp| %.2f um, "
+                       "safety 0x%x\n",
+                       depth * 1e3, norm3(prev_f), norm3(f), prev_k, norm3(dp) * 1e6,
+                       (unsigned)hn.out.safety);
+            const double fn = f[0] * dc->n[0] + f[1] * dc->n[1] + f[2] * dc->n[2];
+            if (norm3(f) > 0.01 && fn < 0.5 * norm3(f)) ++bad_dir;
+            const double* k = hn.out.model.stiffness_n_m;
+            double kf = 0;
+            for (int i = 0; i < 9; ++i) kf += k[i] * k[i];
+            prev_k = sqrt(kf);
+            memcpy(prev_f, f, sizeof prev_f);
+            memcpy(prev_p, p, sizeof prev_p);
+            if (t >= t_end - 100) {
+                double m = norm3(f);
+                fmn = fmin(fmn, m);
+                fmx = fmax(fmx, m);
+                sum += m;
+                ++cnt;
+            }
+        }
+        held[st] = cnt ? sum / cnt : 0;
+        spread[st] = fmx - fmn;
+    }
+    hs_haptic_sim_stats sst;
+    hs_haptic_sim_stats_get(sim, &sst);
+    hs_haptic_sim_destroy(&sim);
+    printf("  %s, r %.0f mm:", dc->name, r * 1e3);
+    for (int st = 0; st < ns; ++st)
+        printf(" %.0f mm %.4f N (+-%.4f)%s", stations[st] * 1e3, held[st], 0.5 * spread[st],
+               st + 1 < ns ? "," : "\n");
+    printf("  largest tick change beyond |K| |dp| + 0.02 N: %.4f N; %d ticks pushing less than "
+           "60 degrees from the normal; %d ticks in a watchdog ramp (harness late); %lld steps, "
+           "step+snapshot max %.1f ms\n",
+           worst, bad_dir, ramped, (long long)sst.steps, sst.step_ms_max);
+    for (int st = 0; st < ns; ++st) {
+        ENSURE(held[st] > 0.005);
+        if (st > 0) ENSURE(held[st] > held[st - 1]);   // grows with depth
+        ENSURE(spread[st] <= 0.03 * held[st] + 0.002); // settled
+    }
+    ENSURE(worst <= 0);
+    ENSURE(bad_dir == 0);
+    return 0;
+}
+
+static int deep_press(void) {
+    int64_t bytes0 = hs_byte_count();
+    if (getenv("HS_HOLD_STEPS")) HOLD_STEPS = atoi(getenv("HS_HOLD_STEPS"));
+    // Coarse: the bundled liver (surface edges 10-14 mm, twice the 5 mm probe), at its top.
+    liver L;
+    ENSURE(load_liver(&L) == 0);
+    deep_case lc = {
+        "liver2 (coarse)",       L.mesh, L.fixed, liver_def(HS_MODEL_COROTATED, 0.005), L.node,
+        {L.n[0], L.n[1], L.n[2]}};
+    ENSURE(deep_press_run(&lc) == 0);
+    free_liver(&L);
+
+    // Fine: the skin patch (80 x 80 x 4 mm, held at both x ends, edges ~2 mm, 3 mm probe),
+    // with its scene's material, pressed off-centre from the top.
+    deep_case sc = {
+        "skin patch (fine)", NULL, NULL, liver_def(HS_MODEL_COROTATED, 0.003), -1, {0, 0, 1}};
+    hs_err err = {0};
+    ENSURE(hs_mesh_load(HS_SOURCE_DIR "/scenes/skin/skin_patch_synthetic.msh", &sc.mesh, &err) >=
+           0);
+    const hs_mesh* m = sc.mesh;
+    sc.fixed = calloc((size_t)m->n_nodes, 1);
+    ENSURE(sc.fixed);
+    double best = 1e9;
+    for (int i = 0; i < m->n_nodes; ++i) {
+        const double* x = m->x0 + 3 * i;
+        sc.fixed[i] = x[0] <= -0.04 + 1e-6 || x[0] >= 0.04 - 1e-6;
+        double d = hypot(x[0] - 0.006, x[1] - 0.004) + fabs(x[2] - 0.004);
+        if (d < best) {
+            best = d;
+            sc.node = i;
+        }
+    }
+    sc.def.body.fem.material.youngs_pa = 50000;
+    sc.def.body.fem.material.density_kg_m3 = 1100;
+    ENSURE(deep_press_run(&sc) == 0);
+    free(sc.fixed);
+    hs_mesh_destroy(&sc.mesh);
+    ENSURE(hs_byte_count() == bytes0);
+    return 0;
+}
+
 HS_TEST_MAIN(HS_CASE(no_pose_no_force), HS_CASE(gravity_sags_untouched),
              HS_CASE(press_hold_release), HS_CASE(corotated_hold),
              HS_CASE(corotated_small_deep_hold), HS_CASE(watchdog), HS_CASE(take_over_keeps_force),
-             HS_CASE(continuity_and_allocs))
+             HS_CASE(continuity_and_allocs), HS_CASE(deep_press))
