@@ -860,7 +860,7 @@ static int deep_press_run(const deep_case* dc) {
             prev_k = sqrt(kf);
             memcpy(prev_f, f, sizeof prev_f);
             memcpy(prev_p, p, sizeof prev_p);
-            if (t >= t_end - 100) {
+            if (t >= t_end - 100 && !ramp) {
                 double m = norm3(f);
                 fmn = fmin(fmn, m);
                 fmx = fmax(fmx, m);
@@ -889,6 +889,9 @@ static int deep_press_run(const deep_case* dc) {
     }
     ENSURE(worst <= 0);
     ENSURE(bad_dir == 0);
+    // The press depth the server reports (against the contact-free surface) is the depth pressed.
+    printf("  deepest press reported %.2f mm\n", sst.depth_max_m * 1e3);
+    ENSURE(fabs(sst.depth_max_m - dmax) <= 0.1 * dmax);
     return 0;
 }
 

@@ -117,7 +117,7 @@ typedef struct hs_contact_snapshot {
     /// order, C f), m: surf_m - pre_m is the contact-free position the gaps are measured from.
     /// All zero: the surface is contact-free (the linearisation about the rest shape).
     double pre_m[HS_CONTACT_MAX_CAND][3];
-    double normal[HS_CONTACT_MAX_CAND][3];      ///< outward unit surface normal
+    double normal[HS_CONTACT_MAX_CAND][3]; ///< outward unit surface normal
     /// Boundary triangles whose three vertices are candidates (0: node contact, every
     /// candidate a contact point).
     int n_tri;
@@ -149,6 +149,12 @@ typedef struct hs_contact {
     int features;                       ///< contact points (vertex, edge or face points) pushing
     int point_nodes[HS_MAX_CONTACT][3]; ///< mesh nodes of each pushing point, ascending, -1 pad
 } hs_contact;
+
+/// Depth of a press (hs_haptic_sim_stats.depth_max_m) up to which the contact has been checked
+/// against a converged static solve with a rigid sphere: 3 radii or 15 mm, whichever is larger.
+static inline double hs_contact_validated_depth(double radius_m) {
+    return 3 * radius_m > 0.015 ? 3 * radius_m : 0.015;
+}
 
 /// Frictionless contact of a probe sphere centred at tool_m with the snapshot's surface: contact
 /// points = each triangle's closest point to the centre (or each candidate node when n_tri is

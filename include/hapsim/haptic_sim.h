@@ -107,6 +107,9 @@ typedef struct hs_haptic_sim_stats {
     int cutting;             ///< 1 when the newest sweep cut tissue
     double free_relax_w;     ///< relaxation of the contact-free surface in use (<= free_relax)
     int64_t free_relax_cuts; ///< steps whose growing correction cut it (a diverging iteration)
+    double depth_max_m;      ///< deepest press seen (hs_contact.depth_m), m
+    int64_t deep_loops;      ///< deformation loops whose press was deeper than validated
+                             ///< (hs_contact_validated_depth: the force is unchecked there)
 } hs_haptic_sim_stats;
 
 typedef struct hs_haptic_sim hs_haptic_sim;

@@ -115,6 +115,8 @@ typedef struct deform_status {
     int comp_building;
     double relax_w;
     int64_t relax_cuts;
+    double depth_max;
+    int64_t deep_loops;
 } deform_status;
 
 // A boundary triangle and its distance from the tool (snapshot search).
@@ -877,6 +879,25 @@ static void timespec_add(struct timespec* t, int64_t ns) {
     }
 }
 
+// How deep the sphere presses: its reach past the rest surface at the contact nodes along the
+// force (their mean rest position, weighted by their forces; on a flat surface the centre's
+// depth + r). 0 without a force.
+static double press_depth(const hs_haptic_sim* h, const hs_contact* c) {
+    const double* f = c->force_n;
+    const double fl = sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]);
+    double x[3] = {0, 0, 0}, wsum = 0;
+    for (int k = 0; k < c->n; ++k) {
+        const double* fk = c->f_n[k];
+        const double w = sqrt(fk[0] * fk[0] + fk[1] * fk[1] + fk[2] * fk[2]);
+        for (int a = 0; a < 3; ++a) x[a] += w * h->mesh->x0[3 * (size_t)c->node[k] + a];
+        wsum += w;
+    }
+    if (!(fl > 0) || !(wsum > 0)) return 0;
+    double d = h->def.probe.radius_m;
+    for (int a = 0; a < 3; ++a) d -= (c->tool_m[a] - x[a] / wsum) * f[a] / fl;
+    return d > 0 ? d : 0;
+}
+
 static void* deform_main(void* arg) {
     hs_haptic_sim* h = arg;
     const int64_t step_ns = (int64_t)(h->def.body.dt * 1e9);
@@ -939,6 +960,9 @@ static void* deform_main(void* arg) {
         }
         h->st.sleeping = !moving;
         h->st.contact = c;
+        const double depth = press_depth(h, &c);
+        if (depth > h->st.depth_max) h->st.depth_max = depth;
+        if (depth > hs_contact_validated_depth(h->def.probe.radius_m)) h->st.deep_loops++;
         h->st.column_solves = hs_compliance_column_solves(h->comp);
         hs_triple_buffer_write(h->status, &h->st);
 
@@ -1482,6 +1506,8 @@ void hs_haptic_sim_stats_get(hs_haptic_sim* h, hs_haptic_sim_stats* out) {
     out->comp_building = ds.comp_building;
     out->free_relax_w = ds.relax_w;
     out->free_relax_cuts = ds.relax_cuts;
+    out->depth_max_m = ds.depth_max;
+    out->deep_loops = ds.deep_loops;
     memcpy(out->cut_force_n, ds.cut_force_n, sizeof out->cut_force_n);
     out->cutting = ds.cutting;
     out->topology_version = atomic_load(&h->topo_version);
