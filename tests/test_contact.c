@@ -701,6 +701,91 @@ static int fan_vertex(void) {
     return 0;
 }
 
+// The contact about a pressed shape (pre_m): liver2 pressed 2 r deep at node 399 with a 5 mm
+// sphere, the geometry moved to where the contact forces hold it (rest + C f) and the forces
+// found again, as the deformation thread does, until they repeat. At the fixed point no
+// candidate node of the pressed surface is inside the sphere, the pushing points touch it, the
+// stiffness with the preload's terms matches finite differences, and the model sent is passive.
+static int preloaded_press(void) {
+    hs_mesh* m = NULL;
+    unsigned char* fixed = NULL;
+    hs_compliance* c = NULL;
+    ENSURE(liver_compliance(&m, &fixed, &c) == 0);
+    const double nrm[3] = {0.105, 0.993, -0.045}, r = 0.005;
+    double p[3];
+    for (int a = 0; a < 3; ++a) p[a] = m->x0[3 * 399 + a] + (r - 2 * r) * nrm[a];
+    static hs_contact_snapshot rest, s;
+    make_snapshot(c, m, p, r, 0, &rest);
+    hs_contact cur;
+    hs_contact_solve(&rest, p, 0, NULL, &cur);
+    ENSURE(!cur.failed && cur.n > 0);
+    double first = vnorm(cur.force_n, 3), change = 1;
+    double pre[HS_CONTACT_MAX_CAND][3];
+    memset(pre, 0, sizeof pre);
+    int it = 0;
+    for (; it < 200 && change > 1e-9; ++it) {
+        s = rest;
+        for (int i = 0; i < s.n_cand; ++i) {
+            double t[3] = {0, 0, 0};
+            for (int k = 0; k < cur.n; ++k) {
+                int j = 0;
+                while (j < s.n_cand && s.node[j] != cur.node[k]) ++j;
+                ENSURE(j < s.n_cand);
+                for (int a = 0; a < 3; ++a)
+                    for (int b = 0; b < 3; ++b) t[a] += s.c[i][j][3 * a + b] * cur.f_n[k][b];
+            }
+            for (int a = 0; a < 3; ++a) { // relaxed, as the deformation thread does
+                pre[i][a] += 0.5 * (t[a] - pre[i][a]);
+                s.pre_m[i][a] = pre[i][a];
+                s.surf_m[i][a] += pre[i][a];
+            }
+        }
+        hs_contact_snapshot_bound_tris(&s);
+        double before[3];
+        memcpy(before, cur.force_n, sizeof before);
+        hs_contact_solve(&s, p, 0, NULL, &cur);
+        ENSURE(!cur.failed && cur.n > 0);
+        double d[3] = {cur.force_n[0] - before[0], cur.force_n[1] - before[1],
+                       cur.force_n[2] - before[2]};
+        change = vnorm(d, 3) / vnorm(cur.force_n, 3);
+    }
+    // The pressed surface: every candidate node on or outside the sphere.
+    double inside = 0;
+    for (int i = 0; i < s.n_cand; ++i) {
+        double d[3] = {s.surf_m[i][0] - p[0], s.surf_m[i][1] - p[1], s.surf_m[i][2] - p[2]};
+        inside = fmax(inside, r - vnorm(d, 3));
+    }
+    int checked = 0;
+    double fd = stiffness_fd_error(&s, p, &cur, &checked);
+    hs_haptic_model model;
+    hs_contact_model(&cur, 0.0002, 0.005, 0.05, &model);
+    const double* k = model.stiffness_n_m;
+    double asym = 0, lo = 1e9;
+    for (int a = 0; a < 3; ++a)
+        for (int b = 0; b < 3; ++b) asym = fmax(asym, fabs(k[3 * a + b] - k[3 * b + a]));
+    for (int t = 0; t < 200; ++t) { // x^T K x over directions
+        double x[3] = {cos(t * 0.7) * sin(t * 1.3), sin(t * 0.7) * sin(t * 1.3), cos(t * 1.3)};
+        double kx = 0;
+        for (int a = 0; a < 3; ++a)
+            for (int b = 0; b < 3; ++b) kx += x[a] * k[3 * a + b] * x[b];
+        lo = fmin(lo, kx);
+    }
+    printf("  liver2 2 r deep: rest-shape contact %.4f N, pressed-shape %.4f N after %d "
+           "iterations (change %.1e); deepest candidate inside the sphere %.2e m; stiffness vs "
+           "finite differences %.2e of %.1f N/m (%d directions); model asymmetry %.1e, least "
+           "x^T K x %.3g N/m\n",
+           first, vnorm(cur.force_n, 3), it, change, inside, fd, kmax_of(&cur), checked, asym, lo);
+    ENSURE(change <= 1e-9);
+    ENSURE(inside <= 2e-4 * r); // the contact compliance eps lets a point sit slightly inside
+    ENSURE(checked >= 2 && fd <= 1e-5 * kmax_of(&cur));
+    ENSURE(asym <= 1e-12 * kmax_of(&cur) && lo >= -1e-9 * kmax_of(&cur));
+    ENSURE(cur.force_n[0] * nrm[0] + cur.force_n[1] * nrm[1] + cur.force_n[2] * nrm[2] > 0);
+    hs_compliance_destroy(&c);
+    hs_mesh_destroy(&m);
+    free(fixed);
+    return 0;
+}
+
 HS_TEST_MAIN(HS_CASE(coarse_drag), HS_CASE(one_point_per_feature), HS_CASE(stiffness_fd),
              HS_CASE(liver_press_drag), HS_CASE(liver_deep_press), HS_CASE(caps),
-             HS_CASE(cap_continuous), HS_CASE(fan_vertex))
+             HS_CASE(cap_continuous), HS_CASE(fan_vertex), HS_CASE(preloaded_press))
