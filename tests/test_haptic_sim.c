@@ -813,7 +813,7 @@ static int deep_press_run(const deep_case* dc) {
     const double speed = 0.010; // m/s
     double depth = -0.002, prev_p[3], prev_f[3] = {0, 0, 0}, prev_k = 0, worst = 0;
     double held[8], spread[8];
-    int bad_dir = 0, ramped = 0;
+    int bad_dir = 0, ramped = 0, since_ramp = 0;
     uint32_t prev_safety = 0;
     for (int a = 0; a < 3; ++a) prev_p[a] = x0[a] + (r - depth) * dc->n[a];
     for (int st = 0; st < ns; ++st) {
@@ -836,30 +836,39 @@ static int deep_press_run(const deep_case* dc) {
             double p[3];
             for (int a = 0; a < 3; ++a) p[a] = x0[a] + (r - depth) * dc->n[a];
             harness_tick(&hn, p);
-            drain(sim);
-            const double* f = hn.out.force_n;
-            double df[3] = {f[0] - prev_f[0], f[1] - prev_f[1], f[2] - prev_f[2]};
-            double dp[3] = {p[0] - prev_p[0], p[1] - prev_p[1], p[2] - prev_p[2]};
-            // A harness stalled past the watchdog (a loaded machine) ramps the force down and
-            // in again: those ticks and the one after say nothing about the contact.
-            const int ramp = (hn.out.safety | prev_safety) & HS_SAFETY_WATCHDOG;
-            prev_safety = hn.out.safety;
-            if (ramp) ++ramped;
-            double excess = ramp ? 0 : norm3(df) - (prev_k * norm3(dp) + 0.02);
-            if (excess > worst) worst = excess;
-            if (excess > 0 && getenv("HS_DEEP_DEBUG"))
-                printf("    jump at depth %.3f mm: |F| %.4f -> %.4f N, K %.1f N/m, |dp| %.2f um, "
-                       "safety 0x%x\n",
-                       depth * 1e3, norm3(prev_f), norm3(f), prev_k, norm3(dp) * 1e6,
-                       (unsigned)hn.out.safety);
-            const double fn = f[0] * dc->n[0] + f[1] * dc->n[1] + f[2] * dc->n[2];
-            if (norm3(f) > 0.01 && fn < 0.5 * norm3(f)) ++bad_dir;
+            // Every rt tick's force and tool position from the telemetry ring: the harness
+            // itself may run late and see several ticks at once on a loaded machine.
             const double* k = hn.out.model.stiffness_n_m;
             double kf = 0;
             for (int i = 0; i < 9; ++i) kf += k[i] * k[i];
-            prev_k = sqrt(kf);
-            memcpy(prev_f, f, sizeof prev_f);
-            memcpy(prev_p, p, sizeof prev_p);
+            // The largest stiffness seen so far: a model taken in a watchdog ramp is scaled down.
+            prev_k = fmax(prev_k, sqrt(kf));
+            const double kb = prev_k;
+            hs_haptic_telemetry rec;
+            while (hs_spsc_ring_pop(hs_haptic_sim_telemetry(sim), &rec)) {
+                const double* rf = rec.force_n;
+                double df[3] = {rf[0] - prev_f[0], rf[1] - prev_f[1], rf[2] - prev_f[2]};
+                double dp[3] = {rec.tool_m[0] - prev_p[0], rec.tool_m[1] - prev_p[1],
+                                rec.tool_m[2] - prev_p[2]};
+                // A harness stalled past the watchdog ramps the force down and in again: those
+                // ticks and the one after say nothing about the contact.
+                const int ramp = (rec.safety | prev_safety) & HS_SAFETY_WATCHDOG;
+                prev_safety = rec.safety;
+                if (ramp) ++ramped;
+                since_ramp = ramp ? 0 : since_ramp + 1;
+                double excess = ramp ? 0 : norm3(df) - (kb * norm3(dp) + 0.02);
+                if (excess > worst) worst = excess;
+                if (excess > 0 && getenv("HS_DEEP_DEBUG"))
+                    printf("    jump at depth %.3f mm: |F| %.4f -> %.4f N, K %.1f N/m, |dp| %.2f "
+                           "um\n",
+                           depth * 1e3, norm3(prev_f), norm3(rf), kb, norm3(dp) * 1e6);
+                memcpy(prev_f, rf, sizeof prev_f);
+                memcpy(prev_p, rec.tool_m, sizeof prev_p);
+            }
+            const double* f = hn.out.force_n;
+            const int ramp = since_ramp < 100; // a watchdog ramp ended less than 0.1 s ago
+            const double fn = f[0] * dc->n[0] + f[1] * dc->n[1] + f[2] * dc->n[2];
+            if (norm3(f) > 0.01 && fn < 0.5 * norm3(f)) ++bad_dir;
             if (t >= t_end - 100 && !ramp) {
                 double m = norm3(f);
                 fmn = fmin(fmn, m);
