@@ -145,7 +145,7 @@
 
   // ---------------------------------------------------------------- tools
   const toolObjs = {}; // dev -> {sphere, blade, arrow}
-  const FORCE_M_PER_N = 0.02; // arrow length per newton
+  const FORCE_M_PER_N = 0.05; // arrow length per newton (5 cm/N)
   function updateTools() {
     const seen = {};
     for (const t of S.tools) {
@@ -173,12 +173,14 @@
         pa.setXYZ(0, t.a[0], t.a[1], t.a[2]); pa.setXYZ(1, t.b[0], t.b[1], t.b[2]); pa.needsUpdate = true;
         o.blade.material.color.setHex(t.cutting ? 0xff5050 : 0xf0f0f0);
       }
+      // Force arrow from the tool's surface (a probe's sphere would hide a short one), its
+      // length proportional to |F| (FORCE_M_PER_N), capped at 8 cm.
       const f = new THREE.Vector3(t.f[0], t.f[1], t.f[2]), fn = f.length();
       o.arrow.visible = fn > 1e-4;
       if (o.arrow.visible) {
-        const len = fn * FORCE_M_PER_N;
-        o.arrow.position.set(t.p[0], t.p[1], t.p[2]);
-        o.arrow.setDirection(f.clone().divideScalar(fn));
+        const dir = f.clone().divideScalar(fn), len = Math.min(fn * FORCE_M_PER_N, 0.08);
+        o.arrow.position.set(t.p[0], t.p[1], t.p[2]).addScaledVector(dir, isProbe ? t.r : 0);
+        o.arrow.setDirection(dir);
         o.arrow.setLength(len, Math.min(0.3 * len, 0.008), Math.min(0.15 * len, 0.004));
       }
     }
@@ -263,6 +265,8 @@
     }
     ctx2d.fillText('|u| mm', bx - 8, by - 8);
     ctx2d.fillText(`max ${(S.maxDisp * 1e3).toFixed(2)} mm`, bx - 40, by + bh + 18);
+    ctx2d.fillStyle = '#44e0ff';
+    ctx2d.fillText('force arrow 5 cm/N', bx - 64, by + bh + 36);
     // Scale bar (bottom left, above the toolbar): a nice length at the orbit target's depth.
     const dist = camera.position.distanceTo(controls.target);
     const pxPerM = h / (2 * dist * Math.tan(camera.fov * Math.PI / 360));
@@ -313,6 +317,7 @@
   }
 
   function logAck(a) {
+    a.receivedAt = Date.now();
     S.acks.push(a);
     const div = document.createElement('div');
     div.className = a.ok ? 'ack-ok' : 'ack-bad';
@@ -324,7 +329,10 @@
 
   // ---------------------------------------------------------------- WebSocket
   let ws = null;
-  function send(obj) { if (ws && ws.readyState === 1) ws.send(JSON.stringify(obj)); }
+  function send(obj) {
+    if (obj.cmd) S.lastCommand = { cmd: obj.cmd, sentAt: Date.now() };
+    if (ws && ws.readyState === 1) ws.send(JSON.stringify(obj));
+  }
   function connect() {
     ws = new WebSocket(`ws://${location.host}/`, 'hapsim');
     ws.binaryType = 'arraybuffer';
@@ -337,6 +345,7 @@
       if (typeof ev.data !== 'string') {
         const kind = new DataView(ev.data).getUint32(0, true);
         if (kind === 1) buildTopology(ev.data); else if (kind === 2) applyPositions(ev.data);
+        dirty = true;
         return;
       }
       const m = JSON.parse(ev.data);
@@ -345,6 +354,7 @@
         S.tools = m.tools; S.models = m.models;
         S.mouse.sent = m.mouse.sent;
         updateTools(); pushHistory();
+        dirty = true;
       } else if (m.t === 'ack') logAck(m);
       else if (m.t === 'hello') S.session = m.session;
       else if (m.t === 'probe') probeReply(m);
@@ -363,7 +373,10 @@
     const r = glCanvas.getBoundingClientRect();
     const ndc = new THREE.Vector2(((ev.clientX - r.left) / r.width) * 2 - 1, -((ev.clientY - r.top) / r.height) * 2 + 1);
     ray.setFromCamera(ndc, camera);
-    const hits = ray.intersectObject(restMesh, false);
+    // r111's Raycaster skips invisible objects: ask the hidden rest mesh directly.
+    const hits = [];
+    restMesh.raycast(ray, hits);
+    hits.sort((a, b) => a.distance - b.distance);
     if (!hits.length) return null;
     const h = hits[0], n = h.face.normal.clone();
     if (n.dot(ray.ray.direction) > 0) n.negate(); // the side the camera looks at
@@ -430,8 +443,8 @@
     ev.preventDefault();
     send({ cmd: 'set', name: $('set-name').value, value: $('set-value').value.trim() });
   };
-  $('opt-rest').onchange = () => { if (restLines) restLines.visible = $('opt-rest').checked; };
-  $('opt-wire').onchange = () => { if (wireMesh) wireMesh.visible = $('opt-wire').checked; };
+  $('opt-rest').onchange = () => { if (restLines) restLines.visible = $('opt-rest').checked; dirty = true; };
+  $('opt-wire').onchange = () => { if (wireMesh) wireMesh.visible = $('opt-wire').checked; dirty = true; };
   $('btn-fit').onclick = fitView;
 
   // The pixel (CSS px, page coordinates) of a scene point: for tests and tooltips.
@@ -447,6 +460,7 @@
     const r = glCanvas.getBoundingClientRect(), dpr = window.devicePixelRatio || 1;
     const w = Math.max(1, Math.round(r.width)), h = Math.max(1, Math.round(r.height));
     if (glCanvas.width !== Math.round(w * dpr) || glCanvas.height !== Math.round(h * dpr)) {
+      dirty = true;
       renderer.setPixelRatio(dpr);
       renderer.setSize(w, h, false);
       overlay.width = Math.round(w * dpr); overlay.height = Math.round(h * dpr);
@@ -454,13 +468,21 @@
       camera.updateProjectionMatrix();
     }
   }
-  function tick() {
+  // Draw only when something changed (new frame, tools, camera, size): a page left open all
+  // day costs nothing while the organ rests, and a software-rendered browser stays responsive.
+  let dirty = true, lastPanels = 0;
+  window.hapsim.redraw = () => { dirty = true; };
+  controls.addEventListener('change', () => { dirty = true; });
+  function tick(now) {
     resize();
     controls.update();
-    renderer.render(scene, camera);
-    drawOverlay();
-    drawChart();
-    if (S.frame) $('cap-time').textContent = `t = ${S.frame.simTime.toFixed(2)} s  step ${S.frame.simStep}  topology v${S.frame.version}`;
+    if (dirty) {
+      dirty = false;
+      renderer.render(scene, camera);
+      drawOverlay();
+      if (S.frame) $('cap-time').textContent = `t = ${S.frame.simTime.toFixed(2)} s  step ${S.frame.simStep}  topology v${S.frame.version}`;
+    }
+    if (now - lastPanels > 200) { lastPanels = now; drawChart(); }
     requestAnimationFrame(tick);
   }
   connect();
