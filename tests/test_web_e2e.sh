@@ -44,6 +44,34 @@ cleanup() {
 }
 trap cleanup EXIT
 cd "$src" || exit 1
+# Command line: bad options are refused (exit 1) before anything listens.
+for bad in "--port 0" "--port 70000" "--port 12x" "--bogus" "--web-root /nonexistent" "--duration -1"; do
+    # shellcheck disable=SC2086
+    "$bin/hapsim-web" $bad >"$tmp/cli.log" 2>&1
+    rc=$?
+    [ $rc = 1 ] || { cat "$tmp/cli.log"; echo "FAIL: hapsim-web $bad: exit $rc, want 1"; exit 1; }
+done
+"$bin/hapsim-web" --web-root /nonexistent 2>&1 | grep -q "no index.html in '/nonexistent'" ||
+    { echo "FAIL: --web-root /nonexistent does not name the folder"; exit 1; }
+"$bin/hapsim-web" --help | grep -q "usage: hapsim-web" || { echo "FAIL: --help"; exit 1; }
+echo "ok   hapsim-web refuses bad command lines (exit 1) and prints --help"
+# Static files from the build tree, nothing else (no server running yet: the page still loads).
+"$bin/hapsim-web" --port 18088 --duration 10 --quiet &
+cli_pid=$!
+sleep 0.5
+node -e '
+const http = require("http");
+const get = (p) => new Promise((res, rej) => http.get("http://127.0.0.1:18088" + p,
+  (r) => { let b = ""; r.on("data", (d) => b += d); r.on("end", () => res([r.statusCode, b, r.headers["content-type"]])); }).on("error", rej));
+(async () => {
+  const [c1, b1] = await get("/"), [c2, b2, t2] = await get("/vendor/three.min.js"), [c3] = await get("/nope.html");
+  const [c4] = await get("/../../etc/passwd");
+  const ok = c1 === 200 && b1.includes("hapsim live view") && c2 === 200 && /REVISION="111"|REVISION:"111"|"111"/.test(b2) &&
+    /javascript/.test(t2) && c3 === 404 && c4 !== 200;
+  console.log(`${ok ? "ok  " : "FAIL"} HTTP: / ${c1}, /vendor/three.min.js ${c2} (${t2}, ${b2.length} bytes), /nope.html ${c3}, /../../etc/passwd ${c4}`);
+  process.exit(ok ? 0 : 1);
+})().catch((e) => { console.log("FAIL HTTP: " + e.message); process.exit(1); });' || exit 1
+kill $cli_pid; wait $cli_pid
 "$bin/hapsim-server" scenes/liver/liver.json --realtime --duration 85 >"$tmp/server.log" 2>&1 &
 server_pid=$!
 i=0

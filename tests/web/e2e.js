@@ -17,6 +17,9 @@ function check(ok, what) {
   if (!ok) failures.push(what);
   return ok;
 }
+// A button press through the page's own handler (a DOM click: puppeteer's pointer click waits
+// for the software-rendered page to settle, seconds on a loaded machine).
+const clickButton = (page, sel) => page.$eval(sel, (b) => b.click());
 const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
 
 async function waitFor(page, fn, arg, timeoutMs, what) {
@@ -152,7 +155,7 @@ async function main() {
     const tEstop = (Date.now() - tStylus) / 1000;
     if (tEstop > onset + 14) throw new Error(`too slow: E-STOP would come ${(tEstop - onset).toFixed(1)} s after the onset, after the held press`);
     const clickAt = Date.now();
-    await page.click('#btn-estop');
+    await clickButton(page, '#btn-estop');
     const clickDone = Date.now();
     await waitFor(page, () => hapsim.S.status && hapsim.S.status.state === 'estop', null, 3000, 'server state estop');
     const ack = await waitFor(page, () => hapsim.S.acks.find((a) => a.cmd === 'estop' && a.ok), null, 3000, 'the estop ack');
@@ -163,6 +166,11 @@ async function main() {
     const fAfter = await readForce();
     check(fAfter >= 0 && fAfter < 1e-3, `page readout after E-STOP: ${fAfter.toFixed(4)} N`);
     await page.screenshot({ path: path.join(out, 'web-03-estop.png') });
+    // The stylus still drives the scene's only device: the mouse is refused, politely.
+    await clickButton(page, '#btn-probe');
+    const busy = await waitFor(page, () => document.getElementById('probe-msg').textContent.includes('refused') &&
+      document.getElementById('probe-msg').textContent, null, 8000, 'a refusal while the stylus is live');
+    check(/no free device/.test(busy) && !(await page.evaluate(() => hapsim.S.mouse.active)), `mouse refused while the stylus holds device 0: "${busy}"`);
     const code = await Promise.race([stylusDone, sleep(20000).then(() => 'timeout')]);
     stylus = null;
     check(code === 0, `hapsim-stylus exit status ${code}`);
@@ -193,10 +201,10 @@ async function main() {
       `stylus force ${meanBefore.toFixed(3)} N in the held press, exactly 0 from t = ${zeroFrom ? zeroFrom.t.toFixed(2) : '?'} s (segment ${zeroFrom ? zeroFrom.seg : '?'}, the held press is ${steadySeg + 1}-${steadySeg + 2}) to the end of the run (E-STOP clicked ${tEstop.toFixed(2)} s after the stylus started)`);
 
     // 4. Release, then the mouse as a device.
-    await page.click('button[data-cmd="estop-release"]');
+    await clickButton(page, 'button[data-cmd="estop-release"]');
     await waitFor(page, () => hapsim.S.status && hapsim.S.status.state === 'running', null, 5000, 'state running after release');
     await waitFor(page, () => hapsim.S.status.devices.every((d) => !d.live), null, 5000, 'device 0 idle after the stylus');
-    await page.click('#btn-probe');
+    await clickButton(page, '#btn-probe');
     await waitFor(page, () => hapsim.S.mouse.active, null, 3000, 'the mouse probe accepted');
     const p2 = await page.evaluate((p) => hapsim.project(p), probeTop);
     await page.mouse.move(p2[0], p2[1]);
@@ -227,12 +235,12 @@ async function main() {
     page2.on('pageerror', (e) => consoleErrors.push(String(e)));
     await page2.goto(url, { waitUntil: 'load', timeout: 15000 });
     await waitFor(page2, () => window.hapsim && hapsim.S.status && hapsim.S.topo, null, 10000, 'second browser connected');
-    await page2.click('#btn-probe');
+    await clickButton(page2, '#btn-probe');
     const msg = await waitFor(page2, () => document.getElementById('probe-msg').textContent.includes('refused') &&
-      document.getElementById('probe-msg').textContent, null, 3000, 'a refusal in the second browser');
+      document.getElementById('probe-msg').textContent, null, 8000, 'a refusal in the second browser');
     check(/another browser/.test(msg), `second browser refused: "${msg}"`);
     await page2.close();
-    await page.click('#btn-probe');
+    await clickButton(page, '#btn-probe');
     await waitFor(page, () => !hapsim.S.mouse.active, null, 3000, 'the mouse probe stopped');
     check(consoleErrors.length === 0, `no console errors (${consoleErrors.length}${consoleErrors.length ? ': ' + consoleErrors.slice(0, 5).join(' | ') : ''})`);
   } finally {
