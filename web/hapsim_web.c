@@ -29,7 +29,7 @@
 #define WEB_MAX_DEV HS_CLIENT_MAX_DEVICES
 #define FRAME_US 33333      // positions and tools at most 30 Hz
 #define POSE_PERIOD_NS 4000000L // mouse probe poses at 250 Hz
-#define PROBE_STALE_US 500000 // no target from the browser for this long: stop sending poses
+#define PROBE_STALE_US 1000000 // no target from the browser for this long: stop sending poses
 #define CMD_QUEUE 16
 
 typedef struct web_cmd {
@@ -58,6 +58,10 @@ typedef struct web_app {
     hs_local_model models[WEB_MAX_DEV];
     int tools_dirty, mesh_dirty;
     int64_t last_topo, last_pos_us, last_tools_us;
+    uint64_t topo_hash;         // FNV-1a of the published rest positions and triangles
+    int64_t topologies_seen;    // hs_sync_stats.topologies at the last check
+    int64_t topo_recheck_until; // us: compare contents until then (a restarted server may
+                                // reuse a version number for another mesh)
     int64_t tool_states, tool_states_bad;
     char scene[256];
 } web_app;
@@ -192,6 +196,17 @@ static void publish_topology(web_app* a, const hs_client_mesh* m) {
 
 // Binary positions frame: u32 kind 2, u32 n_vis, f64 version, f64 sim_time, f64 sim_step,
 // u32 has_stress, u32 0, f32 position[3 n_vis], then f32 stress[n_vis] when has_stress.
+static uint64_t fnv1a(uint64_t h, const void* p, size_t n) {
+    const unsigned char* c = p;
+    for (size_t i = 0; i < n; ++i) h = (h ^ c[i]) * 1099511628211ull;
+    return h;
+}
+
+static uint64_t topo_hash(const hs_client_mesh* m) {
+    uint64_t h = fnv1a(14695981039346656037ull, m->rest, 12 * (size_t)m->n_vis);
+    return fnv1a(h, m->triangles, 12 * (size_t)m->n_tri);
+}
+
 static void publish_positions(web_app* a, const hs_client_mesh* m) {
     size_t n3 = (size_t)m->n_vis * 3, ns = m->stress ? (size_t)m->n_vis : 0;
     hs_web_blob* b = hs_web_blob_new(&a->hub, 40 + 4 * (n3 + ns), 1);
@@ -476,8 +491,18 @@ static void* lcm_thread(void* arg) {
         if (a->t_end && now >= a->t_end) a->stop = 1;
         int woke = 0;
         const hs_client_mesh* m = hs_client_mesh_view(a->client);
-        if (m->ready && m->topology_version != a->last_topo) {
+        hs_sync_stats ss;
+        hs_client_mesh_stats(a->client, &ss);
+        if (ss.topologies != a->topologies_seen) {
+            a->topologies_seen = ss.topologies;
+            a->topo_recheck_until = now + 3000000;
+        }
+        int topo_new = m->ready && m->topology_version != a->last_topo;
+        if (m->ready && !topo_new && now < a->topo_recheck_until && a->mesh_dirty)
+            topo_new = topo_hash(m) != a->topo_hash;
+        if (topo_new) {
             publish_topology(a, m);
+            a->topo_hash = topo_hash(m);
             a->last_topo = m->topology_version;
             a->mesh_dirty = 1;
             a->last_pos_us = 0;
@@ -761,10 +786,11 @@ static int cb_ws(struct lws* wsi, enum lws_callback_reasons reason, void* user, 
         int more = 0;
         hs_web_blob* b = next_blob(a, s, &more);
         if (b) {
+            // lws takes the whole frame (buffering what the socket does not) or fails.
             int w = lws_write(wsi, b->data + a->hub.pre, b->len,
                               b->binary ? LWS_WRITE_BINARY : LWS_WRITE_TEXT);
             hs_web_blob_unref(&a->hub, b);
-            if (w < (int)b->len && w < 0) return -1;
+            if (w < 0) return -1;
         }
         if (more) lws_callback_on_writable(wsi);
         break;
@@ -901,7 +927,7 @@ int main(int argc, char** argv) {
         return 1;
     }
     char ch[sizeof a->prefix + HAPSIM_CHANNEL_MAX];
-    snprintf(ch, sizeof ch, "%s%s", a->prefix, HAPSIM_CH_TOOL_STATE);
+    snprintf(ch, sizeof ch, "%.63s%s", a->prefix, HAPSIM_CH_TOOL_STATE);
     lcm_subscribe(a->ts_lcm, ch, on_tool_state, a);
     if (pipe(a->wake) != 0) {
         perror("hapsim-web: pipe");
