@@ -13,6 +13,7 @@
 #include <math.h>
 #include <poll.h>
 #include <signal.h>
+#include <stdatomic.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -50,7 +51,7 @@ typedef struct web_app {
     int wake[2];             // pipe: lws thread -> LCM thread (commands queued)
     web_cmd cmds[CMD_QUEUE]; // guarded by hub.mu
     int n_cmds;
-    volatile sig_atomic_t stop;
+    atomic_int stop;         // set by a signal, --duration or a failure; read by every thread
     int64_t t_end;           // hs_client_now_us() to stop at, 0: run until a signal
     // LCM thread only:
     hapsim_tool_state_t tools[WEB_MAX_DEV];
@@ -457,7 +458,11 @@ static void* lcm_thread(void* arg) {
         int wk_i = n;
         pf[n++] = (struct pollfd){.fd = a->wake[0], .events = POLLIN};
         int r = poll(pf, (nfds_t)n, 10);
-        if (r < 0 && errno != EINTR) break;
+        if (r < 0 && errno != EINTR) {
+            fprintf(stderr, "hapsim-web: poll failed: %s\n", strerror(errno));
+            a->stop = 1;
+            break;
+        }
         if (r > 0) {
             int any = 0;
             for (int i = 0; i < ts_i; ++i) any |= (pf[i].revents & POLLIN) != 0;

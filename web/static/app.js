@@ -105,9 +105,11 @@
     return (m <= 1 ? 1 : m <= 2 ? 2 : m <= 5 ? 5 : 10) * e;
   }
 
-  function recolor(pos) {
+  // The scalar shown: displacement magnitude (m), or the server's von Mises stress (Pa) when it
+  // sends one and it is chosen. S.unit is what the colour bar prints.
+  function recolor(pos, stress) {
     const T = S.topo, rest = T.rest, n = T.nVis;
-    let mx = 0;
+    let mx = 0, smx = 0;
     const d = new Float32Array(n);
     if (pos) for (let i = 0; i < n; i++) {
       const dx = pos[3 * i] - rest[3 * i], dy = pos[3 * i + 1] - rest[3 * i + 1], dz = pos[3 * i + 2] - rest[3 * i + 2];
@@ -115,12 +117,21 @@
       if (d[i] > mx) mx = d[i];
     }
     S.maxDisp = mx;
+    const opt = $('opt-field');
+    opt.options[1].disabled = !stress;
+    const useStress = stress && opt.value === 'stress';
+    if (useStress) for (let i = 0; i < n; i++) { d[i] = stress[i]; if (d[i] > smx) smx = d[i]; }
+    const unit = useStress ? { name: 'σvM kPa', scale: 1e-3, floor: 100 } : { name: '|u| mm', scale: 1e3, floor: 0.5e-3 };
+    if (S.unit && S.unit.name !== unit.name) S.rangeSetAt = 0, S.range = 0;
+    S.unit = unit;
+    $('range-unit').textContent = useStress ? 'kPa' : 'mm';
+    if (useStress) mx = smx;
     const fixed = parseFloat($('opt-range').value);
     const now = performance.now();
-    if (fixed > 0) S.range = fixed * 1e-3;
+    if (fixed > 0) S.range = fixed / unit.scale;
     else {
-      // Auto: at least 0.5 mm so a press of 1 mm is plainly red; up at once, down after 3 s.
-      const want = niceCeil(Math.max(mx * 1.05, 0.5e-3));
+      // Auto: at least 0.5 mm (100 Pa) so a press of 1 mm is plainly red; up at once, down after 3 s.
+      const want = niceCeil(Math.max(mx * 1.05, unit.floor));
       if (want > S.range || (want < S.range && now - S.rangeSetAt > 3000)) { S.range = want; S.rangeSetAt = now; }
       if (want >= S.range) S.rangeSetAt = now;
     }
@@ -134,13 +145,15 @@
     const nVis = dv.getUint32(4, true), version = dv.getFloat64(8, true);
     if (version !== S.topo.version || nVis !== S.topo.nVis) return; // waits for its topology
     const pos = new Float32Array(buf, 40, 3 * nVis);
+    const stress = dv.getUint32(32, true) ? new Float32Array(buf, 40 + 12 * nVis, nVis) : null;
     const attr = surf.geometry.attributes.position;
     attr.array.set(pos);
     attr.needsUpdate = true;
     surf.geometry.computeVertexNormals();
     S.frame = { version, simTime: dv.getFloat64(16, true), simStep: dv.getFloat64(24, true) };
     S.frames++;
-    recolor(pos);
+    S.lastPos = pos; S.lastStress = stress;
+    recolor(pos, stress);
   }
 
   // ---------------------------------------------------------------- tools
@@ -257,13 +270,14 @@
     ctx2d.fillStyle = grad; ctx2d.fillRect(bx, by, bw, bh);
     ctx2d.strokeStyle = '#ccc'; ctx2d.strokeRect(bx, by, bw, bh);
     ctx2d.fillStyle = '#e8edf2'; ctx2d.font = '12px sans-serif';
-    const rmm = S.range * 1e3;
+    const unit = S.unit || { name: '|u| mm', scale: 1e3 };
+    const rmm = S.range * unit.scale;
     for (let i = 0; i <= 4; i++) {
       const y = by + bh - bh * i / 4;
       ctx2d.fillRect(bx + bw, y - 0.5, 4, 1);
       ctx2d.fillText((rmm * i / 4).toFixed(rmm < 2 ? 2 : 1), bx + bw + 6, y + 4);
     }
-    ctx2d.fillText('|u| mm', bx - 8, by - 8);
+    ctx2d.fillText(unit.name, bx - 8, by - 8);
     ctx2d.fillText(`max ${(S.maxDisp * 1e3).toFixed(2)} mm`, bx - 40, by + bh + 18);
     ctx2d.fillStyle = '#44e0ff';
     ctx2d.fillText('force arrow 5 cm/N', bx - 64, by + bh + 36);
@@ -446,6 +460,9 @@
   $('opt-rest').onchange = () => { if (restLines) restLines.visible = $('opt-rest').checked; dirty = true; };
   $('opt-wire').onchange = () => { if (wireMesh) wireMesh.visible = $('opt-wire').checked; dirty = true; };
   $('btn-fit').onclick = fitView;
+  const refresh = () => { if (S.topo && surf) { recolor(S.lastPos || null, S.lastStress || null); dirty = true; } };
+  $('opt-field').onchange = refresh;
+  $('opt-range').onchange = refresh;
 
   // The pixel (CSS px, page coordinates) of a scene point: for tests and tooltips.
   window.hapsim.project = (p) => {
