@@ -66,8 +66,21 @@ const get = (p) => new Promise((res, rej) => http.get("http://127.0.0.1:18088" +
 (async () => {
   const [c1, b1] = await get("/"), [c2, b2, t2] = await get("/vendor/three.min.js"), [c3] = await get("/nope.html");
   const [c4] = await get("/../../etc/passwd");
+  // WebSocket handshakes: the origin of our own page is let in, that of another web site refused.
+  const ws = (origin) => new Promise((res) => {
+    const req = http.request({ host: "127.0.0.1", port: 18088, path: "/", headers: { Connection: "Upgrade",
+      Upgrade: "websocket", "Sec-WebSocket-Version": "13", "Sec-WebSocket-Key": "dGhlIHNhbXBsZSBub25jZQ==",
+      "Sec-WebSocket-Protocol": "hapsim", Origin: origin } });
+    req.on("upgrade", (r, sock) => { sock.destroy(); res("upgraded"); });
+    req.on("response", (r) => res(`HTTP ${r.statusCode}`));
+    req.on("error", (e) => res(`closed (${e.code})`));
+    req.end();
+  });
+  const own = await ws("http://127.0.0.1:18088"), evil = await ws("http://evil.example");
+  const wsOk = own === "upgraded" && evil !== "upgraded";
+  console.log(`${wsOk ? "ok  " : "FAIL"} WebSocket: own origin ${own}, foreign origin ${evil}`);
   const ok = c1 === 200 && b1.includes("hapsim live view") && c2 === 200 && /REVISION="111"|REVISION:"111"|"111"/.test(b2) &&
-    /javascript/.test(t2) && c3 === 404 && c4 !== 200;
+    /javascript/.test(t2) && c3 === 404 && c4 !== 200 && wsOk;
   console.log(`${ok ? "ok  " : "FAIL"} HTTP: / ${c1}, /vendor/three.min.js ${c2} (${t2}, ${b2.length} bytes), /nope.html ${c3}, /../../etc/passwd ${c4}`);
   process.exit(ok ? 0 : 1);
 })().catch((e) => { console.log("FAIL HTTP: " + e.message); process.exit(1); });' || exit 1

@@ -754,6 +754,23 @@ static int cb_ws(struct lws* wsi, enum lws_callback_reasons reason, void* user, 
     web_app* a = &g_app;
     web_session* s = user;
     switch (reason) {
+    case LWS_CALLBACK_FILTER_PROTOCOL_CONNECTION: {
+        // A browser sends its page's Origin: only our own page may connect (another web site
+        // open in the same browser must not be able to send commands to the server). Clients
+        // that send no Origin (scripts, not browsers) are let in.
+        char origin[256] = "", host[256] = "";
+        if (lws_hdr_copy(wsi, origin, sizeof origin, WSI_TOKEN_ORIGIN) <= 0) break;
+        if (lws_hdr_copy(wsi, host, sizeof host, WSI_TOKEN_HOST) <= 0) return 1;
+        const char* o = origin;
+        if (!strncmp(o, "http://", 7)) o += 7;
+        else if (!strncmp(o, "https://", 8)) o += 8;
+        if (strcmp(o, host) != 0) {
+            fprintf(stderr, "hapsim-web: WebSocket from origin '%s' refused (this is %s)\n",
+                    origin, host);
+            return 1;
+        }
+        break;
+    }
     case LWS_CALLBACK_ESTABLISHED:
         memset(s, 0, sizeof *s);
         s->id = g_next_session++;
