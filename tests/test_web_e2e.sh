@@ -105,5 +105,9 @@ done
 NODE_PATH="$nodedir/node_modules" timeout 75 node "$src/tests/web/e2e.js" "http://127.0.0.1:$port/" "$out" \
     "$bin/hapsim-stylus" "$src/tests/web/press_estop.probe"
 rc=$?
+kill "$web_pid" 2>/dev/null
+wait "$web_pid" 2>/dev/null
+web_pid=""
+tail -n 1 "$tmp/web.log"
 echo "screenshots and the stylus trace: $out"
 exit $rc

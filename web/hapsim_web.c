@@ -14,6 +14,7 @@
 #include <poll.h>
 #include <signal.h>
 #include <stdatomic.h>
+#include <sys/resource.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -64,6 +65,8 @@ typedef struct web_app {
     int64_t topo_recheck_until; // us: compare contents until then (a restarted server may
                                 // reuse a version number for another mesh)
     int64_t tool_states, tool_states_bad;
+    // lws thread only:
+    int64_t ws_frames, ws_bytes, ws_sessions;
     char scene[256];
 } web_app;
 
@@ -549,6 +552,12 @@ static void* pose_thread(void* arg) {
         }
         while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &next, NULL) == EINTR) {
         }
+        // After a stall (a loaded machine) go on from now rather than send a burst to catch up.
+        struct timespec nowts;
+        clock_gettime(CLOCK_MONOTONIC, &nowts);
+        if ((nowts.tv_sec - next.tv_sec) * 1000000000L + (nowts.tv_nsec - next.tv_nsec) >
+            POSE_PERIOD_NS)
+            next = nowts;
         pthread_mutex_lock(&a->hub.mu);
         hs_web_probe p = a->hub.probe;
         pthread_mutex_unlock(&a->hub.mu);
@@ -774,6 +783,7 @@ static int cb_ws(struct lws* wsi, enum lws_callback_reasons reason, void* user, 
     case LWS_CALLBACK_ESTABLISHED:
         memset(s, 0, sizeof *s);
         s->id = g_next_session++;
+        a->ws_sessions++;
         pthread_mutex_lock(&a->hub.mu);
         s->next_event = a->hub.n_events;
         pthread_mutex_unlock(&a->hub.mu);
@@ -811,6 +821,8 @@ static int cb_ws(struct lws* wsi, enum lws_callback_reasons reason, void* user, 
             // lws takes the whole frame (buffering what the socket does not) or fails.
             int w = lws_write(wsi, b->data + a->hub.pre, b->len,
                               b->binary ? LWS_WRITE_BINARY : LWS_WRITE_TEXT);
+            a->ws_frames++;
+            a->ws_bytes += w > 0 ? w : 0;
             hs_web_blob_unref(&a->hub, b);
             if (w < 0) return -1;
         }
@@ -984,6 +996,7 @@ int main(int argc, char** argv) {
     signal(SIGINT, on_signal);
     signal(SIGTERM, on_signal);
     signal(SIGPIPE, SIG_IGN);
+    int64_t t_start = hs_client_now_us();
     a->t_end = duration > 0 ? hs_client_now_us() + (int64_t)(duration * 1e6) : 0;
     pthread_t lt, pt;
     if (pthread_create(&lt, NULL, lcm_thread, a) != 0 ||
@@ -1009,6 +1022,16 @@ int main(int argc, char** argv) {
     for (int i = 0; i < HS_WEB_EVENTS; ++i) hs_web_blob_unref(&a->hub, a->hub.events[i]);
     close(a->wake[0]);
     close(a->wake[1]);
-    if (!quiet) printf("hapsim-web: stopped\n");
+    if (!quiet) {
+        struct rusage ru;
+        getrusage(RUSAGE_SELF, &ru);
+        double cpu = (double)ru.ru_utime.tv_sec + ru.ru_utime.tv_usec * 1e-6 +
+                     (double)ru.ru_stime.tv_sec + ru.ru_stime.tv_usec * 1e-6;
+        printf("hapsim-web: stopped after %.1f s: %lld browser connection(s), %lld frames and "
+               "%.1f MB sent, %lld tool states; CPU %.2f s (%.1f %% of one core)\n",
+               (double)(hs_client_now_us() - t_start) * 1e-6, (long long)a->ws_sessions,
+               (long long)a->ws_frames, (double)a->ws_bytes * 1e-6, (long long)a->tool_states, cpu,
+               100.0 * cpu / fmax((double)(hs_client_now_us() - t_start) * 1e-6, 1e-3));
+    }
     return 0;
 }
