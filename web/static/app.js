@@ -50,7 +50,8 @@
     const tri = new Uint32Array(buf.slice(24 + 12 * nVis, 24 + 12 * nVis + 12 * nTri));
     const first = !S.topo;
     S.topo = { version, nVis, nTri, rest, tri };
-    [surf, restMesh, restLines, wireMesh].forEach((m) => { if (m) { scene.remove(m); m.geometry.dispose(); } });
+    [surf, restMesh, wireMesh].forEach((m) => { if (m) { scene.remove(m); m.geometry.dispose(); } });
+    if (restLines) { scene.remove(restLines); restLines.children.forEach((c) => c.geometry.dispose()); }
     const g = new THREE.BufferGeometry();
     g.setIndex(new THREE.BufferAttribute(tri, 1));
     g.setAttribute('position', new THREE.BufferAttribute(new Float32Array(rest), 3));
@@ -70,8 +71,15 @@
     rg.computeBoundingSphere();
     restMesh = new THREE.Mesh(rg, new THREE.MeshBasicMaterial({ side: THREE.DoubleSide }));
     restMesh.visible = false; // raycast target for the mouse probe (the surface at rest)
-    restLines = new THREE.LineSegments(new THREE.EdgesGeometry(rg, 25),
-      new THREE.LineBasicMaterial({ color: 0xc0c8d0, transparent: true, opacity: 0.6 }));
+    // Rest outline: the rest surface as a faint ghost plus its feature edges, so a dent shows
+    // against where the surface was.
+    restLines = new THREE.Group();
+    // (pushed back in depth: it shows where the surface moved inward, not where they coincide)
+    restLines.add(new THREE.Mesh(rg, new THREE.MeshBasicMaterial({ color: 0xc8d0d8, transparent: true,
+      opacity: 0.22, depthWrite: false, side: THREE.DoubleSide, polygonOffset: true,
+      polygonOffsetFactor: 2, polygonOffsetUnits: 4 })));
+    restLines.add(new THREE.LineSegments(new THREE.EdgesGeometry(rg, 25),
+      new THREE.LineBasicMaterial({ color: 0xc0c8d0, transparent: true, opacity: 0.6 })));
     restLines.visible = $('opt-rest').checked;
     scene.add(restLines);
     recolor(null);
@@ -126,6 +134,7 @@
     S.unit = unit;
     $('range-unit').textContent = useStress ? 'kPa' : 'mm';
     if (useStress) mx = smx;
+    S.curMax = mx;
     const fixed = parseFloat($('opt-range').value);
     const now = performance.now();
     if (fixed > 0) S.range = fixed / unit.scale;
@@ -462,6 +471,13 @@
   $('btn-fit').onclick = fitView;
   const refresh = () => { if (S.topo && surf) { recolor(S.lastPos || null, S.lastStress || null); dirty = true; } };
   $('opt-field').onchange = refresh;
+  // An automatic range comes down 3 s after the organ relaxed, even when no frame arrives.
+  setInterval(() => {
+    const u = S.unit;
+    if (!u || parseFloat($('opt-range').value) > 0 || !S.lastPos) return;
+    const want = niceCeil(Math.max((S.curMax || 0) * 1.05, u.floor));
+    if (want < S.range && performance.now() - S.rangeSetAt > 3000) refresh();
+  }, 1000);
   $('opt-range').onchange = refresh;
 
   // The pixel (CSS px, page coordinates) of a scene point: for tests and tooltips.
