@@ -45,7 +45,8 @@ cleanup() {
 trap cleanup EXIT
 cd "$src" || exit 1
 # Command line: bad options are refused (exit 1) before anything listens.
-for bad in "--port 0" "--port 70000" "--port 12x" "--bogus" "--web-root /nonexistent" "--duration -1"; do
+for bad in "--port 0" "--port 70000" "--port 12x" "--bogus" "--web-root /nonexistent" "--duration -1" \
+           "--bind 192.0.2.1" "--bind nonsense"; do
     # shellcheck disable=SC2086
     "$bin/hapsim-web" $bad >"$tmp/cli.log" 2>&1
     rc=$?
@@ -84,6 +85,12 @@ const get = (p) => new Promise((res, rej) => http.get("http://127.0.0.1:18088" +
   console.log(`${ok ? "ok  " : "FAIL"} HTTP: / ${c1}, /vendor/three.min.js ${c2} (${t2}, ${b2.length} bytes), /nope.html ${c3}, /../../etc/passwd ${c4}`);
   process.exit(ok ? 0 : 1);
 })().catch((e) => { console.log("FAIL HTTP: " + e.message); process.exit(1); });' || exit 1
+# A second one on the same port is refused (exit 1) and says why.
+"$bin/hapsim-web" --port 18088 --duration 1 >"$tmp/cli.log" 2>&1
+rc=$?
+[ $rc = 1 ] && grep -q "cannot listen on 127.0.0.1 port 18088" "$tmp/cli.log" ||
+    { cat "$tmp/cli.log"; echo "FAIL: a second hapsim-web on a port in use: exit $rc"; exit 1; }
+echo "ok   a port in use and an address not of this host are refused (exit 1)"
 kill $cli_pid; wait $cli_pid
 "$bin/hapsim-server" scenes/liver/liver.json --realtime --duration 85 >"$tmp/server.log" 2>&1 &
 server_pid=$!

@@ -21,6 +21,9 @@
 #include <string.h>
 #include <time.h>
 #include <unistd.h>
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
 
 #include "hapsim/client.h"
 #include "hapsim_channels.h"
@@ -864,6 +867,39 @@ static void usage(FILE* f) {
             "mouse probe. --bind 0.0.0.0 opens it to the LAN (the page can send commands).\n");
 }
 
+// Can this host listen on addr:port? lws would otherwise start without a listening socket on an
+// address that is not this host's (and say so only in its log). 0 or -1 with why[] filled.
+static int check_bind(const char* addr, int port, char* why, size_t n) {
+    struct sockaddr_storage ss;
+    memset(&ss, 0, sizeof ss);
+    socklen_t len;
+    struct sockaddr_in* v4 = (struct sockaddr_in*)&ss;
+    struct sockaddr_in6* v6 = (struct sockaddr_in6*)&ss;
+    if (inet_pton(AF_INET, addr, &v4->sin_addr) == 1) {
+        v4->sin_family = AF_INET;
+        v4->sin_port = htons((uint16_t)port);
+        len = sizeof *v4;
+    } else if (inet_pton(AF_INET6, addr, &v6->sin6_addr) == 1) {
+        v6->sin6_family = AF_INET6;
+        v6->sin6_port = htons((uint16_t)port);
+        len = sizeof *v6;
+    } else {
+        snprintf(why, n, "not a numeric IPv4 or IPv6 address");
+        return -1;
+    }
+    int fd = socket(ss.ss_family, SOCK_STREAM, 0);
+    if (fd < 0) {
+        snprintf(why, n, "socket: %s", strerror(errno));
+        return -1;
+    }
+    int one = 1;
+    setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
+    int rc = bind(fd, (struct sockaddr*)&ss, len);
+    if (rc != 0) snprintf(why, n, "%s", strerror(errno));
+    close(fd);
+    return rc == 0 ? 0 : -1;
+}
+
 // The folder holding index.html: --web-root, else <exe>/../share/hapsim/web (build and install).
 static int find_web_root(char* out, size_t n, const char* given) {
     if (given) {
@@ -941,6 +977,11 @@ int main(int argc, char** argv) {
     if (find_web_root(web_root, sizeof web_root, web_root_opt) != 0) {
         fprintf(stderr, "hapsim-web: no index.html in '%s' (build tree: build/share/hapsim/web; "
                 "give --web-root DIR)\n", web_root_opt ? web_root_opt : "<exe>/../share/hapsim/web");
+        return 1;
+    }
+    char why[256];
+    if (check_bind(bind_addr, port, why, sizeof why) != 0) {
+        fprintf(stderr, "hapsim-web: cannot listen on %s port %d: %s\n", bind_addr, port, why);
         return 1;
     }
     snprintf(a->prefix, sizeof a->prefix, "%s", cfg.prefix ? cfg.prefix : HAPSIM_DEFAULT_PREFIX);
