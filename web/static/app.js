@@ -177,8 +177,9 @@
         o = toolObjs[t.dev] = {
           sphere: new THREE.Mesh(new THREE.SphereBufferGeometry(1, 24, 16),
             new THREE.MeshPhongMaterial({ color: 0xe8b04a, transparent: true, opacity: 0.85 })),
-          blade: new THREE.Line(new THREE.BufferGeometry().setFromPoints([new THREE.Vector3(), new THREE.Vector3()]),
-            new THREE.LineBasicMaterial({ color: 0xf0f0f0 })),
+          // A blade as a thin rod (WebGL draws lines one pixel wide whatever their width).
+          blade: new THREE.Mesh(new THREE.CylinderBufferGeometry(1, 1, 1, 12),
+            new THREE.MeshPhongMaterial({ color: 0xf0f0f0 })),
           arrow: new THREE.ArrowHelper(new THREE.Vector3(0, 1, 0), new THREE.Vector3(), 0.01, 0x44e0ff),
         };
         scene.add(o.sphere); scene.add(o.blade); scene.add(o.arrow);
@@ -191,8 +192,11 @@
         o.sphere.scale.setScalar(Math.max(t.r, 1e-4));
         o.sphere.material.color.setHex(t.contact ? 0xff9d3b : 0xe8b04a);
       } else {
-        const pa = o.blade.geometry.attributes.position;
-        pa.setXYZ(0, t.a[0], t.a[1], t.a[2]); pa.setXYZ(1, t.b[0], t.b[1], t.b[2]); pa.needsUpdate = true;
+        const a = new THREE.Vector3(t.a[0], t.a[1], t.a[2]), b = new THREE.Vector3(t.b[0], t.b[1], t.b[2]);
+        const d = b.clone().sub(a), len = Math.max(d.length(), 1e-6);
+        o.blade.position.copy(a).addScaledVector(d, 0.5);
+        o.blade.quaternion.setFromUnitVectors(new THREE.Vector3(0, 1, 0), d.divideScalar(len));
+        o.blade.scale.set(0.0004, len, 0.0004);
         o.blade.material.color.setHex(t.cutting ? 0xff5050 : 0xf0f0f0);
       }
       // Force arrow from the tool's surface (a probe's sphere would hide a short one), its
