@@ -5,7 +5,7 @@
 BUILD     ?= build
 JOBS      ?= $(shell nproc 2>/dev/null || echo 2)
 PACKAGES  := cmake gcc make pkg-config liblcm-dev liblcm-bin libsuitesparse-dev libopenblas-dev \
-             libcjson-dev libpng-dev gnuplot-nox iproute2 util-linux clang libclang-rt-14-dev \
+             libcjson-dev libpng-dev libwebsockets-dev libjs-three chromium nodejs gnuplot-nox iproute2 util-linux clang libclang-rt-14-dev \
              python3-meshio
 CMAKE_ARGS ?=
 

@@ -8,10 +8,14 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <poll.h>
 #include <time.h>
 #include <unistd.h>
 
+#include <lcm/lcm.h>
+
 #include "hapsim_channels.h"
+#include "hapsim_tool_state_t.h"
 #include "view.h"
 #include "wire.h"
 
@@ -38,7 +42,8 @@ static void usage(FILE* f) {
             "  --duration S      stop after S seconds (0: until SIGINT/SIGTERM)\n"
             "  --view AZ,EL      camera azimuth about +z from +x and elevation, degrees (30,20)\n"
             "  --size WxH        PNG size in pixels, decimal integers 16 .. 8192 (640x480)\n"
-            "  --dmax M          displacement shown red, m (0.01); 0 is blue\n"
+            "  --dmax M|auto     displacement shown red, m; 0 is blue. auto (default): the next\n"
+            "                    1-2-5 step above the largest displacement so far, >= 0.5 mm\n"
             "  --mesh-url URL    mesh bus (" HAPSIM_DEFAULT_MESH_URL "&recv_buf_size=...)\n"
             "  --prefix P        channel prefix (" HAPSIM_DEFAULT_PREFIX ")\n"
             "  --status          live status line on stderr (default when stderr is a terminal)\n"
@@ -50,7 +55,10 @@ static void usage(FILE* f) {
 
 typedef struct viewer {
     const char* out;
-    double rate, dmax;
+    double rate, dmax;   // dmax 0: auto
+    double auto_max;     // m, largest displacement seen (auto range)
+    hs_view_tools tools; // live tools (tool_state within the last 0.5 s)
+    hs_view_caption cap;
     int png, vtk, status, quiet;
     double az, el;
     int width, height;
@@ -123,11 +131,19 @@ static int write_frame(viewer* v, const hs_client_mesh* m) {
     }
     int32_t idx = v->n_written;
     char png_name[64] = "", vtu_name[64] = "", path[4200];
+    if ((double)dmax_seen > v->auto_max) v->auto_max = dmax_seen;
+    double range = v->dmax > 0 ? v->dmax : hs_nice_ceil(fmax(v->auto_max * 1.05, 0.5e-3));
     if (v->png) {
         snprintf(png_name, sizeof png_name, "frame_%06d.png", idx);
         hs_image_clear(v->img);
         hs_render_mesh(v->img, &v->cam, m->position, m->n_vis, m->triangles, m->n_tri, v->disp,
-                       0.0f, (float)v->dmax);
+                       0.0f, (float)range);
+        v->cap.sim_time = m->sim_time;
+        v->cap.sim_step = m->sim_step;
+        v->cap.topology_version = m->topology_version;
+        v->cap.range_m = range;
+        v->cap.max_disp_m = dmax_seen;
+        hs_view_annotate(v->img, &v->cam, &v->tools, &v->cap);
         snprintf(path, sizeof path, "%s/%s", v->out, png_name);
         if (hs_png_write(path, v->img, &err) != HS_OK) {
             fprintf(stderr, "hapsim-view: %s\n", err.msg);
@@ -137,7 +153,7 @@ static int write_frame(viewer* v, const hs_client_mesh* m) {
     if (v->vtk) {
         snprintf(vtu_name, sizeof vtu_name, "frame_%06d.vtu", idx);
         snprintf(path, sizeof path, "%s/%s", v->out, vtu_name);
-        if (hs_vtu_write(path, m, v->disp, &err) != HS_OK) {
+        if (hs_vtu_write(path, m, v->disp, &v->tools, &err) != HS_OK) {
             fprintf(stderr, "hapsim-view: %s\n", err.msg);
             return -1;
         }
@@ -184,12 +200,63 @@ static int write_frame(viewer* v, const hs_client_mesh* m) {
     return 0;
 }
 
+// Tool states (fixed size: any other length or a non-finite number is dropped; lcm-gen's
+// decoder is safe here because no field carries a length), newest per device.
+typedef struct tool_slot {
+    hs_view_tool tool;
+    int64_t arrival_us; // 0: none
+} tool_slot;
+static tool_slot g_tools[HS_CLIENT_MAX_DEVICES];
+
+static void on_tool_state(const lcm_recv_buf_t* rbuf, const char* ch, void* user) {
+    (void)ch;
+    (void)user;
+    hapsim_tool_state_t t;
+    memset(&t, 0, sizeof t);
+    int want = hapsim_tool_state_t_encoded_size(&t);
+    if ((int)rbuf->data_size != want ||
+        hapsim_tool_state_t_decode(rbuf->data, 0, (int)rbuf->data_size, &t) != want)
+        return;
+    if (t.device_id < 0 || t.device_id >= HS_CLIENT_MAX_DEVICES) return;
+    double chk = t.radius;
+    for (int k = 0; k < 3; k++)
+        chk += t.position[k] + t.force[k] + t.blade_a[k] + t.blade_b[k];
+    if (!isfinite(chk)) return;
+    hs_view_tool* o = &g_tools[t.device_id].tool;
+    o->device = t.device_id;
+    o->kind = t.kind;
+    o->radius = t.radius;
+    o->contact = t.contact;
+    o->cutting = t.cutting;
+    memcpy(o->position, t.position, sizeof o->position);
+    memcpy(o->force, t.force, sizeof o->force);
+    memcpy(o->blade_a, t.blade_a, sizeof o->blade_a);
+    memcpy(o->blade_b, t.blade_b, sizeof o->blade_b);
+    g_tools[t.device_id].arrival_us = hs_client_now_us();
+}
+
+static void collect_tools(viewer* v, int64_t now) {
+    v->tools.n = 0;
+    for (int d = 0; d < HS_CLIENT_MAX_DEVICES; d++)
+        if (g_tools[d].arrival_us && now - g_tools[d].arrival_us <= 500000)
+            v->tools.tool[v->tools.n++] = g_tools[d].tool;
+}
+
+// "scenes/liver/liver.json" -> "liver".
+static void scene_name(const char* path, char* out, size_t cap) {
+    const char* b = strrchr(path, '/');
+    b = b ? b + 1 : path;
+    snprintf(out, cap, "%.63s", b);
+    char* dot = strrchr(out, '.');
+    if (dot && dot != out) *dot = '\0';
+}
+
 int main(int argc, char** argv) {
     viewer v;
     memset(&v, 0, sizeof v);
     v.out = "hapsim-view-out";
     v.rate = 2;
-    v.dmax = 0.01;
+    v.dmax = 0; // auto
     v.az = 30;
     v.el = 20;
     v.width = 640;
@@ -232,9 +299,9 @@ int main(int argc, char** argv) {
             }
         } else if (!strcmp(a, "--dmax")) {
             NEED_VAL;
-            v.dmax = strtod(val, &e);
-            if (e == val || *e || !(v.dmax > 0) || !isfinite(v.dmax)) {
-                fprintf(stderr, "hapsim-view: --dmax '%s': expected metres > 0\n", val);
+            v.dmax = strcmp(val, "auto") ? strtod(val, &e) : 0;
+            if (strcmp(val, "auto") && (e == val || *e || !(v.dmax > 0) || !isfinite(v.dmax))) {
+                fprintf(stderr, "hapsim-view: --dmax '%s': expected metres > 0 or auto\n", val);
                 return 1;
             }
         } else if (!strcmp(a, "--view")) {
@@ -297,6 +364,18 @@ int main(int argc, char** argv) {
         fprintf(stderr, "hapsim-view: %s\n", err.msg);
         return 1;
     }
+    // Tool states are not taken by the client library: a mesh-bus subscriber of our own.
+    lcm_t* ts_lcm = lcm_create(mesh_url ? mesh_url : HAPSIM_DEFAULT_MESH_URL);
+    if (!ts_lcm) {
+        fprintf(stderr, "hapsim-view: LCM cannot open '%s'\n",
+                mesh_url ? mesh_url : HAPSIM_DEFAULT_MESH_URL);
+        hs_client_destroy(&c);
+        return 1;
+    }
+    char ts_ch[128];
+    snprintf(ts_ch, sizeof ts_ch, "%.63s%s", prefix ? prefix : HAPSIM_DEFAULT_PREFIX,
+             HAPSIM_CH_TOOL_STATE);
+    lcm_subscribe(ts_lcm, ts_ch, on_tool_state, NULL);
     char path[4200];
     snprintf(path, sizeof path, "%s/frames.csv", v.out);
     if (mkdir(v.out, 0777) != 0 && errno != EEXIST) {
@@ -308,6 +387,7 @@ int main(int argc, char** argv) {
     }
     if (!v.index) {
         hs_image_destroy(&v.img);
+        lcm_destroy(ts_lcm);
         hs_client_destroy(&c);
         return 3;
     }
@@ -331,8 +411,15 @@ int main(int argc, char** argv) {
             rc = 2;
             break;
         }
+        for (int k = 0; k < 64; k++) { // tool states waiting, without blocking
+            struct pollfd q = {.fd = lcm_get_fileno(ts_lcm), .events = POLLIN};
+            if (poll(&q, 1, 0) <= 0 || lcm_handle(ts_lcm) != 0) break;
+        }
         const hs_client_mesh* m = hs_client_mesh_view(c);
         now = hs_client_now_us();
+        collect_tools(&v, now);
+        hs_client_status st;
+        if (hs_client_status_latest(c, &st, NULL)) scene_name(st.scene, v.cap.scene, sizeof v.cap.scene);
         if (m->ready && m->n_vis > 0) {
             int due = period > 0 && now >= next_out && m->frame != v.last_frame_written;
             if (due || g_snap) {
@@ -403,6 +490,7 @@ int main(int argc, char** argv) {
     hs_client_free(v.times);
     hs_client_free(v.disp);
     hs_image_destroy(&v.img);
+    lcm_destroy(ts_lcm);
     hs_client_destroy(&c);
     return rc;
 }

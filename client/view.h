@@ -58,6 +58,48 @@ int32_t hs_render_mesh(hs_image* img, const hs_camera* cam, const float* pos, in
                        const int32_t* tri, int32_t n_tri, const float* scalar, float smin,
                        float smax);
 
+/// One tool to draw (from the server's tool_state).
+typedef struct hs_view_tool {
+    int32_t device, kind;  ///< device id; 0 probe, 1 blade (tool_state KIND_*)
+    double position[3];    ///< m, probe centre / blade origin
+    double radius;         ///< m, probe radius
+    double blade_a[3], blade_b[3]; ///< m, blade segment
+    double force[3];       ///< N, force on the tool
+    int contact, cutting;  ///< flags as sent
+} hs_view_tool;
+
+/// The live tools of one picture or VTK frame.
+typedef struct hs_view_tools {
+    int n;                                    ///< tools in use
+    hs_view_tool tool[HS_CLIENT_MAX_DEVICES]; ///< [n]
+} hs_view_tools;
+
+/// What a picture's caption and colour bar say.
+typedef struct hs_view_caption {
+    char scene[64];           ///< scene name ("" when no status arrived)
+    double sim_time;          ///< s
+    int64_t sim_step;         ///< deformation step
+    int64_t topology_version; ///< topology shown
+    double range_m;           ///< colour range: red at this displacement (m)
+    double max_disp_m;        ///< largest displacement in the frame (m)
+} hs_view_caption;
+
+/// Draw text in the 5x7 font (scale: pixels per font pixel, >= 1) with a dark shadow; unknown
+/// characters as a box. Returns the width drawn (pixels). Clipped to the image.
+int hs_draw_text(hs_image* img, int x, int y, int scale, const uint8_t rgb[3], const char* text);
+/// Draw a line width pixels thick (clipped; ends beyond 1e6 pixels: nothing drawn).
+void hs_draw_line(hs_image* img, double x0, double y0, double x1, double y1, int width,
+                  const uint8_t rgb[3]);
+/// Smallest 1-2-5 x 10^k >= x (1 for x <= 0 or non-finite).
+double hs_nice_ceil(double x);
+/// Annotate a rendered picture: tools (a probe as a depth-tested shaded sphere, a blade as its
+/// segment) with force arrows (5 cm per N from the tool's surface, capped at 30 % of the picture)
+/// and their |F| in N, a caption (scene, time, step, topology; largest displacement, force), the
+/// colour bar 0 .. range in mm (top right), a scale bar (bottom left) and the axes (bottom
+/// right). tools and cap may be NULL.
+void hs_view_annotate(hs_image* img, const hs_camera* cam, const hs_view_tools* tools,
+                      const hs_view_caption* cap);
+
 /// Write an RGB PNG. Returns HS_OK or HS_ERR_IO (err names the file).
 hs_status hs_png_write(const char* path, const hs_image* img, hs_err* err);
 /// Read a PNG as RGB8 (depth buffer cleared). Returns HS_OK, HS_ERR_IO or HS_ERR_NOMEM.
@@ -66,10 +108,13 @@ hs_status hs_png_read(const char* path, hs_image** out, hs_err* err);
 /// Per-node displacement magnitude |position - rest| (m) into disp[n].
 void hs_view_displacement(const hs_client_mesh* m, float* disp);
 /// Write the visible mesh as a VTK XML UnstructuredGrid of its surface triangles (ASCII .vtu):
-/// point data displacement (3 comp), displacement_magnitude and, when sent, stress_von_mises.
+/// point data displacement (3 comp), displacement_magnitude, rest_position (3 comp) and, when
+/// sent, stress_von_mises; field data TimeValue (s), sim_step, and per live tool (tools may be
+/// NULL: one row of zeros with device -1) tool_device, tool_position_m, tool_force_n.
 /// Writes to path + ".tmp" then renames. Returns HS_OK, HS_ERR_IO, or HS_ERR_INVALID (nothing
 /// written) when a displacement or disp[i] is beyond float32 (err names the node).
-hs_status hs_vtu_write(const char* path, const hs_client_mesh* m, const float* disp, hs_err* err);
+hs_status hs_vtu_write(const char* path, const hs_client_mesh* m, const float* disp,
+                       const hs_view_tools* tools, hs_err* err);
 /// Write a ParaView collection (.pvd) listing files[i] at times[i] (s); atomic (tmp + rename).
 hs_status hs_pvd_write(const char* path, int32_t n, const char* const* files, const double* times,
                        hs_err* err);

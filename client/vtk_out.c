@@ -57,7 +57,8 @@ static void floats(FILE* f, const float* v, int64_t n, int per_line) {
         fprintf(f, "%.9g%c", (double)v[i], (i + 1) % per_line == 0 || i + 1 == n ? '\n' : ' ');
 }
 
-hs_status hs_vtu_write(const char* path, const hs_client_mesh* m, const float* disp, hs_err* err) {
+hs_status hs_vtu_write(const char* path, const hs_client_mesh* m, const float* disp,
+                       const hs_view_tools* tools, hs_err* err) {
     // Positions are finite floats, but position - rest can overflow float32 (3e38 - -3e38):
     // refuse rather than write "inf", which VTK readers reject or misread.
     for (int32_t i = 0; i < m->n_vis; i++) {
@@ -85,7 +86,31 @@ hs_status hs_vtu_write(const char* path, const hs_client_mesh* m, const float* d
             "<?xml version=\"1.0\"?>\n"
             "<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" "
             "header_type=\"UInt64\">\n<UnstructuredGrid>\n"
-            "<Piece NumberOfPoints=\"%d\" NumberOfCells=\"%d\">\n",
+            "<FieldData>\n"
+            "<DataArray type=\"Float64\" Name=\"TimeValue\" NumberOfTuples=\"1\" "
+            "format=\"ascii\">%.17g</DataArray>\n"
+            "<DataArray type=\"Int64\" Name=\"sim_step\" NumberOfTuples=\"1\" "
+            "format=\"ascii\">%lld</DataArray>\n",
+            m->sim_time, (long long)m->sim_step);
+    // The tools as rows (one row of zeros, device -1, when none is live: every frame of a series
+    // then has the same arrays).
+    int nt = tools && tools->n > 0 ? tools->n : 0;
+    int rows = nt > 0 ? nt : 1;
+    fprintf(f, "<DataArray type=\"Int32\" Name=\"tool_device\" NumberOfTuples=\"%d\" "
+               "format=\"ascii\">", rows);
+    for (int i = 0; i < rows; i++) fprintf(f, "%s%d", i ? " " : "", nt ? tools->tool[i].device : -1);
+    const char* names[2] = {"tool_position_m", "tool_force_n"};
+    for (int a = 0; a < 2; a++) {
+        fprintf(f, "</DataArray>\n<DataArray type=\"Float64\" Name=\"%s\" NumberOfComponents=\"3\" "
+                   "NumberOfTuples=\"%d\" format=\"ascii\">", names[a], rows);
+        for (int i = 0; i < rows; i++)
+            for (int k = 0; k < 3; k++) {
+                double v = nt ? (a ? tools->tool[i].force[k] : tools->tool[i].position[k]) : 0.0;
+                fprintf(f, "%s%.9g", i || k ? " " : "", isfinite(v) ? v : 0.0);
+            }
+    }
+    fprintf(f, "</DataArray>\n</FieldData>\n"
+               "<Piece NumberOfPoints=\"%d\" NumberOfCells=\"%d\">\n",
             m->n_vis, m->n_tri);
     fprintf(f, "<PointData Scalars=\"displacement_magnitude\" Vectors=\"displacement\">\n");
     fprintf(f, "<DataArray type=\"Float32\" Name=\"displacement_magnitude\" format=\"ascii\">\n");
@@ -96,6 +121,9 @@ hs_status hs_vtu_write(const char* path, const hs_client_mesh* m, const float* d
         for (int k = 0; k < 3; k++)
             fprintf(f, "%.9g%c", (double)(m->position[3 * i + k] - m->rest[3 * i + k]),
                     k == 2 ? '\n' : ' ');
+    fprintf(f, "</DataArray>\n<DataArray type=\"Float32\" Name=\"rest_position\" "
+               "NumberOfComponents=\"3\" format=\"ascii\">\n");
+    floats(f, m->rest, 3 * (int64_t)m->n_vis, 3);
     fprintf(f, "</DataArray>\n");
     if (m->stress) {
         fprintf(f, "<DataArray type=\"Float32\" Name=\"stress_von_mises\" format=\"ascii\">\n");

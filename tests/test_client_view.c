@@ -209,27 +209,36 @@ static int test_vtk_series(void) {
         snprintf(names[f], sizeof names[f], "frame_%06d.vtu", f);
         char path[512];
         snprintf(path, sizeof path, "%s/%s%s", dir, keep ? "" : "hs_client_", names[f]);
-        ENSURE(hs_vtu_write(path, &m, disp, &err) == HS_OK);
+        hs_view_tools vt = {.n = 2};
+        vt.tool[0].device = 0;
+        vt.tool[0].force[1] = 0.5;
+        vt.tool[1].device = 3;
+        vt.tool[1].position[0] = 0.25;
+        ENSURE(hs_vtu_write(path, &m, disp, f == 1 ? &vt : NULL, &err) == HS_OK);
         files[f] = names[f];
         times[f] = m.sim_time;
         // The file parses back as we meant it (our own quick check; the shell test uses meshio).
         FILE* fp = fopen(path, "r");
         ENSURE(fp != NULL);
         char line[512];
-        int saw_piece = 0, saw_stress = 0;
+        int saw_piece = 0, saw_stress = 0, saw_rest = 0, saw_force = 0, saw_time = 0;
         while (fgets(line, sizeof line, fp)) {
             saw_piece += strstr(line, "NumberOfPoints=\"8\" NumberOfCells=\"12\"") != NULL;
             saw_stress += strstr(line, "stress_von_mises") != NULL;
+            saw_rest += strstr(line, "Name=\"rest_position\"") != NULL;
+            saw_force += strstr(line, "Name=\"tool_force_n\"") != NULL;
+            saw_time += strstr(line, "Name=\"TimeValue\"") != NULL;
         }
         fclose(fp);
         ENSURE(saw_piece == 1 && saw_stress == (f == 2));
+        ENSURE(saw_rest == 1 && saw_force == 1 && saw_time == 1);
         if (!keep) remove(path);
     }
     char pvd[512];
     snprintf(pvd, sizeof pvd, "%s/%s", dir, keep ? "hapsim.pvd" : "hs_client_test.pvd");
     ENSURE(hs_pvd_write(pvd, 3, files, times, &err) == HS_OK);
     if (!keep) remove(pvd);
-    ENSURE(hs_vtu_write("/nonexistent/dir/x.vtu", &m, stress, &err) == HS_ERR_IO);
+    ENSURE(hs_vtu_write("/nonexistent/dir/x.vtu", &m, stress, NULL, &err) == HS_ERR_IO);
     ENSURE(strstr(err.msg, "/nonexistent/dir/x.vtu") != NULL);
     ENSURE(hs_pvd_write("/nonexistent/dir/x.pvd", 3, files, times, &err) == HS_ERR_IO);
     ENSURE(strstr(err.msg, "/nonexistent/dir/x.pvd") != NULL);
@@ -254,7 +263,7 @@ static int test_vtk_series(void) {
         float disp[8];
         hs_view_displacement(&m, disp);
         err.msg[0] = 0;
-        ENSURE(hs_vtu_write(path, &m, disp, &err) == HS_ERR_INVALID);
+        ENSURE(hs_vtu_write(path, &m, disp, NULL, &err) == HS_ERR_INVALID);
         ENSURE(strstr(err.msg, path) != NULL && strstr(err.msg, "node 3") != NULL);
         ENSURE(access(path, F_OK) != 0);
         char tmp[600];
@@ -267,10 +276,69 @@ static int test_vtk_series(void) {
     pos[3 * 3 + 1] = 3e38f;
     float disp[8];
     hs_view_displacement(&m, disp);
-    ENSURE(hs_vtu_write(path, &m, disp, &err) == HS_OK);
+    ENSURE(hs_vtu_write(path, &m, disp, NULL, &err) == HS_OK);
     ENSURE(remove(path) == 0);
     return 0;
 }
 
-HS_TEST_MAIN(HS_CASE(test_raster_box), HS_CASE(test_raster_far_vertex),
+// Annotations: caption text, colour bar (red top, blue bottom), scale bar, axes, a probe drawn
+// as a depth-tested sphere with a cyan force arrow pointing along the force.
+static int test_annotate(void) {
+    hs_image* im = NULL;
+    ENSURE(hs_image_create(640, 480, &im, NULL) == HS_OK);
+    hs_camera cam;
+    hs_camera_fit(&cam, cube_pos, 8, 30, 20, 640, 480);
+    hs_render_mesh(im, &cam, cube_pos, 8, cube_tri, 12, NULL, 0, 1);
+    hs_view_tools tools = {.n = 1};
+    hs_view_tool* t = &tools.tool[0];
+    t->device = 0;
+    t->kind = 0;
+    t->radius = 0.05;
+    double top[3] = {0.5, 0.5, 1.08}; // resting on the top face, pushed up by 2 N
+    memcpy(t->position, top, sizeof top);
+    t->force[2] = 2.0;
+    hs_view_caption cap = {.sim_time = 1.5, .sim_step = 90, .topology_version = 3,
+                           .range_m = 0.01, .max_disp_m = 0.004};
+    snprintf(cap.scene, sizeof cap.scene, "liver");
+    hs_view_annotate(im, &cam, &tools, &cap);
+    // Caption: lit text pixels in the first two text rows at the top left, none were there.
+    int text = 0;
+    for (int y = 6; y < 40; y++)
+        for (int x = 6; x < 300; x++) text += px(im, x, y)[0] > 200;
+    ENSURE(text > 300);
+    // Colour bar: W - 40 s - 8 (s = 2), from y = 6 + 34 s, 45 % of the height.
+    int bx = 640 - 80 - 8 + 3, by = 6 + 68;
+    const uint8_t* ctop = px(im, bx, by + 2);
+    const uint8_t* cbot = px(im, bx, by + 480 * 45 / 100 - 3);
+    ENSURE(ctop[0] > ctop[2] + 60 && cbot[2] > cbot[0] + 60);
+    // Probe: its centre pixel is orange (shaded), in front of the cube.
+    double u, v, d;
+    hs_camera_project(&cam, top, &u, &v, &d);
+    const uint8_t* pc = px(im, u, v);
+    ENSURE(pc[0] > 150 && pc[0] > pc[2] + 80);
+    // Force arrow: cyan pixels above the probe (screen up = +z here), none below it.
+    int above = 0, below = 0;
+    for (int y = 0; y < 480; y++)
+        for (int x = (int)u - 4; x <= (int)u + 4; x++) {
+            const uint8_t* c = px(im, x, y);
+            int cyan = c[0] == 68 && c[1] == 224 && c[2] == 255;
+            above += cyan && y < v - 0.05 * cam.scale;
+            below += cyan && y > v + 0.05 * cam.scale;
+        }
+    ENSURE(above > 10 && below == 0);
+    // Scale bar: a white run at the bottom left.
+    int run = 0;
+    for (int x = 10; x < 320; x++) run += px(im, x, 480 - 10 - 16)[0] > 200;
+    ENSURE(run > 20);
+    // 1-2-5 steps; the font draws unknown bytes as a box and clips at the edges.
+    ENSURE(hs_nice_ceil(0.0063) == 0.01 && fabs(hs_nice_ceil(0.0021) - 0.005) < 1e-12 &&
+           hs_nice_ceil(0) == 1 && fabs(hs_nice_ceil(1.5) - 2) < 1e-12);
+    static const uint8_t w[3] = {255, 255, 255};
+    ENSURE(hs_draw_text(im, 630, 475, 3, w, "\x01\xff~ mm") == 6 * 3 * 6);
+    hs_draw_line(im, -1e9, 0, 1e9, 0, 3, w); // off the picture: nothing, no crash
+    hs_image_destroy(&im);
+    return 0;
+}
+
+HS_TEST_MAIN(HS_CASE(test_raster_box), HS_CASE(test_annotate), HS_CASE(test_raster_far_vertex),
              HS_CASE(test_png_round_trip), HS_CASE(test_vtk_series))

@@ -64,6 +64,12 @@ for f in files:
     assert disp.shape == (len(m.points), 3) and mag.shape == (len(m.points),), f
     assert np.allclose(np.linalg.norm(disp, axis=1), mag, rtol=1e-5, atol=1e-9), f
     assert np.isfinite(m.points).all()
-print("meshio %s: read %d .vtu files, %d points and %d triangles in the last" %
-      (meshio.__version__, len(files), len(m.points), len(tri)))
+    rest = np.asarray(m.point_data["rest_position"])
+    assert np.allclose(m.points - rest, disp, rtol=1e-5, atol=1e-6), f
+    fd = m.field_data
+    assert fd["tool_force_n"].shape[-1] == 3 and fd["tool_position_m"].shape[-1] == 3, f
+    assert len(fd["tool_device"].ravel()) == fd["tool_force_n"].reshape(-1, 3).shape[0], f
+    assert np.isfinite(fd["TimeValue"]).all(), f
+print("meshio %s: read %d .vtu files, %d points and %d triangles in the last; rest_position, "
+      "TimeValue and tool field data consistent" % (meshio.__version__, len(files), len(m.points), len(tri)))
 PY
