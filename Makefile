@@ -5,7 +5,8 @@
 BUILD     ?= build
 JOBS      ?= $(shell nproc 2>/dev/null || echo 2)
 PACKAGES  := cmake gcc make pkg-config liblcm-dev liblcm-bin libsuitesparse-dev libopenblas-dev \
-             libcjson-dev libpng-dev libwebsockets-dev libjs-three chromium nodejs gnuplot-nox iproute2 util-linux clang libclang-rt-14-dev \
+             libcjson-dev libpng-dev libwebsockets-dev libjs-three chromium nodejs gnuplot-nox \
+             iproute2 util-linux clang libclang-rt-14-dev \
              python3-meshio
 CMAKE_ARGS ?=
 
@@ -25,6 +26,12 @@ deps:
 	    echo "hapsim: missing Debian packages; run as root:"; \
 	    echo "  apt-get update && apt-get install -y$$missing"; exit 1; \
 	  fi; \
+	fi; \
+	if ! command -v npm >/dev/null; then \
+	  if [ "$$(id -u)" = 0 ]; then \
+	    echo "hapsim: installing npm (Debian's nodejs ships it separately)"; \
+	    apt-get update -q && DEBIAN_FRONTEND=noninteractive apt-get install -y -q npm; \
+	  else echo "hapsim: npm missing; run as root: apt-get install -y npm"; exit 1; fi; \
 	fi
 
 # build/Makefile appears only when a configure succeeds (the cache is written even when it
