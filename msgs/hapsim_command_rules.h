@@ -52,6 +52,27 @@ static inline int hapsim_cmd_bad(const char** why, const char* text) {
 /// The arguments kind takes, exactly: LOAD_SCENE path=NONEMPTY; SET_PARAM name=KEY value=NUMBER
 /// (the whole text, finite; *number receives it); every other kind none. Keys well formed and
 /// not repeated, values without control bytes. Lengths are checked where the text is read.
+/// 1 when s is a decimal number: leading spaces, [+-], digits with an optional '.', an optional
+/// exponent. strtod alone also takes hexadecimal ("0x10" as 16), "inf" and "nan".
+static inline int hapsim_cmd_decimal_ok(const char* s) {
+    while (*s == ' ') s++;
+    if (*s == '+' || *s == '-') s++;
+    int digits = 0;
+    while (*s >= '0' && *s <= '9') s++, digits++;
+    if (*s == '.') {
+        s++;
+        while (*s >= '0' && *s <= '9') s++, digits++;
+    }
+    if (!digits) return 0;
+    if (*s == 'e' || *s == 'E') {
+        s++;
+        if (*s == '+' || *s == '-') s++;
+        if (!(*s >= '0' && *s <= '9')) return 0;
+        while (*s >= '0' && *s <= '9') s++;
+    }
+    return *s == '\0';
+}
+
 /// Returns HAPSIM_CMD_ARGS_*; *why (static text) says what is wrong.
 static inline int hapsim_cmd_args_check(int32_t kind, int n, const char* const* keys,
                                         const char* const* values, double* number,
@@ -80,9 +101,9 @@ static inline int hapsim_cmd_args_check(int32_t kind, int n, const char* const* 
                                   "SET_PARAM takes two arguments, name ([a-z0-9_.]) and value");
         char* end = NULL;
         double v = strtod(value, &end);
-        if (end == value || *end != '\0')
-            return hapsim_cmd_bad(why, "SET_PARAM's value is not a number");
-        if (!isfinite(v)) {
+        if (end == value || *end != '\0' || (isfinite(v) && !hapsim_cmd_decimal_ok(value)))
+            return hapsim_cmd_bad(why, "SET_PARAM's value is not a number (decimal, as 5e3)");
+        if (!isfinite(v)) { // "nan", "inf", 1e999
             *why = "SET_PARAM's value is not finite";
             return HAPSIM_CMD_ARGS_NONFINITE;
         }

@@ -1245,6 +1245,10 @@ static int test_command_checked_locally(void) {
     } bad[] = {
         {HAPSIM_COMMAND_T_KIND_SET_PARAM, 2, {"name", "value"}, {"youngs_pa", "abc"}, "number"},
         {HAPSIM_COMMAND_T_KIND_SET_PARAM, 2, {"name", "value"}, {"youngs_pa", "5e3x"}, "number"},
+        {HAPSIM_COMMAND_T_KIND_SET_PARAM, 2, {"name", "value"}, {"youngs_pa", "0x10"}, "number"},
+        {HAPSIM_COMMAND_T_KIND_SET_PARAM, 2, {"name", "value"}, {"youngs_pa", "inf"}, "finite"},
+        {HAPSIM_COMMAND_T_KIND_SET_PARAM, 2, {"name", "value"}, {"youngs_pa", "1e"}, "number"},
+        {HAPSIM_COMMAND_T_KIND_SET_PARAM, 2, {"name", "value"}, {"youngs_pa", "."}, "number"},
         {HAPSIM_COMMAND_T_KIND_SET_PARAM, 2, {"name", "value"}, {"youngs_pa", "1e999"}, "finite"},
         {HAPSIM_COMMAND_T_KIND_SET_PARAM, 2, {"name", "value"}, {"youngs_pa", ""}, "two"},
         {HAPSIM_COMMAND_T_KIND_SET_PARAM, 2, {"name", "value"}, {"Youngs", "1"}, "two"},
