@@ -315,8 +315,14 @@ static int commands_deduplicated(void) {
 static int bus_errors(void) {
     hs_err err;
     hs_net_bus* b = (hs_net_bus*)&err; // must be reset to NULL on failure
-    ENSURE(hs_net_bus_create("nosuchprovider://x", &b, &err) == HS_ERR_IO);
+    ENSURE(hs_net_bus_create("nosuchprovider://x", &b, &err) == HS_ERR_INVALID);
     ENSURE(b == NULL && strstr(err.msg, "nosuchprovider://x") != NULL);
+    // Buses that serve no other program are refused with the reason.
+    const char* useless[] = {"memq://", "file:///tmp/x.lcmlog?mode=w", "", "tcpq://127.0.0.1:1"};
+    for (int i = 0; i < 4; ++i) {
+        ENSURE(hs_net_bus_create(useless[i], &b, &err) == HS_ERR_INVALID && b == NULL);
+        ENSURE(strstr(err.msg, "serve no other program") != NULL);
+    }
     ENSURE(hs_net_bus_create(NULL, &b, &err) == HS_ERR_INVALID && b == NULL);
     return 0;
 }

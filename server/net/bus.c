@@ -18,6 +18,14 @@ hs_status hs_net_bus_create(const char* url, hs_net_bus** out, hs_err* err) {
     *out = NULL;
     if (!url || strlen(url) >= sizeof((hs_net_bus*)0)->url)
         return hs_err_set(err, HS_ERR_INVALID, "LCM URL missing or longer than 255 bytes");
+    // The server serves other processes: memq:// (in-process), file:// (a log) and an empty
+    // URL reach nobody, and tcpq:// crashed LCM 1.3.1 with nothing listening.
+    if (strncmp(url, "udpm://", 7) != 0)
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "LCM URL '%s': the server's buses are UDP multicast (udpm://GROUP:PORT"
+                          "?ttl=0); memq://, file://, tcpq:// and an empty URL serve no other "
+                          "program",
+                          url);
     const char* why = hapsim_url_problem(url);
     if (why) return hs_err_set(err, HS_ERR_INVALID, "LCM URL '%s' %s", url, why);
     hs_net_bus* b = hs_calloc(1, sizeof *b);
