@@ -7,6 +7,7 @@
 
 #include "hapsim/base.h"
 #include "hapsim/fem.h"
+#include "hapsim/mesh.h"
 
 #ifdef __cplusplus
 extern "C" {
@@ -25,6 +26,10 @@ typedef enum hs_fixed_kind {
     HS_FIXED_PLANE = 0,     ///< nodes with (x - point) . normal <= tolerance
     HS_FIXED_BOX = 1,       ///< nodes with min <= x <= max componentwise
     HS_FIXED_BBOX_SIDE = 2, ///< nodes within depth of the mesh bounding box's min or max side
+    HS_FIXED_GROUP = 3,     ///< the nodes of a named region (Gmsh physical group) of the mesh
+    HS_FIXED_SPHERE = 4,    ///< nodes with |x - point| <= radius
+    HS_FIXED_PATCH = 5,     ///< surface nodes within radius of point, connected over the surface
+                            ///< to the surface node nearest point
 } hs_fixed_kind;
 
 typedef struct hs_scene_fixed {
@@ -37,6 +42,8 @@ typedef struct hs_scene_fixed {
     int axis;         ///< BBOX_SIDE: 0 = x, 1 = y, 2 = z
     int side;         ///< BBOX_SIDE: -1 = min side, +1 = max side
     double depth;     ///< m, BBOX_SIDE: slab thickness measured from that side
+    double radius;    ///< m, SPHERE / PATCH: around point
+    char group[HS_MESH_REGION_NAME_MAX]; ///< GROUP: region name (or its tag in decimal)
     int line;         ///< line of the region in the scene file (for messages; 0 if unknown)
 } hs_scene_fixed;
 
@@ -119,6 +126,13 @@ hs_status hs_scene_parse(const char* text, const char* path, int check_files,
 /// binds a random port; docs/protocol.md).
 /// Thread: any | Allocates: no
 int hs_scene_same_bus(const char* a, const char* b);
+
+/// Mark the nodes region f selects in mesh m (positions in the mesh's metres, after
+/// units_scale); sel [n_nodes] is overwritten (1 selected). HS_ERR_INVALID with the reason (a
+/// group the mesh does not have, listing those it has) or HS_ERR_NOMEM.
+/// Thread: any | Allocates: temporarily
+hs_status hs_scene_fixed_select(const hs_scene_fixed* f, const hs_mesh* m, unsigned char* sel,
+                                hs_err* err);
 
 /// Short names used in scene files: "linear", "corotated", "stvk"; "probe", "scalpel"; ...
 const char* hs_scene_model_name(hs_model m);

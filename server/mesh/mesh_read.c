@@ -252,6 +252,19 @@ typedef struct id_pair {
     int idx;
 } id_pair;
 
+typedef struct grp_entry {
+    int dim, tag, node;
+} grp_entry;
+
+typedef struct phys_name {
+    int dim, tag;
+    char name[HS_MESH_REGION_NAME_MAX];
+} phys_name;
+
+typedef struct ent_phys {
+    int dim, ent, phys;
+} ent_phys;
+
 typedef struct builder {
     int n_nodes;
     double* x;     // [3 n_nodes]
@@ -264,6 +277,17 @@ typedef struct builder {
     long long* tid; // [capacity] file id of each tet (VTK: cell index)
     int by_index;   // VTK: nodes and cells are named by 0-based index, no line each
     int skipped;
+    // Gmsh physical groups: one entry per (group, element node); names; 4.1 entity -> group
+    int n_grp, cap_grp;
+    grp_entry* grp;
+    int n_names, cap_names;
+    phys_name* names;
+    int n_ents, cap_ents;
+    ent_phys* ents;
+    // triangles (type 2), when collect_tris
+    int collect_tris;
+    int n_tris, cap_tris;
+    int* tris;
 } builder;
 
 static void builder_free(builder* b) {
@@ -274,13 +298,65 @@ static void builder_free(builder* b) {
     hs_free(b->tets);
     hs_free(b->tline);
     hs_free(b->tid);
+    hs_free(b->grp);
+    hs_free(b->names);
+    hs_free(b->ents);
+    hs_free(b->tris);
     memset(b, 0, sizeof *b);
+}
+
+// Grows an array of `size`-byte items to hold one more; 0 on no memory.
+static int grow(void** p, int* cap, int n, size_t size) {
+    if (n < *cap) return 1;
+    if (*cap > HS_MESH_MAX_COUNT / 2) return 0;
+    int c = *cap ? 2 * *cap : 64;
+    void* g = hs_realloc(*p, (size_t)c * size);
+    if (!g) return 0;
+    *p = g;
+    *cap = c;
+    return 1;
+}
+
+// Dimension of Gmsh element type 1-31 (0 points, 1 lines, 2 surfaces, 3 volumes).
+static int gmsh_type_dim(long long type) {
+    static const signed char d[32] = {-1, 1, 2, 2, 3, 3, 3, 3, 1, 2, 2, 3, 3, 3, 3, 0,
+                                      2,  3, 3, 3, 2, 2, 2, 2, 2, 2, 1, 1, 1, 3, 3, 3};
+    return type >= 1 && type <= 31 ? d[type] : -1;
 }
 
 static int nomem(lexer* lx) {
     lx->status = HS_ERR_NOMEM;
     hs_err_set(lx->err, HS_ERR_NOMEM, "%s: out of memory", lx->name);
     return 0;
+}
+
+// Records that element nodes nodes[0..k) belong to physical group (dim, tag).
+static int add_group_nodes(lexer* lx, builder* b, int dim, long long tag, const int* nodes, int k) {
+    if (tag == 0 || dim < 0) return 1;
+    if (tag < INT_MIN || tag > INT_MAX)
+        return lx_fail(lx, lx->line, HS_ERR_PARSE, "physical tag %lld out of range", tag);
+    for (int i = 0; i < k; ++i) {
+        if (!grow((void**)&b->grp, &b->cap_grp, b->n_grp, sizeof(grp_entry))) return nomem(lx);
+        b->grp[b->n_grp++] = (grp_entry){dim, (int)tag, nodes[i]};
+    }
+    return 1;
+}
+
+// The physical groups of a 4.1 element block's entity, then its element nodes.
+static int add_entity_nodes(lexer* lx, builder* b, int dim, long long ent, const int* nodes,
+                            int k) {
+    for (int i = 0; i < b->n_ents; ++i)
+        if (b->ents[i].dim == dim && b->ents[i].ent == ent &&
+            !add_group_nodes(lx, b, dim, b->ents[i].phys, nodes, k))
+            return 0;
+    return 1;
+}
+
+static int add_triangle(lexer* lx, builder* b, const int* nodes) {
+    if (!b->collect_tris) return 1;
+    if (!grow((void**)&b->tris, &b->cap_tris, 3 * b->n_tris + 2, sizeof(int))) return nomem(lx);
+    memcpy(b->tris + 3 * b->n_tris++, nodes, 3 * sizeof(int));
+    return 1;
 }
 
 static int alloc_nodes(lexer* lx, builder* b, long long n) {
@@ -370,18 +446,24 @@ static int gmsh_type_nodes(long long type) {
 
 // The node ids of a skipped (not linear tet) element: a known type must name exactly its
 // nodes, each one known, as a tet's must; an unknown type's line is skipped unread.
-static int skip_element_nodes(lexer* lx, builder* b, long long type, long long elem) {
+// *k_out: how many nodes went to nodes[] (0 for an unknown type).
+static int skip_element_nodes(lexer* lx, builder* b, long long type, long long elem, int nodes[56],
+                              int* k_out) {
     const int k = gmsh_type_nodes(type);
+    *k_out = 0;
     if (!k) {
         skip_line(lx);
         return 1;
     }
     for (int c = 0; c < k; ++c) {
-        int idx, line;
-        if (!rd_elem_node(lx, b, 1, c, k, elem, &idx, &line)) return 0;
+        int line;
+        if (!rd_elem_node(lx, b, 1, c, k, elem, &nodes[c], &line)) return 0;
     }
+    *k_out = k;
     return end_line(lx, "an element");
 }
+
+static int build_regions(lexer* lx, builder* b, hs_mesh* m);
 
 static hs_status builder_finish(lexer* lx, builder* b, hs_mesh** out) {
     if (b->n_tets == 0) {
@@ -426,6 +508,10 @@ static hs_status builder_finish(lexer* lx, builder* b, hs_mesh** out) {
         } else {
             snprintf(lx->err->msg, sizeof lx->err->msg, "%s: %.400s", lx->name, msg);
         }
+    }
+    if (st >= 0 && !build_regions(lx, b, *out)) {
+        hs_mesh_destroy(out);
+        st = HS_ERR_NOMEM;
     }
     builder_free(b);
     return st;
@@ -515,16 +601,25 @@ static int msh_elements_v2(lexer* lx, builder* b) {
             !rd_int(lx, 0, 1, INT_MAX, "element type", &type))
             return 0;
         if (!rd_int(lx, 0, 0, 1000, "tag count", &ntags)) return 0;
-        for (long long k = 0; k < ntags; ++k)
+        long long phys = 0; // the first tag is the physical group (0: none)
+        for (long long k = 0; k < ntags; ++k) {
             if (!rd_int(lx, 0, LLONG_MIN, LLONG_MAX, "tag", &tag)) return 0;
+            if (k == 0) phys = tag;
+        }
         if (type != 4) { // not a linear tet: checked, counted, not kept
+            int nodes[56], k;
             ++b->skipped;
-            if (!skip_element_nodes(lx, b, type, id)) return 0;
+            if (!skip_element_nodes(lx, b, type, id, nodes, &k) ||
+                !add_group_nodes(lx, b, gmsh_type_dim(type), phys, nodes, k) ||
+                (type == 2 && !add_triangle(lx, b, nodes)))
+                return 0;
             continue;
         }
         for (int c = 0; c < 4; ++c)
             if (!rd_tet_node(lx, b, 1, c, id)) return 0;
-        if (!end_line(lx, "a tetrahedron")) return 0;
+        if (!end_line(lx, "a tetrahedron") ||
+            !add_group_nodes(lx, b, 3, phys, b->tets + 4 * b->n_tets, 4))
+            return 0;
         ++b->n_tets;
     }
     return 1;
@@ -561,13 +656,19 @@ static int msh_elements_v4(lexer* lx, builder* b) {
             if (!record(lx, j, m, "elements")) return 0;
             if (!rd_int(lx, 0, lo, hi, "element tag", &id)) return 0;
             if (type != 4) {
+                int nodes[56], kn;
                 ++b->skipped;
-                if (!skip_element_nodes(lx, b, type, id)) return 0;
+                if (!skip_element_nodes(lx, b, type, id, nodes, &kn) ||
+                    !add_entity_nodes(lx, b, (int)dim, tag, nodes, kn) ||
+                    (type == 2 && !add_triangle(lx, b, nodes)))
+                    return 0;
                 continue;
             }
             for (int c = 0; c < 4; ++c)
                 if (!rd_tet_node(lx, b, 1, c, id)) return 0;
-            if (!end_line(lx, "a tetrahedron")) return 0;
+            if (!end_line(lx, "a tetrahedron") ||
+                !add_entity_nodes(lx, b, 3, tag, b->tets + 4 * b->n_tets, 4))
+                return 0;
             ++b->n_tets;
         }
         filled += m;
@@ -590,8 +691,127 @@ static int msh_section_end(lexer* lx, const char* end_tag) {
     return end_line(lx, end_tag);
 }
 
-static hs_status parse_msh(lexer* lx, hs_mesh** out) {
+// $PhysicalNames: a count, then lines `dim tag "name"`.
+static int msh_physical_names(lexer* lx, builder* b) {
+    long long n, dim, tag;
+    int hl = lx->line;
+    if (!rd_int(lx, 1, 0, LLONG_MAX, "physical name count", &n) ||
+        !end_line(lx, "the physical name count") || !check_count(lx, n, 6, hl, "physical name"))
+        return 0;
+    for (long long i = 0; i < n; ++i) {
+        if (!record(lx, i, n, "physical names") ||
+            !rd_int(lx, 0, 0, 3, "physical dimension", &dim) ||
+            !rd_int(lx, 0, INT_MIN, INT_MAX, "physical tag", &tag))
+            return 0;
+        skip_blanks(lx);
+        int line = lx->line;
+        if (lx->p >= lx->end || *lx->p != '"')
+            return lx_fail(lx, line, HS_ERR_PARSE, "physical name must be in double quotes");
+        const char* s0 = ++lx->p;
+        while (lx->p < lx->end && *lx->p != '"' && *lx->p != '\n') ++lx->p;
+        if (lx->p >= lx->end || *lx->p != '"')
+            return lx_fail(lx, line, HS_ERR_PARSE, "physical name has no closing quote");
+        size_t len = (size_t)(lx->p - s0);
+        ++lx->p;
+        if (len == 0 || len >= HS_MESH_REGION_NAME_MAX)
+            return lx_fail(lx, line, HS_ERR_PARSE, "physical name of %zu bytes (1 to %d)", len,
+                           HS_MESH_REGION_NAME_MAX - 1);
+        for (size_t k = 0; k < len; ++k)
+            if ((unsigned char)s0[k] < 0x20)
+                return lx_fail(lx, line, HS_ERR_PARSE, "control byte in a physical name");
+        if (!end_line(lx, "a physical name")) return 0;
+        if (!grow((void**)&b->names, &b->cap_names, b->n_names, sizeof(phys_name))) return nomem(lx);
+        phys_name* pn = &b->names[b->n_names++];
+        pn->dim = (int)dim;
+        pn->tag = (int)tag;
+        memcpy(pn->name, s0, len);
+        pn->name[len] = '\0';
+    }
+    return 1;
+}
+
+// MSH 4.1 $Entities: which physical groups each point, curve, surface and volume is in.
+static int msh_entities(lexer* lx, builder* b) {
+    long long count[4], tag, np, phys, nbound, v;
+    double c;
+    int hl = lx->line;
+    for (int d = 0; d < 4; ++d)
+        if (!rd_int(lx, 1, 0, LLONG_MAX, "entity count", &count[d]) ||
+            !check_count(lx, count[d], 8, hl, "entity"))
+            return 0;
+    for (int d = 0; d < 4; ++d)
+        for (long long i = 0; i < count[d]; ++i) {
+            if (!rd_int(lx, 1, INT_MIN, INT_MAX, "entity tag", &tag)) return 0;
+            for (int k = 0; k < (d == 0 ? 3 : 6); ++k)
+                if (!rd_double(lx, 1, "entity coordinate", &c)) return 0;
+            if (!rd_int(lx, 1, 0, 1000, "physical tag count", &np)) return 0;
+            for (long long k = 0; k < np; ++k) {
+                if (!rd_int(lx, 1, INT_MIN, INT_MAX, "physical tag", &phys)) return 0;
+                if (!grow((void**)&b->ents, &b->cap_ents, b->n_ents, sizeof(ent_phys)))
+                    return nomem(lx);
+                // Gmsh may write a negative tag for an orientation; the group is |tag|.
+                b->ents[b->n_ents++] = (ent_phys){d, (int)tag, (int)(phys < 0 ? -phys : phys)};
+            }
+            if (d > 0) {
+                if (!rd_int(lx, 1, 0, 1000000, "bounding entity count", &nbound)) return 0;
+                for (long long k = 0; k < nbound; ++k)
+                    if (!rd_int(lx, 1, INT_MIN, INT_MAX, "bounding entity", &v)) return 0;
+            }
+        }
+    skip_line(lx);
+    return 1;
+}
+
+static int cmp_grp(const void* pa, const void* pb) {
+    const grp_entry* a = pa;
+    const grp_entry* b = pb;
+    if (a->dim != b->dim) return a->dim < b->dim ? -1 : 1;
+    if (a->tag != b->tag) return a->tag < b->tag ? -1 : 1;
+    return (a->node > b->node) - (a->node < b->node);
+}
+
+// Turns the group entries into the mesh's regions. 0 on no memory (the mesh keeps what it has).
+static int build_regions(lexer* lx, builder* b, hs_mesh* m) {
+    if (b->n_grp == 0) return 1;
+    qsort(b->grp, (size_t)b->n_grp, sizeof(grp_entry), cmp_grp);
+    int n_reg = 0;
+    for (int i = 0; i < b->n_grp; ++i)
+        if (i == 0 || b->grp[i].dim != b->grp[i - 1].dim || b->grp[i].tag != b->grp[i - 1].tag)
+            ++n_reg;
+    m->regions = hs_calloc((size_t)n_reg, sizeof(hs_mesh_region));
+    if (!m->regions) return nomem(lx);
+    for (int i = 0; i < b->n_grp;) {
+        int j = i, u = 0;
+        while (j < b->n_grp && b->grp[j].dim == b->grp[i].dim && b->grp[j].tag == b->grp[i].tag)
+            ++j;
+        hs_mesh_region* r = &m->regions[m->n_regions];
+        r->nodes = hs_alloc((size_t)(j - i) * sizeof(int));
+        if (!r->nodes) return nomem(lx);
+        for (int k = i; k < j; ++k)
+            if (k == i || b->grp[k].node != b->grp[k - 1].node) r->nodes[u++] = b->grp[k].node;
+        r->n_nodes = u;
+        r->dim = b->grp[i].dim;
+        r->tag = b->grp[i].tag;
+        snprintf(r->name, sizeof r->name, "%d", r->tag);
+        for (int k = 0; k < b->n_names; ++k)
+            if (b->names[k].dim == r->dim && b->names[k].tag == r->tag)
+                memcpy(r->name, b->names[k].name, sizeof r->name);
+        ++m->n_regions;
+        i = j;
+    }
+    return 1;
+}
+
+// Triangles instead of a mesh (hs_mesh_parse_msh_triangles).
+typedef struct tri_out {
+    int n_nodes, n_tris;
+    double* x;
+    int* tris;
+} tri_out;
+
+static hs_status parse_msh(lexer* lx, hs_mesh** out, tri_out* to) {
     builder b = {0};
+    b.collect_tris = to != NULL;
     tok t;
     char buf[48];
     long long ftype, dsize;
@@ -641,6 +861,12 @@ static hs_status parse_msh(lexer* lx, hs_mesh** out) {
             if (!ok || !msh_section_end(lx, nodes ? "$EndNodes" : "$EndElements")) goto fail;
             have_nodes |= nodes;
             have_elems |= !nodes;
+        } else if (tok_is(&t, "$PhysicalNames") || (version == 4 && tok_is(&t, "$Entities"))) {
+            int names = tok_is(&t, "$PhysicalNames");
+            if (!end_line(lx, names ? "$PhysicalNames" : "$Entities")) goto fail;
+            if (!(names ? msh_physical_names(lx, &b) : msh_entities(lx, &b)) ||
+                !msh_section_end(lx, names ? "$EndPhysicalNames" : "$EndEntities"))
+                goto fail;
         } else if (t.len > 1 && t.s[0] == '$') {
             // Another section ($Entities, $PhysicalNames, ...): skip lines up to $End<name>.
             char end_tag[48];
@@ -672,6 +898,20 @@ static hs_status parse_msh(lexer* lx, hs_mesh** out) {
         lx_fail(lx, lx->line, HS_ERR_PARSE, "missing %s section",
                 have_nodes ? "$Elements" : "$Nodes");
         goto fail;
+    }
+    if (to) {
+        if (b.n_tris == 0) {
+            lx_fail(lx, lx->line, HS_ERR_PARSE, "no triangles (%d tetrahedra)", b.n_tets);
+            goto fail;
+        }
+        to->n_nodes = b.n_nodes;
+        to->x = b.x;
+        to->n_tris = b.n_tris;
+        to->tris = b.tris;
+        b.x = NULL;
+        b.tris = NULL;
+        builder_free(&b);
+        return HS_OK;
     }
     return builder_finish(lx, &b, out);
 fail:
@@ -1023,12 +1263,32 @@ hs_status hs_mesh_parse(const char* name, const char* format, const char* data, 
         return hs_err_set(err, HS_ERR_INVALID, "format or data is NULL");
     lexer lx;
     lx_init(&lx, name, data, len, err);
-    if (strcmp(format, "msh") == 0) return parse_msh(&lx, out);
+    if (strcmp(format, "msh") == 0) return parse_msh(&lx, out, NULL);
     if (strcmp(format, "vtk") == 0) return parse_vtk(&lx, out);
     return hs_err_set(err, HS_ERR_INVALID,
                       "unknown mesh format '%.40s' (msh, vtk; TetGen via "
                       "hs_mesh_parse_tetgen)",
                       format);
+}
+
+hs_status hs_mesh_parse_msh_triangles(const char* name, const char* data, size_t len,
+                                      int* n_nodes, double** x, int* n_tris, int** tris,
+                                      hs_err* err) {
+    if (!n_nodes || !x || !n_tris || !tris) return hs_err_set(err, HS_ERR_INVALID, "out is NULL");
+    *n_nodes = *n_tris = 0;
+    *x = NULL;
+    *tris = NULL;
+    if (!data && len) return hs_err_set(err, HS_ERR_INVALID, "data is NULL");
+    lexer lx;
+    lx_init(&lx, name, data, len, err);
+    tri_out to = {0};
+    hs_status st = parse_msh(&lx, NULL, &to);
+    if (st != HS_OK) return st;
+    *n_nodes = to.n_nodes;
+    *x = to.x;
+    *n_tris = to.n_tris;
+    *tris = to.tris;
+    return HS_OK;
 }
 
 hs_status hs_mesh_parse_tetgen(const char* name, const char* node_data, size_t node_len,
@@ -1108,7 +1368,7 @@ hs_status hs_mesh_load(const char* path, hs_mesh** out, hs_err* err) {
         if (st != HS_OK) return st;
         lexer lx;
         lx_init(&lx, path, data, len, err);
-        st = has_ext(path, ".msh") ? parse_msh(&lx, out) : parse_vtk(&lx, out);
+        st = has_ext(path, ".msh") ? parse_msh(&lx, out, NULL) : parse_vtk(&lx, out);
         hs_free(data);
         return st;
     }

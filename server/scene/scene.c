@@ -362,9 +362,10 @@ static hs_status parse_fixed(const ctx* c, const cJSON* root, hs_scene* s) {
         hs_scene_fixed* f = &s->fixed[i];
         memset(f, 0, sizeof *f);
         f->line = item_line(c, r);
-        static const char* const kinds[] = {"plane", "box", "bbox_side"};
+        static const char* const kinds[] = {"plane", "box", "bbox_side", "group", "sphere",
+                                            "patch"};
         int k = 0;
-        TRY(get_enum(c, r, path, "type", kinds, 3, 1, &k));
+        TRY(get_enum(c, r, path, "type", kinds, 6, 1, &k));
         f->kind = (hs_fixed_kind)k;
         if (f->kind == HS_FIXED_PLANE) {
             static const char* const keys[] = {"type", "point", "normal", "tolerance", NULL};
@@ -393,6 +394,30 @@ static hs_status parse_fixed(const ctx* c, const cJSON* root, hs_scene* s) {
                     return fail(c, cJSON_GetObjectItemCaseSensitive(r, "max"), key,
                                 "is below min in component %d", d);
                 }
+        } else if (f->kind == HS_FIXED_GROUP) {
+            static const char* const keys[] = {"type", "name", NULL};
+            TRY(check_keys(c, r, path, keys));
+            const cJSON* nm = cJSON_GetObjectItemCaseSensitive(r, "name");
+            char key[64];
+            join(key, sizeof key, path, "name");
+            if (!nm) return fail(c, r, key, "is required (a physical group of the mesh)");
+            if (!cJSON_IsString(nm) || !nm->valuestring || !nm->valuestring[0] ||
+                strlen(nm->valuestring) >= sizeof f->group)
+                return fail(c, nm, key, "must be a non-empty string of at most %zu bytes",
+                            sizeof f->group - 1);
+            snprintf(f->group, sizeof f->group, "%s", nm->valuestring);
+        } else if (f->kind == HS_FIXED_SPHERE || f->kind == HS_FIXED_PATCH) {
+            const char* pkey = f->kind == HS_FIXED_SPHERE ? "center" : "point";
+            const char* const keys[] = {"type", pkey, "radius", NULL};
+            TRY(check_keys(c, r, path, keys));
+            TRY(get_vec3(c, r, path, pkey, 1e3, 1, f->point));
+            f->radius = -1.0;
+            TRY(get_num(c, r, path, "radius", 0.0, 10.0, 1, 0, &f->radius));
+            if (f->radius < 0.0) {
+                char key[64];
+                join(key, sizeof key, path, "radius");
+                return fail(c, r, key, "is required");
+            }
         } else {
             static const char* const keys[] = {"type", "axis", "side", "depth", NULL};
             TRY(check_keys(c, r, path, keys));
@@ -748,4 +773,86 @@ hs_status hs_scene_load(const char* path, hs_scene* out, hs_err* err) {
     }
     hs_free(text);
     return st;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Node selection of a fixed region (shared by the server and the tools).
+
+hs_status hs_scene_fixed_select(const hs_scene_fixed* f, const hs_mesh* m, unsigned char* sel,
+                                hs_err* err) {
+    if (!f || !m || !sel) return hs_err_set(err, HS_ERR_INVALID, "region, mesh or mask is NULL");
+    const int n = m->n_nodes;
+    memset(sel, 0, (size_t)n);
+    if (f->kind == HS_FIXED_PLANE) {
+        double l = sqrt(f->normal[0] * f->normal[0] + f->normal[1] * f->normal[1] +
+                        f->normal[2] * f->normal[2]);
+        for (int i = 0; i < n; ++i) {
+            const double* x = m->x0 + 3 * i;
+            double d = ((x[0] - f->point[0]) * f->normal[0] + (x[1] - f->point[1]) * f->normal[1] +
+                        (x[2] - f->point[2]) * f->normal[2]) /
+                       l;
+            sel[i] = d <= f->tolerance;
+        }
+    } else if (f->kind == HS_FIXED_BOX) {
+        hs_mesh_select_box(m, f->min, f->max, sel);
+    } else if (f->kind == HS_FIXED_BBOX_SIDE) {
+        hs_mesh_select_plane(m, f->axis, f->side, f->depth, sel);
+    } else if (f->kind == HS_FIXED_GROUP) {
+        const hs_mesh_region* g = hs_mesh_find_region(m, f->group);
+        if (!g) {
+            char list[256] = "";
+            for (int r = 0; r < m->n_regions; ++r) {
+                size_t len = strlen(list);
+                snprintf(list + len, sizeof list - len, "%s'%s' (dim %d)", r ? ", " : "",
+                         m->regions[r].name, m->regions[r].dim);
+            }
+            return hs_err_set(err, HS_ERR_INVALID, "no group '%s' in the mesh (%s%s)", f->group,
+                              m->n_regions ? "its groups: " : "it has no physical groups",
+                              list);
+        }
+        for (int i = 0; i < g->n_nodes; ++i) sel[g->nodes[i]] = 1;
+    } else if (f->kind == HS_FIXED_SPHERE) {
+        for (int i = 0; i < n; ++i) {
+            const double* x = m->x0 + 3 * i;
+            double d2 = 0;
+            for (int k = 0; k < 3; ++k) d2 += (x[k] - f->point[k]) * (x[k] - f->point[k]);
+            sel[i] = d2 <= f->radius * f->radius;
+        }
+    } else if (f->kind == HS_FIXED_PATCH) {
+        // Seed: the surface node nearest the point; grow over boundary triangles while within
+        // the radius, so a thin organ's far side is not taken along.
+        int seed = -1;
+        double best = INFINITY;
+        double* d = hs_alloc(((size_t)n + 1) * sizeof(double));
+        if (!d) return hs_err_set(err, HS_ERR_NOMEM, "out of memory");
+        for (int i = 0; i < n; ++i) {
+            const double* x = m->x0 + 3 * i;
+            d[i] = sqrt((x[0] - f->point[0]) * (x[0] - f->point[0]) +
+                        (x[1] - f->point[1]) * (x[1] - f->point[1]) +
+                        (x[2] - f->point[2]) * (x[2] - f->point[2]));
+            if (m->node_surf && m->node_surf[i] >= 0 && d[i] < best) {
+                best = d[i];
+                seed = i;
+            }
+        }
+        if (seed >= 0 && d[seed] <= f->radius) {
+            sel[seed] = 1;
+            for (int changed = 1; changed;) {
+                changed = 0;
+                for (int t = 0; t < m->n_tris; ++t) {
+                    const int* v = m->tris + 3 * t;
+                    if (!sel[v[0]] && !sel[v[1]] && !sel[v[2]]) continue;
+                    for (int k = 0; k < 3; ++k)
+                        if (!sel[v[k]] && d[v[k]] <= f->radius) {
+                            sel[v[k]] = 1;
+                            changed = 1;
+                        }
+                }
+            }
+        }
+        hs_free(d);
+    } else {
+        return hs_err_set(err, HS_ERR_INVALID, "unknown region kind %d", (int)f->kind);
+    }
+    return HS_OK;
 }
