@@ -1,0 +1,58 @@
+#!/bin/sh
+# hapsim-mesh end to end: a surface (the bundled liver's boundary, written as STL) becomes a
+# scene folder with `hapsim-mesh scene` (gmsh tets, a named group fixed), hapsim-server runs the
+# scene as it is, and hapsim-stylus runs the probe script it wrote: the touch finds the organ and
+# the press is felt. Inside a private network namespace (tests/netns.sh), ttl=0, own ports.
+#   tests/test_mesh_scene.sh BIN_DIR SOURCE_DIR
+# Exit 0 pass, 1 fail, 77 skipped. HS_KEEP=1 keeps the work folder.
+set -u
+bin=$1
+src=$2
+H='udpm://239.255.76.67:7877?ttl=0'
+M='udpm://239.255.76.67:7878?ttl=0'
+tmp=$(mktemp -d /tmp/hs_mesh_scene.XXXXXX)
+srv=
+cleanup() {
+    [ -n "$srv" ] && kill "$srv" 2>/dev/null
+    wait 2>/dev/null
+    [ "${keep:-0}" = 1 ] || rm -rf "$tmp"
+}
+trap cleanup EXIT
+[ "${HS_KEEP:-0}" = 1 ] && keep=1
+fail() { echo "FAIL: $*"; keep=1; echo "kept $tmp"; exit 1; }
+
+"$bin/hapsim-mesh" surface "$src/scenes/liver/liver2.msh" --out "$tmp/liver.stl" ||
+    fail "surface extraction"
+# The scene from the volume mesh (metres, like its surface).
+"$bin/hapsim-mesh" tet "$tmp/liver.stl" --units m --size 0.012 --out "$tmp/liver.msh" \
+    >"$tmp/tet.log" 2>&1 || fail "tet: $(cat "$tmp/tet.log")"
+"$bin/hapsim-mesh" scene "$tmp/liver.msh" --units m \
+    --group hilum:plane:0,-0.0433,0,0,1,0 --fix hilum --out "$tmp/organ" >"$tmp/scene.log" 2>&1 ||
+    fail "scene: $(cat "$tmp/scene.log")"
+cat "$tmp/scene.log"
+grep -q '"type": "group", "name": "hilum"' "$tmp/organ/scene.json" || fail "no group in the scene"
+
+"$bin/hapsim-server" "$tmp/organ/scene.json" --haptic-url "$H" --mesh-url "$M" \
+    >"$tmp/srv.log" 2>&1 &
+srv=$!
+i=0
+until grep -q "running;" "$tmp/srv.log"; do
+    i=$((i + 1))
+    [ $i -gt 150 ] && fail "server did not start: $(cat "$tmp/srv.log")"
+    kill -0 $srv 2>/dev/null || fail "server exited: $(cat "$tmp/srv.log")"
+    sleep 0.1
+done
+"$bin/hapsim-stylus" --script "$tmp/organ/probe.probe" --haptic-url "$H" \
+    --trace "$tmp/trace.csv" >"$tmp/sty.log" 2>&1 || fail "stylus rc $?: $(cat "$tmp/sty.log")"
+kill -TERM $srv
+wait $srv
+rc=$?
+srv=
+[ $rc = 0 ] || fail "server exit status $rc: $(tail -n 3 "$tmp/srv.log")"
+cat "$tmp/sty.log"
+found=$(sed -n 's/^# touches_found=//p' "$tmp/trace.csv")
+[ "$found" = 1 ] || fail "the touch did not find the organ (touches_found=$found)"
+steady=$(sed -n 's/^# steady_force_n=//p' "$tmp/trace.csv")
+echo "$steady" | tr ',' ' ' | awk '{ f = sqrt($1^2 + $2^2 + $3^2); printf "steady press force %.4g N\n", f; exit !(f > 0.01) }' ||
+    fail "the press is not felt (steady force $steady N)"
+echo "PASS"
