@@ -145,12 +145,41 @@ static int write_msh_tris(const hs_surface* s, const char* path) {
     return fclose(f) == 0;
 }
 
+// VTK XML unstructured grid, ASCII, as hapsim-view writes it: cells of k points and VTK type.
+static int write_vtu(const char* path, int n_pts, const double* x, int n_cells, const int* cells,
+                     int k, int type) {
+    FILE* f = fopen(path, "w");
+    if (!f) return 0;
+    fprintf(f, "<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"0.1\" "
+               "byte_order=\"LittleEndian\">\n<UnstructuredGrid>\n<Piece NumberOfPoints=\"%d\" "
+               "NumberOfCells=\"%d\">\n<PointData>\n<DataArray type=\"Float32\" Name=\"d\" "
+               "format=\"ascii\">\n",
+            n_pts, n_cells);
+    for (int i = 0; i < n_pts; ++i) fprintf(f, "0\n");
+    fprintf(f, "</DataArray>\n</PointData>\n<Points>\n<DataArray type=\"Float64\" "
+               "Name=\"Points\" NumberOfComponents=\"3\" format=\"ascii\">\n");
+    for (int i = 0; i < n_pts; ++i) fprintf(f, "%.17g %.17g %.17g\n", x[3 * i], x[3 * i + 1], x[3 * i + 2]);
+    fprintf(f, "</DataArray>\n</Points>\n<Cells>\n<DataArray type=\"Int32\" "
+               "Name=\"connectivity\" format=\"ascii\">\n");
+    for (int c = 0; c < n_cells; ++c) {
+        for (int j = 0; j < k; ++j) fprintf(f, "%d ", cells[k * c + j]);
+        fprintf(f, "\n");
+    }
+    fprintf(f, "</DataArray>\n<DataArray type=\"Int32\" Name=\"offsets\" format=\"ascii\">\n");
+    for (int c = 0; c < n_cells; ++c) fprintf(f, "%d\n", k * (c + 1));
+    fprintf(f, "</DataArray>\n<DataArray type=\"UInt8\" Name=\"types\" format=\"ascii\">\n");
+    for (int c = 0; c < n_cells; ++c) fprintf(f, "%d\n", type);
+    fprintf(f, "</DataArray>\n</Cells>\n</Piece>\n</UnstructuredGrid>\n</VTKFile>\n");
+    return fclose(f) == 0;
+}
+
 // Writes `s` as `name` in the format its extension says.
 static int write_as(const hs_surface* s, const char* name) {
     const char* path = tmp_path(name);
     if (strstr(name, "_ascii.stl")) return write_stl_ascii(s, path);
     if (strstr(name, "_bin.ply")) return write_ply_binary(s, path);
     if (strstr(name, ".msh")) return write_msh_tris(s, path);
+    if (strstr(name, ".vtu")) return write_vtu(path, s->n_verts, s->x, s->n_tris, s->tris, 3, 5);
     hs_err e = {0};
     return hs_surface_write(s, path, &e) == HS_OK;
 }
@@ -190,8 +219,8 @@ static int mesh_and_check(const char* path, double size, int keep_surface) {
     return 0;
 }
 
-static const char* const k_formats[] = {"_bin.stl", "_ascii.stl", ".obj",
-                                        ".ply",     "_bin.ply",   ".off", ".msh"};
+static const char* const k_formats[] = {"_bin.stl", "_ascii.stl", ".obj", ".ply",
+                                        "_bin.ply", ".off",       ".msh", ".vtu"};
 
 static int EveryFormatSphere(void) {
     int64_t before = hs_byte_count();
@@ -475,6 +504,34 @@ static int SceneFixedKinds(void) {
     return 0;
 }
 
+// A .vtu with tets reads as a volume mesh: the same tets as the .msh it came from.
+static int VtuVolume(void) {
+    int64_t before = hs_byte_count();
+    hs_mesh *m = NULL, *m2 = NULL;
+    hs_err e = {0};
+    ENSURE(hs_mesh_load(HS_SOURCE_DIR "/scenes/liver/liver2.msh", &m, &e) >= 0);
+    ENSURE(write_vtu(tmp_path("liver.vtu"), m->n_nodes, m->x0, m->n_tets, m->tets, 4, 10));
+    hs_status st = hs_mesh_load(tmp_path("liver.vtu"), &m2, &e);
+    if (st < 0) printf("  %s\n", e.msg);
+    ENSURE(st == HS_OK && m2->n_tets == m->n_tets && m2->n_nodes == m->n_nodes);
+    ENSURE_NEAR(m2->volume, m->volume, 1e-12 * m->volume);
+    hs_mesh_destroy(&m2);
+    // A surface-only .vtu (hapsim-view's) is not a volume: the message says what to do.
+    ENSURE(write_vtu(tmp_path("surf.vtu"), m->n_nodes, m->x0, m->n_tris, m->tris, 3, 5));
+    ENSURE(hs_mesh_load(tmp_path("surf.vtu"), &m2, &e) == HS_ERR_PARSE);
+    ENSURE(strstr(e.msg, "surf.vtu") && strstr(e.msg, "hapsim-mesh tet"));
+    // Binary data: refused, saying so.
+    const char* bin = "<VTKFile type=\"UnstructuredGrid\"><UnstructuredGrid><Piece "
+                      "NumberOfPoints=\"1\" NumberOfCells=\"0\"><Points><DataArray "
+                      "format=\"binary\">AAAA</DataArray></Points></Piece></UnstructuredGrid>"
+                      "</VTKFile>";
+    ENSURE(hs_mesh_parse("b.vtu", "vtu", bin, strlen(bin), &m2, &e) == HS_ERR_UNSUPPORTED);
+    ENSURE(strstr(e.msg, "b.vtu:1:") && strstr(e.msg, "ascii"));
+    hs_mesh_destroy(&m);
+    ENSURE(hs_byte_count() == before);
+    return 0;
+}
+
 static int Quality(void) {
     hs_mesh* m = NULL;
     hs_err e = {0};
@@ -508,7 +565,7 @@ int main(int argc, char** argv) {
     static const hs_test_case cases[] = {
         HS_CASE(EveryFormatSphere), HS_CASE(EveryFormatLiver), HS_CASE(BrokenSurfaces),
         HS_CASE(SelfIntersection),  HS_CASE(Repair),           HS_CASE(PhysicalGroups),
-        HS_CASE(SceneFixedKinds),   HS_CASE(Quality)};
+        HS_CASE(SceneFixedKinds),   HS_CASE(VtuVolume),        HS_CASE(Quality)};
     int rc = hs_test_main(argc, argv, cases, (int)(sizeof cases / sizeof cases[0]));
     if (rc == 0) {
         char cmd[128];

@@ -64,14 +64,15 @@ typedef struct hs_mesh {
 } hs_mesh;
 
 /// Read a mesh; the format is chosen by extension (.msh Gmsh 2.2/4.1 ASCII, .node/.ele TetGen
-/// (give either file), .vtk legacy ASCII unstructured grid). Validates and finalizes.
+/// (give either file), .vtk legacy ASCII unstructured grid, .vtu VTK XML unstructured grid with
+/// ASCII data arrays). Gmsh physical groups become regions. Validates and finalizes.
 /// On error returns NULL-filled *out, a negative status and err->msg naming file, line, problem.
 /// Returns HS_WARN_MESH_REPAIRED (> 0, mesh usable) when tets were reoriented or removed.
 /// @param out  OUT: new mesh, free with hs_mesh_destroy
 hs_status hs_mesh_load(const char* path, hs_mesh** out, hs_err* err);
 
 /// Parse from memory (for fuzzing and tests); `name` is used in error messages, `format` is
-/// "msh" or "vtk" (TetGen: hs_mesh_parse_tetgen). Status as hs_mesh_load.
+/// "msh", "vtk" or "vtu" (TetGen: hs_mesh_parse_tetgen). Status as hs_mesh_load.
 hs_status hs_mesh_parse(const char* name, const char* format, const char* data, size_t len,
                         hs_mesh** out, hs_err* err);
 /// Parse a TetGen pair held in memory; messages name `<name>.node` and `<name>.ele`.
@@ -125,11 +126,12 @@ hs_status hs_mesh_add_region(hs_mesh* mesh, const char* name, int dim, int tag, 
 /// names go to $PhysicalNames. hs_mesh_load reads it back with its regions.
 hs_status hs_mesh_write_msh(const hs_mesh* mesh, const char* path, hs_err* err);
 
-/// Read the triangles (element type 2) of a Gmsh MSH file (2.2 or 4.1 ASCII) held in memory:
-/// for surfaces. x [3*n_nodes] and tris [3*n_tris] (0-based) are hs_alloc'ed for the caller.
-hs_status hs_mesh_parse_msh_triangles(const char* name, const char* data, size_t len,
-                                      int* n_nodes, double** x, int* n_tris, int** tris,
-                                      hs_err* err);
+/// Read the triangles of a mesh file held in memory, for surfaces: `format` "msh" (element
+/// type 2, MSH 2.2 or 4.1 ASCII) or "vtu" (cell type 5). x [3*n_nodes] and tris [3*n_tris]
+/// (0-based) are hs_alloc'ed for the caller.
+hs_status hs_mesh_parse_triangles(const char* name, const char* format, const char* data,
+                                  size_t len, int* n_nodes, double** x, int* n_tris, int** tris,
+                                  hs_err* err);
 
 /// Release; accepts NULL and sets *mesh to NULL.
 void hs_mesh_destroy(hs_mesh** mesh);

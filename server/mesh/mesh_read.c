@@ -1254,6 +1254,299 @@ fail:
 }
 
 // ---------------------------------------------------------------------------------------------
+// VTK XML unstructured grid (.vtu), ASCII data arrays (as hapsim-view and ParaView's ASCII
+// option write). Only <Points> and <Cells> are read; binary and appended data are refused.
+
+// Next '<' tag from lx->p; sets name (after '<', up to blank, '>' or '/') and the tag's end.
+static int vtu_next_tag(lexer* lx, const char** tag, size_t* tag_len, const char** tag_end) {
+    for (;;) {
+        const char* lt = memchr(lx->p, '<', (size_t)(lx->end - lx->p));
+        if (!lt) return 0;
+        for (const char* c = lx->p; c < lt; ++c) lx->line += *c == '\n';
+        const char* gt = memchr(lt, '>', (size_t)(lx->end - lt));
+        if (!gt) return lx_fail(lx, lx->line, HS_ERR_PARSE, "unterminated tag");
+        lx->p = gt + 1;
+        for (const char* c = lt; c < gt; ++c) lx->line += *c == '\n';
+        if (lt + 1 < gt && (lt[1] == '?' || lt[1] == '!')) continue; // <?xml ?> and comments
+        const char* n = lt + 1;
+        const char* e = n;
+        while (e < gt && !is_blank(*e) && *e != '\n' && *e != '>' && *e != '/') ++e;
+        if (e == n && e < gt && *e == '/') { // closing tag: name after the slash
+            ++n;
+            e = n;
+            while (e < gt && !is_blank(*e) && *e != '\n' && *e != '>') ++e;
+            *tag = n - 1;
+            *tag_len = (size_t)(e - n + 1);
+        } else {
+            *tag = n;
+            *tag_len = (size_t)(e - n);
+        }
+        *tag_end = gt;
+        return 1;
+    }
+}
+
+// Attribute value of `key` inside [s, e) (a tag's text); 0 when absent.
+static int vtu_attr(const char* s, const char* e, const char* key, const char** v, size_t* n) {
+    size_t k = strlen(key);
+    for (const char* c = s; c + k + 2 <= e; ++c) {
+        if ((c == s || is_blank(c[-1]) || c[-1] == '\n') && memcmp(c, key, k) == 0 &&
+            c[k] == '=' && (c[k + 1] == '"' || c[k + 1] == '\'')) {
+            const char q = c[k + 1];
+            const char* b = c + k + 2;
+            const char* z = memchr(b, q, (size_t)(e - b));
+            if (!z) return 0;
+            *v = b;
+            *n = (size_t)(z - b);
+            return 1;
+        }
+    }
+    return 0;
+}
+
+static int span_is(const char* s, size_t n, const char* lit) {
+    return n == strlen(lit) && memcmp(s, lit, n) == 0;
+}
+
+typedef struct vtu_data {
+    long long n_pts, n_cells;
+    double* pts;     // [3 n_pts]
+    long long* conn; // connectivity
+    long long n_conn;
+    long long* offs; // [n_cells]
+    long long* types; // [n_cells]
+} vtu_data;
+
+static void vtu_free(vtu_data* d) {
+    hs_free(d->pts);
+    hs_free(d->conn);
+    hs_free(d->offs);
+    hs_free(d->types);
+    memset(d, 0, sizeof *d);
+}
+
+// Reads the numbers of a DataArray body (up to "</DataArray>") into a new array.
+static int vtu_numbers(lexer* lx, int as_int, long long max_n, const char* what, void** out,
+                       long long* count) {
+    const char* close = NULL;
+    for (const char* c = lx->p; c + 12 <= lx->end; ++c)
+        if (*c == '<') {
+            close = c;
+            break;
+        }
+    if (!close) return lx_fail(lx, lx->line, HS_ERR_PARSE, "%s: no </DataArray>", what);
+    lexer sub = *lx;
+    sub.end = close;
+    size_t cap = (size_t)(close - lx->p) / 2 + 1;
+    if ((long long)cap > max_n + 1) cap = (size_t)max_n + 1;
+    void* a = hs_alloc(cap * 8 + 8);
+    if (!a) return nomem(lx);
+    long long n = 0;
+    tok t;
+    char b[48];
+    while (tok_any(&sub, &t)) {
+        if (n >= max_n) {
+            hs_free(a);
+            return lx_fail(lx, t.line, HS_ERR_PARSE, "%s: more than %lld values", what, max_n);
+        }
+        int ok = as_int ? parse_ll(&t, (long long*)a + n)
+                        : parse_double(&t, (double*)a + n) && fabs(((double*)a)[n]) <= 1e30;
+        if (!ok) {
+            hs_free(a);
+            return lx_fail(lx, t.line, HS_ERR_PARSE, "%s: bad value '%s'", what,
+                           tok_text(&t, b));
+        }
+        ++n;
+    }
+    lx->line = sub.line;
+    lx->p = close;
+    *out = a;
+    *count = n;
+    return 1;
+}
+
+static int vtu_read(lexer* lx, vtu_data* d) {
+    const char *tag = NULL, *tend = NULL;
+    size_t tl = 0;
+    int in_points = 0, in_cells = 0, seen_vtk = 0, pieces = 0;
+    while (vtu_next_tag(lx, &tag, &tl, &tend)) {
+        if (span_is(tag, tl, "VTKFile")) {
+            const char* v;
+            size_t n;
+            if (!vtu_attr(tag, tend, "type", &v, &n) || !span_is(v, n, "UnstructuredGrid"))
+                return lx_fail(lx, lx->line, HS_ERR_UNSUPPORTED,
+                               "only VTKFile type=\"UnstructuredGrid\" is read");
+            if (vtu_attr(tag, tend, "compressor", &v, &n))
+                return lx_fail(lx, lx->line, HS_ERR_UNSUPPORTED,
+                               "compressed VTU not supported (save as ASCII)");
+            seen_vtk = 1;
+        } else if (span_is(tag, tl, "Piece")) {
+            if (++pieces > 1)
+                return lx_fail(lx, lx->line, HS_ERR_UNSUPPORTED, "more than one Piece");
+            const char *v1, *v2;
+            size_t n1, n2;
+            tok t1, t2;
+            if (!vtu_attr(tag, tend, "NumberOfPoints", &v1, &n1) ||
+                !vtu_attr(tag, tend, "NumberOfCells", &v2, &n2))
+                return lx_fail(lx, lx->line, HS_ERR_PARSE,
+                               "Piece needs NumberOfPoints and NumberOfCells");
+            t1 = (tok){v1, n1, lx->line};
+            t2 = (tok){v2, n2, lx->line};
+            if (!parse_ll(&t1, &d->n_pts) || !parse_ll(&t2, &d->n_cells) || d->n_pts < 0 ||
+                d->n_cells < 0 || d->n_pts > HS_MESH_MAX_COUNT || d->n_cells > HS_MESH_MAX_COUNT)
+                return lx_fail(lx, lx->line, HS_ERR_PARSE, "bad NumberOfPoints or NumberOfCells");
+        } else if (span_is(tag, tl, "Points") || span_is(tag, tl, "/Points")) {
+            in_points = tag[0] != '/';
+        } else if (span_is(tag, tl, "Cells") || span_is(tag, tl, "/Cells")) {
+            in_cells = tag[0] != '/';
+        } else if (span_is(tag, tl, "AppendedData")) {
+            return lx_fail(lx, lx->line, HS_ERR_UNSUPPORTED,
+                           "appended VTU data not supported (save as ASCII)");
+        } else if (span_is(tag, tl, "DataArray") && (in_points || in_cells)) {
+            if (!pieces) return lx_fail(lx, lx->line, HS_ERR_PARSE, "DataArray outside a Piece");
+            const char *v, *nm = "";
+            size_t n, nml = 0;
+            if (!vtu_attr(tag, tend, "format", &v, &n) || !span_is(v, n, "ascii"))
+                return lx_fail(lx, lx->line, HS_ERR_UNSUPPORTED,
+                               "DataArray format is not \"ascii\" (binary VTU not supported; "
+                               "save as ASCII)");
+            vtu_attr(tag, tend, "Name", &nm, &nml);
+            if (tend > tag && tend[-1] == '/') continue; // empty element
+            long long cnt;
+            void* a = NULL;
+            if (in_points) {
+                if (d->pts) return lx_fail(lx, lx->line, HS_ERR_PARSE, "second Points array");
+                if (!vtu_numbers(lx, 0, 3 * d->n_pts, "Points", &a, &cnt)) return 0;
+                d->pts = a;
+                if (cnt != 3 * d->n_pts)
+                    return lx_fail(lx, lx->line, HS_ERR_PARSE,
+                                   "Points has %lld values, NumberOfPoints %lld needs %lld", cnt,
+                                   d->n_pts, 3 * d->n_pts);
+            } else if (span_is(nm, nml, "connectivity")) {
+                if (d->conn) return lx_fail(lx, lx->line, HS_ERR_PARSE, "second connectivity");
+                if (!vtu_numbers(lx, 1, HS_MESH_MAX_COUNT, "connectivity", &a, &cnt)) return 0;
+                d->conn = a;
+                d->n_conn = cnt;
+            } else if (span_is(nm, nml, "offsets") || span_is(nm, nml, "types")) {
+                int offs = nm[0] == 'o';
+                if (offs ? d->offs != NULL : d->types != NULL)
+                    return lx_fail(lx, lx->line, HS_ERR_PARSE, "second %s array",
+                                   offs ? "offsets" : "types");
+                if (!vtu_numbers(lx, 1, d->n_cells, offs ? "offsets" : "types", &a, &cnt))
+                    return 0;
+                if (offs)
+                    d->offs = a;
+                else
+                    d->types = a;
+                if (cnt != d->n_cells)
+                    return lx_fail(lx, lx->line, HS_ERR_PARSE,
+                                   "%s has %lld values for %lld cells", offs ? "offsets" : "types",
+                                   cnt, d->n_cells);
+            }
+        }
+    }
+    if (lx->status) return 0;
+    if (!seen_vtk) return lx_fail(lx, lx->line, HS_ERR_PARSE, "not a VTK XML file (no <VTKFile>)");
+    if (!pieces) return lx_fail(lx, lx->line, HS_ERR_PARSE, "no <Piece>");
+    if (!d->pts || !d->conn || !d->offs || !d->types)
+        return lx_fail(lx, lx->line, HS_ERR_PARSE, "missing %s",
+                       !d->pts    ? "Points"
+                       : !d->conn ? "Cells connectivity"
+                       : !d->offs ? "Cells offsets"
+                                  : "Cells types");
+    long long prev = 0;
+    for (long long c = 0; c < d->n_cells; ++c) {
+        if (d->offs[c] < prev || d->offs[c] > d->n_conn)
+            return lx_fail(lx, lx->line, HS_ERR_PARSE, "cell %lld: offset %lld out of order", c,
+                           d->offs[c]);
+        prev = d->offs[c];
+    }
+    for (long long i = 0; i < d->n_conn; ++i)
+        if (d->conn[i] < 0 || d->conn[i] >= d->n_pts)
+            return lx_fail(lx, lx->line, HS_ERR_PARSE, "connectivity %lld: point %lld of %lld", i,
+                           d->conn[i], d->n_pts);
+    return 1;
+}
+
+// Cells of `type` with k points (10, 4: tets; 5, 3: triangles) into arrays of k ints each.
+static int vtu_cells(lexer* lx, const vtu_data* d, long long type, int k, int** out, int* n_out,
+                     int* skipped) {
+    int* a = hs_alloc(((size_t)d->n_cells * (size_t)k + 1) * sizeof(int));
+    if (!a) return nomem(lx);
+    int n = 0;
+    *skipped = 0;
+    for (long long c = 0; c < d->n_cells; ++c) {
+        long long b = c ? d->offs[c - 1] : 0;
+        if (d->types[c] != type) {
+            ++*skipped;
+            continue;
+        }
+        if (d->offs[c] - b != k) {
+            hs_free(a);
+            return lx_fail(lx, lx->line, HS_ERR_PARSE, "cell %lld of type %lld has %lld points",
+                           c, type, d->offs[c] - b);
+        }
+        for (int j = 0; j < k; ++j) a[(size_t)n * k + j] = (int)d->conn[b + j];
+        ++n;
+    }
+    *out = a;
+    *n_out = n;
+    return 1;
+}
+
+static hs_status parse_vtu(lexer* lx, hs_mesh** out, tri_out* to) {
+    vtu_data d = {0};
+    builder b = {.by_index = 1};
+    int* cells = NULL;
+    int n = 0, skipped = 0;
+    if (!vtu_read(lx, &d) || !vtu_cells(lx, &d, to ? 5 : 10, to ? 3 : 4, &cells, &n, &skipped))
+        goto fail;
+    if (to) {
+        if (n == 0) {
+            lx_fail(lx, lx->line, HS_ERR_PARSE, "no triangles (%d other cells)", skipped);
+            goto fail;
+        }
+        to->n_nodes = (int)d.n_pts;
+        to->x = d.pts;
+        to->n_tris = n;
+        to->tris = cells;
+        d.pts = NULL;
+        vtu_free(&d);
+        return HS_OK;
+    }
+    b.n_nodes = (int)d.n_pts;
+    b.x = d.pts;
+    d.pts = NULL;
+    b.tets = cells;
+    cells = NULL;
+    b.n_tets = n;
+    b.skipped = skipped;
+    b.tid = hs_alloc(((size_t)n + 1) * sizeof(long long));
+    b.tline = hs_alloc(((size_t)n + 1) * sizeof(int));
+    if (!b.tid || !b.tline) {
+        nomem(lx);
+        goto fail;
+    }
+    for (long long c = 0, k = 0; c < d.n_cells; ++c)
+        if (d.types[c] == 10) {
+            b.tid[k] = c;
+            b.tline[k++] = 0;
+        }
+    vtu_free(&d);
+    if (n == 0) {
+        lx_fail(lx, lx->line, HS_ERR_PARSE, "no tetrahedra (%d other cells: a surface? use it with hapsim-mesh tet)", skipped);
+        builder_free(&b);
+        return lx->status;
+    }
+    return builder_finish(lx, &b, out);
+fail:
+    hs_free(cells);
+    vtu_free(&d);
+    builder_free(&b);
+    return lx->status ? lx->status : HS_ERR_PARSE;
+}
+
+// ---------------------------------------------------------------------------------------------
 
 hs_status hs_mesh_parse(const char* name, const char* format, const char* data, size_t len,
                         hs_mesh** out, hs_err* err) {
@@ -1265,15 +1558,16 @@ hs_status hs_mesh_parse(const char* name, const char* format, const char* data, 
     lx_init(&lx, name, data, len, err);
     if (strcmp(format, "msh") == 0) return parse_msh(&lx, out, NULL);
     if (strcmp(format, "vtk") == 0) return parse_vtk(&lx, out);
+    if (strcmp(format, "vtu") == 0) return parse_vtu(&lx, out, NULL);
     return hs_err_set(err, HS_ERR_INVALID,
-                      "unknown mesh format '%.40s' (msh, vtk; TetGen via "
+                      "unknown mesh format '%.40s' (msh, vtk, vtu; TetGen via "
                       "hs_mesh_parse_tetgen)",
                       format);
 }
 
-hs_status hs_mesh_parse_msh_triangles(const char* name, const char* data, size_t len,
-                                      int* n_nodes, double** x, int* n_tris, int** tris,
-                                      hs_err* err) {
+hs_status hs_mesh_parse_triangles(const char* name, const char* format, const char* data,
+                                  size_t len, int* n_nodes, double** x, int* n_tris, int** tris,
+                                  hs_err* err) {
     if (!n_nodes || !x || !n_tris || !tris) return hs_err_set(err, HS_ERR_INVALID, "out is NULL");
     *n_nodes = *n_tris = 0;
     *x = NULL;
@@ -1282,7 +1576,9 @@ hs_status hs_mesh_parse_msh_triangles(const char* name, const char* data, size_t
     lexer lx;
     lx_init(&lx, name, data, len, err);
     tri_out to = {0};
-    hs_status st = parse_msh(&lx, NULL, &to);
+    if (!format || (strcmp(format, "msh") != 0 && strcmp(format, "vtu") != 0))
+        return hs_err_set(err, HS_ERR_INVALID, "triangles from msh or vtu only");
+    hs_status st = format[0] == 'm' ? parse_msh(&lx, NULL, &to) : parse_vtu(&lx, NULL, &to);
     if (st != HS_OK) return st;
     *n_nodes = to.n_nodes;
     *x = to.x;
@@ -1363,12 +1659,14 @@ hs_status hs_mesh_load(const char* path, hs_mesh** out, hs_err* err) {
     char* data = NULL;
     size_t len = 0;
     hs_status st;
-    if (has_ext(path, ".msh") || has_ext(path, ".vtk")) {
+    if (has_ext(path, ".msh") || has_ext(path, ".vtk") || has_ext(path, ".vtu")) {
         st = read_file(path, &data, &len, err);
         if (st != HS_OK) return st;
         lexer lx;
         lx_init(&lx, path, data, len, err);
-        st = has_ext(path, ".msh") ? parse_msh(&lx, out, NULL) : parse_vtk(&lx, out);
+        st = has_ext(path, ".msh")   ? parse_msh(&lx, out, NULL)
+             : has_ext(path, ".vtu") ? parse_vtu(&lx, out, NULL)
+                                     : parse_vtk(&lx, out);
         hs_free(data);
         return st;
     }
@@ -1394,5 +1692,5 @@ hs_status hs_mesh_load(const char* path, hs_mesh** out, hs_err* err) {
         return st;
     }
     return hs_err_set(err, HS_ERR_UNSUPPORTED,
-                      "%s: unknown mesh extension (.msh, .node/.ele, .vtk)", path);
+                      "%s: unknown mesh extension (.msh, .node/.ele, .vtk, .vtu; a surface (.stl, .obj, .ply, .off) becomes tets with hapsim-mesh tet)", path);
 }

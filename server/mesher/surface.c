@@ -750,23 +750,23 @@ hs_status hs_surface_from_mesh(const hs_mesh* m, hs_surface** out, hs_err* err) 
     return HS_OK;
 }
 
-hs_status hs_surface_parse_msh(const char* name, const char* data, size_t len, hs_surface** out,
-                               hs_err* err) {
+hs_status hs_surface_parse_mesh(const char* name, const char* format, const char* data,
+                                size_t len, hs_surface** out, hs_err* err) {
     *out = NULL;
     hs_surface* s = hs_calloc(1, sizeof *s);
     if (!s) return hs_err_set(err, HS_ERR_NOMEM, "%s: out of memory", name);
     hs_err e2 = {0};
-    hs_status st =
-        hs_mesh_parse_msh_triangles(name, data, len, &s->n_verts, &s->x, &s->n_tris, &s->tris, &e2);
+    hs_status st = hs_mesh_parse_triangles(name, format, data, len, &s->n_verts, &s->x,
+                                           &s->n_tris, &s->tris, &e2);
     if (st == HS_OK) {
         *out = s;
         return HS_OK;
     }
     hs_surface_destroy(&s);
     // A volume mesh without triangles: its boundary.
-    if (st == HS_ERR_PARSE && strstr(e2.msg, "no triangles (") && !strstr(e2.msg, "(0 tetra")) {
+    if (st == HS_ERR_PARSE && strstr(e2.msg, "no triangles (") && !strstr(e2.msg, "(0 ")) {
         hs_mesh* m = NULL;
-        st = hs_mesh_parse(name, "msh", data, len, &m, err);
+        st = hs_mesh_parse(name, format, data, len, &m, err);
         if (st < 0) return st;
         st = hs_surface_from_mesh(m, out, err);
         hs_mesh_destroy(&m);

@@ -680,7 +680,8 @@ hs_status hs_surface_parse(const char* name, const char* format, const char* dat
     r.end = r.p + (data ? len : 0);
     r.line = 1;
     r.err = err;
-    if (strcmp(format, "msh") == 0) return hs_surface_parse_msh(r.name, data, len, out, err);
+    if (strcmp(format, "msh") == 0 || strcmp(format, "vtu") == 0)
+        return hs_surface_parse_mesh(r.name, format, data, len, out, err);
     int ok;
     if (strcmp(format, "stl") == 0)
         ok = parse_stl(&r);
@@ -750,8 +751,8 @@ hs_status hs_surface_load(const char* path, hs_surface** out, hs_err* err) {
     if (!out) return hs_err_set(err, HS_ERR_INVALID, "out is NULL");
     *out = NULL;
     if (!path) return hs_err_set(err, HS_ERR_INVALID, "path is NULL");
-    static const char* const fmts[] = {"stl", "obj", "ply", "off", "msh"};
-    for (int i = 0; i < 5; ++i) {
+    static const char* const fmts[] = {"stl", "obj", "ply", "off", "msh", "vtu"};
+    for (int i = 0; i < 6; ++i) {
         char ext[8];
         snprintf(ext, sizeof ext, ".%s", fmts[i]);
         if (!has_ext(path, ext)) continue;
@@ -763,7 +764,7 @@ hs_status hs_surface_load(const char* path, hs_surface** out, hs_err* err) {
         hs_free(data);
         return st;
     }
-    if (has_ext(path, ".vtk") || has_ext(path, ".vtu") || has_ext(path, ".node") ||
+    if (has_ext(path, ".vtk") || has_ext(path, ".node") ||
         has_ext(path, ".ele")) {
         hs_mesh* m = NULL;
         hs_status st = hs_mesh_load(path, &m, err);
@@ -773,7 +774,7 @@ hs_status hs_surface_load(const char* path, hs_surface** out, hs_err* err) {
         return st;
     }
     return hs_err_set(err, HS_ERR_UNSUPPORTED,
-                      "%s: unknown surface extension (.stl, .obj, .ply, .off, .msh; volume "
-                      "meshes .vtk, .vtu, .node/.ele)",
+                      "%s: unknown surface extension (.stl, .obj, .ply, .off, .msh, .vtu; volume "
+                      "meshes .vtk, .node/.ele)",
                       path);
 }
