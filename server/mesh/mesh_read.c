@@ -863,6 +863,16 @@ static hs_status parse_msh(lexer* lx, hs_mesh** out, tri_out* to) {
             have_elems |= !nodes;
         } else if (tok_is(&t, "$PhysicalNames") || (version == 4 && tok_is(&t, "$Entities"))) {
             int names = tok_is(&t, "$PhysicalNames");
+            const char* end_tag = names ? "$EndPhysicalNames" : "$EndEntities";
+            size_t el = strlen(end_tag);
+            int found = 0;
+            for (const char* c = lx->p; !found && c + el <= lx->end; ++c)
+                found = *c == '$' && memcmp(c, end_tag, el) == 0;
+            if (!found) { // the same message as for a section that is skipped
+                lx_fail(lx, t.line, HS_ERR_PARSE, "section %.*s has no %s", (int)t.len, t.s,
+                        end_tag);
+                goto fail;
+            }
             if (!end_line(lx, names ? "$PhysicalNames" : "$Entities")) goto fail;
             if (!(names ? msh_physical_names(lx, &b) : msh_entities(lx, &b)) ||
                 !msh_section_end(lx, names ? "$EndPhysicalNames" : "$EndEntities"))
