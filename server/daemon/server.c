@@ -1787,6 +1787,12 @@ void hs_server_print_summary(hs_server* s) {
     printf("hapsim-server: scene '%s' (%s)\n", sc->name, sc->path);
     printf("  mesh     %s: %d nodes, %d tets, %d surface nodes, %d fixed\n", sc->mesh_path,
            m->n_nodes, m->n_tets, m->n_surf_nodes, w->n_fixed);
+    printf("  quality  smallest dihedral angle %.3g deg, worst aspect %.3g, mean %.3g (1 = "
+           "regular), %d piece(s)%s\n",
+           m->report.min_dihedral_deg, m->report.max_aspect, m->report.mean_aspect,
+           m->report.components,
+           m->report.min_dihedral_deg < 5 ? "; slivers: remesh with hapsim-mesh tet --size ..."
+                                          : "");
     printf("  model    %s, E %g Pa, nu %g, %g kg/m^3; deformation up to %g Hz\n",
            hs_scene_model_name(sc->model), sc->material.youngs_pa, sc->material.poisson,
            sc->material.density_kg_m3, sc->sim_hz);
