@@ -1,8 +1,8 @@
 #!/bin/sh
 # hapsim-mesh end to end: a surface (the bundled liver's boundary, written as STL) becomes a
 # scene folder with `hapsim-mesh scene` (gmsh tets, a named group fixed), hapsim-server runs the
-# scene as it is, and hapsim-stylus runs the probe script it wrote: the touch finds the organ and
-# the press is felt. Inside a private network namespace (tests/netns.sh), ttl=0, own ports.
+# scene as it is, and hapsim-stylus runs the probe scripts it wrote: the touch finds the organ,
+# the press is felt, and the cut script cuts (--cut: a scalpel, cutting on). Inside a private network namespace (tests/netns.sh), ttl=0, own ports.
 #   tests/test_mesh_scene.sh BIN_DIR SOURCE_DIR
 # Exit 0 pass, 1 fail, 77 skipped. HS_KEEP=1 keeps the work folder.
 set -u
@@ -27,7 +27,7 @@ fail() { echo "FAIL: $*"; keep=1; echo "kept $tmp"; exit 1; }
 "$bin/hapsim-mesh" tet "$tmp/liver.stl" --units m --size 0.012 --out "$tmp/liver.msh" \
     >"$tmp/tet.log" 2>&1 || fail "tet: $(cat "$tmp/tet.log")"
 "$bin/hapsim-mesh" scene "$tmp/liver.msh" --units m \
-    --group hilum:plane:0,-0.0433,0,0,1,0 --fix hilum --out "$tmp/organ" >"$tmp/scene.log" 2>&1 ||
+    --group hilum:plane:0,-0.0433,0,0,1,0 --fix hilum --cut --out "$tmp/organ" >"$tmp/scene.log" 2>&1 ||
     fail "scene: $(cat "$tmp/scene.log")"
 cat "$tmp/scene.log"
 grep -q '"type": "group", "name": "hilum"' "$tmp/organ/scene.json" || fail "no group in the scene"
@@ -44,6 +44,8 @@ until grep -q "running;" "$tmp/srv.log"; do
 done
 "$bin/hapsim-stylus" --script "$tmp/organ/probe.probe" --haptic-url "$H" \
     --trace "$tmp/trace.csv" >"$tmp/sty.log" 2>&1 || fail "stylus rc $?: $(cat "$tmp/sty.log")"
+"$bin/hapsim-stylus" --script "$tmp/organ/cut.probe" --haptic-url "$H" \
+    --trace "$tmp/cut.csv" >"$tmp/cut.log" 2>&1 || fail "stylus (cut) rc $?: $(cat "$tmp/cut.log")"
 kill -TERM $srv
 wait $srv
 rc=$?
@@ -55,4 +57,7 @@ found=$(sed -n 's/^# touches_found=//p' "$tmp/trace.csv")
 steady=$(sed -n 's/^# steady_force_n=//p' "$tmp/trace.csv")
 echo "$steady" | tr ',' ' ' | awk '{ f = sqrt($1^2 + $2^2 + $3^2); printf "steady press force %.4g N\n", f; exit !(f > 0.01) }' ||
     fail "the press is not felt (steady force $steady N)"
+steps=$(sed -n 's/^hapsim-server: \([0-9]*\) cut steps.*/\1/p' "$tmp/srv.log")
+echo "cut steps: $steps"
+[ -n "$steps" ] && [ "$steps" -gt 0 ] || fail "the cut script did not cut: $(tail -n 3 "$tmp/srv.log")"
 echo "PASS"

@@ -32,11 +32,12 @@ static const char* usage =
     "      N surface points (default 8) spread over the organ with their outward normals, and the\n"
     "      top-most point along --up (default +z), as probe-script lines (surface, touch).\n"
     "  scene SURFACE_OR_MESH [--size H] --units mm|m --fix REGION [--fix ...] --out DIR\n"
-    "        [--group ...] [--repair] [--youngs PA] [--probe-radius R] [--up X,Y,Z]\n"
+    "        [--group ...] [--repair] [--youngs PA] [--probe-radius R] [--up X,Y,Z] [--cut]\n"
     "      A scene folder: DIR/organ.msh, DIR/scene.json, DIR/probe.probe (press at the top-most\n"
     "      point along --up; default: away from the fixed region). REGION is a group name (of\n"
     "      the mesh or a --group), box:X0,Y0,Z0,X1,Y1,Z1, plane:PX,PY,PZ,NX,NY,NZ[,TOL],\n"
-    "      sphere:CX,CY,CZ,R, patch:PX,PY,PZ,R or bbox:x|y|z,min|max,DEPTH.\n"
+    "      sphere:CX,CY,CZ,R, patch:PX,PY,PZ,R or bbox:x|y|z,min|max,DEPTH. --cut adds a\n"
+    "      scalpel (20 mm blade), turns cutting on and writes DIR/cut.probe (a 20 mm cut).\n"
     "  surface MESH --out FILE.stl|.obj|.ply|.off [--units mm|m]\n"
     "      The boundary of a tet mesh as a surface.\n"
     "\n"
@@ -51,7 +52,7 @@ typedef struct opts {
     const char *cmd, *input, *out;
     double size;  // in units
     double units; // metres per unit; 0: not given
-    int repair, keep_surface, json, count, have_up, have_probe;
+    int repair, keep_surface, json, count, have_up, have_probe, cut;
     double probe_radius; // in units (converted when used)
     double up[3];
     double youngs;
@@ -650,7 +651,16 @@ static int cmd_scene(const opts* o) {
     for (int i = 0; i < o->n_fix; ++i)
         fprintf(f, "    %s%s\n", fixes[i], i + 1 < o->n_fix ? "," : "");
     fprintf(f, "  ],\n  \"gravity\": [0.0, 0.0, 0.0],\n");
-    fprintf(f, "  \"tools\": [ { \"kind\": \"probe\", \"radius\": %.6g } ],\n", r);
+    if (o->cut) // a 20 mm blade along the tool z axis, centred on the tool point
+        fprintf(f,
+                "  \"tools\": [ { \"kind\": \"probe\", \"radius\": %.6g },\n"
+                "             { \"kind\": \"scalpel\", \"blade_a\": [0.0, 0.0, -0.01], "
+                "\"blade_b\": [0.0, 0.0, 0.01] } ],\n"
+                "  \"features\": { \"haptics\": true, \"cutting\": true, \"visual_mesh\": true "
+                "},\n",
+                r);
+    else
+        fprintf(f, "  \"tools\": [ { \"kind\": \"probe\", \"radius\": %.6g } ],\n", r);
     fprintf(f, "  \"workspace\": { \"min\": [%.4f, %.4f, %.4f], \"max\": [%.4f, %.4f, %.4f] }\n}\n",
             lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]);
     int bad = ferror(f);
@@ -756,7 +766,7 @@ static int cmd_scene(const opts* o) {
     fprintf(f, "profile minjerk\n");
     fprintf(f, "move_to %.2f %.2f %.2f 20\n", a[0], a[1], a[2]);
     fprintf(f, "touch %.3f %.3f %.3f 20 5\n", p.n[0], p.n[1], p.n[2]);
-    fprintf(f, "hold 0.5\npress %.3f %.3f %.3f 5 5\nhold 3\nrelease 5 1\nhold 0.5\n", p.n[0],
+    fprintf(f, "hold 0.5\npress %.3f %.3f %.3f 5 5\nhold 2\nrelease 5 1\nhold 0.5\n", p.n[0],
             p.n[1], p.n[2]);
     fprintf(f, "move_to %.2f %.2f %.2f 20\n", s0[0], s0[1], s0[2]);
     bad = ferror(f);
@@ -766,6 +776,45 @@ static int cmd_scene(const opts* o) {
         hs_mesh_destroy(&m);
         return 1;
     }
+    if (o->cut) {
+        // Touch with the probe (button up), then hold the button and sweep the blade 20 mm
+        // along the surface with its axis on the normal: it reaches 5 mm into the tissue.
+        double t[3], ax[3] = {0, 0, 0};
+        int k = fabs(p.n[0]) < fabs(p.n[1]) ? (fabs(p.n[0]) < fabs(p.n[2]) ? 0 : 2)
+                                            : (fabs(p.n[1]) < fabs(p.n[2]) ? 1 : 2);
+        ax[k] = 1;
+        t[0] = p.n[1] * ax[2] - p.n[2] * ax[1];
+        t[1] = p.n[2] * ax[0] - p.n[0] * ax[2];
+        t[2] = p.n[0] * ax[1] - p.n[1] * ax[0];
+        double tl = sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2]);
+        snprintf(path, sizeof path, "%s/cut.probe", o->out);
+        f = fopen(path, "w");
+        if (!f) {
+            fprintf(stderr, "hapsim-mesh: %s: cannot write: %s\n", path, strerror(errno));
+            hs_mesh_destroy(&m);
+            return 1;
+        }
+        fprintf(f, "# Made by hapsim-mesh scene --cut: touch the organ where probe.probe presses, then\n"
+                   "# hold the button and draw the 20 mm blade 20 mm along the surface (5 mm deep),\n"
+                   "# then lift. Format: docs/stylus.md; cutting: docs/cutting.md.\n");
+        fprintf(f, "units mm\nsurface %.2f %.2f %.2f   %.3f %.3f %.3f\n", c[0], c[1], c[2], p.n[0],
+                p.n[1], p.n[2]);
+        fprintf(f, "origin %.2f %.2f %.2f\nstart %.2f %.2f %.2f\nprofile minjerk\n", c[0], c[1],
+                c[2], s0[0], s0[1], s0[2]);
+        fprintf(f, "move_to %.2f %.2f %.2f 20\n", a[0], a[1], a[2]);
+        fprintf(f, "touch %.3f %.3f %.3f 20 5\nhold 0.5\n", p.n[0], p.n[1], p.n[2]);
+        fprintf(f, "cut %.2f %.2f %.2f 10 %.3f %.3f %.3f\n", c[0] + 20 * t[0] / tl,
+                c[1] + 20 * t[1] / tl, c[2] + 20 * t[2] / tl, p.n[0], p.n[1], p.n[2]);
+        fprintf(f, "hold 0.5\nmove_to %.2f %.2f %.2f 20\n", s0[0] + 20 * t[0] / tl,
+                s0[1] + 20 * t[1] / tl, s0[2] + 20 * t[2] / tl);
+        bad = ferror(f);
+        bad |= fclose(f) != 0;
+        if (bad) {
+            fprintf(stderr, "hapsim-mesh: %s: write failed\n", path);
+            hs_mesh_destroy(&m);
+            return 1;
+        }
+    }
     print_quality(stdout, m, r);
     printf("fixed           %d of %d nodes\n", n_fixed, n_used);
     printf("probe point     node %d at (%.2f, %.2f, %.2f) mm\n", p.node, p.x[0] * 1e3,
@@ -773,6 +822,7 @@ static int cmd_scene(const opts* o) {
     printf("scene           %s/scene.json\n", o->out);
     printf("run             hapsim-server %s/scene.json\n", o->out);
     printf("                hapsim-stylus --script %s/probe.probe\n", o->out);
+    if (o->cut) printf("                hapsim-stylus --script %s/cut.probe\n", o->out);
     hs_mesh_destroy(&m);
     return 0;
 }
@@ -802,6 +852,9 @@ int main(int argc, char** argv) {
             takes = 0;
         } else if (!strcmp(a, "--json")) {
             o.json = 1;
+            takes = 0;
+        } else if (!strcmp(a, "--cut")) {
+            o.cut = 1;
             takes = 0;
         } else if (a[0] == '-' && a[1] == '-' && !v) {
             fprintf(stderr, "hapsim-mesh: %s needs a value\n", a);
