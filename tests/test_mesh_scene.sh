@@ -57,6 +57,15 @@ found=$(sed -n 's/^# touches_found=//p' "$tmp/trace.csv")
 steady=$(sed -n 's/^# steady_force_n=//p' "$tmp/trace.csv")
 echo "$steady" | tr ',' ' ' | awk '{ f = sqrt($1^2 + $2^2 + $3^2); printf "steady press force %.4g N\n", f; exit !(f > 0.01) }' ||
     fail "the press is not felt (steady force $steady N)"
+# The first force is felt within 1 mm of where hapsim-mesh said contact begins (the `surface`
+# line: the probe centre one radius out along the normal, mm).
+exp=$(sed -n 's/^surface \([^ ]*\) \([^ ]*\) \([^ ]*\) .*/\1 \2 \3/p' "$tmp/organ/probe.probe")
+awk -F, -v want="$exp" 'BEGIN { split(want, e, " ") }
+    NR > 1 && !/^#/ { if (sqrt($11^2 + $12^2 + $13^2) > 0) {
+        d = sqrt(($2 * 1e3 - e[1])^2 + ($3 * 1e3 - e[2])^2 + ($4 * 1e3 - e[3])^2)
+        printf "first force at %.2f %.2f %.2f mm, %.3f mm from the reported contact point\n", $2 * 1e3, $3 * 1e3, $4 * 1e3, d
+        found = 1; exit !(d <= 1.0) } }
+    END { if (!found) exit 1 }' "$tmp/trace.csv" || fail "first contact not within 1 mm of the reported point"
 steps=$(sed -n 's/^hapsim-server: \([0-9]*\) cut steps.*/\1/p' "$tmp/srv.log")
 echo "cut steps: $steps"
 [ -n "$steps" ] && [ "$steps" -gt 0 ] || fail "the cut script did not cut: $(tail -n 3 "$tmp/srv.log")"
