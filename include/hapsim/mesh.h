@@ -9,6 +9,8 @@
 extern "C" {
 #endif
 
+#define HS_MESH_REPORT_FIRST 4 ///< repaired elements named per kind in a report
+
 /// What loading and validation found (repair counts are those of the last finalize).
 typedef struct hs_mesh_report {
     int skipped_elements;    ///< non-tetrahedral elements in the file, skipped
@@ -20,6 +22,11 @@ typedef struct hs_mesh_report {
     double min_dihedral_deg; ///< quality: smallest dihedral angle
     double max_aspect;       ///< quality: largest (longest edge / inradius) / (2 sqrt 6)
     double mean_aspect;      ///< quality: mean of the same normalised ratio (1 = regular)
+    /// The first few repaired elements of each kind: element ids of the file for a loaded
+    /// mesh (VTK: cell index), else input tet indices (0-based); -1 past the last.
+    long long first_reoriented[HS_MESH_REPORT_FIRST];
+    long long first_degenerate[HS_MESH_REPORT_FIRST];
+    long long first_duplicate[HS_MESH_REPORT_FIRST];
 } hs_mesh_report;
 
 #define HS_MESH_REGION_NAME_MAX 64 ///< bytes for a region name, including the NUL

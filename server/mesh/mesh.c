@@ -433,11 +433,14 @@ static hs_status finalize(hs_mesh* m, hs_mesh_fault* fault, hs_err* err) {
 
     hs_mesh_report* r = &m->report;
     r->reoriented_tets = r->degenerate_tets = r->duplicate_tets = 0;
+    for (int k = 0; k < HS_MESH_REPORT_FIRST; ++k)
+        r->first_reoriented[k] = r->first_degenerate[k] = r->first_duplicate[k] = -1;
     for (int t = 0; t < m->n_tets; ++t) {
         int* tet = m->tets + 4 * t;
         double v = hs_tet_volume(m->x0, tet);
         keep[t] = fabs(v) > tiny;
         if (!keep[t]) {
+            if (r->degenerate_tets < HS_MESH_REPORT_FIRST) r->first_degenerate[r->degenerate_tets] = t;
             r->degenerate_tets++;
             continue;
         }
@@ -445,6 +448,7 @@ static hs_status finalize(hs_mesh* m, hs_mesh_fault* fault, hs_err* err) {
             int s = tet[1];
             tet[1] = tet[2];
             tet[2] = s;
+            if (r->reoriented_tets < HS_MESH_REPORT_FIRST) r->first_reoriented[r->reoriented_tets] = t;
             r->reoriented_tets++;
         }
     }
@@ -466,6 +470,8 @@ static hs_status finalize(hs_mesh* m, hs_mesh_fault* fault, hs_err* err) {
         for (int i = 1; i < n_b; ++i)
             if (memcmp(b[i].k, b[i - 1].k, sizeof b[i].k) == 0) {
                 keep[b[i].t] = 0; // the later tet of a duplicate run goes
+                if (r->duplicate_tets < HS_MESH_REPORT_FIRST)
+                    r->first_duplicate[r->duplicate_tets] = b[i].t;
                 r->duplicate_tets++;
             }
     }
@@ -1030,11 +1036,22 @@ void hs_mesh_report_str(const hs_mesh_report* r, char* buf, size_t cap) {
     buf[0] = '\0';
     if (!r) return;
     size_t n = 0;
-#define HS_REPORT_LINE(count, text)                                                                \
-    if ((count) > 0 && n < cap) n += (size_t)snprintf(buf + n, cap - n, "%d " text "\n", (count));
-    HS_REPORT_LINE(r->reoriented_tets, "tets reoriented (negative volume, two nodes swapped)")
-    HS_REPORT_LINE(r->degenerate_tets, "degenerate tets removed (zero volume or repeated node)")
-    HS_REPORT_LINE(r->duplicate_tets, "repeated tets removed (same four nodes as another)")
-    HS_REPORT_LINE(r->unreferenced_nodes, "nodes used by no tet (kept, not simulated)")
-#undef HS_REPORT_LINE
+    const int counts[4] = {r->reoriented_tets, r->degenerate_tets, r->duplicate_tets,
+                           r->unreferenced_nodes};
+    const long long* first[4] = {r->first_reoriented, r->first_degenerate, r->first_duplicate,
+                                 NULL};
+    static const char* const text[4] = {
+        "tets reoriented (negative volume, two nodes swapped)",
+        "degenerate tets removed (zero volume or repeated node)",
+        "repeated tets removed (same four nodes as another)",
+        "nodes used by no tet (kept, not simulated)"};
+    for (int k = 0; k < 4 && n < cap; ++k) {
+        if (counts[k] <= 0) continue;
+        n += (size_t)snprintf(buf + n, cap - n, "%d %s", counts[k], text[k]);
+        for (int j = 0; first[k] && j < HS_MESH_REPORT_FIRST && first[k][j] >= 0 && n < cap; ++j)
+            n += (size_t)snprintf(buf + n, cap - n, "%s%lld", j ? ", " : ": element ", first[k][j]);
+        if (first[k] && counts[k] > HS_MESH_REPORT_FIRST && n < cap)
+            n += (size_t)snprintf(buf + n, cap - n, ", ...");
+        if (n < cap) n += (size_t)snprintf(buf + n, cap - n, "\n");
+    }
 }

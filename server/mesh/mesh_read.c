@@ -509,6 +509,13 @@ static hs_status builder_finish(lexer* lx, builder* b, hs_mesh** out) {
             snprintf(lx->err->msg, sizeof lx->err->msg, "%s: %.400s", lx->name, msg);
         }
     }
+    if (st >= 0) { // repaired elements by their ids in the file
+        hs_mesh_report* r = &(*out)->report;
+        long long* lists[3] = {r->first_reoriented, r->first_degenerate, r->first_duplicate};
+        for (int k = 0; k < 3; ++k)
+            for (int j = 0; j < HS_MESH_REPORT_FIRST; ++j)
+                if (lists[k][j] >= 0 && lists[k][j] < b->n_tets) lists[k][j] = b->tid[lists[k][j]];
+    }
     if (st >= 0 && !build_regions(lx, b, *out)) {
         hs_mesh_destroy(out);
         st = HS_ERR_NOMEM;
