@@ -149,6 +149,7 @@ hs_status hs_mesher_tet(const hs_surface* s, const hs_mesher_def* def, hs_mesh**
     GMSH_TRY(gmshOptionSetNumber("General.NumThreads", 1, &ierr), "option");
     GMSH_TRY(gmshModelMeshGenerate(3, &ierr), "meshing");
 
+
     size_t n_nodes = 0, n_coord = 0, n_param = 0, n_et = 0, n_en = 0;
     GMSH_TRY(gmshModelMeshGetNodes(&node_tags, &n_nodes, &coord, &n_coord, &param, &n_param, -1,
                                    -1, 0, 0, &ierr),

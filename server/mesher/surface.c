@@ -528,7 +528,9 @@ static int count_crossings(const hs_surface* s, hs_surface_report* r) {
     bbox_diag(s, lo, hi);
     double mean = 0;
     for (int t = 0; t < n; ++t) mean += sqrt(2 * tri_area(s->x, s->tris + 3 * t));
-    double h = 2 * mean / n;
+    double e[3] = {hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]};
+    double h = fmax(2 * mean / n, 1e-9 * norm3(e));
+    if (!(h > 0) || !isfinite(h)) return 1; // all in one point: nothing can cross
     int dims[3];
     for (;;) {
         double cells = 1;

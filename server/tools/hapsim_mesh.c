@@ -303,6 +303,12 @@ static hs_mesh* make_tets(const opts* o) {
     fprintf(stderr,
             "hapsim-mesh: %d tets, %d nodes; volume %.6g m^3, %.3f %% from the surface's %.6g\n",
             m->n_tets, m->n_nodes, m->volume, 100 * (m->volume - vs) / vs, vs);
+    if (fabs(m->volume - vs) > 0.01 * vs)
+        fprintf(stderr,
+                "hapsim-mesh: warning: the tets' volume is %.1f %% off the surface's: the size "
+                "is coarse for the surface's curvature (thin or curved parts); a smaller --size, "
+                "or --keep-surface to keep the input triangles\n",
+                100 * (m->volume - vs) / vs);
     for (int g = 0; g < o->n_groups; ++g)
         if (!add_group(m, o->groups[g], o->units, g + 1)) {
             hs_mesh_destroy(&m);
