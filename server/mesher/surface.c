@@ -573,7 +573,7 @@ static int count_crossings(const hs_surface* s, hs_surface_report* r) {
                     ++total;
                 }
     }
-    int* cell_tris = hs_alloc((total + 1) * sizeof(int));
+    int* cell_tris = total < 0x7fffffff ? hs_alloc((total + 1) * sizeof(int)) : NULL;
     if (!cell_tris) {
         hs_free(range);
         hs_free(start);
