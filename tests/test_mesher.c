@@ -38,8 +38,8 @@ static int write_file(const char* path, const void* data, size_t len) {
 // Icosphere of radius r: the icosahedron split `level` times, pushed onto the sphere.
 static hs_surface* icosphere(double r, int level) {
     const double t = (1 + sqrt(5.0)) / 2;
-    double v0[12][3] = {{-1, t, 0}, {1, t, 0}, {-1, -t, 0}, {1, -t, 0}, {0, -1, t}, {0, 1, t},
-                        {0, -1, -t}, {0, 1, -t}, {t, 0, -1}, {t, 0, 1}, {-t, 0, -1}, {-t, 0, 1}};
+    double v0[12][3] = {{-1, t, 0},  {1, t, 0},  {-1, -t, 0}, {1, -t, 0}, {0, -1, t},  {0, 1, t},
+                        {0, -1, -t}, {0, 1, -t}, {t, 0, -1},  {t, 0, 1},  {-t, 0, -1}, {-t, 0, 1}};
     int f0[20][3] = {{0, 11, 5}, {0, 5, 1},  {0, 1, 7},   {0, 7, 10}, {0, 10, 11},
                      {1, 5, 9},  {5, 11, 4}, {11, 10, 2}, {10, 7, 6}, {7, 1, 8},
                      {3, 9, 4},  {3, 4, 2},  {3, 2, 6},   {3, 6, 8},  {3, 8, 9},
@@ -150,15 +150,17 @@ static int write_vtu(const char* path, int n_pts, const double* x, int n_cells, 
                      int k, int type) {
     FILE* f = fopen(path, "w");
     if (!f) return 0;
-    fprintf(f, "<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"0.1\" "
-               "byte_order=\"LittleEndian\">\n<UnstructuredGrid>\n<Piece NumberOfPoints=\"%d\" "
-               "NumberOfCells=\"%d\">\n<PointData>\n<DataArray type=\"Float32\" Name=\"d\" "
-               "format=\"ascii\">\n",
+    fprintf(f,
+            "<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"0.1\" "
+            "byte_order=\"LittleEndian\">\n<UnstructuredGrid>\n<Piece NumberOfPoints=\"%d\" "
+            "NumberOfCells=\"%d\">\n<PointData>\n<DataArray type=\"Float32\" Name=\"d\" "
+            "format=\"ascii\">\n",
             n_pts, n_cells);
     for (int i = 0; i < n_pts; ++i) fprintf(f, "0\n");
     fprintf(f, "</DataArray>\n</PointData>\n<Points>\n<DataArray type=\"Float64\" "
                "Name=\"Points\" NumberOfComponents=\"3\" format=\"ascii\">\n");
-    for (int i = 0; i < n_pts; ++i) fprintf(f, "%.17g %.17g %.17g\n", x[3 * i], x[3 * i + 1], x[3 * i + 2]);
+    for (int i = 0; i < n_pts; ++i)
+        fprintf(f, "%.17g %.17g %.17g\n", x[3 * i], x[3 * i + 1], x[3 * i + 2]);
     fprintf(f, "</DataArray>\n</Points>\n<Cells>\n<DataArray type=\"Int32\" "
                "Name=\"connectivity\" format=\"ascii\">\n");
     for (int c = 0; c < n_cells; ++c) {
@@ -279,7 +281,8 @@ static int expect_fail(const char* name, const void* data, size_t len, const cha
 static int BrokenSurfaces(void) {
     int64_t before = hs_byte_count();
     // Tetrahedron surfaces as OBJ text.
-    const char* tet_obj = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n";
+    const char* tet_obj =
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n";
     ENSURE(expect_fail("open.obj", tet_obj, strlen(tet_obj) - 8, "open surface") == 0);
     ENSURE(expect_fail("open2.obj", tet_obj, strlen(tet_obj) - 8, "boundary edges") == 0);
     const char* nan_obj = "v 0 0 0\nv 1 0 nan\nv 0 1 0\nv 0 0 1\nf 1 3 2\n";
@@ -302,9 +305,8 @@ static int BrokenSurfaces(void) {
                        "endloop\nendfacet\nendsolid x\n";
     ENSURE(expect_fail("two.stl", stl2, strlen(stl2), "has 2 vertices, not 3") == 0);
     // Two tetrahedra sharing one edge: not a manifold.
-    const char* nm =
-        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nv 0 -1 0\nv 0 0 -1\n"
-        "f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\nf 1 2 5\nf 1 6 2\nf 1 5 6\nf 2 6 5\n";
+    const char* nm = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nv 0 -1 0\nv 0 0 -1\n"
+                     "f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\nf 1 2 5\nf 1 6 2\nf 1 5 6\nf 2 6 5\n";
     ENSURE(expect_fail("nonmanifold.obj", nm, strlen(nm), "not a manifold") == 0);
     // Two spheres in one file: two pieces, refused without --repair.
     hs_surface* a = icosphere(1.0, 1);
@@ -353,7 +355,8 @@ static int SelfIntersection(void) {
     hs_err e = {0};
     hs_status st = hs_surface_clean(s, "folded", &cd, &rep, &e);
     printf("  folded sphere -> %s\n", e.msg);
-    ENSURE(st == HS_ERR_INVALID && strstr(e.msg, "self-intersecting") && rep.self_intersections > 0);
+    ENSURE(st == HS_ERR_INVALID && strstr(e.msg, "self-intersecting") &&
+           rep.self_intersections > 0);
     hs_surface_destroy(&s);
     ENSURE(hs_byte_count() == before);
     return 0;

@@ -26,8 +26,7 @@ hs_mesher_def hs_mesher_default_def(void);
 /// Tetrahedralise a closed surface (run hs_surface_clean first). The mesh is in the surface's
 /// units; its nodes are the tets' nodes only. Errors carry gmsh's last message.
 /// Thread: any (serialised) | Allocates: yes | Blocks: for the meshing
-hs_status hs_mesher_tet(const hs_surface* s, const hs_mesher_def* def, hs_mesh** out,
-                        hs_err* err);
+hs_status hs_mesher_tet(const hs_surface* s, const hs_mesher_def* def, hs_mesh** out, hs_err* err);
 
 /// gmsh's version string ("4.8.4").
 const char* hs_mesher_gmsh_version(void);

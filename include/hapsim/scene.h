@@ -44,7 +44,7 @@ typedef struct hs_scene_fixed {
     double depth;     ///< m, BBOX_SIDE: slab thickness measured from that side
     double radius;    ///< m, SPHERE / PATCH: around point
     char group[HS_MESH_REGION_NAME_MAX]; ///< GROUP: region name (or its tag in decimal)
-    int line;         ///< line of the region in the scene file (for messages; 0 if unknown)
+    int line; ///< line of the region in the scene file (for messages; 0 if unknown)
 } hs_scene_fixed;
 
 typedef enum hs_tool_kind {

@@ -48,21 +48,21 @@ void hs_surface_destroy(hs_surface** s);
 
 /// What hs_surface_clean found and changed.
 typedef struct hs_surface_report {
-    int merged_vertices;   ///< exact duplicates merged on reading (STL stores each corner)
-    int unused_vertices;   ///< vertices no triangle uses (dropped)
-    int degenerate_tris;   ///< repeated vertex or zero area (removed with repair)
-    int duplicate_tris;    ///< same three vertices as an earlier triangle (removed with repair)
-    int flipped_tris;      ///< turned to agree with their neighbours / to face outward
-    int boundary_edges;    ///< edges of one triangle (holes), after repair
-    int nonmanifold_edges; ///< edges of more than two triangles
-    int holes_closed;      ///< repair: holes filled (a fan around their centre)
-    int hole_tris_added;   ///< repair: triangles those fans added
-    int pieces;            ///< connected pieces before repair
-    int pieces_dropped;    ///< repair: pieces other than the largest, removed
-    int self_intersections; ///< pairs of triangles that cross (not sharing a vertex)
-    double where[3];       ///< a point at the first problem found (file units)
-    double area;           ///< surface area
-    double volume;         ///< enclosed volume (divergence theorem; closed surfaces)
+    int merged_vertices;       ///< exact duplicates merged on reading (STL stores each corner)
+    int unused_vertices;       ///< vertices no triangle uses (dropped)
+    int degenerate_tris;       ///< repeated vertex or zero area (removed with repair)
+    int duplicate_tris;        ///< same three vertices as an earlier triangle (removed with repair)
+    int flipped_tris;          ///< turned to agree with their neighbours / to face outward
+    int boundary_edges;        ///< edges of one triangle (holes), after repair
+    int nonmanifold_edges;     ///< edges of more than two triangles
+    int holes_closed;          ///< repair: holes filled (a fan around their centre)
+    int hole_tris_added;       ///< repair: triangles those fans added
+    int pieces;                ///< connected pieces before repair
+    int pieces_dropped;        ///< repair: pieces other than the largest, removed
+    int self_intersections;    ///< pairs of triangles that cross (not sharing a vertex)
+    double where[3];           ///< a point at the first problem found (file units)
+    double area;               ///< surface area
+    double volume;             ///< enclosed volume (divergence theorem; closed surfaces)
     double edge_min, edge_max; ///< shortest and longest edge
     double bbox_min[3], bbox_max[3];
 } hs_surface_report;
@@ -97,14 +97,14 @@ void hs_surface_report_str(const hs_surface_report* r, char* buf, size_t cap);
 typedef struct hs_mesh_quality {
     int n_nodes, n_tets, n_tris;
     double bbox_min[3], bbox_max[3];
-    double volume, area;          ///< sum of tet volumes; boundary area
-    double min_dihedral_deg;      ///< smallest dihedral angle over all tets
-    double max_dihedral_deg;      ///< largest
-    int below_5deg, below_10deg;  ///< tets with some dihedral angle below 5 / 10 degrees
-    double min_radius_ratio;      ///< 3 inradius / circumradius (1 regular, 0 flat)
+    double volume, area;         ///< sum of tet volumes; boundary area
+    double min_dihedral_deg;     ///< smallest dihedral angle over all tets
+    double max_dihedral_deg;     ///< largest
+    int below_5deg, below_10deg; ///< tets with some dihedral angle below 5 / 10 degrees
+    double min_radius_ratio;     ///< 3 inradius / circumradius (1 regular, 0 flat)
     double mean_radius_ratio;
-    int ratio_hist[HS_QUALITY_BINS]; ///< tets with radius ratio in [i/10, (i+1)/10)
-    int pieces;                   ///< connected pieces (tets sharing a node)
+    int ratio_hist[HS_QUALITY_BINS];     ///< tets with radius ratio in [i/10, (i+1)/10)
+    int pieces;                          ///< connected pieces (tets sharing a node)
     double surf_edge_min, surf_edge_max; ///< boundary edge lengths
 } hs_mesh_quality;
 

@@ -440,7 +440,8 @@ static hs_status finalize(hs_mesh* m, hs_mesh_fault* fault, hs_err* err) {
         double v = hs_tet_volume(m->x0, tet);
         keep[t] = fabs(v) > tiny;
         if (!keep[t]) {
-            if (r->degenerate_tets < HS_MESH_REPORT_FIRST) r->first_degenerate[r->degenerate_tets] = t;
+            if (r->degenerate_tets < HS_MESH_REPORT_FIRST)
+                r->first_degenerate[r->degenerate_tets] = t;
             r->degenerate_tets++;
             continue;
         }
@@ -448,7 +449,8 @@ static hs_status finalize(hs_mesh* m, hs_mesh_fault* fault, hs_err* err) {
             int s = tet[1];
             tet[1] = tet[2];
             tet[2] = s;
-            if (r->reoriented_tets < HS_MESH_REPORT_FIRST) r->first_reoriented[r->reoriented_tets] = t;
+            if (r->reoriented_tets < HS_MESH_REPORT_FIRST)
+                r->first_reoriented[r->reoriented_tets] = t;
             r->reoriented_tets++;
         }
     }
@@ -1004,8 +1006,8 @@ const hs_mesh_region* hs_mesh_find_region(const hs_mesh* m, const char* name) {
 
 hs_status hs_mesh_add_region(hs_mesh* m, const char* name, int dim, int tag, int n_nodes,
                              const int* nodes, hs_err* err) {
-    if (!m || !name || !name[0] || strlen(name) >= HS_MESH_REGION_NAME_MAX || dim < 0 ||
-        dim > 3 || n_nodes < 0 || (n_nodes && !nodes))
+    if (!m || !name || !name[0] || strlen(name) >= HS_MESH_REGION_NAME_MAX || dim < 0 || dim > 3 ||
+        n_nodes < 0 || (n_nodes && !nodes))
         return hs_err_set(err, HS_ERR_INVALID, "region: bad name, dimension or node list");
     for (int i = 0; i < n_nodes; ++i)
         if (nodes[i] < 0 || nodes[i] >= m->n_nodes)
@@ -1040,11 +1042,10 @@ void hs_mesh_report_str(const hs_mesh_report* r, char* buf, size_t cap) {
                            r->unreferenced_nodes};
     const long long* first[4] = {r->first_reoriented, r->first_degenerate, r->first_duplicate,
                                  NULL};
-    static const char* const text[4] = {
-        "tets reoriented (negative volume, two nodes swapped)",
-        "degenerate tets removed (zero volume or repeated node)",
-        "repeated tets removed (same four nodes as another)",
-        "nodes used by no tet (kept, not simulated)"};
+    static const char* const text[4] = {"tets reoriented (negative volume, two nodes swapped)",
+                                        "degenerate tets removed (zero volume or repeated node)",
+                                        "repeated tets removed (same four nodes as another)",
+                                        "nodes used by no tet (kept, not simulated)"};
     for (int k = 0; k < 4 && n < cap; ++k) {
         if (counts[k] <= 0) continue;
         n += (size_t)snprintf(buf + n, cap - n, "%d %s", counts[k], text[k]);

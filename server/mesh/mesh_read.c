@@ -727,7 +727,8 @@ static int msh_physical_names(lexer* lx, builder* b) {
             if ((unsigned char)s0[k] < 0x20)
                 return lx_fail(lx, line, HS_ERR_PARSE, "control byte in a physical name");
         if (!end_line(lx, "a physical name")) return 0;
-        if (!grow((void**)&b->names, &b->cap_names, b->n_names, sizeof(phys_name))) return nomem(lx);
+        if (!grow((void**)&b->names, &b->cap_names, b->n_names, sizeof(phys_name)))
+            return nomem(lx);
         phys_name* pn = &b->names[b->n_names++];
         pn->dim = (int)dim;
         pn->tag = (int)tag;
@@ -1307,8 +1308,8 @@ static int vtu_next_tag(lexer* lx, const char** tag, size_t* tag_len, const char
 static int vtu_attr(const char* s, const char* e, const char* key, const char** v, size_t* n) {
     size_t k = strlen(key);
     for (const char* c = s; c + k + 2 <= e; ++c) {
-        if ((c == s || is_blank(c[-1]) || c[-1] == '\n') && memcmp(c, key, k) == 0 &&
-            c[k] == '=' && (c[k + 1] == '"' || c[k + 1] == '\'')) {
+        if ((c == s || is_blank(c[-1]) || c[-1] == '\n') && memcmp(c, key, k) == 0 && c[k] == '=' &&
+            (c[k + 1] == '"' || c[k + 1] == '\'')) {
             const char q = c[k + 1];
             const char* b = c + k + 2;
             const char* z = memchr(b, q, (size_t)(e - b));
@@ -1330,7 +1331,7 @@ typedef struct vtu_data {
     double* pts;     // [3 n_pts]
     long long* conn; // connectivity
     long long n_conn;
-    long long* offs; // [n_cells]
+    long long* offs;  // [n_cells]
     long long* types; // [n_cells]
 } vtu_data;
 
@@ -1370,8 +1371,7 @@ static int vtu_numbers(lexer* lx, int as_int, long long max_n, const char* what,
                         : parse_double(&t, (double*)a + n) && fabs(((double*)a)[n]) <= 1e30;
         if (!ok) {
             hs_free(a);
-            return lx_fail(lx, t.line, HS_ERR_PARSE, "%s: bad value '%s'", what,
-                           tok_text(&t, b));
+            return lx_fail(lx, t.line, HS_ERR_PARSE, "%s: bad value '%s'", what, tok_text(&t, b));
         }
         ++n;
     }
@@ -1449,16 +1449,14 @@ static int vtu_read(lexer* lx, vtu_data* d) {
                 if (offs ? d->offs != NULL : d->types != NULL)
                     return lx_fail(lx, lx->line, HS_ERR_PARSE, "second %s array",
                                    offs ? "offsets" : "types");
-                if (!vtu_numbers(lx, 1, d->n_cells, offs ? "offsets" : "types", &a, &cnt))
-                    return 0;
+                if (!vtu_numbers(lx, 1, d->n_cells, offs ? "offsets" : "types", &a, &cnt)) return 0;
                 if (offs)
                     d->offs = a;
                 else
                     d->types = a;
                 if (cnt != d->n_cells)
-                    return lx_fail(lx, lx->line, HS_ERR_PARSE,
-                                   "%s has %lld values for %lld cells", offs ? "offsets" : "types",
-                                   cnt, d->n_cells);
+                    return lx_fail(lx, lx->line, HS_ERR_PARSE, "%s has %lld values for %lld cells",
+                                   offs ? "offsets" : "types", cnt, d->n_cells);
             }
         }
     }
@@ -1500,8 +1498,8 @@ static int vtu_cells(lexer* lx, const vtu_data* d, long long type, int k, int** 
         }
         if (d->offs[c] - b != k) {
             hs_free(a);
-            return lx_fail(lx, lx->line, HS_ERR_PARSE, "cell %lld of type %lld has %lld points",
-                           c, type, d->offs[c] - b);
+            return lx_fail(lx, lx->line, HS_ERR_PARSE, "cell %lld of type %lld has %lld points", c,
+                           type, d->offs[c] - b);
         }
         for (int j = 0; j < k; ++j) a[(size_t)n * k + j] = (int)d->conn[b + j];
         ++n;
@@ -1551,7 +1549,8 @@ static hs_status parse_vtu(lexer* lx, hs_mesh** out, tri_out* to) {
         }
     vtu_free(&d);
     if (n == 0) {
-        lx_fail(lx, lx->line, HS_ERR_PARSE, "no tetrahedra (%d other cells: a surface? use it with hapsim-mesh tet)", skipped);
+        lx_fail(lx, lx->line, HS_ERR_PARSE,
+                "no tetrahedra (%d other cells: a surface? use it with hapsim-mesh tet)", skipped);
         builder_free(&b);
         return lx->status;
     }
@@ -1709,5 +1708,7 @@ hs_status hs_mesh_load(const char* path, hs_mesh** out, hs_err* err) {
         return st;
     }
     return hs_err_set(err, HS_ERR_UNSUPPORTED,
-                      "%s: unknown mesh extension (.msh, .node/.ele, .vtk, .vtu; a surface (.stl, .obj, .ply, .off) becomes tets with hapsim-mesh tet)", path);
+                      "%s: unknown mesh extension (.msh, .node/.ele, .vtk, .vtu; a surface (.stl, "
+                      ".obj, .ply, .off) becomes tets with hapsim-mesh tet)",
+                      path);
 }

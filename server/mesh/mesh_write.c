@@ -57,8 +57,8 @@ hs_status hs_mesh_write_msh(const hs_mesh* m, const char* path, hs_err* err) {
         if (g->dim == 2) {
             for (int t = 0; t < m->n_tris; ++t)
                 if (has_all(g, m->tris + 3 * t, 3))
-                    fprintf(f, "%lld 2 2 %d %d %d %d %d\n", id++, g->tag, r + 1,
-                            m->tris[3 * t] + 1, m->tris[3 * t + 1] + 1, m->tris[3 * t + 2] + 1);
+                    fprintf(f, "%lld 2 2 %d %d %d %d %d\n", id++, g->tag, r + 1, m->tris[3 * t] + 1,
+                            m->tris[3 * t + 1] + 1, m->tris[3 * t + 2] + 1);
         } else if (g->dim < 2) { // points and curves: their nodes, as point elements
             for (int i = 0; i < g->n_nodes; ++i)
                 fprintf(f, "%lld 15 2 %d %d %d\n", id++, g->tag, r + 1, g->nodes[i] + 1);

@@ -16,8 +16,8 @@
 static pthread_mutex_t g_gmsh_lock = PTHREAD_MUTEX_INITIALIZER;
 
 hs_mesher_def hs_mesher_default_def(void) {
-    return (hs_mesher_def){.size = 0, .keep_surface = 0, .feature_angle_deg = 40, .optimize = 1,
-                           .verbose = 0};
+    return (hs_mesher_def){
+        .size = 0, .keep_surface = 0, .feature_angle_deg = 40, .optimize = 1, .verbose = 0};
 }
 
 const char* hs_mesher_gmsh_version(void) {
@@ -57,8 +57,7 @@ static hs_status gmsh_fail(hs_err* err, const char* step) {
         }                                                                                          \
     } while (0)
 
-hs_status hs_mesher_tet(const hs_surface* s, const hs_mesher_def* def, hs_mesh** out,
-                        hs_err* err) {
+hs_status hs_mesher_tet(const hs_surface* s, const hs_mesher_def* def, hs_mesh** out, hs_err* err) {
     if (!out) return hs_err_set(err, HS_ERR_INVALID, "out is NULL");
     *out = NULL;
     if (!s || !def || s->n_tris < 4 || s->n_verts < 4)
@@ -149,14 +148,13 @@ hs_status hs_mesher_tet(const hs_surface* s, const hs_mesher_def* def, hs_mesh**
     GMSH_TRY(gmshOptionSetNumber("General.NumThreads", 1, &ierr), "option");
     GMSH_TRY(gmshModelMeshGenerate(3, &ierr), "meshing");
 
-
     size_t n_nodes = 0, n_coord = 0, n_param = 0, n_et = 0, n_en = 0;
-    GMSH_TRY(gmshModelMeshGetNodes(&node_tags, &n_nodes, &coord, &n_coord, &param, &n_param, -1,
-                                   -1, 0, 0, &ierr),
+    GMSH_TRY(gmshModelMeshGetNodes(&node_tags, &n_nodes, &coord, &n_coord, &param, &n_param, -1, -1,
+                                   0, 0, &ierr),
              "nodes");
-    GMSH_TRY(gmshModelMeshGetElementsByType(4, &elem_tags, &n_et, &elem_nodes, &n_en, -1, 0, 1,
-                                            &ierr),
-             "tetrahedra");
+    GMSH_TRY(
+        gmshModelMeshGetElementsByType(4, &elem_tags, &n_et, &elem_nodes, &n_en, -1, 0, 1, &ierr),
+        "tetrahedra");
     if (n_et == 0 || n_en != 4 * n_et) {
         st = hs_err_set(err, HS_ERR_INVALID, "gmsh made no tetrahedra (is the surface closed?)");
         goto done;

@@ -176,8 +176,8 @@ static int drop_bad_tris(hs_surface* s, const char* name, int repair, hs_surface
     int first_bad = -1, first_dup = -1;
     for (int t = 0; t < s->n_tris; ++t) {
         const int* v = s->tris + 3 * t;
-        keep[t] = !(v[0] == v[1] || v[1] == v[2] || v[0] == v[2] ||
-                    !(tri_area(s->x, v) > min_area));
+        keep[t] =
+            !(v[0] == v[1] || v[1] == v[2] || v[0] == v[2] || !(tri_area(s->x, v) > min_area));
         if (!keep[t]) {
             ++r->degenerate_tris;
             if (first_bad < 0) first_bad = t;
@@ -215,8 +215,7 @@ static int drop_bad_tris(hs_surface* s, const char* name, int repair, hs_surface
 
 // Orients every piece consistently (BFS through edges of two triangles). 0 on a surface that
 // cannot be oriented (a Moebius strip) or no memory.
-static int orient_consistently(hs_surface* s, const char* name, hs_surface_report* r,
-                               hs_err* err) {
+static int orient_consistently(hs_surface* s, const char* name, hs_surface_report* r, hs_err* err) {
     edge_use* E;
     int* pos;
     if (!build_edges(s, &E, &pos)) {
@@ -752,14 +751,14 @@ hs_status hs_surface_from_mesh(const hs_mesh* m, hs_surface** out, hs_err* err) 
     return HS_OK;
 }
 
-hs_status hs_surface_parse_mesh(const char* name, const char* format, const char* data,
-                                size_t len, hs_surface** out, hs_err* err) {
+hs_status hs_surface_parse_mesh(const char* name, const char* format, const char* data, size_t len,
+                                hs_surface** out, hs_err* err) {
     *out = NULL;
     hs_surface* s = hs_calloc(1, sizeof *s);
     if (!s) return hs_err_set(err, HS_ERR_NOMEM, "%s: out of memory", name);
     hs_err e2 = {0};
-    hs_status st = hs_mesh_parse_triangles(name, format, data, len, &s->n_verts, &s->x,
-                                           &s->n_tris, &s->tris, &e2);
+    hs_status st = hs_mesh_parse_triangles(name, format, data, len, &s->n_verts, &s->x, &s->n_tris,
+                                           &s->tris, &e2);
     if (st == HS_OK) {
         *out = s;
         return HS_OK;
@@ -808,9 +807,11 @@ static int ends_with(const char* path, const char* ext) {
 
 hs_status hs_surface_write(const hs_surface* s, const char* path, hs_err* err) {
     if (!s || !path) return hs_err_set(err, HS_ERR_INVALID, "surface or path is NULL");
-    int fmt = ends_with(path, ".stl") ? 0 : ends_with(path, ".obj") ? 1 : ends_with(path, ".ply") ? 2
-            : ends_with(path, ".off")                                  ? 3
-                                                                       : -1;
+    int fmt = ends_with(path, ".stl")   ? 0
+              : ends_with(path, ".obj") ? 1
+              : ends_with(path, ".ply") ? 2
+              : ends_with(path, ".off") ? 3
+                                        : -1;
     if (fmt < 0)
         return hs_err_set(err, HS_ERR_UNSUPPORTED, "%s: write .stl, .obj, .ply or .off", path);
     FILE* f = fopen(path, fmt == 0 ? "wb" : "w");

@@ -13,7 +13,7 @@
 #include <string.h>
 
 #define HS_SURFACE_MAX_FILE_BYTES ((size_t)512 << 20)
-#define HS_SURFACE_MAX_COUNT (0x7fffffff / 16)
+#define HS_SURFACE_MAX_COUNT      (0x7fffffff / 16)
 
 typedef struct rd {
     const char* name;
@@ -200,8 +200,8 @@ static int need_int(rd* r, int any, long long lo, long long hi, const char* what
 static int check_count(rd* r, long long n, size_t min_bytes, const char* what) {
     size_t left = (size_t)(r->end - r->p);
     if (n < 0 || (unsigned long long)n > left / min_bytes + 1 || n > HS_SURFACE_MAX_COUNT)
-        return rd_fail(r, r->line, "%s count %lld does not fit in the %zu bytes that follow",
-                       what, n, left);
+        return rd_fail(r, r->line, "%s count %lld does not fit in the %zu bytes that follow", what,
+                       n, left);
     return 1;
 }
 
@@ -238,8 +238,8 @@ static int stl_binary(rd* r) {
                        n, 84ull + 50ull * n, len);
     if (n == 0) return rd_fail(r, 0, "binary STL with no triangles");
     if (len != 84 + 50 * (size_t)n)
-        return rd_fail(r, 0, "binary STL of %u triangles should be %zu bytes, the file has %zu",
-                       n, 84 + 50 * (size_t)n, len);
+        return rd_fail(r, 0, "binary STL of %u triangles should be %zu bytes, the file has %zu", n,
+                       84 + 50 * (size_t)n, len);
     for (uint32_t i = 0; i < n; ++i) {
         const unsigned char* f = d + 84 + 50 * (size_t)i;
         for (int c = 0; c < 3; ++c) {
@@ -247,8 +247,8 @@ static int stl_binary(rd* r) {
             for (int k = 0; k < 3; ++k) v[k] = lef32(f + 12 + 12 * c + 4 * k);
             if (!isfinite(v[0]) || !isfinite(v[1]) || !isfinite(v[2]))
                 return rd_fail(r, 0, "byte %zu: triangle %u, corner %d is not finite (%g, %g, %g)",
-                               84 + 50 * (size_t)i + 12 + 12 * (size_t)c, i + 1, c + 1, v[0],
-                               v[1], v[2]);
+                               84 + 50 * (size_t)i + 12 + 12 * (size_t)c, i + 1, c + 1, v[0], v[1],
+                               v[2]);
             if (!add_vert(r, v, 0)) return 0;
         }
         if (!add_tri(r, r->n_verts - 3, r->n_verts - 2, r->n_verts - 1, 0)) return 0;
@@ -415,7 +415,7 @@ static int parse_off(rd* r) {
 enum { PLY_MAX_PROPS = 32, PLY_MAX_ELEMS = 16 };
 
 typedef struct ply_prop {
-    int type;      // scalar type (1..8 below), the list's item type when is_list
+    int type;       // scalar type (1..8 below), the list's item type when is_list
     int count_type; // list: type of the count
     int is_list;
     int role; // 0 other, 1 x, 2 y, 3 z, 4 face indices
@@ -430,10 +430,9 @@ typedef struct ply_elem {
 
 // char uchar short ushort int uint float double (and int8 .. float64 aliases).
 static int ply_type(const tk* t) {
-    static const char* const names[] = {"char",  "uchar",  "short",   "ushort",  "int",
-                                        "uint",  "float",  "double",  "int8",    "uint8",
-                                        "int16", "uint16", "int32",   "uint32",  "float32",
-                                        "float64"};
+    static const char* const names[] = {"char",  "uchar",  "short",   "ushort", "int",   "uint",
+                                        "float", "double", "int8",    "uint8",  "int16", "uint16",
+                                        "int32", "uint32", "float32", "float64"};
     for (int i = 0; i < 16; ++i)
         if (tok_eq(t, names[i])) return i % 8 + 1;
     return 0;
@@ -446,14 +445,40 @@ static double ply_bin_value(const unsigned char* p, int type, int big) {
     int n = k_ply_size[type];
     for (int i = 0; i < n; ++i) b[i] = big ? p[n - 1 - i] : p[i];
     switch (type) {
-    case 1: return (double)(int8_t)b[0];
-    case 2: return (double)b[0];
-    case 3: { int16_t v; memcpy(&v, b, 2); return v; }
-    case 4: { uint16_t v; memcpy(&v, b, 2); return v; }
-    case 5: { int32_t v; memcpy(&v, b, 4); return v; }
-    case 6: { uint32_t v; memcpy(&v, b, 4); return v; }
-    case 7: { float v; memcpy(&v, b, 4); return v; }
-    default: { double v; memcpy(&v, b, 8); return v; }
+    case 1:
+        return (double)(int8_t)b[0];
+    case 2:
+        return (double)b[0];
+    case 3: {
+        int16_t v;
+        memcpy(&v, b, 2);
+        return v;
+    }
+    case 4: {
+        uint16_t v;
+        memcpy(&v, b, 2);
+        return v;
+    }
+    case 5: {
+        int32_t v;
+        memcpy(&v, b, 4);
+        return v;
+    }
+    case 6: {
+        uint32_t v;
+        memcpy(&v, b, 4);
+        return v;
+    }
+    case 7: {
+        float v;
+        memcpy(&v, b, 4);
+        return v;
+    }
+    default: {
+        double v;
+        memcpy(&v, b, 8);
+        return v;
+    }
     }
 }
 
@@ -462,8 +487,8 @@ static int ply_value(rd* r, int binary, int big, int type, double* v, const char
     if (!binary) return need_double(r, 1, what, v);
     size_t n = (size_t)k_ply_size[type];
     if ((size_t)(r->end - r->p) < n)
-        return rd_fail(r, 0, "byte %zu: file ends in the binary data (%s)",
-                       (size_t)(r->end - r->p), what);
+        return rd_fail(r, 0, "byte %zu: file ends in the binary data (%s)", (size_t)(r->end - r->p),
+                       what);
     *v = ply_bin_value((const unsigned char*)r->p, type, big);
     r->p += n;
     return 1;
@@ -573,8 +598,8 @@ static int parse_ply(rd* r) {
                     if (p->role == 4) {
                         if (!(v >= 0 && v < (double)nv_total && v == floor(v)))
                             return rd_fail(r, binary ? 0 : r->line,
-                                           "face %lld: vertex index %g not in [0, %lld)", j + 1,
-                                           v, nv_total);
+                                           "face %lld: vertex index %g not in [0, %lld)", j + 1, v,
+                                           nv_total);
                         poly[k_poly++] = (int)v;
                     }
                 }
@@ -764,8 +789,7 @@ hs_status hs_surface_load(const char* path, hs_surface** out, hs_err* err) {
         hs_free(data);
         return st;
     }
-    if (has_ext(path, ".vtk") || has_ext(path, ".node") ||
-        has_ext(path, ".ele")) {
+    if (has_ext(path, ".vtk") || has_ext(path, ".node") || has_ext(path, ".ele")) {
         hs_mesh* m = NULL;
         hs_status st = hs_mesh_load(path, &m, err);
         if (st < 0) return st;

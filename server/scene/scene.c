@@ -362,8 +362,8 @@ static hs_status parse_fixed(const ctx* c, const cJSON* root, hs_scene* s) {
         hs_scene_fixed* f = &s->fixed[i];
         memset(f, 0, sizeof *f);
         f->line = item_line(c, r);
-        static const char* const kinds[] = {"plane", "box", "bbox_side", "group", "sphere",
-                                            "patch"};
+        static const char* const kinds[] = {"plane", "box",    "bbox_side",
+                                            "group", "sphere", "patch"};
         int k = 0;
         TRY(get_enum(c, r, path, "type", kinds, 6, 1, &k));
         f->kind = (hs_fixed_kind)k;
@@ -807,8 +807,7 @@ hs_status hs_scene_fixed_select(const hs_scene_fixed* f, const hs_mesh* m, unsig
                          m->regions[r].name, m->regions[r].dim);
             }
             return hs_err_set(err, HS_ERR_INVALID, "no group '%s' in the mesh (%s%s)", f->group,
-                              m->n_regions ? "its groups: " : "it has no physical groups",
-                              list);
+                              m->n_regions ? "its groups: " : "it has no physical groups", list);
         }
         for (int i = 0; i < g->n_nodes; ++i) sel[g->nodes[i]] = 1;
     } else if (f->kind == HS_FIXED_SPHERE) {

@@ -374,8 +374,8 @@ static int cmd_info(const opts* o) {
     hs_mesh_quality q;
     hs_mesh_quality_compute(m, &q);
     printf("{\n  \"file\": \"%s\",\n  \"units\": \"m\",\n", o->input);
-    printf("  \"nodes\": %d,\n  \"tets\": %d,\n  \"surface_triangles\": %d,\n", q.n_nodes,
-           q.n_tets, q.n_tris);
+    printf("  \"nodes\": %d,\n  \"tets\": %d,\n  \"surface_triangles\": %d,\n", q.n_nodes, q.n_tets,
+           q.n_tris);
     printf("  \"bbox_min\": [%.9g, %.9g, %.9g],\n  \"bbox_max\": [%.9g, %.9g, %.9g],\n",
            q.bbox_min[0], q.bbox_min[1], q.bbox_min[2], q.bbox_max[0], q.bbox_max[1],
            q.bbox_max[2]);
@@ -383,8 +383,8 @@ static int cmd_info(const opts* o) {
     printf("  \"min_dihedral_deg\": %.6g,\n  \"max_dihedral_deg\": %.6g,\n", q.min_dihedral_deg,
            q.max_dihedral_deg);
     printf("  \"below_5deg\": %d,\n  \"below_10deg\": %d,\n", q.below_5deg, q.below_10deg);
-    printf("  \"min_radius_ratio\": %.6g,\n  \"mean_radius_ratio\": %.6g,\n",
-           q.min_radius_ratio, q.mean_radius_ratio);
+    printf("  \"min_radius_ratio\": %.6g,\n  \"mean_radius_ratio\": %.6g,\n", q.min_radius_ratio,
+           q.mean_radius_ratio);
     printf("  \"radius_ratio_hist\": [");
     for (int i = 0; i < HS_QUALITY_BINS; ++i) printf("%s%d", i ? ", " : "", q.ratio_hist[i]);
     printf("],\n  \"pieces\": %d,\n", q.pieces);
@@ -464,7 +464,8 @@ static int spread_points(const hs_mesh* m, const probe_pt* top, int count, probe
 
 static void print_probe_lines(FILE* f, const probe_pt* p, double r, const char* label) {
     // In mm: the scripts the stylus takes read best at organ scale.
-    fprintf(f, "# %s: surface node %d at (%.2f, %.2f, %.2f) mm, outward normal (%.3f, %.3f, %.3f)\n",
+    fprintf(f,
+            "# %s: surface node %d at (%.2f, %.2f, %.2f) mm, outward normal (%.3f, %.3f, %.3f)\n",
             label, p->node, p->x[0] * 1e3, p->x[1] * 1e3, p->x[2] * 1e3, p->n[0], p->n[1], p->n[2]);
     fprintf(f, "surface %.2f %.2f %.2f   %.3f %.3f %.3f\n", (p->x[0] + r * p->n[0]) * 1e3,
             (p->x[1] + r * p->n[1]) * 1e3, (p->x[2] + r * p->n[2]) * 1e3, p->n[0], p->n[1],
@@ -499,9 +500,10 @@ static int cmd_points(const opts* o) {
                top.node, top.x[0], top.x[1], top.x[2], top.n[0], top.n[1], top.n[2]);
         printf("  \"points\": [\n");
         for (int i = 0; i < got; ++i)
-            printf("    {\"node\": %d, \"x\": [%.9g, %.9g, %.9g], \"normal\": [%.6g, %.6g, %.6g]}%s\n",
-                   pts[i].node, pts[i].x[0], pts[i].x[1], pts[i].x[2], pts[i].n[0], pts[i].n[1],
-                   pts[i].n[2], i + 1 < got ? "," : "");
+            printf(
+                "    {\"node\": %d, \"x\": [%.9g, %.9g, %.9g], \"normal\": [%.6g, %.6g, %.6g]}%s\n",
+                pts[i].node, pts[i].x[0], pts[i].x[1], pts[i].x[2], pts[i].n[0], pts[i].n[1],
+                pts[i].n[2], i + 1 < got ? "," : "");
         printf("  ]\n}\n");
     } else {
         printf("# hapsim-mesh points %s: probe-script lines (docs/stylus.md), mm; 'surface' is\n"
@@ -566,8 +568,7 @@ static int fix_json(const char* spec, double u, char* buf, size_t cap) {
     } else if (strncmp(spec, "sphere:", 7) == 0 || strncmp(spec, "patch:", 6) == 0) {
         int sphere = spec[1] == 'p';
         if (parse_list(spec + (sphere ? 7 : 6), v, 4, 4) < 0) return 0;
-        snprintf(buf, cap,
-                 "{ \"type\": \"%s\", \"%s\": [%.9g, %.9g, %.9g], \"radius\": %.9g }",
+        snprintf(buf, cap, "{ \"type\": \"%s\", \"%s\": [%.9g, %.9g, %.9g], \"radius\": %.9g }",
                  sphere ? "sphere" : "patch", sphere ? "center" : "point", v[0] * u, v[1] * u,
                  v[2] * u, v[3] * u);
     } else if (strncmp(spec, "bbox:", 5) == 0) {
@@ -577,7 +578,8 @@ static int fix_json(const char* spec, double u, char* buf, size_t cap) {
             (strncmp(side, "min,", 4) != 0 && strncmp(side, "max,", 4) != 0) ||
             parse_list(side + 4, v, 1, 1) < 0)
             return 0;
-        snprintf(buf, cap, "{ \"type\": \"bbox_side\", \"axis\": \"%c\", \"side\": \"%.3s\", "
+        snprintf(buf, cap,
+                 "{ \"type\": \"bbox_side\", \"axis\": \"%c\", \"side\": \"%.3s\", "
                  "\"depth\": %.9g }",
                  axis, side, v[0] * u);
     } else {
@@ -603,8 +605,7 @@ static int cmd_scene(const opts* o) {
     hs_mesh* m = NULL;
     if (is_surface_ext(o->input) || o->size > 0) {
         if (!(o->size > 0)) {
-            fprintf(stderr, "hapsim-mesh scene: %s is a surface: --size H is required\n",
-                    o->input);
+            fprintf(stderr, "hapsim-mesh scene: %s is a surface: --size H is required\n", o->input);
             return 2;
         }
         m = make_tets(o);
@@ -650,8 +651,9 @@ static int cmd_scene(const opts* o) {
             "surroundings). Schema: docs/scenes.md\",\n",
             o->input, o->youngs);
     fprintf(f, "  \"name\": \"organ\",\n  \"mesh\": \"organ.msh\",\n  \"units_scale\": 1.0,\n");
-    fprintf(f, "  \"material\": { \"youngs_pa\": %g, \"poisson\": 0.45, \"density_kg_m3\": 1060, "
-               "\"rayleigh_mass\": 0.5, \"rayleigh_stiffness\": 0.01 },\n",
+    fprintf(f,
+            "  \"material\": { \"youngs_pa\": %g, \"poisson\": 0.45, \"density_kg_m3\": 1060, "
+            "\"rayleigh_mass\": 0.5, \"rayleigh_stiffness\": 0.01 },\n",
             o->youngs);
     fprintf(f, "  \"model\": { \"type\": \"corotated\" },\n  \"fixed\": [\n");
     for (int i = 0; i < o->n_fix; ++i)
@@ -755,14 +757,16 @@ static int cmd_scene(const opts* o) {
     }
     double c[3], s0[3], a[3];
     for (int d = 0; d < 3; ++d) {
-        c[d] = (p.x[d] + r * p.n[d]) * 1e3;  // contact begins (sphere centre), mm
-        s0[d] = c[d] + 15 * p.n[d];          // start 15 mm out
-        a[d] = c[d] + 10 * p.n[d];           // approach 10 mm out
+        c[d] = (p.x[d] + r * p.n[d]) * 1e3; // contact begins (sphere centre), mm
+        s0[d] = c[d] + 15 * p.n[d];         // start 15 mm out
+        a[d] = c[d] + 10 * p.n[d];          // approach 10 mm out
     }
-    fprintf(f, "# Made by hapsim-mesh scene: touch the organ at its top-most point away from the\n"
-               "# fixed region, press 5 mm along the normal, hold, release. Format: docs/stylus.md.\n");
-    fprintf(f, "# Press point: surface node %d at (%.2f, %.2f, %.2f) mm, outward normal "
-               "(%.3f, %.3f, %.3f).\n",
+    fprintf(
+        f, "# Made by hapsim-mesh scene: touch the organ at its top-most point away from the\n"
+           "# fixed region, press 5 mm along the normal, hold, release. Format: docs/stylus.md.\n");
+    fprintf(f,
+            "# Press point: surface node %d at (%.2f, %.2f, %.2f) mm, outward normal "
+            "(%.3f, %.3f, %.3f).\n",
             p.node, p.x[0] * 1e3, p.x[1] * 1e3, p.x[2] * 1e3, p.n[0], p.n[1], p.n[2]);
     fprintf(f, "units mm\n");
     fprintf(f, "surface %.2f %.2f %.2f   %.3f %.3f %.3f\n", c[0], c[1], c[2], p.n[0], p.n[1],
@@ -800,9 +804,11 @@ static int cmd_scene(const opts* o) {
             hs_mesh_destroy(&m);
             return 1;
         }
-        fprintf(f, "# Made by hapsim-mesh scene --cut: touch the organ where probe.probe presses, then\n"
-                   "# hold the button and draw the 20 mm blade 20 mm along the surface (5 mm deep),\n"
-                   "# then lift. Format: docs/stylus.md; cutting: docs/cutting.md.\n");
+        fprintf(
+            f,
+            "# Made by hapsim-mesh scene --cut: touch the organ where probe.probe presses, then\n"
+            "# hold the button and draw the 20 mm blade 20 mm along the surface (5 mm deep),\n"
+            "# then lift. Format: docs/stylus.md; cutting: docs/cutting.md.\n");
         fprintf(f, "units mm\nsurface %.2f %.2f %.2f   %.3f %.3f %.3f\n", c[0], c[1], c[2], p.n[0],
                 p.n[1], p.n[2]);
         fprintf(f, "origin %.2f %.2f %.2f\nstart %.2f %.2f %.2f\nprofile minjerk\n", c[0], c[1],
@@ -823,8 +829,8 @@ static int cmd_scene(const opts* o) {
     }
     print_quality(stdout, m, r);
     printf("fixed           %d of %d nodes\n", n_fixed, n_used);
-    printf("probe point     node %d at (%.2f, %.2f, %.2f) mm\n", p.node, p.x[0] * 1e3,
-           p.x[1] * 1e3, p.x[2] * 1e3);
+    printf("probe point     node %d at (%.2f, %.2f, %.2f) mm\n", p.node, p.x[0] * 1e3, p.x[1] * 1e3,
+           p.x[2] * 1e3);
     printf("scene           %s/scene.json\n", o->out);
     printf("run             hapsim-server %s/scene.json\n", o->out);
     printf("                hapsim-stylus --script %s/probe.probe\n", o->out);
