@@ -495,6 +495,22 @@ static int SceneFixedKinds(void) {
     ENSURE(hs_scene_fixed_select(&f, m, sel, &e) == HS_ERR_INVALID);
     ENSURE(strstr(e.msg, "no group 'hilus'") && strstr(e.msg, "'hilum' (dim 2)"));
     hs_mesh_destroy(&m);
+    // A node list beside the scene: 0-based indices, comments, commas.
+    const char* list = "# the apex\n2, 4 # and one more\n";
+    ENSURE(write_file(tmp_path("fixed.txt"), list, strlen(list)));
+    const char* nl = "{ \"mesh\": \"g.msh\", \"fixed\": [ {\"type\": \"nodes\", \"file\": "
+                     "\"fixed.txt\"} ] }";
+    ENSURE(write_file(tmp_path("n.json"), nl, strlen(nl)));
+    ENSURE(hs_scene_load(tmp_path("n.json"), &sc, &e) == HS_OK &&
+           sc.fixed[0].kind == HS_FIXED_NODES);
+    ENSURE(strcmp(sc.fixed[0].file, tmp_path("fixed.txt")) == 0);
+    ENSURE(hs_mesh_load(sc.mesh_path, &m, &e) >= 0);
+    ENSURE(hs_scene_fixed_select(&sc.fixed[0], m, sel, &e) == HS_OK);
+    ENSURE(!sel[0] && !sel[1] && sel[2] && !sel[3] && sel[4]);
+    ENSURE(write_file(tmp_path("fixed.txt"), "1\n5\n", 4));
+    ENSURE(hs_scene_fixed_select(&sc.fixed[0], m, sel, &e) == HS_ERR_INVALID);
+    ENSURE(strstr(e.msg, "fixed.txt:2: node 5 out of range"));
+    hs_mesh_destroy(&m);
     // Missing keys are errors naming the key.
     const char* nokey = "{ \"mesh\": \"g.msh\", \"fixed\": [ {\"type\": \"sphere\", "
                         "\"center\": [0,0,0]} ] }";

@@ -30,6 +30,7 @@ typedef enum hs_fixed_kind {
     HS_FIXED_SPHERE = 4,    ///< nodes with |x - point| <= radius
     HS_FIXED_PATCH = 5,     ///< surface nodes within radius of point, connected over the surface
                             ///< to the surface node nearest point
+    HS_FIXED_NODES = 6,     ///< the nodes listed in a text file (0-based indices in file order)
 } hs_fixed_kind;
 
 typedef struct hs_scene_fixed {
@@ -44,6 +45,7 @@ typedef struct hs_scene_fixed {
     double depth;     ///< m, BBOX_SIDE: slab thickness measured from that side
     double radius;    ///< m, SPHERE / PATCH: around point
     char group[HS_MESH_REGION_NAME_MAX]; ///< GROUP: region name (or its tag in decimal)
+    char file[HS_SCENE_PATH_MAX];        ///< NODES: the list, resolved against the scene folder
     int line; ///< line of the region in the scene file (for messages; 0 if unknown)
 } hs_scene_fixed;
 
@@ -129,7 +131,8 @@ int hs_scene_same_bus(const char* a, const char* b);
 
 /// Mark the nodes region f selects in mesh m (positions in the mesh's metres, after
 /// units_scale); sel [n_nodes] is overwritten (1 selected). HS_ERR_INVALID with the reason (a
-/// group the mesh does not have, listing those it has) or HS_ERR_NOMEM.
+/// group the mesh does not have, listing those it has; a node list's file:line and problem),
+/// HS_ERR_IO (a node list that cannot be read) or HS_ERR_NOMEM.
 /// Thread: any | Allocates: temporarily
 hs_status hs_scene_fixed_select(const hs_scene_fixed* f, const hs_mesh* m, unsigned char* sel,
                                 hs_err* err);

@@ -6,6 +6,7 @@
 
 #include <arpa/inet.h>
 #include <cJSON.h>
+#include <errno.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
@@ -362,10 +363,10 @@ static hs_status parse_fixed(const ctx* c, const cJSON* root, hs_scene* s) {
         hs_scene_fixed* f = &s->fixed[i];
         memset(f, 0, sizeof *f);
         f->line = item_line(c, r);
-        static const char* const kinds[] = {"plane", "box",    "bbox_side",
-                                            "group", "sphere", "patch"};
+        static const char* const kinds[] = {"plane",  "box",   "bbox_side", "group",
+                                            "sphere", "patch", "nodes"};
         int k = 0;
-        TRY(get_enum(c, r, path, "type", kinds, 6, 1, &k));
+        TRY(get_enum(c, r, path, "type", kinds, 7, 1, &k));
         f->kind = (hs_fixed_kind)k;
         if (f->kind == HS_FIXED_PLANE) {
             static const char* const keys[] = {"type", "point", "normal", "tolerance", NULL};
@@ -406,6 +407,22 @@ static hs_status parse_fixed(const ctx* c, const cJSON* root, hs_scene* s) {
                 return fail(c, nm, key, "must be a non-empty string of at most %zu bytes",
                             sizeof f->group - 1);
             snprintf(f->group, sizeof f->group, "%s", nm->valuestring);
+        } else if (f->kind == HS_FIXED_NODES) {
+            static const char* const keys[] = {"type", "file", NULL};
+            TRY(check_keys(c, r, path, keys));
+            char file[HS_SCENE_PATH_MAX];
+            TRY(get_str(c, r, path, "file", file, sizeof file, 1));
+            // Relative to the scene file's folder, as the mesh.
+            const char* slash = strrchr(s->path, '/');
+            int len = file[0] == '/' || !slash ? snprintf(f->file, sizeof f->file, "%s", file)
+                                               : snprintf(f->file, sizeof f->file, "%.*s/%s",
+                                                          (int)(slash - s->path), s->path, file);
+            if (len < 0 || (size_t)len >= sizeof f->file) {
+                char key[64];
+                join(key, sizeof key, path, "file");
+                return fail(c, cJSON_GetObjectItemCaseSensitive(r, "file"), key,
+                            "resolved path too long");
+            }
         } else if (f->kind == HS_FIXED_SPHERE || f->kind == HS_FIXED_PATCH) {
             const char* pkey = f->kind == HS_FIXED_SPHERE ? "center" : "point";
             const char* const keys[] = {"type", pkey, "radius", NULL};
@@ -778,6 +795,48 @@ hs_status hs_scene_load(const char* path, hs_scene* out, hs_err* err) {
 // ---------------------------------------------------------------------------------------------
 // Node selection of a fixed region (shared by the server and the tools).
 
+// A node list: indices (0-based, file order of the mesh) separated by blanks, commas or
+// newlines; '#' starts a comment. Errors name the file and the line.
+static hs_status select_node_list(const char* path, const hs_mesh* m, unsigned char* sel,
+                                  hs_err* err) {
+    FILE* f = fopen(path, "r");
+    if (!f) return hs_err_set(err, HS_ERR_IO, "%s: cannot open: %s", path, strerror(errno));
+    char line[512];
+    int ln = 0, count = 0;
+    hs_status st = HS_OK;
+    while (st == HS_OK && fgets(line, sizeof line, f)) {
+        ++ln;
+        if (!strchr(line, '\n') && !feof(f)) {
+            st = hs_err_set(err, HS_ERR_INVALID, "%s:%d: line longer than %zu bytes", path, ln,
+                            sizeof line - 2);
+            break;
+        }
+        char* hash = strchr(line, '#');
+        if (hash) *hash = '\0';
+        char* save = NULL;
+        for (char* tok = strtok_r(line, " \t\r\n,", &save); tok && st == HS_OK;
+             tok = strtok_r(NULL, " \t\r\n,", &save)) {
+            char* e;
+            errno = 0;
+            long v = strtol(tok, &e, 10);
+            if (*e || errno)
+                st = hs_err_set(err, HS_ERR_INVALID, "%s:%d: '%.32s' is not a node index", path, ln,
+                                tok);
+            else if (v < 0 || v >= m->n_nodes)
+                st = hs_err_set(err, HS_ERR_INVALID,
+                                "%s:%d: node %ld out of range (the mesh has nodes 0..%d)", path, ln,
+                                v, m->n_nodes - 1);
+            else
+                sel[v] = 1, ++count;
+        }
+    }
+    if (st == HS_OK && ferror(f)) st = hs_err_set(err, HS_ERR_IO, "%s: read error", path);
+    fclose(f);
+    if (st == HS_OK && count == 0)
+        st = hs_err_set(err, HS_ERR_INVALID, "%s: no node index in the list", path);
+    return st;
+}
+
 hs_status hs_scene_fixed_select(const hs_scene_fixed* f, const hs_mesh* m, unsigned char* sel,
                                 hs_err* err) {
     if (!f || !m || !sel) return hs_err_set(err, HS_ERR_INVALID, "region, mesh or mask is NULL");
@@ -850,6 +909,8 @@ hs_status hs_scene_fixed_select(const hs_scene_fixed* f, const hs_mesh* m, unsig
             }
         }
         hs_free(d);
+    } else if (f->kind == HS_FIXED_NODES) {
+        return select_node_list(f->file, m, sel, err);
     } else {
         return hs_err_set(err, HS_ERR_INVALID, "unknown region kind %d", (int)f->kind);
     }
