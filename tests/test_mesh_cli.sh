@@ -72,6 +72,18 @@ assert len(d['points']) == 5 and d['top']['normal'][1] > 0.9, d
 [ "$(grep -c '^touch ' "$tmp/pts.probe")" = 3 ] && [ "$(grep -c '^surface ' "$tmp/pts.probe")" = 3 ] ||
     fail "points lines: $(cat "$tmp/pts.probe")"
 
+# Graded: finer near a group (--refine): the group holds several times the nodes.
+"$hm" tet "$tmp/liver.obj" --units mm --size 12 --group hilum:plane:0,-43.3,0,0,1,0 \
+    --out "$tmp/u.msh" >"$tmp/u.log" 2>&1 || fail "uniform: $(cat "$tmp/u.log")"
+"$hm" tet "$tmp/liver.obj" --units mm --size 12 --group hilum:plane:0,-43.3,0,0,1,0 \
+    --refine hilum:4,20 --out "$tmp/r.msh" >"$tmp/r.log" 2>&1 || fail "refine: $(cat "$tmp/r.log")"
+nu=$(sed -n "s/^region *'hilum' .*: \([0-9]*\) nodes/\1/p" "$tmp/u.log")
+nr=$(sed -n "s/^region *'hilum' .*: \([0-9]*\) nodes/\1/p" "$tmp/r.log")
+echo "hilum nodes: uniform $nu, refined $nr"
+[ -n "$nu" ] && [ -n "$nr" ] && [ "$nr" -gt $((3 * nu)) ] || fail "--refine did not refine ($nu -> $nr)"
+"$hm" tet "$tmp/liver.obj" --units mm --size 12 --refine nope:4 >"$tmp/o" 2>&1
+[ $? = 1 ] && grep -q "refine 'nope:4'" "$tmp/o" || fail "bad --refine: $(cat "$tmp/o")"
+
 # A scene from the millimetre surface with a group from a plane; it loads as a scene.
 "$hm" scene "$tmp/liver.obj" --size 12 --units mm --group hilum:plane:0,-43.3,0,0,1,0 \
     --fix hilum --out "$tmp/organ" >"$tmp/o" 2>&1 || fail "scene: $(cat "$tmp/o")"

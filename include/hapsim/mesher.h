@@ -18,6 +18,11 @@ typedef struct hs_mesher_def {
     double feature_angle_deg; ///< remeshing: surface patches split where normals turn more (40)
     int optimize;             ///< 1: gmsh's and Netgen's tet optimisers after meshing (default)
     int verbose;              ///< 1: gmsh prints its progress on stderr
+    /// Optional grading: the target size at a point (surface units), clamped to
+    /// [size_min, size]; NULL: uniform. Called by gmsh while meshing (same thread).
+    double (*size_at)(const double x[3], void* ctx);
+    void* size_ctx;  ///< passed to size_at
+    double size_min; ///< smallest size size_at may ask for (0: size / 2)
 } hs_mesher_def;
 
 /// Defaults: size 0 (must be set), remesh the surface, 40 degrees, optimise, quiet.

@@ -16,8 +16,14 @@
 static pthread_mutex_t g_gmsh_lock = PTHREAD_MUTEX_INITIALIZER;
 
 hs_mesher_def hs_mesher_default_def(void) {
-    return (hs_mesher_def){
-        .size = 0, .keep_surface = 0, .feature_angle_deg = 40, .optimize = 1, .verbose = 0};
+    return (hs_mesher_def){.size = 0,
+                           .keep_surface = 0,
+                           .feature_angle_deg = 40,
+                           .optimize = 1,
+                           .verbose = 0,
+                           .size_at = NULL,
+                           .size_ctx = NULL,
+                           .size_min = 0};
 }
 
 const char* hs_mesher_gmsh_version(void) {
@@ -45,6 +51,20 @@ static hs_status gmsh_fail(hs_err* err, const char* step) {
     }
     return hs_err_set(err, HS_ERR_INVALID, "gmsh %s failed: %s", step,
                       msg[0] ? msg : "(no message)");
+}
+
+typedef struct size_cb {
+    const hs_mesher_def* def;
+    double lo, hi;
+} size_cb;
+
+static double size_callback(int dim, int tag, double x, double y, double z, void* data) {
+    (void)dim;
+    (void)tag;
+    const size_cb* c = data;
+    const double p[3] = {x, y, z};
+    double h = c->def->size_at(p, c->def->size_ctx);
+    return !(h >= c->lo) ? c->lo : h > c->hi ? c->hi : h; // NaN -> the smallest
 }
 
 #define GMSH_TRY(call, step)                                                                       \
@@ -142,7 +162,14 @@ hs_status hs_mesher_tet(const hs_surface* s, const hs_mesher_def* def, hs_mesh**
         GMSH_TRY(gmshModelGeoAddVolume(&loop, 1, -1, &ierr), "volume");
         GMSH_TRY(gmshModelGeoSynchronize(&ierr), "synchronise");
     }
-    GMSH_TRY(gmshOptionSetNumber("Mesh.MeshSizeMin", def->size * 0.5, &ierr), "option");
+    size_cb cb = {def, def->size_min > 0 ? fmin(def->size_min, def->size) : def->size * 0.5,
+                  def->size};
+    if (def->size_at) {
+        GMSH_TRY(gmshModelMeshSetSizeCallback(size_callback, &cb, &ierr), "size callback");
+        // The callback alone decides: no growth from the boundary, no curvature sizes.
+        GMSH_TRY(gmshOptionSetNumber("Mesh.MeshSizeExtendFromBoundary", 0, &ierr), "option");
+    }
+    GMSH_TRY(gmshOptionSetNumber("Mesh.MeshSizeMin", cb.lo, &ierr), "option");
     GMSH_TRY(gmshOptionSetNumber("Mesh.MeshSizeMax", def->size, &ierr), "option");
     GMSH_TRY(gmshOptionSetNumber("Mesh.Optimize", def->optimize ? 1 : 0, &ierr), "option");
     GMSH_TRY(gmshOptionSetNumber("General.NumThreads", 1, &ierr), "option");

@@ -19,11 +19,13 @@ static const char* usage =
     "usage: hapsim-mesh COMMAND INPUT [options]\n"
     "\n"
     "  tet SURFACE --size H --units mm|m [--out organ.msh] [--repair] [--keep-surface]\n"
+    "        [--refine NAME:H2[,WIDTH]]\n"
     "        [--group NAME:box:X0,Y0,Z0,X1,Y1,Z1] [--group NAME:plane:PX,PY,PZ,NX,NY,NZ[,TOL]]\n"
     "      Closed surface (.stl ASCII/binary, .obj, .ply, .off, .msh triangles) -> tetrahedra of\n"
     "      about size H (gmsh), written as Gmsh MSH 2.2 in metres. Groups become named surface\n"
     "      regions (physical groups) of the surface nodes in the box / behind the plane\n"
-    "      ((x - P) . N <= TOL); a scene can fix them by name.\n"
+    "      ((x - P) . N <= TOL); a scene can fix them by name. --refine NAME:H2[,WIDTH] grades\n"
+    "      the tets from H2 in group NAME's box or half-space to H at WIDTH (default 4 H) away.\n"
     "  info MESH [--json] [--units mm|m] [--probe-radius R]\n"
     "      Nodes, tets, bounding box, volume, area, dihedral angles, radius ratios, pieces,\n"
     "      surface edge lengths, regions; warns when surface edges dwarf the probe (R, default\n"
@@ -60,6 +62,7 @@ typedef struct opts {
     const char* groups[MAX_SPECS];
     int n_fix;
     const char* fix[MAX_SPECS];
+    const char* refine; // NAME:H2[,WIDTH]
 } opts;
 
 static int parse_list(const char* s, double* v, int min_n, int max_n) {
@@ -132,48 +135,77 @@ static void check_units(const char* path, const double lo[3], const double hi[3]
 // ---------------------------------------------------------------------------------------------
 // Groups (--group NAME:box:... / NAME:plane:...) as surface regions
 
-static int add_group(hs_mesh* m, const char* spec, double units, int tag) {
+typedef struct group_spec {
+    char name[HS_MESH_REGION_NAME_MAX];
+    int box;     // 1 box, 0 plane
+    double v[7]; // box: min, max; plane: point, unit normal, tolerance (in `units` * units)
+} group_spec;
+
+// Parses NAME:box:... / NAME:plane:..., lengths times k. 0 (printed) when malformed.
+static int parse_group(const char* spec, double k, group_spec* g) {
     const char* c1 = strchr(spec, ':');
     const char* c2 = c1 ? strchr(c1 + 1, ':') : NULL;
-    if (!c1 || !c2 || c1 == spec || (size_t)(c1 - spec) >= HS_MESH_REGION_NAME_MAX) {
-        fprintf(stderr, "hapsim-mesh: --group '%s': expected NAME:box:... or NAME:plane:...\n",
-                spec);
-        return 0;
-    }
-    char name[HS_MESH_REGION_NAME_MAX];
-    snprintf(name, sizeof name, "%.*s", (int)(c1 - spec), spec);
-    int box = strncmp(c1 + 1, "box:", 4) == 0, plane = strncmp(c1 + 1, "plane:", 6) == 0;
-    double v[7] = {0};
-    int n = parse_list(c2 + 1, v, box ? 6 : 6, box ? 6 : 7);
-    if ((!box && !plane) || n < 0) {
+    memset(g, 0, sizeof *g);
+    int box = c1 && strncmp(c1 + 1, "box:", 4) == 0;
+    int plane = c1 && strncmp(c1 + 1, "plane:", 6) == 0;
+    if (!c1 || !c2 || c1 == spec || (size_t)(c1 - spec) >= sizeof g->name || (!box && !plane) ||
+        parse_list(c2 + 1, g->v, 6, box ? 6 : 7) < 0) {
         fprintf(stderr,
                 "hapsim-mesh: --group '%s': expected NAME:box:X0,Y0,Z0,X1,Y1,Z1 or "
                 "NAME:plane:PX,PY,PZ,NX,NY,NZ[,TOL]\n",
                 spec);
         return 0;
     }
-    for (int k = 0; k < 7; ++k)
-        if (box || k < 3 || k == 6) v[k] *= units;
+    snprintf(g->name, sizeof g->name, "%.*s", (int)(c1 - spec), spec);
+    g->box = box;
+    for (int i = 0; i < 7; ++i)
+        if (box || i < 3 || i == 6) g->v[i] *= k;
+    if (!box) {
+        double nl = sqrt(g->v[3] * g->v[3] + g->v[4] * g->v[4] + g->v[5] * g->v[5]);
+        if (!(nl > 0)) {
+            fprintf(stderr, "hapsim-mesh: --group '%s': the plane's normal is zero\n", spec);
+            return 0;
+        }
+        for (int d = 3; d < 6; ++d) g->v[d] /= nl;
+    }
+    return 1;
+}
+
+// Distance from x to the group's region (0 inside).
+static double group_distance(const group_spec* g, const double x[3]) {
+    if (g->box) {
+        double d2 = 0;
+        for (int d = 0; d < 3; ++d) {
+            double e = fmax(fmax(g->v[d] - x[d], x[d] - g->v[3 + d]), 0);
+            d2 += e * e;
+        }
+        return sqrt(d2);
+    }
+    double s = 0;
+    for (int d = 0; d < 3; ++d) s += (x[d] - g->v[d]) * g->v[3 + d];
+    return fmax(s - g->v[6], 0);
+}
+
+// --refine: sizes from h_near in the group's region up to the global size over `width`.
+typedef struct refine_ctx {
+    group_spec g;
+    double h_near, h_far, width; // surface units
+} refine_ctx;
+
+static double refine_size(const double x[3], void* ctx) {
+    const refine_ctx* r = ctx;
+    double t = fmin(group_distance(&r->g, x) / r->width, 1.0);
+    return r->h_near + (r->h_far - r->h_near) * t;
+}
+
+static int add_group(hs_mesh* m, const char* spec, double units, int tag) {
+    group_spec g;
+    if (!parse_group(spec, units, &g)) return 0;
     int* nodes = malloc(((size_t)m->n_surf_nodes + 1) * sizeof(int));
     int cnt = 0;
-    double nl = sqrt(v[3] * v[3] + v[4] * v[4] + v[5] * v[5]);
-    if (plane && !(nl > 0)) {
-        fprintf(stderr, "hapsim-mesh: --group '%s': the plane's normal is zero\n", spec);
-        free(nodes);
-        return 0;
-    }
-    for (int s = 0; nodes && s < m->n_surf_nodes; ++s) {
-        const double* x = m->x0 + 3 * m->surf_nodes[s];
-        int in = 1;
-        if (box) {
-            for (int d = 0; d < 3; ++d) in &= x[d] >= v[d] && x[d] <= v[3 + d];
-        } else {
-            double dist = 0;
-            for (int d = 0; d < 3; ++d) dist += (x[d] - v[d]) * v[3 + d] / nl;
-            in = dist <= v[6];
-        }
-        if (in) nodes[cnt++] = m->surf_nodes[s];
-    }
+    for (int s = 0; nodes && s < m->n_surf_nodes; ++s)
+        if (group_distance(&g, m->x0 + 3 * m->surf_nodes[s]) <= 0) nodes[cnt++] = m->surf_nodes[s];
+    const char* name = g.name;
     if (!nodes || cnt == 0) {
         fprintf(stderr,
                 "hapsim-mesh: --group '%s' holds no surface node (mesh bounding box [%g, %g] x "
@@ -280,6 +312,31 @@ static hs_mesh* make_tets(const opts* o) {
     hs_mesher_def md = hs_mesher_default_def();
     md.size = o->size;
     md.keep_surface = o->keep_surface;
+    refine_ctx rc;
+    if (o->refine) { // graded: h_near in the named --group's region, the size WIDTH away
+        const char* c1 = strchr(o->refine, ':');
+        double hv[2] = {0, 4 * o->size};
+        int found = 0;
+        if (c1 && parse_list(c1 + 1, hv, 1, 2) > 0 && hv[0] > 0 && hv[0] < o->size && hv[1] > 0)
+            for (int g = 0; g < o->n_groups && !found; ++g)
+                if (strncmp(o->groups[g], o->refine, (size_t)(c1 - o->refine)) == 0 &&
+                    o->groups[g][c1 - o->refine] == ':')
+                    found = parse_group(o->groups[g], 1.0, &rc.g); // surface units
+        if (!found) {
+            fprintf(stderr,
+                    "hapsim-mesh: --refine '%s': expected NAME:H[,WIDTH] with NAME a --group "
+                    "and 0 < H < --size\n",
+                    o->refine);
+            hs_surface_destroy(&s);
+            return NULL;
+        }
+        rc.h_near = hv[0];
+        rc.h_far = o->size;
+        rc.width = hv[1];
+        md.size_at = refine_size;
+        md.size_ctx = &rc;
+        md.size_min = hv[0];
+    }
     hs_mesh* m = NULL;
     st = hs_mesher_tet(s, &md, &m, &e);
     if (st < 0) {
@@ -873,6 +930,8 @@ int main(int argc, char** argv) {
             return 2;
         } else if (!strcmp(a, "--out")) {
             o.out = v;
+        } else if (!strcmp(a, "--refine")) {
+            o.refine = v;
         } else if (!strcmp(a, "--size")) {
             char* e;
             o.size = strtod(v, &e);
