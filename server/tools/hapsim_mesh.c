@@ -81,6 +81,23 @@ static int parse_list(const char* s, double* v, int min_n, int max_n) {
     return *s || n < min_n ? -1 : n;
 }
 
+// A string as JSON text without its quotes (paths may hold quotes, backslashes, control bytes).
+static const char* json_esc(const char* in, char* buf, size_t cap) {
+    size_t n = 0;
+    for (const unsigned char* p = (const unsigned char*)in; *p && n + 7 < cap; ++p) {
+        if (*p == '"' || *p == '\\') {
+            buf[n++] = '\\';
+            buf[n++] = (char)*p;
+        } else if (*p < 0x20) {
+            n += (size_t)snprintf(buf + n, cap - n, "\\u%04x", *p);
+        } else {
+            buf[n++] = (char)*p;
+        }
+    }
+    buf[n] = '\0';
+    return buf;
+}
+
 // ---------------------------------------------------------------------------------------------
 // Loading
 
@@ -430,7 +447,8 @@ static int cmd_info(const opts* o) {
     }
     hs_mesh_quality q;
     hs_mesh_quality_compute(m, &q);
-    printf("{\n  \"file\": \"%s\",\n  \"units\": \"m\",\n", o->input);
+    char esc[1024];
+    printf("{\n  \"file\": \"%s\",\n  \"units\": \"m\",\n", json_esc(o->input, esc, sizeof esc));
     printf("  \"nodes\": %d,\n  \"tets\": %d,\n  \"surface_triangles\": %d,\n", q.n_nodes, q.n_tets,
            q.n_tris);
     printf("  \"bbox_min\": [%.9g, %.9g, %.9g],\n  \"bbox_max\": [%.9g, %.9g, %.9g],\n",
@@ -456,7 +474,8 @@ static int cmd_info(const opts* o) {
     printf("  \"regions\": [");
     for (int r = 0; r < m->n_regions; ++r)
         printf("%s{\"name\": \"%s\", \"dim\": %d, \"tag\": %d, \"nodes\": %d}", r ? ", " : "",
-               m->regions[r].name, m->regions[r].dim, m->regions[r].tag, m->regions[r].n_nodes);
+               json_esc(m->regions[r].name, esc, sizeof esc), m->regions[r].dim, m->regions[r].tag,
+               m->regions[r].n_nodes);
     printf("]\n}\n");
     hs_mesh_destroy(&m);
     return 0;
@@ -549,8 +568,9 @@ static int cmd_points(const opts* o) {
     }
     int got = spread_points(m, &top, count, pts);
     if (o->json) {
+        char esc[1024];
         printf("{\n  \"file\": \"%s\",\n  \"units\": \"m\",\n  \"probe_radius_m\": %.6g,\n",
-               o->input, r);
+               json_esc(o->input, esc, sizeof esc), r);
         printf("  \"up\": [%.6g, %.6g, %.6g],\n", up[0], up[1], up[2]);
         printf("  \"top\": {\"node\": %d, \"x\": [%.9g, %.9g, %.9g], \"normal\": [%.6g, %.6g, "
                "%.6g]},\n",
@@ -702,11 +722,12 @@ static int cmd_scene(const opts* o) {
         hs_mesh_destroy(&m);
         return 1;
     }
+    char esc[1024];
     fprintf(f,
             "{\n  \"_comment\": \"Made by hapsim-mesh scene from %s. Soft tissue defaults: "
             "co-rotated FEM, E %g Pa, nu 0.45, gravity off (the organ rests on its "
             "surroundings). Schema: docs/scenes.md\",\n",
-            o->input, o->youngs);
+            json_esc(o->input, esc, sizeof esc), o->youngs);
     fprintf(f, "  \"name\": \"organ\",\n  \"mesh\": \"organ.msh\",\n  \"units_scale\": 1.0,\n");
     fprintf(f,
             "  \"material\": { \"youngs_pa\": %g, \"poisson\": 0.45, \"density_kg_m3\": 1060, "
