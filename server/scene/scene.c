@@ -414,10 +414,12 @@ static hs_status parse_fixed(const ctx* c, const cJSON* root, hs_scene* s) {
             TRY(get_str(c, r, path, "file", file, sizeof file, 1));
             // Relative to the scene file's folder, as the mesh.
             const char* slash = strrchr(s->path, '/');
-            int len = file[0] == '/' || !slash ? snprintf(f->file, sizeof f->file, "%s", file)
-                                               : snprintf(f->file, sizeof f->file, "%.*s/%s",
+            char full[HS_SCENE_PATH_MAX];
+            int len = file[0] == '/' || !slash ? snprintf(full, sizeof full, "%s", file)
+                                               : snprintf(full, sizeof full, "%.*s/%s",
                                                           (int)(slash - s->path), s->path, file);
-            if (len < 0 || (size_t)len >= sizeof f->file) {
+            if (len >= 0 && (size_t)len < sizeof full) memcpy(f->file, full, sizeof f->file);
+            if (len < 0 || (size_t)len >= sizeof full) {
                 char key[64];
                 join(key, sizeof key, path, "file");
                 return fail(c, cJSON_GetObjectItemCaseSensitive(r, "file"), key,
