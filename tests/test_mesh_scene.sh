@@ -32,6 +32,31 @@ fail() { echo "FAIL: $*"; keep=1; echo "kept $tmp"; exit 1; }
 cat "$tmp/scene.log"
 grep -q '"type": "group", "name": "hilum"' "$tmp/organ/scene.json" || fail "no group in the scene"
 
+# A mesh with a sliver (a tet 0.1 degree from flat) is refused, saying how to accept it.
+cat >"$tmp/sliver.msh" <<'MSH'
+$MeshFormat
+2.2 0 8
+$EndMeshFormat
+$Nodes
+5
+1 0 0 0
+2 0.1 0 0
+3 0 0.1 0
+4 0 0 0.1
+5 0.03 0.03 -0.0001
+$EndNodes
+$Elements
+2
+1 4 2 0 1 1 2 3 4
+2 4 2 0 1 1 3 2 5
+$EndElements
+MSH
+printf '{ "mesh": "sliver.msh", "fixed": [ {"type": "box", "min": [-1, -1, -1], "max": [0.01, 1, 1]} ] }\n' >"$tmp/sliver.json"
+"$bin/hapsim-server" "$tmp/sliver.json" --haptic-url "$H" --mesh-url "$M" >"$tmp/sl.log" 2>&1
+rc=$?
+cat "$tmp/sl.log"
+[ $rc != 0 ] && grep -q 'mesh_quality.min_dihedral_deg' "$tmp/sl.log" || fail "sliver mesh not refused (rc $rc)"
+
 "$bin/hapsim-server" "$tmp/organ/scene.json" --haptic-url "$H" --mesh-url "$M" \
     >"$tmp/srv.log" 2>&1 &
 srv=$!

@@ -511,6 +511,11 @@ static int SceneFixedKinds(void) {
     ENSURE(hs_scene_fixed_select(&sc.fixed[0], m, sel, &e) == HS_ERR_INVALID);
     ENSURE(strstr(e.msg, "fixed.txt:2: node 5 out of range"));
     hs_mesh_destroy(&m);
+    // mesh_quality: the refusal threshold (default 0.5 degrees).
+    ENSURE(sc.min_dihedral_deg == 0.5);
+    const char* mq = "{ \"mesh\": \"g.msh\", \"fixed\": [ {\"type\": \"group\", \"name\": "
+                     "\"hilum\"} ], \"mesh_quality\": {\"min_dihedral_deg\": 0} }";
+    ENSURE(hs_scene_parse(mq, tmp_path("q.json"), 0, &sc, &e) == HS_OK && sc.min_dihedral_deg == 0);
     // Missing keys are errors naming the key.
     const char* nokey = "{ \"mesh\": \"g.msh\", \"fixed\": [ {\"type\": \"sphere\", "
                         "\"center\": [0,0,0]} ] }";

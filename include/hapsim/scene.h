@@ -68,6 +68,9 @@ typedef struct hs_scene {
     char mesh_path[HS_SCENE_PATH_MAX]; ///< mesh file, resolved against the scene's folder
     double units_scale;                ///< metres per mesh unit (1 for a mesh in m, 0.001 in mm)
     int mesh_line, units_line, fixed_line; ///< lines of those keys (messages; 0: unknown/absent)
+    /// degrees: the server refuses a mesh whose smallest dihedral angle is below this
+    /// (mesh_quality.min_dihedral_deg; 0 accepts any)
+    double min_dihedral_deg;
 
     hs_model model;         ///< element model
     hs_rotation rotation;   ///< co-rotated: how element rotations are extracted

@@ -383,6 +383,16 @@ static hs_status world_create(const hs_scene* sc, int realtime, world* w, hs_err
         }
     }
     const hs_mesh* m = w->mesh;
+    if (m->report.min_dihedral_deg < sc->min_dihedral_deg) {
+        s = hs_err_set(err, HS_ERR_INVALID,
+                       "%s:%d: key 'mesh': %s: its flattest tet has a %.3g degree dihedral angle "
+                       "(below mesh_quality.min_dihedral_deg %g): such slivers make element "
+                       "stiffness and forces spike; remesh it (hapsim-mesh tet --size ...) or "
+                       "accept it with \"mesh_quality\": {\"min_dihedral_deg\": 0}",
+                       sc->path, sc->mesh_line, sc->mesh_path, m->report.min_dihedral_deg,
+                       sc->min_dihedral_deg);
+        goto fail;
+    }
     size_t n = (size_t)m->n_nodes;
     w->fixed = hs_calloc(n, 1);
     w->u = hs_calloc(3 * n, sizeof(double));

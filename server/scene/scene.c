@@ -44,6 +44,7 @@ void hs_scene_default(hs_scene* s) {
     s->force_max_n = 3.3;
     s->force_rate_max = 500.0;
     s->watchdog_s = 0.1;
+    s->min_dihedral_deg = 0.5;
     snprintf(s->haptic_url, sizeof s->haptic_url, "%s", HAPSIM_DEFAULT_HAPTIC_URL);
     snprintf(s->mesh_url, sizeof s->mesh_url, "%s", HAPSIM_DEFAULT_MESH_URL);
     snprintf(s->prefix, sizeof s->prefix, "%s", HAPSIM_DEFAULT_PREFIX);
@@ -511,6 +512,13 @@ static hs_status parse_tools(const ctx* c, const cJSON* root, hs_scene* s) {
 
 static hs_status parse_rest(const ctx* c, const cJSON* root, hs_scene* s) {
     const cJSON* o;
+    TRY(get_obj(c, root, "", "mesh_quality", &o));
+    if (o) {
+        static const char* const keys[] = {"min_dihedral_deg", NULL};
+        TRY(check_keys(c, o, "mesh_quality", keys));
+        TRY(get_num(c, o, "mesh_quality", "min_dihedral_deg", 0.0, 30.0, 0, 0,
+                    &s->min_dihedral_deg));
+    }
     TRY(get_obj(c, root, "", "workspace", &o));
     if (o) {
         static const char* const keys[] = {"min", "max", NULL};
@@ -650,8 +658,9 @@ static hs_status resolve_mesh(const ctx* c, const cJSON* item, const char* scene
 static hs_status parse_root(const ctx* c, const cJSON* root, int check_files, hs_scene* s) {
     if (!cJSON_IsObject(root)) return fail(c, root, "(top level)", "must be an object { ... }");
     static const char* const keys[] = {
-        "name",    "mesh",      "units_scale", "material", "model",   "fixed", "gravity", "tools",
-        "devices", "workspace", "rates",       "features", "haptics", "lcm",   "cutting", NULL};
+        "name",    "mesh",  "units_scale", "material",     "model", "fixed",
+        "gravity", "tools", "devices",     "workspace",    "rates", "features",
+        "haptics", "lcm",   "cutting",     "mesh_quality", NULL};
     TRY(check_keys(c, root, "", keys));
     char mesh[HS_SCENE_PATH_MAX];
     TRY(get_str(c, root, "", "mesh", mesh, sizeof mesh, 1));
