@@ -308,6 +308,11 @@ static int BrokenSurfaces(void) {
     const char* nm = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nv 0 -1 0\nv 0 0 -1\n"
                      "f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\nf 1 2 5\nf 1 6 2\nf 1 5 6\nf 2 6 5\n";
     ENSURE(expect_fail("nonmanifold.obj", nm, strlen(nm), "not a manifold") == 0);
+    // Two tetrahedra touching at one vertex: not a manifold either.
+    const char* pinch = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nv -1 0 0\nv 0 -1 0\nv 0 0 -1\n"
+                        "f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\nf 1 6 5\nf 1 5 7\nf 1 7 6\nf 5 6 7\n";
+    ENSURE(expect_fail("pinched.obj", pinch, strlen(pinch),
+                       "touch at a point, the first at (0, 0, 0)") == 0);
     // Two spheres in one file: two pieces, refused without --repair.
     hs_surface* a = icosphere(1.0, 1);
     hs_surface* b = icosphere(1.0, 1);
@@ -345,11 +350,11 @@ static int BrokenSurfaces(void) {
 
 static int SelfIntersection(void) {
     int64_t before = hs_byte_count();
-    // A closed box whose top face is pushed down through its bottom (a folded surface): one
-    // piece, manifold, orientable, crossing itself.
+    // A sphere whose top cap is pushed down through its bottom (a folded surface): one piece,
+    // manifold, orientable, crossing itself.
     hs_surface* s = icosphere(1.0, 2);
     for (int i = 0; i < s->n_verts; ++i)
-        if (s->x[3 * i + 2] > 0.5) s->x[3 * i + 2] = -1.5 + (s->x[3 * i + 2] - 0.5);
+        if (s->x[3 * i + 2] > 0.5) s->x[3 * i + 2] = -1.3 + 0.3 * (s->x[3 * i + 2] - 0.5);
     hs_surface_clean_def cd = hs_surface_clean_default_def();
     hs_surface_report rep;
     hs_err e = {0};

@@ -55,6 +55,7 @@ typedef struct hs_surface_report {
     int flipped_tris;          ///< turned to agree with their neighbours / to face outward
     int boundary_edges;        ///< edges of one triangle (holes), after repair
     int nonmanifold_edges;     ///< edges of more than two triangles
+    int nonmanifold_verts;     ///< vertices where surfaces touch at a point (several fans)
     int holes_closed;          ///< repair: holes filled (a fan around their centre)
     int hole_tris_added;       ///< repair: triangles those fans added
     int pieces;                ///< connected pieces before repair

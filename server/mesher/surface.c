@@ -409,6 +409,59 @@ static int find_root(int* p, int i) {
     return i;
 }
 
+// Corner of triangle t at vertex v (3 t + k).
+static int corner(const hs_surface* s, int t, int v) {
+    const int* q = s->tris + 3 * t;
+    return 3 * t + (q[0] == v ? 0 : q[1] == v ? 1 : 2);
+}
+
+// Vertices whose triangles form more than one fan (linked through edges of two triangles):
+// surfaces touching at a point. Counted into r, the first one's position in *at. 0: no memory.
+static int count_pinched(const hs_surface* s, hs_surface_report* r, double* at) {
+    edge_use* E;
+    int* pos;
+    if (!build_edges(s, &E, &pos)) return 0;
+    const int m = 3 * s->n_tris;
+    int* p = hs_alloc(((size_t)m + 1) * sizeof(int));
+    int* first = hs_alloc(((size_t)s->n_verts + 1) * sizeof(int));
+    if (!p || !first) {
+        hs_free(E);
+        hs_free(pos);
+        hs_free(p);
+        hs_free(first);
+        return 0;
+    }
+    for (int i = 0; i < m; ++i) p[i] = i;
+    for (int i = 0; i + 1 < m; ++i) {
+        int lo, hi;
+        edge_group(E, m, i, &lo, &hi);
+        if (hi - lo == 2 && lo == i) {
+            const int t1 = E[lo].tri, t2 = E[lo + 1].tri, ends[2] = {E[lo].a, E[lo].b};
+            for (int k = 0; k < 2; ++k) {
+                int a = find_root(p, corner(s, t1, ends[k])),
+                    b = find_root(p, corner(s, t2, ends[k]));
+                if (a != b) p[a] = b;
+            }
+        }
+    }
+    r->nonmanifold_verts = 0;
+    for (int v = 0; v < s->n_verts; ++v) first[v] = -1;
+    for (int c = 0; c < m; ++c) {
+        int v = s->tris[c], root = find_root(p, c);
+        if (first[v] == -1) {
+            first[v] = root;
+        } else if (first[v] >= 0 && first[v] != root) {
+            if (r->nonmanifold_verts++ == 0) memcpy(at, s->x + 3 * v, 3 * sizeof(double));
+            first[v] = -2; // counted once
+        }
+    }
+    hs_free(E);
+    hs_free(pos);
+    hs_free(p);
+    hs_free(first);
+    return 1;
+}
+
 // Connected pieces through shared edges; keeps the largest by |volume| when drop. Flips every
 // piece whose volume is negative, so all face outward.
 static int pieces(hs_surface* s, int drop, hs_surface_report* r, hs_err* err, const char* name) {
@@ -687,6 +740,17 @@ hs_status hs_surface_clean(hs_surface* s, const char* name, const hs_surface_cle
                           name, r->boundary_edges, open_at[0], open_at[1], open_at[2],
                           dd.repair ? "; holes above the repair limit of edges stay open"
                                     : "; --repair closes small holes");
+    }
+    double pinch_at[3] = {0};
+    if (!count_pinched(s, r, pinch_at))
+        return hs_err_set(err, HS_ERR_NOMEM, "%s: out of memory", name);
+    if (r->nonmanifold_verts) {
+        memcpy(r->where, pinch_at, sizeof r->where);
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "%s: not a manifold: %d vertices where surfaces touch at a point, the "
+                          "first at (%g, %g, %g) (no repair for this: separate them in a mesh "
+                          "editor)",
+                          name, r->nonmanifold_verts, pinch_at[0], pinch_at[1], pinch_at[2]);
     }
     if (!pieces(s, dd.repair, r, err, name)) return HS_ERR_NOMEM;
     if (r->pieces > 1 && !dd.repair)
