@@ -6,8 +6,7 @@ BUILD     ?= build
 JOBS      ?= $(shell nproc 2>/dev/null || echo 2)
 PACKAGES  := cmake gcc make pkg-config liblcm-dev liblcm-bin libsuitesparse-dev libopenblas-dev \
              libcjson-dev libpng-dev libwebsockets-dev libjs-three chromium nodejs gnuplot-nox \
-             iproute2 util-linux clang libclang-rt-14-dev \
-             python3-meshio
+             iproute2 util-linux clang libclang-rt-14-dev python3-meshio libgmsh-dev
 CMAKE_ARGS ?=
 
 .PHONY: all deps configure build test test-asan test-tsan demo bench bench-quick accuracy stress soak fuzz clean

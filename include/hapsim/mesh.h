@@ -9,6 +9,8 @@
 extern "C" {
 #endif
 
+#define HS_MESH_REPORT_FIRST 4 ///< repaired elements named per kind in a report
+
 /// What loading and validation found (repair counts are those of the last finalize).
 typedef struct hs_mesh_report {
     int skipped_elements;    ///< non-tetrahedral elements in the file, skipped
@@ -20,7 +22,24 @@ typedef struct hs_mesh_report {
     double min_dihedral_deg; ///< quality: smallest dihedral angle
     double max_aspect;       ///< quality: largest (longest edge / inradius) / (2 sqrt 6)
     double mean_aspect;      ///< quality: mean of the same normalised ratio (1 = regular)
+    /// The first few repaired elements of each kind: element ids of the file for a loaded
+    /// mesh (VTK: cell index), else input tet indices (0-based); -1 past the last.
+    long long first_reoriented[HS_MESH_REPORT_FIRST];
+    long long first_degenerate[HS_MESH_REPORT_FIRST];
+    long long first_duplicate[HS_MESH_REPORT_FIRST];
 } hs_mesh_report;
+
+#define HS_MESH_REGION_NAME_MAX 64 ///< bytes for a region name, including the NUL
+
+/// A named region: the nodes of the elements of one Gmsh physical group (surface or volume).
+/// Nodes are file data: finalize keeps them (it never renumbers nodes).
+typedef struct hs_mesh_region {
+    char name[HS_MESH_REGION_NAME_MAX]; ///< $PhysicalNames name, or the tag in decimal
+    int dim;                            ///< 0 points, 1 curves, 2 surfaces, 3 volumes
+    int tag;                            ///< physical tag in the file
+    int n_nodes;
+    int* nodes; ///< [n_nodes] node indices, ascending, unique
+} hs_mesh_region;
 
 /// A linear tetrahedral mesh in metres. Tets are positively oriented:
 /// det[x1-x0, x2-x0, x3-x0] > 0. Fields after `tets` are derived by hs_mesh_finalize.
@@ -45,17 +64,22 @@ typedef struct hs_mesh {
     double bbox_min[3], bbox_max[3]; ///< m, over all nodes (used or not)
     double volume;                   ///< m^3, sum of tet volumes
     hs_mesh_report report;
+
+    // file data kept by the readers (not derived): Gmsh physical groups
+    int n_regions;
+    hs_mesh_region* regions; ///< [n_regions] in file order of (dim, tag)
 } hs_mesh;
 
 /// Read a mesh; the format is chosen by extension (.msh Gmsh 2.2/4.1 ASCII, .node/.ele TetGen
-/// (give either file), .vtk legacy ASCII unstructured grid). Validates and finalizes.
+/// (give either file), .vtk legacy ASCII unstructured grid, .vtu VTK XML unstructured grid with
+/// ASCII data arrays). Gmsh physical groups become regions. Validates and finalizes.
 /// On error returns NULL-filled *out, a negative status and err->msg naming file, line, problem.
 /// Returns HS_WARN_MESH_REPAIRED (> 0, mesh usable) when tets were reoriented or removed.
 /// @param out  OUT: new mesh, free with hs_mesh_destroy
 hs_status hs_mesh_load(const char* path, hs_mesh** out, hs_err* err);
 
 /// Parse from memory (for fuzzing and tests); `name` is used in error messages, `format` is
-/// "msh" or "vtk" (TetGen: hs_mesh_parse_tetgen). Status as hs_mesh_load.
+/// "msh", "vtk" or "vtu" (TetGen: hs_mesh_parse_tetgen). Status as hs_mesh_load.
 hs_status hs_mesh_parse(const char* name, const char* format, const char* data, size_t len,
                         hs_mesh** out, hs_err* err);
 /// Parse a TetGen pair held in memory; messages name `<name>.node` and `<name>.ele`.
@@ -90,6 +114,31 @@ double hs_tet_volume(const double* x, const int* tet);
 
 /// Write legacy VTK ASCII (unstructured grid) with optional per-node displacement u ([3n]).
 hs_status hs_mesh_write_vtk(const hs_mesh* mesh, const double* u, const char* path, hs_err* err);
+
+/// What a load or finalize repaired, one line each ("2 tets reoriented (negative volume)\n"),
+/// or "" when nothing was. For tools to print: repairs are never silent.
+void hs_mesh_report_str(const hs_mesh_report* r, char* buf, size_t cap);
+
+/// The region called `name` (or whose tag is `name` in decimal); prefers a surface group over a
+/// volume one of the same name. NULL when none.
+const hs_mesh_region* hs_mesh_find_region(const hs_mesh* mesh, const char* name);
+
+/// Add a region (nodes copied, sorted, duplicates dropped); HS_ERR_INVALID for a bad index or
+/// an empty or too long name.
+hs_status hs_mesh_add_region(hs_mesh* mesh, const char* name, int dim, int tag, int n_nodes,
+                             const int* nodes, hs_err* err);
+
+/// Write Gmsh MSH 2.2 ASCII: nodes, tets (physical volume of the first dim-3 region, else none),
+/// and per surface region (dim 2) the boundary triangles whose three nodes it holds; region
+/// names go to $PhysicalNames. hs_mesh_load reads it back with its regions.
+hs_status hs_mesh_write_msh(const hs_mesh* mesh, const char* path, hs_err* err);
+
+/// Read the triangles of a mesh file held in memory, for surfaces: `format` "msh" (element
+/// type 2, MSH 2.2 or 4.1 ASCII) or "vtu" (cell type 5). x [3*n_nodes] and tris [3*n_tris]
+/// (0-based) are hs_alloc'ed for the caller.
+hs_status hs_mesh_parse_triangles(const char* name, const char* format, const char* data,
+                                  size_t len, int* n_nodes, double** x, int* n_tris, int** tris,
+                                  hs_err* err);
 
 /// Release; accepts NULL and sets *mesh to NULL.
 void hs_mesh_destroy(hs_mesh** mesh);

@@ -7,6 +7,7 @@
 
 #include "hapsim/base.h"
 #include "hapsim/fem.h"
+#include "hapsim/mesh.h"
 
 #ifdef __cplusplus
 extern "C" {
@@ -25,6 +26,11 @@ typedef enum hs_fixed_kind {
     HS_FIXED_PLANE = 0,     ///< nodes with (x - point) . normal <= tolerance
     HS_FIXED_BOX = 1,       ///< nodes with min <= x <= max componentwise
     HS_FIXED_BBOX_SIDE = 2, ///< nodes within depth of the mesh bounding box's min or max side
+    HS_FIXED_GROUP = 3,     ///< the nodes of a named region (Gmsh physical group) of the mesh
+    HS_FIXED_SPHERE = 4,    ///< nodes with |x - point| <= radius
+    HS_FIXED_PATCH = 5,     ///< surface nodes within radius of point, connected over the surface
+                            ///< to the surface node nearest point
+    HS_FIXED_NODES = 6,     ///< the nodes listed in a text file (0-based indices in file order)
 } hs_fixed_kind;
 
 typedef struct hs_scene_fixed {
@@ -37,7 +43,10 @@ typedef struct hs_scene_fixed {
     int axis;         ///< BBOX_SIDE: 0 = x, 1 = y, 2 = z
     int side;         ///< BBOX_SIDE: -1 = min side, +1 = max side
     double depth;     ///< m, BBOX_SIDE: slab thickness measured from that side
-    int line;         ///< line of the region in the scene file (for messages; 0 if unknown)
+    double radius;    ///< m, SPHERE / PATCH: around point
+    char group[HS_MESH_REGION_NAME_MAX]; ///< GROUP: region name (or its tag in decimal)
+    char file[HS_SCENE_PATH_MAX];        ///< NODES: the list, resolved against the scene folder
+    int line; ///< line of the region in the scene file (for messages; 0 if unknown)
 } hs_scene_fixed;
 
 typedef enum hs_tool_kind {
@@ -59,6 +68,9 @@ typedef struct hs_scene {
     char mesh_path[HS_SCENE_PATH_MAX]; ///< mesh file, resolved against the scene's folder
     double units_scale;                ///< metres per mesh unit (1 for a mesh in m, 0.001 in mm)
     int mesh_line, units_line, fixed_line; ///< lines of those keys (messages; 0: unknown/absent)
+    /// degrees: the server refuses a mesh whose smallest dihedral angle is below this
+    /// (mesh_quality.min_dihedral_deg; 0 accepts any)
+    double min_dihedral_deg;
 
     hs_model model;         ///< element model
     hs_rotation rotation;   ///< co-rotated: how element rotations are extracted
@@ -119,6 +131,14 @@ hs_status hs_scene_parse(const char* text, const char* path, int check_files,
 /// binds a random port; docs/protocol.md).
 /// Thread: any | Allocates: no
 int hs_scene_same_bus(const char* a, const char* b);
+
+/// Mark the nodes region f selects in mesh m (positions in the mesh's metres, after
+/// units_scale); sel [n_nodes] is overwritten (1 selected). HS_ERR_INVALID with the reason (a
+/// group the mesh does not have, listing those it has; a node list's file:line and problem),
+/// HS_ERR_IO (a node list that cannot be read) or HS_ERR_NOMEM.
+/// Thread: any | Allocates: temporarily
+hs_status hs_scene_fixed_select(const hs_scene_fixed* f, const hs_mesh* m, unsigned char* sel,
+                                hs_err* err);
 
 /// Short names used in scene files: "linear", "corotated", "stvk"; "probe", "scalpel"; ...
 const char* hs_scene_model_name(hs_model m);

@@ -226,29 +226,21 @@ static double hist_max_us(const hs_rt_hist* h) {
 // ---------------------------------------------------------------------------------------------
 // World: mesh, fixed nodes, visual set, sim
 
-// The union of the scene's fixed regions over the used nodes; how many, or -1 (out of memory).
-// *empty: the first region that selects no used node, or -1.
-static int fixed_mask(const hs_scene* sc, const hs_mesh* m, unsigned char* fixed, int* empty) {
+// The union of the scene's fixed regions over the used nodes; how many, or -1 (out of memory),
+// or -2 (a region cannot select: err says why, *empty names it).
+// *empty: the first region that selects no used node (or failed), or -1.
+static int fixed_mask(const hs_scene* sc, const hs_mesh* m, unsigned char* fixed, int* empty,
+                      hs_err* err) {
     *empty = -1;
     unsigned char* sel = hs_calloc((size_t)m->n_nodes, 1);
     if (!sel) return -1;
     memset(fixed, 0, (size_t)m->n_nodes);
     for (int r = 0; r < sc->n_fixed; ++r) {
-        const hs_scene_fixed* f = &sc->fixed[r];
-        memset(sel, 0, (size_t)m->n_nodes);
-        if (f->kind == HS_FIXED_PLANE) {
-            double n[3] = {f->normal[0], f->normal[1], f->normal[2]}, l = norm3(n);
-            for (int i = 0; i < m->n_nodes; ++i) {
-                const double* x = m->x0 + 3 * i;
-                double d = ((x[0] - f->point[0]) * n[0] + (x[1] - f->point[1]) * n[1] +
-                            (x[2] - f->point[2]) * n[2]) /
-                           l;
-                sel[i] = d <= f->tolerance;
-            }
-        } else if (f->kind == HS_FIXED_BOX) {
-            hs_mesh_select_box(m, f->min, f->max, sel);
-        } else {
-            hs_mesh_select_plane(m, f->axis, f->side, f->depth, sel);
+        hs_status st = hs_scene_fixed_select(&sc->fixed[r], m, sel, err);
+        if (st < 0) {
+            hs_free(sel);
+            *empty = r;
+            return st == HS_ERR_NOMEM ? -1 : -2;
         }
         int any = 0;
         for (int i = 0; i < m->n_nodes; ++i) {
@@ -376,6 +368,11 @@ static hs_status world_create(const hs_scene* sc, int realtime, world* w, hs_err
     hs_err e2 = {0};
     hs_status s = hs_mesh_load(sc->mesh_path, &w->mesh, &e2);
     if (s < 0) return hs_err_set(err, s, "%s:%d: key 'mesh': %s", sc->path, sc->mesh_line, e2.msg);
+    if (s == HS_WARN_MESH_REPAIRED) { // repairs are never silent
+        char rep[512];
+        hs_mesh_report_str(&w->mesh->report, rep, sizeof rep);
+        fprintf(stderr, "hapsim-server: %s was repaired on loading:\n%s", sc->mesh_path, rep);
+    }
     if (sc->units_scale != 1.0) {
         for (int i = 0; i < 3 * w->mesh->n_nodes; ++i) w->mesh->x0[i] *= sc->units_scale;
         s = hs_mesh_finalize(w->mesh, &e2);
@@ -386,13 +383,28 @@ static hs_status world_create(const hs_scene* sc, int realtime, world* w, hs_err
         }
     }
     const hs_mesh* m = w->mesh;
+    if (m->report.min_dihedral_deg < sc->min_dihedral_deg) {
+        s = hs_err_set(err, HS_ERR_INVALID,
+                       "%s:%d: key 'mesh': %s: its flattest tet has a %.3g degree dihedral angle "
+                       "(below mesh_quality.min_dihedral_deg %g): such slivers make element "
+                       "stiffness and forces spike; remesh it (hapsim-mesh tet --size ...) or "
+                       "accept it with \"mesh_quality\": {\"min_dihedral_deg\": 0}",
+                       sc->path, sc->mesh_line, sc->mesh_path, m->report.min_dihedral_deg,
+                       sc->min_dihedral_deg);
+        goto fail;
+    }
     size_t n = (size_t)m->n_nodes;
     w->fixed = hs_calloc(n, 1);
     w->u = hs_calloc(3 * n, sizeof(double));
     w->v = hs_calloc(3 * n, sizeof(double));
     if (!w->fixed || !w->u || !w->v) goto nomem;
     int empty = -1, used = 0;
-    w->n_fixed = fixed_mask(sc, m, w->fixed, &empty);
+    w->n_fixed = fixed_mask(sc, m, w->fixed, &empty, &e2);
+    if (w->n_fixed == -2) {
+        s = hs_err_set(err, HS_ERR_INVALID, "%s:%d: key 'fixed[%d]': %s: %s", sc->path,
+                       sc->fixed[empty].line, empty, sc->mesh_path, e2.msg);
+        goto fail;
+    }
     if (w->n_fixed < 0) goto nomem;
     for (size_t i = 0; i < n; ++i) used += m->node_used[i] != 0;
     if (empty >= 0) { // a region that misses the mesh is a mistake even when others select
@@ -1785,6 +1797,12 @@ void hs_server_print_summary(hs_server* s) {
     printf("hapsim-server: scene '%s' (%s)\n", sc->name, sc->path);
     printf("  mesh     %s: %d nodes, %d tets, %d surface nodes, %d fixed\n", sc->mesh_path,
            m->n_nodes, m->n_tets, m->n_surf_nodes, w->n_fixed);
+    printf("  quality  smallest dihedral angle %.3g deg, worst aspect %.3g, mean %.3g (1 = "
+           "regular), %d piece(s)%s\n",
+           m->report.min_dihedral_deg, m->report.max_aspect, m->report.mean_aspect,
+           m->report.components,
+           m->report.min_dihedral_deg < 5 ? "; slivers: remesh with hapsim-mesh tet --size ..."
+                                          : "");
     printf("  model    %s, E %g Pa, nu %g, %g kg/m^3; deformation up to %g Hz\n",
            hs_scene_model_name(sc->model), sc->material.youngs_pa, sc->material.poisson,
            sc->material.density_kg_m3, sc->sim_hz);

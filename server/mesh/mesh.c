@@ -50,6 +50,8 @@ static void free_derived(hs_mesh* m) {
 void hs_mesh_destroy(hs_mesh** mesh) {
     if (!mesh || !*mesh) return;
     free_derived(*mesh);
+    for (int r = 0; r < (*mesh)->n_regions; ++r) hs_free((*mesh)->regions[r].nodes);
+    hs_free((*mesh)->regions);
     hs_free((*mesh)->x0);
     hs_free((*mesh)->tets);
     hs_free(*mesh);
@@ -431,11 +433,15 @@ static hs_status finalize(hs_mesh* m, hs_mesh_fault* fault, hs_err* err) {
 
     hs_mesh_report* r = &m->report;
     r->reoriented_tets = r->degenerate_tets = r->duplicate_tets = 0;
+    for (int k = 0; k < HS_MESH_REPORT_FIRST; ++k)
+        r->first_reoriented[k] = r->first_degenerate[k] = r->first_duplicate[k] = -1;
     for (int t = 0; t < m->n_tets; ++t) {
         int* tet = m->tets + 4 * t;
         double v = hs_tet_volume(m->x0, tet);
         keep[t] = fabs(v) > tiny;
         if (!keep[t]) {
+            if (r->degenerate_tets < HS_MESH_REPORT_FIRST)
+                r->first_degenerate[r->degenerate_tets] = t;
             r->degenerate_tets++;
             continue;
         }
@@ -443,6 +449,8 @@ static hs_status finalize(hs_mesh* m, hs_mesh_fault* fault, hs_err* err) {
             int s = tet[1];
             tet[1] = tet[2];
             tet[2] = s;
+            if (r->reoriented_tets < HS_MESH_REPORT_FIRST)
+                r->first_reoriented[r->reoriented_tets] = t;
             r->reoriented_tets++;
         }
     }
@@ -464,6 +472,8 @@ static hs_status finalize(hs_mesh* m, hs_mesh_fault* fault, hs_err* err) {
         for (int i = 1; i < n_b; ++i)
             if (memcmp(b[i].k, b[i - 1].k, sizeof b[i].k) == 0) {
                 keep[b[i].t] = 0; // the later tet of a duplicate run goes
+                if (r->duplicate_tets < HS_MESH_REPORT_FIRST)
+                    r->first_duplicate[r->duplicate_tets] = b[i].t;
                 r->duplicate_tets++;
             }
     }
@@ -695,6 +705,21 @@ hs_status hs_mesh_check(const hs_mesh* m, hs_err* err) {
     if ((nn && !m->x0) || (nt && !m->tets) || !m->node_used || !m->node_surf ||
         (m->n_tris && (!m->tris || !m->tri_tet)) || (m->n_surf_nodes && !m->surf_nodes))
         return hs_err_set(err, HS_ERR_INVALID, "mesh arrays are NULL (not finalized?)");
+
+    // Regions: names, node indices in range, ascending.
+    if (m->n_regions < 0 || (m->n_regions && !m->regions))
+        return hs_err_set(err, HS_ERR_INVALID, "bad region list");
+    for (int r = 0; r < m->n_regions; ++r) {
+        const hs_mesh_region* g = &m->regions[r];
+        if (!memchr(g->name, 0, sizeof g->name) || !g->name[0] || g->n_nodes < 0 ||
+            g->n_nodes > nn || (g->n_nodes && !g->nodes))
+            return hs_err_set(err, HS_ERR_INVALID, "region %d: bad name or node list", r);
+        for (int i = 0; i < g->n_nodes; ++i)
+            if (g->nodes[i] < 0 || g->nodes[i] >= nn || (i && g->nodes[i] <= g->nodes[i - 1]))
+                return hs_err_set(err, HS_ERR_INVALID,
+                                  "region '%s': node %d out of range or out of order", g->name,
+                                  g->nodes[i]);
+    }
 
     // Tets: ranges, distinct nodes, positive volume; node_used and the volume sum.
     double vol = 0.0;
@@ -958,4 +983,76 @@ hs_status hs_mesh_write_vtk(const hs_mesh* m, const double* u, const char* path,
     int bad = ferror(f);
     bad |= fclose(f) != 0;
     return bad ? hs_err_set(err, HS_ERR_IO, "%s: write failed", path) : HS_OK;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Regions and the repair report
+
+const hs_mesh_region* hs_mesh_find_region(const hs_mesh* m, const char* name) {
+    if (!m || !name) return NULL;
+    const hs_mesh_region* best = NULL;
+    for (int r = 0; r < m->n_regions; ++r) {
+        const hs_mesh_region* g = &m->regions[r];
+        char tag[16];
+        snprintf(tag, sizeof tag, "%d", g->tag);
+        if (strcmp(g->name, name) != 0 && strcmp(tag, name) != 0) continue;
+        // A surface group is what fixing usually means; else the lowest dimension above it.
+        if (!best || (g->dim == 2 && best->dim != 2) ||
+            (best->dim != 2 && g->dim != 2 && g->dim > best->dim))
+            best = g;
+    }
+    return best;
+}
+
+hs_status hs_mesh_add_region(hs_mesh* m, const char* name, int dim, int tag, int n_nodes,
+                             const int* nodes, hs_err* err) {
+    if (!m || !name || !name[0] || strlen(name) >= HS_MESH_REGION_NAME_MAX || dim < 0 || dim > 3 ||
+        n_nodes < 0 || (n_nodes && !nodes))
+        return hs_err_set(err, HS_ERR_INVALID, "region: bad name, dimension or node list");
+    for (int i = 0; i < n_nodes; ++i)
+        if (nodes[i] < 0 || nodes[i] >= m->n_nodes)
+            return hs_err_set(err, HS_ERR_INVALID, "region '%s': node %d out of range", name,
+                              nodes[i]);
+    hs_mesh_region* g = hs_realloc(m->regions, (size_t)(m->n_regions + 1) * sizeof *g);
+    if (!g) return hs_err_set(err, HS_ERR_NOMEM, "region: out of memory");
+    m->regions = g;
+    hs_mesh_region* r = &g[m->n_regions];
+    memset(r, 0, sizeof *r);
+    r->nodes = hs_alloc(((size_t)n_nodes + 1) * sizeof(int));
+    if (!r->nodes) return hs_err_set(err, HS_ERR_NOMEM, "region: out of memory");
+    if (n_nodes) memcpy(r->nodes, nodes, (size_t)n_nodes * sizeof(int));
+    qsort(r->nodes, (size_t)n_nodes, sizeof(int), cmp_int);
+    int u = 0;
+    for (int i = 0; i < n_nodes; ++i)
+        if (i == 0 || r->nodes[i] != r->nodes[i - 1]) r->nodes[u++] = r->nodes[i];
+    r->n_nodes = u;
+    r->dim = dim;
+    r->tag = tag;
+    snprintf(r->name, sizeof r->name, "%s", name);
+    ++m->n_regions;
+    return HS_OK;
+}
+
+void hs_mesh_report_str(const hs_mesh_report* r, char* buf, size_t cap) {
+    if (!buf || cap == 0) return;
+    buf[0] = '\0';
+    if (!r) return;
+    size_t n = 0;
+    const int counts[4] = {r->reoriented_tets, r->degenerate_tets, r->duplicate_tets,
+                           r->unreferenced_nodes};
+    const long long* first[4] = {r->first_reoriented, r->first_degenerate, r->first_duplicate,
+                                 NULL};
+    static const char* const text[4] = {"tets reoriented (negative volume, two nodes swapped)",
+                                        "degenerate tets removed (zero volume or repeated node)",
+                                        "repeated tets removed (same four nodes as another)",
+                                        "nodes used by no tet (kept, not simulated)"};
+    for (int k = 0; k < 4 && n < cap; ++k) {
+        if (counts[k] <= 0) continue;
+        n += (size_t)snprintf(buf + n, cap - n, "%d %s", counts[k], text[k]);
+        for (int j = 0; first[k] && j < HS_MESH_REPORT_FIRST && first[k][j] >= 0 && n < cap; ++j)
+            n += (size_t)snprintf(buf + n, cap - n, "%s%lld", j ? ", " : ": element ", first[k][j]);
+        if (first[k] && counts[k] > HS_MESH_REPORT_FIRST && n < cap)
+            n += (size_t)snprintf(buf + n, cap - n, ", ...");
+        if (n < cap) n += (size_t)snprintf(buf + n, cap - n, "\n");
+    }
 }

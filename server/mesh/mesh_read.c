@@ -252,6 +252,19 @@ typedef struct id_pair {
     int idx;
 } id_pair;
 
+typedef struct grp_entry {
+    int dim, tag, node;
+} grp_entry;
+
+typedef struct phys_name {
+    int dim, tag;
+    char name[HS_MESH_REGION_NAME_MAX];
+} phys_name;
+
+typedef struct ent_phys {
+    int dim, ent, phys;
+} ent_phys;
+
 typedef struct builder {
     int n_nodes;
     double* x;     // [3 n_nodes]
@@ -264,6 +277,17 @@ typedef struct builder {
     long long* tid; // [capacity] file id of each tet (VTK: cell index)
     int by_index;   // VTK: nodes and cells are named by 0-based index, no line each
     int skipped;
+    // Gmsh physical groups: one entry per (group, element node); names; 4.1 entity -> group
+    int n_grp, cap_grp;
+    grp_entry* grp;
+    int n_names, cap_names;
+    phys_name* names;
+    int n_ents, cap_ents;
+    ent_phys* ents;
+    // triangles (type 2), when collect_tris
+    int collect_tris;
+    int n_tris, cap_tris;
+    int* tris;
 } builder;
 
 static void builder_free(builder* b) {
@@ -274,13 +298,65 @@ static void builder_free(builder* b) {
     hs_free(b->tets);
     hs_free(b->tline);
     hs_free(b->tid);
+    hs_free(b->grp);
+    hs_free(b->names);
+    hs_free(b->ents);
+    hs_free(b->tris);
     memset(b, 0, sizeof *b);
+}
+
+// Grows an array of `size`-byte items to hold one more; 0 on no memory.
+static int grow(void** p, int* cap, int n, size_t size) {
+    if (n < *cap) return 1;
+    if (*cap > HS_MESH_MAX_COUNT / 2) return 0;
+    int c = *cap ? 2 * *cap : 64;
+    void* g = hs_realloc(*p, (size_t)c * size);
+    if (!g) return 0;
+    *p = g;
+    *cap = c;
+    return 1;
+}
+
+// Dimension of Gmsh element type 1-31 (0 points, 1 lines, 2 surfaces, 3 volumes).
+static int gmsh_type_dim(long long type) {
+    static const signed char d[32] = {-1, 1, 2, 2, 3, 3, 3, 3, 1, 2, 2, 3, 3, 3, 3, 0,
+                                      2,  3, 3, 3, 2, 2, 2, 2, 2, 2, 1, 1, 1, 3, 3, 3};
+    return type >= 1 && type <= 31 ? d[type] : -1;
 }
 
 static int nomem(lexer* lx) {
     lx->status = HS_ERR_NOMEM;
     hs_err_set(lx->err, HS_ERR_NOMEM, "%s: out of memory", lx->name);
     return 0;
+}
+
+// Records that element nodes nodes[0..k) belong to physical group (dim, tag).
+static int add_group_nodes(lexer* lx, builder* b, int dim, long long tag, const int* nodes, int k) {
+    if (tag == 0 || dim < 0) return 1;
+    if (tag < INT_MIN || tag > INT_MAX)
+        return lx_fail(lx, lx->line, HS_ERR_PARSE, "physical tag %lld out of range", tag);
+    for (int i = 0; i < k; ++i) {
+        if (!grow((void**)&b->grp, &b->cap_grp, b->n_grp, sizeof(grp_entry))) return nomem(lx);
+        b->grp[b->n_grp++] = (grp_entry){dim, (int)tag, nodes[i]};
+    }
+    return 1;
+}
+
+// The physical groups of a 4.1 element block's entity, then its element nodes.
+static int add_entity_nodes(lexer* lx, builder* b, int dim, long long ent, const int* nodes,
+                            int k) {
+    for (int i = 0; i < b->n_ents; ++i)
+        if (b->ents[i].dim == dim && b->ents[i].ent == ent &&
+            !add_group_nodes(lx, b, dim, b->ents[i].phys, nodes, k))
+            return 0;
+    return 1;
+}
+
+static int add_triangle(lexer* lx, builder* b, const int* nodes) {
+    if (!b->collect_tris) return 1;
+    if (!grow((void**)&b->tris, &b->cap_tris, 3 * b->n_tris + 2, sizeof(int))) return nomem(lx);
+    memcpy(b->tris + 3 * b->n_tris++, nodes, 3 * sizeof(int));
+    return 1;
 }
 
 static int alloc_nodes(lexer* lx, builder* b, long long n) {
@@ -370,18 +446,24 @@ static int gmsh_type_nodes(long long type) {
 
 // The node ids of a skipped (not linear tet) element: a known type must name exactly its
 // nodes, each one known, as a tet's must; an unknown type's line is skipped unread.
-static int skip_element_nodes(lexer* lx, builder* b, long long type, long long elem) {
+// *k_out: how many nodes went to nodes[] (0 for an unknown type).
+static int skip_element_nodes(lexer* lx, builder* b, long long type, long long elem, int nodes[56],
+                              int* k_out) {
     const int k = gmsh_type_nodes(type);
+    *k_out = 0;
     if (!k) {
         skip_line(lx);
         return 1;
     }
     for (int c = 0; c < k; ++c) {
-        int idx, line;
-        if (!rd_elem_node(lx, b, 1, c, k, elem, &idx, &line)) return 0;
+        int line;
+        if (!rd_elem_node(lx, b, 1, c, k, elem, &nodes[c], &line)) return 0;
     }
+    *k_out = k;
     return end_line(lx, "an element");
 }
+
+static int build_regions(lexer* lx, builder* b, hs_mesh* m);
 
 static hs_status builder_finish(lexer* lx, builder* b, hs_mesh** out) {
     if (b->n_tets == 0) {
@@ -426,6 +508,17 @@ static hs_status builder_finish(lexer* lx, builder* b, hs_mesh** out) {
         } else {
             snprintf(lx->err->msg, sizeof lx->err->msg, "%s: %.400s", lx->name, msg);
         }
+    }
+    if (st >= 0) { // repaired elements by their ids in the file
+        hs_mesh_report* r = &(*out)->report;
+        long long* lists[3] = {r->first_reoriented, r->first_degenerate, r->first_duplicate};
+        for (int k = 0; k < 3; ++k)
+            for (int j = 0; j < HS_MESH_REPORT_FIRST; ++j)
+                if (lists[k][j] >= 0 && lists[k][j] < b->n_tets) lists[k][j] = b->tid[lists[k][j]];
+    }
+    if (st >= 0 && !build_regions(lx, b, *out)) {
+        hs_mesh_destroy(out);
+        st = HS_ERR_NOMEM;
     }
     builder_free(b);
     return st;
@@ -515,16 +608,25 @@ static int msh_elements_v2(lexer* lx, builder* b) {
             !rd_int(lx, 0, 1, INT_MAX, "element type", &type))
             return 0;
         if (!rd_int(lx, 0, 0, 1000, "tag count", &ntags)) return 0;
-        for (long long k = 0; k < ntags; ++k)
+        long long phys = 0; // the first tag is the physical group (0: none)
+        for (long long k = 0; k < ntags; ++k) {
             if (!rd_int(lx, 0, LLONG_MIN, LLONG_MAX, "tag", &tag)) return 0;
+            if (k == 0) phys = tag;
+        }
         if (type != 4) { // not a linear tet: checked, counted, not kept
+            int nodes[56], k;
             ++b->skipped;
-            if (!skip_element_nodes(lx, b, type, id)) return 0;
+            if (!skip_element_nodes(lx, b, type, id, nodes, &k) ||
+                !add_group_nodes(lx, b, gmsh_type_dim(type), phys, nodes, k) ||
+                (type == 2 && !add_triangle(lx, b, nodes)))
+                return 0;
             continue;
         }
         for (int c = 0; c < 4; ++c)
             if (!rd_tet_node(lx, b, 1, c, id)) return 0;
-        if (!end_line(lx, "a tetrahedron")) return 0;
+        if (!end_line(lx, "a tetrahedron") ||
+            !add_group_nodes(lx, b, 3, phys, b->tets + 4 * b->n_tets, 4))
+            return 0;
         ++b->n_tets;
     }
     return 1;
@@ -561,13 +663,19 @@ static int msh_elements_v4(lexer* lx, builder* b) {
             if (!record(lx, j, m, "elements")) return 0;
             if (!rd_int(lx, 0, lo, hi, "element tag", &id)) return 0;
             if (type != 4) {
+                int nodes[56], kn;
                 ++b->skipped;
-                if (!skip_element_nodes(lx, b, type, id)) return 0;
+                if (!skip_element_nodes(lx, b, type, id, nodes, &kn) ||
+                    !add_entity_nodes(lx, b, (int)dim, tag, nodes, kn) ||
+                    (type == 2 && !add_triangle(lx, b, nodes)))
+                    return 0;
                 continue;
             }
             for (int c = 0; c < 4; ++c)
                 if (!rd_tet_node(lx, b, 1, c, id)) return 0;
-            if (!end_line(lx, "a tetrahedron")) return 0;
+            if (!end_line(lx, "a tetrahedron") ||
+                !add_entity_nodes(lx, b, 3, tag, b->tets + 4 * b->n_tets, 4))
+                return 0;
             ++b->n_tets;
         }
         filled += m;
@@ -590,8 +698,128 @@ static int msh_section_end(lexer* lx, const char* end_tag) {
     return end_line(lx, end_tag);
 }
 
-static hs_status parse_msh(lexer* lx, hs_mesh** out) {
+// $PhysicalNames: a count, then lines `dim tag "name"`.
+static int msh_physical_names(lexer* lx, builder* b) {
+    long long n, dim, tag;
+    int hl = lx->line;
+    if (!rd_int(lx, 1, 0, LLONG_MAX, "physical name count", &n) ||
+        !end_line(lx, "the physical name count") || !check_count(lx, n, 6, hl, "physical name"))
+        return 0;
+    for (long long i = 0; i < n; ++i) {
+        if (!record(lx, i, n, "physical names") ||
+            !rd_int(lx, 0, 0, 3, "physical dimension", &dim) ||
+            !rd_int(lx, 0, INT_MIN, INT_MAX, "physical tag", &tag))
+            return 0;
+        skip_blanks(lx);
+        int line = lx->line;
+        if (lx->p >= lx->end || *lx->p != '"')
+            return lx_fail(lx, line, HS_ERR_PARSE, "physical name must be in double quotes");
+        const char* s0 = ++lx->p;
+        while (lx->p < lx->end && *lx->p != '"' && *lx->p != '\n') ++lx->p;
+        if (lx->p >= lx->end || *lx->p != '"')
+            return lx_fail(lx, line, HS_ERR_PARSE, "physical name has no closing quote");
+        size_t len = (size_t)(lx->p - s0);
+        ++lx->p;
+        if (len == 0 || len >= HS_MESH_REGION_NAME_MAX)
+            return lx_fail(lx, line, HS_ERR_PARSE, "physical name of %zu bytes (1 to %d)", len,
+                           HS_MESH_REGION_NAME_MAX - 1);
+        for (size_t k = 0; k < len; ++k)
+            if ((unsigned char)s0[k] < 0x20)
+                return lx_fail(lx, line, HS_ERR_PARSE, "control byte in a physical name");
+        if (!end_line(lx, "a physical name")) return 0;
+        if (!grow((void**)&b->names, &b->cap_names, b->n_names, sizeof(phys_name)))
+            return nomem(lx);
+        phys_name* pn = &b->names[b->n_names++];
+        pn->dim = (int)dim;
+        pn->tag = (int)tag;
+        memcpy(pn->name, s0, len);
+        pn->name[len] = '\0';
+    }
+    return 1;
+}
+
+// MSH 4.1 $Entities: which physical groups each point, curve, surface and volume is in.
+static int msh_entities(lexer* lx, builder* b) {
+    long long count[4], tag, np, phys, nbound, v;
+    double c;
+    int hl = lx->line;
+    for (int d = 0; d < 4; ++d)
+        if (!rd_int(lx, 1, 0, LLONG_MAX, "entity count", &count[d]) ||
+            !check_count(lx, count[d], 8, hl, "entity"))
+            return 0;
+    for (int d = 0; d < 4; ++d)
+        for (long long i = 0; i < count[d]; ++i) {
+            if (!rd_int(lx, 1, INT_MIN, INT_MAX, "entity tag", &tag)) return 0;
+            for (int k = 0; k < (d == 0 ? 3 : 6); ++k)
+                if (!rd_double(lx, 1, "entity coordinate", &c)) return 0;
+            if (!rd_int(lx, 1, 0, 1000, "physical tag count", &np)) return 0;
+            for (long long k = 0; k < np; ++k) {
+                if (!rd_int(lx, 1, INT_MIN, INT_MAX, "physical tag", &phys)) return 0;
+                if (!grow((void**)&b->ents, &b->cap_ents, b->n_ents, sizeof(ent_phys)))
+                    return nomem(lx);
+                // Gmsh may write a negative tag for an orientation; the group is |tag|.
+                b->ents[b->n_ents++] = (ent_phys){d, (int)tag, (int)(phys < 0 ? -phys : phys)};
+            }
+            if (d > 0) {
+                if (!rd_int(lx, 1, 0, 1000000, "bounding entity count", &nbound)) return 0;
+                for (long long k = 0; k < nbound; ++k)
+                    if (!rd_int(lx, 1, INT_MIN, INT_MAX, "bounding entity", &v)) return 0;
+            }
+        }
+    skip_line(lx);
+    return 1;
+}
+
+static int cmp_grp(const void* pa, const void* pb) {
+    const grp_entry* a = pa;
+    const grp_entry* b = pb;
+    if (a->dim != b->dim) return a->dim < b->dim ? -1 : 1;
+    if (a->tag != b->tag) return a->tag < b->tag ? -1 : 1;
+    return (a->node > b->node) - (a->node < b->node);
+}
+
+// Turns the group entries into the mesh's regions. 0 on no memory (the mesh keeps what it has).
+static int build_regions(lexer* lx, builder* b, hs_mesh* m) {
+    if (b->n_grp == 0) return 1;
+    qsort(b->grp, (size_t)b->n_grp, sizeof(grp_entry), cmp_grp);
+    int n_reg = 0;
+    for (int i = 0; i < b->n_grp; ++i)
+        if (i == 0 || b->grp[i].dim != b->grp[i - 1].dim || b->grp[i].tag != b->grp[i - 1].tag)
+            ++n_reg;
+    m->regions = hs_calloc((size_t)n_reg, sizeof(hs_mesh_region));
+    if (!m->regions) return nomem(lx);
+    for (int i = 0; i < b->n_grp;) {
+        int j = i, u = 0;
+        while (j < b->n_grp && b->grp[j].dim == b->grp[i].dim && b->grp[j].tag == b->grp[i].tag)
+            ++j;
+        hs_mesh_region* r = &m->regions[m->n_regions];
+        r->nodes = hs_alloc((size_t)(j - i) * sizeof(int));
+        if (!r->nodes) return nomem(lx);
+        for (int k = i; k < j; ++k)
+            if (k == i || b->grp[k].node != b->grp[k - 1].node) r->nodes[u++] = b->grp[k].node;
+        r->n_nodes = u;
+        r->dim = b->grp[i].dim;
+        r->tag = b->grp[i].tag;
+        snprintf(r->name, sizeof r->name, "%d", r->tag);
+        for (int k = 0; k < b->n_names; ++k)
+            if (b->names[k].dim == r->dim && b->names[k].tag == r->tag)
+                memcpy(r->name, b->names[k].name, sizeof r->name);
+        ++m->n_regions;
+        i = j;
+    }
+    return 1;
+}
+
+// Triangles instead of a mesh (hs_mesh_parse_msh_triangles).
+typedef struct tri_out {
+    int n_nodes, n_tris;
+    double* x;
+    int* tris;
+} tri_out;
+
+static hs_status parse_msh(lexer* lx, hs_mesh** out, tri_out* to) {
     builder b = {0};
+    b.collect_tris = to != NULL;
     tok t;
     char buf[48];
     long long ftype, dsize;
@@ -641,6 +869,22 @@ static hs_status parse_msh(lexer* lx, hs_mesh** out) {
             if (!ok || !msh_section_end(lx, nodes ? "$EndNodes" : "$EndElements")) goto fail;
             have_nodes |= nodes;
             have_elems |= !nodes;
+        } else if (tok_is(&t, "$PhysicalNames") || (version == 4 && tok_is(&t, "$Entities"))) {
+            int names = tok_is(&t, "$PhysicalNames");
+            const char* end_tag = names ? "$EndPhysicalNames" : "$EndEntities";
+            size_t el = strlen(end_tag);
+            int found = 0;
+            for (const char* c = lx->p; !found && c + el <= lx->end; ++c)
+                found = *c == '$' && memcmp(c, end_tag, el) == 0;
+            if (!found) { // the same message as for a section that is skipped
+                lx_fail(lx, t.line, HS_ERR_PARSE, "section %.*s has no %s", (int)t.len, t.s,
+                        end_tag);
+                goto fail;
+            }
+            if (!end_line(lx, names ? "$PhysicalNames" : "$Entities")) goto fail;
+            if (!(names ? msh_physical_names(lx, &b) : msh_entities(lx, &b)) ||
+                !msh_section_end(lx, names ? "$EndPhysicalNames" : "$EndEntities"))
+                goto fail;
         } else if (t.len > 1 && t.s[0] == '$') {
             // Another section ($Entities, $PhysicalNames, ...): skip lines up to $End<name>.
             char end_tag[48];
@@ -672,6 +916,20 @@ static hs_status parse_msh(lexer* lx, hs_mesh** out) {
         lx_fail(lx, lx->line, HS_ERR_PARSE, "missing %s section",
                 have_nodes ? "$Elements" : "$Nodes");
         goto fail;
+    }
+    if (to) {
+        if (b.n_tris == 0) {
+            lx_fail(lx, lx->line, HS_ERR_PARSE, "no triangles (%d tetrahedra)", b.n_tets);
+            goto fail;
+        }
+        to->n_nodes = b.n_nodes;
+        to->x = b.x;
+        to->n_tris = b.n_tris;
+        to->tris = b.tris;
+        b.x = NULL;
+        b.tris = NULL;
+        builder_free(&b);
+        return HS_OK;
     }
     return builder_finish(lx, &b, out);
 fail:
@@ -1014,6 +1272,297 @@ fail:
 }
 
 // ---------------------------------------------------------------------------------------------
+// VTK XML unstructured grid (.vtu), ASCII data arrays (as hapsim-view and ParaView's ASCII
+// option write). Only <Points> and <Cells> are read; binary and appended data are refused.
+
+// Next '<' tag from lx->p; sets name (after '<', up to blank, '>' or '/') and the tag's end.
+static int vtu_next_tag(lexer* lx, const char** tag, size_t* tag_len, const char** tag_end) {
+    for (;;) {
+        const char* lt = memchr(lx->p, '<', (size_t)(lx->end - lx->p));
+        if (!lt) return 0;
+        for (const char* c = lx->p; c < lt; ++c) lx->line += *c == '\n';
+        const char* gt = memchr(lt, '>', (size_t)(lx->end - lt));
+        if (!gt) return lx_fail(lx, lx->line, HS_ERR_PARSE, "unterminated tag");
+        lx->p = gt + 1;
+        for (const char* c = lt; c < gt; ++c) lx->line += *c == '\n';
+        if (lt + 1 < gt && (lt[1] == '?' || lt[1] == '!')) continue; // <?xml ?> and comments
+        const char* n = lt + 1;
+        const char* e = n;
+        while (e < gt && !is_blank(*e) && *e != '\n' && *e != '>' && *e != '/') ++e;
+        if (e == n && e < gt && *e == '/') { // closing tag: name after the slash
+            ++n;
+            e = n;
+            while (e < gt && !is_blank(*e) && *e != '\n' && *e != '>') ++e;
+            *tag = n - 1;
+            *tag_len = (size_t)(e - n + 1);
+        } else {
+            *tag = n;
+            *tag_len = (size_t)(e - n);
+        }
+        *tag_end = gt;
+        return 1;
+    }
+}
+
+// Attribute value of `key` inside [s, e) (a tag's text); 0 when absent.
+static int vtu_attr(const char* s, const char* e, const char* key, const char** v, size_t* n) {
+    size_t k = strlen(key);
+    for (const char* c = s; c + k + 2 <= e; ++c) {
+        if ((c == s || is_blank(c[-1]) || c[-1] == '\n') && memcmp(c, key, k) == 0 && c[k] == '=' &&
+            (c[k + 1] == '"' || c[k + 1] == '\'')) {
+            const char q = c[k + 1];
+            const char* b = c + k + 2;
+            const char* z = memchr(b, q, (size_t)(e - b));
+            if (!z) return 0;
+            *v = b;
+            *n = (size_t)(z - b);
+            return 1;
+        }
+    }
+    return 0;
+}
+
+static int span_is(const char* s, size_t n, const char* lit) {
+    return n == strlen(lit) && memcmp(s, lit, n) == 0;
+}
+
+typedef struct vtu_data {
+    long long n_pts, n_cells;
+    double* pts;     // [3 n_pts]
+    long long* conn; // connectivity
+    long long n_conn;
+    long long* offs;  // [n_cells]
+    long long* types; // [n_cells]
+} vtu_data;
+
+static void vtu_free(vtu_data* d) {
+    hs_free(d->pts);
+    hs_free(d->conn);
+    hs_free(d->offs);
+    hs_free(d->types);
+    memset(d, 0, sizeof *d);
+}
+
+// Reads the numbers of a DataArray body (up to "</DataArray>") into a new array.
+static int vtu_numbers(lexer* lx, int as_int, long long max_n, const char* what, void** out,
+                       long long* count) {
+    const char* close = NULL;
+    for (const char* c = lx->p; c + 12 <= lx->end; ++c)
+        if (*c == '<') {
+            close = c;
+            break;
+        }
+    if (!close) return lx_fail(lx, lx->line, HS_ERR_PARSE, "%s: no </DataArray>", what);
+    lexer sub = *lx;
+    sub.end = close;
+    size_t cap = (size_t)(close - lx->p) / 2 + 1;
+    if ((long long)cap > max_n + 1) cap = (size_t)max_n + 1;
+    void* a = hs_alloc(cap * 8 + 8);
+    if (!a) return nomem(lx);
+    long long n = 0;
+    tok t;
+    char b[48];
+    while (tok_any(&sub, &t)) {
+        if (n >= max_n) {
+            hs_free(a);
+            return lx_fail(lx, t.line, HS_ERR_PARSE, "%s: more than %lld values", what, max_n);
+        }
+        int ok = as_int ? parse_ll(&t, (long long*)a + n)
+                        : parse_double(&t, (double*)a + n) && fabs(((double*)a)[n]) <= 1e30;
+        if (!ok) {
+            hs_free(a);
+            return lx_fail(lx, t.line, HS_ERR_PARSE, "%s: bad value '%s'", what, tok_text(&t, b));
+        }
+        ++n;
+    }
+    lx->line = sub.line;
+    lx->p = close;
+    *out = a;
+    *count = n;
+    return 1;
+}
+
+static int vtu_read(lexer* lx, vtu_data* d) {
+    const char *tag = NULL, *tend = NULL;
+    size_t tl = 0;
+    int in_points = 0, in_cells = 0, seen_vtk = 0, pieces = 0;
+    while (vtu_next_tag(lx, &tag, &tl, &tend)) {
+        if (span_is(tag, tl, "VTKFile")) {
+            const char* v;
+            size_t n;
+            if (!vtu_attr(tag, tend, "type", &v, &n) || !span_is(v, n, "UnstructuredGrid"))
+                return lx_fail(lx, lx->line, HS_ERR_UNSUPPORTED,
+                               "only VTKFile type=\"UnstructuredGrid\" is read");
+            if (vtu_attr(tag, tend, "compressor", &v, &n))
+                return lx_fail(lx, lx->line, HS_ERR_UNSUPPORTED,
+                               "compressed VTU not supported (save as ASCII)");
+            seen_vtk = 1;
+        } else if (span_is(tag, tl, "Piece")) {
+            if (++pieces > 1)
+                return lx_fail(lx, lx->line, HS_ERR_UNSUPPORTED, "more than one Piece");
+            const char *v1, *v2;
+            size_t n1, n2;
+            tok t1, t2;
+            if (!vtu_attr(tag, tend, "NumberOfPoints", &v1, &n1) ||
+                !vtu_attr(tag, tend, "NumberOfCells", &v2, &n2))
+                return lx_fail(lx, lx->line, HS_ERR_PARSE,
+                               "Piece needs NumberOfPoints and NumberOfCells");
+            t1 = (tok){v1, n1, lx->line};
+            t2 = (tok){v2, n2, lx->line};
+            if (!parse_ll(&t1, &d->n_pts) || !parse_ll(&t2, &d->n_cells) || d->n_pts < 0 ||
+                d->n_cells < 0 || d->n_pts > HS_MESH_MAX_COUNT || d->n_cells > HS_MESH_MAX_COUNT)
+                return lx_fail(lx, lx->line, HS_ERR_PARSE, "bad NumberOfPoints or NumberOfCells");
+        } else if (span_is(tag, tl, "Points") || span_is(tag, tl, "/Points")) {
+            in_points = tag[0] != '/';
+        } else if (span_is(tag, tl, "Cells") || span_is(tag, tl, "/Cells")) {
+            in_cells = tag[0] != '/';
+        } else if (span_is(tag, tl, "AppendedData")) {
+            return lx_fail(lx, lx->line, HS_ERR_UNSUPPORTED,
+                           "appended VTU data not supported (save as ASCII)");
+        } else if (span_is(tag, tl, "DataArray") && (in_points || in_cells)) {
+            if (!pieces) return lx_fail(lx, lx->line, HS_ERR_PARSE, "DataArray outside a Piece");
+            const char *v, *nm = "";
+            size_t n, nml = 0;
+            if (!vtu_attr(tag, tend, "format", &v, &n) || !span_is(v, n, "ascii"))
+                return lx_fail(lx, lx->line, HS_ERR_UNSUPPORTED,
+                               "DataArray format is not \"ascii\" (binary VTU not supported; "
+                               "save as ASCII)");
+            vtu_attr(tag, tend, "Name", &nm, &nml);
+            if (tend > tag && tend[-1] == '/') continue; // empty element
+            long long cnt;
+            void* a = NULL;
+            if (in_points) {
+                if (d->pts) return lx_fail(lx, lx->line, HS_ERR_PARSE, "second Points array");
+                if (!vtu_numbers(lx, 0, 3 * d->n_pts, "Points", &a, &cnt)) return 0;
+                d->pts = a;
+                if (cnt != 3 * d->n_pts)
+                    return lx_fail(lx, lx->line, HS_ERR_PARSE,
+                                   "Points has %lld values, NumberOfPoints %lld needs %lld", cnt,
+                                   d->n_pts, 3 * d->n_pts);
+            } else if (span_is(nm, nml, "connectivity")) {
+                if (d->conn) return lx_fail(lx, lx->line, HS_ERR_PARSE, "second connectivity");
+                if (!vtu_numbers(lx, 1, HS_MESH_MAX_COUNT, "connectivity", &a, &cnt)) return 0;
+                d->conn = a;
+                d->n_conn = cnt;
+            } else if (span_is(nm, nml, "offsets") || span_is(nm, nml, "types")) {
+                int offs = nm[0] == 'o';
+                if (offs ? d->offs != NULL : d->types != NULL)
+                    return lx_fail(lx, lx->line, HS_ERR_PARSE, "second %s array",
+                                   offs ? "offsets" : "types");
+                if (!vtu_numbers(lx, 1, d->n_cells, offs ? "offsets" : "types", &a, &cnt)) return 0;
+                if (offs)
+                    d->offs = a;
+                else
+                    d->types = a;
+                if (cnt != d->n_cells)
+                    return lx_fail(lx, lx->line, HS_ERR_PARSE, "%s has %lld values for %lld cells",
+                                   offs ? "offsets" : "types", cnt, d->n_cells);
+            }
+        }
+    }
+    if (lx->status) return 0;
+    if (!seen_vtk) return lx_fail(lx, lx->line, HS_ERR_PARSE, "not a VTK XML file (no <VTKFile>)");
+    if (!pieces) return lx_fail(lx, lx->line, HS_ERR_PARSE, "no <Piece>");
+    if (!d->pts || !d->conn || !d->offs || !d->types)
+        return lx_fail(lx, lx->line, HS_ERR_PARSE, "missing %s",
+                       !d->pts    ? "Points"
+                       : !d->conn ? "Cells connectivity"
+                       : !d->offs ? "Cells offsets"
+                                  : "Cells types");
+    long long prev = 0;
+    for (long long c = 0; c < d->n_cells; ++c) {
+        if (d->offs[c] < prev || d->offs[c] > d->n_conn)
+            return lx_fail(lx, lx->line, HS_ERR_PARSE, "cell %lld: offset %lld out of order", c,
+                           d->offs[c]);
+        prev = d->offs[c];
+    }
+    for (long long i = 0; i < d->n_conn; ++i)
+        if (d->conn[i] < 0 || d->conn[i] >= d->n_pts)
+            return lx_fail(lx, lx->line, HS_ERR_PARSE, "connectivity %lld: point %lld of %lld", i,
+                           d->conn[i], d->n_pts);
+    return 1;
+}
+
+// Cells of `type` with k points (10, 4: tets; 5, 3: triangles) into arrays of k ints each.
+static int vtu_cells(lexer* lx, const vtu_data* d, long long type, int k, int** out, int* n_out,
+                     int* skipped) {
+    int* a = hs_alloc(((size_t)d->n_cells * (size_t)k + 1) * sizeof(int));
+    if (!a) return nomem(lx);
+    int n = 0;
+    *skipped = 0;
+    for (long long c = 0; c < d->n_cells; ++c) {
+        long long b = c ? d->offs[c - 1] : 0;
+        if (d->types[c] != type) {
+            ++*skipped;
+            continue;
+        }
+        if (d->offs[c] - b != k) {
+            hs_free(a);
+            return lx_fail(lx, lx->line, HS_ERR_PARSE, "cell %lld of type %lld has %lld points", c,
+                           type, d->offs[c] - b);
+        }
+        for (int j = 0; j < k; ++j) a[(size_t)n * k + j] = (int)d->conn[b + j];
+        ++n;
+    }
+    *out = a;
+    *n_out = n;
+    return 1;
+}
+
+static hs_status parse_vtu(lexer* lx, hs_mesh** out, tri_out* to) {
+    vtu_data d = {0};
+    builder b = {.by_index = 1};
+    int* cells = NULL;
+    int n = 0, skipped = 0;
+    if (!vtu_read(lx, &d) || !vtu_cells(lx, &d, to ? 5 : 10, to ? 3 : 4, &cells, &n, &skipped))
+        goto fail;
+    if (to) {
+        if (n == 0) {
+            lx_fail(lx, lx->line, HS_ERR_PARSE, "no triangles (%d other cells)", skipped);
+            goto fail;
+        }
+        to->n_nodes = (int)d.n_pts;
+        to->x = d.pts;
+        to->n_tris = n;
+        to->tris = cells;
+        d.pts = NULL;
+        vtu_free(&d);
+        return HS_OK;
+    }
+    b.n_nodes = (int)d.n_pts;
+    b.x = d.pts;
+    d.pts = NULL;
+    b.tets = cells;
+    cells = NULL;
+    b.n_tets = n;
+    b.skipped = skipped;
+    b.tid = hs_alloc(((size_t)n + 1) * sizeof(long long));
+    b.tline = hs_alloc(((size_t)n + 1) * sizeof(int));
+    if (!b.tid || !b.tline) {
+        nomem(lx);
+        goto fail;
+    }
+    for (long long c = 0, k = 0; c < d.n_cells; ++c)
+        if (d.types[c] == 10) {
+            b.tid[k] = c;
+            b.tline[k++] = 0;
+        }
+    vtu_free(&d);
+    if (n == 0) {
+        lx_fail(lx, lx->line, HS_ERR_PARSE,
+                "no tetrahedra (%d other cells: a surface? use it with hapsim-mesh tet)", skipped);
+        builder_free(&b);
+        return lx->status;
+    }
+    return builder_finish(lx, &b, out);
+fail:
+    hs_free(cells);
+    vtu_free(&d);
+    builder_free(&b);
+    return lx->status ? lx->status : HS_ERR_PARSE;
+}
+
+// ---------------------------------------------------------------------------------------------
 
 hs_status hs_mesh_parse(const char* name, const char* format, const char* data, size_t len,
                         hs_mesh** out, hs_err* err) {
@@ -1023,12 +1572,35 @@ hs_status hs_mesh_parse(const char* name, const char* format, const char* data, 
         return hs_err_set(err, HS_ERR_INVALID, "format or data is NULL");
     lexer lx;
     lx_init(&lx, name, data, len, err);
-    if (strcmp(format, "msh") == 0) return parse_msh(&lx, out);
+    if (strcmp(format, "msh") == 0) return parse_msh(&lx, out, NULL);
     if (strcmp(format, "vtk") == 0) return parse_vtk(&lx, out);
+    if (strcmp(format, "vtu") == 0) return parse_vtu(&lx, out, NULL);
     return hs_err_set(err, HS_ERR_INVALID,
-                      "unknown mesh format '%.40s' (msh, vtk; TetGen via "
+                      "unknown mesh format '%.40s' (msh, vtk, vtu; TetGen via "
                       "hs_mesh_parse_tetgen)",
                       format);
+}
+
+hs_status hs_mesh_parse_triangles(const char* name, const char* format, const char* data,
+                                  size_t len, int* n_nodes, double** x, int* n_tris, int** tris,
+                                  hs_err* err) {
+    if (!n_nodes || !x || !n_tris || !tris) return hs_err_set(err, HS_ERR_INVALID, "out is NULL");
+    *n_nodes = *n_tris = 0;
+    *x = NULL;
+    *tris = NULL;
+    if (!data && len) return hs_err_set(err, HS_ERR_INVALID, "data is NULL");
+    lexer lx;
+    lx_init(&lx, name, data, len, err);
+    tri_out to = {0};
+    if (!format || (strcmp(format, "msh") != 0 && strcmp(format, "vtu") != 0))
+        return hs_err_set(err, HS_ERR_INVALID, "triangles from msh or vtu only");
+    hs_status st = format[0] == 'm' ? parse_msh(&lx, NULL, &to) : parse_vtu(&lx, NULL, &to);
+    if (st != HS_OK) return st;
+    *n_nodes = to.n_nodes;
+    *x = to.x;
+    *n_tris = to.n_tris;
+    *tris = to.tris;
+    return HS_OK;
 }
 
 hs_status hs_mesh_parse_tetgen(const char* name, const char* node_data, size_t node_len,
@@ -1103,12 +1675,14 @@ hs_status hs_mesh_load(const char* path, hs_mesh** out, hs_err* err) {
     char* data = NULL;
     size_t len = 0;
     hs_status st;
-    if (has_ext(path, ".msh") || has_ext(path, ".vtk")) {
+    if (has_ext(path, ".msh") || has_ext(path, ".vtk") || has_ext(path, ".vtu")) {
         st = read_file(path, &data, &len, err);
         if (st != HS_OK) return st;
         lexer lx;
         lx_init(&lx, path, data, len, err);
-        st = has_ext(path, ".msh") ? parse_msh(&lx, out) : parse_vtk(&lx, out);
+        st = has_ext(path, ".msh")   ? parse_msh(&lx, out, NULL)
+             : has_ext(path, ".vtu") ? parse_vtu(&lx, out, NULL)
+                                     : parse_vtk(&lx, out);
         hs_free(data);
         return st;
     }
@@ -1134,5 +1708,7 @@ hs_status hs_mesh_load(const char* path, hs_mesh** out, hs_err* err) {
         return st;
     }
     return hs_err_set(err, HS_ERR_UNSUPPORTED,
-                      "%s: unknown mesh extension (.msh, .node/.ele, .vtk)", path);
+                      "%s: unknown mesh extension (.msh, .node/.ele, .vtk, .vtu; a surface (.stl, "
+                      ".obj, .ply, .off) becomes tets with hapsim-mesh tet)",
+                      path);
 }

@@ -6,6 +6,7 @@
 
 #include <arpa/inet.h>
 #include <cJSON.h>
+#include <errno.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
@@ -43,6 +44,7 @@ void hs_scene_default(hs_scene* s) {
     s->force_max_n = 3.3;
     s->force_rate_max = 500.0;
     s->watchdog_s = 0.1;
+    s->min_dihedral_deg = 0.5;
     snprintf(s->haptic_url, sizeof s->haptic_url, "%s", HAPSIM_DEFAULT_HAPTIC_URL);
     snprintf(s->mesh_url, sizeof s->mesh_url, "%s", HAPSIM_DEFAULT_MESH_URL);
     snprintf(s->prefix, sizeof s->prefix, "%s", HAPSIM_DEFAULT_PREFIX);
@@ -362,9 +364,10 @@ static hs_status parse_fixed(const ctx* c, const cJSON* root, hs_scene* s) {
         hs_scene_fixed* f = &s->fixed[i];
         memset(f, 0, sizeof *f);
         f->line = item_line(c, r);
-        static const char* const kinds[] = {"plane", "box", "bbox_side"};
+        static const char* const kinds[] = {"plane",  "box",   "bbox_side", "group",
+                                            "sphere", "patch", "nodes"};
         int k = 0;
-        TRY(get_enum(c, r, path, "type", kinds, 3, 1, &k));
+        TRY(get_enum(c, r, path, "type", kinds, 7, 1, &k));
         f->kind = (hs_fixed_kind)k;
         if (f->kind == HS_FIXED_PLANE) {
             static const char* const keys[] = {"type", "point", "normal", "tolerance", NULL};
@@ -393,6 +396,48 @@ static hs_status parse_fixed(const ctx* c, const cJSON* root, hs_scene* s) {
                     return fail(c, cJSON_GetObjectItemCaseSensitive(r, "max"), key,
                                 "is below min in component %d", d);
                 }
+        } else if (f->kind == HS_FIXED_GROUP) {
+            static const char* const keys[] = {"type", "name", NULL};
+            TRY(check_keys(c, r, path, keys));
+            const cJSON* nm = cJSON_GetObjectItemCaseSensitive(r, "name");
+            char key[64];
+            join(key, sizeof key, path, "name");
+            if (!nm) return fail(c, r, key, "is required (a physical group of the mesh)");
+            if (!cJSON_IsString(nm) || !nm->valuestring || !nm->valuestring[0] ||
+                strlen(nm->valuestring) >= sizeof f->group)
+                return fail(c, nm, key, "must be a non-empty string of at most %zu bytes",
+                            sizeof f->group - 1);
+            snprintf(f->group, sizeof f->group, "%s", nm->valuestring);
+        } else if (f->kind == HS_FIXED_NODES) {
+            static const char* const keys[] = {"type", "file", NULL};
+            TRY(check_keys(c, r, path, keys));
+            char file[HS_SCENE_PATH_MAX];
+            TRY(get_str(c, r, path, "file", file, sizeof file, 1));
+            // Relative to the scene file's folder, as the mesh.
+            const char* slash = strrchr(s->path, '/');
+            char full[HS_SCENE_PATH_MAX];
+            int len = file[0] == '/' || !slash ? snprintf(full, sizeof full, "%s", file)
+                                               : snprintf(full, sizeof full, "%.*s/%s",
+                                                          (int)(slash - s->path), s->path, file);
+            if (len >= 0 && (size_t)len < sizeof full) memcpy(f->file, full, sizeof f->file);
+            if (len < 0 || (size_t)len >= sizeof full) {
+                char key[64];
+                join(key, sizeof key, path, "file");
+                return fail(c, cJSON_GetObjectItemCaseSensitive(r, "file"), key,
+                            "resolved path too long");
+            }
+        } else if (f->kind == HS_FIXED_SPHERE || f->kind == HS_FIXED_PATCH) {
+            const char* pkey = f->kind == HS_FIXED_SPHERE ? "center" : "point";
+            const char* const keys[] = {"type", pkey, "radius", NULL};
+            TRY(check_keys(c, r, path, keys));
+            TRY(get_vec3(c, r, path, pkey, 1e3, 1, f->point));
+            f->radius = -1.0;
+            TRY(get_num(c, r, path, "radius", 0.0, 10.0, 1, 0, &f->radius));
+            if (f->radius < 0.0) {
+                char key[64];
+                join(key, sizeof key, path, "radius");
+                return fail(c, r, key, "is required");
+            }
         } else {
             static const char* const keys[] = {"type", "axis", "side", "depth", NULL};
             TRY(check_keys(c, r, path, keys));
@@ -467,6 +512,13 @@ static hs_status parse_tools(const ctx* c, const cJSON* root, hs_scene* s) {
 
 static hs_status parse_rest(const ctx* c, const cJSON* root, hs_scene* s) {
     const cJSON* o;
+    TRY(get_obj(c, root, "", "mesh_quality", &o));
+    if (o) {
+        static const char* const keys[] = {"min_dihedral_deg", NULL};
+        TRY(check_keys(c, o, "mesh_quality", keys));
+        TRY(get_num(c, o, "mesh_quality", "min_dihedral_deg", 0.0, 30.0, 0, 0,
+                    &s->min_dihedral_deg));
+    }
     TRY(get_obj(c, root, "", "workspace", &o));
     if (o) {
         static const char* const keys[] = {"min", "max", NULL};
@@ -606,8 +658,9 @@ static hs_status resolve_mesh(const ctx* c, const cJSON* item, const char* scene
 static hs_status parse_root(const ctx* c, const cJSON* root, int check_files, hs_scene* s) {
     if (!cJSON_IsObject(root)) return fail(c, root, "(top level)", "must be an object { ... }");
     static const char* const keys[] = {
-        "name",    "mesh",      "units_scale", "material", "model",   "fixed", "gravity", "tools",
-        "devices", "workspace", "rates",       "features", "haptics", "lcm",   "cutting", NULL};
+        "name",    "mesh",  "units_scale", "material",     "model", "fixed",
+        "gravity", "tools", "devices",     "workspace",    "rates", "features",
+        "haptics", "lcm",   "cutting",     "mesh_quality", NULL};
     TRY(check_keys(c, root, "", keys));
     char mesh[HS_SCENE_PATH_MAX];
     TRY(get_str(c, root, "", "mesh", mesh, sizeof mesh, 1));
@@ -748,4 +801,129 @@ hs_status hs_scene_load(const char* path, hs_scene* out, hs_err* err) {
     }
     hs_free(text);
     return st;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Node selection of a fixed region (shared by the server and the tools).
+
+// A node list: indices (0-based, file order of the mesh) separated by blanks, commas or
+// newlines; '#' starts a comment. Errors name the file and the line.
+static hs_status select_node_list(const char* path, const hs_mesh* m, unsigned char* sel,
+                                  hs_err* err) {
+    FILE* f = fopen(path, "r");
+    if (!f) return hs_err_set(err, HS_ERR_IO, "%s: cannot open: %s", path, strerror(errno));
+    char line[512];
+    int ln = 0, count = 0;
+    hs_status st = HS_OK;
+    while (st == HS_OK && fgets(line, sizeof line, f)) {
+        ++ln;
+        if (!strchr(line, '\n') && !feof(f)) {
+            st = hs_err_set(err, HS_ERR_INVALID, "%s:%d: line longer than %zu bytes", path, ln,
+                            sizeof line - 2);
+            break;
+        }
+        char* hash = strchr(line, '#');
+        if (hash) *hash = '\0';
+        char* save = NULL;
+        for (char* tok = strtok_r(line, " \t\r\n,", &save); tok && st == HS_OK;
+             tok = strtok_r(NULL, " \t\r\n,", &save)) {
+            char* e;
+            errno = 0;
+            long v = strtol(tok, &e, 10);
+            if (*e || errno)
+                st = hs_err_set(err, HS_ERR_INVALID, "%s:%d: '%.32s' is not a node index", path, ln,
+                                tok);
+            else if (v < 0 || v >= m->n_nodes)
+                st = hs_err_set(err, HS_ERR_INVALID,
+                                "%s:%d: node %ld out of range (the mesh has nodes 0..%d)", path, ln,
+                                v, m->n_nodes - 1);
+            else
+                sel[v] = 1, ++count;
+        }
+    }
+    if (st == HS_OK && ferror(f)) st = hs_err_set(err, HS_ERR_IO, "%s: read error", path);
+    fclose(f);
+    if (st == HS_OK && count == 0)
+        st = hs_err_set(err, HS_ERR_INVALID, "%s: no node index in the list", path);
+    return st;
+}
+
+hs_status hs_scene_fixed_select(const hs_scene_fixed* f, const hs_mesh* m, unsigned char* sel,
+                                hs_err* err) {
+    if (!f || !m || !sel) return hs_err_set(err, HS_ERR_INVALID, "region, mesh or mask is NULL");
+    const int n = m->n_nodes;
+    memset(sel, 0, (size_t)n);
+    if (f->kind == HS_FIXED_PLANE) {
+        double l = sqrt(f->normal[0] * f->normal[0] + f->normal[1] * f->normal[1] +
+                        f->normal[2] * f->normal[2]);
+        for (int i = 0; i < n; ++i) {
+            const double* x = m->x0 + 3 * i;
+            double d = ((x[0] - f->point[0]) * f->normal[0] + (x[1] - f->point[1]) * f->normal[1] +
+                        (x[2] - f->point[2]) * f->normal[2]) /
+                       l;
+            sel[i] = d <= f->tolerance;
+        }
+    } else if (f->kind == HS_FIXED_BOX) {
+        hs_mesh_select_box(m, f->min, f->max, sel);
+    } else if (f->kind == HS_FIXED_BBOX_SIDE) {
+        hs_mesh_select_plane(m, f->axis, f->side, f->depth, sel);
+    } else if (f->kind == HS_FIXED_GROUP) {
+        const hs_mesh_region* g = hs_mesh_find_region(m, f->group);
+        if (!g) {
+            char list[256] = "";
+            for (int r = 0; r < m->n_regions; ++r) {
+                size_t len = strlen(list);
+                snprintf(list + len, sizeof list - len, "%s'%s' (dim %d)", r ? ", " : "",
+                         m->regions[r].name, m->regions[r].dim);
+            }
+            return hs_err_set(err, HS_ERR_INVALID, "no group '%s' in the mesh (%s%s)", f->group,
+                              m->n_regions ? "its groups: " : "it has no physical groups", list);
+        }
+        for (int i = 0; i < g->n_nodes; ++i) sel[g->nodes[i]] = 1;
+    } else if (f->kind == HS_FIXED_SPHERE) {
+        for (int i = 0; i < n; ++i) {
+            const double* x = m->x0 + 3 * i;
+            double d2 = 0;
+            for (int k = 0; k < 3; ++k) d2 += (x[k] - f->point[k]) * (x[k] - f->point[k]);
+            sel[i] = d2 <= f->radius * f->radius;
+        }
+    } else if (f->kind == HS_FIXED_PATCH) {
+        // Seed: the surface node nearest the point; grow over boundary triangles while within
+        // the radius, so a thin organ's far side is not taken along.
+        int seed = -1;
+        double best = INFINITY;
+        double* d = hs_alloc(((size_t)n + 1) * sizeof(double));
+        if (!d) return hs_err_set(err, HS_ERR_NOMEM, "out of memory");
+        for (int i = 0; i < n; ++i) {
+            const double* x = m->x0 + 3 * i;
+            d[i] = sqrt((x[0] - f->point[0]) * (x[0] - f->point[0]) +
+                        (x[1] - f->point[1]) * (x[1] - f->point[1]) +
+                        (x[2] - f->point[2]) * (x[2] - f->point[2]));
+            if (m->node_surf && m->node_surf[i] >= 0 && d[i] < best) {
+                best = d[i];
+                seed = i;
+            }
+        }
+        if (seed >= 0 && d[seed] <= f->radius) {
+            sel[seed] = 1;
+            for (int changed = 1; changed;) {
+                changed = 0;
+                for (int t = 0; t < m->n_tris; ++t) {
+                    const int* v = m->tris + 3 * t;
+                    if (!sel[v[0]] && !sel[v[1]] && !sel[v[2]]) continue;
+                    for (int k = 0; k < 3; ++k)
+                        if (!sel[v[k]] && d[v[k]] <= f->radius) {
+                            sel[v[k]] = 1;
+                            changed = 1;
+                        }
+                }
+            }
+        }
+        hs_free(d);
+    } else if (f->kind == HS_FIXED_NODES) {
+        return select_node_list(f->file, m, sel, err);
+    } else {
+        return hs_err_set(err, HS_ERR_INVALID, "unknown region kind %d", (int)f->kind);
+    }
+    return HS_OK;
 }

@@ -444,10 +444,16 @@ int main(int argc, char** argv) {
     unsigned char *fixed = NULL, *mask = NULL;
     hs_body* body = NULL;
     hs_mooney* mr = NULL;
-    if (hs_mesh_load(mesh_path, &mesh, &err) < 0) {
+    hs_status load_st = hs_mesh_load(mesh_path, &mesh, &err);
+    if (load_st < 0) {
         fprintf(stderr, "hapsim-solve: %s\n", err.msg);
         rc = 1;
         goto done;
+    }
+    if (load_st == HS_WARN_MESH_REPAIRED) { // repairs are never silent
+        char rep[512];
+        hs_mesh_report_str(&mesh->report, rep, sizeof rep);
+        fprintf(stderr, "hapsim-solve: %s was repaired on loading:\n%s", mesh_path, rep);
     }
     fixed = calloc((size_t)mesh->n_nodes, 1);
     mask = calloc((size_t)mesh->n_nodes, 1);

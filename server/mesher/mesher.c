@@ -1,0 +1,249 @@
+// Tetrahedralisation with gmsh's C API. The surface goes in as a discrete surface entity (nodes
+// and triangles through the API, no file), is optionally remeshed at the target size (gmsh's
+// tutorial t13 pipeline: classify, create a geometry, a volume bounded by the surfaces), and the
+// volume is meshed and optimised. The tets come back through the API into an hs_mesh, which
+// validates them as any loaded mesh.
+#define _POSIX_C_SOURCE 200809L
+#include "hapsim/mesher.h"
+
+#include <gmshc.h>
+#include <math.h>
+#include <pthread.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+static pthread_mutex_t g_gmsh_lock = PTHREAD_MUTEX_INITIALIZER;
+
+hs_mesher_def hs_mesher_default_def(void) {
+    return (hs_mesher_def){.size = 0,
+                           .keep_surface = 0,
+                           .feature_angle_deg = 40,
+                           .optimize = 1,
+                           .verbose = 0,
+                           .size_at = NULL,
+                           .size_ctx = NULL,
+                           .size_min = 0};
+}
+
+const char* hs_mesher_gmsh_version(void) {
+    return GMSH_API_VERSION;
+}
+
+// gmsh's last error (or the last logged line) into err.
+static hs_status gmsh_fail(hs_err* err, const char* step) {
+    int ierr = 0;
+    char* last = NULL;
+    gmshLoggerGetLastError(&last, &ierr);
+    char msg[300] = "";
+    if (last && last[0]) snprintf(msg, sizeof msg, "%s", last);
+    if (last) gmshFree(last);
+    if (!msg[0]) {
+        char** log = NULL;
+        size_t n = 0;
+        gmshLoggerGet(&log, &n, &ierr);
+        for (size_t i = 0; i < n; ++i) {
+            if (strncmp(log[i], "Error", 5) == 0 || (i + 1 == n && !msg[0]))
+                snprintf(msg, sizeof msg, "%s", log[i]);
+            gmshFree(log[i]);
+        }
+        if (log) gmshFree(log);
+    }
+    return hs_err_set(err, HS_ERR_INVALID, "gmsh %s failed: %s", step,
+                      msg[0] ? msg : "(no message)");
+}
+
+typedef struct size_cb {
+    const hs_mesher_def* def;
+    double lo, hi;
+} size_cb;
+
+static double size_callback(int dim, int tag, double x, double y, double z, void* data) {
+    (void)dim;
+    (void)tag;
+    const size_cb* c = data;
+    const double p[3] = {x, y, z};
+    double h = c->def->size_at(p, c->def->size_ctx);
+    return !(h >= c->lo) ? c->lo : h > c->hi ? c->hi : h; // NaN -> the smallest
+}
+
+#define GMSH_TRY(call, step)                                                                       \
+    do {                                                                                           \
+        ierr = 0;                                                                                  \
+        call;                                                                                      \
+        if (ierr) {                                                                                \
+            st = gmsh_fail(err, step);                                                             \
+            goto done;                                                                             \
+        }                                                                                          \
+    } while (0)
+
+hs_status hs_mesher_tet(const hs_surface* s, const hs_mesher_def* def, hs_mesh** out, hs_err* err) {
+    if (!out) return hs_err_set(err, HS_ERR_INVALID, "out is NULL");
+    *out = NULL;
+    if (!s || !def || s->n_tris < 4 || s->n_verts < 4)
+        return hs_err_set(err, HS_ERR_INVALID, "mesher: no closed surface given");
+    if (!(def->size > 0) || !isfinite(def->size))
+        return hs_err_set(err, HS_ERR_INVALID, "mesher: size must be > 0, got %g", def->size);
+    // A size far below the model would ask for billions of tets: refuse before gmsh tries.
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (int i = 0; i < s->n_verts; ++i)
+        for (int d = 0; d < 3; ++d) {
+            lo[d] = fmin(lo[d], s->x[3 * i + d]);
+            hi[d] = fmax(hi[d], s->x[3 * i + d]);
+        }
+    double est = (hi[0] - lo[0]) * (hi[1] - lo[1]) * (hi[2] - lo[2]) /
+                 (def->size * def->size * def->size) * 6;
+    if (est > 2e7)
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "mesher: size %g would give about %.3g tets in a %g x %g x %g box "
+                          "(over 20 million): a larger size, or the wrong units?",
+                          def->size, est, hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]);
+
+    size_t nv = (size_t)s->n_verts, nt = (size_t)s->n_tris;
+    size_t* ntag = malloc(nv * sizeof(size_t));
+    size_t* ttag = malloc(nt * sizeof(size_t));
+    size_t* tnod = malloc(3 * nt * sizeof(size_t));
+    double* xyz = malloc(3 * nv * sizeof(double));
+    size_t *node_tags = NULL, *elem_tags = NULL, *elem_nodes = NULL;
+    double *coord = NULL, *param = NULL;
+    int* dimtags = NULL;
+    int* map = NULL;
+    double* x = NULL;
+    int* tets = NULL;
+    hs_status st = HS_OK;
+    int ierr = 0, inited = 0;
+    if (!ntag || !ttag || !tnod || !xyz) {
+        free(ntag);
+        free(ttag);
+        free(tnod);
+        free(xyz);
+        return hs_err_set(err, HS_ERR_NOMEM, "mesher: out of memory");
+    }
+    for (size_t i = 0; i < nv; ++i) ntag[i] = i + 1;
+    for (size_t t = 0; t < nt; ++t) {
+        ttag[t] = t + 1;
+        for (int k = 0; k < 3; ++k) tnod[3 * t + k] = (size_t)s->tris[3 * t + k] + 1;
+    }
+    memcpy(xyz, s->x, 3 * nv * sizeof(double));
+
+    pthread_mutex_lock(&g_gmsh_lock);
+    GMSH_TRY(gmshInitialize(0, NULL, 0, &ierr), "initialise");
+    inited = 1;
+    GMSH_TRY(gmshOptionSetNumber("General.Terminal", def->verbose ? 1 : 0, &ierr), "option");
+    GMSH_TRY(gmshLoggerStart(&ierr), "logger");
+    GMSH_TRY(gmshModelAdd("hapsim", &ierr), "model");
+    int sfc;
+    GMSH_TRY(sfc = gmshModelAddDiscreteEntity(2, -1, NULL, 0, &ierr), "surface entity");
+    GMSH_TRY(gmshModelMeshAddNodes(2, sfc, ntag, nv, xyz, 3 * nv, NULL, 0, &ierr), "nodes");
+    GMSH_TRY(gmshModelMeshAddElementsByType(sfc, 2, ttag, nt, tnod, 3 * nt, &ierr), "triangles");
+    {
+        // Keeping the surface: one patch, no parametrisation, so gmsh cannot remesh it.
+        const double pi = 3.14159265358979323846;
+        GMSH_TRY(gmshModelMeshClassifySurfaces(
+                     def->keep_surface ? pi : def->feature_angle_deg * pi / 180, 1,
+                     !def->keep_surface, pi, 1, &ierr),
+                 "surface classification");
+        if (!def->keep_surface)
+            GMSH_TRY(gmshModelMeshCreateGeometry(NULL, 0, &ierr), "surface parametrisation");
+        size_t ndt = 0;
+        GMSH_TRY(gmshModelGetEntities(&dimtags, &ndt, 2, &ierr), "entities");
+        int* surfs = malloc((ndt / 2 + 1) * sizeof(int));
+        if (!surfs) {
+            st = hs_err_set(err, HS_ERR_NOMEM, "mesher: out of memory");
+            goto done;
+        }
+        for (size_t i = 0; i < ndt / 2; ++i) surfs[i] = dimtags[2 * i + 1];
+        int loop = gmshModelGeoAddSurfaceLoop(surfs, ndt / 2, -1, &ierr);
+        free(surfs);
+        if (ierr) {
+            st = gmsh_fail(err, "surface loop");
+            goto done;
+        }
+        GMSH_TRY(gmshModelGeoAddVolume(&loop, 1, -1, &ierr), "volume");
+        GMSH_TRY(gmshModelGeoSynchronize(&ierr), "synchronise");
+    }
+    size_cb cb = {def, def->size_min > 0 ? fmin(def->size_min, def->size) : def->size * 0.5,
+                  def->size};
+    if (def->size_at) {
+        GMSH_TRY(gmshModelMeshSetSizeCallback(size_callback, &cb, &ierr), "size callback");
+        // The callback alone decides: no growth from the boundary, no curvature sizes.
+        GMSH_TRY(gmshOptionSetNumber("Mesh.MeshSizeExtendFromBoundary", 0, &ierr), "option");
+    }
+    GMSH_TRY(gmshOptionSetNumber("Mesh.MeshSizeMin", cb.lo, &ierr), "option");
+    GMSH_TRY(gmshOptionSetNumber("Mesh.MeshSizeMax", def->size, &ierr), "option");
+    GMSH_TRY(gmshOptionSetNumber("Mesh.Optimize", def->optimize ? 1 : 0, &ierr), "option");
+    GMSH_TRY(gmshOptionSetNumber("General.NumThreads", 1, &ierr), "option");
+    GMSH_TRY(gmshModelMeshGenerate(3, &ierr), "meshing");
+
+    size_t n_nodes = 0, n_coord = 0, n_param = 0, n_et = 0, n_en = 0;
+    GMSH_TRY(gmshModelMeshGetNodes(&node_tags, &n_nodes, &coord, &n_coord, &param, &n_param, -1, -1,
+                                   0, 0, &ierr),
+             "nodes");
+    GMSH_TRY(
+        gmshModelMeshGetElementsByType(4, &elem_tags, &n_et, &elem_nodes, &n_en, -1, 0, 1, &ierr),
+        "tetrahedra");
+    if (n_et == 0 || n_en != 4 * n_et) {
+        st = hs_err_set(err, HS_ERR_INVALID, "gmsh made no tetrahedra (is the surface closed?)");
+        goto done;
+    }
+    if (n_et > 0x7fffffff / 16 || n_nodes > 0x7fffffff / 16) {
+        st = hs_err_set(err, HS_ERR_INVALID, "gmsh made %zu tetrahedra: too many", n_et);
+        goto done;
+    }
+    // Node tags -> compact indices of the nodes the tets use, in tag order.
+    size_t max_tag = 0;
+    for (size_t i = 0; i < n_nodes; ++i) max_tag = node_tags[i] > max_tag ? node_tags[i] : max_tag;
+    map = malloc((max_tag + 1) * sizeof(int));
+    int* slot = malloc((max_tag + 1) * sizeof(int)); // tag -> position in node_tags
+    if (!map || !slot) {
+        free(slot);
+        st = hs_err_set(err, HS_ERR_NOMEM, "mesher: out of memory");
+        goto done;
+    }
+    for (size_t i = 0; i <= max_tag; ++i) map[i] = slot[i] = -1;
+    for (size_t i = 0; i < n_nodes; ++i) slot[node_tags[i]] = (int)i;
+    for (size_t i = 0; i < n_en; ++i) {
+        if (elem_nodes[i] > max_tag || slot[elem_nodes[i]] < 0) {
+            free(slot);
+            st = hs_err_set(err, HS_ERR_INVALID, "gmsh returned a tet with an unknown node");
+            goto done;
+        }
+        map[elem_nodes[i]] = 0;
+    }
+    int nn = 0;
+    for (size_t tg = 0; tg <= max_tag; ++tg)
+        if (map[tg] == 0) map[tg] = nn++;
+    x = hs_alloc(((size_t)nn * 3 + 1) * sizeof(double));
+    tets = hs_alloc((n_en + 1) * sizeof(int));
+    if (!x || !tets) {
+        free(slot);
+        st = hs_err_set(err, HS_ERR_NOMEM, "mesher: out of memory");
+        goto done;
+    }
+    for (size_t tg = 0; tg <= max_tag; ++tg)
+        if (map[tg] >= 0) memcpy(x + 3 * map[tg], coord + 3 * slot[tg], 3 * sizeof(double));
+    free(slot);
+    for (size_t i = 0; i < n_en; ++i) tets[i] = map[elem_nodes[i]];
+    st = hs_mesh_create(nn, x, (int)n_et, tets, out, err);
+
+done:
+    if (inited) {
+        gmshLoggerStop(&ierr);
+        gmshFinalize(&ierr);
+    }
+    pthread_mutex_unlock(&g_gmsh_lock);
+    if (node_tags) gmshFree(node_tags);
+    if (coord) gmshFree(coord);
+    if (param) gmshFree(param);
+    if (elem_tags) gmshFree(elem_tags);
+    if (elem_nodes) gmshFree(elem_nodes);
+    if (dimtags) gmshFree(dimtags);
+    free(map);
+    free(ntag);
+    free(ttag);
+    free(tnod);
+    free(xyz);
+    hs_free(x);
+    hs_free(tets);
+    return st;
+}

@@ -1,0 +1,18 @@
+// Internal to the surface module: shared between its readers and the cleaner.
+#ifndef HAPSIM_SURFACE_INTERNAL_H
+#define HAPSIM_SURFACE_INTERNAL_H
+
+#include "hapsim/surface.h"
+
+/// Merge vertices with exactly equal coordinates; how many were merged, -1 on no memory.
+int hs_surface_weld(hs_surface* s);
+
+/// The triangles of a Gmsh MSH or VTU file ("msh", "vtu"); a file with tets and no triangles
+/// gives its boundary.
+hs_status hs_surface_parse_mesh(const char* name, const char* format, const char* data, size_t len,
+                                hs_surface** out, hs_err* err);
+
+/// Whole file into an accounted buffer (at most 512 MiB).
+hs_status hs_surface_read_file(const char* path, char** data, size_t* len, hs_err* err);
+
+#endif

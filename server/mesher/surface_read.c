@@ -1,0 +1,804 @@
+// Surface readers: STL (ASCII, binary), OBJ, PLY (ASCII, binary either endian), OFF, and MSH
+// triangles (through the mesh module's reader). Each parses a byte buffer that need not be
+// NUL-terminated, never reads past it, checks declared counts against the bytes left before
+// allocating, and fails with "<file>:<line>: <problem>" (binary: "<file>: byte N: ...").
+#include "surface_internal.h"
+
+#include <errno.h>
+#include <limits.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define HS_SURFACE_MAX_FILE_BYTES ((size_t)512 << 20)
+#define HS_SURFACE_MAX_COUNT      (0x7fffffff / 16)
+
+typedef struct rd {
+    const char* name;
+    const char* p;
+    const char* end;
+    int line;
+    hs_err* err;
+    hs_status status;
+    // growing output
+    int n_verts, cap_verts;
+    double* x;
+    int n_tris, cap_tris;
+    int* tris;
+} rd;
+
+static int rd_fail(rd* r, int line, const char* fmt, ...) __attribute__((format(printf, 3, 4)));
+static int rd_fail(rd* r, int line, const char* fmt, ...) {
+    char problem[400];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(problem, sizeof problem, fmt, ap);
+    va_end(ap);
+    r->status = HS_ERR_PARSE;
+    if (line > 0)
+        hs_err_set(r->err, HS_ERR_PARSE, "%s:%d: %s", r->name, line, problem);
+    else
+        hs_err_set(r->err, HS_ERR_PARSE, "%s: %s", r->name, problem);
+    return 0;
+}
+
+static int rd_nomem(rd* r) {
+    r->status = HS_ERR_NOMEM;
+    hs_err_set(r->err, HS_ERR_NOMEM, "%s: out of memory", r->name);
+    return 0;
+}
+
+static int add_vert(rd* r, const double v[3], int line) {
+    for (int d = 0; d < 3; ++d)
+        if (!isfinite(v[d]) || fabs(v[d]) > 1e30)
+            return rd_fail(r, line, "vertex %d: coordinate %d is %g (not a finite number)",
+                           r->n_verts + 1, d, v[d]);
+    if (r->n_verts >= HS_SURFACE_MAX_COUNT) return rd_fail(r, line, "too many vertices");
+    if (r->n_verts == r->cap_verts) {
+        int cap = r->cap_verts ? 2 * r->cap_verts : 256;
+        if (cap > HS_SURFACE_MAX_COUNT) cap = HS_SURFACE_MAX_COUNT;
+        double* g = hs_realloc(r->x, (size_t)cap * 3 * sizeof(double));
+        if (!g) return rd_nomem(r);
+        r->x = g;
+        r->cap_verts = cap;
+    }
+    memcpy(r->x + 3 * r->n_verts++, v, 3 * sizeof(double));
+    return 1;
+}
+
+static int add_tri(rd* r, int a, int b, int c, int line) {
+    if (r->n_tris >= HS_SURFACE_MAX_COUNT) return rd_fail(r, line, "too many triangles");
+    if (r->n_tris == r->cap_tris) {
+        int cap = r->cap_tris ? 2 * r->cap_tris : 256;
+        if (cap > HS_SURFACE_MAX_COUNT) cap = HS_SURFACE_MAX_COUNT;
+        int* g = hs_realloc(r->tris, (size_t)cap * 3 * sizeof(int));
+        if (!g) return rd_nomem(r);
+        r->tris = g;
+        r->cap_tris = cap;
+    }
+    int* t = r->tris + 3 * r->n_tris++;
+    t[0] = a;
+    t[1] = b;
+    t[2] = c;
+    return 1;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Tokens on lines.
+
+static int is_blank(char c) {
+    return c == ' ' || c == '\t' || c == '\r' || c == '\f' || c == '\v';
+}
+
+typedef struct tk {
+    const char* s;
+    size_t len;
+} tk;
+
+// Next token on the current line; 0 at its end (the newline is not consumed).
+static int tok_line(rd* r, tk* t) {
+    while (r->p < r->end && is_blank(*r->p)) ++r->p;
+    if (r->p >= r->end || *r->p == '\n') return 0;
+    t->s = r->p;
+    while (r->p < r->end && !is_blank(*r->p) && *r->p != '\n') ++r->p;
+    t->len = (size_t)(r->p - t->s);
+    return 1;
+}
+
+static void next_line(rd* r) {
+    const char* nl = memchr(r->p, '\n', (size_t)(r->end - r->p));
+    r->p = nl ? nl + 1 : r->end;
+    ++r->line;
+}
+
+// Next token, crossing lines; 0 at the end of the data.
+static int tok_any(rd* r, tk* t) {
+    for (;;) {
+        if (tok_line(r, t)) return 1;
+        if (r->p >= r->end) return 0;
+        next_line(r);
+    }
+}
+
+static int tok_eq(const tk* t, const char* s) {
+    size_t n = strlen(s);
+    if (t->len != n) return 0;
+    for (size_t i = 0; i < n; ++i) {
+        char a = t->s[i];
+        if (a >= 'A' && a <= 'Z') a = (char)(a - 'A' + 'a');
+        if (a != s[i]) return 0;
+    }
+    return 1;
+}
+
+static const char* tok_show(const tk* t, char buf[40]) {
+    size_t n = t->len < 24 ? t->len : 24;
+    for (size_t i = 0; i < n; ++i) {
+        unsigned char c = (unsigned char)t->s[i];
+        buf[i] = c >= 0x20 && c < 0x7f ? (char)c : '?';
+    }
+    strcpy(buf + n, t->len > 24 ? "..." : "");
+    return buf;
+}
+
+// A decimal number (NaN and inf are read so the caller can name them; hexadecimal refused).
+static int tok_double(const tk* t, double* v) {
+    char buf[128];
+    if (t->len == 0 || t->len >= sizeof buf) return 0;
+    for (size_t i = 0; i < t->len; ++i)
+        if (t->s[i] == 'x' || t->s[i] == 'X') return 0;
+    memcpy(buf, t->s, t->len);
+    buf[t->len] = '\0';
+    char* e = NULL;
+    errno = 0;
+    *v = strtod(buf, &e);
+    return e == buf + t->len;
+}
+
+static int tok_ll(const tk* t, long long* v) {
+    size_t i = 0;
+    int neg = 0;
+    if (t->len && (t->s[0] == '-' || t->s[0] == '+')) {
+        neg = t->s[0] == '-';
+        i = 1;
+    }
+    if (i == t->len) return 0;
+    unsigned long long acc = 0;
+    for (; i < t->len; ++i) {
+        unsigned d = (unsigned)(unsigned char)t->s[i] - '0';
+        if (d > 9 || acc > ((unsigned long long)LLONG_MAX - d) / 10) return 0;
+        acc = acc * 10 + d;
+    }
+    *v = neg ? -(long long)acc : (long long)acc;
+    return 1;
+}
+
+static int need_double(rd* r, int any, const char* what, double* v) {
+    tk t;
+    char b[40];
+    int line = r->line;
+    if (!(any ? tok_any(r, &t) : tok_line(r, &t))) return rd_fail(r, line, "missing %s", what);
+    if (!tok_double(&t, v))
+        return rd_fail(r, r->line, "bad %s '%s' (expected a number)", what, tok_show(&t, b));
+    return 1;
+}
+
+static int need_int(rd* r, int any, long long lo, long long hi, const char* what, long long* v) {
+    tk t;
+    char b[40];
+    int line = r->line;
+    if (!(any ? tok_any(r, &t) : tok_line(r, &t))) return rd_fail(r, line, "missing %s", what);
+    if (!tok_ll(&t, v))
+        return rd_fail(r, r->line, "bad %s '%s' (expected an integer)", what, tok_show(&t, b));
+    if (*v < lo || *v > hi)
+        return rd_fail(r, r->line, "%s %lld out of range [%lld, %lld]", what, *v, lo, hi);
+    return 1;
+}
+
+static int check_count(rd* r, long long n, size_t min_bytes, const char* what) {
+    size_t left = (size_t)(r->end - r->p);
+    if (n < 0 || (unsigned long long)n > left / min_bytes + 1 || n > HS_SURFACE_MAX_COUNT)
+        return rd_fail(r, r->line, "%s count %lld does not fit in the %zu bytes that follow", what,
+                       n, left);
+    return 1;
+}
+
+// A polygon's vertices (file indices already made 0-based and checked) as a fan.
+static int add_polygon(rd* r, const int* v, int k, int line) {
+    if (k < 3) return rd_fail(r, line, "a face needs at least 3 vertices, this one has %d", k);
+    for (int i = 1; i + 1 < k; ++i)
+        if (!add_tri(r, v[0], v[i], v[i + 1], line)) return 0;
+    return 1;
+}
+
+// ---------------------------------------------------------------------------------------------
+// STL
+
+static uint32_t le32(const unsigned char* p) {
+    return (uint32_t)p[0] | (uint32_t)p[1] << 8 | (uint32_t)p[2] << 16 | (uint32_t)p[3] << 24;
+}
+
+static float lef32(const unsigned char* p) {
+    uint32_t u = le32(p);
+    float f;
+    memcpy(&f, &u, sizeof f);
+    return f;
+}
+
+static int stl_binary(rd* r) {
+    size_t len = (size_t)(r->end - r->p);
+    const unsigned char* d = (const unsigned char*)r->p;
+    uint32_t n = le32(d + 80);
+    if ((size_t)n > (len - 84) / 50)
+        return rd_fail(r, 0,
+                       "binary STL header says %u triangles (%llu bytes) but the file has %zu "
+                       "bytes",
+                       n, 84ull + 50ull * n, len);
+    if (n == 0) return rd_fail(r, 0, "binary STL with no triangles");
+    if (len != 84 + 50 * (size_t)n)
+        return rd_fail(r, 0, "binary STL of %u triangles should be %zu bytes, the file has %zu", n,
+                       84 + 50 * (size_t)n, len);
+    for (uint32_t i = 0; i < n; ++i) {
+        const unsigned char* f = d + 84 + 50 * (size_t)i;
+        for (int c = 0; c < 3; ++c) {
+            double v[3];
+            for (int k = 0; k < 3; ++k) v[k] = lef32(f + 12 + 12 * c + 4 * k);
+            if (!isfinite(v[0]) || !isfinite(v[1]) || !isfinite(v[2]))
+                return rd_fail(r, 0, "byte %zu: triangle %u, corner %d is not finite (%g, %g, %g)",
+                               84 + 50 * (size_t)i + 12 + 12 * (size_t)c, i + 1, c + 1, v[0], v[1],
+                               v[2]);
+            if (!add_vert(r, v, 0)) return 0;
+        }
+        if (!add_tri(r, r->n_verts - 3, r->n_verts - 2, r->n_verts - 1, 0)) return 0;
+    }
+    return 1;
+}
+
+static int stl_ascii(rd* r) {
+    tk t;
+    char b[40];
+    int in_facet = 0, corners = 0, facet_line = 0;
+    next_line(r); // "solid name"
+    while (tok_any(r, &t)) {
+        int line = r->line;
+        if (tok_eq(&t, "facet")) {
+            if (in_facet) return rd_fail(r, line, "'facet' inside a facet (missing 'endfacet')");
+            in_facet = 1;
+            corners = 0;
+            facet_line = line;
+            next_line(r); // the normal is recomputed from the corners
+        } else if (tok_eq(&t, "vertex")) {
+            if (!in_facet) return rd_fail(r, line, "'vertex' outside a facet");
+            double v[3];
+            if (!need_double(r, 0, "x", v) || !need_double(r, 0, "y", v + 1) ||
+                !need_double(r, 0, "z", v + 2))
+                return 0;
+            if (++corners > 3)
+                return rd_fail(r, line, "facet of line %d has more than 3 vertices", facet_line);
+            if (!add_vert(r, v, line)) return 0;
+        } else if (tok_eq(&t, "endfacet")) {
+            if (!in_facet) return rd_fail(r, line, "'endfacet' without 'facet'");
+            if (corners != 3)
+                return rd_fail(r, line, "facet of line %d has %d vertices, not 3", facet_line,
+                               corners);
+            if (!add_tri(r, r->n_verts - 3, r->n_verts - 2, r->n_verts - 1, facet_line)) return 0;
+            in_facet = 0;
+        } else if (tok_eq(&t, "outer") || tok_eq(&t, "endloop")) {
+            next_line(r);
+        } else if (tok_eq(&t, "endsolid")) {
+            next_line(r);
+            // Several solids may follow each other.
+            if (tok_any(r, &t)) {
+                if (!tok_eq(&t, "solid"))
+                    return rd_fail(r, r->line, "unexpected '%s' after endsolid", tok_show(&t, b));
+                next_line(r);
+            }
+        } else {
+            return rd_fail(r, line, "unexpected '%s' in an ASCII STL", tok_show(&t, b));
+        }
+    }
+    if (in_facet) return rd_fail(r, facet_line, "file ends inside the facet of this line");
+    if (r->n_tris == 0) return rd_fail(r, r->line, "ASCII STL with no facets");
+    return 1;
+}
+
+static int parse_stl(rd* r) {
+    size_t len = (size_t)(r->end - r->p);
+    if (len == 0) return rd_fail(r, 0, "empty file");
+    // "solid" starts ASCII files, but some binary exporters write it in the 80-byte header too:
+    // the size formula decides.
+    if (len >= 84) {
+        uint32_t n = le32((const unsigned char*)r->p + 80);
+        if (84 + 50 * (size_t)n == len) return stl_binary(r);
+    }
+    if (len >= 5 && strncmp(r->p, "solid", 5) == 0) return stl_ascii(r);
+    if (len < 84) return rd_fail(r, 0, "not an STL file (%zu bytes, no 'solid' header)", len);
+    return stl_binary(r);
+}
+
+// ---------------------------------------------------------------------------------------------
+// OBJ: v x y z [w], f a[/t][/n] b c ... (1-based, negative = relative), other records skipped.
+
+static int parse_obj(rd* r) {
+    tk t;
+    char b[40];
+    int poly[64];
+    if (r->p >= r->end) return rd_fail(r, 0, "empty file");
+    for (; r->p < r->end; next_line(r)) {
+        int line = r->line;
+        if (!tok_line(r, &t) || t.s[0] == '#') continue;
+        if (tok_eq(&t, "v")) {
+            double v[3];
+            if (!need_double(r, 0, "x", v) || !need_double(r, 0, "y", v + 1) ||
+                !need_double(r, 0, "z", v + 2) || !add_vert(r, v, line))
+                return 0;
+        } else if (tok_eq(&t, "f")) {
+            int k = 0;
+            while (tok_line(r, &t)) {
+                tk idx = t;
+                const char* slash = memchr(t.s, '/', t.len);
+                if (slash) idx.len = (size_t)(slash - t.s);
+                long long i;
+                if (!tok_ll(&idx, &i) || i == 0)
+                    return rd_fail(r, line, "bad face index '%s'", tok_show(&t, b));
+                long long j = i > 0 ? i - 1 : r->n_verts + i;
+                if (j < 0 || j >= r->n_verts)
+                    return rd_fail(r, line, "face index %lld: only %d vertices so far", i,
+                                   r->n_verts);
+                if (k == 64) return rd_fail(r, line, "face with more than 64 vertices");
+                poly[k++] = (int)j;
+            }
+            if (!add_polygon(r, poly, k, line)) return 0;
+        } else if (t.len > 0 && (t.s[0] < 0x20 || (unsigned char)t.s[0] >= 0x7f)) {
+            return rd_fail(r, line, "binary data in an OBJ file");
+        }
+        // vt, vn, g, o, s, usemtl, mtllib, l, p: not surface geometry, skipped
+    }
+    if (r->n_tris == 0) return rd_fail(r, r->line, "no faces ('f' lines)");
+    return 1;
+}
+
+// ---------------------------------------------------------------------------------------------
+// OFF: "OFF", then "nv nf ne", nv vertices, nf faces "k i0 .. ik-1 [colour]". '#' comments.
+
+static int off_next(rd* r, tk* t) {
+    for (;;) {
+        if (!tok_any(r, t)) return 0;
+        if (t->s[0] != '#') return 1;
+        next_line(r);
+    }
+}
+
+static int parse_off(rd* r) {
+    tk t;
+    char b[40];
+    if (!off_next(r, &t)) return rd_fail(r, 0, "empty file");
+    if (!tok_eq(&t, "off"))
+        return rd_fail(r, r->line, "not an OFF file (expected 'OFF', found '%s')", tok_show(&t, b));
+    long long nv, nf, ne;
+    if (!off_next(r, &t)) return rd_fail(r, r->line, "missing vertex count");
+    if (!tok_ll(&t, &nv) || nv < 0)
+        return rd_fail(r, r->line, "bad vertex count '%s'", tok_show(&t, b));
+    if (!need_int(r, 1, 0, LLONG_MAX, "face count", &nf) ||
+        !need_int(r, 1, 0, LLONG_MAX, "edge count", &ne) || !check_count(r, nv, 6, "vertex") ||
+        !check_count(r, nf, 8, "face"))
+        return 0;
+    for (long long i = 0; i < nv; ++i) {
+        double v[3];
+        if (!need_double(r, 1, "x", v) || !need_double(r, 1, "y", v + 1) ||
+            !need_double(r, 1, "z", v + 2) || !add_vert(r, v, r->line))
+            return 0;
+        next_line(r); // colours or normals after the coordinates
+    }
+    int poly[64];
+    for (long long f = 0; f < nf; ++f) {
+        long long k, v;
+        if (!need_int(r, 1, 0, 64, "face vertex count", &k)) return 0;
+        int line = r->line;
+        for (long long c = 0; c < k; ++c) {
+            if (!need_int(r, 0, 0, nv - 1, "vertex index", &v)) return 0;
+            poly[c] = (int)v;
+        }
+        if (!add_polygon(r, poly, (int)k, line)) return 0;
+        next_line(r); // optional colour
+    }
+    if (nf == 0) return rd_fail(r, r->line, "no faces");
+    return 1;
+}
+
+// ---------------------------------------------------------------------------------------------
+// PLY: header, then elements in order. Reads vertex x, y, z and face vertex_indices (or
+// vertex_index); every other property and element is read past.
+
+enum { PLY_MAX_PROPS = 32, PLY_MAX_ELEMS = 16 };
+
+typedef struct ply_prop {
+    int type;       // scalar type (1..8 below), the list's item type when is_list
+    int count_type; // list: type of the count
+    int is_list;
+    int role; // 0 other, 1 x, 2 y, 3 z, 4 face indices
+} ply_prop;
+
+typedef struct ply_elem {
+    int kind; // 0 other, 1 vertex, 2 face
+    long long n;
+    int n_props;
+    ply_prop props[PLY_MAX_PROPS];
+} ply_elem;
+
+// char uchar short ushort int uint float double (and int8 .. float64 aliases).
+static int ply_type(const tk* t) {
+    static const char* const names[] = {"char",  "uchar",  "short",   "ushort", "int",   "uint",
+                                        "float", "double", "int8",    "uint8",  "int16", "uint16",
+                                        "int32", "uint32", "float32", "float64"};
+    for (int i = 0; i < 16; ++i)
+        if (tok_eq(t, names[i])) return i % 8 + 1;
+    return 0;
+}
+
+static const int k_ply_size[9] = {0, 1, 1, 2, 2, 4, 4, 4, 8};
+
+static double ply_bin_value(const unsigned char* p, int type, int big) {
+    unsigned char b[8];
+    int n = k_ply_size[type];
+    for (int i = 0; i < n; ++i) b[i] = big ? p[n - 1 - i] : p[i];
+    switch (type) {
+    case 1:
+        return (double)(int8_t)b[0];
+    case 2:
+        return (double)b[0];
+    case 3: {
+        int16_t v;
+        memcpy(&v, b, 2);
+        return v;
+    }
+    case 4: {
+        uint16_t v;
+        memcpy(&v, b, 2);
+        return v;
+    }
+    case 5: {
+        int32_t v;
+        memcpy(&v, b, 4);
+        return v;
+    }
+    case 6: {
+        uint32_t v;
+        memcpy(&v, b, 4);
+        return v;
+    }
+    case 7: {
+        float v;
+        memcpy(&v, b, 4);
+        return v;
+    }
+    default: {
+        double v;
+        memcpy(&v, b, 8);
+        return v;
+    }
+    }
+}
+
+// One property value of element e, item i: ASCII token or binary bytes.
+static int ply_value(rd* r, int binary, int big, int type, double* v, const char* what) {
+    if (!binary) return need_double(r, 1, what, v);
+    size_t n = (size_t)k_ply_size[type];
+    if ((size_t)(r->end - r->p) < n)
+        return rd_fail(r, 0, "byte %zu: file ends in the binary data (%s)", (size_t)(r->end - r->p),
+                       what);
+    *v = ply_bin_value((const unsigned char*)r->p, type, big);
+    r->p += n;
+    return 1;
+}
+
+static int parse_ply(rd* r) {
+    tk t;
+    char b[40];
+    if (r->p >= r->end) return rd_fail(r, 0, "empty file");
+    if (!tok_line(r, &t) || !tok_eq(&t, "ply")) return rd_fail(r, 1, "not a PLY file (no 'ply')");
+    next_line(r);
+    int binary = 0, big = 0, have_format = 0, n_elems = 0;
+    ply_elem el[PLY_MAX_ELEMS];
+    for (;;) {
+        if (r->p >= r->end) return rd_fail(r, r->line, "header has no end_header");
+        int line = r->line;
+        if (!tok_line(r, &t)) {
+            next_line(r);
+            continue;
+        }
+        if (tok_eq(&t, "end_header")) {
+            next_line(r);
+            break;
+        }
+        if (tok_eq(&t, "format")) {
+            if (!tok_line(r, &t)) return rd_fail(r, line, "format needs a type");
+            if (tok_eq(&t, "ascii")) {
+                binary = 0;
+            } else if (tok_eq(&t, "binary_little_endian")) {
+                binary = 1;
+            } else if (tok_eq(&t, "binary_big_endian")) {
+                binary = 1;
+                big = 1;
+            } else {
+                return rd_fail(r, line, "unknown PLY format '%s'", tok_show(&t, b));
+            }
+            have_format = 1;
+        } else if (tok_eq(&t, "element")) {
+            if (n_elems == PLY_MAX_ELEMS) return rd_fail(r, line, "more than 16 elements");
+            ply_elem* e = &el[n_elems++];
+            memset(e, 0, sizeof *e);
+            if (!tok_line(r, &t)) return rd_fail(r, line, "element needs a name");
+            e->kind = tok_eq(&t, "vertex") ? 1 : tok_eq(&t, "face") ? 2 : 0;
+            if (!need_int(r, 0, 0, HS_SURFACE_MAX_COUNT, "element count", &e->n)) return 0;
+        } else if (tok_eq(&t, "property")) {
+            if (!n_elems) return rd_fail(r, line, "property before any element");
+            ply_elem* e = &el[n_elems - 1];
+            if (e->n_props == PLY_MAX_PROPS)
+                return rd_fail(r, line, "more than %d properties", PLY_MAX_PROPS);
+            ply_prop* p = &e->props[e->n_props++];
+            memset(p, 0, sizeof *p);
+            if (!tok_line(r, &t)) return rd_fail(r, line, "property needs a type");
+            if (tok_eq(&t, "list")) {
+                p->is_list = 1;
+                tk ct, it;
+                if (!tok_line(r, &ct) || !tok_line(r, &it) || !(p->count_type = ply_type(&ct)) ||
+                    !(p->type = ply_type(&it)))
+                    return rd_fail(r, line, "bad list property types");
+                if (p->count_type >= 7) return rd_fail(r, line, "list count of a float type");
+            } else if (!(p->type = ply_type(&t))) {
+                return rd_fail(r, line, "unknown property type '%s'", tok_show(&t, b));
+            }
+            if (!tok_line(r, &t)) return rd_fail(r, line, "property needs a name");
+            if (e->kind == 1 && !p->is_list)
+                p->role = tok_eq(&t, "x") ? 1 : tok_eq(&t, "y") ? 2 : tok_eq(&t, "z") ? 3 : 0;
+            if (e->kind == 2 && p->is_list &&
+                (tok_eq(&t, "vertex_indices") || tok_eq(&t, "vertex_index")))
+                p->role = 4;
+        } else if (!tok_eq(&t, "comment") && !tok_eq(&t, "obj_info")) {
+            return rd_fail(r, line, "unexpected '%s' in the PLY header", tok_show(&t, b));
+        }
+        next_line(r);
+    }
+    if (!have_format) return rd_fail(r, r->line, "PLY header without a format line");
+    int have_xyz = 0, have_faces = 0;
+    for (int i = 0; i < n_elems; ++i) {
+        int roles = 0;
+        for (int k = 0; k < el[i].n_props; ++k) roles |= 1 << el[i].props[k].role;
+        if (el[i].kind == 1) have_xyz = (roles & 14) == 14;
+        if (el[i].kind == 2) have_faces = (roles & 16) != 0;
+    }
+    if (!have_xyz) return rd_fail(r, r->line, "PLY has no vertex element with x, y and z");
+    if (!have_faces) return rd_fail(r, r->line, "PLY has no face element with vertex_indices");
+    long long nv_total = 0;
+    int poly[64];
+    for (int i = 0; i < n_elems; ++i) {
+        ply_elem* e = &el[i];
+        if (!check_count(r, e->n, binary ? 1 : 2, "element")) return 0;
+        if (e->kind == 1) nv_total = e->n;
+        for (long long j = 0; j < e->n; ++j) {
+            double xyz[3] = {0, 0, 0};
+            int k_poly = 0, line = r->line;
+            for (int k = 0; k < e->n_props; ++k) {
+                ply_prop* p = &e->props[k];
+                double v;
+                if (!p->is_list) {
+                    if (!ply_value(r, binary, big, p->type, &v, "property value")) return 0;
+                    if (p->role >= 1 && p->role <= 3) xyz[p->role - 1] = v;
+                    continue;
+                }
+                if (!ply_value(r, binary, big, p->count_type, &v, "list count")) return 0;
+                if (!(v >= 0 && v <= 64))
+                    return rd_fail(r, binary ? 0 : r->line, "list of %g items (at most 64)", v);
+                int cnt = (int)v;
+                for (int c = 0; c < cnt; ++c) {
+                    if (!ply_value(r, binary, big, p->type, &v, "list item")) return 0;
+                    if (p->role == 4) {
+                        if (!(v >= 0 && v < (double)nv_total && v == floor(v)))
+                            return rd_fail(r, binary ? 0 : r->line,
+                                           "face %lld: vertex index %g not in [0, %lld)", j + 1, v,
+                                           nv_total);
+                        poly[k_poly++] = (int)v;
+                    }
+                }
+            }
+            if (!binary) next_line(r);
+            if (e->kind == 1 && !add_vert(r, xyz, binary ? 0 : line)) return 0;
+            if (e->kind == 2 && !add_polygon(r, poly, k_poly, binary ? 0 : line)) return 0;
+        }
+    }
+    if (r->n_tris == 0) return rd_fail(r, r->line, "no faces");
+    return 1;
+}
+
+// ---------------------------------------------------------------------------------------------
+
+typedef struct vkey {
+    double x[3];
+    int i;
+} vkey;
+
+static int cmp_vkey(const void* pa, const void* pb) {
+    const vkey* a = pa;
+    const vkey* b = pb;
+    for (int d = 0; d < 3; ++d)
+        if (a->x[d] != b->x[d]) return a->x[d] < b->x[d] ? -1 : 1;
+    return (a->i > b->i) - (a->i < b->i);
+}
+
+// Merges vertices with exactly equal coordinates (STL repeats every corner), keeping the first
+// of each in file order. Returns how many were merged, -1 on no memory.
+int hs_surface_weld(hs_surface* s) {
+    int n = s->n_verts;
+    if (n == 0) return 0;
+    vkey* k = hs_alloc((size_t)n * sizeof(vkey));
+    int* first = hs_alloc((size_t)n * sizeof(int));
+    if (!k || !first) {
+        hs_free(k);
+        hs_free(first);
+        return -1;
+    }
+    for (int i = 0; i < n; ++i) {
+        memcpy(k[i].x, s->x + 3 * i, sizeof k[i].x);
+        k[i].i = i;
+    }
+    qsort(k, (size_t)n, sizeof(vkey), cmp_vkey);
+    for (int i = 0; i < n;) {
+        int j = i;
+        while (j < n && memcmp(k[i].x, k[j].x, sizeof k[i].x) == 0) ++j;
+        for (int q = i; q < j; ++q) first[k[q].i] = k[i].i; // k[i] has the lowest index
+        i = j;
+    }
+    int* newidx = (int*)k; // n ints fit in n vkeys
+    int m = 0;
+    for (int i = 0; i < n; ++i)
+        if (first[i] == i) {
+            newidx[i] = m;
+            memmove(s->x + 3 * m, s->x + 3 * i, 3 * sizeof(double));
+            ++m;
+        }
+    for (int i = 0; i < n; ++i)
+        if (first[i] != i) newidx[i] = newidx[first[i]];
+    for (int t = 0; t < 3 * s->n_tris; ++t) s->tris[t] = newidx[s->tris[t]];
+    s->n_verts = m;
+    hs_free(k);
+    hs_free(first);
+    return n - m;
+}
+
+static hs_status finish(rd* r, int ok, hs_surface** out) {
+    if (!ok) {
+        hs_free(r->x);
+        hs_free(r->tris);
+        return r->status ? r->status : HS_ERR_PARSE;
+    }
+    hs_surface* s = hs_calloc(1, sizeof *s);
+    if (!s) {
+        hs_free(r->x);
+        hs_free(r->tris);
+        return hs_err_set(r->err, HS_ERR_NOMEM, "%s: out of memory", r->name);
+    }
+    s->n_verts = r->n_verts;
+    s->x = r->x;
+    s->n_tris = r->n_tris;
+    s->tris = r->tris;
+    int merged = hs_surface_weld(s);
+    if (merged < 0) {
+        hs_surface_destroy(&s);
+        return hs_err_set(r->err, HS_ERR_NOMEM, "%s: out of memory", r->name);
+    }
+    s->merged_on_read = merged;
+    *out = s;
+    return HS_OK;
+}
+
+hs_status hs_surface_parse(const char* name, const char* format, const char* data, size_t len,
+                           hs_surface** out, hs_err* err) {
+    if (!out) return hs_err_set(err, HS_ERR_INVALID, "out is NULL");
+    *out = NULL;
+    if (!format || (!data && len)) return hs_err_set(err, HS_ERR_INVALID, "format or data is NULL");
+    rd r = {0};
+    r.name = name ? name : "(memory)";
+    r.p = data ? data : "";
+    r.end = r.p + (data ? len : 0);
+    r.line = 1;
+    r.err = err;
+    if (strcmp(format, "msh") == 0 || strcmp(format, "vtu") == 0)
+        return hs_surface_parse_mesh(r.name, format, data, len, out, err);
+    int ok;
+    if (strcmp(format, "stl") == 0)
+        ok = parse_stl(&r);
+    else if (strcmp(format, "obj") == 0)
+        ok = parse_obj(&r);
+    else if (strcmp(format, "ply") == 0)
+        ok = parse_ply(&r);
+    else if (strcmp(format, "off") == 0)
+        ok = parse_off(&r);
+    else
+        return hs_err_set(err, HS_ERR_INVALID, "unknown surface format '%.20s'", format);
+    return finish(&r, ok, out);
+}
+
+static int has_ext(const char* path, const char* ext) {
+    size_t n = strlen(path), e = strlen(ext);
+    if (n < e) return 0;
+    for (size_t i = 0; i < e; ++i) {
+        char c = path[n - e + i];
+        if (c >= 'A' && c <= 'Z') c = (char)(c - 'A' + 'a');
+        if (c != ext[i]) return 0;
+    }
+    return 1;
+}
+
+hs_status hs_surface_read_file(const char* path, char** data, size_t* len, hs_err* err) {
+    *data = NULL;
+    *len = 0;
+    FILE* f = fopen(path, "rb");
+    if (!f) return hs_err_set(err, HS_ERR_IO, "%s: cannot open: %s", path, strerror(errno));
+    size_t cap = (size_t)1 << 16, n = 0;
+    char* buf = hs_alloc(cap);
+    hs_status st = buf ? HS_OK : hs_err_set(err, HS_ERR_NOMEM, "%s: out of memory", path);
+    while (st == HS_OK) {
+        if (n == cap) {
+            if (cap >= HS_SURFACE_MAX_FILE_BYTES) {
+                st = hs_err_set(err, HS_ERR_IO, "%s: larger than %zu MiB", path,
+                                HS_SURFACE_MAX_FILE_BYTES >> 20);
+                break;
+            }
+            char* g = hs_realloc(buf, cap * 2);
+            if (!g) {
+                st = hs_err_set(err, HS_ERR_NOMEM, "%s: out of memory", path);
+                break;
+            }
+            buf = g;
+            cap *= 2;
+        }
+        size_t got = fread(buf + n, 1, cap - n, f);
+        n += got;
+        if (got == 0) {
+            if (ferror(f)) st = hs_err_set(err, HS_ERR_IO, "%s: read error", path);
+            break;
+        }
+    }
+    fclose(f);
+    if (st != HS_OK) {
+        hs_free(buf);
+        return st;
+    }
+    *data = buf;
+    *len = n;
+    return HS_OK;
+}
+
+hs_status hs_surface_load(const char* path, hs_surface** out, hs_err* err) {
+    if (!out) return hs_err_set(err, HS_ERR_INVALID, "out is NULL");
+    *out = NULL;
+    if (!path) return hs_err_set(err, HS_ERR_INVALID, "path is NULL");
+    static const char* const fmts[] = {"stl", "obj", "ply", "off", "msh", "vtu"};
+    for (int i = 0; i < 6; ++i) {
+        char ext[8];
+        snprintf(ext, sizeof ext, ".%s", fmts[i]);
+        if (!has_ext(path, ext)) continue;
+        char* data;
+        size_t len;
+        hs_status st = hs_surface_read_file(path, &data, &len, err);
+        if (st != HS_OK) return st;
+        st = hs_surface_parse(path, fmts[i], data, len, out, err);
+        hs_free(data);
+        return st;
+    }
+    if (has_ext(path, ".vtk") || has_ext(path, ".node") || has_ext(path, ".ele")) {
+        hs_mesh* m = NULL;
+        hs_status st = hs_mesh_load(path, &m, err);
+        if (st < 0) return st;
+        st = hs_surface_from_mesh(m, out, err);
+        hs_mesh_destroy(&m);
+        return st;
+    }
+    return hs_err_set(err, HS_ERR_UNSUPPORTED,
+                      "%s: unknown surface extension (.stl, .obj, .ply, .off, .msh, .vtu; volume "
+                      "meshes .vtk, .node/.ele)",
+                      path);
+}
