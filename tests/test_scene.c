@@ -140,7 +140,7 @@ static int malformed_names_file_line_key(void) {
     ENSURE(expect_fail(HEAD "\"model\": {\"type\": \"neohookean\"}}", HS_ERR_PARSE,
                        "'model.type': must be one of: linear | corotated | stvk", NULL) == 0);
     ENSURE(expect_fail(HEAD "\"model\": {\"locking_free\": 1}}", HS_ERR_PARSE,
-                       "'model.locking_free': must be true or false", NULL) == 0);
+                       "'model.locking_free': must be true, false, none, anp or sns", NULL) == 0);
     ENSURE(expect_fail(HEAD "\"model\": {\"solver\": \"pcg\"}}", HS_ERR_PARSE,
                        "'model.solver': must be one of: direct | warped", NULL) == 0);
     ENSURE(expect_fail(HEAD "\"gravity\": [0, 0]}", HS_ERR_PARSE,
