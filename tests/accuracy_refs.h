@@ -100,6 +100,9 @@ static inline int ref_problem_init(ref_problem* p, const char* mesh, ref_load lo
     return 0;
 }
 
+/// Statistics of the last ref_solve_body_def (iterations, line-search cuts).
+static hs_step_stats ref_last_stats;
+
 /// Solve with a real-time model (static, tolerance 1e-10); u_out [3n]; reaction_x (may be
 /// NULL): the x reaction summed over the nodes of x = L, N.
 static inline int ref_solve_body_def(const ref_problem* p, const hs_fem_def* fem, double* u_out,
@@ -123,6 +126,7 @@ static inline int ref_solve_body_def(const ref_problem* p, const hs_fem_def* fem
     }
     hs_step_stats st;
     hs_status s = rc ? HS_ERR_INVALID : hs_body_solve_static(b, &st);
+    ref_last_stats = st;
     if (s != HS_OK) {
         printf("  static solve: status %d after %d iterations, residual ratio %.3g\n", (int)s,
                st.iterations, st.residual);
