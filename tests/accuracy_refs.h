@@ -213,6 +213,29 @@ static inline int ref_read_field(const char* path, int n, double* u) {
     return 0;
 }
 
+/// CalculiX's total x reaction at x = 0 of one run, N, from summary.csv in dir (with the
+/// trailing slash); NAN when absent.
+static inline double ref_summary_reaction_x(const char* dir, const char* load, const char* mat,
+                                            const char* elem, const char* mesh) {
+    char path[512];
+    snprintf(path, sizeof path, "%ssummary.csv", dir);
+    FILE* f = fopen(path, "r");
+    if (!f) return NAN;
+    char line[512];
+    double v = NAN;
+    while (fgets(line, sizeof line, f)) {
+        char l[32], m[32], e[32], me[32];
+        double d[5];
+        int tets;
+        if (sscanf(line, "%31[^,],%31[^,],%31[^,],%31[^,],%d,%lf,%lf,%lf,%lf,%lf", l, m, e, me,
+                   &tets, d, d + 1, d + 2, d + 3, d + 4) == 10 &&
+            !strcmp(l, load) && !strcmp(m, mat) && !strcmp(e, elem) && !strcmp(me, mesh))
+            v = d[3];
+    }
+    fclose(f);
+    return v;
+}
+
 /// Relative L2 error of nodal displacements, %: 100 ||u - u_ref|| / ||u_ref|| over all nodes.
 static inline double ref_rel_l2_pct(int n, const double* u, const double* uref) {
     double num = 0, den = 0;

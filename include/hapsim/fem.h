@@ -53,7 +53,7 @@ static inline int hs_fem_locking_free_default(hs_model model) {
 }
 
 /// Default SNS deviatoric share (measured on the cantilever against CalculiX, docs/fem.md).
-#define HS_SNS_ALPHA_DEFAULT 0.5
+#define HS_SNS_ALPHA_DEFAULT 0.6
 
 /// Element model options. Initialise with hs_fem_default_def().
 typedef struct hs_fem_def {

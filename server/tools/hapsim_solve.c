@@ -31,7 +31,7 @@ static const char* usage =
     "                         share of node-smoothed deviatoric strain | anp average nodal\n"
     "                         pressure | none\n"
     "  --locking-free-alpha A sns: node-smoothed share of the deviatoric energy, [0, 1)\n"
-    "                         (default 0.5)\n"
+    "                         (default 0.6)\n"
     "  --E PA                 Young's modulus, Pa (default 3000)\n"
     "  --nu NU                Poisson ratio (default 0.45)\n"
     "  --density KG_M3        density, kg/m^3 (default 1000)\n"

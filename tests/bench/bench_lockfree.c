@@ -3,7 +3,8 @@
 // option and SNS share alpha:
 //   err_*_pct: 100 ||u - u_ref|| / ||u_ref|| over all nodes, against the converged small-strain
 //              (lin), St. Venant-Kirchhoff (nlgeom) and Mooney-Rivlin (mr) solutions
-//   reaction_x_N / ref_reaction_x_N: the bar's push force, hapsim and converged (mr)
+//   reaction_x_N / ref_*_N: the bar's push force, hapsim and converged (lin, nlgeom, mr)
+//   newton: Newton iterations of the static solve
 //   nnz: stored entries of the tangent; update_ms / assemble_ms: median thread CPU time of one
 //   hs_fem_update / hs_fem_assemble at the solution; solve_ms: the static solve (tol 1e-10)
 #define _POSIX_C_SOURCE 200809L
@@ -14,26 +15,6 @@
 
 #define REFDIR HS_SOURCE_DIR "/tests/accuracy/refs/"
 
-// The converged Mooney-Rivlin push force of the bar (CalculiX's reaction at x = 0), from
-// refs/summary.csv; NAN when absent.
-static double ref_bar_force(void) {
-    FILE* f = fopen(REFDIR "summary.csv", "r");
-    if (!f) return NAN;
-    char line[512];
-    double v = NAN;
-    while (fgets(line, sizeof line, f)) {
-        char load[32], mat[32], el[32], mesh[32];
-        double d[6];
-        int tets;
-        if (sscanf(line, "%31[^,],%31[^,],%31[^,],%31[^,],%d,%lf,%lf,%lf,%lf,%lf", load, mat, el,
-                   mesh, &tets, d, d + 1, d + 2, d + 3, d + 4) == 10 &&
-            !strcmp(load, "bar") && !strcmp(mat, "mr") && !strcmp(el, "c3d10") &&
-            !strcmp(mesh, "20k"))
-            v = fabs(d[3]); // the reaction at x = 0 balances the push at x = L
-    }
-    fclose(f);
-    return v;
-}
 
 // Median CPU time of update and assemble at state u.
 static int cost(const ref_problem* p, const hs_fem_def* def, const double* u, int* nnz,
@@ -75,11 +56,15 @@ static int cost(const ref_problem* p, const hs_fem_def* def, const double* u, in
 int hs_bench_lockfree(const hs_bench_args* a) {
     static const char* const meshes[] = {"1k", "5k", "20k"};
     static const char* const mats[] = {"lin", "nlgeom", "mr"};
-    const double alphas_full[] = {0.3, 0.4, 0.5, 0.6, 0.7};
+    const double alphas_full[] = {0.3, 0.4, 0.5, 0.6, 0.7, 0.8};
     const double alpha_default[] = {HS_SNS_ALPHA_DEFAULT};
-    const double fbar = ref_bar_force();
-    printf("mesh,load,model,option,alpha,tets,nnz,update_ms,assemble_ms,solve_ms,err_lin_pct,"
-           "err_nlgeom_pct,err_mr_pct,reaction_x_N,ref_reaction_x_N\n");
+    // The converged push force of the bar per material (CalculiX's reaction at x = 0, which
+    // balances the push at x = L).
+    double fbar[3];
+    for (int k = 0; k < 3; ++k)
+        fbar[k] = fabs(ref_summary_reaction_x(REFDIR, "bar", mats[k], "c3d10", "20k"));
+    printf("mesh,load,model,option,alpha,tets,nnz,update_ms,assemble_ms,solve_ms,newton,err_lin_pct,"
+           "err_nlgeom_pct,err_mr_pct,reaction_x_N,ref_lin_N,ref_nlgeom_N,ref_mr_N\n");
     for (int mi = 0; mi < (a->quick ? 2 : 3); ++mi)
         for (int l = 0; l < 3; ++l) {
             ref_problem p;
@@ -98,7 +83,7 @@ int hs_bench_lockfree(const hs_bench_args* a) {
             for (int model = 0; model < 2; ++model)
                 for (int lf = 0; lf < 3; ++lf) {
                     const double* al = lf == 2 ? (a->quick ? alpha_default : alphas_full) : NULL;
-                    int nal = lf == 2 ? (a->quick ? 1 : 5) : 1;
+                    int nal = lf == 2 ? (a->quick ? 1 : 6) : 1;
                     for (int ai = 0; ai < nal; ++ai) {
                         hs_fem_def def = hs_fem_default_def();
                         def.model = model == 0 ? HS_MODEL_LINEAR : HS_MODEL_COROTATED;
@@ -117,11 +102,14 @@ int hs_bench_lockfree(const hs_bench_args* a) {
                         double e[3];
                         for (int k = 0; k < 3; ++k)
                             e[k] = have[k] ? ref_rel_l2_pct(n, u, r[k]) : NAN;
-                        printf("%s,%s,%s,%s,%.2f,%d,%d,%.3f,%.3f,%.1f,%.3f,%.3f,%.3f,%.5g,%.5g\n",
+                        const int bar = l == REF_BAR;
+                        printf("%s,%s,%s,%s,%.2f,%d,%d,%.3f,%.3f,%.1f,%d,%.3f,%.3f,%.3f,%.5g,%.5g,"
+                               "%.5g,%.5g\n",
                                meshes[mi], ref_load_name[l], model ? "corotated" : "linear",
                                lf == 0 ? "none" : lf == 1 ? "anp" : "sns", al ? al[ai] : 0.0,
-                               p.mesh->n_tets, nnz, tu, ta, ts, e[0], e[1], e[2],
-                               l == REF_BAR ? fabs(rx) : NAN, l == REF_BAR ? fbar : NAN);
+                               p.mesh->n_tets, nnz, tu, ta, ts, ref_last_stats.iterations, e[0],
+                               e[1], e[2], bar ? fabs(rx) : NAN, bar ? fbar[0] : NAN,
+                               bar ? fbar[1] : NAN, bar ? fbar[2] : NAN);
                         fflush(stdout);
                     }
                 }
