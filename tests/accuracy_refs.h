@@ -17,12 +17,12 @@
 typedef enum ref_load { REF_GRAVITY, REF_TIP, REF_BAR } ref_load;
 
 // Cantilever 0.10 x 0.02 x 0.02 m, E 1.5 MPa, nu 0.49, 960 kg/m^3, x = 0 clamped (ccx_refs.py).
-#define REF_LX 0.10
-#define REF_LY 0.02
-#define REF_LZ 0.02
-#define REF_E 1.5e6
-#define REF_NU 0.49
-#define REF_RHO 960.0
+#define REF_LX    0.10
+#define REF_LY    0.02
+#define REF_LZ    0.02
+#define REF_E     1.5e6
+#define REF_NU    0.49
+#define REF_RHO   960.0
 #define REF_TIP_N 0.5
 #define REF_BAR_M 0.005
 
@@ -41,10 +41,14 @@ typedef struct ref_problem {
 
 /// Mesh sizes of ccx_refs.py: "1k" 20x3x3, "5k" 30x5x5, "20k" 45x9x9 cells (6 tets each).
 static inline int ref_mesh_cells(const char* name, int c[3]) {
-    if (!strcmp(name, "1k")) c[0] = 20, c[1] = 3, c[2] = 3;
-    else if (!strcmp(name, "5k")) c[0] = 30, c[1] = 5, c[2] = 5;
-    else if (!strcmp(name, "20k")) c[0] = 45, c[1] = 9, c[2] = 9;
-    else return 0;
+    if (!strcmp(name, "1k"))
+        c[0] = 20, c[1] = 3, c[2] = 3;
+    else if (!strcmp(name, "5k"))
+        c[0] = 30, c[1] = 5, c[2] = 5;
+    else if (!strcmp(name, "20k"))
+        c[0] = 45, c[1] = 9, c[2] = 9;
+    else
+        return 0;
     return 1;
 }
 
@@ -122,7 +126,8 @@ static inline int ref_solve_body_def(const ref_problem* p, const hs_fem_def* fem
     int n = p->mesh->n_nodes, rc = 0;
     for (int i = 0; i < n && !rc; ++i) {
         if (p->f[3 * i + 2] != 0) rc |= hs_body_set_force(b, i, p->f + 3 * i) != HS_OK;
-        if (p->fixed[i] && p->up[3 * i] != 0) rc |= hs_body_set_prescribed(b, i, p->up + 3 * i) != HS_OK;
+        if (p->fixed[i] && p->up[3 * i] != 0)
+            rc |= hs_body_set_prescribed(b, i, p->up + 3 * i) != HS_OK;
     }
     hs_step_stats st;
     hs_status s = rc ? HS_ERR_INVALID : hs_body_solve_static(b, &st);

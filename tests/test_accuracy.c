@@ -31,14 +31,13 @@ static int error_against(const char* mesh, ref_load load, int model, int lf, con
                        : ref_solve_body(&p, (hs_model)model, lf, u, NULL);
     if (!rc) *err = ref_rel_l2_pct(n, u, r);
     printf("  %s %s, %s (%d Newton iterations, %d cuts): %.4f %% against %s %s\n",
-           ref_load_name[load], mesh, model < 0 ? "mooney beta 0" : model == HS_MODEL_LINEAR ? "linear"
-                                        : model == HS_MODEL_STVK ? "stvk" : "corotated",
-           model < 0 ? 0 : ref_last_stats.iterations, model < 0 ? 0 : ref_last_stats.line_search_cuts,
-           rc ? NAN : *err, mat, elem);
-    if (0) printf("  %s %s, %s: %.4f %% against %s %s\n", ref_load_name[load], mesh,
-           model < 0 ? "mooney beta 0" : model == HS_MODEL_LINEAR ? "linear"
-                                        : model == HS_MODEL_STVK ? "stvk" : "corotated",
-           rc ? NAN : *err, mat, elem);
+           ref_load_name[load], mesh,
+           model < 0                  ? "mooney beta 0"
+           : model == HS_MODEL_LINEAR ? "linear"
+           : model == HS_MODEL_STVK   ? "stvk"
+                                      : "corotated",
+           model < 0 ? 0 : ref_last_stats.iterations,
+           model < 0 ? 0 : ref_last_stats.line_search_cuts, rc ? NAN : *err, mat, elem);
     free(u);
     free(r);
     ref_problem_free(&p);
@@ -126,8 +125,8 @@ static int LockingFreeNearConverged(void) {
 // ... and within 2 % at 20k tets.
 static int LockingFreeConverges20k(void) {
     double lf;
-    ENSURE(error_against("20k", REF_GRAVITY, HS_MODEL_COROTATED, HS_LOCKING_FREE_SNS, "lin",
-                         "conv", &lf) == 0);
+    ENSURE(error_against("20k", REF_GRAVITY, HS_MODEL_COROTATED, HS_LOCKING_FREE_SNS, "lin", "conv",
+                         &lf) == 0);
     ENSURE(lf < 2.0);
     return 0;
 }
@@ -167,15 +166,6 @@ static int SnsWarpedStepsSettle(void) {
     return 0;
 }
 
-// Scratch: argv mesh load model lf (development aid, not registered).
-static int Probe(void) {
-    const char* m = getenv("PROBE_MESH");
-    if (!m) return 0;
-    double e;
-    return error_against(m, (ref_load)atoi(getenv("PROBE_LOAD")), atoi(getenv("PROBE_MODEL")),
-                         atoi(getenv("PROBE_LF")), getenv("PROBE_MAT"), "conv", &e);
-}
-
 int main(int argc, char** argv) {
     static const hs_test_case cases[] = {
         {"LinearMatchesC3D4", LinearMatchesC3D4},
@@ -185,7 +175,6 @@ int main(int argc, char** argv) {
         {"LockingFreeNearConverged", LockingFreeNearConverged},
         {"LockingFreeConverges20k", LockingFreeConverges20k},
         {"SnsWarpedStepsSettle", SnsWarpedStepsSettle},
-        {"Probe", Probe},
     };
     return hs_test_main(argc, argv, cases, (int)(sizeof cases / sizeof cases[0]));
 }

@@ -72,7 +72,7 @@ typedef struct hs_fem_def {
     /// co-rotated only); docs/fem.md, "Locking-free options"
     int locking_free;
     double locking_free_alpha; ///< SNS: node-smoothed deviatoric share, in [0, 1)
-    int cookie;             ///< set by hs_fem_default_def; catches uninitialised defs
+    int cookie;                ///< set by hs_fem_default_def; catches uninitialised defs
 } hs_fem_def;
 
 /// Defaults: linear, E 3 kPa, nu 0.45, 1000 kg/m^3, no damping, POLAR tol 1e-6 x 20 iterations,

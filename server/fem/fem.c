@@ -87,9 +87,9 @@ struct hs_fem {
     // selective node smoothing (SNS, locking_free 2): a share alpha of the deviatoric energy
     // from the node-smoothed strain, with the node's own rotation (co-rotated)
     int sns;
-    double mu_n;   // alpha mu, Pa
-    double* gbar;  // [3 * ring total] smoothed rest gradients d F_n / d x_m
-    double* rn;    // [9n] node rotations (warm start of the next update)
+    double mu_n;  // alpha mu, Pa
+    double* gbar; // [3 * ring total] smoothed rest gradients d F_n / d x_m
+    double* rn;   // [9n] node rotations (warm start of the next update)
 
     hs_fem_stats stats;
 };
@@ -119,7 +119,7 @@ void hs_fem_destroy(hs_fem** pfem) {
                     m->nt_start,   m->nt,       m->adj_start, m->adj,        m->blkpos, m->elem_pos,
                     m->diag_pos,   m->mirror,   m->low_of,    m->ring_start, m->ring,   m->nt_slot,
                     m->pair_start, m->pair_blk, m->theta_e,   m->w,          m->pbar,   m->vn,
-                    m->theta_n,    m->cvec,     m->kscale,    m->qsum,  m->gbar,   m->rn};
+                    m->theta_n,    m->cvec,     m->kscale,    m->qsum,       m->gbar,   m->rn};
     for (size_t i = 0; i < sizeof ptrs / sizeof ptrs[0]; i++) hs_free(ptrs[i]);
     hs_free(m);
     *pfem = NULL;

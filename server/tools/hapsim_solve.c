@@ -156,10 +156,10 @@ enum {
     F_POLAR_TOL = 1 << 12,
     F_LF_ALPHA = 1 << 13,
 };
-static const char* const flag_name[] = {"--dt",           "--damping", "--tol",      "--max-iter",
-                                        "--load-steps",   "--solver",  "--precond",  "--pcg-iters",
-                                        "--locking-free", "--beta",    "--rotation", "--inversion",
-                                        "--polar-tol",    "--locking-free-alpha"};
+static const char* const flag_name[] = {
+    "--dt",       "--damping",   "--tol",       "--max-iter",          "--load-steps",
+    "--solver",   "--precond",   "--pcg-iters", "--locking-free",      "--beta",
+    "--rotation", "--inversion", "--polar-tol", "--locking-free-alpha"};
 
 typedef struct plane_fix {
     int axis, side;
@@ -175,7 +175,7 @@ int main(int argc, char** argv) {
     def.fem.material.density_kg_m3 = 1000;
     int have_model = 0, do_static = 0, steps = 0, quiet = 0, have_dt = 0, mooney = 0;
     int lf_mode = HS_LOCKING_FREE_NONE; // -1: the model's default mode
-    unsigned given = 0; // F_* flags on the command line
+    unsigned given = 0;                 // F_* flags on the command line
     double beta = 0;
     double boxes[8][6];
     int n_boxes = 0;
@@ -209,9 +209,12 @@ int main(int argc, char** argv) {
             lf_mode = -1;
             if (i + 1 < argc && strncmp(argv[i + 1], "--", 2) != 0) {
                 const char* v = argv[++i];
-                if (!strcmp(v, "none")) lf_mode = HS_LOCKING_FREE_NONE;
-                else if (!strcmp(v, "anp")) lf_mode = HS_LOCKING_FREE_ANP;
-                else if (!strcmp(v, "sns")) lf_mode = HS_LOCKING_FREE_SNS;
+                if (!strcmp(v, "none"))
+                    lf_mode = HS_LOCKING_FREE_NONE;
+                else if (!strcmp(v, "anp"))
+                    lf_mode = HS_LOCKING_FREE_ANP;
+                else if (!strcmp(v, "sns"))
+                    lf_mode = HS_LOCKING_FREE_SNS;
                 else {
                     fprintf(stderr, "hapsim-solve: --locking-free: '%s' is not none|anp|sns\n", v);
                     return 1;

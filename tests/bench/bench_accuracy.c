@@ -660,8 +660,8 @@ static int organ(const char* scene, scene_kind kind, const char* path, int quick
     for (size_t c = 0; c < sizeof static_cfgs / sizeof *static_cfgs; ++c) {
         if ((int)static_cfgs[c].fem_model == MR) continue; // it is the reference
         if (quick && (static_cfgs[c].locking_free || static_cfgs[c].polar_tol == 1e-4)) continue;
-        rc |= run_cfg(scene, &p, &static_cfgs[c], uref, fref, 0,
-                      (acc_ref){"mooney-same-mesh", NULL});
+        rc |=
+            run_cfg(scene, &p, &static_cfgs[c], uref, fref, 0, (acc_ref){"mooney-same-mesh", NULL});
     }
     if (kind == SC_LIVER)
         for (size_t c = 0; c < sizeof dyn_cfgs / sizeof *dyn_cfgs; ++c) {

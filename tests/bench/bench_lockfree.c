@@ -15,7 +15,6 @@
 
 #define REFDIR HS_SOURCE_DIR "/tests/accuracy/refs/"
 
-
 // Median CPU time of update and assemble at state u.
 static int cost(const ref_problem* p, const hs_fem_def* def, const double* u, int* nnz,
                 double* upd_ms, double* asm_ms) {
@@ -29,8 +28,8 @@ static int cost(const ref_problem* p, const hs_fem_def* def, const double* u, in
     for (int k = 0; k < 3 * n; ++k) x[k] = p->mesh->x0[k] + u[k];
     hs_fem* fem = NULL;
     hs_csc* a = NULL;
-    int rc = hs_fem_create(p->mesh, def, dof, nf, &fem, &err) < 0 ||
-             hs_fem_create_matrix(fem, &a) < 0;
+    int rc =
+        hs_fem_create(p->mesh, def, dof, nf, &fem, &err) < 0 || hs_fem_create_matrix(fem, &a) < 0;
     if (!rc) {
         double tu[9], ta[9];
         hs_fem_update(fem, x, NULL);
@@ -63,8 +62,9 @@ int hs_bench_lockfree(const hs_bench_args* a) {
     double fbar[3];
     for (int k = 0; k < 3; ++k)
         fbar[k] = fabs(ref_summary_reaction_x(REFDIR, "bar", mats[k], "c3d10", "20k"));
-    printf("mesh,load,model,option,alpha,tets,nnz,update_ms,assemble_ms,solve_ms,newton,err_lin_pct,"
-           "err_nlgeom_pct,err_mr_pct,reaction_x_N,ref_lin_N,ref_nlgeom_N,ref_mr_N\n");
+    printf(
+        "mesh,load,model,option,alpha,tets,nnz,update_ms,assemble_ms,solve_ms,newton,err_lin_pct,"
+        "err_nlgeom_pct,err_mr_pct,reaction_x_N,ref_lin_N,ref_nlgeom_N,ref_mr_N\n");
     for (int mi = 0; mi < (a->quick ? 2 : 3); ++mi)
         for (int l = 0; l < 3; ++l) {
             ref_problem p;
@@ -106,10 +106,12 @@ int hs_bench_lockfree(const hs_bench_args* a) {
                         printf("%s,%s,%s,%s,%.2f,%d,%d,%.3f,%.3f,%.1f,%d,%.3f,%.3f,%.3f,%.5g,%.5g,"
                                "%.5g,%.5g\n",
                                meshes[mi], ref_load_name[l], model ? "corotated" : "linear",
-                               lf == 0 ? "none" : lf == 1 ? "anp" : "sns", al ? al[ai] : 0.0,
-                               p.mesh->n_tets, nnz, tu, ta, ts, ref_last_stats.iterations, e[0],
-                               e[1], e[2], bar ? fabs(rx) : NAN, bar ? fbar[0] : NAN,
-                               bar ? fbar[1] : NAN, bar ? fbar[2] : NAN);
+                               lf == 0   ? "none"
+                               : lf == 1 ? "anp"
+                                         : "sns",
+                               al ? al[ai] : 0.0, p.mesh->n_tets, nnz, tu, ta, ts,
+                               ref_last_stats.iterations, e[0], e[1], e[2], bar ? fabs(rx) : NAN,
+                               bar ? fbar[0] : NAN, bar ? fbar[1] : NAN, bar ? fbar[2] : NAN);
                         fflush(stdout);
                     }
                 }
