@@ -76,7 +76,7 @@ typedef struct hs_fem_def {
 } hs_fem_def;
 
 /// Defaults: linear, E 3 kPa, nu 0.45, 1000 kg/m^3, no damping, POLAR tol 1e-6 x 20 iterations,
-/// linear fallback for inverted elements, locking_free off.
+/// linear fallback for inverted elements, locking_free off (alpha HS_SNS_ALPHA_DEFAULT).
 hs_fem_def hs_fem_default_def(void);
 
 /// Statistics from the last hs_fem_update.
