@@ -71,7 +71,8 @@ accuracy: build
 	mkdir -p out docs/plots
 	$(BUILD)/bin/hapsim-bench accuracy | tee out/accuracy.csv
 	for s in cantilever10x cantilever liver-press vessel; do \
-	  gnuplot -e "csv='out/accuracy.csv'; scene='$$s'" tests/bench/plot_accuracy.gp; done
+	  gnuplot -e "csv='out/accuracy.csv'; scene='$$s'" tests/bench/plot_accuracy.gp; \
+	  gnuplot -e "csv='out/accuracy.csv'; scene='$$s'; metric='l2'" tests/bench/plot_accuracy.gp; done
 
 # Numerical stress suite, long version (100,000-step soaks); `make test` runs the quick one.
 stress: build

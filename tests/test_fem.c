@@ -144,6 +144,9 @@ static const cfg k_cfgs[] = {
     {"linear-anp", HS_MODEL_LINEAR, HS_ROTATION_POLAR, 1},
     {"corot-anp", HS_MODEL_COROTATED, HS_ROTATION_POLAR, 1},
     {"stvk-anp", HS_MODEL_STVK, HS_ROTATION_POLAR, 1},
+    {"linear-sns", HS_MODEL_LINEAR, HS_ROTATION_POLAR, 2},
+    {"corot-sns", HS_MODEL_COROTATED, HS_ROTATION_POLAR, 2},
+    {"corot-svd-sns", HS_MODEL_COROTATED, HS_ROTATION_SVD, 2},
 };
 #define N_CFGS ((int)(sizeof k_cfgs / sizeof k_cfgs[0]))
 

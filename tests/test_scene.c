@@ -71,6 +71,22 @@ static int defaults_and_paths(void) {
     ENSURE(s.fixed[0].normal[2] == 1.0 && s.n_tools == 2 && s.tools[1].kind == HS_TOOL_SCALPEL);
     ENSURE(s.feature_cutting == 1 && s.cut_free_pieces_fall == 1 && s.prefix[0] == '\0');
     ENSURE(strcmp(hs_scene_model_name(HS_MODEL_STVK), "stvk") == 0);
+    // model.locking_free: true is the model's default mode (SNS; ANP for StVK), or a name.
+    const char* lf[][2] = {{"\"corotated\", \"locking_free\": true", "2"},
+                           {"\"stvk\", \"locking_free\": true", "1"},
+                           {"\"linear\", \"locking_free\": false", "0"},
+                           {"\"corotated\", \"locking_free\": \"anp\"", "1"},
+                           {"\"linear\", \"locking_free\": \"sns\"", "2"},
+                           {"\"corotated\", \"locking_free\": \"none\"", "0"}};
+    for (size_t k = 0; k < sizeof lf / sizeof lf[0]; ++k) {
+        char text[512];
+        snprintf(text, sizeof text,
+                 "{\"mesh\": \"m.msh\", \"model\": {\"type\": %s}, \"fixed\": "
+                 "[{\"type\": \"box\", \"min\": [0,0,0], \"max\": [1,1,1]}]}",
+                 lf[k][0]);
+        ENSURE(hs_scene_parse(text, "s.json", 0, &s, &err) == HS_OK);
+        ENSURE(s.locking_free == atoi(lf[k][1]));
+    }
     return 0;
 }
 
@@ -140,7 +156,12 @@ static int malformed_names_file_line_key(void) {
     ENSURE(expect_fail(HEAD "\"model\": {\"type\": \"neohookean\"}}", HS_ERR_PARSE,
                        "'model.type': must be one of: linear | corotated | stvk", NULL) == 0);
     ENSURE(expect_fail(HEAD "\"model\": {\"locking_free\": 1}}", HS_ERR_PARSE,
-                       "'model.locking_free': must be true or false", NULL) == 0);
+                       "'model.locking_free': must be true, false, none, anp or sns", NULL) == 0);
+    ENSURE(expect_fail(HEAD "\"model\": {\"locking_free\": \"fbar\"}}", HS_ERR_PARSE,
+                       "'model.locking_free': must be one of: none | anp | sns", NULL) == 0);
+    ENSURE(expect_fail(HEAD "\"model\": {\"type\": \"stvk\", \"locking_free\": \"sns\"}}",
+                       HS_ERR_PARSE, "'model.locking_free': sns is for linear and corotated",
+                       NULL) == 0);
     ENSURE(expect_fail(HEAD "\"model\": {\"solver\": \"pcg\"}}", HS_ERR_PARSE,
                        "'model.solver': must be one of: direct | warped", NULL) == 0);
     ENSURE(expect_fail(HEAD "\"gravity\": [0, 0]}", HS_ERR_PARSE,

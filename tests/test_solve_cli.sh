@@ -68,6 +68,21 @@ ignored --polar-tol --model linear --static --polar-tol 1e-6
   --polar-tol 1e-5 --damping 0.1,0.01 --out "$T/o.csv" > /dev/null; check "warped steps take --polar-tol and --damping" $?
 "$SOLVE" --mesh "$MESH" --model stvk --fix-plane y,min,0.005 --static --solver pcg --pcg-iters 50 \
   --precond factor --tol 1e-6 --locking-free --out "$T/o.csv" > /dev/null; check "static pcg takes --precond, --pcg-iters" $?
+# --locking-free MODE: the modes by name (bare: the model's default), bad ones named.
+for mode in sns anp none; do
+  "$SOLVE" --mesh "$MESH" --model corotated --E 50000 --nu 0.45 --fix-plane y,min,0.005 \
+    --gravity 0,0,-9.81 --static --locking-free $mode --out "$T/lf_$mode.csv" > /dev/null; check "--locking-free $mode solves" $?
+done
+"$SOLVE" --mesh "$MESH" --model corotated --E 50000 --nu 0.45 --fix-plane y,min,0.005 \
+  --gravity 0,0,-9.81 --static --locking-free --out "$T/lf_bare.csv" > /dev/null; check "bare --locking-free solves" $?
+cmp -s "$T/lf_bare.csv" "$T/lf_sns.csv"; check "bare --locking-free is sns for corotated" $?
+! cmp -s "$T/lf_sns.csv" "$T/lf_anp.csv"; check "sns and anp differ" $?
+"$SOLVE" --mesh "$MESH" --model corotated --fix-plane y,min,0.005 --static --locking-free fbar \
+  --out "$T/o.csv" 2> "$T/err"; rc=$?
+[ $rc -eq 1 ] && grep -q "'fbar' is not none|anp|sns" "$T/err"; check "bad --locking-free mode named" $?
+"$SOLVE" --mesh "$MESH" --model corotated --fix-plane y,min,0.005 --static --locking-free anp \
+  --locking-free-alpha 0.5 --out "$T/o.csv" 2> "$T/err"; rc=$?
+[ $rc -eq 1 ] && grep -q "needs --locking-free sns" "$T/err"; check "alpha without sns refused" $?
 
 # A real solve: header + one line per node, finite numbers, summary printed.
 "$SOLVE" --mesh "$MESH" --model corotated --E 50000 --nu 0.45 --density 1060 --gravity 0,0,-9.81 \

@@ -39,6 +39,22 @@ typedef struct hs_material {
     double rayleigh_stiffness; ///< beta in C = alpha M + beta K, s
 } hs_material;
 
+/// Locking-free options for near-incompressible tissue (hs_fem_def.locking_free).
+typedef enum hs_locking_free {
+    HS_LOCKING_FREE_NONE = 0, ///< plain linear tets (lock at nu -> 0.5)
+    HS_LOCKING_FREE_ANP = 1,  ///< average nodal pressure (Bonet & Burton)
+    HS_LOCKING_FREE_SNS = 2,  ///< selective node smoothing: ANP + node-smoothed deviatoric share
+} hs_locking_free;
+
+/// The mode `locking_free = true` means (scenes, hapsim-solve's bare --locking-free): SNS for
+/// linear and co-rotated, ANP for StVK (SNS is not defined for it).
+static inline int hs_fem_locking_free_default(hs_model model) {
+    return model == HS_MODEL_STVK ? HS_LOCKING_FREE_ANP : HS_LOCKING_FREE_SNS;
+}
+
+/// Default SNS deviatoric share (measured on the cantilever against CalculiX, docs/fem.md).
+#define HS_SNS_ALPHA_DEFAULT 0.6
+
 /// Element model options. Initialise with hs_fem_default_def().
 typedef struct hs_fem_def {
     hs_model model;
@@ -51,12 +67,16 @@ typedef struct hs_fem_def {
     double polar_tol;
     int polar_max_iter;     ///< co-rotated + POLAR: iteration cap per element per update
     hs_inversion inversion; ///< what an inverted element does
-    int locking_free;       ///< 1: average nodal pressure (ANP) volumetric term, see docs
-    int cookie;             ///< set by hs_fem_default_def; catches uninitialised defs
+    /// hs_locking_free: 0 off, 1 ANP (nodal volumetric strain), 2 SNS (ANP plus a share
+    /// locking_free_alpha of the deviatoric energy from node-smoothed strain; linear and
+    /// co-rotated only); docs/fem.md, "Locking-free options"
+    int locking_free;
+    double locking_free_alpha; ///< SNS: node-smoothed deviatoric share, in [0, 1)
+    int cookie;                ///< set by hs_fem_default_def; catches uninitialised defs
 } hs_fem_def;
 
 /// Defaults: linear, E 3 kPa, nu 0.45, 1000 kg/m^3, no damping, POLAR tol 1e-6 x 20 iterations,
-/// linear fallback for inverted elements, locking_free off.
+/// linear fallback for inverted elements, locking_free off (alpha HS_SNS_ALPHA_DEFAULT).
 hs_fem_def hs_fem_default_def(void);
 
 /// Statistics from the last hs_fem_update.

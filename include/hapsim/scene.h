@@ -75,7 +75,7 @@ typedef struct hs_scene {
     hs_model model;         ///< element model
     hs_rotation rotation;   ///< co-rotated: how element rotations are extracted
     hs_inversion inversion; ///< what inverted elements do
-    int locking_free;       ///< 1: average nodal pressure volumetric term
+    int locking_free;       ///< hs_locking_free mode (true in a scene: the model's default)
     /// 1: the warped solver (one solve per step with the rest factor rotated by the node
     /// rotations; cuts update that factor by low rank); 0: direct (the exact tangent, refactored
     /// each step for a nonlinear model)

@@ -28,7 +28,8 @@ struct hs_fem {
     hs_fem_def def;
     int n, ne, n_free;
     double lambda, mu, kappa; // Lame parameters and bulk modulus, Pa
-    double lam_el;            // lambda of the element term: lambda, or -2mu/3 with ANP
+    double lam_el;            // lambda of the element term: lambda, or -2mu_el/3 with ANP
+    double mu_el;             // mu of the element term: mu, or (1 - alpha) mu with SNS
     int* dof;                 // [3n] free index or -1
 
     // elements
@@ -83,6 +84,13 @@ struct hs_fem {
     double* theta_n;     // [n] nodal volumetric strain
     double* cvec;        // [3 * ring total] d theta_n / d x_m
 
+    // selective node smoothing (SNS, locking_free 2): a share alpha of the deviatoric energy
+    // from the node-smoothed strain, with the node's own rotation (co-rotated)
+    int sns;
+    double mu_n;  // alpha mu, Pa
+    double* gbar; // [3 * ring total] smoothed rest gradients d F_n / d x_m
+    double* rn;   // [9n] node rotations (warm start of the next update)
+
     hs_fem_stats stats;
 };
 
@@ -98,6 +106,7 @@ hs_fem_def hs_fem_default_def(void) {
     d.polar_max_iter = 20;
     d.inversion = HS_INVERSION_LINEAR_FALLBACK;
     d.locking_free = 0;
+    d.locking_free_alpha = HS_SNS_ALPHA_DEFAULT;
     d.cookie = HS_FEM_COOKIE;
     return d;
 }
@@ -110,7 +119,7 @@ void hs_fem_destroy(hs_fem** pfem) {
                     m->nt_start,   m->nt,       m->adj_start, m->adj,        m->blkpos, m->elem_pos,
                     m->diag_pos,   m->mirror,   m->low_of,    m->ring_start, m->ring,   m->nt_slot,
                     m->pair_start, m->pair_blk, m->theta_e,   m->w,          m->pbar,   m->vn,
-                    m->theta_n,    m->cvec,     m->kscale,    m->qsum};
+                    m->theta_n,    m->cvec,     m->kscale,    m->qsum,       m->gbar,   m->rn};
     for (size_t i = 0; i < sizeof ptrs / sizeof ptrs[0]; i++) hs_free(ptrs[i]);
     hs_free(m);
     *pfem = NULL;
@@ -179,9 +188,15 @@ static hs_status check_def(const hs_fem_def* d, hs_err* err) {
         return hs_err_set(err, HS_ERR_INVALID,
                           "fem: polar_tol must be > 0 and polar_max_iter >= 1 (got %g, %d)",
                           d->polar_tol, d->polar_max_iter);
-    if (d->locking_free != 0 && d->locking_free != 1)
-        return hs_err_set(err, HS_ERR_INVALID, "fem: locking_free must be 0 or 1 (got %d)",
+    if (d->locking_free < HS_LOCKING_FREE_NONE || d->locking_free > HS_LOCKING_FREE_SNS)
+        return hs_err_set(err, HS_ERR_INVALID, "fem: locking_free must be 0, 1 or 2 (got %d)",
                           d->locking_free);
+    if (d->locking_free == HS_LOCKING_FREE_SNS && d->model == HS_MODEL_STVK)
+        return hs_err_set(err, HS_ERR_UNSUPPORTED,
+                          "fem: locking_free 2 (sns) is for linear and co-rotated, not StVK");
+    if (!(d->locking_free_alpha >= 0 && d->locking_free_alpha < 1))
+        return hs_err_set(err, HS_ERR_INVALID, "fem: locking_free_alpha must be in [0, 1) (got %g)",
+                          d->locking_free_alpha);
     return HS_OK;
 }
 
@@ -401,6 +416,12 @@ static hs_status build_anp(hs_fem* m) {
     if (!m->nt_slot || !m->pair_start || !m->theta_e || !m->w || !m->pbar || !m->vn ||
         !m->theta_n || !m->cvec)
         return HS_ERR_NOMEM;
+    if (m->sns) {
+        m->gbar = hs_calloc(3 * (size_t)m->ring_start[n] + 1, sizeof(double));
+        m->rn = hs_alloc(sizeof(double) * 9 * (size_t)n + 1);
+        if (!m->gbar || !m->rn) return HS_ERR_NOMEM;
+        for (int i = 0; i < n; i++) m3_identity(m->rn + 9 * i);
+    }
     for (int i = 0; i < n; i++) {
         int b = m->ring_start[i], s = m->ring_start[i + 1] - b;
         for (int p = m->nt_start[i]; p < m->nt_start[i + 1]; p++)
@@ -460,12 +481,15 @@ hs_status hs_fem_create(const hs_mesh* mesh, const hs_fem_def* def, const int* d
     m->n = n;
     m->ne = ne;
     m->n_free = n_free;
-    m->anp = def->locking_free;
+    m->anp = def->locking_free != HS_LOCKING_FREE_NONE;
+    m->sns = def->locking_free == HS_LOCKING_FREE_SNS;
     double E = def->material.youngs_pa, nu = def->material.poisson;
     m->mu = E / (2.0 * (1.0 + nu));
     m->lambda = E * nu / ((1.0 + nu) * (1.0 - 2.0 * nu));
     m->kappa = m->lambda + 2.0 * m->mu / 3.0;
-    m->lam_el = m->anp ? -2.0 * m->mu / 3.0 : m->lambda;
+    m->mu_n = m->sns ? def->locking_free_alpha * m->mu : 0.0;
+    m->mu_el = m->mu - m->mu_n;
+    m->lam_el = m->anp ? -2.0 * m->mu_el / 3.0 : m->lambda;
 
     m->dof = hs_alloc(sizeof(int) * 3 * (size_t)n);
     unsigned char* seen = hs_calloc((size_t)n_free + 1, 1);
@@ -662,6 +686,7 @@ uint64_t hs_fem_stiffness_version(const hs_fem* fem) {
 void hs_fem_reset_rotations(hs_fem* fem) {
     HS_ASSERT(fem);
     for (int e = 0; e < fem->ne; e++) m3_identity(fem->R + 9 * (size_t)e);
+    for (int i = 0; fem->sns && i < fem->n; i++) m3_identity(fem->rn + 9 * (size_t)i);
     fem->qsum_stamp = 0; // the quaternion sums were made from the rotations just dropped
 }
 
@@ -781,7 +806,7 @@ typedef struct {
 /// One active element of any model: F, its stress and its nodal forces into m->f.
 static inline __attribute__((always_inline)) void element_one(hs_fem* m, const double* x, int e,
                                                               loop_acc* acc) {
-    const double mu = m->mu, lam = m->lam_el;
+    const double mu = m->mu_el, lam = m->lam_el;
     const hs_model model = m->def.model;
     const int* t = m->tet + 4 * e;
     const double* g = m->g + 12 * e;
@@ -914,7 +939,7 @@ static inline __attribute__((always_inline)) void elements4(hs_fem* m, const dou
     } else {
         for (int k = 0; k < 9; k++) H[k] = F[k];
     }
-    const double mu = m->mu, lam = m->lam_el;
+    const double mu = m->mu_el, lam = m->lam_el;
     v4d eps[9], sig[9], P[9], tr;
     SMALL_STRAIN_STRESS(H, eps, tr, sig, mu, lam);
     if (corot) {
@@ -999,6 +1024,75 @@ static inline __attribute__((always_inline)) void elements4(hs_fem* m, const dou
 
 enum { LOOP_SCALAR, LOOP_LINEAR4, LOOP_COROT4 };
 
+// SNS node rotations are solved tighter than the elements': kept within polar_tol 1e-6, the
+// static solve's residual stalled near 2.6e-8 of the load (1k cantilever); at 1e-12 the warm
+// iteration often missed the tolerance and fell back to the SVD, and the Newton solve needed
+// 29 iterations and 543 line-search cuts (5k); 1e-9: 5 iterations, 1 cut (the SVD: 6, 2).
+#define SNS_POLAR_TOL 1e-9
+
+/// SNS nodal deviatoric term (after the element pass and ANP's nodal volumes): per node,
+/// F_n = sum (V_e / 4) F_e / V_n over its active tets, R_n its polar factor (co-rotated; warm
+/// from the last update), eps_n = sym(R_n^T F_n) - I, energy V_n alpha mu |dev eps_n|^2 and
+/// forces -V_n R_n sigma_n gbar_m over the node's 1-ring (sigma_n = 2 alpha mu dev eps_n).
+/// Exact for the co-rotated energy: d tr(R^T F) / dF = R, so R's derivative drops out.
+/// Returns the energy, J.
+static double sns_update(hs_fem* m) {
+    const int corot = m->def.model == HS_MODEL_COROTATED;
+    double energy = 0;
+    for (int i = 0; i < m->n; i++) {
+        int rb = m->ring_start[i], rs = m->ring_start[i + 1] - rb;
+        double* gb = m->gbar + 3 * rb;
+        memset(gb, 0, sizeof(double) * 3 * (size_t)rs);
+        const double vn = m->vn[i];
+        if (!(vn > 0)) continue;
+        double Fn[9] = {0};
+        for (int p = m->nt_start[i]; p < m->nt_start[i + 1]; p++) {
+            int e = m->nt[p];
+            if (!m->active[e]) continue;
+            const double wgt = 0.25 * m->vol0[e] / vn;
+            const double* Fe = m->F + 9 * e;
+            for (int k = 0; k < 9; k++) Fn[k] += wgt * Fe[k];
+            const double* g = m->g + 12 * e;
+            for (int a = 0; a < 4; a++) {
+                double* gs = gb + 3 * m->nt_slot[4 * p + a];
+                gs[0] += wgt * g[3 * a];
+                gs[1] += wgt * g[3 * a + 1];
+                gs[2] += wgt * g[3 * a + 2];
+            }
+        }
+        double H[9], *R = m->rn + 9 * i;
+        if (corot) {
+            hs_polar_higham(Fn, R, SNS_POLAR_TOL, 20);
+            m3_mul_tn(R, Fn, H);
+        } else {
+            memcpy(H, Fn, sizeof H);
+        }
+        double dev[9];
+        for (int r = 0; r < 3; r++)
+            for (int c = 0; c < 3; c++) dev[3 * r + c] = 0.5 * (H[3 * r + c] + H[3 * c + r]);
+        const double tr3 = (dev[0] + dev[4] + dev[8] - 3.0) / 3.0;
+        dev[0] -= 1.0 + tr3;
+        dev[4] -= 1.0 + tr3;
+        dev[8] -= 1.0 + tr3;
+        energy += vn * m->mu_n * m3_fro2(dev);
+        double P[9];
+        for (int k = 0; k < 9; k++) dev[k] *= 2.0 * m->mu_n * vn;
+        if (corot)
+            m3_mul(R, dev, P);
+        else
+            memcpy(P, dev, sizeof P);
+        for (int r = 0; r < rs; r++) {
+            double pg[3];
+            m3_vec(P, gb + 3 * r, pg);
+            double* fr = m->f + 3 * m->ring[rb + r];
+            fr[0] -= pg[0];
+            fr[1] -= pg[1];
+            fr[2] -= pg[2];
+        }
+    }
+    return energy;
+}
+
 // The element loop of hs_fem_update; `kind` (a constant at each call) chooses elements4 for
 // linear and co-rotated + polar, element_one for the rest and the last ne mod 4 elements.
 static inline __attribute__((always_inline)) void update_all(hs_fem* m, const double* x,
@@ -1064,6 +1158,8 @@ static inline __attribute__((always_inline)) void update_all(hs_fem* m, const do
         }
     }
 
+    if (m->sns) energy += sns_update(m);
+
     m->qsum_stamp = corot ? m->k_version + 1 : 0;
     m->stats.inverted = acc.inverted;
     m->stats.volume_ratio_mean = acc.n_active ? acc.vsum / acc.n_active : 1.0;
@@ -1121,7 +1217,7 @@ void hs_fem_forces(const hs_fem* fem, double* f) {
 /// the volumetric term adds V pbar d^2 det F / dx_a dx_b = V pbar [F (g_a x g_b)]x^T.
 static void element_blocks(const hs_fem* m, int e, double sc, double kb[10][9]) {
     const double* g = m->g + 12 * e;
-    const double cV = sc * m->vol0[e] * m->kscale[e], cmu = cV * m->mu, clam = cV * m->lam_el;
+    const double cV = sc * m->vol0[e] * m->kscale[e], cmu = cV * m->mu_el, clam = cV * m->lam_el;
     double p[4][3], lp[4][3], mp[4][3];
     double M[9];
     int stvk = m->def.model == HS_MODEL_STVK;
@@ -1203,6 +1299,8 @@ static void mirror_upper(const hs_fem* m, double* val) {
     for (int w = 0; w < m->n_mirror; w++) val[m->mirror[2 * w]] = val[m->mirror[2 * w + 1]];
 }
 
+static void sns_assemble(const hs_fem* m, double kcoef, double* val);
+
 void hs_fem_assemble(const hs_fem* m, double kcoef, double mcoef, hs_csc* a) {
     HS_ASSERT(m && a && a->n == m->n_free && a->nnz == m->nnz);
     memset(a->val, 0, sizeof(double) * (size_t)a->nnz);
@@ -1236,6 +1334,7 @@ void hs_fem_assemble(const hs_fem* m, double kcoef, double mcoef, hs_csc* a) {
                 }
             }
         }
+        if (m->sns) sns_assemble(m, kcoef, val);
     }
     if (mcoef != 0.0) {
         for (int i = 0; i < m->n; i++)
@@ -1247,11 +1346,47 @@ void hs_fem_assemble(const hs_fem* m, double kcoef, double mcoef, hs_csc* a) {
     mirror_upper(m, val);
 }
 
+/// SNS tangent, upper half: per node, the co-rotated block formula of element_blocks over its
+/// 1-ring with g -> gbar, V -> V_n, Q = R_n, mu -> alpha mu, lambda -> -2 alpha mu / 3 (the
+/// node's rotation frozen, as the elements' are).
+static void sns_assemble(const hs_fem* m, double kcoef, double* val) {
+    const int corot = m->def.model == HS_MODEL_COROTATED;
+    for (int i = 0; i < m->n; i++) {
+        const double cmu = kcoef * m->vn[i] * m->mu_n, clam = -2.0 * cmu / 3.0;
+        if (cmu == 0.0) continue;
+        int rb = m->ring_start[i], rs = m->ring_start[i + 1] - rb;
+        const double* gb = m->gbar + 3 * rb;
+        const int* pb = m->pair_blk + m->pair_start[i];
+        double pv[64][3];
+        double(*p)[3] = rs <= 64 ? pv : hs_alloc(sizeof(double) * 3 * (size_t)rs);
+        if (!p) continue; // not reached for meshes with a sane valence
+        for (int r = 0; r < rs; r++) {
+            if (corot)
+                m3_vec(m->rn + 9 * i, gb + 3 * r, p[r]);
+            else
+                memcpy(p[r], gb + 3 * r, sizeof p[r]);
+        }
+        for (int r = 0; r < rs; r++)
+            for (int q = r; q < rs; q++) {
+                const int* pos = m->blkpos + 9 * pb[r * rs + q];
+                const double gg = cmu * v3_dot(gb + 3 * r, gb + 3 * q);
+                for (int ii = 0; ii < 3; ii++)
+                    for (int jj = q == r ? ii : 0; jj < 3; jj++) {
+                        int ps = pos[3 * ii + jj];
+                        if (ps < 0) continue;
+                        val[ps] += clam * p[r][ii] * p[q][jj] + cmu * p[q][ii] * p[r][jj] +
+                                   (ii == jj ? gg : 0.0);
+                    }
+            }
+        if (p != pv) hs_free(p);
+    }
+}
+
 // Element e's rest share in assembly order: kcoef K_e at R = I (S = 0) plus mcoef times its
 // lumped mass share on the diagonal blocks.
 static void rest_blocks(const hs_fem* m, int e, double kcoef, double mcoef, double kb[10][9]) {
     const double* g = m->g + 12 * e;
-    const double cV = kcoef * m->vol0[e] * m->kscale[e], cmu = cV * m->mu, clam = cV * m->lam_el;
+    const double cV = kcoef * m->vol0[e] * m->kscale[e], cmu = cV * m->mu_el, clam = cV * m->lam_el;
     const double ms = mcoef * 0.25 * m->def.material.density_kg_m3 * m->vol0[e];
     int k = 0;
     for (int a = 0; a < 4; a++)
@@ -1362,6 +1497,40 @@ void hs_fem_apply_tangent(const hs_fem* m, const double* x, double* y) {
                 yr[0] += d * c[3 * r];
                 yr[1] += d * c[3 * r + 1];
                 yr[2] += d * c[3 * r + 2];
+            }
+            if (!m->sns) continue;
+            // sum_q K_rq x_q = V_n [lambda' tr(A) p_r + mu' (A + A^T) p_r], A = sum_q x_q p_q^T
+            const double cmu = m->vn[i] * m->mu_n, clam = -2.0 * cmu / 3.0;
+            const double* gb = m->gbar + 3 * rb;
+            const double* R = m->rn + 9 * i;
+            const int corot = m->def.model == HS_MODEL_COROTATED;
+            double A[9] = {0};
+            for (int r = 0; r < rs; r++) {
+                double pr[3];
+                if (corot)
+                    m3_vec(R, gb + 3 * r, pr);
+                else
+                    memcpy(pr, gb + 3 * r, sizeof pr);
+                const double* xr = x + 3 * m->ring[rb + r];
+                for (int a = 0; a < 3; a++)
+                    for (int b = 0; b < 3; b++) A[3 * a + b] += xr[a] * pr[b];
+            }
+            const double tra = A[0] + A[4] + A[8];
+            double S[9];
+            for (int a = 0; a < 3; a++)
+                for (int b = 0; b < 3; b++) S[3 * a + b] = cmu * (A[3 * a + b] + A[3 * b + a]);
+            for (int k = 0; k < 9; k += 4) S[k] += clam * tra;
+            for (int r = 0; r < rs; r++) {
+                double pr[3], sp[3];
+                if (corot)
+                    m3_vec(R, gb + 3 * r, pr);
+                else
+                    memcpy(pr, gb + 3 * r, sizeof pr);
+                m3_vec(S, pr, sp);
+                double* yr = y + 3 * m->ring[rb + r];
+                yr[0] += sp[0];
+                yr[1] += sp[1];
+                yr[2] += sp[2];
             }
         }
     }

@@ -339,7 +339,22 @@ static hs_status parse_model(const ctx* c, const cJSON* root, hs_scene* s) {
     v = (int)s->inversion;
     TRY(get_enum(c, m, "model", "inversion", invs, 2, 0, &v));
     s->inversion = (hs_inversion)v;
-    TRY(get_bool(c, m, "model", "locking_free", &s->locking_free));
+    {
+        // true (older scenes): the model's default mode; or a mode by name
+        const cJSON* it = cJSON_GetObjectItemCaseSensitive(m, "locking_free");
+        if (it && cJSON_IsBool(it)) {
+            s->locking_free = cJSON_IsTrue(it) ? hs_fem_locking_free_default(s->model) : 0;
+        } else if (it) {
+            static const char* const lfs[] = {"none", "anp", "sns"};
+            v = s->locking_free;
+            if (!cJSON_IsString(it) || !it->valuestring)
+                return fail(c, it, "model.locking_free", "must be true, false, none, anp or sns");
+            TRY(get_enum(c, m, "model", "locking_free", lfs, 3, 0, &v));
+            if (v == HS_LOCKING_FREE_SNS && s->model == HS_MODEL_STVK)
+                return fail(c, it, "model.locking_free", "sns is for linear and corotated");
+            s->locking_free = v;
+        }
+    }
     static const char* const solvers[] = {"direct", "warped"};
     TRY(get_enum(c, m, "model", "solver", solvers, 2, 0, &s->warped_solver));
     return HS_OK;

@@ -26,7 +26,12 @@ static const char* usage =
     "  --model M              linear | corotated | stvk | mooney (pressure-stabilised\n"
     "                         Mooney-Rivlin reference, static only; see docs/mooney.md)\n"
     "  --beta B               mooney: pressure stabilisation (default 0 = plain P1/P0)\n"
-    "  --locking-free         average-nodal-pressure volumetric term (near-incompressible tissue)\n"
+    "  --locking-free [MODE]  locking-free tets for near-incompressible tissue (docs/fem.md):\n"
+    "                         sns (default; stvk: anp) node-smoothed volumetric strain and a\n"
+    "                         share of node-smoothed deviatoric strain | anp average nodal\n"
+    "                         pressure | none\n"
+    "  --locking-free-alpha A sns: node-smoothed share of the deviatoric energy, [0, 1)\n"
+    "                         (default 0.6)\n"
     "  --E PA                 Young's modulus, Pa (default 3000)\n"
     "  --nu NU                Poisson ratio (default 0.45)\n"
     "  --density KG_M3        density, kg/m^3 (default 1000)\n"
@@ -149,11 +154,12 @@ enum {
     F_ROTATION = 1 << 10,
     F_INVERSION = 1 << 11,
     F_POLAR_TOL = 1 << 12,
+    F_LF_ALPHA = 1 << 13,
 };
-static const char* const flag_name[] = {"--dt",           "--damping", "--tol",      "--max-iter",
-                                        "--load-steps",   "--solver",  "--precond",  "--pcg-iters",
-                                        "--locking-free", "--beta",    "--rotation", "--inversion",
-                                        "--polar-tol"};
+static const char* const flag_name[] = {
+    "--dt",       "--damping",   "--tol",       "--max-iter",          "--load-steps",
+    "--solver",   "--precond",   "--pcg-iters", "--locking-free",      "--beta",
+    "--rotation", "--inversion", "--polar-tol", "--locking-free-alpha"};
 
 typedef struct plane_fix {
     int axis, side;
@@ -168,7 +174,8 @@ int main(int argc, char** argv) {
     def.fem.material.poisson = 0.45;
     def.fem.material.density_kg_m3 = 1000;
     int have_model = 0, do_static = 0, steps = 0, quiet = 0, have_dt = 0, mooney = 0;
-    unsigned given = 0; // F_* flags on the command line
+    int lf_mode = HS_LOCKING_FREE_NONE; // -1: the model's default mode
+    unsigned given = 0;                 // F_* flags on the command line
     double beta = 0;
     double boxes[8][6];
     int n_boxes = 0;
@@ -198,8 +205,32 @@ int main(int argc, char** argv) {
         } else if (!strcmp(a, "--static")) {
             do_static = 1;
         } else if (!strcmp(a, "--locking-free")) {
-            def.fem.locking_free = 1;
+            // MODE is optional so that the older bare flag keeps working (the default mode)
+            lf_mode = -1;
+            if (i + 1 < argc && strncmp(argv[i + 1], "--", 2) != 0) {
+                const char* v = argv[++i];
+                if (!strcmp(v, "none"))
+                    lf_mode = HS_LOCKING_FREE_NONE;
+                else if (!strcmp(v, "anp"))
+                    lf_mode = HS_LOCKING_FREE_ANP;
+                else if (!strcmp(v, "sns"))
+                    lf_mode = HS_LOCKING_FREE_SNS;
+                else {
+                    fprintf(stderr, "hapsim-solve: --locking-free: '%s' is not none|anp|sns\n", v);
+                    return 1;
+                }
+            }
             given |= F_LOCKING_FREE;
+        } else if (!strcmp(a, "--locking-free-alpha")) {
+            NEED_ARG();
+            double v;
+            if (!parse_doubles(argv[++i], &v, 1) || !(v >= 0 && v < 1)) {
+                fprintf(stderr, "hapsim-solve: --locking-free-alpha: '%s' is not in [0, 1)\n",
+                        argv[i]);
+                return 1;
+            }
+            def.fem.locking_free_alpha = v;
+            given |= F_LF_ALPHA;
         } else if (!strcmp(a, "--mesh")) {
             NEED_ARG();
             mesh_path = argv[++i];
@@ -384,6 +415,11 @@ int main(int argc, char** argv) {
         fprintf(stderr, "hapsim-solve: give exactly one of --static or --steps N --dt S\n");
         return 1;
     }
+    def.fem.locking_free = lf_mode >= 0 ? lf_mode : hs_fem_locking_free_default(def.fem.model);
+    if ((given & F_LF_ALPHA) && def.fem.locking_free != HS_LOCKING_FREE_SNS) {
+        fprintf(stderr, "hapsim-solve: --locking-free-alpha needs --locking-free sns\n");
+        return 1;
+    }
     if (mooney && !do_static) {
         fprintf(stderr, "hapsim-solve: --model mooney is a static reference: use --static\n");
         return 1;
@@ -404,8 +440,8 @@ int main(int argc, char** argv) {
         int unread;
         const char* why;
     } rules[] = {
-        {F_LOCKING_FREE | F_SOLVER | F_PRECOND | F_PCG_ITERS | F_ROTATION | F_INVERSION |
-             F_POLAR_TOL,
+        {F_LOCKING_FREE | F_LF_ALPHA | F_SOLVER | F_PRECOND | F_PCG_ITERS | F_ROTATION |
+             F_INVERSION | F_POLAR_TOL,
          mooney, "--model mooney has its own solver and material law"},
         {F_BETA, !mooney, "only --model mooney reads it"},
         {F_DT | F_DAMPING, do_static, "--static has no time step and no damping"},

@@ -13,6 +13,8 @@ typedef struct hs_bench_args {
 int hs_bench_core(const hs_bench_args* a);
 int hs_bench_accuracy(const hs_bench_args* a);
 int hs_bench_stress(const hs_bench_args* a);
+/// Locking-free options against CalculiX's converged solution, with their cost.
+int hs_bench_lockfree(const hs_bench_args* a);
 /// 1 kHz haptic loop with the condensed-compliance probe (issue 3).
 int hs_bench_haptic(const hs_bench_args* a);
 /// Cutting: one progressive cut step with the factor update, against refactor / dense inverse.

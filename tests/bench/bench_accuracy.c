@@ -6,6 +6,7 @@
 // and OpenBLAS run single-threaded, hs_sparse_set_threads), so other jobs on the machine inflate
 // them less than wall time would.
 #define _POSIX_C_SOURCE 200809L
+#include "accuracy_refs.h"
 #include "bench.h"
 #include "hapsim/body.h"
 #include "hapsim/mesh.h"
@@ -45,6 +46,7 @@ typedef struct acc_result {
     double err_mean, err_max; // % of the diagonal
     double vol;               // mean element V/V0
     double force_err;         // %, NAN when the scene has no measured force
+    double err_l2;            // %, 100 ||u - u_ref|| / ||u_ref|| against the row's `ref`
     int ok;
 } acc_result;
 
@@ -441,11 +443,14 @@ static int run_body(const acc_problem* p, const acc_cfg* cfg, double* u_out, dou
 static const acc_cfg static_cfgs[] = {
     {"linear", "static", HS_MODEL_LINEAR, HS_ROTATION_POLAR, 1e-6, 0, 0, 0, 0, 0},
     {"linear-lf", "static", HS_MODEL_LINEAR, HS_ROTATION_POLAR, 1e-6, 1, 0, 0, 0, 0},
+    {"linear-sns", "static", HS_MODEL_LINEAR, HS_ROTATION_POLAR, 1e-6, 2, 0, 0, 0, 0},
     {"corotated", "static;polar1e-2", HS_MODEL_COROTATED, HS_ROTATION_POLAR, 1e-2, 0, 0, 0, 0, 0},
     {"corotated", "static;polar1e-4", HS_MODEL_COROTATED, HS_ROTATION_POLAR, 1e-4, 0, 0, 0, 0, 0},
     {"corotated", "static;polar1e-6", HS_MODEL_COROTATED, HS_ROTATION_POLAR, 1e-6, 0, 0, 0, 0, 0},
     {"corotated", "static;svd", HS_MODEL_COROTATED, HS_ROTATION_SVD, 1e-6, 0, 0, 0, 0, 0},
     {"corotated-lf", "static;polar1e-6", HS_MODEL_COROTATED, HS_ROTATION_POLAR, 1e-6, 1, 0, 0, 0,
+     0},
+    {"corotated-sns", "static;polar1e-6", HS_MODEL_COROTATED, HS_ROTATION_POLAR, 1e-6, 2, 0, 0, 0,
      0},
     {"stvk", "static", HS_MODEL_STVK, HS_ROTATION_POLAR, 1e-6, 0, 0, 0, 0, 0},
     {"stvk-lf", "static", HS_MODEL_STVK, HS_ROTATION_POLAR, 1e-6, 1, 0, 0, 0, 0},
@@ -463,27 +468,35 @@ static const acc_cfg dyn_cfgs[] = {
     {"corotated", "pcg2;dt33ms", HS_MODEL_COROTATED, HS_ROTATION_POLAR, 1e-6, 0, 1, 2, 0.033, 0},
     {"linear", "direct;dt10ms", HS_MODEL_LINEAR, HS_ROTATION_POLAR, 1e-6, 0, 1, 0, 0.010, 0},
     {"corotated-lf", "pcg5;dt10ms", HS_MODEL_COROTATED, HS_ROTATION_POLAR, 1e-6, 1, 1, 5, 0.010, 0},
+    {"corotated-sns", "pcg5;dt10ms", HS_MODEL_COROTATED, HS_ROTATION_POLAR, 1e-6, 2, 1, 5, 0.010,
+     0},
 };
 
-static void print_row(const char* scene, const acc_cfg* c, int tets, const acc_result* r) {
+static void print_row(const char* scene, const acc_cfg* c, int tets, const acc_result* r,
+                      const char* ref) {
     printf("%s,%s,%s,%d,", scene, c->model, c->option, tets);
     if (!r->ok) {
-        printf("failed,,,,,\n");
+        printf("failed,,,,,,%s,\n", ref);
         fflush(stdout);
         return;
     }
     printf("%.3f,%d,%.4f,%.4f,%.5f,", r->step_ms, r->iterations, r->err_mean, r->err_max, r->vol);
-    if (isnan(r->force_err))
-        printf("\n");
-    else
-        printf("%.3f\n", r->force_err);
+    if (!isnan(r->force_err)) printf("%.3f", r->force_err);
+    printf(",%s,%.4f\n", ref, r->err_l2);
     fflush(stdout);
 }
+
+// Which reference err_l2_pct is measured against: `ref` names it; uconv is that field on the
+// problem's nodes (NULL: the row's own reference uref).
+typedef struct acc_ref {
+    const char* ref;
+    const double* uconv;
+} acc_ref;
 
 // Run one configuration on p against uref/fref and print its row.
 // Returns 1 when the configuration failed (its row says `failed`).
 static int run_cfg(const char* scene, const acc_problem* p, const acc_cfg* c, const double* uref,
-                   const double* fref, double settle_max_s) {
+                   const double* fref, double settle_max_s, acc_ref ar) {
     int n = p->mesh->n_nodes;
     double* u = calloc(3 * (size_t)n, sizeof(double));
     double* w = calloc(3 * (size_t)n, sizeof(double));
@@ -496,9 +509,16 @@ static int run_cfg(const char* scene, const acc_problem* p, const acc_cfg* c, co
         r.ok = 1;
         errors(p, u, uref, &r.err_mean, &r.err_max);
         r.vol = mean_volume_ratio(p->mesh, u, w);
-        if (p->probe && fref) r.force_err = force_error(f, fref);
+        if (p->probe && fref) {
+            r.force_err = force_error(f, fref);
+            double fn = sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]),
+                   rn = sqrt(fref[0] * fref[0] + fref[1] * fref[1] + fref[2] * fref[2]);
+            fprintf(stderr, "accuracy: %s %s %s: force %.4g N, reference %.4g N\n", scene,
+                    c->model, c->option, fn, rn);
+        }
+        r.err_l2 = ref_rel_l2_pct(n, u, ar.uconv ? ar.uconv : uref);
     }
-    print_row(scene, c, p->mesh->n_tets, &r);
+    print_row(scene, c, p->mesh->n_tets, &r, ar.ref);
     free(u);
     free(w);
     return bad != 0;
@@ -532,6 +552,23 @@ static int cantilever(const char* scene, double heavy, box_dims ref, const box_d
     }
     print_tip(scene, fine.mesh, uf);
     int rc = 0;
+    // Under the paper's own weight (heavy 1): CalculiX's converged solution (tests/accuracy,
+    // C3D10 on the 45x9x9 box, Mooney-Rivlin) at the 45x9x9 corners, P1-interpolated below.
+    char refname[64];
+    snprintf(refname, sizeof refname, "mooney-%dx%dx%d", ref.nx, ref.ny, ref.nz);
+    acc_problem conv = {0};
+    double* uc = NULL;
+    if (heavy == 1.0) {
+        if (problem_load(&conv, SC_CANTILEVER, NULL, 45, 9, 9, 1)) return 1;
+        uc = calloc(3 * (size_t)conv.mesh->n_nodes, sizeof(double));
+        if (!uc || ref_read_field(HS_SOURCE_DIR "/tests/accuracy/refs/gravity_mr_conv_20k.txt",
+                                  conv.mesh->n_nodes, uc)) {
+            free(uc);
+            problem_free(&conv);
+            return 1;
+        }
+        snprintf(refname, sizeof refname, "ccx-c3d10-mr-45x9x9");
+    }
     for (int k = 0; k < n_meshes; ++k) {
         acc_problem p;
         if (problem_load(&p, SC_CANTILEVER, NULL, meshes[k].nx, meshes[k].ny, meshes[k].nz,
@@ -541,21 +578,30 @@ static int cantilever(const char* scene, double heavy, box_dims ref, const box_d
         }
         double* uref = calloc(3 * (size_t)p.mesh->n_nodes, sizeof(double));
         rc |= map_fine_to_coarse(fine.mesh, uf, p.mesh, uref);
+        double* ucc = NULL;
+        if (uc) {
+            ucc = calloc(3 * (size_t)p.mesh->n_nodes, sizeof(double));
+            rc |= map_fine_to_coarse(conv.mesh, uc, p.mesh, ucc);
+        }
+        acc_ref ar = {refname, ucc};
         fprintf(stderr, "accuracy: %s, %d tets\n", scene, p.mesh->n_tets);
         for (size_t c = 0; c < sizeof static_cfgs / sizeof *static_cfgs; ++c) {
-            if (quick &&
-                (static_cfgs[c].locking_free || !strcmp(static_cfgs[c].option, "static;polar1e-4")))
+            if (quick && (static_cfgs[c].locking_free == HS_LOCKING_FREE_ANP ||
+                          !strcmp(static_cfgs[c].option, "static;polar1e-4")))
                 continue;
-            rc |= run_cfg(scene, &p, &static_cfgs[c], uref, NULL, 0);
+            rc |= run_cfg(scene, &p, &static_cfgs[c], uref, NULL, 0, ar);
         }
         if (k == dyn_mesh)
             for (size_t c = 0; c < sizeof dyn_cfgs / sizeof *dyn_cfgs; ++c) {
                 if (quick && (dyn_cfgs[c].dt < 0.005 || dyn_cfgs[c].locking_free)) continue;
-                rc |= run_cfg(scene, &p, &dyn_cfgs[c], uref, NULL, 3.0);
+                rc |= run_cfg(scene, &p, &dyn_cfgs[c], uref, NULL, 3.0, ar);
             }
         free(uref);
+        free(ucc);
         problem_free(&p);
     }
+    free(uc);
+    problem_free(&conv);
     free(uf);
     problem_free(&fine);
     return rc;
@@ -592,7 +638,8 @@ static int cantilever_vs_mr(const char* scene, double heavy, const box_dims* mes
         if (solve_mooney(&p, 1e-10, -1, uref, NULL, NULL) == 0) {
             print_tip(scene, p.mesh, uref);
             for (size_t c = 0; c < sizeof cfgs / sizeof *cfgs; ++c)
-                rc |= run_cfg(scene, &p, &cfgs[c], uref, NULL, 3.0);
+                rc |= run_cfg(scene, &p, &cfgs[c], uref, NULL, 3.0,
+                              (acc_ref){"mooney-same-mesh", NULL});
         } else {
             rc = 1;
         }
@@ -618,13 +665,17 @@ static int organ(const char* scene, scene_kind kind, const char* path, int quick
     }
     for (size_t c = 0; c < sizeof static_cfgs / sizeof *static_cfgs; ++c) {
         if ((int)static_cfgs[c].fem_model == MR) continue; // it is the reference
-        if (quick && (static_cfgs[c].locking_free || static_cfgs[c].polar_tol == 1e-4)) continue;
-        rc |= run_cfg(scene, &p, &static_cfgs[c], uref, fref, 0);
+        if (quick && (static_cfgs[c].locking_free == HS_LOCKING_FREE_ANP ||
+                      static_cfgs[c].polar_tol == 1e-4))
+            continue;
+        rc |=
+            run_cfg(scene, &p, &static_cfgs[c], uref, fref, 0, (acc_ref){"mooney-same-mesh", NULL});
     }
     if (kind == SC_LIVER)
         for (size_t c = 0; c < sizeof dyn_cfgs / sizeof *dyn_cfgs; ++c) {
             if (quick && (dyn_cfgs[c].dt < 0.005 || dyn_cfgs[c].locking_free)) continue;
-            rc |= run_cfg(scene, &p, &dyn_cfgs[c], uref, fref, 3.0);
+            rc |= run_cfg(scene, &p, &dyn_cfgs[c], uref, fref, 3.0,
+                          (acc_ref){"mooney-same-mesh", NULL});
         }
     free(uref);
     problem_free(&p);
@@ -633,7 +684,7 @@ static int organ(const char* scene, scene_kind kind, const char* path, int quick
 
 int hs_bench_accuracy(const hs_bench_args* a) {
     printf("scene,model,option,tets,step_ms,iterations,err_mean_pct,err_max_pct,volume_ratio,"
-           "force_err_pct\n");
+           "force_err_pct,ref,err_l2_pct\n");
     fflush(stdout);
     int rc = 0;
     char vessel[1024], liver[1024];
@@ -642,12 +693,15 @@ int hs_bench_accuracy(const hs_bench_args* a) {
     if (a->quick) {
         box_dims m[] = {{10, 2, 2}};
         rc |= cantilever("cantilever10x", 10, (box_dims){20, 4, 4}, m, 1, 0, 1);
+        box_dims m1[] = {{30, 5, 5}};
+        rc |= cantilever("cantilever", 1, (box_dims){20, 4, 4}, m1, 1, -1, 1);
         rc |= organ("liver-press", SC_LIVER, liver, 1);
         return rc;
     }
     // Coarse meshes nested in the 40x8x8 reference except the paper-size ones.
     box_dims m[] = {{10, 2, 2}, {20, 4, 4}, {10, 3, 3}, {20, 3, 3}, {30, 5, 5}, {35, 7, 7}};
-    rc |= cantilever("cantilever", 1, (box_dims){40, 8, 8}, m, 2, 1, 0);
+    box_dims m1[] = {{10, 2, 2}, {20, 4, 4}, {30, 5, 5}, {45, 9, 9}};
+    rc |= cantilever("cantilever", 1, (box_dims){40, 8, 8}, m1, 4, 1, 0);
     rc |= cantilever("cantilever10x", 10, (box_dims){40, 8, 8}, m, 6, 1, 0);
     box_dims paper[] = {{10, 3, 3}, {20, 3, 3}, {30, 5, 5}, {35, 7, 7}};
     rc |= cantilever_vs_mr("cantilever10x@mr", 10, paper, 4);

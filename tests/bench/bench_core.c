@@ -46,6 +46,8 @@ static const core_cfg cfgs[] = {
     {"corotated", HS_MODEL_COROTATED, 0, HS_SOLVER_PCG, 3, HS_PRECOND_FACTOR, "pcg3-restfactor"},
     {"corotated", HS_MODEL_COROTATED, 0, HS_SOLVER_WARPED, 0, HS_PRECOND_NONE, "warped"},
     {"corotated-lf", HS_MODEL_COROTATED, 1, HS_SOLVER_PCG, 3, HS_PRECOND_WARPED, "pcg3-warped"},
+    {"corotated-sns", HS_MODEL_COROTATED, 2, HS_SOLVER_PCG, 3, HS_PRECOND_WARPED, "pcg3-warped"},
+    {"corotated-sns", HS_MODEL_COROTATED, 2, HS_SOLVER_WARPED, 0, HS_PRECOND_NONE, "warped"},
     {"stvk", HS_MODEL_STVK, 0, HS_SOLVER_DIRECT, 0, HS_PRECOND_NONE, "cholmod"},
 };
 

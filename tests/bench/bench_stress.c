@@ -194,7 +194,8 @@ static void case_free_vibration(hs_stress_result* r, hs_model model, double dt, 
 /// Near-incompressible materials under gravity with dynamic steps.
 static void case_poisson(hs_stress_result* r, double nu, int locking_free, int steps) {
     char opt[48];
-    snprintf(opt, sizeof opt, "nu%g;dt10ms;heavy10x%s", nu, locking_free ? ";anp" : "");
+    snprintf(opt, sizeof opt, "nu%g;dt10ms;heavy10x%s", nu,
+             locking_free == 2 ? ";sns" : locking_free ? ";anp" : "");
     result_init(r, "near-incompressible", "corotated", opt);
     hs_body_def d = cantilever_def(HS_MODEL_COROTATED, nu, 0.01);
     d.fem.material.density_kg_m3 *= 10;
@@ -283,7 +284,7 @@ static void case_inversion(hs_stress_result* r, hs_inversion inv, int locking_fr
     char opt[48];
     snprintf(opt, sizeof opt, "%s%s",
              inv == HS_INVERSION_LINEAR_FALLBACK ? "fallback" : "reflection",
-             locking_free ? ";anp" : "");
+             locking_free == 2 ? ";sns" : locking_free ? ";anp" : "");
     result_init(r, "fold-through", "corotated", opt);
     hs_body_def d = cantilever_def(HS_MODEL_COROTATED, 0.45, 0.01);
     d.fem.inversion = inv;
@@ -529,7 +530,7 @@ static int hs_stress_run(int quick, stress_sink sink, void* ctx) {
     }
     const double nus[] = {0.49, 0.499, 0.4999};
     for (int i = 0; i < 3; ++i)
-        for (int lf = 0; lf < 2; ++lf) {
+        for (int lf = 0; lf < 3; ++lf) { // none, ANP, SNS
             case_poisson(&r, nus[i], lf, quick ? 50 : 500);
             sink(&r, ctx), ++n;
         }
@@ -541,7 +542,7 @@ static int hs_stress_run(int quick, stress_sink sink, void* ctx) {
                                    w ? HS_SOLVER_WARPED : HS_SOLVER_DIRECT);
                 sink(&r, ctx), ++n;
             }
-        for (int lf = 0; lf < 2; ++lf) {
+        for (int lf = 0; lf < 3; ++lf) {
             case_inversion(&r, (hs_inversion)inv, lf, quick ? 150 : 1000);
             sink(&r, ctx), ++n;
         }

@@ -65,6 +65,7 @@ static const bench_cmd cmds[] = {
     {"blas", bench_blas, "the BLAS kernels in use (hs_sparse_blas_select may have chosen them)"},
     {"core", hs_bench_core, "FEM step cost per model and mesh (issue 2)"},
     {"accuracy", hs_bench_accuracy, "run time against error per model, solver, dt (issue 6)"},
+    {"lockfree", hs_bench_lockfree, "locking-free options vs CalculiX's converged solution"},
     {"stress", hs_bench_stress, "numerical stress cases: NaN, energy, inversion (issue 6)"},
     {"haptic", hs_bench_haptic, "1 kHz loop with the compliance probe vs a bare loop (issue 3)"},
 #ifdef HS_BENCH_HAVE_CUT
