@@ -152,9 +152,17 @@ async function main() {
     check(dmax > 2e-3, `the press deforms the mesh on the page (max displacement ${(dmax * 1e3).toFixed(2)} mm)`);
     const dmean = a2.probe.mean.map((v, i) => Math.abs(v - a1.probe.mean[i])).reduce((x, y) => x + y);
     check(dmean > 40 && a2.probe.red > a1.probe.red + 0.2, `colours change at the probe (mean RGB moved by ${dmean.toFixed(0)}, red share ${(100 * a1.probe.red).toFixed(0)} % -> ${(100 * a2.probe.red).toFixed(0)} %)`);
+    // The stylus drives the scene's only device, still pressing: the mouse is refused, politely
+    // (asked before the E-STOP, whose answer took seconds on a loaded machine).
+    await clickButton(page, '#btn-probe');
+    const busy = await waitFor(page, () => (document.getElementById('probe-msg').textContent.includes('refused') || hapsim.S.mouse.active) &&
+      `${document.getElementById('probe-msg').textContent} [${JSON.stringify(hapsim.S.status.devices)}]`, null, 8000, 'an answer to the mouse probe while the stylus is live');
+    const wrongly = await page.evaluate(() => hapsim.S.mouse.active);
+    if (wrongly) await clickButton(page, '#btn-probe'); // give it back
+    check(/no free device/.test(busy) && !wrongly, `mouse refused while the stylus holds device 0: "${busy}"`);
     // 3. E-STOP from the page while the stylus holds its press.
     const tEstop = (Date.now() - tStylus) / 1000;
-    if (tEstop > onset + 14) throw new Error(`too slow: E-STOP would come ${(tEstop - onset).toFixed(1)} s after the onset, after the held press`);
+    if (tEstop > onset + 18) throw new Error(`too slow: E-STOP would come ${(tEstop - onset).toFixed(1)} s after the onset, after the held press`);
     const clickAt = Date.now();
     await clickButton(page, '#btn-estop');
     const clickDone = Date.now();
@@ -163,13 +171,6 @@ async function main() {
     log(`E-STOP clicked ${tEstop.toFixed(2)} s after the stylus started (force onset on the page at ${onset.toFixed(2)} s); ack after ${ack.attempts} attempt(s), ${ack.rtt_ms} ms, answered ${((Date.now() - tStylus) / 1000 - tEstop).toFixed(2)} s after the click`);
     const lc = await page.evaluate(() => hapsim.S.lastCommand);
     log(`click took ${clickDone - clickAt} ms; page sent ${lc.cmd} ${lc.sentAt - clickAt} ms after the click started, ack received ${ack.receivedAt - lc.sentAt} ms after sending`);
-    // The stylus still drives the scene's only device: the mouse is refused, politely.
-    await clickButton(page, '#btn-probe');
-    const busy = await waitFor(page, () => (document.getElementById('probe-msg').textContent.includes('refused') || hapsim.S.mouse.active) &&
-      `${document.getElementById('probe-msg').textContent} [${JSON.stringify(hapsim.S.status.devices)}]`, null, 8000, 'an answer to the mouse probe while the stylus is live');
-    const wrongly = await page.evaluate(() => hapsim.S.mouse.active);
-    if (wrongly) await clickButton(page, '#btn-probe'); // give it back
-    check(/no free device/.test(busy) && !wrongly, `mouse refused while the stylus holds device 0: "${busy}"`);
     await sleep(600);
     const fAfter = await readForce();
     check(fAfter >= 0 && fAfter < 1e-3, `page readout after E-STOP: ${fAfter.toFixed(4)} N`);
@@ -188,8 +189,8 @@ async function main() {
     const zeroFrom = tr.rows[last + 1];
     const heldBefore = tr.rows.filter((r) => r.seg === steadySeg + 1 && r.t < tr.rows[last].t - 0.2);
     const meanBefore = heldBefore.reduce((s, r) => s + r.f, 0) / Math.max(1, heldBefore.length);
-    check(last >= 0 && zeroFrom && zeroFrom.seg > steadySeg && zeroFrom.seg <= steadySeg + 3 && heldBefore.length > 100 && meanBefore > 0.05,
-      `stylus force ${meanBefore.toFixed(3)} N in the held press, exactly 0 from t = ${zeroFrom ? zeroFrom.t.toFixed(2) : '?'} s (segment ${zeroFrom ? zeroFrom.seg : '?'}, the held press is ${steadySeg + 1}-${steadySeg + 3}) to the end of the run (E-STOP clicked ${tEstop.toFixed(2)} s after the stylus started)`);
+    check(last >= 0 && zeroFrom && zeroFrom.seg > steadySeg && zeroFrom.seg <= steadySeg + 4 && heldBefore.length > 100 && meanBefore > 0.05,
+      `stylus force ${meanBefore.toFixed(3)} N in the held press, exactly 0 from t = ${zeroFrom ? zeroFrom.t.toFixed(2) : '?'} s (segment ${zeroFrom ? zeroFrom.seg : '?'}, the held press is ${steadySeg + 1}-${steadySeg + 4}) to the end of the run (E-STOP clicked ${tEstop.toFixed(2)} s after the stylus started)`);
     // Readout vs trace on one clock: the E-STOP the page sent is where the trace's force drops to
     // zero (the server acts on it within milliseconds), which maps page time onto the trace's
     // t_s. Both are compared over the second half of the steady hold (margins 0.2 s): the
