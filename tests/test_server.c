@@ -130,10 +130,10 @@ static int read_server_log(const char* tag, char* text, size_t cap) {
     return 0;
 }
 
-// SIGTERM; returns the exit status (or -1 if it did not exit within 5 s).
-static int stop_server(void) {
+// Signal sig; returns the exit status (or -1 if it did not exit within 5 s).
+static int stop_server_with(int sig) {
     if (child <= 0) return -1;
-    kill(child, SIGTERM);
+    kill(child, sig);
     int64_t end = hs_now_ns() + 5000000000LL;
     int st = 0;
     while (hs_now_ns() < end) {
@@ -148,6 +148,10 @@ static int stop_server(void) {
     }
     kill_child();
     return -1;
+}
+
+static int stop_server(void) {
+    return stop_server_with(SIGTERM);
 }
 
 static int server_alive(void) {
@@ -603,7 +607,7 @@ static int poses_in_forces_out(void) {
     ENSURE(loading >= 1);
     ENSURE(wait_more(&c, &c.n_status, 2000));
     ENSURE(c.status->state == HAPSIM_SERVER_STATUS_T_STATE_RUNNING && c.n_loading == loading);
-    ENSURE(stop_server() == 0);
+    ENSURE(stop_server_with(SIGHUP) == 0); // a closed terminal: exit 0 with the exit line
     client_close(&c);
     // The e-stop's retried copy is a retry answered again, not a rejected message.
     char text[8192];

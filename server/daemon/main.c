@@ -40,7 +40,7 @@ static void usage(FILE* f) {
             "  --quiet           no start-up summary and no exit line\n"
             "  -h, --help        this text\n"
             "\n"
-            "Exit status: 0 after SIGINT/SIGTERM or --duration; 1 on a bad scene (the message\n"
+            "Exit status: 0 after SIGINT/SIGTERM/SIGHUP or --duration; 1 on a bad scene (the message\n"
             "names the file, line and key), a bad --prefix, a URL longer than 255 bytes,\n"
             "haptic and mesh URLs on the same bus or a run-time failure; 2 on an unknown\n"
             "option, a missing or bad value, or no scene.\n");
@@ -65,6 +65,7 @@ int main(int argc, char** argv) {
     sigemptyset(&sa.sa_mask);
     sigaction(SIGINT, &sa, NULL);
     sigaction(SIGTERM, &sa, NULL);
+    sigaction(SIGHUP, &sa, NULL); // a closed terminal stops it the same way, with its exit line
     signal(SIGPIPE, SIG_IGN);
 
     hs_server_opts o;
