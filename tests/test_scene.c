@@ -233,6 +233,13 @@ static int malformed_names_file_line_key(void) {
                        "t.json:4:", "a control byte inside a string") == 0);
     ENSURE(expect_fail(HEAD "\"name\": \"tab\there\"}", HS_ERR_PARSE,
                        "t.json:4:", "control byte") == 0);
+    // Escaped control characters decode to control bytes: refused in the values read.
+    ENSURE(expect_fail(HEAD "\"name\": \"a\\u001bb\"}", HS_ERR_PARSE, "'name'",
+                       "escaped control character (byte 0x1b)") == 0);
+    ENSURE(expect_fail(HEAD "\"name\": \"a\\u0001\"}", HS_ERR_PARSE, "'name'",
+                       "escaped control character (byte 0x01)") == 0);
+    ENSURE(expect_fail(HEAD "\"name\": \"a\\nb\"}", HS_ERR_PARSE, "'name'",
+                       "escaped control character") == 0);
     // LCM reads "7667x" as port 7667: the haptic bus's, which the text comparison missed.
     ENSURE(expect_fail(HEAD "\"lcm\": {\"mesh_url\": \"udpm://239.255.76.67:7667x?ttl=0\"}}",
                        HS_ERR_PARSE, "'lcm.mesh_url': has a port that is not a number alone",

@@ -247,6 +247,11 @@ static hs_status get_str(const ctx* c, const cJSON* obj, const char* path, const
     size_t n = strlen(it->valuestring);
     if (n == 0) return fail(c, it, key, "must not be empty");
     if (n >= cap) return fail(c, it, key, "longer than %zu bytes", cap - 1);
+    // Escapes decode to control characters too (\u001b, \n): names, paths and URLs are text.
+    for (size_t k = 0; k < n; ++k)
+        if ((unsigned char)it->valuestring[k] < 0x20)
+            return fail(c, it, key, "holds an escaped control character (byte 0x%02x)",
+                        (unsigned)(unsigned char)it->valuestring[k]);
     memcpy(out, it->valuestring, n + 1);
     return HS_OK;
 }
@@ -682,7 +687,8 @@ static hs_status parse_root(const ctx* c, const cJSON* root, int check_files, hs
     const cJSON* mesh_item = cJSON_GetObjectItemCaseSensitive(root, "mesh");
     TRY(resolve_mesh(c, mesh_item, s->path, mesh, s->mesh_path, sizeof s->mesh_path));
     if (check_files && access(s->mesh_path, R_OK) != 0)
-        return fail(c, mesh_item, "mesh", "cannot read mesh file '%s'", s->mesh_path);
+        return fail(c, mesh_item, "mesh", "cannot read mesh file '%s': %s", s->mesh_path,
+                    strerror(errno));
     TRY(get_str(c, root, "", "name", s->name, sizeof s->name, 0));
     TRY(get_num(c, root, "", "units_scale", 0.0, 1e3, 1, 0, &s->units_scale));
     s->mesh_line = item_line(c, mesh_item);
@@ -792,7 +798,8 @@ hs_status hs_scene_load(const char* path, hs_scene* out, hs_err* err) {
     hs_scene_default(out);
     if (!path) return hs_err_set(err, HS_ERR_INVALID, "no scene file given");
     FILE* f = fopen(path, "rb");
-    if (!f) return hs_err_set(err, HS_ERR_IO, "%s: cannot open scene file", path);
+    if (!f)
+        return hs_err_set(err, HS_ERR_IO, "%s: cannot open scene file: %s", path, strerror(errno));
     char* text = hs_alloc(MAX_SCENE_BYTES + 1);
     if (!text) {
         fclose(f);
