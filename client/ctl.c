@@ -1,5 +1,6 @@
 // hapsim-ctl: send commands to a running hapsim-server and show its status. docs/client.md.
 #define _POSIX_C_SOURCE 200809L
+#include "hapsim/version.h"
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -66,6 +67,7 @@ static void print_status(const hs_client_status* s, int64_t age_us) {
 }
 
 int main(int argc, char** argv) {
+    if (hapsim_version_asked(argc, argv, "hapsim-ctl")) return 0;
     const char *mesh_url = NULL, *prefix = NULL;
     int timeout_ms = 3000, retry_ms = 250, quiet = 0, i = 1;
     // Asking for help is never a usage error, also after the command ("status --help").

@@ -1,6 +1,7 @@
 // hapsim-view: watch a running hapsim-server and write a ParaView time series (.vtu + .pvd) and
 // PNG snapshots of the deforming surface, with a live one-line status. docs/client.md.
 #define _POSIX_C_SOURCE 200809L
+#include "hapsim/version.h"
 #include <errno.h>
 #include <math.h>
 #include <signal.h>
@@ -252,6 +253,7 @@ static void scene_name(const char* path, char* out, size_t cap) {
 }
 
 int main(int argc, char** argv) {
+    if (hapsim_version_asked(argc, argv, "hapsim-view")) return 0;
     viewer v;
     memset(&v, 0, sizeof v);
     v.out = "hapsim-view-out";

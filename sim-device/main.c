@@ -14,6 +14,7 @@
 // SIGINT/SIGTERM end the run gracefully: the trace and summary are still written.
 #define _POSIX_C_SOURCE 200809L
 
+#include "hapsim/version.h"
 #include <errno.h>
 #include <getopt.h>
 #include <inttypes.h>
@@ -778,6 +779,7 @@ static int run_live(app* a) {
 }
 
 int main(int argc, char** argv) {
+    if (hapsim_version_asked(argc, argv, "hapsim-stylus")) return 0;
     static app a; // large (mailbox): not on the stack
     hs_stylus_def def = hs_stylus_default_def();
     int pr = parse_options(argc, argv, &a.opt, &def);

@@ -1,6 +1,7 @@
 // hapsim-trace-diff: compare a hapsim-stylus trace against a reference trace (golden traces).
 // The applied force of the run, interpolated at the reference's sample times, must stay within
 // abs + rel * (reference peak) everywhere, and the run must cover the reference's duration.
+#include "hapsim/version.h"
 #include <errno.h>
 #include <math.h>
 #include <stdio.h>
@@ -31,6 +32,7 @@ static int number(const char* s, double* v) {
 }
 
 int main(int argc, char** argv) {
+    if (hapsim_version_asked(argc, argv, "hapsim-trace-diff")) return 0;
     const char* path[2] = {NULL, NULL};
     int n_paths = 0;
     hs_trace_tol tol = {.abs_n = 0.01, .rel = 0.02, .skip_s = 0};

@@ -5,6 +5,7 @@
 // (hub.h): newest-value slots and a bounded event ring, so a slow browser skips frames and
 // nothing ever waits on a browser.
 #define _GNU_SOURCE
+#include "hapsim/version.h"
 #include <cjson/cJSON.h>
 #include <errno.h>
 #include <libwebsockets.h>
@@ -923,6 +924,7 @@ static int find_web_root(char* out, size_t n, const char* given) {
 }
 
 int main(int argc, char** argv) {
+    if (hapsim_version_asked(argc, argv, "hapsim-web")) return 0;
     int port = 8080;
     const char* bind_addr = "127.0.0.1";
     const char* web_root_opt = NULL;

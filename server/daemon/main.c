@@ -1,5 +1,6 @@
 // hapsim-server: command line. See docs/server.md.
 #define _GNU_SOURCE
+#include "hapsim/version.h"
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -47,6 +48,7 @@ static void usage(FILE* f) {
 }
 
 int main(int argc, char** argv) {
+    if (hapsim_version_asked(argc, argv, "hapsim-server")) return 0;
     hs_sparse_blas_select(argv); // before any thread: it may re-execute the program
     // SIGINT/SIGTERM write one byte to a pipe the net loop polls (async-signal-safe), whichever
     // thread the kernel picks (libraries start threads before main, so masks cannot steer it).

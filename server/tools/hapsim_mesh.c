@@ -2,6 +2,7 @@
 // into tetrahedra with gmsh, `info` reports a mesh's quality, `points` picks probe points on its
 // surface, `scene` makes a ready scene folder, `surface` writes a mesh's boundary.
 #define _XOPEN_SOURCE 700 // mkdir
+#include "hapsim/version.h"
 #include "hapsim/mesh.h"
 #include "hapsim/mesher.h"
 #include "hapsim/scene.h"
@@ -920,6 +921,7 @@ static int cmd_scene(const opts* o) {
 // ---------------------------------------------------------------------------------------------
 
 int main(int argc, char** argv) {
+    if (hapsim_version_asked(argc, argv, "hapsim-mesh")) return 0;
     opts o = {0};
     o.youngs = 5000;
     if (argc < 2 || !strcmp(argv[1], "-h") || !strcmp(argv[1], "--help")) {
