@@ -6,11 +6,12 @@
 // radius is resolved only as finely as its nodes). Frictionless: a node in contact is pushed
 // along the sphere normal (away from the centre) and slides freely along the sphere.
 //
-// Method: augmented Lagrangian. For multipliers lam_i (N) and penalty k (N/m), Newton with an
-// energy line search minimises W(u) - f_g.u + sum_i max(0, lam_i + k (R - d_i))^2 / (2k)
-// (d_i the node's distance from the centre); then lam_i <- max(0, lam_i + k (R - d_i)) (a
-// node that would pull is released, one that penetrates is added), until the active set is
-// unchanged over a pass and the deepest penetration is within pen_tol R. The sphere reaches
+// Method: active set around Newton (SQP). With the active nodes held on the sphere, each step
+// solves the tangent system with the constraints linearised along the current normals (a stiff
+// spring k n n^T per node, k = penalty_scale x the mean rest-stiffness diagonal of the free
+// surface nodes) on the tangential residual; a node's push is what balances it along its
+// normal. Then the node that pulls hardest is released, or every node inside is added, until
+// the set is unchanged with every push >= 0 and every node within pen_tol R. The sphere reaches
 // its centre in straight increments of at most max_step R from the first contact along the
 // approach direction (or from its previous centre), so the surface always wraps the sphere
 // from the side it came from (a sphere dropped 3 radii deep at once has no such side).
@@ -34,21 +35,21 @@ typedef struct hs_press_def {
     double tol;           ///< equilibrium: ||r|| <= tol (||f_contact|| + ||f_gravity||), free dofs
     double pen_tol;       ///< deepest node penetration allowed, relative to R
     double max_step;      ///< sphere travel per increment, in radii (0, 1]
-    double penalty_scale; ///< k = penalty_scale x the largest diagonal of the rest stiffness
-    int max_newton;       ///< Newton iterations per augmented-Lagrangian pass
-    int max_passes;       ///< augmented-Lagrangian passes per increment
+    double penalty_scale; ///< k = penalty_scale x the mean rest-stiffness diagonal (surface)
+    int max_newton;       ///< Newton iterations per active-set pass
+    int max_passes;       ///< active-set passes per increment
     int cookie;           ///< set by hs_press_default_def
 } hs_press_def;
 
 /// Defaults: hs_fem_default_def(), no gravity, R 5 mm, tol 1e-8, pen_tol 1e-3, max_step 0.125,
-/// penalty_scale 1e4, 300 Newton iterations per pass, 40 passes.
+/// penalty_scale 1e3, 300 Newton iterations per pass, 40 passes.
 hs_press_def hs_press_default_def(void);
 
 /// Statistics of the last hs_press_solve.
 typedef struct hs_press_stats {
     double wall_ms;        ///< wall time, ms
     int increments;        ///< sphere increments
-    int passes;            ///< augmented-Lagrangian passes, all increments
+    int passes;            ///< active-set passes, all increments
     int newton;            ///< Newton iterations, all increments
     int refactors;         ///< tangent factorisations (a step that converged fast keeps it)
     int fallbacks;         ///< tangents refactored without the contact curvature (not SPD)

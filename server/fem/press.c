@@ -1,5 +1,5 @@
 // Static equilibrium under a frictionless rigid sphere (see include/hapsim/press.h): an
-// augmented-Lagrangian node-to-sphere contact around a Newton solver of its own on hs_fem,
+// active-set node-to-sphere contact around a Newton (SQP) solver of its own on hs_fem,
 // independent of the body's solvers and of the haptic code it is a reference for.
 #include "hapsim/press.h"
 
@@ -44,7 +44,7 @@ hs_press_def hs_press_default_def(void) {
     d.tol = 1e-8;
     d.pen_tol = 1e-3;
     d.max_step = 0.125;
-    d.penalty_scale = 1e4;
+    d.penalty_scale = 1e3;
     d.max_newton = 300;
     d.max_passes = 40;
     d.cookie = HS_PRESS_COOKIE;
@@ -86,20 +86,25 @@ static hs_status check_def(const hs_press_def* d, hs_err* err) {
     return HS_OK;
 }
 
-// Penalty k from the rest stiffness's largest diagonal entry: stiff against any node, mild
-// enough for the factorisation (a condition number of about penalty_scale more).
+// Penalty k from the mean diagonal of the rest stiffness over the free surface nodes: stiff
+// against the nodes the sphere can touch, mild enough for the factorisation and for round-off
+// (the largest diagonal, on a sliver somewhere, made k so large that k times the round-off of
+// a distance exceeded the tolerance).
 static hs_status init_penalty(hs_press* p) {
     double* x = p->x;
     memcpy(x, p->mesh->x0, 3 * (size_t)p->n * sizeof(double));
     hs_fem_update(p->fem, x, NULL);
     hs_fem_assemble(p->fem, 1.0, 0.0, p->a);
-    double dmax = 0;
-    for (int j = 0; j < p->a->n; ++j) {
-        int q = hs_csc_find(p->a, j, j);
-        if (q >= 0 && p->a->val[q] > dmax) dmax = p->a->val[q];
-    }
-    if (!(dmax > 0) || !isfinite(dmax)) return HS_ERR_NUMERIC;
-    p->k = p->def.penalty_scale * dmax;
+    double sum = 0;
+    int cnt = 0;
+    for (int j = 0; j < p->n_cand; ++j)
+        for (int c = 0; c < 3; ++c) {
+            int dof = p->dof[3 * p->cand[j] + c], q = hs_csc_find(p->a, dof, dof);
+            if (q >= 0 && p->a->val[q] > 0) sum += p->a->val[q], ++cnt;
+        }
+    double dmean = cnt ? sum / cnt : 0;
+    if (!(dmean > 0) || !isfinite(dmean)) return HS_ERR_NUMERIC;
+    p->k = p->def.penalty_scale * dmean;
     return HS_OK;
 }
 

@@ -149,12 +149,20 @@ static void press_to(run_state* rs, const double* x, const double* n, double rad
     r->step_p99_ms = hs_bench_percentile(rs->steps_ms, (size_t)rs->n_steps, 99);
 }
 
-// The probed node: the free surface node highest in z, and its outward rest normal.
+// The probed node: among the free surface nodes within 1 mm of the highest, the one nearest the
+// bounding box's centre in x, y (a flat top has many: not a corner next to the supports); its
+// outward rest normal.
 static int top_node(const hs_mesh* m, const unsigned char* fixed, double n[3]) {
+    double ztop = -INFINITY, cx = 0.5 * (m->bbox_min[0] + m->bbox_max[0]),
+           cy = 0.5 * (m->bbox_min[1] + m->bbox_max[1]), best = INFINITY;
+    for (int s = 0; s < m->n_surf_nodes; ++s)
+        if (!fixed[m->surf_nodes[s]]) ztop = fmax(ztop, m->x0[3 * m->surf_nodes[s] + 2]);
     int k = -1;
     for (int s = 0; s < m->n_surf_nodes; ++s) {
-        int v = m->surf_nodes[s];
-        if (!fixed[v] && (k < 0 || m->x0[3 * v + 2] > m->x0[3 * k + 2])) k = v;
+        const int v = m->surf_nodes[s];
+        const double* x = m->x0 + 3 * v;
+        double d = hypot(x[0] - cx, x[1] - cy);
+        if (!fixed[v] && x[2] >= ztop - 0.001 && d < best) best = d, k = v;
     }
     if (k >= 0 && hs_mesh_rest_normal(m, k, n) != 0) k = -1;
     return k;
