@@ -267,9 +267,9 @@ static hs_status newton(hs_press* p, const double c[3], hs_press_stats* st) {
     const double R = p->def.radius_m;
     for (int it = 0;; ++it) {
         // Round-off floors: the cancellation error of the elastic forces, and the force of a
-        // 1e-14 R displacement on the stiffest node (no load at all: the rest state is it).
+        // 1e-12 R displacement of a surface node (no load at all: the rest state is it).
         double scale = p->fc_norm + p->fg_norm;
-        double floor_abs = fmax(1e-13 * p->el_abs, 1e-14 * p->k / p->def.penalty_scale * R);
+        double floor_abs = fmax(1e-13 * p->el_abs, 1e-12 * p->k / p->def.penalty_scale * R);
         if ((p->r_norm <= p->def.tol * scale || p->r_norm <= floor_abs) &&
             p->gap_max <= 0.1 * p->def.pen_tol * R)
             return HS_OK;
