@@ -130,9 +130,15 @@ static int press_depths(hs_model model, int n, const double* depths) {
 }
 
 static const double r123[3] = {1, 2, 3}, shallow[3] = {0.25, 0.5, 1};
-static int depths_stvk(void) { return press_depths(HS_MODEL_STVK, 3, r123); }
-static int depths_corotated(void) { return press_depths(HS_MODEL_COROTATED, 3, shallow); }
-static int depths_linear(void) { return press_depths(HS_MODEL_LINEAR, 3, shallow); }
+static int depths_stvk(void) {
+    return press_depths(HS_MODEL_STVK, 3, r123);
+}
+static int depths_corotated(void) {
+    return press_depths(HS_MODEL_COROTATED, 3, shallow);
+}
+static int depths_linear(void) {
+    return press_depths(HS_MODEL_LINEAR, 3, shallow);
+}
 
 // Snapshot at rest around p with every candidate node coupled (node contact, no triangles),
 // as tests/test_contact.c builds them.
@@ -145,8 +151,7 @@ static void node_snapshot(hs_compliance* c, const hs_mesh* mesh, const double p[
     int n = 0;
     for (int si = 0; si < mesh->n_surf_nodes && n < HS_CONTACT_MAX_CAND; ++si) {
         int v = mesh->surf_nodes[si];
-        if (hs_compliance_contactable(c, v) && dist3(mesh->x0 + 3 * v, p) < 3 * R)
-            s->node[n++] = v;
+        if (hs_compliance_contactable(c, v) && dist3(mesh->x0 + 3 * v, p) < 3 * R) s->node[n++] = v;
     }
     s->n_cand = n;
     s->reach_m = 3 * R;
@@ -206,8 +211,7 @@ static int refuses_bad_input(void) {
     ENSURE(hs_press_reference_force(b.mesh, &def, b.fixed, c, zero, f, &err) == HS_ERR_INVALID);
     ENSURE(strstr(err.msg, "direction"));
     double side[3] = {-0.003, 0.03, 0.002}, right[3] = {1, 0, 0};
-    ENSURE(hs_press_reference_force(b.mesh, &def, b.fixed, side, right, f, &err) ==
-           HS_ERR_INVALID);
+    ENSURE(hs_press_reference_force(b.mesh, &def, b.fixed, side, right, f, &err) == HS_ERR_INVALID);
     ENSURE(strstr(err.msg, "fixed node"));
     (void)up;
     hs_press_def bad = def;

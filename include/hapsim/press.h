@@ -47,19 +47,19 @@ hs_press_def hs_press_default_def(void);
 
 /// Statistics of the last hs_press_solve.
 typedef struct hs_press_stats {
-    double wall_ms;        ///< wall time, ms
-    int increments;        ///< sphere increments
-    int passes;            ///< active-set passes, all increments
-    int newton;            ///< Newton iterations, all increments
-    int refactors;         ///< tangent factorisations (a step that converged fast keeps it)
-    int fallbacks;         ///< tangents refactored without the contact curvature (not SPD)
-    int active;            ///< nodes in contact at the end
-    int set_changes;       ///< nodes that entered or left between the last two passes (0)
-    double residual;       ///< final ||r|| / (||f_contact|| + ||f_gravity||)
-    double penetration_m;  ///< deepest node penetration at the end, m (<= pen_tol R)
-    double max_edge_m;     ///< longest surface edge at a contact node, m (node contact: > R is coarse)
-    double travel_m;       ///< sphere travel solved, m
-    double force_n[3];     ///< force ON THE TOOL (minus the sum of contact forces), N
+    double wall_ms;       ///< wall time, ms
+    int increments;       ///< sphere increments
+    int passes;           ///< active-set passes, all increments
+    int newton;           ///< Newton iterations, all increments
+    int refactors;        ///< tangent factorisations (a step that converged fast keeps it)
+    int fallbacks;        ///< tangents refactored without the contact curvature (not SPD)
+    int active;           ///< nodes in contact at the end
+    int set_changes;      ///< nodes that entered or left between the last two passes (0)
+    double residual;      ///< final ||r|| / (||f_contact|| + ||f_gravity||)
+    double penetration_m; ///< deepest node penetration at the end, m (<= pen_tol R)
+    double max_edge_m; ///< longest surface edge at a contact node, m (node contact: > R is coarse)
+    double travel_m;   ///< sphere travel solved, m
+    double force_n[3]; ///< force ON THE TOOL (minus the sum of contact forces), N
 } hs_press_stats;
 
 typedef struct hs_press hs_press;

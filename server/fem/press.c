@@ -29,10 +29,9 @@ struct hs_press {
     unsigned char *act, *prev_act;                    // [n_cand]
     double k;                                         // penalty, N/m
     double centre[3];
-    int engaged; // a sphere is in place (centre valid)
+    int engaged;     // a sphere is in place (centre valid)
     double* du_last; // [3n] displacement change of the last increment (secant predictor)
     double last_len; // its sphere travel, m (0: none)
-    int inverted; // elements with det F <= 0 at the last evaluation
     double gap_max, fc_norm, fg_norm, r_norm, el_abs;
 };
 
@@ -57,9 +56,9 @@ void hs_press_destroy(hs_press** pp) {
     hs_fem_destroy(&p->fem);
     hs_csc_destroy(&p->a);
     hs_cholesky_destroy(&p->chol);
-    void* bufs[] = {p->du_last, p->dof, p->free_to_full, p->fixed, p->u,   p->x,   p->f_el,     p->f_g,
-                    p->r,   p->save,         p->rhs,   p->dx,  p->cand, p->cand_of, p->gap, p->p,
-                    p->act, p->prev_act};
+    void* bufs[] = {p->du_last, p->dof, p->free_to_full, p->fixed,   p->u,  p->x,    p->f_el,
+                    p->f_g,     p->r,   p->save,         p->rhs,     p->dx, p->cand, p->cand_of,
+                    p->gap,     p->p,   p->act,          p->prev_act};
     for (size_t i = 0; i < sizeof bufs / sizeof bufs[0]; ++i) hs_free(bufs[i]);
     hs_free(p);
     *pp = NULL;
@@ -75,8 +74,10 @@ static hs_status check_def(const hs_press_def* d, hs_err* err) {
         return hs_err_set(err, HS_ERR_INVALID, "hs_press_create: tol %g, pen_tol %g (in (0, 1))",
                           d->tol, d->pen_tol);
     if (!(d->max_step > 0 && d->max_step <= 1) || !(d->penalty_scale > 0 && d->penalty_scale < 1e9))
-        return hs_err_set(err, HS_ERR_INVALID, "hs_press_create: max_step %g in (0, 1], penalty "
-                          "scale %g > 0", d->max_step, d->penalty_scale);
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "hs_press_create: max_step %g in (0, 1], penalty "
+                          "scale %g > 0",
+                          d->max_step, d->penalty_scale);
     if (d->max_newton < 1 || d->max_passes < 1)
         return hs_err_set(err, HS_ERR_INVALID, "hs_press_create: iteration counts must be >= 1");
     for (int c = 0; c < 3; ++c)
@@ -113,7 +114,8 @@ static hs_status alloc_arrays(hs_press* p) {
     p->dof = hs_alloc(n3 * sizeof(int));
     p->free_to_full = hs_alloc(n3 * sizeof(int));
     p->fixed = hs_calloc((size_t)p->n, 1);
-    double** d3[] = {&p->du_last, &p->u, &p->x, &p->f_el, &p->f_g, &p->r, &p->save, &p->rhs, &p->dx};
+    double** d3[] = {&p->du_last, &p->u,    &p->x,   &p->f_el, &p->f_g,
+                     &p->r,       &p->save, &p->rhs, &p->dx};
     for (size_t i = 0; i < sizeof d3 / sizeof d3[0]; ++i) *d3[i] = hs_calloc(n3, sizeof(double));
     p->cand = hs_alloc(ns * sizeof(int));
     p->cand_of = hs_alloc(((size_t)p->n + 1) * sizeof(int));
@@ -121,8 +123,8 @@ static hs_status alloc_arrays(hs_press* p) {
     p->p = hs_calloc(ns, sizeof(double));
     p->act = hs_calloc(ns, 1);
     p->prev_act = hs_calloc(ns, 1);
-    int ok = p->dof && p->free_to_full && p->fixed && p->cand && p->cand_of && p->gap && p->p && p->act &&
-             p->prev_act;
+    int ok = p->dof && p->free_to_full && p->fixed && p->cand && p->cand_of && p->gap && p->p &&
+             p->act && p->prev_act;
     for (size_t i = 0; i < sizeof d3 / sizeof d3[0]; ++i) ok = ok && *d3[i];
     return ok ? HS_OK : HS_ERR_NOMEM;
 }
@@ -184,8 +186,12 @@ void hs_press_reset(hs_press* p) {
     p->last_len = 0;
 }
 
-const double* hs_press_displacement(const hs_press* p) { return p->u; }
-double hs_press_penalty(const hs_press* p) { return p->k; }
+const double* hs_press_displacement(const hs_press* p) {
+    return p->u;
+}
+double hs_press_penalty(const hs_press* p) {
+    return p->k;
+}
 
 static double dist3(const double* a, const double* b) {
     return sqrt((a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1]) +
@@ -200,9 +206,7 @@ static void evaluate(hs_press* p, const double c[3]) {
     const int n3 = 3 * p->n;
     const double R = p->def.radius_m;
     for (int k = 0; k < n3; ++k) p->x[k] = p->mesh->x0[k] + p->u[k];
-    hs_fem_stats fs;
-    hs_fem_update(p->fem, p->x, &fs);
-    p->inverted = fs.inverted;
+    hs_fem_update(p->fem, p->x, NULL);
     hs_fem_forces(p->fem, p->f_el);
     double fc2 = 0, fg2 = 0, r2 = 0, el = 0, gap = 0;
     for (int k = 0; k < n3; ++k) {
@@ -337,16 +341,19 @@ static hs_status increment(hs_press* p, const double c[3], hs_press_stats* st, h
     int fnode;
     double fpen = fixed_penetration(p, c, &fnode);
     if (fpen > p->def.pen_tol * R)
-        return hs_err_set(err, HS_ERR_INVALID, "press: the sphere at %g,%g,%g reaches fixed "
-                          "node %d (%.3g m deep): it cannot be pushed away", c[0], c[1], c[2],
-                          fnode, fpen);
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "press: the sphere at %g,%g,%g reaches fixed "
+                          "node %d (%.3g m deep): it cannot be pushed away",
+                          c[0], c[1], c[2], fnode, fpen);
     for (int pass = 0; pass < p->def.max_passes; ++pass) {
         hs_status s = newton(p, c, st);
         ++st->passes;
         if (s == HS_ERR_NOT_CONVERGED)
-            return hs_err_set(err, s, "press: Newton did not converge in %d iterations at centre "
-                              "%g,%g,%g (residual %.3g of the load)", p->def.max_newton, c[0],
-                              c[1], c[2], p->r_norm / (p->fc_norm + p->fg_norm + DBL_MIN));
+            return hs_err_set(err, s,
+                              "press: Newton did not converge in %d iterations at centre "
+                              "%g,%g,%g (residual %.3g of the load)",
+                              p->def.max_newton, c[0], c[1], c[2],
+                              p->r_norm / (p->fc_norm + p->fg_norm + DBL_MIN));
         if (s != HS_OK) return hs_err_set(err, s, "press: solver failed: %s", hs_status_str(s));
         // Release the node that pulls hardest (one at a time: releasing one changes the
         // others' pushes), else add every node inside.
@@ -366,8 +373,10 @@ static hs_status increment(hs_press* p, const double c[3], hs_press_stats* st, h
         st->residual = p->r_norm / (p->fc_norm + p->fg_norm + DBL_MIN);
         if (changes == 0 && st->penetration_m <= p->def.pen_tol * R) return HS_OK;
     }
-    return hs_err_set(err, HS_ERR_NOT_CONVERGED, "press: contact set not stable after %d passes "
-                      "at centre %g,%g,%g", p->def.max_passes, c[0], c[1], c[2]);
+    return hs_err_set(err, HS_ERR_NOT_CONVERGED,
+                      "press: contact set not stable after %d passes "
+                      "at centre %g,%g,%g",
+                      p->def.max_passes, c[0], c[1], c[2]);
 }
 
 // An increment of length h from the secant predictor: the last increment's displacement
@@ -446,17 +455,19 @@ static hs_status start_point(hs_press* p, const double c[3], const double* dir_i
     if (dir_in) {
         double l = sqrt(dir_in[0] * dir_in[0] + dir_in[1] * dir_in[1] + dir_in[2] * dir_in[2]);
         if (!(l > 0) || !isfinite(l))
-            return hs_err_set(err, HS_ERR_INVALID, "press: approach direction is zero or not finite");
+            return hs_err_set(err, HS_ERR_INVALID,
+                              "press: approach direction is zero or not finite");
         for (int q = 0; q < 3; ++q) dir[q] = dir_in[q] / l;
     } else if (default_dir(p, c, dir) != 0) {
-        return hs_err_set(err, HS_ERR_INVALID, "press: no surface normal near %g,%g,%g", c[0],
-                          c[1], c[2]);
+        return hs_err_set(err, HS_ERR_INVALID, "press: no surface normal near %g,%g,%g", c[0], c[1],
+                          c[2]);
     }
     double s = first_contact(p, c, dir);
     if (s < 0)
-        return hs_err_set(err, HS_ERR_INVALID, "press: a sphere of radius %g m coming along "
-                          "%g,%g,%g to %g,%g,%g touches no free surface node", p->def.radius_m,
-                          dir[0], dir[1], dir[2], c[0], c[1], c[2]);
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "press: a sphere of radius %g m coming along "
+                          "%g,%g,%g to %g,%g,%g touches no free surface node",
+                          p->def.radius_m, dir[0], dir[1], dir[2], c[0], c[1], c[2]);
     for (int q = 0; q < 3; ++q) start[q] = c[q] - s * dir[q];
     return HS_OK;
 }
@@ -492,11 +503,12 @@ hs_status hs_press_solve(hs_press* p, const double c[3], const double* dir, hs_p
             ++st.increments;
         }
     }
-    for (int j = 0; j < p->n_cand; ++j)
-        st.active += p->act[j] && p->p[j] > 0 && s == HS_OK;
+    for (int j = 0; j < p->n_cand; ++j) st.active += p->act[j] && p->p[j] > 0 && s == HS_OK;
     if (s == HS_OK && st.active == 0)
-        s = hs_err_set(err, HS_ERR_INVALID, "press: the sphere at %g,%g,%g touches no surface node "
-                       "in equilibrium", c[0], c[1], c[2]);
+        s = hs_err_set(err, HS_ERR_INVALID,
+                       "press: the sphere at %g,%g,%g touches no surface node "
+                       "in equilibrium",
+                       c[0], c[1], c[2]);
     if (s == HS_OK) {
         memcpy(p->centre, c, sizeof p->centre);
         p->engaged = 1;

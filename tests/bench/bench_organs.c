@@ -24,13 +24,15 @@ typedef struct organ_case {
 } organ_case;
 
 static const organ_case organs_full[] = {
-    {"skin_patch", "skin_patch_synthetic.msh"}, {"liver_coarse", "liver_coarse.msh"},
-    {"liver2", "liver2.msh"},                   {"tongue", "tongue.msh"},
+    {"skin_patch", "skin_patch_synthetic.msh"},
+    {"liver_coarse", "liver_coarse.msh"},
+    {"liver2", "liver2.msh"},
+    {"tongue", "tongue.msh"},
     {"vessel", "aneurysm_vessel.msh"},
 };
 static const organ_case organs_quick[] = {{"liver2", "liver2.msh"}};
 
-#define N_DEPTHS 3
+#define N_DEPTHS  3
 #define MAX_STEPS 4096
 
 // The scene defaults (docs/scenes.md): co-rotated, E 5 kPa, nu 0.45, 1000 kg/m^3, no damping,
@@ -58,7 +60,7 @@ typedef struct depth_result {
     double tool[3];    // tool centre the rt thread held, m
     double max_jump_n; // largest tick-to-tick force change, ramp in + hold
     double step_p50_ms, step_p99_ms, sim_hz;
-    int steady;        // 1 when the force settled before the hold limit
+    int steady; // 1 when the force settled before the hold limit
 } depth_result;
 
 typedef struct run_state {
@@ -90,9 +92,9 @@ static void tick(run_state* rs, const double p[3], depth_result* r) {
     hs_haptic_telemetry t;
     while (hs_spsc_ring_pop(hs_haptic_sim_telemetry(rs->sim), &t)) {
         if (rs->have_last) {
-            double d = sqrt(pow(t.force_n[0] - rs->last_f[0], 2) +
-                            pow(t.force_n[1] - rs->last_f[1], 2) +
-                            pow(t.force_n[2] - rs->last_f[2], 2));
+            double d =
+                sqrt(pow(t.force_n[0] - rs->last_f[0], 2) + pow(t.force_n[1] - rs->last_f[1], 2) +
+                     pow(t.force_n[2] - rs->last_f[2], 2));
             if (d > r->max_jump_n) r->max_jump_n = d;
         }
         memcpy(rs->last_f, t.force_n, sizeof rs->last_f);
@@ -187,14 +189,18 @@ static void reference(const char* name, const hs_mesh* m, const unsigned char* f
         if (s != HS_OK)
             fprintf(stderr, "  %s: reference at %.1f mm: %s\n", name, r[k].depth_m * 1e3, err.msg);
         else
-            fprintf(stderr, "  %s: reference at %.1f mm: %d contact nodes (longest edge %.1f mm), "
-                    "%d increments, %d Newton, %.0f ms\n", name, r[k].depth_m * 1e3, st.active,
-                    st.max_edge_m * 1e3, st.increments, st.newton, st.wall_ms);
+            fprintf(stderr,
+                    "  %s: reference at %.1f mm: %d contact nodes (longest edge %.1f mm), "
+                    "%d increments, %d Newton, %.0f ms\n",
+                    name, r[k].depth_m * 1e3, st.active, st.max_edge_m * 1e3, st.increments,
+                    st.newton, st.wall_ms);
     }
     hs_press_destroy(&p);
 }
 
-static double norm3(const double* v) { return sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]); }
+static double norm3(const double* v) {
+    return sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+}
 
 static int run_organ(const hs_bench_args* a, const organ_case* oc) {
     hs_err err = {0};
@@ -214,7 +220,8 @@ static int run_organ(const hs_bench_args* a, const organ_case* oc) {
     int rc = 0;
     if (k < 0 || hs_haptic_sim_create(m, &d, fixed, &sim, &err) != HS_OK ||
         hs_haptic_sim_start(sim, &err) != HS_OK) {
-        fprintf(stderr, "hapsim-bench organs: %s: %s\n", oc->name, k < 0 ? "no probe node" : err.msg);
+        fprintf(stderr, "hapsim-bench organs: %s: %s\n", oc->name,
+                k < 0 ? "no probe node" : err.msg);
         rc = 1;
         goto done;
     }
