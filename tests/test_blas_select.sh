@@ -22,6 +22,14 @@ check "--meshes without a value named: $(cat "$T/err")" $rc
 [ $rc -eq 0 ] && grep -q '^liver2,' "$T/out"; rc=$?
 check "bundled liver2 used when --meshes lacks it: $(tail -n 2 "$T/err")" $rc
 
+# The organs benchmark's quick run (the server path on liver2 at three depths, and the static
+# press reference): its CSV header and three rows whose felt force at the first depth pushes.
+"$BENCH" organs --quick --meshes "$T/none" > "$T/out" 2> "$T/err"; rc=$?
+[ $rc -eq 0 ] && head -n 1 "$T/out" | grep -q '^mesh,tets,solver,setup_ms,.*,force_err_pct,' &&
+  [ "$(grep -c '^liver2,' "$T/out")" -eq 3 ] &&
+  awk -F, '$1 == "liver2" && $8 == "5.0" { ok = ($9 > 0) } END { exit !ok }' "$T/out"
+check "organs --quick: header, three liver2 depths, a force at 5 mm: $(tail -n 3 "$T/err")" $?
+
 OPENBLAS_CORETYPE=Prescott "$BENCH" blas > "$T/out" 2> "$T/err"; check "blas command exits 0" $?
 if [ "$(core)" = "not OpenBLAS" ]; then
   echo "SKIP: the BLAS behind libblas.so.3 is not OpenBLAS"; exit 77

@@ -145,5 +145,23 @@ done
   --out "$T/failed.csv" > "$T/sum" 2> "$T/err"; rc=$?
 [ $rc -eq 2 ] && [ ! -e "$T/failed.csv" ] && grep -q "wrote           nothing" "$T/sum"
 check "a failed solve writes nothing" $?
+# The static probe reference: a press on the liver's top node; a sphere that never reaches
+# the surface, a probe without its radius, a probe in a dynamic run are refused (exit 1).
+PROBE=(--mesh "$MESH" --model corotated --E 5000 --fix-box -1,-1,-1,1,1,-0.0718 --static)
+"$SOLVE" "${PROBE[@]}" --probe 0.07756132,0.00306969,0.0484151 --probe-radius 0.005 \
+  --probe-dir 0,0,-1 --out "$T/p.csv" > "$T/sum" 2> "$T/err"; rc=$?
+[ $rc -eq 0 ] && [ -s "$T/p.csv" ] && \
+  awk -F'[ ,]' '/^probe force N:/ { ok = ($6 > 0) } END { exit !ok }' "$T/sum"
+check "probe 2.5 mm deep: solved, the tool pushed out (+z)" $?
+"$SOLVE" "${PROBE[@]}" --probe 0.07756132,0.00306969,0.08 --probe-radius 0.005 \
+  --probe-dir 0,0,-1 --out "$T/p2.csv" > /dev/null 2> "$T/err"; rc=$?
+[ $rc -eq 1 ] && grep -q "touches no free surface node" "$T/err" && [ ! -e "$T/p2.csv" ]
+check "a sphere that never reaches the surface: exit 1, named, nothing written" $?
+"$SOLVE" "${PROBE[@]}" --probe 0.07756132,0.00306969,0.0484151 --out "$T/p.csv" \
+  > /dev/null 2> "$T/err"; rc=$?
+[ $rc -eq 1 ] && grep -q "go together" "$T/err"; check "--probe without --probe-radius refused" $?
+"$SOLVE" --mesh "$MESH" --model corotated --fix-plane y,min,0.005 --steps 2 --dt 0.01 \
+  --probe 0,0,0 --probe-radius 0.005 --out "$T/p.csv" > /dev/null 2> "$T/err"; rc=$?
+[ $rc -eq 1 ] && grep -q -- "--probe has no effect" "$T/err"; check "--probe with --steps refused" $?
 echo "$pass passed, $fail failed"
 [ $fail -eq 0 ]

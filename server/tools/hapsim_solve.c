@@ -4,6 +4,7 @@
 #include "hapsim/body.h"
 #include "hapsim/mesh.h"
 #include "hapsim/mooney.h"
+#include "hapsim/press.h"
 #include "hapsim/sparse.h"
 
 #include <errno.h>
@@ -57,6 +58,14 @@ static const char* usage =
     "  --precond none|jacobi|factor|warped   PCG preconditioner (default warped: the\n"
     "                         rest-state Cholesky factor turned by the node rotations)\n"
     "  --pcg-iters N          PCG iterations per solve (default 20)\n"
+    "  --probe X,Y,Z          --static only: a frictionless rigid sphere centred at X,Y,Z (m)\n"
+    "                         presses the body (linear, corotated, stvk); prints\n"
+    "                         'probe force N: fx,fy,fz', the force on the tool; node contact,\n"
+    "                         co-rotated rotations to 1e-10 at least (docs/fem.md, \"Probe\n"
+    "                         reference\")\n"
+    "  --probe-radius R       sphere radius, m (required with --probe)\n"
+    "  --probe-dir DX,DY,DZ   the sphere's direction of travel into the tissue (default: minus\n"
+    "                         the rest normal of the surface node nearest the centre)\n"
     "  --vtk FILE             also write the deformed mesh as legacy VTK\n"
     "  --out FILE             displacement CSV (required)\n"
     "  -q, --quiet            no summary\n"
@@ -155,11 +164,36 @@ enum {
     F_INVERSION = 1 << 11,
     F_POLAR_TOL = 1 << 12,
     F_LF_ALPHA = 1 << 13,
+    F_PROBE = 1 << 14,
 };
 static const char* const flag_name[] = {
-    "--dt",       "--damping",   "--tol",       "--max-iter",          "--load-steps",
-    "--solver",   "--precond",   "--pcg-iters", "--locking-free",      "--beta",
-    "--rotation", "--inversion", "--polar-tol", "--locking-free-alpha"};
+    "--dt",       "--damping",   "--tol",       "--max-iter",           "--load-steps",
+    "--solver",   "--precond",   "--pcg-iters", "--locking-free",       "--beta",
+    "--rotation", "--inversion", "--polar-tol", "--locking-free-alpha", "--probe"};
+
+// The static probe reference (hs_press): the body's model and material, a sphere of radius r
+// brought to c along dir (NULL: the default approach). Prints the tool force; returns the
+// exit status (0 solved, 1 bad input such as a sphere touching nothing, 2 solver failure, 3 not
+// converged) and leaves the press in *out for the displacement output.
+static int run_probe(const hs_mesh* mesh, const hs_body_def* def, const unsigned char* fixed,
+                     const double c[3], double r, const double* dir, hs_press** out,
+                     hs_press_stats* st) {
+    hs_press_def pd = hs_press_default_def();
+    pd.fem = def->fem;
+    memcpy(pd.gravity, def->gravity, sizeof pd.gravity);
+    pd.radius_m = r;
+    pd.tol = def->static_tol;
+    pd.max_newton = def->static_max_iter > 300 ? def->static_max_iter : 300;
+    hs_err err = {0};
+    hs_status s = hs_press_create(mesh, &pd, fixed, out, &err);
+    if (s == HS_OK) s = hs_press_solve(*out, c, dir, st, &err);
+    if (s != HS_OK) {
+        fprintf(stderr, "hapsim-solve: probe: %s\n", err.msg);
+        return s == HS_ERR_INVALID ? 1 : s == HS_ERR_NOT_CONVERGED ? 3 : 2;
+    }
+    printf("probe force N: %.9g,%.9g,%.9g\n", st->force_n[0], st->force_n[1], st->force_n[2]);
+    return 0;
+}
 
 typedef struct plane_fix {
     int axis, side;
@@ -177,6 +211,8 @@ int main(int argc, char** argv) {
     int lf_mode = HS_LOCKING_FREE_NONE; // -1: the model's default mode
     unsigned given = 0;                 // F_* flags on the command line
     double beta = 0;
+    double probe_c[3] = {0}, probe_r = 0, probe_dir[3] = {0};
+    int have_probe = 0, have_dir = 0;
     double boxes[8][6];
     int n_boxes = 0;
     plane_fix planes[8];
@@ -396,6 +432,25 @@ int main(int argc, char** argv) {
             else
                 BAD("none, jacobi, factor or warped");
             given |= F_PRECOND;
+        } else if (!strcmp(a, "--probe")) {
+            NEED_ARG();
+            ++i;
+            if (!parse_doubles(argv[i], probe_c, 3)) BAD("X,Y,Z in metres");
+            have_probe = 1;
+            given |= F_PROBE;
+        } else if (!strcmp(a, "--probe-radius")) {
+            NEED_ARG();
+            ++i;
+            if (!parse_doubles(argv[i], &probe_r, 1) || probe_r <= 0) BAD("a positive radius in m");
+            given |= F_PROBE;
+        } else if (!strcmp(a, "--probe-dir")) {
+            NEED_ARG();
+            ++i;
+            if (!parse_doubles(argv[i], probe_dir, 3) ||
+                (probe_dir[0] == 0 && probe_dir[1] == 0 && probe_dir[2] == 0))
+                BAD("DX,DY,DZ, not all zero");
+            have_dir = 1;
+            given |= F_PROBE;
         } else if (!strcmp(a, "--pcg-iters")) {
             NEED_ARG();
             ++i;
@@ -424,6 +479,10 @@ int main(int argc, char** argv) {
         fprintf(stderr, "hapsim-solve: --model mooney is a static reference: use --static\n");
         return 1;
     }
+    if ((given & F_PROBE) && (!have_probe || probe_r <= 0)) {
+        fprintf(stderr, "hapsim-solve: --probe X,Y,Z and --probe-radius R go together\n");
+        return 1;
+    }
     if (steps > 0 && !have_dt) {
         fprintf(stderr, "hapsim-solve: --steps needs --dt\n");
         return 1;
@@ -444,6 +503,13 @@ int main(int argc, char** argv) {
              F_INVERSION | F_POLAR_TOL,
          mooney, "--model mooney has its own solver and material law"},
         {F_BETA, !mooney, "only --model mooney reads it"},
+        {F_PROBE, !do_static || mooney,
+         "the probe is a --static reference of linear, corotated "
+         "or stvk"},
+        {F_SOLVER | F_PRECOND | F_PCG_ITERS | F_LOAD_STEPS | F_LOCKING_FREE | F_LF_ALPHA,
+         have_probe,
+         "the probe solve has its own direct Newton solver and sphere increments (locking-free: "
+         "not supported)"},
         {F_DT | F_DAMPING, do_static, "--static has no time step and no damping"},
         {F_TOL | F_MAX_ITER | F_LOAD_STEPS, !do_static, "only --static reads it"},
         {F_PRECOND | F_PCG_ITERS, !pcg, "only --solver pcg reads it"},
@@ -480,6 +546,8 @@ int main(int argc, char** argv) {
     unsigned char *fixed = NULL, *mask = NULL;
     hs_body* body = NULL;
     hs_mooney* mr = NULL;
+    hs_press* press = NULL;
+    hs_press_stats pst = {0};
     hs_status load_st = hs_mesh_load(mesh_path, &mesh, &err);
     if (load_st < 0) {
         fprintf(stderr, "hapsim-solve: %s\n", err.msg);
@@ -568,7 +636,14 @@ int main(int argc, char** argv) {
             rc = 1;
             goto done;
         }
-        if (do_static) {
+        if (have_probe) {
+            rc = run_probe(mesh, &def, fixed, probe_c, probe_r, have_dir ? probe_dir : NULL, &press,
+                           &pst);
+            total_ms = pst.wall_ms;
+            iters = pst.newton;
+            st.residual = pst.residual;
+            if (rc == 1 || rc == 2) goto done; // nothing to write: no answer
+        } else if (do_static) {
             s = hs_body_solve_static(body, &st);
             total_ms = st.wall_ms;
             iters = st.iterations;
@@ -593,7 +668,9 @@ int main(int argc, char** argv) {
     }
 
     // A failed solve writes nothing: its state is not an answer.
-    const double* u = mooney ? hs_mooney_displacement(mr) : hs_body_displacement(body);
+    const double* u = mooney  ? hs_mooney_displacement(mr)
+                      : press ? hs_press_displacement(press)
+                              : hs_body_displacement(body);
     int wrote = 0;
     if (rc != 2) {
         FILE* f = fopen(out_path, "w");
@@ -631,7 +708,13 @@ int main(int argc, char** argv) {
         printf("volume ratio    %s %.5f min %.5f max %.5f, inverted %d\n",
                mooney ? "total" : "mean", st.fem.volume_ratio_mean, st.fem.volume_ratio_min,
                st.fem.volume_ratio_max, st.fem.inverted);
-        if (do_static)
+        if (press)
+            printf("probe           r %g m, %d contact nodes, %d increments, %d passes, %d "
+                   "Newton (residual ratio %.2e, penetration %.2e r, longest contact edge "
+                   "%.3g m)\n",
+                   probe_r, pst.active, pst.increments, pst.passes, iters, pst.residual,
+                   pst.penetration_m / probe_r, pst.max_edge_m);
+        else if (do_static)
             printf("iterations      %d Newton (residual ratio %.2e)\n", iters, st.residual);
         else
             printf("steps           %d x %g s, %d Newton iterations\n", steps, def.dt, iters);
@@ -645,6 +728,7 @@ int main(int argc, char** argv) {
     }
 done:
     hs_body_destroy(&body);
+    hs_press_destroy(&press);
     hs_mooney_destroy(&mr);
     hs_mesh_destroy(&mesh);
     free(fixed);

@@ -19,6 +19,8 @@ int hs_bench_lockfree(const hs_bench_args* a);
 int hs_bench_haptic(const hs_bench_args* a);
 /// Cutting: one progressive cut step with the factor update, against refactor / dense inverse.
 int hs_bench_cut(const hs_bench_args* a);
+/// The server path (deformation + rt threads) on organ meshes against the static press reference.
+int hs_bench_organs(const hs_bench_args* a);
 /// hapsim-server round trip vs a bare LCM echo, in a private network namespace (issue 4).
 int hs_bench_protocol(const hs_bench_args* a);
 

@@ -68,6 +68,7 @@ static const bench_cmd cmds[] = {
     {"lockfree", hs_bench_lockfree, "locking-free options vs CalculiX's converged solution"},
     {"stress", hs_bench_stress, "numerical stress cases: NaN, energy, inversion (issue 6)"},
     {"haptic", hs_bench_haptic, "1 kHz loop with the compliance probe vs a bare loop (issue 3)"},
+    {"organs", hs_bench_organs, "server path on organ meshes: force at depth vs the static press"},
 #ifdef HS_BENCH_HAVE_CUT
     {"cut", hs_bench_cut, "cut step with factor update vs refactor and dense inverse (issue 7)"},
 #endif

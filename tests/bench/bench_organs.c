@@ -1,0 +1,274 @@
+// hapsim-bench organs: the server's own path (hs_haptic_sim: deformation thread + rt thread,
+// poses through the memory device) on each organ mesh with the scene defaults, a scripted
+// probe pressed along the outward normal to depths r, 2r and max(3r, 15 mm), each held until
+// the force is steady; the steady force against the static press reference (hs_press) at the
+// tool centre the rt thread held.
+#define _POSIX_C_SOURCE 200809L
+#include "bench.h"
+#include "base/spsc_ring.h"
+#include "hapsim/haptic_sim.h"
+#include "hapsim/mesh.h"
+#include "hapsim/press.h"
+#include "hapsim/sparse.h"
+#include "rt/haptic_rt.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+typedef struct organ_case {
+    const char* name;
+    const char* file;
+} organ_case;
+
+static const organ_case organs_full[] = {
+    {"skin_patch", "skin_patch_synthetic.msh"},
+    {"liver_coarse", "liver_coarse.msh"},
+    {"liver2", "liver2.msh"},
+    {"tongue", "tongue.msh"},
+    {"vessel", "aneurysm_vessel.msh"},
+};
+static const organ_case organs_quick[] = {{"liver2", "liver2.msh"}};
+
+#define N_DEPTHS  3
+#define MAX_STEPS 4096
+
+// The scene defaults (docs/scenes.md): co-rotated, E 5 kPa, nu 0.45, 1000 kg/m^3, no damping,
+// direct solver, 60 Hz deformation steps, 1 kHz haptics, probe radius 5 mm; gravity off, so
+// that the felt force is the contact's alone and the reference needs no settling.
+static hs_haptic_sim_def organ_def(void) {
+    hs_haptic_sim_def d = hs_haptic_sim_default_def();
+    d.body.fem.model = HS_MODEL_COROTATED;
+    d.body.fem.material.youngs_pa = 5000;
+    d.body.fem.material.poisson = 0.45;
+    d.body.fem.material.density_kg_m3 = 1000;
+    d.body.dt = 1.0 / 60;
+    d.probe.radius_m = 0.005;
+    d.safety.max_force_n = 50; // measure the contact, not the clamp
+    d.safety.max_rate_n_s = 1e5;
+    d.fifo_priority = 0;
+    d.lock_memory = 0;
+    return d;
+}
+
+// What one held depth measured.
+typedef struct depth_result {
+    double depth_m;
+    double force[3];   // steady felt force (mean of the last 100 ms), N
+    double tool[3];    // tool centre the rt thread held, m
+    double max_jump_n; // largest tick-to-tick force change, ramp in + hold
+    double step_p50_ms, step_p99_ms, sim_hz;
+    int steady; // 1 when the force settled before the hold limit
+} depth_result;
+
+typedef struct run_state {
+    hs_haptic_sim* sim;
+    int64_t seq, steps_seen;
+    double last_f[3];
+    int have_last;
+    double win_sum[3];
+    int win_n;
+    double steps_ms[MAX_STEPS];
+    int n_steps;
+} run_state;
+
+static void sleep_ms(struct timespec* t) {
+    t->tv_nsec += 1000000L;
+    if (t->tv_nsec >= 1000000000L) t->tv_nsec -= 1000000000L, t->tv_sec++;
+    clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, t, NULL);
+}
+
+// One millisecond: feed the pose, drain telemetry (tick jumps, force window), sample steps.
+static void tick(run_state* rs, const double p[3], depth_result* r) {
+    hs_haptic_pose pose;
+    memset(&pose, 0, sizeof pose);
+    pose.seq = ++rs->seq;
+    pose.stamp_ns = hs_now_ns();
+    pose.quat_wxyz[0] = 1;
+    memcpy(pose.pos_m, p, sizeof pose.pos_m);
+    hs_haptic_sim_feed_pose(rs->sim, &pose);
+    hs_haptic_telemetry t;
+    while (hs_spsc_ring_pop(hs_haptic_sim_telemetry(rs->sim), &t)) {
+        if (rs->have_last) {
+            double d =
+                sqrt(pow(t.force_n[0] - rs->last_f[0], 2) + pow(t.force_n[1] - rs->last_f[1], 2) +
+                     pow(t.force_n[2] - rs->last_f[2], 2));
+            if (d > r->max_jump_n) r->max_jump_n = d;
+        }
+        memcpy(rs->last_f, t.force_n, sizeof rs->last_f);
+        rs->have_last = 1;
+        for (int c = 0; c < 3; ++c) rs->win_sum[c] += t.force_n[c];
+        ++rs->win_n;
+        memcpy(r->tool, t.tool_m, sizeof r->tool);
+    }
+    hs_haptic_sim_stats st;
+    hs_haptic_sim_stats_get(rs->sim, &st);
+    if (st.steps != rs->steps_seen) {
+        rs->steps_seen = st.steps;
+        if (rs->n_steps < MAX_STEPS) rs->steps_ms[rs->n_steps++] = st.step_ms_last;
+    }
+}
+
+// Ramp from depth d0 to d1 at 10 mm/s, then hold until the 100 ms mean force changes by less
+// than 0.5 % (or 1 mN) over three windows in a row, at least 0.5 s, at most hold_max_s.
+static void press_to(run_state* rs, const double* x, const double* n, double radius, double d0,
+                     double d1, double hold_max_s, depth_result* r) {
+    struct timespec next;
+    clock_gettime(CLOCK_MONOTONIC, &next);
+    const int ramp = (int)ceil(fabs(d1 - d0) / 0.01 * 1000);
+    const int64_t steps0 = rs->steps_seen, t0 = hs_now_ns();
+    rs->n_steps = 0;
+    double p[3], prev[3] = {0}, mean[3] = {0};
+    int calm = 0;
+    for (int i = 0; i < ramp + (int)(hold_max_s * 1000); ++i) {
+        double dep = i < ramp ? d0 + (d1 - d0) * (i + 1) / ramp : d1;
+        for (int c = 0; c < 3; ++c) p[c] = x[c] + (radius - dep) * n[c];
+        tick(rs, p, r);
+        sleep_ms(&next);
+        if (i == ramp) rs->win_n = 0, memset(rs->win_sum, 0, sizeof rs->win_sum);
+        if (i <= ramp || (i - ramp) % 100 || rs->win_n == 0) continue;
+        double df = 0, fm = 0;
+        for (int c = 0; c < 3; ++c) {
+            mean[c] = rs->win_sum[c] / rs->win_n;
+            df += pow(mean[c] - prev[c], 2);
+            fm += mean[c] * mean[c];
+        }
+        memcpy(prev, mean, sizeof prev);
+        rs->win_n = 0;
+        memset(rs->win_sum, 0, sizeof rs->win_sum);
+        calm = sqrt(df) <= fmax(0.005 * sqrt(fm), 1e-3) ? calm + 1 : 0;
+        if (calm >= 3 && i - ramp >= 500) {
+            r->steady = 1;
+            break;
+        }
+    }
+    memcpy(r->force, mean, sizeof r->force);
+    r->depth_m = d1;
+    r->sim_hz = (double)(rs->steps_seen - steps0) / ((double)(hs_now_ns() - t0) * 1e-9);
+    r->step_p50_ms = hs_bench_percentile(rs->steps_ms, (size_t)rs->n_steps, 50);
+    r->step_p99_ms = hs_bench_percentile(rs->steps_ms, (size_t)rs->n_steps, 99);
+}
+
+// The probed node: among the free surface nodes within 1 mm of the highest, the one nearest the
+// bounding box's centre in x, y (a flat top has many: not a corner next to the supports); its
+// outward rest normal.
+static int top_node(const hs_mesh* m, const unsigned char* fixed, double n[3]) {
+    double ztop = -INFINITY, cx = 0.5 * (m->bbox_min[0] + m->bbox_max[0]),
+           cy = 0.5 * (m->bbox_min[1] + m->bbox_max[1]), best = INFINITY;
+    for (int s = 0; s < m->n_surf_nodes; ++s)
+        if (!fixed[m->surf_nodes[s]]) ztop = fmax(ztop, m->x0[3 * m->surf_nodes[s] + 2]);
+    int k = -1;
+    for (int s = 0; s < m->n_surf_nodes; ++s) {
+        const int v = m->surf_nodes[s];
+        const double* x = m->x0 + 3 * v;
+        double d = hypot(x[0] - cx, x[1] - cy);
+        if (!fixed[v] && x[2] >= ztop - 0.001 && d < best) best = d, k = v;
+    }
+    if (k >= 0 && hs_mesh_rest_normal(m, k, n) != 0) k = -1;
+    return k;
+}
+
+// The reference at each held tool centre, pressed along -n from the first contact and on from
+// one depth to the next (the path the probe took). NaN where it fails (said on stderr).
+static void reference(const char* name, const hs_mesh* m, const unsigned char* fixed,
+                      const hs_haptic_sim_def* d, const double n[3], const depth_result* r,
+                      double ref[N_DEPTHS][3]) {
+    hs_press_def pd = hs_press_default_def();
+    pd.fem = d->body.fem;
+    pd.radius_m = d->probe.radius_m;
+    hs_press* p = NULL;
+    hs_err err = {0};
+    const double dir[3] = {-n[0], -n[1], -n[2]};
+    hs_status s = hs_press_create(m, &pd, fixed, &p, &err);
+    for (int k = 0; k < N_DEPTHS; ++k) {
+        hs_press_stats st;
+        if (s == HS_OK || k > 0) s = p ? hs_press_solve(p, r[k].tool, dir, &st, &err) : s;
+        for (int c = 0; c < 3; ++c) ref[k][c] = s == HS_OK ? st.force_n[c] : NAN;
+        if (s != HS_OK)
+            fprintf(stderr, "  %s: reference at %.1f mm: %s\n", name, r[k].depth_m * 1e3, err.msg);
+        else
+            fprintf(stderr,
+                    "  %s: reference at %.1f mm: %d contact nodes (longest edge %.1f mm), "
+                    "%d increments, %d Newton, %.0f ms\n",
+                    name, r[k].depth_m * 1e3, st.active, st.max_edge_m * 1e3, st.increments,
+                    st.newton, st.wall_ms);
+    }
+    hs_press_destroy(&p);
+}
+
+static double norm3(const double* v) {
+    return sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+}
+
+static int run_organ(const hs_bench_args* a, const organ_case* oc) {
+    hs_err err = {0};
+    hs_mesh* m = NULL;
+    char path[1024];
+    if (hs_mesh_load(hs_bench_mesh_path(a, oc->file, path, sizeof path), &m, &err) < 0) {
+        fprintf(stderr, "hapsim-bench organs: %s: %s\n", oc->name, err.msg);
+        return 1;
+    }
+    // As hapsim-bench core: held along the lowest 10 % in z, probed at the top.
+    unsigned char* fixed = calloc((size_t)m->n_nodes, 1);
+    hs_mesh_select_plane(m, 2, -1, 0.1 * (m->bbox_max[2] - m->bbox_min[2]), fixed);
+    double n[3];
+    const int k = top_node(m, fixed, n);
+    hs_haptic_sim_def d = organ_def();
+    hs_haptic_sim* sim = NULL;
+    int rc = 0;
+    if (k < 0 || hs_haptic_sim_create(m, &d, fixed, &sim, &err) != HS_OK ||
+        hs_haptic_sim_start(sim, &err) != HS_OK) {
+        fprintf(stderr, "hapsim-bench organs: %s: %s\n", oc->name,
+                k < 0 ? "no probe node" : err.msg);
+        rc = 1;
+        goto done;
+    }
+    static run_state rs;
+    memset(&rs, 0, sizeof rs);
+    rs.sim = sim;
+    const double r0 = d.probe.radius_m;
+    const double depths[N_DEPTHS] = {r0, 2 * r0, fmax(3 * r0, 0.015)};
+    depth_result res[N_DEPTHS];
+    memset(res, 0, sizeof res);
+    const double* x = m->x0 + 3 * k;
+    for (int i = 0; i < N_DEPTHS; ++i)
+        press_to(&rs, x, n, r0, i ? depths[i - 1] : -0.002, depths[i], a->quick ? 2.5 : 5.0,
+                 &res[i]);
+    hs_haptic_sim_stats st;
+    hs_haptic_sim_stats_get(sim, &st);
+    hs_haptic_sim_stop(sim);
+    double ref[N_DEPTHS][3];
+    reference(oc->name, m, fixed, &d, n, res, ref);
+    for (int i = 0; i < N_DEPTHS; ++i) {
+        double df[3] = {res[i].force[0] - ref[i][0], res[i].force[1] - ref[i][1],
+                        res[i].force[2] - ref[i][2]};
+        printf("%s,%d,direct,%.0f,%.2f,%.2f,%.1f,%.1f,%.4f,%.4f,%.1f,%.4f,%.1f,%.0f\n", oc->name,
+               m->n_tets, st.setup_ms, res[i].step_p50_ms, res[i].step_p99_ms, res[i].sim_hz,
+               res[i].depth_m * 1e3, norm3(res[i].force), norm3(ref[i]),
+               100 * norm3(df) / norm3(ref[i]), res[i].max_jump_n,
+               hs_rt_hist_quantile_us(&st.rt.tick, 0.99), hs_bench_peak_rss_mb());
+        if (!res[i].steady)
+            fprintf(stderr, "  %s: %.1f mm: the force did not settle within the hold\n", oc->name,
+                    res[i].depth_m * 1e3);
+    }
+    fflush(stdout);
+done:
+    hs_haptic_sim_destroy(&sim);
+    free(fixed);
+    hs_mesh_destroy(&m);
+    return rc;
+}
+
+int hs_bench_organs(const hs_bench_args* a) {
+    hs_sparse_set_threads(1);
+    const organ_case* cases = a->quick ? organs_quick : organs_full;
+    size_t nc = a->quick ? sizeof organs_quick / sizeof *organs_quick
+                         : sizeof organs_full / sizeof *organs_full;
+    printf("mesh,tets,solver,setup_ms,sim_step_ms_p50,sim_step_ms_p99,sim_hz_achieved,depth_mm,"
+           "force_n,ref_force_n,force_err_pct,max_tick_jump_n,tick_us_p99,mem_mb\n");
+    int rc = 0;
+    for (size_t i = 0; i < nc; ++i) rc |= run_organ(a, &cases[i]);
+    return rc;
+}
