@@ -9,6 +9,7 @@
 #include "hapsim/haptic_sim.h"
 #include "hapsim/mesh.h"
 #include "hapsim/press.h"
+#include "hapsim/surface_press.h"
 #include "hapsim/sparse.h"
 #include "rt/haptic_rt.h"
 
@@ -170,30 +171,50 @@ static int top_node(const hs_mesh* m, const unsigned char* fixed, double n[3]) {
     return k;
 }
 
-// The reference at each held tool centre, pressed along -n from the first contact and on from
-// one depth to the next (the path the probe took). NaN where it fails (said on stderr).
+static double hs_dot_ref(const double v[3]) {
+    return v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
+}
+
+// The reference at each held tool centre: the static press with contact on the boundary
+// surface (hs_surface_press), the sphere brought in along -n from 2 mm clear of the rest
+// surface in steps of r / 4. The node-contact press (hs_press) is printed beside it on stderr.
+// NaN where it fails (said on stderr).
 static void reference(const char* name, const hs_mesh* m, const unsigned char* fixed,
-                      const hs_haptic_sim_def* d, const double n[3], const depth_result* r,
-                      double ref[N_DEPTHS][3]) {
-    hs_press_def pd = hs_press_default_def();
-    pd.fem = d->body.fem;
-    pd.radius_m = d->probe.radius_m;
-    hs_press* p = NULL;
-    hs_err err = {0};
-    const double dir[3] = {-n[0], -n[1], -n[2]};
-    hs_status s = hs_press_create(m, &pd, fixed, &p, &err);
+                      const hs_haptic_sim_def* d, const double* x, const double n[3],
+                      const depth_result* r, double ref[N_DEPTHS][3]) {
+    const double rad = d->probe.radius_m;
+    double from[3];
+    for (int c = 0; c < 3; ++c) from[c] = x[c] + (rad + 0.002) * n[c];
     for (int k = 0; k < N_DEPTHS; ++k) {
-        hs_press_stats st;
-        if (s == HS_OK || k > 0) s = p ? hs_press_solve(p, r[k].tool, dir, &st, &err) : s;
+        hs_surface_press_stats st;
+        hs_err err = {0};
+        const int inc = (int)ceil((r[k].depth_m + 0.002) / (0.25 * rad));
+        hs_status s =
+            hs_surface_press(m, &d->body, fixed, rad, from, r[k].tool, inc, 1e-6, &st, &err);
         for (int c = 0; c < 3; ++c) ref[k][c] = s == HS_OK ? st.force_n[c] : NAN;
         if (s != HS_OK)
             fprintf(stderr, "  %s: reference at %.1f mm: %s\n", name, r[k].depth_m * 1e3, err.msg);
         else
             fprintf(stderr,
-                    "  %s: reference at %.1f mm: %d contact nodes (longest edge %.1f mm), "
-                    "%d increments, %d Newton, %.0f ms\n",
-                    name, r[k].depth_m * 1e3, st.active, st.max_edge_m * 1e3, st.increments,
-                    st.newton, st.wall_ms);
+                    "  %s: reference at %.1f mm: %.4f N on %d nodes, %d iterations (change "
+                    "%.1e), surface %.1e mm inside the sphere, %.0f ms\n",
+                    name, r[k].depth_m * 1e3, sqrt(hs_dot_ref(st.force_n)), st.contact_nodes,
+                    st.iterations, st.change, st.penetration_m * 1e3, st.wall_ms);
+    }
+    // The node-contact reference, for comparison.
+    hs_press_def pd = hs_press_default_def();
+    pd.fem = d->body.fem;
+    pd.radius_m = rad;
+    hs_press* p = NULL;
+    hs_err err = {0};
+    const double dir[3] = {-n[0], -n[1], -n[2]};
+    hs_status s = hs_press_create(m, &pd, fixed, &p, &err);
+    for (int k = 0; k < N_DEPTHS && p; ++k) {
+        hs_press_stats st;
+        if (s == HS_OK || k > 0) s = hs_press_solve(p, r[k].tool, dir, &st, &err);
+        if (s == HS_OK)
+            fprintf(stderr, "  %s: node-contact reference at %.1f mm: %.4f N on %d nodes\n", name,
+                    r[k].depth_m * 1e3, sqrt(hs_dot_ref(st.force_n)), st.active);
     }
     hs_press_destroy(&p);
 }
@@ -240,7 +261,7 @@ static int run_organ(const hs_bench_args* a, const organ_case* oc) {
     hs_haptic_sim_stats_get(sim, &st);
     hs_haptic_sim_stop(sim);
     double ref[N_DEPTHS][3];
-    reference(oc->name, m, fixed, &d, n, res, ref);
+    reference(oc->name, m, fixed, &d, x, n, res, ref);
     for (int i = 0; i < N_DEPTHS; ++i) {
         double df[3] = {res[i].force[0] - ref[i][0], res[i].force[1] - ref[i][1],
                         res[i].force[2] - ref[i][2]};
