@@ -29,6 +29,10 @@ check "bundled liver2 used when --meshes lacks it: $(tail -n 2 "$T/err")" $rc
   [ "$(grep -c '^liver2,' "$T/out")" -eq 3 ] &&
   awk -F, '$1 == "liver2" && $8 == "5.0" { ok = ($9 > 0) } END { exit !ok }' "$T/out"
 check "organs --quick: header, three liver2 depths, a force at 5 mm: $(tail -n 3 "$T/err")" $?
+# The felt force is within 10 % of the surface-contact static press at r, 2r and 3r, and grows.
+awk -F, '$1 == "liver2" { n++; if ($11 !~ /^[0-9.]+$/ || !($11 < 10) || !($10 > 0) || !($9 > last)) bad++; last = $9 }
+    END { exit !(n == 3 && !bad) }' "$T/out"
+check "organs --quick: felt force within 10 % of the reference and growing: $(grep '^liver2,' "$T/out" | cut -d, -f8-11 | tr '\n' ' ')" $?
 
 OPENBLAS_CORETYPE=Prescott "$BENCH" blas > "$T/out" 2> "$T/err"; check "blas command exits 0" $?
 if [ "$(core)" = "not OpenBLAS" ]; then
