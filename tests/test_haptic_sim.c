@@ -2,6 +2,7 @@
 // through the memory device by this (harness) thread at 1 kHz.
 #define _POSIX_C_SOURCE 200809L
 #include "hapsim/haptic_sim.h"
+#include "hapsim/surface_press.h"
 #include "liver_haptic.h"
 #include "base/spsc_ring.h"
 #include "rt/haptic_rt.h"
@@ -793,16 +794,23 @@ typedef struct deep_case {
     hs_haptic_sim_def def;
     int node;
     double n[3];
+    int depths; // 0: every r to max(3 r, 15 mm); 3: 0.5 r, r, 2 r
 } deep_case;
 
 static int HOLD_STEPS = 60;
-static int deep_press_run(const deep_case* dc) {
+static int deep_press_run(const deep_case* dc, double* held_out, int* n_out) {
     const double r = dc->def.probe.radius_m;
     const double dmax = fmax(3 * r, 0.015);
     double stations[8];
     int ns = 0;
-    for (double dd = r; dd < dmax - 1e-9 && ns < 7; dd += r) stations[ns++] = dd;
-    stations[ns++] = dmax;
+    if (dc->depths == 3) {
+        stations[ns++] = 0.5 * r;
+        stations[ns++] = r;
+        stations[ns++] = 2 * r;
+    } else {
+        for (double dd = r; dd < dmax - 1e-9 && ns < 7; dd += r) stations[ns++] = dd;
+        stations[ns++] = dmax;
+    }
     hs_haptic_sim* sim = NULL;
     hs_err err = {0};
     ENSURE(hs_haptic_sim_create(dc->mesh, &dc->def, dc->fixed, &sim, &err) == HS_OK);
@@ -883,6 +891,8 @@ static int deep_press_run(const deep_case* dc) {
     hs_haptic_sim_stats sst;
     hs_haptic_sim_stats_get(sim, &sst);
     hs_haptic_sim_destroy(&sim);
+    if (held_out) memcpy(held_out, held, (size_t)ns * sizeof *held);
+    if (n_out) *n_out = ns;
     printf("  %s, r %.0f mm:", dc->name, r * 1e3);
     for (int st = 0; st < ns; ++st)
         printf(" %.0f mm %.4f N (+-%.4f)%s", stations[st] * 1e3, held[st], 0.5 * spread[st],
@@ -900,7 +910,7 @@ static int deep_press_run(const deep_case* dc) {
     ENSURE(bad_dir == 0);
     // The press depth the server reports (against the contact-free surface) is the depth pressed.
     printf("  deepest press reported %.2f mm\n", sst.depth_max_m * 1e3);
-    ENSURE(fabs(sst.depth_max_m - dmax) <= 0.1 * dmax);
+    ENSURE(fabs(sst.depth_max_m - stations[ns - 1]) <= 0.1 * stations[ns - 1]);
     return 0;
 }
 
@@ -911,15 +921,15 @@ static int deep_press(void) {
     liver L;
     ENSURE(load_liver(&L) == 0);
     deep_case lc = {
-        "liver2 (coarse)",       L.mesh, L.fixed, liver_def(HS_MODEL_COROTATED, 0.005), L.node,
-        {L.n[0], L.n[1], L.n[2]}};
-    ENSURE(deep_press_run(&lc) == 0);
+        "liver2 (coarse)",        L.mesh, L.fixed, liver_def(HS_MODEL_COROTATED, 0.005), L.node,
+        {L.n[0], L.n[1], L.n[2]}, 0};
+    ENSURE(deep_press_run(&lc, NULL, NULL) == 0);
     free_liver(&L);
 
     // Fine: the skin patch (80 x 80 x 4 mm, held at both x ends, edges ~2 mm, 3 mm probe),
     // with its scene's material, pressed off-centre from the top.
-    deep_case sc = {
-        "skin patch (fine)", NULL, NULL, liver_def(HS_MODEL_COROTATED, 0.003), -1, {0, 0, 1}};
+    deep_case sc = {"skin patch (fine)", NULL, NULL, liver_def(HS_MODEL_COROTATED, 0.003), -1,
+                    {0, 0, 1},           0};
     hs_err err = {0};
     ENSURE(hs_mesh_load(HS_SOURCE_DIR "/scenes/skin/skin_patch_synthetic.msh", &sc.mesh, &err) >=
            0);
@@ -938,9 +948,61 @@ static int deep_press(void) {
     }
     sc.def.body.fem.material.youngs_pa = 50000;
     sc.def.body.fem.material.density_kg_m3 = 1100;
-    ENSURE(deep_press_run(&sc) == 0);
+    ENSURE(deep_press_run(&sc, NULL, NULL) == 0);
     free(sc.fixed);
     hs_mesh_destroy(&sc.mesh);
+    ENSURE(hs_byte_count() == bytes0);
+    return 0;
+}
+
+// The felt force against the static press with contact on the boundary surface
+// (hs_surface_press): a block 60 x 60 x 30 mm in 7.5 mm cells (surface edges wider than the
+// 5 mm probe), bottom fixed, pressed 0.5 r, r and 2 r deep through the server loop; the held force
+// within 10 % of the reference at the same tool centre. Linear, whose static solve is one
+// back-solve: the co-rotated comparison on the organs is hapsim-bench organs' (docs/haptics.md).
+static int block_reference(void) {
+    int64_t bytes0 = hs_byte_count();
+    hs_err err = {0};
+    deep_case bc = {
+        "block 7.5 mm cells", NULL, NULL, liver_def(HS_MODEL_COROTATED, 0.005), -1, {0, 0, 1}, 3};
+    ENSURE(hs_mesh_create_box(0.06, 0.06, 0.03, 8, 8, 4, &bc.mesh, &err) == HS_OK);
+    const hs_mesh* m = bc.mesh;
+    bc.fixed = calloc((size_t)m->n_nodes, 1);
+    ENSURE(bc.fixed);
+    hs_mesh_select_plane(m, 2, -1, 1e-9, bc.fixed);
+    double best = 1e9;
+    for (int i = 0; i < m->n_nodes; ++i) { // the top node nearest (31, 32) mm: off-centre a bit
+        const double* x = m->x0 + 3 * i;
+        double d = hypot(x[0] - 0.031, x[1] - 0.032) + fabs(x[2] - 0.03);
+        if (d < best) best = d, bc.node = i;
+    }
+    double held[8];
+    int ns = 0;
+    // Stations 0.5 r, r, 2 r (bc.depths): at 3 r the reference alternates between contact
+    // features on these coarse faces and holds only to ~1 % (docs/haptics.md).
+    ENSURE(deep_press_run(&bc, held, &ns) == 0);
+    const double r = bc.def.probe.radius_m;
+    const double* x0 = m->x0 + 3 * bc.node;
+    double from[3] = {x0[0], x0[1], x0[2] + r + 0.002};
+    for (int k = 0; k < ns; ++k) {
+        const double d = 0.5 * r * (1 << k); // the stations of bc.depths
+        double to[3] = {x0[0], x0[1], x0[2] + r - d};
+        hs_surface_press_stats st;
+        hs_status s = hs_surface_press(m, &bc.def.body, bc.fixed, r, from, to,
+                                       (int)ceil((d + 0.002) / (0.25 * r)), 1e-7, &st, &err);
+        if (s != HS_OK) printf("  %s\n", err.msg);
+        ENSURE(s == HS_OK);
+        const double ref = sqrt(st.force_n[0] * st.force_n[0] + st.force_n[1] * st.force_n[1] +
+                                st.force_n[2] * st.force_n[2]);
+        printf("  %.1f mm: felt %.4f N, surface press %.4f N (%d nodes, %d iterations, %.1e mm "
+               "inside), %.2f %% apart\n",
+               d * 1e3, held[k], ref, st.contact_nodes, st.iterations, st.penetration_m * 1e3,
+               100 * fabs(held[k] - ref) / ref);
+        ENSURE(st.force_n[2] > 0 && st.penetration_m <= 1e-3 * r);
+        ENSURE(fabs(held[k] - ref) <= 0.10 * ref);
+    }
+    free(bc.fixed);
+    hs_mesh_destroy(&bc.mesh);
     ENSURE(hs_byte_count() == bytes0);
     return 0;
 }
@@ -948,4 +1010,4 @@ static int deep_press(void) {
 HS_TEST_MAIN(HS_CASE(no_pose_no_force), HS_CASE(gravity_sags_untouched),
              HS_CASE(press_hold_release), HS_CASE(corotated_hold),
              HS_CASE(corotated_small_deep_hold), HS_CASE(watchdog), HS_CASE(take_over_keeps_force),
-             HS_CASE(continuity_and_allocs), HS_CASE(deep_press))
+             HS_CASE(continuity_and_allocs), HS_CASE(deep_press), HS_CASE(block_reference))
