@@ -162,7 +162,7 @@ async function main() {
     check(/no free device/.test(busy) && !wrongly, `mouse refused while the stylus holds device 0: "${busy}"`);
     // 3. E-STOP from the page while the stylus holds its press.
     const tEstop = (Date.now() - tStylus) / 1000;
-    if (tEstop > onset + 18) throw new Error(`too slow: E-STOP would come ${(tEstop - onset).toFixed(1)} s after the onset, after the held press`);
+    if (tEstop > onset + 26) throw new Error(`too slow: E-STOP would come ${(tEstop - onset).toFixed(1)} s after the onset, after the held press`);
     const clickAt = Date.now();
     await clickButton(page, '#btn-estop');
     const clickDone = Date.now();
@@ -189,8 +189,8 @@ async function main() {
     const zeroFrom = tr.rows[last + 1];
     const heldBefore = tr.rows.filter((r) => r.seg === steadySeg + 1 && r.t < tr.rows[last].t - 0.2);
     const meanBefore = heldBefore.reduce((s, r) => s + r.f, 0) / Math.max(1, heldBefore.length);
-    check(last >= 0 && zeroFrom && zeroFrom.seg > steadySeg && zeroFrom.seg <= steadySeg + 4 && heldBefore.length > 100 && meanBefore > 0.05,
-      `stylus force ${meanBefore.toFixed(3)} N in the held press, exactly 0 from t = ${zeroFrom ? zeroFrom.t.toFixed(2) : '?'} s (segment ${zeroFrom ? zeroFrom.seg : '?'}, the held press is ${steadySeg + 1}-${steadySeg + 4}) to the end of the run (E-STOP clicked ${tEstop.toFixed(2)} s after the stylus started)`);
+    check(last >= 0 && zeroFrom && zeroFrom.seg > steadySeg && zeroFrom.seg <= steadySeg + 6 && heldBefore.length > 100 && meanBefore > 0.05,
+      `stylus force ${meanBefore.toFixed(3)} N in the held press, exactly 0 from t = ${zeroFrom ? zeroFrom.t.toFixed(2) : '?'} s (segment ${zeroFrom ? zeroFrom.seg : '?'}, the held press is ${steadySeg + 1}-${steadySeg + 6}) to the end of the run (E-STOP clicked ${tEstop.toFixed(2)} s after the stylus started)`);
     // Readout vs trace on one clock: the E-STOP the page sent is where the trace's force drops to
     // zero (the server acts on it within milliseconds), which maps page time onto the trace's
     // t_s. Both are compared over the second half of the steady hold (margins 0.2 s): the
