@@ -46,10 +46,19 @@ static int defaults_and_paths(void) {
     ENSURE(hs_scene_parse(minimal, "/a/b/scene.json", 0, &s, &err) == HS_OK);
     ENSURE(strcmp(s.mesh_path, "/a/b/m.msh") == 0 && strcmp(s.name, "scene.json") == 0);
     ENSURE(s.material.youngs_pa == d.material.youngs_pa && s.model == d.model);
-    ENSURE(!s.warped_solver && !d.warped_solver);
+    ENSURE(s.solver == HS_SCENE_SOLVER_AUTO && d.solver == HS_SCENE_SOLVER_AUTO && !s.exact_tangent);
     const char* warped = "{\"mesh\": \"m.msh\", \"model\": {\"solver\": \"warped\"}, \"fixed\": "
                          "[{\"type\": \"box\", \"min\": [0,0,0], \"max\": [1,1,1]}]}";
-    ENSURE(hs_scene_parse(warped, "/a/b/scene.json", 0, &s, &err) == HS_OK && s.warped_solver);
+    ENSURE(hs_scene_parse(warped, "/a/b/scene.json", 0, &s, &err) == HS_OK &&
+           s.solver == HS_SCENE_SOLVER_WARPED);
+    const char* pcg = "{\"mesh\": \"m.msh\", \"model\": {\"solver\": \"pcg\", \"solver_accuracy\": "
+                      "\"tangent\"}, \"fixed\": [{\"type\": \"box\", \"min\": [0,0,0], \"max\": [1,1,1]}]}";
+    ENSURE(hs_scene_parse(pcg, "/a/b/scene.json", 0, &s, &err) == HS_OK &&
+           s.solver == HS_SCENE_SOLVER_PCG && s.exact_tangent);
+    const char* bad = "{\"mesh\": \"m.msh\", \"model\": {\"solver\": \"cg\"}, \"fixed\": "
+                      "[{\"type\": \"box\", \"min\": [0,0,0], \"max\": [1,1,1]}]}";
+    ENSURE(hs_scene_parse(bad, "/a/b/scene.json", 0, &s, &err) != HS_OK &&
+           strstr(err.msg, "model.solver") && strstr(err.msg, "auto | direct | warped | pcg"));
     ENSURE(s.n_tools == d.n_tools && s.haptic_hz == d.haptic_hz && !s.has_workspace);
     ENSURE(s.fixed[0].kind == HS_FIXED_BOX && s.fixed[0].max[2] == 1.0);
     ENSURE(hs_scene_parse(minimal, "scene.json", 0, &s, &err) == HS_OK);

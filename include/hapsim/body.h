@@ -75,6 +75,15 @@ typedef struct hs_body hs_body;
 /// @param out OUT
 hs_status hs_body_create(const hs_mesh* mesh, const hs_body_def* def, const unsigned char* fixed,
                          hs_body** out, hs_err* err);
+/// Switch the linear solver of a live body (state, forces and the model kept); the next step
+/// or solve factors what the new solver needs (one refactorisation, as after a cut). Only for a
+/// body created with a solver that keeps a factor (direct, warped, or PCG with the FACTOR or
+/// WARPED preconditioner: its dofs are in the factor's fill order), else HS_ERR_INVALID.
+/// Allocates: the PCG workspace or the node rotations on the first switch that needs them
+/// (switch to each once at set-up to allocate nothing later).
+hs_status hs_body_set_solver(hs_body* b, hs_solver_kind solver, hs_err* err);
+/// The solver in use.
+hs_solver_kind hs_body_solver(const hs_body* b);
 /// Constant external force on node i, N (replaces the previous value). HS_ERR_INVALID (and
 /// nothing changed) for a bad node, a non-finite component or one above 1e9 N. A node that has
 /// lost its last element (hs_fem_held_nodes) takes no force while it has none.

@@ -62,7 +62,18 @@ typedef struct hs_haptic_sim_def {
     void (*rt_on_start)(void* ctx);
     void (*rt_on_stop)(void* ctx);
     void* rt_hook_ctx; ///< passed to the hooks
-    int cookie;        ///< set by hs_haptic_sim_default_def
+    /// 1: the deformation thread picks the body's solver from its measured steps, the most
+    /// accurate that keeps the step rate 1 / body.dt (direct, then PCG, then warped; with
+    /// auto_exact_tangent only direct and PCG), starting with the cheapest, and switches with
+    /// hysteresis when the load changes (docs/server.md, "Solver choice"). body.solver is
+    /// ignored. Needs a nonlinear model (the linear model's warped solver is the direct one).
+    int auto_solver;
+    int auto_exact_tangent; ///< auto_solver: only solvers that solve with the exact tangent
+    /// Optional (tests): the cost booked for a body step that took `ms` with `solver`, ms;
+    /// NULL: the measured wall time. Runs on the deformation thread.
+    double (*step_cost)(void* ctx, hs_solver_kind solver, double ms);
+    void* step_cost_ctx; ///< passed to step_cost
+    int cookie;          ///< set by hs_haptic_sim_default_def
 } hs_haptic_sim_def;
 
 /// Defaults: hs_body_default_def (co-rotated model), probe and safety defaults, 1 kHz, FIFO 80,
@@ -107,7 +118,20 @@ typedef struct hs_haptic_sim_stats {
     int cutting;             ///< 1 when the newest sweep cut tissue
     double free_relax_w;     ///< relaxation of the contact-free surface in use (<= free_relax)
     int64_t free_relax_cuts; ///< steps whose growing correction cut it (a diverging iteration)
+    // Deformation step timing (step + snapshot, the deformation thread's own clock).
+    double step_ms_p50;       ///< median over the newest HS_SIM_STEP_WINDOW steps, ms
+    double step_ms_p99;       ///< 99th percentile over them, ms
+    double step_ms_p50_all;   ///< median since start (0.1 ms bins, upper edge), ms
+    double step_ms_p99_all;   ///< 99th percentile since start, ms
+    int64_t step_overruns;    ///< steps longer than body.dt (the nominal step period)
+    double sim_hz_target;     ///< step rate the thread paces to now; < 1 / body.dt when lowered
+    int64_t rate_changes;     ///< times that rate was lowered or raised again
+    int solver;               ///< hs_solver_kind the body steps with now
+    int64_t solver_switches;  ///< auto_solver: switches made
+    double solver_cost_ms[3]; ///< auto_solver: body step cost per hs_solver_kind, ms (0: unknown)
 } hs_haptic_sim_stats;
+
+#define HS_SIM_STEP_WINDOW 128 ///< steps in the recent window of hs_haptic_sim_stats
 
 typedef struct hs_haptic_sim hs_haptic_sim;
 

@@ -115,7 +115,30 @@ typedef struct deform_status {
     int comp_building;
     double relax_w;
     int64_t relax_cuts;
+    double step_p50, step_p99, step_p50_all, step_p99_all;
+    int64_t step_overruns, rate_changes, solver_switches;
+    double sim_hz_target;
+    int solver;
+    double solver_ms[3];
 } deform_status;
+
+// Step timing on the deformation thread: 0.1 ms bins over [0, 400 ms) and an overflow bin.
+#define STEP_BINS     4000
+#define STEP_BIN_MS   0.1
+#define RATE_WINDOW   32   // newest steps the pacing looks at
+#define RATE_EVERY    16   // steps between two pacing decisions
+#define RATE_MARGIN   1.15 // paced period = RATE_MARGIN x the window's 90th percentile
+#define RATE_RAISE    0.7  // raise the rate again when that is below this share of the period
+#define RATE_MAX_DIV  8    // the rate goes down to 1 / (RATE_MAX_DIV dt) at the lowest
+// Solver choice (auto_solver): ranks from the most accurate to the cheapest.
+#define AUTO_SETTLE   2    // steps after a switch not booked (its refactor, the warm starts)
+#define AUTO_DOWN     3    // net steps over the budget before a cheaper solver
+#define AUTO_UP_STEPS 30   // steps with a solver before a more accurate one is tried
+#define AUTO_UP_KNOWN 0.7  // a measured more accurate solver is taken when it fits this share
+#define AUTO_UP_PROBE 0.5  // an unmeasured one is tried when the current fits this share
+#define AUTO_RETRY_S  5.0  // wait after a solver failed its budget, doubled per failure
+#define AUTO_RETRY_MAX_S 160.0
+static const hs_solver_kind auto_rank[3] = {HS_SOLVER_DIRECT, HS_SOLVER_PCG, HS_SOLVER_WARPED};
 
 // A boundary triangle and its distance from the tool (snapshot search).
 typedef struct near_tri {
@@ -247,6 +270,19 @@ struct hs_haptic_sim {
     int64_t t_taken; // version at the previous take
     _Atomic int64_t topo_version;
     double setup_ms; // the first compliance's set-up
+
+    // step timing, pacing and solver choice (deformation thread)
+    uint32_t* step_hist;                   // [STEP_BINS + 1]
+    int64_t step_hist_n;                   // samples in it
+    double recent_ms[HS_SIM_STEP_WINDOW]; // ring of the newest step times, ms
+    int64_t recent_n;                      // steps recorded (ring position)
+    int64_t period_ns;                     // paced step period (>= body.dt)
+    int rate_count;                        // steps since the last pacing decision
+    int au_last;                           // auto: cheapest allowed rank
+    int au_since, au_over;                 // steps with the current solver; net over-budget
+    double au_snap_ms;                     // auto: snapshot cost estimate, ms
+    int64_t au_retry_ns[3];                // per kind: not tried again before
+    double au_backoff_s[3];                // per kind: the next wait after a failure
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -827,9 +863,123 @@ static void timespec_add(struct timespec* t, int64_t ns) {
     }
 }
 
+static int cmp_double(const void* pa, const void* pb) {
+    double a = *(const double*)pa, b = *(const double*)pb;
+    return (a > b) - (a < b);
+}
+
+// q-quantile of the newest n recorded step times (n <= HS_SIM_STEP_WINDOW), ms.
+static double recent_quantile(const hs_haptic_sim* h, int n, double q) {
+    double v[HS_SIM_STEP_WINDOW];
+    if (n > h->recent_n) n = (int)h->recent_n;
+    if (n <= 0) return 0;
+    for (int k = 0; k < n; ++k)
+        v[k] = h->recent_ms[(h->recent_n - 1 - k) % HS_SIM_STEP_WINDOW];
+    qsort(v, (size_t)n, sizeof v[0], cmp_double);
+    int i = (int)ceil(q * n) - 1;
+    return v[i < 0 ? 0 : i >= n ? n - 1 : i];
+}
+
+static double hist_quantile(const hs_haptic_sim* h, double q) {
+    if (h->step_hist_n <= 0) return 0;
+    int64_t want = (int64_t)ceil(q * (double)h->step_hist_n), acc = 0;
+    if (want < 1) want = 1;
+    for (int b = 0; b <= STEP_BINS; ++b) {
+        acc += h->step_hist[b];
+        if (acc >= want) return b == STEP_BINS ? h->st.step_ms_max : (b + 1) * STEP_BIN_MS;
+    }
+    return h->st.step_ms_max;
+}
+
+// Book a step (+ snapshot) of ms: histogram, recent window, overruns; and every RATE_EVERY
+// steps the pacing: a rate the thread cannot keep is lowered to what it can (no bursts to catch
+// up, a steady cadence), and raised again with hysteresis. The haptic rate is not touched.
+static void record_step(hs_haptic_sim* h, double ms) {
+    const int64_t step_ns = (int64_t)(h->def.body.dt * 1e9);
+    int b = (int)(ms / STEP_BIN_MS);
+    h->step_hist[b < 0 ? 0 : b > STEP_BINS ? STEP_BINS : b]++;
+    h->step_hist_n++;
+    h->recent_ms[h->recent_n++ % HS_SIM_STEP_WINDOW] = ms;
+    if (ms * 1e6 > (double)step_ns) h->st.step_overruns++;
+    h->st.step_p50 = recent_quantile(h, HS_SIM_STEP_WINDOW, 0.5);
+    h->st.step_p99 = recent_quantile(h, HS_SIM_STEP_WINDOW, 0.99);
+    if ((h->step_hist_n & 15) == 1) {
+        h->st.step_p50_all = hist_quantile(h, 0.5);
+        h->st.step_p99_all = hist_quantile(h, 0.99);
+    }
+    if (++h->rate_count < RATE_EVERY || h->recent_n < RATE_WINDOW) return;
+    if (h->def.auto_solver && h->au_since < RATE_WINDOW) return; // a switch is settling
+    h->rate_count = 0;
+    double want = RATE_MARGIN * recent_quantile(h, RATE_WINDOW, 0.9) * 1e6; // ns
+    int64_t p = h->period_ns;
+    if (want > (double)p)
+        p = (int64_t)fmin(want, (double)(RATE_MAX_DIV * step_ns));
+    else if (p > step_ns && want < RATE_RAISE * (double)p)
+        p = (int64_t)fmax(want, (double)step_ns);
+    if (p != h->period_ns) {
+        h->period_ns = p;
+        h->st.rate_changes++;
+        h->st.sim_hz_target = 1e9 / (double)p;
+    }
+}
+
+static int auto_rank_of(hs_solver_kind k) {
+    for (int r = 0; r < 3; ++r)
+        if (auto_rank[r] == k) return r;
+    return 2;
+}
+
+static void auto_switch(hs_haptic_sim* h, hs_solver_kind k) {
+    hs_err err = {0};
+    if (hs_body_set_solver(h->body, k, &err) != HS_OK) return; // set up at create: cannot fail
+    h->st.solver = (int)k;
+    h->st.solver_switches++;
+    h->au_since = 0;
+    h->au_over = 0;
+}
+
+// Solver choice after a step whose body part took body_ms and snapshot snap_ms: the most
+// accurate solver whose step fits the nominal period. Over the budget AUTO_DOWN steps (net):
+// the next cheaper one, and the failed one waits AUTO_RETRY_S (doubling) before it is measured
+// again. Well inside the budget: the next more accurate one, when its estimate fits
+// AUTO_UP_KNOWN of the budget or, unmeasured, the current fits AUTO_UP_PROBE.
+static void auto_solver_step(hs_haptic_sim* h, double body_ms, double snap_ms) {
+    const hs_solver_kind k = hs_body_solver(h->body);
+    const double c =
+        h->def.step_cost ? h->def.step_cost(h->def.step_cost_ctx, k, body_ms) : body_ms;
+    if (++h->au_since <= AUTO_SETTLE) return;
+    double* e = &h->st.solver_ms[k];
+    *e = *e > 0 ? *e + 0.25 * (c - *e) : c;
+    h->au_snap_ms = h->au_snap_ms > 0 ? h->au_snap_ms + 0.25 * (snap_ms - h->au_snap_ms) : snap_ms;
+    const double budget = h->def.body.dt * 1e3;
+    if (c + h->au_snap_ms > budget)
+        h->au_over++;
+    else if (h->au_over > 0)
+        h->au_over--;
+    const int64_t now = hs_now_ns();
+    const int r = auto_rank_of(k);
+    if (h->au_over >= AUTO_DOWN && r < h->au_last) {
+        double w = h->au_backoff_s[k] > 0 ? h->au_backoff_s[k] : AUTO_RETRY_S;
+        h->au_retry_ns[k] = now + (int64_t)(w * 1e9);
+        h->au_backoff_s[k] = fmin(2 * w, AUTO_RETRY_MAX_S);
+        auto_switch(h, auto_rank[r + 1]);
+        return;
+    }
+    if (r == 0 || h->au_since < AUTO_UP_STEPS) return;
+    const hs_solver_kind up = auto_rank[r - 1];
+    if (now < h->au_retry_ns[up]) return;
+    if (h->au_retry_ns[up]) { // its wait is over: measure it afresh (the load may have changed)
+        h->st.solver_ms[up] = 0;
+        h->au_retry_ns[up] = 0;
+    }
+    const double eu = h->st.solver_ms[up];
+    if (eu > 0 ? eu + h->au_snap_ms <= AUTO_UP_KNOWN * budget
+               : *e + h->au_snap_ms <= AUTO_UP_PROBE * budget)
+        auto_switch(h, up);
+}
+
 static void* deform_main(void* arg) {
     hs_haptic_sim* h = arg;
-    const int64_t step_ns = (int64_t)(h->def.body.dt * 1e9);
     const int64_t idle_ns = (int64_t)(h->def.idle_poll_s * 1e9);
     struct timespec next;
     clock_gettime(CLOCK_MONOTONIC, &next);
@@ -858,10 +1008,13 @@ static void* deform_main(void* arg) {
         }
         int moving = loaded || h->wake_steps > 0 || max_speed(h) > h->def.sleep_speed_m_s;
         if (h->wake_steps > 0) h->wake_steps--;
+        double body_ms = 0;
         if (moving) {
             // The forces rt computed from the last snapshot drive this step.
             apply_contact(h, &c);
+            int64_t tb = hs_now_ns();
             hs_status s = hs_body_step(h->body, NULL);
+            body_ms = (double)(hs_now_ns() - tb) * 1e-6;
             if (s != HS_OK)
                 h->st.step_failures++;
             else
@@ -886,6 +1039,10 @@ static void* deform_main(void* arg) {
             double ms = (double)(hs_now_ns() - t0) * 1e-6;
             h->st.step_ms_last = ms;
             if (ms > h->st.step_ms_max) h->st.step_ms_max = ms;
+            if (moving) {
+                record_step(h, ms);
+                if (h->def.auto_solver) auto_solver_step(h, body_ms, sms);
+            }
         }
         h->st.sleeping = !moving;
         h->st.contact = c;
@@ -893,6 +1050,7 @@ static void* deform_main(void* arg) {
         hs_triple_buffer_write(h->status, &h->st);
 
         if (moving) {
+            const int64_t step_ns = h->period_ns;
             timespec_add(&next, step_ns);
             // Fell behind by more than a step: restart the pacing instead of bursting.
             struct timespec now;
@@ -972,6 +1130,7 @@ void hs_haptic_sim_destroy(hs_haptic_sim** ph) {
     hs_free(h->near_node);
     hs_free(h->near_tri);
     hs_free(h->cand_of);
+    hs_free(h->step_hist);
     hs_triple_buffer_destroy(&h->cpose);
     hs_cut_destroy(&h->cut);
     hs_free(h->fixed0);
@@ -1029,8 +1188,29 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
     h->mesh = mesh;
     h->corotated = def->body.fem.model != HS_MODEL_LINEAR;
     atomic_init(&h->stop, 0);
-    hs_status s = hs_body_create(mesh, &def->body, fixed, &h->body, err);
+    // The linear model's warped solver is the direct one: nothing to choose.
+    if (!h->corotated) h->def.auto_solver = 0;
+    hs_body_def bd = def->body;
+    if (h->def.auto_solver) {
+        // Start with the cheapest allowed solver; the PCG workspace is made now, so a switch
+        // on the deformation thread allocates nothing.
+        h->au_last = def->auto_exact_tangent ? 1 : 2;
+        bd.solver = auto_rank[h->au_last];
+        bd.precond = HS_PRECOND_WARPED;
+        h->def.body = bd;
+    }
+    hs_status s = hs_body_create(mesh, &bd, fixed, &h->body, err);
     if (s != HS_OK) goto fail;
+    if (h->def.auto_solver && (hs_body_set_solver(h->body, HS_SOLVER_PCG, err) != HS_OK ||
+                               hs_body_set_solver(h->body, bd.solver, err) != HS_OK)) {
+        s = HS_ERR_NOMEM;
+        goto fail;
+    }
+    h->st.solver = (int)bd.solver;
+    h->period_ns = (int64_t)(def->body.dt * 1e9);
+    h->st.sim_hz_target = 1.0 / def->body.dt;
+    h->step_hist = hs_calloc(STEP_BINS + 1, sizeof *h->step_hist);
+    if (!h->step_hist) goto nomem;
     h->fixed0 = hs_calloc((size_t)mesh->n_nodes + 1, 1);
     if (!h->fixed0) goto nomem;
     if (fixed) memcpy(h->fixed0, fixed, (size_t)mesh->n_nodes);
@@ -1093,6 +1273,7 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
     rd.tick.on_stop = rt_stop;
     s = hs_rt_loop_create(&rd, &h->loop, err);
     if (s != HS_OK) goto fail;
+    hs_triple_buffer_write(h->status, &h->st); // the solver and rate, before the first pass
     *out = h;
     return HS_OK;
 nomem:
@@ -1428,6 +1609,16 @@ void hs_haptic_sim_stats_get(hs_haptic_sim* h, hs_haptic_sim_stats* out) {
     out->comp_building = ds.comp_building;
     out->free_relax_w = ds.relax_w;
     out->free_relax_cuts = ds.relax_cuts;
+    out->step_ms_p50 = ds.step_p50;
+    out->step_ms_p99 = ds.step_p99;
+    out->step_ms_p50_all = ds.step_p50_all;
+    out->step_ms_p99_all = ds.step_p99_all;
+    out->step_overruns = ds.step_overruns;
+    out->sim_hz_target = ds.sim_hz_target;
+    out->rate_changes = ds.rate_changes;
+    out->solver = ds.solver;
+    out->solver_switches = ds.solver_switches;
+    memcpy(out->solver_cost_ms, ds.solver_ms, sizeof out->solver_cost_ms);
     memcpy(out->cut_force_n, ds.cut_force_n, sizeof out->cut_force_n);
     out->cutting = ds.cutting;
     out->topology_version = atomic_load(&h->topo_version);
