@@ -902,7 +902,57 @@ static int rate_lowered_when_behind(void) {
     return 0;
 }
 
-HS_TEST_MAIN(HS_CASE(auto_solver_choice), HS_CASE(rate_lowered_when_behind),
+// background_setup: create returns before the compliance exists; rt answers exactly zero force
+// (pressed into the tissue) until the deformation thread takes it, then the press is felt. A
+// set-up that fails (nothing fixed: the rest stiffness is singular) says why and stays at zero.
+static int background_setup_zero_force(void) {
+    liver L;
+    ENSURE(load_liver(&L) == 0);
+    hs_haptic_sim_def d = liver_def(HS_MODEL_COROTATED, 0.01);
+    d.background_setup = 1;
+    hs_haptic_sim* sim = NULL;
+    hs_err err = {0};
+    ENSURE(hs_haptic_sim_create(L.mesh, &d, L.fixed, &sim, &err) == HS_OK);
+    hs_haptic_sim_stats st;
+    hs_haptic_sim_stats_get(sim, &st);
+    ENSURE(st.comp_state == 1 || st.comp_state == 2);
+    ENSURE(hs_haptic_sim_compliance(sim) == NULL && hs_haptic_sim_setup_error(sim) == NULL);
+    ENSURE(hs_haptic_sim_start(sim, &err) == HS_OK);
+    harness hn;
+    harness_init(&hn, sim);
+    double p[3];
+    tool_at(&L, 0.01, 0.004, 0, p); // 4 mm deep from the first tick
+    int zero_ticks = 0, ready_at = -1;
+    double f_end = 0;
+    for (int i = 0; i < 20000 && (ready_at < 0 || i < ready_at + 500); ++i) {
+        harness_tick(&hn, p);
+        drain(sim);
+        hs_haptic_sim_stats_get(sim, &st); // after the output: a state != 0 predates its take
+        if (st.comp_state != 0 && hn.have_out) {
+            ENSURE(norm3(hn.out.force_n) == 0.0);
+            ++zero_ticks;
+        }
+        if (st.comp_state == 0 && ready_at < 0) ready_at = i;
+        f_end = norm3(hn.out.force_n);
+    }
+    hs_haptic_sim_stop(sim);
+    printf("  set-up %.1f ms in the background: %d ticks of zero force, ready at tick %d, then "
+           "%.3f N\n", st.setup_ms, zero_ticks, ready_at, f_end);
+    ENSURE(ready_at >= 0 && st.setup_ms > 0 && f_end > 0.02);
+    ENSURE(hs_haptic_sim_compliance(sim) != NULL && hs_haptic_sim_wait_setup(sim) == HS_OK);
+    hs_haptic_sim_destroy(&sim);
+    // Nothing fixed: the body steps (it has mass), the compliance cannot be set up.
+    ENSURE(hs_haptic_sim_create(L.mesh, &d, NULL, &sim, &err) == HS_OK);
+    ENSURE(hs_haptic_sim_wait_setup(sim) != HS_OK);
+    hs_haptic_sim_stats_get(sim, &st);
+    ENSURE(st.comp_state == -1 && hs_haptic_sim_setup_error(sim) != NULL);
+    printf("  unfixed: %s\n", hs_haptic_sim_setup_error(sim));
+    hs_haptic_sim_destroy(&sim);
+    free_liver(&L);
+    return 0;
+}
+
+HS_TEST_MAIN(HS_CASE(auto_solver_choice), HS_CASE(background_setup_zero_force), HS_CASE(rate_lowered_when_behind),
              HS_CASE(no_pose_no_force), HS_CASE(gravity_sags_untouched),
              HS_CASE(press_hold_release), HS_CASE(corotated_hold),
              HS_CASE(corotated_small_deep_hold), HS_CASE(watchdog), HS_CASE(take_over_keeps_force),

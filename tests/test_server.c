@@ -490,10 +490,13 @@ static double norm3(const double v[3]) {
 }
 
 static int wait_up(client* c) {
-    // The server is up once its status arrives (set-up: mesh, compliance, buses).
+    // The server is up once its status arrives (set-up: mesh, buses) and no longer says that
+    // the compliance is being set up (haptics answer zero force until then).
     int64_t end = hs_now_ns() + 20000000000LL;
-    while (c->n_status == 0 && hs_now_ns() < end && server_alive()) pump_ms(c, 20);
-    return c->n_status > 0;
+    while ((c->n_status == 0 || strstr(c->status->warnings, "compliance set-up")) &&
+           hs_now_ns() < end && server_alive())
+        pump_ms(c, 20);
+    return c->n_status > 0 && !strstr(c->status->warnings, "compliance set-up");
 }
 
 static int64_t reject_count(const status_info* s, const char* ch, const char* reason) {

@@ -73,7 +73,12 @@ typedef struct hs_haptic_sim_def {
     /// NULL: the measured wall time. Runs on the deformation thread.
     double (*step_cost)(void* ctx, hs_solver_kind solver, double ms);
     void* step_cost_ctx; ///< passed to step_cost
-    int cookie;          ///< set by hs_haptic_sim_default_def
+    /// 1: the compliance is set up on a worker thread started by create (which then returns
+    /// without waiting for it); until the deformation thread takes it, rt answers zero force
+    /// (no snapshot), the body steps and frames go out as usual (stats comp_state). 0: create
+    /// sets it up (default). hs_haptic_sim_enable_cutting waits for it.
+    int background_setup;
+    int cookie; ///< set by hs_haptic_sim_default_def
 } hs_haptic_sim_def;
 
 /// Defaults: hs_body_default_def (co-rotated model), probe and safety defaults, 1 kHz, FIFO 80,
@@ -129,6 +134,10 @@ typedef struct hs_haptic_sim_stats {
     int solver;               ///< hs_solver_kind the body steps with now
     int64_t solver_switches;  ///< auto_solver: switches made
     double solver_cost_ms[3]; ///< auto_solver: body step cost per hs_solver_kind, ms (0: unknown)
+    /// The compliance: 0 in use, 1 set-up running (background_setup; zero force meanwhile), 2
+    /// set up but not yet taken by the deformation thread, -1 its set-up failed (zero force;
+    /// hs_haptic_sim_setup_error says why)
+    int comp_state;
 } hs_haptic_sim_stats;
 
 #define HS_SIM_STEP_WINDOW 128 ///< steps in the recent window of hs_haptic_sim_stats
@@ -245,7 +254,14 @@ int64_t hs_haptic_sim_take_topology(hs_haptic_sim* sim, double* x0 /* OUT [3n] *
 /// no tet of a held piece uses; the probe cannot touch those.
 /// Sets pinned[n_nodes] to 1 / 0 and returns how many (0 without cutting). Only while stopped.
 int hs_haptic_sim_cut_pinned(hs_haptic_sim* sim, unsigned char* pinned /* OUT [n] */);
-/// The compliance (read-only use from the control thread only while the sim is stopped).
+/// Why the background compliance set-up failed, or NULL. Thread: control
+const char* hs_haptic_sim_setup_error(hs_haptic_sim* sim);
+/// Wait for a background compliance set-up and take its result (the sim must be stopped).
+/// HS_OK when the compliance is in use, else the set-up's error status. Thread: control |
+/// Blocks: yes
+hs_status hs_haptic_sim_wait_setup(hs_haptic_sim* sim);
+/// The compliance (read-only use from the control thread only while the sim is stopped; NULL
+/// while a background set-up runs).
 hs_compliance* hs_haptic_sim_compliance(hs_haptic_sim* sim);
 /// The body (use only while the sim is stopped).
 hs_body* hs_haptic_sim_body(hs_haptic_sim* sim);

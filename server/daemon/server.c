@@ -183,6 +183,7 @@ struct hs_server {
     int64_t last_step_ns;
     int64_t live_prev_ticks, live_prev_t;
     int64_t solver_switches_seen; // auto solver: switches already printed
+    int comp_state_seen;          // compliance state last reported (hs_haptic_sim_stats)
     int64_t net_iters, last_iter_ns, last_steps;
     int64_t poses_total, forces_total;
     int64_t rmem_default, rmem_max; // the kernel's, at start, bytes (-1: unknown)
@@ -339,6 +340,9 @@ static void sim_def_from_scene(const hs_scene* sc, int realtime, hs_haptic_sim_d
     // rest factor each sweep updates in part instead of a refactor).
     d->auto_solver = sc->solver == HS_SCENE_SOLVER_AUTO && !sc->feature_cutting;
     d->auto_exact_tangent = sc->exact_tangent;
+    // The server starts (visual mesh, deformation) while the compliance is set up; haptics
+    // answer zero force until it is ready (status warnings, a console line when it is).
+    d->background_setup = 1;
     d->body.solver = sc->solver == HS_SCENE_SOLVER_DIRECT ? HS_SOLVER_DIRECT
                      : sc->solver == HS_SCENE_SOLVER_PCG  ? HS_SOLVER_PCG
                                                            : HS_SOLVER_WARPED;
@@ -1133,6 +1137,11 @@ static void publish_status(hs_server* s, int64_t t) {
         char note[256];
         if (edge_note(w, note, sizeof note)) WARN("%s", note);
     }
+    if (w->sim && s->st_prev->comp_state > 0)
+        WARN("haptics: compliance set-up running: zero force until it is ready");
+    if (w->sim && s->st_prev->comp_state < 0)
+        WARN("haptics: compliance set-up failed (%s): zero force",
+             hs_haptic_sim_setup_error(w->sim) ? hs_haptic_sim_setup_error(w->sim) : "?");
     if (w->sim && s->st_prev->sim_hz_target > 0 &&
         s->st_prev->sim_hz_target < 0.999 * w->scene.sim_hz)
         WARN("deformation lowered to %.1f Hz (of %g): sim step p99 %.1f ms > %.1f ms; the tissue "
@@ -1869,9 +1878,15 @@ void hs_server_print_summary(hs_server* s) {
             snprintf(tool, sizeof tool, "scalpel (no probe sphere)");
         else
             snprintf(tool, sizeof tool, "probe radius %g mm", w->def.probe.radius_m * 1e3);
-        printf("  haptics  rt %g Hz, %s, force clamp %g N, watchdog %g ms; "
-               "compliance set-up %.1f ms\n",
-               sc->haptic_hz, tool, sc->force_max_n, sc->watchdog_s * 1e3, st.setup_ms);
+        s->comp_state_seen = st.comp_state; // a later change is printed by hs_server_run
+        if (st.comp_state == 0)
+            printf("  haptics  rt %g Hz, %s, force clamp %g N, watchdog %g ms; "
+                   "compliance set-up %.1f ms\n",
+                   sc->haptic_hz, tool, sc->force_max_n, sc->watchdog_s * 1e3, st.setup_ms);
+        else
+            printf("  haptics  rt %g Hz, %s, force clamp %g N, watchdog %g ms; compliance "
+                   "set-up running in the background: zero force until it is ready\n",
+                   sc->haptic_hz, tool, sc->force_max_n, sc->watchdog_s * 1e3);
         char note[256];
         if (edge_note(w, note, sizeof note)) printf("  warning  %s\n", note);
     } else {
@@ -2046,6 +2061,21 @@ hs_status hs_server_run(hs_server* s, hs_err* err) {
                 s->last_cut_steps = st.cut_steps;
             }
             s->cutting_now = st.cutting;
+            if (st.comp_state != s->comp_state_seen) {
+                if (!s->opt.quiet && !s->opt.live && (st.comp_state == 0 || st.comp_state == -1)) {
+                    const char* e = hs_haptic_sim_setup_error(w->sim);
+                    if (st.comp_state == 0)
+                        printf("hapsim-server: compliance ready after %.1f ms: haptics answer "
+                               "with forces now\n",
+                               st.setup_ms);
+                    else
+                        printf("hapsim-server: compliance set-up failed (%s): haptics answer "
+                               "zero force\n",
+                               e ? e : "?");
+                    fflush(stdout);
+                }
+                s->comp_state_seen = st.comp_state;
+            }
             if (st.solver_switches > s->solver_switches_seen) {
                 s->solver_switches_seen = st.solver_switches;
                 if (!s->opt.quiet && !s->opt.live) {

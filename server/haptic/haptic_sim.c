@@ -283,6 +283,16 @@ struct hs_haptic_sim {
     double au_snap_ms;                     // auto: snapshot cost estimate, ms
     int64_t au_retry_ns[3];                // per kind: not tried again before
     double au_backoff_s[3];                // per kind: the next wait after a failure
+
+    // background compliance set-up (def.background_setup)
+    pthread_t su_thread;
+    int su_running;        // started and not joined (joined by setup_take)
+    atomic_int su_done;    // worker: su_* below are final
+    atomic_int comp_state; // hs_haptic_sim_stats.comp_state as far as it is known here
+    hs_compliance* su_comp;
+    hs_status su_status;
+    hs_err su_err;
+    double su_ms;
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -978,6 +988,36 @@ static void auto_solver_step(hs_haptic_sim* h, double body_ms, double snap_ms) {
         auto_switch(h, up);
 }
 
+// Background compliance set-up (def.background_setup): the worker builds it from the mesh, the
+// def and fixed0 (none of which change meanwhile: cutting waits for it).
+static void* setup_worker(void* arg) {
+    hs_haptic_sim* h = arg;
+    int64_t t0 = hs_now_ns();
+    h->su_status = hs_compliance_create(h->mesh, &h->def.body.fem, h->fixed0,
+                                        h->def.probe.cache_nodes, &h->su_comp, &h->su_err);
+    h->su_ms = (double)(hs_now_ns() - t0) * 1e-6;
+    atomic_store_explicit(&h->su_done, 1, memory_order_release);
+    return NULL;
+}
+
+// Take the finished set-up (or wait for it): the deformation thread while it runs, else the
+// control thread. Returns 1 when the compliance is now in use.
+static int setup_take(hs_haptic_sim* h, int wait) {
+    if (!h->su_running) return 0;
+    if (!wait && !atomic_load_explicit(&h->su_done, memory_order_acquire)) return 0;
+    pthread_join(h->su_thread, NULL);
+    h->su_running = 0;
+    if (h->su_status != HS_OK) {
+        hs_compliance_destroy(&h->su_comp);
+        atomic_store_explicit(&h->comp_state, -1, memory_order_release);
+        return 0;
+    }
+    h->comp = h->su_comp;
+    h->su_comp = NULL;
+    atomic_store_explicit(&h->comp_state, 0, memory_order_release);
+    return 1;
+}
+
 static void* deform_main(void* arg) {
     hs_haptic_sim* h = arg;
     const int64_t idle_ns = (int64_t)(h->def.idle_poll_s * 1e9);
@@ -994,6 +1034,7 @@ static void* deform_main(void* arg) {
         int64_t t0 = hs_now_ns();
         int rebuild = 0, cut_changed = 0;
         h->st.loops++;
+        if (h->su_running) setup_take(h, 0);
         if (h->cut) {
             int swapped = comp_poll(h, 0);
             // Say so before the snapshot with the new contact goes out (a step may come
@@ -1029,12 +1070,15 @@ static void* deform_main(void* arg) {
         }
         if (rebuild) {
             int64_t t1 = hs_now_ns();
-            build_snapshot(h, c.tool_m);
+            // No compliance yet (background set-up): no snapshot, rt answers zero force.
+            if (h->comp) {
+                build_snapshot(h, c.tool_m);
+                memcpy(centre, c.tool_m, sizeof centre);
+                have_snapshot = 1;
+            }
             double sms = (double)(hs_now_ns() - t1) * 1e-6;
             h->st.snapshot_ms_last = sms;
             if (sms > h->st.snapshot_ms_max) h->st.snapshot_ms_max = sms;
-            memcpy(centre, c.tool_m, sizeof centre);
-            have_snapshot = 1;
             if (moving || cut_changed) publish_frame(h);
             double ms = (double)(hs_now_ns() - t0) * 1e-6;
             h->st.step_ms_last = ms;
@@ -1046,7 +1090,7 @@ static void* deform_main(void* arg) {
         }
         h->st.sleeping = !moving;
         h->st.contact = c;
-        h->st.column_solves = hs_compliance_column_solves(h->comp);
+        if (h->comp) h->st.column_solves = hs_compliance_column_solves(h->comp);
         hs_triple_buffer_write(h->status, &h->st);
 
         if (moving) {
@@ -1109,6 +1153,7 @@ void hs_haptic_sim_destroy(hs_haptic_sim** ph) {
     if (!ph || !*ph) return;
     hs_haptic_sim* h = *ph;
     hs_haptic_sim_stop(h);
+    setup_take(h, 1);
     hs_rt_loop_destroy(&h->loop);
     hs_haptic_rt_destroy(&h->hrt);
     hs_memdev_destroy(&h->dev);
@@ -1214,9 +1259,18 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
     h->fixed0 = hs_calloc((size_t)mesh->n_nodes + 1, 1);
     if (!h->fixed0) goto nomem;
     if (fixed) memcpy(h->fixed0, fixed, (size_t)mesh->n_nodes);
-    s = hs_compliance_create(mesh, &def->body.fem, fixed, pd->cache_nodes, &h->comp, err);
-    if (s != HS_OK) goto fail;
-    h->setup_ms = hs_compliance_setup_ms(h->comp);
+    if (def->background_setup) {
+        atomic_store(&h->comp_state, 1);
+        if (pthread_create(&h->su_thread, NULL, setup_worker, h) != 0) {
+            s = hs_err_set(err, HS_ERR_NOMEM, "hs_haptic_sim_create: cannot start the set-up");
+            goto fail;
+        }
+        h->su_running = 1;
+    } else {
+        s = hs_compliance_create(mesh, &def->body.fem, fixed, pd->cache_nodes, &h->comp, err);
+        if (s != HS_OK) goto fail;
+        h->setup_ms = hs_compliance_setup_ms(h->comp);
+    }
 
     const size_t n = (size_t)mesh->n_nodes;
     h->x = hs_calloc(3 * n, sizeof(double));
@@ -1367,6 +1421,7 @@ void hs_haptic_sim_stop(hs_haptic_sim* h) {
         atomic_store_explicit(&h->stop, 1, memory_order_release);
         pthread_join(h->thread, NULL);
         h->thread_started = 0;
+        setup_take(h, 0); // a finished background set-up is the control thread's to take now
         if (h->cw_running) { // the thread is gone: finish its rebuild here (cannot be cut short)
             comp_poll(h, 1);
             hs_triple_buffer_write(h->status, &h->st);
@@ -1393,6 +1448,8 @@ hs_status hs_haptic_sim_enable_cutting(hs_haptic_sim* h, hs_mesh* mesh,
     if (h->thread_started || h->cut)
         return hs_err_set(err, HS_ERR_INVALID,
                           "hs_haptic_sim_enable_cutting: sim already running or cutting");
+    if (hs_haptic_sim_wait_setup(h) != HS_OK) // cuts move x0, which the set-up reads
+        return hs_err_set(err, h->su_status, "hs_haptic_sim_enable_cutting: %s", h->su_err.msg);
     if (!(def->toughness_n_m >= 0) || !(def->max_force_n >= 0) || !(def->min_travel_m >= 0) ||
         !isfinite(def->toughness_n_m) || !isfinite(def->max_force_n) ||
         dist3(def->blade_a, def->blade_b) <= 0 || !isfinite(dist3(def->blade_a, def->blade_b)))
@@ -1623,6 +1680,11 @@ void hs_haptic_sim_stats_get(hs_haptic_sim* h, hs_haptic_sim_stats* out) {
     out->cutting = ds.cutting;
     out->topology_version = atomic_load(&h->topo_version);
     out->setup_ms = h->setup_ms; // h->comp is replaced by cuts on the deformation thread
+    out->comp_state = atomic_load_explicit(&h->comp_state, memory_order_acquire);
+    if (h->def.background_setup && atomic_load_explicit(&h->su_done, memory_order_acquire)) {
+        out->setup_ms = h->su_ms;
+        if (out->comp_state == 1) out->comp_state = h->su_status == HS_OK ? 2 : -1;
+    }
     hs_rt_loop_stats(h->loop, &out->rt);
     hs_haptic_rt_counters rc;
     hs_haptic_rt_get_counters(h->hrt, &rc);
@@ -1643,6 +1705,18 @@ int hs_haptic_sim_cut_pinned(hs_haptic_sim* h, unsigned char* pinned) {
         k += pinned[i];
     }
     return k;
+}
+
+const char* hs_haptic_sim_setup_error(hs_haptic_sim* h) {
+    return atomic_load_explicit(&h->su_done, memory_order_acquire) && h->su_status != HS_OK
+               ? h->su_err.msg
+               : NULL;
+}
+
+hs_status hs_haptic_sim_wait_setup(hs_haptic_sim* h) {
+    if (h->thread_started) return HS_ERR_INVALID;
+    setup_take(h, 1);
+    return h->comp ? HS_OK : h->su_status != HS_OK ? h->su_status : HS_ERR_INVALID;
 }
 
 hs_compliance* hs_haptic_sim_compliance(hs_haptic_sim* h) {
