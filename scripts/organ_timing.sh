@@ -77,6 +77,7 @@ row() { # NAME MESH RADIUS SOLVER
     name=$1
     python3 "$here/organ_scene.py" "$2" "$3" "$4" "$tmp/$name.json" "$tmp/$name.probe" 6 1 >/dev/null
     log=$tmp/$name-$4.log
+    : >"$log"
     "$bin/hapsim-server" "$tmp/$name.json" --haptic-url "$H" --mesh-url "$M" --duration 30 \
         >"$log" 2>&1 &
     srv=$!
@@ -95,21 +96,26 @@ row() { # NAME MESH RADIUS SOLVER
     wait $srv || true
     srv=
     tets=$(sed -n 's/.* nodes, \([0-9]*\) tets,.*/\1/p' "$log" | head -n 1)
-    setup=$(sed -n 's/.*compliance set-up \([0-9.]*\) ms.*/\1/p' "$log" | head -n 1)
+    # The compliance is set up in the background: the start line or the "ready" line.
+    setup=$(sed -n -e 's/.*compliance set-up \([0-9.]*\) ms.*/\1/p' \
+        -e 's/.*compliance ready after \([0-9.]*\) ms.*/\1/p' "$log" | head -n 1)
     start=$(sed -n 's/^  solver   \([a-z]*\).*/\1/p' "$log" | head -n 1)
     s=$(grep "deformation steps; sim step" "$log" | head -n 1)
     steps=$(echo "$s" | sed -n 's/^hapsim-server: \([0-9]*\) deformation.*/\1/p')
     p50=$(echo "$s" | sed -n 's/.*sim step p50 \([0-9.]*\) ms.*/\1/p')
     p99=$(echo "$s" | sed -n 's/.*, p99 \([0-9.]*\) ms (step.*/\1/p')
     over=$(echo "$s" | sed -n 's/.*), \([0-9]*\) overruns.*/\1/p')
+    c50=$(echo "$s" | sed -n 's/.*thread CPU p50 \([0-9.]*\) ms.*/\1/p')
+    c99=$(echo "$s" | sed -n 's/.*thread CPU p50 [0-9.]* ms, p99 \([0-9.]*\) ms.*/\1/p')
     rate=$(echo "$s" | sed -n 's/.*; rate \([0-9.]*\) Hz.*/\1/p')
     solver=$(echo "$s" | sed -n 's/.*; solver \([a-z]*\).*/\1/p')
     sw=$(echo "$s" | sed -n 's/.*auto, \([0-9]*\) switches.*/\1/p')
     steady=$(sed -n 's/.*steady \([0-9.]*\) N.*/\1/p' "$tmp/$name-$4.sty" | head -n 1)
-    echo "$name,$tets,$4,$start,${solver:-?},${sw:-0},$setup,$steps,$p50,$p99,$over,$rate,$3,${steady:-}"
+    load=$(cut -d' ' -f1 /proc/loadavg)
+    echo "$name,$tets,$4,$start,${solver:-?},${sw:-0},$setup,$steps,$p50,$p99,$c50,$c99,$over,$rate,$3,${steady:-},$load"
 }
 {
-    echo "mesh,tets,scene_solver,start_solver,end_solver,switches,setup_ms,steps,sim_step_ms_p50,sim_step_ms_p99,overruns_16.7ms,sim_hz_end,probe_radius_m,steady_force_n"
+    echo "mesh,tets,scene_solver,start_solver,end_solver,switches,setup_ms,steps,sim_step_ms_p50,sim_step_ms_p99,cpu_ms_p50,cpu_ms_p99,overruns_16.7ms,sim_hz_end,probe_radius_m,steady_force_n,load1"
     for sv in $solvers; do
         row tongue "$meshes/tongue.msh" 0.005 "$sv"
         row vessel "$meshes/aneurysm_vessel.msh" 0.002 "$sv"

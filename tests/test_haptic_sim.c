@@ -894,6 +894,9 @@ static int rate_lowered_when_behind(void) {
     ENSURE(st.step_ms_p50 > 0 && st.step_ms_p50 <= st.step_ms_p99);
     ENSURE(st.step_ms_p99 <= st.step_ms_max + 1e-9);
     ENSURE(st.step_ms_p50_all > 0 && st.step_ms_p50_all <= st.step_ms_p99_all);
+    // Thread CPU time of the same steps: positive, never above their wall time (0.1 ms bins).
+    ENSURE(st.step_cpu_ms_p50_all > 0 && st.step_cpu_ms_p50_all <= st.step_ms_p50_all + 0.1);
+    ENSURE(st.step_cpu_ms_p99_all <= st.step_ms_p99_all + 0.1);
     ENSURE(st.rate_changes >= 1 && st.sim_hz_target < 5000 && st.sim_hz_target >= 10000.0 / 8);
     ENSURE(st.solver == HS_SOLVER_WARPED && st.solver_switches == 0);
     ENSURE(st.rt_ticks > 500); // the haptic loop ran on (1.5 s at 1 kHz)

@@ -128,6 +128,8 @@ typedef struct hs_haptic_sim_stats {
     double step_ms_p99;       ///< 99th percentile over them, ms
     double step_ms_p50_all;   ///< median since start (0.1 ms bins, upper edge), ms
     double step_ms_p99_all;   ///< 99th percentile since start, ms
+    double step_cpu_ms_p50_all; ///< the deformation thread's CPU time per step, median, ms
+    double step_cpu_ms_p99_all; ///< and its 99th percentile since start (one core's cost), ms
     int64_t step_overruns;    ///< steps longer than body.dt (the nominal step period)
     double sim_hz_target;     ///< step rate the thread paces to now; < 1 / body.dt when lowered
     int64_t rate_changes;     ///< times that rate was lowered or raised again

@@ -2129,9 +2129,10 @@ hs_status hs_server_run(hs_server* s, hs_err* err) {
             hs_haptic_sim_stats st;
             hs_haptic_sim_stats_get(s->w.sim, &st);
             printf("hapsim-server: %lld deformation steps; sim step p50 %.2f ms, p99 %.2f ms "
-                   "(step + snapshot, since the last reset or load), %lld overruns of %.1f ms; "
-                   "rate %.1f Hz of %g at the end; solver %s",
+                   "(step + snapshot, since the last reset or load; thread CPU p50 %.2f ms, p99 "
+                   "%.2f ms), %lld overruns of %.1f ms; rate %.1f Hz of %g at the end; solver %s",
                    (long long)st.steps, st.step_ms_p50_all, st.step_ms_p99_all,
+                   st.step_cpu_ms_p50_all, st.step_cpu_ms_p99_all,
                    (long long)st.step_overruns, 1e3 / s->w.scene.sim_hz, st.sim_hz_target,
                    s->w.scene.sim_hz, solver_name(st.solver));
             if (s->w.def.auto_solver)

@@ -115,7 +115,7 @@ typedef struct deform_status {
     int comp_building;
     double relax_w;
     int64_t relax_cuts;
-    double step_p50, step_p99, step_p50_all, step_p99_all;
+    double step_p50, step_p99, step_p50_all, step_p99_all, step_cpu_p50_all, step_cpu_p99_all;
     int64_t step_overruns, rate_changes, solver_switches;
     double sim_hz_target;
     int solver;
@@ -272,7 +272,7 @@ struct hs_haptic_sim {
     double setup_ms; // the first compliance's set-up
 
     // step timing, pacing and solver choice (deformation thread)
-    uint32_t* step_hist;                   // [STEP_BINS + 1]
+    uint32_t* step_hist;                   // [2 (STEP_BINS + 1)] wall, then thread CPU
     int64_t step_hist_n;                   // samples in it
     double recent_ms[HS_SIM_STEP_WINDOW]; // ring of the newest step times, ms
     int64_t recent_n;                      // steps recorded (ring position)
@@ -890,12 +890,19 @@ static double recent_quantile(const hs_haptic_sim* h, int n, double q) {
     return v[i < 0 ? 0 : i >= n ? n - 1 : i];
 }
 
-static double hist_quantile(const hs_haptic_sim* h, double q) {
+// Thread CPU time, ns: what a step costs on one core whatever else the machine runs.
+static int64_t thread_cpu_ns(void) {
+    struct timespec t;
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+    return (int64_t)t.tv_sec * 1000000000LL + t.tv_nsec;
+}
+
+static double hist_quantile(const hs_haptic_sim* h, const uint32_t* hist, double q) {
     if (h->step_hist_n <= 0) return 0;
     int64_t want = (int64_t)ceil(q * (double)h->step_hist_n), acc = 0;
     if (want < 1) want = 1;
     for (int b = 0; b <= STEP_BINS; ++b) {
-        acc += h->step_hist[b];
+        acc += hist[b];
         if (acc >= want) return b == STEP_BINS ? h->st.step_ms_max : (b + 1) * STEP_BIN_MS;
     }
     return h->st.step_ms_max;
@@ -904,18 +911,22 @@ static double hist_quantile(const hs_haptic_sim* h, double q) {
 // Book a step (+ snapshot) of ms: histogram, recent window, overruns; and every RATE_EVERY
 // steps the pacing: a rate the thread cannot keep is lowered to what it can (no bursts to catch
 // up, a steady cadence), and raised again with hysteresis. The haptic rate is not touched.
-static void record_step(hs_haptic_sim* h, double ms) {
+static void record_step(hs_haptic_sim* h, double ms, double cpu_ms) {
     const int64_t step_ns = (int64_t)(h->def.body.dt * 1e9);
     int b = (int)(ms / STEP_BIN_MS);
     h->step_hist[b < 0 ? 0 : b > STEP_BINS ? STEP_BINS : b]++;
+    b = (int)(cpu_ms / STEP_BIN_MS);
+    h->step_hist[STEP_BINS + 1 + (b < 0 ? 0 : b > STEP_BINS ? STEP_BINS : b)]++;
     h->step_hist_n++;
     h->recent_ms[h->recent_n++ % HS_SIM_STEP_WINDOW] = ms;
     if (ms * 1e6 > (double)step_ns) h->st.step_overruns++;
     h->st.step_p50 = recent_quantile(h, HS_SIM_STEP_WINDOW, 0.5);
     h->st.step_p99 = recent_quantile(h, HS_SIM_STEP_WINDOW, 0.99);
     if ((h->step_hist_n & 15) == 1) {
-        h->st.step_p50_all = hist_quantile(h, 0.5);
-        h->st.step_p99_all = hist_quantile(h, 0.99);
+        h->st.step_p50_all = hist_quantile(h, h->step_hist, 0.5);
+        h->st.step_p99_all = hist_quantile(h, h->step_hist, 0.99);
+        h->st.step_cpu_p50_all = hist_quantile(h, h->step_hist + STEP_BINS + 1, 0.5);
+        h->st.step_cpu_p99_all = hist_quantile(h, h->step_hist + STEP_BINS + 1, 0.99);
     }
     if (++h->rate_count < RATE_EVERY || h->recent_n < RATE_WINDOW) return;
     if (h->def.auto_solver && h->au_since < RATE_WINDOW) return; // a switch is settling
@@ -1031,7 +1042,7 @@ static void* deform_main(void* arg) {
         int fresh = hs_triple_buffer_read_copy(h->contact, &c);
         (void)fresh;
         int loaded = c.n > 0 || h->applied_n > 0;
-        int64_t t0 = hs_now_ns();
+        int64_t t0 = hs_now_ns(), c0 = thread_cpu_ns();
         int rebuild = 0, cut_changed = 0;
         h->st.loops++;
         if (h->su_running) setup_take(h, 0);
@@ -1084,7 +1095,7 @@ static void* deform_main(void* arg) {
             h->st.step_ms_last = ms;
             if (ms > h->st.step_ms_max) h->st.step_ms_max = ms;
             if (moving) {
-                record_step(h, ms);
+                record_step(h, ms, (double)(thread_cpu_ns() - c0) * 1e-6);
                 if (h->def.auto_solver) auto_solver_step(h, body_ms, sms);
             }
         }
@@ -1254,7 +1265,7 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
     h->st.solver = (int)bd.solver;
     h->period_ns = (int64_t)(def->body.dt * 1e9);
     h->st.sim_hz_target = 1.0 / def->body.dt;
-    h->step_hist = hs_calloc(STEP_BINS + 1, sizeof *h->step_hist);
+    h->step_hist = hs_calloc(2 * (STEP_BINS + 1), sizeof *h->step_hist);
     if (!h->step_hist) goto nomem;
     h->fixed0 = hs_calloc((size_t)mesh->n_nodes + 1, 1);
     if (!h->fixed0) goto nomem;
@@ -1670,6 +1681,8 @@ void hs_haptic_sim_stats_get(hs_haptic_sim* h, hs_haptic_sim_stats* out) {
     out->step_ms_p99 = ds.step_p99;
     out->step_ms_p50_all = ds.step_p50_all;
     out->step_ms_p99_all = ds.step_p99_all;
+    out->step_cpu_ms_p50_all = ds.step_cpu_p50_all;
+    out->step_cpu_ms_p99_all = ds.step_cpu_p99_all;
     out->step_overruns = ds.step_overruns;
     out->sim_hz_target = ds.sim_hz_target;
     out->rate_changes = ds.rate_changes;
