@@ -66,7 +66,7 @@ typedef struct hs_haptic_sim_def {
     /// accurate that keeps the step rate 1 / body.dt (direct, then PCG, then warped; with
     /// auto_exact_tangent only direct and PCG), starting with the cheapest, and switches with
     /// hysteresis when the load changes (docs/server.md, "Solver choice"). body.solver is
-    /// ignored. Needs a nonlinear model (the linear model's warped solver is the direct one).
+    /// ignored. Only for the co-rotated model (else off: body.solver is used).
     int auto_solver;
     int auto_exact_tangent; ///< auto_solver: only solvers that solve with the exact tangent
     /// Optional (tests): the cost booked for a body step that took `ms` with `solver`, ms;

@@ -338,14 +338,18 @@ static void sim_def_from_scene(const hs_scene* sc, int realtime, hs_haptic_sim_d
     d->body.fem.locking_free = sc->locking_free;
     // auto: the deformation thread chooses (a cutting scene keeps the warped solver, whose
     // rest factor each sweep updates in part instead of a refactor).
-    d->auto_solver = sc->solver == HS_SCENE_SOLVER_AUTO && !sc->feature_cutting;
+    // The warped factor's rotations are the co-rotated model's: auto chooses only for it (StVK
+    // and the linear model keep the direct solver).
+    const int corot = sc->model == HS_MODEL_COROTATED;
+    d->auto_solver = sc->solver == HS_SCENE_SOLVER_AUTO && !sc->feature_cutting && corot;
     d->auto_exact_tangent = sc->exact_tangent;
     // The server starts (visual mesh, deformation) while the compliance is set up; haptics
     // answer zero force until it is ready (status warnings, a console line when it is).
     d->background_setup = 1;
     d->body.solver = sc->solver == HS_SCENE_SOLVER_DIRECT ? HS_SOLVER_DIRECT
                      : sc->solver == HS_SCENE_SOLVER_PCG  ? HS_SOLVER_PCG
-                                                           : HS_SOLVER_WARPED;
+                     : sc->solver == HS_SCENE_SOLVER_WARPED || corot ? HS_SOLVER_WARPED
+                                                                     : HS_SOLVER_DIRECT;
     memcpy(d->body.gravity, sc->gravity, sizeof d->body.gravity);
     d->body.dt = 1.0 / sc->sim_hz;
     for (int t = 0; t < sc->n_tools; ++t)
@@ -1868,8 +1872,9 @@ void hs_server_print_summary(hs_server* s) {
                    sc->exact_tangent ? "direct, pcg" : "direct, pcg, warped", sc->sim_hz);
         else
             printf("  solver   %s (%s)\n", solver_name(st.solver),
-                   sc->solver == HS_SCENE_SOLVER_AUTO ? "auto: warped, the cutting scene's"
-                                                      : "the scene's");
+                   sc->solver != HS_SCENE_SOLVER_AUTO ? "the scene's"
+                   : sc->model != HS_MODEL_COROTATED  ? "auto: the direct solver of this model"
+                                                      : "auto: warped, the cutting scene's");
         char tool[64];
         if (w->cutting && w->cdef.probe_when_released)
             snprintf(tool, sizeof tool, "scalpel, released: probe radius %g mm",

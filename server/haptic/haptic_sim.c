@@ -1244,8 +1244,9 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
     h->mesh = mesh;
     h->corotated = def->body.fem.model != HS_MODEL_LINEAR;
     atomic_init(&h->stop, 0);
-    // The linear model's warped solver is the direct one: nothing to choose.
-    if (!h->corotated) h->def.auto_solver = 0;
+    // The warped factor follows the co-rotated model's rotations: only there is there a choice
+    // (the linear model's warped solver is the direct one).
+    if (def->body.fem.model != HS_MODEL_COROTATED) h->def.auto_solver = 0;
     hs_body_def bd = def->body;
     if (h->def.auto_solver) {
         // Start with the cheapest allowed solver; the PCG workspace is made now, so a switch
