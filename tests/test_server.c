@@ -623,6 +623,8 @@ static int poses_in_forces_out(void) {
                        c.status->step_p99_us[i] < 10e6;
         }
     ENSURE(has_rt && has_sim && has_step);
+    // liver2's boundary edges (median 13.5 mm) are longer than twice the 5 mm probe radius.
+    ENSURE(strstr(c.status->warnings, "surface edges (median 13.5 mm)") != NULL);
     ENSURE(c.status->state == HAPSIM_SERVER_STATUS_T_STATE_RUNNING && c.n_loading == 0);
 
     // Load a scene: a LOADING status goes out at once (ahead of the final ack on the same bus),
@@ -642,6 +644,7 @@ static int poses_in_forces_out(void) {
     ENSURE(end_line);
     // The start line names the solver choice; the exit summary the step figures.
     ENSURE(strstr(text, "  solver   auto (equilibrium): starts with warped"));
+    ENSURE(strstr(text, "  warning  mesh surface edges (median 13.5 mm) are larger than 2 x"));
     const char* steps_line = strstr(text, "deformation steps; sim step p50");
     ENSURE(steps_line && strstr(steps_line, "overruns of 16.7 ms"));
     printf("  %.*s", (int)strcspn(steps_line, "\n") + 1, steps_line);

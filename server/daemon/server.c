@@ -1998,6 +1998,15 @@ hs_status hs_server_run(hs_server* s, hs_err* err) {
     if (w->sim) {
         hs_status st = hs_haptic_sim_start(w->sim, err);
         if (st != HS_OK) return st;
+        // A small mesh's compliance is ready within moments: give it up to 0.5 s, so the start
+        // line can give its set-up time (a large one goes on in the background).
+        hs_haptic_sim_stats hst;
+        for (int i = 0; i < 100; ++i) {
+            hs_haptic_sim_stats_get(w->sim, &hst);
+            if (hst.comp_state <= 0) break;
+            struct timespec ts = {0, 5000000};
+            nanosleep(&ts, NULL);
+        }
     }
     if (!s->opt.quiet) hs_server_print_summary(s);
     int64_t t = hs_now_ns();
