@@ -810,8 +810,11 @@ static int auto_press(const double ms[3], int exact, int steps, hs_haptic_sim_st
     hs_err err = {0};
     ENSURE(hs_haptic_sim_create(L.mesh, &d, L.fixed, &sim, &err) == HS_OK);
     hs_haptic_sim_stats_get(sim, st);
-    // It starts with the cheapest solver allowed.
-    ENSURE(st->solver == (exact ? HS_SOLVER_PCG : HS_SOLVER_WARPED));
+    // It starts with direct when its cost fits 35 % of the period, else the cheapest allowed.
+    ENSURE(st->factor_ms > 0);
+    ENSURE(st->solver == (ms[0] <= 0.35 * 1e3 / 60 ? HS_SOLVER_DIRECT
+                          : exact                 ? HS_SOLVER_PCG
+                                                  : HS_SOLVER_WARPED));
     ENSURE_NEAR(st->sim_hz_target, 60.0, 1e-9);
     ENSURE(hs_haptic_sim_start(sim, &err) == HS_OK);
     harness hn;
@@ -853,9 +856,12 @@ static int auto_solver_choice(void) {
     ENSURE(st.solver_switches == 2); // up to PCG, which failed its budget, and back
     ENSURE_NEAR(st.solver_cost_ms[HS_SOLVER_PCG], 40, 1e-9);
     ENSURE(st.solver_cost_ms[HS_SOLVER_DIRECT] == 0); // never tried
-    const double mid[3] = {6, 3, 1};
+    const double mid[3] = {8, 3, 1};
     ENSURE(auto_press(mid, 0, 150, &st) == 0);
     ENSURE(st.solver == HS_SOLVER_DIRECT && st.solver_switches == 2);
+    const double small[3] = {2, 1, 0.5}; // starts with direct and stays
+    ENSURE(auto_press(small, 0, 60, &st) == 0);
+    ENSURE(st.solver == HS_SOLVER_DIRECT && st.solver_switches == 0);
     ENSURE(auto_press(large, 1, 90, &st) == 0);
     ENSURE(st.solver == HS_SOLVER_PCG && st.solver_switches == 0);
     ENSURE(st.solver_cost_ms[HS_SOLVER_WARPED] == 0);

@@ -103,6 +103,13 @@ hs_status hs_body_set_prescribed(hs_body* b, int node, const double u[3]);
 /// taken unchecked; the warped solver redoes a step whose first 4 trials fail with the exact
 /// tangent. A failed step (error status) leaves u and v as they were.
 hs_status hs_body_step(hs_body* b, hs_step_stats* stats /* OUT, may be NULL */);
+/// Make the factor the next hs_body_step needs (the rest-state one for the warped solver and
+/// PCG's factor preconditioners, the tangent at the current state for direct) and give its
+/// wall time in *factor_ms (may be NULL; a second, numeric factorisation of the same matrix is
+/// timed: the first also analyses the pattern): moves the first step's factorisation to a time
+/// of the caller's choosing, and measures what a direct step's refactorisation costs. State,
+/// forces and velocities are not changed.
+hs_status hs_body_prepare_step(hs_body* b, double* factor_ms /* OUT, may be NULL */);
 /// Static equilibrium f_el(u) + f_ext = 0 by Newton (co-rotated: its fixed-rotation tangent),
 /// with backtracking line search and def.static_load_steps increments. Velocities are reset.
 /// An error status (a factorisation failed, NaN/Inf) leaves u and v as they were;

@@ -64,7 +64,8 @@ typedef struct hs_haptic_sim_def {
     void* rt_hook_ctx; ///< passed to the hooks
     /// 1: the deformation thread picks the body's solver from its measured steps, the most
     /// accurate that keeps the step rate 1 / body.dt (direct, then PCG, then warped; with
-    /// auto_exact_tangent only direct and PCG), starting with the cheapest, and switches with
+    /// auto_exact_tangent only direct and PCG), starting with direct when the factorisation
+    /// create times fits 35 % of the period, else with the cheapest, and switches with
     /// hysteresis when the load changes (docs/server.md, "Solver choice"). body.solver is
     /// ignored. Only for the co-rotated model (else off: body.solver is used).
     int auto_solver;
@@ -136,6 +137,7 @@ typedef struct hs_haptic_sim_stats {
     int solver;               ///< hs_solver_kind the body steps with now
     int64_t solver_switches;  ///< auto_solver: switches made
     double solver_cost_ms[3]; ///< auto_solver: body step cost per hs_solver_kind, ms (0: unknown)
+    double factor_ms;         ///< auto_solver: the factorisation timed at create, ms
     /// The compliance: 0 in use, 1 set-up running (background_setup; zero force meanwhile), 2
     /// set up but not yet taken by the deformation thread, -1 its set-up failed (zero force;
     /// hs_haptic_sim_setup_error says why)

@@ -1866,9 +1866,11 @@ void hs_server_print_summary(hs_server* s) {
         hs_haptic_sim_stats st;
         hs_haptic_sim_stats_get(w->sim, &st);
         if (w->def.auto_solver)
-            printf("  solver   auto (%s): starts with %s, then the most accurate of %s that keeps "
-                   "%g Hz, switching as the load changes\n",
+            printf("  solver   auto (%s): starts with %s (a factorisation %.1f ms of the %.1f ms "
+                   "step), then the most accurate of %s that keeps %g Hz, switching as the load "
+                   "changes\n",
                    sc->exact_tangent ? "exact tangent" : "equilibrium", solver_name(st.solver),
+                   st.factor_ms, 1e3 / sc->sim_hz,
                    sc->exact_tangent ? "direct, pcg" : "direct, pcg, warped", sc->sim_hz);
         else
             printf("  solver   %s (%s)\n", solver_name(st.solver),

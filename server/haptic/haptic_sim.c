@@ -120,6 +120,7 @@ typedef struct deform_status {
     double sim_hz_target;
     int solver;
     double solver_ms[3];
+    double factor_ms;
 } deform_status;
 
 // Step timing on the deformation thread: 0.1 ms bins over [0, 400 ms) and an overflow bin.
@@ -137,6 +138,7 @@ typedef struct deform_status {
 #define AUTO_UP_KNOWN 0.7  // a measured more accurate solver is taken when it fits this share
 #define AUTO_UP_PROBE 0.5  // an unmeasured one is tried when the current fits this share
 #define AUTO_RETRY_S  5.0  // wait after a solver failed its budget, doubled per failure
+#define AUTO_START    0.35 // start with direct when one factorisation fits this share
 #define AUTO_RETRY_MAX_S 160.0
 static const hs_solver_kind auto_rank[3] = {HS_SOLVER_DIRECT, HS_SOLVER_PCG, HS_SOLVER_WARPED};
 
@@ -1263,6 +1265,22 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
         s = HS_ERR_NOMEM;
         goto fail;
     }
+    if (h->def.auto_solver) {
+        // The first step's factorisation, made now and timed: a direct step refactors about
+        // that every step, plus the element pass, a back-solve and the snapshot. When it fits
+        // AUTO_START of the period, start with the most accurate solver (a small mesh never
+        // steps with a cheaper one); else with the cheapest, whose factor it is.
+        double f_ms = 0;
+        if (hs_body_prepare_step(h->body, &f_ms) == HS_OK) {
+            h->st.factor_ms = f_ms;
+            double c = def->step_cost ? def->step_cost(def->step_cost_ctx, HS_SOLVER_DIRECT, f_ms)
+                                      : f_ms;
+            if (c <= AUTO_START * def->body.dt * 1e3) {
+                hs_body_set_solver(h->body, HS_SOLVER_DIRECT, NULL);
+                bd.solver = HS_SOLVER_DIRECT;
+            }
+        }
+    }
     h->st.solver = (int)bd.solver;
     h->period_ns = (int64_t)(def->body.dt * 1e9);
     h->st.sim_hz_target = 1.0 / def->body.dt;
@@ -1690,6 +1708,7 @@ void hs_haptic_sim_stats_get(hs_haptic_sim* h, hs_haptic_sim_stats* out) {
     out->solver = ds.solver;
     out->solver_switches = ds.solver_switches;
     memcpy(out->solver_cost_ms, ds.solver_ms, sizeof out->solver_cost_ms);
+    out->factor_ms = ds.factor_ms;
     memcpy(out->cut_force_n, ds.cut_force_n, sizeof out->cut_force_n);
     out->cutting = ds.cutting;
     out->topology_version = atomic_load(&h->topo_version);
