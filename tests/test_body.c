@@ -1289,13 +1289,13 @@ static int SolverSwitchLive(void) {
     return 0;
 }
 
-HS_TEST_MAIN(HS_CASE(SolverSwitchLive), HS_CASE(PrescribedBarReaction), HS_CASE(LinearSeesElementChanges),
-             HS_CASE(OrphanHeldInPlace), HS_CASE(RestIsQuiet), HS_CASE(StepPolarTol),
-             HS_CASE(WarpedSolver), HS_CASE(WarpedPcgTracksDirect), HS_CASE(SolversAgree),
-             HS_CASE(NoAllocAndErrors), HS_CASE(EnergyNeverGrows), HS_CASE(LargeStepNoEnergyGain),
-             HS_CASE(InvertedRecovers), HS_CASE(SelfWeightVolume), HS_CASE(SvdStaticConverges),
-             HS_CASE(CantileverTimoshenko), HS_CASE(ElementListsRepeat),
-             HS_CASE(FailedFallbackKeepsState), HS_CASE(FailedStaticKeepsState),
-             HS_CASE(BadInputRefused), HS_CASE(StvkCompressionKeepsStepping),
-             HS_CASE(FailedStaticThenSteps), HS_CASE(NonFiniteStepRefused),
-             HS_CASE(UnderConstrainedStaticRefused))
+HS_TEST_MAIN(HS_CASE(SolverSwitchLive), HS_CASE(PrescribedBarReaction),
+             HS_CASE(LinearSeesElementChanges), HS_CASE(OrphanHeldInPlace), HS_CASE(RestIsQuiet),
+             HS_CASE(StepPolarTol), HS_CASE(WarpedSolver), HS_CASE(WarpedPcgTracksDirect),
+             HS_CASE(SolversAgree), HS_CASE(NoAllocAndErrors), HS_CASE(EnergyNeverGrows),
+             HS_CASE(LargeStepNoEnergyGain), HS_CASE(InvertedRecovers), HS_CASE(SelfWeightVolume),
+             HS_CASE(SvdStaticConverges), HS_CASE(CantileverTimoshenko),
+             HS_CASE(ElementListsRepeat), HS_CASE(FailedFallbackKeepsState),
+             HS_CASE(FailedStaticKeepsState), HS_CASE(BadInputRefused),
+             HS_CASE(StvkCompressionKeepsStepping), HS_CASE(FailedStaticThenSteps),
+             HS_CASE(NonFiniteStepRefused), HS_CASE(UnderConstrainedStaticRefused))

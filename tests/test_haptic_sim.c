@@ -813,8 +813,8 @@ static int auto_press(const double ms[3], int exact, int steps, hs_haptic_sim_st
     // It starts with direct when its cost fits 35 % of the period, else the cheapest allowed.
     ENSURE(st->factor_ms > 0);
     ENSURE(st->solver == (ms[0] <= 0.35 * 1e3 / 60 ? HS_SOLVER_DIRECT
-                          : exact                 ? HS_SOLVER_PCG
-                                                  : HS_SOLVER_WARPED));
+                          : exact                  ? HS_SOLVER_PCG
+                                                   : HS_SOLVER_WARPED));
     ENSURE_NEAR(st->sim_hz_target, 60.0, 1e-9);
     ENSURE(hs_haptic_sim_start(sim, &err) == HS_OK);
     harness hn;
@@ -835,8 +835,8 @@ static int auto_press(const double ms[3], int exact, int steps, hs_haptic_sim_st
     printf("  costs direct %g, pcg %g, warped %g ms%s: %lld steps in %d ms, solver %d after %lld "
            "switches; booked direct %.1f, pcg %.1f, warped %.1f ms; step p50 %.2f p99 %.2f ms\n",
            ms[0], ms[1], ms[2], exact ? " (exact tangent)" : "", (long long)st->steps, i,
-           st->solver, (long long)st->solver_switches, st->solver_cost_ms[0],
-           st->solver_cost_ms[1], st->solver_cost_ms[2], st->step_ms_p50, st->step_ms_p99);
+           st->solver, (long long)st->solver_switches, st->solver_cost_ms[0], st->solver_cost_ms[1],
+           st->solver_cost_ms[2], st->step_ms_p50, st->step_ms_p99);
     ENSURE(st->steps >= steps);
     ENSURE(hs_body_solver(hs_haptic_sim_body(sim)) == (hs_solver_kind)st->solver);
     hs_haptic_sim_destroy(&sim);
@@ -946,7 +946,8 @@ static int background_setup_zero_force(void) {
     }
     hs_haptic_sim_stop(sim);
     printf("  set-up %.1f ms in the background: %d ticks of zero force, ready at tick %d, then "
-           "%.3f N\n", st.setup_ms, zero_ticks, ready_at, f_end);
+           "%.3f N\n",
+           st.setup_ms, zero_ticks, ready_at, f_end);
     ENSURE(ready_at >= 0 && st.setup_ms > 0 && f_end > 0.02);
     ENSURE(hs_haptic_sim_compliance(sim) != NULL && hs_haptic_sim_wait_setup(sim) == HS_OK);
     hs_haptic_sim_destroy(&sim);
@@ -961,8 +962,8 @@ static int background_setup_zero_force(void) {
     return 0;
 }
 
-HS_TEST_MAIN(HS_CASE(auto_solver_choice), HS_CASE(background_setup_zero_force), HS_CASE(rate_lowered_when_behind),
-             HS_CASE(no_pose_no_force), HS_CASE(gravity_sags_untouched),
-             HS_CASE(press_hold_release), HS_CASE(corotated_hold),
+HS_TEST_MAIN(HS_CASE(auto_solver_choice), HS_CASE(background_setup_zero_force),
+             HS_CASE(rate_lowered_when_behind), HS_CASE(no_pose_no_force),
+             HS_CASE(gravity_sags_untouched), HS_CASE(press_hold_release), HS_CASE(corotated_hold),
              HS_CASE(corotated_small_deep_hold), HS_CASE(watchdog), HS_CASE(take_over_keeps_force),
              HS_CASE(continuity_and_allocs))

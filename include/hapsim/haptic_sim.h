@@ -125,19 +125,19 @@ typedef struct hs_haptic_sim_stats {
     double free_relax_w;     ///< relaxation of the contact-free surface in use (<= free_relax)
     int64_t free_relax_cuts; ///< steps whose growing correction cut it (a diverging iteration)
     // Deformation step timing (step + snapshot, the deformation thread's own clock).
-    double step_ms_p50;       ///< median over the newest HS_SIM_STEP_WINDOW steps, ms
-    double step_ms_p99;       ///< 99th percentile over them, ms
-    double step_ms_p50_all;   ///< median since start (0.1 ms bins, upper edge), ms
-    double step_ms_p99_all;   ///< 99th percentile since start, ms
+    double step_ms_p50;         ///< median over the newest HS_SIM_STEP_WINDOW steps, ms
+    double step_ms_p99;         ///< 99th percentile over them, ms
+    double step_ms_p50_all;     ///< median since start (0.1 ms bins, upper edge), ms
+    double step_ms_p99_all;     ///< 99th percentile since start, ms
     double step_cpu_ms_p50_all; ///< the deformation thread's CPU time per step, median, ms
     double step_cpu_ms_p99_all; ///< and its 99th percentile since start (one core's cost), ms
-    int64_t step_overruns;    ///< steps longer than body.dt (the nominal step period)
-    double sim_hz_target;     ///< step rate the thread paces to now; < 1 / body.dt when lowered
-    int64_t rate_changes;     ///< times that rate was lowered or raised again
-    int solver;               ///< hs_solver_kind the body steps with now
-    int64_t solver_switches;  ///< auto_solver: switches made
-    double solver_cost_ms[3]; ///< auto_solver: body step cost per hs_solver_kind, ms (0: unknown)
-    double factor_ms;         ///< auto_solver: the factorisation timed at create, ms
+    int64_t step_overruns;      ///< steps longer than body.dt (the nominal step period)
+    double sim_hz_target;       ///< step rate the thread paces to now; < 1 / body.dt when lowered
+    int64_t rate_changes;       ///< times that rate was lowered or raised again
+    int solver;                 ///< hs_solver_kind the body steps with now
+    int64_t solver_switches;    ///< auto_solver: switches made
+    double solver_cost_ms[3];   ///< auto_solver: body step cost per hs_solver_kind, ms (0: unknown)
+    double factor_ms;           ///< auto_solver: the factorisation timed at create, ms
     /// The compliance: 0 in use, 1 set-up running (background_setup; zero force meanwhile), 2
     /// set up but not yet taken by the deformation thread, -1 its set-up failed (zero force;
     /// hs_haptic_sim_setup_error says why)

@@ -346,8 +346,8 @@ static void sim_def_from_scene(const hs_scene* sc, int realtime, hs_haptic_sim_d
     // The server starts (visual mesh, deformation) while the compliance is set up; haptics
     // answer zero force until it is ready (status warnings, a console line when it is).
     d->background_setup = 1;
-    d->body.solver = sc->solver == HS_SCENE_SOLVER_DIRECT ? HS_SOLVER_DIRECT
-                     : sc->solver == HS_SCENE_SOLVER_PCG  ? HS_SOLVER_PCG
+    d->body.solver = sc->solver == HS_SCENE_SOLVER_DIRECT            ? HS_SOLVER_DIRECT
+                     : sc->solver == HS_SCENE_SOLVER_PCG             ? HS_SOLVER_PCG
                      : sc->solver == HS_SCENE_SOLVER_WARPED || corot ? HS_SOLVER_WARPED
                                                                      : HS_SOLVER_DIRECT;
     memcpy(d->body.gravity, sc->gravity, sizeof d->body.gravity);
@@ -1976,8 +1976,7 @@ static void live_line(hs_server* s, int64_t t) {
             "\rhapsim-server: rt %6.1f Hz  jitter p99 %5.0f us  force %5.2f N  sim %s %4.1f Hz "
             "step p50/p99 %5.2f/%5.2f ms overruns %lld  poses %lld  rejected %llu%s   ",
             rate, jit, norm3(s->dev[0].force), solver, sim_hz, p50, p99, over,
-            (long long)s->poses_total,
-            (unsigned long long)rej,
+            (long long)s->poses_total, (unsigned long long)rej,
             s->estop    ? "  E-STOP"
             : s->paused ? "  PAUSED"
                         : "");
@@ -2148,9 +2147,9 @@ hs_status hs_server_run(hs_server* s, hs_err* err) {
                    "(step + snapshot, since the last reset or load; thread CPU p50 %.2f ms, p99 "
                    "%.2f ms), %lld overruns of %.1f ms; rate %.1f Hz of %g at the end; solver %s",
                    (long long)st.steps, st.step_ms_p50_all, st.step_ms_p99_all,
-                   st.step_cpu_ms_p50_all, st.step_cpu_ms_p99_all,
-                   (long long)st.step_overruns, 1e3 / s->w.scene.sim_hz, st.sim_hz_target,
-                   s->w.scene.sim_hz, solver_name(st.solver));
+                   st.step_cpu_ms_p50_all, st.step_cpu_ms_p99_all, (long long)st.step_overruns,
+                   1e3 / s->w.scene.sim_hz, st.sim_hz_target, s->w.scene.sim_hz,
+                   solver_name(st.solver));
             if (s->w.def.auto_solver)
                 printf(" (auto, %lld switches; step cost direct %.1f, pcg %.1f, warped %.1f ms; "
                        "0: not measured)",

@@ -124,21 +124,21 @@ typedef struct deform_status {
 } deform_status;
 
 // Step timing on the deformation thread: 0.1 ms bins over [0, 400 ms) and an overflow bin.
-#define STEP_BINS     4000
-#define STEP_BIN_MS   0.1
-#define RATE_WINDOW   32   // newest steps the pacing looks at
-#define RATE_EVERY    16   // steps between two pacing decisions
-#define RATE_MARGIN   1.15 // paced period = RATE_MARGIN x the window's 90th percentile
-#define RATE_RAISE    0.7  // raise the rate again when that is below this share of the period
-#define RATE_MAX_DIV  8    // the rate goes down to 1 / (RATE_MAX_DIV dt) at the lowest
+#define STEP_BINS    4000
+#define STEP_BIN_MS  0.1
+#define RATE_WINDOW  32   // newest steps the pacing looks at
+#define RATE_EVERY   16   // steps between two pacing decisions
+#define RATE_MARGIN  1.15 // paced period = RATE_MARGIN x the window's 90th percentile
+#define RATE_RAISE   0.7  // raise the rate again when that is below this share of the period
+#define RATE_MAX_DIV 8    // the rate goes down to 1 / (RATE_MAX_DIV dt) at the lowest
 // Solver choice (auto_solver): ranks from the most accurate to the cheapest.
-#define AUTO_SETTLE   2    // steps after a switch not booked (its refactor, the warm starts)
-#define AUTO_DOWN     3    // net steps over the budget before a cheaper solver
-#define AUTO_UP_STEPS 30   // steps with a solver before a more accurate one is tried
-#define AUTO_UP_KNOWN 0.7  // a measured more accurate solver is taken when it fits this share
-#define AUTO_UP_PROBE 0.5  // an unmeasured one is tried when the current fits this share
-#define AUTO_RETRY_S  5.0  // wait after a solver failed its budget, doubled per failure
-#define AUTO_START    0.35 // start with direct when one factorisation fits this share
+#define AUTO_SETTLE      2    // steps after a switch not booked (its refactor, the warm starts)
+#define AUTO_DOWN        3    // net steps over the budget before a cheaper solver
+#define AUTO_UP_STEPS    30   // steps with a solver before a more accurate one is tried
+#define AUTO_UP_KNOWN    0.7  // a measured more accurate solver is taken when it fits this share
+#define AUTO_UP_PROBE    0.5  // an unmeasured one is tried when the current fits this share
+#define AUTO_RETRY_S     5.0  // wait after a solver failed its budget, doubled per failure
+#define AUTO_START       0.35 // start with direct when one factorisation fits this share
 #define AUTO_RETRY_MAX_S 160.0
 static const hs_solver_kind auto_rank[3] = {HS_SOLVER_DIRECT, HS_SOLVER_PCG, HS_SOLVER_WARPED};
 
@@ -274,17 +274,17 @@ struct hs_haptic_sim {
     double setup_ms; // the first compliance's set-up
 
     // step timing, pacing and solver choice (deformation thread)
-    uint32_t* step_hist;                   // [2 (STEP_BINS + 1)] wall, then thread CPU
-    int64_t step_hist_n;                   // samples in it
+    uint32_t* step_hist;                  // [2 (STEP_BINS + 1)] wall, then thread CPU
+    int64_t step_hist_n;                  // samples in it
     double recent_ms[HS_SIM_STEP_WINDOW]; // ring of the newest step times, ms
-    int64_t recent_n;                      // steps recorded (ring position)
-    int64_t period_ns;                     // paced step period (>= body.dt)
-    int rate_count;                        // steps since the last pacing decision
-    int au_last;                           // auto: cheapest allowed rank
-    int au_since, au_over;                 // steps with the current solver; net over-budget
-    double au_snap_ms;                     // auto: snapshot cost estimate, ms
-    int64_t au_retry_ns[3];                // per kind: not tried again before
-    double au_backoff_s[3];                // per kind: the next wait after a failure
+    int64_t recent_n;                     // steps recorded (ring position)
+    int64_t period_ns;                    // paced step period (>= body.dt)
+    int rate_count;                       // steps since the last pacing decision
+    int au_last;                          // auto: cheapest allowed rank
+    int au_since, au_over;                // steps with the current solver; net over-budget
+    double au_snap_ms;                    // auto: snapshot cost estimate, ms
+    int64_t au_retry_ns[3];               // per kind: not tried again before
+    double au_backoff_s[3];               // per kind: the next wait after a failure
 
     // background compliance set-up (def.background_setup)
     pthread_t su_thread;
@@ -885,8 +885,7 @@ static double recent_quantile(const hs_haptic_sim* h, int n, double q) {
     double v[HS_SIM_STEP_WINDOW];
     if (n > h->recent_n) n = (int)h->recent_n;
     if (n <= 0) return 0;
-    for (int k = 0; k < n; ++k)
-        v[k] = h->recent_ms[(h->recent_n - 1 - k) % HS_SIM_STEP_WINDOW];
+    for (int k = 0; k < n; ++k) v[k] = h->recent_ms[(h->recent_n - 1 - k) % HS_SIM_STEP_WINDOW];
     qsort(v, (size_t)n, sizeof v[0], cmp_double);
     int i = (int)ceil(q * n) - 1;
     return v[i < 0 ? 0 : i >= n ? n - 1 : i];
@@ -1273,8 +1272,8 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
         double f_ms = 0;
         if (hs_body_prepare_step(h->body, &f_ms) == HS_OK) {
             h->st.factor_ms = f_ms;
-            double c = def->step_cost ? def->step_cost(def->step_cost_ctx, HS_SOLVER_DIRECT, f_ms)
-                                      : f_ms;
+            double c =
+                def->step_cost ? def->step_cost(def->step_cost_ctx, HS_SOLVER_DIRECT, f_ms) : f_ms;
             if (c <= AUTO_START * def->body.dt * 1e3) {
                 hs_body_set_solver(h->body, HS_SOLVER_DIRECT, NULL);
                 bd.solver = HS_SOLVER_DIRECT;
@@ -1451,7 +1450,7 @@ void hs_haptic_sim_stop(hs_haptic_sim* h) {
         atomic_store_explicit(&h->stop, 1, memory_order_release);
         pthread_join(h->thread, NULL);
         h->thread_started = 0;
-        setup_take(h, 0); // a finished background set-up is the control thread's to take now
+        setup_take(h, 0);    // a finished background set-up is the control thread's to take now
         if (h->cw_running) { // the thread is gone: finish its rebuild here (cannot be cut short)
             comp_poll(h, 1);
             hs_triple_buffer_write(h->status, &h->st);

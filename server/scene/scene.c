@@ -328,8 +328,8 @@ static hs_status parse_model(const ctx* c, const cJSON* root, hs_scene* s) {
     const cJSON* m;
     TRY(get_obj(c, root, "", "model", &m));
     if (!m) return HS_OK;
-    static const char* const keys[] = {"type",         "rotation", "inversion",
-                                       "locking_free", "solver",   "solver_accuracy", NULL};
+    static const char* const keys[] = {"type",   "rotation",        "inversion", "locking_free",
+                                       "solver", "solver_accuracy", NULL};
     TRY(check_keys(c, m, "model", keys));
     static const char* const types[] = {"linear", "corotated", "stvk"};
     static const char* const rots[] = {"polar", "svd"};

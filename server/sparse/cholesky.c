@@ -833,11 +833,9 @@ static void diag_column_base(double* y, const int* li, const double* lx, int nz,
                              const double* restrict v) {
     DIAG_COLUMN_BODY
 }
-__attribute__((target("avx2"))) static void diag_column_avx2(double* y, const int* li,
-                                                             const double* lx, int nz,
-                                                             const double* restrict v) {
-    DIAG_COLUMN_BODY
-}
+__attribute__((target("avx2"))) static void
+diag_column_avx2(double* y, const int* li, const double* lx, int nz,
+                 const double* restrict v){DIAG_COLUMN_BODY}
 
 hs_status hs_cholesky_inverse_diag3(hs_cholesky* f, int nb, const int* dofs, double* out) {
     if (!f || !f->L || f->broken || nb < 0 || (nb > 0 && (!dofs || !out))) return HS_ERR_INVALID;
