@@ -64,8 +64,9 @@ typedef struct hs_haptic_sim_def {
     void* rt_hook_ctx; ///< passed to the hooks
     /// 1: the deformation thread picks the body's solver from its measured steps, the most
     /// accurate that keeps the step rate 1 / body.dt (direct, then PCG, then warped; with
-    /// auto_exact_tangent only direct and PCG), starting with direct when the factorisation
-    /// create times fits 35 % of the period, else with the cheapest, and switches with
+    /// auto_exact_tangent only direct and PCG), starting with direct when the factor has at most
+    /// 250k entries or the factorisation create times fits 35 % of the period, else with the
+    /// cheapest (with step_cost: that hook's direct cost decides), and switches with
     /// hysteresis when the load changes (docs/server.md, "Solver choice"). body.solver is
     /// ignored. Only for the co-rotated model (else off: body.solver is used).
     int auto_solver;

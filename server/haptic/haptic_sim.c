@@ -130,6 +130,7 @@ typedef struct deform_status {
 #define RATE_EVERY   16   // steps between two pacing decisions
 #define RATE_MARGIN  1.15 // paced period = RATE_MARGIN x the window's 90th percentile
 #define RATE_RAISE   0.7  // raise the rate again when that is below this share of the period
+#define RATE_FAST    8    // newest steps whose slowest decides a raise (checked every step)
 #define RATE_MAX_DIV 8    // the rate goes down to 1 / (RATE_MAX_DIV dt) at the lowest
 // Solver choice (auto_solver): ranks from the most accurate to the cheapest.
 #define AUTO_SETTLE      2    // steps after a switch not booked (its refactor, the warm starts)
@@ -139,6 +140,7 @@ typedef struct deform_status {
 #define AUTO_UP_PROBE    0.5  // an unmeasured one is tried when the current fits this share
 #define AUTO_RETRY_S     5.0  // wait after a solver failed its budget, doubled per failure
 #define AUTO_START       0.35 // start with direct when one factorisation fits this share
+#define AUTO_START_NNZ   250000 // or when the factor is this small (deterministic: no clock)
 #define AUTO_RETRY_MAX_S 160.0
 static const hs_solver_kind auto_rank[3] = {HS_SOLVER_DIRECT, HS_SOLVER_PCG, HS_SOLVER_WARPED};
 
@@ -929,15 +931,20 @@ static void record_step(hs_haptic_sim* h, double ms, double cpu_ms) {
         h->st.step_cpu_p50_all = hist_quantile(h, h->step_hist + STEP_BINS + 1, 0.5);
         h->st.step_cpu_p99_all = hist_quantile(h, h->step_hist + STEP_BINS + 1, 0.99);
     }
-    if (++h->rate_count < RATE_EVERY || h->recent_n < RATE_WINDOW) return;
-    if (h->def.auto_solver && h->au_since < RATE_WINDOW) return; // a switch is settling
-    h->rate_count = 0;
-    double want = RATE_MARGIN * recent_quantile(h, RATE_WINDOW, 0.9) * 1e6; // ns
     int64_t p = h->period_ns;
-    if (want > (double)p)
-        p = (int64_t)fmin(want, (double)(RATE_MAX_DIV * step_ns));
-    else if (p > step_ns && want < RATE_RAISE * (double)p)
-        p = (int64_t)fmax(want, (double)step_ns);
+    if (p > step_ns && h->recent_n >= RATE_FAST) {
+        // Up quickly: the newest RATE_FAST steps all fit well (a lowered rate would otherwise
+        // hold for RATE_EVERY of its own long periods after the load is gone).
+        double fast = RATE_MARGIN * recent_quantile(h, RATE_FAST, 1.0) * 1e6; // ns
+        if (fast < RATE_RAISE * (double)p) p = (int64_t)fmax(fast, (double)step_ns);
+    }
+    if (p == h->period_ns && ++h->rate_count >= RATE_EVERY && h->recent_n >= RATE_WINDOW &&
+        !(h->def.auto_solver && h->au_since < RATE_WINDOW)) { // (not while a switch settles)
+        // Down slowly: the 90th percentile of the newest RATE_WINDOW steps does not fit.
+        h->rate_count = 0;
+        double want = RATE_MARGIN * recent_quantile(h, RATE_WINDOW, 0.9) * 1e6; // ns
+        if (want > (double)p) p = (int64_t)fmin(want, (double)(RATE_MAX_DIV * step_ns));
+    }
     if (p != h->period_ns) {
         h->period_ns = p;
         h->st.rate_changes++;
@@ -1101,6 +1108,12 @@ static void* deform_main(void* arg) {
             }
         }
         h->st.sleeping = !moving;
+        if (!moving && h->period_ns != (int64_t)(h->def.body.dt * 1e9)) {
+            // At rest: the next contact starts at the nominal rate (the load may be gone).
+            h->period_ns = (int64_t)(h->def.body.dt * 1e9);
+            h->st.sim_hz_target = 1.0 / h->def.body.dt;
+            h->st.rate_changes++;
+        }
         h->st.contact = c;
         if (h->comp) h->st.column_solves = hs_compliance_column_solves(h->comp);
         hs_triple_buffer_write(h->status, &h->st);
@@ -1274,7 +1287,11 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
             h->st.factor_ms = f_ms;
             double c =
                 def->step_cost ? def->step_cost(def->step_cost_ctx, HS_SOLVER_DIRECT, f_ms) : f_ms;
-            if (c <= AUTO_START * def->body.dt * 1e3) {
+            // A small factor starts direct whatever the clock says (a loaded machine must not
+            // change a small scene's solver); the test hook stands for any size.
+            const int small = !def->step_cost && hs_body_factor(h->body) &&
+                              hs_cholesky_factor_nnz(hs_body_factor(h->body)) <= AUTO_START_NNZ;
+            if (small || c <= AUTO_START * def->body.dt * 1e3) {
                 hs_body_set_solver(h->body, HS_SOLVER_DIRECT, NULL);
                 bd.solver = HS_SOLVER_DIRECT;
             }
