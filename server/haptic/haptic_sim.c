@@ -931,6 +931,9 @@ static void record_step(hs_haptic_sim* h, double ms, double cpu_ms) {
         h->st.step_cpu_p50_all = hist_quantile(h, h->step_hist + STEP_BINS + 1, 0.5);
         h->st.step_cpu_p99_all = hist_quantile(h, h->step_hist + STEP_BINS + 1, 0.99);
     }
+    // With cutting on, the blade's sweeps and the compliance swaps run once per loop pass: the
+    // loop keeps the nominal pacing (late: at once, no burst) rather than a lowered rate.
+    if (h->cut) return;
     int64_t p = h->period_ns;
     if (p > step_ns && h->recent_n >= RATE_FAST) {
         // Up quickly: the newest RATE_FAST steps all fit well (a lowered rate would otherwise
