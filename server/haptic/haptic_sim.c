@@ -128,7 +128,9 @@ typedef struct deform_status {
 #define STEP_BIN_MS  0.1
 #define RATE_WINDOW  32   // newest steps the pacing looks at
 #define RATE_EVERY   16   // steps between two pacing decisions
-#define RATE_MARGIN  1.15 // paced period = RATE_MARGIN x the window's 90th percentile
+#define RATE_MARGIN                                                                                \
+    1.05                  // paced period = RATE_MARGIN x the window's median (a slower step
+                          // starts the next at once: the rate is what the steps allow)
 #define RATE_RAISE   0.7  // raise the rate again when that is below this share of the period
 #define RATE_FAST    8    // newest steps whose slowest decides a raise (checked every step)
 #define RATE_MAX_DIV 8    // the rate goes down to 1 / (RATE_MAX_DIV dt) at the lowest
@@ -943,9 +945,9 @@ static void record_step(hs_haptic_sim* h, double ms, double cpu_ms) {
     }
     if (p == h->period_ns && ++h->rate_count >= RATE_EVERY && h->recent_n >= RATE_WINDOW &&
         !(h->def.auto_solver && h->au_since < RATE_WINDOW)) { // (not while a switch settles)
-        // Down slowly: the 90th percentile of the newest RATE_WINDOW steps does not fit.
+        // Down slowly: the median of the newest RATE_WINDOW steps does not fit.
         h->rate_count = 0;
-        double want = RATE_MARGIN * recent_quantile(h, RATE_WINDOW, 0.9) * 1e6; // ns
+        double want = RATE_MARGIN * recent_quantile(h, RATE_WINDOW, 0.5) * 1e6; // ns
         if (want > (double)p) p = (int64_t)fmin(want, (double)(RATE_MAX_DIV * step_ns));
     }
     if (p != h->period_ns) {
