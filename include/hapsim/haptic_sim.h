@@ -71,8 +71,10 @@ typedef struct hs_haptic_sim_def {
     /// ignored. Only for the co-rotated model (else off: body.solver is used).
     int auto_solver;
     int auto_exact_tangent; ///< auto_solver: only solvers that solve with the exact tangent
-    /// Optional (tests): the cost booked for a body step that took `ms` with `solver`, ms;
-    /// NULL: the measured wall time. Runs on the deformation thread.
+    /// Optional (tests): the cost booked for a step (body + snapshot) that took `ms` with
+    /// `solver`, and for the direct step at create (`ms`: the timed factorisation), ms; NULL:
+    /// the measured wall times. No clock enters the solver choice then. Runs on the
+    /// deformation thread (and in create).
     double (*step_cost)(void* ctx, hs_solver_kind solver, double ms);
     void* step_cost_ctx; ///< passed to step_cost
     /// 1: the compliance is set up on a worker thread started by create (which then returns

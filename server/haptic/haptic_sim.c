@@ -979,8 +979,10 @@ static void auto_switch(hs_haptic_sim* h, hs_solver_kind k) {
 // AUTO_UP_KNOWN of the budget or, unmeasured, the current fits AUTO_UP_PROBE.
 static void auto_solver_step(hs_haptic_sim* h, double body_ms, double snap_ms) {
     const hs_solver_kind k = hs_body_solver(h->body);
+    // The hook books the whole step (body + snapshot): no clock enters the choice then.
     const double c =
-        h->def.step_cost ? h->def.step_cost(h->def.step_cost_ctx, k, body_ms) : body_ms;
+        h->def.step_cost ? h->def.step_cost(h->def.step_cost_ctx, k, body_ms + snap_ms) : body_ms;
+    if (h->def.step_cost) snap_ms = 0;
     if (++h->au_since <= AUTO_SETTLE) return;
     double* e = &h->st.solver_ms[k];
     *e = *e > 0 ? *e + 0.25 * (c - *e) : c;
