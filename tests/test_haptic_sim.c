@@ -1007,7 +1007,191 @@ static int block_reference(void) {
     return 0;
 }
 
-HS_TEST_MAIN(HS_CASE(no_pose_no_force), HS_CASE(gravity_sags_untouched),
-             HS_CASE(press_hold_release), HS_CASE(corotated_hold),
+// ---------------------------------------------------------------------------------------------
+// Solver choice and step timing
+
+// Step costs per hs_solver_kind booked instead of the measured ones (body + snapshot): a mesh
+// of any size, and no clock in the choice (sanitizers, a loaded machine).
+typedef struct cost_model {
+    double ms[3];
+} cost_model;
+
+static double cost_hook(void* ctx, hs_solver_kind k, double ms) {
+    (void)ms;
+    return ((const cost_model*)ctx)->ms[k];
+}
+
+// Press the liver 5 mm at 60 Hz steps with the auto solver and the cost model, and hold until
+// `steps` deformation steps (at most 20 s). Stats at the end into st.
+static int auto_press(const double ms[3], int exact, int steps, hs_haptic_sim_stats* st) {
+    liver L;
+    ENSURE(load_liver(&L) == 0);
+    hs_haptic_sim_def d = liver_def(HS_MODEL_COROTATED, 0.01);
+    d.body.dt = 1.0 / 60;
+    d.body.solver = HS_SOLVER_DIRECT; // ignored under auto_solver
+    d.auto_solver = 1;
+    d.auto_exact_tangent = exact;
+    cost_model cm = {{ms[0], ms[1], ms[2]}};
+    d.step_cost = cost_hook;
+    d.step_cost_ctx = &cm;
+    hs_haptic_sim* sim = NULL;
+    hs_err err = {0};
+    ENSURE(hs_haptic_sim_create(L.mesh, &d, L.fixed, &sim, &err) == HS_OK);
+    hs_haptic_sim_stats_get(sim, st);
+    // It starts with direct when its cost fits 35 % of the period, else the cheapest allowed.
+    ENSURE(st->factor_ms > 0);
+    ENSURE(st->solver == (ms[0] <= 0.35 * 1e3 / 60 ? HS_SOLVER_DIRECT
+                          : exact                  ? HS_SOLVER_PCG
+                                                   : HS_SOLVER_WARPED));
+    ENSURE_NEAR(st->sim_hz_target, 60.0, 1e-9);
+    ENSURE(hs_haptic_sim_start(sim, &err) == HS_OK);
+    harness hn;
+    harness_init(&hn, sim);
+    double p[3];
+    int i = 0;
+    for (; i < 20000; ++i) {
+        tool_at(&L, 0.01, i < 300 ? -0.005 + 0.010 * i / 300.0 : 0.005, 0, p);
+        harness_tick(&hn, p);
+        drain(sim);
+        if (i % 50 == 0) {
+            hs_haptic_sim_stats_get(sim, st);
+            if (st->steps >= steps) break;
+        }
+    }
+    hs_haptic_sim_stop(sim);
+    hs_haptic_sim_stats_get(sim, st);
+    printf("  costs direct %g, pcg %g, warped %g ms%s: %lld steps in %d ms, solver %d after %lld "
+           "switches; booked direct %.1f, pcg %.1f, warped %.1f ms; step p50 %.2f p99 %.2f ms\n",
+           ms[0], ms[1], ms[2], exact ? " (exact tangent)" : "", (long long)st->steps, i,
+           st->solver, (long long)st->solver_switches, st->solver_cost_ms[0], st->solver_cost_ms[1],
+           st->solver_cost_ms[2], st->step_ms_p50, st->step_ms_p99);
+    ENSURE(st->steps >= steps);
+    ENSURE(hs_body_solver(hs_haptic_sim_body(sim)) == (hs_solver_kind)st->solver);
+    hs_haptic_sim_destroy(&sim);
+    free_liver(&L);
+    return 0;
+}
+
+// A mesh too large for the direct solver (80 ms a step) and PCG (40 ms) against a 16.7 ms
+// budget: the auto choice tries PCG once and settles on the warped solver without ever trying
+// direct. A mid-size one (direct 6 ms): it climbs to direct. With the exact tangent asked for,
+// the warped solver is never used.
+static int auto_solver_choice(void) {
+    hs_haptic_sim_stats st;
+    const double large[3] = {80, 40, 4}; // by hs_solver_kind: DIRECT, PCG, WARPED
+    ENSURE(auto_press(large, 0, 100, &st) == 0);
+    ENSURE(st.solver == HS_SOLVER_WARPED);
+    ENSURE(st.solver_switches == 2); // up to PCG, which failed its budget, and back
+    ENSURE_NEAR(st.solver_cost_ms[HS_SOLVER_PCG], 40, 1e-9);
+    ENSURE(st.solver_cost_ms[HS_SOLVER_DIRECT] == 0); // never tried
+    const double mid[3] = {8, 3, 1};
+    ENSURE(auto_press(mid, 0, 110, &st) == 0);
+    ENSURE(st.solver == HS_SOLVER_DIRECT && st.solver_switches == 2);
+    const double small[3] = {2, 1, 0.5}; // starts with direct and stays
+    ENSURE(auto_press(small, 0, 40, &st) == 0);
+    ENSURE(st.solver == HS_SOLVER_DIRECT && st.solver_switches == 0);
+    ENSURE(auto_press(large, 1, 60, &st) == 0);
+    ENSURE(st.solver == HS_SOLVER_PCG && st.solver_switches == 0);
+    ENSURE(st.solver_cost_ms[HS_SOLVER_WARPED] == 0);
+    return 0;
+}
+
+// Steps slower than the step period (10 kHz asked): the deformation thread lowers its own rate
+// (never the 1 kHz haptic one), counts the overruns and reports its step percentiles.
+static int rate_lowered_when_behind(void) {
+    liver L;
+    ENSURE(load_liver(&L) == 0);
+    hs_haptic_sim_def d = liver_def(HS_MODEL_COROTATED, 0.01);
+    d.body.dt = 1e-4;
+    d.body.solver = HS_SOLVER_WARPED;
+    hs_haptic_sim* sim = NULL;
+    hs_err err = {0};
+    ENSURE(hs_haptic_sim_create(L.mesh, &d, L.fixed, &sim, &err) == HS_OK);
+    ENSURE(hs_haptic_sim_start(sim, &err) == HS_OK);
+    harness hn;
+    harness_init(&hn, sim);
+    double p[3];
+    for (int i = 0; i < 1500; ++i) {
+        tool_at(&L, 0.01, i < 300 ? -0.005 + 0.010 * i / 300.0 : 0.005, 0, p);
+        harness_tick(&hn, p);
+        drain(sim);
+    }
+    hs_haptic_sim_stats st;
+    hs_haptic_sim_stats_get(sim, &st);
+    hs_haptic_sim_stop(sim);
+    printf("  %lld steps, %lld overruns of 0.1 ms, step p50 %.3f p99 %.3f ms (since start %.2f "
+           "/ %.2f), rate now %.0f Hz after %lld changes, %lld rt ticks\n",
+           (long long)st.steps, (long long)st.step_overruns, st.step_ms_p50, st.step_ms_p99,
+           st.step_ms_p50_all, st.step_ms_p99_all, st.sim_hz_target, (long long)st.rate_changes,
+           (long long)st.rt_ticks);
+    ENSURE(st.steps > 20 && st.step_overruns > 0 && st.step_overruns <= st.steps);
+    ENSURE(st.step_ms_p50 > 0 && st.step_ms_p50 <= st.step_ms_p99);
+    ENSURE(st.step_ms_p99 <= st.step_ms_max + 1e-9);
+    ENSURE(st.step_ms_p50_all > 0 && st.step_ms_p50_all <= st.step_ms_p99_all);
+    // Thread CPU time of the same steps: positive, never above their wall time (0.1 ms bins).
+    ENSURE(st.step_cpu_ms_p50_all > 0 && st.step_cpu_ms_p50_all <= st.step_ms_p50_all + 0.1);
+    ENSURE(st.step_cpu_ms_p99_all <= st.step_ms_p99_all + 0.1);
+    ENSURE(st.rate_changes >= 1 && st.sim_hz_target < 5000 && st.sim_hz_target >= 10000.0 / 8);
+    ENSURE(st.solver == HS_SOLVER_WARPED && st.solver_switches == 0);
+    ENSURE(st.rt_ticks > 500); // the haptic loop ran on (1.5 s at 1 kHz)
+    hs_haptic_sim_destroy(&sim);
+    free_liver(&L);
+    return 0;
+}
+
+// background_setup: create returns before the compliance exists; rt answers exactly zero force
+// (pressed into the tissue) until the deformation thread takes it, then the press is felt. A
+// set-up that fails (nothing fixed: the rest stiffness is singular) says why and stays at zero.
+static int background_setup_zero_force(void) {
+    liver L;
+    ENSURE(load_liver(&L) == 0);
+    hs_haptic_sim_def d = liver_def(HS_MODEL_COROTATED, 0.01);
+    d.background_setup = 1;
+    hs_haptic_sim* sim = NULL;
+    hs_err err = {0};
+    ENSURE(hs_haptic_sim_create(L.mesh, &d, L.fixed, &sim, &err) == HS_OK);
+    hs_haptic_sim_stats st;
+    hs_haptic_sim_stats_get(sim, &st);
+    ENSURE(st.comp_state == 1 || st.comp_state == 2);
+    ENSURE(hs_haptic_sim_compliance(sim) == NULL && hs_haptic_sim_setup_error(sim) == NULL);
+    ENSURE(hs_haptic_sim_start(sim, &err) == HS_OK);
+    harness hn;
+    harness_init(&hn, sim);
+    double p[3];
+    tool_at(&L, 0.01, 0.004, 0, p); // 4 mm deep from the first tick
+    int zero_ticks = 0, ready_at = -1;
+    double f_end = 0;
+    for (int i = 0; i < 20000 && (ready_at < 0 || i < ready_at + 500); ++i) {
+        harness_tick(&hn, p);
+        drain(sim);
+        hs_haptic_sim_stats_get(sim, &st); // after the output: a state != 0 predates its take
+        if (st.comp_state != 0 && hn.have_out) {
+            ENSURE(norm3(hn.out.force_n) == 0.0);
+            ++zero_ticks;
+        }
+        if (st.comp_state == 0 && ready_at < 0) ready_at = i;
+        f_end = norm3(hn.out.force_n);
+    }
+    hs_haptic_sim_stop(sim);
+    printf("  set-up %.1f ms in the background: %d ticks of zero force, ready at tick %d, then "
+           "%.3f N\n",
+           st.setup_ms, zero_ticks, ready_at, f_end);
+    ENSURE(ready_at >= 0 && st.setup_ms > 0 && f_end > 0.02);
+    ENSURE(hs_haptic_sim_compliance(sim) != NULL && hs_haptic_sim_wait_setup(sim) == HS_OK);
+    hs_haptic_sim_destroy(&sim);
+    // Nothing fixed: the body steps (it has mass), the compliance cannot be set up.
+    ENSURE(hs_haptic_sim_create(L.mesh, &d, NULL, &sim, &err) == HS_OK);
+    ENSURE(hs_haptic_sim_wait_setup(sim) != HS_OK);
+    hs_haptic_sim_stats_get(sim, &st);
+    ENSURE(st.comp_state == -1 && hs_haptic_sim_setup_error(sim) != NULL);
+    printf("  unfixed: %s\n", hs_haptic_sim_setup_error(sim));
+    hs_haptic_sim_destroy(&sim);
+    free_liver(&L);
+    return 0;
+}
+
+HS_TEST_MAIN(HS_CASE(auto_solver_choice), HS_CASE(background_setup_zero_force),
+             HS_CASE(rate_lowered_when_behind), HS_CASE(no_pose_no_force),
+             HS_CASE(gravity_sags_untouched), HS_CASE(press_hold_release), HS_CASE(corotated_hold),
              HS_CASE(corotated_small_deep_hold), HS_CASE(watchdog), HS_CASE(take_over_keeps_force),
              HS_CASE(continuity_and_allocs), HS_CASE(deep_press), HS_CASE(block_reference))

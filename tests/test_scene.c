@@ -46,12 +46,23 @@ static int defaults_and_paths(void) {
     ENSURE(hs_scene_parse(minimal, "/a/b/scene.json", 0, &s, &err) == HS_OK);
     ENSURE(strcmp(s.mesh_path, "/a/b/m.msh") == 0 && strcmp(s.name, "scene.json") == 0);
     ENSURE(s.material.youngs_pa == d.material.youngs_pa && s.model == d.model);
-    ENSURE(!s.warped_solver && !d.warped_solver);
+    ENSURE(s.solver == HS_SCENE_SOLVER_AUTO && d.solver == HS_SCENE_SOLVER_AUTO &&
+           !s.exact_tangent);
     const char* warped = "{\"mesh\": \"m.msh\", \"model\": {\"solver\": \"warped\"}, \"fixed\": "
                          "[{\"type\": \"box\", \"min\": [0,0,0], \"max\": [1,1,1]}]}";
-    ENSURE(hs_scene_parse(warped, "/a/b/scene.json", 0, &s, &err) == HS_OK && s.warped_solver);
+    ENSURE(hs_scene_parse(warped, "/a/b/scene.json", 0, &s, &err) == HS_OK &&
+           s.solver == HS_SCENE_SOLVER_WARPED);
     ENSURE(s.n_tools == d.n_tools && s.haptic_hz == d.haptic_hz && !s.has_workspace);
     ENSURE(s.fixed[0].kind == HS_FIXED_BOX && s.fixed[0].max[2] == 1.0);
+    const char* pcg =
+        "{\"mesh\": \"m.msh\", \"model\": {\"solver\": \"pcg\", \"solver_accuracy\": "
+        "\"tangent\"}, \"fixed\": [{\"type\": \"box\", \"min\": [0,0,0], \"max\": [1,1,1]}]}";
+    ENSURE(hs_scene_parse(pcg, "/a/b/scene.json", 0, &s, &err) == HS_OK &&
+           s.solver == HS_SCENE_SOLVER_PCG && s.exact_tangent);
+    const char* bad = "{\"mesh\": \"m.msh\", \"model\": {\"solver\": \"cg\"}, \"fixed\": "
+                      "[{\"type\": \"box\", \"min\": [0,0,0], \"max\": [1,1,1]}]}";
+    ENSURE(hs_scene_parse(bad, "/a/b/scene.json", 0, &s, &err) != HS_OK &&
+           strstr(err.msg, "model.solver") && strstr(err.msg, "auto | direct | warped | pcg"));
     ENSURE(hs_scene_parse(minimal, "scene.json", 0, &s, &err) == HS_OK);
     ENSURE(strcmp(s.mesh_path, "m.msh") == 0);
     const char* abs = "{\"mesh\": \"/x/m.msh\", \"fixed\": [{\"type\": \"bbox_side\", \"axis\": "
@@ -162,8 +173,11 @@ static int malformed_names_file_line_key(void) {
     ENSURE(expect_fail(HEAD "\"model\": {\"type\": \"stvk\", \"locking_free\": \"sns\"}}",
                        HS_ERR_PARSE, "'model.locking_free': sns is for linear and corotated",
                        NULL) == 0);
-    ENSURE(expect_fail(HEAD "\"model\": {\"solver\": \"pcg\"}}", HS_ERR_PARSE,
-                       "'model.solver': must be one of: direct | warped", NULL) == 0);
+    ENSURE(expect_fail(HEAD "\"model\": {\"solver\": \"cg\"}}", HS_ERR_PARSE,
+                       "'model.solver': must be one of: auto | direct | warped | pcg", NULL) == 0);
+    ENSURE(expect_fail(HEAD "\"model\": {\"solver_accuracy\": \"exact\"}}", HS_ERR_PARSE,
+                       "'model.solver_accuracy': must be one of: equilibrium | tangent",
+                       NULL) == 0);
     ENSURE(expect_fail(HEAD "\"gravity\": [0, 0]}", HS_ERR_PARSE,
                        "'gravity': must be an array of 3", NULL) == 0);
     ENSURE(expect_fail(HEAD "\"tools\": [{\"kind\": \"probe\"}]}", HS_ERR_PARSE,

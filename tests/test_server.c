@@ -167,6 +167,11 @@ typedef struct status_info {
     int n_loops;
     char loop_name[8][16];
     float rate_hz[8];
+    int64_t overruns[8];
+    int n_steps;
+    char step_name[8][16];
+    float step_p50_us[8], step_p99_us[8];
+    char warnings[1024];
     int n_devices;
     int64_t poses_received[4];
     int n_rejects;
@@ -246,8 +251,16 @@ static void on_status(const lcm_recv_buf_t* rb, const char* ch, const hapsim_ser
     for (int k = 0; k < s->n_loops && k < 8; ++k) {
         snprintf(i->loop_name[k], sizeof i->loop_name[k], "%s", s->loop_name[k]);
         i->rate_hz[k] = s->rate_hz[k];
+        i->overruns[k] = s->overruns[k];
         i->n_loops = k + 1;
     }
+    for (int k = 0; k < s->n_steps && k < 8; ++k) {
+        snprintf(i->step_name[k], sizeof i->step_name[k], "%s", s->step_name[k]);
+        i->step_p50_us[k] = s->step_p50_us[k];
+        i->step_p99_us[k] = s->step_p99_us[k];
+        i->n_steps = k + 1;
+    }
+    snprintf(i->warnings, sizeof i->warnings, "%s", s->warnings);
     i->n_devices = s->n_devices;
     for (int k = 0; k < s->n_devices && k < 4; ++k) i->poses_received[k] = s->poses_received[k];
     for (int k = 0; k < s->n_rejects && k < 32; ++k) {
@@ -481,10 +494,13 @@ static double norm3(const double v[3]) {
 }
 
 static int wait_up(client* c) {
-    // The server is up once its status arrives (set-up: mesh, compliance, buses).
+    // The server is up once its status arrives (set-up: mesh, buses) and no longer says that
+    // the compliance is being set up (haptics answer zero force until then).
     int64_t end = hs_now_ns() + 20000000000LL;
-    while (c->n_status == 0 && hs_now_ns() < end && server_alive()) pump_ms(c, 20);
-    return c->n_status > 0;
+    while ((c->n_status == 0 || strstr(c->status->warnings, "compliance set-up")) &&
+           hs_now_ns() < end && server_alive())
+        pump_ms(c, 20);
+    return c->n_status > 0 && !strstr(c->status->warnings, "compliance set-up");
 }
 
 static int64_t reject_count(const status_info* s, const char* ch, const char* reason) {
@@ -593,10 +609,26 @@ static int poses_in_forces_out(void) {
     // Status reports the device and the loops.
     ENSURE(wait_more(&c, &c.n_status, 2000));
     ENSURE(c.status->n_devices == 1 && c.status->poses_received[0] == c.seq);
-    int has_rt = 0;
-    for (int i = 0; i < c.status->n_loops; ++i)
+    int has_rt = 0, has_sim = 0, has_step = 0;
+    for (int i = 0; i < c.status->n_loops; ++i) {
         if (!strcmp(c.status->loop_name[i], "rt")) has_rt = c.status->rate_hz[i] > 500;
-    ENSURE(has_rt);
+        // Overruns of the deformation step (since start): counted, never more than the steps
+        // of the run (60 Hz over a few seconds).
+        if (!strcmp(c.status->loop_name[i], "sim"))
+            has_sim = c.status->overruns[i] >= 0 && c.status->overruns[i] < 60 * 60;
+    }
+    for (int i = 0; i < c.status->n_steps; ++i)
+        if (!strcmp(c.status->step_name[i], "sim_step")) {
+            // The deformation thread's step percentiles (the body was pressed: it stepped).
+            printf("  status: sim_step p50 %.0f us, p99 %.0f us\n", c.status->step_p50_us[i],
+                   c.status->step_p99_us[i]);
+            has_step = c.status->step_p50_us[i] > 0 &&
+                       c.status->step_p50_us[i] <= c.status->step_p99_us[i] &&
+                       c.status->step_p99_us[i] < 10e6;
+        }
+    ENSURE(has_rt && has_sim && has_step);
+    // liver2's boundary edges (median 13.5 mm) are longer than twice the 5 mm probe radius.
+    ENSURE(strstr(c.status->warnings, "surface edges (median 13.5 mm)") != NULL);
     ENSURE(c.status->state == HAPSIM_SERVER_STATUS_T_STATE_RUNNING && c.n_loading == 0);
 
     // Load a scene: a LOADING status goes out at once (ahead of the final ack on the same bus),
@@ -614,6 +646,13 @@ static int poses_in_forces_out(void) {
     ENSURE(read_server_log("forces", text, sizeof text) == 0);
     const char* end_line = strstr(text, "hapsim-server: stopped after");
     ENSURE(end_line);
+    // The start line names the solver choice; the exit summary the step figures.
+    // liver2 is small: one factorisation fits the period many times over, so direct first.
+    ENSURE(strstr(text, "  solver   auto (equilibrium): starts with direct (a factorisation"));
+    ENSURE(strstr(text, "  warning  mesh surface edges (median 13.5 mm) are larger than 2 x"));
+    const char* steps_line = strstr(text, "deformation steps; sim step p50");
+    ENSURE(steps_line && strstr(steps_line, "overruns of 16.7 ms"));
+    printf("  %.*s", (int)strcspn(steps_line, "\n") + 1, steps_line);
     printf("  %.*s", (int)strcspn(end_line, "\n") + 1, end_line);
     ENSURE(strstr(end_line, " 0 messages rejected, 1 command retries answered again"));
     return 0;

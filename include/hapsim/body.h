@@ -75,6 +75,15 @@ typedef struct hs_body hs_body;
 /// @param out OUT
 hs_status hs_body_create(const hs_mesh* mesh, const hs_body_def* def, const unsigned char* fixed,
                          hs_body** out, hs_err* err);
+/// Switch the linear solver of a live body (state, forces and the model kept); the next step
+/// or solve factors what the new solver needs (one refactorisation, as after a cut). Only for a
+/// body created with a solver that keeps a factor (direct, warped, or PCG with the FACTOR or
+/// WARPED preconditioner: its dofs are in the factor's fill order), else HS_ERR_INVALID.
+/// Allocates: the PCG workspace or the node rotations on the first switch that needs them
+/// (switch to each once at set-up to allocate nothing later).
+hs_status hs_body_set_solver(hs_body* b, hs_solver_kind solver, hs_err* err);
+/// The solver in use.
+hs_solver_kind hs_body_solver(const hs_body* b);
 /// Constant external force on node i, N (replaces the previous value). HS_ERR_INVALID (and
 /// nothing changed) for a bad node, a non-finite component or one above 1e9 N. A node that has
 /// lost its last element (hs_fem_held_nodes) takes no force while it has none.
@@ -94,6 +103,13 @@ hs_status hs_body_set_prescribed(hs_body* b, int node, const double u[3]);
 /// taken unchecked; the warped solver redoes a step whose first 4 trials fail with the exact
 /// tangent. A failed step (error status) leaves u and v as they were.
 hs_status hs_body_step(hs_body* b, hs_step_stats* stats /* OUT, may be NULL */);
+/// Make the factor the next hs_body_step needs (the rest-state one for the warped solver and
+/// PCG's factor preconditioners, the tangent at the current state for direct) and give its
+/// wall time in *factor_ms (may be NULL; a second, numeric factorisation of the same matrix is
+/// timed: the first also analyses the pattern): moves the first step's factorisation to a time
+/// of the caller's choosing, and measures what a direct step's refactorisation costs. State,
+/// forces and velocities are not changed.
+hs_status hs_body_prepare_step(hs_body* b, double* factor_ms /* OUT, may be NULL */);
 /// Static equilibrium f_el(u) + f_ext = 0 by Newton (co-rotated: its fixed-rotation tangent),
 /// with backtracking line search and def.static_load_steps increments. Velocities are reset.
 /// An error status (a factorisation failed, NaN/Inf) leaves u and v as they were;

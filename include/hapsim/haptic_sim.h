@@ -62,7 +62,27 @@ typedef struct hs_haptic_sim_def {
     void (*rt_on_start)(void* ctx);
     void (*rt_on_stop)(void* ctx);
     void* rt_hook_ctx; ///< passed to the hooks
-    int cookie;        ///< set by hs_haptic_sim_default_def
+    /// 1: the deformation thread picks the body's solver from its measured steps, the most
+    /// accurate that keeps the step rate 1 / body.dt (direct, then PCG, then warped; with
+    /// auto_exact_tangent only direct and PCG), starting with direct when the factor has at most
+    /// 250k entries or the factorisation create times fits 35 % of the period, else with the
+    /// cheapest (with step_cost: that hook's direct cost decides), and switches with
+    /// hysteresis when the load changes (docs/server.md, "Solver choice"). body.solver is
+    /// ignored. Only for the co-rotated model (else off: body.solver is used).
+    int auto_solver;
+    int auto_exact_tangent; ///< auto_solver: only solvers that solve with the exact tangent
+    /// Optional (tests): the cost booked for a step (body + snapshot) that took `ms` with
+    /// `solver`, and for the direct step at create (`ms`: the timed factorisation), ms; NULL:
+    /// the measured wall times. No clock enters the solver choice then. Runs on the
+    /// deformation thread (and in create).
+    double (*step_cost)(void* ctx, hs_solver_kind solver, double ms);
+    void* step_cost_ctx; ///< passed to step_cost
+    /// 1: the compliance is set up on a worker thread started by create (which then returns
+    /// without waiting for it); until the deformation thread takes it, rt answers zero force
+    /// (no snapshot), the body steps and frames go out as usual (stats comp_state). 0: create
+    /// sets it up (default). hs_haptic_sim_enable_cutting waits for it.
+    int background_setup;
+    int cookie; ///< set by hs_haptic_sim_default_def
 } hs_haptic_sim_def;
 
 /// Defaults: hs_body_default_def (co-rotated model), probe and safety defaults, 1 kHz, FIFO 80,
@@ -110,7 +130,27 @@ typedef struct hs_haptic_sim_stats {
     double depth_max_m;      ///< deepest press seen (hs_contact.depth_m), m
     int64_t deep_loops;      ///< deformation loops whose press was deeper than validated
                              ///< (hs_contact_validated_depth: the force is unchecked there)
+    // Deformation step timing (step + snapshot, the deformation thread's own clock).
+    double step_ms_p50;         ///< median over the newest HS_SIM_STEP_WINDOW steps, ms
+    double step_ms_p99;         ///< 99th percentile over them, ms
+    double step_ms_p50_all;     ///< median since start (0.1 ms bins, upper edge), ms
+    double step_ms_p99_all;     ///< 99th percentile since start, ms
+    double step_cpu_ms_p50_all; ///< the deformation thread's CPU time per step, median, ms
+    double step_cpu_ms_p99_all; ///< and its 99th percentile since start (one core's cost), ms
+    int64_t step_overruns;      ///< steps longer than body.dt (the nominal step period)
+    double sim_hz_target;       ///< step rate the thread paces to now; < 1 / body.dt when lowered
+    int64_t rate_changes;       ///< times that rate was lowered or raised again
+    int solver;                 ///< hs_solver_kind the body steps with now
+    int64_t solver_switches;    ///< auto_solver: switches made
+    double solver_cost_ms[3];   ///< auto_solver: body step cost per hs_solver_kind, ms (0: unknown)
+    double factor_ms;           ///< auto_solver: the factorisation timed at create, ms
+    /// The compliance: 0 in use, 1 set-up running (background_setup; zero force meanwhile), 2
+    /// set up but not yet taken by the deformation thread, -1 its set-up failed (zero force;
+    /// hs_haptic_sim_setup_error says why)
+    int comp_state;
 } hs_haptic_sim_stats;
+
+#define HS_SIM_STEP_WINDOW 128 ///< steps in the recent window of hs_haptic_sim_stats
 
 typedef struct hs_haptic_sim hs_haptic_sim;
 
@@ -224,7 +264,14 @@ int64_t hs_haptic_sim_take_topology(hs_haptic_sim* sim, double* x0 /* OUT [3n] *
 /// no tet of a held piece uses; the probe cannot touch those.
 /// Sets pinned[n_nodes] to 1 / 0 and returns how many (0 without cutting). Only while stopped.
 int hs_haptic_sim_cut_pinned(hs_haptic_sim* sim, unsigned char* pinned /* OUT [n] */);
-/// The compliance (read-only use from the control thread only while the sim is stopped).
+/// Why the background compliance set-up failed, or NULL. Thread: control
+const char* hs_haptic_sim_setup_error(hs_haptic_sim* sim);
+/// Wait for a background compliance set-up and take its result (the sim must be stopped).
+/// HS_OK when the compliance is in use, else the set-up's error status. Thread: control |
+/// Blocks: yes
+hs_status hs_haptic_sim_wait_setup(hs_haptic_sim* sim);
+/// The compliance (read-only use from the control thread only while the sim is stopped; NULL
+/// while a background set-up runs).
 hs_compliance* hs_haptic_sim_compliance(hs_haptic_sim* sim);
 /// The body (use only while the sim is stopped).
 hs_body* hs_haptic_sim_body(hs_haptic_sim* sim);

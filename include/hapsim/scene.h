@@ -61,6 +61,17 @@ typedef struct hs_scene_tool {
     double blade_b[3]; ///< m, tool frame: blade end (scalpel)
 } hs_scene_tool;
 
+/// model.solver.
+typedef enum hs_scene_solver {
+    HS_SCENE_SOLVER_AUTO = 0,
+    HS_SCENE_SOLVER_DIRECT = 1,
+    HS_SCENE_SOLVER_WARPED = 2,
+    HS_SCENE_SOLVER_PCG = 3,
+} hs_scene_solver;
+
+/// Scene file name of a solver: "auto", "direct", "warped", "pcg".
+const char* hs_scene_solver_name(hs_scene_solver s);
+
 /// A loaded scene. Initialise with hs_scene_default() or fill by hs_scene_load().
 typedef struct hs_scene {
     char path[HS_SCENE_PATH_MAX];      ///< the scene file as given
@@ -76,10 +87,14 @@ typedef struct hs_scene {
     hs_rotation rotation;   ///< co-rotated: how element rotations are extracted
     hs_inversion inversion; ///< what inverted elements do
     int locking_free;       ///< hs_locking_free mode (true in a scene: the model's default)
-    /// 1: the warped solver (one solve per step with the rest factor rotated by the node
-    /// rotations; cuts update that factor by low rank); 0: direct (the exact tangent, refactored
-    /// each step for a nonlinear model)
-    int warped_solver;
+    /// model.solver: AUTO picks from measured steps (docs/server.md, "Solver choice"); DIRECT
+    /// the exact tangent, refactored each step for a nonlinear model; WARPED one solve per step
+    /// with the rest factor rotated by the node rotations (cuts update that factor by low rank);
+    /// PCG conjugate gradients on the exact tangent, preconditioned by the warped factor
+    hs_scene_solver solver;
+    /// model.solver_accuracy "tangent": auto takes only solvers that solve with the exact
+    /// tangent (direct, PCG); 0 ("equilibrium", default): the warped solver too
+    int exact_tangent;
     hs_material material; ///< E, nu, density, Rayleigh damping
 
     double gravity[3];                        ///< m/s^2, scene frame

@@ -79,8 +79,10 @@ hs_status hs_cholesky_solve_many(hs_cholesky* f, int k, const double* b, double*
 /// Diagonal 3x3 blocks of A^-1: for block b the dofs dofs[3b..3b+2] (-1: none, its row and
 /// column are zero); out[9b..9b+8] row-major, exactly symmetric. Each block costs one sparse
 /// forward solve along the elimination-tree paths of its dofs, not a full solve (A^-1 = L^-T
-/// L^-1, so an entry is a dot product of two columns of L^-1). Allocates: yes (work arrays,
-/// and a simplicial copy of a supernodal L; freed before return).
+/// L^-1, so an entry is a dot product of two columns of L^-1), done for 16 blocks at once in
+/// the order of their dofs in L (their paths mostly coincide), the dense root separator by one
+/// dense triangular solve per 16. Allocates: yes (work arrays, 48 doubles per row of L, and a
+/// simplicial copy of a supernodal L; freed before return).
 hs_status hs_cholesky_inverse_diag3(hs_cholesky* f, int nb, const int* dofs, double* out);
 /// Entries stored in the current factor (supernodal: including the unused upper parts of its
 /// dense blocks), a memory and cost indicator.

@@ -75,6 +75,7 @@ typedef struct world {
     int32_t* d_index;       // [n_vis]
     float* d_delta;         // [3 n_vis]
     const char* probe_note; // why haptics is off, or NULL
+    double surf_edge_m;     // median boundary edge of the mesh, m
     // cutting (scene features.cutting with a scalpel): visual arrays then have room for every
     // node and every live boundary triangle, and the rest positions come from the sim
     int cutting;
@@ -181,6 +182,8 @@ struct hs_server {
     // 4 ms, below a 60 Hz period, so every sample fell in the overflow and read as the max)
     int64_t last_step_ns;
     int64_t live_prev_ticks, live_prev_t;
+    int64_t solver_switches_seen; // auto solver: switches already printed
+    int comp_state_seen;          // compliance state last reported (hs_haptic_sim_stats)
     int64_t net_iters, last_iter_ns, last_steps;
     int64_t poses_total, forces_total;
     int64_t rmem_default, rmem_max; // the kernel's, at start, bytes (-1: unknown)
@@ -278,6 +281,46 @@ static void world_destroy(world* w) {
     memset(w, 0, sizeof *w);
 }
 
+static int cmp_dbl(const void* pa, const void* pb) {
+    double a = *(const double*)pa, b = *(const double*)pb;
+    return (a > b) - (a < b);
+}
+
+// Median length of the boundary triangles' edges (each triangle's three), m; 0 without any.
+static double median_surface_edge(const hs_mesh* m) {
+    size_t n = 3 * (size_t)m->n_tris;
+    double* l = n ? hs_alloc(n * sizeof(double)) : NULL;
+    if (!l) return 0;
+    for (int t = 0; t < m->n_tris; ++t)
+        for (int k = 0; k < 3; ++k) {
+            const double* a = m->x0 + 3 * m->tris[3 * t + k];
+            const double* b = m->x0 + 3 * m->tris[3 * t + (k + 1) % 3];
+            double d[3] = {a[0] - b[0], a[1] - b[1], a[2] - b[2]};
+            l[3 * t + k] = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+        }
+    qsort(l, n, sizeof *l, cmp_dbl);
+    double med = l[n / 2];
+    hs_free(l);
+    return med;
+}
+
+// The contact resolves the surface at its nodes: a probe much smaller than the surface edges
+// falls between them (forces snag and pop from node to node). Returns 1 with text in note.
+static int edge_note(const world* w, char* note, size_t cap) {
+    const double r = w->def.probe.radius_m;
+    if (!w->haptics || !(r > 0) || w->surf_edge_m <= 2 * r) return 0;
+    snprintf(note, cap,
+             "mesh surface edges (median %.1f mm) are larger than 2 x the probe radius (%.1f mm): "
+             "the contact resolves the surface at its nodes, so the force is coarse; refine the "
+             "mesh or use a larger probe",
+             w->surf_edge_m * 1e3, r * 1e3);
+    return 1;
+}
+
+static const char* solver_name(int k) {
+    return k == HS_SOLVER_DIRECT ? "direct" : k == HS_SOLVER_PCG ? "pcg" : "warped";
+}
+
 static void sim_def_from_scene(const hs_scene* sc, int realtime, hs_haptic_sim_def* d) {
     *d = hs_haptic_sim_default_def();
     d->body.fem.model = sc->model;
@@ -285,7 +328,20 @@ static void sim_def_from_scene(const hs_scene* sc, int realtime, hs_haptic_sim_d
     d->body.fem.rotation = sc->rotation;
     d->body.fem.inversion = sc->inversion;
     d->body.fem.locking_free = sc->locking_free;
-    d->body.solver = sc->warped_solver ? HS_SOLVER_WARPED : HS_SOLVER_DIRECT;
+    // auto: the deformation thread chooses (a cutting scene keeps the warped solver, whose
+    // rest factor each sweep updates in part instead of a refactor).
+    // The warped factor's rotations are the co-rotated model's: auto chooses only for it (StVK
+    // and the linear model keep the direct solver).
+    const int corot = sc->model == HS_MODEL_COROTATED;
+    d->auto_solver = sc->solver == HS_SCENE_SOLVER_AUTO && !sc->feature_cutting && corot;
+    d->auto_exact_tangent = sc->exact_tangent;
+    // The server starts (visual mesh, deformation) while the compliance is set up; haptics
+    // answer zero force until it is ready (status warnings, a console line when it is).
+    d->background_setup = 1;
+    d->body.solver = sc->solver == HS_SCENE_SOLVER_DIRECT            ? HS_SOLVER_DIRECT
+                     : sc->solver == HS_SCENE_SOLVER_PCG             ? HS_SOLVER_PCG
+                     : sc->solver == HS_SCENE_SOLVER_WARPED || corot ? HS_SOLVER_WARPED
+                                                                     : HS_SOLVER_DIRECT;
     memcpy(d->body.gravity, sc->gravity, sizeof d->body.gravity);
     d->body.dt = 1.0 / sc->sim_hz;
     for (int t = 0; t < sc->n_tools; ++t)
@@ -480,6 +536,7 @@ static hs_status world_create(const hs_scene* sc, int realtime, world* w, hs_err
         memcpy(w->key, w->rest, 3 * (size_t)nv * sizeof(float));
     }
 
+    w->surf_edge_m = median_surface_edge(m);
     int has_probe = w->cutting; // with cutting on, the scalpel is the haptic tool
     for (int t = 0; t < sc->n_tools; ++t) has_probe |= sc->tools[t].kind == HS_TOOL_PROBE;
     w->haptics = sc->feature_haptics && has_probe && sc->n_devices > 0;
@@ -979,10 +1036,12 @@ static void publish_status(hs_server* s, int64_t t) {
         p50[nl] = (float)(SIM_HIST_SCALE * hs_rt_hist_quantile_us(s->h_simper, 0.5));
         p99[nl] = (float)(SIM_HIST_SCALE * hs_rt_hist_quantile_us(s->h_simper, 0.99));
         pmax[nl] = (float)(SIM_HIST_SCALE * hist_max_us(s->h_simper));
-        over[nl++] = a->step_failures;
+        over[nl++] = a->step_overruns; // steps (+ snapshot) longer than 1 / sim_hz
+        // The deformation thread's own figures over its newest HS_SIM_STEP_WINDOW steps (every
+        // step; the net thread samples only some for the window's maximum).
         sname[ns] = "sim_step";
-        s50[ns] = (float)(SIM_HIST_SCALE * hs_rt_hist_quantile_us(s->h_step, 0.5));
-        s99[ns] = (float)(SIM_HIST_SCALE * hs_rt_hist_quantile_us(s->h_step, 0.99));
+        s50[ns] = (float)(a->step_ms_p50 * 1e3);
+        s99[ns] = (float)(a->step_ms_p99 * 1e3);
         smax[ns++] = (float)(SIM_HIST_SCALE * hist_max_us(s->h_step));
         if (w->cutting) { // since start: cut steps are rare
             sname[ns] = "cut";
@@ -1090,6 +1149,21 @@ static void publish_status(hs_server* s, int64_t t) {
         WARN("%lld deformation steps failed", (long long)s->st_prev->step_failures);
     if (s->estop) WARN("e-stop latched: every force is zero");
     if (s->loading) WARN("loading %s: the running scene goes on until it is built", s->loading);
+    {
+        char note[256];
+        if (edge_note(w, note, sizeof note)) WARN("%s", note);
+    }
+    if (w->sim && s->st_prev->comp_state > 0)
+        WARN("haptics: compliance set-up running: zero force until it is ready");
+    if (w->sim && s->st_prev->comp_state < 0)
+        WARN("haptics: compliance set-up failed (%s): zero force",
+             hs_haptic_sim_setup_error(w->sim) ? hs_haptic_sim_setup_error(w->sim) : "?");
+    if (w->sim && s->st_prev->sim_hz_target > 0 &&
+        s->st_prev->sim_hz_target < 0.999 * w->scene.sim_hz)
+        WARN("deformation lowered to %.1f Hz (of %g): sim step p99 %.1f ms > %.1f ms; the tissue "
+             "moves slower than real time, haptics stay at %g Hz",
+             s->st_prev->sim_hz_target, w->scene.sim_hz, s->st_prev->step_ms_p99,
+             1e3 / w->scene.sim_hz, w->scene.haptic_hz);
     if (w->sim && s->st_prev->cut_failures)
         WARN("%lld cut steps failed (mesh kept consistent)", (long long)s->st_prev->cut_failures);
 #undef WARN
@@ -1809,6 +1883,18 @@ void hs_server_print_summary(hs_server* s) {
     if (w->haptics) {
         hs_haptic_sim_stats st;
         hs_haptic_sim_stats_get(w->sim, &st);
+        if (w->def.auto_solver)
+            printf("  solver   auto (%s): starts with %s (a factorisation %.1f ms of the %.1f ms "
+                   "step), then the most accurate of %s that keeps %g Hz, switching as the load "
+                   "changes\n",
+                   sc->exact_tangent ? "exact tangent" : "equilibrium", solver_name(st.solver),
+                   st.factor_ms, 1e3 / sc->sim_hz,
+                   sc->exact_tangent ? "direct, pcg" : "direct, pcg, warped", sc->sim_hz);
+        else
+            printf("  solver   %s (%s)\n", solver_name(st.solver),
+                   sc->solver != HS_SCENE_SOLVER_AUTO ? "the scene's"
+                   : sc->model != HS_MODEL_COROTATED  ? "auto: the direct solver of this model"
+                                                      : "auto: warped, the cutting scene's");
         char tool[64];
         if (w->cutting && w->cdef.probe_when_released)
             snprintf(tool, sizeof tool, "scalpel, released: probe radius %g mm",
@@ -1817,9 +1903,17 @@ void hs_server_print_summary(hs_server* s) {
             snprintf(tool, sizeof tool, "scalpel (no probe sphere)");
         else
             snprintf(tool, sizeof tool, "probe radius %g mm", w->def.probe.radius_m * 1e3);
-        printf("  haptics  rt %g Hz, %s, force clamp %g N, watchdog %g ms; "
-               "compliance set-up %.1f ms\n",
-               sc->haptic_hz, tool, sc->force_max_n, sc->watchdog_s * 1e3, st.setup_ms);
+        s->comp_state_seen = st.comp_state; // a later change is printed by hs_server_run
+        if (st.comp_state == 0)
+            printf("  haptics  rt %g Hz, %s, force clamp %g N, watchdog %g ms; "
+                   "compliance set-up %.1f ms\n",
+                   sc->haptic_hz, tool, sc->force_max_n, sc->watchdog_s * 1e3, st.setup_ms);
+        else
+            printf("  haptics  rt %g Hz, %s, force clamp %g N, watchdog %g ms; compliance "
+                   "set-up running in the background: zero force until it is ready\n",
+                   sc->haptic_hz, tool, sc->force_max_n, sc->watchdog_s * 1e3);
+        char note[256];
+        if (edge_note(w, note, sizeof note)) printf("  warning  %s\n", note);
     } else {
         printf("  haptics  off (%s): no rt thread, poses validated and counted only\n",
                w->probe_note ? w->probe_note : "scene");
@@ -1877,7 +1971,9 @@ static uint64_t rejected_total(const hs_server* s) {
 
 static void live_line(hs_server* s, int64_t t) {
     world* w = &s->w;
-    double rate = 0, jit = 0, step_ms = 0;
+    double rate = 0, jit = 0, p50 = 0, p99 = 0, sim_hz = 0;
+    long long over = 0;
+    const char* solver = "-";
     if (w->sim) {
         hs_haptic_sim_stats st;
         hs_haptic_sim_stats_get(w->sim, &st);
@@ -1887,14 +1983,18 @@ static void live_line(hs_server* s, int64_t t) {
         s->live_prev_ticks = st.rt.ticks;
         s->live_prev_t = t;
         jit = hs_rt_hist_quantile_us(&st.rt.period_err, 0.99);
-        step_ms = st.step_ms_last;
+        p50 = st.step_ms_p50;
+        p99 = st.step_ms_p99;
+        sim_hz = st.sim_hz_target;
+        over = (long long)st.step_overruns;
+        solver = solver_name(st.solver);
     }
     uint64_t rej = rejected_total(s);
     fprintf(stderr,
-            "\rhapsim-server: rt %6.1f Hz  jitter p99 %5.0f us  force %5.2f N  sim step %5.2f ms  "
-            "poses %lld  rejected %llu%s   ",
-            rate, jit, norm3(s->dev[0].force), step_ms, (long long)s->poses_total,
-            (unsigned long long)rej,
+            "\rhapsim-server: rt %6.1f Hz  jitter p99 %5.0f us  force %5.2f N  sim %s %4.1f Hz "
+            "step p50/p99 %5.2f/%5.2f ms overruns %lld  poses %lld  rejected %llu%s   ",
+            rate, jit, norm3(s->dev[0].force), solver, sim_hz, p50, p99, over,
+            (long long)s->poses_total, (unsigned long long)rej,
             s->estop    ? "  E-STOP"
             : s->paused ? "  PAUSED"
                         : "");
@@ -1917,6 +2017,15 @@ hs_status hs_server_run(hs_server* s, hs_err* err) {
     if (w->sim) {
         hs_status st = hs_haptic_sim_start(w->sim, err);
         if (st != HS_OK) return st;
+        // A small mesh's compliance is ready within moments: give it up to 0.5 s, so the start
+        // line can give its set-up time (a large one goes on in the background).
+        hs_haptic_sim_stats hst;
+        for (int i = 0; i < 100; ++i) {
+            hs_haptic_sim_stats_get(w->sim, &hst);
+            if (hst.comp_state <= 0) break;
+            struct timespec ts = {0, 5000000};
+            nanosleep(&ts, NULL);
+        }
     }
     if (!s->opt.quiet) hs_server_print_summary(s);
     int64_t t = hs_now_ns();
@@ -1985,6 +2094,34 @@ hs_status hs_server_run(hs_server* s, hs_err* err) {
                 s->last_cut_steps = st.cut_steps;
             }
             s->cutting_now = st.cutting;
+            if (st.comp_state != s->comp_state_seen) {
+                if (!s->opt.quiet && !s->opt.live && (st.comp_state == 0 || st.comp_state == -1)) {
+                    const char* e = hs_haptic_sim_setup_error(w->sim);
+                    if (st.comp_state == 0)
+                        printf("hapsim-server: compliance ready after %.1f ms: haptics answer "
+                               "with forces now\n",
+                               st.setup_ms);
+                    else
+                        printf("hapsim-server: compliance set-up failed (%s): haptics answer "
+                               "zero force\n",
+                               e ? e : "?");
+                    fflush(stdout);
+                }
+                s->comp_state_seen = st.comp_state;
+            }
+            if (st.solver_switches > s->solver_switches_seen) {
+                s->solver_switches_seen = st.solver_switches;
+                if (!s->opt.quiet && !s->opt.live) {
+                    printf("hapsim-server: solver now %s (step cost direct %.1f, pcg %.1f, "
+                           "warped %.1f ms, 0: not measured; budget %.1f ms)\n",
+                           solver_name(st.solver), st.solver_cost_ms[HS_SOLVER_DIRECT],
+                           st.solver_cost_ms[HS_SOLVER_PCG], st.solver_cost_ms[HS_SOLVER_WARPED],
+                           1e3 / w->scene.sim_hz);
+                    fflush(stdout);
+                }
+            } else if (st.solver_switches < s->solver_switches_seen) {
+                s->solver_switches_seen = st.solver_switches; // a new sim (reset, load)
+            }
             if (w->cutting && hs_haptic_sim_topology_version(w->sim) != w->cut_seen) apply_cut(s);
         }
         if (t >= next_visual) {
@@ -2021,6 +2158,23 @@ hs_status hs_server_run(hs_server* s, hs_err* err) {
                (double)(hs_now_ns() - s->start_ns) * 1e-9, (long long)s->poses_total,
                (long long)s->forces_total, (unsigned long long)rejected_total(s),
                (unsigned long long)retried_total(s));
+        if (s->w.sim) {
+            hs_haptic_sim_stats st;
+            hs_haptic_sim_stats_get(s->w.sim, &st);
+            printf("hapsim-server: %lld deformation steps; sim step p50 %.2f ms, p99 %.2f ms "
+                   "(step + snapshot, since the last reset or load; thread CPU p50 %.2f ms, p99 "
+                   "%.2f ms), %lld overruns of %.1f ms; rate %.1f Hz of %g at the end; solver %s",
+                   (long long)st.steps, st.step_ms_p50_all, st.step_ms_p99_all,
+                   st.step_cpu_ms_p50_all, st.step_cpu_ms_p99_all, (long long)st.step_overruns,
+                   1e3 / s->w.scene.sim_hz, st.sim_hz_target, s->w.scene.sim_hz,
+                   solver_name(st.solver));
+            if (s->w.def.auto_solver)
+                printf(" (auto, %lld switches; step cost direct %.1f, pcg %.1f, warped %.1f ms; "
+                       "0: not measured)",
+                       (long long)st.solver_switches, st.solver_cost_ms[HS_SOLVER_DIRECT],
+                       st.solver_cost_ms[HS_SOLVER_PCG], st.solver_cost_ms[HS_SOLVER_WARPED]);
+            printf("\n");
+        }
         if (s->w.cutting)
             printf("hapsim-server: %lld cut steps (topology events, over every reset), "
                    "topology version %lld; cut step p50 %.1f ms, p99 %.1f ms, max %.1f ms "

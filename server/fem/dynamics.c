@@ -69,6 +69,7 @@ struct hs_body {
     unsigned char* emark; // [n_tets] zero between calls: each element listed once
     int64_t lowrank_updates;
     double p_floor; // J: energy of a 1e-10 strain over the body, the line search's noise floor
+    int fill_ordered; // dofs numbered in the factor's fill-reducing order (hs_body_set_solver)
 };
 
 hs_body_def hs_body_default_def(void) {
@@ -271,6 +272,7 @@ hs_status hs_body_create(const hs_mesh* mesh, const hs_body_def* def, const unsi
             hs_body_destroy(&b);
             return s;
         }
+        b->fill_ordered = 1;
     }
     if (warped) {
         b->rot = hs_calloc(9 * (size_t)b->n, sizeof(double)); // zeros: cold first start
@@ -294,6 +296,44 @@ fail_status:
 nomem:
     hs_body_destroy(&b);
     return hs_err_set(err, HS_ERR_NOMEM, "hs_body_create: out of memory");
+}
+
+hs_status hs_body_set_solver(hs_body* b, hs_solver_kind solver, hs_err* err) {
+    if (!b) return hs_err_set(err, HS_ERR_INVALID, "hs_body_set_solver: NULL body");
+    if (solver < HS_SOLVER_DIRECT || solver > HS_SOLVER_WARPED)
+        return hs_err_set(err, HS_ERR_INVALID, "hs_body_set_solver: unknown solver %d",
+                          (int)solver);
+    if (!b->fill_ordered)
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "hs_body_set_solver: the body was created with a PCG preconditioner "
+                          "that keeps no factor (its dofs are not in fill order)");
+    if (solver == b->def.solver) return HS_OK;
+    const int warped = solver == HS_SOLVER_WARPED ||
+                       (solver == HS_SOLVER_PCG && b->def.precond == HS_PRECOND_WARPED);
+    if (warped && !b->rot) {
+        b->rot = hs_calloc(9 * (size_t)b->n, sizeof(double));
+        b->tmp_f = hs_alloc((size_t)b->n_free * sizeof(double));
+        if (!b->rot || !b->tmp_f) {
+            hs_free(b->rot);
+            hs_free(b->tmp_f);
+            b->rot = NULL;
+            b->tmp_f = NULL;
+            return hs_err_set(err, HS_ERR_NOMEM, "hs_body_set_solver: out of memory");
+        }
+    }
+    if (solver == HS_SOLVER_PCG && !b->pcg) {
+        hs_status s = hs_pcg_create(b->n_free, &b->pcg);
+        if (s != HS_OK) return hs_err_set(err, s, "hs_body_set_solver: %s", hs_status_str(s));
+    }
+    if (b->pcg && b->rot) hs_pcg_set_preconditioner(b->pcg, warped_precond, b);
+    // The factor and `a` carry their own coefficients, version and rest flag: each solver's
+    // test in solve_system sees whether they fit it, and refactors (once) when not.
+    b->def.solver = solver;
+    return HS_OK;
+}
+
+hs_solver_kind hs_body_solver(const hs_body* b) {
+    return b->def.solver;
 }
 
 hs_status hs_body_set_force(hs_body* b, int node, const double f[3]) {
@@ -742,6 +782,30 @@ static int all_finite(const double* x, int n) {
     for (int i = 0; i < n; ++i)
         if (!isfinite(x[i])) return 0;
     return 1;
+}
+
+hs_status hs_body_prepare_step(hs_body* b, double* factor_ms) {
+    if (factor_ms) *factor_ms = 0;
+    if (!b) return HS_ERR_INVALID;
+    const double dt = b->def.dt, al = b->def.fem.material.rayleigh_mass,
+                 be = b->def.fem.material.rayleigh_stiffness;
+    const double kcoef = dt * be + dt * dt, mcoef = 1.0 + dt * al;
+    use_polar_tol(b, 1);
+    if (!b->updated) update_model(b);
+    // A solve of a zero right-hand side: it makes (and times) the factor a step needs; the
+    // step sets both vectors itself.
+    memset(b->rhs_f, 0, (size_t)b->n_free * sizeof(double));
+    memset(b->x_f, 0, (size_t)b->n_free * sizeof(double));
+    hs_step_stats st;
+    memset(&st, 0, sizeof st);
+    hs_status s = solve_system(b, kcoef, mcoef, &st, 0);
+    if (s != HS_OK || !b->factor) return s;
+    // The first factorisation also analysed the pattern and touched its memory for the first
+    // time: time a numeric one of the same matrix (`a` still holds it), what a step repeats.
+    int64_t t0 = hs_now_ns();
+    s = factor_a(b, b->factor_kcoef, b->factor_mcoef, NULL, b->factor_rest);
+    if (factor_ms) *factor_ms = (double)(hs_now_ns() - t0) * 1e-6;
+    return s;
 }
 
 hs_status hs_body_step(hs_body* b, hs_step_stats* stats) {

@@ -117,7 +117,36 @@ typedef struct deform_status {
     int64_t relax_cuts;
     double depth_max;
     int64_t deep_loops;
+    double step_p50, step_p99, step_p50_all, step_p99_all, step_cpu_p50_all, step_cpu_p99_all;
+    int64_t step_overruns, rate_changes, solver_switches;
+    double sim_hz_target;
+    int solver;
+    double solver_ms[3];
+    double factor_ms;
 } deform_status;
+
+// Step timing on the deformation thread: 0.1 ms bins over [0, 400 ms) and an overflow bin.
+#define STEP_BINS    4000
+#define STEP_BIN_MS  0.1
+#define RATE_WINDOW  32   // newest steps the pacing looks at
+#define RATE_EVERY   16   // steps between two pacing decisions
+#define RATE_MARGIN                                                                                \
+    1.05                  // paced period = RATE_MARGIN x the window's median (a slower step
+                          // starts the next at once: the rate is what the steps allow)
+#define RATE_RAISE   0.7  // raise the rate again when that is below this share of the period
+#define RATE_FAST    8    // newest steps whose slowest decides a raise (checked every step)
+#define RATE_MAX_DIV 8    // the rate goes down to 1 / (RATE_MAX_DIV dt) at the lowest
+// Solver choice (auto_solver): ranks from the most accurate to the cheapest.
+#define AUTO_SETTLE      2    // steps after a switch not booked (its refactor, the warm starts)
+#define AUTO_DOWN        3    // net steps over the budget before a cheaper solver
+#define AUTO_UP_STEPS    30   // steps with a solver before a more accurate one is tried
+#define AUTO_UP_KNOWN    0.7  // a measured more accurate solver is taken when it fits this share
+#define AUTO_UP_PROBE    0.5  // an unmeasured one is tried when the current fits this share
+#define AUTO_RETRY_S     5.0  // wait after a solver failed its budget, doubled per failure
+#define AUTO_START       0.35 // start with direct when one factorisation fits this share
+#define AUTO_START_NNZ   250000 // or when the factor is this small (deterministic: no clock)
+#define AUTO_RETRY_MAX_S 160.0
+static const hs_solver_kind auto_rank[3] = {HS_SOLVER_DIRECT, HS_SOLVER_PCG, HS_SOLVER_WARPED};
 
 // A boundary triangle and its distance from the tool (snapshot search).
 typedef struct near_tri {
@@ -252,6 +281,29 @@ struct hs_haptic_sim {
     int64_t t_taken; // version at the previous take
     _Atomic int64_t topo_version;
     double setup_ms; // the first compliance's set-up
+
+    // step timing, pacing and solver choice (deformation thread)
+    uint32_t* step_hist;                  // [2 (STEP_BINS + 1)] wall, then thread CPU
+    int64_t step_hist_n;                  // samples in it
+    double recent_ms[HS_SIM_STEP_WINDOW]; // ring of the newest step times, ms
+    int64_t recent_n;                     // steps recorded (ring position)
+    int64_t period_ns;                    // paced step period (>= body.dt)
+    int rate_count;                       // steps since the last pacing decision
+    int au_last;                          // auto: cheapest allowed rank
+    int au_since, au_over;                // steps with the current solver; net over-budget
+    double au_snap_ms;                    // auto: snapshot cost estimate, ms
+    int64_t au_retry_ns[3];               // per kind: not tried again before
+    double au_backoff_s[3];               // per kind: the next wait after a failure
+
+    // background compliance set-up (def.background_setup)
+    pthread_t su_thread;
+    int su_running;        // started and not joined (joined by setup_take)
+    atomic_int su_done;    // worker: su_* below are final
+    atomic_int comp_state; // hs_haptic_sim_stats.comp_state as far as it is known here
+    hs_compliance* su_comp;
+    hs_status su_status;
+    hs_err su_err;
+    double su_ms;
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -898,9 +950,173 @@ static double press_depth(const hs_haptic_sim* h, const hs_contact* c) {
     return d > 0 ? d : 0;
 }
 
+static int cmp_double(const void* pa, const void* pb) {
+    double a = *(const double*)pa, b = *(const double*)pb;
+    return (a > b) - (a < b);
+}
+
+// q-quantile of the newest n recorded step times (n <= HS_SIM_STEP_WINDOW), ms.
+static double recent_quantile(const hs_haptic_sim* h, int n, double q) {
+    double v[HS_SIM_STEP_WINDOW];
+    if (n > h->recent_n) n = (int)h->recent_n;
+    if (n <= 0) return 0;
+    for (int k = 0; k < n; ++k) v[k] = h->recent_ms[(h->recent_n - 1 - k) % HS_SIM_STEP_WINDOW];
+    qsort(v, (size_t)n, sizeof v[0], cmp_double);
+    int i = (int)ceil(q * n) - 1;
+    return v[i < 0 ? 0 : i >= n ? n - 1 : i];
+}
+
+// Thread CPU time, ns: what a step costs on one core whatever else the machine runs.
+static int64_t thread_cpu_ns(void) {
+    struct timespec t;
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+    return (int64_t)t.tv_sec * 1000000000LL + t.tv_nsec;
+}
+
+static double hist_quantile(const hs_haptic_sim* h, const uint32_t* hist, double q) {
+    if (h->step_hist_n <= 0) return 0;
+    int64_t want = (int64_t)ceil(q * (double)h->step_hist_n), acc = 0;
+    if (want < 1) want = 1;
+    for (int b = 0; b <= STEP_BINS; ++b) {
+        acc += hist[b];
+        if (acc >= want) return b == STEP_BINS ? h->st.step_ms_max : (b + 1) * STEP_BIN_MS;
+    }
+    return h->st.step_ms_max;
+}
+
+// Book a step (+ snapshot) of ms: histogram, recent window, overruns; and every RATE_EVERY
+// steps the pacing: a rate the thread cannot keep is lowered to what it can (no bursts to catch
+// up, a steady cadence), and raised again with hysteresis. The haptic rate is not touched.
+static void record_step(hs_haptic_sim* h, double ms, double cpu_ms) {
+    const int64_t step_ns = (int64_t)(h->def.body.dt * 1e9);
+    int b = (int)(ms / STEP_BIN_MS);
+    h->step_hist[b < 0 ? 0 : b > STEP_BINS ? STEP_BINS : b]++;
+    b = (int)(cpu_ms / STEP_BIN_MS);
+    h->step_hist[STEP_BINS + 1 + (b < 0 ? 0 : b > STEP_BINS ? STEP_BINS : b)]++;
+    h->step_hist_n++;
+    h->recent_ms[h->recent_n++ % HS_SIM_STEP_WINDOW] = ms;
+    if (ms * 1e6 > (double)step_ns) h->st.step_overruns++;
+    h->st.step_p50 = recent_quantile(h, HS_SIM_STEP_WINDOW, 0.5);
+    h->st.step_p99 = recent_quantile(h, HS_SIM_STEP_WINDOW, 0.99);
+    if ((h->step_hist_n & 15) == 1) {
+        h->st.step_p50_all = hist_quantile(h, h->step_hist, 0.5);
+        h->st.step_p99_all = hist_quantile(h, h->step_hist, 0.99);
+        h->st.step_cpu_p50_all = hist_quantile(h, h->step_hist + STEP_BINS + 1, 0.5);
+        h->st.step_cpu_p99_all = hist_quantile(h, h->step_hist + STEP_BINS + 1, 0.99);
+    }
+    // With cutting on, the blade's sweeps and the compliance swaps run once per loop pass: the
+    // loop keeps the nominal pacing (late: at once, no burst) rather than a lowered rate.
+    if (h->cut) return;
+    int64_t p = h->period_ns;
+    if (p > step_ns && h->recent_n >= RATE_FAST) {
+        // Up quickly: the newest RATE_FAST steps all fit well (a lowered rate would otherwise
+        // hold for RATE_EVERY of its own long periods after the load is gone).
+        double fast = RATE_MARGIN * recent_quantile(h, RATE_FAST, 1.0) * 1e6; // ns
+        if (fast < RATE_RAISE * (double)p) p = (int64_t)fmax(fast, (double)step_ns);
+    }
+    if (p == h->period_ns && ++h->rate_count >= RATE_EVERY && h->recent_n >= RATE_WINDOW &&
+        !(h->def.auto_solver && h->au_since < RATE_WINDOW)) { // (not while a switch settles)
+        // Down slowly: the median of the newest RATE_WINDOW steps does not fit.
+        h->rate_count = 0;
+        double want = RATE_MARGIN * recent_quantile(h, RATE_WINDOW, 0.5) * 1e6; // ns
+        if (want > (double)p) p = (int64_t)fmin(want, (double)(RATE_MAX_DIV * step_ns));
+    }
+    if (p != h->period_ns) {
+        h->period_ns = p;
+        h->st.rate_changes++;
+        h->st.sim_hz_target = 1e9 / (double)p;
+    }
+}
+
+static int auto_rank_of(hs_solver_kind k) {
+    for (int r = 0; r < 3; ++r)
+        if (auto_rank[r] == k) return r;
+    return 2;
+}
+
+static void auto_switch(hs_haptic_sim* h, hs_solver_kind k) {
+    hs_err err = {0};
+    if (hs_body_set_solver(h->body, k, &err) != HS_OK) return; // set up at create: cannot fail
+    h->st.solver = (int)k;
+    h->st.solver_switches++;
+    h->au_since = 0;
+    h->au_over = 0;
+}
+
+// Solver choice after a step whose body part took body_ms and snapshot snap_ms: the most
+// accurate solver whose step fits the nominal period. Over the budget AUTO_DOWN steps (net):
+// the next cheaper one, and the failed one waits AUTO_RETRY_S (doubling) before it is measured
+// again. Well inside the budget: the next more accurate one, when its estimate fits
+// AUTO_UP_KNOWN of the budget or, unmeasured, the current fits AUTO_UP_PROBE.
+static void auto_solver_step(hs_haptic_sim* h, double body_ms, double snap_ms) {
+    const hs_solver_kind k = hs_body_solver(h->body);
+    // The hook books the whole step (body + snapshot): no clock enters the choice then.
+    const double c =
+        h->def.step_cost ? h->def.step_cost(h->def.step_cost_ctx, k, body_ms + snap_ms) : body_ms;
+    if (h->def.step_cost) snap_ms = 0;
+    if (++h->au_since <= AUTO_SETTLE) return;
+    double* e = &h->st.solver_ms[k];
+    *e = *e > 0 ? *e + 0.25 * (c - *e) : c;
+    h->au_snap_ms = h->au_snap_ms > 0 ? h->au_snap_ms + 0.25 * (snap_ms - h->au_snap_ms) : snap_ms;
+    const double budget = h->def.body.dt * 1e3;
+    if (c + h->au_snap_ms > budget)
+        h->au_over++;
+    else if (h->au_over > 0)
+        h->au_over--;
+    const int64_t now = hs_now_ns();
+    const int r = auto_rank_of(k);
+    if (h->au_over >= AUTO_DOWN && r < h->au_last) {
+        double w = h->au_backoff_s[k] > 0 ? h->au_backoff_s[k] : AUTO_RETRY_S;
+        h->au_retry_ns[k] = now + (int64_t)(w * 1e9);
+        h->au_backoff_s[k] = fmin(2 * w, AUTO_RETRY_MAX_S);
+        auto_switch(h, auto_rank[r + 1]);
+        return;
+    }
+    if (r == 0 || h->au_since < AUTO_UP_STEPS) return;
+    const hs_solver_kind up = auto_rank[r - 1];
+    if (now < h->au_retry_ns[up]) return;
+    if (h->au_retry_ns[up]) { // its wait is over: measure it afresh (the load may have changed)
+        h->st.solver_ms[up] = 0;
+        h->au_retry_ns[up] = 0;
+    }
+    const double eu = h->st.solver_ms[up];
+    if (eu > 0 ? eu + h->au_snap_ms <= AUTO_UP_KNOWN * budget
+               : *e + h->au_snap_ms <= AUTO_UP_PROBE * budget)
+        auto_switch(h, up);
+}
+
+// Background compliance set-up (def.background_setup): the worker builds it from the mesh, the
+// def and fixed0 (none of which change meanwhile: cutting waits for it).
+static void* setup_worker(void* arg) {
+    hs_haptic_sim* h = arg;
+    int64_t t0 = hs_now_ns();
+    h->su_status = hs_compliance_create(h->mesh, &h->def.body.fem, h->fixed0,
+                                        h->def.probe.cache_nodes, &h->su_comp, &h->su_err);
+    h->su_ms = (double)(hs_now_ns() - t0) * 1e-6;
+    atomic_store_explicit(&h->su_done, 1, memory_order_release);
+    return NULL;
+}
+
+// Take the finished set-up (or wait for it): the deformation thread while it runs, else the
+// control thread. Returns 1 when the compliance is now in use.
+static int setup_take(hs_haptic_sim* h, int wait) {
+    if (!h->su_running) return 0;
+    if (!wait && !atomic_load_explicit(&h->su_done, memory_order_acquire)) return 0;
+    pthread_join(h->su_thread, NULL);
+    h->su_running = 0;
+    if (h->su_status != HS_OK) {
+        hs_compliance_destroy(&h->su_comp);
+        atomic_store_explicit(&h->comp_state, -1, memory_order_release);
+        return 0;
+    }
+    h->comp = h->su_comp;
+    h->su_comp = NULL;
+    atomic_store_explicit(&h->comp_state, 0, memory_order_release);
+    return 1;
+}
+
 static void* deform_main(void* arg) {
     hs_haptic_sim* h = arg;
-    const int64_t step_ns = (int64_t)(h->def.body.dt * 1e9);
     const int64_t idle_ns = (int64_t)(h->def.idle_poll_s * 1e9);
     struct timespec next;
     clock_gettime(CLOCK_MONOTONIC, &next);
@@ -912,9 +1128,10 @@ static void* deform_main(void* arg) {
         int fresh = hs_triple_buffer_read_copy(h->contact, &c);
         (void)fresh;
         int loaded = c.n > 0 || h->applied_n > 0;
-        int64_t t0 = hs_now_ns();
+        int64_t t0 = hs_now_ns(), c0 = thread_cpu_ns();
         int rebuild = 0, cut_changed = 0;
         h->st.loops++;
+        if (h->su_running) setup_take(h, 0);
         if (h->cut) {
             int swapped = comp_poll(h, 0);
             // Say so before the snapshot with the new contact goes out (a step may come
@@ -929,10 +1146,13 @@ static void* deform_main(void* arg) {
         }
         int moving = loaded || h->wake_steps > 0 || max_speed(h) > h->def.sleep_speed_m_s;
         if (h->wake_steps > 0) h->wake_steps--;
+        double body_ms = 0;
         if (moving) {
             // The forces rt computed from the last snapshot drive this step.
             apply_contact(h, &c);
+            int64_t tb = hs_now_ns();
             hs_status s = hs_body_step(h->body, NULL);
+            body_ms = (double)(hs_now_ns() - tb) * 1e-6;
             if (s != HS_OK)
                 h->st.step_failures++;
             else
@@ -947,26 +1167,40 @@ static void* deform_main(void* arg) {
         }
         if (rebuild) {
             int64_t t1 = hs_now_ns();
-            build_snapshot(h, c.tool_m);
+            // No compliance yet (background set-up): no snapshot, rt answers zero force.
+            if (h->comp) {
+                build_snapshot(h, c.tool_m);
+                memcpy(centre, c.tool_m, sizeof centre);
+                have_snapshot = 1;
+            }
             double sms = (double)(hs_now_ns() - t1) * 1e-6;
             h->st.snapshot_ms_last = sms;
             if (sms > h->st.snapshot_ms_max) h->st.snapshot_ms_max = sms;
-            memcpy(centre, c.tool_m, sizeof centre);
-            have_snapshot = 1;
             if (moving || cut_changed) publish_frame(h);
             double ms = (double)(hs_now_ns() - t0) * 1e-6;
             h->st.step_ms_last = ms;
             if (ms > h->st.step_ms_max) h->st.step_ms_max = ms;
+            if (moving) {
+                record_step(h, ms, (double)(thread_cpu_ns() - c0) * 1e-6);
+                if (h->def.auto_solver) auto_solver_step(h, body_ms, sms);
+            }
         }
         h->st.sleeping = !moving;
+        if (!moving && h->period_ns != (int64_t)(h->def.body.dt * 1e9)) {
+            // At rest: the next contact starts at the nominal rate (the load may be gone).
+            h->period_ns = (int64_t)(h->def.body.dt * 1e9);
+            h->st.sim_hz_target = 1.0 / h->def.body.dt;
+            h->st.rate_changes++;
+        }
         h->st.contact = c;
         const double depth = press_depth(h, &c);
         if (depth > h->st.depth_max) h->st.depth_max = depth;
         if (depth > hs_contact_validated_depth(h->def.probe.radius_m)) h->st.deep_loops++;
-        h->st.column_solves = hs_compliance_column_solves(h->comp);
+        if (h->comp) h->st.column_solves = hs_compliance_column_solves(h->comp);
         hs_triple_buffer_write(h->status, &h->st);
 
         if (moving) {
+            const int64_t step_ns = h->period_ns;
             timespec_add(&next, step_ns);
             // Fell behind by more than a step: restart the pacing instead of bursting.
             struct timespec now;
@@ -1025,6 +1259,7 @@ void hs_haptic_sim_destroy(hs_haptic_sim** ph) {
     if (!ph || !*ph) return;
     hs_haptic_sim* h = *ph;
     hs_haptic_sim_stop(h);
+    setup_take(h, 1);
     hs_rt_loop_destroy(&h->loop);
     hs_haptic_rt_destroy(&h->hrt);
     hs_memdev_destroy(&h->dev);
@@ -1048,6 +1283,7 @@ void hs_haptic_sim_destroy(hs_haptic_sim** ph) {
     hs_free(h->near_node);
     hs_free(h->near_tri);
     hs_free(h->cand_of);
+    hs_free(h->step_hist);
     hs_triple_buffer_destroy(&h->cpose);
     hs_cut_destroy(&h->cut);
     hs_free(h->fixed0);
@@ -1105,14 +1341,65 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
     h->mesh = mesh;
     h->corotated = def->body.fem.model != HS_MODEL_LINEAR;
     atomic_init(&h->stop, 0);
-    hs_status s = hs_body_create(mesh, &def->body, fixed, &h->body, err);
+    // The warped factor follows the co-rotated model's rotations: only there is there a choice
+    // (the linear model's warped solver is the direct one).
+    if (def->body.fem.model != HS_MODEL_COROTATED) h->def.auto_solver = 0;
+    hs_body_def bd = def->body;
+    if (h->def.auto_solver) {
+        // Start with the cheapest allowed solver; the PCG workspace is made now, so a switch
+        // on the deformation thread allocates nothing.
+        h->au_last = def->auto_exact_tangent ? 1 : 2;
+        bd.solver = auto_rank[h->au_last];
+        bd.precond = HS_PRECOND_WARPED;
+        h->def.body = bd;
+    }
+    hs_status s = hs_body_create(mesh, &bd, fixed, &h->body, err);
     if (s != HS_OK) goto fail;
+    if (h->def.auto_solver && (hs_body_set_solver(h->body, HS_SOLVER_PCG, err) != HS_OK ||
+                               hs_body_set_solver(h->body, bd.solver, err) != HS_OK)) {
+        s = HS_ERR_NOMEM;
+        goto fail;
+    }
+    if (h->def.auto_solver) {
+        // The first step's factorisation, made now and timed: a direct step refactors about
+        // that every step, plus the element pass, a back-solve and the snapshot. When it fits
+        // AUTO_START of the period, start with the most accurate solver (a small mesh never
+        // steps with a cheaper one); else with the cheapest, whose factor it is.
+        double f_ms = 0;
+        if (hs_body_prepare_step(h->body, &f_ms) == HS_OK) {
+            h->st.factor_ms = f_ms;
+            double c =
+                def->step_cost ? def->step_cost(def->step_cost_ctx, HS_SOLVER_DIRECT, f_ms) : f_ms;
+            // A small factor starts direct whatever the clock says (a loaded machine must not
+            // change a small scene's solver); the test hook stands for any size.
+            const int small = !def->step_cost && hs_body_factor(h->body) &&
+                              hs_cholesky_factor_nnz(hs_body_factor(h->body)) <= AUTO_START_NNZ;
+            if (small || c <= AUTO_START * def->body.dt * 1e3) {
+                hs_body_set_solver(h->body, HS_SOLVER_DIRECT, NULL);
+                bd.solver = HS_SOLVER_DIRECT;
+            }
+        }
+    }
+    h->st.solver = (int)bd.solver;
+    h->period_ns = (int64_t)(def->body.dt * 1e9);
+    h->st.sim_hz_target = 1.0 / def->body.dt;
+    h->step_hist = hs_calloc(2 * (STEP_BINS + 1), sizeof *h->step_hist);
+    if (!h->step_hist) goto nomem;
     h->fixed0 = hs_calloc((size_t)mesh->n_nodes + 1, 1);
     if (!h->fixed0) goto nomem;
     if (fixed) memcpy(h->fixed0, fixed, (size_t)mesh->n_nodes);
-    s = hs_compliance_create(mesh, &def->body.fem, fixed, pd->cache_nodes, &h->comp, err);
-    if (s != HS_OK) goto fail;
-    h->setup_ms = hs_compliance_setup_ms(h->comp);
+    if (def->background_setup) {
+        atomic_store(&h->comp_state, 1);
+        if (pthread_create(&h->su_thread, NULL, setup_worker, h) != 0) {
+            s = hs_err_set(err, HS_ERR_NOMEM, "hs_haptic_sim_create: cannot start the set-up");
+            goto fail;
+        }
+        h->su_running = 1;
+    } else {
+        s = hs_compliance_create(mesh, &def->body.fem, fixed, pd->cache_nodes, &h->comp, err);
+        if (s != HS_OK) goto fail;
+        h->setup_ms = hs_compliance_setup_ms(h->comp);
+    }
 
     const size_t n = (size_t)mesh->n_nodes;
     h->x = hs_calloc(3 * n, sizeof(double));
@@ -1171,6 +1458,7 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
     rd.tick.on_stop = rt_stop;
     s = hs_rt_loop_create(&rd, &h->loop, err);
     if (s != HS_OK) goto fail;
+    hs_triple_buffer_write(h->status, &h->st); // the solver and rate, before the first pass
     *out = h;
     return HS_OK;
 nomem:
@@ -1264,6 +1552,7 @@ void hs_haptic_sim_stop(hs_haptic_sim* h) {
         atomic_store_explicit(&h->stop, 1, memory_order_release);
         pthread_join(h->thread, NULL);
         h->thread_started = 0;
+        setup_take(h, 0);    // a finished background set-up is the control thread's to take now
         if (h->cw_running) { // the thread is gone: finish its rebuild here (cannot be cut short)
             comp_poll(h, 1);
             hs_triple_buffer_write(h->status, &h->st);
@@ -1290,6 +1579,8 @@ hs_status hs_haptic_sim_enable_cutting(hs_haptic_sim* h, hs_mesh* mesh,
     if (h->thread_started || h->cut)
         return hs_err_set(err, HS_ERR_INVALID,
                           "hs_haptic_sim_enable_cutting: sim already running or cutting");
+    if (hs_haptic_sim_wait_setup(h) != HS_OK) // cuts move x0, which the set-up reads
+        return hs_err_set(err, h->su_status, "hs_haptic_sim_enable_cutting: %s", h->su_err.msg);
     if (!(def->toughness_n_m >= 0) || !(def->max_force_n >= 0) || !(def->min_travel_m >= 0) ||
         !isfinite(def->toughness_n_m) || !isfinite(def->max_force_n) ||
         dist3(def->blade_a, def->blade_b) <= 0 || !isfinite(dist3(def->blade_a, def->blade_b)))
@@ -1508,10 +1799,28 @@ void hs_haptic_sim_stats_get(hs_haptic_sim* h, hs_haptic_sim_stats* out) {
     out->free_relax_cuts = ds.relax_cuts;
     out->depth_max_m = ds.depth_max;
     out->deep_loops = ds.deep_loops;
+    out->step_ms_p50 = ds.step_p50;
+    out->step_ms_p99 = ds.step_p99;
+    out->step_ms_p50_all = ds.step_p50_all;
+    out->step_ms_p99_all = ds.step_p99_all;
+    out->step_cpu_ms_p50_all = ds.step_cpu_p50_all;
+    out->step_cpu_ms_p99_all = ds.step_cpu_p99_all;
+    out->step_overruns = ds.step_overruns;
+    out->sim_hz_target = ds.sim_hz_target;
+    out->rate_changes = ds.rate_changes;
+    out->solver = ds.solver;
+    out->solver_switches = ds.solver_switches;
+    memcpy(out->solver_cost_ms, ds.solver_ms, sizeof out->solver_cost_ms);
+    out->factor_ms = ds.factor_ms;
     memcpy(out->cut_force_n, ds.cut_force_n, sizeof out->cut_force_n);
     out->cutting = ds.cutting;
     out->topology_version = atomic_load(&h->topo_version);
     out->setup_ms = h->setup_ms; // h->comp is replaced by cuts on the deformation thread
+    out->comp_state = atomic_load_explicit(&h->comp_state, memory_order_acquire);
+    if (h->def.background_setup && atomic_load_explicit(&h->su_done, memory_order_acquire)) {
+        out->setup_ms = h->su_ms;
+        if (out->comp_state == 1) out->comp_state = h->su_status == HS_OK ? 2 : -1;
+    }
     hs_rt_loop_stats(h->loop, &out->rt);
     hs_haptic_rt_counters rc;
     hs_haptic_rt_get_counters(h->hrt, &rc);
@@ -1532,6 +1841,18 @@ int hs_haptic_sim_cut_pinned(hs_haptic_sim* h, unsigned char* pinned) {
         k += pinned[i];
     }
     return k;
+}
+
+const char* hs_haptic_sim_setup_error(hs_haptic_sim* h) {
+    return atomic_load_explicit(&h->su_done, memory_order_acquire) && h->su_status != HS_OK
+               ? h->su_err.msg
+               : NULL;
+}
+
+hs_status hs_haptic_sim_wait_setup(hs_haptic_sim* h) {
+    if (h->thread_started) return HS_ERR_INVALID;
+    setup_take(h, 1);
+    return h->comp ? HS_OK : h->su_status != HS_OK ? h->su_status : HS_ERR_INVALID;
 }
 
 hs_compliance* hs_haptic_sim_compliance(hs_haptic_sim* h) {

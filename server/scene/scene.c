@@ -325,12 +325,18 @@ static hs_status parse_material(const ctx* c, const cJSON* root, hs_scene* s) {
     return HS_OK;
 }
 
+static const char* const solver_names[] = {"auto", "direct", "warped", "pcg"};
+
+const char* hs_scene_solver_name(hs_scene_solver s) {
+    return s >= HS_SCENE_SOLVER_AUTO && s <= HS_SCENE_SOLVER_PCG ? solver_names[s] : "?";
+}
+
 static hs_status parse_model(const ctx* c, const cJSON* root, hs_scene* s) {
     const cJSON* m;
     TRY(get_obj(c, root, "", "model", &m));
     if (!m) return HS_OK;
-    static const char* const keys[] = {"type",         "rotation", "inversion",
-                                       "locking_free", "solver",   NULL};
+    static const char* const keys[] = {"type",   "rotation",        "inversion", "locking_free",
+                                       "solver", "solver_accuracy", NULL};
     TRY(check_keys(c, m, "model", keys));
     static const char* const types[] = {"linear", "corotated", "stvk"};
     static const char* const rots[] = {"polar", "svd"};
@@ -360,8 +366,11 @@ static hs_status parse_model(const ctx* c, const cJSON* root, hs_scene* s) {
             s->locking_free = v;
         }
     }
-    static const char* const solvers[] = {"direct", "warped"};
-    TRY(get_enum(c, m, "model", "solver", solvers, 2, 0, &s->warped_solver));
+    v = (int)s->solver;
+    TRY(get_enum(c, m, "model", "solver", solver_names, 4, 0, &v));
+    s->solver = (hs_scene_solver)v;
+    static const char* const acc[] = {"equilibrium", "tangent"};
+    TRY(get_enum(c, m, "model", "solver_accuracy", acc, 2, 0, &s->exact_tangent));
     return HS_OK;
 }
 
