@@ -729,7 +729,10 @@ static int take_over_keeps_force(void) {
     printf("  a's last force %.4f N; b: first tick off by %.3g N, %d ticks, least %.4f N, "
            "largest step %.4f N, %d ticks below full gain, %d new snapshots\n",
            norm3(f_last), norm3(e0), n, least, step, ramped, blends);
-    ENSURE(norm3(e0) <= 1e-12 * norm3(f_last)); // the same force, the same tick over
+    // The same force the tick over: exactly, unless b's first snapshot beat its first rt tick
+    // (a deformation thread that starts with its factor prepared), when that tick is already
+    // one blend step (1/10) from the held model toward b's own.
+    ENSURE(norm3(e0) <= 0.02 * norm3(f_last));
     ENSURE(ramped == 0 && least >= 0.5 * norm3(f_last));
     ENSURE(blends >= 1); // b's own snapshots took over from the held model
     ENSURE(step <= 0.1 * norm3(f_last));
