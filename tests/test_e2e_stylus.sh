@@ -2,7 +2,7 @@
 # Issue 5 end to end: hapsim-server on the default liver scene and hapsim-stylus over real LCM.
 # Run inside a private network namespace (tests/netns.sh), ttl=0, own ports; each part < 60 s.
 #   tests/test_e2e_stylus.sh PART BIN_DIR E2E_REACTION E2E_LOGDUMP SOURCE_DIR
-# PART: press | passivity | kill_stylus | kill_server | golden | replay
+# PART: press | deep | passivity | kill_stylus | kill_server | golden | replay
 # Exit 0 pass, 1 fail, 77 skipped (the reason is printed). HS_KEEP=1 keeps the work folder.
 set -u
 part=$1
@@ -116,6 +116,21 @@ press)
         END { h = int(n / 2); for (i = h + 1; i <= n; i++) if (f[i] != 0) bad++
               printf "released: %d of the last %d rows of hold #%d nonzero\n", bad, n - h, '"$rel"'
               exit !(n > 100 && !bad) }' || fail "force did not return to zero after the release"
+    ;;
+deep)
+    # Pressed ~20 mm deep with the 5 mm probe (validated to 15 mm): the force keeps growing with
+    # depth, and the server says the press went beyond the validated range on its exit line.
+    start_server 1
+    stylus "$tmp/deep.csv" "$scripts/press_deep.probe" >"$tmp/sty.log" 2>&1 ||
+        fail "stylus rc $?: $(cat "$tmp/sty.log")"
+    stop_server 1
+    cat "$tmp/sty.log"
+    grep "beyond the" "$tmp/srv1.log" || fail "no warning of a press beyond the validated depth: $(tail -n 5 "$tmp/srv1.log")"
+    grep -q "beyond the 15.0 mm the contact is validated for" "$tmp/srv1.log" ||
+        fail "the warning does not name the validated depth"
+    pk=$(summary "$tmp/deep.csv" peak_force_n)
+    echo "$pk" | awk '{ printf "peak force ~20 mm deep: %.3f N\n", $1; exit !($1 > 0.3) }' ||
+        fail "no force ~20 mm deep"
     ;;
 passivity)
     # Press-hold-release, then press 4 mm, drag 10 mm and back, release: the net energy into

@@ -181,7 +181,7 @@ struct hs_server {
     // h_step and h_simper hold ns / SIM_HIST_SCALE: 16 us bins over 0-64 ms (1 us bins end at
     // 4 ms, below a 60 Hz period, so every sample fell in the overflow and read as the max)
     int64_t last_step_ns;
-    int64_t live_prev_ticks, live_prev_t;
+    int64_t live_prev_ticks, live_prev_t, live_prev_deep;
     int64_t solver_switches_seen; // auto solver: switches already printed
     int comp_state_seen;          // compliance state last reported (hs_haptic_sim_stats)
     int64_t net_iters, last_iter_ns, last_steps;
@@ -1166,6 +1166,11 @@ static void publish_status(hs_server* s, int64_t t) {
              1e3 / w->scene.sim_hz, w->scene.haptic_hz);
     if (w->sim && s->st_prev->cut_failures)
         WARN("%lld cut steps failed (mesh kept consistent)", (long long)s->st_prev->cut_failures);
+    if (w->sim && s->st_prev->deep_loops)
+        WARN("pressed %.1f mm deep, beyond the %.1f mm the contact is validated for (docs/"
+             "haptics.md): the force there is unchecked",
+             s->st_prev->depth_max_m * 1e3,
+             hs_contact_validated_depth(w->def.probe.radius_m) * 1e3);
 #undef WARN
     m.warnings = warn;
     hapsim_server_status_t_publish(hs_net_bus_lcm(s->mbus), s->ch_status, &m);
@@ -1974,6 +1979,7 @@ static void live_line(hs_server* s, int64_t t) {
     double rate = 0, jit = 0, p50 = 0, p99 = 0, sim_hz = 0;
     long long over = 0;
     const char* solver = "-";
+    int deep = 0;
     if (w->sim) {
         hs_haptic_sim_stats st;
         hs_haptic_sim_stats_get(w->sim, &st);
@@ -1988,13 +1994,16 @@ static void live_line(hs_server* s, int64_t t) {
         sim_hz = st.sim_hz_target;
         over = (long long)st.step_overruns;
         solver = solver_name(st.solver);
+        deep = st.deep_loops > s->live_prev_deep; // pressed beyond the validated depth lately
+        s->live_prev_deep = st.deep_loops;
     }
     uint64_t rej = rejected_total(s);
     fprintf(stderr,
             "\rhapsim-server: rt %6.1f Hz  jitter p99 %5.0f us  force %5.2f N  sim %s %4.1f Hz "
-            "step p50/p99 %5.2f/%5.2f ms overruns %lld  poses %lld  rejected %llu%s   ",
+            "step p50/p99 %5.2f/%5.2f ms overruns %lld  poses %lld  rejected %llu%s%s   ",
             rate, jit, norm3(s->dev[0].force), solver, sim_hz, p50, p99, over,
             (long long)s->poses_total, (unsigned long long)rej,
+            deep ? "  TOO DEEP (force unchecked)" : "",
             s->estop    ? "  E-STOP"
             : s->paused ? "  PAUSED"
                         : "");
@@ -2174,6 +2183,16 @@ hs_status hs_server_run(hs_server* s, hs_err* err) {
                        (long long)st.solver_switches, st.solver_cost_ms[HS_SOLVER_DIRECT],
                        st.solver_cost_ms[HS_SOLVER_PCG], st.solver_cost_ms[HS_SOLVER_WARPED]);
             printf("\n");
+            if (st.depth_max_m > 0)
+                printf("hapsim-server: deepest press %.1f mm (validated to %.1f mm)\n",
+                       st.depth_max_m * 1e3,
+                       hs_contact_validated_depth(s->w.def.probe.radius_m) * 1e3);
+            if (st.deep_loops)
+                printf("hapsim-server: warning: pressed %.1f mm deep, beyond the %.1f mm the "
+                       "contact is validated for, in %lld deformation loops\n",
+                       st.depth_max_m * 1e3,
+                       hs_contact_validated_depth(s->w.def.probe.radius_m) * 1e3,
+                       (long long)st.deep_loops);
         }
         if (s->w.cutting)
             printf("hapsim-server: %lld cut steps (topology events, over every reset), "
