@@ -51,6 +51,7 @@ static hs_haptic_sim_def organ_def(void) {
     d.safety.max_rate_n_s = 1e5;
     d.fifo_priority = 0;
     d.lock_memory = 0;
+    d.auto_solver = 1; // the scene default (model.solver auto), as hapsim-server runs it
     return d;
 }
 
@@ -265,8 +266,10 @@ static int run_organ(const hs_bench_args* a, const organ_case* oc) {
     for (int i = 0; i < N_DEPTHS; ++i) {
         double df[3] = {res[i].force[0] - ref[i][0], res[i].force[1] - ref[i][1],
                         res[i].force[2] - ref[i][2]};
-        printf("%s,%d,direct,%.0f,%.2f,%.2f,%.1f,%.1f,%.4f,%.4f,%.1f,%.4f,%.1f,%.0f\n", oc->name,
-               m->n_tets, st.setup_ms, res[i].step_p50_ms, res[i].step_p99_ms, res[i].sim_hz,
+        static const char* const solvers[] = {"direct", "pcg", "warped"};
+        const int sk = st.solver >= 0 && st.solver < 3 ? st.solver : 0;
+        printf("%s,%d,%s,%.0f,%.2f,%.2f,%.1f,%.1f,%.4f,%.4f,%.1f,%.4f,%.1f,%.0f\n", oc->name,
+               m->n_tets, solvers[sk], st.setup_ms, res[i].step_p50_ms, res[i].step_p99_ms, res[i].sim_hz,
                res[i].depth_m * 1e3, norm3(res[i].force), norm3(ref[i]),
                100 * norm3(df) / norm3(ref[i]), res[i].max_jump_n,
                hs_rt_hist_quantile_us(&st.rt.tick, 0.99), hs_bench_peak_rss_mb());
