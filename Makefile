@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: GPL-2.0-or-later
 # hapsim: the two commands a new user needs are `make demo` and `make test`.
 # Both install missing Debian packages when run as root (else print the apt-get line),
 # configure the CMake build in build/, and build with every core.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // hapsim-view's picture annotations (view.h): a 5x7 bitmap font, lines, the tools with their
 // force arrows, the colour bar in mm, a scale bar, the axes and a caption, so that a PNG says
 // what it shows.

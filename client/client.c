@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // libhapsim-client: the LCM connection (two buses), dispatch, poses, forces, commands, status.
 #define _POSIX_C_SOURCE 200809L
 #include <errno.h>

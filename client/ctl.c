@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // hapsim-ctl: send commands to a running hapsim-server and show its status. docs/client.md.
 #define _POSIX_C_SOURCE 200809L
 #include "hapsim/version.h"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // Mesh synchronisation state machine (docs/protocol.md "Watching the mesh", docs/client.md).
 // Two topologies are kept: the one shown and a newer one waiting for its first keyframe, so the
 // visible mesh is always a topology with positions that belong to it.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // The local force model of tool_force_t (docs/protocol.md "Driving a device").
 #include <math.h>
 #include <string.h>

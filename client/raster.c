@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // Software rasteriser for hapsim-view: orthographic camera, edge functions, z-buffer, flat
 // two-sided Lambert shading with a per-pixel interpolated colour map. PNG through libpng's
 // simplified API.

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: MIT
 # Client tests (included from tests/CMakeLists.txt, so hs_add_test and the tests folder apply).
 hs_add_test(client hapsim_client)
 # White-box cases (the wire decoders' ranges) include the client's internal wire.h.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // hapsim-view: watch a running hapsim-server and write a ParaView time series (.vtu + .pvd) and
 // PNG snapshots of the deforming surface, with a live one-line status. docs/client.md.
 #define _POSIX_C_SOURCE 200809L

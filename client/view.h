@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // hapsim-view core (internal, not installed): an orthographic camera, a software rasteriser of
 // surface triangles (z-buffer, Lambert shading, colour map), PNG in/out through libpng, and
 // VTK XML (.vtu + .pvd) writers. docs/client.md describes the output.

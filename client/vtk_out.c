@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // VTK XML output for ParaView: one .vtu per frame (surface triangles, ASCII) and a .pvd
 // collection. Files are written to "<path>.tmp" and renamed, so a reader never sees half a file.
 #define _POSIX_C_SOURCE 200809L

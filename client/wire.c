@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // Bounds-checked decoding of the messages a client receives (see wire.h).
 #include "wire.h"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // Client wire edge: a bounds-checked reader over raw LCM message bytes. Every decoder checks the
 // fingerprint, every length field against the bytes left and the type's rules, strings for a
 // final NUL and no inner NUL, floats for NaN/Inf and the message for trailing bytes. Big arrays

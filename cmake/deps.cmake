@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: GPL-2.0-or-later
 # Debian's SuiteSparse 5.x ships no CMake config and LCM's pkg-config file needs glib's:
 # find headers and libraries directly.
 find_package(Threads REQUIRED)

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // hapsim protocol: channel names and default LCM URLs, shared by the server, the client library
 // and the simulated stylus (the only hand-written header of hapsim_msgs). A channel is the
 // configurable prefix followed by one of the suffixes below, e.g. "HAPSIM_" "TOOL_POSE".

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // hapsim protocol: the arguments a command must carry, for the server's validation and the
 // client library's local check, so that a command the client lets through is one the server
 // takes (header only, like hapsim_channels.h).

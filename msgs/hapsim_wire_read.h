@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // hapsim protocol: a bounded reader of LCM-encoded bytes (big-endian; it never reads past the
 // end), for the client library and the simulated stylus, which check some messages field by
 // field before any decode (header only, like hapsim_channels.h).

@@ -1,4 +1,5 @@
 #!/bin/sh
+# SPDX-License-Identifier: GPL-2.0-or-later
 # make demo: hapsim-server on the bundled liver scene and hapsim-stylus on the bundled demo probe
 # script (about 45 s), with the server's live one-line status (rt loop rate, jitter p99, force,
 # deformation step time), then the stylus trace and a PNG plot of force against time in out/.

@@ -1,4 +1,5 @@
 #!/bin/sh
+# SPDX-License-Identifier: GPL-2.0-or-later
 # Deep presses on the bundled liver and skin patch (docs/haptics.md): the held force at every
 # probe radius down to max(3 r, 15 mm), from the in-process server loop (test_haptic_sim
 # deep_press, holds of 300 deformation steps), and hold_probe's linear and co-rotated holds at

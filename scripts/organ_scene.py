@@ -1,4 +1,5 @@
 #!/usr/bin/env python3
+# SPDX-License-Identifier: GPL-2.0-or-later
 """Write a hapsim scene and a press script for an organ mesh (Gmsh 2.2, metres).
 
 The organ is held at its lowest 10 % in z (a bbox_side slab) and pressed at its highest

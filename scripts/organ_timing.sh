@@ -1,4 +1,5 @@
 #!/bin/sh
+# SPDX-License-Identifier: GPL-2.0-or-later
 # Sim step timing inside the running server on organ meshes (docs/benchmarks.md, "Organs on the
 # server's path"): for each mesh and solver setting, a scene from scripts/organ_scene.py (held
 # at its lowest 10 % in z), hapsim-server over LCM and hapsim-stylus pressing its top node one

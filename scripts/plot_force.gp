@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: GPL-2.0-or-later
 # Force against time from a hapsim-stylus trace (docs/stylus.md): gnuplot -e "trace='T'; out='P'" scripts/plot_force.gp
 # Columns used: 1 t_s, 8-10 f_recv (server's model, N), 11-13 f_app (applied by the motor, N), 16 segment.
 if (!exists("trace")) trace = 'out/demo/demo-trace.csv'

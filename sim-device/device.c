@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // The stylus device model: a handle of some mass with viscous and Coulomb friction, pulled by a
 // virtual hand (spring-damper to the scripted target) and pushed by a force-limited motor that
 // renders the newest local model from the server. Semi-implicit Euler on the real elapsed dt.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // hapsim-stylus: a simulated 3-DoF haptic stylus that plays a probe script against a running
 // hapsim-server over LCM (or, with --offline-stiffness, against a built-in elastic half-space in
 // deterministic virtual time), and writes a trace CSV with a summary.

@@ -1,4 +1,5 @@
 #!/bin/sh
+# SPDX-License-Identifier: MIT
 # Plot a hapsim-stylus trace: applied and received force magnitude against time, and the depth
 # of the handle below its starting height along the force, with gnuplot.
 #   sim-device/plot_trace.sh TRACE.csv [OUT.png|OUT.svg]

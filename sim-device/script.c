@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // Probe scripts: a line-based keyframe format parsed into timed straight-line segments, and the
 // target trajectory target(t). Loops are expanded by re-reading their body (no allocation), so
 // the segment array is the whole, flat timeline.

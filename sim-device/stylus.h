@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // hapsim-stylus core: a simulated 3-DoF haptic stylus. Probe scripts (parse, target(t)), the
 // device model (handle mass, friction, motor limits, workspace, virtual hand), rendering of the
 // server's local force model between messages, an offline elastic half-space standing in for the

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // The run trace: one row per device tick kept in memory allocated before the run (the device
 // loop only copies a struct), the summary numbers, and the CSV written after the run.
 #include "stylus.h"

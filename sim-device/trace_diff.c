@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // hapsim-trace-diff: compare a hapsim-stylus trace against a reference trace (golden traces).
 // The applied force of the run, interpolated at the reference's sample times, must stay within
 // abs + rel * (reference peak) everywhere, and the run must cover the reference's duration.

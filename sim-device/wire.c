@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // tool_force -> hs_stylus_model, with the driver-side checks (wire.h).
 #include "wire.h"
 

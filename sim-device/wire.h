@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // hapsim-stylus wire edge: tool_force messages (msgs/tool_force_t.lcm) into device models, with
 // the checks a driver owes the network: another device's message, or an answer to a pose sent
 // before this driver started (another session's), is skipped; non-finite numbers, a negative

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // The CalculiX reference problems of tests/accuracy (ccx_refs.py) on hapsim's side: the same
 // Kuhn box meshes, boundary conditions and loads, hapsim's models solved statically, and the
 // relative L2 error of nodal displacements against a committed reference field. Shared by

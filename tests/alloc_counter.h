@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Counting every malloc-family call made on one thread (the rt thread between its first and
 // last tick): malloc, calloc, realloc, free and the aligned variants are interposed in the test
 // executable and count while the calling thread's flag is on. Include in exactly one file of a

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Opening an LCM log for e2e_logdump and e2e_replay (docs/replay.md).
 //
 // LCM's file provider reads a log cut off inside its last event as a complete log (it stops at

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Read an LCM log of a hapsim session deterministically and print its poses and forces, for the
 // end-to-end tests and docs/replay.md.
 //

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Reference for the end-to-end press test (tests/test_e2e_stylus.sh): the static FEM reaction of
 // a scene's tissue for the probe held at one position.
 //

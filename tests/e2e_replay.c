@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Deterministic replay of a recorded hapsim session: the tool poses of an LCM log, read through
 // LCM's file provider (file://LOG?speed=0) with time from each pose's own utime, answered by the
 // library's probe contact against the scene's rest-state (linear, quasi-static) compliance.

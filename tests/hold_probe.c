@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hold_probe: press the default liver (scenes/liver/liver.json: material, fixed face, no
 // gravity) at one surface node along its normal in 0.5 s, hold, and report how the felt force
 // settles against the full static reaction, for the linear and the co-rotated model. A

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // The default liver scene's tissue (scenes/liver/liver.json: 5 kPa, nu 0.45, 1060 kg/m^3,
 // Rayleigh 0.5 / 0.01) as an hs_haptic_sim_def for the tests, hold_probe and the haptic bench,
 // stepped every 10 ms (the scene steps at 60 Hz).

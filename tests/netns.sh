@@ -1,4 +1,5 @@
 #!/bin/sh
+# SPDX-License-Identifier: GPL-2.0-or-later
 # Run a command inside a private network namespace with multicast on loopback, so LCM tests
 # cannot hear (or disturb) other runs and nothing leaves the machine.
 #   tests/netns.sh COMMAND [ARGS...]

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Test helper: a structured nx x ny x nz node grid with a 27-point node stencil, cut into six
 // tetrahedra per cell, and an elasticity-like SPD "block Laplacian plus shift" assembled from
 // per-tet 12x12 blocks. Nodes on the x = 0 face are fixed. Test data uses malloc, not hs_alloc,

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Timing of the sparse module on 3D grid matrices (27-point node stencil, six tets per cell,
 // x = 0 face fixed): analysis, numeric refactor, solve, factor size, and the update mode used
 // by cutting. A measurement tool, not a test.

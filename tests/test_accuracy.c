@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim against an independent solver: CalculiX results on the same Kuhn box meshes, committed
 // under tests/accuracy/refs (written by tests/accuracy/make_refs.sh; no CalculiX needed here).
 // Error: relative L2 of the nodal displacements, 100 ||u - u_ref|| / ||u_ref|| over all nodes.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Body: static and dynamic solves against beam theory, the paper's self-weight cantilever,
 // energy behaviour of implicit Euler, inversion recovery, boundary conditions, solvers.
 #include "hapsim/body.h"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // libhapsim-client without a network: the mesh-sync state machine fed with encoded messages
 // (late join, 30 % loss, wrong versions, server restart, malformed and random input), the
 // wire decoders, the local force model and its blending, the status decoder; and the connection

@@ -1,4 +1,5 @@
 #!/bin/sh
+# SPDX-License-Identifier: GPL-2.0-or-later
 # End to end (run through tests/netns.sh: private network namespace, multicast on lo, ttl=0):
 # hapsim-server on the liver scene, hapsim-view writing PNG + VTK, hapsim-ctl commands and
 # status, hapsim-stylus pressing the liver 5 mm (press_hold.probe). Checks: every command gets

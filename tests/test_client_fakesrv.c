@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // A stand-in mesh server for the client tests (test_client_liver.sh): publishes the bundled
 // liver's surface as topology + keyframes + deltas with a dent growing under node 399 (5 mm
 // along its inward normal, Gaussian of 8 mm), a server status, and answers commands: the first

@@ -1,4 +1,5 @@
 #!/bin/sh
+# SPDX-License-Identifier: GPL-2.0-or-later
 # Install the client (component "client") into a temporary prefix, then build two tiny consumers
 # against it: one with CMake find_package(hapsim) -> hapsim::client, one with pkg-config
 # (hapsim-client.pc). Both run: they create a client on memq:// buses (no network) and a mesh

@@ -1,4 +1,5 @@
 #!/bin/sh
+# SPDX-License-Identifier: GPL-2.0-or-later
 # hapsim-view and hapsim-ctl against a stand-in server (test_client_fakesrv) that publishes the
 # bundled liver with a 5 mm dent growing under the probe point, and drops the first copy of
 # every command. Run through tests/netns.sh. Checks: the PNGs change where the dent is and not

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Checks hapsim-view's PNGs of a probe pressing the liver (used by tests/test_client_e2e.sh):
 // between the frame before the press and the frame with the largest displacement, pixels change
 // near the probe and nowhere near the far side of the organ.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim-view core: the rasteriser (background vs object, z-buffer, shading follows the normal,
 // colour follows displacement), PNG round trip, VTU/PVD writing. With HS_CLIENT_VTK_DIR set,
 // the VTK case writes its files there and keeps them (tests/test_client_vtk.sh validates them

@@ -1,4 +1,5 @@
 #!/bin/sh
+# SPDX-License-Identifier: GPL-2.0-or-later
 # Validate hapsim-view's VTK output with readers other than ours:
 #  - meshio (Debian python3-meshio) reads every .vtu: points, triangle cells, point data, and the
 #    numbers must match what was written (|displacement| == displacement_magnitude);

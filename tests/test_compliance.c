@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Condensed compliance and probe contact: exactness against full FEM solves, the column cache,
 // the contact solve (active set, cap, stiffness) on the bundled liver.
 #include "hapsim/body.h"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Surface (triangle) probe contact: a pressed probe dragged over a surface whose triangles are
 // wider than the probe never loses it and its force changes continuously across faces, edges
 // and vertices; one contact point per geometric point; stiffness against finite differences;

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Cutting: geometry and rules, separation and wounds on the skin patch, 1,000 random cuts on the
 // liver, and the factor / compliance kept consistent with fresh factorisations.
 #define _POSIX_C_SOURCE 200809L // nanosleep

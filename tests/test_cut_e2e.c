@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Cutting through the in-process haptic simulation (the path hapsim-server runs): a scalpel
 // dragged across the skin patch by poses fed at 1 kHz, real deformation and rt threads.
 // The LCM end to end is tests/test_cut_e2e.sh.

@@ -1,4 +1,5 @@
 #!/bin/sh
+# SPDX-License-Identifier: GPL-2.0-or-later
 # Cutting end to end (run through tests/netns.sh: private network namespace, multicast on lo):
 # hapsim-server on scenes/skin (cutting on) and hapsim-stylus dragging the scalpel across the
 # patch, then pressing the released tool (the scene's probe) into the cut tissue

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Client side of tests/test_cut_e2e.sh (real LCM, private namespace): a libhapsim-client
 // connection that checks what a visualiser sees of the server's cuts.
 //   test_cut_e2e_client watch SECONDS ORIG_TRIS

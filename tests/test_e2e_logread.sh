@@ -1,4 +1,5 @@
 #!/bin/sh
+# SPDX-License-Identifier: GPL-2.0-or-later
 # e2e_logdump and e2e_replay on a small hand-made LCM log (no network, no server): a complete log
 # reads with exit 0; the same log cut off anywhere inside an event, or with bytes after its last
 # event, is an error (exit 1, the message names the byte where the complete events end); a log

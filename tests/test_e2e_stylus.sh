@@ -1,4 +1,5 @@
 #!/bin/sh
+# SPDX-License-Identifier: GPL-2.0-or-later
 # Issue 5 end to end: hapsim-server on the default liver scene and hapsim-stylus over real LCM.
 # Run inside a private network namespace (tests/netns.sh), ttl=0, own ports; each part < 60 s.
 #   tests/test_e2e_stylus.sh PART BIN_DIR E2E_REACTION E2E_LOGDUMP SOURCE_DIR

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 #define _POSIX_C_SOURCE 200809L
 // FEM element models: patch test, rigid rotation, tangents against finite differences, polar
 // decomposition, locking-free bending, inversion recovery, mass, allocation discipline.

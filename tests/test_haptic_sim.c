@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // In-process haptic simulation on the bundled liver: real deformation and rt threads, poses fed
 // through the memory device by this (harness) thread at 1 kHz.
 #define _POSIX_C_SOURCE 200809L

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Lock-free SPSC primitives: triple buffer (never torn, monotonic, newest wins) and SPSC ring
 // (in order, nothing lost or duplicated), hammered by two threads. Runs under ThreadSanitizer
 // (ctest label tsan).

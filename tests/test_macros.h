@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Tiny test macros (after Box2D's test/test_macros.h). A failed check prints and returns 1.
 #ifndef HS_TEST_MACROS_H
 #define HS_TEST_MACROS_H

@@ -1,4 +1,5 @@
 #!/bin/sh
+# SPDX-License-Identifier: GPL-2.0-or-later
 # hapsim-mesh on the command line: required units, broken input named, repairs printed, info
 # and points as JSON, a scene from a surface in millimetres with a group made from a plane.
 #   tests/test_mesh_cli.sh BIN_DIR SOURCE_DIR

@@ -1,4 +1,5 @@
 #!/bin/sh
+# SPDX-License-Identifier: GPL-2.0-or-later
 # hapsim-mesh end to end: a surface (the bundled liver's boundary, written as STL) becomes a
 # scene folder with `hapsim-mesh scene` (gmsh tets, a named group fixed), hapsim-server runs the
 # scene as it is, and hapsim-stylus runs the probe scripts it wrote: the touch finds the organ,

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Surfaces and the mesher: every surface format on a sphere and on the bundled liver's
 // boundary becomes tets whose volume is within 1 % of the surface's, all positive, no slivers;
 // broken surfaces fail naming the file and the problem (and where); --repair says what changed;

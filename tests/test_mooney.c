@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Mooney-Rivlin reference solver: element kernel, homogeneous deformation, small-strain limit,
 // pressure stabilisation, Newton convergence, bad input.
 #include "hapsim/mooney.h"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // LCM over real UDP multicast, run inside a private network namespace (tests/netns.sh): poses
 // in and forces out through the validators, garbage counted and dropped, a 10k-vertex float32
 // keyframe arriving whole, command de-duplication over the wire. Every wait is bounded.

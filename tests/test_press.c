@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // The static press reference (hs_press): a structured block pressed by a rigid sphere at
 // depths r, 2r, 3r (StVK; co-rotated and linear to r, where their node-contact solves converge
 // on this mesh: see docs/fem.md "Probe reference"): stable contact set, no node inside the

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Protocol: encode/decode round trips of every message type, the inbound validators (one case
 // per rejection reason, good input accepted), and a flood of random and corrupted payloads.
 #include <stdint.h>

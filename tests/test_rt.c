@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // rt: local model, blending, safety filters (pure), the 1 kHz loop (timing invariants, overrun
 // catch-up), the haptic tick end to end through the memory device (watchdog, NaN, clamps,
 // telemetry), and zero allocations on the rt thread.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Scene files: the bundled liver scene loads; defaults; every malformed input fails with a
 // message naming the file, the line and the key; truncated files never crash.
 #include <stdlib.h>

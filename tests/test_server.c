@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim-server end to end: the real daemon as a child process and real LCM clients over UDP
 // multicast, inside a private network namespace (tests/netns.sh; ttl=0, private ports).
 // Poses in -> forces out on the liver, the watchdog, commands with acks, a 10k-vertex keyframe,

@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: GPL-2.0-or-later
 # hapsim-solve as a user runs it: help, clear errors for bad flags and files, CSV output.
 set -u
 SOLVE="$1"; SRC="$2"

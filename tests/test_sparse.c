@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Sparse: CSC pattern and products against a dense reference, CHOLMOD factor/refactor/solve,
 // keeping the last good factor, allocation-free solves, PCG, low-rank updates for cutting,
 // fault injection.

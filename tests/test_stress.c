@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Numerical stress suite, quick version (the long one is `make stress`): the cases of
 // tests/bench/bench_stress.c with assertions on what they measured.
 #define HS_STRESS_NO_BENCH

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim-stylus core: script parsing and errors, target trajectories, device dynamics against
 // nothing, a stiff wall and the motor limit, local model rendering (analytic, timeout, radius),
 // the mailbox under two threads, passivity of a press-drag-release cycle, and the trace file.

@@ -1,4 +1,5 @@
 #!/bin/sh
+# SPDX-License-Identifier: GPL-2.0-or-later
 # hapsim-stylus and hapsim-trace-diff command lines, offline (no network): bad values and
 # unusable paths are refused up front with exit 2 and a message.
 #   tests/test_stylus_cli.sh BIN_DIR SOURCE_DIR

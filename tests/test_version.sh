@@ -1,4 +1,5 @@
 #!/bin/sh
+# SPDX-License-Identifier: GPL-2.0-or-later
 # Every program answers --version with "NAME VERSION" and exit status 0.
 #   tests/test_version.sh BIN_DIR VERSION
 bin=$1

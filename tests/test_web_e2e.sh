@@ -1,4 +1,5 @@
 #!/bin/sh
+# SPDX-License-Identifier: GPL-2.0-or-later
 # hapsim-web end to end in a real browser, in a private network namespace (the script enters
 # one itself through tests/netns.sh after installing puppeteer-core, which needs the registry): hapsim-server on the liver scene, hapsim-web, headless Debian
 # chromium driven by puppeteer-core (tests/web/e2e.js), hapsim-stylus pressing the liver

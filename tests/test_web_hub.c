@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim-web's hub (web/hub.h): a producer thread publishing frames and events while a consumer
 // thread takes references and drops them, as the LCM and lws threads do. Checks: the consumer
 // only ever sees whole frames in increasing order, the newest wins, events are kept in a

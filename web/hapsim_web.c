@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // hapsim-web: bridges a hapsim-server's LCM buses to browsers (docs/client.md "hapsim-web").
 // Three threads: the LCM thread (libhapsim-client + a TOOL_STATE subscriber, commands with
 // retry), the pose thread (the mouse probe's steady tool_pose stream) and the libwebsockets

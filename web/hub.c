@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // hapsim-web's hub (hub.h): newest-frame slots and an event ring under one mutex.
 #include "hub.h"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // hapsim-web's hub: the newest frame of each kind, shared between the LCM thread (producer)
 // and the libwebsockets thread (consumer), plus the mouse-probe target. One mutex; every
 // buffer is immutable once published and reference counted, so the lws thread sends it

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // Example driver: move a probe around a horizontal circle at 1 kHz for a few seconds, send each
 // pose to hapsim-server and print the force of the local model ten times a second.
 //   hapsim-example-driver [SECONDS] [CX CY CZ RADIUS]     (defaults 3 s, a 1 cm circle above

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // Minimal visualiser: keep a consistent copy of the server's mesh and print one line per new
 // frame (at most 4 per second): topology version, nodes, triangles, largest displacement.
 //   hapsim-example-viewer [SECONDS]      (default 5)

@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: GPL-2.0-or-later
 # Writes docs/data/bench-organs.csv (and the progress lines, with each reference's outcome, to
 # bench-organs.txt): hapsim-bench organs on the shared organ meshes. Run from the repository
 # root after `make build`; give the meshes' folder as $1 (default: ../shared/meshes).

@@ -1,4 +1,5 @@
 #!/bin/sh
+# SPDX-License-Identifier: GPL-2.0-or-later
 # The locking-free study of docs/fem.md and docs/accuracy.md: every locking-free option and SNS
 # share against CalculiX's converged solution (tests/accuracy/refs), with its cost.
 # usage (from the repository root, after make build): docs/data/lockfree.sh

@@ -1,4 +1,5 @@
 #!/bin/sh
+# SPDX-License-Identifier: GPL-2.0-or-later
 # hapsim-mesh on the organ surfaces at hand: each mesh's boundary (hapsim-mesh surface) meshed
 # again with gmsh (hapsim-mesh tet), remeshed and with --keep-surface; one line per run with
 # tets, volume error against the surface, dihedral range, slivers and wall time.

@@ -1,4 +1,5 @@
 #!/bin/sh
+# SPDX-License-Identifier: GPL-2.0-or-later
 # What hapsim-web costs while a stylus presses the liver and one or two headless browsers watch:
 # runs the web_e2e test (tests/test_web_e2e.sh) and keeps hapsim-web's end line (connections,
 # frames and bytes sent, CPU) with the test's timings in docs/data/web_cost.txt.

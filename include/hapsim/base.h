@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // hapsim base: status codes, error text, accounted allocation, assertions.
 // Everything else in the library builds on this header.
 #ifndef HAPSIM_BASE_H

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim body: a deformable body on a tet mesh with boundary conditions, time stepping and
 // static equilibrium. Owns its FEM model, matrix, factorisation and solver workspaces.
 // Used by one thread at a time (the deformation thread). Allocation: at create, plus the factor

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // libhapsim-client: talk to a running hapsim-server over LCM (docs/protocol.md, docs/client.md).
 // Drivers send tool poses and render the server's local force model between messages;
 // visualisers keep an always-consistent copy of the deforming mesh; tools send commands and

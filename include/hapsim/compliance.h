@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim compliance: condensed compliance of a body (Bro-Nielsen & Cotin) and probe contact.
 //
 // DESIGN. Two halves with one fixed-size value between them.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim cut: vertex-preserving cutting (Nakao, Minato et al.) with the stiffness factor kept
 // consistent by low-rank updates.
 //

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim fem: element models on a tetrahedral mesh. Computes elastic forces and assembles the
 // tangent stiffness and lumped mass into a fixed sparse pattern over the free dofs.
 // Pure computation: no threads, no I/O, no allocation after hs_fem_create.

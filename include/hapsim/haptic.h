@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim haptic: the local model (haptic proxy) that leaves the server with every force, the
 // safety filters between a computed force and the device, and the 1 kHz loop's statistics.
 // Pure functions over caller-owned structs: no threads, no allocation, usable at any rate.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim haptic_sim: the deformation thread and the 1 kHz rt thread of one deformable body and
 // one probe, running in-process. hapsim-server wraps this with LCM; tests drive it directly.
 //

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim mesh: linear tetrahedral meshes, readers, validation, boundary surface, adjacency.
 // Pure functions of their inputs: no threads, no global state.
 #ifndef HAPSIM_MESH_H

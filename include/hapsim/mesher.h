@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim mesher: a closed, checked triangle surface -> quality linear tetrahedra, with gmsh's C
 // API (GPL-2.0-or-later, Debian libgmsh-dev; docs/mesh-formats.md says why gmsh). gmsh keeps
 // global state: calls are serialised by a lock inside, one mesh at a time per process.

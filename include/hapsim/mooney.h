@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim mooney: nearly incompressible Mooney-Rivlin reference solver (Ogata, Nagasaka, Yamada).
 // P1 displacement / P0 pressure tetrahedra, perturbed Lagrange multiplier, pressure
 // stabilisation between face neighbours, total Lagrangian Newton-Raphson with load stepping.

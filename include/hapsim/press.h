@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim press: static equilibrium of a body pressed by a frictionless rigid sphere, the
 // reference the haptic contact is judged against (hapsim-solve --probe, hapsim-bench organs).
 //

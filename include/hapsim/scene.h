@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim scene: what a server runs. A scene file (JSON, schema in docs/scenes.md) names the mesh,
 // units, material and model, fixed regions, gravity, tools, rates, features and LCM settings.
 // Loading fills a plain fixed-size struct; a malformed file gives an error naming the file, the

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim sparse: symmetric CSC matrices with a fixed pattern, CHOLMOD Cholesky with analysis
 // done once, and preconditioned conjugate gradients. Only server/sparse/cholesky.c includes
 // cholmod.h. An object here is used by one thread at a time (one cholmod_common each).

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim surface: triangle surfaces as organs arrive from segmentation (STL, OBJ, PLY, OFF, MSH
 // triangles), their check and repair before tetrahedralisation, writers, and mesh quality.
 // Pure functions of their inputs: no threads, no global state. The mesher (hapsim/mesher.h)

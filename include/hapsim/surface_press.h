@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim surface press: the static equilibrium of a body pressed by a frictionless rigid sphere,
 // with contact on the boundary SURFACE (triangles, not only nodes), as a reference for the
 // running server's force.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Status text, error formatting, accounted allocation, assertions, clock.
 #define _POSIX_C_SOURCE 200809L
 #include "hapsim/base.h"

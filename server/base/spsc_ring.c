@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // SPSC ring (see spsc_ring.h for the design).
 #include "spsc_ring.h"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // SPSC ring: one producer, one consumer, nothing dropped (cuts, commands, telemetry).
 //
 // DESIGN. A power-of-two array of fixed-size items and two monotonically increasing counters:

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Triple buffer (see triple_buffer.h for the design).
 #include "triple_buffer.h"
 

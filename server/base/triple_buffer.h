@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Triple buffer: one writer, one reader, the latest value wins (pose, snapshot, haptic model).
 //
 // DESIGN. Three slots of elem_size bytes. The writer owns the back slot, the reader the front

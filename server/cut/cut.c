@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Vertex-preserving cutting: sweep crossing test, vertex moves with a quality guard, tet
 // removal with the orphan and free-piece rules, the live mesh, and the low-rank factor update.
 // See include/hapsim/cut.h for the design and docs/cutting.md for the choices.

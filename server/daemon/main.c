@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim-server: command line. See docs/server.md.
 #define _GNU_SOURCE
 #include "hapsim/version.h"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim-server: scene -> world (mesh, visual set, sim), the net loop, publishing, commands.
 // See server.h for the design. Everything here runs on the net thread except what
 // hs_haptic_sim runs on its own two threads.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim-server: the daemon. One scene, three threads: rt (1 kHz haptic tick) and deformation
 // (both from hs_haptic_sim), and net, which is the thread calling hs_server_run and the only
 // one that touches LCM.

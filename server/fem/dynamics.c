@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Deformable body: boundary conditions, implicit Euler steps and static Newton solves on top of
 // the element models (fem.c) and the sparse solvers (sparse/).
 //

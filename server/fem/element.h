@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Internal 3x3 helpers shared by the element kernels (element.c) and the FEM object (fem.c).
 // Matrices are row-major double[9]. Everything is static inline so the hot loops stay inlined.
 #ifndef HS_FEM_ELEMENT_H

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // FEM object: per-element data in flat arrays, model evaluation (linear, co-rotated, StVK, with
 // the optional average-nodal-pressure volumetric term), and assembly by a precomputed scatter.
 //

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Library-internal entry points of hs_fem used by the body solver (dynamics.c).
 #ifndef HS_FEM_INTERNAL_H
 #define HS_FEM_INTERNAL_H

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Nearly incompressible Mooney-Rivlin reference solver: P1 displacement / P0 pressure tets,
 // perturbed Lagrange multiplier with face-jump pressure stabilisation, total Lagrangian Newton.
 //

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Four warm polar steps at once, on registers: the core of hs_polar_warm4 and of the fused
 // co-rotated element pass in fem.c. GCC vector extensions keep the code portable (SSE2: two
 // instructions per operation; an AVX2 clone of the caller: one) and, with -ffp-contract=off,

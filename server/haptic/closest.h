@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Closest point of a triangle to a point, with the feature (vertex, edge, face interior) it lies
 // on: the geometric core of the surface contact, shared by the rt solve (contact.c) and the
 // snapshot's triangle search (haptic_sim.c). Pure, no allocation.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Condensed compliance: C = K0^-1 restricted to what contact needs (hapsim/compliance.h).
 //
 // DESIGN. Owned by the deformation thread. K0 is the rest-state stiffness of a linear model

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Probe contact from a compliance snapshot: the per-tick work of the rt thread.
 //
 // DESIGN. Pure function of (snapshot, tool position): fixed-size stack arrays, no allocation.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Small dense symmetric positive definite solves for the haptic path (at most 3 * 16 = 48
 // unknowns): row-major, caller-owned storage, no allocation. Used on the rt thread.
 #ifndef HS_HAPTIC_DENSE_H

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // In-process haptic simulation: deformation thread + rt thread (hapsim/haptic_sim.h).
 //
 // DESIGN. The deformation thread (this file, `deform_main`) owns the body, the compliance and

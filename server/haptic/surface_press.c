@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Static press of a rigid sphere with contact on the boundary surface (hapsim/surface_press.h).
 #define _POSIX_C_SOURCE 200809L
 #include "hapsim/surface_press.h"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Mesh core: validation and repair, derived topology (boundary, adjacency), the invariant
 // checker, the structured box, node selection and VTK output. The readers are in mesh_read.c.
 #include "mesh_internal.h"

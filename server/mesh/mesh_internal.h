@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Internal to hs_mesh: shared between the readers and the mesh core.
 #ifndef HAPSIM_MESH_INTERNAL_H
 #define HAPSIM_MESH_INTERNAL_H

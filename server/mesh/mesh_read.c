@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Mesh readers: Gmsh MSH 2.2 / 4.1 ASCII, TetGen .node/.ele, legacy VTK ASCII unstructured
 // grids. All parse from a memory buffer that need not be NUL-terminated, never read past its
 // end, and check every declared count against the bytes left before allocating, so memory

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Gmsh MSH 2.2 ASCII output with the mesh's regions as physical groups.
 #include "mesh_internal.h"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Tetrahedralisation with gmsh's C API. The surface goes in as a discrete surface entity (nodes
 // and triangles through the API, no file), is optionally remeshed at the target size (gmsh's
 // tutorial t13 pipeline: classify, create a geometry, a volume bounded by the surfaces), and the

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Quality statistics of a tetrahedral mesh: dihedral angles, radius ratios, sizes.
 #include "hapsim/surface.h"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Surfaces: check and repair before meshing, the boundary of a tet mesh, writers, scaling, and
 // the quality statistics of a tet mesh. Messages name the surface, the problem, how many and
 // where (a coordinate in the surface's units).

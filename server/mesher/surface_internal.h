@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Internal to the surface module: shared between its readers and the cleaner.
 #ifndef HAPSIM_SURFACE_INTERNAL_H
 #define HAPSIM_SURFACE_INTERNAL_H

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Surface readers: STL (ASCII, binary), OBJ, PLY (ASCII, binary either endian), OFF, and MSH
 // triangles (through the mesh module's reader). Each parses a byte buffer that need not be
 // NUL-terminated, never reads past it, checks declared counts against the bytes left before

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // LCM bus wrapper: create, poll()-based handle, URL and kernel buffer queries.
 #include "bus.h"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim net: one LCM bus (an lcm_t on one URL) with a poll()-based handle loop.
 // The only server header that includes lcm.h.
 //

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Keyframe / delta encoding of the visual mesh. See mesh_frames.h.
 #include "mesh_frames.h"
 

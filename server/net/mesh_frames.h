@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim net: keyframe / delta encoding of the visual mesh (mesh_state_t / mesh_delta_t).
 // Pure functions on caller storage: no LCM, no allocation, safe to call every visual frame.
 //

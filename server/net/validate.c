@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Validation of inbound messages from raw LCM bytes. See validate.h for the design.
 #include "validate.h"
 

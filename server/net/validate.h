@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim net: validation of every inbound message (tool_pose, command) straight from the bytes
 // LCM hands over. Pure functions: all state (per-device seq tracks, the command de-duplication
 // ring, the per-reason counters) lives in structs the net thread owns and passes in.

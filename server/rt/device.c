@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Memory device: a hs_device whose pose and output travel through triple buffers.
 #include "device.h"
 

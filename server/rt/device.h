@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // rt: the device interface, a small vtable (after LCM's lcm_provider_vtable_t). Hardware is one
 // implementation, the memory device below another (tests; the network-fed stylus, whose net
 // thread feeds it), and the rt loop cannot tell them apart.

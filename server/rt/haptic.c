@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Local model evaluation, blending, safety filters and histogram percentiles (hapsim/haptic.h).
 // All pure functions over caller-owned state: safe on the rt thread (no allocation, no locks).
 #include "hapsim/haptic.h"

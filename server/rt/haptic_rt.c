@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // The haptic tick (see haptic_rt.h for the design) and the model source.
 #include "haptic_rt.h"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // rt: the haptic tick, what the 1 kHz loop does every period.
 //
 // DESIGN. Runs on the rt thread as the hs_rt_tick of an hs_rt_loop. Each tick:

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // The 1 kHz loop thread (see rt_thread.h for the design). mlockall, SCHED_FIFO and
 // clock_nanosleep(TIMER_ABSTIME) live here together.
 #define _GNU_SOURCE

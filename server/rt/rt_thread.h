@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // rt: the 1 kHz loop thread.
 //
 // DESIGN. One thread, started by hs_rt_loop_start, sleeps with clock_nanosleep(CLOCK_MONOTONIC,

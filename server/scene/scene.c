@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Scene files: JSON (cJSON) -> hs_scene. Every value is type- and range-checked; unknown and
 // repeated keys are errors (a typo must not silently fall back to a default). Errors name the
 // file, the line and the key path, e.g. "liver.json:7: key 'material.poisson': ...".

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Sparse Cholesky on CHOLMOD: analysis once, numeric refactorisation into a spare factor (the
 // last good factor survives a non-SPD matrix), allocation-free solves, and low-rank
 // update/downdate for cutting. The only file that includes cholmod.h.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Symmetric compressed-column matrices with a fixed, full (both triangles) pattern.
 #include "hapsim/sparse.h"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Preconditioned conjugate gradients on hs_csc with warm start; workspace allocated once.
 #include "hapsim/sparse.h"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim-mesh: organ models from surfaces. `tet` turns a closed surface (STL, OBJ, PLY, OFF, MSH)
 // into tetrahedra with gmsh, `info` reports a mesh's quality, `points` picks probe points on its
 // surface, `scene` makes a ready scene folder, `surface` writes a mesh's boundary.

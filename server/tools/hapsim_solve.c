@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim-solve: load a mesh, fix a region, apply gravity, and solve statically or run implicit
 // dynamics with a chosen element model. Writes the nodal displacement as CSV.
 #define _XOPEN_SOURCE 700 // realpath, stat

@@ -1,4 +1,5 @@
 #!/usr/bin/env python3
+# SPDX-License-Identifier: GPL-2.0-or-later
 """Independent CalculiX references for hapsim's accuracy tests (tests/accuracy/README.md).
 
 Writes CalculiX (ccx) decks on hapsim's own structured Kuhn box meshes (the node and tet

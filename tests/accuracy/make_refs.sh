@@ -1,4 +1,5 @@
 #!/bin/sh
+# SPDX-License-Identifier: GPL-2.0-or-later
 # Regenerate the CalculiX references under tests/accuracy/refs (tests/accuracy/README.md).
 # Needs ccx (Debian package calculix-ccx) and python3; the tests themselves need neither.
 # usage: tests/accuracy/make_refs.sh [--install] [--only gravity|tip|bar]

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim-bench: shared helpers for the benchmark subcommands (one file per subcommand).
 #ifndef HS_BENCH_H
 #define HS_BENCH_H

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim-bench accuracy: run time against error for every model, rotation option, solver and
 // time step, against a converged reference (docs/accuracy.md says which reference per scene).
 //

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim-bench core: cost of one implicit step per model and mesh, with tip deflection and
 // volume ratio so that speed and accuracy are read together.
 #include "bench.h"

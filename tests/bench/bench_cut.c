@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim-bench cut: cost of one progressive cut step (crossing test, vertex moves, guard, piece
 // detection, element shares and the update of K's factor: the partial refactor with the default
 // threads in the CSV; on stderr its one-thread twin, the low-rank CHOLMOD update, AUTO and the

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim-bench haptic: the 1 kHz loop with the condensed-compliance probe in contact, per mesh
 // and contact size, against a bare clock_nanosleep loop with the same scheduling run in
 // segments before and after each case (pooled), so the loop's own cost shows against what the

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim-bench lockfree: the locking-free options against CalculiX's converged solution (C3D10
 // on the 45x9x9 box, tests/accuracy/refs), with their cost. One row per mesh, load, model,
 // option and SNS share alpha:

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim-bench organs: the server's own path (hs_haptic_sim: deformation thread + rt thread,
 // poses through the memory device) on each organ mesh with the scene defaults, a scripted
 // probe pressed along the outward normal to depths r, 2r and max(3r, 15 mm), each held until

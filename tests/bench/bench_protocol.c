@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim-bench protocol: pose -> force round trip through a running hapsim-server (a child
 // process on the bundled liver, probe pressed 2 mm into node 399) against a bare LCM echo (a
 // child process that decodes each pose and publishes a tool_force back), measured in the same

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim-bench stress: numerical stress cases for the deformation core. Every case runs
 // unattended and reports NaN/Inf count, worst energy growth, worst element volume ratios,
 // inverted elements left, solver failures and what the engine did. tests/test_stress.c runs the

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim-bench: benchmarks that print CSV. Targets live in docs/benchmarks.md, not in tests.
 #define _POSIX_C_SOURCE 200809L
 #include "bench.h"

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: GPL-2.0-or-later
 # Error against time per step from `hapsim-bench accuracy` CSV, with the Pareto front
 # (configurations that no other one beats in both time and error) drawn as a line.
 # usage: gnuplot -e "csv='out/accuracy.csv'; scene='cantilever10x'; png='docs/plots/x.png'" \

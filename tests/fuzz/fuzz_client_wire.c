@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // libFuzzer target: the client library on the bytes a visualiser or a stylus driver receives.
 // The input is split into up to 16 messages by 0xFF 0xFE separators; the first byte of each
 // picks its kind: a mesh topology, keyframe, delta or topology event (fed in order to one mesh

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // Shared oracle of the mesh fuzzers: any input either fails with a message naming the file,
 // or gives a mesh that passes hs_mesh_check; nothing leaks either way.
 #ifndef HS_FUZZ_MESH_COMMON_H

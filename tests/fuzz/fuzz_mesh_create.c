@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // libFuzzer target: hs_mesh_create / hs_mesh_finalize on arbitrary small meshes. Nodes sit on
 // a coarse grid so inverted, degenerate, duplicate, overlapping and non-manifold tets are
 // common. Byte 0: node count; then 3 bytes per node; then 4 bytes per tet.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // libFuzzer target: the Gmsh MSH 2.2 / 4.1 reader.
 #include "fuzz_mesh_common.h"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // libFuzzer target: the command handler (hs_net_validate_command) on raw LCM payloads.
 // The input is fed twice to one state: the second copy of an accepted command must come back
 // as a duplicate. Output strings must be terminated within their fixed storage.

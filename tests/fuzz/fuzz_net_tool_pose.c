@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // libFuzzer target: the tool_pose handler (hs_net_validate_pose) on raw LCM payloads.
 // The input is split into up to 8 messages by 0xFF 0xFE separators and fed in order to one
 // validator state, so seq / session tracking is exercised; invariants are checked after each.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // libFuzzer target: scene files (hs_scene_parse). Any input either parses or fails with an
 // HS_ERR_PARSE message naming the file; nothing leaks.
 #include <stdint.h>

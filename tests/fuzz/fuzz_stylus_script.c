@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // libFuzzer target: the stylus probe-script parser (hs_script_parse_string) on arbitrary text.
 // A script it accepts must be one the device can play: segments in time order, every time and
 // point finite, and its target finite wherever it is sampled, also with touch searches resolved

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // libFuzzer target: the force-trace reader behind hapsim-trace-diff (golden traces). Each input
 // is written to one temporary file and read back; an accepted trace is compared with itself and
 // with its first half. A refused one must name the file with a line ("PATH:LINE: problem") or

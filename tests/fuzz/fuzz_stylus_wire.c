@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // libFuzzer target: what hapsim-stylus receives from the network. The first byte picks the
 // kind (even: a tool_force for device 2, odd: a SERVER_STATUS), the rest is the message. An
 // accepted force model must keep the wire ranges and render a finite force anywhere; an

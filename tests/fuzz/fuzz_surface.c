@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // libFuzzer target: the surface readers (STL ASCII/binary, OBJ, PLY, OFF, MSH and VTU triangles)
 // and the surface check/repair. The first byte picks the format and whether to repair; the
 // rest is the file. Oracle: an error names the file; a surface has its indices in range; a

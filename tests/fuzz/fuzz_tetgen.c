@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // libFuzzer target: the TetGen reader. The input is the .node text, a NUL byte, then the .ele
 // text (no NUL: the .ele file is empty).
 #include "fuzz_mesh_common.h"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // libFuzzer target: the legacy VTK unstructured-grid reader.
 #include "fuzz_mesh_common.h"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // libFuzzer target: the VTK XML unstructured-grid (.vtu, ASCII) reader.
 #include "fuzz_mesh_common.h"
 

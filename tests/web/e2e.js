@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim-web end to end (run by tests/test_web_e2e.sh inside a private network namespace, with
 // hapsim-server already serving the liver and hapsim-web on URL). Drives the Debian chromium with
 // puppeteer-core. Every check fails the run with a message; screenshots go to OUT.

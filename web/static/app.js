@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // hapsim-web page: live surface, tools, forces, status, commands and the mouse probe.
 // Wire format: docs/client.md "hapsim-web". three.js r111 (Debian libjs-three): buffer
 // geometries are the *BufferGeometry classes.
