@@ -93,7 +93,7 @@ rc=$?
     { cat "$tmp/cli.log"; echo "FAIL: a second hapsim-web on a port in use: exit $rc"; exit 1; }
 echo "ok   a port in use and an address not of this host are refused (exit 1)"
 kill $cli_pid; wait $cli_pid
-"$bin/hapsim-server" scenes/liver/liver.json --realtime --duration 85 >"$tmp/server.log" 2>&1 &
+"$bin/hapsim-server" scenes/liver/liver.json --realtime --duration 120 >"$tmp/server.log" 2>&1 &
 server_pid=$!
 i=0
 until grep -q "running;" "$tmp/server.log" 2>/dev/null; do
@@ -102,7 +102,7 @@ until grep -q "running;" "$tmp/server.log" 2>/dev/null; do
     sleep 0.1
 done
 port=18089
-"$bin/hapsim-web" --port $port --duration 80 >"$tmp/web.log" 2>&1 &
+"$bin/hapsim-web" --port $port --duration 115 >"$tmp/web.log" 2>&1 &
 web_pid=$!
 i=0
 until grep -q "open http" "$tmp/web.log" 2>/dev/null; do
@@ -110,7 +110,7 @@ until grep -q "open http" "$tmp/web.log" 2>/dev/null; do
     i=$((i + 1)); [ $i -lt 100 ] || { echo "FAIL: hapsim-web not listening in 10 s"; exit 1; }
     sleep 0.1
 done
-NODE_PATH="$nodedir/node_modules" timeout 75 node "$src/tests/web/e2e.js" "http://127.0.0.1:$port/" "$out" \
+NODE_PATH="$nodedir/node_modules" timeout 110 node "$src/tests/web/e2e.js" "http://127.0.0.1:$port/" "$out" \
     "$bin/hapsim-stylus" "$src/tests/web/press_estop.probe"
 rc=$?
 kill "$web_pid" 2>/dev/null

@@ -176,7 +176,7 @@ async function main() {
     const fAfter = await readForce();
     check(fAfter >= 0 && fAfter < 1e-3, `page readout after E-STOP: ${fAfter.toFixed(4)} N`);
     await page.screenshot({ path: path.join(out, 'web-03-estop.png') });
-    const code = await Promise.race([stylusDone, sleep(20000).then(() => 'timeout')]);
+    const code = await Promise.race([stylusDone, sleep(45000).then(() => "timeout")]); // the script runs ~36 s
     stylus = null;
     check(code === 0, `hapsim-stylus exit status ${code}`);
     const tr = readTrace(trace);
