@@ -274,8 +274,10 @@ void hs_view_annotate(hs_image* img, const hs_camera* cam, const hs_view_tools* 
         fill_rect(img, sx, sy, lp, s + 1, white);
         fill_rect(img, sx, sy - 3 * s, s + 1, 7 * s, white);
         fill_rect(img, sx + lp - s - 1, sy - 3 * s, s + 1, 7 * s, white);
-        if (len >= 0.01) snprintf(buf, sizeof buf, "%g cm", len * 100);
-        else snprintf(buf, sizeof buf, "%g mm", len * 1000);
+        if (len >= 0.01)
+            snprintf(buf, sizeof buf, "%g cm", len * 100);
+        else
+            snprintf(buf, sizeof buf, "%g mm", len * 1000);
         hs_draw_text(img, sx + lp + 4 * s, sy - 3 * s, s, white, buf);
     }
     // Axes (bottom right): the scene axes as the camera sees them.

@@ -221,8 +221,7 @@ static void on_tool_state(const lcm_recv_buf_t* rbuf, const char* ch, void* user
         return;
     if (t.device_id < 0 || t.device_id >= HS_CLIENT_MAX_DEVICES) return;
     double chk = t.radius;
-    for (int k = 0; k < 3; k++)
-        chk += t.position[k] + t.force[k] + t.blade_a[k] + t.blade_b[k];
+    for (int k = 0; k < 3; k++) chk += t.position[k] + t.force[k] + t.blade_a[k] + t.blade_b[k];
     if (!isfinite(chk)) return;
     hs_view_tool* o = &g_tools[t.device_id].tool;
     o->device = t.device_id;
@@ -422,7 +421,8 @@ int main(int argc, char** argv) {
         now = hs_client_now_us();
         collect_tools(&v, now);
         hs_client_status st;
-        if (hs_client_status_latest(c, &st, NULL)) scene_name(st.scene, v.cap.scene, sizeof v.cap.scene);
+        if (hs_client_status_latest(c, &st, NULL))
+            scene_name(st.scene, v.cap.scene, sizeof v.cap.scene);
         if (m->ready && m->n_vis > 0) {
             int due = period > 0 && now >= next_out && m->frame != v.last_frame_written;
             if (due || g_snap) {

@@ -61,12 +61,12 @@ int32_t hs_render_mesh(hs_image* img, const hs_camera* cam, const float* pos, in
 
 /// One tool to draw (from the server's tool_state).
 typedef struct hs_view_tool {
-    int32_t device, kind;  ///< device id; 0 probe, 1 blade (tool_state KIND_*)
-    double position[3];    ///< m, probe centre / blade origin
-    double radius;         ///< m, probe radius
+    int32_t device, kind;          ///< device id; 0 probe, 1 blade (tool_state KIND_*)
+    double position[3];            ///< m, probe centre / blade origin
+    double radius;                 ///< m, probe radius
     double blade_a[3], blade_b[3]; ///< m, blade segment
-    double force[3];       ///< N, force on the tool
-    int contact, cutting;  ///< flags as sent
+    double force[3];               ///< N, force on the tool
+    int contact, cutting;          ///< flags as sent
 } hs_view_tool;
 
 /// The live tools of one picture or VTK frame.

@@ -97,21 +97,27 @@ hs_status hs_vtu_write(const char* path, const hs_client_mesh* m, const float* d
     // then has the same arrays).
     int nt = tools && tools->n > 0 ? tools->n : 0;
     int rows = nt > 0 ? nt : 1;
-    fprintf(f, "<DataArray type=\"Int32\" Name=\"tool_device\" NumberOfTuples=\"%d\" "
-               "format=\"ascii\">", rows);
-    for (int i = 0; i < rows; i++) fprintf(f, "%s%d", i ? " " : "", nt ? tools->tool[i].device : -1);
+    fprintf(f,
+            "<DataArray type=\"Int32\" Name=\"tool_device\" NumberOfTuples=\"%d\" "
+            "format=\"ascii\">",
+            rows);
+    for (int i = 0; i < rows; i++)
+        fprintf(f, "%s%d", i ? " " : "", nt ? tools->tool[i].device : -1);
     const char* names[2] = {"tool_position_m", "tool_force_n"};
     for (int a = 0; a < 2; a++) {
-        fprintf(f, "</DataArray>\n<DataArray type=\"Float64\" Name=\"%s\" NumberOfComponents=\"3\" "
-                   "NumberOfTuples=\"%d\" format=\"ascii\">", names[a], rows);
+        fprintf(f,
+                "</DataArray>\n<DataArray type=\"Float64\" Name=\"%s\" NumberOfComponents=\"3\" "
+                "NumberOfTuples=\"%d\" format=\"ascii\">",
+                names[a], rows);
         for (int i = 0; i < rows; i++)
             for (int k = 0; k < 3; k++) {
                 double v = nt ? (a ? tools->tool[i].force[k] : tools->tool[i].position[k]) : 0.0;
                 fprintf(f, "%s%.9g", i || k ? " " : "", isfinite(v) ? v : 0.0);
             }
     }
-    fprintf(f, "</DataArray>\n</FieldData>\n"
-               "<Piece NumberOfPoints=\"%d\" NumberOfCells=\"%d\">\n",
+    fprintf(f,
+            "</DataArray>\n</FieldData>\n"
+            "<Piece NumberOfPoints=\"%d\" NumberOfCells=\"%d\">\n",
             m->n_vis, m->n_tri);
     fprintf(f, "<PointData Scalars=\"displacement_magnitude\" Vectors=\"displacement\">\n");
     fprintf(f, "<DataArray type=\"Float32\" Name=\"displacement_magnitude\" format=\"ascii\">\n");

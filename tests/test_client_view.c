@@ -298,8 +298,11 @@ static int test_annotate(void) {
     double top[3] = {0.5, 0.5, 1.08}; // resting on the top face, pushed up by 2 N
     memcpy(t->position, top, sizeof top);
     t->force[2] = 2.0;
-    hs_view_caption cap = {.sim_time = 1.5, .sim_step = 90, .topology_version = 3,
-                           .range_m = 0.01, .max_disp_m = 0.004};
+    hs_view_caption cap = {.sim_time = 1.5,
+                           .sim_step = 90,
+                           .topology_version = 3,
+                           .range_m = 0.01,
+                           .max_disp_m = 0.004};
     snprintf(cap.scene, sizeof cap.scene, "liver");
     hs_view_annotate(im, &cam, &tools, &cap);
     // Caption: lit text pixels in the first two text rows at the top left, none were there.

@@ -43,8 +43,10 @@ static inline int hs_test_main(int argc, char** argv, const hs_test_case* cases,
         int rc = cases[i].fn();
         printf("[ %s ] %s\n", rc == 0 ? " OK " : "FAIL", cases[i].name);
         fflush(stdout);
-        if (rc == 0) ++passed;
-        else ++failed;
+        if (rc == 0)
+            ++passed;
+        else
+            ++failed;
     }
     printf("%d passed, %d failed\n", passed, failed);
     return failed == 0 && passed > 0 ? 0 : 1;
@@ -55,6 +57,7 @@ static inline int hs_test_main(int argc, char** argv, const hs_test_case* cases,
         static const hs_test_case cases[] = {__VA_ARGS__};                                         \
         return hs_test_main(argc, argv, cases, (int)(sizeof cases / sizeof cases[0]));             \
     }
-#define HS_CASE(fn) {#fn, fn}
+#define HS_CASE(fn)                                                                                \
+    { #fn, fn }
 
 #endif

@@ -33,11 +33,11 @@
 #include "hapsim_tool_state_t.h"
 #include "hub.h"
 
-#define WEB_MAX_DEV HS_CLIENT_MAX_DEVICES
-#define FRAME_US 33333      // positions and tools at most 30 Hz
+#define WEB_MAX_DEV    HS_CLIENT_MAX_DEVICES
+#define FRAME_US       33333    // positions and tools at most 30 Hz
 #define POSE_PERIOD_NS 4000000L // mouse probe poses at 250 Hz
-#define PROBE_STALE_US 1000000 // no target from the browser for this long: stop sending poses
-#define CMD_QUEUE 16
+#define PROBE_STALE_US 1000000  // no target from the browser for this long: stop sending poses
+#define CMD_QUEUE      16
 
 typedef struct web_cmd {
     int session;
@@ -52,13 +52,13 @@ typedef struct web_app {
     hs_web_hub hub;
     struct lws_context* ctx;
     hs_client* client;
-    lcm_t* ts_lcm;           // TOOL_STATE subscriber on the mesh bus
+    lcm_t* ts_lcm; // TOOL_STATE subscriber on the mesh bus
     char prefix[64];
     int wake[2];             // pipe: lws thread -> LCM thread (commands queued)
     web_cmd cmds[CMD_QUEUE]; // guarded by hub.mu
     int n_cmds;
-    atomic_int stop;         // set by a signal, --duration or a failure; read by every thread
-    int64_t t_end;           // hs_client_now_us() to stop at, 0: run until a signal
+    atomic_int stop; // set by a signal, --duration or a failure; read by every thread
+    int64_t t_end;   // hs_client_now_us() to stop at, 0: run until a signal
     // LCM thread only:
     hapsim_tool_state_t tools[WEB_MAX_DEV];
     int64_t tool_arrival[WEB_MAX_DEV];
@@ -126,17 +126,22 @@ static void jb_str(jbuf* b, const char* s) {
     jb_printf(b, "\"");
     for (; *s; ++s) {
         unsigned char c = (unsigned char)*s;
-        if (c == '"' || c == '\\') jb_printf(b, "\\%c", c);
-        else if (c < 0x20) jb_printf(b, "\\u%04x", c);
-        else jb_printf(b, "%c", c);
+        if (c == '"' || c == '\\')
+            jb_printf(b, "\\%c", c);
+        else if (c < 0x20)
+            jb_printf(b, "\\u%04x", c);
+        else
+            jb_printf(b, "%c", c);
     }
     jb_printf(b, "\"");
 }
 
 // A finite number or null (JSON has no NaN).
 static void jb_num(jbuf* b, double v) {
-    if (isfinite(v)) jb_printf(b, "%.9g", v);
-    else jb_printf(b, "null");
+    if (isfinite(v))
+        jb_printf(b, "%.9g", v);
+    else
+        jb_printf(b, "null");
 }
 
 static void jb_vec(jbuf* b, const double* v, int n) {
@@ -153,8 +158,10 @@ static void jb_init(jbuf* b) {
     b->n = 0;
     b->oom = 0;
     b->p = malloc(b->cap);
-    if (!b->p) b->oom = 1;
-    else b->p[0] = '\0';
+    if (!b->p)
+        b->oom = 1;
+    else
+        b->p[0] = '\0';
 }
 
 // Hand the text to the hub as a blob (frees the buffer).
@@ -183,8 +190,12 @@ static void send_event(web_app* a, int target, const char* type, const char* fmt
 
 // --- LCM thread: frames for the browsers ---------------------------------------------------
 
-static void put_u32(unsigned char* p, uint32_t v) { memcpy(p, &v, 4); }
-static void put_f64(unsigned char* p, double v) { memcpy(p, &v, 8); }
+static void put_u32(unsigned char* p, uint32_t v) {
+    memcpy(p, &v, 4);
+}
+static void put_f64(unsigned char* p, double v) {
+    memcpy(p, &v, 8);
+}
 
 // Binary topology frame: u32 kind 1, u32 n_vis, u32 n_tri, u32 0, f64 version, f32 rest[3 n_vis],
 // u32 triangles[3 n_tri] (little endian, as the browsers are).
@@ -241,8 +252,8 @@ static void publish_tools(web_app* a, int64_t now) {
     for (int d = 0; d < WEB_MAX_DEV; ++d) {
         if (!a->tool_arrival[d] || now - a->tool_arrival[d] > 500000) continue;
         const hapsim_tool_state_t* t = &a->tools[d];
-        jb_printf(&b, "%s{\"dev\":%d,\"tool\":%d,\"kind\":%d,\"p\":", first ? "" : ",", t->device_id,
-                  t->tool_id, t->kind);
+        jb_printf(&b, "%s{\"dev\":%d,\"tool\":%d,\"kind\":%d,\"p\":", first ? "" : ",",
+                  t->device_id, t->tool_id, t->kind);
         jb_vec(&b, t->position, 3);
         jb_printf(&b, ",\"q\":");
         jb_vec(&b, t->orientation, 4);
@@ -273,8 +284,8 @@ static void publish_tools(web_app* a, int64_t now) {
     pthread_mutex_lock(&a->hub.mu);
     hs_web_probe pr = a->hub.probe;
     pthread_mutex_unlock(&a->hub.mu);
-    jb_printf(&b, "],\"mouse\":{\"active\":%d,\"dev\":%d,\"sent\":%lld}}", pr.active,
-              pr.device_id, (long long)pr.sent);
+    jb_printf(&b, "],\"mouse\":{\"active\":%d,\"dev\":%d,\"sent\":%lld}}", pr.active, pr.device_id,
+              (long long)pr.sent);
     hs_web_hub_publish(&a->hub, HS_WEB_TOOLS, jb_blob(a, &b));
 }
 
@@ -425,8 +436,8 @@ static void run_command(web_app* a, const web_cmd* cmd) {
     hs_client_ack ack;
     memset(&ack, 0, sizeof ack);
     hs_err err = {0};
-    hs_status s = hs_client_command(a->client, cmd->kind, cmd->n_args, keys, vals, 3000, 250,
-                                    &ack, &err);
+    hs_status s =
+        hs_client_command(a->client, cmd->kind, cmd->n_args, keys, vals, 3000, 250, &ack, &err);
     jbuf b;
     jb_init(&b);
     jb_printf(&b, "{\"t\":\"ack\",\"cmd\":");
@@ -615,8 +626,10 @@ static void queue_command(web_app* a, int session, const char* label, int32_t ki
     }
     pthread_mutex_unlock(&a->hub.mu);
     if (!ok) {
-        send_event(a, session, "ack", "\"cmd\":\"%s\",\"ok\":0,\"status\":\"busy\","
-                   "\"message\":\"16 commands already waiting\"", label);
+        send_event(a, session, "ack",
+                   "\"cmd\":\"%s\",\"ok\":0,\"status\":\"busy\","
+                   "\"message\":\"16 commands already waiting\"",
+                   label);
         return;
     }
     if (write(a->wake[1], "c", 1) < 0) { /* the LCM thread polls every 10 ms anyway */
@@ -661,8 +674,9 @@ static void probe_start(web_app* a, int session) {
         send_event(a, session, "probe", "\"active\":0,\"refused\":1,\"message\":\"%s\"", why);
     else
         send_event(a, session, "probe", "\"active\":1,\"dev\":%d,\"message\":\"%s\"", dev,
-                   dev == 0 ? "" : "this server drives the probe from device 0 only: "
-                                   "the mouse gets zero force");
+                   dev == 0 ? ""
+                            : "this server drives the probe from device 0 only: "
+                              "the mouse gets zero force");
 }
 
 static void probe_stop(web_app* a, int session, int quiet) {
@@ -703,14 +717,16 @@ static void handle_text(web_app* a, web_session* s, const char* txt) {
     if (cJSON_IsString(cmd)) {
         int32_t kind = cmd_kind(cmd->valuestring);
         if (kind < 0) {
-            send_event(a, s->id, "ack", "\"cmd\":\"?\",\"ok\":0,\"status\":\"refused\","
+            send_event(a, s->id, "ack",
+                       "\"cmd\":\"?\",\"ok\":0,\"status\":\"refused\","
                        "\"message\":\"unknown command\"");
         } else if (kind == HAPSIM_COMMAND_T_KIND_SET_PARAM) {
             const cJSON* name = cJSON_GetObjectItemCaseSensitive(j, "name");
             const cJSON* value = cJSON_GetObjectItemCaseSensitive(j, "value");
-            if (!cJSON_IsString(name) || !cJSON_IsString(value) ||
-                strlen(name->valuestring) > 63 || strlen(value->valuestring) > 255)
-                send_event(a, s->id, "ack", "\"cmd\":\"set\",\"ok\":0,\"status\":\"refused\","
+            if (!cJSON_IsString(name) || !cJSON_IsString(value) || strlen(name->valuestring) > 63 ||
+                strlen(value->valuestring) > 255)
+                send_event(a, s->id, "ack",
+                           "\"cmd\":\"set\",\"ok\":0,\"status\":\"refused\","
                            "\"message\":\"set needs a name and a value\"");
             else
                 queue_command(a, s->id, "set", kind, 2, "name", name->valuestring, "value",
@@ -719,8 +735,10 @@ static void handle_text(web_app* a, web_session* s, const char* txt) {
             queue_command(a, s->id, cmd->valuestring, kind, 0, NULL, NULL, NULL, NULL);
         }
     } else if (cJSON_IsString(probe)) {
-        if (!strcmp(probe->valuestring, "start")) probe_start(a, s->id);
-        else if (!strcmp(probe->valuestring, "stop")) probe_stop(a, s->id, 0);
+        if (!strcmp(probe->valuestring, "start"))
+            probe_start(a, s->id);
+        else if (!strcmp(probe->valuestring, "stop"))
+            probe_stop(a, s->id, 0);
         else if (!strcmp(probe->valuestring, "pose"))
             probe_pose(a, s->id, cJSON_GetObjectItemCaseSensitive(j, "p"));
     }
@@ -776,11 +794,13 @@ static int cb_ws(struct lws* wsi, enum lws_callback_reasons reason, void* user, 
         if (lws_hdr_copy(wsi, origin, sizeof origin, WSI_TOKEN_ORIGIN) <= 0) break;
         if (lws_hdr_copy(wsi, host, sizeof host, WSI_TOKEN_HOST) <= 0) return 1;
         const char* o = origin;
-        if (!strncmp(o, "http://", 7)) o += 7;
-        else if (!strncmp(o, "https://", 8)) o += 8;
+        if (!strncmp(o, "http://", 7))
+            o += 7;
+        else if (!strncmp(o, "https://", 8))
+            o += 8;
         if (strcmp(o, host) != 0) {
-            fprintf(stderr, "hapsim-web: WebSocket from origin '%s' refused (this is %s)\n",
-                    origin, host);
+            fprintf(stderr, "hapsim-web: WebSocket from origin '%s' refused (this is %s)\n", origin,
+                    host);
             return 1;
         }
         break;
@@ -800,13 +820,15 @@ static int cb_ws(struct lws* wsi, enum lws_callback_reasons reason, void* user, 
         probe_stop(a, s->id, 1);
         break;
     case LWS_CALLBACK_RECEIVE:
-        if (s->rx_len + len >= sizeof s->rx) s->rx_overflow = 1;
+        if (s->rx_len + len >= sizeof s->rx)
+            s->rx_overflow = 1;
         else {
             memcpy(s->rx + s->rx_len, in, len);
             s->rx_len += len;
         }
         if (lws_is_final_fragment(wsi) && !lws_remaining_packet_payload(wsi)) {
-            if (s->rx_overflow) send_event(a, s->id, "error", "\"message\":\"message too long\"");
+            if (s->rx_overflow)
+                send_event(a, s->id, "error", "\"message\":\"message too long\"");
             else {
                 s->rx[s->rx_len] = '\0';
                 handle_text(a, s, s->rx);
@@ -861,12 +883,11 @@ static int cb_http(struct lws* wsi, enum lws_callback_reasons reason, void* user
 // --- main --------------------------------------------------------------------------------------
 
 static void usage(FILE* f) {
-    fprintf(f,
-            "usage: hapsim-web [--port N] [--bind ADDR] [--web-root DIR] [--mesh-url URL]\n"
-            "                  [--haptic-url URL] [--prefix P] [--duration S] [--quiet]\n"
-            "Serves a live view of a running hapsim-server at http://ADDR:N/ (default\n"
-            "127.0.0.1:8080): the deforming surface, tools, forces, status, commands and a\n"
-            "mouse probe. --bind 0.0.0.0 opens it to the LAN (the page can send commands).\n");
+    fprintf(f, "usage: hapsim-web [--port N] [--bind ADDR] [--web-root DIR] [--mesh-url URL]\n"
+               "                  [--haptic-url URL] [--prefix P] [--duration S] [--quiet]\n"
+               "Serves a live view of a running hapsim-server at http://ADDR:N/ (default\n"
+               "127.0.0.1:8080): the deforming surface, tools, forces, status, commands and a\n"
+               "mouse probe. --bind 0.0.0.0 opens it to the LAN (the page can send commands).\n");
 }
 
 // Can this host listen on addr:port? lws would otherwise start without a listening socket on an
@@ -958,11 +979,16 @@ int main(int argc, char** argv) {
                 return 1;
             }
             port = (int)p;
-        } else if (!strcmp(o, "--bind")) bind_addr = v;
-        else if (!strcmp(o, "--web-root")) web_root_opt = v;
-        else if (!strcmp(o, "--mesh-url")) cfg.mesh_url = v;
-        else if (!strcmp(o, "--haptic-url")) cfg.haptic_url = v;
-        else if (!strcmp(o, "--prefix")) cfg.prefix = v;
+        } else if (!strcmp(o, "--bind"))
+            bind_addr = v;
+        else if (!strcmp(o, "--web-root"))
+            web_root_opt = v;
+        else if (!strcmp(o, "--mesh-url"))
+            cfg.mesh_url = v;
+        else if (!strcmp(o, "--haptic-url"))
+            cfg.haptic_url = v;
+        else if (!strcmp(o, "--prefix"))
+            cfg.prefix = v;
         else if (!strcmp(o, "--duration")) {
             duration = strtod(v, &end);
             if (!*v || *end || !(duration >= 0) || duration > 1e7) {
@@ -978,8 +1004,10 @@ int main(int argc, char** argv) {
     web_app* a = &g_app;
     char web_root[PATH_MAX];
     if (find_web_root(web_root, sizeof web_root, web_root_opt) != 0) {
-        fprintf(stderr, "hapsim-web: no index.html in '%s' (build tree: build/share/hapsim/web; "
-                "give --web-root DIR)\n", web_root_opt ? web_root_opt : "<exe>/../share/hapsim/web");
+        fprintf(stderr,
+                "hapsim-web: no index.html in '%s' (build tree: build/share/hapsim/web; "
+                "give --web-root DIR)\n",
+                web_root_opt ? web_root_opt : "<exe>/../share/hapsim/web");
         return 1;
     }
     char why[256];
@@ -1031,8 +1059,10 @@ int main(int argc, char** argv) {
     info.uid = -1;
     a->ctx = lws_create_context(&info);
     if (!a->ctx) {
-        fprintf(stderr, "hapsim-web: cannot listen on %s:%d (in use, or not an address of "
-                "this host?)\n", bind_addr, port);
+        fprintf(stderr,
+                "hapsim-web: cannot listen on %s:%d (in use, or not an address of "
+                "this host?)\n",
+                bind_addr, port);
         lcm_destroy(a->ts_lcm);
         hs_client_destroy(&a->client);
         return 1;

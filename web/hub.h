@@ -12,9 +12,9 @@
 
 /// An immutable, reference-counted message ready for lws_write (LWS_PRE bytes of head room).
 typedef struct hs_web_blob {
-    int refs;        ///< guarded by the hub mutex
-    int binary;      ///< 1: binary frame, 0: text
-    size_t len;      ///< payload bytes (after the head room)
+    int refs;            ///< guarded by the hub mutex
+    int binary;          ///< 1: binary frame, 0: text
+    size_t len;          ///< payload bytes (after the head room)
     unsigned char* data; ///< [pre + len]; payload at data + pre
 } hs_web_blob;
 
@@ -26,32 +26,32 @@ enum { HS_WEB_TOPO = 0, HS_WEB_POS, HS_WEB_STATUS, HS_WEB_TOOLS, HS_WEB_KINDS };
 
 /// The mouse probe as the browsers ask for it (read by the pose thread).
 typedef struct hs_web_probe {
-    int active;          ///< 1 while a browser owns the probe
-    int owner;           ///< session number of the owning browser connection
-    int32_t device_id;   ///< device the mouse drives
-    int32_t tool_id;     ///< scene tool it holds
-    double position[3];  ///< m, newest target (tool reference point)
-    int64_t updated_us;  ///< hs_client_now_us() of the newest target from the browser
-    int64_t sent;        ///< poses published
+    int active;         ///< 1 while a browser owns the probe
+    int owner;          ///< session number of the owning browser connection
+    int32_t device_id;  ///< device the mouse drives
+    int32_t tool_id;    ///< scene tool it holds
+    double position[3]; ///< m, newest target (tool reference point)
+    int64_t updated_us; ///< hs_client_now_us() of the newest target from the browser
+    int64_t sent;       ///< poses published
 } hs_web_probe;
 
 /// Live-device picture from the newest status (for choosing a free device).
 typedef struct hs_web_devices {
-    int known;                ///< 1 once a status arrived
-    int n;                    ///< devices of the scene
-    int live[16];             ///< 1 while poses arrive for that id
+    int known;    ///< 1 once a status arrived
+    int n;        ///< devices of the scene
+    int live[16]; ///< 1 while poses arrive for that id
 } hs_web_devices;
 
 typedef struct hs_web_hub {
     pthread_mutex_t mu;
-    hs_web_blob* latest[HS_WEB_KINDS]; ///< newest of each kind (NULL before the first)
-    uint64_t gen[HS_WEB_KINDS];        ///< increments on each publish
+    hs_web_blob* latest[HS_WEB_KINDS];  ///< newest of each kind (NULL before the first)
+    uint64_t gen[HS_WEB_KINDS];         ///< increments on each publish
     hs_web_blob* events[HS_WEB_EVENTS]; ///< ring of events for every browser
-    int event_target[HS_WEB_EVENTS];   ///< browser session an event is for (0: all)
-    uint64_t n_events;                 ///< events ever pushed
+    int event_target[HS_WEB_EVENTS];    ///< browser session an event is for (0: all)
+    uint64_t n_events;                  ///< events ever pushed
     hs_web_probe probe;
     hs_web_devices dev;
-    size_t pre;                        ///< head room (LWS_PRE)
+    size_t pre; ///< head room (LWS_PRE)
 } hs_web_hub;
 
 /// New blob with len payload bytes (refs 1, caller fills data + pre). NULL when out of memory.

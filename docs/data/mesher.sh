@@ -3,7 +3,7 @@
 # hapsim-mesh on the organ surfaces at hand: each mesh's boundary (hapsim-mesh surface) meshed
 # again with gmsh (hapsim-mesh tet), remeshed and with --keep-surface; one line per run with
 # tets, volume error against the surface, dihedral range, slivers and wall time.
-#   docs/data/mesher.sh BUILD_BIN [MESH_DIR]  > docs/data/mesher-<date>.txt
+#   docs/data/mesher.sh BUILD_BIN [MESH_DIR]  > docs/data/mesher.txt
 set -eu
 bin=$1
 dir=${2:-$(dirname "$0")/../../../shared/meshes}

@@ -38,10 +38,10 @@ typedef struct hs_surface_press_stats {
 /// and the final surface is outside the sphere within 1e-3 r. HS_ERR_NOT_CONVERGED (stats
 /// filled) otherwise; HS_ERR_INVALID when nothing touches at `to`.
 /// Thread: any | Allocates: yes
-hs_status hs_surface_press(const hs_mesh* mesh, const hs_body_def* def,
-                           const unsigned char* fixed, double radius_m, const double from[3],
-                           const double to[3], int increments, double tol,
-                           hs_surface_press_stats* stats /* OUT */, hs_err* err);
+hs_status hs_surface_press(const hs_mesh* mesh, const hs_body_def* def, const unsigned char* fixed,
+                           double radius_m, const double from[3], const double to[3],
+                           int increments, double tol, hs_surface_press_stats* stats /* OUT */,
+                           hs_err* err);
 
 #ifdef __cplusplus
 }

@@ -23,29 +23,30 @@ static void on_stop_signal(int sig) {
 }
 
 static void usage(FILE* f) {
-    fprintf(f,
-            "usage: hapsim-server SCENE [options]\n"
-            "\n"
-            "Serve the scene file SCENE (JSON, docs/scenes.md): tool poses in, reaction forces\n"
-            "out at 1 kHz, the deforming mesh, status and commands over LCM (docs/protocol.md).\n"
-            "\n"
-            "options:\n"
-            "  --haptic-url URL  haptic bus: poses in, forces out (scene lcm.haptic_url)\n"
-            "  --mesh-url URL    mesh bus: mesh, tool state, commands, acks, status\n"
-            "                    (scene lcm.mesh_url; another bus than the haptic URL: a\n"
-            "                    different group or port, options after '?' do not count)\n"
-            "  --prefix P        channel prefix [A-Z0-9_]* (scene lcm.prefix)\n"
-            "  --realtime        ask for SCHED_FIFO (priority 80) and mlockall for the rt thread;\n"
-            "                    falls back to ordinary scheduling when refused and says so\n"
-            "  --duration S      stop by itself after S seconds (at most 1e7)\n"
-            "  --live            one status line on stderr, rewritten in place twice a second\n"
-            "  --quiet           no start-up summary and no exit line\n"
-            "  -h, --help        this text\n"
-            "\n"
-            "Exit status: 0 after SIGINT/SIGTERM/SIGHUP or --duration; 1 on a bad scene (the message\n"
-            "names the file, line and key), a bad --prefix, a URL longer than 255 bytes,\n"
-            "haptic and mesh URLs on the same bus or a run-time failure; 2 on an unknown\n"
-            "option, a missing or bad value, or no scene.\n");
+    fprintf(
+        f,
+        "usage: hapsim-server SCENE [options]\n"
+        "\n"
+        "Serve the scene file SCENE (JSON, docs/scenes.md): tool poses in, reaction forces\n"
+        "out at 1 kHz, the deforming mesh, status and commands over LCM (docs/protocol.md).\n"
+        "\n"
+        "options:\n"
+        "  --haptic-url URL  haptic bus: poses in, forces out (scene lcm.haptic_url)\n"
+        "  --mesh-url URL    mesh bus: mesh, tool state, commands, acks, status\n"
+        "                    (scene lcm.mesh_url; another bus than the haptic URL: a\n"
+        "                    different group or port, options after '?' do not count)\n"
+        "  --prefix P        channel prefix [A-Z0-9_]* (scene lcm.prefix)\n"
+        "  --realtime        ask for SCHED_FIFO (priority 80) and mlockall for the rt thread;\n"
+        "                    falls back to ordinary scheduling when refused and says so\n"
+        "  --duration S      stop by itself after S seconds (at most 1e7)\n"
+        "  --live            one status line on stderr, rewritten in place twice a second\n"
+        "  --quiet           no start-up summary and no exit line\n"
+        "  -h, --help        this text\n"
+        "\n"
+        "Exit status: 0 after SIGINT/SIGTERM/SIGHUP or --duration; 1 on a bad scene (the message\n"
+        "names the file, line and key), a bad --prefix, a URL longer than 255 bytes,\n"
+        "haptic and mesh URLs on the same bus or a run-time failure; 2 on an unknown\n"
+        "option, a missing or bad value, or no scene.\n");
 }
 
 int main(int argc, char** argv) {

@@ -69,7 +69,7 @@ struct hs_body {
     int* blk_e;           // [cap_blk] scratch element list
     unsigned char* emark; // [n_tets] zero between calls: each element listed once
     int64_t lowrank_updates;
-    double p_floor; // J: energy of a 1e-10 strain over the body, the line search's noise floor
+    double p_floor;   // J: energy of a 1e-10 strain over the body, the line search's noise floor
     int fill_ordered; // dofs numbered in the factor's fill-reducing order (hs_body_set_solver)
 };
 

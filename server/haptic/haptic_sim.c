@@ -127,24 +127,24 @@ typedef struct deform_status {
 } deform_status;
 
 // Step timing on the deformation thread: 0.1 ms bins over [0, 400 ms) and an overflow bin.
-#define STEP_BINS    4000
-#define STEP_BIN_MS  0.1
-#define RATE_WINDOW  32   // newest steps the pacing looks at
-#define RATE_EVERY   16   // steps between two pacing decisions
+#define STEP_BINS   4000
+#define STEP_BIN_MS 0.1
+#define RATE_WINDOW 32 // newest steps the pacing looks at
+#define RATE_EVERY  16 // steps between two pacing decisions
 #define RATE_MARGIN                                                                                \
-    1.05                  // paced period = RATE_MARGIN x the window's median (a slower step
-                          // starts the next at once: the rate is what the steps allow)
-#define RATE_RAISE   0.7  // raise the rate again when that is below this share of the period
-#define RATE_FAST    8    // newest steps whose slowest decides a raise (checked every step)
-#define RATE_MAX_DIV 8    // the rate goes down to 1 / (RATE_MAX_DIV dt) at the lowest
+    1.05                 // paced period = RATE_MARGIN x the window's median (a slower step
+                         // starts the next at once: the rate is what the steps allow)
+#define RATE_RAISE   0.7 // raise the rate again when that is below this share of the period
+#define RATE_FAST    8   // newest steps whose slowest decides a raise (checked every step)
+#define RATE_MAX_DIV 8   // the rate goes down to 1 / (RATE_MAX_DIV dt) at the lowest
 // Solver choice (auto_solver): ranks from the most accurate to the cheapest.
-#define AUTO_SETTLE      2    // steps after a switch not booked (its refactor, the warm starts)
-#define AUTO_DOWN        3    // net steps over the budget before a cheaper solver
-#define AUTO_UP_STEPS    30   // steps with a solver before a more accurate one is tried
-#define AUTO_UP_KNOWN    0.7  // a measured more accurate solver is taken when it fits this share
-#define AUTO_UP_PROBE    0.5  // an unmeasured one is tried when the current fits this share
-#define AUTO_RETRY_S     5.0  // wait after a solver failed its budget, doubled per failure
-#define AUTO_START       0.35 // start with direct when one factorisation fits this share
+#define AUTO_SETTLE      2      // steps after a switch not booked (its refactor, the warm starts)
+#define AUTO_DOWN        3      // net steps over the budget before a cheaper solver
+#define AUTO_UP_STEPS    30     // steps with a solver before a more accurate one is tried
+#define AUTO_UP_KNOWN    0.7    // a measured more accurate solver is taken when it fits this share
+#define AUTO_UP_PROBE    0.5    // an unmeasured one is tried when the current fits this share
+#define AUTO_RETRY_S     5.0    // wait after a solver failed its budget, doubled per failure
+#define AUTO_START       0.35   // start with direct when one factorisation fits this share
 #define AUTO_START_NNZ   250000 // or when the factor is this small (deterministic: no clock)
 #define AUTO_RETRY_MAX_S 160.0
 static const hs_solver_kind auto_rank[3] = {HS_SOLVER_DIRECT, HS_SOLVER_PCG, HS_SOLVER_WARPED};

@@ -514,8 +514,8 @@ static int run_cfg(const char* scene, const acc_problem* p, const acc_cfg* c, co
             r.force_err = force_error(f, fref);
             double fn = sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]),
                    rn = sqrt(fref[0] * fref[0] + fref[1] * fref[1] + fref[2] * fref[2]);
-            fprintf(stderr, "accuracy: %s %s %s: force %.4g N, reference %.4g N\n", scene,
-                    c->model, c->option, fn, rn);
+            fprintf(stderr, "accuracy: %s %s %s: force %.4g N, reference %.4g N\n", scene, c->model,
+                    c->option, fn, rn);
         }
         r.err_l2 = ref_rel_l2_pct(n, u, ar.uconv ? ar.uconv : uref);
     }

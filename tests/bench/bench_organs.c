@@ -270,8 +270,8 @@ static int run_organ(const hs_bench_args* a, const organ_case* oc) {
         static const char* const solvers[] = {"direct", "pcg", "warped"};
         const int sk = st.solver >= 0 && st.solver < 3 ? st.solver : 0;
         printf("%s,%d,%s,%.0f,%.2f,%.2f,%.1f,%.1f,%.4f,%.4f,%.1f,%.4f,%.1f,%.0f\n", oc->name,
-               m->n_tets, solvers[sk], st.setup_ms, res[i].step_p50_ms, res[i].step_p99_ms, res[i].sim_hz,
-               res[i].depth_m * 1e3, norm3(res[i].force), norm3(ref[i]),
+               m->n_tets, solvers[sk], st.setup_ms, res[i].step_p50_ms, res[i].step_p99_ms,
+               res[i].sim_hz, res[i].depth_m * 1e3, norm3(res[i].force), norm3(ref[i]),
                100 * norm3(df) / norm3(ref[i]), res[i].max_jump_n,
                hs_rt_hist_quantile_us(&st.rt.tick, 0.99), hs_bench_peak_rss_mb());
         if (!res[i].steady)

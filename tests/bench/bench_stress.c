@@ -196,7 +196,9 @@ static void case_free_vibration(hs_stress_result* r, hs_model model, double dt, 
 static void case_poisson(hs_stress_result* r, double nu, int locking_free, int steps) {
     char opt[48];
     snprintf(opt, sizeof opt, "nu%g;dt10ms;heavy10x%s", nu,
-             locking_free == 2 ? ";sns" : locking_free ? ";anp" : "");
+             locking_free == 2 ? ";sns"
+             : locking_free    ? ";anp"
+                               : "");
     result_init(r, "near-incompressible", "corotated", opt);
     hs_body_def d = cantilever_def(HS_MODEL_COROTATED, nu, 0.01);
     d.fem.material.density_kg_m3 *= 10;
@@ -285,7 +287,9 @@ static void case_inversion(hs_stress_result* r, hs_inversion inv, int locking_fr
     char opt[48];
     snprintf(opt, sizeof opt, "%s%s",
              inv == HS_INVERSION_LINEAR_FALLBACK ? "fallback" : "reflection",
-             locking_free == 2 ? ";sns" : locking_free ? ";anp" : "");
+             locking_free == 2 ? ";sns"
+             : locking_free    ? ";anp"
+                               : "");
     result_init(r, "fold-through", "corotated", opt);
     hs_body_def d = cantilever_def(HS_MODEL_COROTATED, 0.45, 0.01);
     d.fem.inversion = inv;
