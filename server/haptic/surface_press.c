@@ -147,6 +147,25 @@ static double penetration(const press* P, const double p[3], double r) {
     return worst;
 }
 
+// The contact on the current solved shape at centre p into P->fn, and the fixed point's
+// residual: |fn - f| / |fn| (0 when neither pushes). -1 when the contact solve failed.
+static int contact_residual(press* P, const double p[3], double r, double* change) {
+    const size_t n3 = 3 * (size_t)P->m->n_nodes;
+    build(P, p, r);
+    hs_contact c;
+    hs_contact_solve(P->s, p, 0, NULL, &c);
+    if (c.failed) return -1;
+    memset(P->fn, 0, n3 * sizeof(double));
+    for (int k = 0; k < c.n; ++k) memcpy(P->fn + 3 * c.node[k], c.f_n[k], 3 * sizeof(double));
+    double res = 0, ref = 0;
+    for (size_t k = 0; k < n3; ++k) {
+        res += (P->fn[k] - P->f[k]) * (P->fn[k] - P->f[k]);
+        ref += P->fn[k] * P->fn[k];
+    }
+    *change = ref > 0 ? sqrt(res / ref) : (res > 0);
+    return 0;
+}
+
 static void destroy(press* P) {
     hs_body_destroy(&P->body);
     hs_compliance_destroy(&P->comp);
@@ -193,23 +212,10 @@ hs_status hs_surface_press(const hs_mesh* mesh, const hs_body_def* def, const un
         int it = 0;
         double w = RELAX, last = INFINITY;
         for (; it < MAX_ITER; ++it) {
-            build(&P, p, radius_m);
-            hs_contact c;
-            hs_contact_solve(P.s, p, 0, NULL, &c);
-            if (c.failed) {
+            if (contact_residual(&P, p, radius_m, &st->change) != 0) {
                 s = hs_err_set(err, HS_ERR_NOT_CONVERGED, "surface press: contact solve failed");
                 break;
             }
-            memset(P.fn, 0, n3 * sizeof(double));
-            for (int k = 0; k < c.n; ++k)
-                memcpy(P.fn + 3 * c.node[k], c.f_n[k], 3 * sizeof(double));
-            // The fixed point's residual: the contact's forces against those the body holds.
-            double res = 0, ref = 0;
-            for (size_t k = 0; k < n3; ++k) {
-                res += (P.fn[k] - P.f[k]) * (P.fn[k] - P.f[k]);
-                ref += P.fn[k] * P.fn[k];
-            }
-            st->change = ref > 0 ? sqrt(res / ref) : (res > 0);
             st->iterations++;
             if (st->change <= want) break; // also nothing touching yet (both zero)
             // Slower where the iteration swings (many points on a fine surface: the contact
@@ -245,19 +251,8 @@ hs_status hs_surface_press(const hs_mesh* mesh, const hs_body_def* def, const un
                            "(%s, residual %.2g)",
                            hs_status_str(s), ss.residual);
         } else {
-            build(&P, to, radius_m);
-            hs_contact c;
-            hs_contact_solve(P.s, to, 0, NULL, &c);
-            memset(P.fn, 0, n3 * sizeof(double));
-            for (int k = 0; k < c.n; ++k)
-                memcpy(P.fn + 3 * c.node[k], c.f_n[k], 3 * sizeof(double));
-            double res = 0, ref = 0;
-            for (size_t k = 0; k < n3; ++k) {
-                res += (P.fn[k] - P.f[k]) * (P.fn[k] - P.f[k]);
-                ref += P.f[k] * P.f[k];
-            }
-            st->change = ref > 0 ? sqrt(res / ref) : 0;
-            if (st->change > fmax(10 * tol, 1e-5))
+            if (contact_residual(&P, to, radius_m, &st->change) != 0 ||
+                st->change > fmax(10 * tol, 1e-5))
                 s = hs_err_set(err, HS_ERR_NOT_CONVERGED,
                                "surface press: solved from rest, the contact moves its forces by "
                                "%.2g (relative)",
