@@ -1548,7 +1548,8 @@ hs_status hs_haptic_sim_take_over(hs_haptic_sim* h, const hs_haptic_sim* from, h
 
 void hs_haptic_sim_stop(hs_haptic_sim* h) {
     if (!h) return;
-    if (h->loop) hs_rt_loop_stop(h->loop);
+    // The deformation thread first: its step (and a compliance rebuild finished below) can
+    // take tens of ms, while rt goes on sending forces from the last snapshot.
     if (h->thread_started) {
         atomic_store_explicit(&h->stop, 1, memory_order_release);
         pthread_join(h->thread, NULL);
@@ -1559,6 +1560,7 @@ void hs_haptic_sim_stop(hs_haptic_sim* h) {
             hs_triple_buffer_write(h->status, &h->st);
         }
     }
+    if (h->loop) hs_rt_loop_stop(h->loop);
 }
 
 void hs_haptic_sim_feed_pose(hs_haptic_sim* h, const hs_haptic_pose* pose) {
