@@ -10,9 +10,11 @@
 #include "hapsim/client.h"
 #include "hapsim_channels.h"
 #include "hapsim_command_ack_t.h"
+#include "hapsim_command_rules.h"
 #include "hapsim_command_t.h"
 
-enum { EXIT_OK = 0, EXIT_USAGE = 1, EXIT_NO_SERVER = 2, EXIT_REJECTED = 3 };
+// 2 for bad usage, as every hapsim program.
+enum { EXIT_OK = 0, EXIT_NO_SERVER = 1, EXIT_USAGE = 2, EXIT_REJECTED = 3 };
 
 static void usage(FILE* f) {
     fprintf(f, "usage: hapsim-ctl [options] COMMAND [ARGS]\n\n"
@@ -24,6 +26,8 @@ static void usage(FILE* f) {
                "  pause | resume       freeze / continue the deformation (forces ramp to zero)\n"
                "  load-scene PATH      load a scene file (path on the server host)\n"
                "  set NAME VALUE       change a run-time parameter (VALUE: a decimal number)\n"
+               "  set --list           the parameters, their ranges and whether a change\n"
+               "                       rebuilds the simulation (at rest; refused after a cut)\n"
                "  estop                latch every force to zero\n"
                "  estop-release        clear the e-stop latch\n"
                "  request-topology     publish the mesh topology and a keyframe now\n\n"
@@ -34,8 +38,8 @@ static void usage(FILE* f) {
                "  --retry MS           re-send an unanswered command every MS milliseconds (250)\n"
                "  -q, --quiet          print nothing on success\n"
                "  -h, --help           this text (anywhere on the line)\n\n"
-               "exit status: 0 ok, 1 bad usage (also a --mesh-url LCM cannot open),\n"
-               "2 no server / timeout, 3 command rejected\n");
+               "exit status: 0 ok, 1 no server / timeout, 2 bad usage (also a --mesh-url LCM\n"
+               "cannot open), 3 command rejected\n");
 }
 
 static void print_status(const hs_client_status* s, int64_t age_us) {
@@ -132,6 +136,20 @@ int main(int argc, char** argv) {
     if (k < 0) {
         fprintf(stderr, "hapsim-ctl: unknown command '%s' (see --help)\n", cmd);
         return EXIT_USAGE;
+    }
+    if (table[k].kind == HAPSIM_COMMAND_T_KIND_SET_PARAM && nrest == 1 &&
+        !strcmp(argv[i], "--list")) {
+        int n;
+        const hapsim_param_info* t = hapsim_params(&n);
+        printf("%-24s %-22s %-5s %-10s %s\n", "parameter", "accepted", "unit", "on set", "meaning");
+        for (int j = 0; j < n; j++) {
+            char range[64];
+            snprintf(range, sizeof range, "%s%g .. %g", t[j].min_open ? "> " : "", t[j].min,
+                     t[j].max);
+            printf("%-24s %-22s %-5s %-10s %s\n", t[j].name, range, t[j].unit,
+                   t[j].rebuilds ? "rebuild" : "at once", t[j].what);
+        }
+        return EXIT_OK;
     }
     if (nrest != table[k].nargs) {
         fprintf(stderr, "hapsim-ctl: %s takes %d argument%s, got %d (see --help)\n", cmd,

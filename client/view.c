@@ -51,8 +51,8 @@ static void usage(FILE* f) {
             "  --status          live status line on stderr (default when stderr is a terminal)\n"
             "  --quiet           no status line and no summary (wins over --status)\n"
             "  -h, --help        this text\n\n"
-            "kill -USR1 <pid> writes a snapshot now. Exit status: 0 ok, 1 bad usage,\n"
-            "2 no mesh received before the end, 3 output could not be written.\n");
+            "kill -USR1 <pid> writes a snapshot now. Exit status: 0 ok, 1 no mesh received\n"
+            "before the end, 2 bad usage, 3 output could not be written.\n");
 }
 
 typedef struct viewer {
@@ -274,7 +274,7 @@ int main(int argc, char** argv) {
     do {                                                                                           \
         if (!val) {                                                                                \
             fprintf(stderr, "hapsim-view: %s needs a value (see --help)\n", a);                    \
-            return 1;                                                                              \
+            return 2;                                                                              \
         }                                                                                          \
         i++;                                                                                       \
     } while (0)
@@ -290,34 +290,34 @@ int main(int argc, char** argv) {
             v.rate = strtod(val, &e);
             if (e == val || *e || !(v.rate == 0 || (v.rate >= 0.001 && v.rate <= 1000))) {
                 fprintf(stderr, "hapsim-view: --rate '%s': expected 0, or 0.001 .. 1000 Hz\n", val);
-                return 1;
+                return 2;
             }
         } else if (!strcmp(a, "--duration")) {
             NEED_VAL;
             duration = strtod(val, &e);
             if (e == val || *e || !(duration >= 0 && duration <= 1e9)) {
                 fprintf(stderr, "hapsim-view: --duration '%s': expected 0 .. 1e9 seconds\n", val);
-                return 1;
+                return 2;
             }
         } else if (!strcmp(a, "--dmax")) {
             NEED_VAL;
             v.dmax = strcmp(val, "auto") ? strtod(val, &e) : 0;
             if (strcmp(val, "auto") && (e == val || *e || !(v.dmax > 0) || !isfinite(v.dmax))) {
                 fprintf(stderr, "hapsim-view: --dmax '%s': expected metres > 0 or auto\n", val);
-                return 1;
+                return 2;
             }
         } else if (!strcmp(a, "--view")) {
             NEED_VAL;
             if (parse_pair(val, ',', &v.az, &v.el) || fabs(v.el) > 90) {
                 fprintf(stderr, "hapsim-view: --view '%s': expected AZ,EL in degrees, |EL| <= 90\n",
                         val);
-                return 1;
+                return 2;
             }
         } else if (!strcmp(a, "--size")) {
             NEED_VAL;
             if (parse_size(val, &v.width, &v.height)) {
                 fprintf(stderr, "hapsim-view: --size '%s': expected WxH, 16 .. 8192 pixels\n", val);
-                return 1;
+                return 2;
             }
         } else if (!strcmp(a, "--mesh-url")) {
             NEED_VAL;
@@ -335,22 +335,22 @@ int main(int argc, char** argv) {
             v.quiet = 1;
         } else {
             fprintf(stderr, "hapsim-view: unknown option '%s' (see --help)\n", a);
-            return 1;
+            return 2;
         }
     }
     if (!v.png && !v.vtk) v.png = v.vtk = 1;
     v.status = status && !v.quiet; // in either order
-    // An unusable --out is bad usage (exit 1), found before connecting or creating anything.
+    // An unusable --out is bad usage (exit 2), found before connecting or creating anything.
     // The length limit keeps "DIR/frame_NNNNNN.vtu.tmp" within the writers' 4200-byte paths.
     struct stat st_out;
     if (!v.out[0] || strlen(v.out) > 4000) {
         fprintf(stderr, "hapsim-view: --out '%.40s%s': expected a folder path of 1 .. 4000 bytes\n",
                 v.out, strlen(v.out) > 40 ? "..." : "");
-        return 1;
+        return 2;
     }
     if (stat(v.out, &st_out) == 0 && !S_ISDIR(st_out.st_mode)) {
         fprintf(stderr, "hapsim-view: --out '%s': expected a folder, this is not one\n", v.out);
-        return 1;
+        return 2;
     }
 
     // The client checks --prefix and --mesh-url: before anything is created on disk.
@@ -364,7 +364,7 @@ int main(int argc, char** argv) {
     hs_err err = {0};
     if (hs_client_create(&cfg, &c, &err) != HS_OK) {
         fprintf(stderr, "hapsim-view: %s\n", err.msg);
-        return 1;
+        return 2;
     }
     // Tool states are not taken by the client library: a mesh-bus subscriber of our own.
     lcm_t* ts_lcm = lcm_create(mesh_url ? mesh_url : HAPSIM_DEFAULT_MESH_URL);
@@ -410,7 +410,7 @@ int main(int argc, char** argv) {
         if (duration > 0 && now - t0 >= (int64_t)(duration * 1e6)) break;
         if (hs_client_poll(c, 20, &err) < 0) {
             fprintf(stderr, "hapsim-view: %s\n", err.msg);
-            rc = 2;
+            rc = 1;
             break;
         }
         for (int k = 0; k < 64; k++) { // tool states waiting, without blocking
@@ -476,7 +476,7 @@ int main(int argc, char** argv) {
         else
             fprintf(stderr,
                     "hapsim-view: no mesh received (is hapsim-server running on this bus?)\n");
-        rc = 2;
+        rc = 1;
     }
     if (!v.quiet) {
         hs_sync_stats s;

@@ -50,9 +50,6 @@ static inline int hapsim_cmd_bad(const char** why, const char* text) {
     return HAPSIM_CMD_ARGS_BAD;
 }
 
-/// The arguments kind takes, exactly: LOAD_SCENE path=NONEMPTY; SET_PARAM name=KEY value=NUMBER
-/// (the whole text, finite; *number receives it); every other kind none. Keys well formed and
-/// not repeated, values without control bytes. Lengths are checked where the text is read.
 /// 1 when s is a decimal number: leading spaces, [+-], digits with an optional '.', an optional
 /// exponent. strtod alone also takes hexadecimal ("0x10" as 16), "inf" and "nan".
 static inline int hapsim_cmd_decimal_ok(const char* s) {
@@ -74,6 +71,9 @@ static inline int hapsim_cmd_decimal_ok(const char* s) {
     return *s == '\0';
 }
 
+/// The arguments kind takes, exactly: LOAD_SCENE path=NONEMPTY; SET_PARAM name=KEY value=NUMBER
+/// (the whole text, finite; *number receives it); every other kind none. Keys well formed and
+/// not repeated, values without control bytes. Lengths are checked where the text is read.
 /// Returns HAPSIM_CMD_ARGS_*; *why (static text) says what is wrong.
 static inline int hapsim_cmd_args_check(int32_t kind, int n, const char* const* keys,
                                         const char* const* values, double* number,
@@ -114,6 +114,44 @@ static inline int hapsim_cmd_args_check(int32_t kind, int n, const char* const* 
     default:
         return n == 0 ? HAPSIM_CMD_ARGS_OK : hapsim_cmd_bad(why, "this command takes no arguments");
     }
+}
+
+/// A run-time parameter SET_PARAM changes: the values the server takes and what a change costs.
+typedef struct hapsim_param_info {
+    const char* name;
+    double min, max;  ///< accepted: min <= v <= max (min < v when min_open)
+    int min_open;     ///< 1: min itself is refused
+    const char* unit; ///< "" when none
+    int rebuilds;     ///< 1: the simulation is rebuilt at rest (refused after a cut); 0: at once
+    const char* what;
+} hapsim_param_info;
+
+/// Every SET_PARAM parameter; *n receives the count.
+static inline const hapsim_param_info* hapsim_params(int* n) {
+    static const hapsim_param_info t[] = {
+        {"probe_radius_m", 0, 0.1, 1, "m", 1, "radius of every probe tool"},
+        {"force_max_n", 0, 100, 1, "N", 0, "force magnitude clamp"},
+        {"force_rate_max_n_per_s", 0, 1e6, 1, "N/s", 0, "force rate limit"},
+        {"watchdog_ms", 1, 10000, 0, "ms", 0, "force falls to zero at this pose age"},
+        {"youngs_pa", 1, 1e9, 0, "Pa", 1, "Young's modulus of the tissue"},
+        {"poisson", -1, 0.4999, 1, "", 1, "Poisson's ratio of the tissue"},
+    };
+    *n = (int)(sizeof t / sizeof t[0]);
+    return t;
+}
+
+/// The parameter called name, or NULL.
+static inline const hapsim_param_info* hapsim_param_find(const char* name) {
+    int n;
+    const hapsim_param_info* t = hapsim_params(&n);
+    for (int i = 0; i < n; i++)
+        if (strcmp(t[i].name, name) == 0) return &t[i];
+    return NULL;
+}
+
+/// 1 when p takes v.
+static inline int hapsim_param_in_range(const hapsim_param_info* p, double v) {
+    return (p->min_open ? v > p->min : v >= p->min) && v <= p->max;
 }
 
 #endif

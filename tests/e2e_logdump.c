@@ -14,6 +14,7 @@
 // that are not an event, or LCM delivered fewer events than the log holds; e2e_lcmlog.h).
 // Any path works, '?' included (LCM gets it as /proc/self/fd/N).
 #define _POSIX_C_SOURCE 200809L
+#include "hapsim/version.h"
 #include "e2e_lcmlog.h"
 #include "hapsim_tool_force_t.h"
 #include "hapsim_tool_pose_t.h"
@@ -74,6 +75,12 @@ static void on_message(const lcm_recv_buf_t* rb, const char* channel, void* user
 }
 
 int main(int argc, char** argv) {
+    if (hapsim_version_asked(argc, argv, "e2e_logdump")) return 0;
+    for (int i = 1; i < argc; ++i)
+        if (!strcmp(argv[i], "-h") || !strcmp(argv[i], "--help")) {
+            printf("usage: e2e_logdump LOG [PREFIX]\n\nPrint the poses and forces of a hapsim session's LCM log, read deterministically\n(LCM file provider, as fast as it reads, time = each message's utime). PREFIX: the\nchannel prefix (HAPSIM_). Exit status: 0 ok, 1 the log cannot be opened or is not\ncomplete, 2 bad usage. See docs/replay.md.\n");
+            return 0;
+        }
     if (argc != 2 && argc != 3) {
         fprintf(stderr, "usage: %s LOG [PREFIX]\n", argv[0]);
         return 2;

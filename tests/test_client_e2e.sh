@@ -37,13 +37,13 @@ fail() {
 }
 cd "$src" || exit 1
 
-# Flags out of range are refused with exit 1 (a duration or rate whose microseconds overflow an
+# Flags out of range are refused with exit 2 (a duration or rate whose microseconds overflow an
 # int64 once stopped the viewer at once or turned its output off).
 for bad in "--duration 1e13" "--duration -1" "--rate 1e-30" "--rate 2000"; do
     # shellcheck disable=SC2086
     "$bin/hapsim-view" $bad >"$tmp/bad.txt" 2>&1
     rc=$?
-    [ $rc = 1 ] && grep -q "expected" "$tmp/bad.txt" || fail "hapsim-view $bad: rc $rc, $(cat "$tmp/bad.txt")"
+    [ $rc = 2 ] && grep -q "expected" "$tmp/bad.txt" || fail "hapsim-view $bad: rc $rc, $(cat "$tmp/bad.txt")"
 done
 # --quiet wins over --status in either order (--quiet --status printed status lines).
 for order in "--quiet --status" "--status --quiet"; do
@@ -54,21 +54,21 @@ done
 # A bad value is refused before the output folder or frames.csv exists.
 "$bin/hapsim-view" --out "$tmp/pfx" --prefix lower --duration 0.5 >"$tmp/bad.txt" 2>&1
 rc=$?
-[ $rc = 1 ] && [ ! -e "$tmp/pfx" ] || fail "hapsim-view --prefix lower: rc $rc, $(ls "$tmp/pfx" 2>&1)"
+[ $rc = 2 ] && [ ! -e "$tmp/pfx" ] || fail "hapsim-view --prefix lower: rc $rc, $(ls "$tmp/pfx" 2>&1)"
 # --size is decimal integers (0x10x16 read as 16x16: strtod takes hex).
 for bad in 0x10x16 1e2x100 16.0x16 +16x16 " 16x16"; do
     "$bin/hapsim-view" --out "$tmp/size" --size "$bad" --duration 0.5 >"$tmp/bad.txt" 2>&1
     rc=$?
-    [ $rc = 1 ] && grep -q "expected WxH" "$tmp/bad.txt" || fail "hapsim-view --size '$bad': rc $rc, $(cat "$tmp/bad.txt")"
+    [ $rc = 2 ] && grep -q "expected WxH" "$tmp/bad.txt" || fail "hapsim-view --size '$bad': rc $rc, $(cat "$tmp/bad.txt")"
 done
-# An unusable --out (empty, too long, an existing file) is bad usage (exit 1; '' exited 3 after
+# An unusable --out (empty, too long, an existing file) is bad usage (exit 2; '' exited 3 after
 # connecting). The bogus bus shows it is checked before connecting.
 : >"$tmp/afile"
 long=$(printf '%04001d' 0)
 for bad in "" "$tmp/afile" "$tmp/$long"; do
     "$bin/hapsim-view" --out "$bad" --mesh-url bogus://x --duration 0.5 >"$tmp/bad.txt" 2>&1
     rc=$?
-    [ $rc = 1 ] && grep -q "^hapsim-view: --out .*expected" "$tmp/bad.txt" ||
+    [ $rc = 2 ] && grep -q "^hapsim-view: --out .*expected" "$tmp/bad.txt" ||
         fail "hapsim-view --out '$(printf %.60s "$bad")': rc $rc, $(cat "$tmp/bad.txt")"
 done
 [ -f "$tmp/afile" ] && [ ! -s "$tmp/afile" ] || fail "hapsim-view --out FILE changed the file"
@@ -76,12 +76,12 @@ done
 # -h/--help anywhere prints the usage.
 "$bin/hapsim-ctl" --timeout 400 --mesh-url bogus://x status >"$tmp/bad.txt" 2>&1
 rc=$?
-[ $rc = 1 ] && grep -q "bogus://x" "$tmp/bad.txt" || fail "hapsim-ctl --mesh-url bogus://x: rc $rc, $(cat "$tmp/bad.txt")"
+[ $rc = 2 ] && grep -q "bogus://x" "$tmp/bad.txt" || fail "hapsim-ctl --mesh-url bogus://x: rc $rc, $(cat "$tmp/bad.txt")"
 # A group without a port is refused (LCM 1.3.1 would bind a random port: ctl said only "LCM self
 # test failed" before, the server hung).
 "$bin/hapsim-ctl" --timeout 400 --mesh-url "udpm://239.255.76.67?ttl=0" status >"$tmp/bad.txt" 2>&1
 rc=$?
-[ $rc = 1 ] && grep -q "no port" "$tmp/bad.txt" || fail "hapsim-ctl --mesh-url without a port: rc $rc, $(cat "$tmp/bad.txt")"
+[ $rc = 2 ] && grep -q "no port" "$tmp/bad.txt" || fail "hapsim-ctl --mesh-url without a port: rc $rc, $(cat "$tmp/bad.txt")"
 "$bin/hapsim-stylus" --script scenes/liver/scripts/press_hold.probe --haptic-url "udpm://239.255.76.67" \
     --duration 0.5 >"$tmp/bad.txt" 2>&1
 rc=$?
@@ -110,15 +110,23 @@ $ctl status | grep -q "^server   running" || fail "not running after resume / es
 $ctl set no_such_parameter 1 2>"$tmp/set.err"
 rc=$?
 [ $rc = 3 ] || fail "set of an unknown parameter: rc $rc (want 3: rejected)"
+grep -q "unknown parameter 'no_such_parameter' (known: probe_radius_m force_max_n" "$tmp/set.err" ||
+    fail "the refused set does not list the parameters: $(cat "$tmp/set.err")"
+$ctl set --list >"$tmp/list.txt" || fail "set --list: rc $?"
+for p in probe_radius_m force_max_n force_rate_max_n_per_s watchdog_ms youngs_pa poisson; do
+    grep -q "^$p " "$tmp/list.txt" || fail "set --list lacks $p: $(cat "$tmp/list.txt")"
+done
+grep -q "^youngs_pa .* rebuild " "$tmp/list.txt" && grep -q "^force_max_n .* at once " "$tmp/list.txt" ||
+    fail "set --list does not say which parameters rebuild: $(cat "$tmp/list.txt")"
 $ctl frobnicate 2>/dev/null
 rc=$?
-[ $rc = 1 ] || fail "unknown command: rc $rc (want 1)"
+[ $rc = 2 ] || fail "unknown command: rc $rc (want 2: usage)"
 $bin/hapsim-ctl --timeout 400 --prefix NOBODY_ status 2>/dev/null
 rc=$?
-[ $rc = 2 ] || fail "status on a silent prefix: rc $rc (want 2)"
+[ $rc = 1 ] || fail "status on a silent prefix: rc $rc (want 1)"
 $bin/hapsim-ctl --timeout 400 --prefix NOBODY_ reset 2>/dev/null
 rc=$?
-[ $rc = 2 ] || fail "command on a silent prefix: rc $rc (want 2)"
+[ $rc = 1 ] || fail "command on a silent prefix: rc $rc (want 1)"
 echo "hapsim-ctl: acks and exit codes as documented"
 
 # Viewer from +y (the probe's side), 30 degrees up; colour range 5 mm.

@@ -198,6 +198,7 @@ typedef struct client {
     int64_t ack_id[ACK_RING];
     int32_t ack_status[ACK_RING];
     int64_t ack_utime[ACK_RING]; // the server's clock
+    char ack_msg[ACK_RING][200];
     // every force received: the server's utime, its norm and state
     int n_flog;
     int64_t flog_utime[8192];
@@ -281,6 +282,7 @@ static void on_ack(const lcm_recv_buf_t* rb, const char* ch, const hapsim_comman
     c->ack_id[c->n_ack % ACK_RING] = a->request_id;
     c->ack_status[c->n_ack % ACK_RING] = a->status;
     c->ack_utime[c->n_ack % ACK_RING] = a->utime;
+    snprintf(c->ack_msg[c->n_ack % ACK_RING], sizeof c->ack_msg[0], "%s", a->message);
     c->n_ack++;
 }
 
@@ -485,6 +487,14 @@ static int command(client* c, int kind, const char* k1, const char* v1, const ch
     return 99;
 }
 
+// The message of the newest ack of request id, or "".
+static const char* ack_message(const client* c, int64_t id) {
+    const char* m = "";
+    for (int i = 0; i < ACK_RING && i < c->n_ack; ++i)
+        if (c->ack_id[i] == id) m = c->ack_msg[i];
+    return m;
+}
+
 static double dot_n(const double f[3]) {
     double l = sqrt(N399[0] * N399[0] + N399[1] * N399[1] + N399[2] * N399[2]);
     return (f[0] * N399[0] + f[1] * N399[1] + f[2] * N399[2]) / l;
@@ -552,8 +562,21 @@ static int poses_in_forces_out(void) {
                    NULL) == HAPSIM_COMMAND_ACK_T_STATUS_OK);
     stream(&c, 0.004, 0.004, 400);
     ENSURE(norm3(c.force.force) <= 0.01 + 1e-12);
+    // Refusals say what was wrong, and the status counts them.
+    int64_t rid = 0;
     ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_SET_PARAM, "name", "no_such_param", "value", "1",
-                   NULL) == HAPSIM_COMMAND_ACK_T_STATUS_INVALID);
+                   &rid) == HAPSIM_COMMAND_ACK_T_STATUS_INVALID);
+    ENSURE(strstr(ack_message(&c, rid), "unknown parameter 'no_such_param' (known: probe_radius_m"));
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_SET_PARAM, "name", "poisson", "value", "0.5", &rid) ==
+           HAPSIM_COMMAND_ACK_T_STATUS_INVALID);
+    ENSURE(strstr(ack_message(&c, rid), "poisson = 0.5 out of range: above -1 .. 0.4999"));
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_SET_PARAM, "name", "force_max_n", "value", "0x10",
+                   &rid) == HAPSIM_COMMAND_ACK_T_STATUS_INVALID);
+    ENSURE(strstr(ack_message(&c, rid), "argument: SET_PARAM's value is not a number"));
+    ENSURE(wait_more(&c, &c.n_status, 2000));
+    ENSURE(wait_more(&c, &c.n_status, 2000));
+    ENSURE(reject_count(c.status, "COMMAND", "parameter") == 2);
+    ENSURE(reject_count(c.status, "COMMAND", "argument") == 1);
     ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_SET_PARAM, "name", "force_max_n", "value", "3.3",
                    NULL) == HAPSIM_COMMAND_ACK_T_STATUS_OK);
     stream(&c, 0.004, 0.004, 400);
@@ -655,7 +678,8 @@ static int poses_in_forces_out(void) {
     ENSURE(steps_line && strstr(steps_line, "overruns of 16.7 ms"));
     printf("  %.*s", (int)strcspn(steps_line, "\n") + 1, steps_line);
     printf("  %.*s", (int)strcspn(end_line, "\n") + 1, end_line);
-    ENSURE(strstr(end_line, " 0 messages rejected, 1 command retries answered again"));
+    // The one rejection: the SET_PARAM of "0x10" (refused names and values are counted apart).
+    ENSURE(strstr(end_line, " 1 messages rejected, 1 command retries answered again"));
     return 0;
 }
 

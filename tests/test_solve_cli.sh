@@ -13,20 +13,20 @@ check() { # name, condition (0 = ok)
 grep -q -- "--fix-box" "$T/help"; check "help lists --fix-box" $?
 
 "$SOLVE" --mesh "$MESH" --out "$T/o.csv" > /dev/null 2> "$T/err"; rc=$?
-[ $rc -eq 1 ] && grep -q "required" "$T/err"; check "missing --model is an error" $?
+[ $rc -eq 2 ] && grep -q "required" "$T/err"; check "missing --model is an error" $?
 "$SOLVE" --mesh "$MESH" --model foo --static --out "$T/o.csv" 2> "$T/err"; rc=$?
-[ $rc -eq 1 ] && grep -q "bad value for --model: 'foo'" "$T/err"; check "bad model named" $?
+[ $rc -eq 2 ] && grep -q "bad value for --model: 'foo'" "$T/err"; check "bad model named" $?
 "$SOLVE" --mesh "$MESH" --model linear --nu 0.5 --static --out "$T/o.csv" 2> "$T/err"; rc=$?
-[ $rc -eq 1 ] && grep -q "Poisson" "$T/err"; check "nu 0.5 refused" $?
+[ $rc -eq 2 ] && grep -q "Poisson" "$T/err"; check "nu 0.5 refused" $?
 "$SOLVE" --mesh "$MESH" --model linear --fix-box 1,2,3 --static --out "$T/o.csv" 2> "$T/err"; rc=$?
-[ $rc -eq 1 ] && grep -q -- "--fix-box" "$T/err"; check "short --fix-box refused" $?
+[ $rc -eq 2 ] && grep -q -- "--fix-box" "$T/err"; check "short --fix-box refused" $?
 "$SOLVE" --mesh "$MESH" --model linear --static --steps 3 --dt 0.01 --out "$T/o.csv" 2> "$T/err"; rc=$?
-[ $rc -eq 1 ] && grep -q "exactly one" "$T/err"; check "static and steps together refused" $?
+[ $rc -eq 2 ] && grep -q "exactly one" "$T/err"; check "static and steps together refused" $?
 "$SOLVE" --mesh "$MESH" --model linear --static --fix-box 9,9,9,10,10,10 --out "$T/o.csv" 2> "$T/err"; rc=$?
 [ $rc -eq 1 ] && grep -q "no node of a tet is fixed" "$T/err"; check "empty fixed region explained" $?
 for bad in z,min,nan z,min,inf z,min,0.01junk w,min,1 z,mid,1 z,min,-1; do
   "$SOLVE" --mesh "$MESH" --model linear --static --fix-plane "$bad" --out "$T/o.csv" 2> "$T/err"; rc=$?
-  [ $rc -eq 1 ] && grep -q "AXIS,SIDE,TOL" "$T/err"; check "--fix-plane $bad refused" $?
+  [ $rc -eq 2 ] && grep -q "AXIS,SIDE,TOL" "$T/err"; check "--fix-plane $bad refused" $?
 done
 printf '$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n2\n1 0 0 x\n' > "$T/bad.msh"
 "$SOLVE" --mesh "$T/bad.msh" --model linear --static --fix-plane z,min,1 --out "$T/o.csv" 2> "$T/err"; rc=$?
@@ -38,16 +38,16 @@ printf '$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n2\n1 0 0 x\n' > "$T/bad.ms
 for flag in --out --vtk; do
   "$SOLVE" --mesh "$MESH" --model linear --static --fix-plane y,min,0.005 --out "$T/o.csv" \
     $flag /nonexistent/d.x > "$T/sum" 2> "$T/err"; rc=$?
-  [ $rc -eq 1 ] && grep -q "cannot write /nonexistent/d.x" "$T/err" && [ ! -s "$T/sum" ]
+  [ $rc -eq 2 ] && grep -q "cannot write /nonexistent/d.x" "$T/err" && [ ! -s "$T/sum" ]
   check "$flag into a missing folder refused before the solve" $?
 done
 "$SOLVE" --mesh "$MESH" --model linear --static --fix-plane y,min,0.005 --out "$T" > "$T/sum" 2> "$T/err"; rc=$?
-[ $rc -eq 1 ] && grep -q "cannot write" "$T/err" && [ ! -s "$T/sum" ]; check "--out a folder refused" $?
+[ $rc -eq 2 ] && grep -q "cannot write" "$T/err" && [ ! -s "$T/sum" ]; check "--out a folder refused" $?
 # A flag the chosen model, mode or solver never reads is a bad command line, named with why.
 ignored() { # flag, args...
   flag=$1; shift
   "$SOLVE" --mesh "$MESH" --fix-plane y,min,0.005 --out "$T/o.csv" "$@" > /dev/null 2> "$T/err"; rc=$?
-  [ $rc -eq 1 ] && grep -q -- "$flag has no effect" "$T/err"; check "$* refused naming $flag" $?
+  [ $rc -eq 2 ] && grep -q -- "$flag has no effect" "$T/err"; check "$* refused naming $flag" $?
 }
 ignored --dt --model linear --static --dt 0.01
 ignored --damping --model corotated --static --damping 0.1,0.01
@@ -80,10 +80,10 @@ cmp -s "$T/lf_bare.csv" "$T/lf_sns.csv"; check "bare --locking-free is sns for c
 ! cmp -s "$T/lf_sns.csv" "$T/lf_anp.csv"; check "sns and anp differ" $?
 "$SOLVE" --mesh "$MESH" --model corotated --fix-plane y,min,0.005 --static --locking-free fbar \
   --out "$T/o.csv" 2> "$T/err"; rc=$?
-[ $rc -eq 1 ] && grep -q "'fbar' is not none|anp|sns" "$T/err"; check "bad --locking-free mode named" $?
+[ $rc -eq 2 ] && grep -q "'fbar' is not none|anp|sns" "$T/err"; check "bad --locking-free mode named" $?
 "$SOLVE" --mesh "$MESH" --model corotated --fix-plane y,min,0.005 --static --locking-free anp \
   --locking-free-alpha 0.5 --out "$T/o.csv" 2> "$T/err"; rc=$?
-[ $rc -eq 1 ] && grep -q "needs --locking-free sns" "$T/err"; check "alpha without sns refused" $?
+[ $rc -eq 2 ] && grep -q "needs --locking-free sns" "$T/err"; check "alpha without sns refused" $?
 
 # A real solve: header + one line per node, finite numbers, summary printed.
 "$SOLVE" --mesh "$MESH" --model corotated --E 50000 --nu 0.45 --density 1060 --gravity 0,0,-9.81 \
@@ -97,7 +97,7 @@ grep -q "max |u|" "$T/sum"; check "summary printed" $?
 "$SOLVE" --mesh "$MESH" --model linear --E 20000 --gravity 0,0,-9.81 --fix-plane y,min,0.005 \
   --steps 5 --dt 0.01 --solver pcg --precond jacobi --out "$T/d.csv" > /dev/null; check "dynamics with pcg" $?
 
-# Found in review (2026-11-28); each failed before.
+# Each of these failed before.
 # A write that fails says why and the summary does not claim it.
 if [ -w /dev/full ]; then
   "$SOLVE" --mesh "$MESH" --model linear --static --fix-plane y,min,0.005 --out /dev/full \
@@ -112,10 +112,10 @@ fi
 # --out and --vtk the same file: refused.
 "$SOLVE" --mesh "$MESH" --model linear --static --fix-plane y,min,0.005 --out "$T/same" \
   --vtk "$T/same" > /dev/null 2> "$T/err"; rc=$?
-[ $rc -eq 1 ] && grep -q "same file" "$T/err"; check "--out and --vtk the same file refused" $?
+[ $rc -eq 2 ] && grep -q "same file" "$T/err"; check "--out and --vtk the same file refused" $?
 ( cd "$T" && "$SOLVE" --mesh "$MESH" --model linear --static --fix-plane y,min,0.005 --out new \
   --vtk ./new > /dev/null 2> "$T/err" ); rc=$?
-[ $rc -eq 1 ] && grep -q "same file" "$T/err" && [ ! -e "$T/new" ]
+[ $rc -eq 2 ] && grep -q "same file" "$T/err" && [ ! -e "$T/new" ]
 check "--out F --vtk ./F (F new) refused" $?
 # One tet and a node no tet uses (node 5): fixing only that node fixes nothing.
 printf '$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n5\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n5 0 0 -5\n$EndNodes\n$Elements\n1\n1 4 2 0 1 1 2 3 4\n$EndElements\n' > "$T/unref.msh"
@@ -144,10 +144,10 @@ done
 # A solve that fails writes nothing (the CSV was written and "wrote" printed).
 "$SOLVE" --mesh "$MESH" --model stvk --E 1e-300 --gravity 0,1000,0 --static --fix-plane y,min,0.005 \
   --out "$T/failed.csv" > "$T/sum" 2> "$T/err"; rc=$?
-[ $rc -eq 2 ] && [ ! -e "$T/failed.csv" ] && grep -q "wrote           nothing" "$T/sum"
+[ $rc -eq 3 ] && [ ! -e "$T/failed.csv" ] && grep -q "wrote           nothing" "$T/sum"
 check "a failed solve writes nothing" $?
 # The static probe reference: a press on the liver's top node; a sphere that never reaches
-# the surface, a probe without its radius, a probe in a dynamic run are refused (exit 1).
+# the surface (exit 1), a probe without its radius, a probe in a dynamic run (exit 2) are refused.
 PROBE=(--mesh "$MESH" --model corotated --E 5000 --fix-box -1,-1,-1,1,1,-0.0718 --static)
 "$SOLVE" "${PROBE[@]}" --probe 0.07756132,0.00306969,0.0484151 --probe-radius 0.005 \
   --probe-dir 0,0,-1 --out "$T/p.csv" > "$T/sum" 2> "$T/err"; rc=$?
@@ -160,9 +160,9 @@ check "probe 2.5 mm deep: solved, the tool pushed out (+z)" $?
 check "a sphere that never reaches the surface: exit 1, named, nothing written" $?
 "$SOLVE" "${PROBE[@]}" --probe 0.07756132,0.00306969,0.0484151 --out "$T/p.csv" \
   > /dev/null 2> "$T/err"; rc=$?
-[ $rc -eq 1 ] && grep -q "go together" "$T/err"; check "--probe without --probe-radius refused" $?
+[ $rc -eq 2 ] && grep -q "go together" "$T/err"; check "--probe without --probe-radius refused" $?
 "$SOLVE" --mesh "$MESH" --model corotated --fix-plane y,min,0.005 --steps 2 --dt 0.01 \
   --probe 0,0,0 --probe-radius 0.005 --out "$T/p.csv" > /dev/null 2> "$T/err"; rc=$?
-[ $rc -eq 1 ] && grep -q -- "--probe has no effect" "$T/err"; check "--probe with --steps refused" $?
+[ $rc -eq 2 ] && grep -q -- "--probe has no effect" "$T/err"; check "--probe with --steps refused" $?
 echo "$pass passed, $fail failed"
 [ $fail -eq 0 ]

@@ -6,8 +6,8 @@ bin=$1
 ver=$2
 pass=0
 fail=0
-for p in hapsim-server hapsim-mesh hapsim-view hapsim-ctl hapsim-stylus hapsim-trace-diff \
-    hapsim-web; do
+for p in hapsim-server hapsim-mesh hapsim-view hapsim-ctl hapsim-stylus hapsim-trace-diff hapsim-solve \
+    hapsim-web hapsim-bench e2e_logdump e2e_replay; do
     out=$("$bin/$p" --version 2>&1)
     rc=$?
     if [ $rc = 0 ] && [ "$out" = "$p $ver" ]; then

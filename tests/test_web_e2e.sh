@@ -45,18 +45,18 @@ cleanup() {
 }
 trap cleanup EXIT
 cd "$src" || exit 1
-# Command line: bad options are refused (exit 1) before anything listens.
+# Command line: bad options are refused (exit 2) before anything listens.
 for bad in "--port 0" "--port 70000" "--port 12x" "--bogus" "--web-root /nonexistent" "--duration -1" \
            "--bind 192.0.2.1" "--bind nonsense"; do
     # shellcheck disable=SC2086
     "$bin/hapsim-web" $bad >"$tmp/cli.log" 2>&1
     rc=$?
-    [ $rc = 1 ] || { cat "$tmp/cli.log"; echo "FAIL: hapsim-web $bad: exit $rc, want 1"; exit 1; }
+    [ $rc = 2 ] || { cat "$tmp/cli.log"; echo "FAIL: hapsim-web $bad: exit $rc, want 2"; exit 1; }
 done
 "$bin/hapsim-web" --web-root /nonexistent 2>&1 | grep -q "no index.html in '/nonexistent'" ||
     { echo "FAIL: --web-root /nonexistent does not name the folder"; exit 1; }
 "$bin/hapsim-web" --help | grep -q "usage: hapsim-web" || { echo "FAIL: --help"; exit 1; }
-echo "ok   hapsim-web refuses bad command lines (exit 1) and prints --help"
+echo "ok   hapsim-web refuses bad command lines (exit 2) and prints --help"
 # Static files from the build tree, nothing else (no server running yet: the page still loads).
 "$bin/hapsim-web" --port 18088 --duration 10 --quiet &
 cli_pid=$!
@@ -91,7 +91,7 @@ const get = (p) => new Promise((res, rej) => http.get("http://127.0.0.1:18088" +
 rc=$?
 [ $rc = 1 ] && grep -q "cannot listen on 127.0.0.1 port 18088" "$tmp/cli.log" ||
     { cat "$tmp/cli.log"; echo "FAIL: a second hapsim-web on a port in use: exit $rc"; exit 1; }
-echo "ok   a port in use and an address not of this host are refused (exit 1)"
+echo "ok   a port in use (exit 1) and an address not of this host (exit 2) are refused"
 kill $cli_pid; wait $cli_pid
 "$bin/hapsim-server" scenes/liver/liver.json --realtime --duration 120 >"$tmp/server.log" 2>&1 &
 server_pid=$!

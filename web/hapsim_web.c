@@ -887,11 +887,13 @@ static void usage(FILE* f) {
                "                  [--haptic-url URL] [--prefix P] [--duration S] [--quiet]\n"
                "Serves a live view of a running hapsim-server at http://ADDR:N/ (default\n"
                "127.0.0.1:8080): the deforming surface, tools, forces, status, commands and a\n"
-               "mouse probe. --bind 0.0.0.0 opens it to the LAN (the page can send commands).\n");
+               "mouse probe. --bind 0.0.0.0 opens it to the LAN (the page can send commands).\n"
+               "Exit status: 0 ok, 1 a port in use or the buses cannot be opened, 2 bad usage.\n");
 }
 
 // Can this host listen on addr:port? lws would otherwise start without a listening socket on an
-// address that is not this host's (and say so only in its log). 0 or -1 with why[] filled.
+// address that is not this host's (and say so only in its log). 0, or with why[] filled -2 for
+// an address that is bad usage (not numeric, not this host's), -1 otherwise (a port in use).
 static int check_bind(const char* addr, int port, char* why, size_t n) {
     struct sockaddr_storage ss;
     memset(&ss, 0, sizeof ss);
@@ -908,7 +910,7 @@ static int check_bind(const char* addr, int port, char* why, size_t n) {
         len = sizeof *v6;
     } else {
         snprintf(why, n, "not a numeric IPv4 or IPv6 address");
-        return -1;
+        return -2;
     }
     int fd = socket(ss.ss_family, SOCK_STREAM, 0);
     if (fd < 0) {
@@ -917,10 +919,10 @@ static int check_bind(const char* addr, int port, char* why, size_t n) {
     }
     int one = 1;
     setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
-    int rc = bind(fd, (struct sockaddr*)&ss, len);
-    if (rc != 0) snprintf(why, n, "%s", strerror(errno));
+    int rc = bind(fd, (struct sockaddr*)&ss, len), e = errno;
+    if (rc != 0) snprintf(why, n, "%s", strerror(e));
     close(fd);
-    return rc == 0 ? 0 : -1;
+    return rc == 0 ? 0 : e == EADDRNOTAVAIL ? -2 : -1;
 }
 
 // The folder holding index.html: --web-root, else <exe>/../share/hapsim/web (build and install).
@@ -969,14 +971,14 @@ int main(int argc, char** argv) {
         if (!v) {
             fprintf(stderr, "hapsim-web: %s needs a value\n", o);
             usage(stderr);
-            return 1;
+            return 2;
         }
         ++i;
         if (!strcmp(o, "--port")) {
             long p = strtol(v, &end, 10);
             if (!*v || *end || p < 1 || p > 65535) {
                 fprintf(stderr, "hapsim-web: --port '%s': want 1..65535\n", v);
-                return 1;
+                return 2;
             }
             port = (int)p;
         } else if (!strcmp(o, "--bind"))
@@ -993,12 +995,12 @@ int main(int argc, char** argv) {
             duration = strtod(v, &end);
             if (!*v || *end || !(duration >= 0) || duration > 1e7) {
                 fprintf(stderr, "hapsim-web: --duration '%s': want seconds 0..1e7\n", v);
-                return 1;
+                return 2;
             }
         } else {
             fprintf(stderr, "hapsim-web: unknown option '%s'\n", o);
             usage(stderr);
-            return 1;
+            return 2;
         }
     }
     web_app* a = &g_app;
@@ -1008,12 +1010,13 @@ int main(int argc, char** argv) {
                 "hapsim-web: no index.html in '%s' (build tree: build/share/hapsim/web; "
                 "give --web-root DIR)\n",
                 web_root_opt ? web_root_opt : "<exe>/../share/hapsim/web");
-        return 1;
+        return 2;
     }
     char why[256];
-    if (check_bind(bind_addr, port, why, sizeof why) != 0) {
+    int bound = check_bind(bind_addr, port, why, sizeof why);
+    if (bound != 0) {
         fprintf(stderr, "hapsim-web: cannot listen on %s port %d: %s\n", bind_addr, port, why);
-        return 1;
+        return bound == -2 ? 2 : 1;
     }
     snprintf(a->prefix, sizeof a->prefix, "%s", cfg.prefix ? cfg.prefix : HAPSIM_DEFAULT_PREFIX);
     pthread_mutex_init(&a->hub.mu, NULL);

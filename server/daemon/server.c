@@ -146,6 +146,7 @@ struct hs_server {
     hs_net_limits lim;
     hs_net_pose_state pst;
     hs_net_command_state cst;
+    int64_t params_refused; // SET_PARAM acked INVALID: an unknown name or a value out of range
 
     dev_state dev[MAX_DEV];
     int64_t feed_seq; // poses fed to rt (rt's pose seq)
@@ -1106,10 +1107,10 @@ static void publish_status(hs_server* s, int64_t t) {
     m.latency_p99_us = l99;
     m.force_norm = fnorm;
 
-    char* rch[2 * HS_NET_REJ_COUNT];
-    char* rreason[2 * HS_NET_REJ_COUNT];
-    char rname[2 * HS_NET_REJ_COUNT][32];
-    int64_t rcount[2 * HS_NET_REJ_COUNT];
+    char* rch[2 * HS_NET_REJ_COUNT + 1];
+    char* rreason[2 * HS_NET_REJ_COUNT + 1];
+    char rname[2 * HS_NET_REJ_COUNT + 1][32];
+    int64_t rcount[2 * HS_NET_REJ_COUNT + 1];
     int nr = 0;
     const hs_net_counters* cs[2] = {&s->pst.counters, &s->cst.counters};
     char* cn[2] = {HAPSIM_CH_TOOL_POSE, HAPSIM_CH_COMMAND};
@@ -1121,6 +1122,12 @@ static void publish_status(hs_server* s, int64_t t) {
                 rreason[nr] = rname[nr];
                 rcount[nr++] = (int64_t)cs[c]->rejected[r];
             }
+    if (s->params_refused) { // well-formed, but a name or value the server does not take
+        rch[nr] = HAPSIM_CH_COMMAND;
+        snprintf(rname[nr], sizeof rname[nr], "parameter");
+        rreason[nr] = rname[nr];
+        rcount[nr++] = s->params_refused;
+    }
     m.n_rejects = nr;
     m.reject_channel = rch;
     m.reject_reason = rreason;
@@ -1303,31 +1310,41 @@ static int set_param(hs_server* s, const hs_net_command* c, char* msg, size_t ca
     world* w = &s->w;
     hs_haptic_sim_def d = w->def;
     hs_scene sc = w->scene;
-    if (!strcmp(name, "probe_radius_m") && v > 0 && v <= 0.1) {
+    const hapsim_param_info* p = hapsim_param_find(name);
+    if (!p || !hapsim_param_in_range(p, v)) {
+        s->params_refused++;
+        if (!p) {
+            int n;
+            const hapsim_param_info* t = hapsim_params(&n);
+            size_t l = (size_t)snprintf(msg, cap, "unknown parameter '%s' (known:", name);
+            for (int i = 0; i < n && l < cap; ++i)
+                l += (size_t)snprintf(msg + l, cap - l, " %s", t[i].name);
+            if (l < cap) snprintf(msg + l, cap - l, ")");
+        } else {
+            snprintf(msg, cap, "%s = %g out of range: %s%g .. %g%s%s", name, v,
+                     p->min_open ? "above " : "", p->min, p->max, p->unit[0] ? " " : "", p->unit);
+        }
+        return HAPSIM_COMMAND_ACK_T_STATUS_INVALID;
+    }
+    if (!strcmp(name, "probe_radius_m")) {
         d.probe.radius_m = v;
         for (int t = 0; t < sc.n_tools; ++t)
             if (sc.tools[t].kind == HS_TOOL_PROBE) sc.tools[t].radius = v;
-    } else if (!strcmp(name, "force_max_n") && v > 0 && v <= 100) {
+    } else if (!strcmp(name, "force_max_n")) {
         d.safety.max_force_n = v;
         sc.force_max_n = v;
-    } else if (!strcmp(name, "force_rate_max_n_per_s") && v > 0 && v <= 1e6) {
+    } else if (!strcmp(name, "force_rate_max_n_per_s")) {
         d.safety.max_rate_n_s = v;
         sc.force_rate_max = v;
-    } else if (!strcmp(name, "watchdog_ms") && v >= 1 && v <= 10000) {
+    } else if (!strcmp(name, "watchdog_ms")) {
         d.safety.watchdog_timeout_s = v * 1e-3;
         sc.watchdog_s = v * 1e-3;
-    } else if (!strcmp(name, "youngs_pa") && v >= 1 && v <= 1e9) {
+    } else if (!strcmp(name, "youngs_pa")) {
         d.body.fem.material.youngs_pa = v;
         sc.material.youngs_pa = v;
-    } else if (!strcmp(name, "poisson") && v > -1 && v <= 0.4999) { // as scenes allow
+    } else { // poisson
         d.body.fem.material.poisson = v;
         sc.material.poisson = v;
-    } else {
-        snprintf(msg, cap,
-                 "unknown parameter '%s' or value %g out of range (probe_radius_m, force_max_n, "
-                 "force_rate_max_n_per_s, watchdog_ms, youngs_pa, poisson)",
-                 name, v);
-        return HAPSIM_COMMAND_ACK_T_STATUS_INVALID;
     }
     if (!w->haptics) { // after the name check: an unknown name is INVALID in any scene
         snprintf(msg, cap, "haptics are off in this scene: no run-time parameters");
@@ -1335,8 +1352,7 @@ static int set_param(hs_server* s, const hs_net_command* c, char* msg, size_t ca
     }
     // Force limits go to the running sim (and a paused cut one) without a rebuild: no gap in
     // the force, and they can be changed after a cut, when the sim cannot be rebuilt.
-    if (!strcmp(name, "force_max_n") || !strcmp(name, "force_rate_max_n_per_s") ||
-        !strcmp(name, "watchdog_ms")) {
+    if (!p->rebuilds) {
         hs_haptic_sim* live[2] = {w->sim, w->held};
         for (int k = 0; k < 2; ++k)
             if (live[k] && hs_haptic_sim_set_safety(live[k], &d.safety) != HS_OK) {
@@ -1701,9 +1717,12 @@ static void on_command(const lcm_recv_buf_t* rb, const char* ch, void* user) {
         return;
     }
     if (r != HS_NET_ACCEPT) {
-        if (c.request_id != 0)
-            send_ack(s, c.request_id, c.kind, HAPSIM_COMMAND_ACK_T_STATUS_INVALID,
-                     hs_net_reject_name(r));
+        if (c.request_id != 0) {
+            char why[300];
+            snprintf(why, sizeof why, "%s%s%s", hs_net_reject_name(r), c.why ? ": " : "",
+                     c.why ? c.why : "");
+            send_ack(s, c.request_id, c.kind, HAPSIM_COMMAND_ACK_T_STATUS_INVALID, why);
+        }
         return;
     }
     // Every command but the e-stop's two acts after a load in progress, on the new scene: it

@@ -254,16 +254,15 @@ static hs_net_reject command_args(hs_net_command* c) {
         k[i] = c->keys[i];
         v[i] = c->values[i];
     }
-    if (!hapsim_cmd_text_ok(c->sender)) return HS_NET_REJ_ARGUMENT;
-    const char* why;
-    switch (hapsim_cmd_args_check(c->kind, c->n_args, k, v, &c->number, &why)) {
-    case HAPSIM_CMD_ARGS_OK:
-        return HS_NET_ACCEPT;
-    case HAPSIM_CMD_ARGS_NONFINITE:
-        return HS_NET_REJ_NONFINITE;
-    default:
+    if (!hapsim_cmd_text_ok(c->sender)) {
+        c->why = "the sender has control bytes";
         return HS_NET_REJ_ARGUMENT;
     }
+    const char* why;
+    int r = hapsim_cmd_args_check(c->kind, c->n_args, k, v, &c->number, &why);
+    if (r == HAPSIM_CMD_ARGS_OK) return HS_NET_ACCEPT;
+    c->why = why;
+    return r == HAPSIM_CMD_ARGS_NONFINITE ? HS_NET_REJ_NONFINITE : HS_NET_REJ_ARGUMENT;
 }
 
 static hs_net_reject command_check(hs_net_command_state* st, const void* buf, int64_t len,

@@ -122,7 +122,8 @@ typedef struct hs_net_command {
     char keys[HS_NET_CMD_MAX_ARGS][HS_NET_CMD_KEY_MAX];
     char values[HS_NET_CMD_MAX_ARGS][HS_NET_CMD_VALUE_MAX];
     char sender[HS_NET_CMD_SENDER_MAX];
-    double number; ///< SET_PARAM: the parsed "value"; 0 otherwise
+    double number;   ///< SET_PARAM: the parsed "value"; 0 otherwise
+    const char* why; ///< rejected arguments: what was wrong (static text); NULL otherwise
 } hs_net_command;
 
 /// Value of argument key, or NULL when absent.

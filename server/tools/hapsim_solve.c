@@ -2,6 +2,7 @@
 // hapsim-solve: load a mesh, fix a region, apply gravity, and solve statically or run implicit
 // dynamics with a chosen element model. Writes the nodal displacement as CSV.
 #define _XOPEN_SOURCE 700 // realpath, stat
+#include "hapsim/version.h"
 #include "hapsim/body.h"
 #include "hapsim/mesh.h"
 #include "hapsim/mooney.h"
@@ -75,8 +76,8 @@ static const char* usage =
     "A flag that the chosen model, mode or solver does not read (e.g. --dt with --static,\n"
     "--precond without --solver pcg) is refused. The outputs' folders are checked first.\n"
     "\n"
-    "Exit status: 0 solved, 1 bad arguments or input (also an output that cannot be\n"
-    "written), 2 solver failure, 3 not converged.\n";
+    "Exit status: 0 solved, 1 bad input (a mesh, a sphere touching nothing), 2 bad usage\n"
+    "(also an output that cannot be written), 3 solver failure, 4 not converged.\n";
 
 static int parse_doubles(const char* s, double* v, int n) {
     const char* p = s;
@@ -174,7 +175,7 @@ static const char* const flag_name[] = {
 
 // The static probe reference (hs_press): the body's model and material, a sphere of radius r
 // brought to c along dir (NULL: the default approach). Prints the tool force; returns the
-// exit status (0 solved, 1 bad input such as a sphere touching nothing, 2 solver failure, 3 not
+// exit status (0 solved, 1 bad input such as a sphere touching nothing, 3 solver failure, 4 not
 // converged) and leaves the press in *out for the displacement output.
 static int run_probe(const hs_mesh* mesh, const hs_body_def* def, const unsigned char* fixed,
                      const double c[3], double r, const double* dir, hs_press** out,
@@ -190,7 +191,7 @@ static int run_probe(const hs_mesh* mesh, const hs_body_def* def, const unsigned
     if (s == HS_OK) s = hs_press_solve(*out, c, dir, st, &err);
     if (s != HS_OK) {
         fprintf(stderr, "hapsim-solve: probe: %s\n", err.msg);
-        return s == HS_ERR_INVALID ? 1 : s == HS_ERR_NOT_CONVERGED ? 3 : 2;
+        return s == HS_ERR_INVALID ? 1 : s == HS_ERR_NOT_CONVERGED ? 4 : 3;
     }
     printf("probe force N: %.9g,%.9g,%.9g\n", st->force_n[0], st->force_n[1], st->force_n[2]);
     return 0;
@@ -202,6 +203,7 @@ typedef struct plane_fix {
 } plane_fix;
 
 int main(int argc, char** argv) {
+    if (hapsim_version_asked(argc, argv, "hapsim-solve")) return 0;
     hs_sparse_blas_select(argv); // before any thread: it may re-execute the program
     const char *mesh_path = NULL, *out_path = NULL, *vtk_path = NULL;
     hs_body_def def = hs_body_default_def();
@@ -223,13 +225,13 @@ int main(int argc, char** argv) {
     do {                                                                                           \
         if (i + 1 >= argc) {                                                                       \
             fprintf(stderr, "hapsim-solve: %s needs a value\n", a);                                \
-            return 1;                                                                              \
+            return 2;                                                                              \
         }                                                                                          \
     } while (0)
 #define BAD(what)                                                                                  \
     do {                                                                                           \
         fprintf(stderr, "hapsim-solve: bad value for %s: '%s' (%s)\n", a, argv[i], what);          \
-        return 1;                                                                                  \
+        return 2;                                                                                  \
     } while (0)
 
     for (int i = 1; i < argc; ++i) {
@@ -254,7 +256,7 @@ int main(int argc, char** argv) {
                     lf_mode = HS_LOCKING_FREE_SNS;
                 else {
                     fprintf(stderr, "hapsim-solve: --locking-free: '%s' is not none|anp|sns\n", v);
-                    return 1;
+                    return 2;
                 }
             }
             given |= F_LOCKING_FREE;
@@ -264,7 +266,7 @@ int main(int argc, char** argv) {
             if (!parse_doubles(argv[++i], &v, 1) || !(v >= 0 && v < 1)) {
                 fprintf(stderr, "hapsim-solve: --locking-free-alpha: '%s' is not in [0, 1)\n",
                         argv[i]);
-                return 1;
+                return 2;
             }
             def.fem.locking_free_alpha = v;
             given |= F_LF_ALPHA;
@@ -460,33 +462,33 @@ int main(int argc, char** argv) {
             given |= F_PCG_ITERS;
         } else {
             fprintf(stderr, "hapsim-solve: unknown option '%s' (see --help)\n", a);
-            return 1;
+            return 2;
         }
     }
     if (!mesh_path || !out_path || !have_model) {
         fprintf(stderr, "hapsim-solve: --mesh, --model and --out are required (see --help)\n");
-        return 1;
+        return 2;
     }
     if (do_static == (steps > 0)) {
         fprintf(stderr, "hapsim-solve: give exactly one of --static or --steps N --dt S\n");
-        return 1;
+        return 2;
     }
     def.fem.locking_free = lf_mode >= 0 ? lf_mode : hs_fem_locking_free_default(def.fem.model);
     if ((given & F_LF_ALPHA) && def.fem.locking_free != HS_LOCKING_FREE_SNS) {
         fprintf(stderr, "hapsim-solve: --locking-free-alpha needs --locking-free sns\n");
-        return 1;
+        return 2;
     }
     if (mooney && !do_static) {
         fprintf(stderr, "hapsim-solve: --model mooney is a static reference: use --static\n");
-        return 1;
+        return 2;
     }
     if ((given & F_PROBE) && (!have_probe || probe_r <= 0)) {
         fprintf(stderr, "hapsim-solve: --probe X,Y,Z and --probe-radius R go together\n");
-        return 1;
+        return 2;
     }
     if (steps > 0 && !have_dt) {
         fprintf(stderr, "hapsim-solve: --steps needs --dt\n");
-        return 1;
+        return 2;
     }
     // A flag that nothing reads in this run would be silently ignored: refuse it, saying why.
     // Mooney has its own Newton solver and law; a static solve has no time step and no damping
@@ -526,18 +528,18 @@ int main(int argc, char** argv) {
             while (!(bad & 1u << b)) ++b;
             fprintf(stderr, "hapsim-solve: %s has no effect here: %s\n", flag_name[b],
                     rules[r].why);
-            return 1;
+            return 2;
         }
     }
     const char* outs[2] = {out_path, vtk_path};
     for (int k = 0; k < 2; ++k)
         if (outs[k] && !writable(outs[k])) {
             fprintf(stderr, "hapsim-solve: cannot write %s: %s\n", outs[k], strerror(errno));
-            return 1;
+            return 2;
         }
     if (vtk_path && same_file(out_path, vtk_path)) {
         fprintf(stderr, "hapsim-solve: --out and --vtk name the same file (%s)\n", out_path);
-        return 1;
+        return 2;
     }
 
     // From here on every exit goes through `done`, which frees what was made.
@@ -643,7 +645,7 @@ int main(int argc, char** argv) {
             total_ms = pst.wall_ms;
             iters = pst.newton;
             st.residual = pst.residual;
-            if (rc == 1 || rc == 2) goto done; // nothing to write: no answer
+            if (rc == 1 || rc == 3) goto done; // nothing to write: no answer
         } else if (do_static) {
             s = hs_body_solve_static(body, &st);
             total_ms = st.wall_ms;
@@ -661,11 +663,11 @@ int main(int argc, char** argv) {
     if (s < 0) {
         fprintf(stderr, "hapsim-solve: solver failed: %s%s%s\n", hs_status_str(s),
                 mooney && err.msg[0] ? ": " : "", mooney ? err.msg : "");
-        rc = 2;
+        rc = 3;
     } else if (s == HS_WARN_NOT_CONVERGED) {
         fprintf(stderr, "hapsim-solve: warning: not converged (residual ratio %.3g > %.3g)\n",
                 st.residual, def.static_tol);
-        rc = 3;
+        rc = 4;
     }
 
     // A failed solve writes nothing: its state is not an answer.
@@ -673,7 +675,7 @@ int main(int argc, char** argv) {
                       : press ? hs_press_displacement(press)
                               : hs_body_displacement(body);
     int wrote = 0;
-    if (rc != 2) {
+    if (rc != 3) {
         FILE* f = fopen(out_path, "w");
         if (!f) {
             fprintf(stderr, "hapsim-solve: cannot write %s: %s\n", out_path, strerror(errno));
@@ -725,7 +727,7 @@ int main(int argc, char** argv) {
             printf("wrote           %s\n", out_path);
         else
             printf("wrote           nothing (%s)\n",
-                   rc == 2 ? "the solve failed" : "the output failed");
+                   rc == 3 ? "the solve failed" : "the output failed");
     }
 done:
     hs_body_destroy(&body);

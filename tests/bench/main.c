@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim-bench: benchmarks that print CSV. Targets live in docs/benchmarks.md, not in tests.
 #define _POSIX_C_SOURCE 200809L
+#include "hapsim/version.h"
 #include "bench.h"
 #include "hapsim/sparse.h"
 
@@ -64,18 +65,17 @@ static int bench_blas(const hs_bench_args* a) {
 
 static const bench_cmd cmds[] = {
     {"blas", bench_blas, "the BLAS kernels in use (hs_sparse_blas_select may have chosen them)"},
-    {"core", hs_bench_core, "FEM step cost per model and mesh (issue 2)"},
-    {"accuracy", hs_bench_accuracy, "run time against error per model, solver, dt (issue 6)"},
+    {"core", hs_bench_core, "FEM step cost per model and mesh"},
+    {"accuracy", hs_bench_accuracy, "run time against error per model, solver, dt"},
     {"lockfree", hs_bench_lockfree, "locking-free options vs CalculiX's converged solution"},
-    {"stress", hs_bench_stress, "numerical stress cases: NaN, energy, inversion (issue 6)"},
-    {"haptic", hs_bench_haptic, "1 kHz loop with the compliance probe vs a bare loop (issue 3)"},
+    {"stress", hs_bench_stress, "numerical stress cases: NaN, energy, inversion"},
+    {"haptic", hs_bench_haptic, "1 kHz loop with the compliance probe vs a bare loop"},
     {"organs", hs_bench_organs, "server path on organ meshes: force at depth vs the static press"},
 #ifdef HS_BENCH_HAVE_CUT
     {"cut", hs_bench_cut, "cut step with factor update vs refactor and dense inverse (issue 7)"},
 #endif
 #ifdef HS_BENCH_HAVE_PROTOCOL
-    {"protocol", hs_bench_protocol,
-     "pose -> force round trip via hapsim-server vs bare LCM (issue 4)"},
+    {"protocol", hs_bench_protocol, "pose -> force round trip via hapsim-server vs bare LCM"},
 #endif
 };
 
@@ -88,10 +88,12 @@ static void usage(FILE* f) {
                "Run on an otherwise idle machine; compare ratios measured in one run.\n"
                "--meshes DIR holds the organ meshes (default: the shared meshes beside the\n"
                "source tree); a mesh not there is taken from scenes/ when bundled (liver2,\n"
-               "the skin patch), and a case whose mesh is missing fails with its path.\n");
+               "the skin patch), and a case whose mesh is missing fails with its path.\n"
+               "Exit status: 0 done, 1 a case failed, 2 bad usage.\n");
 }
 
 int main(int argc, char** argv) {
+    if (hapsim_version_asked(argc, argv, "hapsim-bench")) return 0;
     hs_sparse_blas_select(argv); // before any thread: it may re-execute the program
     hs_bench_args a = {0, HS_SHARED_MESHES};
     const char* cmd = NULL; // options may come before or after it
@@ -105,22 +107,22 @@ int main(int argc, char** argv) {
         } else if (!strcmp(argv[i], "--meshes")) {
             if (i + 1 >= argc) {
                 fprintf(stderr, "hapsim-bench: missing value for --meshes\n");
-                return 1;
+                return 2;
             }
             a.meshes = argv[++i];
         } else if (argv[i][0] == '-') {
             fprintf(stderr, "hapsim-bench: unknown option '%s'\n", argv[i]);
-            return 1;
+            return 2;
         } else if (cmd) {
             fprintf(stderr, "hapsim-bench: one command only (got '%s' and '%s')\n", cmd, argv[i]);
-            return 1;
+            return 2;
         } else {
             cmd = argv[i];
         }
     }
     if (!cmd) {
         usage(stderr);
-        return 1;
+        return 2;
     }
     int all = !strcmp(cmd, "all"), found = 0, rc = 0;
     if (strcmp(cmd, "blas"))
@@ -131,12 +133,12 @@ int main(int argc, char** argv) {
         found = 1;
         if (all) printf("# %s\n", cmds[i].name);
         fflush(stdout);
-        rc |= cmds[i].fn(&a);
+        if (cmds[i].fn(&a) != 0) rc = 1;
     }
     if (!found) {
         fprintf(stderr, "hapsim-bench: unknown command '%s'\n", cmd);
         usage(stderr);
-        return 1;
+        return 2;
     }
     return rc;
 }
