@@ -1,6 +1,6 @@
 #!/bin/sh
 # SPDX-License-Identifier: GPL-2.0-or-later
-# Issue 5 end to end: hapsim-server on the default liver scene and hapsim-stylus over real LCM.
+# End to end: hapsim-server on the default liver scene and hapsim-stylus over real LCM.
 # Run inside a private network namespace (tests/netns.sh), ttl=0, own ports; each part < 60 s.
 #   tests/test_e2e_stylus.sh PART BIN_DIR E2E_REACTION E2E_LOGDUMP SOURCE_DIR
 # PART: press | deep | passivity | kill_stylus | kill_server | golden | replay
@@ -214,6 +214,17 @@ kill_server)
     # kill -9 the server in the hold: the stylus ramps its force to exactly zero within its
     # own timeout (100 ms) of the last model's arrival.
     start_server 1
+    # First a second server on the same buses and prefix refuses to start (it hears the first
+    # one's topology or status) and the first one goes on; on another prefix it starts.
+    timeout 20 "$bin/hapsim-server" "$scene" --haptic-url "$H" --mesh-url "$M" >"$tmp/second.log" 2>&1
+    rc=$?
+    [ $rc = 1 ] && grep -q "another hapsim-server is serving prefix HAPSIM_" "$tmp/second.log" ||
+        fail "a second server on the same buses: rc $rc, $(cat "$tmp/second.log")"
+    grep "another hapsim-server" "$tmp/second.log"
+    timeout 20 "$bin/hapsim-server" "$scene" --haptic-url "$H" --mesh-url "$M" --prefix OTHER_ \
+        --duration 0.5 --quiet >"$tmp/other.log" 2>&1 ||
+        fail "a second server on another prefix: rc $?, $(cat "$tmp/other.log")"
+    kill -0 $srv || fail "the first server is gone"
     stylus "$tmp/k.csv" "$scripts/press_hold.probe" >"$tmp/sty.log" 2>&1 &
     sty=$!
     sleep 6.5

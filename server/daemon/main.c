@@ -43,10 +43,13 @@ static void usage(FILE* f) {
         "  --quiet           no start-up summary and no exit line\n"
         "  -h, --help        this text\n"
         "\n"
+        "Before it serves, the server listens ~1.25 s on its buses: another server already\n"
+        "serving the same prefix there (its topology, status or forces) stops this one.\n"
+        "\n"
         "Exit status: 0 after SIGINT/SIGTERM/SIGHUP or --duration; 1 on a bad scene (the message\n"
         "names the file, line and key), a bad --prefix, a URL longer than 255 bytes,\n"
-        "haptic and mesh URLs on the same bus or a run-time failure; 2 on an unknown\n"
-        "option, a missing or bad value, or no scene.\n");
+        "haptic and mesh URLs on the same bus, another server on the buses and prefix or a\n"
+        "run-time failure; 2 on an unknown option, a missing or bad value, or no scene.\n");
 }
 
 int main(int argc, char** argv) {

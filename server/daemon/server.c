@@ -2040,9 +2040,56 @@ static int handle_ready(hs_net_bus* b) {
     return 0;
 }
 
+static void count_foreign(const lcm_recv_buf_t* rb, const char* ch, void* user) {
+    (void)rb;
+    (void)ch;
+    ++*(int*)user;
+}
+
+// Another server on these buses and prefix would answer the same devices: a driver would get
+// two interleaved force streams. Listen before serving: a running server publishes its
+// topology every KEYFRAME_NS and its status, and forces while a device is live. 0: alone;
+// 1: another one is there (err set); -1: stopped meanwhile.
+static int another_server(hs_server* s, hs_err* err) {
+    int heard[3] = {0, 0, 0};
+    lcm_t* mb = hs_net_bus_lcm(s->mbus);
+    lcm_t* hb = hs_net_bus_lcm(s->hbus);
+    lcm_subscription_t* sub[3] = {lcm_subscribe(mb, s->ch_topo, count_foreign, &heard[0]),
+                                  lcm_subscribe(mb, s->ch_status, count_foreign, &heard[1]),
+                                  lcm_subscribe(hb, s->ch_force, count_foreign, &heard[2])};
+    const int64_t end = hs_now_ns() + KEYFRAME_NS + KEYFRAME_NS / 4;
+    int stopped = 0;
+    while (!heard[0] && !heard[1] && !heard[2] && !stopped) {
+        int64_t left = end - hs_now_ns();
+        if (left <= 0) break;
+        struct pollfd pf[3] = {{lcm_get_fileno(mb), POLLIN, 0},
+                               {lcm_get_fileno(hb), POLLIN, 0},
+                               {s->opt.stop_fd, POLLIN, 0}};
+        int n = poll(pf, s->opt.stop_fd >= 0 ? 3 : 2, (int)(left / 1000000) + 1);
+        if (n <= 0) continue;
+        if (pf[0].revents & POLLIN) lcm_handle(mb);
+        if (pf[1].revents & POLLIN) lcm_handle(hb);
+        if (s->opt.stop_fd >= 0 && (pf[2].revents & POLLIN)) stopped = 1;
+    }
+    for (int i = 0; i < 3; ++i)
+        if (sub[i]) lcm_unsubscribe(i < 2 ? mb : hb, sub[i]);
+    if (stopped) return -1;
+    if (!heard[0] && !heard[1] && !heard[2]) return 0;
+    hs_err_set(err, HS_ERR_INVALID,
+               "another hapsim-server is serving prefix %s on %s / %s (its %s arrived): a "
+               "device would get two force streams. Stop it, or give this one other buses "
+               "(--haptic-url, --mesh-url) or another --prefix",
+               s->prefix, s->haptic_url, s->mesh_url,
+               heard[2] ? "forces" : heard[0] ? "topology" : "status");
+    return 1;
+}
+
 hs_status hs_server_run(hs_server* s, hs_err* err) {
     int sfd = s->opt.stop_fd;
     world* w = &s->w;
+    int other = another_server(s, err);
+    if (other > 0) return HS_ERR_INVALID;
+    if (other < 0) return HS_OK; // SIGINT/SIGTERM while listening
     if (w->sim) {
         hs_status st = hs_haptic_sim_start(w->sim, err);
         if (st != HS_OK) return st;
