@@ -6,6 +6,8 @@
 #include "sparse_grid.h"
 #include "test_macros.h"
 
+#include <pthread.h>
+#include <stdatomic.h>
 #include <stdlib.h>
 
 static void fill_random(int n, double* x, uint64_t seed) {
@@ -1168,6 +1170,53 @@ static int NaturalOrderInPlace(void) {
     return 0;
 }
 
+// hs_parallel runners for the tests: every task in turn on this thread, or each on a thread.
+typedef struct par_log {
+    int calls, parts;
+    _Atomic int tasks;
+} par_log;
+
+typedef struct par_task {
+    hs_task_fn* task;
+    void* ctx;
+    int i;
+    par_log* log;
+} par_task;
+
+static void* par_task_main(void* a) {
+    par_task* p = a;
+    p->task(p->i, p->ctx);
+    atomic_fetch_add(&p->log->tasks, 1);
+    return NULL;
+}
+
+static void par_in_turn(int n, hs_task_fn* task, void* ctx, void* user) {
+    par_log* log = user;
+    log->calls++;
+    log->parts = n;
+    for (int i = n - 1; i >= 0; --i) { // backwards: no part may rely on another's having run
+        task(i, ctx);
+        atomic_fetch_add(&log->tasks, 1);
+    }
+}
+
+static void par_threads(int n, hs_task_fn* task, void* ctx, void* user) {
+    par_log* log = user;
+    log->calls++;
+    log->parts = n;
+    pthread_t t[HS_PARALLEL_MAX];
+    par_task a[HS_PARALLEL_MAX];
+    for (int i = 0; i < n; ++i) {
+        a[i] = (par_task){task, ctx, i, log};
+        if (pthread_create(&t[i], NULL, par_task_main, &a[i]) != 0) {
+            t[i] = 0;
+            par_task_main(&a[i]);
+        }
+    }
+    for (int i = 0; i < n; ++i)
+        if (t[i]) pthread_join(t[i], NULL);
+}
+
 // Diagonal 3x3 blocks of A^-1 from sparse forward solves agree with full solves: on the
 // supernodal factor, on the natural-order one and on an updatable (simplicial LDL') one;
 // a missing dof gives a zero row and column; bad input is refused.
@@ -1178,9 +1227,10 @@ static int InverseDiagBlocks(void) {
     const int n = t.a->n, nb = n / 3;
     int* dofs = malloc(sizeof(int) * 3 * (size_t)nb);
     double* blk = malloc(sizeof(double) * 9 * (size_t)nb);
+    double* blk2 = malloc(sizeof(double) * 9 * (size_t)nb);
     double* e = calloc((size_t)n, sizeof(double));
     double* col = malloc(sizeof(double) * (size_t)n);
-    ENSURE(dofs && blk && e && col);
+    ENSURE(dofs && blk && blk2 && e && col);
     for (int k = 0; k < 3 * nb; ++k) dofs[k] = k;
     dofs[3 * 5 + 1] = -1; // block 5 without its y dof
     hs_err err = {0};
@@ -1215,6 +1265,16 @@ static int InverseDiagBlocks(void) {
         const double* b5 = blk + 9 * 5;
         ENSURE(b5[1] == 0 && b5[3] == 0 && b5[4] == 0 && b5[5] == 0 && b5[7] == 0);
         ENSURE(b5[0] > 0 && b5[8] > 0);
+        // Split into parts (run in turn, then on threads): the same blocks bit for bit, and
+        // every part ran.
+        for (int width = 2; width <= 5; width += 3)
+            for (int threaded = 0; threaded < 2; ++threaded) {
+                par_log log = {0};
+                hs_parallel par = {threaded ? par_threads : par_in_turn, &log, width};
+                ENSURE(hs_cholesky_inverse_diag3_par(fs[v], nb, dofs, blk2, &par) == HS_OK);
+                ENSURE(memcmp(blk, blk2, sizeof(double) * 9 * (size_t)nb) == 0);
+                ENSURE(log.calls == 1 && log.parts == width && log.tasks == width);
+            }
     }
     printf("  %d blocks, worst difference from full solves %.2e (of the block's first entry)\n", nb,
            worst);
@@ -1223,10 +1283,14 @@ static int InverseDiagBlocks(void) {
     ENSURE(hs_cholesky_inverse_diag3(t.f, nb, dofs, blk) == HS_ERR_INVALID);
     ENSURE(hs_cholesky_inverse_diag3(NULL, nb, dofs, blk) == HS_ERR_INVALID);
     ENSURE(hs_cholesky_inverse_diag3(t.f, 0, NULL, NULL) == HS_OK);
+    dofs[0] = 0;
+    hs_parallel bad = {NULL, NULL, 2};
+    ENSURE(hs_cholesky_inverse_diag3_par(t.f, nb, dofs, blk2, &bad) == HS_ERR_INVALID);
     hs_cholesky_destroy(&nat);
     hs_cholesky_destroy(&upd);
     free(dofs);
     free(blk);
+    free(blk2);
     free(e);
     free(col);
     fixture_free(&t);

@@ -24,6 +24,7 @@
 #include "hapsim/fem.h"
 #include "hapsim/haptic.h"
 #include "hapsim/mesh.h"
+#include "hapsim/sparse.h"
 
 #ifdef __cplusplus
 extern "C" {
@@ -57,6 +58,11 @@ typedef struct hs_compliance hs_compliance;
 hs_status hs_compliance_create(const hs_mesh* mesh, const hs_fem_def* def,
                                const unsigned char* fixed, int cache_nodes, hs_compliance** out,
                                hs_err* err);
+/// As hs_compliance_create, the diagonal blocks split by par (hs_cholesky_inverse_diag3_par;
+/// NULL: on this thread). The same compliance bit for bit.
+hs_status hs_compliance_create_par(const hs_mesh* mesh, const hs_fem_def* def,
+                                   const unsigned char* fixed, int cache_nodes,
+                                   const hs_parallel* par, hs_compliance** out, hs_err* err);
 /// Release; accepts NULL, sets *c = NULL.
 void hs_compliance_destroy(hs_compliance** c);
 /// Wall time of hs_compliance_create (factor + all diagonal blocks), ms.

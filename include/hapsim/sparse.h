@@ -85,6 +85,25 @@ hs_status hs_cholesky_solve_many(hs_cholesky* f, int k, const double* b, double*
 /// dense triangular solve per 16. Allocates: yes (work arrays, 48 doubles per row of L, and a
 /// simplicial copy of a supernodal L; freed before return).
 hs_status hs_cholesky_inverse_diag3(hs_cholesky* f, int nb, const int* dofs, double* out);
+
+#define HS_PARALLEL_MAX 8 ///< parts one call splits its work into, at most
+
+/// Task i of a parallel job.
+typedef void hs_task_fn(int i, void* ctx);
+/// Parallelism from the caller (the sparse layer starts no thread): run(n, task, ctx, user)
+/// calls task(i, ctx) for every i in [0, n), at once on other threads or in turn, and returns
+/// when all have returned. width: how many parts to split a job into (1 .. HS_PARALLEL_MAX).
+typedef struct hs_parallel {
+    void (*run)(int n, hs_task_fn* task, void* ctx, void* user);
+    void* user;
+    int width;
+} hs_parallel;
+
+/// As hs_cholesky_inverse_diag3, the blocks split into par->width parts that par->run may
+/// solve at once (each part its own scratch; BLAS calls from several threads). par NULL: one
+/// part on this thread. Same results bit for bit whatever the split.
+hs_status hs_cholesky_inverse_diag3_par(hs_cholesky* f, int nb, const int* dofs, double* out,
+                                        const hs_parallel* par);
 /// Entries stored in the current factor (supernodal: including the unused upper parts of its
 /// dense blocks), a memory and cost indicator.
 int64_t hs_cholesky_factor_nnz(const hs_cholesky* f);

@@ -84,6 +84,12 @@ static void sol_block(const hs_compliance* c, int q, int row_node, double out[9]
 hs_status hs_compliance_create(const hs_mesh* mesh, const hs_fem_def* def,
                                const unsigned char* fixed, int cache_nodes, hs_compliance** out,
                                hs_err* err) {
+    return hs_compliance_create_par(mesh, def, fixed, cache_nodes, NULL, out, err);
+}
+
+hs_status hs_compliance_create_par(const hs_mesh* mesh, const hs_fem_def* def,
+                                   const unsigned char* fixed, int cache_nodes,
+                                   const hs_parallel* par, hs_compliance** out, hs_err* err) {
     if (out) *out = NULL;
     if (!mesh || !def || !out)
         return hs_err_set(err, HS_ERR_INVALID, "hs_compliance_create: NULL argument");
@@ -159,7 +165,7 @@ hs_status hs_compliance_create(const hs_mesh* mesh, const hs_fem_def* def,
         if (!dl) goto nomem;
         for (size_t q = 0; q < ns; ++q)
             for (int a = 0; a < 3; ++a) dl[3 * q + a] = c->dof[3 * mesh->surf_nodes[q] + a];
-        s = hs_cholesky_inverse_diag3(c->chol, c->n_surf, dl, c->diag);
+        s = hs_cholesky_inverse_diag3_par(c->chol, c->n_surf, dl, c->diag, par);
         hs_free(dl);
         if (s != HS_OK) {
             hs_compliance_destroy(&c);

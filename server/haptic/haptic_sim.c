@@ -31,6 +31,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
+#include <unistd.h>
 
 #define PROBE_COOKIE     0x50524f42
 #define SIM_COOKIE       0x48534d31
@@ -1086,13 +1087,46 @@ static void auto_solver_step(hs_haptic_sim* h, double body_ms, double snap_ms) {
         auto_switch(h, up);
 }
 
+// hs_parallel on threads of its own: task 0 on the caller, the others each on a new thread
+// (in turn on the caller when one cannot be started).
+typedef struct par_arg {
+    hs_task_fn* task;
+    void* ctx;
+    int i;
+} par_arg;
+
+static void* par_main(void* a) {
+    par_arg* p = a;
+    p->task(p->i, p->ctx);
+    return NULL;
+}
+
+static void par_run(int n, hs_task_fn* task, void* ctx, void* user) {
+    (void)user;
+    pthread_t t[HS_PARALLEL_MAX];
+    par_arg a[HS_PARALLEL_MAX];
+    int started[HS_PARALLEL_MAX] = {0};
+    for (int i = 1; i < n && i < HS_PARALLEL_MAX; ++i) {
+        a[i] = (par_arg){task, ctx, i};
+        started[i] = pthread_create(&t[i], NULL, par_main, &a[i]) == 0;
+        if (!started[i]) task(i, ctx);
+    }
+    task(0, ctx);
+    for (int i = 1; i < n && i < HS_PARALLEL_MAX; ++i)
+        if (started[i]) pthread_join(t[i], NULL);
+}
+
 // Background compliance set-up (def.background_setup): the worker builds it from the mesh, the
-// def and fixed0 (none of which change meanwhile: cutting waits for it).
+// def and fixed0 (none of which change meanwhile: cutting waits for it). Nothing else is busy
+// then (no force until it is ready): its diagonal blocks use every core.
 static void* setup_worker(void* arg) {
     hs_haptic_sim* h = arg;
     int64_t t0 = hs_now_ns();
-    h->su_status = hs_compliance_create(h->mesh, &h->def.body.fem, h->fixed0,
-                                        h->def.probe.cache_nodes, &h->su_comp, &h->su_err);
+    long cores = sysconf(_SC_NPROCESSORS_ONLN);
+    hs_parallel par = {par_run, NULL, cores < 1 ? 1 : cores > 4 ? 4 : (int)cores};
+    h->su_status = hs_compliance_create_par(h->mesh, &h->def.body.fem, h->fixed0,
+                                            h->def.probe.cache_nodes, &par, &h->su_comp,
+                                            &h->su_err);
     h->su_ms = (double)(hs_now_ns() - t0) * 1e-6;
     atomic_store_explicit(&h->su_done, 1, memory_order_release);
     return NULL;

@@ -838,9 +838,128 @@ __attribute__((target("avx2"))) static void
 diag_column_avx2(double* y, const int* li, const double* lx, int nz,
                  const double* restrict v){DIAG_COLUMN_BODY}
 
+// What every worker of hs_cholesky_inverse_diag3 reads, and each one's own scratch.
+typedef struct diag_job {
+    const int *Lp, *Li, *Lnz, *pinv, *parent, *dofs;
+    const double *Lx, *tl;
+    const int64_t* order;
+    int n, n0, T, nb, ldl, n_groups, n_parts;
+    void (*column)(double*, const int*, const double*, int, const double*);
+    double* out;
+    struct diag_ws {
+        int *mark, *list;
+        double *y, *ty;
+    } ws[HS_PARALLEL_MAX];
+} diag_job;
+
+// Groups of blocks from g_begin to g_end with workspace w (zeroed: y and ty are left zero).
+static void diag_groups(const diag_job* J, struct diag_ws* w, int g_begin, int g_end) {
+    enum { G = DIAG_GROUP, R = 3 * DIAG_GROUP };
+    const int *Lp = J->Lp, *Li = J->Li, *Lnz = J->Lnz, *dofs = J->dofs;
+    const double* Lx = J->Lx;
+    const int n0 = J->n0, T = J->T, nb = J->nb, ldl = J->ldl;
+    double *y = w->y, *ty = w->ty;
+    int *mark = w->mark, *list = w->list;
+    for (int gi = g_begin; gi < g_end; ++gi) {
+        const int g0 = gi * G, stamp = gi + 1;
+        const int ng = nb - g0 < G ? nb - g0 : G;
+        int m = 0;
+        for (int j = 0; j < ng; ++j) {
+            const int b = (int)(J->order[g0 + j] & 0xffffffff);
+            for (int a = 0; a < 3; ++a) {
+                const int q = dofs[3 * b + a] >= 0 ? J->pinv[dofs[3 * b + a]] : -1;
+                if (q < 0) continue;
+                y[(size_t)R * (size_t)q + (size_t)(3 * j + a)] = 1.0;
+                for (int k = q; k >= 0 && k < n0 && mark[k] != stamp; k = J->parent[k]) {
+                    mark[k] = stamp;
+                    list[m++] = k;
+                }
+            }
+        }
+        qsort(list, (size_t)m, sizeof(int), cmp_int_asc); // ancestors come later
+        for (int t = 0; t < m; ++t) {
+            const int k = list[t];
+            const double d = ldl ? 1.0 : Lx[Lp[k]]; // the diagonal comes first in a column
+            double* yk = y + (size_t)R * (size_t)k;
+            int any = 0;
+            for (int r = 0; r < R; ++r) {
+                yk[r] /= d;
+                any |= yk[r] != 0;
+            }
+            if (!any) continue;
+            J->column(y, Li + Lp[k] + 1, Lx + Lp[k] + 1, Lnz[k] - 1, yk);
+        }
+        double acc[G][6];
+        memset(acc, 0, sizeof acc);
+        for (int t = 0; t < m; ++t) {
+            double* yk = y + (size_t)R * (size_t)list[t];
+            const double wd = ldl ? 1.0 / Lx[Lp[list[t]]] : 1.0;
+            for (int j = 0; j < ng; ++j) {
+                const double* v = yk + 3 * j;
+                acc[j][0] += wd * v[0] * v[0];
+                acc[j][1] += wd * v[0] * v[1];
+                acc[j][2] += wd * v[0] * v[2];
+                acc[j][3] += wd * v[1] * v[1];
+                acc[j][4] += wd * v[1] * v[2];
+                acc[j][5] += wd * v[2] * v[2];
+            }
+            memset(yk, 0, R * sizeof(double));
+        }
+        if (T > 0) {
+            // The tail: its right-hand sides (unit loads there, the sparse part's updates), one
+            // dense triangular solve for the group.
+            for (int r = 0; r < 3 * ng; ++r)
+                for (int i = 0; i < T; ++i) {
+                    double* yi = y + (size_t)R * (size_t)(n0 + i) + r;
+                    ty[(size_t)T * (size_t)r + (size_t)i] = *yi;
+                    *yi = 0;
+                }
+            const int nr = 3 * ng;
+            const double one = 1.0;
+            dtrsm_("L", "L", "N", ldl ? "U" : "N", &T, &nr, &one, J->tl, &T, ty, &T);
+            for (int j = 0; j < ng; ++j) {
+                const double* r0 = ty + (size_t)T * (size_t)(3 * j);
+                const double *r1 = r0 + T, *r2 = r1 + T;
+                for (int i = 0; i < T; ++i) {
+                    const double wd = ldl ? 1.0 / Lx[Lp[n0 + i]] : 1.0;
+                    acc[j][0] += wd * r0[i] * r0[i];
+                    acc[j][1] += wd * r0[i] * r1[i];
+                    acc[j][2] += wd * r0[i] * r2[i];
+                    acc[j][3] += wd * r1[i] * r1[i];
+                    acc[j][4] += wd * r1[i] * r2[i];
+                    acc[j][5] += wd * r2[i] * r2[i];
+                }
+            }
+        }
+        for (int j = 0; j < ng; ++j) {
+            double* o = J->out + 9 * (size_t)(J->order[g0 + j] & 0xffffffff);
+            o[0] = acc[j][0];
+            o[1] = o[3] = acc[j][1];
+            o[2] = o[6] = acc[j][2];
+            o[4] = acc[j][3];
+            o[5] = o[7] = acc[j][4];
+            o[8] = acc[j][5];
+        }
+    }
+}
+
+// One contiguous share of the groups (neighbouring groups share most of their paths).
+static void diag_part(int part, void* ctx) {
+    diag_job* J = ctx;
+    const int per = (J->n_groups + J->n_parts - 1) / J->n_parts;
+    const int b = part * per, e = b + per < J->n_groups ? b + per : J->n_groups;
+    if (b < e) diag_groups(J, &J->ws[part], b, e);
+}
+
 hs_status hs_cholesky_inverse_diag3(hs_cholesky* f, int nb, const int* dofs, double* out) {
+    return hs_cholesky_inverse_diag3_par(f, nb, dofs, out, NULL);
+}
+
+hs_status hs_cholesky_inverse_diag3_par(hs_cholesky* f, int nb, const int* dofs, double* out,
+                                        const hs_parallel* par) {
     if (!f || !f->L || f->broken || nb < 0 || (nb > 0 && (!dofs || !out))) return HS_ERR_INVALID;
     if (f->L->xtype == CHOLMOD_PATTERN) return HS_ERR_INVALID;
+    if (par && (!par->run || par->width < 1 || par->width > HS_PARALLEL_MAX)) return HS_ERR_INVALID;
     install_allocator();
     apply_thread_limit();
     const int n = f->n;
@@ -860,53 +979,71 @@ hs_status hs_cholesky_inverse_diag3(hs_cholesky* f, int nb, const int* dofs, dou
         }
         S = copy;
     }
-    const int ldl = !S->is_ll; // then y = L^-1 e with unit L, and A^-1 = L^-T D^-1 L^-1
-    const int* Lp = S->p;
-    const int* Li = S->i;
-    const int* Lnz = S->nz;
-    const int* perm = S->Perm;
-    const double* Lx = S->x;
     enum { G = DIAG_GROUP, R = 3 * DIAG_GROUP };
-    void (*column)(double*, const int*, const double*, int, const double*) =
-        __builtin_cpu_supports("avx2") ? diag_column_avx2 : diag_column_base;
+    diag_job J;
+    memset(&J, 0, sizeof J);
+    J.ldl = !S->is_ll; // then y = L^-1 e with unit L, and A^-1 = L^-T D^-1 L^-1
+    J.Lp = S->p;
+    J.Li = S->i;
+    J.Lnz = S->nz;
+    J.Lx = S->x;
+    J.n = n;
+    J.nb = nb;
+    J.dofs = dofs;
+    J.out = out;
+    J.column = __builtin_cpu_supports("avx2") ? diag_column_avx2 : diag_column_base;
+    J.n_groups = (nb + G - 1) / G;
+    J.n_parts = par && J.n_groups > 1 ? (par->width < J.n_groups ? par->width : J.n_groups) : 1;
+    const int* perm = S->Perm;
     int* pinv = hs_alloc((size_t)n * sizeof(int));
     int* parent = hs_alloc((size_t)n * sizeof(int));
-    int* mark = hs_calloc((size_t)n, sizeof(int));
-    int* list = hs_alloc((size_t)n * sizeof(int));
     int64_t* order = hs_alloc((size_t)nb * sizeof(int64_t) + sizeof(int64_t));
-    double* y = hs_calloc((size_t)R * (size_t)n, sizeof(double)); // [n][R]: a group's loads
     double* tl = NULL; // [T * T] the dense tail of L, column-major (LDL^T: unit diagonal)
-    double* ty = NULL; // [T * R] right-hand sides of the tail, then its solution
     hs_status st = HS_OK;
-    if (!pinv || !parent || !mark || !list || !order || !y) {
+    if (!pinv || !parent || !order) {
         st = HS_ERR_NOMEM;
         goto done;
     }
     // The dense tail: columns n0 .. n-1, each holding at least DIAG_DENSITY of its rows.
     int n0 = n;
-    while (n0 > 0 && n - n0 < DIAG_DENSE_MAX && Lnz[n0 - 1] >= DIAG_DENSITY * (n - n0 + 1)) --n0;
+    while (n0 > 0 && n - n0 < DIAG_DENSE_MAX && J.Lnz[n0 - 1] >= DIAG_DENSITY * (n - n0 + 1)) --n0;
     const int T = n - n0 >= DIAG_DENSE_MIN ? n - n0 : 0;
     if (T == 0) n0 = n;
+    J.n0 = n0;
+    J.T = T;
+    for (int w = 0; w < J.n_parts; ++w) {
+        struct diag_ws* ws = &J.ws[w];
+        ws->mark = hs_calloc((size_t)n, sizeof(int));
+        ws->list = hs_alloc((size_t)n * sizeof(int));
+        ws->y = hs_calloc((size_t)R * (size_t)n, sizeof(double)); // [n][R]: a group's loads
+        ws->ty = T > 0 ? hs_calloc((size_t)T * R, sizeof(double)) : NULL; // the tail's
+        if (!ws->mark || !ws->list || !ws->y || (T > 0 && !ws->ty)) {
+            st = HS_ERR_NOMEM;
+            goto done;
+        }
+    }
     if (T > 0) {
         tl = hs_calloc((size_t)T * (size_t)T, sizeof(double));
-        ty = hs_calloc((size_t)T * R, sizeof(double));
-        if (!tl || !ty) {
+        if (!tl) {
             st = HS_ERR_NOMEM;
             goto done;
         }
         for (int k = n0; k < n; ++k)
-            for (int p = Lp[k]; p < Lp[k] + Lnz[k]; ++p)
-                tl[(size_t)(Li[p] - n0) + (size_t)T * (size_t)(k - n0)] = Lx[p];
-        if (ldl)
+            for (int p = J.Lp[k]; p < J.Lp[k] + J.Lnz[k]; ++p)
+                tl[(size_t)(J.Li[p] - n0) + (size_t)T * (size_t)(k - n0)] = J.Lx[p];
+        if (J.ldl)
             for (int k = 0; k < T; ++k) tl[(size_t)k * (size_t)(T + 1)] = 1.0;
     }
+    J.tl = tl;
     for (int k = 0; k < n; ++k) {
         pinv[perm ? perm[k] : k] = k;
-        int par = -1; // the first sub-diagonal row: the elimination-tree parent
-        for (int p = Lp[k] + 1; p < Lp[k] + Lnz[k]; ++p)
-            if (Li[p] > k && (par < 0 || Li[p] < par)) par = Li[p];
-        parent[k] = par;
+        int par_k = -1; // the first sub-diagonal row: the elimination-tree parent
+        for (int p = J.Lp[k] + 1; p < J.Lp[k] + J.Lnz[k]; ++p)
+            if (J.Li[p] > k && (par_k < 0 || J.Li[p] < par_k)) par_k = J.Li[p];
+        parent[k] = par_k;
     }
+    J.pinv = pinv;
+    J.parent = parent;
     // Blocks by the position of their first dof in L: neighbours in that order mostly share
     // their paths up the tree, so G of them are solved together, R right-hand sides per row of
     // L (contiguous: the inner loop vectorises, and each entry of L is loaded once per group).
@@ -917,95 +1054,22 @@ hs_status hs_cholesky_inverse_diag3(hs_cholesky* f, int nb, const int* dofs, dou
         order[b] = ((int64_t)key << 32) | (int64_t)b;
     }
     qsort(order, (size_t)nb, sizeof *order, cmp_i64_asc);
-    for (int g0 = 0, stamp = 1; g0 < nb; g0 += G, ++stamp) {
-        const int ng = nb - g0 < G ? nb - g0 : G;
-        int m = 0;
-        for (int j = 0; j < ng; ++j) {
-            const int b = (int)(order[g0 + j] & 0xffffffff);
-            for (int a = 0; a < 3; ++a) {
-                const int q = dofs[3 * b + a] >= 0 ? pinv[dofs[3 * b + a]] : -1;
-                if (q < 0) continue;
-                y[(size_t)R * (size_t)q + (size_t)(3 * j + a)] = 1.0;
-                for (int k = q; k >= 0 && k < n0 && mark[k] != stamp; k = parent[k]) {
-                    mark[k] = stamp;
-                    list[m++] = k;
-                }
-            }
-        }
-        qsort(list, (size_t)m, sizeof(int), cmp_int_asc); // ancestors come later
-        for (int t = 0; t < m; ++t) {
-            const int k = list[t];
-            const double d = ldl ? 1.0 : Lx[Lp[k]]; // the diagonal comes first in a column
-            double* yk = y + (size_t)R * (size_t)k;
-            int any = 0;
-            for (int r = 0; r < R; ++r) {
-                yk[r] /= d;
-                any |= yk[r] != 0;
-            }
-            if (!any) continue;
-            column(y, Li + Lp[k] + 1, Lx + Lp[k] + 1, Lnz[k] - 1, yk);
-        }
-        double acc[G][6];
-        memset(acc, 0, sizeof acc);
-        for (int t = 0; t < m; ++t) {
-            double* yk = y + (size_t)R * (size_t)list[t];
-            const double w = ldl ? 1.0 / Lx[Lp[list[t]]] : 1.0;
-            for (int j = 0; j < ng; ++j) {
-                const double* v = yk + 3 * j;
-                acc[j][0] += w * v[0] * v[0];
-                acc[j][1] += w * v[0] * v[1];
-                acc[j][2] += w * v[0] * v[2];
-                acc[j][3] += w * v[1] * v[1];
-                acc[j][4] += w * v[1] * v[2];
-                acc[j][5] += w * v[2] * v[2];
-            }
-            memset(yk, 0, R * sizeof(double));
-        }
-        if (T > 0) {
-            // The tail: its right-hand sides (unit loads there, the sparse part's updates), one
-            // dense triangular solve for the group.
-            for (int r = 0; r < 3 * ng; ++r)
-                for (int i = 0; i < T; ++i) {
-                    double* yi = y + (size_t)R * (size_t)(n0 + i) + r;
-                    ty[(size_t)T * (size_t)r + (size_t)i] = *yi;
-                    *yi = 0;
-                }
-            const int nr = 3 * ng;
-            const double one = 1.0;
-            dtrsm_("L", "L", "N", ldl ? "U" : "N", &T, &nr, &one, tl, &T, ty, &T);
-            for (int j = 0; j < ng; ++j) {
-                const double* r0 = ty + (size_t)T * (size_t)(3 * j);
-                const double *r1 = r0 + T, *r2 = r1 + T;
-                for (int i = 0; i < T; ++i) {
-                    const double w = ldl ? 1.0 / Lx[Lp[n0 + i]] : 1.0;
-                    acc[j][0] += w * r0[i] * r0[i];
-                    acc[j][1] += w * r0[i] * r1[i];
-                    acc[j][2] += w * r0[i] * r2[i];
-                    acc[j][3] += w * r1[i] * r1[i];
-                    acc[j][4] += w * r1[i] * r2[i];
-                    acc[j][5] += w * r2[i] * r2[i];
-                }
-            }
-        }
-        for (int j = 0; j < ng; ++j) {
-            double* o = out + 9 * (size_t)(order[g0 + j] & 0xffffffff);
-            o[0] = acc[j][0];
-            o[1] = o[3] = acc[j][1];
-            o[2] = o[6] = acc[j][2];
-            o[4] = acc[j][3];
-            o[5] = o[7] = acc[j][4];
-            o[8] = acc[j][5];
-        }
-    }
+    J.order = order;
+    if (J.n_parts > 1)
+        par->run(J.n_parts, diag_part, &J, par->user);
+    else
+        diag_part(0, &J);
 done:
+    for (int w = 0; w < HS_PARALLEL_MAX; ++w) {
+        hs_free(J.ws[w].mark);
+        hs_free(J.ws[w].list);
+        hs_free(J.ws[w].y);
+        hs_free(J.ws[w].ty);
+    }
     hs_free(tl);
-    hs_free(ty);
     hs_free(order);
     hs_free(pinv);
     hs_free(parent);
-    hs_free(mark);
-    hs_free(list);
-    hs_free(y);
     cholmod_free_factor(&copy, &f->c);
     return st;
 }
