@@ -215,8 +215,12 @@ int main(int argc, char** argv) {
             fprintf(stderr, "hapsim-ctl: %s\n", err.msg);
             rc = EXIT_USAGE;
         } else if (st != HS_OK) {
-            fprintf(stderr, "hapsim-ctl: %s: no answer from the server (%d attempts in %d ms)\n",
-                    cmd, ack.attempts, timeout_ms);
+            // The library's reason: no ack at all, or a PENDING one and then nothing.
+            if (ack.status == HAPSIM_COMMAND_ACK_T_STATUS_PENDING && ack.message[0])
+                fprintf(stderr, "hapsim-ctl: %s: %s (the server said: %s)\n", cmd, err.msg,
+                        ack.message);
+            else
+                fprintf(stderr, "hapsim-ctl: %s: %s (%d attempts)\n", cmd, err.msg, ack.attempts);
             rc = EXIT_NO_SERVER;
         } else if (ack.status != HAPSIM_COMMAND_ACK_T_STATUS_OK) {
             fprintf(stderr, "hapsim-ctl: %s %s: %s\n", cmd,

@@ -1,7 +1,10 @@
 // SPDX-License-Identifier: GPL-2.0-or-later
 // Scene files: the bundled liver scene loads; defaults; every malformed input fails with a
 // message naming the file, the line and the key; truncated files never crash.
+#define _POSIX_C_SOURCE 200809L // mkdtemp, mkfifo
 #include <stdlib.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
 #include "test_macros.h"
 
@@ -301,6 +304,19 @@ static int files_and_truncation(void) {
     ENSURE(hs_scene_load("/nonexistent/x.json", &s, &err) == HS_ERR_IO);
     ENSURE(strstr(err.msg, "/nonexistent/x.json") != NULL);
     ENSURE(hs_scene_load("/tmp", &s, &err) == HS_ERR_IO); // a directory
+    ENSURE(strstr(err.msg, "not a regular file (a folder)") != NULL);
+    // A FIFO with no writer is refused at once (open() would wait for a writer).
+    char fifo[] = "/tmp/hs_test_scene_XXXXXX";
+    ENSURE(mkdtemp(fifo) != NULL);
+    char fpath[64];
+    snprintf(fpath, sizeof fpath, "%s/scene.json", fifo);
+    ENSURE(mkfifo(fpath, 0600) == 0);
+    int64_t t0 = hs_now_ns();
+    ENSURE(hs_scene_load(fpath, &s, &err) == HS_ERR_IO);
+    ENSURE(strstr(err.msg, "not a regular file (a FIFO)") && strstr(err.msg, fpath));
+    ENSURE(hs_now_ns() - t0 < 2000000000LL);
+    unlink(fpath);
+    rmdir(fifo);
     // A mesh that does not exist is named with its resolved path.
     const char* text = "{\"mesh\": \"nope.msh\", \"fixed\": [{\"type\": \"box\", \"min\": [0,0,0],"
                        " \"max\": [1,1,1]}]}";

@@ -41,6 +41,7 @@
 #define MAX_DEV        HS_SCENE_MAX_DEVICES
 #define POSE_RING      64           // fed poses remembered for echoing in rt-output forces
 #define KEYFRAME_NS    1000000000LL // keyframe and topology period
+#define LOADER_STOP_WAIT_MS 3000    // at a stop, how long a scene build may take to return
 #define DELTA_EPS_M    1e-5f        // m: a visual node is listed in a delta when it moved more
 #define LIVE_NS        500000000LL  // live status line period
 #define PAUSE_RAMP_S   0.02         // forces ramp to zero over this after PAUSE, s
@@ -102,6 +103,7 @@ typedef struct loader {
     pthread_t th;
     int active;      // started and not yet joined
     atomic_int done; // the thread has finished: st, err and nw are its results
+    int abandoned;   // at the stop it had not returned (a file that blocks): never joined
     int realtime;
     char path[HS_SCENE_PATH_MAX]; // a LOAD_SCENE's argument or, for RESET, the running scene's
     int have_sc;                  // RESET, SET_PARAM: sc is the running scene as set
@@ -1590,6 +1592,26 @@ static void run_command(hs_server* s, const hs_net_command* c, int pending_sent)
 static void finish_load(hs_server* s, int stopping) {
     loader* L = &s->load;
     if (!L->active) return;
+    // A stop always stops: a build blocked in the kernel (a mesh on a hung mount) is left
+    // behind after a bounded wait, with the memory it writes to.
+    for (int i = 0; stopping && i < LOADER_STOP_WAIT_MS / 10 && !atomic_load(&L->done); ++i) {
+        struct timespec ts = {0, 10000000};
+        nanosleep(&ts, NULL);
+    }
+    if (stopping && !atomic_load(&L->done)) {
+        pthread_detach(L->th);
+        L->active = 0;
+        L->abandoned = 1;
+        s->loading = NULL;
+        fprintf(stderr,
+                "hapsim-server: the load of %s had not returned after %d ms (a file that "
+                "blocks?): left behind\n",
+                L->path, LOADER_STOP_WAIT_MS);
+        if (s->mbus)
+            send_ack(s, L->request_id, L->kind, HAPSIM_COMMAND_ACK_T_STATUS_FAILED,
+                     "the server stopped; the load had not returned (a file that blocks?)");
+        return;
+    }
     pthread_join(L->th, NULL);
     L->active = 0;
     s->loading = NULL;
@@ -1874,6 +1896,7 @@ void hs_server_destroy(hs_server** ps) {
     if (!ps || !*ps) return;
     hs_server* s = *ps;
     finish_load(s, 1);
+    const int keep = s->load.abandoned; // the abandoned loader may still write into s->load
     world_destroy(&s->w);
     hs_net_bus_destroy(&s->hbus);
     hs_net_bus_destroy(&s->mbus);
@@ -1885,7 +1908,7 @@ void hs_server_destroy(hs_server** ps) {
     hs_free(s->h_diff);
     hs_free(s->h_simper);
     for (int d = 0; d < MAX_DEV; ++d) hs_free(s->dev[d].lat);
-    hs_free(s);
+    if (!keep) hs_free(s);
     *ps = NULL;
 }
 

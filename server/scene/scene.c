@@ -4,6 +4,7 @@
 // file, the line and the key path, e.g. "liver.json:7: key 'material.poisson': ...".
 #define _DEFAULT_SOURCE // inet_aton
 #include "hapsim/scene.h"
+#include "base/open_regular.h"
 
 #include <arpa/inet.h>
 #include <cJSON.h>
@@ -807,9 +808,9 @@ hs_status hs_scene_parse(const char* text, const char* path, int check_files, hs
 hs_status hs_scene_load(const char* path, hs_scene* out, hs_err* err) {
     hs_scene_default(out);
     if (!path) return hs_err_set(err, HS_ERR_INVALID, "no scene file given");
-    FILE* f = fopen(path, "rb");
-    if (!f)
-        return hs_err_set(err, HS_ERR_IO, "%s: cannot open scene file: %s", path, strerror(errno));
+    FILE* f = NULL;
+    hs_status ost = hs_open_regular(path, &f, err);
+    if (ost != HS_OK) return ost;
     char* text = hs_alloc(MAX_SCENE_BYTES + 1);
     if (!text) {
         fclose(f);
