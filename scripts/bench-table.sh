@@ -10,6 +10,7 @@
 #                                           then --update. Long: run on an otherwise idle machine.
 # --run uses BUILD_BIN (default build/bin) and HS_MESHES (the organ meshes; default: hapsim-bench's
 # own). Exit status: 0 done, 1 a data file or a run failed, 2 bad usage.
+# shellcheck disable=SC2016 # backticks in single quotes are Markdown, not expansions
 set -eu
 root=$(cd "$(dirname "$0")/.." && pwd)
 data=$root/docs/data
@@ -138,8 +139,10 @@ core_row_step() {
     local t='co-rotated implicit step, 10k tets, one core: <= 10 ms' c='`hapsim-bench core`'
     local files=() f
     for f in bench-core.csv bench-core.txt; do [ -f "$data/$f" ] && files+=("$data/$f"); done
-    [ ${#files[@]} -gt 0 ] && [ -n "$(rows model,tets,dofs,solver,step_ms "${files[@]}" | head -n 1)" ] ||
-        { na "$t" "$c" core; return; }
+    if [ ${#files[@]} -eq 0 ] || [ -z "$(rows model,tets,dofs,solver,step_ms "${files[@]}" | head -n 1)" ]; then
+        na "$t" "$c" core
+        return
+    fi
     rows model,tets,dofs,solver,step_ms "${files[@]}" | cut -f2 | awk -F, -v src="$(link bench-core.txt)" "$AWK_LIB"'
         $10 == "cantilever-10k" && $1 == "corotated" && $4 == "warped" { upd("w", $5); n++ }
         $10 == "cantilever-10k" && $1 == "linear" && $4 == "cholmod" { upd("l", $5) }
@@ -248,7 +251,7 @@ cut_rows() {
 
 cut_server_row() {
     line 'cut step plus compliance valid again, on the server'"'"'s path: <= 2 ms at ~1.3k vertices, <= 10 ms at ~5k, <= 30 ms on a 10k-tet organ' \
-        '`hapsim-bench cut`' "see $(link bench-cut.csv)" \
+        '`hapsim-bench cut`' "see $([ -f "$data/bench-cut.csv" ] && link bench-cut.csv || echo '`docs/data/bench-cut.csv`')" \
         'no (the compliance is rebuilt from scratch in the background after a cut)'
 }
 
@@ -296,10 +299,10 @@ trap 'rm -f "$tmp" "$tmp.doc"' EXIT
 cat "$tmp"
 
 if [ $update = 1 ]; then
-    grep -q '^<!-- bench-table: begin' "$doc" && grep -q '^<!-- bench-table: end' "$doc" || {
+    if ! grep -q '^<!-- bench-table: begin' "$doc" || ! grep -q '^<!-- bench-table: end' "$doc"; then
         echo "bench-table: no bench-table markers in $doc" >&2
         exit 1
-    }
+    fi
     awk -v t="$tmp" '
         /^<!-- bench-table: begin/ { print; while ((getline l < t) > 0) print l; skip = 1; next }
         /^<!-- bench-table: end/ { skip = 0 }
