@@ -58,11 +58,22 @@ run_bench() {
             return 1
         }
         echo "bench-table: hapsim-bench $name ..." >&2
-        "$bin/hapsim-bench" "$name" "${meshes[@]}" >"$data/bench-$name.csv" 2>"$data/bench-$name.txt"
+        # into temporary files first, so that a failed run leaves the recorded files as they were
+        "$bin/hapsim-bench" "$name" "${meshes[@]}" >"$data/.bench-$name.csv" 2>"$data/.bench-$name.txt" || {
+            tail -n 3 "$data/.bench-$name.txt" >&2
+            rm -f "$data/.bench-$name.csv" "$data/.bench-$name.txt"
+            return 1
+        }
+        mv "$data/.bench-$name.csv" "$data/bench-$name.csv"
+        mv "$data/.bench-$name.txt" "$data/bench-$name.txt"
         ;;
     organ_timing)
         echo "bench-table: scripts/organ_timing.sh ..." >&2
-        "$root/scripts/organ_timing.sh" "$bin" "$data/organ_timing.csv" "direct default"
+        "$root/scripts/organ_timing.sh" "$bin" "$data/.organ_timing.csv" "direct default" || {
+            rm -f "$data/.organ_timing.csv"
+            return 1
+        }
+        mv "$data/.organ_timing.csv" "$data/organ_timing.csv"
         ;;
     *)
         echo "bench-table: unknown benchmark '$name' (core haptic cut protocol organ_timing)" >&2
