@@ -141,6 +141,15 @@ function upd(k, v) { if (!(k in mn) || v < mn[k]) mn[k] = v; if (!(k in mx) || v
 
 fail=0
 line() { printf '| %s | %s | %s | %s |\n' "$1" "$2" "$3" "$4"; }
+# One row per TARGET, with COMMAND, from the "result|met" lines on stdin.
+emit() {
+    local c=$1 t r m
+    shift
+    for t in "$@"; do
+        IFS='|' read -r r m
+        line "$t" "$c" "$r" "$m"
+    done
+}
 na() { # a row whose data file is missing
     fail=1
     line "$1" "$2" "no data file in docs/data/ (scripts/bench-table.sh --run $3)" "not measured"
@@ -162,7 +171,7 @@ core_row_step() {
             printf "cantilever-10k, %d runs: `warped` %s ms; linear %s ms; a CHOLMOD refactor every step %s ms (%s)|%s\n",
                 n, rng(mn["w"], mx["w"], "%.2f"), rng(mn["l"], mx["l"], "%.2f"),
                 rng(mn["r"], mx["r"], "%.1f"), src, (n && mx["w"] <= 10) ? "yes" : "no"
-        }' | { IFS='|' read -r r m; line "$t" "$c" "$r" "$m"; }
+        }' | emit "$c" "$t"
 }
 
 core_row_ratio() {
@@ -181,7 +190,7 @@ core_row_ratio() {
                 }
                 met = ok == k ? "yes" : ok == 0 ? "no" : sprintf("partly (%d of %d meshes)", ok, k)
                 printf "median of 5 alternating runs per mesh: %s (%s)|%s\n", s, src, met
-            }' | { IFS='|' read -r r m; line "$t" "$c" "$r" "$m"; }
+            }' | emit "$c" "$t"
 }
 
 haptic_rows() {
@@ -203,12 +212,7 @@ haptic_rows() {
                 m2 = within == n ? "yes" : within * 2 < n ? "no" : "partly"
                 printf "%d of %d cases within; the bare loop p99 itself %s us (%s)|%s\n",
                     within, n, rng(mn["b"], mx["b"], "%g"), src, m2
-            }' | {
-        IFS='|' read -r r m
-        line "$t1" "$c" "$r" "$m"
-        IFS='|' read -r r m
-        line "$t2" "$c" "$r" "$m"
-    }
+            }' | emit "$c" "$t1" "$t2"
 }
 
 protocol_row() {
@@ -228,7 +232,7 @@ protocol_row() {
                     n, rng(mn["s"], mx["s"], "%.1f"), rng(mn["e"], mx["e"], "%.1f"),
                     rng(r[1], r[n], "%.2f") "x", med, over, over == 1 ? "" : "s", src,
                     met == "partly" ? "partly (at the median, not in every run)" : met
-            }' | { IFS='|' read -r r m; line "$t" "$c" "$r" "$m"; }
+            }' | emit "$c" "$t"
 }
 
 cut_rows() {
@@ -252,12 +256,7 @@ cut_rows() {
                 extra = p[1] != "" ? sprintf("; one sweep per 10 ms, as in the server: p99 %.2f ms, %.2f ms with the background window (%s)", p[1], p[2], psrc) : ""
                 met = b99 > 10 ? (b50 <= 10 ? "partly (p50)" : "no") : (p[1] != "" && (p[1] > 10 || p[2] > 10)) ? "partly (not at p99 paced)" : "yes"
                 printf "p50 %.2f ms, p99 %.2f ms (%s)%s|%s\n", b50, b99, src, extra, met
-            }' | {
-        IFS='|' read -r r m
-        line "$t1" "$c" "$r" "$m"
-        IFS='|' read -r r m
-        line "$t2" "$c" "$r" "$m"
-    }
+            }' | emit "$c" "$t1" "$t2"
 }
 
 cut_server_row() {
@@ -283,12 +282,7 @@ organ_rows() {
                 sol, w, u, d, src, met
             printf "%s (%d tets) %.2f s; in the background: the server runs and answers zero force until it is ready (%s)|%s\n",
                 bm, bt, bs / 1000, src, bs <= 1000 ? "yes" : "no"
-        }' | {
-        IFS='|' read -r r m
-        line "$t1" "$c" "$r" "$m"
-        IFS='|' read -r r m
-        line "$t2" "$c" "$r" "$m"
-    }
+        }' | emit "$c" "$t1" "$t2"
 }
 
 tmp=$(mktemp)
