@@ -6,7 +6,6 @@
 #include <lcm/lcm.h>
 #include <math.h>
 #include <poll.h>
-#include <stdarg.h>
 #include <stdio.h>
 #include <stdatomic.h>
 #include <string.h>
@@ -70,34 +69,12 @@ struct hs_client {
     atomic_llong poses_sent;
 };
 
-static hs_status fail(hs_err* err, hs_status code, const char* fmt, ...)
-    __attribute__((format(printf, 3, 4)));
-static hs_status fail(hs_err* err, hs_status code, const char* fmt, ...) {
-    if (err) {
-        va_list ap;
-        va_start(ap, fmt);
-        err->code = code;
-        vsnprintf(err->msg, sizeof err->msg, fmt, ap);
-        va_end(ap);
-    }
-    return code;
-}
 
 const char* hs_client_status_str(hs_status s) {
-    switch (s) {
-    case HS_OK:
-        return "ok";
-    case HS_ERR_NOMEM:
-        return "out of memory";
-    case HS_ERR_INVALID:
-        return "invalid argument";
-    case HS_ERR_IO:
-        return "network failure or timeout";
-    case HS_ERR_PARSE:
-        return "malformed message";
-    default:
-        return "unexpected status";
-    }
+    // The client's two with their network meaning; the rest as everywhere.
+    if (s == HS_ERR_IO) return "network failure or timeout";
+    if (s == HS_ERR_PARSE) return "malformed message";
+    return hs_status_str(s);
 }
 
 int64_t hs_client_now_us(void) {
@@ -260,7 +237,7 @@ static hs_status sub(hs_client* c, int bus, int ch, const char* suffix, hs_err* 
     c->routes[ch].c = c;
     c->routes[ch].ch = ch;
     lcm_subscription_t* s = lcm_subscribe(c->bus[bus], name, on_raw, &c->routes[ch]);
-    if (!s) return fail(err, HS_ERR_IO, "hs_client_create: cannot subscribe to %s", name);
+    if (!s) return hs_err_set(err, HS_ERR_IO, "hs_client_create: cannot subscribe to %s", name);
     // Keep the newest messages rather than LCM's default 30 when a caller polls slowly.
     lcm_subscription_set_queue_capacity(s, ch == CH_FORCE ? 64 : 256);
     return HS_OK;
@@ -276,7 +253,7 @@ static int prefix_ok(const char* p) {
 }
 
 hs_status hs_client_create(const hs_client_config* cfg, hs_client** out, hs_err* err) {
-    if (!out) return fail(err, HS_ERR_INVALID, "hs_client_create: out is NULL");
+    if (!out) return hs_err_set(err, HS_ERR_INVALID, "hs_client_create: out is NULL");
     *out = NULL;
     hs_client_config def;
     if (!cfg) {
@@ -285,14 +262,14 @@ hs_status hs_client_create(const hs_client_config* cfg, hs_client** out, hs_err*
     }
     const char* prefix = cfg->prefix ? cfg->prefix : HAPSIM_DEFAULT_PREFIX;
     if (!prefix_ok(prefix))
-        return fail(err, HS_ERR_INVALID,
+        return hs_err_set(err, HS_ERR_INVALID,
                     "hs_client_create: prefix '%s' must be [A-Z0-9_]*, at most 47 bytes", prefix);
     if (cfg->sender &&
         (strlen(cfg->sender) > HAPSIM_CMD_SENDER_MAX || !hapsim_cmd_text_ok(cfg->sender)))
-        return fail(err, HS_ERR_INVALID,
+        return hs_err_set(err, HS_ERR_INVALID,
                     "hs_client_create: sender longer than 63 bytes or with control bytes");
     hs_client* c = hs_client_calloc(1, sizeof *c);
-    if (!c) return fail(err, HS_ERR_NOMEM, "hs_client_create: out of memory");
+    if (!c) return hs_err_set(err, HS_ERR_NOMEM, "hs_client_create: out of memory");
     atomic_init(&c->poses_sent, 0);
     snprintf(c->prefix, sizeof c->prefix, "%s", prefix);
     hapsim_channel_name(c->ch_pose, sizeof c->ch_pose, c->prefix, HAPSIM_CH_TOOL_POSE);
@@ -324,29 +301,29 @@ hs_status hs_client_create(const hs_client_config* cfg, hs_client** out, hs_err*
     const char* bad_url = hapsim_url_problem(hurl) ? hurl : murl;
     const char* why = hapsim_url_problem(bad_url);
     if (why) {
-        s = fail(err, HS_ERR_INVALID, "hs_client_create: LCM URL '%s' %s", bad_url, why);
+        s = hs_err_set(err, HS_ERR_INVALID, "hs_client_create: LCM URL '%s' %s", bad_url, why);
         goto bad;
     }
     if (hurl[0]) {
         c->bus[0] = lcm_create(hurl);
         if (!c->bus[0]) {
-            s = fail(err, HS_ERR_IO, "hs_client_create: LCM cannot open the haptic URL '%s'", hurl);
+            s = hs_err_set(err, HS_ERR_IO, "hs_client_create: LCM cannot open the haptic URL '%s'", hurl);
             goto bad;
         }
     }
     if (murl[0]) {
         c->bus[1] = lcm_create(murl);
         if (!c->bus[1]) {
-            s = fail(err, HS_ERR_IO, "hs_client_create: LCM cannot open the mesh URL '%s'", murl);
+            s = hs_err_set(err, HS_ERR_IO, "hs_client_create: LCM cannot open the mesh URL '%s'", murl);
             goto bad;
         }
     }
     if ((sb & HS_CLIENT_SUB_FORCE) && !c->bus[0]) {
-        s = fail(err, HS_ERR_INVALID, "hs_client_create: forces need the haptic bus");
+        s = hs_err_set(err, HS_ERR_INVALID, "hs_client_create: forces need the haptic bus");
         goto bad;
     }
     if ((sb & ~(uint32_t)HS_CLIENT_SUB_FORCE) && !c->bus[1]) {
-        s = fail(err, HS_ERR_INVALID, "hs_client_create: mesh/status/commands need the mesh bus");
+        s = hs_err_set(err, HS_ERR_INVALID, "hs_client_create: mesh/status/commands need the mesh bus");
         goto bad;
     }
     if ((sb & HS_CLIENT_SUB_FORCE) && (s = sub(c, 0, CH_FORCE, HAPSIM_CH_TOOL_FORCE, err)) != HS_OK)
@@ -410,7 +387,7 @@ static int poll_buses(hs_client* c, int timeout_ms, hs_err* err) {
             fds[nf].events = POLLIN;
             map[nf++] = b;
         }
-    if (!nf) return fail(err, HS_ERR_INVALID, "hs_client_poll: no bus open");
+    if (!nf) return hs_err_set(err, HS_ERR_INVALID, "hs_client_poll: no bus open");
     int64_t start = c->handled;
     // Wait once, then drain whatever is queued without waiting (bounded, so a flood cannot
     // keep the caller here forever).
@@ -418,16 +395,16 @@ static int poll_buses(hs_client* c, int timeout_ms, hs_err* err) {
         int r = poll(fds, (nfds_t)nf, round == 0 ? timeout_ms : 0);
         if (r < 0) {
             if (errno == EINTR) break;
-            return fail(err, HS_ERR_IO, "hs_client_poll: poll: %s", strerror(errno));
+            return hs_err_set(err, HS_ERR_IO, "hs_client_poll: poll: %s", strerror(errno));
         }
         if (r == 0) break;
         for (int i = 0; i < nf; i++) {
             if (fds[i].revents & (POLLERR | POLLNVAL))
-                return fail(err, HS_ERR_IO, "hs_client_poll: LCM socket error");
+                return hs_err_set(err, HS_ERR_IO, "hs_client_poll: LCM socket error");
             if ((fds[i].revents & POLLIN) && lcm_handle(c->bus[map[i]]) != 0)
-                return fail(err, HS_ERR_IO, "hs_client_poll: lcm_handle failed");
+                return hs_err_set(err, HS_ERR_IO, "hs_client_poll: lcm_handle failed");
             if (c->destroy_refused)
-                return fail(err, HS_ERR_INVALID,
+                return hs_err_set(err, HS_ERR_INVALID,
                             "hs_client_destroy called from a callback: refused (the handle is "
                             "still open; destroy it after hs_client_poll returns)");
         }
@@ -437,7 +414,7 @@ static int poll_buses(hs_client* c, int timeout_ms, hs_err* err) {
 
 int hs_client_poll(hs_client* c, int timeout_ms, hs_err* err) {
     if (c->in_poll)
-        return fail(err, HS_ERR_INVALID,
+        return hs_err_set(err, HS_ERR_INVALID,
                     "hs_client_poll: called from a callback (already inside hs_client_poll)");
     c->in_poll = 1;
     c->destroy_refused = 0;
@@ -451,20 +428,20 @@ int hs_client_poll(hs_client* c, int timeout_ms, hs_err* err) {
 // Driver side.
 
 hs_status hs_client_send_pose(hs_client* c, const hs_client_pose* p, hs_err* err) {
-    if (!c->bus[0]) return fail(err, HS_ERR_INVALID, "hs_client_send_pose: no haptic bus");
+    if (!c->bus[0]) return hs_err_set(err, HS_ERR_INVALID, "hs_client_send_pose: no haptic bus");
     if (p->device_id < 0 || p->device_id >= HS_CLIENT_MAX_DEVICES || p->tool_id < 0)
-        return fail(err, HS_ERR_INVALID, "hs_client_send_pose: device %d / tool %d out of range",
+        return hs_err_set(err, HS_ERR_INVALID, "hs_client_send_pose: device %d / tool %d out of range",
                     p->device_id, p->tool_id);
     double qn = 0;
     for (int i = 0; i < 4; i++) qn += p->orientation[i] * p->orientation[i];
     for (int i = 0; i < 3; i++)
         if (!isfinite(p->position[i]))
-            return fail(err, HS_ERR_INVALID, "hs_client_send_pose: position not finite");
+            return hs_err_set(err, HS_ERR_INVALID, "hs_client_send_pose: position not finite");
     if (!isfinite(qn) || fabs(sqrt(qn) - 1) > 1e-3)
-        return fail(err, HS_ERR_INVALID,
+        return hs_err_set(err, HS_ERR_INVALID,
                     "hs_client_send_pose: orientation is not a unit quaternion");
     if (p->buttons & ~(HAPSIM_TOOL_POSE_T_BUTTON_PRIMARY | HAPSIM_TOOL_POSE_T_BUTTON_CLUTCH))
-        return fail(err, HS_ERR_INVALID, "hs_client_send_pose: unknown button bits 0x%x",
+        return hs_err_set(err, HS_ERR_INVALID, "hs_client_send_pose: unknown button bits 0x%x",
                     (unsigned)p->buttons);
     hapsim_tool_pose_t m;
     memset(&m, 0, sizeof m);
@@ -481,7 +458,7 @@ hs_status hs_client_send_pose(hs_client* c, const hs_client_pose* p, hs_err* err
     int len = hapsim_tool_pose_t_encoded_size(&m);
     if (len > (int)sizeof buf || hapsim_tool_pose_t_encode(buf, 0, len, &m) != len ||
         lcm_publish(c->bus[0], c->ch_pose, buf, (unsigned)len) != 0)
-        return fail(err, HS_ERR_IO, "hs_client_send_pose: publish on %s failed", c->ch_pose);
+        return hs_err_set(err, HS_ERR_IO, "hs_client_send_pose: publish on %s failed", c->ch_pose);
     atomic_fetch_add_explicit(&c->poses_sent, 1, memory_order_relaxed);
     return HS_OK;
 }
@@ -537,22 +514,22 @@ static const hs_wire_ack* find_ack(const hs_client* c, int64_t id) {
 hs_status hs_client_command(hs_client* c, int32_t kind, int n_args, const char* const* keys,
                             const char* const* values, int timeout_ms, int retry_ms,
                             hs_client_ack* ack, hs_err* err) {
-    if (!c->bus[1]) return fail(err, HS_ERR_INVALID, "hs_client_command: no mesh bus");
+    if (!c->bus[1]) return hs_err_set(err, HS_ERR_INVALID, "hs_client_command: no mesh bus");
     if (!c->routes[CH_ACK].c)
-        return fail(err, HS_ERR_INVALID, "hs_client_command: created without SUB_COMMANDS");
+        return hs_err_set(err, HS_ERR_INVALID, "hs_client_command: created without SUB_COMMANDS");
     if (kind < HAPSIM_COMMAND_T_KIND_RESET || kind > HAPSIM_COMMAND_T_KIND_REQUEST_TOPOLOGY)
-        return fail(err, HS_ERR_INVALID, "hs_client_command: unknown kind %d", kind);
+        return hs_err_set(err, HS_ERR_INVALID, "hs_client_command: unknown kind %d", kind);
     if (n_args < 0 || n_args > 8 || (n_args && (!keys || !values)))
-        return fail(err, HS_ERR_INVALID, "hs_client_command: n_args %d not in 0..8", n_args);
+        return hs_err_set(err, HS_ERR_INVALID, "hs_client_command: n_args %d not in 0..8", n_args);
     for (int i = 0; i < n_args; i++) // what the shared rules below take for granted
         if (!keys[i] || !values[i] || strlen(values[i]) > HAPSIM_CMD_TEXT_MAX)
-            return fail(err, HS_ERR_INVALID,
+            return hs_err_set(err, HS_ERR_INVALID,
                         "hs_client_command: argument %d missing or its value over 255 bytes", i);
     // What the server would refuse as INVALID is refused here (its rules, shared).
     double number;
     const char* why;
     if (hapsim_cmd_args_check(kind, n_args, keys, values, &number, &why) != HAPSIM_CMD_ARGS_OK)
-        return fail(err, HS_ERR_INVALID, "hs_client_command: %s", why);
+        return hs_err_set(err, HS_ERR_INVALID, "hs_client_command: %s", why);
     if (timeout_ms <= 0) timeout_ms = 2000;
     if (retry_ms <= 0) retry_ms = 250;
     hapsim_command_t m;
@@ -589,11 +566,11 @@ hs_status hs_client_command(hs_client* c, int32_t kind, int n_args, const char* 
             m.seq = c->command_seq++;
             int len = hapsim_command_t_encoded_size(&m);
             if (len > (int)sizeof buf)
-                return fail(err, HS_ERR_INVALID, "hs_client_command: %d bytes encoded (at most %d)",
+                return hs_err_set(err, HS_ERR_INVALID, "hs_client_command: %d bytes encoded (at most %d)",
                             len, (int)sizeof buf);
             if (hapsim_command_t_encode(buf, 0, len, &m) != len ||
                 lcm_publish(c->bus[1], c->ch_command, buf, (unsigned)len) != 0)
-                return fail(err, HS_ERR_IO, "hs_client_command: publish on %s failed",
+                return hs_err_set(err, HS_ERR_IO, "hs_client_command: publish on %s failed",
                             c->ch_command);
             ack->attempts++;
             // From a callback (inside hs_client_poll) nothing can be waited for: sent once.
@@ -614,7 +591,7 @@ hs_status hs_client_command(hs_client* c, int32_t kind, int n_args, const char* 
         }
         now = hs_client_now_us();
         if (now >= deadline)
-            return fail(err, HS_ERR_IO, "hs_client_command: no %sack for request %lld after %d ms",
+            return hs_err_set(err, HS_ERR_IO, "hs_client_command: no %sack for request %lld after %d ms",
                         pending ? "final " : "", (long long)m.request_id, timeout_ms);
         int64_t wait = (next_send < deadline ? next_send : deadline) - now;
         int r = hs_client_poll(c, (int)((wait + 999) / 1000), err);

@@ -16,12 +16,12 @@ fi
 src=${1:?usage: check_deps.sh [--self-test] SOURCE_DIR}
 
 # Project headers each module may include besides its own folder's. base/X: server/base.
-BASE="hapsim/base.h hapsim/version.h"
+BASE="hapsim/base.h hapsim/status.h hapsim/version.h"
 MESH="$BASE hapsim/mesh.h"
 SPARSE="$BASE hapsim/sparse.h"
 FEM="$MESH hapsim/sparse.h hapsim/fem.h hapsim/body.h hapsim/mooney.h hapsim/press.h"
 CUT="$FEM hapsim/cut.h"
-PROTO="hapsim/client.h hapsim/base.h hapsim/version.h msgs:*"
+PROTO="hapsim/client.h hapsim/status.h hapsim/base.h hapsim/version.h msgs:*"
 allowed() { # MODULE -> the list; "msgs:*" is any msgs/ header, "base/*" any server/base one
     case $1 in
     server/base) echo "$BASE" ;;
@@ -43,7 +43,7 @@ allowed() { # MODULE -> the list; "msgs:*" is any msgs/ header, "base/*" any ser
 # The public headers belong to modules and follow their rules.
 owner() {
     case $1 in
-    base.h | version.h) echo server/base ;;
+    base.h | status.h | version.h) echo server/base ;;
     mesh.h) echo server/mesh ;;
     mesher.h | surface.h) echo server/mesher ;;
     sparse.h) echo server/sparse ;;

@@ -15,7 +15,7 @@ trap 'rm -rf "$tmp"' EXIT
 prefix=$tmp/prefix
 cmake --install "$build" --component client --prefix "$prefix" >"$tmp/install.log" 2>&1 ||
     { cat "$tmp/install.log"; echo "FAIL: cmake --install"; exit 1; }
-for f in include/hapsim/client.h include/hapsim/base.h include/hapsim/lcmtypes/hapsim_tool_pose_t.h \
+for f in include/hapsim/client.h include/hapsim/status.h include/hapsim/lcmtypes/hapsim_tool_pose_t.h \
          include/hapsim/lcmtypes/hapsim_channels.h bin/hapsim-view bin/hapsim-ctl; do
     [ -e "$prefix/$f" ] || { echo "FAIL: $f not installed"; exit 1; }
 done
@@ -49,6 +49,10 @@ int main(void) {
     if (hs_mesh_sync_feed(s, HS_SYNC_STATE, junk, sizeof junk) != HS_SYNC_MALFORMED) return 1;
     hs_mesh_sync_destroy(&s);
     hs_client_destroy(&c);
+    /* The installed status.h's functions are in the library. */
+    if (strcmp(hs_status_str(HS_ERR_NOMEM), "out of memory") != 0) return 1;
+    hs_err e2 = {0};
+    if (hs_err_set(&e2, HS_ERR_IO, "x %d", 1) != HS_ERR_IO || strcmp(e2.msg, "x 1") != 0) return 1;
     printf("consumer ok: %lld pose sent, default prefix %s, %lld bytes left\n",
            (long long)st.poses_sent, HAPSIM_DEFAULT_PREFIX, (long long)hs_client_byte_count());
     return st.poses_sent == 1 && hs_client_byte_count() == 0 && c == NULL ? 0 : 1;

@@ -22,7 +22,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#include "hapsim/base.h"
+#include "hapsim/status.h"
 
 #ifdef __cplusplus
 extern "C" {
