@@ -149,6 +149,7 @@ struct hs_server {
     hs_net_pose_state pst;
     hs_net_command_state cst;
     int64_t params_refused; // SET_PARAM acked INVALID: an unknown name or a value out of range
+    int64_t kdrop0[2];      // the kernel's drops on the haptic / mesh bus sockets at start
 
     dev_state dev[MAX_DEV];
     int64_t feed_seq; // poses fed to rt (rt's pose seq)
@@ -993,6 +994,13 @@ static double cut_quantile(hs_server* s, double q) {
     return s->cut_sort[k < n ? k : n - 1];
 }
 
+// Datagrams the kernel dropped on bus b (0 haptic, 1 mesh) since the server started (their
+// messages never reached a handler to be counted); 0 when the kernel cannot tell.
+static int64_t kernel_drops(const hs_server* s, int b) {
+    int64_t v = hs_net_bus_kernel_drops(b ? s->mbus : s->hbus);
+    return v >= 0 && s->kdrop0[b] >= 0 && v > s->kdrop0[b] ? v - s->kdrop0[b] : 0;
+}
+
 static void publish_status(hs_server* s, int64_t t) {
     world* w = &s->w;
     double win = (double)(t - s->stat_ns) * 1e-9;
@@ -1109,10 +1117,10 @@ static void publish_status(hs_server* s, int64_t t) {
     m.latency_p99_us = l99;
     m.force_norm = fnorm;
 
-    char* rch[2 * HS_NET_REJ_COUNT + 1];
-    char* rreason[2 * HS_NET_REJ_COUNT + 1];
-    char rname[2 * HS_NET_REJ_COUNT + 1][32];
-    int64_t rcount[2 * HS_NET_REJ_COUNT + 1];
+    char* rch[2 * HS_NET_REJ_COUNT + 3];
+    char* rreason[2 * HS_NET_REJ_COUNT + 3];
+    char rname[2 * HS_NET_REJ_COUNT + 3][32];
+    int64_t rcount[2 * HS_NET_REJ_COUNT + 3];
     int nr = 0;
     const hs_net_counters* cs[2] = {&s->pst.counters, &s->cst.counters};
     char* cn[2] = {HAPSIM_CH_TOOL_POSE, HAPSIM_CH_COMMAND};
@@ -1129,6 +1137,14 @@ static void publish_status(hs_server* s, int64_t t) {
         snprintf(rname[nr], sizeof rname[nr], "parameter");
         rreason[nr] = rname[nr];
         rcount[nr++] = s->params_refused;
+    }
+    for (int b = 0; b < 2; ++b) { // lost before any handler saw them: a full receive buffer
+        int64_t k = kernel_drops(s, b);
+        if (!k) continue;
+        rch[nr] = b ? "MESH_BUS" : "HAPTIC_BUS";
+        snprintf(rname[nr], sizeof rname[nr], "kernel_drop");
+        rreason[nr] = rname[nr];
+        rcount[nr++] = k;
     }
     m.n_rejects = nr;
     m.reject_channel = rch;
@@ -1871,6 +1887,8 @@ hs_status hs_server_create(const hs_server_opts* opts, hs_server** out, hs_err* 
     if (st != HS_OK) goto fail;
     st = hs_net_bus_create(s->mesh_url, &s->mbus, err);
     if (st != HS_OK) goto fail;
+    s->kdrop0[0] = hs_net_bus_kernel_drops(s->hbus);
+    s->kdrop0[1] = hs_net_bus_kernel_drops(s->mbus);
     st = world_create(&sc, opts->realtime, &s->w, err);
     if (st != HS_OK) goto fail;
     reset_limits(s);
@@ -2257,6 +2275,11 @@ hs_status hs_server_run(hs_server* s, hs_err* err) {
                (double)(hs_now_ns() - s->start_ns) * 1e-9, (long long)s->poses_total,
                (long long)s->forces_total, (unsigned long long)rejected_total(s),
                (unsigned long long)retried_total(s));
+        const int64_t kd[2] = {kernel_drops(s, 0), kernel_drops(s, 1)};
+        if (kd[0] || kd[1])
+            printf("hapsim-server: the kernel dropped %lld datagrams on the haptic bus and %lld on "
+                   "the mesh bus (receive buffers full: docs/server.md)\n",
+                   (long long)kd[0], (long long)kd[1]);
         if (s->w.sim) {
             hs_haptic_sim_stats st;
             hs_haptic_sim_stats_get(s->w.sim, &st);

@@ -1,14 +1,17 @@
 // SPDX-License-Identifier: GPL-2.0-or-later
 // LCM bus wrapper: create, poll()-based handle, URL and kernel buffer queries.
+#define _POSIX_C_SOURCE 200809L // readlink
 #include "bus.h"
 
 #include "hapsim_channels.h"
 
+#include <dirent.h>
 #include <errno.h>
 #include <poll.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 struct hs_net_bus {
     lcm_t* lcm;
@@ -67,6 +70,61 @@ int hs_net_bus_handle(hs_net_bus* bus, int timeout_ms) {
     if (r == 0) return 0;
     if (pfd.revents & (POLLERR | POLLNVAL)) return -1;
     return lcm_handle(bus->lcm) == 0 ? 1 : -1;
+}
+
+// The port of a udpm://GROUP:PORT URL, or -1.
+static int url_port(const char* url) {
+    const char* h = strstr(url, "://");
+    const char* c = h ? strchr(h + 3, ':') : NULL;
+    if (!c) return -1;
+    char* end = NULL;
+    long p = strtol(c + 1, &end, 10);
+    return end != c + 1 && p > 0 && p < 65536 ? (int)p : -1;
+}
+
+int64_t hs_net_bus_kernel_drops(const hs_net_bus* bus) {
+    const int port = url_port(bus->url);
+    if (port < 0) return -1;
+    // This process's socket inodes (LCM owns the sockets; /proc/self/fd names them).
+    unsigned long ino[64];
+    int n = 0;
+    DIR* d = opendir("/proc/self/fd");
+    if (!d) return -1;
+    for (struct dirent* e; (e = readdir(d)) && n < 64;) {
+        char path[300], link[64];
+        snprintf(path, sizeof path, "/proc/self/fd/%s", e->d_name);
+        ssize_t k = readlink(path, link, sizeof link - 1);
+        if (k <= 0) continue;
+        link[k] = '\0';
+        unsigned long i;
+        if (sscanf(link, "socket:[%lu]", &i) == 1) ino[n++] = i;
+    }
+    closedir(d);
+    int64_t drops = 0;
+    int found = 0;
+    const char* tables[2] = {"/proc/net/udp", "/proc/net/udp6"};
+    for (int t = 0; t < 2; ++t) {
+        FILE* f = fopen(tables[t], "r");
+        if (!f) continue;
+        char line[512];
+        if (!fgets(line, sizeof line, f)) line[0] = '\0'; // the header
+        while (fgets(line, sizeof line, f)) {
+            unsigned lport;
+            unsigned long inode;
+            long long dr;
+            // sl local:port remote st tx:rx tr:when retrnsmt uid timeout inode ref ptr drops
+            if (sscanf(line, " %*s %*[0-9A-Fa-f]:%x %*s %*s %*s %*s %*s %*s %*s %lu %*s %*s %lld",
+                       &lport, &inode, &dr) != 3 || (int)lport != port)
+                continue;
+            for (int q = 0; q < n; ++q)
+                if (ino[q] == inode) {
+                    drops += dr;
+                    found = 1;
+                }
+        }
+        fclose(f);
+    }
+    return found ? drops : -1;
 }
 
 int64_t hs_net_url_recv_buf(const char* url) {

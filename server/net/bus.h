@@ -34,6 +34,10 @@ const char* hs_net_bus_url(const hs_net_bus* bus);
 /// Thread: the bus owner only (LCM allows one handling thread) | Blocks: up to timeout_ms
 int hs_net_bus_handle(hs_net_bus* bus, int timeout_ms);
 
+/// Datagrams the kernel dropped, since they were opened, for this process's sockets on the
+/// bus's port (a full receive buffer: /proc/net/udp's drops), or -1 when it cannot tell.
+/// Thread: any | Allocates: no | not for the 1 kHz path (reads /proc)
+int64_t hs_net_bus_kernel_drops(const hs_net_bus* bus);
 /// recv_buf_size=N requested in an LCM URL, bytes; 0 when absent or malformed.
 int64_t hs_net_url_recv_buf(const char* url);
 /// The kernel's net.core.rmem_max, bytes, or -1 when unreadable. A socket receive buffer larger
