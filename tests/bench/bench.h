@@ -18,7 +18,7 @@ int hs_bench_stress(const hs_bench_args* a);
 int hs_bench_lockfree(const hs_bench_args* a);
 /// 1 kHz haptic loop with the condensed-compliance probe (issue 3).
 int hs_bench_haptic(const hs_bench_args* a);
-/// Cutting: one progressive cut step with the factor update, against refactor / dense inverse.
+/// Cutting on the server's path: cut step, compliance valid again, tick jumps.
 int hs_bench_cut(const hs_bench_args* a);
 /// The server path (deformation + rt threads) on organ meshes against the static press reference.
 int hs_bench_organs(const hs_bench_args* a);

@@ -71,7 +71,7 @@ static const bench_cmd cmds[] = {
     {"haptic", hs_bench_haptic, "1 kHz loop with the compliance probe vs a bare loop (issue 3)"},
     {"organs", hs_bench_organs, "server path on organ meshes: force at depth vs the static press"},
 #ifdef HS_BENCH_HAVE_CUT
-    {"cut", hs_bench_cut, "cut step with factor update vs refactor and dense inverse (issue 7)"},
+    {"cut", hs_bench_cut, "the server's cutting path: cut step and compliance valid again"},
 #endif
 #ifdef HS_BENCH_HAVE_PROTOCOL
     {"protocol", hs_bench_protocol,
