@@ -50,12 +50,6 @@ typedef struct cut_run {
     int n_rebuilds;
 } cut_run;
 
-static void next_ms(struct timespec* t) {
-    t->tv_nsec += 1000000L;
-    if (t->tv_nsec >= 1000000000L) t->tv_nsec -= 1000000000L, t->tv_sec++;
-    clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, t, NULL);
-}
-
 // One millisecond: feed the pose, drain the rt telemetry (tick jumps), note new cut steps and
 // compliance swaps.
 static void tick(cut_run* r, const double p[3], int button) {
@@ -114,7 +108,7 @@ static void move(cut_run* r, struct timespec* clk, double a[3], const double b[3
         double p[3];
         for (int c = 0; c < 3; ++c) p[c] = a[c] + (b[c] - a[c]) * i / n;
         tick(r, p, button);
-        next_ms(clk);
+        hs_bench_next_ms(clk);
     }
     memcpy(a, b, 3 * sizeof(double));
 }
@@ -125,7 +119,7 @@ static void hold_until_valid(cut_run* r, struct timespec* clk, const double p[3]
     int after = -1;
     for (int i = 0; i < (int)(limit_s * 1000) && after != 0; ++i) {
         tick(r, p, 0);
-        next_ms(clk);
+        hs_bench_next_ms(clk);
         if (after < 0 && r->comp_version >= r->cut_version) after = 100;
         if (after > 0) --after;
     }

@@ -23,6 +23,12 @@ const char* hs_bench_mesh_path(const hs_bench_args* a, const char* file, char* b
     return buf;
 }
 
+void hs_bench_next_ms(struct timespec* t) {
+    t->tv_nsec += 1000000L;
+    if (t->tv_nsec >= 1000000000L) t->tv_nsec -= 1000000000L, t->tv_sec++;
+    clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, t, NULL);
+}
+
 double hs_bench_thread_ms(void) {
     struct timespec ts;
     clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
