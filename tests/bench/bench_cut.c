@@ -48,6 +48,8 @@ typedef struct cut_run {
     int64_t comp_version, cut_version;
     double rebuild_ms[MAX_CUTS]; // each swapped-in rebuild's own time (stats comp_ms_last)
     int n_rebuilds;
+    double probe_n[MAX_CUTS]; // per stroke: force felt at the end of the press beside the cut
+    int n_probes;
 } cut_run;
 
 // One millisecond: feed the pose, drain the rt telemetry (tick jumps), note new cut steps and
@@ -113,21 +115,46 @@ static void move(cut_run* r, struct timespec* clk, double a[3], const double b[3
     memcpy(a, b, 3 * sizeof(double));
 }
 
-// Hold the tool at p until the compliance matches the newest cut (then 100 ms more) or
+// Hold the tool at p until the compliance matches the newest cut (then 300 ms more) or
 // limit_s passed.
 static void hold_until_valid(cut_run* r, struct timespec* clk, const double p[3], double limit_s) {
     int after = -1;
     for (int i = 0; i < (int)(limit_s * 1000) && after != 0; ++i) {
         tick(r, p, 0);
         hs_bench_next_ms(clk);
-        if (after < 0 && r->comp_version >= r->cut_version) after = 100;
+        if (after < 0 && r->comp_version >= r->cut_version) after = 300;
         if (after > 0) --after;
     }
+    if (r->n_probes < MAX_CUTS)
+        r->probe_n[r->n_probes++] = sqrt(r->last_f[0] * r->last_f[0] + r->last_f[1] * r->last_f[1] +
+                                         r->last_f[2] * r->last_f[2]);
 }
 
 typedef struct cut_geometry {
-    double x_cut, y0, y1, z_tool, z_above, probe_dx, probe_z;
+    double x_cut, y0, y1, z_tool, z_above, probe_dx, probe_r;
 } cut_geometry;
+
+/// Tool height pressing the probe sphere (radius r) ~1 mm into the body at (x, y): the top of
+/// the boundary straight below (x, y), + r - 1 mm. At rest, read before the sim runs (cuts move
+/// x0).
+static double probe_height(const hs_mesh* m, double x, double y, double r) {
+    double top = m->bbox_max[2];
+    int any = 0;
+    for (int t = 0; t < m->n_tris; ++t) {
+        const double* a = m->x0 + 3 * m->tris[3 * t];
+        const double* b = m->x0 + 3 * m->tris[3 * t + 1];
+        const double* c = m->x0 + 3 * m->tris[3 * t + 2];
+        double det = (b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]);
+        if (fabs(det) < 1e-18) continue; // a vertical face
+        double u = ((x - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (y - a[1])) / det;
+        double v = ((b[0] - a[0]) * (y - a[1]) - (x - a[0]) * (b[1] - a[1])) / det;
+        if (u < 0 || v < 0 || u + v > 1) continue;
+        double z = a[2] + u * (b[2] - a[2]) + v * (c[2] - a[2]);
+        if (!any || z > top) top = z;
+        any = 1;
+    }
+    return top + r - 0.001;
+}
 
 /// The case's mesh, fixed nodes, blade (tool frame) and path. Returns 0 on success.
 static int case_setup(const cut_case* cc, const hs_bench_args* args, const hs_scene* sc,
@@ -189,7 +216,7 @@ static int case_setup(const cut_case* cc, const hs_bench_args* args, const hs_sc
     g->y1 = hi[1] - 0.15 * ly;
     g->z_above = hi[2] + cd->blade_b[2] - cd->blade_a[2] + 0.002; // whole blade above the body
     g->probe_dx = 2 * probe_r + 0.002;
-    g->probe_z = hi[2] + probe_r - 0.001; // the sphere pressed ~1 mm into the top
+    g->probe_r = probe_r;
     return 0;
 }
 
@@ -222,6 +249,12 @@ static int run_case(const cut_case* cc, const hs_bench_args* args, const hs_scen
     memset(&g, 0, sizeof g);
     hs_err e;
     int rc = case_setup(cc, args, sc, &m, &fixed, &cd, &g, d.probe.radius_m);
+    const int strokes = args->quick ? cc->quick_strokes : cc->strokes;
+    const double v_cut = 0.03, v_move = 0.1; // m/s: the blade, the hand between strokes
+    const double stroke = (g.y1 - g.y0) / (cc->strokes > 0 ? cc->strokes : 1);
+    double probe_z[64];
+    for (int k = 0; k < strokes && k < 64 && !rc; ++k)
+        probe_z[k] = probe_height(m, g.x_cut + g.probe_dx, g.y0 + (k + 0.5) * stroke, g.probe_r);
     cut_run* r = calloc(1, sizeof *r);
     int64_t t0 = hs_now_ns();
     if (!rc && (!r || hs_haptic_sim_create(m, &d, fixed, &r->sim, &e) != HS_OK ||
@@ -231,9 +264,6 @@ static int run_case(const cut_case* cc, const hs_bench_args* args, const hs_scen
         rc = 1;
     }
     double setup_ms = (double)(hs_now_ns() - t0) * 1e-6;
-    const int strokes = args->quick ? cc->quick_strokes : cc->strokes;
-    const double v_cut = 0.03, v_move = 0.1; // m/s: the blade, the hand between strokes
-    const double stroke = (g.y1 - g.y0) / (cc->strokes > 0 ? cc->strokes : 1);
     if (!rc) {
         struct timespec clk;
         clock_gettime(CLOCK_MONOTONIC, &clk);
@@ -250,7 +280,7 @@ static int run_case(const cut_case* cc, const hs_bench_args* args, const hs_scen
             move(r, &clk, p, b, v_move, 1);
             b[0] = g.x_cut + g.probe_dx, b[1] = ys + 0.5 * stroke; // beside the cut, then press
             move(r, &clk, p, b, v_move, 0);
-            b[2] = g.probe_z;
+            b[2] = probe_z[s];
             move(r, &clk, p, b, 0.02, 0);
             hold_until_valid(r, &clk, p, 20.0);
             b[2] = g.z_above;
@@ -259,18 +289,20 @@ static int run_case(const cut_case* cc, const hs_bench_args* args, const hs_scen
         hs_haptic_sim_stats st;
         hs_haptic_sim_stats_get(r->sim, &st);
         hs_haptic_sim_stop(r->sim);
-        fprintf(stderr,
-                "cut: %s: %d strokes, %lld sweeps, %d cut steps (%d missed by the 1 ms poll), "
-                "%lld tets removed; the sweep alone p50 %.2f ms, p99 %.2f ms; %lld compliance "
-                "rebuilds (%lld dropped for a newer cut), "
-                "each p50 %.0f ms, max %.0f ms on the worker; %d of the steps found valid; "
-                "set-up %.0f ms; cut failures %lld\n",
-                cc->name, strokes, (long long)st.cut_sweeps, r->n_cuts, r->missed,
-                (long long)st.cut_removed, pct(r->sweep_ms, r->n_cuts, 50),
-                pct(r->sweep_ms, r->n_cuts, 99), (long long)st.comp_rebuilds,
-                (long long)st.comp_discarded, pct(r->rebuild_ms, r->n_rebuilds, 50),
-                pct(r->rebuild_ms, r->n_rebuilds, 100), r->n_valid, setup_ms,
-                (long long)st.cut_failures);
+        fprintf(
+            stderr,
+            "cut: %s: %d strokes, %lld sweeps, %d cut steps (%d missed by the 1 ms poll), "
+            "%lld tets removed; the sweep alone p50 %.2f ms, p99 %.2f ms; %lld compliance "
+            "rebuilds (%lld dropped for a newer cut), "
+            "each p50 %.0f ms, max %.0f ms on the worker; %d of the steps found valid; "
+            "the press beside the cut felt p50 %.3f N, min %.3f N; set-up %.0f ms; cut failures "
+            "%lld\n",
+            cc->name, strokes, (long long)st.cut_sweeps, r->n_cuts, r->missed,
+            (long long)st.cut_removed, pct(r->sweep_ms, r->n_cuts, 50),
+            pct(r->sweep_ms, r->n_cuts, 99), (long long)st.comp_rebuilds,
+            (long long)st.comp_discarded, pct(r->rebuild_ms, r->n_rebuilds, 50),
+            pct(r->rebuild_ms, r->n_rebuilds, 100), r->n_valid, pct(r->probe_n, r->n_probes, 50),
+            pct(r->probe_n, r->n_probes, 0), setup_ms, (long long)st.cut_failures);
         printf("%s,%d,%d,%d,%lld,%.2f,%.2f,%.1f,%.1f,%.4f\n", cc->name, m->n_nodes, m->n_tets,
                r->n_cuts, (long long)st.cut_removed, pct(r->cut_ms, r->n_cuts, 50),
                pct(r->cut_ms, r->n_cuts, 99), pct(r->valid_ms, r->n_cuts, 50),
