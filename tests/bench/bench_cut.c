@@ -289,20 +289,20 @@ static int run_case(const cut_case* cc, const hs_bench_args* args, const hs_scen
         hs_haptic_sim_stats st;
         hs_haptic_sim_stats_get(r->sim, &st);
         hs_haptic_sim_stop(r->sim);
-        fprintf(
-            stderr,
-            "cut: %s: %d strokes, %lld sweeps, %d cut steps (%d missed by the 1 ms poll), "
-            "%lld tets removed; the sweep alone p50 %.2f ms, p99 %.2f ms; %lld compliance "
-            "rebuilds (%lld dropped for a newer cut), "
-            "each p50 %.0f ms, max %.0f ms on the worker; %d of the steps found valid; "
-            "the press beside the cut felt p50 %.3f N, min %.3f N; set-up %.0f ms; cut failures "
-            "%lld\n",
-            cc->name, strokes, (long long)st.cut_sweeps, r->n_cuts, r->missed,
-            (long long)st.cut_removed, pct(r->sweep_ms, r->n_cuts, 50),
-            pct(r->sweep_ms, r->n_cuts, 99), (long long)st.comp_rebuilds,
-            (long long)st.comp_discarded, pct(r->rebuild_ms, r->n_rebuilds, 50),
-            pct(r->rebuild_ms, r->n_rebuilds, 100), r->n_valid, pct(r->probe_n, r->n_probes, 50),
-            pct(r->probe_n, r->n_probes, 0), setup_ms, (long long)st.cut_failures);
+        fprintf(stderr,
+                "cut: %s: %d strokes, %lld sweeps, %d cut steps (%d missed by the 1 ms poll), "
+                "%lld tets removed; the sweep alone p50 %.2f ms, p99 %.2f ms; %lld compliance "
+                "rebuilds (%lld dropped for a newer cut), "
+                "each p50 %.0f ms, max %.0f ms on the worker; %d of the steps found valid; "
+                "the press beside the cut felt p50 %.3f N, min %.3f N; watchdog trips %lld; set-up "
+                "%.0f ms; cut failures %lld\n",
+                cc->name, strokes, (long long)st.cut_sweeps, r->n_cuts, r->missed,
+                (long long)st.cut_removed, pct(r->sweep_ms, r->n_cuts, 50),
+                pct(r->sweep_ms, r->n_cuts, 99), (long long)st.comp_rebuilds,
+                (long long)st.comp_discarded, pct(r->rebuild_ms, r->n_rebuilds, 50),
+                pct(r->rebuild_ms, r->n_rebuilds, 100), r->n_valid,
+                pct(r->probe_n, r->n_probes, 50), pct(r->probe_n, r->n_probes, 0),
+                (long long)st.safety.watchdog_trips, setup_ms, (long long)st.cut_failures);
         printf("%s,%d,%d,%d,%lld,%.2f,%.2f,%.1f,%.1f,%.4f\n", cc->name, m->n_nodes, m->n_tets,
                r->n_cuts, (long long)st.cut_removed, pct(r->cut_ms, r->n_cuts, 50),
                pct(r->cut_ms, r->n_cuts, 99), pct(r->valid_ms, r->n_cuts, 50),
