@@ -117,12 +117,14 @@ typedef struct hs_haptic_sim_stats {
     int64_t cut_failures;      ///< sweeps or compliance rebuilds that failed (state kept)
     double cut_ms_last;      ///< last changing cut step: sweep + body sync + topology hand-over, ms
     double cut_ms_max;       ///< worst of them, ms
-    double sweep_ms_last;    ///< of the last, the sweep (geometry, + factor update if kept), ms
+    double sweep_ms_last;    ///< of the last, the sweep alone (the cut's geometry), ms
     double comp_ms_last;     ///< the last haptic compliance rebuild (background worker), ms
     int64_t comp_version;    ///< topology version the compliance was built on (0: uncut)
     int64_t comp_rebuilds;   ///< rebuilds swapped in
     int64_t comp_discarded;  ///< rebuilds dropped because a newer cut came meanwhile
     int comp_building;       ///< 1 while a rebuild runs beside the deformation thread
+    int64_t cut_done_ns;     ///< hs_now_ns when the last changing cut step ended (0: none)
+    int64_t comp_swap_ns;    ///< hs_now_ns when the last rebuild was swapped in (0: none)
     int64_t loops;           ///< deformation-loop passes (it keeps going during rebuilds)
     double cut_force_n[3];   ///< cutting resistance on the blade in the newest snapshot, N
     int cutting;             ///< 1 when the newest sweep cut tissue
@@ -222,8 +224,7 @@ typedef struct hs_haptic_cut_def {
     int cookie; ///< set by hs_haptic_cut_default_def
 } hs_haptic_cut_def;
 
-/// Defaults: hs_cut_default_def without validation and with the NONE factor policy (the cut
-/// keeps no factor: nothing in the sim solves with it), blade 0 .. 10 mm along tool z, toughness
+/// Defaults: hs_cut_default_def without validation, blade 0 .. 10 mm along tool z, toughness
 /// 20 N/m, cap 1.5 N, 0.5 mm travel per sweep, engaged by button 0.
 hs_haptic_cut_def hs_haptic_cut_default_def(void);
 

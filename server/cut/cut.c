@@ -1,12 +1,10 @@
 // SPDX-License-Identifier: GPL-2.0-or-later
 // Vertex-preserving cutting: sweep crossing test, vertex moves with a quality guard, tet
-// removal with the orphan and free-piece rules, the live mesh, and the low-rank factor update.
+// removal with the orphan and free-piece rules, the live mesh and the element-change lists.
 // See include/hapsim/cut.h for the design and docs/cutting.md for the choices.
 #include "hapsim/cut.h"
 
 #include <math.h>
-#include <pthread.h>
-#include <stdatomic.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -16,29 +14,15 @@ struct hs_cut {
     hs_mesh* mesh; // x0 moves with cuts; tets never change
     hs_cut_def def;
     int n, ne;
-    double lambda, mu; // Lame parameters of the linear K, Pa
 
-    unsigned char* fixed;  // [n] eliminated from K (user fixed or unused at create)
-    unsigned char* pinned; // [n] held by a pin spring after a cut
+    unsigned char* fixed;  // [n] held in place (user fixed, or unused at create)
+    unsigned char* pinned; // [n] left the system after a cut (orphan or free piece)
     unsigned char* active; // [ne]
     int* count;            // [n] active tets per node
     int* nt_start;         // [n+1] node -> tet incidence over all mesh tets
     int* nt;               //
     double* vol_orig;      // [ne] rest volume at create, m^3
     double* q_orig;        // [ne] rest quality at create
-
-    int* dof; // [3n] free index or -1
-    int n_free;
-    hs_fem* fem;
-    hs_csc* a;
-    hs_cholesky* factor;
-    double k_pin; // pin spring, N/m (mean diagonal of K)
-    int updates_since_refactor;
-    double refactor_ms; // measured numeric refactor of this factor, ms (running mean)
-    int auto_partial;   // AUTO chose the partial refactor at create
-    int a_stale;        // `a` no longer holds K (a sweep failed half way): reassemble
-    int factor_stale;   // a sweep failed after the mesh changed: the next one refactors first
-    double update_ms_per_rank; // measured update cost per rank-1 column, ms (running mean)
 
     hs_mesh* live;  // active tets only
     int* live_tet;  // [ne] live index -> mesh tet
@@ -48,9 +32,8 @@ struct hs_cut {
 
     // per-sweep scratch, allocated at create
     double* x;            // [3n] current positions
-    double* x0_old;       // [3n] rest positions before this sweep
     double* nrm;          // [3n] vertex normals
-    unsigned char* tmark; // [ne] 1 cut, 2 to remove
+    unsigned char* tmark; // [ne] 1 cut, 2 to remove, 3 listed as changed
     unsigned char* nmark; // [n] 1 candidate vertex
     int* cut_list;        // [ne]
     int* removed;         // [ne] removed by the last sweep
@@ -73,81 +56,11 @@ struct hs_cut {
     int* gopen;          // [ne] fast piece check: tets of a group still to expand
     unsigned stamp;
     int pieces_checked; // every piece was found held by a full check, and nothing freed since
-    double* rhs;        // [n_free]
-    double* sol;        // [n_free]
-
-    // element changes for the factor, grown when a sweep needs more
-    int cap_elem;
-    double* dk;         // [144 cap_elem] new element matrices and pins, then the old matrices
-    int* edof;          // [12 cap_elem]
-    int first_minus;    // blocks from here on are subtracted
-    unsigned char* win; // [n_free] 1: eliminated last in the factor (the update window)
-    double win_org[3];  // blade midpoint when the window was chosen
-    double win_dir[3];  // unit blade travel then (0 if it did not move)
-    int win_stale;      // the last sweep changed dofs outside the window
-    int have_win;       // a window has been swapped in (hs_cut_window_finish)
-    double blade[12];   // last sweep: p0, q0, p1, q1
-    int have_blade;
-    // Background window rebuild (hs_cut_window_begin / _build / _finish).
-    int bg_state;          // 0 idle, 1 begun (snapshot taken); deformation thread only
-    int bg_built;          // build ran (written by the build thread, read by finish)
-    hs_status bg_caught;   // the build thread's catch-up
-    hs_csc* bg_a;          // snapshot of K
-    unsigned char* bg_win; // [n_free] its window
-    double bg_org[3], bg_dir[3];
-    hs_cholesky* bg_f;
-    hs_status bg_status;
-    int acc_valid;      // every sweep since begin recorded its blocks
-    int n_accp, n_accm; // blocks added / subtracted since begin
-    int cap_acc;
-    double *accp_k, *accm_k; // [144 cap_acc]
-    int *accp_d, *accm_d;    // [12 cap_acc]
-    int n_accs, cap_accs;    // sweeps recorded
-    int* accs;               // [2 cap_accs] where each sweep's + and - blocks start
-    // The record (acc*, n_acc*) is shared with the build thread, which applies it to bg_f as
-    // it grows: guarded by bg_lock. The rest of bg_* is the build thread's until finish.
-    pthread_mutex_t bg_lock;
-    int has_lock;
-    int bg_applied;       // recorded sweeps already applied to bg_f
-    int *bg_pos, *bg_set; // [n_free] union marks of the catch-up (-1 outside)
-    int n_bgu;            // PARTIAL: free dofs K changed in since begin (in bg_set)
-    int bg_all;           // PARTIAL: K was reassembled since begin (redo everything)
-    // The cut's own build thread (def.window_thread); the rest is the deformation thread's.
-    pthread_t wt;
-    int wt_running;     // a build thread is started and not yet joined
-    atomic_int wt_done; // set by the build thread when hs_cut_window_build returned
-    double wt_ms;       // its wall time (written before wt_done)
-    int wt_waited;      // changing sweeps since the build ended (PARTIAL swap rule)
-    hs_cut_window_stats wstats;
-    int win_off; // window_accept_ratio: windows do not pay on this mesh (probe at create)
-    double wt_ms_sum;
-    int bg_cap;   // blocks bg_k / bg_d hold
-    double* bg_k; // [144 bg_cap] one catch-up group: + blocks, then - blocks
-    int* bg_d;    // [12 bg_cap]
-
-    // tracked compliance
-    hs_cut_compliance_mode cmode;
-    int n_track;
-    int* track;   // [n_track] nodes
-    double* cblk; // [9 n_track]
-    double cms;   // last update, ms
-    int* dset;    // [n_free] changed dofs of a sweep
-    int* dpos;    // [n_free] position in dset or -1
-    double* zbuf; // [n_free * HS_CUT_BATCH]
-    double* zd;   // [d * d] C_DD (grown)
-    double* zt;   // [n_track*3 * d] tracked rows of Z (grown)
-    double* kdd;  // [d * d] dK_DD (grown)
-    double* wrk;  // [d * d] (grown)
-    int* piv;     // [d]
-    int cap_d;
 };
-
-#define HS_CUT_BATCH 48
 
 hs_cut_def hs_cut_default_def(void) {
     hs_cut_def d;
     memset(&d, 0, sizeof d);
-    d.material = hs_fem_default_def().material;
     d.orphan = HS_CUT_ORPHAN_PIN;
     d.fragment = HS_CUT_FRAGMENT_DROP;
     d.pins_hold = 1;
@@ -155,54 +68,23 @@ hs_cut_def hs_cut_default_def(void) {
     d.min_quality = 0.02;
     d.max_bisections = 8;
     d.tangent_surface = 1;
-    d.factor_policy = HS_CUT_FACTOR_AUTO;
     d.validate = 1;
-    d.window_due_fraction = 0.5;
     d.cookie = HS_CUT_COOKIE;
     return d;
-}
-
-void hs_cut_def_auto_window(hs_cut_def* def, const hs_mesh* m) {
-    if (!def || !m || m->n_tets <= 0) return;
-    double h = 0; // mean length of each tet's first edge: the mesh's edge length
-    for (int t = 0; t < m->n_tets; t++) {
-        const double *a = m->x0 + 3 * m->tets[4 * t], *b = m->x0 + 3 * m->tets[4 * t + 1];
-        h += sqrt((a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1]) +
-                  (a[2] - b[2]) * (a[2] - b[2]));
-    }
-    h /= m->n_tets;
-    def->window_radius_m = 3.0 * h;
-    def->window_ahead_m = 14.0 * h;
-    def->window_due_fraction = 1.0 / 3.0; // a build takes ~40 % of a window's steps (plate5043)
-    def->window_background = 1;
-    def->window_thread = 1;
-    def->window_accept_ratio = 0.5;
 }
 
 void hs_cut_destroy(hs_cut** pc) {
     if (!pc || !*pc) return;
     hs_cut* c = *pc;
-    if (c->wt_running) pthread_join(c->wt, NULL); // its build reads the snapshot and bg_f
-    hs_fem_destroy(&c->fem);
-    hs_csc_destroy(&c->a);
-    hs_cholesky_destroy(&c->factor);
-    hs_cholesky_destroy(&c->bg_f);
-    hs_csc_destroy(&c->bg_a);
     hs_mesh_destroy(&c->live);
-    void* p[] = {c->fixed,  c->pinned,   c->active,   c->count,  c->nt_start, c->nt,   c->vol_orig,
-                 c->q_orig, c->dof,      c->live_tet, c->x,      c->x0_old,   c->nrm,  c->tmark,
-                 c->nmark,  c->cut_list, c->removed,  c->moved,  c->changed,  c->pins, c->edges,
-                 c->parent, c->fnbr,     c->tparent,  c->fa,     c->fb,       c->anch, c->rhs,
-                 c->sol,    c->dk,       c->edof,     c->track,  c->cblk,     c->dset, c->dpos,
-                 c->zbuf,   c->zd,       c->zt,       c->kdd,    c->wrk,      c->piv,  c->win,
-                 c->bg_win, c->accp_k,   c->accm_k,   c->accp_d, c->accm_d,   c->accs, c->bg_pos,
-                 c->bg_set, c->bg_k,     c->bg_d,     c->tstamp, c->gopen,    c->onb};
-    if (c->has_lock) pthread_mutex_destroy(&c->bg_lock);
+    void* p[] = {c->fixed,   c->pinned,   c->active,  c->count, c->nt_start, c->nt,     c->vol_orig,
+                 c->q_orig,  c->live_tet, c->x,       c->nrm,   c->tmark,    c->nmark,  c->cut_list,
+                 c->removed, c->moved,    c->changed, c->pins,  c->edges,    c->parent, c->fnbr,
+                 c->tparent, c->fa,       c->fb,      c->anch,  c->tstamp,   c->gopen,  c->onb};
     for (size_t i = 0; i < sizeof p / sizeof p[0]; i++) hs_free(p[i]);
     hs_free(c);
     *pc = NULL;
 }
-
 // ---------------------------------------------------------------------------------------------
 // Small geometry
 
@@ -332,119 +214,10 @@ static int seg_tri(const double* a, const double* b, const double* t0, const dou
     return 1;
 }
 
-// ---------------------------------------------------------------------------------------------
-// Element stiffness of the linear model (same formula as fem.c's linear element):
-// K_ab = V (lambda g_a g_b^T + mu g_b g_a^T + mu (g_a . g_b) I), row-major 12x12.
-
-static int element_k(const hs_cut* c, const double* x0, int e, double k[144]) {
-    const int* t = c->mesh->tets + 4 * e;
-    double dm[9];
-    for (int i = 0; i < 3; i++)
-        for (int r = 0; r < 3; r++) dm[3 * r + i] = x0[3 * t[i + 1] + r] - x0[3 * t[0] + r];
-    double det = dm[0] * (dm[4] * dm[8] - dm[5] * dm[7]) - dm[1] * (dm[3] * dm[8] - dm[5] * dm[6]) +
-                 dm[2] * (dm[3] * dm[7] - dm[4] * dm[6]);
-    if (!(det > 0)) return 0;
-    // rows of Dm^-1 = columns of the cofactor matrix / det
-    double cof[9];
-    cof[0] = dm[4] * dm[8] - dm[5] * dm[7];
-    cof[1] = -(dm[3] * dm[8] - dm[5] * dm[6]);
-    cof[2] = dm[3] * dm[7] - dm[4] * dm[6];
-    cof[3] = -(dm[1] * dm[8] - dm[2] * dm[7]);
-    cof[4] = dm[0] * dm[8] - dm[2] * dm[6];
-    cof[5] = -(dm[0] * dm[7] - dm[1] * dm[6]);
-    cof[6] = dm[1] * dm[5] - dm[2] * dm[4];
-    cof[7] = -(dm[0] * dm[5] - dm[2] * dm[3]);
-    cof[8] = dm[0] * dm[4] - dm[1] * dm[3];
-    double g[4][3];
-    for (int i = 0; i < 3; i++)
-        for (int r = 0; r < 3; r++) g[i + 1][r] = cof[3 * r + i] / det;
-    for (int r = 0; r < 3; r++) g[0][r] = -(g[1][r] + g[2][r] + g[3][r]);
-    double V = det / 6.0, lam = c->lambda, mu = c->mu;
-    for (int a = 0; a < 4; a++)
-        for (int b = 0; b < 4; b++) {
-            double gg = mu * v3_dot(g[a], g[b]);
-            for (int i = 0; i < 3; i++)
-                for (int j = 0; j < 3; j++)
-                    k[12 * (3 * a + i) + 3 * b + j] =
-                        V * (lam * g[a][i] * g[b][j] + mu * g[b][i] * g[a][j] + (i == j ? gg : 0));
-        }
-    return 1;
-}
-
-// ---------------------------------------------------------------------------------------------
 // Set-up
 
 static hs_status nomem(hs_err* err) {
     return hs_err_set(err, HS_ERR_NOMEM, "cut: out of memory");
-}
-
-static hs_status grow_elems(hs_cut* c, int need) {
-    if (need <= c->cap_elem) return HS_OK;
-    int cap = c->cap_elem * 2 > need ? c->cap_elem * 2 : need;
-    double* dk = hs_realloc(c->dk, sizeof(double) * 144 * (size_t)cap);
-    if (!dk) return HS_ERR_NOMEM;
-    c->dk = dk;
-    int* ed = hs_realloc(c->edof, sizeof(int) * 12 * (size_t)cap);
-    if (!ed) return HS_ERR_NOMEM;
-    c->edof = ed;
-    c->cap_elem = cap;
-    return HS_OK;
-}
-
-void hs_cut_assemble(const hs_cut* c, hs_csc* a) {
-    hs_fem_assemble(c->fem, 1.0, 0.0, a);
-    for (int i = 0; i < c->n; i++) {
-        if (!c->pinned[i]) continue;
-        for (int q = 0; q < 3; q++) {
-            int d = c->dof[3 * i + q];
-            if (d < 0) continue;
-            int p = hs_csc_find(a, d, d);
-            HS_ASSERT(p >= 0);
-            a->val[p] += c->k_pin;
-        }
-    }
-}
-
-// K's pin springs on the nodes pinned by the last sweep.
-static void add_pins(hs_cut* c, hs_csc* a) {
-    for (int k = 0; k < c->n_pins; k++)
-        for (int q = 0; q < 3; q++) {
-            int d = c->dof[3 * c->pins[k] + q];
-            int p = d >= 0 ? hs_csc_find(a, d, d) : -1;
-            if (p >= 0) a->val[p] += c->k_pin;
-        }
-}
-
-// Free dofs of the last sweep's removed and changed tets and new pins, into c->dset.
-static int partial_dofs(hs_cut* c) {
-    int d = 0;
-    const int* T = c->mesh->tets;
-    for (int k = 0; k < c->n_removed + c->n_changed + c->n_pins; k++) {
-        int nv = k < c->n_removed + c->n_changed ? 4 : 1;
-        for (int a = 0; a < nv; a++) {
-            int v = k < c->n_removed                  ? T[4 * c->removed[k] + a]
-                    : k < c->n_removed + c->n_changed ? T[4 * c->changed[k - c->n_removed] + a]
-                                                      : c->pins[k - c->n_removed - c->n_changed];
-            for (int q = 0; q < 3; q++) {
-                int f = c->dof[3 * v + q];
-                if (f >= 0 && c->dpos[f] < 0) {
-                    c->dpos[f] = d;
-                    c->dset[d++] = f;
-                }
-            }
-        }
-    }
-    for (int i = 0; i < d; i++) c->dpos[c->dset[i]] = -1;
-    return d;
-}
-
-hs_status hs_cut_refactor(hs_cut* c) {
-    if (!c->factor) return HS_ERR_INVALID;
-    hs_cut_assemble(c, c->a);
-    c->a_stale = 0;
-    hs_status st = hs_cholesky_refactor(c->factor, c->a);
-    if (st == HS_OK) c->updates_since_refactor = 0;
-    return st;
 }
 
 static hs_status rebuild_live(hs_cut* c, hs_err* err) {
@@ -507,75 +280,6 @@ static hs_status build_face_neighbours(hs_cut* c) {
     return HS_OK;
 }
 
-static void choose_window(const hs_cut* c, const double* bl, unsigned char* mask, double* org,
-                          double* dir);
-static int partial_policy(const hs_cut* c);
-
-/// def.factor_threads, with 0 (by the processors) meaning one thread while the cut's own
-/// window thread builds on the second core.
-static int factor_threads(const hs_cut* c) {
-    if (c->def.factor_threads == 0 && c->def.window_thread && !c->win_off) return 1;
-    return c->def.factor_threads;
-}
-
-/// window_accept_ratio: does a window pay on this mesh? A probe window in the middle of the
-/// free nodes, its blade across the thinnest extent moving along the longest: a partial refactor
-/// of all its dofs (every sweep inside it at once) in the order with them last, against the
-/// default order, from symbolic analyses. Windows are turned off (win_off) when the ratio is
-/// above def.window_accept_ratio; kept when the probe cannot tell (out of memory, simplicial).
-static void probe_window(hs_cut* c) {
-    double ctr[3] = {0, 0, 0}, lo[3] = {0, 0, 0}, hi[3] = {0, 0, 0};
-    int nn = 0;
-    for (int i = 0; i < c->n; i++) {
-        if (c->dof[3 * i] < 0) continue;
-        for (int d = 0; d < 3; d++) {
-            double v = c->mesh->x0[3 * i + d];
-            ctr[d] += v;
-            lo[d] = nn == 0 || v < lo[d] ? v : lo[d];
-            hi[d] = nn == 0 || v > hi[d] ? v : hi[d];
-        }
-        nn++;
-    }
-    if (nn == 0) return;
-    int thin = 0, lng = 0;
-    for (int d = 0; d < 3; d++) {
-        ctr[d] /= nn;
-        if (hi[d] - lo[d] < hi[thin] - lo[thin]) thin = d;
-        if (hi[d] - lo[d] > hi[lng] - lo[lng]) lng = d;
-    }
-    if (thin == lng) lng = (thin + 1) % 3;
-    // The window starts at the centre and reaches window_ahead_m along the longest extent.
-    double bl[12], step = 0.01 * c->def.window_radius_m;
-    for (int d = 0; d < 3; d++) {
-        double half = d == thin ? 0.6 * (hi[d] - lo[d]) : 0.0;
-        bl[6 + d] = ctr[d] - half; // p1
-        bl[9 + d] = ctr[d] + half; // q1
-        bl[d] = bl[6 + d] - (d == lng ? step : 0.0);
-        bl[3 + d] = bl[9 + d] - (d == lng ? step : 0.0);
-    }
-    unsigned char* mask = hs_calloc((size_t)c->n_free + 1, 1);
-    int* dofs = hs_alloc(sizeof(int) * ((size_t)c->n_free + 1));
-    if (mask && dofs) {
-        double org[3], dir[3];
-        memcpy(c->x, c->mesh->x0, sizeof(double) * 3 * (size_t)c->n); // rest positions
-        choose_window(c, bl, mask, org, dir);
-        int nd = 0;
-        for (int k = 0; k < c->n_free; k++)
-            if (mask[k]) dofs[nd++] = k;
-        double sd = -1, sw = -1;
-        hs_err e;
-        if (nd > 0 && hs_cholesky_order_shares(c->a, mask, nd, dofs, &sd, &sw, &e) == HS_OK &&
-            sd > 0) {
-            c->wstats.probe_share_default = sd;
-            c->wstats.probe_share_window = sw;
-            c->win_off = sw > c->def.window_accept_ratio * sd;
-            c->wstats.off = c->win_off;
-        }
-    }
-    hs_free(mask);
-    hs_free(dofs);
-}
-
 hs_status hs_cut_create(hs_mesh* mesh, const unsigned char* fixed, const hs_cut_def* def,
                         hs_cut** out, hs_err* err) {
     if (!out) return hs_err_set(err, HS_ERR_INVALID, "cut: out is NULL");
@@ -590,34 +294,6 @@ hs_status hs_cut_create(hs_mesh* mesh, const unsigned char* fixed, const hs_cut_
         return hs_err_set(err, HS_ERR_INVALID,
                           "cut: guard out of range (volume ratio %g, quality %g, bisections %d)",
                           def->min_volume_ratio, def->min_quality, def->max_bisections);
-    if (!(def->window_radius_m >= 0 && def->window_radius_m < 1e6) ||
-        !(def->window_ahead_m >= 0 && def->window_ahead_m < 1e6))
-        return hs_err_set(err, HS_ERR_INVALID, "cut: window radius %g m / ahead %g m out of range",
-                          def->window_radius_m, def->window_ahead_m);
-    if (!(def->window_due_fraction > 0 && def->window_due_fraction <= 1))
-        return hs_err_set(err, HS_ERR_INVALID, "cut: window due fraction %g (0 < f <= 1)",
-                          def->window_due_fraction);
-    if (def->factor_threads < 0 || def->factor_threads > 2)
-        return hs_err_set(err, HS_ERR_INVALID, "cut: factor threads %d (0, 1 or 2)",
-                          def->factor_threads);
-    if (def->factor_policy < HS_CUT_FACTOR_AUTO || def->factor_policy > HS_CUT_FACTOR_PARTIAL)
-        return hs_err_set(err, HS_ERR_INVALID, "cut: unknown factor policy %d",
-                          (int)def->factor_policy);
-    if (def->factor_policy == HS_CUT_FACTOR_NONE && def->window_radius_m > 0)
-        return hs_err_set(err, HS_ERR_INVALID,
-                          "cut: an update window needs a factor (policy NONE)");
-    if (def->factor_policy == HS_CUT_FACTOR_PARTIAL && def->window_radius_m > 0 &&
-        !def->window_background)
-        return hs_err_set(err, HS_ERR_INVALID,
-                          "cut: a PARTIAL window is rebuilt in the background only (set "
-                          "window_background)");
-    if (!(def->window_accept_ratio >= 0 && def->window_accept_ratio <= 1))
-        return hs_err_set(err, HS_ERR_INVALID, "cut: window accept ratio %g (0 <= r <= 1)",
-                          def->window_accept_ratio);
-    if (def->window_thread && !(def->window_radius_m > 0 && def->window_background))
-        return hs_err_set(err, HS_ERR_INVALID,
-                          "cut: window_thread needs a window (window_radius_m > 0) rebuilt in "
-                          "the background (window_background)");
     if (mesh->n_nodes <= 0 || mesh->n_tets <= 0 || !mesh->node_used)
         return hs_err_set(err, HS_ERR_INVALID, "cut: mesh is empty or not finalized");
     hs_cut* c = hs_calloc(1, sizeof *c);
@@ -634,10 +310,8 @@ hs_status hs_cut_create(hs_mesh* mesh, const unsigned char* fixed, const hs_cut_
     c->nt = hs_alloc(4 * sizeof(int) * (size_t)ne);
     c->vol_orig = hs_alloc(sizeof(double) * (size_t)ne);
     c->q_orig = hs_alloc(sizeof(double) * (size_t)ne);
-    c->dof = hs_alloc(sizeof(int) * n3);
     c->live_tet = hs_alloc(sizeof(int) * (size_t)ne);
     c->x = hs_alloc(sizeof(double) * n3);
-    c->x0_old = hs_alloc(sizeof(double) * n3);
     c->nrm = hs_alloc(sizeof(double) * n3);
     c->tmark = hs_calloc((size_t)ne, 1);
     c->nmark = hs_calloc((size_t)n, 1);
@@ -657,15 +331,14 @@ hs_status hs_cut_create(hs_mesh* mesh, const unsigned char* fixed, const hs_cut_
     c->tstamp = hs_calloc((size_t)ne, sizeof(unsigned));
     c->gopen = hs_alloc(sizeof(int) * (size_t)ne);
     if (!c->tstamp || !c->gopen || !c->fixed || !c->pinned || !c->active || !c->count ||
-        !c->nt_start || !c->nt || !c->vol_orig || !c->q_orig || !c->dof || !c->live_tet || !c->x ||
-        !c->x0_old || !c->nrm || !c->tmark || !c->nmark || !c->cut_list || !c->removed ||
-        !c->moved || !c->onb || !c->changed || !c->pins || !c->edges || !c->parent || !c->fnbr ||
-        !c->tparent || !c->fa || !c->fb || !c->anch || grow_elems(c, 256) != HS_OK) {
+        !c->nt_start || !c->nt || !c->vol_orig || !c->q_orig || !c->live_tet || !c->x || !c->nrm ||
+        !c->tmark || !c->nmark || !c->cut_list || !c->removed || !c->moved || !c->onb ||
+        !c->changed || !c->pins || !c->edges || !c->parent || !c->fnbr || !c->tparent || !c->fa ||
+        !c->fb || !c->anch) {
         hs_cut_destroy(&c);
         return nomem(err);
     }
     const double* x0 = mesh->x0;
-    memcpy(c->x0_old, x0, sizeof(double) * n3);
     for (int e = 0; e < ne; e++) {
         const int* t = mesh->tets + 4 * e;
         const double* p[4] = {x0 + 3 * t[0], x0 + 3 * t[1], x0 + 3 * t[2], x0 + 3 * t[3]};
@@ -695,90 +368,22 @@ hs_status hs_cut_create(hs_mesh* mesh, const unsigned char* fixed, const hs_cut_
         hs_cut_destroy(&c);
         return nomem(err);
     }
-    int nf = 0, nfixed_used = 0;
+    int nfree = 0, nfixed_used = 0;
     for (int i = 0; i < n; i++) {
         int fx = (fixed && fixed[i]) || c->count[i] == 0;
         if (fixed && fixed[i] && c->count[i] > 0) nfixed_used++;
         c->fixed[i] = (unsigned char)fx;
-        for (int q = 0; q < 3; q++) c->dof[3 * i + q] = fx ? -1 : nf++;
+        nfree += !fx;
     }
-    c->n_free = nf;
-    if (nf == 0 || nfixed_used == 0) {
+    // Pieces are held by fixed nodes only: without one, the first cut would drop everything.
+    if (nfree == 0 || nfixed_used == 0) {
         hs_err_set(err, HS_ERR_INVALID,
-                   "cut: need at least one fixed node and one free node (%d fixed, %d free dofs)",
-                   nfixed_used, nf);
+                   "cut: need at least one fixed node and one free node (%d fixed, %d free)",
+                   nfixed_used, nfree);
         hs_cut_destroy(&c);
         return HS_ERR_INVALID;
     }
-    c->rhs = hs_alloc(sizeof(double) * (size_t)nf);
-    c->sol = hs_alloc(sizeof(double) * (size_t)nf);
-    c->win = hs_calloc((size_t)nf + 1, 1);
-    c->dset = hs_alloc(sizeof(int) * (size_t)nf);
-    c->dpos = hs_alloc(sizeof(int) * (size_t)nf);
-    if (c->dpos)
-        for (int d = 0; d < nf; d++) c->dpos[d] = -1;
-    if (!c->rhs || !c->sol || !c->dset || !c->dpos || !c->win) {
-        hs_cut_destroy(&c);
-        return nomem(err);
-    }
-    hs_fem_def fd = hs_fem_default_def();
-    fd.model = HS_MODEL_LINEAR;
-    fd.material = def->material;
-    hs_status st = hs_fem_create(mesh, &fd, c->dof, nf, &c->fem, err);
-    if (st == HS_OK) st = hs_fem_create_matrix(c->fem, &c->a);
-    if (st != HS_OK) {
-        hs_cut_destroy(&c);
-        return st == HS_ERR_NOMEM ? nomem(err) : st;
-    }
-    double E = def->material.youngs_pa, nu = def->material.poisson;
-    c->mu = E / (2.0 * (1.0 + nu));
-    c->lambda = E * nu / ((1.0 + nu) * (1.0 - 2.0 * nu));
-    hs_fem_update(c->fem, x0, NULL);
-    hs_cut_assemble(c, c->a);
-    double dsum = 0;
-    for (int d = 0; d < nf; d++) {
-        int p = hs_csc_find(c->a, d, d);
-        dsum += p >= 0 ? c->a->val[p] : 0.0;
-    }
-    c->k_pin = dsum / nf;
-    if (def->factor_policy != HS_CUT_FACTOR_NONE) st = hs_cholesky_create(c->a, &c->factor, err);
-    // AUTO keeps the (supernodal) factor until a sweep small enough for updates comes: the
-    // conversion to an updatable factor makes later refactors simplicial, hence slower.
-    if (st == HS_OK && def->factor_policy == HS_CUT_FACTOR_UPDATE)
-        st = hs_cholesky_prepare_updates(c->factor, 256);
-    if (st == HS_OK && c->factor) {
-        // Calibrate the refactor cost of this factor (AUTO compares updates against it).
-        int64_t t0 = hs_now_ns();
-        st = hs_cut_refactor(c);
-        c->refactor_ms = (double)(hs_now_ns() - t0) * 1e-6;
-        // A simplicial factor (tiny meshes) cannot be refactored in part: PARTIAL's sweeps
-        // refactor. AUTO takes the partial refactor where it can (the fastest exact path on
-        // every mesh of hapsim-bench cut) and its kept data stays within 4x the factor.
-        if (st == HS_OK && def->factor_policy == HS_CUT_FACTOR_PARTIAL) {
-            st = hs_cholesky_prepare_partial(c->factor, c->a);
-            if (st == HS_ERR_UNSUPPORTED) st = HS_OK;
-        } else if (st == HS_OK && def->factor_policy == HS_CUT_FACTOR_AUTO &&
-                   (def->window_radius_m == 0 || def->window_background) &&
-                   hs_cholesky_is_supernodal(c->factor) &&
-                   hs_cholesky_partial_bytes(c->factor) <= 32 * hs_cholesky_factor_nnz(c->factor)) {
-            hs_status ps = hs_cholesky_prepare_partial(c->factor, c->a);
-            c->auto_partial = ps == HS_OK;
-            // Else the low-rank path as before; a full pass that failed (a pivot its 1e-12
-            // guard refused) leaves L partly recomputed, so refactor it.
-            if (ps != HS_OK && ps != HS_ERR_NOMEM) st = hs_cut_refactor(c);
-        }
-        if (st == HS_OK && def->window_accept_ratio > 0 && def->window_radius_m > 0 &&
-            partial_policy(c) && hs_cholesky_is_supernodal(c->factor))
-            probe_window(c);
-        // A helper thread that cannot start leaves the refactor on one thread.
-        if (st == HS_OK && (def->factor_policy == HS_CUT_FACTOR_PARTIAL || c->auto_partial))
-            (void)hs_cholesky_set_partial_threads(c->factor, factor_threads(c));
-    }
-    if (st != HS_OK) {
-        hs_cut_destroy(&c);
-        return hs_err_set(err, st, "cut: factorising K failed: %s", hs_status_str(st));
-    }
-    st = hs_mesh_create(n, x0, ne, mesh->tets, &c->live, err);
+    hs_status st = hs_mesh_create(n, x0, ne, mesh->tets, &c->live, err);
     if (st >= HS_OK) st = rebuild_live(c, err);
     if (st != HS_OK) {
         hs_cut_destroy(&c);
@@ -787,7 +392,6 @@ hs_status hs_cut_create(hs_mesh* mesh, const unsigned char* fixed, const hs_cut_
     *out = c;
     return HS_OK;
 }
-
 // ---------------------------------------------------------------------------------------------
 // Queries
 
@@ -830,44 +434,12 @@ int hs_cut_live_tet(hs_cut* c, int k) {
 int hs_cut_components(hs_cut* c) {
     return hs_cut_update_live(c, NULL) == HS_OK ? c->components : -1;
 }
-hs_cholesky* hs_cut_factor(hs_cut* c) {
-    return c->factor;
-}
-int hs_cut_free_dofs(const hs_cut* c) {
-    return c->n_free;
-}
-int hs_cut_dof(const hs_cut* c, int node, int comp) {
-    HS_ASSERT(node >= 0 && node < c->n && comp >= 0 && comp < 3);
-    return c->dof[3 * node + comp];
-}
-hs_status hs_cut_create_matrix(const hs_cut* c, hs_csc** out) {
-    return hs_fem_create_matrix(c->fem, out);
-}
-const hs_fem* hs_cut_fem(const hs_cut* c) {
-    return c->fem;
-}
 
 hs_status hs_cut_sync_fem(const hs_cut* c, hs_fem* other) {
     if (!c || !other) return HS_ERR_INVALID;
     for (int e = 0; e < c->ne; e++)
         if (!c->active[e]) hs_fem_set_element_active(other, e, 0);
     return hs_fem_refresh_elements(other, c->changed, c->n_changed);
-}
-
-hs_status hs_cut_solve(hs_cut* c, const double* f, double* u) {
-    if (!c || !c->factor || !f || !u) return HS_ERR_INVALID;
-    for (int k = 0; k < 3 * c->n; k++) {
-        int d = c->dof[k];
-        if (d >= 0) c->rhs[d] = c->pinned[k / 3] ? 0.0 : f[k];
-    }
-    hs_status st = hs_cholesky_solve(c->factor, c->rhs, c->sol);
-    if (st != HS_OK) return st;
-    for (int k = 0; k < 3 * c->n; k++) {
-        int d = c->dof[k];
-        u[k] = d >= 0 && !c->pinned[k / 3] ? c->sol[d] : 0.0;
-        if (!isfinite(u[k])) return HS_ERR_NUMERIC;
-    }
-    return HS_OK;
 }
 
 static int find_pieces(hs_cut* c);
@@ -896,7 +468,7 @@ hs_status hs_cut_validate(hs_cut* c, hs_err* err) {
         if (cnt != c->count[i])
             return hs_err_set(err, HS_ERR_INVALID, "cut: node %d counts %d tets, has %d", i,
                               c->count[i], cnt);
-        if (cnt == 0 && c->dof[3 * i] >= 0 && !c->pinned[i])
+        if (cnt == 0 && !c->fixed[i] && !c->pinned[i])
             return hs_err_set(err, HS_ERR_INVALID,
                               "cut: free node %d has no element and is not pinned (orphan)", i);
         if (cnt > 0 && c->pinned[i] && c->def.fragment == HS_CUT_FRAGMENT_DROP)
@@ -1241,449 +813,6 @@ static int handle_fragments(hs_cut* c, int* visited) {
     return pieces;
 }
 
-/// Append a block of the sweep's change: tet e's stiffness at rest positions x0 (zero if the
-/// tet is degenerate there), or node v's pin spring when e < 0.
-static void add_block(hs_cut* c, int* m, int e, int v, const double* x0) {
-    double* dk = c->dk + 144 * (size_t)*m;
-    int* ed = c->edof + 12 * (size_t)*m;
-    memset(dk, 0, 144 * sizeof(double));
-    if (e < 0) {
-        for (int q = 0; q < 3; q++) dk[13 * q] = c->k_pin;
-        for (int q = 0; q < 12; q++) ed[q] = q < 3 ? c->dof[3 * v + q] : -1;
-        ++*m;
-        return;
-    }
-    if (!element_k(c, x0, e, dk)) memset(dk, 0, 144 * sizeof(double));
-    for (int a = 0; a < 4; a++)
-        for (int q = 0; q < 3; q++) ed[3 * a + q] = c->dof[3 * c->mesh->tets[4 * e + a] + q];
-    ++*m;
-}
-
-/// Free dofs touched by the sweep's blocks (a bound on the rank of its aggregated update).
-static int union_dofs(hs_cut* c, int m) {
-    int d = 0;
-    for (int k = 0; k < 12 * m; k++) {
-        int f = c->edof[k];
-        if (f >= 0 && c->dpos[f] < 0) {
-            c->dpos[f] = d;
-            c->dset[d++] = f;
-        }
-    }
-    for (int i = 0; i < d; i++) c->dpos[c->dset[i]] = -1;
-    return d;
-}
-
-static hs_status update_compliance(hs_cut* c, int m, int before);
-
-/// The factor follows K by partial refactors (PARTIAL, or AUTO where it chose them).
-static int partial_policy(const hs_cut* c) {
-    return c->def.factor_policy == HS_CUT_FACTOR_PARTIAL || c->auto_partial;
-}
-
-/// 1 if every free dof of the sweep's m blocks lies in the factor's window.
-static int in_window(const hs_cut* c, int m) {
-    for (int k = 0; k < 12 * m; k++)
-        if (c->edof[k] >= 0 && !c->win[c->edof[k]]) return 0;
-    return 1;
-}
-
-/// The window around the blade's sweep (p0, q0) -> (p1, q1): the free dofs of the nodes (current
-/// positions c->x) within window_radius_m of the quad the blade (p1, q1) sweeps moving
-/// window_ahead_m along its travel (the mean of p1 - p0 and q1 - q0). Writes mask[n_free], the
-/// blade midpoint org and the unit travel dir.
-static void choose_window(const hs_cut* c, const double* bl, unsigned char* mask, double* org,
-                          double* dir) {
-    const double *p0 = bl, *q0 = bl + 3, *p1 = bl + 6, *q1 = bl + 9;
-    double v[3], p2[3], q2[3];
-    for (int d = 0; d < 3; d++) v[d] = 0.5 * ((p1[d] - p0[d]) + (q1[d] - q0[d]));
-    double len = sqrt(v3_dot(v, v));
-    for (int d = 0; d < 3; d++) {
-        dir[d] = len > 0 ? v[d] / len : 0.0;
-        org[d] = 0.5 * (p1[d] + q1[d]);
-        p2[d] = p1[d] + c->def.window_ahead_m * dir[d];
-        q2[d] = q1[d] + c->def.window_ahead_m * dir[d];
-    }
-    const double r2 = c->def.window_radius_m * c->def.window_radius_m;
-    memset(mask, 0, (size_t)c->n_free);
-    for (int i = 0; i < c->n; i++) {
-        if (c->dof[3 * i] < 0) continue;
-        const double* xi = c->x + 3 * i;
-        double a[3], b[3], da[3], db[3];
-        closest_on_tri(xi, p1, q1, q2, a);
-        closest_on_tri(xi, p1, q2, p2, b);
-        v3_sub(xi, a, da);
-        v3_sub(xi, b, db);
-        if (fmin(v3_dot(da, da), v3_dot(db, db)) > r2) continue;
-        for (int q = 0; q < 3; q++) mask[c->dof[3 * i + q]] = 1;
-    }
-}
-
-/// Rebuild the factor of K as it is now, ordered with a new window around the blade last.
-/// Keeps the old factor on failure.
-static hs_status rewindow(hs_cut* c, const double* p0, const double* q0, const double* p1,
-                          const double* q1, hs_err* err) {
-    double bl[12];
-    memcpy(bl, p0, 3 * sizeof(double));
-    memcpy(bl + 3, q0, 3 * sizeof(double));
-    memcpy(bl + 6, p1, 3 * sizeof(double));
-    memcpy(bl + 9, q1, 3 * sizeof(double));
-    choose_window(c, bl, c->win, c->win_org, c->win_dir);
-    hs_cut_assemble(c, c->a);
-    hs_cholesky* f = NULL;
-    hs_status st = hs_cholesky_create_last(c->a, c->win, &f, err);
-    if (st == HS_OK && c->def.factor_policy == HS_CUT_FACTOR_UPDATE)
-        st = hs_cholesky_prepare_updates(f, c->cap_elem);
-    if (st != HS_OK) {
-        hs_cholesky_destroy(&f);
-        return st;
-    }
-    hs_cholesky_destroy(&c->factor);
-    c->factor = f;
-    c->have_win = 1;
-    c->updates_since_refactor = 0;
-    return HS_OK;
-}
-
-/// Apply the sweep's m blocks to the factor (aggregated: one rank <= union update).
-static hs_status apply_changes(hs_cut* c, int m) {
-    return hs_cholesky_update_parts(c->factor, c->first_minus, m - c->first_minus, c->dk, c->edof);
-}
-
-// Largest union of a catch-up group (the sparse module aggregates up to 768).
-#define HS_CUT_CATCHUP_D 360
-
-/// Put free dof f into the union being counted (set/pos from position *d on); returns 1 if it
-/// was new. The caller clears pos.
-static int mark_dof(int* pos, int* set, int f, const int* d) {
-    if (f < 0 || pos[f] >= 0) return 0;
-    pos[f] = *d;
-    set[*d] = f;
-    return 1;
-}
-
-/// PARTIAL with a window: whether the sweep's dofs (c->dset[nd]; nd < 0: all of K) left the
-/// window, and, while a window is being built, their union since its snapshot.
-static void note_partial_window(hs_cut* c, int nd) {
-    int out = nd < 0;
-    for (int i = 0; i < nd && !out; i++) out = !c->win[c->dset[i]];
-    c->win_stale = out;
-    if (!c->bg_state) return;
-    if (nd < 0) c->bg_all = 1;
-    for (int i = 0; i < nd; i++) c->n_bgu += mark_dof(c->bg_pos, c->bg_set, c->dset[i], &c->n_bgu);
-}
-
-/// Append the sweep's m blocks to the record kept since hs_cut_window_begin.
-static hs_status record_blocks(hs_cut* c, int m) {
-    int np = c->first_minus, nm = m - c->first_minus;
-    int need = (c->n_accp + np > c->n_accm + nm ? c->n_accp + np : c->n_accm + nm);
-    if (need > c->cap_acc) {
-        int cap = need > 2 * c->cap_acc ? need : 2 * c->cap_acc;
-        double* k = hs_realloc(c->accp_k, sizeof(double) * 144 * (size_t)cap);
-        if (!k) return HS_ERR_NOMEM;
-        c->accp_k = k;
-        k = hs_realloc(c->accm_k, sizeof(double) * 144 * (size_t)cap);
-        if (!k) return HS_ERR_NOMEM;
-        c->accm_k = k;
-        int* d = hs_realloc(c->accp_d, sizeof(int) * 12 * (size_t)cap);
-        if (!d) return HS_ERR_NOMEM;
-        c->accp_d = d;
-        d = hs_realloc(c->accm_d, sizeof(int) * 12 * (size_t)cap);
-        if (!d) return HS_ERR_NOMEM;
-        c->accm_d = d;
-        c->cap_acc = cap;
-    }
-    if (c->n_accs == c->cap_accs) {
-        int cap = c->cap_accs ? 2 * c->cap_accs : 64;
-        int* a = hs_realloc(c->accs, sizeof(int) * 2 * (size_t)cap);
-        if (!a) return HS_ERR_NOMEM;
-        c->accs = a;
-        c->cap_accs = cap;
-    }
-    c->accs[2 * c->n_accs] = c->n_accp;
-    c->accs[2 * c->n_accs + 1] = c->n_accm;
-    c->n_accs++;
-    memcpy(c->accp_k + 144 * (size_t)c->n_accp, c->dk, sizeof(double) * 144 * (size_t)np);
-    memcpy(c->accp_d + 12 * (size_t)c->n_accp, c->edof, sizeof(int) * 12 * (size_t)np);
-    memcpy(c->accm_k + 144 * (size_t)c->n_accm, c->dk + 144 * (size_t)np,
-           sizeof(double) * 144 * (size_t)nm);
-    memcpy(c->accm_d + 12 * (size_t)c->n_accm, c->edof + 12 * (size_t)np,
-           sizeof(int) * 12 * (size_t)nm);
-    c->n_accp += np;
-    c->n_accm += nm;
-    return HS_OK;
-}
-
-int hs_cut_window_due(const hs_cut* c) {
-    if (!c || !(c->def.window_radius_m > 0) || c->bg_state || !c->have_blade || c->win_off)
-        return 0;
-    // PARTIAL on a factor too small to be supernodal: no partial refactor (its sweeps
-    // refactor, which is cheap there), so a window's build would fail. Never due.
-    if (partial_policy(c) && !hs_cholesky_is_supernodal(c->factor)) return 0;
-    if (c->win_stale) return 1;
-    // Ahead of time: the blade has used up window_due_fraction of the window's reach along its
-    // travel, or (PARTIAL) its midpoint has left the window's strip (or there is none yet),
-    // e.g. moving to where the next cut starts: a window around it is then ready when it cuts
-    // again. Not for the low-rank policies, whose builds are slower (measured: fewer windows
-    // in time on plate5043).
-    double mid[3], d[3];
-    for (int k = 0; k < 3; k++) mid[k] = 0.5 * (c->blade[6 + k] + c->blade[9 + k]);
-    v3_sub(mid, c->win_org, d);
-    double along = v3_dot(d, c->win_dir);
-    if (along > c->def.window_due_fraction * c->def.window_ahead_m) return 1;
-    if (!partial_policy(c)) return 0;
-    double side2 = v3_dot(d, d) - along * along, r = c->def.window_radius_m;
-    return !c->have_win || along < -r || side2 > r * r;
-}
-
-static hs_status window_begin(hs_cut* c, hs_err* err) {
-    if (!c || !(c->def.window_radius_m > 0) || !c->have_blade)
-        return hs_err_set(err, HS_ERR_INVALID, "cut: no window radius set or no sweep yet");
-    if (c->bg_state)
-        return hs_err_set(err, HS_ERR_INVALID, "cut: a window rebuild is already under way");
-    if (!c->bg_a) {
-        hs_status st = hs_csc_clone(c->a, &c->bg_a);
-        size_t nf = (size_t)c->n_free + 1;
-        if (st == HS_OK && !c->bg_win && !(c->bg_win = hs_calloc(nf, 1))) st = HS_ERR_NOMEM;
-        if (st == HS_OK && !c->bg_pos && !(c->bg_pos = hs_alloc(sizeof(int) * nf)))
-            st = HS_ERR_NOMEM;
-        if (st == HS_OK && !c->bg_set && !(c->bg_set = hs_alloc(sizeof(int) * nf)))
-            st = HS_ERR_NOMEM;
-        if (st == HS_OK && !c->has_lock) {
-            if (pthread_mutex_init(&c->bg_lock, NULL) != 0) st = HS_ERR_NOMEM;
-            c->has_lock = st == HS_OK;
-        }
-        if (st != HS_OK) {
-            hs_csc_destroy(&c->bg_a); // retried in full next time
-            return hs_err_set(err, st, "cut: window rebuild: out of memory");
-        }
-        for (int i = 0; i < c->n_free; i++) c->bg_pos[i] = -1;
-    }
-    // PARTIAL keeps K current in `a` (same pattern): copying it is ~5x cheaper than assembling.
-    if (partial_policy(c) && !c->a_stale)
-        memcpy(c->bg_a->val, c->a->val, sizeof(double) * (size_t)c->a->nnz);
-    else
-        hs_cut_assemble(c, c->bg_a);
-    choose_window(c, c->blade, c->bg_win, c->bg_org, c->bg_dir);
-    c->n_accp = c->n_accm = c->n_accs = 0;
-    c->n_bgu = c->bg_all = 0;
-    c->bg_applied = 0;
-    c->bg_caught = HS_OK;
-    c->acc_valid = 1;
-    c->bg_status = HS_OK;
-    c->bg_built = 0;
-    c->bg_state = 1;
-    return HS_OK;
-}
-
-/// Apply the recorded sweeps not yet in bg_f: consecutive sweeps merged while their union stays
-/// within the aggregation limit, one aggregated update per group (inside the new window, so
-/// short paths). Returns HS_ERR_UNSUPPORTED if the record is incomplete. The record is read
-/// under the lock; the update runs outside it, so sweeps go on meanwhile.
-static hs_status catch_up(hs_cut* c) {
-    for (;;) {
-        pthread_mutex_lock(&c->bg_lock);
-        int s0 = c->bg_applied, ns = c->n_accs, valid = c->acc_valid;
-        if (!valid || s0 == ns) {
-            pthread_mutex_unlock(&c->bg_lock);
-            return valid ? HS_OK : HS_ERR_UNSUPPORTED;
-        }
-        int d = 0, s1 = s0, marked = 0;
-        for (; s1 < ns; s1++) {
-            int p1 = s1 + 1 < ns ? c->accs[2 * s1 + 2] : c->n_accp;
-            int m1 = s1 + 1 < ns ? c->accs[2 * s1 + 3] : c->n_accm;
-            int d1 = d;
-            for (int k = 12 * c->accs[2 * s1]; k < 12 * p1; k++)
-                d1 += mark_dof(c->bg_pos, c->bg_set, c->accp_d[k], &d1);
-            for (int k = 12 * c->accs[2 * s1 + 1]; k < 12 * m1; k++)
-                d1 += mark_dof(c->bg_pos, c->bg_set, c->accm_d[k], &d1);
-            marked = d1;
-            if (d1 > HS_CUT_CATCHUP_D && s1 > s0) break;
-            d = d1;
-        }
-        for (int i = 0; i < marked; i++) c->bg_pos[c->bg_set[i]] = -1;
-        int pa = c->accs[2 * s0], ma = c->accs[2 * s0 + 1];
-        int np = (s1 < ns ? c->accs[2 * s1] : c->n_accp) - pa;
-        int nm = (s1 < ns ? c->accs[2 * s1 + 1] : c->n_accm) - ma;
-        hs_status st = HS_OK;
-        if (np + nm > c->bg_cap) {
-            double* k = hs_realloc(c->bg_k, sizeof(double) * 144 * (size_t)(np + nm));
-            if (k) c->bg_k = k;
-            int* dd = k ? hs_realloc(c->bg_d, sizeof(int) * 12 * (size_t)(np + nm)) : NULL;
-            if (dd) c->bg_d = dd;
-            if (k && dd)
-                c->bg_cap = np + nm;
-            else
-                st = HS_ERR_NOMEM;
-        }
-        if (st == HS_OK) {
-            memcpy(c->bg_k, c->accp_k + 144 * (size_t)pa, sizeof(double) * 144 * (size_t)np);
-            memcpy(c->bg_d, c->accp_d + 12 * (size_t)pa, sizeof(int) * 12 * (size_t)np);
-            memcpy(c->bg_k + 144 * (size_t)np, c->accm_k + 144 * (size_t)ma,
-                   sizeof(double) * 144 * (size_t)nm);
-            memcpy(c->bg_d + 12 * (size_t)np, c->accm_d + 12 * (size_t)ma,
-                   sizeof(int) * 12 * (size_t)nm);
-        }
-        pthread_mutex_unlock(&c->bg_lock);
-        if (st == HS_OK) st = hs_cholesky_update_parts(c->bg_f, np, nm, c->bg_k, c->bg_d);
-        if (st != HS_OK) return st;
-        c->bg_applied = s1;
-    }
-}
-
-static hs_status window_build(hs_cut* c, hs_err* err) {
-    // bg_state is the deformation thread's: not read here (the caller orders the calls).
-    if (!c || !c->bg_a)
-        return hs_err_set(err, HS_ERR_INVALID, "cut: window build without hs_cut_window_begin");
-    // Also frees the factor the last finish replaced, here rather than in the sweeps' thread.
-    hs_cholesky_destroy(&c->bg_f);
-    hs_status st;
-    if (partial_policy(c)) {
-        // Factored with its kept update matrices; the sweeps made meanwhile changed K in the
-        // dofs finish refactors (a short path when they lie in the new window).
-        st = hs_cholesky_create_last_partial(c->bg_a, c->bg_win, &c->bg_f, err);
-        if (st == HS_OK && !hs_cholesky_is_supernodal(c->bg_f)) st = HS_ERR_UNSUPPORTED;
-    } else {
-        st = hs_cholesky_create_last(c->bg_a, c->bg_win, &c->bg_f, err);
-        if (st == HS_OK) st = hs_cholesky_prepare_updates(c->bg_f, 0);
-        // Catch up with the sweeps made meanwhile (a failure is finish's to handle).
-        if (st == HS_OK) c->bg_caught = catch_up(c);
-    }
-    c->bg_status = st;
-    c->bg_built = 1;
-    return st;
-}
-
-static hs_status window_finish(hs_cut* c, int* swapped, hs_err* err) {
-    if (swapped) *swapped = 0;
-    if (!c || c->bg_state != 1 || !c->bg_built)
-        return hs_err_set(err, HS_ERR_INVALID, "cut: window finish without begin and build");
-    c->bg_state = 0;
-    c->bg_built = 0;
-    hs_status st = c->bg_status;
-    if (st != HS_OK) {
-        for (int i = 0; i < c->n_bgu; i++) c->bg_pos[c->bg_set[i]] = -1;
-        c->n_bgu = c->bg_all = 0;
-        hs_cholesky_destroy(&c->bg_f);
-        return hs_err_set(err, st, "cut: window build failed: %s", hs_status_str(st));
-    }
-    if (partial_policy(c)) {
-        // K itself is current (or reassembled here): refactor the dofs it changed in since
-        // the snapshot.
-        int all = c->bg_all || c->a_stale;
-        if (c->a_stale) {
-            hs_cut_assemble(c, c->a);
-            c->a_stale = 0;
-        }
-        st = hs_cholesky_refactor_partial(c->bg_f, c->a, all ? -1 : c->n_bgu, c->bg_set);
-        for (int i = 0; i < c->n_bgu; i++) c->bg_pos[c->bg_set[i]] = -1;
-        c->n_bgu = c->bg_all = 0;
-    } else {
-        // The sweeps since the build caught up; a failed update there breaks bg_f's factor.
-        st = c->bg_caught == HS_OK ? catch_up(c) : c->bg_caught;
-    }
-    if (st != HS_OK) { // unrecorded sweeps or a failed update: refactor the new factor
-        hs_cut_assemble(c, c->a);
-        st = hs_cholesky_refactor(c->bg_f, c->a);
-    }
-    if (st != HS_OK) {
-        hs_cholesky_destroy(&c->bg_f);
-        return hs_err_set(err, st, "cut: bringing the new window up to date failed: %s",
-                          hs_status_str(st));
-    }
-    // The old factor goes to bg_f: the next build frees it (freeing ~100 MB of a large
-    // factor's pages took milliseconds here).
-    hs_cholesky* old = c->factor;
-    c->factor = c->bg_f;
-    c->bg_f = old;
-    if (partial_policy(c)) (void)hs_cholesky_set_partial_threads(c->factor, factor_threads(c));
-    memcpy(c->win, c->bg_win, (size_t)c->n_free);
-    memcpy(c->win_org, c->bg_org, sizeof c->win_org);
-    memcpy(c->win_dir, c->bg_dir, sizeof c->win_dir);
-    c->win_stale = 0;
-    c->have_win = 1;
-    c->updates_since_refactor = 0;
-    if (swapped) *swapped = 1;
-    return HS_OK;
-}
-
-static hs_status refuse_own_thread(hs_err* err) {
-    return hs_err_set(err, HS_ERR_INVALID,
-                      "cut: the window is rebuilt by the cut's own thread "
-                      "(window_thread)");
-}
-
-hs_status hs_cut_window_begin(hs_cut* c, hs_err* err) {
-    if (c && c->def.window_thread) return refuse_own_thread(err);
-    return window_begin(c, err);
-}
-
-hs_status hs_cut_window_build(hs_cut* c, hs_err* err) {
-    if (c && c->def.window_thread) return refuse_own_thread(err);
-    return window_build(c, err);
-}
-
-hs_status hs_cut_window_finish(hs_cut* c, hs_err* err) {
-    if (c && c->def.window_thread) return refuse_own_thread(err);
-    return window_finish(c, NULL, err);
-}
-
-static void* window_thread_main(void* arg) {
-    hs_cut* c = arg;
-    hs_err e;
-    int64_t t0 = hs_now_ns();
-    (void)window_build(c, &e); // its status reaches finish through bg_status
-    c->wt_ms = (double)(hs_now_ns() - t0) * 1e-6;
-    atomic_store_explicit(&c->wt_done, 1, memory_order_release);
-    return NULL;
-}
-
-/// def.window_thread, after a sweep: swap in a finished build, then start one if due.
-static void window_thread_step(hs_cut* c, int changed, hs_cut_result* r) {
-    if (c->wt_running && atomic_load_explicit(&c->wt_done, memory_order_acquire)) {
-        // PARTIAL: the swap refactors what K changed in since the snapshot, a few ms on top
-        // of a changing sweep; in one that changed nothing it is the sweep's only cost.
-        int wait = partial_policy(c) && changed && ++c->wt_waited < 5;
-        if (!wait) {
-            pthread_join(c->wt, NULL);
-            c->wt_running = 0;
-            c->wt_waited = 0;
-            c->wt_ms_sum += c->wt_ms;
-            hs_err e;
-            int swapped = 0;
-            if (window_finish(c, &swapped, &e) == HS_OK) {
-                c->wstats.swapped += swapped;
-                r->rewindowed = swapped;
-            } else {
-                c->wstats.failed++; // the sweeps go on with the factor they have
-            }
-        }
-    }
-    if (!c->wt_running && hs_cut_window_due(c)) {
-        hs_err e;
-        if (window_begin(c, &e) != HS_OK) return; // out of memory: tried again next sweep
-        atomic_store_explicit(&c->wt_done, 0, memory_order_relaxed);
-        if (pthread_create(&c->wt, NULL, window_thread_main, c) == 0) {
-            c->wt_running = 1;
-            c->wstats.builds++;
-            r->window_started = 1;
-        } else { // no thread: drop the snapshot (begin again next sweep)
-            for (int i = 0; i < c->n_bgu; i++) c->bg_pos[c->bg_set[i]] = -1;
-            c->n_bgu = c->bg_all = 0;
-            c->bg_state = 0;
-        }
-    }
-}
-
-void hs_cut_window_stats_get(const hs_cut* c, hs_cut_window_stats* out) {
-    if (!out) return;
-    memset(out, 0, sizeof *out);
-    if (!c) return;
-    *out = c->wstats;
-    out->running = c->wt_running;
-    int ended = c->wstats.swapped + c->wstats.failed;
-    out->build_ms = ended > 0 ? c->wt_ms_sum / ended : 0;
-}
-
 /// 1 when edge ab crosses the swept quad S = {p0, q0, q1, p1} (its two triangles), with a
 /// tolerance relative to the edge's length. A crossing on the path of either blade end
 /// (within 1e-9 of the edge's length) does not count: the blade ends there and only touches
@@ -1825,15 +954,6 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
             if (!isfinite(S[k][d]) || fabs(S[k][d]) > 1e6)
                 return hs_err_set(err, HS_ERR_INVALID, "cut: blade point %d coordinate %d is %g", k,
                                   d, S[k][d]);
-    if (c->factor && c->factor_stale) {
-        r.refactored = 1;
-        hs_status fs = hs_cut_refactor(c);
-        if (fs == HS_OK && c->n_track > 0) fs = update_compliance(c, 0, 0);
-        if (fs != HS_OK)
-            return hs_err_set(err, fs, "cut: rebuilding the factor a failed sweep left: %s",
-                              hs_status_str(fs));
-        c->factor_stale = 0;
-    }
     const int n = c->n, ne = c->ne;
     double* x0 = c->mesh->x0;
     const int* T = c->mesh->tets;
@@ -2086,16 +1206,14 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
         r.fragments = handle_fragments(c, &r.piece_check_tets);
     r.removed = c->n_removed;
     r.pinned = c->n_pins;
-    r.geometry_ms = (double)(hs_now_ns() - t0) * 1e-6;
     const int mesh_changed = c->n_removed > 0 || n_moved > 0;
-    if (mesh_changed) { // whatever fails below, the mesh did change
+    if (mesh_changed) {
         c->version++;
         c->live_dirty = 1;
     }
-    int factor_done = 0;
 
-    // 5. Element changes: removed tets, remaining tets around moved vertices, pins.
-    int64_t t1 = hs_now_ns();
+    // 5. Element changes for the owner of the factor and the compliance: the removed tets
+    // (above) and the remaining tets around moved vertices, whose rest data changed.
     for (int k = 0; k < n_moved; k++) {
         int v = c->moved[k];
         for (int p = c->nt_start[v]; p < c->nt_start[v + 1]; p++) {
@@ -2105,380 +1223,20 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
             c->changed[c->n_changed++] = e;
         }
     }
-    // PARTIAL keeps K itself current: the old shares out before the elements change.
-    int partial = c->factor && (c->def.factor_policy == HS_CUT_FACTOR_PARTIAL || c->auto_partial);
-    int a_current =
-        partial && !c->a_stale &&
-        hs_fem_add_rest_elements(c->fem, c->n_removed, c->removed, 1, 0, -1, c->a) == HS_OK &&
-        hs_fem_add_rest_elements(c->fem, c->n_changed, c->changed, 1, 0, -1, c->a) == HS_OK;
-    for (int k = 0; k < c->n_removed; k++) hs_fem_set_element_active(c->fem, c->removed[k], 0);
-    hs_status st = hs_fem_refresh_elements(c->fem, c->changed, c->n_changed);
-    if (st != HS_OK) {
-        c->a_stale |= a_current; // the old shares are out of `a` already
-        hs_err_set(err, st, "cut: refreshing %d elements failed", c->n_changed);
-        goto done;
-    }
-    if (a_current)
-        a_current =
-            hs_fem_add_rest_elements(c->fem, c->n_changed, c->changed, 1, 0, 1, c->a) == HS_OK;
-    if (a_current) add_pins(c, c->a);
-    int need = c->n_removed + c->n_changed + c->n_pins, m = 0;
-    int blocks = c->n_removed + 2 * c->n_changed + c->n_pins;
-    // AUTO: the aggregated update costs about one sparse pass along the elimination tree per
-    // unit of rank, and its rank is about the number of free dofs the change touches; a
-    // numeric refactor costs a fixed amount. Both are measured as the cut runs: take the
-    // cheaper. Until an update has been timed, one rank costs 1/96 of a refactor (measured:
-    // 1/77 at 432 vertices, 1/108 at 5,043; docs/cutting.md).
-    int can_update = c->factor && c->def.factor_policy != HS_CUT_FACTOR_REFACTOR && !partial &&
-                     need > 0 && grow_elems(c, blocks) == HS_OK;
-    if (can_update) {
-        for (int k = 0; k < c->n_changed; k++) add_block(c, &m, c->changed[k], -1, x0);
-        for (int k = 0; k < c->n_pins; k++) add_block(c, &m, -1, c->pins[k], NULL);
-        c->first_minus = m;
-        for (int k = 0; k < c->n_removed; k++) add_block(c, &m, c->removed[k], -1, c->x0_old);
-        for (int k = 0; k < c->n_changed; k++) add_block(c, &m, c->changed[k], -1, c->x0_old);
-    }
-    // A change reaching outside the update window gets a factor with a new window instead.
-    int outside = can_update && c->def.window_radius_m > 0 && !in_window(c, m);
-    c->win_stale = outside;
-    // In background mode the change still updates the current factor (longer paths) and the
-    // caller rebuilds the window off the critical path (hs_cut_window_begin).
-    int new_window = outside && !c->def.window_background;
-    if (new_window) can_update = 0;
-    if (c->bg_state && !partial) { // record the change for the window being built
-        pthread_mutex_lock(&c->bg_lock);
-        if (m == 0 && need > 0)
-            c->acc_valid = 0;
-        else if (m > 0 && record_blocks(c, m) != HS_OK)
-            c->acc_valid = 0;
-        pthread_mutex_unlock(&c->bg_lock);
-    }
-    if (can_update && c->def.factor_policy == HS_CUT_FACTOR_AUTO) {
-        double per = c->update_ms_per_rank > 0 ? c->update_ms_per_rank : c->refactor_ms / 96.0;
-        can_update = union_dofs(c, m) * per < c->refactor_ms;
-    }
-    r.changed_elements = need;
-    if (can_update && c->n_track > 0 && m > 0 && c->cmode == HS_CUT_COMPLIANCE_WOODBURY) {
-        st = update_compliance(c, m, 1);
-        if (st != HS_OK) {
-            hs_err_set(err, st, "cut: compliance update failed");
-            goto done;
-        }
-    }
-    if (need > 0 && partial) {
-        int nd = a_current ? partial_dofs(c) : -1;
-        if (c->def.window_radius_m > 0) note_partial_window(c, nd);
-        if (a_current) {
-            st = hs_cholesky_refactor_partial(c->factor, c->a, nd, c->dset);
-        } else {
-            hs_cut_assemble(c, c->a);
-            c->a_stale = 0;
-            st = hs_cholesky_refactor_partial(c->factor, c->a, -1, NULL);
-        }
-        if (st != HS_OK) { // no partial data (simplicial), or a singular K: refactor in full
-            r.refactored = 1;
-            st = hs_cut_refactor(c);
-            if (st != HS_OK) {
-                hs_err_set(err, st, "cut: refactorising K after the cut failed: %s",
-                           hs_status_str(st));
-                goto done;
-            }
-        }
-        if (c->n_track > 0) {
-            st = update_compliance(c, 0, 0);
-            if (st != HS_OK) {
-                hs_err_set(err, st, "cut: compliance update failed");
-                goto done;
-            }
-        }
-    } else if (need > 0 && c->factor) {
-        // Entering update mode converts the factor once (allocates): not part of the timing.
-        st = can_update ? hs_cholesky_prepare_updates(c->factor, blocks) : HS_ERR_UNSUPPORTED;
-        int64_t tu = hs_now_ns();
-        if (st == HS_OK) st = apply_changes(c, m);
-        if (st == HS_OK) {
-            c->updates_since_refactor++;
-            hs_cholesky_update_info ui;
-            hs_cholesky_last_update(c->factor, &ui);
-            double took = (double)(hs_now_ns() - tu) * 1e-6 / (ui.rank > 0 ? ui.rank : 1);
-            c->update_ms_per_rank =
-                c->update_ms_per_rank > 0 ? 0.8 * c->update_ms_per_rank + 0.2 * took : took;
-        } else {
-            // Updates off, no memory for them, or a downdate lost definiteness: rebuild.
-            r.refactored = 1;
-            r.rewindowed = new_window;
-            int64_t tr = hs_now_ns();
-            st = new_window ? rewindow(c, p0, q0, p1, q1, err) : hs_cut_refactor(c);
-            if (!new_window)
-                c->refactor_ms = 0.8 * c->refactor_ms + 0.2 * (double)(hs_now_ns() - tr) * 1e-6;
-            if (st != HS_OK) {
-                hs_err_set(err, st, "cut: refactorising K after the cut failed: %s",
-                           hs_status_str(st));
-                goto done;
-            }
-            if (c->n_track > 0 && c->cmode == HS_CUT_COMPLIANCE_WOODBURY) {
-                st = update_compliance(c, 0, 0);
-                if (st != HS_OK) goto done;
-            }
-        }
-    }
-    if (c->n_track > 0 && need > 0 && c->cmode == HS_CUT_COMPLIANCE_RESOLVE && !partial) {
-        st = update_compliance(c, m, 0);
-        if (st != HS_OK) {
-            hs_err_set(err, st, "cut: compliance update failed");
-            goto done;
-        }
-    }
-    r.factor_ms = (double)(hs_now_ns() - t1) * 1e-6;
-    factor_done = 1;
+    r.changed_elements = c->n_removed + c->n_changed;
+    r.geometry_ms = (double)(hs_now_ns() - t0) * 1e-6;
 
     // 6. Checks (the live mesh is rebuilt here only when validating, else on first use).
+    hs_status st = HS_OK;
     int64_t t2 = hs_now_ns();
     if (mesh_changed && c->def.validate) st = hs_cut_validate(c, err);
     r.mesh_ms = (double)(hs_now_ns() - t2) * 1e-6;
-done:
-    // A failure in step 5 can leave the factor (and tracked blocks) without this change.
-    if (st != HS_OK && !factor_done && mesh_changed && c->factor) c->factor_stale = 1;
-    memcpy(c->blade, p0, 3 * sizeof(double));
-    memcpy(c->blade + 3, q0, 3 * sizeof(double));
-    memcpy(c->blade + 6, p1, 3 * sizeof(double));
-    memcpy(c->blade + 9, q1, 3 * sizeof(double));
-    c->have_blade = 1;
     for (int k = 0; k < n_cut; k++) c->tmark[c->cut_list[k]] = 0;
     for (int k = 0; k < c->n_removed; k++) c->tmark[c->removed[k]] = 0;
     for (int k = 0; k < c->n_changed; k++) c->tmark[c->changed[k]] = 0;
-    for (int k = 0; k < n_moved; k++)
-        memcpy(c->x0_old + 3 * c->moved[k], x0 + 3 * c->moved[k], 3 * sizeof(double));
-    if (st == HS_OK && c->def.window_thread) window_thread_step(c, r.changed_elements > 0, &r);
     r.topology_version = c->version;
     r.total_ms = (double)(hs_now_ns() - t0) * 1e-6;
     if (res) *res = r;
-    return st;
-}
-
-// ---------------------------------------------------------------------------------------------
-// Compliance blocks
-
-static hs_status grow_d(hs_cut* c, int d) {
-    if (d <= c->cap_d) return HS_OK;
-    int cap = d > 2 * c->cap_d ? d : 2 * c->cap_d;
-    size_t dd = (size_t)cap * (size_t)cap, td = 3 * (size_t)c->n_track * (size_t)cap;
-    double* a = hs_realloc(c->zd, sizeof(double) * dd);
-    if (!a) return HS_ERR_NOMEM;
-    c->zd = a;
-    a = hs_realloc(c->kdd, sizeof(double) * dd);
-    if (!a) return HS_ERR_NOMEM;
-    c->kdd = a;
-    a = hs_realloc(c->wrk, sizeof(double) * dd);
-    if (!a) return HS_ERR_NOMEM;
-    c->wrk = a;
-    a = hs_realloc(c->zt, sizeof(double) * (td + 1));
-    if (!a) return HS_ERR_NOMEM;
-    c->zt = a;
-    int* p = hs_realloc(c->piv, sizeof(int) * (size_t)cap);
-    if (!p) return HS_ERR_NOMEM;
-    c->piv = p;
-    c->cap_d = cap;
-    return HS_OK;
-}
-
-/// Re-solve the blocks of tracked nodes [k0, k0 + cnt) with the current factor.
-// Tracked blocks k0 .. k0+cnt-1 from the current factor: one sparse forward solve per node
-// along its elimination-tree paths (hs_cholesky_inverse_diag3), not three full solves.
-static hs_status resolve_blocks(hs_cut* c, int k0, int cnt) {
-    int* dl = hs_alloc(3 * (size_t)cnt * sizeof(int) + sizeof(int));
-    if (!dl) return HS_ERR_NOMEM;
-    for (int j = 0; j < cnt; j++) {
-        int v = c->track[k0 + j];
-        for (int q = 0; q < 3; q++) dl[3 * j + q] = c->pinned[v] ? -1 : c->dof[3 * v + q];
-    }
-    hs_status st = hs_cholesky_inverse_diag3(c->factor, cnt, dl, c->cblk + 9 * (size_t)k0);
-    hs_free(dl);
-    return st;
-}
-
-hs_status hs_cut_track_compliance(hs_cut* c, int n, const int* nodes, hs_cut_compliance_mode mode) {
-    if (!c || !c->factor || n < 0 || (n > 0 && !nodes)) return HS_ERR_INVALID;
-    // An unknown mode would match neither update and leave the blocks stale without a word.
-    if (mode != HS_CUT_COMPLIANCE_WOODBURY && mode != HS_CUT_COMPLIANCE_RESOLVE)
-        return HS_ERR_INVALID;
-    for (int k = 0; k < n; k++)
-        if (nodes[k] < 0 || nodes[k] >= c->n) return HS_ERR_INVALID;
-    hs_free(c->track);
-    hs_free(c->cblk);
-    c->track = NULL;
-    c->cblk = NULL;
-    c->n_track = 0;
-    c->cmode = mode;
-    if (n == 0) return HS_OK;
-    c->track = hs_alloc(sizeof(int) * (size_t)n);
-    c->cblk = hs_alloc(sizeof(double) * 9 * (size_t)n);
-    if (!c->zbuf) c->zbuf = hs_alloc(sizeof(double) * (size_t)c->n_free * HS_CUT_BATCH);
-    if (!c->track || !c->cblk || !c->dset || !c->dpos || !c->zbuf) return HS_ERR_NOMEM;
-    memcpy(c->track, nodes, sizeof(int) * (size_t)n);
-    c->n_track = n; // resolve_blocks reads it
-    c->cap_d = 0;   // zt depends on n_track: regrow
-    hs_free(c->zd);
-    hs_free(c->zt);
-    hs_free(c->kdd);
-    hs_free(c->wrk);
-    hs_free(c->piv);
-    c->zd = c->zt = c->kdd = c->wrk = NULL;
-    c->piv = NULL;
-    int64_t t0 = hs_now_ns();
-    hs_status st = resolve_blocks(c, 0, n);
-    c->cms = (double)(hs_now_ns() - t0) * 1e-6;
-    if (st != HS_OK) c->n_track = 0; // the blocks were not computed: track nothing
-    return st;
-}
-
-void hs_cut_compliance_block(const hs_cut* c, int k, double out[9]) {
-    HS_ASSERT(k >= 0 && k < c->n_track);
-    memcpy(out, c->cblk + 9 * (size_t)k, 9 * sizeof(double));
-}
-
-double hs_cut_compliance_ms(const hs_cut* c) {
-    return c->cms;
-}
-
-/// Dense LU with partial pivoting of a (d x d, row-major, in place); 0 if singular.
-static int lu_factor(int d, double* a, int* piv) {
-    for (int k = 0; k < d; k++) {
-        int p = k;
-        for (int i = k + 1; i < d; i++)
-            if (fabs(a[(size_t)i * d + k]) > fabs(a[(size_t)p * d + k])) p = i;
-        piv[k] = p;
-        if (a[(size_t)p * d + k] == 0.0) return 0;
-        if (p != k)
-            for (int j = 0; j < d; j++) {
-                double t = a[(size_t)k * d + j];
-                a[(size_t)k * d + j] = a[(size_t)p * d + j];
-                a[(size_t)p * d + j] = t;
-            }
-        double inv = 1.0 / a[(size_t)k * d + k];
-        for (int i = k + 1; i < d; i++) {
-            double l = a[(size_t)i * d + k] *= inv;
-            if (l == 0.0) continue;
-            for (int j = k + 1; j < d; j++) a[(size_t)i * d + j] -= l * a[(size_t)k * d + j];
-        }
-    }
-    return 1;
-}
-
-/// Solve with lu_factor's output for one right-hand side b (in place).
-static void lu_solve(int d, const double* a, const int* piv, double* b) {
-    for (int k = 0; k < d; k++) {
-        double t = b[piv[k]];
-        b[piv[k]] = b[k];
-        b[k] = t;
-    }
-    for (int i = 1; i < d; i++) {
-        double s = b[i];
-        for (int j = 0; j < i; j++) s -= a[(size_t)i * d + j] * b[j];
-        b[i] = s;
-    }
-    for (int i = d - 1; i >= 0; i--) {
-        double s = b[i];
-        for (int j = i + 1; j < d; j++) s -= a[(size_t)i * d + j] * b[j];
-        b[i] = s / a[(size_t)i * d + i];
-    }
-}
-
-// Woodbury (before = 1, the factor still holds the old K): with D the free dofs the m element
-// changes touch, dK = E_D dK_DD E_D^T and Z = K^-1 E_D,
-//   C' = C - Z (I + dK_DD Z_D)^-1 dK_DD Z^T,
-// so each tracked block needs only its 3 rows of Z. Re-solve (before = 0): every block again.
-static hs_status update_compliance(hs_cut* c, int m, int before) {
-    int64_t t0 = hs_now_ns();
-    if (!before) {
-        hs_status st = resolve_blocks(c, 0, c->n_track);
-        c->cms = (double)(hs_now_ns() - t0) * 1e-6;
-        return st;
-    }
-    int d = 0;
-    for (int e = 0; e < m; e++)
-        for (int q = 0; q < 12; q++) {
-            int f = c->edof[12 * e + q];
-            if (f >= 0 && c->dpos[f] < 0) {
-                c->dpos[f] = d;
-                c->dset[d++] = f;
-            }
-        }
-    hs_status st = grow_d(c, d);
-    if (st != HS_OK) goto out;
-    memset(c->kdd, 0, sizeof(double) * (size_t)d * d);
-    for (int e = 0; e < m; e++)
-        for (int i = 0; i < 12; i++) {
-            int fi = c->edof[12 * e + i];
-            if (fi < 0) continue;
-            for (int j = 0; j < 12; j++) {
-                int fj = c->edof[12 * e + j];
-                if (fj < 0) continue;
-                double x = c->dk[144 * (size_t)e + 12 * i + j];
-                c->kdd[(size_t)c->dpos[fi] * d + c->dpos[fj]] += e < c->first_minus ? x : -x;
-            }
-        }
-    const int nf = c->n_free;
-    for (int s = 0; s < d; s += HS_CUT_BATCH) {
-        int w = d - s < HS_CUT_BATCH ? d - s : HS_CUT_BATCH;
-        memset(c->zbuf, 0, sizeof(double) * (size_t)nf * (size_t)w);
-        for (int j = 0; j < w; j++) c->zbuf[(size_t)nf * j + (size_t)c->dset[s + j]] = 1.0;
-        st = hs_cholesky_solve_many(c->factor, w, c->zbuf, c->zbuf);
-        if (st != HS_OK) goto out;
-        for (int j = 0; j < w; j++) {
-            const double* z = c->zbuf + (size_t)nf * j;
-            for (int i = 0; i < d; i++) c->zd[(size_t)i * d + s + j] = z[c->dset[i]];
-            for (int k = 0; k < c->n_track; k++) {
-                int v = c->track[k];
-                for (int q = 0; q < 3; q++) {
-                    int f = c->dof[3 * v + q];
-                    c->zt[(size_t)(3 * k + q) * d + s + j] = f >= 0 ? z[f] : 0.0;
-                }
-            }
-        }
-    }
-    // wrk = I + dK_DD Z_D
-    for (int i = 0; i < d; i++)
-        for (int j = 0; j < d; j++) {
-            double sum = i == j ? 1.0 : 0.0;
-            for (int k = 0; k < d; k++) sum += c->kdd[(size_t)i * d + k] * c->zd[(size_t)k * d + j];
-            c->wrk[(size_t)i * d + j] = sum;
-        }
-    if (!lu_factor(d, c->wrk, c->piv)) {
-        st = HS_ERR_NUMERIC;
-        goto out;
-    }
-    // Per tracked row r of Z: y = (I + dK Z_D)^-1 dK z_r^T; block(i,j) -= z_i . y_j.
-    double* y = c->zd; // Z_D no longer needed: reuse its first 3 rows as scratch
-    for (int k = 0; k < c->n_track; k++) {
-        int v = c->track[k];
-        if (c->dof[3 * v] < 0 || c->pinned[v]) {
-            memset(c->cblk + 9 * (size_t)k, 0, 9 * sizeof(double));
-            continue;
-        }
-        for (int q = 0; q < 3; q++) {
-            const double* z = c->zt + (size_t)(3 * k + q) * d;
-            double* yq = y + (size_t)q * d;
-            for (int i = 0; i < d; i++) {
-                double sum = 0;
-                for (int j = 0; j < d; j++) sum += c->kdd[(size_t)i * d + j] * z[j];
-                yq[i] = sum;
-            }
-            lu_solve(d, c->wrk, c->piv, yq);
-        }
-        double* b = c->cblk + 9 * (size_t)k;
-        for (int i = 0; i < 3; i++)
-            for (int q = 0; q < 3; q++) {
-                const double* zi = c->zt + (size_t)(3 * k + i) * d;
-                const double* yq = y + (size_t)q * d;
-                double sum = 0;
-                for (int j = 0; j < d; j++) sum += zi[j] * yq[j];
-                b[3 * i + q] -= sum;
-            }
-    }
-out:
-    for (int i = 0; i < d; i++) c->dpos[c->dset[i]] = -1;
-    c->cms = (double)(hs_now_ns() - t0) * 1e-6;
     return st;
 }
 

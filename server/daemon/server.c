@@ -4,6 +4,7 @@
 // hs_haptic_sim runs on its own two threads.
 #define _GNU_SOURCE
 #include "server.h"
+#include "scene_sim.h"
 
 #include <errno.h>
 #include <math.h>
@@ -326,42 +327,6 @@ static const char* solver_name(int k) {
     return k == HS_SOLVER_DIRECT ? "direct" : k == HS_SOLVER_PCG ? "pcg" : "warped";
 }
 
-static void sim_def_from_scene(const hs_scene* sc, int realtime, hs_haptic_sim_def* d) {
-    *d = hs_haptic_sim_default_def();
-    d->body.fem.model = sc->model;
-    d->body.fem.material = sc->material;
-    d->body.fem.rotation = sc->rotation;
-    d->body.fem.inversion = sc->inversion;
-    d->body.fem.locking_free = sc->locking_free;
-    // auto: the deformation thread chooses (a cutting scene keeps the warped solver, whose
-    // rest factor each sweep updates in part instead of a refactor).
-    // The warped factor's rotations are the co-rotated model's: auto chooses only for it (StVK
-    // and the linear model keep the direct solver).
-    const int corot = sc->model == HS_MODEL_COROTATED;
-    d->auto_solver = sc->solver == HS_SCENE_SOLVER_AUTO && !sc->feature_cutting && corot;
-    d->auto_exact_tangent = sc->exact_tangent;
-    // The server starts (visual mesh, deformation) while the compliance is set up; haptics
-    // answer zero force until it is ready (status warnings, a console line when it is).
-    d->background_setup = 1;
-    d->body.solver = sc->solver == HS_SCENE_SOLVER_DIRECT            ? HS_SOLVER_DIRECT
-                     : sc->solver == HS_SCENE_SOLVER_PCG             ? HS_SOLVER_PCG
-                     : sc->solver == HS_SCENE_SOLVER_WARPED || corot ? HS_SOLVER_WARPED
-                                                                     : HS_SOLVER_DIRECT;
-    memcpy(d->body.gravity, sc->gravity, sizeof d->body.gravity);
-    d->body.dt = 1.0 / sc->sim_hz;
-    for (int t = 0; t < sc->n_tools; ++t)
-        if (sc->tools[t].kind == HS_TOOL_PROBE) {
-            d->probe.radius_m = sc->tools[t].radius;
-            break;
-        }
-    d->safety.max_force_n = sc->force_max_n;
-    d->safety.max_rate_n_s = sc->force_rate_max;
-    d->safety.watchdog_timeout_s = sc->watchdog_s;
-    d->rate_hz = sc->haptic_hz;
-    d->fifo_priority = realtime ? 80 : 0;
-    d->lock_memory = realtime;
-}
-
 static hs_status refuse_cut(hs_err* err) {
     return hs_err_set(err, HS_ERR_INVALID,
                       "the mesh was cut: the simulation cannot be rebuilt on it (RESET reloads "
@@ -554,7 +519,7 @@ static hs_status world_create(const hs_scene* sc, int realtime, world* w, hs_err
             s = hs_err_set(err, s, "%s:%d: key 'fixed': %s", sc->path, sc->fixed_line, e2.msg);
             goto fail;
         }
-        sim_def_from_scene(sc, realtime, &w->def);
+        hs_scene_sim_def(sc, realtime, &w->def);
         s = world_sim_create(w, 0, err);
         if (s != HS_OK) goto fail;
     }

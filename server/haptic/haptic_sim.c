@@ -54,11 +54,8 @@ hs_haptic_cut_def hs_haptic_cut_default_def(void) {
     memset(&d, 0, sizeof d);
     d.cut = hs_cut_default_def();
     d.cut.validate = 0;
-    // No factor of K in the cut: here nothing solves with it. The body keeps its own (the
-    // direct solver refactors its tangent every step; the warped solver's rest factor follows
-    // each sweep by hs_body_change_elements), and the haptic compliance is rebuilt from the
-    // live mesh. Keeping the cut's updated cost ~12 ms of a ~13 ms sweep on the skin patch.
-    d.cut.factor_policy = HS_CUT_FACTOR_NONE;
+    // The cut is geometry only: the body follows each sweep's element changes
+    // (hs_body_change_elements) and the haptic compliance is rebuilt from the live mesh.
     d.cut.orphan = HS_CUT_ORPHAN_PIN;
     d.cut.fragment = HS_CUT_FRAGMENT_DROP;
     d.blade_b[2] = 0.01;
@@ -114,6 +111,7 @@ typedef struct deform_status {
     double cut_force_n[3];
     int cutting;
     int64_t loops, comp_version, comp_rebuilds, comp_discarded;
+    int64_t cut_done_ns, comp_swap_ns;
     int comp_building;
     double relax_w;
     int64_t relax_cuts;
@@ -781,6 +779,7 @@ static int comp_poll(hs_haptic_sim* h, int wait) {
     h->st.comp_ms_last = h->cw_ms;
     h->st.comp_version = h->cw_version;
     h->st.comp_rebuilds++;
+    h->st.comp_swap_ns = hs_now_ns();
     return 1;
 }
 
@@ -911,7 +910,8 @@ static int cut_step(hs_haptic_sim* h) {
         h->st.cut_steps++;
         h->st.cut_removed += res.removed;
         h->st.sweep_ms_last = sweep_ms;
-        double ms = (double)(hs_now_ns() - t0) * 1e-6;
+        h->st.cut_done_ns = hs_now_ns();
+        double ms = (double)(h->st.cut_done_ns - t0) * 1e-6;
         h->st.cut_ms_last = ms;
         if (ms > h->st.cut_ms_max) h->st.cut_ms_max = ms;
     }
@@ -1635,7 +1635,6 @@ hs_status hs_haptic_sim_enable_cutting(hs_haptic_sim* h, hs_mesh* mesh,
     // (docs/haptics.md). A piece no fixed node holds goes (DROP) or stays in the body (FIX).
     h->cdef.cut.orphan = HS_CUT_ORPHAN_PIN;
     h->cdef.cut.pins_hold = 0; // the body has no pin springs
-    h->cdef.cut.material = h->def.body.fem.material;
     const size_t n = (size_t)mesh->n_nodes, nt = (size_t)mesh->n_tets;
     // A retry after a failed call starts clean.
     free_cut_scratch(h);
@@ -1832,6 +1831,8 @@ void hs_haptic_sim_stats_get(hs_haptic_sim* h, hs_haptic_sim_stats* out) {
     out->comp_rebuilds = ds.comp_rebuilds;
     out->comp_discarded = ds.comp_discarded;
     out->comp_building = ds.comp_building;
+    out->cut_done_ns = ds.cut_done_ns;
+    out->comp_swap_ns = ds.comp_swap_ns;
     out->free_relax_w = ds.relax_w;
     out->free_relax_cuts = ds.relax_cuts;
     out->depth_max_m = ds.depth_max;

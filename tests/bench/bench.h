@@ -18,7 +18,7 @@ int hs_bench_stress(const hs_bench_args* a);
 int hs_bench_lockfree(const hs_bench_args* a);
 /// 1 kHz haptic loop with the condensed-compliance probe (issue 3).
 int hs_bench_haptic(const hs_bench_args* a);
-/// Cutting: one progressive cut step with the factor update, against refactor / dense inverse.
+/// Cutting on the server's path: cut step, compliance valid again, tick jumps.
 int hs_bench_cut(const hs_bench_args* a);
 /// The server path (deformation + rt threads) on organ meshes against the static press reference.
 int hs_bench_organs(const hs_bench_args* a);
@@ -31,6 +31,9 @@ const char* hs_bench_mesh_path(const hs_bench_args* a, const char* file, char* b
 
 /// p-th percentile (0..100) of v[n] (sorts v in place).
 double hs_bench_percentile(double* v, size_t n, double p);
+struct timespec;
+/// Advance t (CLOCK_MONOTONIC) by 1 ms and sleep until then: a 1 kHz pose feed.
+void hs_bench_next_ms(struct timespec* t);
 /// CPU time of the calling thread, ms (CLOCK_THREAD_CPUTIME_ID).
 double hs_bench_thread_ms(void);
 /// Peak resident set size of this process, MB.

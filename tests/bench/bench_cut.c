@@ -1,491 +1,340 @@
 // SPDX-License-Identifier: GPL-2.0-or-later
-// hapsim-bench cut: cost of one progressive cut step (crossing test, vertex moves, guard, piece
-// detection, element shares and the update of K's factor: the partial refactor with the default
-// threads in the CSV; on stderr its one-thread twin, the low-rank CHOLMOD update, AUTO and the
-// update window) against a numeric refactorisation and, for small meshes, a dense inversion of K
-// (the paper's method).
-#define _GNU_SOURCE // nanosleep
+// hapsim-bench cut: the server's own cutting path. An hs_haptic_sim set up as hapsim-server sets
+// it up for scenes/skin/skin.json (hs_scene_sim_def; cutting on, the released scalpel probes),
+// driven by poses at 1 kHz: blade strokes with button 0 held, each followed by the same tool,
+// released, pressing beside the cut (the sim drives one tool: there is no second device to probe
+// with while the blade cuts). Per cut step: the step on the deformation thread (sweep + body
+// update + topology hand-over, stats cut_ms_last), and the time until the compliance the rt
+// thread uses is valid for that topology again (stats comp_swap_ns - cut_done_ns: the rebuild
+// starts when the blade is released and runs on a worker thread). Over the run: the largest
+// change between consecutive rt forces.
+#define _POSIX_C_SOURCE 200809L
 #include "bench.h"
 
-#include "hapsim/cut.h"
-#include "rt/rt_thread.h"
+#include "base/spsc_ring.h"
+#include "hapsim/haptic_sim.h"
+#include "hapsim/scene.h"
+#include "rt/haptic_rt.h"
+#include "scene_sim.h"
 
 #include <math.h>
-#include <pthread.h>
-#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
 
-#ifdef HS_BENCH_HAVE_LAPACK
-// LAPACK (OpenBLAS): Cholesky factor and inverse of a dense SPD matrix.
-void dpotrf_(const char* uplo, const int* n, double* a, const int* lda, int* info);
-void dpotri_(const char* uplo, const int* n, double* a, const int* lda, int* info);
-#endif
-
-#define HS_BENCH_DENSE_MAX 4000 // dense inversion only below this many dofs
+enum { CUT_PLATE = 0, CUT_SKIN = 1, CUT_ORGAN = 2 };
 
 typedef struct cut_case {
     const char* name;
-    const char* file; // shared mesh, or NULL for a box
-    double lx, ly, lz;
-    int nx, ny, nz;
-    int quick;
-    int rt;             // also run PARTIAL beside a 1 kHz loop, one and two factor threads
-    int vertices, tets; // filled in when loaded
+    const char* file; // shared mesh (CUT_ORGAN); the skin comes from its scene
+    int kind;
+    int strokes;       // full run
+    int quick_strokes; // --quick (0: not in --quick)
 } cut_case;
 
-/// The case's mesh: its shared file, or its box. Negative status (e.msg) on failure.
-static hs_status load_mesh(const cut_case* cc, const hs_bench_args* args, hs_mesh** m, hs_err* e) {
-    if (!cc->file) return hs_mesh_create_box(cc->lx, cc->ly, cc->lz, cc->nx, cc->ny, cc->nz, m, e);
+#define MAX_CUTS 4096
+
+typedef struct cut_run {
+    hs_haptic_sim* sim;
+    int64_t seq;
+    double last_f[3];
+    int have_last;
+    double max_jump_n;
+    int64_t cuts_seen, comp_seen;
+    int n_cuts, n_valid, missed;
+    double cut_ms[MAX_CUTS], sweep_ms[MAX_CUTS], valid_ms[MAX_CUTS];
+    int64_t cut_ver[MAX_CUTS], cut_ns[MAX_CUTS];
+    int64_t comp_version, cut_version;
+    double rebuild_ms[MAX_CUTS]; // each swapped-in rebuild's own time (stats comp_ms_last)
+    int n_rebuilds;
+    double probe_n[MAX_CUTS]; // per stroke: force felt at the end of the press beside the cut
+    int n_probes;
+} cut_run;
+
+// One millisecond: feed the pose, drain the rt telemetry (tick jumps), note new cut steps and
+// compliance swaps.
+static void tick(cut_run* r, const double p[3], int button) {
+    hs_haptic_pose pose;
+    memset(&pose, 0, sizeof pose);
+    pose.seq = ++r->seq;
+    pose.stamp_ns = hs_now_ns();
+    pose.quat_wxyz[0] = 1;
+    pose.buttons = button ? 1u : 0u;
+    memcpy(pose.pos_m, p, sizeof pose.pos_m);
+    hs_haptic_sim_feed_pose(r->sim, &pose);
+    hs_haptic_telemetry t;
+    while (hs_spsc_ring_pop(hs_haptic_sim_telemetry(r->sim), &t)) {
+        if (r->have_last) {
+            double d = 0;
+            for (int c = 0; c < 3; ++c) d += pow(t.force_n[c] - r->last_f[c], 2);
+            if (sqrt(d) > r->max_jump_n) r->max_jump_n = sqrt(d);
+        }
+        memcpy(r->last_f, t.force_n, sizeof r->last_f);
+        r->have_last = 1;
+    }
+    hs_haptic_sim_stats st;
+    hs_haptic_sim_stats_get(r->sim, &st);
+    if (st.cut_steps != r->cuts_seen) {
+        r->missed += (int)(st.cut_steps - r->cuts_seen - 1); // more than one since the last ms
+        r->cuts_seen = st.cut_steps;
+        if (r->n_cuts < MAX_CUTS) {
+            r->cut_ms[r->n_cuts] = st.cut_ms_last;
+            r->sweep_ms[r->n_cuts] = st.sweep_ms_last;
+            r->cut_ver[r->n_cuts] = st.topology_version;
+            r->cut_ns[r->n_cuts] = st.cut_done_ns;
+            r->valid_ms[r->n_cuts] = NAN;
+            r->n_cuts++;
+        }
+        r->cut_version = st.topology_version;
+    }
+    if (st.comp_rebuilds != r->comp_seen) {
+        r->comp_seen = st.comp_rebuilds;
+        r->comp_version = st.comp_version;
+        if (r->n_rebuilds < MAX_CUTS) r->rebuild_ms[r->n_rebuilds++] = st.comp_ms_last;
+        for (int k = 0; k < r->n_cuts; ++k)
+            if (isnan(r->valid_ms[k]) && r->cut_ver[k] <= st.comp_version) {
+                r->valid_ms[k] = (double)(st.comp_swap_ns - r->cut_ns[k]) * 1e-6;
+                r->n_valid++;
+            }
+    }
+}
+
+// Move the tool point from a to b at speed m/s (at least one tick), button as given.
+static void move(cut_run* r, struct timespec* clk, double a[3], const double b[3], double speed,
+                 int button) {
+    double d = sqrt(pow(b[0] - a[0], 2) + pow(b[1] - a[1], 2) + pow(b[2] - a[2], 2));
+    int n = (int)ceil(d / speed * 1000);
+    if (n < 1) n = 1;
+    for (int i = 1; i <= n; ++i) {
+        double p[3];
+        for (int c = 0; c < 3; ++c) p[c] = a[c] + (b[c] - a[c]) * i / n;
+        tick(r, p, button);
+        hs_bench_next_ms(clk);
+    }
+    memcpy(a, b, 3 * sizeof(double));
+}
+
+// Hold the tool at p until the compliance matches the newest cut (then 300 ms more) or
+// limit_s passed.
+static void hold_until_valid(cut_run* r, struct timespec* clk, const double p[3], double limit_s) {
+    int after = -1;
+    for (int i = 0; i < (int)(limit_s * 1000) && after != 0; ++i) {
+        tick(r, p, 0);
+        hs_bench_next_ms(clk);
+        if (after < 0 && r->comp_version >= r->cut_version) after = 300;
+        if (after > 0) --after;
+    }
+    if (r->n_probes < MAX_CUTS)
+        r->probe_n[r->n_probes++] = sqrt(r->last_f[0] * r->last_f[0] + r->last_f[1] * r->last_f[1] +
+                                         r->last_f[2] * r->last_f[2]);
+}
+
+typedef struct cut_geometry {
+    double x_cut, y0, y1, z_tool, z_above, probe_dx, probe_r;
+} cut_geometry;
+
+/// Tool height pressing the probe sphere (radius r) ~1 mm into the body at (x, y): the top of
+/// the boundary straight below (x, y), + r - 1 mm. At rest, read before the sim runs (cuts move
+/// x0).
+static double probe_height(const hs_mesh* m, double x, double y, double r) {
+    double top = m->bbox_max[2];
+    int any = 0;
+    for (int t = 0; t < m->n_tris; ++t) {
+        const double* a = m->x0 + 3 * m->tris[3 * t];
+        const double* b = m->x0 + 3 * m->tris[3 * t + 1];
+        const double* c = m->x0 + 3 * m->tris[3 * t + 2];
+        double det = (b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]);
+        if (fabs(det) < 1e-18) continue; // a vertical face
+        double u = ((x - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (y - a[1])) / det;
+        double v = ((b[0] - a[0]) * (y - a[1]) - (x - a[0]) * (b[1] - a[1])) / det;
+        if (u < 0 || v < 0 || u + v > 1) continue;
+        double z = a[2] + u * (b[2] - a[2]) + v * (c[2] - a[2]);
+        if (!any || z > top) top = z;
+        any = 1;
+    }
+    return top + r - 0.001;
+}
+
+/// The case's mesh, fixed nodes, blade (tool frame) and path. Returns 0 on success.
+static int case_setup(const cut_case* cc, const hs_bench_args* args, const hs_scene* sc,
+                      hs_mesh** m, unsigned char** fixed, hs_haptic_cut_def* cd, cut_geometry* g,
+                      double probe_r) {
+    hs_err e;
+    hs_status s;
     char path[1024];
-    return hs_mesh_load(hs_bench_mesh_path(args, cc->file, path, sizeof path), m, e);
-}
-
-/// Dense inversion of K (dpotrf + dpotri), ms; negative when skipped or failed.
-static double dense_inverse_ms(hs_cut* c) {
-#ifndef HS_BENCH_HAVE_LAPACK
-    (void)c;
-    return -1;
-#else
-    int nf = hs_cut_free_dofs(c);
-    if (nf > HS_BENCH_DENSE_MAX) return -1;
-    hs_csc* a = NULL;
-    if (hs_cut_create_matrix(c, &a) != HS_OK) return -1;
-    hs_cut_assemble(c, a);
-    double* d = calloc((size_t)nf * (size_t)nf, sizeof(double));
-    if (!d) {
-        hs_csc_destroy(&a);
-        return -1;
-    }
-    for (int j = 0; j < nf; j++)
-        for (int p = a->colp[j]; p < a->colp[j + 1]; p++)
-            d[(size_t)j * nf + (size_t)a->rowi[p]] = a->val[p];
-    int info = 0;
-    int64_t t0 = hs_now_ns();
-    dpotrf_("L", &nf, d, &nf, &info);
-    if (info == 0) dpotri_("L", &nf, d, &nf, &info);
-    double ms = (double)(hs_now_ns() - t0) * 1e-6;
-    free(d);
-    hs_csc_destroy(&a);
-    return info == 0 ? ms : -1;
-#endif
-}
-
-/// Median of a few numeric refactorisations of a fresh (supernodal) factor of K, ms.
-static double refactor_ms(hs_cut* c) {
-    hs_csc* a = NULL;
-    hs_cholesky* f = NULL;
-    hs_err e;
-    if (hs_cut_create_matrix(c, &a) != HS_OK) return -1;
-    hs_cut_assemble(c, a);
-    double t[5];
-    int k = 0;
-    if (hs_cholesky_create(a, &f, &e) == HS_OK)
-        for (; k < 5; k++) {
-            int64_t t0 = hs_now_ns();
-            if (hs_cholesky_refactor(f, a) != HS_OK) break;
-            t[k] = (double)(hs_now_ns() - t0) * 1e-6;
-        }
-    hs_cholesky_destroy(&f);
-    hs_csc_destroy(&a);
-    return k > 0 ? hs_bench_percentile(t, (size_t)k, 50) : -1;
-}
-
-typedef struct pass_stats {
-    double p50, p99, max, removed_per_step, geometry_ms, factor_ms, changes;
-    double rank, union_dofs; // per updated step: columns sent, free dofs aggregated
-    int updated, split;      // steps updated; of them not aggregated as one signed change
-    int rewindows;           // steps that rebuilt the factor around a new window (or swapped one)
-    int builds;              // background builds
-    double build_ms;         // their mean time
-    int steps, refactors;
-    double dense_ms, refactor_ms;
-    double share; // PARTIAL: mean share of a full factorisation's flops recomputed
-    int reps;     // repetitions of the pass (fresh meshes)
-    int off;      // window_accept_ratio's probe turned windows off
-    double probe_default, probe_window; // its shares
-} pass_stats;
-
-/// A pass: two parallel partial cuts (80 % of the width, so no piece comes free) at 40 % and
-/// 60 % of the length, each the wound forming step by step under the blade (about 0.6 element
-/// of travel per step), with the given factor policy. window: 0 none; 1 rebuilt in the sweep when
-/// left; 2 rebuilt by the cut's own window thread (window_thread: begin and finish count in the
-/// sweep they run in, the build runs while the sweeps go on). paced: one sweep per 10 ms, as in a
-/// 100 Hz deformation loop (the server runs up to 60 Hz), after 30 steps of the blade travelling
-/// towards the plate; else sweeps back to back. threads: hs_cut_def.factor_threads. twin (no
-/// window): a second cut with twin->threads factor threads takes every sweep too, the two in
-/// alternating order, its times into twin->ps.
-typedef struct twin_pass {
-    int threads;
-    pass_stats ps;
-} twin_pass;
-
-enum { MAX_STEPS = 512 };
-
-/// A pass's samples and sums over its repetitions.
-typedef struct pass_acc {
-    double ms[MAX_STEPS], ms2[MAX_STEPS];
-    double factor2, build_sum;
-    long removed, chg;
-    int build_n;
-} pass_acc;
-
-/// One repetition of a pass (a fresh mesh and cut), its samples appended to acc, sums to ps.
-/// Returns 0 on success.
-static int run_once(const cut_case* cc, const hs_bench_args* args, hs_cut_factor_policy policy,
-                    int window, int paced, int threads, int measure_reference, twin_pass* twin,
-                    pass_stats* ps, pass_acc* acc) {
-    hs_mesh* m = NULL;
-    hs_err e;
-    hs_status st = load_mesh(cc, args, &m, &e);
-    if (st < 0) {
-        fprintf(stderr, "bench cut: %s: %s\n", cc->name, e.msg);
-        return 1;
-    }
-    const int n = m->n_nodes;
-    double lo[3], ext[3];
-    for (int d = 0; d < 3; d++) {
-        lo[d] = m->bbox_min[d];
-        ext[d] = m->bbox_max[d] - m->bbox_min[d];
-    }
-    // Hold both x ends; the blade lies along the thinnest axis and sweeps along the other one.
-    unsigned char* fixed = calloc((size_t)n, 1);
-    unsigned char* far = calloc((size_t)n, 1);
-    hs_mesh_select_plane(m, 0, -1, cc->file ? 0.05 * ext[0] : 1e-9, fixed);
-    hs_mesh_select_plane(m, 0, +1, cc->file ? 0.05 * ext[0] : 1e-9, far);
-    for (int i = 0; i < n; i++) fixed[i] |= far[i];
-    free(far);
-    int thin = ext[1] < ext[2] ? 1 : 2, sweep_axis = thin == 1 ? 2 : 1;
-    hs_cut_def def = hs_cut_default_def();
-    def.validate = 0;
-    def.factor_policy = policy;
-    def.factor_threads = threads;
-    if (window && policy == HS_CUT_FACTOR_PARTIAL) {
-        hs_cut_def_auto_window(&def, m); // kept only where it pays (window_accept_ratio)
-        def.window_background = def.window_thread = window == 2;
-    } else if (window) {
-        // The low-rank policies: radius 2 h (the auto window's 3 h covers PARTIAL's wider
-        // changes), 14 h ahead (a window lasts about 20 steps on plate5043), due halfway.
-        hs_cut_def_auto_window(&def, m);
-        def.window_radius_m *= 2.0 / 3.0;
-        def.window_due_fraction = 0.5;
-        def.window_accept_ratio = 0;
-        def.window_background = def.window_thread = window == 2;
-    }
-    hs_cut *c = NULL, *c2 = NULL;
-    st = hs_cut_create(m, fixed, &def, &c, &e);
-    hs_mesh* m2 = NULL;
-    if (st == HS_OK && twin) {
-        hs_cut_def d2 = def;
-        d2.factor_threads = twin->threads;
-        st = load_mesh(cc, args, &m2, &e);
-        if (st >= HS_OK) st = hs_cut_create(m2, fixed, &d2, &c2, &e);
-    }
-    if (st != HS_OK) {
-        fprintf(stderr, "bench cut: %s: %s\n", cc->name, e.msg);
-        free(fixed);
-        hs_mesh_destroy(&m);
-        return 1;
-    }
-    if (measure_reference) {
-        ps->dense_ms = dense_inverse_ms(c);
-        ps->refactor_ms = refactor_ms(c);
-    }
-    int n_steps = cc->file ? 30 : (sweep_axis == 1 ? cc->ny : cc->nz) * 2;
-    double travel = 0.8 * ext[sweep_axis] / n_steps;
-    int failures = 0;
-    int64_t next = hs_now_ns();
-    for (int cut = 0; cut < 2 && !failures; cut++) {
-        double xc = lo[0] + (0.4 + 0.2 * cut) * ext[0] + 1e-4 * ext[0];
-        // Paced: the blade first travels 30 steps towards the plate (placing the scalpel).
-        for (int s = paced ? -30 : 0; s < n_steps && ps->steps < MAX_STEPS; s++) {
-            if (paced) { // the rest of the deformation loop's period
-                next += 10000000;
-                int64_t wait = next - hs_now_ns();
-                if (wait > 0) {
-                    struct timespec ts = {wait / 1000000000, wait % 1000000000};
-                    nanosleep(&ts, NULL);
-                }
-            }
-            double a0 = lo[sweep_axis] - 0.05 * ext[sweep_axis] + travel * s, a1 = a0 + travel;
-            double p0[3], q0[3], p1[3], q1[3];
-            p0[0] = q0[0] = p1[0] = q1[0] = xc;
-            p0[thin] = p1[thin] = lo[thin] - 0.1 * ext[thin];
-            q0[thin] = q1[thin] = lo[thin] + 1.1 * ext[thin];
-            p0[sweep_axis] = q0[sweep_axis] = a0;
-            p1[sweep_axis] = q1[sweep_axis] = a1;
-            hs_cut_result r, r2;
-            memset(&r2, 0, sizeof r2);
-            // With a twin, the first cut sweeps first on even steps, second on odd ones.
-            for (int k = 0; k < (c2 ? 2 : 1); k++) {
-                int second = c2 && (k ^ (s & 1));
-                if (hs_cut_sweep(second ? c2 : c, p0, q0, p1, q1, NULL, second ? &r2 : &r, &e) !=
-                    HS_OK) {
-                    fprintf(stderr, "bench cut: %s: %s\n", cc->name, e.msg);
-                    failures++;
-                }
-            }
-            if (failures) break;
-            // A sweep that cut nothing counts only if a window begin or finish ran in it.
-            if (r.changed_elements == 0 && !r.rewindowed && !r.window_started) continue;
-            if (c2) {
-                acc->ms2[ps->steps] = r2.total_ms;
-                acc->factor2 += r2.factor_ms;
-            }
-            acc->ms[ps->steps++] = r.total_ms;
-            acc->removed += r.removed;
-            acc->chg += r.changed_elements;
-            ps->geometry_ms += r.geometry_ms;
-            ps->factor_ms += r.factor_ms;
-            ps->refactors += r.refactored;
-            ps->rewindows += r.rewindowed;
-            if (policy == HS_CUT_FACTOR_PARTIAL) {
-                ps->share += hs_cholesky_partial_share(hs_cut_factor(c));
-            } else if (!r.refactored) {
-                hs_cholesky_update_info ui;
-                hs_cholesky_last_update(hs_cut_factor(c), &ui);
-                ps->rank += ui.rank;
-                ps->union_dofs += ui.union_dofs;
-                ps->updated++;
-                ps->split += ui.method != HS_UPDATE_AGGREGATED;
-            }
-        }
-    }
-    if (window == 2) {
-        hs_cut_window_stats ws;
-        hs_cut_window_stats_get(c, &ws);
-        ps->builds += ws.builds;
-        acc->build_sum += ws.build_ms * (ws.swapped + ws.failed);
-        acc->build_n += ws.swapped + ws.failed;
-        ps->off = ws.off;
-        ps->probe_default = ws.probe_share_default;
-        ps->probe_window = ws.probe_share_window;
-        failures += ws.failed;
-    }
-    free(fixed);
-    hs_cut_destroy(&c);
-    hs_cut_destroy(&c2);
-    hs_mesh_destroy(&m);
-    hs_mesh_destroy(&m2);
-    return failures ? 1 : 0;
-}
-
-/// A pass repeated on fresh meshes: reps times, or (reps 0) until it has at least 100 sweep
-/// times (at most 8 repetitions), so that its p99 is not just its slowest sweep.
-static int run_pass(const cut_case* cc, const hs_bench_args* args, hs_cut_factor_policy policy,
-                    int window, int paced, int threads, int measure_reference, twin_pass* twin,
-                    int reps, pass_stats* ps) {
-    memset(ps, 0, sizeof *ps);
-    ps->dense_ms = ps->refactor_ms = -1;
-    if (twin) memset(&twin->ps, 0, sizeof twin->ps);
-    pass_acc* acc = calloc(1, sizeof *acc);
-    if (!acc) return 1;
-    int rc = 0;
-    while (!rc && (reps > 0 ? ps->reps < reps : ps->reps < 8 && ps->steps < 100)) {
-        int before = ps->steps;
-        rc = run_once(cc, args, policy, window, paced, threads, measure_reference && ps->reps == 0,
-                      twin, ps, acc);
-        ps->reps++;
-        // Stop when a pass adds nothing or another like it would not fit.
-        if (ps->steps == before || ps->steps + (ps->steps - before) > MAX_STEPS) break;
-    }
-    if (ps->steps) {
-        ps->removed_per_step = (double)acc->removed / ps->steps;
-        ps->changes = (double)acc->chg / ps->steps;
-        if (ps->updated) {
-            ps->rank /= ps->updated;
-            ps->union_dofs /= ps->updated;
-        }
-        ps->geometry_ms /= ps->steps;
-        ps->share /= ps->steps;
-        ps->factor_ms /= ps->steps;
-        ps->p50 = hs_bench_percentile(acc->ms, (size_t)ps->steps, 50);
-        if (twin) {
-            twin->ps.steps = ps->steps;
-            twin->ps.factor_ms = acc->factor2 / ps->steps;
-            twin->ps.p50 = hs_bench_percentile(acc->ms2, (size_t)ps->steps, 50);
-            twin->ps.p99 = hs_bench_percentile(acc->ms2, (size_t)ps->steps, 99);
-            twin->ps.max = hs_bench_percentile(acc->ms2, (size_t)ps->steps, 100);
-        }
-        ps->p99 = hs_bench_percentile(acc->ms, (size_t)ps->steps, 99);
-        ps->max = hs_bench_percentile(acc->ms, (size_t)ps->steps, 100);
-    }
-    if (acc->build_n) ps->build_ms = acc->build_sum / acc->build_n;
-    free(acc);
-    return rc;
-}
-
-static int run_case(const cut_case* cc, const hs_bench_args* args) {
-    pass_stats up, au, wu, wa, wb, pa, pw, pp, pn;
-    twin_pass one = {.threads = 1};
-    int rc = run_pass(cc, args, HS_CUT_FACTOR_UPDATE, 0, 0, 0, 1, NULL, 1, &up);
-    rc |= run_pass(cc, args, HS_CUT_FACTOR_PARTIAL, 0, 0, 0, 0, &one, 0, &pa);
-    rc |= run_pass(cc, args, HS_CUT_FACTOR_AUTO, 0, 0, 0, 0, NULL, 1, &au);
-    rc |= run_pass(cc, args, HS_CUT_FACTOR_UPDATE, 1, 0, 0, 0, NULL, 1, &wu);
-    rc |= run_pass(cc, args, HS_CUT_FACTOR_AUTO, 1, 0, 0, 0, NULL, 1, &wa);
-    rc |= run_pass(cc, args, HS_CUT_FACTOR_UPDATE, 2, 0, 0, 0, NULL, 1, &wb);
-    // PARTIAL with the automatic window (hs_cut_def_auto_window): where its probe keeps
-    // windows, partial refactors on one thread and the builds on the other core, else plain
-    // PARTIAL on the default threads; paced, against the plain PARTIAL pass paced the same way.
-    rc |= run_pass(cc, args, HS_CUT_FACTOR_PARTIAL, 2, 0, 0, 0, NULL, 1, &pw);
-    rc |= run_pass(cc, args, HS_CUT_FACTOR_PARTIAL, 2, 1, 0, 0, NULL, 0, &pp);
-    rc |= run_pass(cc, args, HS_CUT_FACTOR_PARTIAL, 0, 1, 0, 0, NULL, 0, &pn);
-    const pass_stats* p1 = &one.ps;
-    hs_mesh* m = NULL;
-    char dense_s[32];
-    if (up.dense_ms >= 0)
-        snprintf(dense_s, sizeof dense_s, "%.2f", up.dense_ms);
+    if (cc->kind == CUT_SKIN)
+        s = hs_mesh_load(sc->mesh_path, m, &e);
+    else if (cc->kind == CUT_PLATE) // 200 x 200 x 10 mm, 40 x 40 x 2 cells: 5,043 vertices
+        s = hs_mesh_create_box(0.2, 0.2, 0.01, 40, 40, 2, m, &e);
     else
-        snprintf(dense_s, sizeof dense_s, "NA");
-    (void)m;
-    // update_ms: the PARTIAL policy, the fastest exact path; the low-rank one is on stderr.
-    printf("%s,%d,%d,%.1f,%.3f,%.3f,%.2f,%s\n", cc->name, cc->vertices, cc->tets,
-           pa.removed_per_step, pa.p50, pa.p99, up.refactor_ms, dense_s);
-    fflush(stdout);
-    fprintf(stderr,
-            "cut: %s: %d steps, %.1f element changes/step; low-rank update (UPDATE): step p50 "
-            "%.3f ms p99 %.3f ms, geometry %.3f ms + factor %.3f ms, rank %.1f for %.1f free dofs "
-            "touched (%d of %d steps split); AUTO policy: step p50 %.3f ms p99 %.3f ms (%d of %d "
-            "steps refactored)\n",
-            cc->name, up.steps, up.changes, up.p50, up.p99, up.geometry_ms, up.factor_ms, up.rank,
-            up.union_dofs, up.split, up.updated, au.p50, au.p99, au.refactors, au.steps);
-    fprintf(stderr,
-            "cut: %s: PARTIAL policy (default factor threads): step p50 %.3f ms p99 %.3f ms max "
-            "%.3f ms (geometry %.3f ms, "
-            "factor %.3f ms, %.2f of a factorisation's flops, %d of %d steps refactored; %d "
-            "passes on fresh meshes)\n",
-            cc->name, pa.p50, pa.p99, pa.max, pa.geometry_ms, pa.factor_ms, pa.share, pa.refactors,
-            pa.steps, pa.reps);
-    fprintf(stderr,
-            "cut: %s: PARTIAL on one thread (factor_threads 1), its sweeps alternating with the "
-            "above: step p50 %.3f ms p99 %.3f ms max %.3f ms (factor %.3f ms); default threads "
-            "/ one thread: factor time %.2f, step p50 %.2f\n",
-            cc->name, p1->p50, p1->p99, p1->max, p1->factor_ms,
-            p1->factor_ms > 0 ? pa.factor_ms / p1->factor_ms : 0,
-            p1->p50 > 0 ? pa.p50 / p1->p50 : 0);
-    fprintf(stderr,
-            "cut: %s: with the update window: UPDATE step p50 %.3f ms p99 %.3f ms (%d of %d steps "
-            "rebuilt the window, rank %.1f); AUTO step p50 %.3f ms p99 %.3f ms (%d refactored, "
-            "%d of them new windows)\n",
-            cc->name, wu.p50, wu.p99, wu.rewindows, wu.steps, wu.rank, wa.p50, wa.p99, wa.refactors,
-            wa.rewindows);
-    fprintf(stderr,
-            "cut: %s: background window (UPDATE): step p50 %.3f ms p99 %.3f ms max %.3f ms, %d "
-            "refactored; %d builds of %.1f ms on a second thread, %d swapped in\n",
-            cc->name, wb.p50, wb.p99, wb.max, wb.refactors, wb.builds, wb.build_ms, wb.rewindows);
-    for (int k = 0; k < 2; k++) {
-        const pass_stats* w = k ? &pp : &pw;
-        fprintf(stderr,
-                "cut: %s: background window (PARTIAL%s): step p50 %.3f ms p99 %.3f ms max %.3f "
-                "ms, %.2f of a factorisation's flops, %d refactored; %d builds of %.1f ms on a "
-                "second thread, %d swapped in (probe: share %.3f in the window's order against "
-                "%.3f: windows %s); %d steps in %d passes\n",
-                cc->name, k ? ", one sweep per 10 ms" : ", sweeps back to back", w->p50, w->p99,
-                w->max, w->share, w->refactors, w->builds, w->build_ms, w->rewindows,
-                w->probe_window, w->probe_default, w->off ? "off" : "kept", w->steps, w->reps);
+        s = hs_mesh_load(hs_bench_mesh_path(args, cc->file, path, sizeof path), m, &e);
+    if (s < 0) {
+        fprintf(stderr, "bench cut: %s: %s\n", cc->name, e.msg);
+        return 1;
     }
-    fprintf(stderr,
-            "cut: %s: PARTIAL without a window (default factor threads), one sweep per 10 ms: "
-            "step p50 %.3f ms p99 %.3f ms max %.3f ms, %.2f of a factorisation's flops; %d "
-            "steps in %d passes\n",
-            cc->name, pn.p50, pn.p99, pn.max, pn.share, pn.steps, pn.reps);
-    // Does the helper thread disturb a haptic loop? The rt thread's own scheduling (SCHED_FIFO
-    // when granted), an empty tick, beside a PARTIAL pass on one and on two threads.
-    for (int t = 1; t <= 2 && cc->rt; t++) {
-        hs_rt_def rd = hs_rt_default_def();
-        hs_rt_loop* loop = NULL;
-        hs_err e;
-        pass_stats ps;
-        if (hs_rt_loop_create(&rd, &loop, &e) != HS_OK || hs_rt_loop_start(loop, &e) != HS_OK) {
-            fprintf(stderr, "bench cut: rt loop: %s\n", e.msg);
-            hs_rt_loop_destroy(&loop);
-            return 1;
+    const hs_mesh* mm = *m;
+    *fixed = hs_calloc((size_t)mm->n_nodes, 1);
+    if (!*fixed) return 1;
+    const double *lo = mm->bbox_min, *hi = mm->bbox_max;
+    const double cx = 0.5 * (lo[0] + hi[0]), ly = hi[1] - lo[1], lz = hi[2] - lo[2];
+    if (cc->kind == CUT_SKIN) { // the scene's regions and its scalpel
+        for (int k = 0; k < sc->n_fixed; ++k) {
+            unsigned char* sel = hs_calloc((size_t)mm->n_nodes, 1);
+            if (!sel || hs_scene_fixed_select(&sc->fixed[k], mm, sel, &e) != HS_OK) {
+                hs_free(sel);
+                return 1;
+            }
+            for (int i = 0; i < mm->n_nodes; ++i) (*fixed)[i] |= sel[i];
+            hs_free(sel);
         }
-        rc |= run_pass(cc, args, HS_CUT_FACTOR_PARTIAL, 0, 0, t, 0, NULL, 1, &ps);
-        hs_rt_loop_stop(loop);
-        hs_rt_stats st;
-        hs_rt_loop_stats(loop, &st);
-        hs_rt_loop_destroy(&loop);
-        fprintf(stderr,
-                "cut: %s: 1 kHz loop (%s) beside PARTIAL on %d thread%s (step p50 %.3f ms): "
-                "period error p50 %.0f us p99 %.0f us p99.9 %.0f us, worst wake-up %.0f us late, "
-                "%lld of %lld deadlines missed\n",
-                cc->name, (st.obtained & HS_RT_SCHED_FIFO) ? "SCHED_FIFO" : "ordinary scheduling",
-                t, t > 1 ? "s" : "", ps.p50, hs_rt_hist_quantile_us(&st.period_err, 0.5),
-                hs_rt_hist_quantile_us(&st.period_err, 0.99),
-                hs_rt_hist_quantile_us(&st.period_err, 0.999), (double)st.wake_late_max_ns * 1e-3,
-                (long long)st.missed_deadlines, (long long)(st.ticks + st.missed_deadlines));
+        for (int t = 0; t < sc->n_tools; ++t)
+            if (sc->tools[t].kind == HS_TOOL_SCALPEL) {
+                memcpy(cd->blade_a, sc->tools[t].blade_a, sizeof cd->blade_a);
+                memcpy(cd->blade_b, sc->tools[t].blade_b, sizeof cd->blade_b);
+                break;
+            }
+        g->z_tool = lo[2] + 0.5 * lz;   // the scene's comment: tool point at z = 2 mm
+    } else if (cc->kind == CUT_PLATE) { // held at both x ends, the blade spans the thickness
+        hs_mesh_select_plane(mm, 0, -1, 1e-6, *fixed);
+        unsigned char* far = hs_calloc((size_t)mm->n_nodes, 1);
+        if (!far) return 1;
+        hs_mesh_select_plane(mm, 0, +1, 1e-6, far);
+        for (int i = 0; i < mm->n_nodes; ++i) (*fixed)[i] |= far[i];
+        hs_free(far);
+        cd->blade_a[2] = -(0.5 * lz + 0.003);
+        cd->blade_b[2] = 0.5 * lz + 0.005;
+        g->z_tool = lo[2] + 0.5 * lz;
+    } else { // an organ held at its lowest fifth, cut from the top a third of its height deep
+        hs_mesh_select_plane(mm, 2, -1, 0.2 * lz, *fixed);
+        cd->blade_a[2] = -lz / 3;
+        cd->blade_b[2] = 0.01;
+        g->z_tool = hi[2];
     }
-    return rc;
+    g->x_cut = cx + 0.37e-3; // off the box's vertex planes
+    g->y0 = lo[1] + 0.15 * ly;
+    g->y1 = hi[1] - 0.15 * ly;
+    g->z_above = hi[2] + cd->blade_b[2] - cd->blade_a[2] + 0.002; // whole blade above the body
+    g->probe_dx = 2 * probe_r + 0.002;
+    g->probe_r = probe_r;
+    return 0;
 }
 
-/// Whether this machine keeps a deformation step's data cached across a pause: median time to
-/// read 1 MB (one load per 64-byte line) right after the previous read, and after 10 ms of
-/// spinning (no sleep, so not the processor idling), us. Explains the paced passes.
-static void cache_after_pause(double* hot_us, double* cold_us) {
-    enum { BYTES = 1 << 20, READS = 31 };
-    double* buf = malloc(BYTES);
-    *hot_us = *cold_us = -1;
-    if (!buf) return;
-    const size_t n = BYTES / sizeof(double);
-    for (size_t i = 0; i < n; i++) buf[i] = (double)i;
-    volatile double sink = 0;
-    double t[2][READS];
-    for (int r = 0; r < READS; r++)
-        for (int k = 0; k < 2; k++) {
-            int64_t until = hs_now_ns() + (k ? 10000000 : 0);
-            while (hs_now_ns() < until) {
-            }
-            int64_t t0 = hs_now_ns();
-            double acc = 0;
-            for (size_t i = 0; i < n; i += 8) acc += buf[i];
-            t[k][r] = (double)(hs_now_ns() - t0) * 1e-3;
-            sink += acc;
+static int cmp_d(const void* a, const void* b) {
+    double x = *(const double*)a, y = *(const double*)b;
+    return (x > y) - (x < y);
+}
+
+static double pct(const double* v, int n, double p) {
+    double* s = malloc(sizeof(double) * (size_t)(n > 0 ? n : 1));
+    int k = 0;
+    for (int i = 0; i < n; ++i)
+        if (!isnan(v[i])) s[k++] = v[i];
+    qsort(s, (size_t)k, sizeof(double), cmp_d);
+    double r = k > 0 ? hs_bench_percentile(s, (size_t)k, p) : NAN;
+    free(s);
+    return r;
+}
+
+static int run_case(const cut_case* cc, const hs_bench_args* args, const hs_scene* sc) {
+    hs_haptic_sim_def d;
+    hs_scene_sim_def(sc, 0, &d);
+    hs_haptic_cut_def cd = hs_haptic_cut_default_def();
+    cd.max_force_n = sc->force_max_n < cd.max_force_n ? sc->force_max_n : cd.max_force_n;
+    cd.probe_when_released = 1; // the skin scene lists a probe
+    cd.cut.fragment = sc->cut_free_pieces_fall ? HS_CUT_FRAGMENT_FIX : HS_CUT_FRAGMENT_DROP;
+    hs_mesh* m = NULL;
+    unsigned char* fixed = NULL;
+    cut_geometry g;
+    memset(&g, 0, sizeof g);
+    hs_err e;
+    int rc = case_setup(cc, args, sc, &m, &fixed, &cd, &g, d.probe.radius_m);
+    const int strokes = args->quick ? cc->quick_strokes : cc->strokes;
+    const double v_cut = 0.03, v_move = 0.1; // m/s: the blade, the hand between strokes
+    const double stroke = (g.y1 - g.y0) / (cc->strokes > 0 ? cc->strokes : 1);
+    double probe_z[64];
+    for (int k = 0; k < strokes && k < 64 && !rc; ++k)
+        probe_z[k] = probe_height(m, g.x_cut + g.probe_dx, g.y0 + (k + 0.5) * stroke, g.probe_r);
+    cut_run* r = calloc(1, sizeof *r);
+    int64_t t0 = hs_now_ns();
+    if (!rc && (!r || hs_haptic_sim_create(m, &d, fixed, &r->sim, &e) != HS_OK ||
+                hs_haptic_sim_enable_cutting(r->sim, m, &cd, &e) != HS_OK ||
+                hs_haptic_sim_start(r->sim, &e) != HS_OK)) {
+        fprintf(stderr, "bench cut: %s: %s\n", cc->name, e.msg);
+        rc = 1;
+    }
+    double setup_ms = (double)(hs_now_ns() - t0) * 1e-6;
+    if (!rc) {
+        struct timespec clk;
+        clock_gettime(CLOCK_MONOTONIC, &clk);
+        double p[3] = {g.x_cut, g.y0, g.z_above}, b[3];
+        for (int s = 0; s < strokes; ++s) {
+            const double ys = g.y0 + s * stroke;
+            b[0] = g.x_cut, b[1] = ys, b[2] = g.z_above; // above where the cut goes on
+            move(r, &clk, p, b, v_move, 0);
+            b[2] = g.z_tool; // down along the blade (no sweep area: nothing cut)
+            move(r, &clk, p, b, v_move, 1);
+            b[1] = ys + stroke; // the stroke, button held
+            move(r, &clk, p, b, v_cut, 1);
+            b[2] = g.z_above; // out along the blade, then released
+            move(r, &clk, p, b, v_move, 1);
+            b[0] = g.x_cut + g.probe_dx, b[1] = ys + 0.5 * stroke; // beside the cut, then press
+            move(r, &clk, p, b, v_move, 0);
+            b[2] = probe_z[s];
+            move(r, &clk, p, b, 0.02, 0);
+            hold_until_valid(r, &clk, p, 20.0);
+            b[2] = g.z_above;
+            move(r, &clk, p, b, 0.02, 0);
         }
-    (void)sink;
-    free(buf);
-    *hot_us = hs_bench_percentile(t[0], READS, 50);
-    *cold_us = hs_bench_percentile(t[1], READS, 50);
+        hs_haptic_sim_stats st;
+        hs_haptic_sim_stats_get(r->sim, &st);
+        hs_haptic_sim_stop(r->sim);
+        fprintf(stderr,
+                "cut: %s: %d strokes, %lld sweeps, %d cut steps (%d missed by the 1 ms poll), "
+                "%lld tets removed; the sweep alone p50 %.2f ms, p99 %.2f ms; %lld compliance "
+                "rebuilds (%lld dropped for a newer cut), "
+                "each p50 %.0f ms, max %.0f ms on the worker; %d of the steps found valid; "
+                "the press beside the cut felt p50 %.3f N, min %.3f N; watchdog trips %lld; set-up "
+                "%.0f ms; cut failures %lld\n",
+                cc->name, strokes, (long long)st.cut_sweeps, r->n_cuts, r->missed,
+                (long long)st.cut_removed, pct(r->sweep_ms, r->n_cuts, 50),
+                pct(r->sweep_ms, r->n_cuts, 99), (long long)st.comp_rebuilds,
+                (long long)st.comp_discarded, pct(r->rebuild_ms, r->n_rebuilds, 50),
+                pct(r->rebuild_ms, r->n_rebuilds, 100), r->n_valid,
+                pct(r->probe_n, r->n_probes, 50), pct(r->probe_n, r->n_probes, 0),
+                (long long)st.safety.watchdog_trips, setup_ms, (long long)st.cut_failures);
+        printf("%s,%d,%d,%d,%lld,%.2f,%.2f,%.1f,%.1f,%.4f\n", cc->name, m->n_nodes, m->n_tets,
+               r->n_cuts, (long long)st.cut_removed, pct(r->cut_ms, r->n_cuts, 50),
+               pct(r->cut_ms, r->n_cuts, 99), pct(r->valid_ms, r->n_cuts, 50),
+               pct(r->valid_ms, r->n_cuts, 99), r->max_jump_n);
+        fflush(stdout);
+        if (r->n_cuts == 0 || r->n_valid < r->n_cuts) rc = 1; // a step never felt: a failure
+    }
+    if (r) hs_haptic_sim_destroy(&r->sim);
+    free(r);
+    hs_free(fixed);
+    hs_mesh_destroy(&m);
+    return rc;
 }
 
 int hs_bench_cut(const hs_bench_args* a) {
-    cut_case cases[] = {
-        {"plate192", NULL, 0.2, 0.2, 0.01, 7, 7, 2, 0, 0, 0, 0},
-        {"plate288", NULL, 0.2, 0.2, 0.01, 11, 11, 1, 0, 0, 0, 0},
-        {"plate432", NULL, 0.2, 0.2, 0.01, 11, 11, 2, 1, 0, 0, 0},
-        {"liver2", "liver2.msh", 0, 0, 0, 0, 0, 0, 0, 0, 0, 0},
-        {"tongue", "tongue.msh", 0, 0, 0, 0, 0, 0, 0, 0, 0, 0},
-        {"vessel", "aneurysm_vessel.msh", 0, 0, 0, 0, 0, 0, 0, 0, 0, 0},
-        {"plate5043", NULL, 0.2, 0.2, 0.01, 40, 40, 2, 1, 1, 0, 0},
+    static const cut_case cases[] = {
+        {"skin_patch", NULL, CUT_SKIN, 6, 3},
+        {"plate5043", NULL, CUT_PLATE, 4, 0},
+        {"tongue", "tongue.msh", CUT_ORGAN, 4, 0},
     };
-    hs_sparse_set_threads(1);
-    double hot_us, cold_us;
-    cache_after_pause(&hot_us, &cold_us);
-    fprintf(stderr,
-            "cut: machine: reading 1 MB (a load per cache line) takes p50 %.0f us right after "
-            "the last read, %.0f us after 10 ms of spinning (%.2fx): where this is well above 1, "
-            "a sweep paced at 100 Hz finds its data out of cache and runs slower than back to "
-            "back\n",
-            hot_us, cold_us, hot_us > 0 ? cold_us / hot_us : 0);
-    printf("mesh,vertices,tets,removed_per_step,update_ms_p50,update_ms_p99,refactor_ms,"
-           "dense_inverse_ms\n");
+    hs_scene sc;
+    hs_err e;
+    if (hs_scene_load(HS_SCENES_DIR "/skin/skin.json", &sc, &e) != HS_OK) {
+        fprintf(stderr, "bench cut: %s\n", e.msg);
+        return 1;
+    }
+    printf("mesh,vertices,tets,cut_steps,tets_removed,cut_step_ms_p50,cut_step_ms_p99,"
+           "compliance_valid_ms_p50,compliance_valid_ms_p99,max_tick_jump_n\n");
     int rc = 0;
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
-        if (a->quick && !cases[i].quick) continue;
-        fprintf(stderr, "cut: %s\n", cases[i].name);
-        hs_mesh* m = NULL;
-        hs_err e;
-        if (load_mesh(&cases[i], a, &m, &e) < 0) {
-            fprintf(stderr, "bench cut: %s: %s\n", cases[i].name, e.msg);
-            rc = 1;
-            continue;
-        }
-        cases[i].vertices = m->n_nodes;
-        cases[i].tets = m->n_tets;
-        hs_mesh_destroy(&m);
-        rc |= run_case(&cases[i], a);
+        if (a->quick && !cases[i].quick_strokes) continue;
+        rc |= run_case(&cases[i], a, &sc);
     }
     return rc;
 }

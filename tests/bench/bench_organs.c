@@ -77,12 +77,6 @@ typedef struct run_state {
     int n_steps;
 } run_state;
 
-static void sleep_ms(struct timespec* t) {
-    t->tv_nsec += 1000000L;
-    if (t->tv_nsec >= 1000000000L) t->tv_nsec -= 1000000000L, t->tv_sec++;
-    clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, t, NULL);
-}
-
 // One millisecond: feed the pose, drain telemetry (tick jumps, force window), sample steps.
 static void tick(run_state* rs, const double p[3], depth_result* r) {
     hs_haptic_pose pose;
@@ -129,7 +123,7 @@ static void press_to(run_state* rs, const double* x, const double* n, double rad
         double dep = i < ramp ? d0 + (d1 - d0) * (i + 1) / ramp : d1;
         for (int c = 0; c < 3; ++c) p[c] = x[c] + (radius - dep) * n[c];
         tick(rs, p, r);
-        sleep_ms(&next);
+        hs_bench_next_ms(&next);
         if (i == ramp) rs->win_n = 0, memset(rs->win_sum, 0, sizeof rs->win_sum);
         if (i <= ramp || (i - ramp) % 100 || rs->win_n == 0) continue;
         double df = 0, fm = 0;

@@ -24,6 +24,12 @@ const char* hs_bench_mesh_path(const hs_bench_args* a, const char* file, char* b
     return buf;
 }
 
+void hs_bench_next_ms(struct timespec* t) {
+    t->tv_nsec += 1000000L;
+    if (t->tv_nsec >= 1000000000L) t->tv_nsec -= 1000000000L, t->tv_sec++;
+    clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, t, NULL);
+}
+
 double hs_bench_thread_ms(void) {
     struct timespec ts;
     clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
@@ -72,7 +78,7 @@ static const bench_cmd cmds[] = {
     {"haptic", hs_bench_haptic, "1 kHz loop with the compliance probe vs a bare loop"},
     {"organs", hs_bench_organs, "server path on organ meshes: force at depth vs the static press"},
 #ifdef HS_BENCH_HAVE_CUT
-    {"cut", hs_bench_cut, "cut step with factor update vs refactor and dense inverse (issue 7)"},
+    {"cut", hs_bench_cut, "the server's cutting path: cut step and compliance valid again"},
 #endif
 #ifdef HS_BENCH_HAVE_PROTOCOL
     {"protocol", hs_bench_protocol, "pose -> force round trip via hapsim-server vs bare LCM"},
