@@ -224,7 +224,10 @@ struct hs_haptic_sim {
     int applied_node[HS_MAX_CONTACT];
     double applied_f[HS_MAX_CONTACT][3]; // N
     int64_t version;
-    deform_status st; // deformation thread's copy, published through `status`
+    deform_status st;   // deformation thread's copy, published through `status`
+    int was_probing;    // the previous snapshot had a probe contact (cutting on)
+    hs_contact entry_c; // settle_entry's scratch
+    int entry_left;     // snapshots still settled after the probe's entry
 
     // cutting (cut == NULL: off); owned by the deformation thread after start
     hs_haptic_cut_def cdef;
@@ -400,13 +403,16 @@ static void node_rot(hs_haptic_sim* h, int node, double r[9]) {
 // rather than the body's dynamic one, which rings and would shake the contact's normals with
 // it. surf_m holds q on entry. A contact node without a compliance block to a candidate (no
 // column cached for either) adds nothing there.
-static void preload_surface(hs_haptic_sim* h, hs_contact_snapshot* s) {
+// The forces are n_f at nodes f_node; relax < 0: PRELOAD_RELAX after a snapshot that had the
+// node, else 1.
+static void preload_surface(hs_haptic_sim* h, hs_contact_snapshot* s, int n_f, const int* f_node,
+                            const double (*f_n)[3], double relax) {
     for (int i = 0; i < s->n_cand; ++i) {
         double pre[3] = {0, 0, 0};
         const double* ri = h->rot + 9 * (size_t)s->node[i];
-        for (int k = 0; k < h->applied_n; ++k) {
-            const int node = h->applied_node[k];
-            const double* f = h->applied_f[k];
+        for (int k = 0; k < n_f; ++k) {
+            const int node = f_node[k];
+            const double* f = f_n[k];
             int j = 0;
             while (j < s->n_cand && s->node[j] != node) ++j;
             double blk[9];
@@ -423,7 +429,9 @@ static void preload_surface(hs_haptic_sim* h, hs_contact_snapshot* s) {
         }
         const int node = s->node[i];
         double* ps = h->pre + 3 * (size_t)node;
-        const double w = h->pre_at[node] == s->version - 1 ? PRELOAD_RELAX : 1.0;
+        const double w = relax >= 0                          ? relax
+                         : h->pre_at[node] == s->version - 1 ? PRELOAD_RELAX
+                                                             : 1.0;
         h->pre_at[node] = s->version;
         for (int a = 0; a < 3; ++a) {
             ps[a] += w * (pre[a] - ps[a]);
@@ -434,6 +442,30 @@ static void preload_surface(hs_haptic_sim* h, hs_contact_snapshot* s) {
     hs_contact_snapshot_bound_tris(s);
 }
 
+// A probe entering tissue (a blade released in its cut): the contact geometry follows the
+// forces rt finds on it only from step to step, and a sphere that appears with tissue inside
+// it is far from where that settles (on the skin patch the first answers reached 0.7-1.5 N,
+// 2.4 N through the server, and fell to ~0.1 N within three steps). So iterate it here, with the
+// contact rt would find, until the force settles (ENTRY_TOL) or ENTRY_ITERS, and publish the
+// settled geometry.
+#define ENTRY_ITERS     24
+#define ENTRY_TOL       1e-3 // N
+#define ENTRY_SNAPSHOTS 30   // settled snapshots after an entry (0.5 s at 60 Hz)
+static void settle_entry(hs_haptic_sim* h, hs_contact_snapshot* s, const double p[3]) {
+    hs_contact* c = &h->entry_c;
+    double prev[3] = {0, 0, 0};
+    for (int it = 0; it < ENTRY_ITERS; ++it) {
+        hs_contact_solve(s, p, 0, NULL, c);
+        if (c->failed || c->n == 0) break;
+        double d[3] = {c->force_n[0] - prev[0], c->force_n[1] - prev[1], c->force_n[2] - prev[2]};
+        if (it > 0 && sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) < ENTRY_TOL) break;
+        memcpy(prev, c->force_n, sizeof prev);
+        for (int i = 0; i < s->n_cand; ++i)
+            memcpy(s->surf_m[i], h->q + 3 * (size_t)s->node[i], sizeof s->surf_m[i]);
+        preload_surface(h, s, c->n, c->node, (const double(*)[3])c->f_n, PRELOAD_RELAX);
+    }
+}
+
 // Build and publish the snapshot around tool position p from the body's current state.
 static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
     const hs_mesh* mesh = h->mesh;
@@ -442,6 +474,7 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
     const double* u = hs_body_displacement(h->body);
     const double r = h->def.probe.radius_m, reach = r + h->def.probe.reach_margin_m;
     for (int k = 0; k < 3 * mesh->n_nodes; ++k) h->x[k] = mesh->x0[k] + u[k];
+    const int new_surface = h->q_reset; // the compliance was just swapped in
 
     // Contact-free positions. g = -(f_el + gravity load) is the force that holds the current
     // shape beyond the loads that are not contact: the contact forces, plus inertia and damping
@@ -587,6 +620,15 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
     for (int i = 0; i < n_cand; ++i) h->cand_of[nodes[i]] = -1;
     const int n_near_nodes = n_cand;
 
+    // A released blade that turns probe (or a probe whose surface was just replaced) may find
+    // tissue inside its sphere: settle its contact geometry before rt sees it, for as long as
+    // the cut tissue moves to its new equilibrium under it.
+    if (h->cut && probing && (!h->was_probing || new_surface)) h->entry_left = ENTRY_SNAPSHOTS;
+    if (!probing) h->entry_left = 0;
+    const int entering = h->entry_left > 0;
+    if (entering) h->entry_left--;
+    h->was_probing = probing;
+
     s->version = ++h->version;
     s->probe_radius_m = r;
     memcpy(s->centre_m, p, sizeof s->centre_m);
@@ -628,7 +670,8 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
             }
         }
     }
-    preload_surface(h, s);
+    preload_surface(h, s, h->applied_n, h->applied_node, (const double(*)[3])h->applied_f, -1);
+    if (entering) settle_entry(h, s, p);
     s->stamp_ns = hs_now_ns();
     hs_triple_buffer_publish(h->snap);
     h->st.snapshots++;
