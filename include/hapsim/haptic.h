@@ -186,8 +186,9 @@ void hs_safety_init(hs_safety* s, const hs_safety_def* def);
 void hs_safety_set_limits(hs_safety* s, const hs_safety_def* def);
 /// Filter one tick's force f_n in place ([3], N). pose_fresh: a new valid pose arrived this tick;
 /// pose_ok: 0 when the pose was non-finite (the output is zeroed and the watchdog tripped).
-/// The rate clamp limits the force before the watchdog gain, which scales it last: a zero gain
-/// gives exactly zero. A non-finite force or pose gives zero at once and the force ramps back in.
+/// Magnitude clamp, watchdog gain, then the rate clamp on the force that is sent (so every
+/// output differs from the previous one by at most max_rate_n_s dt_s); a zero gain gives exactly
+/// zero. A non-finite force or pose gives zero at once and the force ramps back in.
 /// Returns HS_SAFETY_* flags. Thread: owner only | Allocates: no
 uint32_t hs_safety_apply(hs_safety* s, double f_n[3], int pose_fresh, int pose_ok, int64_t now_ns,
                          double dt_s);

@@ -262,14 +262,20 @@ uint32_t hs_safety_apply(hs_safety* s, double f_n[3], int pose_fresh, int pose_o
         flags |= HS_SAFETY_MAGNITUDE;
         ++s->counters.magnitude;
     }
+    if (gain < 1) flags |= HS_SAFETY_WATCHDOG;
+    for (int i = 0; i < 3; ++i) f_n[i] *= gain;
+    if (gain == 0) { // the watchdog alone decides when the force is zero
+        memset(s->rate.prev_n, 0, sizeof s->rate.prev_n);
+        f_n[0] = f_n[1] = f_n[2] = 0;
+        return flags;
+    }
+    // The rate clamp comes last, on the force that is sent: a gain ramp, a new model or a
+    // lowered limit all reach the output at the rate limit (the gain ramp itself is slower
+    // than the rate limit at full force for the defaults; before, gain and rate steps added up).
     if (hs_rate_clamp_apply(&s->rate, f_n, dt_s)) {
         flags |= HS_SAFETY_RATE;
         ++s->counters.rate;
     }
-    // The gain comes last so that it alone decides when the force is zero (exactly at gain 0),
-    // and the rate clamp never holds the ramp down back.
-    if (gain < 1) flags |= HS_SAFETY_WATCHDOG;
-    for (int i = 0; i < 3; ++i) f_n[i] *= gain;
     return flags;
 }
 
