@@ -734,8 +734,7 @@ static void answer_pose(hs_server* s, const hs_net_pose* p, int64_t rx_ns) {
             // The rt output as it is, anchored where rt took it: its force is the one the rt
             // output stage limited (magnitude, rate, watchdog), and a driver evaluating the
             // model at this pose gets what a re-anchored copy would say. Re-anchored here, the
-            // force on the wire was the model's extrapolation, outside every limit (with a
-            // deep contact's stiffness, 0.56-0.87 N between answers 1 ms apart).
+            // force on the wire was the model's extrapolation, which no limit bounds.
             m = s->out.model;
             state = state_of(&s->out, &m, p->buttons);
             double g = estop_gain(s, rx_ns);
