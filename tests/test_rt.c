@@ -341,6 +341,32 @@ static int SafetyChain(void) {
     double f2[3] = {0, 0, 8};
     fl = hs_safety_apply(&s, f2, 0, 0, t, dt);
     ENSURE((fl & HS_SAFETY_NONFINITE) && f2[2] == 0 && s.counters.nonfinite_pose == 1);
+
+    // step_period_s: a late tick (2.5 ms) steps no further than one period (1 ms) allows, and
+    // while the watchdog ramps in, gain and rate together stay within it (the rate clamp acts
+    // on the output). Without the cap the same tick steps 2.5x as far.
+    hs_safety_def capped = def;
+    capped.step_period_s = 1e-3;
+    ENSURE(hs_safety_def_valid(&capped));
+    hs_safety sc, su;
+    hs_safety_init(&sc, &capped);
+    hs_safety_init(&su, &def);
+    double pc = 0, pu = 0, worst = 0;
+    for (int i = 0; i < 30; ++i, t += 2500000) {
+        double a[3] = {0, 0, 9}, b[3] = {0, 0, 9};
+        hs_safety_apply(&sc, a, 1, 1, t, 2.5e-3);
+        hs_safety_apply(&su, b, 1, 1, t, 2.5e-3);
+        worst = fmax(worst, fabs(a[2] - pc));
+        ENSURE(fabs(a[2] - pc) <= capped.max_rate_n_s * 1e-3 + 1e-12);
+        ENSURE(i > 0 || b[2] > a[2]); // the first: gain 0.25 x 9 N beyond 2 N, capped at 2 N
+        pc = a[2];
+        pu = b[2];
+    }
+    ENSURE_NEAR(pc, 9.0, 1e-12);
+    ENSURE_NEAR(pu, 9.0, 1e-12);
+    ENSURE(worst > 0.9 * capped.max_rate_n_s * 1e-3); // the cap was the binding limit
+    capped.step_period_s = -1;
+    ENSURE(!hs_safety_def_valid(&capped));
     return 0;
 }
 
