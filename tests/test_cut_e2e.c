@@ -1186,10 +1186,12 @@ static int release_inside(int zigzag) {
         "  %s cut to the middle (%lld cut steps), released inside: %lld answers, largest "
         "|f| %.3f N (limit %.1f), largest step %.3f N (limit %.3f per 1 ms answer); after "
         "the release (from %.3f N): peak %.3f N, settled %.3f N, range over the last 0.5 s %.4f N; "
-        "lifted out: peak %.3f N; pressed 1 mm beside the cut: %.4f N; compliance %s\n",
+        "lifted out: peak %.3f N; pressed 1 mm beside the cut: %.4f N; worst snapshot %.2f ms "
+        "(settling included); compliance %s\n",
         zigzag ? "zig-zag" : "straight", (long long)cut_steps, (long long)w.answers, w.worst_mag,
         SKIN_FORCE_MAX, w.worst_step, SKIN_RATE_MAX * 1e-3, at_release, peak, settled, range,
-        lift_peak, pressed, st.comp_version == st.topology_version ? "rebuilt" : "still stale");
+        lift_peak, pressed, st.snapshot_ms_max,
+        st.comp_version == st.topology_version ? "rebuilt" : "still stale");
     destroy_sim(&w.sim);
     hs_free(fixed);
     hs_mesh_destroy(&m);
