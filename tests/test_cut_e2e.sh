@@ -22,7 +22,9 @@
 #    that arrives after a stall of the server, spans several server ticks): the cutting force
 #    cap (1.5 N) spread over one blend (10 ticks);
 #  - released, the tool probes the cut tissue: the stylus finds the surface beside the cut and
-#    holds a steady force (between 3 mN and 0.1 N for a 1 mm press).
+#    holds a steady force (between 3 mN and 0.1 N for a 1 mm press);
+#  - released with the blade inside the tissue (at the end, on the reloaded patch): every force
+#    received within the scene's magnitude and rate limits, no kick, no chatter.
 #   tests/test_cut_e2e.sh BIN_DIR CLIENT_BIN SOURCE_DIR
 set -u
 bin=$1
@@ -59,7 +61,7 @@ fail() {
 cd "$src" || exit 1
 ORIG_TRIS=1920 # boundary triangles of skin_patch_synthetic.msh (its ATTRIBUTION file)
 
-"$bin/hapsim-server" scenes/skin/skin.json --duration 90 >"$tmp/server.log" 2>&1 &
+"$bin/hapsim-server" scenes/skin/skin.json --duration 120 >"$tmp/server.log" 2>&1 &
 server_pid=$!
 ctl="$bin/hapsim-ctl --timeout 3000"
 $bin/hapsim-ctl --timeout 10000 status >"$tmp/status0.txt" 2>&1 || fail "no server status"
@@ -235,6 +237,48 @@ $ctl -q resume || fail "resume after the paused reset: rc $?"
 $ctl status >"$tmp/status5.txt" 2>&1 || fail "no status after the resume"
 grep -q "^server   running" "$tmp/status5.txt" || fail "not running: $(head -3 "$tmp/status5.txt")"
 $ctl -q set youngs_pa 60000 || fail "set after the paused reset and resume: rc $?"
+
+# Released inside the tissue (scenes/skin/scripts/release_inside.probe: a zig-zag cut from the
+# patch's edge to its middle, the button released there with the blade inside, held 2 s, lifted
+# out): every force the stylus received within the scene's limits (force_max_n 3.3 N or less,
+# force_rate_max_n_per_s 500: 0.5 N per ms between the times the two forces were sent), and the
+# hold without a kick (peak <= 1.2 x the larger of the force at the release and at its end,
+# + 0.05 N; it was 2.4 N) or chatter (range over its last 0.5 s <= 0.02 N; it was 0.08-0.47 N).
+"$bin/hapsim-stylus" --script scenes/skin/scripts/release_inside.probe \
+    --trace "$tmp/trace_release.csv" >"$tmp/stylus_release.log" 2>&1 ||
+    fail "hapsim-stylus (release inside) rc $?: $(cat "$tmp/stylus_release.log")"
+# Segments of the script: 0 down, 1-5 the cut, 6 the hold (released inside), 7 up.
+awk -F, -v fmax=3.3 -v rate=0.5 -v hold=6 '
+NR == 1 { for (i = 1; i <= NF; ++i) col[$i] = i; next }
+/^#/ { next }
+{
+    fx = $(col["f_recv_x"]); fy = $(col["f_recv_y"]); fz = $(col["f_recv_z"])
+    if (tolower(fx " " fy " " fz) ~ /nan|inf/) { bad = 1 }
+    f = sqrt(fx * fx + fy * fy + fz * fz); if (f > peak) peak = f
+    t = $(col["t_s"]) * 1000; age = $(col["model_age_ms"]); seg = $(col["segment"])
+    # the two forces were sent about (t - age) - (pt - page) ms apart (at least one rt tick)
+    if (n && age >= 0 && page >= 0 && seg >= hold) {
+        d = sqrt((fx - px)^2 + (fy - py)^2 + (fz - pz)^2)
+        ms = (t - age) - (pt - page); if (ms < 1) ms = 1
+        if (d / ms > dmax) { dmax = d / ms; at = t / 1000 }
+    }
+    if (seg == hold) { if (!nh) f0 = pf; ++nh; ht[nh] = t; hf[nh] = f; if (f > hpeak) hpeak = f }
+    pf = f
+    px = fx; py = fy; pz = fz; pt = t; page = age; ++n
+}
+END {
+    lo = 1e9; hi = 0
+    for (k = 1; k <= nh; ++k) if (ht[k] >= ht[nh] - 500) { if (hf[k] < lo) lo = hf[k]; if (hf[k] > hi) hi = hf[k] }
+    steady = hf[nh]
+    printf "trace: %d rows, peak %.3f N (limit %g); from the release: largest change %.4f N/ms (limit %g, at %.3f s); hold: from %.3f N, peak %.3f N, end %.3f N, range over its last 0.5 s %.4f N\n", n, peak, fmax, dmax, rate, at, f0, hpeak, steady, hi - lo
+    if (bad) { print "FAIL: non-finite force"; exit 1 }
+    if (nh < 100 || ht[nh] - ht[1] < 1500) { print "FAIL: short hold"; exit 1 }
+    if (peak > fmax + 1e-6) { print "FAIL: beyond the force limit"; exit 1 }
+    if (dmax > rate + 1e-6) { print "FAIL: beyond the rate limit"; exit 1 }
+    top = f0 > steady ? f0 : steady
+    if (hpeak > 1.2 * top + 0.05) { print "FAIL: a kick after the release"; exit 1 }
+    if (hi - lo > 0.02) { print "FAIL: the held force chatters"; exit 1 }
+}' "$tmp/trace_release.csv" || fail "forces after the release inside the tissue"
 
 kill -TERM $server_pid
 wait $server_pid

@@ -304,13 +304,13 @@ static int SafetyChain(void) {
     hs_safety_init(&s, &def);
     int64_t t = 5000000000;
     const double dt = 1e-3, step = def.max_rate_n_s * dt;
-    const double ramp_step = def.max_force_n / def.ramp_s * dt; // watchdog ramp per tick, N
     double prev = 0;
-    // Constant 5 N with fresh poses: ramps in (watchdog + rate), then holds 5 N.
+    // Constant 5 N with fresh poses: ramps in (watchdog gain, the rate clamp on the output: the
+    // two no longer add up), then holds 5 N.
     for (int i = 0; i < 40; ++i, t += 1000000) {
         double f[3] = {0, 0, 5};
         hs_safety_apply(&s, f, 1, 1, t, dt);
-        ENSURE(fabs(f[2] - prev) <= step + ramp_step + 1e-12 && f[2] <= 5.0 + 1e-12);
+        ENSURE(fabs(f[2] - prev) <= step + 1e-12 && f[2] <= 5.0 + 1e-12);
         prev = f[2];
     }
     ENSURE_NEAR(prev, 5.0, 1e-12);
@@ -335,11 +335,38 @@ static int SafetyChain(void) {
     double f1[3] = {0, 0, 8};
     hs_safety_apply(&s, f1, 1, 1, t, dt);
     t += 1000000;
-    ENSURE(f1[2] > 0 && f1[2] <= 0.1 * step + 1e-12); // gain and rate both restart from 0
+    // gain and rate both restart from 0: the gain's first step (0.1) and the rate's
+    ENSURE(f1[2] > 0 && f1[2] <= fmin(0.1 * 8, step) + 1e-12);
     // NaN pose: zero and counted.
     double f2[3] = {0, 0, 8};
     fl = hs_safety_apply(&s, f2, 0, 0, t, dt);
     ENSURE((fl & HS_SAFETY_NONFINITE) && f2[2] == 0 && s.counters.nonfinite_pose == 1);
+
+    // step_period_s: a late tick (2.5 ms) steps no further than one period (1 ms) allows, and
+    // while the watchdog ramps in, gain and rate together stay within it (the rate clamp acts
+    // on the output). Without the cap the same tick steps 2.5x as far.
+    hs_safety_def capped = def;
+    capped.step_period_s = 1e-3;
+    ENSURE(hs_safety_def_valid(&capped));
+    hs_safety sc, su;
+    hs_safety_init(&sc, &capped);
+    hs_safety_init(&su, &def);
+    double pc = 0, pu = 0, worst = 0;
+    for (int i = 0; i < 30; ++i, t += 2500000) {
+        double a[3] = {0, 0, 9}, b[3] = {0, 0, 9};
+        hs_safety_apply(&sc, a, 1, 1, t, 2.5e-3);
+        hs_safety_apply(&su, b, 1, 1, t, 2.5e-3);
+        worst = fmax(worst, fabs(a[2] - pc));
+        ENSURE(fabs(a[2] - pc) <= capped.max_rate_n_s * 1e-3 + 1e-12);
+        ENSURE(i > 0 || b[2] > a[2]); // the first: gain 0.25 x 9 N beyond 2 N, capped at 2 N
+        pc = a[2];
+        pu = b[2];
+    }
+    ENSURE_NEAR(pc, 9.0, 1e-12);
+    ENSURE_NEAR(pu, 9.0, 1e-12);
+    ENSURE(worst > 0.9 * capped.max_rate_n_s * 1e-3); // the cap was the binding limit
+    capped.step_period_s = -1;
+    ENSURE(!hs_safety_def_valid(&capped));
     return 0;
 }
 

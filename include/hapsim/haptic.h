@@ -144,10 +144,13 @@ typedef struct hs_safety_def {
     double max_rate_n_s;       ///< rate clamp, N/s
     double watchdog_timeout_s; ///< no fresh pose for this long -> ramp down, s
     double ramp_s;             ///< watchdog ramp down / up, s (use the blend time)
-    int cookie;                ///< set by hs_safety_default_def
+    /// One output changes by at most max_rate_n_s x min(dt, this), s (the loop's period: a late
+    /// tick does not allow a larger step); 0: x the measured dt.
+    double step_period_s;
+    int cookie; ///< set by hs_safety_default_def
 } hs_safety_def;
 
-/// Defaults: 10 N, 2000 N/s, 50 ms watchdog, 10 ms ramp.
+/// Defaults: 10 N, 2000 N/s, 50 ms watchdog, 10 ms ramp, step period 0 (the measured dt).
 hs_safety_def hs_safety_default_def(void);
 /// 1 when def came from hs_safety_default_def and its values are finite and in range.
 int hs_safety_def_valid(const hs_safety_def* def);
@@ -186,8 +189,10 @@ void hs_safety_init(hs_safety* s, const hs_safety_def* def);
 void hs_safety_set_limits(hs_safety* s, const hs_safety_def* def);
 /// Filter one tick's force f_n in place ([3], N). pose_fresh: a new valid pose arrived this tick;
 /// pose_ok: 0 when the pose was non-finite (the output is zeroed and the watchdog tripped).
-/// The rate clamp limits the force before the watchdog gain, which scales it last: a zero gain
-/// gives exactly zero. A non-finite force or pose gives zero at once and the force ramps back in.
+/// Magnitude clamp, watchdog gain, then the rate clamp on the force that is sent (so every
+/// output differs from the previous one by at most max_rate_n_s min(dt_s, step_period_s)); a zero
+/// gain gives exactly
+/// zero. A non-finite force or pose gives zero at once and the force ramps back in.
 /// Returns HS_SAFETY_* flags. Thread: owner only | Allocates: no
 uint32_t hs_safety_apply(hs_safety* s, double f_n[3], int pose_fresh, int pose_ok, int64_t now_ns,
                          double dt_s);

@@ -655,8 +655,7 @@ static void publish_rt_output(hs_server* s) {
     double quiet_s = s->w.scene.watchdog_s + s->w.def.safety.ramp_s + 0.25;
     if (t - ds->last_rx_ns > (int64_t)(quiet_s * 1e9)) return; // long dead: nothing to say
     if (t - ds->last_pub_ns < RT_GAP_NS) return;
-    hs_haptic_model m = s->estop ? zero_model() : s->out.model;
-    clamp_model(&m, s->w.scene.force_max_n);
+    hs_haptic_model m = s->estop ? zero_model() : s->out.model; // limited by the rt stage
     int state = s->estop ? HAPSIM_TOOL_FORCE_T_STATE_STOPPED : state_of(&s->out, &m, ds->buttons);
     double g = estop_gain(s, t);
     if (!s->estop && g < 1.0) {
@@ -701,8 +700,11 @@ static void answer_pose(hs_server* s, const hs_net_pose* p, int64_t rx_ns) {
         }
         drain_outputs(s);
         if (s->have_out && !s->estop) {
-            hs_haptic_model_reanchor(&s->out.model, p->position, &m);
-            clamp_model(&m, w->scene.force_max_n);
+            // The rt output as it is, anchored where rt took it: its force is the one the rt
+            // output stage limited (magnitude, rate, watchdog), and a driver evaluating the
+            // model at this pose gets what a re-anchored copy would say. Re-anchored here, the
+            // force on the wire was the model's extrapolation, which no limit bounds.
+            m = s->out.model;
             state = state_of(&s->out, &m, p->buttons);
             double g = estop_gain(s, rx_ns);
             if (g < 1.0) {

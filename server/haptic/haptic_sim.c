@@ -223,7 +223,14 @@ struct hs_haptic_sim {
     int applied_node[HS_MAX_CONTACT];
     double applied_f[HS_MAX_CONTACT][3]; // N
     int64_t version;
-    deform_status st; // deformation thread's copy, published through `status`
+    deform_status st;    // deformation thread's copy, published through `status`
+    int was_probing;     // the previous snapshot had a probe contact (cutting on)
+    hs_contact entry_c;  // settle_entry's scratch
+    int entry_left;      // snapshots still settled after the probe's entry
+    double release_p[3]; // tool position where the blade was last released, m
+    int release_fit;     // a probe appearing near release_p is fitted (released, not re-engaged)
+    double probe_r;      // the probe's contact radius now, m (def.probe.radius_m, or less while
+                         // a released blade's sphere still fits its cut)
 
     // cutting (cut == NULL: off); owned by the deformation thread after start
     hs_haptic_cut_def cdef;
@@ -399,13 +406,16 @@ static void node_rot(hs_haptic_sim* h, int node, double r[9]) {
 // rather than the body's dynamic one, which rings and would shake the contact's normals with
 // it. surf_m holds q on entry. A contact node without a compliance block to a candidate (no
 // column cached for either) adds nothing there.
-static void preload_surface(hs_haptic_sim* h, hs_contact_snapshot* s) {
+// The forces are n_f at nodes f_node; relax < 0: PRELOAD_RELAX after a snapshot that had the
+// node, else 1.
+static void preload_surface(hs_haptic_sim* h, hs_contact_snapshot* s, int n_f, const int* f_node,
+                            const double (*f_n)[3], double relax) {
     for (int i = 0; i < s->n_cand; ++i) {
         double pre[3] = {0, 0, 0};
         const double* ri = h->rot + 9 * (size_t)s->node[i];
-        for (int k = 0; k < h->applied_n; ++k) {
-            const int node = h->applied_node[k];
-            const double* f = h->applied_f[k];
+        for (int k = 0; k < n_f; ++k) {
+            const int node = f_node[k];
+            const double* f = f_n[k];
             int j = 0;
             while (j < s->n_cand && s->node[j] != node) ++j;
             double blk[9];
@@ -422,7 +432,9 @@ static void preload_surface(hs_haptic_sim* h, hs_contact_snapshot* s) {
         }
         const int node = s->node[i];
         double* ps = h->pre + 3 * (size_t)node;
-        const double w = h->pre_at[node] == s->version - 1 ? PRELOAD_RELAX : 1.0;
+        const double w = relax >= 0                          ? relax
+                         : h->pre_at[node] == s->version - 1 ? PRELOAD_RELAX
+                                                             : 1.0;
         h->pre_at[node] = s->version;
         for (int a = 0; a < 3; ++a) {
             ps[a] += w * (pre[a] - ps[a]);
@@ -433,6 +445,31 @@ static void preload_surface(hs_haptic_sim* h, hs_contact_snapshot* s) {
     hs_contact_snapshot_bound_tris(s);
 }
 
+// A probe entering tissue (a blade released in its cut): the contact geometry follows the
+// forces rt finds on it only from step to step, and a sphere that appears with tissue inside
+// it is far from where that settles (on the skin patch the first answers reached 0.7-1.5 N,
+// 2.4 N through the server, and fell to ~0.1 N within three steps). So iterate it here, with the
+// contact rt would find, until the force settles (ENTRY_TOL) or ENTRY_ITERS, and publish the
+// settled geometry.
+#define ENTRY_ITERS     24
+#define ENTRY_TOL       1e-3 // N
+#define ENTRY_SNAPSHOTS 30   // settled snapshots after an entry (0.5 s at 60 Hz)
+#define PROBE_MIN_FIT   1e-3 // smallest fitted radius, share of the probe's
+static void settle_entry(hs_haptic_sim* h, hs_contact_snapshot* s, const double p[3]) {
+    hs_contact* c = &h->entry_c;
+    double prev[3] = {0, 0, 0};
+    for (int it = 0; it < ENTRY_ITERS; ++it) {
+        hs_contact_solve(s, p, 0, NULL, c);
+        if (c->failed || c->n == 0) break;
+        double d[3] = {c->force_n[0] - prev[0], c->force_n[1] - prev[1], c->force_n[2] - prev[2]};
+        if (it > 0 && sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) < ENTRY_TOL) break;
+        memcpy(prev, c->force_n, sizeof prev);
+        for (int i = 0; i < s->n_cand; ++i)
+            memcpy(s->surf_m[i], h->q + 3 * (size_t)s->node[i], sizeof s->surf_m[i]);
+        preload_surface(h, s, c->n, c->node, (const double(*)[3])c->f_n, PRELOAD_RELAX);
+    }
+}
+
 // Build and publish the snapshot around tool position p from the body's current state.
 static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
     const hs_mesh* mesh = h->mesh;
@@ -441,6 +478,7 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
     const double* u = hs_body_displacement(h->body);
     const double r = h->def.probe.radius_m, reach = r + h->def.probe.reach_margin_m;
     for (int k = 0; k < 3 * mesh->n_nodes; ++k) h->x[k] = mesh->x0[k] + u[k];
+    const int new_surface = h->q_reset; // the compliance was just swapped in
 
     // Contact-free positions. g = -(f_el + gravity load) is the force that holds the current
     // shape beyond the loads that are not contact: the contact forces, plus inertia and damping
@@ -586,8 +624,34 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
     for (int i = 0; i < n_cand; ++i) h->cand_of[nodes[i]] = -1;
     const int n_near_nodes = n_cand;
 
+    // A released blade that turns probe (or a probe whose surface was just replaced) may find
+    // tissue inside its sphere: settle its contact geometry before rt sees it, for as long as
+    // the cut tissue moves to its new equilibrium under it.
+    // Where the blade was released its sphere fits: the radius is the clearance to the nearest
+    // surface (in the blade's own cut, about zero) and grows only with that clearance, back to r
+    // once the tool has room (lifted out of the cut), so the sphere never appears around tissue. A
+    // full sphere in the cut held the tissue below the blade's tip inside it: pushed up through the
+    // sphere (the contact pushes along a face's inward normal), that tissue ended on top of it
+    // and was carried up when the tool was lifted out (up to 0.76 N pulling down, 3.3 N once
+    // through the server).
+    const double clear = n_near > 0 ? h->near_tri[0].dist : reach;
+    if (!h->cut || !probing) {
+        h->probe_r = r;
+    } else if (!h->was_probing || new_surface) {
+        // Where the blade was released: elsewhere (moved off meanwhile) it is a plain probe.
+        const int at_release = h->release_fit && dist3(p, h->release_p) < r;
+        h->probe_r = at_release ? fmin(r, fmax(clear, PROBE_MIN_FIT * r)) : r;
+        h->entry_left = ENTRY_SNAPSHOTS;
+    } else if (h->probe_r < r) {
+        h->probe_r = fmin(r, fmax(h->probe_r, clear));
+    }
+    if (!probing) h->entry_left = 0;
+    const int entering = h->entry_left > 0;
+    if (entering) h->entry_left--;
+    h->was_probing = probing;
+
     s->version = ++h->version;
-    s->probe_radius_m = r;
+    s->probe_radius_m = h->probe_r;
     memcpy(s->centre_m, p, sizeof s->centre_m);
     s->reach_m = cover;
     s->n_cand = n_cand;
@@ -627,7 +691,8 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
             }
         }
     }
-    preload_surface(h, s);
+    preload_surface(h, s, h->applied_n, h->applied_node, (const double(*)[3])h->applied_f, -1);
+    if (entering) settle_entry(h, s, p);
     s->stamp_ns = hs_now_ns();
     hs_triple_buffer_publish(h->snap);
     h->st.snapshots++;
@@ -816,6 +881,11 @@ static int cut_step(hs_haptic_sim* h) {
     int flipped = engaged != h->engaged;
     h->engaged = engaged;
     static const double zero[3] = {0, 0, 0};
+    if (flipped) {
+        // Where the blade let go: the probe sphere that appears there is fitted (build_snapshot).
+        memcpy(h->release_p, pose.pos_m, sizeof h->release_p);
+        h->release_fit = !engaged;
+    }
     if (!engaged) {
         h->blade_have = 0;
         h->st.cutting = 0;
@@ -1197,8 +1267,11 @@ static void* deform_main(void* arg) {
             // At rest: refresh the candidates only when the tool wandered toward their edge.
             double dx = c.tool_m[0] - centre[0], dy = c.tool_m[1] - centre[1],
                    dz = c.tool_m[2] - centre[2];
-            rebuild = rebuild || !have_snapshot ||
-                      sqrt(dx * dx + dy * dy + dz * dz) > 0.5 * h->def.probe.reach_margin_m;
+            // A fitted probe grows with its clearance: refresh it as the tool moves.
+            const double refresh = h->probe_r < h->def.probe.radius_m
+                                       ? 0.05 * h->def.probe.radius_m
+                                       : 0.5 * h->def.probe.reach_margin_m;
+            rebuild = rebuild || !have_snapshot || sqrt(dx * dx + dy * dy + dz * dz) > refresh;
         }
         if (rebuild) {
             int64_t t1 = hs_now_ns();
@@ -1460,6 +1533,7 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
     memcpy(h->q, mesh->x0, 3 * n * sizeof(double));
     h->st.relax_w = def->probe.free_relax;
     h->relax_e = -1;
+    h->probe_r = def->probe.radius_m;
 
     h->frame_size = sizeof(int64_t) + 3 * n * sizeof(double);
     s = hs_triple_buffer_create(sizeof(sim_snapshot), &h->snap, err);
@@ -1479,6 +1553,8 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
     hd.source.eval = probe_eval;
     hd.source.ctx = &h->src;
     hd.safety = def->safety;
+    // Every answer within the rate limit per period, however late its tick (the wire's bound).
+    if (!(hd.safety.step_period_s > 0)) hd.safety.step_period_s = 1.0 / def->rate_hz;
     hd.blend_ticks = def->blend_ticks;
     s = hs_haptic_rt_create(&hd, &h->hrt, err);
     if (s != HS_OK) goto fail;
@@ -1506,7 +1582,9 @@ fail:
 
 hs_status hs_haptic_sim_set_safety(hs_haptic_sim* h, const hs_safety_def* safety) {
     if (!h || !safety) return HS_ERR_INVALID;
-    hs_status st = hs_haptic_rt_set_safety(h->hrt, safety);
+    hs_safety_def d = *safety;
+    if (!(d.step_period_s > 0)) d.step_period_s = 1.0 / h->def.rate_hz;
+    hs_status st = hs_haptic_rt_set_safety(h->hrt, &d);
     if (st == HS_OK) h->def.safety = *safety;
     return st;
 }

@@ -215,6 +215,7 @@ hs_safety_def hs_safety_default_def(void) {
     d.max_rate_n_s = 2000.0;
     d.watchdog_timeout_s = 0.050;
     d.ramp_s = 0.010;
+    d.step_period_s = 0;
     d.cookie = SAFETY_COOKIE;
     return d;
 }
@@ -222,7 +223,8 @@ hs_safety_def hs_safety_default_def(void) {
 int hs_safety_def_valid(const hs_safety_def* d) {
     return d && d->cookie == SAFETY_COOKIE && isfinite(d->max_force_n) && d->max_force_n >= 0 &&
            isfinite(d->max_rate_n_s) && d->max_rate_n_s >= 0 && isfinite(d->watchdog_timeout_s) &&
-           d->watchdog_timeout_s >= 0 && isfinite(d->ramp_s) && d->ramp_s > 0;
+           d->watchdog_timeout_s >= 0 && isfinite(d->ramp_s) && d->ramp_s > 0 &&
+           isfinite(d->step_period_s) && d->step_period_s >= 0;
 }
 
 void hs_safety_init(hs_safety* s, const hs_safety_def* def) {
@@ -262,14 +264,22 @@ uint32_t hs_safety_apply(hs_safety* s, double f_n[3], int pose_fresh, int pose_o
         flags |= HS_SAFETY_MAGNITUDE;
         ++s->counters.magnitude;
     }
-    if (hs_rate_clamp_apply(&s->rate, f_n, dt_s)) {
+    if (gain < 1) flags |= HS_SAFETY_WATCHDOG;
+    for (int i = 0; i < 3; ++i) f_n[i] *= gain;
+    if (gain == 0) { // the watchdog alone decides when the force is zero
+        memset(s->rate.prev_n, 0, sizeof s->rate.prev_n);
+        f_n[0] = f_n[1] = f_n[2] = 0;
+        return flags;
+    }
+    // The rate clamp comes last, on the force that is sent: a gain ramp, a new model or a
+    // lowered limit all reach the output at the rate limit (the gain ramp itself is slower
+    // than the rate limit at full force for the defaults; before, gain and rate steps added up).
+    const double step_dt =
+        s->def.step_period_s > 0 && dt_s > s->def.step_period_s ? s->def.step_period_s : dt_s;
+    if (hs_rate_clamp_apply(&s->rate, f_n, step_dt)) {
         flags |= HS_SAFETY_RATE;
         ++s->counters.rate;
     }
-    // The gain comes last so that it alone decides when the force is zero (exactly at gain 0),
-    // and the rate clamp never holds the ramp down back.
-    if (gain < 1) flags |= HS_SAFETY_WATCHDOG;
-    for (int i = 0; i < 3; ++i) f_n[i] *= gain;
     return flags;
 }
 
