@@ -15,7 +15,7 @@ core() { sed -n 2p "$T/out"; }
 "$BENCH" --quick blas > "$T/out" 2> "$T/err"; rc=$?
 check "--quick before the command: rc $rc, $(cat "$T/err")" $rc
 "$BENCH" blas --meshes > /dev/null 2> "$T/err"; rc=$?
-[ $rc -eq 1 ] && grep -q "missing value for --meshes" "$T/err"; rc=$?
+[ $rc -eq 2 ] && grep -q "missing value for --meshes" "$T/err"; rc=$?
 check "--meshes without a value named: $(cat "$T/err")" $rc
 
 # A mesh missing from --meshes is taken from scenes/ when bundled (liver2 here).

@@ -35,7 +35,7 @@ static const char* usage =
     "                         pressure | none\n"
     "  --locking-free-alpha A sns: node-smoothed share of the deviatoric energy, [0, 1)\n"
     "                         (default 0.6)\n"
-    "  --E PA                 Young's modulus, Pa (default 3000)\n"
+    "  --E PA                 Young's modulus, Pa (default 5000, as scenes)\n"
     "  --nu NU                Poisson ratio (default 0.45)\n"
     "  --density KG_M3        density, kg/m^3 (default 1000)\n"
     "  --gravity GX,GY,GZ     gravity, m/s^2 (default 0,0,0)\n"
@@ -207,7 +207,7 @@ int main(int argc, char** argv) {
     hs_sparse_blas_select(argv); // before any thread: it may re-execute the program
     const char *mesh_path = NULL, *out_path = NULL, *vtk_path = NULL;
     hs_body_def def = hs_body_default_def();
-    def.fem.material.youngs_pa = 3000;
+    def.fem.material.youngs_pa = 5000; // the scene defaults (docs/scenes.md)
     def.fem.material.poisson = 0.45;
     def.fem.material.density_kg_m3 = 1000;
     int have_model = 0, do_static = 0, steps = 0, quiet = 0, have_dt = 0, mooney = 0;
