@@ -16,13 +16,13 @@ int hs_bench_accuracy(const hs_bench_args* a);
 int hs_bench_stress(const hs_bench_args* a);
 /// Locking-free options against CalculiX's converged solution, with their cost.
 int hs_bench_lockfree(const hs_bench_args* a);
-/// 1 kHz haptic loop with the condensed-compliance probe (issue 3).
+/// 1 kHz haptic loop with the condensed-compliance probe.
 int hs_bench_haptic(const hs_bench_args* a);
 /// Cutting on the server's path: cut step, compliance valid again, tick jumps.
 int hs_bench_cut(const hs_bench_args* a);
 /// The server path (deformation + rt threads) on organ meshes against the static press reference.
 int hs_bench_organs(const hs_bench_args* a);
-/// hapsim-server round trip vs a bare LCM echo, in a private network namespace (issue 4).
+/// hapsim-server round trip vs a bare LCM echo, in a private network namespace.
 int hs_bench_protocol(const hs_bench_args* a);
 
 /// Path of a mesh file: DIR/file (--meshes) when it can be read, else the copy bundled in
