@@ -368,6 +368,45 @@ static int SelfIntersection(void) {
     return 0;
 }
 
+// A fold at a shared vertex: the double cone over a pentagram. Each cone's triangles meet only
+// at its apex, yet non-neighbouring ones cross along a line from it; no two triangles that
+// share no vertex cross (the ring lies in z = 0, where cones touch but do not cross).
+static int FoldAtSharedVertex(void) {
+    int64_t before = hs_byte_count();
+    hs_surface* s = hs_calloc(1, sizeof *s);
+    s->n_verts = 7;
+    s->n_tris = 10;
+    s->x = hs_alloc(7 * 3 * sizeof(double));
+    s->tris = hs_alloc(10 * 3 * sizeof(int));
+    double apex[2][3] = {{0, 0, 1}, {0, 0, -1}};
+    memcpy(s->x, apex, sizeof apex);
+    for (int k = 0; k < 5; ++k) {
+        double a = 2 * M_PI * ((2 * k) % 5) / 5; // pentagram order: every second pentagon corner
+        double* p = s->x + 3 * (2 + k);
+        p[0] = cos(a), p[1] = sin(a), p[2] = 0;
+        int* t = s->tris + 6 * k;
+        t[0] = 0, t[1] = 2 + k, t[2] = 2 + (k + 1) % 5;
+        t[3] = 1, t[4] = 2 + (k + 1) % 5, t[5] = 2 + k;
+    }
+    hs_surface_clean_def cd = hs_surface_clean_default_def();
+    hs_surface_report rep;
+    hs_err e = {0};
+    hs_status st = hs_surface_clean(s, "pentagram", &cd, &rep, &e);
+    printf("  pentagram double cone -> %s\n", e.msg);
+    // Per cone, the 5 pairs of non-neighbouring triangles cross.
+    ENSURE(st == HS_ERR_INVALID && strstr(e.msg, "self-intersecting") &&
+           rep.self_intersections == 10);
+    // The same cone over a convex pentagon is fine.
+    for (int k = 0; k < 5; ++k) {
+        double a = 2 * M_PI * k / 5;
+        s->x[3 * (2 + k)] = cos(a), s->x[3 * (2 + k) + 1] = sin(a);
+    }
+    ENSURE(hs_surface_clean(s, "pentagon", &cd, &rep, &e) >= 0 && rep.self_intersections == 0);
+    hs_surface_destroy(&s);
+    ENSURE(hs_byte_count() == before);
+    return 0;
+}
+
 static int Repair(void) {
     int64_t before = hs_byte_count();
     hs_surface* s = icosphere(0.05, 2); // 162 vertices, 320 triangles
@@ -592,10 +631,11 @@ static int setup(void) {
 
 int main(int argc, char** argv) {
     if (!setup()) return 1;
-    static const hs_test_case cases[] = {
-        HS_CASE(EveryFormatSphere), HS_CASE(EveryFormatLiver), HS_CASE(BrokenSurfaces),
-        HS_CASE(SelfIntersection),  HS_CASE(Repair),           HS_CASE(PhysicalGroups),
-        HS_CASE(SceneFixedKinds),   HS_CASE(VtuVolume),        HS_CASE(Quality)};
+    static const hs_test_case cases[] = {HS_CASE(EveryFormatSphere),  HS_CASE(EveryFormatLiver),
+                                         HS_CASE(BrokenSurfaces),     HS_CASE(SelfIntersection),
+                                         HS_CASE(FoldAtSharedVertex), HS_CASE(Repair),
+                                         HS_CASE(PhysicalGroups),     HS_CASE(SceneFixedKinds),
+                                         HS_CASE(VtuVolume),          HS_CASE(Quality)};
     int rc = hs_test_main(argc, argv, cases, (int)(sizeof cases / sizeof cases[0]));
     if (rc == 0) {
         char cmd[128];

@@ -61,7 +61,7 @@ typedef struct hs_surface_report {
     int hole_tris_added;       ///< repair: triangles those fans added
     int pieces;                ///< connected pieces before repair
     int pieces_dropped;        ///< repair: pieces other than the largest, removed
-    int self_intersections;    ///< pairs of triangles that cross (not sharing a vertex)
+    int self_intersections;    ///< pairs of triangles that cross (sharing no edge)
     double where[3];           ///< a point at the first problem found (file units)
     double area;               ///< surface area
     double volume;             ///< enclosed volume (divergence theorem; closed surfaces)

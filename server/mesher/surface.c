@@ -543,8 +543,14 @@ static int compact(hs_surface* s, hs_surface_report* r) {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Self-intersections: a uniform grid over the triangles' boxes; pairs that share no vertex are
-// tested edge against triangle (strict crossings only, so touching does not count).
+// Self-intersections: a uniform grid over the triangles' boxes. Pairs that share no vertex are
+// tested edge against triangle; pairs that share exactly one vertex can still cross along a
+// segment from it (a fold at that vertex). Pairs sharing an edge only meet on it unless
+// coplanar, which is not looked for. An edge counts as crossing a triangle's plane only when its
+// ends lie beyond a rounding tolerance on either side (so flat regions give no false hits); the
+// test against the triangle's sides has no tolerance but computes each orientation from its
+// vertices in index order, so an edge through a shared side is counted in exactly one of the
+// two triangles (surfaces whose vertices line up still cross somewhere).
 
 static double orient3(const double* a, const double* b, const double* c, const double* d) {
     double u[3], v[3], w[3], n[3];
@@ -555,23 +561,89 @@ static double orient3(const double* a, const double* b, const double* c, const d
     return dot3(n, w);
 }
 
-static int seg_crosses_tri(const double* p, const double* q, const double* a, const double* b,
-                           const double* c) {
-    double dp = orient3(a, b, c, p), dq = orient3(a, b, c, q);
-    if (!((dp > 0 && dq < 0) || (dp < 0 && dq > 0))) return 0;
-    double s1 = orient3(p, q, a, b), s2 = orient3(p, q, b, c), s3 = orient3(p, q, c, a);
-    return (s1 > 0 && s2 > 0 && s3 > 0) || (s1 < 0 && s2 < 0 && s3 < 0);
+// orient3 of vertices i[0..3], evaluated in increasing index order and signed by the permutation,
+// so it is exactly antisymmetric whatever order a caller names them in.
+static double orient_ix(const double* x, const int* i4) {
+    int k[4] = {i4[0], i4[1], i4[2], i4[3]}, odd = 0;
+    for (int i = 1; i < 4; ++i)
+        for (int j = i; j > 0 && k[j - 1] > k[j]; --j) {
+            int tmp = k[j];
+            k[j] = k[j - 1];
+            k[j - 1] = tmp;
+            odd ^= 1;
+        }
+    double o = orient3(x + 3 * k[0], x + 3 * k[1], x + 3 * k[2], x + 3 * k[3]);
+    return odd ? -o : o;
+}
+
+// Edge (p, q) through the inside of triangle (a, b, c), all vertex indices.
+static int seg_crosses_tri(const double* x, int p, int q, const int* t, double tol) {
+    int i1[4] = {t[0], t[1], t[2], p}, i2[4] = {t[0], t[1], t[2], q};
+    double dp = orient_ix(x, i1), dq = orient_ix(x, i2);
+    if (!((dp > tol && dq < -tol) || (dp < -tol && dq > tol))) return 0;
+    int s[3];
+    for (int k = 0; k < 3; ++k) {
+        int i3[4] = {p, q, t[k], t[(k + 1) % 3]};
+        double o = orient_ix(x, i3);
+        s[k] = (o > 0) - (o < 0);
+    }
+    return s[0] != 0 && s[0] == s[1] && s[1] == s[2];
+}
+
+// Whether direction d points strictly into the corner of triangle (v, v + a, v + b) at v, n its
+// normal a x b (d lies in its plane).
+static int in_wedge(const double* a, const double* b, const double* n, const double* d) {
+    double c1[3], c2[3];
+    cross3(a, d, c1);
+    cross3(d, b, c2);
+    double tol = 1e-9 * norm3(d) * norm3(n);
+    return dot3(c1, n) > tol * norm3(a) && dot3(c2, n) > tol * norm3(b);
+}
+
+// Triangles (v, a, b) and (v, c, d) that share only v cross when the line where their planes
+// meet enters both corners at v on the same side. Coplanar pairs are not judged.
+static int fold_at_vertex(const double* v, const double* a, const double* b, const double* v2,
+                          const double* c, const double* d) {
+    double ea[3], eb[3], ec[3], ed[3], n1[3], n2[3], l[3], m[3];
+    sub3(a, v, ea);
+    sub3(b, v, eb);
+    sub3(c, v2, ec);
+    sub3(d, v2, ed);
+    cross3(ea, eb, n1);
+    cross3(ec, ed, n2);
+    cross3(n1, n2, l);
+    if (!(norm3(l) > 1e-8 * norm3(n1) * norm3(n2))) return 0;
+    for (int k = 0; k < 3; ++k) m[k] = -l[k];
+    return (in_wedge(ea, eb, n1, l) && in_wedge(ec, ed, n2, l)) ||
+           (in_wedge(ea, eb, n1, m) && in_wedge(ec, ed, n2, m));
 }
 
 static int tris_cross(const double* x, const int* t, const int* u) {
+    int shared = 0, ti = -1, uj = -1;
     for (int i = 0; i < 3; ++i)
         for (int j = 0; j < 3; ++j)
-            if (t[i] == u[j]) return 0;
-    const double *a = x + 3 * t[0], *b = x + 3 * t[1], *c = x + 3 * t[2];
-    const double *d = x + 3 * u[0], *e = x + 3 * u[1], *f = x + 3 * u[2];
-    return seg_crosses_tri(a, b, d, e, f) || seg_crosses_tri(b, c, d, e, f) ||
-           seg_crosses_tri(c, a, d, e, f) || seg_crosses_tri(d, e, a, b, c) ||
-           seg_crosses_tri(e, f, a, b, c) || seg_crosses_tri(f, d, a, b, c);
+            if (t[i] == u[j]) ++shared, ti = i, uj = j;
+    if (shared > 1) return 0;
+    const double* p[6];
+    for (int k = 0; k < 3; ++k) p[k] = x + 3 * t[k], p[3 + k] = x + 3 * u[k];
+    if (shared == 1)
+        return fold_at_vertex(p[ti], p[(ti + 1) % 3], p[(ti + 2) % 3], p[3 + uj],
+                              p[3 + (uj + 1) % 3], p[3 + (uj + 2) % 3]);
+    // Orientations are products of three edge vectors: the tolerance scales with the longest.
+    double l2 = 0;
+    for (int k = 0; k < 3; ++k) {
+        double e[3];
+        sub3(p[k], p[(k + 1) % 3], e);
+        l2 = fmax(l2, dot3(e, e));
+        sub3(p[3 + k], p[3 + (k + 1) % 3], e);
+        l2 = fmax(l2, dot3(e, e));
+    }
+    double tol = 1e-9 * l2 * sqrt(l2);
+    for (int k = 0; k < 3; ++k)
+        if (seg_crosses_tri(x, t[k], t[(k + 1) % 3], u, tol) ||
+            seg_crosses_tri(x, u[k], u[(k + 1) % 3], t, tol))
+            return 1;
+    return 0;
 }
 
 static int count_crossings(const hs_surface* s, hs_surface_report* r) {
