@@ -1170,7 +1170,13 @@ static hs_status parse_vtk(lexer* lx, hs_mesh** out) {
         goto fail;
     }
     if (!tok_line(lx, &t) || !tok_is_nocase(&t, "UNSTRUCTURED_GRID")) {
-        lx_fail(lx, lx->line, HS_ERR_UNSUPPORTED, "only DATASET UNSTRUCTURED_GRID is supported");
+        if (t.len && tok_is_nocase(&t, "POLYDATA"))
+            lx_fail(lx, lx->line, HS_ERR_UNSUPPORTED,
+                    "DATASET POLYDATA is a surface, not a volume mesh (UNSTRUCTURED_GRID): "
+                    "hapsim-mesh tet --size H makes tetrahedra of it");
+        else
+            lx_fail(lx, lx->line, HS_ERR_UNSUPPORTED,
+                    "only DATASET UNSTRUCTURED_GRID is supported");
         goto fail;
     }
     if (!end_line(lx, "DATASET")) goto fail;
