@@ -2,7 +2,9 @@
 // Surfaces: check and repair before meshing, the boundary of a tet mesh, writers, scaling, and
 // the quality statistics of a tet mesh. Messages name the surface, the problem, how many and
 // where (a coordinate in the surface's units).
+#include "base_internal.h"
 #include "surface_internal.h"
+#include "vec3.h"
 
 #include <errno.h>
 #include <math.h>
@@ -27,32 +29,12 @@ hs_surface_clean_def hs_surface_clean_default_def(void) {
     return (hs_surface_clean_def){.repair = 0, .max_hole_edges = 64, .check_crossings = 1};
 }
 
-static void sub3(const double* a, const double* b, double* c) {
-    c[0] = a[0] - b[0];
-    c[1] = a[1] - b[1];
-    c[2] = a[2] - b[2];
-}
-
-static void cross3(const double* a, const double* b, double* c) {
-    c[0] = a[1] * b[2] - a[2] * b[1];
-    c[1] = a[2] * b[0] - a[0] * b[2];
-    c[2] = a[0] * b[1] - a[1] * b[0];
-}
-
-static double dot3(const double* a, const double* b) {
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-}
-
-static double norm3(const double* a) {
-    return sqrt(dot3(a, a));
-}
-
 static double tri_area(const double* x, const int* t) {
     double u[3], v[3], n[3];
-    sub3(x + 3 * t[1], x + 3 * t[0], u);
-    sub3(x + 3 * t[2], x + 3 * t[0], v);
-    cross3(u, v, n);
-    return 0.5 * norm3(n);
+    hs_vec3_sub(x + 3 * t[1], x + 3 * t[0], u);
+    hs_vec3_sub(x + 3 * t[2], x + 3 * t[0], v);
+    hs_vec3_cross(u, v, n);
+    return 0.5 * hs_vec3_norm(n);
 }
 
 static void tri_centre(const double* x, const int* t, double* c) {
@@ -62,8 +44,8 @@ static void tri_centre(const double* x, const int* t, double* c) {
 // Signed volume contribution of an outward triangle: x0 . (x1 x x2) / 6.
 static double tri_volume(const double* x, const int* t) {
     double c[3];
-    cross3(x + 3 * t[1], x + 3 * t[2], c);
-    return dot3(x + 3 * t[0], c) / 6.0;
+    hs_vec3_cross(x + 3 * t[1], x + 3 * t[2], c);
+    return hs_vec3_dot(x + 3 * t[0], c) / 6.0;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -157,7 +139,7 @@ static double bbox_diag(const hs_surface* s, double* lo, double* hi) {
             hi[d] = fmax(hi[d], s->x[3 * i + d]);
         }
     double e[3] = {hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]};
-    return s->n_verts ? norm3(e) : 0.0;
+    return s->n_verts ? hs_vec3_norm(e) : 0.0;
 }
 
 // Degenerate (repeated vertex, zero area) and repeated triangles: counted; removed on repair.
@@ -554,11 +536,11 @@ static int compact(hs_surface* s, hs_surface_report* r) {
 
 static double orient3(const double* a, const double* b, const double* c, const double* d) {
     double u[3], v[3], w[3], n[3];
-    sub3(b, a, u);
-    sub3(c, a, v);
-    sub3(d, a, w);
-    cross3(u, v, n);
-    return dot3(n, w);
+    hs_vec3_sub(b, a, u);
+    hs_vec3_sub(c, a, v);
+    hs_vec3_sub(d, a, w);
+    hs_vec3_cross(u, v, n);
+    return hs_vec3_dot(n, w);
 }
 
 // orient3 of vertices i[0..3], evaluated in increasing index order and signed by the permutation,
@@ -594,10 +576,10 @@ static int seg_crosses_tri(const double* x, int p, int q, const int* t, double t
 // normal a x b (d lies in its plane).
 static int in_wedge(const double* a, const double* b, const double* n, const double* d) {
     double c1[3], c2[3];
-    cross3(a, d, c1);
-    cross3(d, b, c2);
-    double tol = 1e-9 * norm3(d) * norm3(n);
-    return dot3(c1, n) > tol * norm3(a) && dot3(c2, n) > tol * norm3(b);
+    hs_vec3_cross(a, d, c1);
+    hs_vec3_cross(d, b, c2);
+    double tol = 1e-9 * hs_vec3_norm(d) * hs_vec3_norm(n);
+    return hs_vec3_dot(c1, n) > tol * hs_vec3_norm(a) && hs_vec3_dot(c2, n) > tol * hs_vec3_norm(b);
 }
 
 // Triangles (v, a, b) and (v, c, d) that share only v cross when the line where their planes
@@ -605,14 +587,14 @@ static int in_wedge(const double* a, const double* b, const double* n, const dou
 static int fold_at_vertex(const double* v, const double* a, const double* b, const double* v2,
                           const double* c, const double* d) {
     double ea[3], eb[3], ec[3], ed[3], n1[3], n2[3], l[3], m[3];
-    sub3(a, v, ea);
-    sub3(b, v, eb);
-    sub3(c, v2, ec);
-    sub3(d, v2, ed);
-    cross3(ea, eb, n1);
-    cross3(ec, ed, n2);
-    cross3(n1, n2, l);
-    if (!(norm3(l) > 1e-8 * norm3(n1) * norm3(n2))) return 0;
+    hs_vec3_sub(a, v, ea);
+    hs_vec3_sub(b, v, eb);
+    hs_vec3_sub(c, v2, ec);
+    hs_vec3_sub(d, v2, ed);
+    hs_vec3_cross(ea, eb, n1);
+    hs_vec3_cross(ec, ed, n2);
+    hs_vec3_cross(n1, n2, l);
+    if (!(hs_vec3_norm(l) > 1e-8 * hs_vec3_norm(n1) * hs_vec3_norm(n2))) return 0;
     for (int k = 0; k < 3; ++k) m[k] = -l[k];
     return (in_wedge(ea, eb, n1, l) && in_wedge(ec, ed, n2, l)) ||
            (in_wedge(ea, eb, n1, m) && in_wedge(ec, ed, n2, m));
@@ -633,10 +615,10 @@ static int tris_cross(const double* x, const int* t, const int* u) {
     double l2 = 0;
     for (int k = 0; k < 3; ++k) {
         double e[3];
-        sub3(p[k], p[(k + 1) % 3], e);
-        l2 = fmax(l2, dot3(e, e));
-        sub3(p[3 + k], p[3 + (k + 1) % 3], e);
-        l2 = fmax(l2, dot3(e, e));
+        hs_vec3_sub(p[k], p[(k + 1) % 3], e);
+        l2 = fmax(l2, hs_vec3_dot(e, e));
+        hs_vec3_sub(p[3 + k], p[3 + (k + 1) % 3], e);
+        l2 = fmax(l2, hs_vec3_dot(e, e));
     }
     double tol = 1e-9 * l2 * sqrt(l2);
     for (int k = 0; k < 3; ++k)
@@ -654,7 +636,7 @@ static int count_crossings(const hs_surface* s, hs_surface_report* r) {
     double mean = 0;
     for (int t = 0; t < n; ++t) mean += sqrt(2 * tri_area(s->x, s->tris + 3 * t));
     double e[3] = {hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]};
-    double h = fmax(2 * mean / n, 1e-9 * norm3(e));
+    double h = fmax(2 * mean / n, 1e-9 * hs_vec3_norm(e));
     if (!(h > 0) || !isfinite(h)) return 1; // all in one point: nothing can cross
     int dims[3];
     for (;;) {
@@ -767,8 +749,8 @@ static void stats(const hs_surface* s, hs_surface_report* r) {
         r->volume += tri_volume(s->x, v);
         for (int k = 0; k < 3; ++k) {
             double e[3];
-            sub3(s->x + 3 * v[k], s->x + 3 * v[(k + 1) % 3], e);
-            double l = norm3(e);
+            hs_vec3_sub(s->x + 3 * v[k], s->x + 3 * v[(k + 1) % 3], e);
+            double l = hs_vec3_norm(e);
             r->edge_min = fmin(r->edge_min, l);
             r->edge_max = fmax(r->edge_max, l);
         }
@@ -931,24 +913,13 @@ static void put_f32(unsigned char* p, double v) {
     put_le32(p, u);
 }
 
-static int ends_with(const char* path, const char* ext) {
-    size_t n = strlen(path), e = strlen(ext);
-    if (n < e) return 0;
-    for (size_t i = 0; i < e; ++i) {
-        char c = path[n - e + i];
-        if (c >= 'A' && c <= 'Z') c = (char)(c - 'A' + 'a');
-        if (c != ext[i]) return 0;
-    }
-    return 1;
-}
-
 hs_status hs_surface_write(const hs_surface* s, const char* path, hs_err* err) {
     if (!s || !path) return hs_err_set(err, HS_ERR_INVALID, "surface or path is NULL");
-    int fmt = ends_with(path, ".stl")   ? 0
-              : ends_with(path, ".obj") ? 1
-              : ends_with(path, ".ply") ? 2
-              : ends_with(path, ".off") ? 3
-                                        : -1;
+    int fmt = hs_path_has_ext(path, ".stl")   ? 0
+              : hs_path_has_ext(path, ".obj") ? 1
+              : hs_path_has_ext(path, ".ply") ? 2
+              : hs_path_has_ext(path, ".off") ? 3
+                                              : -1;
     if (fmt < 0)
         return hs_err_set(err, HS_ERR_UNSUPPORTED, "%s: write .stl, .obj, .ply or .off", path);
     FILE* f = fopen(path, fmt == 0 ? "wb" : "w");
@@ -961,10 +932,10 @@ hs_status hs_surface_write(const hs_surface* s, const char* path, hs_err* err) {
         for (int t = 0; t < s->n_tris; ++t) {
             const int* v = s->tris + 3 * t;
             double u[3], w[3], n[3];
-            sub3(s->x + 3 * v[1], s->x + 3 * v[0], u);
-            sub3(s->x + 3 * v[2], s->x + 3 * v[0], w);
-            cross3(u, w, n);
-            double l = norm3(n);
+            hs_vec3_sub(s->x + 3 * v[1], s->x + 3 * v[0], u);
+            hs_vec3_sub(s->x + 3 * v[2], s->x + 3 * v[0], w);
+            hs_vec3_cross(u, w, n);
+            double l = hs_vec3_norm(n);
             memset(rec, 0, sizeof rec);
             for (int d = 0; d < 3; ++d) put_f32(rec + 4 * d, l > 0 ? n[d] / l : 0);
             for (int c = 0; c < 3; ++c)

@@ -4,6 +4,7 @@
 // byte buffer that need not be NUL-terminated, never reads past it, checks declared counts against
 // the bytes left before allocating, and fails with "<file>:<line>: <problem>" (binary: "<file>:
 // byte N: ...").
+#include "base_internal.h"
 #include "surface_internal.h"
 
 #include <errno.h>
@@ -14,8 +15,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#define HS_SURFACE_MAX_FILE_BYTES ((size_t)512 << 20)
-#define HS_SURFACE_MAX_COUNT      (0x7fffffff / 16)
+#define HS_SURFACE_MAX_COUNT (0x7fffffff / 16)
 
 typedef struct rd {
     const char* name;
@@ -1004,57 +1004,6 @@ hs_status hs_surface_parse(const char* name, const char* format, const char* dat
     return finish(&r, ok, out);
 }
 
-static int has_ext(const char* path, const char* ext) {
-    size_t n = strlen(path), e = strlen(ext);
-    if (n < e) return 0;
-    for (size_t i = 0; i < e; ++i) {
-        char c = path[n - e + i];
-        if (c >= 'A' && c <= 'Z') c = (char)(c - 'A' + 'a');
-        if (c != ext[i]) return 0;
-    }
-    return 1;
-}
-
-hs_status hs_surface_read_file(const char* path, char** data, size_t* len, hs_err* err) {
-    *data = NULL;
-    *len = 0;
-    FILE* f = fopen(path, "rb");
-    if (!f) return hs_err_set(err, HS_ERR_IO, "%s: cannot open: %s", path, strerror(errno));
-    size_t cap = (size_t)1 << 16, n = 0;
-    char* buf = hs_alloc(cap);
-    hs_status st = buf ? HS_OK : hs_err_set(err, HS_ERR_NOMEM, "%s: out of memory", path);
-    while (st == HS_OK) {
-        if (n == cap) {
-            if (cap >= HS_SURFACE_MAX_FILE_BYTES) {
-                st = hs_err_set(err, HS_ERR_IO, "%s: larger than %zu MiB", path,
-                                HS_SURFACE_MAX_FILE_BYTES >> 20);
-                break;
-            }
-            char* g = hs_realloc(buf, cap * 2);
-            if (!g) {
-                st = hs_err_set(err, HS_ERR_NOMEM, "%s: out of memory", path);
-                break;
-            }
-            buf = g;
-            cap *= 2;
-        }
-        size_t got = fread(buf + n, 1, cap - n, f);
-        n += got;
-        if (got == 0) {
-            if (ferror(f)) st = hs_err_set(err, HS_ERR_IO, "%s: read error", path);
-            break;
-        }
-    }
-    fclose(f);
-    if (st != HS_OK) {
-        hs_free(buf);
-        return st;
-    }
-    *data = buf;
-    *len = n;
-    return HS_OK;
-}
-
 hs_status hs_surface_load(const char* path, hs_surface** out, hs_err* err) {
     if (!out) return hs_err_set(err, HS_ERR_INVALID, "out is NULL");
     *out = NULL;
@@ -1063,16 +1012,16 @@ hs_status hs_surface_load(const char* path, hs_surface** out, hs_err* err) {
     for (int i = 0; i < 7; ++i) {
         char ext[8];
         snprintf(ext, sizeof ext, ".%s", fmts[i]);
-        if (!has_ext(path, ext)) continue;
+        if (!hs_path_has_ext(path, ext)) continue;
         char* data;
         size_t len;
-        hs_status st = hs_surface_read_file(path, &data, &len, err);
+        hs_status st = hs_read_file(path, &data, &len, err);
         if (st != HS_OK) return st;
         st = hs_surface_parse(path, fmts[i], data, len, out, err);
         hs_free(data);
         return st;
     }
-    if (has_ext(path, ".node") || has_ext(path, ".ele")) {
+    if (hs_path_has_ext(path, ".node") || hs_path_has_ext(path, ".ele")) {
         hs_mesh* m = NULL;
         hs_status st = hs_mesh_load(path, &m, err);
         if (st < 0) return st;
