@@ -24,7 +24,8 @@ hs_mesher_def hs_mesher_default_def(void) {
                            .verbose = 0,
                            .size_at = NULL,
                            .size_ctx = NULL,
-                           .size_min = 0};
+                           .size_min = 0,
+                           .gmsh_options = NULL};
 }
 
 const char* hs_mesher_gmsh_version(void) {
@@ -52,6 +53,40 @@ static hs_status gmsh_fail(hs_err* err, const char* step) {
     }
     return hs_err_set(err, HS_ERR_INVALID, "gmsh %s failed: %s", step,
                       msg[0] ? msg : "(no message)");
+}
+
+// "Name=value;Name=value": numbers through gmshOptionSetNumber, anything else as a string.
+static hs_status set_gmsh_options(const char* list, hs_err* err) {
+    const char* p = list;
+    while (*p) {
+        const char* end = strchr(p, ';');
+        size_t n = end ? (size_t)(end - p) : strlen(p);
+        char item[256];
+        if (n >= sizeof item)
+            return hs_err_set(err, HS_ERR_INVALID, "gmsh option '%.40s...' is too long", p);
+        memcpy(item, p, n);
+        item[n] = '\0';
+        p += n + (end != NULL);
+        if (n == 0) continue;
+        char* eq = strchr(item, '=');
+        if (!eq || eq == item)
+            return hs_err_set(err, HS_ERR_INVALID, "gmsh option '%s' is not Name=value", item);
+        *eq = '\0';
+        char* e;
+        double v = strtod(eq + 1, &e);
+        int ierr = 0;
+        if (eq[1] && !*e)
+            gmshOptionSetNumber(item, v, &ierr);
+        else
+            gmshOptionSetString(item, eq + 1, &ierr);
+        if (ierr) {
+            hs_err e2 = {0};
+            gmsh_fail(&e2, "option");
+            return hs_err_set(err, HS_ERR_INVALID, "gmsh option %s=%s refused: %s", item, eq + 1,
+                              e2.msg);
+        }
+    }
+    return HS_OK;
 }
 
 typedef struct size_cb {
@@ -174,6 +209,7 @@ hs_status hs_mesher_tet(const hs_surface* s, const hs_mesher_def* def, hs_mesh**
     GMSH_TRY(gmshOptionSetNumber("Mesh.MeshSizeMax", def->size, &ierr), "option");
     GMSH_TRY(gmshOptionSetNumber("Mesh.Optimize", def->optimize ? 1 : 0, &ierr), "option");
     GMSH_TRY(gmshOptionSetNumber("General.NumThreads", 1, &ierr), "option");
+    if (def->gmsh_options && (st = set_gmsh_options(def->gmsh_options, err)) != HS_OK) goto done;
     GMSH_TRY(gmshModelMeshGenerate(3, &ierr), "meshing");
 
     size_t n_nodes = 0, n_coord = 0, n_param = 0, n_et = 0, n_en = 0;
