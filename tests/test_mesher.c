@@ -740,6 +740,33 @@ static int VtuVolume(void) {
     return 0;
 }
 
+// A tetrahedron's four triangles, remeshed: gmsh 4.8 alone never returns from classifying them
+// (hs_mesher_tet splits tiny surfaces first).
+static int TinySurface(void) {
+    int64_t before = hs_byte_count();
+    hs_surface* s = hs_calloc(1, sizeof *s);
+    static const double x[12] = {0, 0, 0, 0.1, 0, 0, 0, 0.1, 0, 0, 0, 0.1};
+    static const int t[12] = {0, 2, 1, 0, 1, 3, 0, 3, 2, 1, 2, 3};
+    s->n_verts = 4;
+    s->n_tris = 4;
+    s->x = hs_alloc(sizeof x);
+    s->tris = hs_alloc(sizeof t);
+    memcpy(s->x, x, sizeof x);
+    memcpy(s->tris, t, sizeof t);
+    hs_mesher_def md = hs_mesher_default_def();
+    md.size = 0.02;
+    hs_mesh* m = NULL;
+    hs_err e = {0};
+    hs_status st = hs_mesher_tet(s, &md, &m, &e);
+    if (st < 0) printf("  %s\n", e.msg);
+    ENSURE(st >= 0 && m && m->n_tets > 50);
+    ENSURE(fabs(m->volume - 0.1 * 0.1 * 0.1 / 6) < 1e-9);
+    hs_mesh_destroy(&m);
+    hs_surface_destroy(&s);
+    ENSURE(hs_byte_count() == before);
+    return 0;
+}
+
 static int Quality(void) {
     hs_mesh* m = NULL;
     hs_err e = {0};
@@ -780,6 +807,7 @@ int main(int argc, char** argv) {
                                          HS_CASE(PhysicalGroups),
                                          HS_CASE(SceneFixedKinds),
                                          HS_CASE(VtuVolume),
+                                         HS_CASE(TinySurface),
                                          HS_CASE(Quality)};
     int rc = hs_test_main(argc, argv, cases, (int)(sizeof cases / sizeof cases[0]));
     if (rc == 0) {
