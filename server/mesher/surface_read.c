@@ -698,9 +698,12 @@ static int vtk_header_type(vtk_rd* v, int hl, const char* what, int* type) {
 // (every second one turned to keep the strip's orientation); other kinds are read past.
 static int vtk_cell(vtk_rd* v, int kind, int type, long long k, long long cell, int hl) {
     rd* r = v->r;
+    const char* name = kind == 1 ? "polygon" : "triangle strip";
+    if (kind && k < 3 && v->binary)
+        return rd_fail(r, 0, "byte %zu: %s %lld has %lld points (a face needs 3)",
+                       (size_t)(r->p - v->start), name, cell + 1, k);
     if (kind && k < 3)
-        return rd_fail(r, v->binary ? 0 : r->line, "%s %lld has %lld points (a face needs 3)",
-                       kind == 1 ? "polygon" : "triangle strip", cell + 1, k);
+        return rd_fail(r, r->line, "%s %lld has %lld points (a face needs 3)", name, cell + 1, k);
     long long first = -1, prev2 = -1, prev = -1, i;
     for (long long j = 0; j < k; ++j) {
         if (!vtk_index(v, type, 0, v->n_pts - 1, "point index", &i)) return 0;
