@@ -1,9 +1,11 @@
 // SPDX-License-Identifier: GPL-2.0-or-later
-// Whole-file reading and path extensions for the file readers.
+// Whole-file reading, path extensions and token parsing for the file readers.
 #include "base_internal.h"
 
 #include <errno.h>
+#include <limits.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 hs_status hs_read_file(const char* path, char** data, size_t* len, hs_err* err) {
@@ -57,4 +59,46 @@ int hs_path_has_ext(const char* path, const char* ext) {
         if (c != x) return 0;
     }
     return 1;
+}
+
+int hs_parse_ll(const char* s, size_t len, long long* v) {
+    size_t i = 0;
+    int neg = 0;
+    if (len > 0 && (s[0] == '-' || s[0] == '+')) {
+        neg = s[0] == '-';
+        i = 1;
+    }
+    if (i == len) return 0;
+    unsigned long long acc = 0;
+    for (; i < len; ++i) {
+        unsigned d = (unsigned)(unsigned char)s[i] - '0';
+        if (d > 9 || acc > ((unsigned long long)LLONG_MAX - d) / 10) return 0;
+        acc = acc * 10 + d;
+    }
+    *v = neg ? -(long long)acc : (long long)acc;
+    return 1;
+}
+
+int hs_parse_number(const char* s, size_t len, double* v) {
+    char buf[512];
+    if (len == 0 || len >= sizeof buf) return 0;
+    for (size_t i = 0; i < len; ++i)
+        if (s[i] == 'x' || s[i] == 'X') return 0;
+    memcpy(buf, s, len);
+    buf[len] = '\0';
+    char* e = NULL;
+    double d = strtod(buf, &e);
+    if (e != buf + len) return 0;
+    *v = d;
+    return 1;
+}
+
+const char* hs_text_excerpt(const char* s, size_t len, size_t max, char* buf) {
+    size_t n = len < max ? len : max;
+    for (size_t i = 0; i < n; ++i) {
+        unsigned char c = (unsigned char)s[i];
+        buf[i] = c >= 0x20 && c < 0x7f ? (char)c : '?';
+    }
+    strcpy(buf + n, len > max ? "..." : "");
+    return buf;
 }

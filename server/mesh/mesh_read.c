@@ -56,13 +56,7 @@ static int lx_fail(lexer* lx, int line, hs_status code, const char* fmt, ...) {
 
 // Printable excerpt of a token for messages.
 static const char* tok_text(const tok* t, char buf[48]) {
-    size_t n = t->len < 32 ? t->len : 32;
-    for (size_t i = 0; i < n; ++i) {
-        unsigned char c = (unsigned char)t->s[i];
-        buf[i] = c >= 0x20 && c < 0x7f ? (char)c : '?';
-    }
-    strcpy(buf + n, t->len > 32 ? "..." : "");
-    return buf;
+    return hs_text_excerpt(t->s, t->len, 32, buf);
 }
 
 static int is_blank(char c) {
@@ -152,38 +146,14 @@ static int tok_is_nocase(const tok* t, const char* s) {
     return 1;
 }
 
-// Strict decimal integer with optional sign; 0 if malformed or beyond long long.
 static int parse_ll(const tok* t, long long* v) {
-    size_t i = 0;
-    int neg = 0;
-    if (t->len > 0 && (t->s[0] == '-' || t->s[0] == '+')) {
-        neg = t->s[0] == '-';
-        i = 1;
-    }
-    if (i == t->len) return 0;
-    unsigned long long acc = 0;
-    for (; i < t->len; ++i) {
-        unsigned d = (unsigned)(unsigned char)t->s[i] - '0';
-        if (d > 9) return 0;
-        if (acc > ((unsigned long long)LLONG_MAX - d) / 10) return 0;
-        acc = acc * 10 + d;
-    }
-    *v = neg ? -(long long)acc : (long long)acc;
-    return 1;
+    return hs_parse_ll(t->s, t->len, v);
 }
 
-// Finite decimal number; 0 if malformed, too long, infinite or NaN. strtod alone would take
-// hexadecimal ("0x1p0") too.
+// Finite decimal number; 0 if malformed, too long, infinite or NaN.
 static int parse_double(const tok* t, double* v) {
-    char buf[512];
-    if (t->len == 0 || t->len >= sizeof buf) return 0;
-    for (size_t i = 0; i < t->len; ++i)
-        if (t->s[i] == 'x' || t->s[i] == 'X') return 0;
-    memcpy(buf, t->s, t->len);
-    buf[t->len] = '\0';
-    char* e = NULL;
-    double d = strtod(buf, &e);
-    if (e != buf + t->len || !isfinite(d)) return 0;
+    double d;
+    if (!hs_parse_number(t->s, t->len, &d) || !isfinite(d)) return 0;
     *v = d;
     return 1;
 }

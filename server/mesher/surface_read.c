@@ -136,45 +136,16 @@ static int tok_eq(const tk* t, const char* s) {
 }
 
 static const char* tok_show(const tk* t, char buf[40]) {
-    size_t n = t->len < 24 ? t->len : 24;
-    for (size_t i = 0; i < n; ++i) {
-        unsigned char c = (unsigned char)t->s[i];
-        buf[i] = c >= 0x20 && c < 0x7f ? (char)c : '?';
-    }
-    strcpy(buf + n, t->len > 24 ? "..." : "");
-    return buf;
+    return hs_text_excerpt(t->s, t->len, 24, buf);
 }
 
 // A decimal number (NaN and inf are read so the caller can name them; hexadecimal refused).
 static int tok_double(const tk* t, double* v) {
-    char buf[128];
-    if (t->len == 0 || t->len >= sizeof buf) return 0;
-    for (size_t i = 0; i < t->len; ++i)
-        if (t->s[i] == 'x' || t->s[i] == 'X') return 0;
-    memcpy(buf, t->s, t->len);
-    buf[t->len] = '\0';
-    char* e = NULL;
-    errno = 0;
-    *v = strtod(buf, &e);
-    return e == buf + t->len;
+    return hs_parse_number(t->s, t->len, v);
 }
 
 static int tok_ll(const tk* t, long long* v) {
-    size_t i = 0;
-    int neg = 0;
-    if (t->len && (t->s[0] == '-' || t->s[0] == '+')) {
-        neg = t->s[0] == '-';
-        i = 1;
-    }
-    if (i == t->len) return 0;
-    unsigned long long acc = 0;
-    for (; i < t->len; ++i) {
-        unsigned d = (unsigned)(unsigned char)t->s[i] - '0';
-        if (d > 9 || acc > ((unsigned long long)LLONG_MAX - d) / 10) return 0;
-        acc = acc * 10 + d;
-    }
-    *v = neg ? -(long long)acc : (long long)acc;
-    return 1;
+    return hs_parse_ll(t->s, t->len, v);
 }
 
 static int need_double(rd* r, int any, const char* what, double* v) {
