@@ -85,6 +85,43 @@ echo "hilum nodes: uniform $nu, refined $nr"
 "$hm" tet "$tmp/liver.obj" --units mm --size 12 --refine nope:4 >"$tmp/o" 2>&1
 [ $? = 1 ] && grep -q "refine 'nope:4'" "$tmp/o" || fail "bad --refine: $(cat "$tmp/o")"
 
+# gmsh options: one gmsh knows is used (HXT makes a different mesh), an unknown one is refused
+# with gmsh's words; a bad --feature-angle is a usage error.
+"$hm" tet "$tmp/liver.obj" --units mm --size 12 --gmsh Mesh.Algorithm3D=10 --feature-angle 30 \
+    --out "$tmp/h.msh" >"$tmp/h.log" 2>&1 || fail "--gmsh: $(cat "$tmp/h.log")"
+nh=$(sed -n 's/^tets *//p' "$tmp/h.log")
+[ -n "$nh" ] && [ "$nh" != "$nu" ] || fail "--gmsh Mesh.Algorithm3D=10 changed nothing ($nu, $nh)"
+"$hm" tet "$tmp/liver.obj" --units mm --size 12 --gmsh Mesh.NoSuchOption=1 >"$tmp/o" 2>&1
+[ $? = 1 ] && grep -q "gmsh option Mesh.NoSuchOption=1 refused: .*Could not set option" "$tmp/o" ||
+    fail "unknown gmsh option: $(cat "$tmp/o")"
+"$hm" tet "$tmp/liver.obj" --units mm --size 12 --feature-angle 200 >"$tmp/o" 2>&1
+[ $? = 2 ] && grep -q "bad --feature-angle" "$tmp/o" || fail "bad --feature-angle: $(cat "$tmp/o")"
+
+# A surface as legacy VTK POLYDATA (ASCII, quads) meshes like the others.
+cat >"$tmp/box.vtk" <<'VTK'
+# vtk DataFile Version 3.0
+box in mm
+ASCII
+DATASET POLYDATA
+POINTS 8 float
+0 0 0 40 0 0 40 30 0 0 30 0
+0 0 20 40 0 20 40 30 20 0 30 20
+POLYGONS 6 30
+4 0 3 2 1
+4 4 5 6 7
+4 0 1 5 4
+4 1 2 6 5
+4 2 3 7 6
+4 3 0 4 7
+VTK
+"$hm" tet "$tmp/box.vtk" --units mm --size 8 --out "$tmp/box.msh" >"$tmp/o" 2>&1 ||
+    fail "vtk surface: $(cat "$tmp/o")"
+grep -q "volume 2.4e-05 m^3, -*0.000 % from" "$tmp/o" || fail "vtk box volume: $(cat "$tmp/o")"
+sed 's/^4 2 3 7 6$/4 2 3 9 6/' "$tmp/box.vtk" >"$tmp/badbox.vtk"
+"$hm" tet "$tmp/badbox.vtk" --units mm --size 8 >"$tmp/o" 2>&1
+[ $? = 1 ] && grep -q "badbox.vtk:13: point index 9 out of range \[0, 7\]" "$tmp/o" ||
+    fail "bad vtk: $(cat "$tmp/o")"
+
 # A scene from the millimetre surface with a group from a plane; it loads as a scene.
 "$hm" scene "$tmp/liver.obj" --size 12 --units mm --group hilum:plane:0,-43.3,0,0,1,0 \
     --fix hilum --out "$tmp/organ" >"$tmp/o" 2>&1 || fail "scene: $(cat "$tmp/o")"

@@ -176,12 +176,58 @@ static int write_vtu(const char* path, int n_pts, const double* x, int n_cells, 
     return fclose(f) == 0;
 }
 
+// Legacy VTK POLYDATA: ASCII in the classic cell layout (version 4.2), or binary (big-endian)
+// in the 5.1 OFFSETS/CONNECTIVITY layout with float points.
+static void put_be(unsigned char* p, uint64_t v, int n) {
+    for (int i = 0; i < n; ++i) p[i] = (unsigned char)(v >> (8 * (n - 1 - i)));
+}
+
+static int write_vtk(const hs_surface* s, const char* path, int binary) {
+    FILE* f = fopen(path, "wb");
+    if (!f) return 0;
+    fprintf(f, "# vtk DataFile Version %s\nsurface\n%s\nDATASET POLYDATA\n", binary ? "5.1" : "4.2",
+            binary ? "BINARY" : "ASCII");
+    fprintf(f, "POINTS %d %s\n", s->n_verts, binary ? "float" : "double");
+    unsigned char b[8];
+    for (int i = 0; i < 3 * s->n_verts; ++i) {
+        if (!binary) {
+            fprintf(f, "%.17g%s", s->x[i], i % 3 == 2 ? "\n" : " ");
+            continue;
+        }
+        float v = (float)s->x[i];
+        uint32_t u;
+        memcpy(&u, &v, 4);
+        put_be(b, u, 4);
+        fwrite(b, 1, 4, f);
+    }
+    if (!binary) {
+        fprintf(f, "POLYGONS %d %d\n", s->n_tris, 4 * s->n_tris);
+        for (int t = 0; t < s->n_tris; ++t)
+            fprintf(f, "3 %d %d %d\n", s->tris[3 * t], s->tris[3 * t + 1], s->tris[3 * t + 2]);
+    } else {
+        fprintf(f, "\nPOLYGONS %d %d\nOFFSETS vtktypeint64\n", s->n_tris + 1, 3 * s->n_tris);
+        for (int t = 0; t <= s->n_tris; ++t) {
+            put_be(b, (uint64_t)(3 * t), 8);
+            fwrite(b, 1, 8, f);
+        }
+        fprintf(f, "\nCONNECTIVITY vtktypeint64\n");
+        for (int i = 0; i < 3 * s->n_tris; ++i) {
+            put_be(b, (uint64_t)s->tris[i], 8);
+            fwrite(b, 1, 8, f);
+        }
+        fprintf(f, "\n");
+    }
+    fprintf(f, "POINT_DATA %d\nSCALARS id int 1\nLOOKUP_TABLE default\n", s->n_verts);
+    return fclose(f) == 0;
+}
+
 // Writes `s` as `name` in the format its extension says.
 static int write_as(const hs_surface* s, const char* name) {
     const char* path = tmp_path(name);
     if (strstr(name, "_ascii.stl")) return write_stl_ascii(s, path);
     if (strstr(name, "_bin.ply")) return write_ply_binary(s, path);
     if (strstr(name, ".msh")) return write_msh_tris(s, path);
+    if (strstr(name, ".vtk")) return write_vtk(s, path, strstr(name, "_bin") != NULL);
     if (strstr(name, ".vtu")) return write_vtu(path, s->n_verts, s->x, s->n_tris, s->tris, 3, 5);
     hs_err e = {0};
     return hs_surface_write(s, path, &e) == HS_OK;
@@ -222,8 +268,8 @@ static int mesh_and_check(const char* path, double size, int keep_surface) {
     return 0;
 }
 
-static const char* const k_formats[] = {"_bin.stl", "_ascii.stl", ".obj", ".ply",
-                                        "_bin.ply", ".off",       ".msh", ".vtu"};
+static const char* const k_formats[] = {"_bin.stl", "_ascii.stl", ".obj", ".ply",       "_bin.ply",
+                                        ".off",     ".msh",       ".vtu", "_ascii.vtk", "_bin.vtk"};
 
 static int EveryFormatSphere(void) {
     int64_t before = hs_byte_count();
@@ -349,6 +395,99 @@ static int BrokenSurfaces(void) {
     return 0;
 }
 
+// Legacy VTK POLYDATA beyond triangles: a cube of quads (ASCII), the same as triangle strips
+// (binary, classic 32-bit cells), an unstructured grid of tets; then broken files.
+static int VtkPolyData(void) {
+    int64_t before = hs_byte_count();
+    const char* pts = "POINTS 8 float\n0 0 0 1 0 0 1 1 0 0 1 0\n0 0 1 1 0 1 1 1 1 0 1 1\n";
+    char quads[512];
+    snprintf(quads, sizeof quads,
+             "# vtk DataFile Version 3.0\ncube\nASCII\nDATASET POLYDATA\n%sPOLYGONS 6 30\n"
+             "4 0 3 2 1\n4 4 5 6 7\n4 0 1 5 4\n4 1 2 6 5\n4 2 3 7 6\n4 3 0 4 7\n"
+             "CELL_DATA 6\n",
+             pts);
+    const char* path = tmp_path("cube_quads.vtk");
+    ENSURE(write_file(path, quads, strlen(quads)));
+    hs_surface* s = NULL;
+    hs_err e = {0};
+    ENSURE(hs_surface_load(path, &s, &e) == HS_OK && s->n_verts == 8 && s->n_tris == 12);
+    hs_surface_clean_def cd = hs_surface_clean_default_def();
+    hs_surface_report rep;
+    ENSURE(hs_surface_clean(s, path, &cd, &rep, &e) == HS_OK && fabs(rep.volume - 1) < 1e-12);
+    hs_surface_destroy(&s);
+    // Binary: two strips of 6 points cover the cube (4 + 4 triangles) plus the two caps.
+    static const int strips[2][8] = {{4, 0, 5, 1, 6, 2, 7, 3}, {7, 3, 4, 0, -1, -1, -1, -1}};
+    unsigned char bin[1024];
+    size_t n = (size_t)snprintf((char*)bin, sizeof bin,
+                                "# vtk DataFile Version 3.0\ncube\nBINARY\nDATASET POLYDATA\n"
+                                "POINTS 8 float\n");
+    static const float xyz[24] = {0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0,
+                                  0, 0, 1, 1, 0, 1, 1, 1, 1, 0, 1, 1};
+    for (int i = 0; i < 24; ++i) {
+        uint32_t u;
+        memcpy(&u, &xyz[i], 4);
+        put_be(bin + n, u, 4);
+        n += 4;
+    }
+    n += (size_t)snprintf((char*)bin + n, sizeof bin - n, "\nTRIANGLE_STRIPS 2 14\n");
+    for (int k = 0; k < 2; ++k) {
+        int len = k ? 4 : 8;
+        put_be(bin + n, (uint64_t)len, 4), n += 4;
+        for (int j = 0; j < len; ++j) put_be(bin + n, (uint64_t)strips[k][j], 4), n += 4;
+    }
+    n += (size_t)snprintf((char*)bin + n, sizeof bin - n, "\nPOLYGONS 2 10\n");
+    static const int caps[10] = {4, 0, 3, 2, 1, 4, 4, 5, 6, 7};
+    for (int j = 0; j < 10; ++j) put_be(bin + n, (uint64_t)caps[j], 4), n += 4;
+    path = tmp_path("cube_strips.vtk");
+    ENSURE(write_file(path, bin, n));
+    e.msg[0] = '\0';
+    hs_status st = hs_surface_load(path, &s, &e);
+    if (st < 0) printf("  %s\n", e.msg);
+    ENSURE(st == HS_OK && s->n_tris == 12);
+    st = hs_surface_clean(s, path, &cd, &rep, &e);
+    ENSURE(st >= 0 && fabs(rep.volume - 1) < 1e-12 && rep.flipped_tris == 0);
+    hs_surface_destroy(&s);
+    // An unstructured grid of tets gives its boundary.
+    const char* ug = "# vtk DataFile Version 3.0\ntet\nASCII\nDATASET UNSTRUCTURED_GRID\n"
+                     "POINTS 4 float\n0 0 0 1 0 0 0 1 0 0 0 1\nCELLS 1 5\n4 0 1 2 3\n"
+                     "CELL_TYPES 1\n10\n";
+    path = tmp_path("tet_grid.vtk");
+    ENSURE(write_file(path, ug, strlen(ug)));
+    ENSURE(hs_surface_load(path, &s, &e) == HS_OK && s->n_tris == 4);
+    hs_surface_destroy(&s);
+    // Broken files: the file, the line (or byte) and the problem.
+    const char* head = "# vtk DataFile Version 3.0\nx\nASCII\nDATASET POLYDATA\n";
+    char buf[512];
+#define HS_BROKEN(name, body, what)                                                                \
+    snprintf(buf, sizeof buf, "%s%s", head, body);                                                 \
+    ENSURE(expect_fail(name, buf, strlen(buf), what) == 0)
+    HS_BROKEN("noface.vtk", "POINTS 3 float\n0 0 0 1 0 0 0 1 0\n", "no POLYGONS");
+    HS_BROKEN("range.vtk", "POINTS 3 float\n0 0 0 1 0 0 0 1 0\nPOLYGONS 1 4\n3 0 1 7\n",
+              ":8: point index 7 out of range [0, 2]");
+    HS_BROKEN("nan.vtk", "POINTS 3 float\n0 0 0\n1 nan 0\n0 1 0\n", ":7: vertex 2");
+    HS_BROKEN("two.vtk", "POINTS 3 float\n0 0 0 1 0 0 0 1 0\nPOLYGONS 1 3\n2 0 1\n",
+              "polygon 1 has 2 points");
+    HS_BROKEN("size.vtk", "POINTS 3 float\n0 0 0 1 0 0 0 1 0\nPOLYGONS 1 5\n3 0 1 2\n",
+              ":7: POLYGONS size is 5 but the cells use 4");
+    HS_BROKEN("order.vtk", "POLYGONS 1 4\n3 0 1 2\n", ":5: POLYGONS before POINTS");
+    HS_BROKEN("count.vtk", "POINTS 99999999 float\n0 0 0\n", "point count 99999999 does not fit");
+    HS_BROKEN("short.vtk", "POINTS 2 float\n0 0 0 1 0\n", ":6: missing point coordinate");
+    HS_BROKEN("type.vtk", "POINTS 3 quaternion\n", ":5: POINTS: unknown data type 'quaternion'");
+    HS_BROKEN("grid.vtk", "POINTS 3 float\n0 0 0 1 0 0 0 1 0\nVOXELS 1\n",
+              ":7: unexpected 'VOXELS'");
+#undef HS_BROKEN
+    const char* sp = "# vtk DataFile Version 3.0\nx\nASCII\nDATASET STRUCTURED_POINTS\n";
+    ENSURE(expect_fail("sp.vtk", sp, strlen(sp),
+                       ":4: DATASET STRUCTURED_POINTS is not a surface") == 0);
+    ENSURE(expect_fail("empty.vtk", "", 0, "empty file") == 0);
+    ENSURE(expect_fail("notvtk.vtk", "hello\n", 6, ":1: not a legacy VTK file") == 0);
+    // A binary file cut short in its point data names the byte.
+    ENSURE(expect_fail("cut.vtk", bin, n - 4, ": byte 296: file ends in the binary point index") ==
+           0);
+    ENSURE(hs_byte_count() == before);
+    return 0;
+}
+
 static int SelfIntersection(void) {
     int64_t before = hs_byte_count();
     // A sphere whose top cap is pushed down through its bottom (a folded surface): one piece,
@@ -363,6 +502,45 @@ static int SelfIntersection(void) {
     printf("  folded sphere -> %s\n", e.msg);
     ENSURE(st == HS_ERR_INVALID && strstr(e.msg, "self-intersecting") &&
            rep.self_intersections > 0);
+    hs_surface_destroy(&s);
+    ENSURE(hs_byte_count() == before);
+    return 0;
+}
+
+// A fold at a shared vertex: the double cone over a pentagram. Each cone's triangles meet only
+// at its apex, yet non-neighbouring ones cross along a line from it; no two triangles that
+// share no vertex cross (the ring lies in z = 0, where cones touch but do not cross).
+static int FoldAtSharedVertex(void) {
+    int64_t before = hs_byte_count();
+    hs_surface* s = hs_calloc(1, sizeof *s);
+    s->n_verts = 7;
+    s->n_tris = 10;
+    s->x = hs_alloc(7 * 3 * sizeof(double));
+    s->tris = hs_alloc(10 * 3 * sizeof(int));
+    double apex[2][3] = {{0, 0, 1}, {0, 0, -1}};
+    memcpy(s->x, apex, sizeof apex);
+    for (int k = 0; k < 5; ++k) {
+        double a = 2 * M_PI * ((2 * k) % 5) / 5; // pentagram order: every second pentagon corner
+        double* p = s->x + 3 * (2 + k);
+        p[0] = cos(a), p[1] = sin(a), p[2] = 0;
+        int* t = s->tris + 6 * k;
+        t[0] = 0, t[1] = 2 + k, t[2] = 2 + (k + 1) % 5;
+        t[3] = 1, t[4] = 2 + (k + 1) % 5, t[5] = 2 + k;
+    }
+    hs_surface_clean_def cd = hs_surface_clean_default_def();
+    hs_surface_report rep;
+    hs_err e = {0};
+    hs_status st = hs_surface_clean(s, "pentagram", &cd, &rep, &e);
+    printf("  pentagram double cone -> %s\n", e.msg);
+    // Per cone, the 5 pairs of non-neighbouring triangles cross.
+    ENSURE(st == HS_ERR_INVALID && strstr(e.msg, "self-intersecting") &&
+           rep.self_intersections == 10);
+    // The same cone over a convex pentagon is fine.
+    for (int k = 0; k < 5; ++k) {
+        double a = 2 * M_PI * k / 5;
+        s->x[3 * (2 + k)] = cos(a), s->x[3 * (2 + k) + 1] = sin(a);
+    }
+    ENSURE(hs_surface_clean(s, "pentagon", &cd, &rep, &e) >= 0 && rep.self_intersections == 0);
     hs_surface_destroy(&s);
     ENSURE(hs_byte_count() == before);
     return 0;
@@ -562,6 +740,33 @@ static int VtuVolume(void) {
     return 0;
 }
 
+// A tetrahedron's four triangles, remeshed: gmsh 4.8 alone never returns from classifying them
+// (hs_mesher_tet splits tiny surfaces first).
+static int TinySurface(void) {
+    int64_t before = hs_byte_count();
+    hs_surface* s = hs_calloc(1, sizeof *s);
+    static const double x[12] = {0, 0, 0, 0.1, 0, 0, 0, 0.1, 0, 0, 0, 0.1};
+    static const int t[12] = {0, 2, 1, 0, 1, 3, 0, 3, 2, 1, 2, 3};
+    s->n_verts = 4;
+    s->n_tris = 4;
+    s->x = hs_alloc(sizeof x);
+    s->tris = hs_alloc(sizeof t);
+    memcpy(s->x, x, sizeof x);
+    memcpy(s->tris, t, sizeof t);
+    hs_mesher_def md = hs_mesher_default_def();
+    md.size = 0.02;
+    hs_mesh* m = NULL;
+    hs_err e = {0};
+    hs_status st = hs_mesher_tet(s, &md, &m, &e);
+    if (st < 0) printf("  %s\n", e.msg);
+    ENSURE(st >= 0 && m && m->n_tets > 50);
+    ENSURE(fabs(m->volume - 0.1 * 0.1 * 0.1 / 6) < 1e-9);
+    hs_mesh_destroy(&m);
+    hs_surface_destroy(&s);
+    ENSURE(hs_byte_count() == before);
+    return 0;
+}
+
 static int Quality(void) {
     hs_mesh* m = NULL;
     hs_err e = {0};
@@ -592,10 +797,18 @@ static int setup(void) {
 
 int main(int argc, char** argv) {
     if (!setup()) return 1;
-    static const hs_test_case cases[] = {
-        HS_CASE(EveryFormatSphere), HS_CASE(EveryFormatLiver), HS_CASE(BrokenSurfaces),
-        HS_CASE(SelfIntersection),  HS_CASE(Repair),           HS_CASE(PhysicalGroups),
-        HS_CASE(SceneFixedKinds),   HS_CASE(VtuVolume),        HS_CASE(Quality)};
+    static const hs_test_case cases[] = {HS_CASE(EveryFormatSphere),
+                                         HS_CASE(EveryFormatLiver),
+                                         HS_CASE(BrokenSurfaces),
+                                         HS_CASE(VtkPolyData),
+                                         HS_CASE(SelfIntersection),
+                                         HS_CASE(FoldAtSharedVertex),
+                                         HS_CASE(Repair),
+                                         HS_CASE(PhysicalGroups),
+                                         HS_CASE(SceneFixedKinds),
+                                         HS_CASE(VtuVolume),
+                                         HS_CASE(TinySurface),
+                                         HS_CASE(Quality)};
     int rc = hs_test_main(argc, argv, cases, (int)(sizeof cases / sizeof cases[0]));
     if (rc == 0) {
         char cmd[128];

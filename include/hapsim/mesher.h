@@ -17,13 +17,16 @@ typedef struct hs_mesher_def {
     double size;              ///< target edge length of the tets (> 0)
     int keep_surface;         ///< 1: the surface's own triangles bound the tets (no remeshing)
     double feature_angle_deg; ///< remeshing: surface patches split where normals turn more (40)
-    int optimize;             ///< 1: gmsh's and Netgen's tet optimisers after meshing (default)
+    int optimize;             ///< 1: gmsh's tet optimiser after meshing (default)
     int verbose;              ///< 1: gmsh prints its progress on stderr
     /// Optional grading: the target size at a point (surface units), clamped to
     /// [size_min, size]; NULL: uniform. Called by gmsh while meshing (same thread).
     double (*size_at)(const double x[3], void* ctx);
     void* size_ctx;  ///< passed to size_at
     double size_min; ///< smallest size size_at may ask for (0: size / 2)
+    /// Extra gmsh options set last, "Name=value" joined by ';' ("Mesh.Algorithm3D=10"); a
+    /// value that is not a number is set as a string; NULL: none. An unknown name fails.
+    const char* gmsh_options;
 } hs_mesher_def;
 
 /// Defaults: size 0 (must be set), remesh the surface, 40 degrees, optimise, quiet.

@@ -1,6 +1,6 @@
 // SPDX-License-Identifier: GPL-2.0-or-later
-// hapsim surface: triangle surfaces as organs arrive from segmentation (STL, OBJ, PLY, OFF, MSH
-// triangles), their check and repair before tetrahedralisation, writers, and mesh quality.
+// hapsim surface: triangle surfaces as organs arrive from segmentation (STL, OBJ, PLY, OFF, VTK,
+// MSH triangles), their check and repair before tetrahedralisation, writers, and mesh quality.
 // Pure functions of their inputs: no threads, no global state. The mesher (hapsim/mesher.h)
 // turns a checked surface into tetrahedra.
 #ifndef HAPSIM_SURFACE_H
@@ -23,15 +23,16 @@ typedef struct hs_surface {
 } hs_surface;
 
 /// Read a surface; the format is chosen by extension: .stl (ASCII or binary), .obj, .ply
-/// (ASCII, binary little or big endian), .off, .msh (its triangles; a volume mesh gives its
-/// boundary), .vtk/.vtu/.node/.ele (a volume mesh: its boundary). Polygons are fanned into
+/// (ASCII, binary little or big endian), .off, .vtk (legacy POLYDATA, ASCII or binary; an
+/// unstructured grid gives its boundary), .msh/.vtu (their triangles; a volume mesh gives its
+/// boundary), .node/.ele (a volume mesh: its boundary). Polygons are fanned into
 /// triangles; exact duplicate vertices are merged. Errors name file, line (or byte, or
 /// triangle) and problem: a NaN vertex, an index out of range, a short binary file.
 /// @param out  OUT: new surface, free with hs_surface_destroy
 hs_status hs_surface_load(const char* path, hs_surface** out, hs_err* err);
 
-/// Parse from memory; `format` is "stl", "obj", "ply", "off" or "msh"; `name` is used in
-/// error messages.
+/// Parse from memory; `format` is "stl", "obj", "ply", "off", "vtk", "msh" or "vtu"; `name` is
+/// used in error messages.
 hs_status hs_surface_parse(const char* name, const char* format, const char* data, size_t len,
                            hs_surface** out, hs_err* err);
 
@@ -61,7 +62,7 @@ typedef struct hs_surface_report {
     int hole_tris_added;       ///< repair: triangles those fans added
     int pieces;                ///< connected pieces before repair
     int pieces_dropped;        ///< repair: pieces other than the largest, removed
-    int self_intersections;    ///< pairs of triangles that cross (not sharing a vertex)
+    int self_intersections;    ///< pairs of triangles that cross (sharing no edge)
     double where[3];           ///< a point at the first problem found (file units)
     double area;               ///< surface area
     double volume;             ///< enclosed volume (divergence theorem; closed surfaces)

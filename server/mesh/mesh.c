@@ -2,6 +2,7 @@
 // Mesh core: validation and repair, derived topology (boundary, adjacency), the invariant
 // checker, the structured box, node selection and VTK output. The readers are in mesh_read.c.
 #include "mesh_internal.h"
+#include "vec3.h"
 
 #include <float.h>
 #include <math.h>
@@ -132,16 +133,6 @@ static inline double max_d(double a, double b) {
     return b > a ? b : a;
 }
 
-static double dot3(const double* a, const double* b) {
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-}
-
-static void cross3(const double* a, const double* b, double* c) {
-    c[0] = a[1] * b[2] - a[2] * b[1];
-    c[1] = a[2] * b[0] - a[0] * b[2];
-    c[2] = a[0] * b[1] - a[1] * b[0];
-}
-
 // Quality of one positively oriented tet: smallest dihedral angle (deg) and the normalised
 // aspect ratio (longest edge / inradius) / (2 sqrt 6), which is 1 for the regular tet.
 static void tet_quality(const double* x, const int* tet, double* min_dihedral_deg, double* aspect) {
@@ -151,7 +142,7 @@ static void tet_quality(const double* x, const int* tet, double* min_dihedral_de
     for (int i = 0; i < 4; ++i)
         for (int j = i + 1; j < 4; ++j) {
             double e[3] = {p[j][0] - p[i][0], p[j][1] - p[i][1], p[j][2] - p[i][2]};
-            longest = max_d(longest, sqrt(dot3(e, e)));
+            longest = max_d(longest, sqrt(hs_vec3_dot(e, e)));
         }
     double n[4][3], area[4], area_sum = 0.0;
     for (int f = 0; f < 4; ++f) {
@@ -160,8 +151,8 @@ static void tet_quality(const double* x, const int* tet, double* min_dihedral_de
         const double* c = p[k_face[f][2]];
         double u[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
         double v[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
-        cross3(u, v, n[f]);
-        area[f] = 0.5 * sqrt(dot3(n[f], n[f]));
+        hs_vec3_cross(u, v, n[f]);
+        area[f] = 0.5 * sqrt(hs_vec3_dot(n[f], n[f]));
         area_sum += area[f];
     }
     double vol = hs_tet_volume(x, tet);
@@ -172,7 +163,7 @@ static void tet_quality(const double* x, const int* tet, double* min_dihedral_de
     for (int f = 0; f < 4; ++f)
         for (int g = f + 1; g < 4; ++g) {
             double den = 4.0 * area[f] * area[g];
-            double c = den > 0.0 ? -dot3(n[f], n[g]) / den : 1.0;
+            double c = den > 0.0 ? -hs_vec3_dot(n[f], n[g]) / den : 1.0;
             c = min_d(1.0, max_d(-1.0, c));
             min_deg = min_d(min_deg, acos(c) * (45.0 / atan(1.0)));
         }

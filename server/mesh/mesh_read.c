@@ -3,6 +3,7 @@
 // grids. All parse from a memory buffer that need not be NUL-terminated, never read past its
 // end, and check every declared count against the bytes left before allocating, so memory
 // stays proportional to the input. Errors read "<file>:<line>: <problem>".
+#include "base_internal.h"
 #include "mesh_internal.h"
 
 #include <errno.h>
@@ -12,9 +13,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-
-/// Largest mesh file hs_mesh_load reads.
-#define HS_MESH_MAX_FILE_BYTES ((size_t)512 << 20)
 
 typedef struct lexer {
     const char* name; // for messages
@@ -58,13 +56,7 @@ static int lx_fail(lexer* lx, int line, hs_status code, const char* fmt, ...) {
 
 // Printable excerpt of a token for messages.
 static const char* tok_text(const tok* t, char buf[48]) {
-    size_t n = t->len < 32 ? t->len : 32;
-    for (size_t i = 0; i < n; ++i) {
-        unsigned char c = (unsigned char)t->s[i];
-        buf[i] = c >= 0x20 && c < 0x7f ? (char)c : '?';
-    }
-    strcpy(buf + n, t->len > 32 ? "..." : "");
-    return buf;
+    return hs_text_excerpt(t->s, t->len, 32, buf);
 }
 
 static int is_blank(char c) {
@@ -154,38 +146,14 @@ static int tok_is_nocase(const tok* t, const char* s) {
     return 1;
 }
 
-// Strict decimal integer with optional sign; 0 if malformed or beyond long long.
 static int parse_ll(const tok* t, long long* v) {
-    size_t i = 0;
-    int neg = 0;
-    if (t->len > 0 && (t->s[0] == '-' || t->s[0] == '+')) {
-        neg = t->s[0] == '-';
-        i = 1;
-    }
-    if (i == t->len) return 0;
-    unsigned long long acc = 0;
-    for (; i < t->len; ++i) {
-        unsigned d = (unsigned)(unsigned char)t->s[i] - '0';
-        if (d > 9) return 0;
-        if (acc > ((unsigned long long)LLONG_MAX - d) / 10) return 0;
-        acc = acc * 10 + d;
-    }
-    *v = neg ? -(long long)acc : (long long)acc;
-    return 1;
+    return hs_parse_ll(t->s, t->len, v);
 }
 
-// Finite decimal number; 0 if malformed, too long, infinite or NaN. strtod alone would take
-// hexadecimal ("0x1p0") too.
+// Finite decimal number; 0 if malformed, too long, infinite or NaN.
 static int parse_double(const tok* t, double* v) {
-    char buf[512];
-    if (t->len == 0 || t->len >= sizeof buf) return 0;
-    for (size_t i = 0; i < t->len; ++i)
-        if (t->s[i] == 'x' || t->s[i] == 'X') return 0;
-    memcpy(buf, t->s, t->len);
-    buf[t->len] = '\0';
-    char* e = NULL;
-    double d = strtod(buf, &e);
-    if (e != buf + t->len || !isfinite(d)) return 0;
+    double d;
+    if (!hs_parse_number(t->s, t->len, &d) || !isfinite(d)) return 0;
     *v = d;
     return 1;
 }
@@ -597,6 +565,34 @@ static int msh_nodes_v4(lexer* lx, builder* b) {
     return build_map(lx, b);
 }
 
+// One element's nodes (after its id and tags): a linear tet is kept; any other element is
+// checked, counted and skipped (a triangle collected). Its nodes join the physical groups of
+// `tag` in dimension `dim`: the element's own physical tag (MSH 2), or those of its entity (MSH 4,
+// in_entity).
+static int msh_element(lexer* lx, builder* b, long long type, long long id, int in_entity, int dim,
+                       long long tag) {
+    int nodes[56], k = 4;
+    const int* at = nodes;
+    if (type != 4) {
+        ++b->skipped;
+        if (!skip_element_nodes(lx, b, type, id, nodes, &k)) return 0;
+    } else {
+        for (int c = 0; c < 4; ++c)
+            if (!rd_tet_node(lx, b, 1, c, id)) return 0;
+        if (!end_line(lx, "a tetrahedron")) return 0;
+        at = b->tets + 4 * b->n_tets;
+        dim = 3;
+    }
+    if (!(in_entity ? add_entity_nodes(lx, b, dim, tag, at, k)
+                    : add_group_nodes(lx, b, dim, tag, at, k)))
+        return 0;
+    if (type == 4)
+        ++b->n_tets;
+    else if (type == 2 && !add_triangle(lx, b, nodes))
+        return 0;
+    return 1;
+}
+
 static int msh_elements_v2(lexer* lx, builder* b) {
     long long n, id, type, ntags, tag;
     int hl = lx->line;
@@ -614,21 +610,7 @@ static int msh_elements_v2(lexer* lx, builder* b) {
             if (!rd_int(lx, 0, LLONG_MIN, LLONG_MAX, "tag", &tag)) return 0;
             if (k == 0) phys = tag;
         }
-        if (type != 4) { // not a linear tet: checked, counted, not kept
-            int nodes[56], k;
-            ++b->skipped;
-            if (!skip_element_nodes(lx, b, type, id, nodes, &k) ||
-                !add_group_nodes(lx, b, gmsh_type_dim(type), phys, nodes, k) ||
-                (type == 2 && !add_triangle(lx, b, nodes)))
-                return 0;
-            continue;
-        }
-        for (int c = 0; c < 4; ++c)
-            if (!rd_tet_node(lx, b, 1, c, id)) return 0;
-        if (!end_line(lx, "a tetrahedron") ||
-            !add_group_nodes(lx, b, 3, phys, b->tets + 4 * b->n_tets, 4))
-            return 0;
-        ++b->n_tets;
+        if (!msh_element(lx, b, type, id, 0, gmsh_type_dim(type), phys)) return 0;
     }
     return 1;
 }
@@ -663,21 +645,7 @@ static int msh_elements_v4(lexer* lx, builder* b) {
         for (long long j = 0; j < m; ++j) {
             if (!record(lx, j, m, "elements")) return 0;
             if (!rd_int(lx, 0, lo, hi, "element tag", &id)) return 0;
-            if (type != 4) {
-                int nodes[56], kn;
-                ++b->skipped;
-                if (!skip_element_nodes(lx, b, type, id, nodes, &kn) ||
-                    !add_entity_nodes(lx, b, (int)dim, tag, nodes, kn) ||
-                    (type == 2 && !add_triangle(lx, b, nodes)))
-                    return 0;
-                continue;
-            }
-            for (int c = 0; c < 4; ++c)
-                if (!rd_tet_node(lx, b, 1, c, id)) return 0;
-            if (!end_line(lx, "a tetrahedron") ||
-                !add_entity_nodes(lx, b, 3, tag, b->tets + 4 * b->n_tets, 4))
-                return 0;
-            ++b->n_tets;
+            if (!msh_element(lx, b, type, id, 1, (int)dim, tag)) return 0;
         }
         filled += m;
     }
@@ -1170,7 +1138,13 @@ static hs_status parse_vtk(lexer* lx, hs_mesh** out) {
         goto fail;
     }
     if (!tok_line(lx, &t) || !tok_is_nocase(&t, "UNSTRUCTURED_GRID")) {
-        lx_fail(lx, lx->line, HS_ERR_UNSUPPORTED, "only DATASET UNSTRUCTURED_GRID is supported");
+        if (t.len && tok_is_nocase(&t, "POLYDATA"))
+            lx_fail(lx, lx->line, HS_ERR_UNSUPPORTED,
+                    "DATASET POLYDATA is a surface, not a volume mesh (UNSTRUCTURED_GRID): "
+                    "hapsim-mesh tet --size H makes tetrahedra of it");
+        else
+            lx_fail(lx, lx->line, HS_ERR_UNSUPPORTED,
+                    "only DATASET UNSTRUCTURED_GRID is supported");
         goto fail;
     }
     if (!end_line(lx, "DATASET")) goto fail;
@@ -1616,59 +1590,6 @@ hs_status hs_mesh_parse_tetgen(const char* name, const char* node_data, size_t n
     return parse_tetgen(nn, node_data, node_len, en, ele_data, ele_len, out, err);
 }
 
-// Reads a whole file into an accounted buffer.
-static hs_status read_file(const char* path, char** data, size_t* len, hs_err* err) {
-    *data = NULL;
-    *len = 0;
-    FILE* f = fopen(path, "rb");
-    if (!f) return hs_err_set(err, HS_ERR_IO, "%s: cannot open: %s", path, strerror(errno));
-    size_t cap = (size_t)1 << 16, n = 0;
-    char* buf = hs_alloc(cap);
-    hs_status st = buf ? HS_OK : hs_err_set(err, HS_ERR_NOMEM, "%s: out of memory", path);
-    while (st == HS_OK) {
-        if (n == cap) {
-            if (cap >= HS_MESH_MAX_FILE_BYTES) {
-                st = hs_err_set(err, HS_ERR_IO, "%s: larger than %zu MiB", path,
-                                HS_MESH_MAX_FILE_BYTES >> 20);
-                break;
-            }
-            char* g = hs_realloc(buf, cap * 2);
-            if (!g) {
-                st = hs_err_set(err, HS_ERR_NOMEM, "%s: out of memory", path);
-                break;
-            }
-            buf = g;
-            cap *= 2;
-        }
-        size_t got = fread(buf + n, 1, cap - n, f);
-        n += got;
-        if (got == 0) {
-            if (ferror(f))
-                st = hs_err_set(err, HS_ERR_IO, "%s: read error: %s", path, strerror(errno));
-            break;
-        }
-    }
-    fclose(f);
-    if (st != HS_OK) {
-        hs_free(buf);
-        return st;
-    }
-    *data = buf;
-    *len = n;
-    return HS_OK;
-}
-
-static int has_ext(const char* path, const char* ext) {
-    size_t n = strlen(path), e = strlen(ext);
-    if (n < e) return 0;
-    for (size_t i = 0; i < e; ++i) {
-        char c = path[n - e + i];
-        if (c >= 'A' && c <= 'Z') c = (char)(c - 'A' + 'a');
-        if (c != ext[i]) return 0;
-    }
-    return 1;
-}
-
 hs_status hs_mesh_load(const char* path, hs_mesh** out, hs_err* err) {
     if (!out) return hs_err_set(err, HS_ERR_INVALID, "out is NULL");
     *out = NULL;
@@ -1676,33 +1597,34 @@ hs_status hs_mesh_load(const char* path, hs_mesh** out, hs_err* err) {
     char* data = NULL;
     size_t len = 0;
     hs_status st;
-    if (has_ext(path, ".msh") || has_ext(path, ".vtk") || has_ext(path, ".vtu")) {
-        st = read_file(path, &data, &len, err);
+    if (hs_path_has_ext(path, ".msh") || hs_path_has_ext(path, ".vtk") ||
+        hs_path_has_ext(path, ".vtu")) {
+        st = hs_read_file(path, &data, &len, err);
         if (st != HS_OK) return st;
         lexer lx;
         lx_init(&lx, path, data, len, err);
-        st = has_ext(path, ".msh")   ? parse_msh(&lx, out, NULL)
-             : has_ext(path, ".vtu") ? parse_vtu(&lx, out, NULL)
-                                     : parse_vtk(&lx, out);
+        st = hs_path_has_ext(path, ".msh")   ? parse_msh(&lx, out, NULL)
+             : hs_path_has_ext(path, ".vtu") ? parse_vtu(&lx, out, NULL)
+                                             : parse_vtk(&lx, out);
         hs_free(data);
         return st;
     }
-    if (has_ext(path, ".node") || has_ext(path, ".ele")) {
-        size_t n = strlen(path), base = n - (has_ext(path, ".node") ? 5 : 4);
+    if (hs_path_has_ext(path, ".node") || hs_path_has_ext(path, ".ele")) {
+        size_t n = strlen(path), base = n - (hs_path_has_ext(path, ".node") ? 5 : 4);
         if (base > 4000) return hs_err_set(err, HS_ERR_INVALID, "path too long");
         // The other file's extension in the case of the one given (MESH.NODE -> MESH.ELE).
         const int upper = path[n - 1] >= 'A' && path[n - 1] <= 'Z';
         char node_path[4100], ele_path[4100];
         snprintf(node_path, sizeof node_path, "%.*s%s", (int)base, path, upper ? ".NODE" : ".node");
         snprintf(ele_path, sizeof ele_path, "%.*s%s", (int)base, path, upper ? ".ELE" : ".ele");
-        if (has_ext(path, ".node"))
+        if (hs_path_has_ext(path, ".node"))
             memcpy(node_path + base, path + base, 5);
         else
             memcpy(ele_path + base, path + base, 4);
         char* ele = NULL;
         size_t ele_len = 0;
-        st = read_file(node_path, &data, &len, err);
-        if (st == HS_OK) st = read_file(ele_path, &ele, &ele_len, err);
+        st = hs_read_file(node_path, &data, &len, err);
+        if (st == HS_OK) st = hs_read_file(ele_path, &ele, &ele_len, err);
         if (st == HS_OK) st = parse_tetgen(node_path, data, len, ele_path, ele, ele_len, out, err);
         hs_free(data);
         hs_free(ele);

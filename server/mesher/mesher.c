@@ -24,7 +24,8 @@ hs_mesher_def hs_mesher_default_def(void) {
                            .verbose = 0,
                            .size_at = NULL,
                            .size_ctx = NULL,
-                           .size_min = 0};
+                           .size_min = 0,
+                           .gmsh_options = NULL};
 }
 
 const char* hs_mesher_gmsh_version(void) {
@@ -54,6 +55,40 @@ static hs_status gmsh_fail(hs_err* err, const char* step) {
                       msg[0] ? msg : "(no message)");
 }
 
+// "Name=value;Name=value": numbers through gmshOptionSetNumber, anything else as a string.
+static hs_status set_gmsh_options(const char* list, hs_err* err) {
+    const char* p = list;
+    while (*p) {
+        const char* end = strchr(p, ';');
+        size_t n = end ? (size_t)(end - p) : strlen(p);
+        char item[256];
+        if (n >= sizeof item)
+            return hs_err_set(err, HS_ERR_INVALID, "gmsh option '%.40s...' is too long", p);
+        memcpy(item, p, n);
+        item[n] = '\0';
+        p += n + (end != NULL);
+        if (n == 0) continue;
+        char* eq = strchr(item, '=');
+        if (!eq || eq == item)
+            return hs_err_set(err, HS_ERR_INVALID, "gmsh option '%s' is not Name=value", item);
+        *eq = '\0';
+        char* e;
+        double v = strtod(eq + 1, &e);
+        int ierr = 0;
+        if (eq[1] && !*e)
+            gmshOptionSetNumber(item, v, &ierr);
+        else
+            gmshOptionSetString(item, eq + 1, &ierr);
+        if (ierr) {
+            hs_err e2 = {0};
+            gmsh_fail(&e2, "option");
+            return hs_err_set(err, HS_ERR_INVALID, "gmsh option %s=%s refused: %s", item, eq + 1,
+                              e2.msg);
+        }
+    }
+    return HS_OK;
+}
+
 typedef struct size_cb {
     const hs_mesher_def* def;
     double lo, hi;
@@ -66,6 +101,32 @@ static double size_callback(int dim, int tag, double x, double y, double z, void
     const double p[3] = {x, y, z};
     double h = c->def->size_at(p, c->def->size_ctx);
     return !(h >= c->lo) ? c->lo : h > c->hi ? c->hi : h; // NaN -> the smallest
+}
+
+// Splits every triangle (1-based node tags) into four at its edge midpoints, in place: xyz and
+// tri have room for the new nodes and triangles. scratch holds 3 * nt entries (edge keys).
+static void split_triangles(double* xyz, size_t* nv, size_t* tri, size_t* nt, size_t* scratch) {
+    size_t n_mid = 0, n0 = *nv, t0 = *nt;
+    size_t* key = scratch; // edge (a, b), a < b, as a * (n0 + 1) + b, in order of creation
+    for (size_t t = 0; t < t0; ++t) {
+        size_t v[3] = {tri[3 * t], tri[3 * t + 1], tri[3 * t + 2]}, m[3];
+        for (int k = 0; k < 3; ++k) {
+            size_t a = v[k], b = v[(k + 1) % 3];
+            size_t ek = a < b ? a * (n0 + 1) + b : b * (n0 + 1) + a, j = 0;
+            while (j < n_mid && key[j] != ek) ++j;
+            if (j == n_mid) {
+                key[n_mid++] = ek;
+                for (int d = 0; d < 3; ++d)
+                    xyz[3 * (n0 + j) + d] = 0.5 * (xyz[3 * (a - 1) + d] + xyz[3 * (b - 1) + d]);
+            }
+            m[k] = n0 + j + 1;
+        }
+        const size_t q[4][3] = {
+            {v[0], m[0], m[2]}, {m[0], v[1], m[1]}, {m[2], m[1], v[2]}, {m[0], m[1], m[2]}};
+        memcpy(tri + 3 * t, q[0], sizeof q[0]);
+        for (int c = 1; c < 4; ++c) memcpy(tri + 3 * (*nt)++, q[c], sizeof q[c]);
+    }
+    *nv = n0 + n_mid;
 }
 
 #define GMSH_TRY(call, step)                                                                       \
@@ -100,11 +161,19 @@ hs_status hs_mesher_tet(const hs_surface* s, const hs_mesher_def* def, hs_mesh**
                           "(over 20 million): a larger size, or the wrong units?",
                           def->size, est, hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]);
 
-    size_t nv = (size_t)s->n_verts, nt = (size_t)s->n_tris;
-    size_t* ntag = malloc(nv * sizeof(size_t));
-    size_t* ttag = malloc(nt * sizeof(size_t));
-    size_t* tnod = malloc(3 * nt * sizeof(size_t));
-    double* xyz = malloc(3 * nv * sizeof(double));
+    // gmsh 4.8's surface classification for remeshing never returns (it keeps partitioning a
+    // patch with METIS) on a tetrahedron's four triangles: tiny surfaces are split 1 -> 4 at
+    // their edge midpoints, which keeps their shape, until they have SPLIT_TO triangles.
+    enum { SPLIT_TO = 64 };
+    size_t nv = (size_t)s->n_verts, nt = (size_t)s->n_tris, nt_cap = nt, nv_cap = nv;
+    while (!def->keep_surface && nt_cap < SPLIT_TO) {
+        nv_cap += 3 * nt_cap;
+        nt_cap *= 4;
+    }
+    size_t* ntag = malloc(nv_cap * sizeof(size_t));
+    size_t* ttag = malloc(nt_cap * sizeof(size_t));
+    size_t* tnod = malloc(3 * nt_cap * sizeof(size_t));
+    double* xyz = malloc(3 * nv_cap * sizeof(double));
     size_t *node_tags = NULL, *elem_tags = NULL, *elem_nodes = NULL;
     double *coord = NULL, *param = NULL;
     int* dimtags = NULL;
@@ -120,12 +189,11 @@ hs_status hs_mesher_tet(const hs_surface* s, const hs_mesher_def* def, hs_mesh**
         free(xyz);
         return hs_err_set(err, HS_ERR_NOMEM, "mesher: out of memory");
     }
-    for (size_t i = 0; i < nv; ++i) ntag[i] = i + 1;
-    for (size_t t = 0; t < nt; ++t) {
-        ttag[t] = t + 1;
-        for (int k = 0; k < 3; ++k) tnod[3 * t + k] = (size_t)s->tris[3 * t + k] + 1;
-    }
+    for (size_t t = 0; t < 3 * nt; ++t) tnod[t] = (size_t)s->tris[t] + 1;
     memcpy(xyz, s->x, 3 * nv * sizeof(double));
+    while (nt < nt_cap) split_triangles(xyz, &nv, tnod, &nt, ntag);
+    for (size_t i = 0; i < nv; ++i) ntag[i] = i + 1;
+    for (size_t t = 0; t < nt; ++t) ttag[t] = t + 1;
 
     pthread_mutex_lock(&g_gmsh_lock);
     GMSH_TRY(gmshInitialize(0, NULL, 0, &ierr), "initialise");
@@ -174,6 +242,7 @@ hs_status hs_mesher_tet(const hs_surface* s, const hs_mesher_def* def, hs_mesh**
     GMSH_TRY(gmshOptionSetNumber("Mesh.MeshSizeMax", def->size, &ierr), "option");
     GMSH_TRY(gmshOptionSetNumber("Mesh.Optimize", def->optimize ? 1 : 0, &ierr), "option");
     GMSH_TRY(gmshOptionSetNumber("General.NumThreads", 1, &ierr), "option");
+    if (def->gmsh_options && (st = set_gmsh_options(def->gmsh_options, err)) != HS_OK) goto done;
     GMSH_TRY(gmshModelMeshGenerate(3, &ierr), "meshing");
 
     size_t n_nodes = 0, n_coord = 0, n_param = 0, n_et = 0, n_en = 0;

@@ -1,23 +1,10 @@
 // SPDX-License-Identifier: GPL-2.0-or-later
 // Quality statistics of a tetrahedral mesh: dihedral angles, radius ratios, sizes.
 #include "hapsim/surface.h"
+#include "vec3.h"
 
 #include <math.h>
 #include <string.h>
-
-static void sub3(const double* a, const double* b, double* c) {
-    for (int d = 0; d < 3; ++d) c[d] = a[d] - b[d];
-}
-
-static void cross3(const double* a, const double* b, double* c) {
-    c[0] = a[1] * b[2] - a[2] * b[1];
-    c[1] = a[2] * b[0] - a[0] * b[2];
-    c[2] = a[0] * b[1] - a[1] * b[0];
-}
-
-static double dot3(const double* a, const double* b) {
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-}
 
 // Smallest and largest dihedral angle (degrees) and the radius ratio 3 r_in / R_circ.
 static void tet_measure(const double* x, const int* t, double* dmin, double* dmax, double* ratio) {
@@ -26,10 +13,10 @@ static void tet_measure(const double* x, const int* t, double* dmin, double* dma
     double n[4][3], area[4], a_sum = 0;
     for (int f = 0; f < 4; ++f) {
         double u[3], v[3];
-        sub3(p[face[f][1]], p[face[f][0]], u);
-        sub3(p[face[f][2]], p[face[f][0]], v);
-        cross3(u, v, n[f]);
-        area[f] = 0.5 * sqrt(dot3(n[f], n[f]));
+        hs_vec3_sub(p[face[f][1]], p[face[f][0]], u);
+        hs_vec3_sub(p[face[f][2]], p[face[f][0]], v);
+        hs_vec3_cross(u, v, n[f]);
+        area[f] = 0.5 * sqrt(hs_vec3_dot(n[f], n[f]));
         a_sum += area[f];
         double l = 2 * area[f];
         for (int d = 0; d < 3; ++d) n[f][d] = l > 0 ? n[f][d] / l : 0;
@@ -38,7 +25,7 @@ static void tet_measure(const double* x, const int* t, double* dmin, double* dma
     *dmax = 0;
     for (int f = 0; f < 4; ++f)
         for (int g = f + 1; g < 4; ++g) {
-            double c = -dot3(n[f], n[g]);
+            double c = -hs_vec3_dot(n[f], n[g]);
             c = c > 1 ? 1 : c < -1 ? -1 : c;
             double ang = acos(c) * 57.29577951308232;
             *dmin = fmin(*dmin, ang);
@@ -49,8 +36,8 @@ static void tet_measure(const double* x, const int* t, double* dmin, double* dma
     static const int ed[6][2] = {{0, 1}, {2, 3}, {0, 2}, {1, 3}, {0, 3}, {1, 2}}; // opposite pairs
     for (int k = 0; k < 6; ++k) {
         double u[3];
-        sub3(p[ed[k][0]], p[ed[k][1]], u);
-        e[k] = sqrt(dot3(u, u));
+        hs_vec3_sub(p[ed[k][0]], p[ed[k][1]], u);
+        e[k] = sqrt(hs_vec3_dot(u, u));
     }
     double aA = e[0] * e[1], bB = e[2] * e[3], cC = e[4] * e[5];
     double q = (aA + bB + cC) * (aA + bB - cC) * (aA - bB + cC) * (-aA + bB + cC);
@@ -90,14 +77,14 @@ void hs_mesh_quality_compute(const hs_mesh* m, hs_mesh_quality* q) {
     for (int s = 0; s < m->n_tris; ++s) {
         const int* v = m->tris + 3 * s;
         double u[3], w[3], n[3];
-        sub3(m->x0 + 3 * v[1], m->x0 + 3 * v[0], u);
-        sub3(m->x0 + 3 * v[2], m->x0 + 3 * v[0], w);
-        cross3(u, w, n);
-        q->area += 0.5 * sqrt(dot3(n, n));
+        hs_vec3_sub(m->x0 + 3 * v[1], m->x0 + 3 * v[0], u);
+        hs_vec3_sub(m->x0 + 3 * v[2], m->x0 + 3 * v[0], w);
+        hs_vec3_cross(u, w, n);
+        q->area += 0.5 * sqrt(hs_vec3_dot(n, n));
         for (int k = 0; k < 3; ++k) {
             double e[3];
-            sub3(m->x0 + 3 * v[k], m->x0 + 3 * v[(k + 1) % 3], e);
-            double l = sqrt(dot3(e, e));
+            hs_vec3_sub(m->x0 + 3 * v[k], m->x0 + 3 * v[(k + 1) % 3], e);
+            double l = sqrt(hs_vec3_dot(e, e));
             q->surf_edge_min = fmin(q->surf_edge_min, l);
             q->surf_edge_max = fmax(q->surf_edge_max, l);
         }

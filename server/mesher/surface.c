@@ -2,7 +2,9 @@
 // Surfaces: check and repair before meshing, the boundary of a tet mesh, writers, scaling, and
 // the quality statistics of a tet mesh. Messages name the surface, the problem, how many and
 // where (a coordinate in the surface's units).
+#include "base_internal.h"
 #include "surface_internal.h"
+#include "vec3.h"
 
 #include <errno.h>
 #include <math.h>
@@ -27,32 +29,12 @@ hs_surface_clean_def hs_surface_clean_default_def(void) {
     return (hs_surface_clean_def){.repair = 0, .max_hole_edges = 64, .check_crossings = 1};
 }
 
-static void sub3(const double* a, const double* b, double* c) {
-    c[0] = a[0] - b[0];
-    c[1] = a[1] - b[1];
-    c[2] = a[2] - b[2];
-}
-
-static void cross3(const double* a, const double* b, double* c) {
-    c[0] = a[1] * b[2] - a[2] * b[1];
-    c[1] = a[2] * b[0] - a[0] * b[2];
-    c[2] = a[0] * b[1] - a[1] * b[0];
-}
-
-static double dot3(const double* a, const double* b) {
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-}
-
-static double norm3(const double* a) {
-    return sqrt(dot3(a, a));
-}
-
 static double tri_area(const double* x, const int* t) {
     double u[3], v[3], n[3];
-    sub3(x + 3 * t[1], x + 3 * t[0], u);
-    sub3(x + 3 * t[2], x + 3 * t[0], v);
-    cross3(u, v, n);
-    return 0.5 * norm3(n);
+    hs_vec3_sub(x + 3 * t[1], x + 3 * t[0], u);
+    hs_vec3_sub(x + 3 * t[2], x + 3 * t[0], v);
+    hs_vec3_cross(u, v, n);
+    return 0.5 * hs_vec3_norm(n);
 }
 
 static void tri_centre(const double* x, const int* t, double* c) {
@@ -62,8 +44,8 @@ static void tri_centre(const double* x, const int* t, double* c) {
 // Signed volume contribution of an outward triangle: x0 . (x1 x x2) / 6.
 static double tri_volume(const double* x, const int* t) {
     double c[3];
-    cross3(x + 3 * t[1], x + 3 * t[2], c);
-    return dot3(x + 3 * t[0], c) / 6.0;
+    hs_vec3_cross(x + 3 * t[1], x + 3 * t[2], c);
+    return hs_vec3_dot(x + 3 * t[0], c) / 6.0;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -157,7 +139,7 @@ static double bbox_diag(const hs_surface* s, double* lo, double* hi) {
             hi[d] = fmax(hi[d], s->x[3 * i + d]);
         }
     double e[3] = {hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]};
-    return s->n_verts ? norm3(e) : 0.0;
+    return s->n_verts ? hs_vec3_norm(e) : 0.0;
 }
 
 // Degenerate (repeated vertex, zero area) and repeated triangles: counted; removed on repair.
@@ -543,35 +525,107 @@ static int compact(hs_surface* s, hs_surface_report* r) {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Self-intersections: a uniform grid over the triangles' boxes; pairs that share no vertex are
-// tested edge against triangle (strict crossings only, so touching does not count).
+// Self-intersections: a uniform grid over the triangles' boxes. Pairs that share no vertex are
+// tested edge against triangle; pairs that share exactly one vertex can still cross along a
+// segment from it (a fold at that vertex). Pairs sharing an edge only meet on it unless
+// coplanar, which is not looked for. An edge counts as crossing a triangle's plane only when its
+// ends lie beyond a rounding tolerance on either side (so flat regions give no false hits); the
+// test against the triangle's sides has no tolerance but computes each orientation from its
+// vertices in index order, so an edge through a shared side is counted in exactly one of the
+// two triangles (surfaces whose vertices line up still cross somewhere).
 
 static double orient3(const double* a, const double* b, const double* c, const double* d) {
     double u[3], v[3], w[3], n[3];
-    sub3(b, a, u);
-    sub3(c, a, v);
-    sub3(d, a, w);
-    cross3(u, v, n);
-    return dot3(n, w);
+    hs_vec3_sub(b, a, u);
+    hs_vec3_sub(c, a, v);
+    hs_vec3_sub(d, a, w);
+    hs_vec3_cross(u, v, n);
+    return hs_vec3_dot(n, w);
 }
 
-static int seg_crosses_tri(const double* p, const double* q, const double* a, const double* b,
-                           const double* c) {
-    double dp = orient3(a, b, c, p), dq = orient3(a, b, c, q);
-    if (!((dp > 0 && dq < 0) || (dp < 0 && dq > 0))) return 0;
-    double s1 = orient3(p, q, a, b), s2 = orient3(p, q, b, c), s3 = orient3(p, q, c, a);
-    return (s1 > 0 && s2 > 0 && s3 > 0) || (s1 < 0 && s2 < 0 && s3 < 0);
+// orient3 of vertices i[0..3], evaluated in increasing index order and signed by the permutation,
+// so it is exactly antisymmetric whatever order a caller names them in.
+static double orient_ix(const double* x, const int* i4) {
+    int k[4] = {i4[0], i4[1], i4[2], i4[3]}, odd = 0;
+    for (int i = 1; i < 4; ++i)
+        for (int j = i; j > 0 && k[j - 1] > k[j]; --j) {
+            int tmp = k[j];
+            k[j] = k[j - 1];
+            k[j - 1] = tmp;
+            odd ^= 1;
+        }
+    double o = orient3(x + 3 * k[0], x + 3 * k[1], x + 3 * k[2], x + 3 * k[3]);
+    return odd ? -o : o;
+}
+
+// Edge (p, q) through the inside of triangle (a, b, c), all vertex indices.
+static int seg_crosses_tri(const double* x, int p, int q, const int* t, double tol) {
+    int i1[4] = {t[0], t[1], t[2], p}, i2[4] = {t[0], t[1], t[2], q};
+    double dp = orient_ix(x, i1), dq = orient_ix(x, i2);
+    if (!((dp > tol && dq < -tol) || (dp < -tol && dq > tol))) return 0;
+    int s[3];
+    for (int k = 0; k < 3; ++k) {
+        int i3[4] = {p, q, t[k], t[(k + 1) % 3]};
+        double o = orient_ix(x, i3);
+        s[k] = (o > 0) - (o < 0);
+    }
+    return s[0] != 0 && s[0] == s[1] && s[1] == s[2];
+}
+
+// Whether direction d points strictly into the corner of triangle (v, v + a, v + b) at v, n its
+// normal a x b (d lies in its plane).
+static int in_wedge(const double* a, const double* b, const double* n, const double* d) {
+    double c1[3], c2[3];
+    hs_vec3_cross(a, d, c1);
+    hs_vec3_cross(d, b, c2);
+    double tol = 1e-9 * hs_vec3_norm(d) * hs_vec3_norm(n);
+    return hs_vec3_dot(c1, n) > tol * hs_vec3_norm(a) && hs_vec3_dot(c2, n) > tol * hs_vec3_norm(b);
+}
+
+// Triangles (v, a, b) and (v, c, d) that share only v cross when the line where their planes
+// meet enters both corners at v on the same side. Coplanar pairs are not judged.
+static int fold_at_vertex(const double* v, const double* a, const double* b, const double* v2,
+                          const double* c, const double* d) {
+    double ea[3], eb[3], ec[3], ed[3], n1[3], n2[3], l[3], m[3];
+    hs_vec3_sub(a, v, ea);
+    hs_vec3_sub(b, v, eb);
+    hs_vec3_sub(c, v2, ec);
+    hs_vec3_sub(d, v2, ed);
+    hs_vec3_cross(ea, eb, n1);
+    hs_vec3_cross(ec, ed, n2);
+    hs_vec3_cross(n1, n2, l);
+    if (!(hs_vec3_norm(l) > 1e-8 * hs_vec3_norm(n1) * hs_vec3_norm(n2))) return 0;
+    for (int k = 0; k < 3; ++k) m[k] = -l[k];
+    return (in_wedge(ea, eb, n1, l) && in_wedge(ec, ed, n2, l)) ||
+           (in_wedge(ea, eb, n1, m) && in_wedge(ec, ed, n2, m));
 }
 
 static int tris_cross(const double* x, const int* t, const int* u) {
+    int shared = 0, ti = -1, uj = -1;
     for (int i = 0; i < 3; ++i)
         for (int j = 0; j < 3; ++j)
-            if (t[i] == u[j]) return 0;
-    const double *a = x + 3 * t[0], *b = x + 3 * t[1], *c = x + 3 * t[2];
-    const double *d = x + 3 * u[0], *e = x + 3 * u[1], *f = x + 3 * u[2];
-    return seg_crosses_tri(a, b, d, e, f) || seg_crosses_tri(b, c, d, e, f) ||
-           seg_crosses_tri(c, a, d, e, f) || seg_crosses_tri(d, e, a, b, c) ||
-           seg_crosses_tri(e, f, a, b, c) || seg_crosses_tri(f, d, a, b, c);
+            if (t[i] == u[j]) ++shared, ti = i, uj = j;
+    if (shared > 1) return 0;
+    const double* p[6];
+    for (int k = 0; k < 3; ++k) p[k] = x + 3 * t[k], p[3 + k] = x + 3 * u[k];
+    if (shared == 1)
+        return fold_at_vertex(p[ti], p[(ti + 1) % 3], p[(ti + 2) % 3], p[3 + uj],
+                              p[3 + (uj + 1) % 3], p[3 + (uj + 2) % 3]);
+    // Orientations are products of three edge vectors: the tolerance scales with the longest.
+    double l2 = 0;
+    for (int k = 0; k < 3; ++k) {
+        double e[3];
+        hs_vec3_sub(p[k], p[(k + 1) % 3], e);
+        l2 = fmax(l2, hs_vec3_dot(e, e));
+        hs_vec3_sub(p[3 + k], p[3 + (k + 1) % 3], e);
+        l2 = fmax(l2, hs_vec3_dot(e, e));
+    }
+    double tol = 1e-9 * l2 * sqrt(l2);
+    for (int k = 0; k < 3; ++k)
+        if (seg_crosses_tri(x, t[k], t[(k + 1) % 3], u, tol) ||
+            seg_crosses_tri(x, u[k], u[(k + 1) % 3], t, tol))
+            return 1;
+    return 0;
 }
 
 static int count_crossings(const hs_surface* s, hs_surface_report* r) {
@@ -582,7 +636,7 @@ static int count_crossings(const hs_surface* s, hs_surface_report* r) {
     double mean = 0;
     for (int t = 0; t < n; ++t) mean += sqrt(2 * tri_area(s->x, s->tris + 3 * t));
     double e[3] = {hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]};
-    double h = fmax(2 * mean / n, 1e-9 * norm3(e));
+    double h = fmax(2 * mean / n, 1e-9 * hs_vec3_norm(e));
     if (!(h > 0) || !isfinite(h)) return 1; // all in one point: nothing can cross
     int dims[3];
     for (;;) {
@@ -695,8 +749,8 @@ static void stats(const hs_surface* s, hs_surface_report* r) {
         r->volume += tri_volume(s->x, v);
         for (int k = 0; k < 3; ++k) {
             double e[3];
-            sub3(s->x + 3 * v[k], s->x + 3 * v[(k + 1) % 3], e);
-            double l = norm3(e);
+            hs_vec3_sub(s->x + 3 * v[k], s->x + 3 * v[(k + 1) % 3], e);
+            double l = hs_vec3_norm(e);
             r->edge_min = fmin(r->edge_min, l);
             r->edge_max = fmax(r->edge_max, l);
         }
@@ -859,24 +913,13 @@ static void put_f32(unsigned char* p, double v) {
     put_le32(p, u);
 }
 
-static int ends_with(const char* path, const char* ext) {
-    size_t n = strlen(path), e = strlen(ext);
-    if (n < e) return 0;
-    for (size_t i = 0; i < e; ++i) {
-        char c = path[n - e + i];
-        if (c >= 'A' && c <= 'Z') c = (char)(c - 'A' + 'a');
-        if (c != ext[i]) return 0;
-    }
-    return 1;
-}
-
 hs_status hs_surface_write(const hs_surface* s, const char* path, hs_err* err) {
     if (!s || !path) return hs_err_set(err, HS_ERR_INVALID, "surface or path is NULL");
-    int fmt = ends_with(path, ".stl")   ? 0
-              : ends_with(path, ".obj") ? 1
-              : ends_with(path, ".ply") ? 2
-              : ends_with(path, ".off") ? 3
-                                        : -1;
+    int fmt = hs_path_has_ext(path, ".stl")   ? 0
+              : hs_path_has_ext(path, ".obj") ? 1
+              : hs_path_has_ext(path, ".ply") ? 2
+              : hs_path_has_ext(path, ".off") ? 3
+                                              : -1;
     if (fmt < 0)
         return hs_err_set(err, HS_ERR_UNSUPPORTED, "%s: write .stl, .obj, .ply or .off", path);
     FILE* f = fopen(path, fmt == 0 ? "wb" : "w");
@@ -889,10 +932,10 @@ hs_status hs_surface_write(const hs_surface* s, const char* path, hs_err* err) {
         for (int t = 0; t < s->n_tris; ++t) {
             const int* v = s->tris + 3 * t;
             double u[3], w[3], n[3];
-            sub3(s->x + 3 * v[1], s->x + 3 * v[0], u);
-            sub3(s->x + 3 * v[2], s->x + 3 * v[0], w);
-            cross3(u, w, n);
-            double l = norm3(n);
+            hs_vec3_sub(s->x + 3 * v[1], s->x + 3 * v[0], u);
+            hs_vec3_sub(s->x + 3 * v[2], s->x + 3 * v[0], w);
+            hs_vec3_cross(u, w, n);
+            double l = hs_vec3_norm(n);
             memset(rec, 0, sizeof rec);
             for (int d = 0; d < 3; ++d) put_f32(rec + 4 * d, l > 0 ? n[d] / l : 0);
             for (int c = 0; c < 3; ++c)

@@ -13,7 +13,4 @@ int hs_surface_weld(hs_surface* s);
 hs_status hs_surface_parse_mesh(const char* name, const char* format, const char* data, size_t len,
                                 hs_surface** out, hs_err* err);
 
-/// Whole file into an accounted buffer (at most 512 MiB).
-hs_status hs_surface_read_file(const char* path, char** data, size_t* len, hs_err* err);
-
 #endif

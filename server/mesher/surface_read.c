@@ -1,8 +1,10 @@
 // SPDX-License-Identifier: GPL-2.0-or-later
-// Surface readers: STL (ASCII, binary), OBJ, PLY (ASCII, binary either endian), OFF, and MSH
-// triangles (through the mesh module's reader). Each parses a byte buffer that need not be
-// NUL-terminated, never reads past it, checks declared counts against the bytes left before
-// allocating, and fails with "<file>:<line>: <problem>" (binary: "<file>: byte N: ...").
+// Surface readers: STL (ASCII, binary), OBJ, PLY (ASCII, binary either endian), OFF, legacy VTK
+// POLYDATA (ASCII, binary), and MSH/VTU triangles (through the mesh module's reader). Each parses a
+// byte buffer that need not be NUL-terminated, never reads past it, checks declared counts against
+// the bytes left before allocating, and fails with "<file>:<line>: <problem>" (binary: "<file>:
+// byte N: ...").
+#include "base_internal.h"
 #include "surface_internal.h"
 
 #include <errno.h>
@@ -13,8 +15,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#define HS_SURFACE_MAX_FILE_BYTES ((size_t)512 << 20)
-#define HS_SURFACE_MAX_COUNT      (0x7fffffff / 16)
+#define HS_SURFACE_MAX_COUNT (0x7fffffff / 16)
 
 typedef struct rd {
     const char* name;
@@ -135,45 +136,16 @@ static int tok_eq(const tk* t, const char* s) {
 }
 
 static const char* tok_show(const tk* t, char buf[40]) {
-    size_t n = t->len < 24 ? t->len : 24;
-    for (size_t i = 0; i < n; ++i) {
-        unsigned char c = (unsigned char)t->s[i];
-        buf[i] = c >= 0x20 && c < 0x7f ? (char)c : '?';
-    }
-    strcpy(buf + n, t->len > 24 ? "..." : "");
-    return buf;
+    return hs_text_excerpt(t->s, t->len, 24, buf);
 }
 
 // A decimal number (NaN and inf are read so the caller can name them; hexadecimal refused).
 static int tok_double(const tk* t, double* v) {
-    char buf[128];
-    if (t->len == 0 || t->len >= sizeof buf) return 0;
-    for (size_t i = 0; i < t->len; ++i)
-        if (t->s[i] == 'x' || t->s[i] == 'X') return 0;
-    memcpy(buf, t->s, t->len);
-    buf[t->len] = '\0';
-    char* e = NULL;
-    errno = 0;
-    *v = strtod(buf, &e);
-    return e == buf + t->len;
+    return hs_parse_number(t->s, t->len, v);
 }
 
 static int tok_ll(const tk* t, long long* v) {
-    size_t i = 0;
-    int neg = 0;
-    if (t->len && (t->s[0] == '-' || t->s[0] == '+')) {
-        neg = t->s[0] == '-';
-        i = 1;
-    }
-    if (i == t->len) return 0;
-    unsigned long long acc = 0;
-    for (; i < t->len; ++i) {
-        unsigned d = (unsigned)(unsigned char)t->s[i] - '0';
-        if (d > 9 || acc > ((unsigned long long)LLONG_MAX - d) / 10) return 0;
-        acc = acc * 10 + d;
-    }
-    *v = neg ? -(long long)acc : (long long)acc;
-    return 1;
+    return hs_parse_ll(t->s, t->len, v);
 }
 
 static int need_double(rd* r, int any, const char* what, double* v) {
@@ -439,7 +411,8 @@ static int ply_type(const tk* t) {
     return 0;
 }
 
-static const int k_ply_size[9] = {0, 1, 1, 2, 2, 4, 4, 4, 8};
+// Bytes of each scalar type; 9 and 10 (int64, uint64) occur in VTK only.
+static const int k_ply_size[11] = {0, 1, 1, 2, 2, 4, 4, 4, 8, 8, 8};
 
 static double ply_bin_value(const unsigned char* p, int type, int big) {
     unsigned char b[8];
@@ -474,6 +447,16 @@ static double ply_bin_value(const unsigned char* p, int type, int big) {
         float v;
         memcpy(&v, b, 4);
         return v;
+    }
+    case 9: {
+        int64_t v;
+        memcpy(&v, b, 8);
+        return (double)v;
+    }
+    case 10: {
+        uint64_t v;
+        memcpy(&v, b, 8);
+        return (double)v;
     }
     default: {
         double v;
@@ -615,6 +598,267 @@ static int parse_ply(rd* r) {
 }
 
 // ---------------------------------------------------------------------------------------------
+// Legacy VTK POLYDATA, ASCII or BINARY (big-endian values after each section's header line):
+// POINTS, then POLYGONS (fanned) and TRIANGLE_STRIPS, in the classic "n size" layout or the 5.1
+// OFFSETS/CONNECTIVITY one. VERTICES and LINES are read past, FIELD and METADATA skipped, point
+// and cell data end the reading. An UNSTRUCTURED_GRID goes to the mesh reader (its boundary).
+
+typedef struct vtk_rd {
+    rd* r;
+    int binary;
+    const char* start; // for byte offsets in binary messages
+    long long n_pts;
+} vtk_rd;
+
+// VTK data type names as the scalar types above (0: unknown).
+static int vtk_type(const tk* t) {
+    static const char* const names[] = {
+        "char",          "unsigned_char", "short",         "unsigned_short", "int",
+        "unsigned_int",  "float",         "double",        "long",           "unsigned_long",
+        "vtkidtype",     "vtktypeint64",  "vtktypeuint64", "vtktypeint32",   "vtktypeuint32",
+        "vtktypeint8",   "vtktypeuint8",  "vtktypeint16",  "vtktypeuint16",  "vtktypefloat32",
+        "vtktypefloat64"};
+    static const int types[] = {1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 9, 9, 10, 5, 6, 1, 2, 3, 4, 7, 8};
+    for (size_t i = 0; i < sizeof types / sizeof types[0]; ++i)
+        if (tok_eq(t, names[i])) return types[i];
+    return 0;
+}
+
+// One value: an ASCII token (crossing lines) or big-endian bytes.
+static int vtk_value(vtk_rd* v, int type, const char* what, double* out) {
+    rd* r = v->r;
+    if (!v->binary) return need_double(r, 1, what, out);
+    size_t n = (size_t)k_ply_size[type];
+    if ((size_t)(r->end - r->p) < n)
+        return rd_fail(r, 0, "byte %zu: file ends in the binary %s data", (size_t)(r->p - v->start),
+                       what);
+    *out = ply_bin_value((const unsigned char*)r->p, type, 1);
+    r->p += n;
+    return 1;
+}
+
+// An integer value in [lo, hi].
+static int vtk_index(vtk_rd* v, int type, long long lo, long long hi, const char* what,
+                     long long* out) {
+    rd* r = v->r;
+    if (!v->binary) return need_int(r, 1, lo, hi, what, out);
+    size_t at = (size_t)(r->p - v->start);
+    double d;
+    if (!vtk_value(v, type, what, &d)) return 0;
+    if (!(d >= (double)lo && d <= (double)hi && d == floor(d)))
+        return rd_fail(r, 0, "byte %zu: %s %g out of range [%lld, %lld]", at, what, d, lo, hi);
+    *out = (long long)d;
+    return 1;
+}
+
+// "DATATYPE" at the end of a header line, then the line's end: the values start after it.
+static int vtk_header_type(vtk_rd* v, int hl, const char* what, int* type) {
+    rd* r = v->r;
+    tk t;
+    char b[40];
+    if (!tok_line(r, &t)) return rd_fail(r, hl, "%s needs a data type", what);
+    if (!(*type = vtk_type(&t)))
+        return rd_fail(r, hl, "%s: unknown data type '%s'", what, tok_show(&t, b));
+    if (tok_line(r, &t))
+        return rd_fail(r, hl, "unexpected '%s' after the %s header", tok_show(&t, b), what);
+    next_line(r);
+    return 1;
+}
+
+// Adds one cell of k points read from the stream: a polygon as a fan, a strip as its triangles
+// (every second one turned to keep the strip's orientation); other kinds are read past.
+static int vtk_cell(vtk_rd* v, int kind, int type, long long k, long long cell, int hl) {
+    rd* r = v->r;
+    const char* name = kind == 1 ? "polygon" : "triangle strip";
+    if (kind && k < 3 && v->binary)
+        return rd_fail(r, 0, "byte %zu: %s %lld has %lld points (a face needs 3)",
+                       (size_t)(r->p - v->start), name, cell + 1, k);
+    if (kind && k < 3)
+        return rd_fail(r, r->line, "%s %lld has %lld points (a face needs 3)", name, cell + 1, k);
+    long long first = -1, prev2 = -1, prev = -1, i;
+    for (long long j = 0; j < k; ++j) {
+        if (!vtk_index(v, type, 0, v->n_pts - 1, "point index", &i)) return 0;
+        if (kind && j >= 2) {
+            long long a = kind == 1 ? first : prev2, b = prev;
+            if (kind == 2 && j % 2) a = prev, b = prev2;
+            if (!add_tri(r, (int)a, (int)b, (int)i, v->binary ? 0 : hl)) return 0;
+        }
+        if (j == 0) first = i;
+        prev2 = prev;
+        prev = i;
+    }
+    return 1;
+}
+
+// A cell section after its keyword: "n size" (classic) or "n_offsets n_connectivity" (5.1).
+static int vtk_cells(vtk_rd* v, int kind, int v5, int hl, const char* what) {
+    rd* r = v->r;
+    long long n, size;
+    if (v->n_pts < 0) return rd_fail(r, hl, "%s before POINTS", what);
+    if (!need_int(r, 0, 0, LLONG_MAX, v5 ? "offset count" : "cell count", &n) ||
+        !need_int(r, 0, 0, LLONG_MAX, v5 ? "connectivity size" : "cell list size", &size))
+        return 0;
+    next_line(r);
+    size_t min = v->binary ? 4 : 2;
+    if (!check_count(r, n, min, "cell") || !check_count(r, size, min, "cell list entry")) return 0;
+    if (!v5) {
+        int type = 5; // classic binary cells are 32-bit
+        long long used = 0, k;
+        for (long long c = 0; c < n; ++c) {
+            int line = r->line;
+            if (!vtk_index(v, type, 0, size - used - 1, "cell point count", &k) ||
+                !vtk_cell(v, kind, type, k, c, line))
+                return 0;
+            used += 1 + k;
+        }
+        if (used != size)
+            return rd_fail(r, hl, "%s size is %lld but the cells use %lld", what, size, used);
+        return 1;
+    }
+    if (n == 0) return size == 0 ? 1 : rd_fail(r, hl, "%s: no offsets for %lld points", what, size);
+    long long* off = hs_alloc((size_t)n * sizeof(long long));
+    if (!off) return rd_nomem(r);
+    int ok = 1, type;
+    tk t;
+    for (int part = 0; part < 2 && ok; ++part) {
+        const char* key = part ? "CONNECTIVITY" : "OFFSETS";
+        if (!tok_any(r, &t) || !tok_eq(&t, part ? "connectivity" : "offsets")) {
+            ok = rd_fail(r, r->line, "%s: expected %s", what, key);
+            break;
+        }
+        if (!(ok = vtk_header_type(v, r->line, key, &type))) break;
+        if (part == 0) {
+            for (long long i = 0; i < n && ok; ++i)
+                ok = vtk_index(v, type, i ? off[i - 1] : 0, i ? size : 0, "offset", &off[i]);
+            if (ok && off[n - 1] != size)
+                ok = rd_fail(r, hl, "%s: last offset %lld differs from the connectivity size %lld",
+                             what, off[n - 1], size);
+            continue;
+        }
+        for (long long c = 0; c + 1 < n && ok; ++c)
+            ok = vtk_cell(v, kind, type, off[c + 1] - off[c], c, r->line);
+    }
+    hs_free(off);
+    return ok;
+}
+
+// FIELD name n, then per array "name components tuples type" and its values (skipped).
+static int vtk_field(vtk_rd* v, int hl) {
+    rd* r = v->r;
+    tk t;
+    long long n_arrays, comps, tuples;
+    double d;
+    if (!tok_line(r, &t)) return rd_fail(r, hl, "FIELD needs a name");
+    if (!need_int(r, 0, 0, LLONG_MAX, "field array count", &n_arrays)) return 0;
+    next_line(r);
+    if (!check_count(r, n_arrays, 8, "field array")) return 0;
+    for (long long a = 0; a < n_arrays; ++a) {
+        if (!tok_any(r, &t)) return rd_fail(r, r->line, "file ends in FIELD array %lld", a + 1);
+        int al = r->line, type;
+        if (!need_int(r, 0, 0, LLONG_MAX, "field components", &comps) ||
+            !need_int(r, 0, 0, LLONG_MAX, "field tuples", &tuples) ||
+            !vtk_header_type(v, al, "field array", &type))
+            return 0;
+        if (comps > 0 && tuples > (long long)(r->end - r->p) / comps + 1)
+            return rd_fail(r, al, "field array of %lld x %lld values does not fit", comps, tuples);
+        for (long long i = 0; i < comps * tuples; ++i)
+            if (!vtk_value(v, type, "field", &d)) return 0;
+    }
+    return 1;
+}
+
+// 1: POLYDATA read; 2: an UNSTRUCTURED_GRID for the mesh reader; 0: failed.
+static int parse_vtk(rd* r) {
+    tk t;
+    char b[40];
+    vtk_rd v = {.r = r, .start = r->p, .n_pts = -1};
+    if (r->p >= r->end) return rd_fail(r, 0, "empty file");
+    static const char* const head[4] = {"#", "vtk", "datafile", "version"};
+    for (int i = 0; i < 4; ++i)
+        if (!tok_line(r, &t) || !tok_eq(&t, head[i]))
+            return rd_fail(r, 1, "not a legacy VTK file (expected '# vtk DataFile Version')");
+    double version;
+    if (!need_double(r, 0, "VTK version", &version)) return 0;
+    int v5 = version >= 5.0;
+    next_line(r);
+    if (r->p >= r->end) return rd_fail(r, r->line, "missing title line");
+    next_line(r); // title
+    if (!tok_any(r, &t)) return rd_fail(r, r->line, "missing ASCII/BINARY line");
+    if (tok_eq(&t, "binary"))
+        v.binary = 1;
+    else if (!tok_eq(&t, "ascii"))
+        return rd_fail(r, r->line, "expected ASCII or BINARY, found '%s'", tok_show(&t, b));
+    next_line(r);
+    if (!tok_any(r, &t) || !tok_eq(&t, "dataset"))
+        return rd_fail(r, r->line, "expected DATASET POLYDATA");
+    if (!tok_line(r, &t)) return rd_fail(r, r->line, "DATASET needs a type");
+    if (tok_eq(&t, "unstructured_grid"))
+        return v.binary ? rd_fail(r, r->line,
+                                  "binary UNSTRUCTURED_GRID not supported (save it as ASCII, or as "
+                                  "POLYDATA)")
+                        : 2;
+    if (!tok_eq(&t, "polydata"))
+        return rd_fail(
+            r, r->line,
+            "DATASET %s is not a surface (POLYDATA, or an UNSTRUCTURED_GRID of tetrahedra)",
+            tok_show(&t, b));
+    next_line(r);
+    int have_polys = 0, have_strips = 0;
+    while (tok_any(r, &t)) {
+        int hl = r->line;
+        if (tok_eq(&t, "points")) {
+            long long n;
+            int type;
+            if (v.n_pts >= 0) return rd_fail(r, hl, "second POINTS section");
+            if (!need_int(r, 0, 0, HS_SURFACE_MAX_COUNT, "point count", &n) ||
+                !vtk_header_type(&v, hl, "POINTS", &type) ||
+                !check_count(r, n, v.binary ? (size_t)k_ply_size[type] * 3 : 6, "point"))
+                return 0;
+            for (long long i = 0; i < n; ++i) {
+                double x[3];
+                for (int d = 0; d < 3; ++d)
+                    if (!vtk_value(&v, type, "point coordinate", x + d)) return 0;
+                if (!add_vert(r, x, v.binary ? 0 : r->line)) return 0;
+            }
+            v.n_pts = n;
+        } else if (tok_eq(&t, "polygons") || tok_eq(&t, "triangle_strips")) {
+            int strips = t.s[0] == 't' || t.s[0] == 'T';
+            int* seen = strips ? &have_strips : &have_polys;
+            const char* what = strips ? "TRIANGLE_STRIPS" : "POLYGONS";
+            if (*seen) return rd_fail(r, hl, "second %s section", what);
+            if (!vtk_cells(&v, strips ? 2 : 1, v5, hl, what)) return 0;
+            *seen = 1;
+        } else if (tok_eq(&t, "vertices") || tok_eq(&t, "lines")) {
+            if (!vtk_cells(&v, 0, v5, hl, tok_eq(&t, "lines") ? "LINES" : "VERTICES")) return 0;
+        } else if (tok_eq(&t, "metadata")) {
+            // VTK 9 writes METADATA blocks (text) that end at an empty line.
+            next_line(r);
+            while (r->p < r->end) {
+                tk first;
+                int has = tok_line(r, &first);
+                next_line(r);
+                if (!has) break;
+            }
+        } else if (tok_eq(&t, "field")) {
+            if (!vtk_field(&v, hl)) return 0;
+        } else if (tok_eq(&t, "point_data") || tok_eq(&t, "cell_data")) {
+            break; // attributes are not read
+        } else {
+            return v.binary
+                       ? rd_fail(r, 0,
+                                 "byte %zu: unexpected '%s' (a binary section longer than its "
+                                 "header says?)",
+                                 (size_t)(t.s - v.start), tok_show(&t, b))
+                       : rd_fail(r, hl, "unexpected '%s' in a VTK POLYDATA file", tok_show(&t, b));
+        }
+    }
+    if (v.n_pts < 0) return rd_fail(r, r->line, "missing POINTS section");
+    if (r->n_tris == 0)
+        return rd_fail(r, r->line, "no POLYGONS or TRIANGLE_STRIPS (a VTK surface needs faces)");
+    return 1;
+}
+
+// ---------------------------------------------------------------------------------------------
 
 typedef struct vkey {
     double x[3];
@@ -717,80 +961,41 @@ hs_status hs_surface_parse(const char* name, const char* format, const char* dat
         ok = parse_ply(&r);
     else if (strcmp(format, "off") == 0)
         ok = parse_off(&r);
-    else
+    else if (strcmp(format, "vtk") == 0) {
+        ok = parse_vtk(&r);
+        if (ok == 2) { // an unstructured grid: the mesh reader, then its triangles or boundary
+            hs_free(r.x);
+            hs_free(r.tris);
+            hs_mesh* m = NULL;
+            hs_status st = hs_mesh_parse(r.name, "vtk", data, len, &m, err);
+            if (st < 0) return st;
+            st = hs_surface_from_mesh(m, out, err);
+            hs_mesh_destroy(&m);
+            return st;
+        }
+    } else
         return hs_err_set(err, HS_ERR_INVALID, "unknown surface format '%.20s'", format);
     return finish(&r, ok, out);
-}
-
-static int has_ext(const char* path, const char* ext) {
-    size_t n = strlen(path), e = strlen(ext);
-    if (n < e) return 0;
-    for (size_t i = 0; i < e; ++i) {
-        char c = path[n - e + i];
-        if (c >= 'A' && c <= 'Z') c = (char)(c - 'A' + 'a');
-        if (c != ext[i]) return 0;
-    }
-    return 1;
-}
-
-hs_status hs_surface_read_file(const char* path, char** data, size_t* len, hs_err* err) {
-    *data = NULL;
-    *len = 0;
-    FILE* f = fopen(path, "rb");
-    if (!f) return hs_err_set(err, HS_ERR_IO, "%s: cannot open: %s", path, strerror(errno));
-    size_t cap = (size_t)1 << 16, n = 0;
-    char* buf = hs_alloc(cap);
-    hs_status st = buf ? HS_OK : hs_err_set(err, HS_ERR_NOMEM, "%s: out of memory", path);
-    while (st == HS_OK) {
-        if (n == cap) {
-            if (cap >= HS_SURFACE_MAX_FILE_BYTES) {
-                st = hs_err_set(err, HS_ERR_IO, "%s: larger than %zu MiB", path,
-                                HS_SURFACE_MAX_FILE_BYTES >> 20);
-                break;
-            }
-            char* g = hs_realloc(buf, cap * 2);
-            if (!g) {
-                st = hs_err_set(err, HS_ERR_NOMEM, "%s: out of memory", path);
-                break;
-            }
-            buf = g;
-            cap *= 2;
-        }
-        size_t got = fread(buf + n, 1, cap - n, f);
-        n += got;
-        if (got == 0) {
-            if (ferror(f)) st = hs_err_set(err, HS_ERR_IO, "%s: read error", path);
-            break;
-        }
-    }
-    fclose(f);
-    if (st != HS_OK) {
-        hs_free(buf);
-        return st;
-    }
-    *data = buf;
-    *len = n;
-    return HS_OK;
 }
 
 hs_status hs_surface_load(const char* path, hs_surface** out, hs_err* err) {
     if (!out) return hs_err_set(err, HS_ERR_INVALID, "out is NULL");
     *out = NULL;
     if (!path) return hs_err_set(err, HS_ERR_INVALID, "path is NULL");
-    static const char* const fmts[] = {"stl", "obj", "ply", "off", "msh", "vtu"};
-    for (int i = 0; i < 6; ++i) {
+    static const char* const fmts[] = {"stl", "obj", "ply", "off", "msh", "vtu", "vtk"};
+    for (int i = 0; i < 7; ++i) {
         char ext[8];
         snprintf(ext, sizeof ext, ".%s", fmts[i]);
-        if (!has_ext(path, ext)) continue;
+        if (!hs_path_has_ext(path, ext)) continue;
         char* data;
         size_t len;
-        hs_status st = hs_surface_read_file(path, &data, &len, err);
+        hs_status st = hs_read_file(path, &data, &len, err);
         if (st != HS_OK) return st;
         st = hs_surface_parse(path, fmts[i], data, len, out, err);
         hs_free(data);
         return st;
     }
-    if (has_ext(path, ".vtk") || has_ext(path, ".node") || has_ext(path, ".ele")) {
+    if (hs_path_has_ext(path, ".node") || hs_path_has_ext(path, ".ele")) {
         hs_mesh* m = NULL;
         hs_status st = hs_mesh_load(path, &m, err);
         if (st < 0) return st;
@@ -799,7 +1004,7 @@ hs_status hs_surface_load(const char* path, hs_surface** out, hs_err* err) {
         return st;
     }
     return hs_err_set(err, HS_ERR_UNSUPPORTED,
-                      "%s: unknown surface extension (.stl, .obj, .ply, .off, .msh, .vtu; volume "
-                      "meshes .vtk, .node/.ele)",
+                      "%s: unknown surface extension (.stl, .obj, .ply, .off, .msh, .vtu, .vtk; "
+                      "volume meshes .node/.ele)",
                       path);
 }

@@ -21,13 +21,16 @@ static const char* usage =
     "usage: hapsim-mesh COMMAND INPUT [options]\n"
     "\n"
     "  tet SURFACE --size H --units mm|m [--out organ.msh] [--repair] [--keep-surface]\n"
-    "        [--refine NAME:H2[,WIDTH]]\n"
+    "        [--refine NAME:H2[,WIDTH]] [--feature-angle DEG] [--gmsh NAME=VALUE ...]\n"
     "        [--group NAME:box:X0,Y0,Z0,X1,Y1,Z1] [--group NAME:plane:PX,PY,PZ,NX,NY,NZ[,TOL]]\n"
-    "      Closed surface (.stl ASCII/binary, .obj, .ply, .off, .msh triangles) -> tetrahedra of\n"
-    "      about size H (gmsh), written as Gmsh MSH 2.2 in metres. Groups become named surface\n"
-    "      regions (physical groups) of the surface nodes in the box / behind the plane\n"
-    "      ((x - P) . N <= TOL); a scene can fix them by name. --refine NAME:H2[,WIDTH] grades\n"
-    "      the tets from H2 in group NAME's box or half-space to H at WIDTH (default 4 H) away.\n"
+    "      Closed surface (.stl ASCII/binary, .obj, .ply, .off, .vtk POLYDATA ASCII/binary,\n"
+    "      .msh/.vtu triangles) -> tetrahedra of about size H (gmsh), written as Gmsh MSH 2.2\n"
+    "      in metres. Groups become named surface regions (physical groups) of the surface\n"
+    "      nodes in the box / behind the plane ((x - P) . N <= TOL); a scene can fix them by\n"
+    "      name. --refine NAME:H2[,WIDTH] grades the tets from H2 in group NAME's box or\n"
+    "      half-space to H at WIDTH (default 4 H) away. Remeshing splits the surface into\n"
+    "      patches where it turns by more than --feature-angle (default 40); --gmsh sets any\n"
+    "      gmsh option last (repeatable, e.g. --gmsh Mesh.Algorithm3D=10 for HXT).\n"
     "  info MESH [--json] [--units mm|m] [--probe-radius R]\n"
     "      Nodes, tets, bounding box, volume, area, dihedral angles, radius ratios, pieces,\n"
     "      surface edge lengths, regions; warns when surface edges dwarf the probe (R, default\n"
@@ -64,7 +67,9 @@ typedef struct opts {
     const char* groups[MAX_SPECS];
     int n_fix;
     const char* fix[MAX_SPECS];
-    const char* refine; // NAME:H2[,WIDTH]
+    const char* refine;   // NAME:H2[,WIDTH]
+    double feature_angle; // degrees; 0: the default
+    char gmsh[1024];      // --gmsh NAME=VALUE items joined by ';'
 } opts;
 
 static int parse_list(const char* s, double* v, int min_n, int max_n) {
@@ -285,7 +290,9 @@ static void print_quality(FILE* f, const hs_mesh* m, double probe_m) {
     if (q.below_5deg > 0)
         fprintf(stderr,
                 "hapsim-mesh: warning: %d slivers (dihedral angle below 5 degrees) stiffen the "
-                "model and shrink the stable time step; remesh (hapsim-mesh tet)\n",
+                "model and shrink the stable time step; remesh (hapsim-mesh tet; on a coarse "
+                "surface with sharp edges also try --gmsh Mesh.Algorithm3D=10 or another "
+                "--feature-angle)\n",
                 q.below_5deg);
 }
 
@@ -331,6 +338,8 @@ static hs_mesh* make_tets(const opts* o) {
     hs_mesher_def md = hs_mesher_default_def();
     md.size = o->size;
     md.keep_surface = o->keep_surface;
+    if (o->feature_angle > 0) md.feature_angle_deg = o->feature_angle;
+    if (o->gmsh[0]) md.gmsh_options = o->gmsh;
     refine_ctx rc;
     if (o->refine) { // graded: h_near in the named --group's region, the size WIDTH away
         const char* c1 = strchr(o->refine, ':');
@@ -956,6 +965,23 @@ int main(int argc, char** argv) {
             o.out = v;
         } else if (!strcmp(a, "--refine")) {
             o.refine = v;
+        } else if (!strcmp(a, "--gmsh")) {
+            size_t used = strlen(o.gmsh);
+            if (!strchr(v, '=') || strchr(v, ';') || used + strlen(v) + 2 > sizeof o.gmsh) {
+                fprintf(stderr,
+                        "hapsim-mesh: bad --gmsh '%s' (one NAME=VALUE, e.g. "
+                        "Mesh.Algorithm3D=10)\n",
+                        v);
+                return 2;
+            }
+            snprintf(o.gmsh + used, sizeof o.gmsh - used, "%s%s", used ? ";" : "", v);
+        } else if (!strcmp(a, "--feature-angle")) {
+            char* e;
+            o.feature_angle = strtod(v, &e);
+            if (*e || !(o.feature_angle > 0 && o.feature_angle < 180)) {
+                fprintf(stderr, "hapsim-mesh: bad --feature-angle '%s' (degrees, 0 to 180)\n", v);
+                return 2;
+            }
         } else if (!strcmp(a, "--size")) {
             char* e;
             o.size = strtod(v, &e);

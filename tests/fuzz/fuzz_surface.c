@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: GPL-2.0-or-later
-// libFuzzer target: the surface readers (STL ASCII/binary, OBJ, PLY, OFF, MSH and VTU triangles)
-// and the surface check/repair. The first byte picks the format and whether to repair; the
+// libFuzzer target: the surface readers (STL ASCII/binary, OBJ, PLY, OFF, legacy VTK POLYDATA
+// ASCII/binary, MSH and VTU triangles) and the surface check/repair. The first byte picks the
+// format (low 3 bits) and whether to repair (bit 3); the
 // rest is the file. Oracle: an error names the file; a surface has its indices in range; a
 // clean that succeeds leaves a closed, consistently oriented surface; nothing leaks.
 #include "hapsim/surface.h"
@@ -12,11 +13,11 @@
 
 int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size);
 
-static const char* const k_fmt[6] = {"stl", "obj", "ply", "off", "msh", "vtu"};
+static const char* const k_fmt[8] = {"stl", "obj", "ply", "off", "msh", "vtu", "vtk", "vtk"};
 
 int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     if (size < 1) return 0;
-    const char* fmt = k_fmt[data[0] % 6];
+    const char* fmt = k_fmt[data[0] & 7];
     int repair = (data[0] >> 3) & 1;
     int64_t before = hs_byte_count();
     hs_surface* s = NULL;
