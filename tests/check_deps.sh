@@ -91,6 +91,9 @@ check_tree() { # ROOT -> prints offences, returns 1 if any
                 dir=$(dirname "$f")
                 if [ -f "$root/$dir/$inc" ] && [ "${inc#*/}" = "$inc" ] && [ "$dir" != include/hapsim ]; then
                     ok=1 # the module's own header
+                elif [ "${inc#*/}" = "$inc" ] && [ -f "$root/server/base/$inc" ] &&
+                    case $mod in server/*) true ;; *) false ;; esac; then
+                    ok=1 # base's internals (server/base is an include root): every server module
                 elif [ "$dir" = include/hapsim ] && [ -f "$root/include/hapsim/${inc#hapsim/}" ] &&
                     [ "${inc#hapsim/}" != "$inc" ]; then
                     for r in $rules; do [ "$r" = "$inc" ] && ok=1; done

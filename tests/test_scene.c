@@ -8,6 +8,7 @@
 
 #include "test_macros.h"
 
+#include "hapsim/mesh.h"
 #include "hapsim/scene.h"
 #include "hapsim_channels.h"
 
@@ -313,6 +314,15 @@ static int files_and_truncation(void) {
     ENSURE(mkfifo(fpath, 0600) == 0);
     int64_t t0 = hs_now_ns();
     ENSURE(hs_scene_load(fpath, &s, &err) == HS_ERR_IO);
+    ENSURE(strstr(err.msg, "not a regular file (a FIFO)") && strstr(err.msg, fpath));
+    ENSURE(hs_now_ns() - t0 < 2000000000LL);
+    unlink(fpath);
+    // The same for a mesh (the readers' one whole-file reader).
+    snprintf(fpath, sizeof fpath, "%s/organ.msh", fifo);
+    ENSURE(mkfifo(fpath, 0600) == 0);
+    hs_mesh* m = NULL;
+    t0 = hs_now_ns();
+    ENSURE(hs_mesh_load(fpath, &m, &err) == HS_ERR_IO && m == NULL);
     ENSURE(strstr(err.msg, "not a regular file (a FIFO)") && strstr(err.msg, fpath));
     ENSURE(hs_now_ns() - t0 < 2000000000LL);
     unlink(fpath);

@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: GPL-2.0-or-later
 // Whole-file reading, path extensions and token parsing for the file readers.
 #include "base_internal.h"
+#include "open_regular.h"
 
 #include <errno.h>
 #include <limits.h>
@@ -11,8 +12,9 @@
 hs_status hs_read_file(const char* path, char** data, size_t* len, hs_err* err) {
     *data = NULL;
     *len = 0;
-    FILE* f = fopen(path, "rb");
-    if (!f) return hs_err_set(err, HS_ERR_IO, "%s: cannot open: %s", path, strerror(errno));
+    FILE* f = NULL; // a FIFO or device is refused without blocking on it
+    hs_status ost = hs_open_regular(path, &f, err);
+    if (ost != HS_OK) return ost;
     size_t cap = (size_t)1 << 16, n = 0;
     char* buf = hs_alloc(cap);
     hs_status st = buf ? HS_OK : hs_err_set(err, HS_ERR_NOMEM, "%s: out of memory", path);

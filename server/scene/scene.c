@@ -4,7 +4,7 @@
 // file, the line and the key path, e.g. "liver.json:7: key 'material.poisson': ...".
 #define _DEFAULT_SOURCE // inet_aton
 #include "hapsim/scene.h"
-#include "base/open_regular.h"
+#include "open_regular.h"
 
 #include <arpa/inet.h>
 #include <cJSON.h>
