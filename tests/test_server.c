@@ -543,7 +543,9 @@ static int poses_in_forces_out(void) {
     // Press 4 mm along -n and hold: the force pushes back along +n.
     stream(&c, -0.010, 0.004, 700);
     stream(&c, 0.004, 0.004, 800);
-    pump_ms(&c, 5);
+    // 20 ms: the rt outputs published once the poses stop echo the pose rt used, which is the
+    // newest one only after rt's next tick (a loaded machine can delay it past a few ms).
+    pump_ms(&c, 20);
     double fn = dot_n(c.force.force);
     printf("  pressed 4 mm: force %.4f %.4f %.4f N (along n %.4f), state %d\n", c.force.force[0],
            c.force.force[1], c.force.force[2], fn, c.force.state);
