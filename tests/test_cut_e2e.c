@@ -166,6 +166,17 @@ static void sleep_until(struct timespec* t, long ns) {
     clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, t, NULL);
 }
 
+// Feed the next pose (at, buttons) to sim as a device would, then wait for the next ms from t.
+static void feed_ms(hs_haptic_sim* sim, hs_haptic_pose* pose, struct timespec* t,
+                    const double at[3], unsigned buttons) {
+    pose->seq++;
+    pose->stamp_ns = hs_now_ns();
+    memcpy(pose->pos_m, at, sizeof pose->pos_m);
+    pose->buttons = buttons;
+    hs_haptic_sim_feed_pose(sim, pose);
+    sleep_until(t, 1000000);
+}
+
 static int cmp_tri(const void* pa, const void* pb) {
     const int *a = pa, *b = pb;
     for (int k = 0; k < 3; ++k)
@@ -573,12 +584,7 @@ static void probe_move(probe_run* pr, const double to[3], int ticks, unsigned bu
     for (int k = 1; k <= ticks; ++k) {
         double a = (double)k / ticks;
         for (int i = 0; i < 3; ++i) pr->at[i] = from[i] + a * (to[i] - from[i]);
-        pr->pose.seq++;
-        pr->pose.stamp_ns = hs_now_ns();
-        memcpy(pr->pose.pos_m, pr->at, sizeof pr->at);
-        pr->pose.buttons = buttons;
-        hs_haptic_sim_feed_pose(pr->sim, &pr->pose);
-        sleep_until(&pr->t, 1000000);
+        feed_ms(pr->sim, &pr->pose, &pr->t, pr->at, buttons);
         // Every rt tick from the telemetry: the newest output alone missed ticks whenever this
         // thread's wake-ups fell in step with rt's (a run kept 249 of ~2200 consecutive pairs).
         int nb = 0;
@@ -1236,12 +1242,7 @@ typedef struct press_run {
 
 static void press_tick(press_run* pr, const double to[3], unsigned buttons) {
     memcpy(pr->at, to, sizeof pr->at);
-    pr->pose.seq++;
-    pr->pose.stamp_ns = hs_now_ns();
-    memcpy(pr->pose.pos_m, pr->at, sizeof pr->at);
-    pr->pose.buttons = buttons;
-    hs_haptic_sim_feed_pose(pr->sim, &pr->pose);
-    sleep_until(&pr->t, 1000000);
+    feed_ms(pr->sim, &pr->pose, &pr->t, pr->at, buttons);
     hs_haptic_telemetry tl;
     while (hs_spsc_ring_pop(hs_haptic_sim_telemetry(pr->sim), &tl)) {
         if (pr->from_ns <= 0 || tl.now_ns < pr->from_ns) continue;
