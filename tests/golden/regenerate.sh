@@ -1,4 +1,5 @@
 #!/bin/sh
+# SPDX-License-Identifier: GPL-2.0-or-later
 # REGENERATE THE GOLDEN REFERENCE TRACES. This OVERWRITES tests/golden/*-offline.csv and
 # tests/golden/*-live.csv with new runs; only do it deliberately (a change of the device model,
 # the scene or the server physics that you have checked), and commit the new traces with a note
