@@ -69,7 +69,6 @@ struct hs_client {
     atomic_llong poses_sent;
 };
 
-
 const char* hs_client_status_str(hs_status s) {
     // The client's two with their network meaning; the rest as everywhere.
     if (s == HS_ERR_IO) return "network failure or timeout";
@@ -263,11 +262,12 @@ hs_status hs_client_create(const hs_client_config* cfg, hs_client** out, hs_err*
     const char* prefix = cfg->prefix ? cfg->prefix : HAPSIM_DEFAULT_PREFIX;
     if (!prefix_ok(prefix))
         return hs_err_set(err, HS_ERR_INVALID,
-                    "hs_client_create: prefix '%s' must be [A-Z0-9_]*, at most 47 bytes", prefix);
+                          "hs_client_create: prefix '%s' must be [A-Z0-9_]*, at most 47 bytes",
+                          prefix);
     if (cfg->sender &&
         (strlen(cfg->sender) > HAPSIM_CMD_SENDER_MAX || !hapsim_cmd_text_ok(cfg->sender)))
         return hs_err_set(err, HS_ERR_INVALID,
-                    "hs_client_create: sender longer than 63 bytes or with control bytes");
+                          "hs_client_create: sender longer than 63 bytes or with control bytes");
     hs_client* c = hs_client_calloc(1, sizeof *c);
     if (!c) return hs_err_set(err, HS_ERR_NOMEM, "hs_client_create: out of memory");
     atomic_init(&c->poses_sent, 0);
@@ -307,14 +307,16 @@ hs_status hs_client_create(const hs_client_config* cfg, hs_client** out, hs_err*
     if (hurl[0]) {
         c->bus[0] = lcm_create(hurl);
         if (!c->bus[0]) {
-            s = hs_err_set(err, HS_ERR_IO, "hs_client_create: LCM cannot open the haptic URL '%s'", hurl);
+            s = hs_err_set(err, HS_ERR_IO, "hs_client_create: LCM cannot open the haptic URL '%s'",
+                           hurl);
             goto bad;
         }
     }
     if (murl[0]) {
         c->bus[1] = lcm_create(murl);
         if (!c->bus[1]) {
-            s = hs_err_set(err, HS_ERR_IO, "hs_client_create: LCM cannot open the mesh URL '%s'", murl);
+            s = hs_err_set(err, HS_ERR_IO, "hs_client_create: LCM cannot open the mesh URL '%s'",
+                           murl);
             goto bad;
         }
     }
@@ -323,7 +325,8 @@ hs_status hs_client_create(const hs_client_config* cfg, hs_client** out, hs_err*
         goto bad;
     }
     if ((sb & ~(uint32_t)HS_CLIENT_SUB_FORCE) && !c->bus[1]) {
-        s = hs_err_set(err, HS_ERR_INVALID, "hs_client_create: mesh/status/commands need the mesh bus");
+        s = hs_err_set(err, HS_ERR_INVALID,
+                       "hs_client_create: mesh/status/commands need the mesh bus");
         goto bad;
     }
     if ((sb & HS_CLIENT_SUB_FORCE) && (s = sub(c, 0, CH_FORCE, HAPSIM_CH_TOOL_FORCE, err)) != HS_OK)
@@ -404,9 +407,10 @@ static int poll_buses(hs_client* c, int timeout_ms, hs_err* err) {
             if ((fds[i].revents & POLLIN) && lcm_handle(c->bus[map[i]]) != 0)
                 return hs_err_set(err, HS_ERR_IO, "hs_client_poll: lcm_handle failed");
             if (c->destroy_refused)
-                return hs_err_set(err, HS_ERR_INVALID,
-                            "hs_client_destroy called from a callback: refused (the handle is "
-                            "still open; destroy it after hs_client_poll returns)");
+                return hs_err_set(
+                    err, HS_ERR_INVALID,
+                    "hs_client_destroy called from a callback: refused (the handle is "
+                    "still open; destroy it after hs_client_poll returns)");
         }
     }
     return (int)(c->handled - start);
@@ -415,7 +419,7 @@ static int poll_buses(hs_client* c, int timeout_ms, hs_err* err) {
 int hs_client_poll(hs_client* c, int timeout_ms, hs_err* err) {
     if (c->in_poll)
         return hs_err_set(err, HS_ERR_INVALID,
-                    "hs_client_poll: called from a callback (already inside hs_client_poll)");
+                          "hs_client_poll: called from a callback (already inside hs_client_poll)");
     c->in_poll = 1;
     c->destroy_refused = 0;
     int r = poll_buses(c, timeout_ms, err);
@@ -430,8 +434,9 @@ int hs_client_poll(hs_client* c, int timeout_ms, hs_err* err) {
 hs_status hs_client_send_pose(hs_client* c, const hs_client_pose* p, hs_err* err) {
     if (!c->bus[0]) return hs_err_set(err, HS_ERR_INVALID, "hs_client_send_pose: no haptic bus");
     if (p->device_id < 0 || p->device_id >= HS_CLIENT_MAX_DEVICES || p->tool_id < 0)
-        return hs_err_set(err, HS_ERR_INVALID, "hs_client_send_pose: device %d / tool %d out of range",
-                    p->device_id, p->tool_id);
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "hs_client_send_pose: device %d / tool %d out of range", p->device_id,
+                          p->tool_id);
     double qn = 0;
     for (int i = 0; i < 4; i++) qn += p->orientation[i] * p->orientation[i];
     for (int i = 0; i < 3; i++)
@@ -439,10 +444,10 @@ hs_status hs_client_send_pose(hs_client* c, const hs_client_pose* p, hs_err* err
             return hs_err_set(err, HS_ERR_INVALID, "hs_client_send_pose: position not finite");
     if (!isfinite(qn) || fabs(sqrt(qn) - 1) > 1e-3)
         return hs_err_set(err, HS_ERR_INVALID,
-                    "hs_client_send_pose: orientation is not a unit quaternion");
+                          "hs_client_send_pose: orientation is not a unit quaternion");
     if (p->buttons & ~(HAPSIM_TOOL_POSE_T_BUTTON_PRIMARY | HAPSIM_TOOL_POSE_T_BUTTON_CLUTCH))
         return hs_err_set(err, HS_ERR_INVALID, "hs_client_send_pose: unknown button bits 0x%x",
-                    (unsigned)p->buttons);
+                          (unsigned)p->buttons);
     hapsim_tool_pose_t m;
     memset(&m, 0, sizeof m);
     m.utime = wall_us();
@@ -524,7 +529,8 @@ hs_status hs_client_command(hs_client* c, int32_t kind, int n_args, const char* 
     for (int i = 0; i < n_args; i++) // what the shared rules below take for granted
         if (!keys[i] || !values[i] || strlen(values[i]) > HAPSIM_CMD_TEXT_MAX)
             return hs_err_set(err, HS_ERR_INVALID,
-                        "hs_client_command: argument %d missing or its value over 255 bytes", i);
+                              "hs_client_command: argument %d missing or its value over 255 bytes",
+                              i);
     // What the server would refuse as INVALID is refused here (its rules, shared).
     double number;
     const char* why;
@@ -566,12 +572,13 @@ hs_status hs_client_command(hs_client* c, int32_t kind, int n_args, const char* 
             m.seq = c->command_seq++;
             int len = hapsim_command_t_encoded_size(&m);
             if (len > (int)sizeof buf)
-                return hs_err_set(err, HS_ERR_INVALID, "hs_client_command: %d bytes encoded (at most %d)",
-                            len, (int)sizeof buf);
+                return hs_err_set(err, HS_ERR_INVALID,
+                                  "hs_client_command: %d bytes encoded (at most %d)", len,
+                                  (int)sizeof buf);
             if (hapsim_command_t_encode(buf, 0, len, &m) != len ||
                 lcm_publish(c->bus[1], c->ch_command, buf, (unsigned)len) != 0)
                 return hs_err_set(err, HS_ERR_IO, "hs_client_command: publish on %s failed",
-                            c->ch_command);
+                                  c->ch_command);
             ack->attempts++;
             // From a callback (inside hs_client_poll) nothing can be waited for: sent once.
             if (c->in_poll) return HS_OK;
@@ -591,8 +598,9 @@ hs_status hs_client_command(hs_client* c, int32_t kind, int n_args, const char* 
         }
         now = hs_client_now_us();
         if (now >= deadline)
-            return hs_err_set(err, HS_ERR_IO, "hs_client_command: no %sack for request %lld after %d ms",
-                        pending ? "final " : "", (long long)m.request_id, timeout_ms);
+            return hs_err_set(err, HS_ERR_IO,
+                              "hs_client_command: no %sack for request %lld after %d ms",
+                              pending ? "final " : "", (long long)m.request_id, timeout_ms);
         int64_t wait = (next_send < deadline ? next_send : deadline) - now;
         int r = hs_client_poll(c, (int)((wait + 999) / 1000), err);
         if (r < 0) return (hs_status)r;

@@ -78,7 +78,11 @@ int main(int argc, char** argv) {
     if (hapsim_version_asked(argc, argv, "e2e_logdump")) return 0;
     for (int i = 1; i < argc; ++i)
         if (!strcmp(argv[i], "-h") || !strcmp(argv[i], "--help")) {
-            printf("usage: e2e_logdump LOG [PREFIX]\n\nPrint the poses and forces of a hapsim session's LCM log, read deterministically\n(LCM file provider, as fast as it reads, time = each message's utime). PREFIX: the\nchannel prefix (HAPSIM_). Exit status: 0 ok, 1 the log cannot be opened or is not\ncomplete, 2 bad usage. See docs/replay.md.\n");
+            printf("usage: e2e_logdump LOG [PREFIX]\n\nPrint the poses and forces of a hapsim "
+                   "session's LCM log, read deterministically\n(LCM file provider, as fast as it "
+                   "reads, time = each message's utime). PREFIX: the\nchannel prefix (HAPSIM_). "
+                   "Exit status: 0 ok, 1 the log cannot be opened or is not\ncomplete, 2 bad "
+                   "usage. See docs/replay.md.\n");
             return 0;
         }
     if (argc != 2 && argc != 3) {

@@ -167,7 +167,11 @@ int main(int argc, char** argv) {
     if (hapsim_version_asked(argc, argv, "e2e_replay")) return 0;
     for (int i = 1; i < argc; ++i)
         if (!strcmp(argv[i], "-h") || !strcmp(argv[i], "--help")) {
-            printf("usage: e2e_replay SCENE LOG [PREFIX]\n\nReplay the tool poses of a hapsim session's LCM log against SCENE's rest-state\ncompliance and print the force for each pose of device 0, bit for bit the same on\nevery run. PREFIX: the channel prefix (the scene's). Exit status: 0 ok, 1 bad scene\nor log, 2 bad usage. See docs/replay.md.\n");
+            printf("usage: e2e_replay SCENE LOG [PREFIX]\n\nReplay the tool poses of a hapsim "
+                   "session's LCM log against SCENE's rest-state\ncompliance and print the force "
+                   "for each pose of device 0, bit for bit the same on\nevery run. PREFIX: the "
+                   "channel prefix (the scene's). Exit status: 0 ok, 1 bad scene\nor log, 2 bad "
+                   "usage. See docs/replay.md.\n");
             return 0;
         }
     if (argc != 3 && argc != 4) {

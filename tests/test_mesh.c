@@ -709,7 +709,8 @@ static int RoundTrip(void) {
     // A directory is named as one.
     ENSURE(mkdir("test_mesh_dir.msh", 0700) == 0 || errno == EEXIST);
     ENSURE(hs_mesh_load("test_mesh_dir.msh", &m, &err) == HS_ERR_IO && m == NULL);
-    ENSURE(strstr(err.msg, "test_mesh_dir.msh") && strstr(err.msg, "not a regular file (a folder)"));
+    ENSURE(strstr(err.msg, "test_mesh_dir.msh") &&
+           strstr(err.msg, "not a regular file (a folder)"));
     rmdir("test_mesh_dir.msh");
 
     // VTK written by hs_mesh_write_vtk (with a displacement field, which the reader skips).

@@ -39,20 +39,20 @@
 #include "base/spsc_ring.h"
 #include "rt/haptic_rt.h"
 
-#define MAX_DEV        HS_SCENE_MAX_DEVICES
-#define POSE_RING      64           // fed poses remembered for echoing in rt-output forces
-#define KEYFRAME_NS    1000000000LL // keyframe and topology period
-#define LOADER_STOP_WAIT_MS 3000    // at a stop, how long a scene build may take to return
-#define DELTA_EPS_M    1e-5f        // m: a visual node is listed in a delta when it moved more
-#define LIVE_NS        500000000LL  // live status line period
-#define PAUSE_RAMP_S   0.02         // forces ramp to zero over this after PAUSE, s
-#define SIM_HIST_SCALE 16           // the deformation loop's histograms: 16 us bins
-#define RT_GAP_NS      1500000LL    // publish rt outputs when no force went out for this long
-#define HANDLE_BATCH   256          // messages handled per bus per loop iteration
-#define POSE_QUEUE     8192         // LCM subscription queue (default 30 drops bursts)
-#define COMMAND_QUEUE  1024
-#define CUT_SAMPLES    1024 // cut step times kept for the quantiles (cut steps take ms, not us)
-#define LOAD_QUEUE     32   // commands kept while a scene loads; more are refused (busy)
+#define MAX_DEV             HS_SCENE_MAX_DEVICES
+#define POSE_RING           64           // fed poses remembered for echoing in rt-output forces
+#define KEYFRAME_NS         1000000000LL // keyframe and topology period
+#define LOADER_STOP_WAIT_MS 3000         // at a stop, how long a scene build may take to return
+#define DELTA_EPS_M         1e-5f        // m: a visual node is listed in a delta when it moved more
+#define LIVE_NS             500000000LL  // live status line period
+#define PAUSE_RAMP_S        0.02         // forces ramp to zero over this after PAUSE, s
+#define SIM_HIST_SCALE      16           // the deformation loop's histograms: 16 us bins
+#define RT_GAP_NS           1500000LL    // publish rt outputs when no force went out for this long
+#define HANDLE_BATCH        256          // messages handled per bus per loop iteration
+#define POSE_QUEUE          8192         // LCM subscription queue (default 30 drops bursts)
+#define COMMAND_QUEUE       1024
+#define CUT_SAMPLES         1024 // cut step times kept for the quantiles (cut steps take ms, not us)
+#define LOAD_QUEUE          32   // commands kept while a scene loads; more are refused (busy)
 
 // Everything that depends on the scene: rebuilt by load_scene, swapped only when complete.
 typedef struct world {
@@ -2088,7 +2088,9 @@ static int another_server(hs_server* s, hs_err* err) {
                "device would get two force streams. Stop it, or give this one other buses "
                "(--haptic-url, --mesh-url) or another --prefix",
                s->prefix, s->haptic_url, s->mesh_url,
-               heard[2] ? "forces" : heard[0] ? "topology" : "status");
+               heard[2]   ? "forces"
+               : heard[0] ? "topology"
+                          : "status");
     return 1;
 }
 

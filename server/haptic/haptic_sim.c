@@ -1194,9 +1194,9 @@ static void* setup_worker(void* arg) {
     int64_t t0 = hs_now_ns();
     long cores = sysconf(_SC_NPROCESSORS_ONLN);
     hs_parallel par = {par_run, NULL, cores < 1 ? 1 : cores > 4 ? 4 : (int)cores};
-    h->su_status = hs_compliance_create_par(h->mesh, &h->def.body.fem, h->fixed0,
-                                            h->def.probe.cache_nodes, &par, &h->su_comp,
-                                            &h->su_err);
+    h->su_status =
+        hs_compliance_create_par(h->mesh, &h->def.body.fem, h->fixed0, h->def.probe.cache_nodes,
+                                 &par, &h->su_comp, &h->su_err);
     h->su_ms = (double)(hs_now_ns() - t0) * 1e-6;
     atomic_store_explicit(&h->su_done, 1, memory_order_release);
     return NULL;

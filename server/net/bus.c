@@ -114,7 +114,8 @@ int64_t hs_net_bus_kernel_drops(const hs_net_bus* bus) {
             long long dr;
             // sl local:port remote st tx:rx tr:when retrnsmt uid timeout inode ref ptr drops
             if (sscanf(line, " %*s %*[0-9A-Fa-f]:%x %*s %*s %*s %*s %*s %*s %*s %lu %*s %*s %lld",
-                       &lport, &inode, &dr) != 3 || (int)lport != port)
+                       &lport, &inode, &dr) != 3 ||
+                (int)lport != port)
                 continue;
             for (int q = 0; q < n; ++q)
                 if (ino[q] == inode) {

@@ -835,8 +835,9 @@ static void diag_column_base(double* y, const int* li, const double* lx, int nz,
     DIAG_COLUMN_BODY
 }
 __attribute__((target("avx2"))) static void
-diag_column_avx2(double* y, const int* li, const double* lx, int nz,
-                 const double* restrict v){DIAG_COLUMN_BODY}
+diag_column_avx2(double* y, const int* li, const double* lx, int nz, const double* restrict v) {
+    DIAG_COLUMN_BODY
+}
 
 // What every worker of hs_cholesky_inverse_diag3 reads, and each one's own scratch.
 typedef struct diag_job {
@@ -1015,7 +1016,7 @@ hs_status hs_cholesky_inverse_diag3_par(hs_cholesky* f, int nb, const int* dofs,
         struct diag_ws* ws = &J.ws[w];
         ws->mark = hs_calloc((size_t)n, sizeof(int));
         ws->list = hs_alloc((size_t)n * sizeof(int));
-        ws->y = hs_calloc((size_t)R * (size_t)n, sizeof(double)); // [n][R]: a group's loads
+        ws->y = hs_calloc((size_t)R * (size_t)n, sizeof(double));         // [n][R]: a group's loads
         ws->ty = T > 0 ? hs_calloc((size_t)T * R, sizeof(double)) : NULL; // the tail's
         if (!ws->mark || !ws->list || !ws->y || (T > 0 && !ws->ty)) {
             st = HS_ERR_NOMEM;
