@@ -75,4 +75,16 @@ static inline const char* hapsim_url_problem(const char* url) {
     return NULL;
 }
 
+/// The port LCM binds for a udpm URL, read as LCM reads it (strtol, base 0; "udpm://" alone is
+/// its default 7667), or -1 for another provider or a URL hapsim_url_problem refuses.
+static inline long hapsim_url_port(const char* url) {
+    static const char udpm[] = "udpm://";
+    if (!url || strncmp(url, udpm, sizeof udpm - 1) || hapsim_url_problem(url)) return -1;
+    const char* net = url + sizeof udpm - 1;
+    size_t n = strcspn(net, "?");
+    if (n == 0) return 7667;
+    const char* colon = memchr(net, ':', n);
+    return colon ? strtol(colon + 1, NULL, 0) : -1;
+}
+
 #endif

@@ -325,6 +325,12 @@ static int bus_errors(void) {
         ENSURE(strstr(err.msg, "serve no other program") != NULL);
     }
     ENSURE(hs_net_bus_create(NULL, &b, &err) == HS_ERR_INVALID && b == NULL);
+    // The port LCM binds, read as LCM reads it.
+    ENSURE(hapsim_url_port("udpm://") == 7667);
+    ENSURE(hapsim_url_port("udpm://239.255.76.67:0x1DF3?ttl=0") == 7667);
+    ENSURE(hapsim_url_port("udpm://239.255.76.70:7784?ttl=0&recv_buf_size=4096") == 7784);
+    ENSURE(hapsim_url_port("udpm://239.255.76.67?ttl=0") == -1); // refused: no port
+    ENSURE(hapsim_url_port("memq://") == -1);
     return 0;
 }
 

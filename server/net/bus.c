@@ -72,18 +72,8 @@ int hs_net_bus_handle(hs_net_bus* bus, int timeout_ms) {
     return lcm_handle(bus->lcm) == 0 ? 1 : -1;
 }
 
-// The port of a udpm://GROUP:PORT URL, or -1.
-static int url_port(const char* url) {
-    const char* h = strstr(url, "://");
-    const char* c = h ? strchr(h + 3, ':') : NULL;
-    if (!c) return -1;
-    char* end = NULL;
-    long p = strtol(c + 1, &end, 10);
-    return end != c + 1 && p > 0 && p < 65536 ? (int)p : -1;
-}
-
 int64_t hs_net_bus_kernel_drops(const hs_net_bus* bus) {
-    const int port = url_port(bus->url);
+    const long port = hapsim_url_port(bus->url);
     if (port < 0) return -1;
     // This process's socket inodes (LCM owns the sockets; /proc/self/fd names them).
     unsigned long ino[64];
@@ -115,7 +105,7 @@ int64_t hs_net_bus_kernel_drops(const hs_net_bus* bus) {
             // sl local:port remote st tx:rx tr:when retrnsmt uid timeout inode ref ptr drops
             if (sscanf(line, " %*s %*[0-9A-Fa-f]:%x %*s %*s %*s %*s %*s %*s %*s %lu %*s %*s %lld",
                        &lport, &inode, &dr) != 3 ||
-                (int)lport != port)
+                (long)lport != port)
                 continue;
             for (int q = 0; q < n; ++q)
                 if (ino[q] == inode) {
