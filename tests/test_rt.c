@@ -326,6 +326,19 @@ static int SafetyChain(void) {
     }
     ENSURE(saw_rate && saw_mag && prev == def.max_force_n);
     ENSURE(s.counters.rate > 0 && s.counters.magnitude > 0);
+    // The limit lowered under a slow rate limit: met on the next answer, not at 1 N/s (the
+    // rate clamp alone would hold 10 N for seconds), and the force holds at the new limit.
+    hs_safety_def low = def;
+    low.max_force_n = 0.5;
+    low.max_rate_n_s = 1.0;
+    hs_safety_set_limits(&s, &low);
+    for (int i = 0; i < 5; ++i, t += 1000000) {
+        double f[3] = {0, 0, 50};
+        uint32_t lf = hs_safety_apply(&s, f, 1, 1, t, dt);
+        ENSURE((lf & HS_SAFETY_MAGNITUDE) && norm3(f) <= low.max_force_n + 1e-12);
+        ENSURE_NEAR(f[2], low.max_force_n, 1e-12);
+    }
+    hs_safety_set_limits(&s, &def);
     // NaN force: zero at once, counted, then ramps back in (no step back to 10 N).
     double fn[3] = {0, NAN, 1};
     uint32_t fl = hs_safety_apply(&s, fn, 1, 1, t, dt);

@@ -568,7 +568,8 @@ static int poses_in_forces_out(void) {
     int64_t rid = 0;
     ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_SET_PARAM, "name", "no_such_param", "value", "1",
                    &rid) == HAPSIM_COMMAND_ACK_T_STATUS_INVALID);
-    ENSURE(strstr(ack_message(&c, rid), "unknown parameter 'no_such_param' (known: probe_radius_m"));
+    ENSURE(
+        strstr(ack_message(&c, rid), "unknown parameter 'no_such_param' (known: probe_radius_m"));
     ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_SET_PARAM, "name", "poisson", "value", "0.5", &rid) ==
            HAPSIM_COMMAND_ACK_T_STATUS_INVALID);
     ENSURE(strstr(ack_message(&c, rid), "poisson = 0.5 out of range: above -1 .. 0.4999"));
@@ -1557,9 +1558,10 @@ static double max_force_since(const client* c, int from) {
 }
 
 /// Paused answers keep the limits a running answer has (found in review): the e-stop release
-/// ramp, also when the release comes right behind the pause, and a lowered force_max_n. Before,
-/// a pause 30 ms into a 330 ms release ramp jumped from 0.016 to 0.083 N (this test on the old
-/// server; it stops there); the reviewer's scratch test also had a release sent with a pause
+/// ramp, also when the release comes right behind the pause, and a lowered force_max_n, which a
+/// running answer meets from the set's ack on (the rate clamp held it above the new limit once).
+/// Before, a pause 30 ms into a 330 ms release ramp jumped from 0.016 to 0.083 N (this test on the
+/// old server; it stops there); the reviewer's scratch test also had a release sent with a pause
 /// give 0.059 N at once, and a pause lift a 0.01 N limit to 0.024 N.
 static int pause_keeps_limits(void) {
     char scene[512];
@@ -1608,11 +1610,17 @@ static int pause_keeps_limits(void) {
     ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_RESUME, NULL, NULL, NULL, NULL, NULL) == OK);
     stream(&c, 0.004, 0.004, 1200);
     ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_SET_PARAM, "name", "force_rate_max_n_per_s", "value",
-                   "1", NULL) == OK); // the rt output then stays above the new limit
+                   "1", NULL) == OK); // the rate clamp alone would hold the force above 0.01 N
     stream(&c, 0.004, 0.004, 100);
+    double before = norm3(c.force.force);
     ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_SET_PARAM, "name", "force_max_n", "value", "0.01",
                    NULL) == OK);
+    from = c.n_flog;
     stream(&c, 0.004, 0.004, 30);
+    double running = max_force_since(&c, from);
+    printf("  %.4f N, then force_max_n 0.01 N under a 1 N/s rate limit: at most %.4f N\n", before,
+           running);
+    ENSURE(before > 0.05 && c.n_flog - from >= 20 && running <= 0.01 + 1e-9);
     from = c.n_flog;
     ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_PAUSE, NULL, NULL, NULL, NULL, NULL) == OK);
     stream(&c, 0.004, 0.004, 30);

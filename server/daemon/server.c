@@ -706,6 +706,8 @@ static void answer_pose(hs_server* s, const hs_net_pose* p, int64_t rx_ns) {
             // force on the wire was the model's extrapolation, which no limit bounds.
             m = s->out.model;
             state = state_of(&s->out, &m, p->buttons);
+            // A limit set since rt made this output holds from the set's ack on.
+            clamp_model(&m, w->scene.force_max_n);
             double g = estop_gain(s, rx_ns);
             if (g < 1.0) {
                 scale_model(&m, g);

@@ -271,14 +271,21 @@ uint32_t hs_safety_apply(hs_safety* s, double f_n[3], int pose_fresh, int pose_o
         f_n[0] = f_n[1] = f_n[2] = 0;
         return flags;
     }
-    // The rate clamp comes last, on the force that is sent: a gain ramp, a new model or a
-    // lowered limit all reach the output at the rate limit (the gain ramp itself is slower
+    // The rate clamp comes after the gain, on the force that is sent: a gain ramp or a new
+    // model reaches the output at the rate limit (the gain ramp itself is slower
     // than the rate limit at full force for the defaults; before, gain and rate steps added up).
     const double step_dt =
         s->def.step_period_s > 0 && dt_s > s->def.step_period_s ? s->def.step_period_s : dt_s;
     if (hs_rate_clamp_apply(&s->rate, f_n, step_dt)) {
         flags |= HS_SAFETY_RATE;
         ++s->counters.rate;
+    }
+    // The magnitude limit is hard: a limit lowered under a force the rate clamp still holds
+    // above it is met at once (a step down), not at the rate limit.
+    if (hs_force_clamp_magnitude(f_n, s->def.max_force_n)) {
+        if (!(flags & HS_SAFETY_MAGNITUDE)) ++s->counters.magnitude;
+        flags |= HS_SAFETY_MAGNITUDE;
+        memcpy(s->rate.prev_n, f_n, sizeof s->rate.prev_n);
     }
     return flags;
 }
