@@ -4,7 +4,7 @@
 // by cutting. A measurement tool, not a test.
 //   sparse_timing [--threads N] [--cpu] [NX NY NZ]...   (default: 15 14 13 and 22 22 22)
 #define _POSIX_C_SOURCE 200809L // clock_gettime
-#include "hapsim/sparse.h"
+#include "sparse.h"
 #include "sparse_grid.h"
 
 #include <stdio.h>

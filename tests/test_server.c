@@ -20,8 +20,8 @@
 
 #include "test_macros.h"
 
-#include "hapsim/base.h"
-#include "hapsim/mesh.h"
+#include "base.h"
+#include "mesh.h"
 #include "hapsim_channels.h"
 #include "hapsim_command_ack_t.h"
 #include "hapsim_command_t.h"
@@ -31,8 +31,8 @@
 #include "hapsim_server_status_t.h"
 #include "hapsim_tool_force_t.h"
 #include "hapsim_tool_pose_t.h"
-#include "net/bus.h"
-#include "net/mesh_frames.h"
+#include "bus.h"
+#include "mesh_frames.h"
 
 #define URL_H    "udpm://239.255.76.91:7791?ttl=0"
 #define URL_M    "udpm://239.255.76.92:7792?ttl=0"

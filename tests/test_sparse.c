@@ -2,7 +2,7 @@
 // Sparse: CSC pattern and products against a dense reference, CHOLMOD factor/refactor/solve,
 // keeping the last good factor, allocation-free solves, PCG, low-rank updates for cutting,
 // fault injection.
-#include "hapsim/sparse.h"
+#include "sparse.h"
 #include "sparse_grid.h"
 #include "test_macros.h"
 

@@ -1,8 +1,8 @@
 // SPDX-License-Identifier: GPL-2.0-or-later
 // Vertex-preserving cutting: sweep crossing test, vertex moves with a quality guard, tet
 // removal with the orphan and free-piece rules, the live mesh and the element-change lists.
-// See include/hapsim/cut.h for the design and docs/cutting.md for the choices.
-#include "hapsim/cut.h"
+// See server/cut/cut.h for the design and docs/cutting.md for the choices.
+#include "cut.h"
 
 #include <math.h>
 #include <stdlib.h>

@@ -11,7 +11,7 @@
 #include <unistd.h>
 
 #include "server.h"
-#include "hapsim/sparse.h"
+#include "sparse.h"
 
 static int stop_pipe[2] = {-1, -1};
 

@@ -17,11 +17,11 @@
 #include <string.h>
 #include <unistd.h>
 
-#include "hapsim/fem.h"
-#include "hapsim/haptic.h"
-#include "hapsim/haptic_sim.h"
-#include "hapsim/mesh.h"
-#include "hapsim/scene.h"
+#include "fem.h"
+#include "haptic.h"
+#include "haptic_sim.h"
+#include "mesh.h"
+#include "scene.h"
 #include "hapsim_channels.h"
 #include "hapsim_command_ack_t.h"
 #include "hapsim_command_t.h"
@@ -33,11 +33,11 @@
 #include "hapsim_tool_pose_t.h"
 #include "hapsim_tool_state_t.h"
 #include "hapsim_topology_event_t.h"
-#include "net/bus.h"
-#include "net/mesh_frames.h"
-#include "net/validate.h"
-#include "base/spsc_ring.h"
-#include "rt/haptic_rt.h"
+#include "bus.h"
+#include "mesh_frames.h"
+#include "validate.h"
+#include "spsc_ring.h"
+#include "haptic_rt.h"
 
 #define MAX_DEV             HS_SCENE_MAX_DEVICES
 #define POSE_RING           64           // fed poses remembered for echoing in rt-output forces

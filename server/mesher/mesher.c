@@ -5,7 +5,7 @@
 // volume is meshed and optimised. The tets come back through the API into an hs_mesh, which
 // validates them as any loaded mesh.
 #define _POSIX_C_SOURCE 200809L
-#include "hapsim/mesher.h"
+#include "mesher.h"
 
 #include <gmshc.h>
 #include <math.h>

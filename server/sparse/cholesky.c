@@ -7,7 +7,7 @@
 // at hs_alloc/hs_calloc/hs_realloc/hs_free, so CHOLMOD's memory is in hs_byte_count and fault
 // injection reaches it. METIS, when CHOLMOD tries it, uses its own malloc during analysis only.
 #define _GNU_SOURCE // RTLD_DEFAULT
-#include "hapsim/sparse.h"
+#include "sparse.h"
 
 #include <cholmod.h>
 #include <dlfcn.h>

@@ -4,10 +4,10 @@
 // surface, `scene` makes a ready scene folder, `surface` writes a mesh's boundary.
 #define _XOPEN_SOURCE 700 // mkdir
 #include "hapsim/version.h"
-#include "hapsim/mesh.h"
-#include "hapsim/mesher.h"
-#include "hapsim/scene.h"
-#include "hapsim/surface.h"
+#include "mesh.h"
+#include "mesher.h"
+#include "scene.h"
+#include "surface.h"
 
 #include <errno.h>
 #include <math.h>

@@ -3,11 +3,11 @@
 // dynamics with a chosen element model. Writes the nodal displacement as CSV.
 #define _XOPEN_SOURCE 700 // realpath, stat
 #include "hapsim/version.h"
-#include "hapsim/body.h"
-#include "hapsim/mesh.h"
-#include "hapsim/mooney.h"
-#include "hapsim/press.h"
-#include "hapsim/sparse.h"
+#include "body.h"
+#include "mesh.h"
+#include "mooney.h"
+#include "press.h"
+#include "sparse.h"
 
 #include <errno.h>
 #include <limits.h>

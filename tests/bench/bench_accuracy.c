@@ -9,9 +9,9 @@
 #define _POSIX_C_SOURCE 200809L
 #include "accuracy_refs.h"
 #include "bench.h"
-#include "hapsim/body.h"
-#include "hapsim/mesh.h"
-#include "hapsim/mooney.h"
+#include "body.h"
+#include "mesh.h"
+#include "mooney.h"
 
 #include <math.h>
 #include <stdio.h>

@@ -6,11 +6,11 @@
 #define _POSIX_C_SOURCE 200809L
 #include "bench.h"
 #include "../liver_haptic.h"
-#include "hapsim/compliance.h"
-#include "hapsim/haptic_sim.h"
-#include "hapsim/mesh.h"
-#include "hapsim/sparse.h"
-#include "rt/rt_thread.h"
+#include "compliance.h"
+#include "haptic_sim.h"
+#include "mesh.h"
+#include "sparse.h"
+#include "rt_thread.h"
 
 #include <math.h>
 #include <stdio.h>

@@ -6,13 +6,13 @@
 // tool centre the rt thread held.
 #define _POSIX_C_SOURCE 200809L
 #include "bench.h"
-#include "base/spsc_ring.h"
-#include "hapsim/haptic_sim.h"
-#include "hapsim/mesh.h"
-#include "hapsim/press.h"
-#include "hapsim/surface_press.h"
-#include "hapsim/sparse.h"
-#include "rt/haptic_rt.h"
+#include "spsc_ring.h"
+#include "haptic_sim.h"
+#include "mesh.h"
+#include "press.h"
+#include "surface_press.h"
+#include "sparse.h"
+#include "haptic_rt.h"
 
 #include <math.h>
 #include <stdio.h>

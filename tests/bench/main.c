@@ -3,7 +3,7 @@
 #define _POSIX_C_SOURCE 200809L
 #include "hapsim/version.h"
 #include "bench.h"
-#include "hapsim/sparse.h"
+#include "sparse.h"
 
 #include <stdio.h>
 #include <stdlib.h>

@@ -5,7 +5,7 @@
 #ifndef HAPSIM_SPARSE_H
 #define HAPSIM_SPARSE_H
 
-#include "hapsim/base.h"
+#include "base.h"
 
 #ifdef __cplusplus
 extern "C" {
