@@ -127,12 +127,22 @@ typedef struct dev_state {
     int64_t last_rx_ns;  // newest accepted pose, CLOCK_MONOTONIC
     int64_t last_pub_ns; // newest tool_force published
     int seen;
-    double pos[3], quat[4];
+    double pos[3], quat[4]; // the tool's pose (pos: the hand's + the clutch offset)
+    double hand[3];         // the newest pose's position
     uint32_t buttons;
     double force[3]; // newest published force, N
     int contact;
-    int64_t pubs;    // forces published
-    hs_rt_hist* lat; // window: pose received -> force published, us
+    // Clutch (BUTTON_CLUTCH): tool position = hand position + offset (scene frame, m).
+    int64_t session;    // the driver session the offset belongs to
+    double offset[3];   // grows by the hand's motion while the clutch was held
+    int clutched;       // the clutch is held
+    double hold[3];     // tool position while clutched
+    double clutch_f[3]; // force published last before the clutch went down, N
+    int64_t clutch_ns;  // clutch down
+    int64_t engage_ns;  // clutch released (0: engaged since the session began)
+    double engage_g0;   // the clutch gain at release: the ramp back in starts there
+    int64_t pubs;       // forces published
+    hs_rt_hist* lat;    // window: pose received -> force published, us
 } dev_state;
 
 struct hs_server {
@@ -546,7 +556,8 @@ static int model_stiff(const hs_haptic_model* m) {
     return 0;
 }
 
-// Publish one tool_force for device d from model m (force at m->anchor_m).
+// Publish one tool_force for device d from model m (force at m->anchor_m, tool position: the
+// wire carries the hand's, the clutch's offset off).
 static void publish_force(hs_server* s, int d, const hs_haptic_model* m, int state,
                           int64_t pose_seq, int64_t pose_utime, int64_t rx_ns) {
     dev_state* ds = &s->dev[d];
@@ -561,7 +572,7 @@ static void publish_force(hs_server* s, int d, const hs_haptic_model* m, int sta
     f.state = state;
     for (int k = 0; k < 3; ++k) {
         f.force[k] = m->force_n[k];
-        f.anchor[k] = m->anchor_m[k];
+        f.anchor[k] = m->anchor_m[k] - ds->offset[k];
     }
     for (int k = 0; k < 9; ++k) f.stiffness[k] = -m->stiffness_n_m[k]; // wire: dF/dp
     f.validity_radius = m->radius_m;
@@ -586,11 +597,10 @@ static void clamp_model(hs_haptic_model* m, double fmax) {
     }
 }
 
-static int state_of(const hs_haptic_output* o, const hs_haptic_model* m, uint32_t buttons) {
+static int state_of(const hs_haptic_output* o, const hs_haptic_model* m) {
     int active = norm3(m->force_n) > 0 || model_stiff(m);
     if (o->safety & HS_SAFETY_WATCHDOG)
         return active ? HAPSIM_TOOL_FORCE_T_STATE_RAMP : HAPSIM_TOOL_FORCE_T_STATE_STOPPED;
-    if (buttons & HAPSIM_TOOL_POSE_T_BUTTON_CLUTCH) return HAPSIM_TOOL_FORCE_T_STATE_RAMP;
     return active ? HAPSIM_TOOL_FORCE_T_STATE_CONTACT : HAPSIM_TOOL_FORCE_T_STATE_FREE;
 }
 
@@ -599,17 +609,71 @@ static void scale_model(hs_haptic_model* m, double g) {
     for (int k = 0; k < 9; ++k) m->stiffness_n_m[k] *= g;
 }
 
-// Gain on the rt model at time t after an ESTOP_RELEASE: 0 -> 1 over the safety ramp, or
-// slower if the force limit at the rate limit needs longer (a resume ramps in the same way,
-// through its new sim's watchdog).
-static double estop_gain(const hs_server* s, int64_t t) {
-    if (s->estop) return 0.0;
+// How long a ramp between zero and full force takes: the safety ramp, or longer if the force
+// limit at the rate limit needs it. The e-stop release and the clutch ramp over it.
+static double ramp_time(const hs_server* s) {
     const hs_safety_def* sd = &s->w.def.safety;
     double ramp = sd->ramp_s;
     if (sd->max_rate_n_s > 0 && sd->max_force_n / sd->max_rate_n_s > ramp)
         ramp = sd->max_force_n / sd->max_rate_n_s;
-    double g = (double)(t - s->estop_release_ns) * 1e-9 / ramp;
+    return ramp;
+}
+
+// Gain on the rt model at time t after an ESTOP_RELEASE: 0 -> 1 over the ramp time (a resume
+// ramps in the same way, through its new sim's watchdog).
+static double estop_gain(const hs_server* s, int64_t t) {
+    if (s->estop) return 0.0;
+    double g = (double)(t - s->estop_release_ns) * 1e-9 / ramp_time(s);
     return g >= 1.0 ? 1.0 : g > 0.0 ? g : 0.0;
+}
+
+// The clutch decouples the tool from the hand (docs/protocol.md, "Clutch"). Held: the tool stays
+// where it was, the hand's motion is ignored, and the answers ramp the force felt at clutch-down
+// to zero with no stiffness, so a driver's local model does not follow the hand. Released: the
+// tool goes on from where it stayed by the hand's motion from then on (the hand-to-tool offset
+// is kept, as a device's indexing) and the force ramps back in from where the ramp down was.
+static void clutch_track(hs_server* s, dev_state* ds, const hs_net_pose* p, int64_t t) {
+    int held = (p->buttons & HAPSIM_TOOL_POSE_T_BUTTON_CLUTCH) != 0;
+    if (p->session != ds->session) { // a new driver: no offset left by another one's clutch
+        ds->session = p->session;
+        memset(ds->offset, 0, sizeof ds->offset);
+        ds->clutched = 0;
+        ds->engage_ns = 0;
+    }
+    if (held && !ds->clutched) {
+        ds->clutched = 1;
+        ds->clutch_ns = t;
+        memcpy(ds->clutch_f, ds->force, sizeof ds->clutch_f);
+        for (int k = 0; k < 3; ++k)
+            ds->hold[k] = ds->seen ? ds->pos[k] : p->position[k] + ds->offset[k];
+    } else if (!held && ds->clutched) {
+        double g = 1.0 - (double)(t - ds->clutch_ns) * 1e-9 / ramp_time(s);
+        ds->clutched = 0;
+        ds->engage_ns = t;
+        ds->engage_g0 = g > 0 ? g : 0;
+        for (int k = 0; k < 3; ++k) ds->offset[k] = ds->hold[k] - p->position[k];
+    }
+}
+
+// Gain on the engaged model at time t: 1, or ramping back in after a release.
+static double engage_gain(const hs_server* s, const dev_state* ds, int64_t t) {
+    if (ds->engage_ns == 0) return 1.0;
+    double g = ds->engage_g0 + (double)(t - ds->engage_ns) * 1e-9 / ramp_time(s);
+    return g >= 1.0 ? 1.0 : g;
+}
+
+// The answer while the clutch is held, at hand position hand (tool frame): the force at
+// clutch-down ramped to zero, no stiffness. State RAMP, then FREE once it is zero.
+static hs_haptic_model clutch_model(const hs_server* s, const dev_state* ds, int64_t t,
+                                    const double hand[3], int* state) {
+    hs_haptic_model m = zero_model();
+    double g = 1.0 - (double)(t - ds->clutch_ns) * 1e-9 / ramp_time(s);
+    if (g > 0)
+        for (int k = 0; k < 3; ++k) m.force_n[k] = g * ds->clutch_f[k];
+    memcpy(m.anchor_m, hand, sizeof m.anchor_m);
+    m.timeout_s = s->have_out ? s->out.model.timeout_s : s->w.scene.watchdog_s;
+    *state = norm3(m.force_n) > 0 ? HAPSIM_TOOL_FORCE_T_STATE_RAMP : HAPSIM_TOOL_FORCE_T_STATE_FREE;
+    return m;
 }
 
 // The paused model at time t: the model at the pause scaled down linearly to zero, under the
@@ -656,9 +720,13 @@ static void publish_rt_output(hs_server* s) {
     if (t - ds->last_rx_ns > (int64_t)(quiet_s * 1e9)) return; // long dead: nothing to say
     if (t - ds->last_pub_ns < RT_GAP_NS) return;
     hs_haptic_model m = s->estop ? zero_model() : s->out.model; // limited by the rt stage
-    int state = s->estop ? HAPSIM_TOOL_FORCE_T_STATE_STOPPED : state_of(&s->out, &m, ds->buttons);
-    double g = estop_gain(s, t);
-    if (!s->estop && g < 1.0) {
+    int state = s->estop ? HAPSIM_TOOL_FORCE_T_STATE_STOPPED : state_of(&s->out, &m);
+    double g = estop_gain(s, t) * engage_gain(s, ds, t);
+    if (!s->estop && ds->clutched) {
+        double hand[3];
+        for (int k = 0; k < 3; ++k) hand[k] = ds->hand[k] + ds->offset[k];
+        m = clutch_model(s, ds, t, hand, &state);
+    } else if (!s->estop && g < 1.0) {
         scale_model(&m, g);
         state = HAPSIM_TOOL_FORCE_T_STATE_RAMP;
     }
@@ -670,9 +738,13 @@ static void publish_rt_output(hs_server* s) {
 static void answer_pose(hs_server* s, const hs_net_pose* p, int64_t rx_ns) {
     int d = p->device_id;
     dev_state* ds = &s->dev[d];
+    if (d == 0) clutch_track(s, ds, p, rx_ns);
+    double hand[3]; // the hand in the tool's frame; the tool stays put while clutched
+    for (int k = 0; k < 3; ++k) hand[k] = p->position[k] + ds->offset[k];
     ds->seen = 1;
     ds->last_rx_ns = rx_ns;
-    memcpy(ds->pos, p->position, sizeof ds->pos);
+    memcpy(ds->hand, p->position, sizeof ds->hand);
+    memcpy(ds->pos, ds->clutched ? ds->hold : hand, sizeof ds->pos);
     memcpy(ds->quat, p->orientation, sizeof ds->quat);
     ds->buttons = p->buttons;
     world* w = &s->w;
@@ -680,35 +752,36 @@ static void answer_pose(hs_server* s, const hs_net_pose* p, int64_t rx_ns) {
     hs_haptic_model m = zero_model();
     int state = HAPSIM_TOOL_FORCE_T_STATE_STOPPED;
     if (d == 0 && s->paused) {
-        m = paused_model(s, rx_ns, p->position);
+        m = paused_model(s, rx_ns, hand);
         state = HAPSIM_TOOL_FORCE_T_STATE_RAMP;
     } else if (d == 0 && w->sim) {
-        if (!(p->buttons & HAPSIM_TOOL_POSE_T_BUTTON_CLUTCH)) {
-            hs_haptic_pose hp;
-            memset(&hp, 0, sizeof hp);
-            hp.seq = ++s->feed_seq;
-            hp.stamp_ns = rx_ns;
-            memcpy(hp.pos_m, p->position, sizeof hp.pos_m);
-            memcpy(hp.quat_wxyz, p->orientation, sizeof hp.quat_wxyz);
-            hp.buttons = p->buttons;
-            int i = (int)(hp.seq % POSE_RING);
-            s->ring_feed[i] = hp.seq;
-            s->ring_seq[i] = p->seq;
-            s->ring_utime[i] = p->utime;
-            s->ring_rx[i] = rx_ns;
-            hs_haptic_sim_feed_pose(w->sim, &hp);
-        }
+        // rt gets the tool's position: it stays still while the clutch is held (no watchdog).
+        hs_haptic_pose hp;
+        memset(&hp, 0, sizeof hp);
+        hp.seq = ++s->feed_seq;
+        hp.stamp_ns = rx_ns;
+        memcpy(hp.pos_m, ds->pos, sizeof hp.pos_m);
+        memcpy(hp.quat_wxyz, p->orientation, sizeof hp.quat_wxyz);
+        hp.buttons = p->buttons;
+        int i = (int)(hp.seq % POSE_RING);
+        s->ring_feed[i] = hp.seq;
+        s->ring_seq[i] = p->seq;
+        s->ring_utime[i] = p->utime;
+        s->ring_rx[i] = rx_ns;
+        hs_haptic_sim_feed_pose(w->sim, &hp);
         drain_outputs(s);
-        if (s->have_out && !s->estop) {
+        if (s->have_out && !s->estop && ds->clutched) {
+            m = clutch_model(s, ds, rx_ns, hand, &state);
+        } else if (s->have_out && !s->estop) {
             // The rt output as it is, anchored where rt took it: its force is the one the rt
             // output stage limited (magnitude, rate, watchdog), and a driver evaluating the
             // model at this pose gets what a re-anchored copy would say. Re-anchored here, the
             // force on the wire was the model's extrapolation, which no limit bounds.
             m = s->out.model;
-            state = state_of(&s->out, &m, p->buttons);
+            state = state_of(&s->out, &m);
             // A limit set since rt made this output holds from the set's ack on.
             clamp_model(&m, w->scene.force_max_n);
-            double g = estop_gain(s, rx_ns);
+            double g = estop_gain(s, rx_ns) * engage_gain(s, ds, rx_ns);
             if (g < 1.0) {
                 scale_model(&m, g);
                 state = HAPSIM_TOOL_FORCE_T_STATE_RAMP;
@@ -720,7 +793,7 @@ static void answer_pose(hs_server* s, const hs_net_pose* p, int64_t rx_ns) {
         state = HAPSIM_TOOL_FORCE_T_STATE_STOPPED;
     }
     if (m.anchor_m[0] == 0 && m.anchor_m[1] == 0 && m.anchor_m[2] == 0)
-        memcpy(m.anchor_m, p->position, sizeof m.anchor_m);
+        memcpy(m.anchor_m, hand, sizeof m.anchor_m);
     publish_force(s, d, &m, state, p->seq, p->utime, rx_ns);
 }
 
