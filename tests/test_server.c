@@ -1702,6 +1702,28 @@ static int clutch_ignores_motion(void) {
     return 0;
 }
 
+/// A server started while a driver streams serves it. Before, it answered the poses while it
+/// listened for another server, heard its own forces and refused to start as a second server.
+static int starts_under_a_streaming_driver(void) {
+    char scene[512];
+    snprintf(scene, sizeof scene, "%s/liver_streamed.json", tmpdir);
+    liver_scene(scene, NULL);
+    client c;
+    ENSURE(client_open(&c) == 0);
+    stream(&c, -0.003, -0.003, 100);
+    ENSURE(start_server(scene, "streamed") == 0);
+    int64_t end = hs_now_ns() + 20000000000LL;
+    while ((c.n_status == 0 || strstr(c.status->warnings, "compliance set-up")) &&
+           hs_now_ns() < end && server_alive())
+        stream(&c, -0.003, -0.003, 20);
+    ENSURE(server_alive() && c.n_status > 0);
+    stream(&c, -0.003, -0.003, 100);
+    ENSURE(c.force.pose_seq == c.seq);
+    ENSURE(stop_server() == 0);
+    client_close(&c);
+    return 0;
+}
+
 static int set_after_mesh_changed(void) {
     char mesh[512], scene[512], src[512];
     snprintf(src, sizeof src, "%s/scenes/liver/liver2.msh", HS_SOURCE_DIR);
@@ -1768,5 +1790,6 @@ HS_TEST_MAIN(HS_CASE(malformed_scene_exits_1), HS_CASE(bad_command_lines_refused
              HS_CASE(poses_in_forces_out), HS_CASE(load_goes_on_answering),
              HS_CASE(set_after_mesh_changed), HS_CASE(set_keeps_body_state),
              HS_CASE(rebuild_keeps_force), HS_CASE(pause_keeps_limits),
-             HS_CASE(clutch_ignores_motion), HS_CASE(mesh_10k_arrives_whole),
-             HS_CASE(dropped_deltas_recover), HS_CASE(flood_leaves_server_intact))
+             HS_CASE(clutch_ignores_motion), HS_CASE(starts_under_a_streaming_driver),
+             HS_CASE(mesh_10k_arrives_whole), HS_CASE(dropped_deltas_recover),
+             HS_CASE(flood_leaves_server_intact))

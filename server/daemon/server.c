@@ -161,6 +161,7 @@ struct hs_server {
     hs_net_command_state cst;
     int64_t params_refused; // SET_PARAM acked INVALID: an unknown name or a value out of range
     int64_t kdrop0[2];      // the kernel's drops on the haptic / mesh bus sockets at start
+    int listening;          // listening for another server before serving: poses go unanswered
 
     dev_state dev[MAX_DEV];
     int64_t feed_seq; // poses fed to rt (rt's pose seq)
@@ -800,6 +801,7 @@ static void answer_pose(hs_server* s, const hs_net_pose* p, int64_t rx_ns) {
 static void on_pose(const lcm_recv_buf_t* rb, const char* ch, void* user) {
     (void)ch;
     hs_server* s = user;
+    if (s->listening) return; // not serving yet: an answer would be heard as another server's
     int64_t t0 = hs_now_ns();
     hs_net_pose p;
     if (hs_net_validate_pose(&s->lim, &s->pst, rb->data, rb->data_size, t0 / 1000, &p) !=
@@ -2172,7 +2174,9 @@ static int another_server(hs_server* s, hs_err* err) {
 hs_status hs_server_run(hs_server* s, hs_err* err) {
     int sfd = s->opt.stop_fd;
     world* w = &s->w;
+    s->listening = 1;
     int other = another_server(s, err);
+    s->listening = 0;
     if (other > 0) return HS_ERR_INVALID;
     if (other < 0) return HS_OK; // SIGINT/SIGTERM while listening
     if (w->sim) {
