@@ -4,7 +4,7 @@
 # flood rate, the driver's poses the server lost, kernel drops, missing answers and the age of
 # the driver's newest answer (p50/p99/max), with the server's haptic socket at the kernel's
 # default receive buffer and at 4 MB (recv_buf_size), alternating, twice each. Runs in a
-# private network namespace (tests/netns.sh); about 4 minutes. Writes docs/data/flood.csv.
+# private network namespace (tests/netns.sh); about 3 minutes. Writes docs/data/flood.csv.
 #   scripts/flood.sh [BUILD_DIR]    (default build; needs flood_probe and hapsim-server built)
 set -eu
 src=$(cd "$(dirname "$0")/.." && pwd)
@@ -14,7 +14,7 @@ for b in flood_probe hapsim-server; do
 done
 out=$src/docs/data/flood.csv
 HS_NETNS_RMEM=4194304 timeout 900 "$src/tests/netns.sh" "$build/bin/flood_probe" \
-    "$build/bin/hapsim-server" "$src" 4 0,10000,25000,50000,100000,200000 \
+    "$build/bin/hapsim-server" "$src" 3 0,10000,25000,50000,100000,200000 \
     0,4194304,0,4194304 >"$out.tmp"
 mv "$out.tmp" "$out"
 cat "$out"

@@ -1,8 +1,10 @@
 // SPDX-License-Identifier: GPL-2.0-or-later
 // flood_probe: what a pose flood from another process does to a live 1 kHz driver. Starts
 // hapsim-server on the bundled liver, drives device 0 at 1 kHz pressing 2 mm into node 399, and
-// for each flood rate runs a child process that publishes valid tool_pose messages for device 0
-// under another session (refused by the server as `session`) at that rate on the same bus.
+// for each flood rate runs a child process that publishes well-formed tool_pose messages for a
+// device the scene does not have (refused as `unknown_device`) at that rate on the same bus: a
+// foreign driver's traffic that the server decodes and refuses, without the session takeover a
+// foreign session of device 0 could make after the driver's silence.
 // Per rate: the driver's poses the server lost (its seq gaps), the datagrams the kernel dropped
 // on the server's haptic socket, the driver's answers missing, and the age of the driver's
 // newest answer at each of its ticks. Each receive-buffer setting gets its own server, so a
@@ -51,7 +53,7 @@ typedef struct driver {
     int64_t answer_ns;                   // newest answer received
     int64_t st_lost;                     // server status: poses_lost[0]
     int64_t st_kdrop;                    // server status: HAPTIC_BUS kernel_drop
-    int64_t st_session;                  // server status: TOOL_POSE session rejects
+    int64_t st_session;                  // server status: TOOL_POSE rejects, every reason
     int64_t st_utime;                    // newest status, server clock
     int64_t n_status;
     int up; // status without a compliance set-up warning seen
@@ -83,8 +85,7 @@ static void on_status(const lcm_recv_buf_t* rb, const char* ch, const hapsim_ser
         if (!strcmp(s->reject_channel[k], "HAPTIC_BUS") &&
             !strcmp(s->reject_reason[k], "kernel_drop"))
             d->st_kdrop = s->reject_count[k];
-        if (!strcmp(s->reject_channel[k], "TOOL_POSE") && !strcmp(s->reject_reason[k], "session"))
-            d->st_session = s->reject_count[k];
+        if (!strcmp(s->reject_channel[k], "TOOL_POSE")) d->st_session += s->reject_count[k];
     }
     d->st_utime = s->utime;
     d->up = !strstr(s->warnings, "compliance set-up");
@@ -155,6 +156,7 @@ static void flood_child(int rate, double seconds, int fd) {
             while (sent < want && now_ns() < end) {
                 hapsim_tool_pose_t m;
                 pose_msg(&m, sent + 1, 0x5eed, p);
+                m.device_id = 1; // not in the scene: refused (unknown_device), cannot take device 0
                 hapsim_tool_pose_t_publish(l, PREFIX "TOOL_POSE", &m);
                 sent++;
             }
