@@ -11,7 +11,8 @@
 // mitigation is measured before and after in one run. A measurement tool, run inside
 // tests/netns.sh by scripts/flood.sh (writes docs/data/flood.csv), not a test:
 //   flood_probe SERVER_BIN SOURCE_DIR SECONDS RATES RCVBUFS
-// RATES and RCVBUFS are comma lists (messages/s; bytes, 0 = the kernel default).
+// RATES and RCVBUFS are comma lists (messages/s; bytes for the server's haptic URL's
+// recv_buf_size, 0 = none: the server's own choice).
 #define _GNU_SOURCE
 #include <lcm/lcm.h>
 #include <math.h>
@@ -48,6 +49,7 @@ typedef struct driver {
     lcm_t* m;
     int64_t seq, session;
     int64_t answers;                     // answers to our poses
+    int64_t pub_fail;                    // poses the driver's publish call refused
     int64_t win_lo, win_hi, win_answers; // poses seq (win_lo, win_hi] answered (once each)
     unsigned char* answered;             // [win_hi - win_lo]
     int64_t answer_ns;                   // newest answer received
@@ -138,7 +140,7 @@ static void drive(driver* d, int ms, double* ages, int* n_ages) {
         if (ages && d->answer_ns > 0) ages[(*n_ages)++] = (double)(now_ns() - d->answer_ns) * 1e-6;
         hapsim_tool_pose_t m;
         pose_msg(&m, ++d->seq, d->session, p);
-        hapsim_tool_pose_t_publish(d->h, PREFIX "TOOL_POSE", &m);
+        if (hapsim_tool_pose_t_publish(d->h, PREFIX "TOOL_POSE", &m) != 0) d->pub_fail++;
         serve_until(d, t0 + (int64_t)(i + 1) * 1000000);
     }
 }
@@ -171,6 +173,20 @@ static void flood_child(int rate, double seconds, int fd) {
     }
     if (write(fd, &sent, sizeof sent) != (ssize_t)sizeof sent) _exit(1);
     _exit(0);
+}
+
+// Packets the kernel dropped from its per-CPU input backlogs (loopback multicast passes through
+// them), all CPUs: /proc/net/softnet_stat's second column; -1 when unreadable.
+static long long softnet_drops(void) {
+    FILE* f = fopen("/proc/net/softnet_stat", "r");
+    if (!f) return -1;
+    long long sum = 0;
+    unsigned a, b;
+    char line[512];
+    while (fgets(line, sizeof line, f))
+        if (sscanf(line, "%x %x", &a, &b) == 2) sum += b;
+    fclose(f);
+    return sum;
 }
 
 static int cmp_d(const void* a, const void* b) {
@@ -252,7 +268,8 @@ static int run_config(const char* server, const char* src, double seconds, const
         int ms = (int)(seconds * 1000);
         if (fresh_status(&d, d.st_utime, 3000) != 0) goto out;
         int64_t lost0 = d.st_lost, kd0 = d.st_kdrop, ses0 = d.st_session;
-        int64_t seq0 = d.seq;
+        int64_t seq0 = d.seq, pf0 = d.pub_fail;
+        long long sn0 = softnet_drops();
         static unsigned char answered[60000];
         memset(answered, 0, sizeof answered);
         d.answered = answered;
@@ -278,6 +295,7 @@ static int run_config(const char* server, const char* src, double seconds, const
         }
         close(fds[0]);
         int64_t poses = d.seq - seq0;
+        long long sn1 = softnet_drops();
         drive(&d, 200, NULL, NULL); // late answers land
         int64_t got = d.win_answers;
         int64_t t_us = d.st_utime;
@@ -288,10 +306,11 @@ static int run_config(const char* server, const char* src, double seconds, const
         double p99 = n_ages ? ages[(int)(0.99 * (n_ages - 1))] : NAN;
         double mx = n_ages ? ages[n_ages - 1] : NAN;
         int64_t lost = d.st_lost - lost0;
-        printf("%lld,%lld,%.0f,%.1f,%lld,%lld,%.3f,%lld,%lld,%lld,%.3f,%.3f,%.3f\n", rcvbuf,
-               rates[r], sent > 0 ? (double)sent / wall : 0.0, wall, (long long)poses,
+        printf("%lld,%lld,%.0f,%.1f,%lld,%lld,%.3f,%lld,%lld,%lld,%lld,%lld,%.3f,%.3f,%.3f\n",
+               rcvbuf, rates[r], sent > 0 ? (double)sent / wall : 0.0, wall, (long long)poses,
                (long long)lost, 100.0 * (double)lost / (double)(poses > 0 ? poses : 1),
-               (long long)(d.st_kdrop - kd0), (long long)(d.st_session - ses0),
+               (long long)(d.st_kdrop - kd0), sn0 >= 0 && sn1 >= 0 ? sn1 - sn0 : -1,
+               (long long)(d.pub_fail - pf0), (long long)(d.st_session - ses0),
                (long long)(poses - got), p50, p99, mx);
         fflush(stdout);
     }
@@ -326,7 +345,9 @@ int main(int argc, char** argv) {
     }
     signal(SIGPIPE, SIG_IGN);
     printf("server_rcvbuf_bytes,flood_target_per_s,flood_sent_per_s,seconds,driver_poses,"
-           "poses_lost,poses_lost_pct,server_kernel_drops,foreign_refused,answers_missing,"
+           "poses_lost,poses_lost_pct,server_kernel_drops,backlog_drops,publish_failed,foreign_"
+           "refused,"
+           "answers_missing,"
            "model_age_p50_ms,model_age_p99_ms,model_age_max_ms\n");
     for (int b = 0; b < nb; ++b)
         if (run_config(argv[1], argv[2], seconds, rates, nr, bufs[b]) != 0) return 1;

@@ -50,6 +50,7 @@
 #define RT_GAP_NS           1500000LL    // publish rt outputs when no force went out for this long
 #define HANDLE_BATCH        256          // messages handled per bus per loop iteration
 #define POSE_QUEUE          8192         // LCM subscription queue (default 30 drops bursts)
+#define HAPTIC_RCVBUF       4194304      // haptic bus receive buffer asked for, bytes
 #define COMMAND_QUEUE       1024
 #define CUT_SAMPLES         1024 // cut step times kept for the quantiles (cut steps take ms, not us)
 #define LOAD_QUEUE          32   // commands kept while a scene loads; more are refused (busy)
@@ -796,6 +797,21 @@ static void answer_pose(hs_server* s, const hs_net_pose* p, int64_t rx_ns) {
     if (m.anchor_m[0] == 0 && m.anchor_m[1] == 0 && m.anchor_m[2] == 0)
         memcpy(m.anchor_m, hand, sizeof m.anchor_m);
     publish_force(s, d, &m, state, p->seq, p->utime, rx_ns);
+}
+
+// The haptic bus's URL as LCM gets it: a udpm:// URL that names no recv_buf_size asks for
+// HAPTIC_RCVBUF, or net.core.rmem_max if that is less (LCM warns when it gets less than it
+// asked for), so a foreign flood does not spill the driver's poses as soon (docs/server.md,
+// "Floods").
+static void haptic_bus_url(const hs_server* s, char* out, size_t cap) {
+    int64_t want = s->rmem_max < HAPTIC_RCVBUF ? s->rmem_max : HAPTIC_RCVBUF;
+    if (strncmp(s->haptic_url, "udpm://", 7) != 0 || strstr(s->haptic_url, "recv_buf_size=") ||
+        want <= s->rmem_default)
+        snprintf(out, cap, "%s", s->haptic_url);
+    else if (snprintf(out, cap, "%s%crecv_buf_size=%lld", s->haptic_url,
+                      strchr(s->haptic_url, '?') ? '&' : '?',
+                      (long long)want) >= HS_SCENE_URL_MAX) // the bus keeps 255 bytes
+        snprintf(out, cap, "%s", s->haptic_url);
 }
 
 static void on_pose(const lcm_recv_buf_t* rb, const char* ch, void* user) {
@@ -1927,7 +1943,9 @@ hs_status hs_server_create(const hs_server_opts* opts, hs_server** out, hs_err* 
         }
     }
     // Buses first (LCM's fds stay low), then the world.
-    st = hs_net_bus_create(s->haptic_url, &s->hbus, err);
+    char hurl[HS_SCENE_URL_MAX + 40];
+    haptic_bus_url(s, hurl, sizeof hurl);
+    st = hs_net_bus_create(hurl, &s->hbus, err);
     if (st != HS_OK) goto fail;
     st = hs_net_bus_create(s->mesh_url, &s->mbus, err);
     if (st != HS_OK) goto fail;
