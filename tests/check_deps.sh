@@ -6,7 +6,8 @@
 # (include/hapsim) as its side allows, and the third-party headers its module owns. The rt loop
 # never sees fem, sparse, cut or LCM; only net (of the server) includes LCM, only sparse CHOLMOD,
 # only the mesher gmsh; clients, the stylus and the web view see only the protocol (msgs/) and
-# the installed API (the stylus also base.h). Prints every offending include as FILE:LINE.
+# the installed API (the stylus also base.h; the protocol library status.h). Prints every
+# offending include as FILE:LINE.
 # The compiler enforces the same boundaries through each target's include directories (ctest
 # deps_rt_no_fem); this check also covers private headers and third-party ones.
 #   tests/check_deps.sh SOURCE_DIR            check the tree
@@ -58,7 +59,7 @@ sees() {
     client | client/examples) echo "$CLIENT_API msgs sys:lcm/lcm.h sys:png.h" ;;
     sim-device) echo "$CLIENT_API msgs base.h sys:lcm/lcm.h" ;;
     web) echo "$CLIENT_API msgs sys:lcm/lcm.h sys:libwebsockets.h sys:cjson/cJSON.h" ;;
-    msgs) echo "msgs sys:lcm/lcm.h" ;;
+    msgs) echo "msgs hapsim/status.h sys:lcm/lcm.h" ;;
     include/hapsim) echo "api:*" ;;
     esac
 }
@@ -111,7 +112,8 @@ judge() {
 check_tree() { # ROOT -> prints one line per offence (none: every include is allowed)
     root=$1
     for f in $(cd "$root" && ls server/*/*.c server/*/*.h client/*.c client/*.h client/examples/*.c \
-        sim-device/*.c sim-device/*.h web/*.c web/*.h msgs/*.h include/hapsim/*.h 2>/dev/null); do
+        sim-device/*.c sim-device/*.h web/*.c web/*.h msgs/*.c msgs/*.h include/hapsim/*.h \
+        2>/dev/null); do
         mod=$(dirname "$f")
         rules=$(sees "$mod")
         [ -z "$rules" ] && { echo "$f: module $mod has no rules (tests/check_deps.sh)"; continue; }
