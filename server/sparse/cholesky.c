@@ -11,7 +11,6 @@
 
 #include <cholmod.h>
 #include <dlfcn.h>
-#include <errno.h>
 #include <math.h>
 #include <pthread.h>
 #include <sched.h>
@@ -62,25 +61,23 @@ struct duo;
 static void duo_destroy(struct duo** pd);
 
 // ---------------------------------------------------------------------------------------------
-// Process-wide set-up: allocator hooks (once) and a quiet error handler.
+// CHOLMOD set-up: allocator hooks (once) and a quiet error handler.
 
 static atomic_int g_alloc_state; // 0 untouched, 1 installing, 2 installed
-static atomic_int g_threads_set; // hs_sparse_set_threads called (by the user or by default)
 
-// OpenMP's max-active-levels is per thread in libgomp: the value set by hs_sparse_set_threads
-// holds for the calling thread only, and another thread calling CHOLMOD (a background
-// factorisation) would spawn CHOLMOD's 4-thread teams. Each thread applies it on entry.
-static atomic_int g_threads;             // last hs_sparse_set_threads(n), 0 before any
-static _Atomic(void*) g_set_levels;      // omp_set_max_active_levels, if loaded
-static _Thread_local int tl_threads = 0; // value applied on this thread
+// CHOLMOD's OpenMP loops say num_threads(4), which would start teams of threads on every call.
+// The sparse layer starts no thread (parallelism comes from the caller through hs_parallel), so
+// each thread that calls CHOLMOD sets its own max-active-levels to zero on entry: libgomp keeps
+// that per thread, so it touches no other thread. BLAS threads are the program's choice
+// (hs_platform_set_threads in server/base/platform.h).
+static _Thread_local int tl_serial = 0; // this thread's OpenMP loops are teams of one
 
 static void apply_thread_limit(void) {
-    int n = atomic_load(&g_threads);
-    if (n == tl_threads || n == 0) return;
-    tl_threads = n;
+    if (tl_serial) return;
+    tl_serial = 1;
     void (*set_levels)(int);
-    *(void**)&set_levels = atomic_load(&g_set_levels);
-    if (set_levels) set_levels(n == 1 ? 0 : 1);
+    *(void**)&set_levels = dlsym(RTLD_DEFAULT, "omp_set_max_active_levels");
+    if (set_levels) set_levels(0);
 }
 
 // CHOLMOD's supernodal numeric factorisation allocates and frees a dense scratch block (and
@@ -295,8 +292,6 @@ static hs_status create_factor(const hs_csc* a, int natural, const unsigned char
     hs_status st = check_csc(a, err);
     if (st != HS_OK) return st;
     install_allocator();
-    int unset = 0;
-    if (atomic_compare_exchange_strong(&g_threads_set, &unset, 1)) hs_sparse_set_threads(1);
     apply_thread_limit();
 
     hs_cholesky* f = hs_calloc(1, sizeof *f);
@@ -1604,64 +1599,6 @@ void hs_cholesky_last_update(const hs_cholesky* f, hs_cholesky_update_info* info
         memset(info, 0, sizeof *info);
         info->union_dofs = -1;
     }
-}
-
-// ---------------------------------------------------------------------------------------------
-
-hs_status hs_sparse_set_threads(int n) {
-    if (n < 1) return HS_ERR_INVALID;
-    atomic_store(&g_threads_set, 1);
-    // Looked up at run time: the BLAS behind libblas.so.3 is chosen by the system (Debian
-    // alternatives), and only OpenBLAS has this entry point. libgomp comes with CHOLMOD.
-    void (*set_blas)(int);
-    *(void**)&set_blas = dlsym(RTLD_DEFAULT, "openblas_set_num_threads");
-    void* set_levels = dlsym(RTLD_DEFAULT, "omp_set_max_active_levels");
-    atomic_store(&g_set_levels, set_levels);
-    if (set_blas) set_blas(n);
-    // CHOLMOD's loops say num_threads(4), which overrides omp_set_num_threads; zero active
-    // levels makes every parallel region a team of one.
-    atomic_store(&g_threads, n);
-    tl_threads = 0;
-    apply_thread_limit();
-    return set_blas || set_levels ? HS_OK : HS_ERR_UNSUPPORTED;
-}
-
-const char* hs_sparse_blas_core(void) {
-    const char* (*core)(void);
-    *(void**)&core = dlsym(RTLD_DEFAULT, "openblas_get_corename");
-    const char* name = core ? core() : NULL;
-    return name ? name : "not OpenBLAS";
-}
-
-hs_status hs_sparse_blas_select(char** argv) {
-    if (!argv || !argv[0] || getenv("OPENBLAS_CORETYPE")) return HS_OK;
-    for (char** a = argv + 1; *a; ++a) // a program asked for its usage computes nothing
-        if (!strcmp(*a, "-h") || !strcmp(*a, "--help")) return HS_OK;
-    // OpenBLAS's kernel sets that predate AVX2 (its fallback for an unknown model is one of
-    // them); on an AVX2 processor any of them means the detection failed.
-    static const char* const generic[] = {
-        "Katmai",      "Coppermine", "Northwood", "Prescott",     "Banias",
-        "Atom",        "Core2",      "Penryn",    "Dunnington",   "Nehalem",
-        "Sandybridge", "Athlon",     "Opteron",   "Opteron_SSE3", "Barcelona",
-        "Nano",        "Bobcat",     "Bulldozer", "Piledriver",   "Steamroller"};
-    const char* core = hs_sparse_blas_core();
-    int fallback = 0;
-    for (size_t i = 0; i < sizeof generic / sizeof generic[0]; ++i)
-        fallback |= !strcmp(core, generic[i]);
-    __builtin_cpu_init();
-    if (!fallback || !__builtin_cpu_supports("avx2") || !__builtin_cpu_supports("fma"))
-        return HS_OK;
-    fprintf(stderr,
-            "%s: OpenBLAS runs its %s kernels, older than this AVX2 processor; restarting with "
-            "OPENBLAS_CORETYPE=Haswell (set OPENBLAS_CORETYPE to choose otherwise)\n",
-            argv[0], core);
-    fflush(NULL);
-    if (setenv("OPENBLAS_CORETYPE", "Haswell", 1) != 0) return HS_ERR_UNSUPPORTED;
-    execv("/proc/self/exe", argv);
-    unsetenv("OPENBLAS_CORETYPE"); // the exec failed: run on as loaded, and say so
-    fprintf(stderr, "%s: could not restart (%s); running on the %s kernels\n", argv[0],
-            strerror(errno), core);
-    return HS_ERR_UNSUPPORTED;
 }
 
 // ---------------------------------------------------------------------------------------------

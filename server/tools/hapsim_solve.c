@@ -8,6 +8,7 @@
 #include "hapsim/mooney.h"
 #include "hapsim/press.h"
 #include "hapsim/sparse.h"
+#include "platform.h"
 
 #include <errno.h>
 #include <limits.h>
@@ -204,7 +205,7 @@ typedef struct plane_fix {
 
 int main(int argc, char** argv) {
     if (hapsim_version_asked(argc, argv, "hapsim-solve")) return 0;
-    hs_sparse_blas_select(argv); // before any thread: it may re-execute the program
+    hs_platform_setup(argv); // before any thread: it may re-execute the program
     const char *mesh_path = NULL, *out_path = NULL, *vtk_path = NULL;
     hs_body_def def = hs_body_default_def();
     def.fem.material.youngs_pa = 5000; // the scene defaults (docs/scenes.md)
