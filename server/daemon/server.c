@@ -135,6 +135,27 @@ typedef struct dev_state {
     hs_rt_hist* lat; // window: pose received -> force published, us
 } dev_state;
 
+// The server's run state. Two latches lie over it, set and cleared in any state without
+// changing it: the e-stop (every force zero) and a load in progress (commands but the e-stop's
+// wait for it). srv_transition is the only code that changes the three.
+typedef enum srv_state {
+    SRV_RUNNING,    // the scene's simulation runs (haptics off: mesh and status only)
+    SRV_PAUSED,     // no simulation; its body state is kept and RESUME builds it again
+    SRV_PAUSED_CUT, // a cut world's simulation stopped and kept (world.held): RESUME starts it
+} srv_state;
+
+typedef enum srv_event {
+    EV_PAUSE,         // PAUSE stopped the sim (a cut world's is held): forces ramp down
+    EV_RESUME,        // RESUME started the sim again
+    EV_SIM_STOPPED,   // a sim that did not start, or a reset kept at rest: zero force, no sim
+    EV_SIM_HELD,      // a cut world's sim that did not start again: zero force, kept
+    EV_SWAPPED,       // a built world took the running one's place (its sim not started yet)
+    EV_ESTOP,         // ESTOP latched
+    EV_ESTOP_RELEASE, // ESTOP_RELEASE: forces ramp back in (a repeated release does not re-ramp)
+    EV_LOAD_BEGIN,    // a scene is being built (path: the status names it)
+    EV_LOAD_END,      // the build is over (swapped in, failed or left behind)
+} srv_event;
+
 struct hs_server {
     hs_server_opts opt;
     world w;
@@ -158,8 +179,10 @@ struct hs_server {
     hs_haptic_output out; // newest rt output
     int have_out;
 
-    int paused, estop;
-    const char* loading; // path of the scene being built: the status says STATE_LOADING
+    // Changed only by srv_transition (docs/server.md, "States").
+    srv_state state;     // RUNNING, PAUSED or PAUSED_CUT
+    int estop;           // latch over every state: every force zero until released
+    const char* loading; // latch: path of the scene being built (status says STATE_LOADING)
     loader load;         // a LOAD_SCENE being built on its own thread
     int64_t pause_ns;
     int64_t estop_release_ns;    // forces ramp back in from here (the rt chain never saw the stop)
@@ -199,6 +222,10 @@ struct hs_server {
     int rt_prio;
     int stop;
 };
+
+static int srv_paused(const hs_server* s) {
+    return s->state != SRV_RUNNING;
+}
 
 // ---------------------------------------------------------------------------------------------
 // Helpers
@@ -648,7 +675,7 @@ static int ring_find(const hs_server* s, int64_t feed) {
 
 // rt outputs go out when the device's poses have stopped (watchdog ramp to zero) or slowed down.
 static void publish_rt_output(hs_server* s) {
-    if (!s->have_out || s->paused) return;
+    if (!s->have_out || srv_paused(s)) return;
     dev_state* ds = &s->dev[0];
     if (!ds->seen) return;
     int64_t t = hs_now_ns();
@@ -679,7 +706,7 @@ static void answer_pose(hs_server* s, const hs_net_pose* p, int64_t rx_ns) {
     if (!w->haptics) return; // validated and counted, not answered (scene: haptics off)
     hs_haptic_model m = zero_model();
     int state = HAPSIM_TOOL_FORCE_T_STATE_STOPPED;
-    if (d == 0 && s->paused) {
+    if (d == 0 && srv_paused(s)) {
         m = paused_model(s, rx_ns, p->position);
         state = HAPSIM_TOOL_FORCE_T_STATE_RAMP;
     } else if (d == 0 && w->sim) {
@@ -980,10 +1007,10 @@ static void publish_status(hs_server* s, int64_t t) {
     m.seq = ++s->seq_status;
     m.uptime_us = (t - s->start_ns) / 1000;
     // An e-stop latched while a scene loads shows: it is the state that matters to the hand.
-    m.state = s->estop     ? HAPSIM_SERVER_STATUS_T_STATE_ESTOP
-              : s->loading ? HAPSIM_SERVER_STATUS_T_STATE_LOADING
-              : s->paused  ? HAPSIM_SERVER_STATUS_T_STATE_PAUSED
-                           : HAPSIM_SERVER_STATUS_T_STATE_RUNNING;
+    m.state = s->estop        ? HAPSIM_SERVER_STATUS_T_STATE_ESTOP
+              : s->loading    ? HAPSIM_SERVER_STATUS_T_STATE_LOADING
+              : srv_paused(s) ? HAPSIM_SERVER_STATUS_T_STATE_PAUSED
+                              : HAPSIM_SERVER_STATUS_T_STATE_RUNNING;
     m.scene = w->scene.path;
     m.topology_version = s->topo_version;
 
@@ -1231,13 +1258,74 @@ static void after_rebuild(hs_server* s, int keep, int handed) {
     publish_keyframe(s);
 }
 
+static const char* const srv_state_name[] = {"RUNNING", "PAUSED", "PAUSED_CUT"};
+static const char* const srv_event_name[] = {"PAUSE",         "RESUME",     "SIM_STOPPED",
+                                             "SIM_HELD",      "SWAPPED",    "ESTOP",
+                                             "ESTOP_RELEASE", "LOAD_BEGIN", "LOAD_END"};
+
+// The server's one state transition (docs/server.md, "States"). The caller has done the work
+// (stopped, held or started the sim); this checks that the event may happen in the current
+// state and with the world as it is, and sets the state. A refused transition is a bug in the
+// caller: it is said on stderr and the state stays. path: EV_LOAD_BEGIN's scene.
+static int srv_transition(hs_server* s, srv_event ev, const char* path) {
+    srv_state from = s->state, to = from;
+    int ok = 1;
+    switch (ev) {
+    case EV_PAUSE: // from RUNNING only (PAUSE in a paused state does nothing); the caller took
+                   // the model to ramp down and its time before stopping the sim
+        ok = from == SRV_RUNNING && !s->w.sim;
+        to = s->w.held ? SRV_PAUSED_CUT : SRV_PAUSED;
+        break;
+    case EV_RESUME:
+        ok = from != SRV_RUNNING && !s->w.held;
+        to = SRV_RUNNING;
+        break;
+    case EV_SIM_STOPPED:
+        ok = !s->w.sim && !s->w.held;
+        to = SRV_PAUSED;
+        break;
+    case EV_SIM_HELD:
+        ok = from == SRV_RUNNING && !s->w.sim && s->w.held;
+        to = SRV_PAUSED_CUT;
+        break;
+    case EV_SWAPPED: // a new world, uncut and not started: it runs unless stopped again
+        ok = !s->w.held && !s->w.cut_made;
+        to = SRV_RUNNING;
+        break;
+    case EV_ESTOP:
+        s->estop = 1;
+        return 0;
+    case EV_ESTOP_RELEASE:
+        if (s->estop) s->estop_release_ns = hs_now_ns();
+        s->estop = 0;
+        return 0;
+    case EV_LOAD_BEGIN:
+        ok = !s->loading;
+        if (ok) s->loading = path ? path : "(no path)";
+        break;
+    case EV_LOAD_END:
+        ok = s->loading != NULL;
+        s->loading = NULL;
+        break;
+    }
+    if (!ok) {
+        fprintf(stderr, "hapsim-server: internal: event %s refused in state %s%s\n",
+                srv_event_name[ev], srv_state_name[from], s->loading ? " (loading)" : "");
+        return -1;
+    }
+    if (ev == EV_SIM_STOPPED || ev == EV_SIM_HELD) { // no model to ramp down from
+        s->pause_model = zero_model();
+        s->pause_ns = hs_now_ns();
+    }
+    s->state = to;
+    return 0;
+}
+
 // Stop the world's sim keeping its state, and pause with zero force: RESUME rebuilds it (a
 // reset kept paused, or a sim that would not start, for RESUME to retry).
 static void pause_stopped(hs_server* s) {
     world_sim_stop(&s->w);
-    s->pause_model = zero_model();
-    s->pause_ns = hs_now_ns();
-    s->paused = 1;
+    srv_transition(s, EV_SIM_STOPPED, NULL);
 }
 
 // Start the stopped sim of a world found cut (it cannot be rebuilt); one that will not start is
@@ -1249,9 +1337,7 @@ static void restart_cut_sim(hs_server* s) {
     world_save_state(w);
     w->held = w->sim;
     w->sim = NULL;
-    s->pause_model = zero_model();
-    s->pause_ns = hs_now_ns();
-    s->paused = 1;
+    srv_transition(s, EV_SIM_HELD, NULL);
 }
 
 // Rebuild the running sim from w.def; keep: carry the body state over. Paused: rebuild later.
@@ -1261,7 +1347,7 @@ static hs_status rebuild_sim(hs_server* s, int keep, hs_err* err) {
     if (w->sim && w->cutting && hs_haptic_sim_topology_version(w->sim) != w->cut_seen)
         apply_cut(s);                        // a cut not yet passed on counts too
     if (w->cut_made) return refuse_cut(err); // before stopping the sim, which could not return
-    if (s->paused) {
+    if (srv_paused(s)) {
         if (!keep) after_rebuild(s, 0, 0); // at rest now: say so (a keyframe), not at the resume
         return HS_OK;
     }
@@ -1362,7 +1448,7 @@ static int set_param(hs_server* s, const hs_net_command* c, char* msg, size_t ca
         snprintf(msg, cap, "%s", e.msg);
         return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
     }
-    if (w->sim && !s->paused) {
+    if (w->sim && !srv_paused(s)) {
         snprintf(s->load.ok_msg, sizeof s->load.ok_msg, "%s = %g", name, v);
         if (loader_begin(s, NULL, &sc, c, 1) == 0) return LOAD_STARTED;
     }
@@ -1387,7 +1473,7 @@ static int set_param(hs_server* s, const hs_net_command* c, char* msg, size_t ca
 // reset: nw is the running scene rebuilt at rest (RESET), not a LOAD_SCENE.
 static int swap_world(hs_server* s, world* nw, int reset, char* msg, size_t cap) {
     hs_err err = {0};
-    int stay_paused = reset && s->paused; // a reset does not resume; a new scene starts
+    int stay_paused = reset && srv_paused(s); // a reset does not resume; a new scene starts
     world old = s->w; // freed once the new sim runs: the device meanwhile holds its last model
     if (old.sim) hs_haptic_sim_stop(old.sim);
     // A reset rebuilds the same scene: its rt loop goes on from the old one's (no gap, no ramp).
@@ -1402,7 +1488,7 @@ static int swap_world(hs_server* s, world* nw, int reset, char* msg, size_t cap)
     memset(&err, 0, sizeof err);
     s->w = *nw;
     memset(nw, 0, sizeof *nw);
-    s->paused = 0;
+    srv_transition(s, EV_SWAPPED, NULL);
     reset_limits(s);
     s->topo_version++;
     s->last_cut_steps = 0; // the new sim counts its cut steps from 0
@@ -1440,9 +1526,9 @@ static int swap_world(hs_server* s, world* nw, int reset, char* msg, size_t cap)
 // thread could be started. Built while the old world still exists: a scene that fails leaves
 // the running simulation as it was.
 static int load_scene(hs_server* s, const char* path, const hs_scene* from, char* msg, size_t cap) {
-    s->loading = path ? path : "(no path)";
+    srv_transition(s, EV_LOAD_BEGIN, path);
     publish_status(s, hs_now_ns()); // the net loop stands still now: say so first
-    s->loading = NULL;
+    srv_transition(s, EV_LOAD_END, NULL);
     hs_scene sc;
     hs_err err = {0};
     if (from)
@@ -1484,13 +1570,13 @@ static int loader_begin(hs_server* s, const char* path, const hs_scene* from,
     L->st = HS_OK;
     memset(&L->err, 0, sizeof L->err);
     atomic_store(&L->done, 0);
-    s->loading = L->path;
+    srv_transition(s, EV_LOAD_BEGIN, L->path);
     publish_status(s, hs_now_ns());
     if (pthread_create(&L->th, NULL, loader_main, L) == 0) {
         L->active = 1;
         return 0;
     }
-    s->loading = NULL;
+    srv_transition(s, EV_LOAD_END, NULL);
     return -1;
 }
 
@@ -1507,7 +1593,7 @@ static int load_scene_start(hs_server* s, const char* path, const hs_scene* from
 // longer holds the running mesh (nw read it again).
 static int swap_keep(hs_server* s, world* nw, char* msg, size_t cap) {
     world* w = &s->w;
-    if (!w->sim || s->paused) {
+    if (!w->sim || srv_paused(s)) {
         snprintf(msg, cap, "the simulation stopped during the rebuild: not applied");
         return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
     }
@@ -1587,7 +1673,7 @@ static void finish_load(hs_server* s, int stopping) {
         pthread_detach(L->th);
         L->active = 0;
         L->abandoned = 1;
-        s->loading = NULL;
+        srv_transition(s, EV_LOAD_END, NULL);
         fprintf(stderr,
                 "hapsim-server: the load of %s had not returned after %d ms (a file that "
                 "blocks?): left behind\n",
@@ -1599,7 +1685,7 @@ static void finish_load(hs_server* s, int stopping) {
     }
     pthread_join(L->th, NULL);
     L->active = 0;
-    s->loading = NULL;
+    srv_transition(s, EV_LOAD_END, NULL);
     char msg[600];
     int st = HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
     if (L->st != HS_OK)
@@ -1642,7 +1728,7 @@ static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap)
         // (with its set parameters, on the mesh read again: uncut) is built at rest beside the
         // running one and swapped in. Paused uncut, or haptics off: nothing to build, only the
         // state to clear (rebuild_sim, which then meets no sim that could have cut).
-        if (w->cut_made || (w->haptics && !s->paused))
+        if (w->cut_made || (w->haptics && !srv_paused(s)))
             return load_scene_start(s, NULL, &w->scene, c, msg, cap);
         if (rebuild_sim(s, 0, &err) != HS_OK) {
             snprintf(msg, cap, "%s", err.msg);
@@ -1651,16 +1737,15 @@ static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap)
         if (!w->haptics) publish_keyframe(s);
         return HAPSIM_COMMAND_ACK_T_STATUS_OK;
     case HAPSIM_COMMAND_T_KIND_PAUSE:
-        if (s->paused) return HAPSIM_COMMAND_ACK_T_STATUS_OK;
+        if (srv_paused(s)) return HAPSIM_COMMAND_ACK_T_STATUS_OK;
         drain_outputs(s);
         s->pause_model = s->have_out ? s->out.model : zero_model();
         s->pause_ns = hs_now_ns();
         server_sim_pause(s);
-        s->paused = 1;
+        srv_transition(s, EV_PAUSE, NULL);
         return HAPSIM_COMMAND_ACK_T_STATUS_OK;
     case HAPSIM_COMMAND_T_KIND_RESUME:
-        if (!s->paused) return HAPSIM_COMMAND_ACK_T_STATUS_OK;
-        s->paused = 0;
+        if (!srv_paused(s)) return HAPSIM_COMMAND_ACK_T_STATUS_OK;
         if (w->held) { // a cut world: its own sim goes on (step count and statistics too)
             w->sim = w->held;
             w->held = NULL;
@@ -1668,8 +1753,7 @@ static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap)
                 w->held = w->sim;
                 w->sim = NULL;
                 snprintf(msg, cap, "%s", err.msg);
-                s->paused = 1;
-                return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
+                return HAPSIM_COMMAND_ACK_T_STATUS_FAILED; // still PAUSED_CUT
             }
             s->have_out = 0;
             hs_haptic_sim_stats_get(w->sim, s->st_prev); // status windows start at the resume
@@ -1677,20 +1761,20 @@ static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap)
             if (world_sim_create(w, 1, &err) != HS_OK ||
                 hs_haptic_sim_start(w->sim, &err) != HS_OK) {
                 snprintf(msg, cap, "%s", err.msg);
-                s->paused = 1;
-                return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
+                return HAPSIM_COMMAND_ACK_T_STATUS_FAILED; // still PAUSED
             }
             s->have_out = 0;
             s->sim_step_base = s->frame_step;
             memset(s->st_prev, 0, sizeof *s->st_prev);
         }
+        srv_transition(s, EV_RESUME, NULL);
         return HAPSIM_COMMAND_ACK_T_STATUS_OK;
     case HAPSIM_COMMAND_T_KIND_LOAD_SCENE:
         return load_scene_start(s, hs_net_command_arg(c, "path"), NULL, c, msg, cap);
     case HAPSIM_COMMAND_T_KIND_SET_PARAM:
         return set_param(s, c, msg, cap);
     case HAPSIM_COMMAND_T_KIND_ESTOP: {
-        s->estop = 1;
+        srv_transition(s, EV_ESTOP, NULL);
         hs_haptic_model z = zero_model();
         for (int d = 0; d < w->scene.n_devices && d < MAX_DEV; ++d)
             if (s->dev[d].seen && w->haptics) {
@@ -1700,8 +1784,7 @@ static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap)
         return HAPSIM_COMMAND_ACK_T_STATUS_OK;
     }
     case HAPSIM_COMMAND_T_KIND_ESTOP_RELEASE:
-        if (s->estop) s->estop_release_ns = hs_now_ns(); // a repeated release does not re-ramp
-        s->estop = 0;
+        srv_transition(s, EV_ESTOP_RELEASE, NULL);
         return HAPSIM_COMMAND_ACK_T_STATUS_OK;
     case HAPSIM_COMMAND_T_KIND_REQUEST_TOPOLOGY:
         publish_topology(s);
@@ -2034,9 +2117,9 @@ static void live_line(hs_server* s, int64_t t) {
             rate, jit, norm3(s->dev[0].force), solver, sim_hz, p50, p99, over,
             (long long)s->poses_total, (unsigned long long)rej,
             deep ? "  TOO DEEP (force unchecked)" : "",
-            s->estop    ? "  E-STOP"
-            : s->paused ? "  PAUSED"
-                        : "");
+            s->estop        ? "  E-STOP"
+            : srv_paused(s) ? "  PAUSED"
+                            : "");
     fflush(stderr);
 }
 
