@@ -1670,16 +1670,8 @@ static double supernode_flops(int nc, int m) {
     return (double)nc * nc * nc / 3.0 + (double)m * nc * nc + (double)m * m * nc;
 }
 
-// Build the maps of a supernodal factor L for a matrix with a's pattern (both halves stored).
-static hs_status build_partial(const cholmod_factor* L, const hs_csc* a, struct hs_partial** out) {
-    const int n = (int)L->n, ns = (int)L->nsuper;
-    const int *super = L->super, *pi = L->pi, *px = L->px, *ls = L->s, *perm = L->Perm;
-    struct hs_partial* p = hs_calloc(1, sizeof *p);
-    int* pinv = hs_alloc(sizeof(int) * ((size_t)n + 1));
-    int* pos = hs_alloc(sizeof(int) * ((size_t)n + 1));
-    int* cnt = hs_calloc((size_t)n + 1, sizeof(int));
-    hs_status st = HS_ERR_NOMEM;
-    if (!p || !pinv || !pos || !cnt) goto fail;
+// build_partial's arrays sized by n and ns.
+static hs_status partial_alloc(struct hs_partial* p, int n, int ns) {
     p->ns = ns;
     p->parent = hs_alloc(sizeof(int) * ((size_t)ns + 1));
     p->child_start = hs_calloc((size_t)ns + 2, sizeof(int));
@@ -1693,21 +1685,24 @@ static hs_status build_partial(const cholmod_factor* L, const hs_csc* a, struct 
     p->mark = hs_calloc((size_t)ns + 1, 1);
     if (!p->parent || !p->child_start || !p->child || !p->col_super || !p->ent_start ||
         !p->diag_val || !p->rel_start || !p->u_start || !p->flops || !p->mark)
-        goto fail;
-    for (int k = 0; k < n; k++) pinv[perm ? perm[k] : k] = k;
-    for (int s = 0; s < ns; s++)
-        for (int j = super[s]; j < super[s + 1]; j++) p->col_super[j] = s;
-    // Tree, sizes and the row lists' order (ascending, columns first: relied on below).
-    st = HS_ERR_UNSUPPORTED;
+        return HS_ERR_NOMEM;
+    return HS_OK;
+}
+
+// Tree, sizes and the row lists' order (ascending, columns first: relied on below); then the
+// update matrices' storage.
+static hs_status partial_tree(const cholmod_factor* L, struct hs_partial* p) {
+    const int ns = p->ns;
+    const int *super = L->super, *pi = L->pi, *ls = L->s;
     for (int s = 0; s < ns; s++) {
         int nc = super[s + 1] - super[s], nr = pi[s + 1] - pi[s], m = nr - nc;
-        if (m < 0) goto fail;
+        if (m < 0) return HS_ERR_UNSUPPORTED;
         for (int k = 0; k < nr; k++)
             if ((k < nc && ls[pi[s] + k] != super[s] + k) ||
                 (k > 0 && ls[pi[s] + k] <= ls[pi[s] + k - 1]))
-                goto fail;
+                return HS_ERR_UNSUPPORTED;
         p->parent[s] = m > 0 ? p->col_super[ls[pi[s] + nc]] : -1;
-        if (m > 0 && p->parent[s] <= s) goto fail;
+        if (m > 0 && p->parent[s] <= s) return HS_ERR_UNSUPPORTED;
         if (m > 0) p->child_start[p->parent[s] + 1]++;
         p->rel_start[s + 1] = p->rel_start[s] + m;
         p->u_start[s + 1] = p->u_start[s] + (size_t)m * (size_t)m;
@@ -1715,93 +1710,58 @@ static hs_status build_partial(const cholmod_factor* L, const hs_csc* a, struct 
         p->total_flops += p->flops[s];
     }
     for (int s = 0; s < ns; s++) p->child_start[s + 1] += p->child_start[s];
-    st = HS_ERR_NOMEM;
     p->rel = hs_alloc(sizeof(int) * ((size_t)p->rel_start[ns] + 1));
     p->run_end = hs_alloc(sizeof(int) * ((size_t)p->rel_start[ns] + 1));
     p->u = hs_alloc(sizeof(double) * (p->u_start[ns] + 1));
-    if (!p->rel || !p->run_end || !p->u) goto fail;
+    if (!p->rel || !p->run_end || !p->u) return HS_ERR_NOMEM;
     advise_huge(p->u, sizeof(double) * (p->u_start[ns] + 1));
-    {
-        int* fill = cnt; // next free child slot per supernode
-        for (int s = 0; s < ns; s++) fill[s] = p->child_start[s];
-        for (int s = 0; s < ns; s++)
-            if (p->parent[s] >= 0) p->child[fill[p->parent[s]]++] = s;
-        // A child's rows below its columns lie in its parent's row list (elimination-tree
-        // property); checked, since the extend-add writes through these positions unchecked.
-        for (int k = 0; k < n; k++) pos[k] = -1;
-        int bad = 0;
-        for (int s = 0; s < ns && !bad; s++) {
-            for (int k = pi[s]; k < pi[s + 1]; k++) pos[ls[k]] = k - pi[s];
-            for (int q = p->child_start[s]; q < p->child_start[s + 1]; q++) {
-                int c = p->child[q], cnc = super[c + 1] - super[c];
-                int* r = p->rel + p->rel_start[c];
-                for (int k = pi[c] + cnc; k < pi[c + 1]; k++) {
-                    int lr = pos[ls[k]];
-                    bad |= lr < 0 || lr >= pi[s + 1] - pi[s] || ls[pi[s] + lr] != ls[k];
-                    *r++ = lr;
-                }
-            }
-        }
-        if (bad) {
-            st = HS_ERR_UNSUPPORTED;
-            goto fail;
-        }
-        for (int c = 0; c < ns; c++) {
-            const int *r = p->rel + p->rel_start[c], mc = p->rel_start[c + 1] - p->rel_start[c];
-            int* e = p->run_end + p->rel_start[c];
-            for (int k = mc - 1; k >= 0; k--)
-                e[k] = k + 1 < mc && r[k + 1] == r[k] + 1 ? e[k + 1] : k + 1;
-        }
-    }
-    // A's upper entries (original numbering), each to the supernode of its lower column.
-    memset(cnt, 0, sizeof(int) * ((size_t)n + 1));
-    int nz = 0;
-    for (int j = 0; j < n; j++)
-        for (int q = a->colp[j]; q < a->colp[j + 1]; q++) {
-            int i = a->rowi[q];
-            if (i > j) continue;
-            int c = pinv[i] < pinv[j] ? pinv[i] : pinv[j];
-            cnt[p->col_super[c]]++;
-            nz++;
-            if (i == j) p->diag_val[pinv[j]] = q;
-        }
-    p->ent_val = hs_alloc(sizeof(int) * ((size_t)nz + 1));
-    p->ent_off = hs_alloc(sizeof(int) * ((size_t)nz + 1));
-    if (!p->ent_val || !p->ent_off) goto fail;
-    for (int s = 0; s < ns; s++) p->ent_start[s + 1] = p->ent_start[s] + cnt[s];
-    for (int s = 0; s < ns; s++) cnt[s] = p->ent_start[s];
-    // Local rows of every supernode at once would need n x ns; go supernode by supernode over
-    // a column-to-entries list instead.
-    int* cstart = hs_calloc((size_t)n + 2, sizeof(int));
-    int* clist = hs_alloc(sizeof(int) * ((size_t)nz + 1));
-    if (!cstart || !clist) {
-        hs_free(cstart);
-        hs_free(clist);
-        goto fail;
-    }
-    for (int j = 0; j < n; j++)
-        for (int q = a->colp[j]; q < a->colp[j + 1]; q++)
-            if (a->rowi[q] <= j) {
-                int c = pinv[a->rowi[q]] < pinv[j] ? pinv[a->rowi[q]] : pinv[j];
-                cstart[c + 2]++;
-            }
-    for (int c = 0; c < n; c++) cstart[c + 2] += cstart[c + 1];
-    for (int j = 0; j < n; j++)
-        for (int q = a->colp[j]; q < a->colp[j + 1]; q++)
-            if (a->rowi[q] <= j) {
-                int c = pinv[a->rowi[q]] < pinv[j] ? pinv[a->rowi[q]] : pinv[j];
-                clist[cstart[c + 1]++] = q;
-            }
-    int* colof = hs_alloc(sizeof(int) * ((size_t)a->nnz + 1)); // column of each entry
-    if (!colof) {
-        hs_free(cstart);
-        hs_free(clist);
-        goto fail;
-    }
-    for (int j = 0; j < n; j++)
-        for (int q = a->colp[j]; q < a->colp[j + 1]; q++) colof[q] = j;
+    return HS_OK;
+}
+
+// Children lists, and each child's update rows as local rows of its parent (rel, run_end).
+// fill and pos: [n] scratch.
+static hs_status partial_children(const cholmod_factor* L, struct hs_partial* p, int* fill,
+                                  int* pos) {
+    const int n = (int)L->n, ns = p->ns;
+    const int *super = L->super, *pi = L->pi, *ls = L->s;
+    for (int s = 0; s < ns; s++) fill[s] = p->child_start[s]; // next free child slot
+    for (int s = 0; s < ns; s++)
+        if (p->parent[s] >= 0) p->child[fill[p->parent[s]]++] = s;
+    // A child's rows below its columns lie in its parent's row list (elimination-tree
+    // property); checked, since the extend-add writes through these positions unchecked.
+    for (int k = 0; k < n; k++) pos[k] = -1;
     int bad = 0;
     for (int s = 0; s < ns && !bad; s++) {
+        for (int k = pi[s]; k < pi[s + 1]; k++) pos[ls[k]] = k - pi[s];
+        for (int q = p->child_start[s]; q < p->child_start[s + 1]; q++) {
+            int c = p->child[q], cnc = super[c + 1] - super[c];
+            int* r = p->rel + p->rel_start[c];
+            for (int k = pi[c] + cnc; k < pi[c + 1]; k++) {
+                int lr = pos[ls[k]];
+                bad |= lr < 0 || lr >= pi[s + 1] - pi[s] || ls[pi[s] + lr] != ls[k];
+                *r++ = lr;
+            }
+        }
+    }
+    if (bad) return HS_ERR_UNSUPPORTED;
+    for (int c = 0; c < ns; c++) {
+        const int *r = p->rel + p->rel_start[c], mc = p->rel_start[c + 1] - p->rel_start[c];
+        int* e = p->run_end + p->rel_start[c];
+        for (int k = mc - 1; k >= 0; k--)
+            e[k] = k + 1 < mc && r[k + 1] == r[k] + 1 ? e[k + 1] : k + 1;
+    }
+    return HS_OK;
+}
+
+// Where each of A's entries goes in supernode s: ent_val / ent_off from cnt[s] on. cstart and
+// clist list A's upper entries by their lower column (L's order); colof: each entry's column;
+// pos: [n] scratch. HS_ERR_UNSUPPORTED when an entry is not in L's pattern.
+static hs_status partial_place(const cholmod_factor* L, const hs_csc* a, struct hs_partial* p,
+                               const int* pinv, const int* cstart, const int* clist,
+                               const int* colof, int* cnt, int* pos) {
+    const int *super = L->super, *pi = L->pi, *px = L->px, *ls = L->s;
+    int bad = 0;
+    for (int s = 0; s < p->ns && !bad; s++) {
         int nr = pi[s + 1] - pi[s];
         for (int k = pi[s]; k < pi[s + 1]; k++) pos[ls[k]] = k - pi[s];
         for (int c = super[s]; c < super[s + 1]; c++)
@@ -1815,24 +1775,87 @@ static hs_status build_partial(const cholmod_factor* L, const hs_csc* a, struct 
                 p->ent_off[e] = px[s] + (c - super[s]) * nr + lr;
             }
     }
+    return bad ? HS_ERR_UNSUPPORTED : HS_OK;
+}
+
+// A's upper entries (original numbering), each to the supernode of its lower column.
+// cnt and pos: [n] scratch.
+static hs_status partial_entries(const cholmod_factor* L, const hs_csc* a, struct hs_partial* p,
+                                 const int* pinv, int* cnt, int* pos) {
+    const int n = (int)L->n, ns = p->ns;
+    memset(cnt, 0, sizeof(int) * ((size_t)n + 1));
+    int nz = 0;
+    for (int j = 0; j < n; j++)
+        for (int q = a->colp[j]; q < a->colp[j + 1]; q++) {
+            int i = a->rowi[q];
+            if (i > j) continue;
+            int c = pinv[i] < pinv[j] ? pinv[i] : pinv[j];
+            cnt[p->col_super[c]]++;
+            nz++;
+            if (i == j) p->diag_val[pinv[j]] = q;
+        }
+    p->ent_val = hs_alloc(sizeof(int) * ((size_t)nz + 1));
+    p->ent_off = hs_alloc(sizeof(int) * ((size_t)nz + 1));
+    if (!p->ent_val || !p->ent_off) return HS_ERR_NOMEM;
+    for (int s = 0; s < ns; s++) p->ent_start[s + 1] = p->ent_start[s] + cnt[s];
+    for (int s = 0; s < ns; s++) cnt[s] = p->ent_start[s];
+    // Local rows of every supernode at once would need n x ns; go supernode by supernode over
+    // a column-to-entries list instead.
+    int* cstart = hs_calloc((size_t)n + 2, sizeof(int));
+    int* clist = hs_alloc(sizeof(int) * ((size_t)nz + 1));
+    int* colof = hs_alloc(sizeof(int) * ((size_t)a->nnz + 1)); // column of each entry
+    hs_status st = HS_ERR_NOMEM;
+    if (cstart && clist && colof) {
+        for (int j = 0; j < n; j++)
+            for (int q = a->colp[j]; q < a->colp[j + 1]; q++)
+                if (a->rowi[q] <= j) {
+                    int c = pinv[a->rowi[q]] < pinv[j] ? pinv[a->rowi[q]] : pinv[j];
+                    cstart[c + 2]++;
+                }
+        for (int c = 0; c < n; c++) cstart[c + 2] += cstart[c + 1];
+        for (int j = 0; j < n; j++)
+            for (int q = a->colp[j]; q < a->colp[j + 1]; q++)
+                if (a->rowi[q] <= j) {
+                    int c = pinv[a->rowi[q]] < pinv[j] ? pinv[a->rowi[q]] : pinv[j];
+                    clist[cstart[c + 1]++] = q;
+                }
+        for (int j = 0; j < n; j++)
+            for (int q = a->colp[j]; q < a->colp[j + 1]; q++) colof[q] = j;
+        st = partial_place(L, a, p, pinv, cstart, clist, colof, cnt, pos);
+    }
     hs_free(cstart);
     hs_free(clist);
     hs_free(colof);
-    if (bad) {
-        st = HS_ERR_UNSUPPORTED;
-        goto fail;
+    return st;
+}
+
+// Build the maps of a supernodal factor L for a matrix with a's pattern (both halves stored).
+static hs_status build_partial(const cholmod_factor* L, const hs_csc* a, struct hs_partial** out) {
+    const int n = (int)L->n, ns = (int)L->nsuper;
+    const int *super = L->super, *perm = L->Perm;
+    struct hs_partial* p = hs_calloc(1, sizeof *p);
+    int* pinv = hs_alloc(sizeof(int) * ((size_t)n + 1));
+    int* pos = hs_alloc(sizeof(int) * ((size_t)n + 1));
+    int* cnt = hs_calloc((size_t)n + 1, sizeof(int));
+    hs_status st = HS_ERR_NOMEM;
+    if (p && pinv && pos && cnt) st = partial_alloc(p, n, ns);
+    if (st == HS_OK) {
+        for (int k = 0; k < n; k++) pinv[perm ? perm[k] : k] = k;
+        for (int s = 0; s < ns; s++)
+            for (int j = super[s]; j < super[s + 1]; j++) p->col_super[j] = s;
+        st = partial_tree(L, p);
     }
+    if (st == HS_OK) st = partial_children(L, p, cnt, pos);
+    if (st == HS_OK) st = partial_entries(L, a, p, pinv, cnt, pos);
     hs_free(pinv);
     hs_free(pos);
     hs_free(cnt);
+    if (st != HS_OK) {
+        free_partial(&p);
+        return st;
+    }
     *out = p;
     return HS_OK;
-fail:
-    hs_free(pinv);
-    hs_free(pos);
-    hs_free(cnt);
-    free_partial(&p);
-    return st;
 }
 
 // ---------------------------------------------------------------------------------------------
