@@ -1489,7 +1489,14 @@ static int set_param(hs_server* s, const hs_net_command* c, char* msg, size_t ca
         w->def = old_d;
         w->scene = old_sc;
         hs_err e2 = {0};
-        rebuild_sim(s, 1, &e2);
+        if (rebuild_sim(s, 1, &e2) != HS_OK) { // no sim runs: PAUSED (not RUNNING without one)
+            pause_stopped(s);
+            snprintf(msg, cap,
+                     "%.250s; the old simulation did not start either (%.250s): paused, "
+                     "RESUME retries",
+                     err.msg, e2.msg);
+            return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
+        }
         snprintf(msg, cap, "%s", err.msg);
         return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
     }
