@@ -227,7 +227,6 @@ typedef struct hs_cholesky_update_info {
 /// The last update's rank, union and method. @param info OUT
 void hs_cholesky_last_update(const hs_cholesky* f, hs_cholesky_update_info* info);
 
-
 // ---------------------------------------------------------------------------------------------
 /// Preconditioned conjugate gradients with warm start.
 typedef enum hs_precond {
