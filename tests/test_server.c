@@ -1636,8 +1636,17 @@ static int pause_keeps_limits(void) {
     paused = max_force_since(&c, from);
     printf("  force_max_n 0.01 N, then paused: at most %.4f N\n", paused);
     ENSURE(paused <= 0.01 + 1e-9);
+    // Repeated commands in each state are no-ops, and no transition was refused (the server's
+    // state machine says "internal: event ... refused" on stderr when one is).
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_PAUSE, NULL, NULL, NULL, NULL, NULL) == OK);
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_RESUME, NULL, NULL, NULL, NULL, NULL) == OK);
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_RESUME, NULL, NULL, NULL, NULL, NULL) == OK);
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_ESTOP_RELEASE, NULL, NULL, NULL, NULL, NULL) == OK);
     ENSURE(stop_server() == 0);
     client_close(&c);
+    static char log[1 << 16];
+    ENSURE(read_server_log("pause", log, sizeof log) == 0);
+    ENSURE(strstr(log, "hapsim-server: stopped after") && !strstr(log, "internal: event"));
     return 0;
 }
 

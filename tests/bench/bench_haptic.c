@@ -299,7 +299,6 @@ static void contact_worst_case(void) {
 
 int hs_bench_haptic(const hs_bench_args* a) {
     contact_worst_case();
-    hs_sparse_set_threads(1);
     const haptic_case* cases = a->quick ? cases_quick : cases_full;
     size_t nc = a->quick ? sizeof cases_quick / sizeof *cases_quick
                          : sizeof cases_full / sizeof *cases_full;

@@ -281,7 +281,6 @@ done:
 }
 
 int hs_bench_organs(const hs_bench_args* a) {
-    hs_sparse_set_threads(1);
     const organ_case* cases = a->quick ? organs_quick : organs_full;
     size_t nc = a->quick ? sizeof organs_quick / sizeof *organs_quick
                          : sizeof organs_full / sizeof *organs_full;
