@@ -1706,6 +1706,21 @@ static int clutch_ignores_motion(void) {
            back, off * 1e3, c.force.state, jump);
     ENSURE(c.force.state == HAPSIM_TOOL_FORCE_T_STATE_CONTACT);
     ENSURE(back > 0.7 * down && back < 1.3 * down && off < 1e-3 && jump <= 1e-6);
+    // A quick clutch: released 30 ms into the ramp down, the ramp back in starts where it was.
+    from = c.n_flog;
+    stream_buttons(&c, 0.012, 0.012, 30, CLUTCH);
+    double low = c.flog_norm[c.n_flog - 1];
+    stream(&c, 0.012, 0.012, 400);
+    jump = 0;
+    for (int i = from + 1; i < c.n_flog; ++i) {
+        double dt = (double)(c.flog_utime[i] - c.flog_utime[i - 1]) * 1e-6;
+        jump = fmax(jump, fabs(c.flog_norm[i] - c.flog_norm[i - 1]) - rate * (fabs(dt) + 1e-3));
+    }
+    printf("  quick clutch: %.4f N after 30 ms held, %.4f N 400 ms after release; worst step over "
+           "the rate limit %.5f N\n",
+           low, norm3(c.force.force), jump);
+    ENSURE(low > 0.5 * back && low < back && jump <= 1e-6);
+    ENSURE(norm3(c.force.force) > 0.7 * down && c.force.state == HAPSIM_TOOL_FORCE_T_STATE_CONTACT);
     ENSURE(stop_server() == 0);
     client_close(&c);
     return 0;
