@@ -39,6 +39,7 @@ typedef struct hs_press_def {
     double penalty_scale; ///< k = penalty_scale x the mean rest-stiffness diagonal (surface)
     int max_newton;       ///< Newton iterations per active-set pass
     int max_passes;       ///< active-set passes per increment
+    int surface;          ///< 1: contact on the boundary triangles (default 0: on the nodes)
     int cookie;           ///< set by hs_press_default_def
 } hs_press_def;
 

@@ -62,7 +62,8 @@ static const char* usage =
     "  --pcg-iters N          PCG iterations per solve (default 20)\n"
     "  --probe X,Y,Z          --static only: a frictionless rigid sphere centred at X,Y,Z (m)\n"
     "                         presses the body (linear, corotated, stvk); prints\n"
-    "                         'probe force N: fx,fy,fz', the force on the tool; node contact,\n"
+    "                         'probe force N: fx,fy,fz', the force on the tool; contact on\n"
+    "                         the boundary triangles (--probe-contact nodes: on the nodes),\n"
     "                         co-rotated rotations to 1e-10 at least (docs/fem.md, \"Probe\n"
     "                         reference\")\n"
     "  --probe-radius R       sphere radius, m (required with --probe)\n"
@@ -178,9 +179,10 @@ static const char* const flag_name[] = {
 // exit status (0 solved, 1 bad input such as a sphere touching nothing, 3 solver failure, 4 not
 // converged) and leaves the press in *out for the displacement output.
 static int run_probe(const hs_mesh* mesh, const hs_body_def* def, const unsigned char* fixed,
-                     const double c[3], double r, const double* dir, hs_press** out,
+                     const double c[3], double r, const double* dir, int nodes, hs_press** out,
                      hs_press_stats* st) {
     hs_press_def pd = hs_press_default_def();
+    pd.surface = !nodes;
     pd.fem = def->fem;
     memcpy(pd.gravity, def->gravity, sizeof pd.gravity);
     pd.radius_m = r;
@@ -215,7 +217,7 @@ int main(int argc, char** argv) {
     unsigned given = 0;                 // F_* flags on the command line
     double beta = 0;
     double probe_c[3] = {0}, probe_r = 0, probe_dir[3] = {0};
-    int have_probe = 0, have_dir = 0;
+    int have_probe = 0, have_dir = 0, probe_nodes = 0;
     double boxes[8][6];
     int n_boxes = 0;
     plane_fix planes[8];
@@ -441,6 +443,12 @@ int main(int argc, char** argv) {
             if (!parse_doubles(argv[i], probe_c, 3)) BAD("X,Y,Z in metres");
             have_probe = 1;
             given |= F_PROBE;
+        } else if (!strcmp(a, "--probe-contact")) {
+            NEED_ARG();
+            ++i;
+            if (strcmp(argv[i], "surface") && strcmp(argv[i], "nodes")) BAD("surface or nodes");
+            probe_nodes = !strcmp(argv[i], "nodes");
+            given |= F_PROBE;
         } else if (!strcmp(a, "--probe-radius")) {
             NEED_ARG();
             ++i;
@@ -640,8 +648,8 @@ int main(int argc, char** argv) {
             goto done;
         }
         if (have_probe) {
-            rc = run_probe(mesh, &def, fixed, probe_c, probe_r, have_dir ? probe_dir : NULL, &press,
-                           &pst);
+            rc = run_probe(mesh, &def, fixed, probe_c, probe_r, have_dir ? probe_dir : NULL,
+                           probe_nodes, &press, &pst);
             total_ms = pst.wall_ms;
             iters = pst.newton;
             st.residual = pst.residual;
@@ -712,10 +720,10 @@ int main(int argc, char** argv) {
                mooney ? "total" : "mean", st.fem.volume_ratio_mean, st.fem.volume_ratio_min,
                st.fem.volume_ratio_max, st.fem.inverted);
         if (press)
-            printf("probe           r %g m, %d contact nodes, %d increments, %d passes, %d "
+            printf("probe           r %g m, %d contact %s, %d increments, %d passes, %d "
                    "Newton (residual ratio %.2e, penetration %.2e r, longest contact edge "
                    "%.3g m)\n",
-                   probe_r, pst.active, pst.increments, pst.passes, iters, pst.residual,
+                   probe_r, pst.active, probe_nodes ? "nodes" : "triangles", pst.increments, pst.passes, iters, pst.residual,
                    pst.penetration_m / probe_r, pst.max_edge_m);
         else if (do_static)
             printf("iterations      %d Newton (residual ratio %.2e)\n", iters, st.residual);
