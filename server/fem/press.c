@@ -47,6 +47,8 @@ struct hs_press {
     double* tw;    // [3 n_tc] barycentric weights of the nearest point
     double* tn;    // [3 n_tc] outward normal (from the centre to the point)
     double* td;    // [n_tc] distance of the point from the centre, m
+    double* te;    // [3 n_tc] unit edge direction when the point is on an edge (else 0)
+    unsigned char* tf; // [n_tc] feature of the point (HS_FEAT_*)
     double pen_max; // deepest point of any candidate triangle inside the sphere, m
 };
 
@@ -75,7 +77,7 @@ void hs_press_destroy(hs_press** pp) {
     void* bufs[] = {p->du_last, p->dof, p->free_to_full, p->fixed,   p->u,  p->x,    p->f_el,
                     p->f_g,     p->r,   p->save,         p->rhs,     p->dx, p->cand, p->cand_of,
                     p->gap,     p->p,   p->act,          p->prev_act, p->tc, p->tlam,
-                    p->tp,      p->tw,  p->tn,           p->td};
+                    p->tp,      p->tw,  p->tn,           p->td, p->te, p->tf};
     for (size_t i = 0; i < sizeof bufs / sizeof bufs[0]; ++i) hs_free(bufs[i]);
     hs_free(p);
     *pp = NULL;
@@ -194,7 +196,9 @@ hs_status hs_press_create(const hs_mesh* mesh, const hs_press_def* def, const un
         p->tw = hs_calloc(3 * nt, sizeof(double));
         p->tn = hs_calloc(3 * nt, sizeof(double));
         p->td = hs_calloc(nt, sizeof(double));
-        if (!p->tc || !p->tlam || !p->tp || !p->tw || !p->tn || !p->td) {
+        p->te = hs_calloc(3 * nt, sizeof(double));
+        p->tf = hs_calloc(nt, 1);
+        if (!p->tc || !p->tlam || !p->tp || !p->tw || !p->tn || !p->td || !p->te || !p->tf) {
             hs_press_destroy(&p);
             return hs_err_set(err, HS_ERR_NOMEM, "hs_press_create: out of memory");
         }
@@ -270,8 +274,16 @@ static void evaluate(hs_press* p, const double c[3]) {
             double* w = p->tw + 3 * j;
             double* nv = p->tn + 3 * j;
             double y[3];
-            if (!hs_tri_closest(c, p->x + 3 * v[0], p->x + 3 * v[1], p->x + 3 * v[2], w, y))
-                continue;
+            const int feat =
+                hs_tri_closest(c, p->x + 3 * v[0], p->x + 3 * v[1], p->x + 3 * v[2], w, y);
+            if (!feat) continue;
+            p->tf[j] = (unsigned char)feat;
+            if (feat == HS_FEAT_EDGE) { // the edge's two ends: the weights not zero
+                const int a = w[0] == 0 ? 1 : 0, b = w[2] == 0 ? 1 : 2;
+                const double le = dist3(p->x + 3 * v[a], p->x + 3 * v[b]);
+                for (int q = 0; q < 3; ++q)
+                    p->te[3 * j + q] = (p->x[3 * v[b] + q] - p->x[3 * v[a] + q]) / le;
+            }
             const double d = dist3(y, c);
             p->td[j] = d;
             p->pen_max = fmax(p->pen_max, R - d);
@@ -316,7 +328,12 @@ static void assemble(hs_press* p, const double c[3], int curvature, double shift
         if (!(p->tp[j] > 0)) continue;
         const int* v = p->mesh->tris + 3 * p->tc[j];
         const double *w = p->tw + 3 * j, *nv = p->tn + 3 * j;
-        const double t = curvature ? p->tp[j] / p->td[j] : 0.0;
+        // The push direction turns as the point moves across it: about the centre at a vertex,
+        // about the centre and along the edge at an edge; a face's normal only with the face
+        // (left out: the tangent need not be exact under the line search).
+        const double t = curvature && p->tf[j] != HS_FEAT_FACE ? p->tp[j] / p->td[j] : 0.0;
+        const double* e = p->te + 3 * j;
+        const double ee = p->tf[j] == HS_FEAT_EDGE ? 1.0 : 0.0;
         for (int ia = 0; ia < 3; ++ia)
             for (int ib = 0; ib < 3; ++ib)
                 for (int a = 0; a < 3; ++a)
@@ -325,8 +342,10 @@ static void assemble(hs_press* p, const double c[3], int curvature, double shift
                         if (ra < 0 || cb < 0) continue;
                         int at = hs_csc_find(p->a, ra, cb);
                         if (at < 0) continue;
-                        p->a->val[at] += w[ia] * w[ib] *
-                                         (p->k * nv[a] * nv[b] - t * ((a == b) - nv[a] * nv[b]));
+                        p->a->val[at] +=
+                            w[ia] * w[ib] *
+                            (p->k * nv[a] * nv[b] -
+                             t * ((a == b) - nv[a] * nv[b] - ee * e[a] * e[b]));
                     }
     }
     for (int j = 0; j < p->n_cand && c && !p->def.surface; ++j) {

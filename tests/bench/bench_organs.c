@@ -188,6 +188,7 @@ static void reference(const char* name, const hs_mesh* m, const unsigned char* f
     pd.fem = d->body.fem;
     pd.radius_m = rad;
     pd.surface = 1;
+    pd.max_newton = 1000; // the co-rotated tangent lacks dR/dx: linear convergence
     hs_press* p = NULL;
     hs_err err = {0};
     const double dir[3] = {-n[0], -n[1], -n[2]};
