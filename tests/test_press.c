@@ -273,9 +273,9 @@ static int surface_coarse_block(void) {
         hs_surface_press_stats sp;
         ENSURE(hs_surface_press(b.mesh, &bd, b.fixed, R, from, c, 4 * k + 2, 1e-7, &sp, &err) ==
                HS_OK);
-        const double df = sqrt(pow(sp.force_n[0] - st.force_n[0], 2) +
-                               pow(sp.force_n[1] - st.force_n[1], 2) +
-                               pow(sp.force_n[2] - st.force_n[2], 2));
+        const double df =
+            sqrt(pow(sp.force_n[0] - st.force_n[0], 2) + pow(sp.force_n[1] - st.force_n[1], 2) +
+                 pow(sp.force_n[2] - st.force_n[2], 2));
         printf("  fixed-point surface press: %.5f N up, %.2f %% apart\n", sp.force_n[2],
                100 * df / st.force_n[2]);
         ENSURE(df <= 0.01 * st.force_n[2]);
@@ -333,5 +333,4 @@ static int no_leak(void) {
 
 HS_TEST_MAIN(HS_CASE(depths_corotated), HS_CASE(depths_linear), HS_CASE(depths_stvk),
              HS_CASE(agrees_with_compliance), HS_CASE(surface_coarse_block),
-             HS_CASE(surface_graded_block),
-             HS_CASE(refuses_bad_input), HS_CASE(no_leak))
+             HS_CASE(surface_graded_block), HS_CASE(refuses_bad_input), HS_CASE(no_leak))

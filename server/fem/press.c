@@ -40,16 +40,16 @@ struct hs_press {
     // Surface contact (def.surface): one contact point per boundary triangle with a free
     // vertex, the triangle's point nearest the centre, pushed with p = max(0, lam + k g)
     // (augmented Lagrangian: lam is the multiplier of the last pass).
-    int n_tc;      // candidate triangles
-    int* tc;       // [n_tc] triangle index
-    double* tlam;  // [n_tc] multiplier, N
-    double* tp;    // [n_tc] push at the last evaluation, N
-    double* tw;    // [3 n_tc] barycentric weights of the nearest point
-    double* tn;    // [3 n_tc] outward normal (from the centre to the point)
-    double* td;    // [n_tc] distance of the point from the centre, m
-    double* te;    // [3 n_tc] unit edge direction when the point is on an edge (else 0)
+    int n_tc;          // candidate triangles
+    int* tc;           // [n_tc] triangle index
+    double* tlam;      // [n_tc] multiplier, N
+    double* tp;        // [n_tc] push at the last evaluation, N
+    double* tw;        // [3 n_tc] barycentric weights of the nearest point
+    double* tn;        // [3 n_tc] outward normal (from the centre to the point)
+    double* td;        // [n_tc] distance of the point from the centre, m
+    double* te;        // [3 n_tc] unit edge direction when the point is on an edge (else 0)
     unsigned char* tf; // [n_tc] feature of the point (HS_FEAT_*)
-    double pen_max; // deepest point of any candidate triangle inside the sphere, m
+    double pen_max;    // deepest point of any candidate triangle inside the sphere, m
 };
 
 hs_press_def hs_press_default_def(void) {
@@ -74,10 +74,10 @@ void hs_press_destroy(hs_press** pp) {
     hs_fem_destroy(&p->fem);
     hs_csc_destroy(&p->a);
     hs_cholesky_destroy(&p->chol);
-    void* bufs[] = {p->du_last, p->dof, p->free_to_full, p->fixed,   p->u,  p->x,    p->f_el,
-                    p->f_g,     p->r,   p->save,         p->rhs,     p->dx, p->cand, p->cand_of,
-                    p->gap,     p->p,   p->act,          p->prev_act, p->tc, p->tlam,
-                    p->tp,      p->tw,  p->tn,           p->td, p->te, p->tf};
+    void* bufs[] = {p->du_last, p->dof, p->free_to_full, p->fixed,    p->u,  p->x,    p->f_el,
+                    p->f_g,     p->r,   p->save,         p->rhs,      p->dx, p->cand, p->cand_of,
+                    p->gap,     p->p,   p->act,          p->prev_act, p->tc, p->tlam, p->tp,
+                    p->tw,      p->tn,  p->td,           p->te,       p->tf};
     for (size_t i = 0; i < sizeof bufs / sizeof bufs[0]; ++i) hs_free(bufs[i]);
     hs_free(p);
     *pp = NULL;
@@ -342,10 +342,9 @@ static void assemble(hs_press* p, const double c[3], int curvature, double shift
                         if (ra < 0 || cb < 0) continue;
                         int at = hs_csc_find(p->a, ra, cb);
                         if (at < 0) continue;
-                        p->a->val[at] +=
-                            w[ia] * w[ib] *
-                            (p->k * nv[a] * nv[b] -
-                             t * ((a == b) - nv[a] * nv[b] - ee * e[a] * e[b]));
+                        p->a->val[at] += w[ia] * w[ib] *
+                                         (p->k * nv[a] * nv[b] -
+                                          t * ((a == b) - nv[a] * nv[b] - ee * e[a] * e[b]));
                     }
     }
     for (int j = 0; j < p->n_cand && c && !p->def.surface; ++j) {

@@ -723,8 +723,8 @@ int main(int argc, char** argv) {
             printf("probe           r %g m, %d contact %s, %d increments, %d passes, %d "
                    "Newton (residual ratio %.2e, penetration %.2e r, longest contact edge "
                    "%.3g m)\n",
-                   probe_r, pst.active, probe_nodes ? "nodes" : "triangles", pst.increments, pst.passes, iters, pst.residual,
-                   pst.penetration_m / probe_r, pst.max_edge_m);
+                   probe_r, pst.active, probe_nodes ? "nodes" : "triangles", pst.increments,
+                   pst.passes, iters, pst.residual, pst.penetration_m / probe_r, pst.max_edge_m);
         else if (do_static)
             printf("iterations      %d Newton (residual ratio %.2e)\n", iters, st.residual);
         else

@@ -23,7 +23,7 @@
 typedef struct organ_case {
     const char* name;
     const char* file;
-    int hold_x_ends; // held at both x ends (as scenes/skin/skin.json), else the lowest 10 % in z
+    int hold_x_ends;  // held at both x ends (as scenes/skin/skin.json), else the lowest 10 % in z
     double youngs_pa; // 0: the scene default, 5 kPa
 } organ_case;
 
@@ -189,6 +189,9 @@ static void reference(const char* name, const hs_mesh* m, const unsigned char* f
     pd.radius_m = rad;
     pd.surface = 1;
     pd.max_newton = 1000; // the co-rotated tangent lacks dR/dx: linear convergence
+    // Equilibrium to 1e-6 of the contact force: the co-rotated residual stalls at 1e-7 to 1e-6
+    // of a few-mN load on the 10k meshes (the rotations' round-off), far below the 10 % asked.
+    pd.tol = 1e-6;
     hs_press* p = NULL;
     hs_err err = {0};
     const double dir[3] = {-n[0], -n[1], -n[2]};
@@ -217,8 +220,8 @@ static void reference(const char* name, const hs_mesh* m, const unsigned char* f
         const int inc = (int)ceil((r[k].depth_m + 0.002) / (0.25 * rad));
         s = hs_surface_press(m, &d->body, fixed, rad, from, r[k].tool, inc, 1e-6, &st, &err);
         if (s != HS_OK)
-            fprintf(stderr, "  %s: fixed-point press at %.1f mm: %s\n", name,
-                    r[k].depth_m * 1e3, err.msg);
+            fprintf(stderr, "  %s: fixed-point press at %.1f mm: %s\n", name, r[k].depth_m * 1e3,
+                    err.msg);
         else
             fprintf(stderr,
                     "  %s: fixed-point press at %.1f mm: %.4f N on %d nodes, %d iterations (change "
