@@ -6,8 +6,6 @@
 
 #include "hapsim/sparse.h"
 
-#include "../haptic/closest.h" // pure geometry (closest point of a triangle), header only
-
 #include <float.h>
 #include <math.h>
 #include <string.h>
@@ -48,7 +46,7 @@ struct hs_press {
     double* tn;        // [3 n_tc] outward normal (from the centre to the point)
     double* td;        // [n_tc] distance of the point from the centre, m
     double* te;        // [3 n_tc] unit edge direction when the point is on an edge (else 0)
-    unsigned char* tf; // [n_tc] feature of the point (HS_FEAT_*)
+    unsigned char* tf; // [n_tc] feature of the point (FEAT_*)
     double pen_max;    // deepest point of any candidate triangle inside the sphere, m
 };
 
@@ -248,6 +246,61 @@ static double dist3(const double* a, const double* b) {
                 (a[2] - b[2]) * (a[2] - b[2]));
 }
 
+enum { FEAT_VERTEX = 1, FEAT_EDGE = 2, FEAT_FACE = 3 };
+
+// Point of segment a-b nearest p: parameter t in [0, 1] and the squared distance.
+static double seg_nearest(const double p[3], const double a[3], const double b[3], double* t) {
+    double ab[3], ap[3], l2 = 0, dot = 0;
+    for (int q = 0; q < 3; ++q) ab[q] = b[q] - a[q], ap[q] = p[q] - a[q];
+    for (int q = 0; q < 3; ++q) l2 += ab[q] * ab[q], dot += ab[q] * ap[q];
+    *t = l2 > 0 ? fmin(1.0, fmax(0.0, dot / l2)) : 0.0;
+    double d2 = 0;
+    for (int q = 0; q < 3; ++q) d2 += (ap[q] - *t * ab[q]) * (ap[q] - *t * ab[q]);
+    return d2;
+}
+
+// Point y of triangle (v0, v1, v2) nearest p, y = sum w_a v_a: the projection on the plane when
+// it falls inside (barycentric coordinates from the sub-areas), else the nearest of the three
+// edges. Returns the feature (vertex, edge or face); 0 for a degenerate triangle.
+static int tri_nearest(const double p[3], const double* v0, const double* v1, const double* v2,
+                       double w[3], double y[3]) {
+    const double* v[3] = {v0, v1, v2};
+    double e1[3], e2[3], nrm[3], d[3];
+    for (int q = 0; q < 3; ++q) e1[q] = v1[q] - v0[q], e2[q] = v2[q] - v0[q], d[q] = p[q] - v0[q];
+    nrm[0] = e1[1] * e2[2] - e1[2] * e2[1];
+    nrm[1] = e1[2] * e2[0] - e1[0] * e2[2];
+    nrm[2] = e1[0] * e2[1] - e1[1] * e2[0];
+    const double n2 = nrm[0] * nrm[0] + nrm[1] * nrm[1] + nrm[2] * nrm[2];
+    const double s1 = e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2];
+    const double s2 = e2[0] * e2[0] + e2[1] * e2[1] + e2[2] * e2[2];
+    if (!(n2 > 1e-24 * s1 * s2)) return 0;
+    // Barycentric coordinates of the projection: (e1 x d) . n and (d x e2) . n over |n|^2.
+    const double b2 =
+        ((e1[1] * d[2] - e1[2] * d[1]) * nrm[0] + (e1[2] * d[0] - e1[0] * d[2]) * nrm[1] +
+         (e1[0] * d[1] - e1[1] * d[0]) * nrm[2]) /
+        n2;
+    const double b1 =
+        ((d[1] * e2[2] - d[2] * e2[1]) * nrm[0] + (d[2] * e2[0] - d[0] * e2[2]) * nrm[1] +
+         (d[0] * e2[1] - d[1] * e2[0]) * nrm[2]) /
+        n2;
+    if (b1 > 0 && b2 > 0 && b1 + b2 < 1) {
+        w[0] = 1 - b1 - b2, w[1] = b1, w[2] = b2;
+    } else {
+        double best = INFINITY;
+        for (int e = 0; e < 3; ++e) {
+            double t;
+            const double d2 = seg_nearest(p, v[e], v[(e + 1) % 3], &t);
+            if (d2 < best) {
+                best = d2;
+                w[e] = 1 - t, w[(e + 1) % 3] = t, w[(e + 2) % 3] = 0;
+            }
+        }
+    }
+    for (int q = 0; q < 3; ++q) y[q] = w[0] * v0[q] + w[1] * v1[q] + w[2] * v2[q];
+    const int zeros = (w[0] == 0) + (w[1] == 0) + (w[2] == 0);
+    return zeros == 0 ? FEAT_FACE : zeros == 1 ? FEAT_EDGE : FEAT_VERTEX;
+}
+
 // Evaluate at x0 + u with the sphere at c (NULL: none). For each node j of the active set:
 // its sphere normal n_j, gap g_j = R - d_j (> 0: inside) and multiplier lam_j = -n_j . r_j
 // (the push along n_j that balances the node's elastic and gravity forces). r: the residual
@@ -275,10 +328,10 @@ static void evaluate(hs_press* p, const double c[3]) {
             double* nv = p->tn + 3 * j;
             double y[3];
             const int feat =
-                hs_tri_closest(c, p->x + 3 * v[0], p->x + 3 * v[1], p->x + 3 * v[2], w, y);
+                tri_nearest(c, p->x + 3 * v[0], p->x + 3 * v[1], p->x + 3 * v[2], w, y);
             if (!feat) continue;
             p->tf[j] = (unsigned char)feat;
-            if (feat == HS_FEAT_EDGE) { // the edge's two ends: the weights not zero
+            if (feat == FEAT_EDGE) { // the edge's two ends: the weights not zero
                 const int a = w[0] == 0 ? 1 : 0, b = w[2] == 0 ? 1 : 2;
                 const double le = dist3(p->x + 3 * v[a], p->x + 3 * v[b]);
                 for (int q = 0; q < 3; ++q)
@@ -331,9 +384,9 @@ static void assemble(hs_press* p, const double c[3], int curvature, double shift
         // The push direction turns as the point moves across it: about the centre at a vertex,
         // about the centre and along the edge at an edge; a face's normal only with the face
         // (left out: the tangent need not be exact under the line search).
-        const double t = curvature && p->tf[j] != HS_FEAT_FACE ? p->tp[j] / p->td[j] : 0.0;
+        const double t = curvature && p->tf[j] != FEAT_FACE ? p->tp[j] / p->td[j] : 0.0;
         const double* e = p->te + 3 * j;
-        const double ee = p->tf[j] == HS_FEAT_EDGE ? 1.0 : 0.0;
+        const double ee = p->tf[j] == FEAT_EDGE ? 1.0 : 0.0;
         for (int ia = 0; ia < 3; ++ia)
             for (int ib = 0; ib < 3; ++ib)
                 for (int a = 0; a < 3; ++a)
@@ -558,7 +611,7 @@ static double surface_depth(const hs_press* p, const double c[3]) {
     for (int j = 0; j < p->n_tc; ++j) {
         const int* v = p->mesh->tris + 3 * p->tc[j];
         double w[3], y[3];
-        if (hs_tri_closest(c, p->x + 3 * v[0], p->x + 3 * v[1], p->x + 3 * v[2], w, y))
+        if (tri_nearest(c, p->x + 3 * v[0], p->x + 3 * v[1], p->x + 3 * v[2], w, y))
             pen = fmax(pen, R - dist3(y, c));
     }
     return pen;
