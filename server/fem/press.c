@@ -493,6 +493,20 @@ static double fixed_penetration(const hs_press* p, const double c[3], int* fixed
     return pen;
 }
 
+// One Newton solve of an active-set pass, its failure named.
+static hs_status newton_pass(hs_press* p, const double c[3], hs_press_stats* st, hs_err* err) {
+    hs_status s = newton(p, c, st);
+    ++st->passes;
+    if (s == HS_ERR_NOT_CONVERGED)
+        return hs_err_set(err, s,
+                          "press: Newton did not converge in %d iterations at centre "
+                          "%g,%g,%g (residual %.3g of the load)",
+                          p->def.max_newton, c[0], c[1], c[2],
+                          p->r_norm / (p->fc_norm + p->fg_norm + DBL_MIN));
+    if (s != HS_OK) return hs_err_set(err, s, "press: solver failed: %s", hs_status_str(s));
+    return HS_OK;
+}
+
 // Surface contact at one sphere position: Newton on the equilibrium with the pushes
 // max(0, lam + k g) (the active set is whichever triangles push, re-decided at every
 // evaluation), then lam <- the pushes, until no point of the surface is deeper than
@@ -501,15 +515,8 @@ static hs_status increment_surface(hs_press* p, const double c[3], hs_press_stat
                                    hs_err* err) {
     const double R = p->def.radius_m;
     for (int pass = 0; pass < p->def.max_passes; ++pass) {
-        hs_status s = newton(p, c, st);
-        ++st->passes;
-        if (s == HS_ERR_NOT_CONVERGED)
-            return hs_err_set(err, s,
-                              "press: Newton did not converge in %d iterations at centre "
-                              "%g,%g,%g (residual %.3g of the load)",
-                              p->def.max_newton, c[0], c[1], c[2],
-                              p->r_norm / (p->fc_norm + p->fg_norm + DBL_MIN));
-        if (s != HS_OK) return hs_err_set(err, s, "press: solver failed: %s", hs_status_str(s));
+        hs_status s = newton_pass(p, c, st, err);
+        if (s != HS_OK) return s;
         st->penetration_m = fmax(p->pen_max, 0.0);
         st->residual = p->r_norm / (p->fc_norm + p->fg_norm + DBL_MIN);
         if (st->penetration_m <= 0.1 * p->def.pen_tol * R) return HS_OK;
@@ -534,15 +541,8 @@ static hs_status increment(hs_press* p, const double c[3], hs_press_stats* st, h
                           c[0], c[1], c[2], fnode, fpen);
     if (p->def.surface) return increment_surface(p, c, st, err);
     for (int pass = 0; pass < p->def.max_passes; ++pass) {
-        hs_status s = newton(p, c, st);
-        ++st->passes;
-        if (s == HS_ERR_NOT_CONVERGED)
-            return hs_err_set(err, s,
-                              "press: Newton did not converge in %d iterations at centre "
-                              "%g,%g,%g (residual %.3g of the load)",
-                              p->def.max_newton, c[0], c[1], c[2],
-                              p->r_norm / (p->fc_norm + p->fg_norm + DBL_MIN));
-        if (s != HS_OK) return hs_err_set(err, s, "press: solver failed: %s", hs_status_str(s));
+        hs_status s = newton_pass(p, c, st, err);
+        if (s != HS_OK) return s;
         // Release the node that pulls hardest (one at a time: releasing one changes the
         // others' pushes), else add every node inside.
         int changes = 0, worst = -1;
