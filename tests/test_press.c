@@ -230,6 +230,7 @@ static int refuses_bad_input(void) {
 // the same force as the fixed-point surface press (hs_surface_press). At 3r the sphere has
 // crushed the 7.5 mm top layer: the solve does not converge there (said, not passed).
 static int surface_coarse_block(void) {
+    const int64_t bytes0 = hs_byte_count();
     hs_err err = {0};
     block b = {0};
     ENSURE(hs_mesh_create_box(0.06, 0.06, 0.03, 8, 8, 4, &b.mesh, &err) == HS_OK);
@@ -288,6 +289,7 @@ static int surface_coarse_block(void) {
     ENSURE(strstr(err.msg, "did not converge") != NULL);
     hs_press_destroy(&p);
     block_destroy(&b);
+    ENSURE(hs_byte_count() == bytes0);
     return 0;
 }
 
