@@ -126,6 +126,7 @@ typedef struct dev_state {
     int64_t force_seq;
     int64_t last_rx_ns;  // newest accepted pose, CLOCK_MONOTONIC
     int64_t last_pub_ns; // newest tool_force published
+    int64_t session;     // session of the newest accepted pose: forces echo it
     int seen;
     double pos[3], quat[4];
     uint32_t buttons;
@@ -154,7 +155,8 @@ struct hs_server {
 
     dev_state dev[MAX_DEV];
     int64_t feed_seq; // poses fed to rt (rt's pose seq)
-    int64_t ring_feed[POSE_RING], ring_seq[POSE_RING], ring_utime[POSE_RING], ring_rx[POSE_RING];
+    int64_t ring_feed[POSE_RING], ring_seq[POSE_RING], ring_utime[POSE_RING], ring_rx[POSE_RING],
+        ring_session[POSE_RING];
     hs_haptic_output out; // newest rt output
     int have_out;
 
@@ -546,8 +548,9 @@ static int model_stiff(const hs_haptic_model* m) {
     return 0;
 }
 
-// Publish one tool_force for device d from model m (force at m->anchor_m).
-static void publish_force(hs_server* s, int d, const hs_haptic_model* m, int state,
+// Publish one tool_force for device d from model m (force at m->anchor_m), answering the pose
+// (session, pose_seq, pose_utime) of the driver session that sent it.
+static void publish_force(hs_server* s, int d, const hs_haptic_model* m, int state, int64_t session,
                           int64_t pose_seq, int64_t pose_utime, int64_t rx_ns) {
     dev_state* ds = &s->dev[d];
     hapsim_tool_force_t f;
@@ -555,6 +558,7 @@ static void publish_force(hs_server* s, int d, const hs_haptic_model* m, int sta
     f.utime = now_us();
     f.seq = ++ds->force_seq;
     f.device_id = d;
+    f.session = session;
     f.pose_seq = pose_seq;
     f.pose_utime = pose_utime;
     f.model_version = m->seq;
@@ -662,8 +666,11 @@ static void publish_rt_output(hs_server* s) {
         scale_model(&m, g);
         state = HAPSIM_TOOL_FORCE_T_STATE_RAMP;
     }
+    // The session of the pose rt answered: after a takeover an output of the old session's
+    // poses must not reach the new driver.
     int i = ring_find(s, s->out.pose_seq);
-    publish_force(s, 0, &m, state, i >= 0 ? s->ring_seq[i] : 0, i >= 0 ? s->ring_utime[i] : 0, 0);
+    publish_force(s, 0, &m, state, i >= 0 ? s->ring_session[i] : ds->session,
+                  i >= 0 ? s->ring_seq[i] : 0, i >= 0 ? s->ring_utime[i] : 0, 0);
 }
 
 // Answer an accepted pose at once: the newest rt model evaluated at the new position.
@@ -671,6 +678,7 @@ static void answer_pose(hs_server* s, const hs_net_pose* p, int64_t rx_ns) {
     int d = p->device_id;
     dev_state* ds = &s->dev[d];
     ds->seen = 1;
+    ds->session = p->session;
     ds->last_rx_ns = rx_ns;
     memcpy(ds->pos, p->position, sizeof ds->pos);
     memcpy(ds->quat, p->orientation, sizeof ds->quat);
@@ -695,6 +703,7 @@ static void answer_pose(hs_server* s, const hs_net_pose* p, int64_t rx_ns) {
             s->ring_feed[i] = hp.seq;
             s->ring_seq[i] = p->seq;
             s->ring_utime[i] = p->utime;
+            s->ring_session[i] = p->session;
             s->ring_rx[i] = rx_ns;
             hs_haptic_sim_feed_pose(w->sim, &hp);
         }
@@ -721,7 +730,7 @@ static void answer_pose(hs_server* s, const hs_net_pose* p, int64_t rx_ns) {
     }
     if (m.anchor_m[0] == 0 && m.anchor_m[1] == 0 && m.anchor_m[2] == 0)
         memcpy(m.anchor_m, p->position, sizeof m.anchor_m);
-    publish_force(s, d, &m, state, p->seq, p->utime, rx_ns);
+    publish_force(s, d, &m, state, p->session, p->seq, p->utime, rx_ns);
 }
 
 static void on_pose(const lcm_recv_buf_t* rb, const char* ch, void* user) {
@@ -1695,7 +1704,8 @@ static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap)
         for (int d = 0; d < w->scene.n_devices && d < MAX_DEV; ++d)
             if (s->dev[d].seen && w->haptics) {
                 memcpy(z.anchor_m, s->dev[d].pos, sizeof z.anchor_m);
-                publish_force(s, d, &z, HAPSIM_TOOL_FORCE_T_STATE_STOPPED, 0, 0, 0);
+                publish_force(s, d, &z, HAPSIM_TOOL_FORCE_T_STATE_STOPPED, s->dev[d].session, 0, 0,
+                              0);
             }
         return HAPSIM_COMMAND_ACK_T_STATUS_OK;
     }
