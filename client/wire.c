@@ -7,6 +7,8 @@
 
 #include "hapsim_server_status_t.h"
 
+_Static_assert(HS_CLIENT_MAX_VIS == HS_WIRE_MAX_VIS, "the client's limit is the decoder's");
+
 int64_t hs_client_byte_count(void) {
     return hs_proto_byte_count();
 }

@@ -16,7 +16,7 @@
 #include <stdint.h>
 #include <stdio.h>
 
-#include "hapsim/base.h"
+#include "hapsim/status.h" // hs_status, hs_err (the client library has hs_err_set)
 #include "hapsim_triple.h"
 
 #ifdef __cplusplus
