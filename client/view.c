@@ -202,8 +202,8 @@ static int write_frame(viewer* v, const hs_client_mesh* m) {
     return 0;
 }
 
-// Tool states (fixed size: any other length or a non-finite number is dropped; lcm-gen's
-// decoder is safe here because no field carries a length), newest per device.
+// Tool states through the protocol library's decoder (another length or a non-finite number is
+// dropped), newest per device.
 typedef struct tool_slot {
     hs_view_tool tool;
     int64_t arrival_us; // 0: none
@@ -213,16 +213,10 @@ static tool_slot g_tools[HS_CLIENT_MAX_DEVICES];
 static void on_tool_state(const lcm_recv_buf_t* rbuf, const char* ch, void* user) {
     (void)ch;
     (void)user;
-    hapsim_tool_state_t t;
-    memset(&t, 0, sizeof t);
-    int want = hapsim_tool_state_t_encoded_size(&t);
-    if ((int)rbuf->data_size != want ||
-        hapsim_tool_state_t_decode(rbuf->data, 0, (int)rbuf->data_size, &t) != want)
+    hs_wire_tool_state t;
+    if (hs_wire_tool_state_decode(rbuf->data, rbuf->data_size, &t) ||
+        t.device_id >= HS_CLIENT_MAX_DEVICES)
         return;
-    if (t.device_id < 0 || t.device_id >= HS_CLIENT_MAX_DEVICES) return;
-    double chk = t.radius;
-    for (int k = 0; k < 3; k++) chk += t.position[k] + t.force[k] + t.blade_a[k] + t.blade_b[k];
-    if (!isfinite(chk)) return;
     hs_view_tool* o = &g_tools[t.device_id].tool;
     o->device = t.device_id;
     o->kind = t.kind;
