@@ -740,10 +740,6 @@ static int forces_between(const client* c, int64_t t0, int64_t t1, int* nonzero)
     return n;
 }
 
-// LOAD_SCENE is built on a thread of its own: the running scene goes on answering poses until
-// the new one is swapped in, an e-stop sent during the build acts before the swap, and a scene
-// that fails to load leaves the running one as it was. (The net loop used to stand still for
-
 // A driver restarted with a new session: while the old session still owns the device (until
 // session_takeover_us of silence) the server goes on answering it (rt outputs ramping down),
 // and those forces carry the old session, which the new driver drops (tool_force session,
@@ -793,6 +789,10 @@ static int restarted_driver_session(void) {
     ENSURE(stop_server() == 0);
     return 0;
 }
+
+// LOAD_SCENE is built on a thread of its own: the running scene goes on answering poses until
+// the new one is swapped in, an e-stop sent during the build acts before the swap, and a scene
+// that fails to load leaves the running one as it was. (The net loop used to stand still for
 // the whole build: no forces, no status and no e-stop until the new scene ran.)
 static int load_goes_on_answering(void) {
     char scene[512];
