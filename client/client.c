@@ -35,6 +35,7 @@ struct hs_client {
     char ch_pose[HAPSIM_CHANNEL_MAX], ch_command[HAPSIM_CHANNEL_MAX];
     char sender[64];
     int64_t session;
+    int all_sessions; // config: take forces of every session
     route routes[CH_COUNT];
     hs_client_callbacks cb;
     void* user;
@@ -118,15 +119,22 @@ void hs_client_config_default(hs_client_config* cfg) {
 // Receive side.
 
 static void on_force(hs_client* c, const void* buf, size_t len) {
-    int32_t dev;
-    int64_t utime;
-    hs_local_model m;
-    if (hs_wire_force_decode(buf, len, &dev, &utime, &m)) {
+    hs_wire_force w;
+    if (hs_wire_force_decode(buf, len, &w)) {
         c->st.malformed++;
         return;
     }
+    int32_t dev = w.device_id;
+    int64_t utime = w.utime;
+    hs_local_model m = hs_wire_local_model(&w);
     if (dev < 0 || dev >= HS_CLIENT_MAX_DEVICES) {
         c->st.forces_other++;
+        return;
+    }
+    // A driver renders only answers to its own session's poses: a restarted driver must not
+    // take what the server still sends its predecessor. A viewer watches every session.
+    if (!c->all_sessions && w.session != c->session) {
+        c->st.forces_session++;
         return;
     }
     hs_force_renderer* r = &c->force[dev];
@@ -268,7 +276,7 @@ hs_status hs_client_create(const hs_client_config* cfg, hs_client** out, hs_err*
         (strlen(cfg->sender) > HAPSIM_CMD_SENDER_MAX || !hapsim_cmd_text_ok(cfg->sender)))
         return hs_err_set(err, HS_ERR_INVALID,
                           "hs_client_create: sender longer than 63 bytes or with control bytes");
-    hs_client* c = hs_client_calloc(1, sizeof *c);
+    hs_client* c = hs_proto_calloc(1, sizeof *c);
     if (!c) return hs_err_set(err, HS_ERR_NOMEM, "hs_client_create: out of memory");
     atomic_init(&c->poses_sent, 0);
     snprintf(c->prefix, sizeof c->prefix, "%s", prefix);
@@ -279,6 +287,7 @@ hs_status hs_client_create(const hs_client_config* cfg, hs_client** out, hs_err*
     else
         snprintf(c->sender, sizeof c->sender, "hapsim-client:%ld", (long)getpid());
     c->session = cfg->session ? cfg->session : random_id();
+    c->all_sessions = cfg->all_sessions != 0;
     c->next_request_id = random_id();
     for (int d = 0; d < HS_CLIENT_MAX_DEVICES; d++) {
         hs_force_renderer_init(&c->force[d]);
@@ -286,7 +295,7 @@ hs_status hs_client_create(const hs_client_config* cfg, hs_client** out, hs_err*
     }
     hs_status s = hs_mesh_sync_create(&c->mesh, err);
     if (s != HS_OK) {
-        hs_client_free(c);
+        hs_proto_free(c);
         return s;
     }
     char mesh_url[512];
@@ -361,7 +370,7 @@ void hs_client_destroy(hs_client** pc) {
     for (int b = 0; b < 2; b++)
         if (c->bus[b]) lcm_destroy(c->bus[b]);
     hs_mesh_sync_destroy(&c->mesh);
-    hs_client_free(c);
+    hs_proto_free(c);
     *pc = NULL;
 }
 

@@ -50,16 +50,16 @@ static int grow_all(growth* g, int n) {
     for (int i = 0; i < n; i++) {
         g[i].q = NULL;
         if (g[i].n <= *g[i].cap) continue;
-        g[i].q = hs_client_calloc(g[i].n, g[i].sz);
+        g[i].q = hs_proto_calloc(g[i].n, g[i].sz);
         if (!g[i].q) {
-            for (int j = 0; j < i; j++) hs_client_free(g[j].q);
+            for (int j = 0; j < i; j++) hs_proto_free(g[j].q);
             return -1;
         }
     }
     for (int i = 0; i < n; i++) {
         if (!g[i].q) continue;
         if (*g[i].p && g[i].keep) memcpy(g[i].q, *g[i].p, g[i].keep * g[i].sz);
-        hs_client_free(*g[i].p);
+        hs_proto_free(*g[i].p);
         *g[i].p = g[i].q;
         *g[i].cap = g[i].n;
     }
@@ -67,10 +67,10 @@ static int grow_all(growth* g, int n) {
 }
 
 static void topo_free(topo* t) {
-    hs_client_free(t->vis);
-    hs_client_free(t->rest);
-    hs_client_free(t->tri);
-    hs_client_free(t->tet);
+    hs_proto_free(t->vis);
+    hs_proto_free(t->rest);
+    hs_proto_free(t->tri);
+    hs_proto_free(t->tet);
     memset(t, 0, sizeof *t);
 }
 
@@ -79,7 +79,7 @@ hs_status hs_mesh_sync_create(hs_mesh_sync** out, hs_err* err) {
         if (err) err->code = HS_ERR_INVALID;
         return HS_ERR_INVALID;
     }
-    *out = hs_client_calloc(1, sizeof **out);
+    *out = hs_proto_calloc(1, sizeof **out);
     if (!*out) {
         if (err) {
             err->code = HS_ERR_NOMEM;
@@ -99,10 +99,10 @@ void hs_mesh_sync_destroy(hs_mesh_sync** s) {
     if (!s || !*s) return;
     topo_free(&(*s)->shown);
     topo_free(&(*s)->pending);
-    hs_client_free((*s)->kf);
-    hs_client_free((*s)->pos);
-    hs_client_free((*s)->stress);
-    hs_client_free(*s);
+    hs_proto_free((*s)->kf);
+    hs_proto_free((*s)->pos);
+    hs_proto_free((*s)->stress);
+    hs_proto_free(*s);
     *s = NULL;
 }
 

@@ -3,6 +3,7 @@
 #include <math.h>
 #include <string.h>
 
+#include "hapsim_model.h"
 #include "hapsim_tool_force_t.h"
 #include "wire.h"
 
@@ -10,19 +11,6 @@ double hs_local_model_eval(const hs_local_model* m, const double p[3], int64_t n
                            double f[3]) {
     f[0] = f[1] = f[2] = 0;
     if (!m || !m->valid || m->state == HAPSIM_TOOL_FORCE_T_STATE_STOPPED) return 0;
-    double d[3] = {p[0] - m->anchor[0], p[1] - m->anchor[1], p[2] - m->anchor[2]};
-    double n = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-    if (n > m->validity_radius) { // evaluate on the validity sphere, never extrapolate
-        if (isinf(n)) { // |d| beyond ~1.3e154 m overflows squared: scale by the largest first
-            double mx = fmax(fabs(d[0]), fmax(fabs(d[1]), fabs(d[2])));
-            if (isfinite(mx)) {
-                for (int i = 0; i < 3; i++) d[i] /= mx;
-                n = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-            }
-        }
-        double s = n > 0 ? m->validity_radius / n : 0;
-        for (int i = 0; i < 3; i++) d[i] *= s;
-    }
     // Full strength for timeout_us after arrival, then a linear ramp to zero over timeout_us.
     // In double: clocks far apart must not overflow.
     double age = (double)now_us - (double)m->arrival_us, to = (double)m->timeout_us;
@@ -31,16 +19,14 @@ double hs_local_model_eval(const hs_local_model* m, const double p[3], int64_t n
         s = to > 0 ? 1.0 - (age - to) / to : 0;
         if (!(s > 0)) return 0;
     }
-    for (int i = 0; i < 3; i++) {
-        const double* k = m->stiffness + 3 * i;
-        f[i] = s * (m->force[i] + k[0] * d[0] + k[1] * d[1] + k[2] * d[2]);
-    }
     // A non-finite p (a lost encoder) or a model built by hand beyond the decoder's ranges: no
     // force rather than an infinite or NaN one.
-    if (!isfinite(f[0]) || !isfinite(f[1]) || !isfinite(f[2])) {
+    if (hapsim_model_force(m->force, m->anchor, m->stiffness, 1, m->validity_radius, p, f) ==
+        HAPSIM_MODEL_NONFINITE) {
         f[0] = f[1] = f[2] = 0;
         return 0;
     }
+    for (int i = 0; i < 3; i++) f[i] *= s;
     return s;
 }
 
@@ -66,9 +52,9 @@ int32_t hs_force_renderer_eval(const hs_force_renderer* r, const double p[3], in
     if (r->model.state == HAPSIM_TOOL_FORCE_T_STATE_STOPPED) return r->model.state;
     int64_t t = hs_wire_sub_sat(now_us, r->blend_start_us);
     if (r->old_model.valid && r->blend_us > 0 && t < r->blend_us) {
-        double w = t <= 0 ? 0 : (double)t / (double)r->blend_us, fo[3];
+        double fo[3];
         hs_local_model_eval(&r->old_model, p, now_us, fo);
-        for (int i = 0; i < 3; i++) f[i] = (1 - w) * fo[i] + w * f[i];
+        hapsim_model_blend(fo, f, (double)t, (double)r->blend_us, f);
     }
     return r->model.state;
 }

@@ -82,10 +82,10 @@ hs_status hs_image_create(int width, int height, hs_image** out, hs_err* err) {
         }
         return HS_ERR_INVALID;
     }
-    hs_image* im = hs_client_calloc(1, sizeof *im);
+    hs_image* im = hs_proto_calloc(1, sizeof *im);
     if (im) {
-        im->rgb = hs_client_alloc((size_t)width * height * 3);
-        im->depth = hs_client_alloc((size_t)width * height * sizeof(float));
+        im->rgb = hs_proto_alloc((size_t)width * height * 3);
+        im->depth = hs_proto_alloc((size_t)width * height * sizeof(float));
     }
     if (!im || !im->rgb || !im->depth) {
         hs_image_destroy(&im);
@@ -104,9 +104,9 @@ hs_status hs_image_create(int width, int height, hs_image** out, hs_err* err) {
 
 void hs_image_destroy(hs_image** img) {
     if (!img || !*img) return;
-    hs_client_free((*img)->rgb);
-    hs_client_free((*img)->depth);
-    hs_client_free(*img);
+    hs_proto_free((*img)->rgb);
+    hs_proto_free((*img)->depth);
+    hs_proto_free(*img);
     *img = NULL;
 }
 

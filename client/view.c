@@ -106,8 +106,8 @@ static int parse_size(const char* s, int* w, int* h) {
 static int write_frame(viewer* v, const hs_client_mesh* m) {
     hs_err err = {0};
     if ((size_t)m->n_vis > v->disp_cap) {
-        hs_client_free(v->disp);
-        v->disp = hs_client_alloc((size_t)m->n_vis * sizeof(float));
+        hs_proto_free(v->disp);
+        v->disp = hs_proto_alloc((size_t)m->n_vis * sizeof(float));
         v->disp_cap = v->disp ? (size_t)m->n_vis : 0;
         if (!v->disp) return -1;
     }
@@ -161,24 +161,24 @@ static int write_frame(viewer* v, const hs_client_mesh* m) {
         }
         if (idx >= v->cap_files) {
             int32_t nc = v->cap_files ? 2 * v->cap_files : 256;
-            char** nf = hs_client_calloc((size_t)nc, sizeof *nf);
-            double* nt = hs_client_calloc((size_t)nc, sizeof *nt);
+            char** nf = hs_proto_calloc((size_t)nc, sizeof *nf);
+            double* nt = hs_proto_calloc((size_t)nc, sizeof *nt);
             if (!nf || !nt) {
-                hs_client_free(nf);
-                hs_client_free(nt);
+                hs_proto_free(nf);
+                hs_proto_free(nt);
                 return -1;
             }
             if (v->cap_files) {
                 memcpy(nf, v->files, (size_t)v->cap_files * sizeof *nf);
                 memcpy(nt, v->times, (size_t)v->cap_files * sizeof *nt);
             }
-            hs_client_free(v->files);
-            hs_client_free(v->times);
+            hs_proto_free(v->files);
+            hs_proto_free(v->times);
             v->files = nf;
             v->times = nt;
             v->cap_files = nc;
         }
-        v->files[idx] = hs_client_alloc(strlen(vtu_name) + 1);
+        v->files[idx] = hs_proto_alloc(strlen(vtu_name) + 1);
         if (!v->files[idx]) return -1;
         strcpy(v->files[idx], vtu_name);
         // Distinct, increasing timesteps even if the server's sim_time repeats.
@@ -202,8 +202,8 @@ static int write_frame(viewer* v, const hs_client_mesh* m) {
     return 0;
 }
 
-// Tool states (fixed size: any other length or a non-finite number is dropped; lcm-gen's
-// decoder is safe here because no field carries a length), newest per device.
+// Tool states through the protocol library's decoder (another length or a non-finite number is
+// dropped), newest per device.
 typedef struct tool_slot {
     hs_view_tool tool;
     int64_t arrival_us; // 0: none
@@ -213,16 +213,10 @@ static tool_slot g_tools[HS_CLIENT_MAX_DEVICES];
 static void on_tool_state(const lcm_recv_buf_t* rbuf, const char* ch, void* user) {
     (void)ch;
     (void)user;
-    hapsim_tool_state_t t;
-    memset(&t, 0, sizeof t);
-    int want = hapsim_tool_state_t_encoded_size(&t);
-    if ((int)rbuf->data_size != want ||
-        hapsim_tool_state_t_decode(rbuf->data, 0, (int)rbuf->data_size, &t) != want)
+    hs_wire_tool_state t;
+    if (hs_wire_tool_state_decode(rbuf->data, rbuf->data_size, &t) ||
+        t.device_id >= HS_CLIENT_MAX_DEVICES)
         return;
-    if (t.device_id < 0 || t.device_id >= HS_CLIENT_MAX_DEVICES) return;
-    double chk = t.radius;
-    for (int k = 0; k < 3; k++) chk += t.position[k] + t.force[k] + t.blade_a[k] + t.blade_b[k];
-    if (!isfinite(chk)) return;
     hs_view_tool* o = &g_tools[t.device_id].tool;
     o->device = t.device_id;
     o->kind = t.kind;
@@ -488,10 +482,10 @@ int main(int argc, char** argv) {
                (long long)s.malformed);
     }
     fclose(v.index);
-    for (int32_t i = 0; i < v.n_written && i < v.cap_files; i++) hs_client_free(v.files[i]);
-    hs_client_free(v.files);
-    hs_client_free(v.times);
-    hs_client_free(v.disp);
+    for (int32_t i = 0; i < v.n_written && i < v.cap_files; i++) hs_proto_free(v.files[i]);
+    hs_proto_free(v.files);
+    hs_proto_free(v.times);
+    hs_proto_free(v.disp);
     hs_image_destroy(&v.img);
     lcm_destroy(ts_lcm);
     hs_client_destroy(&c);

@@ -1,7 +1,6 @@
 // SPDX-License-Identifier: MIT
 // hapsim protocol: a bounded reader of LCM-encoded bytes (big-endian; it never reads past the
-// end), for the client library and the simulated stylus, which check some messages field by
-// field before any decode (header only, like hapsim_channels.h).
+// end), under every decoder of hapsim_proto (hapsim_proto.h). Header only.
 #ifndef HAPSIM_WIRE_READ_H
 #define HAPSIM_WIRE_READ_H
 
@@ -36,23 +35,63 @@ static inline const uint8_t* hs_rd_take(hs_rd* r, size_t k) {
     return q;
 }
 
+/// The next k (4 or 8) bytes as a big-endian number; 0 when missing.
+static inline uint64_t hs_rd_bits(hs_rd* r, size_t k) {
+    const uint8_t* q = hs_rd_take(r, k);
+    return !q ? 0 : k == 8 ? hs_be64(q) : hs_be32(q);
+}
+
 static inline int32_t hs_rd_i32(hs_rd* r) {
-    const uint8_t* q = hs_rd_take(r, 4);
-    return q ? (int32_t)hs_be32(q) : 0;
+    return (int32_t)(uint32_t)hs_rd_bits(r, 4);
+}
+
+static inline int64_t hs_rd_i64(hs_rd* r) {
+    return (int64_t)hs_rd_bits(r, 8);
+}
+
+static inline int8_t hs_rd_i8(hs_rd* r) {
+    const uint8_t* q = hs_rd_take(r, 1);
+    return q ? (int8_t)q[0] : 0;
 }
 
 /// A float; a non-finite one sets bad and reads 0 (nothing downstream sees a NaN).
 static inline float hs_rd_f32(hs_rd* r) {
-    const uint8_t* q = hs_rd_take(r, 4);
-    if (!q) return 0;
-    uint32_t u = hs_be32(q);
+    uint32_t u = (uint32_t)hs_rd_bits(r, 4);
     float f;
     memcpy(&f, &u, 4);
-    if (!isfinite(f)) {
-        r->bad = 1;
-        return 0;
-    }
-    return f;
+    if (isfinite(f)) return f;
+    r->bad = 1;
+    return 0;
+}
+
+/// A double as sent, NaN and Inf included (for readers that count them apart).
+static inline double hs_rd_f64_raw(hs_rd* r) {
+    uint64_t u = hs_rd_bits(r, 8);
+    double d;
+    memcpy(&d, &u, 8);
+    return d;
+}
+
+/// A double; a non-finite one sets bad.
+static inline double hs_rd_f64(hs_rd* r) {
+    double d = hs_rd_f64_raw(r);
+    if (!isfinite(d)) r->bad = 1;
+    return d;
+}
+
+/// Start reading buf[0..len) (buf NULL: nothing) and check the type fingerprint; 1 when it
+/// matches.
+static inline int hs_rd_begin(hs_rd* r, const void* buf, size_t len, int64_t hash) {
+    r->p = (const uint8_t*)buf;
+    r->n = buf ? len : 0;
+    r->off = 0;
+    r->bad = 0;
+    return hs_rd_i64(r) == hash && !r->bad;
+}
+
+/// 1 when every read succeeded and nothing is left over.
+static inline int hs_rd_done(const hs_rd* r) {
+    return !r->bad && r->off == r->n;
 }
 
 /// An LCM string (int32 length including the NUL, then the bytes): its text, NUL-terminated

@@ -5,6 +5,8 @@
 // Also the offline half-space server, the deterministic offline run, and the model mailbox.
 #include "stylus.h"
 
+#include "hapsim_model.h"
+
 #include <math.h>
 #include <string.h>
 
@@ -32,19 +34,10 @@ int hs_stylus_model_valid(const hs_stylus_model* m) {
 }
 
 int hs_stylus_model_eval(const hs_stylus_model* m, const double p[3], double f_n[3]) {
-    double d[3];
-    for (int i = 0; i < 3; ++i) d[i] = p[i] - m->anchor_m[i];
-    double n = norm3(d), r = m->radius_m > 0 ? m->radius_m : 0;
-    int inside = n <= r;
-    // Outside the radius the model is evaluated on its sphere: continuous, never extrapolated.
-    if (!inside) {
-        double s = n > 0 ? r / n : 0;
-        for (int i = 0; i < 3; ++i) d[i] *= s;
-    }
-    for (int i = 0; i < 3; ++i)
-        f_n[i] = m->force_n[i] + m->stiffness[3 * i] * d[0] + m->stiffness[3 * i + 1] * d[1] +
-                 m->stiffness[3 * i + 2] * d[2];
-    return inside;
+    // The protocol's one evaluator (msgs/hapsim_model.h), clamped to the radius; a non-finite
+    // force (a NaN position) is zeroed by the device step.
+    return hapsim_model_force(m->force_n, m->anchor_m, m->stiffness, 1, m->radius_m, p, f_n) ==
+           HAPSIM_MODEL_INSIDE;
 }
 
 hs_stylus_def hs_stylus_default_def(void) {
@@ -354,23 +347,16 @@ hs_status hs_stylus_run_offline(const hs_script* script, const hs_stylus_def* de
 
 void hs_stylus_mailbox_init(hs_stylus_mailbox* mb) {
     memset(mb->slot, 0, sizeof mb->slot);
-    atomic_init(&mb->middle, 1u);
-    mb->back = 0;
-    mb->front = 2;
+    hapsim_triple_init(&mb->idx);
 }
 
 void hs_stylus_mailbox_put(hs_stylus_mailbox* mb, const hs_stylus_model* m) {
-    mb->slot[mb->back] = *m;
-    // Release: the slot's contents are visible to whoever takes the index.
-    unsigned old =
-        atomic_exchange_explicit(&mb->middle, mb->back | HS_MAILBOX_FRESH, memory_order_acq_rel);
-    mb->back = old & 3u;
+    mb->slot[mb->idx.back] = *m;
+    hapsim_triple_publish(&mb->idx);
 }
 
 int hs_stylus_mailbox_take(hs_stylus_mailbox* mb, hs_stylus_model* out) {
-    if (!(atomic_load_explicit(&mb->middle, memory_order_relaxed) & HS_MAILBOX_FRESH)) return 0;
-    unsigned old = atomic_exchange_explicit(&mb->middle, mb->front, memory_order_acq_rel);
-    mb->front = old & 3u;
-    *out = mb->slot[mb->front];
+    if (!hapsim_triple_take(&mb->idx)) return 0;
+    *out = mb->slot[mb->idx.front];
     return 1;
 }

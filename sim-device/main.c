@@ -57,6 +57,13 @@ static int64_t wall_us(void) {
     return (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000;
 }
 
+// The device clock, CLOCK_MONOTONIC ns.
+static int64_t now_ns(void) {
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (int64_t)ts.tv_sec * 1000000000 + ts.tv_nsec;
+}
+
 typedef struct options {
     const char* script;
     const char* haptic_url;
@@ -428,7 +435,7 @@ static void on_force(const lcm_recv_buf_t* rbuf, const char* channel, void* user
     app* a = user;
     hs_stylus_model m;
     hs_stylus_rx r =
-        hs_stylus_rx_bytes(&a->rx, rbuf->data, rbuf->data_size, hs_now_ns(), wall_us(), &m);
+        hs_stylus_rx_bytes(&a->rx, rbuf->data, rbuf->data_size, now_ns(), wall_us(), &m);
     if (r == HS_RX_OK) {
         hs_stylus_mailbox_put(&a->mailbox, &m);
         atomic_fetch_add_explicit(&a->rx_forces, 1, memory_order_relaxed);
@@ -524,7 +531,7 @@ static void* loop_main(void* arg) {
         // model taken after `now` could be younger than `now` (negative age, read as "none").
         hs_stylus_model m;
         int got_model = hs_stylus_mailbox_take(&a->mailbox, &m);
-        int64_t now = hs_now_ns();
+        int64_t now = now_ns();
         double t = (double)(now - start_ns) * 1e-9;
         // Without --duration: 0.5 s after the script, whose end moves when a touch finds the
         // surface early.
@@ -581,7 +588,7 @@ static void* loop_main(void* arg) {
 
         // Absolute deadlines; after a long stall skip ahead rather than burst to catch up.
         ts_add_ns(&next, period_ns);
-        int64_t after = hs_now_ns();
+        int64_t after = now_ns();
         int64_t late = after - ts_ns(&next);
         if (late > 0) {
             atomic_fetch_add_explicit(&a->overruns, 1, memory_order_relaxed);
@@ -706,7 +713,7 @@ static int run_live(app* a) {
         status_sub = lcm_subscribe(a->status_lcm, a->status_channel, on_status, a);
     }
     // A session id per start, so the server can tell a restarted stylus from a replayed one.
-    uint64_t r = (uint64_t)hs_now_ns() ^ ((uint64_t)getpid() << 32) ^ (uint64_t)wall_us();
+    uint64_t r = (uint64_t)now_ns() ^ ((uint64_t)getpid() << 32) ^ (uint64_t)wall_us();
     r ^= r >> 33;
     r *= 0xff51afd7ed558ccdull;
     r ^= r >> 33;
@@ -714,7 +721,7 @@ static int run_live(app* a) {
     if (a->session == 0) a->session = 1;
     hs_stylus_mailbox_init(&a->mailbox);
     hs_stylus_rx_init(&a->rx, a->opt.device_id);
-    a->rx.since_utime = wall_us(); // before the first pose goes out
+    a->rx.session = a->session; // forces answering another session's poses are not ours
     if (!a->opt.quiet)
         printf("hapsim-stylus: device %d (tool %d), session %" PRId64 ", %s on %s -> %s, %s %.1f "
                "s at %.0f Hz\n",
@@ -733,11 +740,11 @@ static int run_live(app* a) {
             atomic_store(&a->loop_done, 1);
             rc = 1;
         } else {
-            int64_t t0 = hs_now_ns(), next_status = t0 + 1000000000, last_ticks = 0, last_ns = t0;
+            int64_t t0 = now_ns(), next_status = t0 + 1000000000, last_ticks = 0, last_ns = t0;
             while (!atomic_load(&a->loop_done)) {
                 struct timespec nap = {0, 50000000};
                 nanosleep(&nap, NULL);
-                int64_t now = hs_now_ns();
+                int64_t now = now_ns();
                 if (a->opt.status && now >= next_status) {
                     int64_t ticks = atomic_load(&a->ticks);
                     print_status(a, (double)(now - t0) * 1e-9,

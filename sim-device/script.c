@@ -4,6 +4,8 @@
 // the segment array is the whole, flat timeline.
 #include "stylus.h"
 
+#include "hapsim_proto.h"
+
 #include <ctype.h>
 #include <errno.h>
 #include <math.h>
@@ -19,7 +21,7 @@
 
 hs_status hs_script_create(hs_script** out, hs_err* err) {
     *out = NULL;
-    hs_script* s = hs_calloc(1, sizeof *s);
+    hs_script* s = hs_proto_calloc(1, sizeof *s);
     if (!s) return hs_err_set(err, HS_ERR_NOMEM, "script: out of memory");
     *out = s;
     return HS_OK;
@@ -27,7 +29,7 @@ hs_status hs_script_create(hs_script** out, hs_err* err) {
 
 void hs_script_destroy(hs_script** s) {
     if (!s || !*s) return;
-    hs_free(*s);
+    hs_proto_free(*s);
     *s = NULL;
 }
 
@@ -505,7 +507,7 @@ static hs_status parse_text(parser* p, const char* text, hs_err* err) {
 }
 
 hs_status hs_script_parse_string(hs_script* s, const char* text, const char* name, hs_err* err) {
-    HS_ASSERT(s && text);
+    if (!s || !text) return hs_err_set(err, HS_ERR_INVALID, "script: no script or no text");
     memset(s, 0, offsetof(hs_script, seg));
     snprintf(s->name, sizeof s->name, "%s", name ? name : "<script>");
     parser p;
@@ -532,7 +534,7 @@ hs_status hs_script_parse_file(hs_script* s, const char* path, hs_err* err) {
     if (!f) return hs_err_set(err, HS_ERR_IO, "%s: cannot open: %s", path, strerror(errno));
     // Read to the end rather than trusting the size: /proc files say 0 and a pipe has none.
     const size_t max = 1 << 20;
-    char* text = hs_alloc(max + 2);
+    char* text = hs_proto_alloc(max + 2);
     if (!text) {
         fclose(f);
         return hs_err_set(err, HS_ERR_NOMEM, "%s: out of memory", path);
@@ -541,7 +543,7 @@ hs_status hs_script_parse_file(hs_script* s, const char* path, hs_err* err) {
     int bad = ferror(f);
     fclose(f);
     if (bad || got > max) {
-        hs_free(text);
+        hs_proto_free(text);
         return hs_err_set(err, HS_ERR_IO, "%s: not a readable script (or larger than 1 MiB)", path);
     }
     text[got] = '\0';
@@ -550,7 +552,7 @@ hs_status hs_script_parse_file(hs_script* s, const char* path, hs_err* err) {
         st = hs_err_set(err, HS_ERR_PARSE, "%s: contains a NUL byte (not a text file)", path);
     else
         st = hs_script_parse_string(s, text, path, err);
-    hs_free(text);
+    hs_proto_free(text);
     return st;
 }
 

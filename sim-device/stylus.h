@@ -16,7 +16,8 @@
 #include <stdint.h>
 #include <stdio.h>
 
-#include "base.h"
+#include "hapsim/status.h" // hs_status, hs_err (the client library has hs_err_set)
+#include "hapsim_triple.h"
 
 #ifdef __cplusplus
 extern "C" {
@@ -308,7 +309,7 @@ void hs_stylus_trace_destroy(hs_stylus_trace** t);
 void hs_stylus_trace_add(hs_stylus_trace* t, const hs_stylus_tick* tick);
 /// Rows held.
 int64_t hs_stylus_trace_rows(const hs_stylus_trace* t);
-/// Row i (0 <= i < rows). Valid until destroy.
+/// Row i (0 <= i < rows; NULL otherwise). Valid until destroy.
 const hs_stylus_tick* hs_stylus_trace_row(const hs_stylus_trace* t, int64_t i);
 /// Compute the summary; script (may be NULL) tells which segments are holds.
 void hs_stylus_trace_summary(const hs_stylus_trace* t, const hs_script* script,
@@ -376,13 +377,9 @@ hs_status hs_stylus_run_offline(const hs_script* script, const hs_stylus_def* de
 // Mailbox: a triple buffer handing the newest model from the receive thread to the device
 // loop. One writer, one reader, wait-free, the latest value wins, never torn.
 
-#define HS_MAILBOX_FRESH 4u
-
 typedef struct hs_stylus_mailbox {
     hs_stylus_model slot[3];
-    atomic_uint middle; ///< index of the middle slot | HS_MAILBOX_FRESH when unread
-    unsigned back;      ///< writer's slot (writer only)
-    unsigned front;     ///< reader's slot (reader only)
+    hapsim_triple idx; ///< the protocol library's triple-buffer indices (hapsim_triple.h)
 } hs_stylus_mailbox;
 
 /// Empty mailbox. Thread: before both sides start.

@@ -3,6 +3,8 @@
 // loop only copies a struct), the summary numbers, and the CSV written after the run.
 #include "stylus.h"
 
+#include "hapsim_proto.h"
+
 #include <errno.h>
 #include <math.h>
 #include <stdlib.h>
@@ -24,11 +26,11 @@ hs_status hs_stylus_trace_create(int64_t capacity, hs_stylus_trace** out, hs_err
     if (capacity < 1 || capacity > ((int64_t)1 << 31))
         return hs_err_set(err, HS_ERR_INVALID, "trace: capacity %lld out of range",
                           (long long)capacity);
-    hs_stylus_trace* t = hs_calloc(1, sizeof *t);
+    hs_stylus_trace* t = hs_proto_calloc(1, sizeof *t);
     if (!t) return hs_err_set(err, HS_ERR_NOMEM, "trace: out of memory");
-    t->row = hs_alloc((size_t)capacity * sizeof *t->row);
+    t->row = hs_proto_alloc((size_t)capacity * sizeof *t->row);
     if (!t->row) {
-        hs_free(t);
+        hs_proto_free(t);
         return hs_err_set(err, HS_ERR_NOMEM, "trace: out of memory for %lld rows",
                           (long long)capacity);
     }
@@ -39,8 +41,8 @@ hs_status hs_stylus_trace_create(int64_t capacity, hs_stylus_trace** out, hs_err
 
 void hs_stylus_trace_destroy(hs_stylus_trace** t) {
     if (!t || !*t) return;
-    hs_free((*t)->row);
-    hs_free(*t);
+    hs_proto_free((*t)->row);
+    hs_proto_free(*t);
     *t = NULL;
 }
 
@@ -56,8 +58,7 @@ int64_t hs_stylus_trace_rows(const hs_stylus_trace* t) {
 }
 
 const hs_stylus_tick* hs_stylus_trace_row(const hs_stylus_trace* t, int64_t i) {
-    HS_ASSERT(i >= 0 && i < t->rows);
-    return &t->row[i];
+    return i >= 0 && i < t->rows ? &t->row[i] : NULL;
 }
 
 static int cmp_double(const void* a, const void* b) {
@@ -126,7 +127,7 @@ void hs_stylus_trace_summary(const hs_stylus_trace* t, const hs_script* script,
         out->steady_segment = -1;
     }
     // Percentiles need a sorted copy: after the run, so an allocation is fine here.
-    double* lat = n_lat > 0 ? hs_alloc((size_t)n_lat * sizeof *lat) : NULL;
+    double* lat = n_lat > 0 ? hs_proto_alloc((size_t)n_lat * sizeof *lat) : NULL;
     if (lat) {
         int64_t j = 0;
         for (int64_t k = 0; k < t->rows; ++k)
@@ -134,7 +135,7 @@ void hs_stylus_trace_summary(const hs_stylus_trace* t, const hs_script* script,
         qsort(lat, (size_t)n_lat, sizeof *lat, cmp_double);
         out->latency_p50_us = lat[(int64_t)floor(0.50 * (double)(n_lat - 1))];
         out->latency_p99_us = lat[(int64_t)floor(0.99 * (double)(n_lat - 1))];
-        hs_free(lat);
+        hs_proto_free(lat);
     }
 }
 

@@ -4,10 +4,10 @@
 # A module is a folder; its headers sit beside its code. A file may include its own folder's
 # headers, the exported headers of the modules its module may see, the installed API
 # (include/hapsim) as its side allows, and the third-party headers its module owns. The rt loop
-# never sees fem, sparse, cut or LCM; only net (of the server) includes LCM, only sparse CHOLMOD,
-# only the mesher gmsh; clients, the stylus and the web view see only the protocol (msgs/) and
-# the installed API (the stylus also base.h; the protocol library status.h). Prints every
-# offending include as FILE:LINE.
+# never sees fem, sparse, cut or LCM (of the protocol only hapsim_model.h, the evaluator); only
+# net (of the server) includes LCM, only sparse CHOLMOD, only the mesher gmsh; clients, the
+# stylus and the web view see only the protocol (msgs/) and the installed API (the protocol
+# library also status.h). Prints every offending include as FILE:LINE.
 # The compiler enforces the same boundaries through each target's include directories (ctest
 # deps_rt_no_fem); this check also covers private headers and third-party ones.
 #   tests/check_deps.sh SOURCE_DIR            check the tree
@@ -51,17 +51,17 @@ sees() {
     server/sparse) echo "server/base $SERVER_API sys:cholmod.h" ;;
     server/fem) echo "server/sparse server/mesh server/base $SERVER_API" ;;
     server/cut) echo "server/fem server/sparse server/mesh server/base $SERVER_API" ;;
-    server/rt) echo "server/base $SERVER_API" ;;
+    server/rt) echo "server/base $SERVER_API msgs:hapsim_model.h" ;;
     server/haptic) echo "server/cut server/fem server/sparse server/mesh server/rt server/base $SERVER_API" ;;
     server/net) echo "server/base $SERVER_API msgs sys:lcm/lcm.h" ;;
     server/scene) echo "server/fem server/sparse server/mesh server/base $SERVER_API msgs:hapsim_channels.h sys:cJSON.h" ;;
     server/daemon) echo "$SERVER_MODULES $SERVER_API platform.h msgs sys:lcm/lcm.h" ;;
     server/tools) echo "$SERVER_MODULES $SERVER_API platform.h" ;;
     client | client/examples) echo "$CLIENT_API msgs sys:lcm/lcm.h sys:png.h" ;;
-    sim-device) echo "$CLIENT_API msgs base.h sys:lcm/lcm.h" ;;
+    sim-device) echo "$CLIENT_API msgs sys:lcm/lcm.h" ;;
     web) echo "$CLIENT_API msgs sys:lcm/lcm.h sys:libwebsockets.h sys:cjson/cJSON.h" ;;
     msgs) echo "msgs hapsim/status.h sys:lcm/lcm.h" ;;
-    include/hapsim) echo "api:*" ;;
+    include/hapsim) echo "api:* msgs:hapsim_wire_status.h" ;; # client.h: the decoded status
     esac
 }
 # Third-party headers that only some modules may include (system headers are free).

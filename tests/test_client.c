@@ -583,9 +583,9 @@ static int test_topology_nomem(void) {
         ENSURE(feed1(s, enc_topology(2, 2, 4, rest, 2, tri)) == HS_SYNC_HELD);
         uint64_t h0 = mesh_hash(m);
         msg t3 = enc_topology(3, 3, BIG, big_rest, BIG, big_tri);
-        hs_client_alloc_fail_after(k);
+        hs_proto_alloc_fail_after(k);
         hs_sync_result r = feed1(s, t3);
-        hs_client_alloc_fail_after(0);
+        hs_proto_alloc_fail_after(0);
         if (r == HS_SYNC_HELD) { // fewer allocations than k: nothing failed
             hs_mesh_sync_destroy(&s);
             break;
@@ -793,9 +793,8 @@ static int test_local_model(void) {
 static int force_decodes(const hapsim_tool_force_t* f) {
     uint8_t buf[512];
     int len = hapsim_tool_force_t_encode(buf, 0, (int)sizeof buf, f);
-    int32_t dev;
-    hs_local_model m;
-    return len > 0 && hs_wire_force_decode(buf, (size_t)len, &dev, NULL, &m) == 0;
+    hs_wire_force w;
+    return len > 0 && hs_wire_force_decode(buf, (size_t)len, &w) == 0;
 }
 
 static int test_force_ranges(void) {
@@ -1037,9 +1036,12 @@ static int test_delta_sum_overflow(void) {
 // ---------------------------------------------------------------------------------------------
 // The connection on memq:// buses: the test publishes the server's messages into the client.
 
+#define MEMQ_SESSION 4242 // the pose session of memq_client's clients
+
 static hs_client* memq_client(uint32_t subscribe) {
     hs_client_config cfg;
     hs_client_config_default(&cfg);
+    cfg.session = MEMQ_SESSION;
     cfg.haptic_url = "memq://";
     cfg.mesh_url = "memq://";
     cfg.subscribe = subscribe;
@@ -1053,10 +1055,11 @@ static void put(hs_client* c, int bus, const char* suffix, const void* buf, int 
     lcm_publish(hs_client_lcm(c, bus), ch, buf, (unsigned)len);
 }
 
-// A tool_force for device 0 (server clock utime, us) pushing fx newtons.
-static void put_force(hs_client* c, int64_t seq, int64_t utime, double fx) {
+// A tool_force for device 0 answering session's poses (server clock utime, us), pushing fx N.
+static void put_force_of(hs_client* c, int64_t session, int64_t seq, int64_t utime, double fx) {
     hapsim_tool_force_t f;
     memset(&f, 0, sizeof f);
+    f.session = session;
     f.utime = utime;
     f.seq = seq;
     f.model_version = seq;
@@ -1066,6 +1069,11 @@ static void put_force(hs_client* c, int64_t seq, int64_t utime, double fx) {
     f.timeout_us = 50000;
     uint8_t buf[512];
     put(c, 0, HAPSIM_CH_TOOL_FORCE, buf, hapsim_tool_force_t_encode(buf, 0, sizeof buf, &f));
+}
+
+// The same, answering memq_client's session.
+static void put_force(hs_client* c, int64_t seq, int64_t utime, double fx) {
+    put_force_of(c, MEMQ_SESSION, seq, utime, fx);
 }
 
 static void put_status(hs_client* c, int64_t seq, const char* scene) {
@@ -1334,6 +1342,47 @@ static double force_x(hs_client* c) {
     return hs_client_force_model(c, 0, &m) ? m.force[0] : -1;
 }
 
+// A restarted driver (new session) never takes a force answering the old session's poses,
+// which the server goes on sending while the old session still owns the device (takeover after
+// session_takeover_us) and while its rt output ramps down; a viewer takes every session's.
+static int test_force_session(void) {
+    hs_client_config cfg;
+    hs_client_config_default(&cfg);
+    cfg.session = MEMQ_SESSION + 1; // the restarted driver
+    cfg.haptic_url = "memq://";
+    cfg.mesh_url = "memq://";
+    cfg.subscribe = HS_CLIENT_SUB_FORCE;
+    hs_client* c = NULL;
+    ENSURE(hs_client_create(&cfg, &c, NULL) == HS_OK);
+    cfg.all_sessions = 1;
+    hs_client* viewer = NULL;
+    ENSURE(hs_client_create(&cfg, &viewer, NULL) == HS_OK);
+    hs_err e = {0};
+    hs_client_stats st;
+    // Before it sent any pose: the old session's force is not taken.
+    put_force_of(c, MEMQ_SESSION, 10, 1000, 5.0);
+    ENSURE(hs_client_poll(c, 100, &e) == 1 && force_x(c) == -1);
+    put_force_of(c, MEMQ_SESSION + 1, 11, 2000, 1.0); // its own
+    ENSURE(hs_client_poll(c, 100, &e) == 1 && force_x(c) == 1.0);
+    put_force_of(c, MEMQ_SESSION, 12, 3000, 5.0); // a late one of the old session
+    put_force_of(c, 0, 13, 4000, 5.0);            // no session (no pose accepted yet)
+    ENSURE(hs_client_poll(c, 100, &e) == 2 && force_x(c) == 1.0);
+    hs_client_stats_get(c, &st);
+    ENSURE(st.forces == 1 && st.forces_session == 3 && st.malformed == 0);
+    double f[3];
+    hs_client_force(c, 0, (double[3]){0, 0, 0}, hs_client_now_us(), f);
+    ENSURE(f[0] == 1.0);
+    // A viewer takes the same four (memq:// is one bus per handle: fed again).
+    const int64_t sessions[4] = {MEMQ_SESSION, MEMQ_SESSION + 1, MEMQ_SESSION, 0};
+    for (int i = 0; i < 4; i++) put_force_of(viewer, sessions[i], 10 + i, 1000 * (i + 1), 2.0);
+    ENSURE(hs_client_poll(viewer, 100, &e) == 4);
+    hs_client_stats_get(viewer, &st);
+    ENSURE(st.forces == 4 && st.forces_session == 0);
+    hs_client_destroy(&viewer);
+    hs_client_destroy(&c);
+    return 0;
+}
+
 // A restarted server counts its force seq from 1 again: before, its forces were dropped as
 // stale until the seq passed the old one's (or fell 100000 behind, ~100 s at 1 kHz). Its clock
 // (utime) tells: later on the same host, unrelated (earlier) after a reboot or on another host.
@@ -1426,8 +1475,8 @@ static int test_status_kept(void) {
 HS_TEST_MAIN(HS_CASE(test_url_without_port), HS_CASE(test_callback_reentry),
              HS_CASE(test_ack_among_many), HS_CASE(test_pose_thread),
              HS_CASE(test_command_checked_locally), HS_CASE(test_force_restart),
-             HS_CASE(test_mesh_restart), HS_CASE(test_topology_nomem), HS_CASE(test_far_jump),
-             HS_CASE(test_model_extremes), HS_CASE(test_status_kept),
+             HS_CASE(test_force_session), HS_CASE(test_mesh_restart), HS_CASE(test_topology_nomem),
+             HS_CASE(test_far_jump), HS_CASE(test_model_extremes), HS_CASE(test_status_kept),
              HS_CASE(test_lossless_follows_server), HS_CASE(test_delta_sum_overflow),
              HS_CASE(test_loss_converges), HS_CASE(test_late_join),
              HS_CASE(test_wrong_versions_ignored), HS_CASE(test_malformed_counted),

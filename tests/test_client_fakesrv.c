@@ -108,6 +108,7 @@ static void on_pose(const lcm_recv_buf_t* rb, const char* ch, const hapsim_tool_
     f.utime = now_us();
     f.seq = h->seq++;
     f.device_id = p->device_id;
+    f.session = p->session; // echoed: a driver takes only its own session's answers
     f.pose_seq = p->seq;
     f.pose_utime = p->utime;
     f.model_version = 1;

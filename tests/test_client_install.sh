@@ -17,6 +17,7 @@ cmake --install "$build" --component client --prefix "$prefix" >"$tmp/install.lo
     { cat "$tmp/install.log"; echo "FAIL: cmake --install"; exit 1; }
 for f in include/hapsim/client.h include/hapsim/status.h include/hapsim/version.h \
          include/hapsim/lcmtypes/hapsim_tool_pose_t.h include/hapsim/lcmtypes/hapsim_channels.h \
+         include/hapsim/lcmtypes/hapsim_proto.h include/hapsim/lcmtypes/hapsim_triple.h \
          bin/hapsim-view bin/hapsim-ctl; do
     [ -e "$prefix/$f" ] || { echo "FAIL: $f not installed"; exit 1; }
 done
@@ -33,6 +34,7 @@ cat >"$tmp/consumer/main.c" <<'C'
 #include <hapsim/client.h>
 #include <hapsim/version.h>
 #include <hapsim_channels.h>
+#include <hapsim_proto.h>
 #include <hapsim_tool_pose_t.h>
 #include <stdio.h>
 #include <string.h>
@@ -56,6 +58,13 @@ int main(void) {
     if (hs_mesh_sync_feed(s, HS_SYNC_STATE, junk, sizeof junk) != HS_SYNC_MALFORMED) return 1;
     hs_mesh_sync_destroy(&s);
     hs_client_destroy(&c);
+    /* The protocol library is in it too: a decoder refuses junk, the evaluator clamps. */
+    hs_wire_force wf;
+    if (hs_wire_force_decode(junk, sizeof junk, &wf) == 0) return 1;
+    double f[3], k[9] = {-100, 0, 0, 0, -100, 0, 0, 0, -100};
+    if (hapsim_model_force((double[3]){0, 0, 0}, (double[3]){0, 0, 0}, k, 1, 0.01,
+                           (double[3]){1, 0, 0}, f) != HAPSIM_MODEL_CLAMPED || f[0] != -1.0)
+        return 1;
     /* The installed status.h's functions are in the library. */
     if (strcmp(hs_status_str(HS_ERR_NOMEM), "out of memory") != 0) return 1;
     hs_err e2 = {0};

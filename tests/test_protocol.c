@@ -1,6 +1,8 @@
 // SPDX-License-Identifier: GPL-2.0-or-later
-// Protocol: encode/decode round trips of every message type, the inbound validators (one case
-// per rejection reason, good input accepted), and a flood of random and corrupted payloads.
+// Protocol: round trips of every message type through lcm-gen's encoder and the protocol
+// library's bounded decoder (hapsim_proto.h) with truncated, grown and corrupted copies, the
+// server's inbound validators (one case per rejection reason, good input accepted), and a flood
+// of random and corrupted payloads.
 #include <stdint.h>
 #include <stdlib.h>
 
@@ -19,6 +21,7 @@
 #include "hapsim_tool_state_t.h"
 #include "hapsim_topology_event_t.h"
 #include "bus.h"
+#include "hapsim_proto.h"
 #include "mesh_frames.h"
 #include "validate.h"
 
@@ -40,27 +43,50 @@ static uint64_t rng(void) {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Round trips
+// The protocol library's decoders (msgs/hapsim_proto.h) against lcm-gen's encoders: each reads
+// back what was encoded, and refuses every proper prefix (copied into a buffer of exactly that
+// size, so a read past it is a sanitizer error), one byte more, NULL and a wrong fingerprint.
 
-static int roundtrip_tool_pose_force_state(void) {
+// Decode bytes b[0..n) as they are, then cut, grown and corrupted. decode(buf, len, out).
+#define CHECK_DECODER(decode, b, n, out)                                                           \
+    do {                                                                                           \
+        ENSURE(decode(b, (size_t)(n), out) == 0);                                                  \
+        for (int cut = 0; cut < (n); ++cut) {                                                      \
+            uint8_t* p_ = malloc((size_t)cut + 1);                                                 \
+            ENSURE(p_ != NULL);                                                                    \
+            memcpy(p_, b, (size_t)cut);                                                            \
+            ENSURE(decode(cut ? p_ : NULL, (size_t)cut, out) != 0);                                \
+            free(p_);                                                                              \
+        }                                                                                          \
+        uint8_t* g_ = malloc((size_t)(n) + 1);                                                     \
+        ENSURE(g_ != NULL);                                                                        \
+        memcpy(g_, b, (size_t)(n));                                                                \
+        g_[n] = 0;                                                                                 \
+        ENSURE(decode(g_, (size_t)(n) + 1, out) != 0);                                             \
+        g_[3] ^= 0x10;                                                                             \
+        ENSURE(decode(g_, (size_t)(n), out) != 0);                                                 \
+        free(g_);                                                                                  \
+        ENSURE(decode(NULL, (size_t)(n), out) != 0);                                               \
+        ENSURE(decode(b, (size_t)(n), out) == 0);                                                  \
+    } while (0)
+
+static int proto_haptic_decoders(void) {
+    uint8_t* b;
+    int n;
     hapsim_tool_pose_t p = {.utime = 123456789,
                             .seq = 42,
                             .session = -7,
                             .device_id = 1,
-                            .tool_id = 0,
-                            .position = {0.01, -0.02, 0.03},
+                            .tool_id = 2,
+                            .position = {0.01, -0.02, NAN}, // as sent: the server judges
                             .orientation = {0.5, 0.5, -0.5, 0.5},
                             .buttons = 3};
-    uint8_t* b;
-    int n;
     ENCODE(hapsim_tool_pose_t, &p, b, n);
-    ENSURE(n == 100); // the validator's fixed wire size
-    hapsim_tool_pose_t q;
-    ENSURE(hapsim_tool_pose_t_decode(b, 0, n, &q) == n);
-    ENSURE(q.utime == p.utime && q.seq == p.seq && q.session == p.session);
-    ENSURE(q.device_id == 1 && q.tool_id == 0 && q.buttons == 3);
-    ENSURE(memcmp(q.position, p.position, sizeof q.position) == 0);
-    ENSURE(memcmp(q.orientation, p.orientation, sizeof q.orientation) == 0);
+    hs_wire_pose wp;
+    CHECK_DECODER(hs_wire_pose_decode, b, n, &wp);
+    ENSURE(wp.utime == p.utime && wp.seq == 42 && wp.session == -7 && wp.device_id == 1);
+    ENSURE(wp.tool_id == 2 && wp.buttons == 3 && wp.position[1] == -0.02 && isnan(wp.position[2]));
+    ENSURE(memcmp(wp.orientation, p.orientation, sizeof wp.orientation) == 0);
     free(b);
 
     hapsim_tool_force_t f;
@@ -68,151 +94,57 @@ static int roundtrip_tool_pose_force_state(void) {
     f.utime = 99;
     f.seq = 5;
     f.device_id = 2;
+    f.session = 0x1234567890ll;
     f.pose_seq = 41;
     f.pose_utime = 123456000;
     f.model_version = 8;
-    f.state = HAPSIM_TOOL_FORCE_T_STATE_CONTACT;
+    f.state = HAPSIM_TOOL_FORCE_T_STATE_RAMP;
     for (int i = 0; i < 3; ++i) f.force[i] = 0.1 * (i + 1), f.anchor[i] = -0.01 * i;
     for (int i = 0; i < 9; ++i) f.stiffness[i] = -100.0 * i;
     f.validity_radius = 0.002;
     f.timeout_us = 20000;
     ENCODE(hapsim_tool_force_t, &f, b, n);
-    hapsim_tool_force_t g;
-    memset(&g, 0, sizeof g); // padding too, so the structs compare bytewise
-    ENSURE(hapsim_tool_force_t_decode(b, 0, n, &g) == n);
-    ENSURE(memcmp(&f, &g, sizeof f) == 0); // no pointers: the whole struct compares
+    hs_wire_force wf;
+    CHECK_DECODER(hs_wire_force_decode, b, n, &wf);
+    ENSURE(wf.utime == 99 && wf.seq == 5 && wf.device_id == 2 && wf.session == f.session);
+    ENSURE(wf.pose_seq == 41 && wf.pose_utime == f.pose_utime && wf.model_version == 8);
+    ENSURE(wf.state == f.state && wf.validity_radius == 0.002 && wf.timeout_us == 20000);
+    ENSURE(memcmp(wf.force, f.force, sizeof f.force) == 0);
+    ENSURE(memcmp(wf.anchor, f.anchor, sizeof f.anchor) == 0);
+    ENSURE(memcmp(wf.stiffness, f.stiffness, sizeof f.stiffness) == 0);
+    free(b);
+    // Well formed but out of range: read, then refused by the check.
+    f.stiffness[4] = NAN;
+    ENCODE(hapsim_tool_force_t, &f, b, n);
+    ENSURE(hs_wire_force_read(b, (size_t)n, &wf) == 0 && isnan(wf.stiffness[4]));
+    ENSURE(hs_wire_force_check(&wf) != 0 && hs_wire_force_decode(b, (size_t)n, &wf) != 0);
     free(b);
 
-    hapsim_tool_state_t s;
-    memset(&s, 0, sizeof s);
-    s.utime = 1;
-    s.seq = 2;
-    s.device_id = 0;
-    s.tool_id = 1;
-    s.kind = HAPSIM_TOOL_STATE_T_KIND_SCALPEL;
-    s.orientation[0] = 1;
-    s.radius = 0.005;
-    s.blade_b[2] = 0.02;
-    s.force[1] = -1.5;
-    s.contact = 1;
-    s.cutting = 1;
-    ENCODE(hapsim_tool_state_t, &s, b, n);
     hapsim_tool_state_t t;
     memset(&t, 0, sizeof t);
-    ENSURE(hapsim_tool_state_t_decode(b, 0, n, &t) == n);
-    ENSURE(memcmp(&s, &t, sizeof s) == 0);
+    t.utime = 1;
+    t.seq = 2;
+    t.device_id = 3;
+    t.tool_id = 1;
+    t.kind = HAPSIM_TOOL_STATE_T_KIND_SCALPEL;
+    t.orientation[0] = 1;
+    t.radius = 0.005;
+    t.blade_b[2] = 0.02;
+    t.force[1] = -1.5;
+    t.contact = 1;
+    t.cutting = 1;
+    ENCODE(hapsim_tool_state_t, &t, b, n);
+    hs_wire_tool_state wt;
+    CHECK_DECODER(hs_wire_tool_state_decode, b, n, &wt);
+    ENSURE(wt.device_id == 3 && wt.tool_id == 1 && wt.kind == t.kind && wt.radius == 0.005);
+    ENSURE(wt.blade_b[2] == 0.02 && wt.force[1] == -1.5 && wt.contact == 1 && wt.cutting == 1);
     free(b);
     return 0;
 }
 
-static int roundtrip_mesh(void) {
-    enum { NV = 1000, NT = 600 };
-    static int32_t vis[NV], tris[3 * NT], tets[4 * 10], idx[NV];
-    static float rest[3 * NV], pos[3 * NV], stress[NV], delta[3 * NV];
-    for (int i = 0; i < NV; ++i) vis[i] = 2 * i, stress[i] = (float)i * 10.0f, idx[i] = i;
-    for (int i = 0; i < 3 * NV; ++i) {
-        rest[i] = (float)(rng() % 1000) * 1e-4f;
-        pos[i] = rest[i] + 1e-3f;
-        delta[i] = -1e-4f * (float)(i % 7);
-    }
-    for (int i = 0; i < 3 * NT; ++i) tris[i] = (int32_t)(rng() % NV);
-    for (int i = 0; i < 40; ++i) tets[i] = i;
-
-    hapsim_mesh_topology_t top = {.utime = 10,
-                                  .seq = 1,
-                                  .topology_version = 3,
-                                  .n_nodes = 2 * NV,
-                                  .n_vis = NV,
-                                  .vis_nodes = vis,
-                                  .n_rest = 3 * NV,
-                                  .rest_position = rest,
-                                  .n_tri_idx = 3 * NT,
-                                  .triangles = tris,
-                                  .n_tet_idx = 40,
-                                  .tets = tets};
+static int proto_command_decoders(void) {
     uint8_t* b;
     int n;
-    ENCODE(hapsim_mesh_topology_t, &top, b, n);
-    hapsim_mesh_topology_t top2;
-    memset(&top2, 0, sizeof top2);
-    ENSURE(hapsim_mesh_topology_t_decode(b, 0, n, &top2) == n);
-    ENSURE(top2.topology_version == 3 && top2.n_vis == NV && top2.n_nodes == 2 * NV);
-    ENSURE(memcmp(top2.vis_nodes, vis, sizeof vis) == 0);
-    ENSURE(memcmp(top2.rest_position, rest, sizeof rest) == 0);
-    ENSURE(memcmp(top2.triangles, tris, sizeof tris) == 0);
-    ENSURE(memcmp(top2.tets, tets, sizeof tets) == 0);
-    hapsim_mesh_topology_t_decode_cleanup(&top2);
-    free(b);
-
-    hapsim_mesh_state_t ks = {.utime = 11,
-                              .seq = 2,
-                              .topology_version = 3,
-                              .keyframe_id = 9,
-                              .sim_step = 100,
-                              .sim_time = 0.5,
-                              .n_pos = 3 * NV,
-                              .position = pos,
-                              .n_stress = NV,
-                              .stress = stress};
-    ENCODE(hapsim_mesh_state_t, &ks, b, n);
-    // float32 keeps a keyframe near 12 bytes per node (+ 4 for stress) plus a fixed header.
-    ENSURE(n == 8 + 5 * 8 + 8 + 4 + 12 * NV + 4 + 4 * NV);
-    hapsim_mesh_state_t ks2;
-    memset(&ks2, 0, sizeof ks2);
-    ENSURE(hapsim_mesh_state_t_decode(b, 0, n, &ks2) == n);
-    ENSURE(ks2.keyframe_id == 9 && ks2.sim_time == 0.5 && ks2.n_pos == 3 * NV);
-    ENSURE(memcmp(ks2.position, pos, sizeof pos) == 0);
-    ENSURE(memcmp(ks2.stress, stress, sizeof stress) == 0);
-    hapsim_mesh_state_t_decode_cleanup(&ks2);
-    free(b);
-
-    hapsim_mesh_delta_t d = {.utime = 12,
-                             .seq = 3,
-                             .topology_version = 3,
-                             .keyframe_id = 9,
-                             .sim_step = 101,
-                             .sim_time = 0.51,
-                             .n_changed = NV / 2,
-                             .index = idx,
-                             .n_delta = 3 * (NV / 2),
-                             .delta = delta};
-    ENCODE(hapsim_mesh_delta_t, &d, b, n);
-    hapsim_mesh_delta_t d2;
-    memset(&d2, 0, sizeof d2);
-    ENSURE(hapsim_mesh_delta_t_decode(b, 0, n, &d2) == n);
-    ENSURE(d2.n_changed == NV / 2 && d2.n_delta == 3 * (NV / 2) && d2.keyframe_id == 9);
-    ENSURE(memcmp(d2.index, idx, sizeof(int32_t) * (NV / 2)) == 0);
-    ENSURE(memcmp(d2.delta, delta, sizeof(float) * 3 * (NV / 2)) == 0);
-    hapsim_mesh_delta_t_decode_cleanup(&d2);
-    free(b);
-
-    int32_t removed[3] = {5, 6, 70}, moved[2] = {1, 400};
-    float moved_rest[6] = {1, 2, 3, 4, 5, 6};
-    hapsim_topology_event_t ev = {.utime = 13,
-                                  .seq = 4,
-                                  .old_version = 3,
-                                  .new_version = 4,
-                                  .device_id = 0,
-                                  .n_removed = 3,
-                                  .removed_tets = removed,
-                                  .n_moved = 2,
-                                  .moved_nodes = moved,
-                                  .n_moved_rest = 6,
-                                  .moved_rest = moved_rest};
-    for (int i = 0; i < 12; ++i) ev.swept_quad[i] = 0.001f * (float)i;
-    ENCODE(hapsim_topology_event_t, &ev, b, n);
-    hapsim_topology_event_t ev2;
-    memset(&ev2, 0, sizeof ev2);
-    ENSURE(hapsim_topology_event_t_decode(b, 0, n, &ev2) == n);
-    ENSURE(ev2.new_version == 4 && ev2.n_removed == 3 && ev2.removed_tets[2] == 70);
-    ENSURE(ev2.moved_nodes[1] == 400 && ev2.moved_rest[5] == 6.0f);
-    ENSURE(memcmp(ev2.swept_quad, ev.swept_quad, sizeof ev.swept_quad) == 0);
-    hapsim_topology_event_t_decode_cleanup(&ev2);
-    free(b);
-    return 0;
-}
-
-static int roundtrip_command_ack_status(void) {
     char* keys[2] = {"name", "value"};
     char* vals[2] = {"haptic.k_max", "1500"};
     hapsim_command_t c = {.utime = 5,
@@ -223,91 +155,206 @@ static int roundtrip_command_ack_status(void) {
                           .keys = keys,
                           .values = vals,
                           .sender = "test"};
-    uint8_t* b;
-    int n;
     ENCODE(hapsim_command_t, &c, b, n);
-    hapsim_command_t c2;
-    memset(&c2, 0, sizeof c2);
-    ENSURE(hapsim_command_t_decode(b, 0, n, &c2) == n);
-    ENSURE(c2.request_id == 77 && c2.n_args == 2 && strcmp(c2.values[0], "haptic.k_max") == 0);
-    ENSURE(strcmp(c2.sender, "test") == 0);
-    hapsim_command_t_decode_cleanup(&c2);
+    static hs_wire_command wc;
+    CHECK_DECODER(hs_wire_command_decode, b, n, &wc);
+    ENSURE(wc.utime == 5 && wc.seq == 6 && wc.request_id == 77 && wc.kind == c.kind);
+    ENSURE(wc.n_args == 2 && strcmp(wc.keys[1], "value") == 0);
+    ENSURE(strcmp(wc.values[0], "haptic.k_max") == 0 && strcmp(wc.sender, "test") == 0);
+    free(b);
+    // Oversized: a key of 64 bytes, nine arguments: well formed, too long.
+    char long_key[65];
+    memset(long_key, 'k', 64);
+    long_key[64] = 0;
+    keys[0] = long_key;
+    ENCODE(hapsim_command_t, &c, b, n);
+    ENSURE(hs_wire_command_decode(b, (size_t)n, &wc) == HS_WIRE_TOO_LONG && wc.request_id == 77);
+    free(b);
+    char* k9[9] = {"a", "b", "c", "d", "e", "f", "g", "h", "i"};
+    c.n_args = 9;
+    c.keys = k9;
+    c.values = k9;
+    ENCODE(hapsim_command_t, &c, b, n);
+    ENSURE(hs_wire_command_decode(b, (size_t)n, &wc) == HS_WIRE_TOO_LONG);
     free(b);
 
+    char msg[400];
+    memset(msg, 'm', sizeof msg - 1);
+    msg[sizeof msg - 1] = 0;
     hapsim_command_ack_t a = {.utime = 1,
                               .seq = 2,
                               .request_id = 77,
                               .kind = 5,
-                              .status = HAPSIM_COMMAND_ACK_T_STATUS_FAILED,
-                              .message = "no such"};
+                              .status = HAPSIM_COMMAND_ACK_T_STATUS_INVALID,
+                              .message = msg};
     ENCODE(hapsim_command_ack_t, &a, b, n);
-    hapsim_command_ack_t a2;
-    memset(&a2, 0, sizeof a2);
-    ENSURE(hapsim_command_ack_t_decode(b, 0, n, &a2) == n);
-    ENSURE(a2.status == -2 && a2.request_id == 77 && strcmp(a2.message, "no such") == 0);
-    hapsim_command_ack_t_decode_cleanup(&a2);
+    hs_wire_ack wa;
+    CHECK_DECODER(hs_wire_ack_decode, b, n, &wa);
+    ENSURE(wa.request_id == 77 && wa.kind == 5 && wa.status == a.status);
+    ENSURE(strlen(wa.message) == sizeof wa.message - 1); // truncated, terminated
+    free(b);
+    return 0;
+}
+
+static int proto_mesh_decoders(void) {
+    enum { NV = 20, NN = 30, NT = 10 };
+    int32_t vis[NV], tris[3 * NT], tets[8], idx[5] = {1, 4, 7, 11, 19};
+    float rest[3 * NV], pos[3 * NV], stress[NV], delta[15], quad[12];
+    for (int i = 0; i < NV; ++i) vis[i] = i + 5, stress[i] = 10.0f * (float)i;
+    for (int i = 0; i < 3 * NV; ++i) rest[i] = 1e-3f * (float)i, pos[i] = rest[i] + 1e-4f;
+    for (int i = 0; i < 3 * NT; ++i) tris[i] = i % NV;
+    for (int i = 0; i < 8; ++i) tets[i] = i;
+    for (int i = 0; i < 15; ++i) delta[i] = -1e-5f * (float)i;
+    for (int i = 0; i < 12; ++i) quad[i] = 0.01f * (float)i;
+    uint8_t* b;
+    int n;
+    hapsim_mesh_topology_t t = {.utime = 1,
+                                .seq = 2,
+                                .topology_version = 3,
+                                .n_nodes = NN,
+                                .n_vis = NV,
+                                .vis_nodes = vis,
+                                .n_rest = 3 * NV,
+                                .rest_position = rest,
+                                .n_tri_idx = 3 * NT,
+                                .triangles = tris,
+                                .n_tet_idx = 8,
+                                .tets = tets};
+    ENCODE(hapsim_mesh_topology_t, &t, b, n);
+    hs_wire_topology wt;
+    CHECK_DECODER(hs_wire_topology_decode, b, n, &wt);
+    ENSURE(wt.topology_version == 3 && wt.n_nodes == NN && wt.n_vis == NV && wt.n_tri == NT);
+    ENSURE(wt.n_tet == 2 && hs_wire_i32_at(wt.vis_nodes, NV - 1) == vis[NV - 1]);
+    ENSURE(hs_wire_f32_at(wt.rest, 7) == rest[7] && hs_wire_i32_at(wt.tet, 5) == 5);
+    free(b);
+    vis[3] = NN; // a visual node beyond the volume mesh
+    ENCODE(hapsim_mesh_topology_t, &t, b, n);
+    ENSURE(hs_wire_topology_decode(b, (size_t)n, &wt) != 0);
     free(b);
 
-    char* loops[3] = {"rt", "sim", "net"};
-    float rate[3] = {1000, 60, 500}, p50[3] = {1000, 16000, 2000}, p99[3] = {1300, 20000, 3000};
-    float pmax[3] = {2000, 30000, 9000};
-    int64_t over[3] = {3, 0, 0};
-    char* steps[1] = {"solve"};
-    float s50[1] = {800}, s99[1] = {1200}, smax[1] = {1500};
-    int32_t dev[1] = {0};
+    hapsim_mesh_state_t s = {.utime = 4,
+                             .seq = 5,
+                             .topology_version = 3,
+                             .keyframe_id = 9,
+                             .sim_step = 100,
+                             .sim_time = 0.5,
+                             .n_pos = 3 * NV,
+                             .position = pos,
+                             .n_stress = NV,
+                             .stress = stress};
+    ENCODE(hapsim_mesh_state_t, &s, b, n);
+    // float32 keeps a keyframe near 12 bytes per node (+ 4 for stress) plus a fixed header.
+    ENSURE(n == 8 + 5 * 8 + 8 + 4 + 12 * NV + 4 + 4 * NV);
+    hs_wire_state ws;
+    CHECK_DECODER(hs_wire_state_decode, b, n, &ws);
+    ENSURE(ws.keyframe_id == 9 && ws.sim_step == 100 && ws.sim_time == 0.5 && ws.pos.n == 3 * NV);
+    ENSURE(hs_wire_f32_at(ws.pos, 59) == pos[59] && hs_wire_f32_at(ws.stress, 19) == stress[19]);
+    free(b);
+
+    hapsim_mesh_delta_t d = {.utime = 6,
+                             .seq = 7,
+                             .topology_version = 3,
+                             .keyframe_id = 9,
+                             .sim_step = 101,
+                             .sim_time = 0.51,
+                             .n_changed = 5,
+                             .index = idx,
+                             .n_delta = 15,
+                             .delta = delta};
+    ENCODE(hapsim_mesh_delta_t, &d, b, n);
+    hs_wire_delta wd;
+    CHECK_DECODER(hs_wire_delta_decode, b, n, &wd);
+    ENSURE(wd.keyframe_id == 9 && wd.index.n == 5 && hs_wire_i32_at(wd.index, 4) == 19);
+    ENSURE(hs_wire_f32_at(wd.delta, 14) == delta[14]);
+    free(b);
+
+    int32_t removed[2] = {3, 8}, moved[3] = {1, 2, 29};
+    float moved_rest[9] = {0};
+    hapsim_topology_event_t e = {.utime = 8,
+                                 .seq = 9,
+                                 .old_version = 3,
+                                 .new_version = 4,
+                                 .device_id = 0,
+                                 .n_removed = 2,
+                                 .removed_tets = removed,
+                                 .n_moved = 3,
+                                 .moved_nodes = moved,
+                                 .n_moved_rest = 9,
+                                 .moved_rest = moved_rest};
+    memcpy(e.swept_quad, quad, sizeof quad);
+    ENCODE(hapsim_topology_event_t, &e, b, n);
+    hs_wire_event we;
+    CHECK_DECODER(hs_wire_event_decode, b, n, &we);
+    ENSURE(we.old_version == 3 && we.new_version == 4 && we.n_removed == 2 && we.n_moved == 3);
+    free(b);
+    return 0;
+}
+
+static int proto_status_decoder(void) {
+    enum { NL = 9 }; // one loop more than hs_wire_status keeps
+    char* loop_names[NL] = {"rt", "sim", "net", "l3", "l4", "l5", "l6", "l7", "l8"};
+    float lf[NL];
+    int64_t lo[NL];
+    for (int i = 0; i < NL; ++i) lf[i] = 1000.0f + (float)i, lo[i] = i;
+    char* step_names[1] = {"sim_step"};
+    float sf[1] = {250};
+    int32_t dev_id[1] = {0};
     int8_t live[1] = {1};
-    float age[1] = {0.4f}, l50[1] = {60}, l99[1] = {300}, fn[1] = {1.2f};
-    int64_t rx[1] = {12345}, lost[1] = {2};
-    char* rch[2] = {"TOOL_POSE", "COMMAND"};
-    char* rre[2] = {"nonfinite", "duplicate"};
-    int64_t rc[2] = {10, 1};
-    hapsim_server_status_t st = {.utime = 3,
-                                 .seq = 4,
-                                 .uptime_us = 1000000,
-                                 .state = HAPSIM_SERVER_STATUS_T_STATE_RUNNING,
-                                 .scene = "scenes/liver/liver.json",
-                                 .topology_version = 1,
-                                 .n_loops = 3,
-                                 .loop_name = loops,
-                                 .rate_hz = rate,
-                                 .period_p50_us = p50,
-                                 .period_p99_us = p99,
-                                 .period_max_us = pmax,
-                                 .overruns = over,
+    float df[1] = {3.5f};
+    int64_t di[1] = {12345};
+    char* rch[1] = {"TOOL_POSE"};
+    char* rre[1] = {"nonfinite"};
+    int64_t rc[1] = {4};
+    hapsim_server_status_t st = {.utime = 10,
+                                 .seq = 11,
+                                 .uptime_us = 12,
+                                 .state = HAPSIM_SERVER_STATUS_T_STATE_PAUSED,
+                                 .scene = "scenes/liver.json",
+                                 .topology_version = 3,
+                                 .n_loops = NL,
+                                 .loop_name = loop_names,
+                                 .rate_hz = lf,
+                                 .period_p50_us = lf,
+                                 .period_p99_us = lf,
+                                 .period_max_us = lf,
+                                 .overruns = lo,
                                  .n_steps = 1,
-                                 .step_name = steps,
-                                 .step_p50_us = s50,
-                                 .step_p99_us = s99,
-                                 .step_max_us = smax,
+                                 .step_name = step_names,
+                                 .step_p50_us = sf,
+                                 .step_p99_us = sf,
+                                 .step_max_us = sf,
                                  .n_devices = 1,
-                                 .device_id = dev,
+                                 .device_id = dev_id,
                                  .device_live = live,
-                                 .pose_age_ms = age,
-                                 .poses_received = rx,
-                                 .poses_lost = lost,
-                                 .latency_p50_us = l50,
-                                 .latency_p99_us = l99,
-                                 .force_norm = fn,
-                                 .n_rejects = 2,
+                                 .pose_age_ms = df,
+                                 .poses_received = di,
+                                 .poses_lost = di,
+                                 .latency_p50_us = df,
+                                 .latency_p99_us = df,
+                                 .force_norm = df,
+                                 .n_rejects = 1,
                                  .reject_channel = rch,
                                  .reject_reason = rre,
                                  .reject_count = rc,
-                                 .warnings = ""};
+                                 .warnings = "rt loop overrun"};
+    uint8_t* b;
+    int n;
     ENCODE(hapsim_server_status_t, &st, b, n);
-    hapsim_server_status_t st2;
-    memset(&st2, 0, sizeof st2);
-    ENSURE(hapsim_server_status_t_decode(b, 0, n, &st2) == n);
-    ENSURE(st2.n_loops == 3 && strcmp(st2.loop_name[2], "net") == 0 && st2.rate_hz[1] == 60);
-    ENSURE(st2.overruns[0] == 3 && st2.poses_lost[0] == 2 && st2.device_live[0] == 1);
-    ENSURE(st2.n_rejects == 2 && strcmp(st2.reject_reason[1], "duplicate") == 0);
-    ENSURE(st2.reject_count[0] == 10 && strcmp(st2.scene, "scenes/liver/liver.json") == 0);
-    hapsim_server_status_t_decode_cleanup(&st2);
+    static hs_wire_status ws;
+    CHECK_DECODER(hs_wire_status_decode, b, n, &ws);
+    ENSURE(ws.utime == 10 && ws.state == st.state && strcmp(ws.scene, st.scene) == 0);
+    ENSURE(ws.n_loops == NL && strcmp(ws.loops[HS_WIRE_STATUS_LOOPS - 1].name, "l7") == 0);
+    ENSURE(ws.loops[1].rate_hz == 1001.0f && ws.loops[2].overruns == 2);
+    ENSURE(ws.n_steps == 1 && strcmp(ws.steps[0].name, "sim_step") == 0);
+    ENSURE(ws.steps[0].p99_us == 250 && ws.devices[0].live == 1);
+    ENSURE(ws.devices[0].poses_received == 12345 && ws.devices[0].force_norm == 3.5f);
+    ENSURE(strcmp(ws.rejects[0].reason, "nonfinite") == 0 && ws.rejects[0].count == 4);
+    ENSURE(strcmp(ws.warnings, "rt loop overrun") == 0);
     free(b);
-
-    char ch[HAPSIM_CHANNEL_MAX];
-    ENSURE(hapsim_channel_name(ch, sizeof ch, HAPSIM_DEFAULT_PREFIX, HAPSIM_CH_TOOL_POSE) == 0);
-    ENSURE(strcmp(ch, "HAPSIM_TOOL_POSE") == 0);
-    ENSURE(hapsim_channel_name(ch, 8, "LONGPREFIX_", HAPSIM_CH_TOOL_POSE) == -1 && ch[0] == 0);
+    // A refused message leaves all zeros (a count read before the failure must not survive).
+    ENCODE(hapsim_server_status_t, &st, b, n);
+    ENSURE(hs_wire_status_decode(b, (size_t)n - 1, &ws) != 0 && ws.n_loops == 0);
+    free(b);
     return 0;
 }
 
@@ -823,8 +870,8 @@ static int size_notes(void) {
     return 0;
 }
 
-HS_TEST_MAIN(HS_CASE(size_notes), HS_CASE(roundtrip_tool_pose_force_state), HS_CASE(roundtrip_mesh),
-             HS_CASE(roundtrip_command_ack_status), HS_CASE(pose_accepts_good),
-             HS_CASE(pose_rejects_each_reason), HS_CASE(command_accepts_good),
-             HS_CASE(command_rejects_each_reason), HS_CASE(flood_counts_add_up),
-             HS_CASE(mesh_frames_roundtrip))
+HS_TEST_MAIN(HS_CASE(size_notes), HS_CASE(pose_accepts_good), HS_CASE(pose_rejects_each_reason),
+             HS_CASE(command_accepts_good), HS_CASE(command_rejects_each_reason),
+             HS_CASE(flood_counts_add_up), HS_CASE(mesh_frames_roundtrip),
+             HS_CASE(proto_haptic_decoders), HS_CASE(proto_command_decoders),
+             HS_CASE(proto_mesh_decoders), HS_CASE(proto_status_decoder))

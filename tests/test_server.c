@@ -204,6 +204,7 @@ typedef struct client {
     int64_t flog_utime[8192];
     double flog_norm[8192];
     int32_t flog_state[8192];
+    int64_t flog_session[8192], flog_pose_utime[8192];
     double flog_stiff[8192]; // largest |stiffness| entry, N/m
     // mesh
     int n_topo, n_key, n_delta;
@@ -237,6 +238,8 @@ static void on_force(const lcm_recv_buf_t* rb, const char* ch, const hapsim_tool
         c->flog_utime[c->n_flog] = f->utime;
         c->flog_norm[c->n_flog] =
             sqrt(f->force[0] * f->force[0] + f->force[1] * f->force[1] + f->force[2] * f->force[2]);
+        c->flog_session[c->n_flog] = f->session;
+        c->flog_pose_utime[c->n_flog] = f->pose_utime;
         double st = 0;
         for (int k = 0; k < 9; ++k) st = fmax(st, fabs(f->stiffness[k]));
         c->flog_stiff[c->n_flog] = st;
@@ -735,6 +738,56 @@ static int forces_between(const client* c, int64_t t0, int64_t t1, int* nonzero)
             *nonzero += c->flog_norm[i] != 0.0;
         }
     return n;
+}
+
+// A driver restarted with a new session: while the old session still owns the device (until
+// session_takeover_us of silence) the server goes on answering it (rt outputs ramping down),
+// and those forces carry the old session, which the new driver drops (tool_force session,
+// checked in test_client and test_stylus); every force for the new session answers its poses.
+static int restarted_driver_session(void) {
+    char scene[512];
+    snprintf(scene, sizeof scene, "%s/liver_session.json", tmpdir);
+    liver_scene(scene, NULL);
+    ENSURE(start_server(scene, "session") == 0);
+    client c;
+    ENSURE(client_open(&c) == 0);
+    ENSURE(wait_up(&c));
+    const int64_t old_session = c.session;
+    stream(&c, -0.010, 0.003, 400); // press 3 mm and hold: forces in contact
+    stream(&c, 0.003, 0.003, 300);
+    ENSURE(c.force.session == old_session && c.force.pose_seq == c.seq);
+    ENSURE(norm3(c.force.force) > 0);
+    // The old driver stops; the new one starts at once where it was, seq from 1.
+    const int64_t restart_us = hs_now_ns() / 1000; // the poses' clock (send_pose)
+    const int first = c.n_flog;
+    c.session = old_session + 1;
+    c.seq = 0;
+    stream(&c, 0.003, 0.003, 1000);
+    pump_ms(&c, 20);
+    ENSURE(c.n_flog < 8192);
+    int n_old = 0, n_new = 0, first_new = -1;
+    for (int i = first; i < c.n_flog; ++i) {
+        if (c.flog_session[i] == old_session) {
+            // The old session's: an answer to its poses (or to none), never to the new ones.
+            ENSURE(c.flog_pose_utime[i] < restart_us);
+            ++n_old;
+        } else {
+            ENSURE(c.flog_session[i] == c.session);
+            ENSURE(c.flog_pose_utime[i] == 0 || c.flog_pose_utime[i] >= restart_us);
+            if (first_new < 0) first_new = i;
+            ++n_new;
+        }
+    }
+    // Until the takeover only the old session's answers came (nothing the new driver takes);
+    // afterwards none of them.
+    for (int i = first_new; i >= 0 && i < c.n_flog; ++i) ENSURE(c.flog_session[i] == c.session);
+    printf("  restart: %d forces of the old session after it, then %d of the new one\n", n_old,
+           n_new);
+    ENSURE(n_new > 200);
+    ENSURE(c.force.session == c.session && c.force.pose_seq == c.seq);
+    client_close(&c);
+    ENSURE(stop_server() == 0);
+    return 0;
 }
 
 // LOAD_SCENE is built on a thread of its own: the running scene goes on answering poses until
@@ -1811,9 +1864,9 @@ static int set_after_mesh_changed(void) {
 }
 
 HS_TEST_MAIN(HS_CASE(malformed_scene_exits_1), HS_CASE(bad_command_lines_refused),
-             HS_CASE(poses_in_forces_out), HS_CASE(load_goes_on_answering),
-             HS_CASE(set_after_mesh_changed), HS_CASE(set_keeps_body_state),
-             HS_CASE(rebuild_keeps_force), HS_CASE(pause_keeps_limits),
-             HS_CASE(clutch_ignores_motion), HS_CASE(starts_under_a_streaming_driver),
-             HS_CASE(mesh_10k_arrives_whole), HS_CASE(dropped_deltas_recover),
-             HS_CASE(flood_leaves_server_intact))
+             HS_CASE(poses_in_forces_out), HS_CASE(restarted_driver_session),
+             HS_CASE(load_goes_on_answering), HS_CASE(set_after_mesh_changed),
+             HS_CASE(set_keeps_body_state), HS_CASE(rebuild_keeps_force),
+             HS_CASE(pause_keeps_limits), HS_CASE(clutch_ignores_motion),
+             HS_CASE(starts_under_a_streaming_driver), HS_CASE(mesh_10k_arrives_whole),
+             HS_CASE(dropped_deltas_recover), HS_CASE(flood_leaves_server_intact))

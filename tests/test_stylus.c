@@ -6,6 +6,7 @@
 
 #include "stylus.h"
 #include "test_macros.h"
+#include "hapsim_tool_force_t.h"
 #include "wire.h"
 
 #include "hapsim_server_status_t.h"
@@ -38,7 +39,7 @@ static int parse(hs_script* s, const char* text, hs_err* err) {
 }
 
 static int script_good(void) {
-    int64_t bytes = hs_byte_count();
+    int64_t bytes = hs_proto_byte_count();
     hs_script* s = NULL;
     hs_err err = {0};
     ENSURE(hs_script_create(&s, &err) == HS_OK);
@@ -128,7 +129,7 @@ static int script_good(void) {
     hs_script_destroy(&s);
     ENSURE(s == NULL);
     hs_script_destroy(&s); // NULL is harmless
-    ENSURE(hs_byte_count() == bytes);
+    ENSURE(hs_proto_byte_count() == bytes);
     return 0;
 }
 
@@ -139,7 +140,7 @@ typedef struct bad_case {
 } bad_case;
 
 static int script_errors(void) {
-    int64_t bytes = hs_byte_count();
+    int64_t bytes = hs_proto_byte_count();
     hs_script* s = NULL;
     hs_err err = {0};
     ENSURE(hs_script_create(&s, &err) == HS_OK);
@@ -218,7 +219,7 @@ static int script_errors(void) {
         ENSURE(s->n_segments == 0 && s->duration_s == 0); // nothing half-parsed survives
     }
     hs_script_destroy(&s);
-    ENSURE(hs_byte_count() == bytes);
+    ENSURE(hs_proto_byte_count() == bytes);
     return 0;
 }
 
@@ -733,7 +734,7 @@ static int run_cycle(double k, int delay, int force_only, hs_stylus_summary* sum
 }
 
 static int passivity(void) {
-    int64_t bytes = hs_byte_count();
+    int64_t bytes = hs_proto_byte_count();
     hs_stylus_summary sum;
     const double ks[] = {100, 300, 1000};
     for (int i = 0; i < 3; ++i) {
@@ -754,7 +755,7 @@ static int passivity(void) {
     printf("  k 1000 N/m, force only, 25 ticks delay: net %.3g J of %.3g J in\n", sum.energy_j,
            sum.energy_in_j);
     ENSURE(sum.energy_j > 0.01 * sum.energy_in_j);
-    ENSURE(hs_byte_count() == bytes);
+    ENSURE(hs_proto_byte_count() == bytes);
     return 0;
 }
 
@@ -767,7 +768,7 @@ static double summary_value(const char* text, const char* key) {
 }
 
 static int trace_file(void) {
-    int64_t bytes = hs_byte_count();
+    int64_t bytes = hs_proto_byte_count();
     hs_script* s = NULL;
     hs_err err = {0};
     ENSURE(hs_script_create(&s, &err) == HS_OK);
@@ -849,7 +850,7 @@ static int trace_file(void) {
     hs_stylus_trace_destroy(&tr2);
     hs_stylus_trace_destroy(&tr);
     hs_script_destroy(&s);
-    ENSURE(hs_byte_count() == bytes);
+    ENSURE(hs_proto_byte_count() == bytes);
     return 0;
 }
 
@@ -857,7 +858,7 @@ static int trace_file(void) {
 // do not fall on the reference's times) passes within a small tolerance, a stiffer surface or a
 // run cut short fails; malformed files name file and line.
 static int trace_compare(void) {
-    int64_t bytes = hs_byte_count();
+    int64_t bytes = hs_proto_byte_count();
     hs_script* s = NULL;
     hs_err err = {0};
     ENSURE(hs_script_create(&s, &err) == HS_OK);
@@ -1012,7 +1013,7 @@ static int trace_compare(void) {
     hs_stylus_trace_destroy(&b);
     hs_stylus_trace_destroy(&a);
     hs_script_destroy(&s);
-    ENSURE(hs_byte_count() == bytes);
+    ENSURE(hs_proto_byte_count() == bytes);
     return 0;
 }
 
@@ -1020,7 +1021,7 @@ static int trace_compare(void) {
 // clear of the surface, and the demo lasts 30-45 s. Offline against a 300 N/m half-space the
 // 5 mm press settles where the hand spring and the surface share the depth.
 static int bundled_scripts(void) {
-    int64_t bytes = hs_byte_count();
+    int64_t bytes = hs_proto_byte_count();
     const char* names[] = {"press_hold", "press_drag_release", "demo"};
     hs_script* s = NULL;
     hs_err err = {0};
@@ -1103,7 +1104,7 @@ static int bundled_scripts(void) {
     ENSURE(norm3(hs_stylus_trace_row(tr, hs_stylus_trace_rows(tr) - 1)->f_applied) == 0);
     hs_stylus_trace_destroy(&tr);
     hs_script_destroy(&s);
-    ENSURE(hs_byte_count() == bytes);
+    ENSURE(hs_proto_byte_count() == bytes);
     return 0;
 }
 
@@ -1140,7 +1141,7 @@ static int run_touch(double surface_z, const char* surface_line, hs_stylus_trace
 }
 
 static int script_touch(void) {
-    int64_t bytes = hs_byte_count();
+    int64_t bytes = hs_proto_byte_count();
     hs_script* s = NULL;
     hs_err err = {0};
     ENSURE(hs_script_create(&s, &err) == HS_OK);
@@ -1234,7 +1235,7 @@ static int script_touch(void) {
     }
     hs_stylus_trace_destroy(&tr);
     hs_script_destroy(&s);
-    ENSURE(hs_byte_count() == bytes);
+    ENSURE(hs_proto_byte_count() == bytes);
     return 0;
 }
 
@@ -1382,6 +1383,7 @@ static hapsim_tool_force_t good_force(int64_t seq) {
     f.utime = 1700000000000000;
     f.seq = seq;
     f.device_id = 2;
+    f.session = 77;
     f.pose_seq = seq < INT64_MAX - 40 ? 40 + seq : seq;
     f.pose_utime = 1700000000000000 - 150;
     f.model_version = 9;
@@ -1394,6 +1396,16 @@ static hapsim_tool_force_t good_force(int64_t seq) {
     f.validity_radius = 0.002;
     f.timeout_us = 40000;
     return f;
+}
+
+// hs_stylus_rx_force on f as the stylus reads it off the wire (encoded, then hs_wire_force_read).
+static hs_stylus_rx rx_force(hs_stylus_rx_state* st, const hapsim_tool_force_t* f, int64_t now_ns,
+                             int64_t wall_us, hs_stylus_model* out) {
+    uint8_t buf[512];
+    int len = hapsim_tool_force_t_encode(buf, 0, (int)sizeof buf, f);
+    hs_wire_force w;
+    if (len <= 0 || hs_wire_force_read(buf, (size_t)len, &w)) return HS_RX_UNDECODABLE;
+    return hs_stylus_rx_force(st, &w, now_ns, wall_us, out);
 }
 
 typedef struct rx_ctx {
@@ -1418,7 +1430,7 @@ static int wire_rx(void) {
     hs_stylus_rx_init(&st, 2);
     hs_stylus_model m;
     hapsim_tool_force_t f = good_force(0); // a first seq of 0 is fine
-    ENSURE(hs_stylus_rx_force(&st, &f, 123, f.utime + 20, &m) == HS_RX_OK);
+    ENSURE(rx_force(&st, &f, 123, f.utime + 20, &m) == HS_RX_OK);
     ENSURE(m.seq == 0 && m.version == 9 && m.pose_seq == 40 && m.arrival_ns == 123);
     ENSURE(m.latency_us == 170);
     ENSURE_NEAR(m.timeout_s, 0.04, 1e-15);
@@ -1426,111 +1438,115 @@ static int wire_rx(void) {
     ENSURE(memcmp(m.stiffness, f.stiffness, sizeof m.stiffness) == 0);
     ENSURE(m.radius_m == 0.002 && m.state == 1);
     f = good_force(0); // same seq again: reordered
-    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_REORDERED);
+    ENSURE(rx_force(&st, &f, 0, 0, &m) == HS_RX_REORDERED);
     f = good_force(5);
-    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
+    ENSURE(rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
     f = good_force(4);
-    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_REORDERED);
+    ENSURE(rx_force(&st, &f, 0, 0, &m) == HS_RX_REORDERED);
     f = good_force(6);
     f.device_id = 1;
-    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OTHER_DEVICE);
+    ENSURE(rx_force(&st, &f, 0, 0, &m) == HS_RX_OTHER_DEVICE);
     f = good_force(6);
     f.stiffness[7] = INFINITY;
-    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_INVALID);
+    ENSURE(rx_force(&st, &f, 0, 0, &m) == HS_RX_INVALID);
     f = good_force(6);
     f.force[0] = NAN;
-    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_INVALID);
+    ENSURE(rx_force(&st, &f, 0, 0, &m) == HS_RX_INVALID);
     f = good_force(6);
     f.validity_radius = -1;
-    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_INVALID);
+    ENSURE(rx_force(&st, &f, 0, 0, &m) == HS_RX_INVALID);
     f = good_force(6);
     f.timeout_us = -5;
-    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_INVALID);
+    ENSURE(rx_force(&st, &f, 0, 0, &m) == HS_RX_INVALID);
     f = good_force(6);
     f.state = 9;
-    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_INVALID);
+    ENSURE(rx_force(&st, &f, 0, 0, &m) == HS_RX_INVALID);
     // Finite but beyond the ranges the client library keeps: refused as there (the device
     // zeroed the overflowing force of such a model and counted it accepted).
     hs_stylus_rx_state s2;
     hs_stylus_rx_init(&s2, 2);
     f = good_force(6);
     f.force[0] = 1e200;
-    ENSURE(hs_stylus_rx_force(&s2, &f, 0, 0, &m) == HS_RX_INVALID);
+    ENSURE(rx_force(&s2, &f, 0, 0, &m) == HS_RX_INVALID);
     f = good_force(6);
     f.stiffness[4] = 1e300;
     f.validity_radius = 1e300;
-    ENSURE(hs_stylus_rx_force(&s2, &f, 0, 0, &m) == HS_RX_INVALID);
+    ENSURE(rx_force(&s2, &f, 0, 0, &m) == HS_RX_INVALID);
     f = good_force(6);
     f.anchor[1] = -2 * HS_WIRE_ANCHOR_MAX_M;
-    ENSURE(hs_stylus_rx_force(&s2, &f, 0, 0, &m) == HS_RX_INVALID);
+    ENSURE(rx_force(&s2, &f, 0, 0, &m) == HS_RX_INVALID);
     f = good_force(6);
     f.timeout_us = HS_WIRE_TIMEOUT_MAX_US + 1;
-    ENSURE(hs_stylus_rx_force(&s2, &f, 0, 0, &m) == HS_RX_INVALID);
+    ENSURE(rx_force(&s2, &f, 0, 0, &m) == HS_RX_INVALID);
     f = good_force(6); // at the limits: taken
     f.force[0] = HS_WIRE_FORCE_MAX_N;
     f.stiffness[4] = HS_WIRE_STIFFNESS_MAX_N_M;
     f.validity_radius = HS_WIRE_RADIUS_MAX_M;
     f.timeout_us = HS_WIRE_TIMEOUT_MAX_US;
-    ENSURE(hs_stylus_rx_force(&s2, &f, 0, 0, &m) == HS_RX_OK);
+    ENSURE(rx_force(&s2, &f, 0, 0, &m) == HS_RX_OK);
     ENSURE(s2.count[HS_RX_INVALID] == 4 && s2.count[HS_RX_OK] == 1);
     f = good_force(6);
     f.pose_utime = 0;
-    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
+    ENSURE(rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
     ENSURE(m.latency_us == -1);
     // A restarted server counts from the beginning again: accepted.
     f = good_force(6 + HS_RX_RESTART_GAP);
-    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
+    ENSURE(rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
     f = good_force(1);
-    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
+    ENSURE(rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
     ENSURE(st.count[HS_RX_OK] == 5 && st.count[HS_RX_REORDERED] == 2);
     // ... also soon after it started (seq 1 after 500, not 100000 behind): its clock tells,
     // later on the same host, far earlier on another; within a second earlier it is a reorder.
     f = good_force(500);
-    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
+    ENSURE(rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
     f = good_force(3);
     f.utime += 1000;
-    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OK); // it was reordered
+    ENSURE(rx_force(&st, &f, 0, 0, &m) == HS_RX_OK); // it was reordered
     f = good_force(2);
     f.utime += 500;
-    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_REORDERED);
+    ENSURE(rx_force(&st, &f, 0, 0, &m) == HS_RX_REORDERED);
     f = good_force(1);
     f.utime -= 5000000;
-    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
+    ENSURE(rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
     st.count[HS_RX_OK] -= 3;
     st.count[HS_RX_REORDERED] -= 1;
     ENSURE(st.count[HS_RX_OTHER_DEVICE] == 1 && st.count[HS_RX_INVALID] == 5);
-    // Started at since_utime: an answer to an older pose is another session's, skipped before
-    // any other check; one to a newer pose, or one naming no pose (e-stop), is taken.
-    st.since_utime = f.pose_utime + 1;
+    // A driver of session 78 skips the answers to session 77's poses (a driver that ran
+    // before it), before any other check, and takes its own.
+    st.session = 78;
     f = good_force(7);
-    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OTHER_SESSION);
-    f.pose_utime = st.since_utime;
-    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
+    ENSURE(rx_force(&st, &f, 0, 0, &m) == HS_RX_OTHER_SESSION);
+    f.state = 9; // invalid too: the session is checked first
+    ENSURE(rx_force(&st, &f, 0, 0, &m) == HS_RX_OTHER_SESSION);
+    f = good_force(7);
+    f.session = 78;
+    ENSURE(rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
     f = good_force(8);
-    f.pose_utime = 0;
-    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
-    ENSURE(st.count[HS_RX_OTHER_SESSION] == 1 && st.count[HS_RX_OK] == 7);
+    f.session = 0; // no session (no pose of this device accepted yet): not ours either
+    ENSURE(rx_force(&st, &f, 0, 0, &m) == HS_RX_OTHER_SESSION);
+    ENSURE(st.count[HS_RX_OTHER_SESSION] == 3 && st.count[HS_RX_OK] == 6);
+    st.session = 0;
     // Extreme seq and utime from the network: no signed overflow (UBSan), the right verdict. A
     // negative seq is invalid (it was a "reorder" of 5 - INT64_MIN, overflowed).
     hs_stylus_rx_init(&st, 2);
     f = good_force(5);
-    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
+    ENSURE(rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
     f = good_force(INT64_MIN + 1);
-    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_INVALID);
+    ENSURE(rx_force(&st, &f, 0, 0, &m) == HS_RX_INVALID);
     f = good_force(-1);
-    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_INVALID);
+    ENSURE(rx_force(&st, &f, 0, 0, &m) == HS_RX_INVALID);
     f = good_force(4); // a clock far older: a restarted server, accepted
     f.utime = INT64_MIN + 1;
-    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
+    ENSURE(rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
     f = good_force(3); // then one from the far future is newer: accepted
     f.utime = INT64_MAX;
-    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
+    ENSURE(rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
     f = good_force(INT64_MAX);
     f.utime = INT64_MAX;
-    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
+    ENSURE(rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
     f = good_force(0); // INT64_MAX behind, same clock: a restart
     f.utime = INT64_MAX;
-    ENSURE(hs_stylus_rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
+    ENSURE(rx_force(&st, &f, 0, 0, &m) == HS_RX_OK);
     ENSURE(st.count[HS_RX_INVALID] == 2 && st.count[HS_RX_OK] == 5);
 
     // Through LCM's encoder and decoder (in-process memq://), the model arrives unchanged.

@@ -30,7 +30,7 @@
 #include "hapsim/client.h"
 #include "hapsim_channels.h"
 #include "hapsim_command_t.h"
-#include "hapsim_tool_state_t.h"
+#include "hapsim_proto.h"
 #include "hub.h"
 
 #define WEB_MAX_DEV    HS_CLIENT_MAX_DEVICES
@@ -60,7 +60,7 @@ typedef struct web_app {
     atomic_int stop; // set by a signal, --duration or a failure; read by every thread
     int64_t t_end;   // hs_client_now_us() to stop at, 0: run until a signal
     // LCM thread only:
-    hapsim_tool_state_t tools[WEB_MAX_DEV];
+    hs_wire_tool_state tools[WEB_MAX_DEV];
     int64_t tool_arrival[WEB_MAX_DEV];
     hs_local_model models[WEB_MAX_DEV];
     int tools_dirty, mesh_dirty;
@@ -251,7 +251,7 @@ static void publish_tools(web_app* a, int64_t now) {
     int first = 1;
     for (int d = 0; d < WEB_MAX_DEV; ++d) {
         if (!a->tool_arrival[d] || now - a->tool_arrival[d] > 500000) continue;
-        const hapsim_tool_state_t* t = &a->tools[d];
+        const hs_wire_tool_state* t = &a->tools[d];
         jb_printf(&b, "%s{\"dev\":%d,\"tool\":%d,\"kind\":%d,\"p\":", first ? "" : ",",
                   t->device_id, t->tool_id, t->kind);
         jb_vec(&b, t->position, 3);
@@ -379,31 +379,16 @@ static void on_force(hs_client* c, int32_t id, const hs_local_model* m, void* us
     if (id >= 0 && id < WEB_MAX_DEV) a->models[id] = *m;
 }
 
-// TOOL_STATE is fixed-size: a message of any other length, or with non-finite numbers, is
-// dropped (lcm-gen's decoder is safe here because no field carries a length).
+// TOOL_STATE through the protocol library's bounded decoder: a message of another length, or
+// with non-finite numbers, is dropped.
 static void on_tool_state(const lcm_recv_buf_t* rbuf, const char* ch, void* user) {
     (void)ch;
     web_app* a = user;
-    hapsim_tool_state_t t;
-    memset(&t, 0, sizeof t);
-    int want = hapsim_tool_state_t_encoded_size(&t);
-    if ((int)rbuf->data_size != want ||
-        hapsim_tool_state_t_decode(rbuf->data, 0, (int)rbuf->data_size, &t) != want) {
+    hs_wire_tool_state t;
+    if (hs_wire_tool_state_decode(rbuf->data, rbuf->data_size, &t)) {
         a->tool_states_bad++;
         return;
     }
-    double all[3 + 4 + 1 + 3 + 3 + 3];
-    memcpy(all, t.position, sizeof t.position);
-    memcpy(all + 3, t.orientation, sizeof t.orientation);
-    all[7] = t.radius;
-    memcpy(all + 8, t.blade_a, sizeof t.blade_a);
-    memcpy(all + 11, t.blade_b, sizeof t.blade_b);
-    memcpy(all + 14, t.force, sizeof t.force);
-    for (size_t i = 0; i < sizeof all / sizeof all[0]; ++i)
-        if (!isfinite(all[i])) {
-            a->tool_states_bad++;
-            return;
-        }
     if (t.device_id < 0 || t.device_id >= WEB_MAX_DEV) {
         a->tool_states_bad++;
         return;
@@ -957,6 +942,7 @@ int main(int argc, char** argv) {
     hs_client_config cfg;
     hs_client_config_default(&cfg);
     cfg.sender = "hapsim-web";
+    cfg.all_sessions = 1; // shows every driver's force
     for (int i = 1; i < argc; ++i) {
         const char* o = argv[i];
         const char* v = i + 1 < argc ? argv[i + 1] : NULL;

@@ -23,6 +23,7 @@
 #include <stdint.h>
 
 #include "hapsim/status.h"
+#include "hapsim_wire_status.h" // hs_wire_status: a decoded server_status
 
 #ifdef __cplusplus
 extern "C" {
@@ -49,6 +50,7 @@ typedef struct hs_local_model {
     int32_t valid;          ///< 1 once a model was received
     int32_t state;          ///< HAPSIM_TOOL_FORCE_T_STATE_* (0 free, 1 contact, 2 ramp, 3 stopped)
     int64_t seq;            ///< message seq
+    int64_t session;        ///< the answered pose's session (echo)
     int64_t model_version;  ///< changes when anchor or stiffness change
     int64_t pose_seq;       ///< echoed pose seq
     int64_t pose_utime;     ///< echoed pose utime, us (sender's CLOCK_REALTIME)
@@ -180,40 +182,13 @@ int64_t hs_mesh_sync_newest_topology(const hs_mesh_sync* s);
 // ---------------------------------------------------------------------------------------------
 // Server status, decoded into fixed-size storage (names truncated to 31 bytes).
 
-#define HS_CLIENT_STATUS_LOOPS   8  ///< loops kept
-#define HS_CLIENT_STATUS_STEPS   16 ///< timed steps kept
-#define HS_CLIENT_STATUS_DEVICES 16 ///< devices kept
-#define HS_CLIENT_STATUS_REJECTS 32 ///< reject entries kept
+#define HS_CLIENT_STATUS_LOOPS   HS_WIRE_STATUS_LOOPS   ///< loops kept
+#define HS_CLIENT_STATUS_STEPS   HS_WIRE_STATUS_STEPS   ///< timed steps kept
+#define HS_CLIENT_STATUS_DEVICES HS_WIRE_STATUS_DEVICES ///< devices kept
+#define HS_CLIENT_STATUS_REJECTS HS_WIRE_STATUS_REJECTS ///< reject entries kept
 
-/// One server_status_t (entries beyond the limits above are counted in n_* but not stored).
-typedef struct hs_client_status {
-    int64_t utime, seq, uptime_us; ///< us, server clock; seq; us since server start
-    int32_t state;                 ///< HAPSIM_SERVER_STATUS_T_STATE_* (0 running, 1 paused, ...)
-    char scene[256];               ///< scene path
-    int64_t topology_version;      ///< current topology version
-    int32_t n_loops, n_steps, n_devices, n_rejects; ///< counts as sent
-    struct {
-        char name[32];                         ///< "rt", "sim", "net"
-        float rate_hz, p50_us, p99_us, max_us; ///< Hz; us period percentiles
-        int64_t overruns;                      ///< since start
-    } loops[HS_CLIENT_STATUS_LOOPS];           ///< [min(n_loops, LOOPS)]
-    struct {
-        char name[32];                ///< e.g. "fem_step"
-        float p50_us, p99_us, max_us; ///< us
-    } steps[HS_CLIENT_STATUS_STEPS];  ///< [min(n_steps, STEPS)]
-    struct {
-        int32_t id, live;                     ///< device id; 1 while poses arrive
-        float pose_age_ms;                    ///< ms since the newest pose
-        int64_t poses_received, poses_lost;   ///< since start
-        float latency_p50_us, latency_p99_us; ///< us, inside the server
-        float force_norm;                     ///< N
-    } devices[HS_CLIENT_STATUS_DEVICES];      ///< [min(n_devices, DEVICES)]
-    struct {
-        char channel[32], reason[32];    ///< e.g. "TOOL_POSE", "nonfinite"
-        int64_t count;                   ///< since start
-    } rejects[HS_CLIENT_STATUS_REJECTS]; ///< [min(n_rejects, REJECTS)]
-    char warnings[1024];                 ///< newline-separated, "" when all is well
-} hs_client_status;
+/// One server_status_t (the protocol library's struct, msgs/hapsim_wire_status.h).
+typedef hs_wire_status hs_client_status;
 
 /// Decode server_status_t bytes with full validation. Returns HS_OK or HS_ERR_PARSE (out all
 /// zeros), HS_ERR_INVALID for a NULL out.
@@ -244,6 +219,9 @@ typedef struct hs_client_config {
     const char* sender;     ///< command sender text (<= 63 bytes), NULL: "hapsim-client:<pid>"
     uint32_t subscribe;     ///< HS_CLIENT_SUB_* bits
     int64_t session;        ///< pose session id, 0: random nonzero
+    /// 0 (a driver): take only forces answering this client's session (others are counted in
+    /// forces_session); 1 (a viewer): take every session's.
+    int32_t all_sessions;
 } hs_client_config;
 
 /// Defaults: default URLs and prefix, subscribe = FORCE | MESH | STATUS | COMMANDS.
@@ -332,16 +310,18 @@ bool hs_client_status_latest(const hs_client* c, hs_client_status* out /* OUT */
 
 /// Client-wide counters.
 typedef struct hs_client_stats {
-    int64_t messages;     ///< messages handled on both buses
-    int64_t malformed;    ///< dropped by validation (all channels)
-    int64_t forces;       ///< tool_force messages accepted
-    int64_t forces_other; ///< tool_force for a device id outside 0..MAX_DEVICES-1
-    int64_t forces_stale; ///< tool_force not newer (seq) than the last of its device and at
-                          ///< most 1 s older (utime): reordered (newer utime or older: restart;
-                          ///< after 7 refused in a row with seq counting up, the next is taken)
-    int64_t poses_sent;   ///< tool_pose published
-    int64_t statuses;     ///< server_status accepted
-    int64_t acks;         ///< command acks accepted
+    int64_t messages;       ///< messages handled on both buses
+    int64_t malformed;      ///< dropped by validation (all channels)
+    int64_t forces;         ///< tool_force messages accepted
+    int64_t forces_other;   ///< tool_force for a device id outside 0..MAX_DEVICES-1
+    int64_t forces_stale;   ///< tool_force not newer (seq) than the last of its device and at
+                            ///< most 1 s older (utime): reordered (newer utime or older: restart;
+                            ///< after 7 refused in a row with seq counting up, the next is taken)
+    int64_t forces_session; ///< tool_force answering another session's poses (dropped unless
+                            ///< the config's all_sessions)
+    int64_t poses_sent;     ///< tool_pose published
+    int64_t statuses;       ///< server_status accepted
+    int64_t acks;           ///< command acks accepted
 } hs_client_stats;
 /// Counters. Thread: the polling thread (poses_sent may be counted meanwhile by a thread that
 /// only sends poses) | Allocates: no

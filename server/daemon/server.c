@@ -135,7 +135,7 @@ typedef struct dev_state {
     double force[3]; // newest published force, N
     int contact;
     // Clutch (BUTTON_CLUTCH): tool position = hand position + offset (scene frame, m).
-    int64_t session;    // the driver session the offset belongs to
+    int64_t session;    // the newest accepted pose's session: the offset's, echoed in forces
     double offset[3];   // grows by the hand's motion while the clutch was held
     int clutched;       // the clutch is held
     double hold[3];     // tool position while clutched
@@ -188,7 +188,8 @@ struct hs_server {
 
     dev_state dev[MAX_DEV];
     int64_t feed_seq; // poses fed to rt (rt's pose seq)
-    int64_t ring_feed[POSE_RING], ring_seq[POSE_RING], ring_utime[POSE_RING], ring_rx[POSE_RING];
+    int64_t ring_feed[POSE_RING], ring_seq[POSE_RING], ring_utime[POSE_RING], ring_rx[POSE_RING],
+        ring_session[POSE_RING];
     hs_haptic_output out; // newest rt output
     int have_out;
 
@@ -587,8 +588,9 @@ static int model_stiff(const hs_haptic_model* m) {
 }
 
 // Publish one tool_force for device d from model m (force at m->anchor_m, tool position: the
-// wire carries the hand's, the clutch's offset off).
-static void publish_force(hs_server* s, int d, const hs_haptic_model* m, int state,
+// wire carries the hand's, the clutch's offset off), answering the pose (session, pose_seq,
+// pose_utime) of the driver session that sent it.
+static void publish_force(hs_server* s, int d, const hs_haptic_model* m, int state, int64_t session,
                           int64_t pose_seq, int64_t pose_utime, int64_t rx_ns) {
     dev_state* ds = &s->dev[d];
     hapsim_tool_force_t f;
@@ -596,6 +598,7 @@ static void publish_force(hs_server* s, int d, const hs_haptic_model* m, int sta
     f.utime = now_us();
     f.seq = ++ds->force_seq;
     f.device_id = d;
+    f.session = session;
     f.pose_seq = pose_seq;
     f.pose_utime = pose_utime;
     f.model_version = m->seq;
@@ -760,8 +763,11 @@ static void publish_rt_output(hs_server* s) {
         scale_model(&m, g);
         state = HAPSIM_TOOL_FORCE_T_STATE_RAMP;
     }
+    // The session of the pose rt answered: after a takeover an output of the old session's
+    // poses must not reach the new driver.
     int i = ring_find(s, s->out.pose_seq);
-    publish_force(s, 0, &m, state, i >= 0 ? s->ring_seq[i] : 0, i >= 0 ? s->ring_utime[i] : 0, 0);
+    publish_force(s, 0, &m, state, i >= 0 ? s->ring_session[i] : ds->session,
+                  i >= 0 ? s->ring_seq[i] : 0, i >= 0 ? s->ring_utime[i] : 0, 0);
 }
 
 // Answer an accepted pose at once: the newest rt model evaluated at the new position.
@@ -772,6 +778,7 @@ static void answer_pose(hs_server* s, const hs_net_pose* p, int64_t rx_ns) {
     double hand[3]; // the hand in the tool's frame; the tool stays put while clutched
     for (int k = 0; k < 3; ++k) hand[k] = p->position[k] + ds->offset[k];
     ds->seen = 1;
+    ds->session = p->session;
     ds->last_rx_ns = rx_ns;
     memcpy(ds->hand, p->position, sizeof ds->hand);
     memcpy(ds->pos, ds->clutched ? ds->hold : hand, sizeof ds->pos);
@@ -797,6 +804,7 @@ static void answer_pose(hs_server* s, const hs_net_pose* p, int64_t rx_ns) {
         s->ring_feed[i] = hp.seq;
         s->ring_seq[i] = p->seq;
         s->ring_utime[i] = p->utime;
+        s->ring_session[i] = p->session;
         s->ring_rx[i] = rx_ns;
         hs_haptic_sim_feed_pose(w->sim, &hp);
         drain_outputs(s);
@@ -824,7 +832,7 @@ static void answer_pose(hs_server* s, const hs_net_pose* p, int64_t rx_ns) {
     }
     if (m.anchor_m[0] == 0 && m.anchor_m[1] == 0 && m.anchor_m[2] == 0)
         memcpy(m.anchor_m, hand, sizeof m.anchor_m);
-    publish_force(s, d, &m, state, p->seq, p->utime, rx_ns);
+    publish_force(s, d, &m, state, p->session, p->seq, p->utime, rx_ns);
 }
 
 // The haptic bus's URL as LCM gets it: a udpm:// URL that names no recv_buf_size asks for
@@ -1905,7 +1913,8 @@ static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap)
         for (int d = 0; d < w->scene.n_devices && d < MAX_DEV; ++d)
             if (s->dev[d].seen && w->haptics) {
                 memcpy(z.anchor_m, s->dev[d].pos, sizeof z.anchor_m);
-                publish_force(s, d, &z, HAPSIM_TOOL_FORCE_T_STATE_STOPPED, 0, 0, 0);
+                publish_force(s, d, &z, HAPSIM_TOOL_FORCE_T_STATE_STOPPED, s->dev[d].session, 0, 0,
+                              0);
             }
         return HAPSIM_COMMAND_ACK_T_STATUS_OK;
     }

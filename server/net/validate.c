@@ -6,10 +6,16 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "hapsim_command_ack_t.h"
 #include "hapsim_command_rules.h"
 #include "hapsim_command_t.h"
-#include "hapsim_command_ack_t.h"
+#include "hapsim_proto.h"
 #include "hapsim_tool_pose_t.h"
+
+_Static_assert(sizeof(((hs_net_command*)0)->keys) == sizeof(((hs_wire_command*)0)->keys) &&
+                   sizeof(((hs_net_command*)0)->values) == sizeof(((hs_wire_command*)0)->values) &&
+                   sizeof(((hs_net_command*)0)->sender) == sizeof(((hs_wire_command*)0)->sender),
+               "hs_net_command keeps the protocol's limits");
 
 static const char* const reject_names[HS_NET_REJ_COUNT] = {
     "accept", "decode",         "length",       "nonfinite",    "quaternion",
@@ -53,102 +59,27 @@ hs_net_limits hs_net_default_limits(void) {
 }
 
 // ---------------------------------------------------------------------------------------------
-// A bounds-checked reader of LCM's big-endian wire format. Every read checks the remaining
-// length first; after the first failure the reader stays failed and returns zeros.
-
-typedef struct wire {
-    const uint8_t* p;
-    int64_t len;
-    int64_t pos;
-    int bad;
-} wire;
-
-static int wire_need(wire* w, int64_t n) {
-    if (w->bad || n < 0 || n > w->len - w->pos) {
-        w->bad = 1;
-        return 0;
-    }
-    return 1;
-}
-
-static uint64_t wire_u64(wire* w) {
-    if (!wire_need(w, 8)) return 0;
-    uint64_t v = 0;
-    for (int i = 0; i < 8; ++i) v = (v << 8) | w->p[w->pos + i];
-    w->pos += 8;
-    return v;
-}
-
-static uint32_t wire_u32(wire* w) {
-    if (!wire_need(w, 4)) return 0;
-    uint32_t v = 0;
-    for (int i = 0; i < 4; ++i) v = (v << 8) | w->p[w->pos + i];
-    w->pos += 4;
-    return v;
-}
-
-static int64_t wire_i64(wire* w) {
-    return (int64_t)wire_u64(w);
-}
-static int32_t wire_i32(wire* w) {
-    return (int32_t)wire_u32(w);
-}
-
-static double wire_f64(wire* w) {
-    uint64_t u = wire_u64(w);
-    double d;
-    memcpy(&d, &u, sizeof d);
-    return d;
-}
-
-// An LCM string: int32 length including the NUL, the bytes, the NUL. Copies into out[cap].
-// Returns the reason: DECODE for a broken encoding (no NUL at the end, a NUL inside, length
-// < 1 or beyond the buffer), LENGTH when it is well formed but longer than cap - 1.
-static hs_net_reject wire_string(wire* w, char* out, int cap) {
-    out[0] = '\0';
-    int32_t n = wire_i32(w);
-    if (w->bad) return HS_NET_REJ_DECODE;
-    if (n < 1 || !wire_need(w, n)) {
-        w->bad = 1;
-        return HS_NET_REJ_DECODE;
-    }
-    const uint8_t* s = w->p + w->pos;
-    if (s[n - 1] != 0 || memchr(s, 0, (size_t)(n - 1)) != NULL) {
-        w->bad = 1;
-        return HS_NET_REJ_DECODE;
-    }
-    w->pos += n;
-    if (n > cap) return HS_NET_REJ_LENGTH;
-    memcpy(out, s, (size_t)n);
-    return HS_NET_ACCEPT;
-}
-
-// ---------------------------------------------------------------------------------------------
 // tool_pose
 
 void hs_net_pose_state_init(hs_net_pose_state* s) {
     memset(s, 0, sizeof *s);
 }
 
-// Wire size of tool_pose: fingerprint, 3 int64, 2 int32, 3 + 4 doubles, int32.
-enum { POSE_WIRE_BYTES = 8 + 3 * 8 + 2 * 4 + 7 * 8 + 4 };
-
 static hs_net_reject pose_check(const hs_net_limits* lim, hs_net_pose_state* st, const void* buf,
                                 int64_t len, int64_t now_us, hs_net_pose* out) {
-    if (buf == NULL || len != POSE_WIRE_BYTES) return HS_NET_REJ_DECODE;
-    wire w = {(const uint8_t*)buf, len, 0, 0};
-    if (wire_i64(&w) != __hapsim_tool_pose_t_get_hash()) return HS_NET_REJ_DECODE;
+    hs_wire_pose w;
+    if (buf == NULL || len < 0 || hs_wire_pose_decode(buf, (size_t)len, &w))
+        return HS_NET_REJ_DECODE;
     hs_net_pose p;
     memset(&p, 0, sizeof p);
-    p.utime = wire_i64(&w);
-    p.seq = wire_i64(&w);
-    p.session = wire_i64(&w);
-    int32_t device = wire_i32(&w);
-    int32_t tool = wire_i32(&w);
-    for (int i = 0; i < 3; ++i) p.position[i] = wire_f64(&w);
-    for (int i = 0; i < 4; ++i) p.orientation[i] = wire_f64(&w);
-    int32_t buttons = wire_i32(&w);
-    if (w.bad || w.pos != len) return HS_NET_REJ_DECODE;
+    p.utime = w.utime;
+    p.seq = w.seq;
+    p.session = w.session;
+    int32_t device = w.device_id;
+    int32_t tool = w.tool_id;
+    memcpy(p.position, w.position, sizeof p.position);
+    memcpy(p.orientation, w.orientation, sizeof p.orientation);
+    int32_t buttons = w.buttons;
 
     for (int i = 0; i < 3; ++i)
         if (!isfinite(p.position[i])) return HS_NET_REJ_NONFINITE;
@@ -269,44 +200,26 @@ static hs_net_reject command_check(hs_net_command_state* st, const void* buf, in
                                    hs_net_command* c, int32_t* prev_status) {
     memset(c, 0, sizeof *c);
     if (buf == NULL || len <= 0) return HS_NET_REJ_DECODE;
-    wire w = {(const uint8_t*)buf, len, 0, 0};
-    if (wire_i64(&w) != __hapsim_command_t_get_hash() || w.bad) return HS_NET_REJ_DECODE;
-    int64_t utime = wire_i64(&w);
-    int64_t seq = wire_i64(&w);
-    int64_t request_id = wire_i64(&w);
-    int32_t kind = wire_i32(&w);
-    int32_t n_args = wire_i32(&w);
-    if (w.bad) return HS_NET_REJ_DECODE;
-    c->request_id = request_id;
-    c->kind = kind;
-    c->utime = utime;
-    c->seq = seq;
-    if (n_args < 0 || n_args > HS_NET_CMD_MAX_ARGS) return HS_NET_REJ_LENGTH;
-    c->n_args = n_args;
-
-    // Walk every string before judging any, so a long key cannot hide a broken encoding.
-    hs_net_reject worst = HS_NET_ACCEPT;
-    for (int i = 0; i < n_args; ++i) {
-        hs_net_reject r = wire_string(&w, c->keys[i], HS_NET_CMD_KEY_MAX);
-        if (r == HS_NET_REJ_DECODE) return r;
-        if (r != HS_NET_ACCEPT) worst = r;
-    }
-    for (int i = 0; i < n_args; ++i) {
-        hs_net_reject r = wire_string(&w, c->values[i], HS_NET_CMD_VALUE_MAX);
-        if (r == HS_NET_REJ_DECODE) return r;
-        if (r != HS_NET_ACCEPT) worst = r;
-    }
-    hs_net_reject r = wire_string(&w, c->sender, HS_NET_CMD_SENDER_MAX);
-    if (r == HS_NET_REJ_DECODE) return r;
-    if (r != HS_NET_ACCEPT) worst = r;
-    if (w.pos != len) return HS_NET_REJ_DECODE;
-    if (worst != HS_NET_ACCEPT) return worst;
+    hs_wire_command w;
+    int r = hs_wire_command_decode(buf, (size_t)len, &w);
+    c->request_id = w.request_id;
+    c->kind = w.kind;
+    c->utime = w.utime;
+    c->seq = w.seq;
+    if (r == HS_WIRE_MALFORMED) return HS_NET_REJ_DECODE;
+    if (r == HS_WIRE_TOO_LONG) return HS_NET_REJ_LENGTH;
+    c->n_args = w.n_args;
+    memcpy(c->keys, w.keys, sizeof c->keys);
+    memcpy(c->values, w.values, sizeof c->values);
+    memcpy(c->sender, w.sender, sizeof c->sender);
+    int64_t utime = w.utime, request_id = w.request_id;
+    int32_t kind = w.kind;
 
     if (utime < 0 || request_id == 0) return HS_NET_REJ_RANGE;
     if (kind < HAPSIM_COMMAND_T_KIND_RESET || kind > HAPSIM_COMMAND_T_KIND_REQUEST_TOPOLOGY)
         return HS_NET_REJ_UNKNOWN_KIND;
-    r = command_args(c);
-    if (r != HS_NET_ACCEPT) return r;
+    hs_net_reject a = command_args(c);
+    if (a != HS_NET_ACCEPT) return a;
 
     int slot = dedup_find(&st->dedup, request_id);
     if (slot >= 0) {

@@ -5,8 +5,9 @@
 //
 // DESIGN: the network edge is hostile. Inbound messages are never decoded with the lcm-gen
 // _decode functions, which trust length fields (malloc of a negative or huge count, strings
-// without a NUL). A bounds-checked scanner walks the wire format instead, checks the type
-// fingerprint and the exact length, and copies into fixed-size structs (no allocation).
+// without a NUL). The protocol library's bounded decoders (msgs/hapsim_proto.h) walk the wire
+// format instead, check the type fingerprint and the exact length, and copy into fixed-size
+// structs (no allocation); this file judges the values.
 // A rejected message changes no state except its counter.
 #ifndef HS_NET_VALIDATE_H
 #define HS_NET_VALIDATE_H

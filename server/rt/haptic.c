@@ -3,52 +3,31 @@
 // All pure functions over caller-owned state: safe on the rt thread (no allocation, no locks).
 #include "haptic.h"
 #include "base.h"
+#include "hapsim_model.h"
 
 #include <math.h>
 #include <string.h>
 
 #define SAFETY_COOKIE 0x5afe7
 
-static void mat3_vec(const double k[9], const double v[3], double out[3]) {
-    for (int i = 0; i < 3; ++i)
-        out[i] = k[3 * i] * v[0] + k[3 * i + 1] * v[1] + k[3 * i + 2] * v[2];
-}
-
 static double norm3(const double v[3]) {
     return sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
 }
 
-// Offset from the anchor at which the model is evaluated: p - a, pulled back onto the validity
-// sphere when outside. Returns 1 when inside; *dist gets |p - a|.
-static int model_offset(const hs_haptic_model* m, const double p[3], double d[3], double* dist) {
-    for (int i = 0; i < 3; ++i) d[i] = p[i] - m->anchor_m[i];
-    double n = norm3(d);
-    *dist = n;
-    double r = m->radius_m > 0 ? m->radius_m : 0;
-    if (n <= r) return 1;
-    double s = n > 0 ? r / n : 0;
-    for (int i = 0; i < 3; ++i) d[i] *= s;
-    return 0;
-}
-
+// The protocol's one evaluator (msgs/hapsim_model.h); K here is -dF/dp. A non-finite force
+// goes on to the safety filter, which counts it.
 int hs_haptic_model_eval(const hs_haptic_model* m, const double tool_m[3], double f_n[3]) {
-    double d[3], dist, kd[3];
-    int inside = model_offset(m, tool_m, d, &dist);
-    mat3_vec(m->stiffness_n_m, d, kd);
-    for (int i = 0; i < 3; ++i) f_n[i] = m->force_n[i] - kd[i];
-    return inside;
+    return hapsim_model_force(m->force_n, m->anchor_m, m->stiffness_n_m, -1, m->radius_m, tool_m,
+                              f_n) == HAPSIM_MODEL_INSIDE;
 }
 
 void hs_haptic_model_reanchor(const hs_haptic_model* m, const double tool_m[3],
                               hs_haptic_model* out) {
-    double d[3], dist, kd[3];
-    int inside = model_offset(m, tool_m, d, &dist);
-    mat3_vec(m->stiffness_n_m, d, kd);
+    double d[3], dist;
+    int inside = hapsim_model_offset(m->anchor_m, m->radius_m, tool_m, d, &dist);
     hs_haptic_model r = *m;
-    for (int i = 0; i < 3; ++i) {
-        r.force_n[i] = m->force_n[i] - kd[i];
-        r.anchor_m[i] = tool_m[i];
-    }
+    hs_haptic_model_eval(m, tool_m, r.force_n);
+    for (int i = 0; i < 3; ++i) r.anchor_m[i] = tool_m[i];
     double left = (m->radius_m > 0 ? m->radius_m : 0) - dist;
     r.radius_m = left > 0 ? left : 0;
     // On or beyond the sphere the force no longer changes with the tool position.

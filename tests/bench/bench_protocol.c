@@ -90,6 +90,7 @@ static void on_echo_pose(const lcm_recv_buf_t* rb, const char* ch, const hapsim_
     memset(&f, 0, sizeof f);
     f.utime = hs_now_ns() / 1000;
     f.seq = p->seq;
+    f.session = p->session;
     f.pose_seq = p->seq;
     f.pose_utime = p->utime;
     for (int k = 0; k < 3; ++k) f.anchor[k] = p->position[k];

@@ -95,9 +95,9 @@ int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
             if (res == HS_SYNC_APPLIED && !m->ready) abort();
             check_mesh(m);
         } else if (kind == 4) {
-            int32_t dev;
-            hs_local_model m;
-            if (hs_wire_force_decode(msg, len, &dev, NULL, &m) == 0) {
+            hs_wire_force w;
+            if (hs_wire_force_decode(msg, len, &w) == 0) {
+                hs_local_model m = hs_wire_local_model(&w);
                 if (!m.valid || m.state < 0 || m.state > 3 || !(m.validity_radius >= 0)) abort();
                 m.arrival_us = now;
                 hs_force_renderer_push(&r, &m);
