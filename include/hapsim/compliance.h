@@ -198,17 +198,16 @@ hs_status hs_contact_work_create(int n_tools, hs_contact_work** out);
 void hs_contact_work_destroy(hs_contact_work** w);
 /// Tools w was created for (0 for NULL).
 int hs_contact_work_tools(const hs_contact_work* w);
-/// The contact of n_tools spheres (centres tool_m[t], radius s->tool_radius_m[t]) with the
-/// snapshot's surface as one problem: each tool's points chosen as by hs_contact_solve (at
-/// most HS_MAX_CONTACT points on as many nodes per tool), then one complementarity problem
-/// over all of them, so W's blocks between different tools' points (the compliance between
-/// their nodes) couple them: one tool's push moves the tissue under the other, and both feel
-/// it. out[t] is tool t's contact: its points' forces on their nodes, those nodes'
-/// displacements under all tools' forces, the force on tool t and its own stiffness
-/// -dF_t/dp_t (the other tools held). prev[n_tools] (previous tick, or NULL) only picks the
-/// start. With one tool it equals hs_contact_solve_from. out must not alias prev.
-/// Thread: any (rt; one thread per workspace) | Allocates: no | Blocks: no
-void hs_contact_solve_tools(const hs_contact_snapshot* s, int n_tools, const double (*tool_m)[3],
+/// The contact of n_tools spheres (centres tool_m[3t..3t+2], m; radius s->tool_radius_m[t]) with
+/// the snapshot's surface as one problem: each tool's points chosen as by hs_contact_solve (at most
+/// HS_MAX_CONTACT points on as many nodes per tool), then one complementarity problem over all of
+/// them, so W's blocks between different tools' points (the compliance between their nodes) couple
+/// them: one tool's push moves the tissue under the other, and both feel it. out[t] is tool t's
+/// contact: its points' forces on their nodes, those nodes' displacements under all tools' forces,
+/// the force on tool t and its own stiffness -dF_t/dp_t (the other tools held). prev[n_tools]
+/// (previous tick, or NULL) only picks the start. With one tool it equals hs_contact_solve_from.
+/// out must not alias prev. Thread: any (rt; one thread per workspace) | Allocates: no | Blocks: no
+void hs_contact_solve_tools(const hs_contact_snapshot* s, int n_tools, const double* tool_m,
                             const hs_contact* prev, hs_contact_work* w, hs_contact* out);
 /// Fill s->n_tri/tri with the boundary triangles of mesh whose three vertices are all among
 /// s->node[0..n_cand) (mesh order, at most HS_CONTACT_MAX_TRI), and their bounds (surf_m must

@@ -848,7 +848,7 @@ int hs_contact_work_tools(const hs_contact_work* w) {
     return w ? w->n_tools : 0;
 }
 
-void hs_contact_solve_tools(const hs_contact_snapshot* s, int n_tools, const double (*tool_m)[3],
+void hs_contact_solve_tools(const hs_contact_snapshot* s, int n_tools, const double* tool_m,
                             const hs_contact* prev, hs_contact_work* cw, hs_contact* out) {
     HS_ASSERT(cw && n_tools >= 1 && n_tools <= cw->n_tools);
     work w;
@@ -856,7 +856,7 @@ void hs_contact_solve_tools(const hs_contact_snapshot* s, int n_tools, const dou
     tool_part tp[HS_MAX_TOOLS];
     memset(tp, 0, sizeof tp);
     for (int t = 0; t < n_tools; ++t) {
-        tp[t].p = tool_m[t];
+        tp[t].p = tool_m + 3 * t;
         tp[t].prev = prev ? &prev[t] : NULL;
     }
     solve_tools(s, n_tools, tp, &w, out);

@@ -1,0 +1,244 @@
+// SPDX-License-Identifier: GPL-2.0-or-later
+// Two tools in one contact problem (hs_contact_solve_tools): two probes pressing one block
+// feel each other's press through the compliance between their contact nodes, as the linear
+// FEM static solution of both contacts together predicts; one tool alone is the one-tool
+// solve; the tick allocates nothing.
+#include "alloc_counter.h"
+#include "hapsim/body.h"
+#include "hapsim/compliance.h"
+#include "hapsim/mesh.h"
+#include "test_macros.h"
+
+#include <stdlib.h>
+
+#define R_M     0.008 // probe radius
+#define TOP_M   0.024 // block height: top face at z = 24 mm
+#define REACH_M 0.012 // candidates within this of each tool
+
+static hs_fem_def soft_fem(void) {
+    hs_fem_def d = hs_fem_default_def();
+    d.model = HS_MODEL_LINEAR;
+    d.material.youngs_pa = 5000;
+    d.material.poisson = 0.45;
+    d.material.density_kg_m3 = 1060;
+    return d;
+}
+
+// 64 x 32 x 24 mm block in 4 mm cells, bottom fixed.
+typedef struct block {
+    hs_mesh* mesh;
+    unsigned char* fixed;
+    hs_compliance* comp;
+} block;
+
+static int block_create(block* b) {
+    hs_err err = {0};
+    memset(b, 0, sizeof *b);
+    if (hs_mesh_create_box(0.064, 0.032, TOP_M, 16, 8, 6, &b->mesh, &err) < 0) return 1;
+    b->fixed = calloc((size_t)b->mesh->n_nodes, 1);
+    hs_mesh_select_plane(b->mesh, 2, -1, 1e-9, b->fixed);
+    hs_fem_def fd = soft_fem();
+    if (hs_compliance_create(b->mesh, &fd, b->fixed, 128, &b->comp, &err) != HS_OK) {
+        printf("  compliance: %s\n", err.msg);
+        return 1;
+    }
+    return 0;
+}
+
+static void block_destroy(block* b) {
+    hs_compliance_destroy(&b->comp);
+    hs_mesh_destroy(&b->mesh);
+    free(b->fixed);
+}
+
+static double dist3(const double* a, const double* b) {
+    double d[3] = {a[0] - b[0], a[1] - b[1], a[2] - b[2]};
+    return sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+}
+
+// Node-contact snapshot at rest holding every contactable node within REACH_M of either tool
+// centre (all coupled: every cross block exact).
+static void make_snapshot(block* b, double tool[2][3], hs_contact_snapshot* s) {
+    const hs_mesh* mesh = b->mesh;
+    memset(s, 0, sizeof *s);
+    s->version = 1;
+    s->probe_radius_m = R_M;
+    memcpy(s->centre_m, tool[0], sizeof s->centre_m);
+    memcpy(s->tool_centre_m[1], tool[1], sizeof s->tool_centre_m[1]);
+    s->reach_m = s->tool_reach_m[1] = REACH_M;
+    int n = 0;
+    for (int si = 0; si < mesh->n_surf_nodes && n < HS_CONTACT_MAX_CAND; ++si) {
+        int v = mesh->surf_nodes[si];
+        if (!hs_compliance_contactable(b->comp, v)) continue;
+        if (dist3(mesh->x0 + 3 * v, tool[0]) < REACH_M ||
+            dist3(mesh->x0 + 3 * v, tool[1]) < REACH_M)
+            s->node[n++] = v;
+    }
+    s->n_cand = n;
+    hs_compliance_begin_step(b->comp);
+    hs_compliance_ensure(b->comp, n, s->node, n);
+    for (int i = 0; i < n; ++i) {
+        s->coupled[i] = (unsigned char)hs_compliance_has_column(b->comp, s->node[i]);
+        memcpy(s->surf_m[i], mesh->x0 + 3 * s->node[i], 3 * sizeof(double));
+        if (hs_mesh_rest_normal(mesh, s->node[i], s->normal[i]) != 0) s->normal[i][2] = 1;
+        for (int j = 0; j < n; ++j)
+            hs_compliance_block(b->comp, s->node[i], s->node[j], s->c[i][j]);
+    }
+}
+
+// The reference: Green's functions of the linear FEM body (hs_body static solves, unit loads
+// at every candidate node) and the frictionless node contact of both spheres on them, solved
+// by projected Gauss-Seidel to a tight residual. g[(3i+a)*3n + 3j+c]: u_i,a under unit f_j,c.
+static int fem_greens(block* b, const hs_contact_snapshot* s, double* g) {
+    hs_err err = {0};
+    hs_body_def bd = hs_body_default_def();
+    bd.fem = soft_fem();
+    bd.static_tol = 1e-12;
+    hs_body* body = NULL;
+    if (hs_body_create(b->mesh, &bd, b->fixed, &body, &err) != HS_OK) return 1;
+    const int n = s->n_cand;
+    for (int j = 0; j < n; ++j)
+        for (int c = 0; c < 3; ++c) {
+            double f[3] = {0, 0, 0};
+            f[c] = 1;
+            hs_body_clear_forces(body);
+            hs_body_set_force(body, s->node[j], f);
+            if (hs_body_solve_static(body, NULL) < 0) return 1;
+            const double* u = hs_body_displacement(body);
+            for (int i = 0; i < n; ++i)
+                for (int a = 0; a < 3; ++a)
+                    g[(3 * i + a) * 3 * n + 3 * j + c] = u[3 * s->node[i] + a];
+        }
+    hs_body_destroy(&body);
+    return 0;
+}
+
+// Force on each tool (tools 0..n_tools) from the reference contact: points are the candidate
+// nodes within 2 r of a tool centre, pushed away from it.
+static void fem_contact(const hs_contact_snapshot* s, const double* g, int n_tools,
+                        double tool[2][3], double force[2][3]) {
+    enum { P = 2 * HS_CONTACT_MAX_CAND };
+    int node[P], owner[P], m = 0;
+    double nrm[P][3], delta[P], lam[P], w[P][P];
+    const int n = s->n_cand;
+    for (int t = 0; t < n_tools; ++t)
+        for (int i = 0; i < n; ++i) {
+            double d = dist3(s->surf_m[i], tool[t]);
+            if (d >= 2 * R_M) continue;
+            node[m] = i;
+            owner[m] = t;
+            for (int k = 0; k < 3; ++k) nrm[m][k] = (s->surf_m[i][k] - tool[t][k]) / d;
+            delta[m] = R_M - d;
+            lam[m] = 0;
+            ++m;
+        }
+    for (int i = 0; i < m; ++i)
+        for (int j = 0; j < m; ++j) {
+            double sum = 0;
+            for (int a = 0; a < 3; ++a)
+                for (int c = 0; c < 3; ++c)
+                    sum += nrm[i][a] * g[(3 * node[i] + a) * 3 * n + 3 * node[j] + c] * nrm[j][c];
+            w[i][j] = sum;
+        }
+    for (int sweep = 0; sweep < 20000; ++sweep)
+        for (int i = 0; i < m; ++i) {
+            double r = delta[i];
+            for (int j = 0; j < m; ++j) r -= w[i][j] * lam[j];
+            lam[i] = fmax(0.0, lam[i] + r / w[i][i]);
+        }
+    memset(force, 0, 2 * 3 * sizeof(double));
+    for (int i = 0; i < m; ++i)
+        for (int k = 0; k < 3; ++k) force[owner[i]][k] -= lam[i] * nrm[i][k];
+}
+
+static double rel_err(const double* a, const double* b, double scale) {
+    return dist3(a, b) / scale;
+}
+
+// Probe 1 holds a 3 mm press; probe 0, 16 mm away, presses 3 mm or stays above the block.
+static int two_probes_feel_each_other(void) {
+    block b;
+    ENSURE(block_create(&b) == 0);
+    const double z = TOP_M + R_M - 0.003;
+    double both[2][3] = {{0.024, 0.016, z}, {0.040, 0.016, z}};
+    double lifted[2][3] = {{0.024, 0.016, z + 0.02}, {0.040, 0.016, z}};
+    hs_contact_snapshot* s = malloc(sizeof *s);
+    make_snapshot(&b, both, s);
+    ENSURE(s->n_cand > 20 && s->n_cand < HS_CONTACT_MAX_CAND);
+
+    hs_contact_work* w = NULL;
+    ENSURE(hs_contact_work_create(2, &w) == HS_OK);
+    hs_contact c_both[2], c_lift[2], c_prev[2], alone;
+    hs_contact_solve_tools(s, 2, (const double*)both, NULL, w, c_both);
+    hs_contact_solve_tools(s, 2, (const double*)lifted, NULL, w, c_lift);
+    hs_contact_solve(s, both[1], 0, NULL, &alone);
+    ENSURE(!c_both[0].failed && !c_both[1].failed && !c_lift[1].failed);
+    ENSURE(c_both[0].n > 0 && c_both[1].n > 0 && c_lift[0].n == 0);
+
+    // One tool pressing: the same as the one-tool solve.
+    ENSURE(rel_err(c_lift[1].force_n, alone.force_n, fabs(alone.force_n[2])) < 1e-12);
+
+    // The reference: both contacts on the FEM body at once.
+    int n = s->n_cand;
+    double* g = malloc(sizeof(double) * 9 * (size_t)n * (size_t)n);
+    ENSURE(fem_greens(&b, s, g) == 0);
+    double ref_both[2][3], ref_lift[2][3];
+    fem_contact(s, g, 2, both, ref_both);
+    fem_contact(s, g, 2, lifted, ref_lift);
+    double f1 = c_lift[1].force_n[2], f1b = c_both[1].force_n[2];
+    double ref_change = ref_both[1][2] - ref_lift[1][2], change = f1b - f1;
+    printf("  probe 1 alone %.5f N (FEM %.5f), with probe 0 pressing %.5f N (FEM %.5f): "
+           "change %.5f N (FEM %.5f); probe 0 %.5f N (FEM %.5f); %d + %d contact nodes\n",
+           f1, ref_lift[1][2], f1b, ref_both[1][2], change, ref_change, c_both[0].force_n[2],
+           ref_both[0][2], c_both[0].n, c_both[1].n);
+    // The press is felt: at least 3 % of the force, and as the FEM predicts within 2 %.
+    ENSURE(fabs(ref_change) > 0.03 * fabs(ref_lift[1][2]));
+    ENSURE(fabs(change - ref_change) <= 0.02 * fabs(ref_change));
+    ENSURE(rel_err(c_both[1].force_n, ref_both[1], fabs(ref_both[1][2])) <= 0.02);
+    ENSURE(rel_err(c_both[0].force_n, ref_both[0], fabs(ref_both[0][2])) <= 0.02);
+    // Solved apart (no cross blocks), probe 1 would not feel probe 0 at all.
+    ENSURE(fabs(alone.force_n[2] - f1b) > 0.5 * fabs(ref_change));
+
+    // The tools' stiffness against finite differences of their own force (the other held).
+    const double h = 1e-7;
+    double worst = 0, kmax = 0;
+    for (int t = 0; t < 2; ++t)
+        for (int a = 0; a < 3; ++a) {
+            double pp[2][3], pm[2][3];
+            memcpy(pp, both, sizeof pp);
+            memcpy(pm, both, sizeof pm);
+            pp[t][a] += h;
+            pm[t][a] -= h;
+            hs_contact cp[2], cm[2];
+            hs_contact_solve_tools(s, 2, (const double*)pp, c_both, w, cp);
+            hs_contact_solve_tools(s, 2, (const double*)pm, c_both, w, cm);
+            for (int q = 0; q < 3; ++q) {
+                double fd = -(cp[t].force_n[q] - cm[t].force_n[q]) / (2 * h);
+                worst = fmax(worst, fabs(fd - c_both[t].stiffness_n_m[3 * q + a]));
+                kmax = fmax(kmax, fabs(c_both[t].stiffness_n_m[3 * q + a]));
+            }
+        }
+    printf("  stiffness vs finite differences: worst %.2e of %.1f N/m\n", worst, kmax);
+    ENSURE(worst <= 1e-4 * kmax);
+
+    // Warm-started ticks allocate nothing and agree with the cold solve.
+    memcpy(c_prev, c_both, sizeof c_prev);
+    hs_contact c_warm[2];
+    int64_t hs_before = hs_alloc_calls();
+    long long before = atomic_load(&g_rt_allocs);
+    count_on(NULL);
+    for (int k = 0; k < 100; ++k)
+        hs_contact_solve_tools(s, 2, (const double*)both, c_prev, w, c_warm);
+    count_off(NULL);
+    ENSURE(atomic_load(&g_rt_allocs) == before && hs_alloc_calls() == hs_before);
+    ENSURE(rel_err(c_warm[1].force_n, c_both[1].force_n, fabs(f1b)) < 1e-12);
+
+    free(g);
+    free(s);
+    hs_contact_work_destroy(&w);
+    ENSURE(w == NULL);
+    block_destroy(&b);
+    return 0;
+}
+
+HS_TEST_MAIN(HS_CASE(two_probes_feel_each_other))
