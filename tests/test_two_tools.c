@@ -3,13 +3,17 @@
 // feel each other's press through the compliance between their contact nodes, as the linear
 // FEM static solution of both contacts together predicts; one tool alone is the one-tool
 // solve; the tick allocates nothing.
+#define _POSIX_C_SOURCE 200809L
 #include "alloc_counter.h"
 #include "hapsim/body.h"
 #include "hapsim/compliance.h"
+#include "hapsim/haptic_sim.h"
+#include "rt/haptic_rt.h"
 #include "hapsim/mesh.h"
 #include "test_macros.h"
 
 #include <stdlib.h>
+#include <time.h>
 
 #define R_M     0.008 // probe radius
 #define TOP_M   0.024 // block height: top face at z = 24 mm
@@ -241,4 +245,170 @@ static int two_probes_feel_each_other(void) {
     return 0;
 }
 
-HS_TEST_MAIN(HS_CASE(two_probes_feel_each_other))
+// The contact on the pressed shape, as the deformation thread finds it: the geometry taken on
+// the surface the contact forces displace (pre_m = C f), iterated to its fixed point.
+static int pressed_shape(const hs_contact_snapshot* rest, double tool[2][3], hs_contact_work* w,
+                         hs_contact out[2]) {
+    hs_contact_snapshot* s = malloc(sizeof *s);
+    double(*pre)[3] = calloc(HS_CONTACT_MAX_CAND, sizeof *pre);
+    hs_contact_solve_tools(rest, 2, (const double*)tool, NULL, w, out);
+    double change = 1;
+    for (int it = 0; it < 400 && change > 1e-9; ++it) {
+        *s = *rest;
+        for (int i = 0; i < s->n_cand; ++i) {
+            double t[3] = {0, 0, 0};
+            for (int q = 0; q < 2; ++q)
+                for (int k = 0; k < out[q].n; ++k) {
+                    int j = 0;
+                    while (j < s->n_cand && s->node[j] != out[q].node[k]) ++j;
+                    if (j == s->n_cand) return 1;
+                    for (int a = 0; a < 3; ++a)
+                        for (int c = 0; c < 3; ++c)
+                            t[a] += s->c[i][j][3 * a + c] * out[q].f_n[k][c];
+                }
+            for (int a = 0; a < 3; ++a) { // relaxed, as the deformation thread does
+                pre[i][a] += 0.5 * (t[a] - pre[i][a]);
+                s->pre_m[i][a] = pre[i][a];
+                s->surf_m[i][a] += pre[i][a];
+            }
+        }
+        hs_contact_snapshot_bound_tris(s);
+        double before = out[0].force_n[2] + out[1].force_n[2];
+        hs_contact next[2];
+        hs_contact_solve_tools(s, 2, (const double*)tool, out, w, next);
+        memcpy(out, next, sizeof next);
+        change = fabs(out[0].force_n[2] + out[1].force_n[2] - before);
+    }
+    free(s);
+    free(pre);
+    return change <= 1e-9 ? 0 : 1;
+}
+
+// Two devices on the running sim: every 1 ms each feeds its own pose and takes its own output.
+typedef struct feeder {
+    hs_haptic_sim* sim;
+    struct timespec next;
+    int64_t seq[2];
+    double sum[2][3]; // force sums over the ticks since the last reset
+    int n;
+    hs_haptic_output out[2];
+} feeder;
+
+// One millisecond: feed tool t at p[t] unless alive[t] is 0 (its driver died), take outputs.
+static void feed_tick(feeder* f, double p[2][3], const int alive[2]) {
+    f->next.tv_nsec += 1000000;
+    if (f->next.tv_nsec >= 1000000000L) {
+        f->next.tv_nsec -= 1000000000L;
+        f->next.tv_sec++;
+    }
+    clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &f->next, NULL);
+    for (int t = 0; t < 2; ++t) {
+        if (alive[t]) {
+            hs_haptic_pose pose;
+            memset(&pose, 0, sizeof pose);
+            pose.seq = ++f->seq[t];
+            pose.stamp_ns = hs_now_ns();
+            memcpy(pose.pos_m, p[t], sizeof pose.pos_m);
+            pose.quat_wxyz[0] = 1;
+            hs_haptic_sim_feed_tool_pose(f->sim, t, &pose);
+        }
+        hs_haptic_sim_take_tool_output(f->sim, t, &f->out[t]);
+        for (int k = 0; k < 3; ++k) f->sum[t][k] += f->out[t].force_n[k];
+    }
+    f->n++;
+}
+
+static void feed_for(feeder* f, double p[2][3], const int alive[2], int ms, double mean[2][3]) {
+    for (int i = 0; i < ms; ++i) {
+        if (i == ms - 50) {
+            memset(f->sum, 0, sizeof f->sum);
+            f->n = 0;
+        }
+        feed_tick(f, p, alive);
+        hs_haptic_telemetry rec;
+        while (hs_spsc_ring_pop(hs_haptic_sim_telemetry(f->sim), &rec)) {
+        }
+    }
+    for (int t = 0; t < 2; ++t)
+        for (int k = 0; k < 3; ++k) mean[t][k] = f->sum[t][k] / f->n;
+}
+
+// The sim with two devices: probe 1 holds a press, probe 0 presses beside it and probe 1's
+// force changes as the one contact problem on the rest shape predicts; then probe 0's driver
+// dies: its force ramps out (its own watchdog), probe 1's goes on unchanged.
+static int sim_two_devices(void) {
+    block b;
+    ENSURE(block_create(&b) == 0);
+    const double z = TOP_M + R_M - 0.003;
+    double lifted[2][3] = {{0.024, 0.016, z + 0.02}, {0.040, 0.016, z}};
+    double both[2][3] = {{0.024, 0.016, z}, {0.040, 0.016, z}};
+
+    // The prediction: the triangle contact of both probes on the rest shape.
+    hs_contact_snapshot* s = malloc(sizeof *s);
+    make_snapshot(&b, both, s);
+    hs_contact_snapshot_add_tris(s, b.mesh);
+    hs_contact_work* w = NULL;
+    ENSURE(hs_contact_work_create(2, &w) == HS_OK);
+    hs_contact pred_both[2], pred_lift[2];
+    ENSURE(pressed_shape(s, both, w, pred_both) == 0);
+    ENSURE(pressed_shape(s, lifted, w, pred_lift) == 0);
+    hs_contact_work_destroy(&w);
+    free(s);
+
+    hs_haptic_sim_def d = hs_haptic_sim_default_def();
+    d.body.fem = soft_fem();
+    d.probe.radius_m = R_M;
+    d.fifo_priority = 0;
+    d.lock_memory = 0;
+    d.tools = 2;
+    d.safety.watchdog_timeout_s = 0.15; // a loaded machine's stalls of this test's feeder
+    d.rt_on_start = count_on;
+    d.rt_on_stop = count_off;
+    hs_haptic_sim* sim = NULL;
+    hs_err err = {0};
+    ENSURE(hs_haptic_sim_create(b.mesh, &d, b.fixed, &sim, &err) == HS_OK);
+    ENSURE(hs_haptic_sim_tools(sim) == 2);
+    hs_mesh* cut_mesh = b.mesh;
+    hs_haptic_cut_def cd = hs_haptic_cut_default_def();
+    ENSURE(hs_haptic_sim_enable_cutting(sim, cut_mesh, &cd, &err) == HS_ERR_INVALID);
+    long long allocs0 = atomic_load(&g_rt_allocs);
+    ENSURE(hs_haptic_sim_start(sim, &err) == HS_OK);
+    feeder f;
+    memset(&f, 0, sizeof f);
+    f.sim = sim;
+    clock_gettime(CLOCK_MONOTONIC, &f.next);
+    const int alive[2] = {1, 1}, dead0[2] = {0, 1};
+    double m_lift[2][3], m_both[2][3], m_dead[2][3];
+    feed_for(&f, lifted, alive, 700, m_lift);
+    feed_for(&f, both, alive, 700, m_both);
+    feed_for(&f, both, dead0, 500, m_dead);
+    hs_haptic_rt_counters rc[2];
+    for (int t = 0; t < 2; ++t) hs_haptic_sim_tool_counters(sim, t, &rc[t]);
+    hs_haptic_sim_stop(sim);
+    long long allocs = atomic_load(&g_rt_allocs) - allocs0;
+
+    double change = m_both[1][2] - m_lift[1][2];
+    double pchange = pred_both[1].force_n[2] - pred_lift[1].force_n[2];
+    printf("  probe 1: %.4f N alone (predicted %.4f), %.4f N with probe 0 pressing (predicted "
+           "%.4f; change %.4f, predicted %.4f); probe 0 %.4f N (predicted %.4f)\n",
+           m_lift[1][2], pred_lift[1].force_n[2], m_both[1][2], pred_both[1].force_n[2], change,
+           pchange, m_both[0][2], pred_both[0].force_n[2]);
+    printf("  probe 0's driver gone: probe 0 %.4f N, probe 1 %.4f N; watchdog trips %lld / %lld; "
+           "rt allocations %lld\n",
+           m_dead[0][2], m_dead[1][2], (long long)rc[0].safety.watchdog_trips,
+           (long long)rc[1].safety.watchdog_trips, allocs);
+    ENSURE(fabs(pchange) > 0.03 * fabs(pred_lift[1].force_n[2]));
+    ENSURE(fabs(m_lift[1][2] - pred_lift[1].force_n[2]) <= 0.02 * fabs(pred_lift[1].force_n[2]));
+    ENSURE(fabs(m_both[1][2] - pred_both[1].force_n[2]) <= 0.02 * fabs(pred_both[1].force_n[2]));
+    ENSURE(fabs(change - pchange) <= 0.02 * fabs(pchange));
+    // Killing probe 0's driver: its force gone, probe 1's untouched, only probe 0's watchdog.
+    ENSURE(fabs(m_dead[0][0]) + fabs(m_dead[0][1]) + fabs(m_dead[0][2]) == 0);
+    ENSURE(fabs(m_dead[1][2] - m_both[1][2]) <= 1e-3 * fabs(m_both[1][2]));
+    ENSURE(rc[0].safety.watchdog_trips == 1 && rc[1].safety.watchdog_trips == 0);
+    if (HS_COUNT_MALLOC) ENSURE(allocs == 0);
+    hs_haptic_sim_destroy(&sim);
+    block_destroy(&b);
+    return 0;
+}
+
+HS_TEST_MAIN(HS_CASE(two_probes_feel_each_other), HS_CASE(sim_two_devices))
