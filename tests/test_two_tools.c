@@ -368,9 +368,6 @@ static int sim_two_devices(void) {
     hs_err err = {0};
     ENSURE(hs_haptic_sim_create(b.mesh, &d, b.fixed, &sim, &err) == HS_OK);
     ENSURE(hs_haptic_sim_tools(sim) == 2);
-    hs_mesh* cut_mesh = b.mesh;
-    hs_haptic_cut_def cd = hs_haptic_cut_default_def();
-    ENSURE(hs_haptic_sim_enable_cutting(sim, cut_mesh, &cd, &err) == HS_ERR_INVALID);
     long long allocs0 = atomic_load(&g_rt_allocs);
     ENSURE(hs_haptic_sim_start(sim, &err) == HS_OK);
     feeder f;

@@ -119,10 +119,11 @@ typedef struct hs_contact_snapshot {
     /// every contactable node within tool_reach_m[t] of tool_centre_m[t] (tool 0: centre_m,
     /// reach_m; [0] unused).
     double tool_centre_m[HS_MAX_TOOLS][3];
-    double tool_reach_m[HS_MAX_TOOLS];          ///< m; 0: no cover (the tool's clearance is 0)
-    double tool_radius_m[HS_MAX_TOOLS];         ///< sphere radius of tool t, m; 0: probe_radius_m
-    int n_cand;                                 ///< candidates (<= HS_CONTACT_MAX_CAND)
-    int node[HS_CONTACT_MAX_CAND];              ///< mesh node index
+    double tool_reach_m[HS_MAX_TOOLS];    ///< m; 0: no cover (the tool's clearance is 0)
+    double tool_radius_m[HS_MAX_TOOLS];   ///< sphere radius of tool t, m; 0: probe_radius_m
+    unsigned char tool_off[HS_MAX_TOOLS]; ///< 1: tool t has no sphere now (a blade): no contact
+    int n_cand;                           ///< candidates (<= HS_CONTACT_MAX_CAND)
+    int node[HS_CONTACT_MAX_CAND];        ///< mesh node index
     unsigned char coupled[HS_CONTACT_MAX_CAND]; ///< 1 when the node's column block is known
     /// Position the contact geometry is taken on (closest points, push directions), m: the
     /// deformed surface, so a press deeper than r still finds the surface around the sphere.

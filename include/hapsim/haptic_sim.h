@@ -87,8 +87,12 @@ typedef struct hs_haptic_sim_def {
     /// out: hs_haptic_sim_feed_tool_pose, hs_haptic_sim_take_tool_output) with its own blend,
     /// safety chain and watchdog; all tools' contacts are one problem per tick
     /// (hs_contact_solve_tools) and the body takes all their forces. Tool 0 is the device of
-    /// hs_haptic_sim_feed_pose / take_output. Cutting needs 1. Default 1.
+    /// hs_haptic_sim_feed_pose / take_output. With cutting on, tool 0 is the blade and the
+    /// others are probes on the cut tissue while the compliance matches the newest cut (stats
+    /// comp_version == topology_version; no contact before that). Default 1.
     int tools;
+    /// Sphere radius of tool t >= 1, m (0: probe.radius_m; [0] unused: tool 0 is probe).
+    double tool_radius_m[HS_MAX_TOOLS];
     int cookie; ///< set by hs_haptic_sim_default_def
 } hs_haptic_sim_def;
 

@@ -727,6 +727,7 @@ static void select_all(const hs_contact_snapshot* s, int n, tool_part* tp, work*
         tp[t].near = HS_CONTACT_BAND * tp[t].r;
         tp[t].m0 = w->m;
         tp[t].m = 0;
+        if (t < HS_MAX_TOOLS && s->tool_off[t]) continue;
         if (!hs_vec3_finite(tp[t].p) || !(tp[t].r > 0) || !snapshot_usable(s)) {
             o->failed = s->n_cand > 0 || s->n_tri != 0; // an empty snapshot is just no contact
             continue;

@@ -531,7 +531,6 @@ static void settle_entry(hs_haptic_sim* h, hs_contact_snapshot* s, const double 
     }
 }
 
-
 // Build and publish the snapshot around the tool positions p[3 n_tools] (tool 0 first) from
 // the body's current state: the candidates cover the surface near every tool.
 static void build_snapshot(hs_haptic_sim* h, const double* p) {
@@ -539,7 +538,10 @@ static void build_snapshot(hs_haptic_sim* h, const double* p) {
     const hs_mesh* sm = h->smesh; // same nodes and x0; its own boundary
     const int ns = sm->n_surf_nodes;
     const double* u = hs_body_displacement(h->body);
-    const double r = h->def.probe.radius_m, reach = r + h->def.probe.reach_margin_m;
+    const double r = h->def.probe.radius_m;
+    double r_max = r; // the largest tool sphere: the search reach
+    for (int k = 1; k < h->n_tools; ++k) r_max = fmax(r_max, h->def.tool_radius_m[k]);
+    const double reach = r_max + h->def.probe.reach_margin_m;
     for (int k = 0; k < 3 * mesh->n_nodes; ++k) h->x[k] = mesh->x0[k] + u[k];
     const int new_surface = h->q_reset; // the compliance was just swapped in
 
@@ -644,9 +646,11 @@ static void build_snapshot(hs_haptic_sim* h, const double* p) {
     int n_near = 0;
     // A blade has no contact sphere. A released one probes when the def says so, once the
     // compliance matches the cut body (a stale one would answer for the uncut tissue).
-    int probing = !h->cut || (h->cdef.probe_when_released && !h->engaged &&
-                              h->st.comp_version == hs_cut_topology_version(h->cut));
-    for (int t = 0; t < sm->n_tris && probing; ++t) {
+    // The other tools are probes whenever the compliance matches the cut body.
+    const int comp_now = !h->cut || h->st.comp_version == hs_cut_topology_version(h->cut);
+    int probing = !h->cut || (h->cdef.probe_when_released && !h->engaged && comp_now);
+    const int others = h->n_tools > 1 && comp_now;
+    for (int t = 0; t < sm->n_tris && (probing || others); ++t) {
         const int* tv = sm->tris + 3 * t;
         if (!hs_compliance_contactable(h->comp, tv[0]) ||
             !hs_compliance_contactable(h->comp, tv[1]) ||
@@ -658,7 +662,8 @@ static void build_snapshot(hs_haptic_sim* h, const double* p) {
         double wb[3], x[3], dist = INFINITY;
         for (int k = 0; k < h->n_tools; ++k) {
             const double* pk = p + 3 * k;
-            if (k > 0 && !(fabs(pk[0]) < 0.5 * TOOL_AWAY_M)) continue; // no pose yet
+            if (k == 0 ? !probing : !others || !(fabs(pk[0]) < 0.5 * TOOL_AWAY_M))
+                continue; // a blade, or no pose yet
             if (hs_tri_closest(pk, a, b, c, wb, x)) dist = fmin(dist, dist3(x, pk));
         }
         if (!(dist < reach)) continue;
@@ -720,9 +725,12 @@ static void build_snapshot(hs_haptic_sim* h, const double* p) {
     s->probe_radius_m = h->probe_r;
     memcpy(s->centre_m, p, sizeof s->centre_m);
     s->reach_m = cover;
+    s->tool_off[0] = (unsigned char)!probing;
     for (int k = 1; k < h->n_tools; ++k) { // every tool covered as far as tool 0
         memcpy(s->tool_centre_m[k], p + 3 * k, sizeof s->tool_centre_m[k]);
         s->tool_reach_m[k] = cover;
+        s->tool_radius_m[k] = h->def.tool_radius_m[k] > 0 ? h->def.tool_radius_m[k] : r;
+        s->tool_off[k] = (unsigned char)!others;
     }
     s->n_cand = n_cand;
     s->n_tri = n_tri;
@@ -1526,6 +1534,11 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
     if (def->tools < 1 || def->tools > HS_MAX_TOOLS)
         return hs_err_set(err, HS_ERR_INVALID, "hs_haptic_sim_create: tools %d not in 1..%d",
                           def->tools, HS_MAX_TOOLS);
+    for (int t = 0; t < HS_MAX_TOOLS; ++t)
+        if (!(def->tool_radius_m[t] >= 0 && def->tool_radius_m[t] <= 1))
+            return hs_err_set(err, HS_ERR_INVALID,
+                              "hs_haptic_sim_create: tool_radius_m[%d] %g m not in [0, 1]", t,
+                              def->tool_radius_m[t]);
     const hs_probe_def* pd = &def->probe;
     if (!(pd->radius_m > 0) || !isfinite(pd->radius_m) || !(pd->reach_margin_m >= 0) ||
         !isfinite(pd->reach_margin_m))
@@ -1822,10 +1835,7 @@ hs_status hs_haptic_sim_enable_cutting(hs_haptic_sim* h, hs_mesh* mesh,
     if (h->thread_started || h->cut)
         return hs_err_set(err, HS_ERR_INVALID,
                           "hs_haptic_sim_enable_cutting: sim already running or cutting");
-    if (h->n_tools > 1)
-        return hs_err_set(err, HS_ERR_INVALID,
-                          "hs_haptic_sim_enable_cutting: the blade is a sim's only tool (%d tools)",
-                          h->n_tools);
+
     if (hs_haptic_sim_wait_setup(h) != HS_OK) // cuts move x0, which the set-up reads
         return hs_err_set(err, h->su_status, "hs_haptic_sim_enable_cutting: %s", h->su_err.msg);
     if (!(def->toughness_n_m >= 0) || !(def->max_force_n >= 0) || !(def->min_travel_m >= 0) ||
