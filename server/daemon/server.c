@@ -84,6 +84,10 @@ typedef struct world {
     int cutting;
     int scalpel;    // scene tool index of the blade
     int probe_tool; // first probe tool, or -1
+    // devices -> the sim's tools (hs_scene_device_tools): dev_sim[d] (-1: zero force), and
+    // the scene tool of each sim tool (-1: the probe or the scalpel by the button)
+    int dev_sim[MAX_DEV];
+    int sim_scene_tool[HS_SCENE_MAX_TOOLS];
     hs_haptic_cut_def cdef;
     double* x0r;         // [3n] rest positions after the newest cut taken, m
     int tri_cap;         // boundary triangles the buffers hold
@@ -133,6 +137,11 @@ typedef struct dev_state {
     int contact;
     int64_t pubs;    // forces published
     hs_rt_hist* lat; // window: pose received -> force published, us
+    // a device driving sim tool t > 0 (devices listed): its own feed and outputs
+    int64_t feed_seq;            // poses fed to its tool
+    hs_haptic_output out;        // newest rt output of its tool
+    int have_out;                // out is from the running sim
+    hs_haptic_model pause_model; // its output model at a pause, ramped to zero
 } dev_state;
 
 struct hs_server {
@@ -456,6 +465,7 @@ static hs_status world_create(const hs_scene* sc, int realtime, world* w, hs_err
         if (sc->tools[t].kind == HS_TOOL_PROBE && w->probe_tool < 0) w->probe_tool = t;
     }
     w->cutting = sc->feature_cutting && w->scalpel >= 0;
+    hs_scene_device_tools(sc, w->dev_sim, w->sim_scene_tool);
     w->x0r = hs_alloc(3 * n * sizeof(double));
     if (!w->x0r) goto nomem;
     memcpy(w->x0r, m->x0, 3 * n * sizeof(double));
@@ -465,8 +475,9 @@ static hs_status world_create(const hs_scene* sc, int realtime, world* w, hs_err
         memcpy(w->cdef.blade_b, sc->tools[w->scalpel].blade_b, sizeof w->cdef.blade_b);
         w->cdef.max_force_n =
             sc->force_max_n < w->cdef.max_force_n ? sc->force_max_n : w->cdef.max_force_n;
-        // A scene listing a probe as well: the released blade probes the (cut) tissue.
-        w->cdef.probe_when_released = w->probe_tool >= 0;
+        // A scene listing a probe as well: the released blade probes the (cut) tissue (with
+        // devices listed, the probe has its own device and the blade only cuts).
+        w->cdef.probe_when_released = w->probe_tool >= 0 && !sc->devices_listed;
         w->cdef.cut.fragment =
             sc->cut_free_pieces_fall ? HS_CUT_FRAGMENT_FIX : HS_CUT_FRAGMENT_DROP;
         w->tri_cap = 4 * m->n_tets;
@@ -616,18 +627,45 @@ static double estop_gain(const hs_server* s, int64_t t) {
 // limits a running answer gets (force_max_n as set now, the e-stop release ramp): without them a
 // pause lifted a lowered limit and cut a release ramp short (tests/test_server.c
 // pause_keeps_limits has the numbers).
-static hs_haptic_model paused_model(const hs_server* s, int64_t t, const double pos[3]) {
+static hs_haptic_model paused_from(const hs_server* s, const hs_haptic_model* at_pause, int64_t t,
+                                   const double pos[3]) {
     double g = (1.0 - (double)(t - s->pause_ns) * 1e-9 / PAUSE_RAMP_S) * estop_gain(s, t);
     if (!(g > 0)) return zero_model();
     hs_haptic_model m;
-    hs_haptic_model_reanchor(&s->pause_model, pos, &m);
+    hs_haptic_model_reanchor(at_pause, pos, &m);
     clamp_model(&m, s->w.scene.force_max_n);
     scale_model(&m, g);
     return m;
 }
 
+static hs_haptic_model paused_model(const hs_server* s, int64_t t, const double pos[3]) {
+    return paused_from(s, &s->pause_model, t, pos);
+}
+
+// Devices driving sim tools t > 0: the newest output of each.
+static void drain_tool_outputs(hs_server* s) {
+    for (int d = 0; d < MAX_DEV && s->w.sim; ++d) {
+        int t = s->w.dev_sim[d];
+        if (t <= 0 || t >= hs_haptic_sim_tools(s->w.sim)) continue;
+        while (hs_haptic_sim_take_tool_output(s->w.sim, t, &s->dev[d].out)) s->dev[d].have_out = 1;
+    }
+}
+
+// Their outputs belong to a sim that is gone (rebuild, resume).
+static void forget_tool_outputs(hs_server* s) {
+    for (int d = 0; d < MAX_DEV; ++d) s->dev[d].have_out = 0;
+}
+
+// At a pause: each such device's output model, ramped to zero while paused.
+static void pause_tools(hs_server* s) {
+    drain_tool_outputs(s);
+    for (int d = 0; d < MAX_DEV; ++d)
+        s->dev[d].pause_model = s->dev[d].have_out ? s->dev[d].out.model : zero_model();
+}
+
 static void drain_outputs(hs_server* s) {
     if (!s->w.sim) return;
+    drain_tool_outputs(s);
     hs_haptic_output o;
     while (hs_haptic_sim_take_output(s->w.sim, &o)) {
         s->out = o;
@@ -666,6 +704,48 @@ static void publish_rt_output(hs_server* s) {
     publish_force(s, 0, &m, state, i >= 0 ? s->ring_seq[i] : 0, i >= 0 ? s->ring_utime[i] : 0, 0);
 }
 
+// The model an rt output o puts on the wire for a pose with these buttons received at rx_ns.
+static hs_haptic_model output_model(const hs_server* s, const hs_haptic_output* o, uint32_t buttons,
+                                    int64_t rx_ns, int* state) {
+    // The rt output as it is, anchored where rt took it: its force is the one the rt output
+    // stage limited (magnitude, rate, watchdog), and a driver evaluating the model at this pose
+    // gets what a re-anchored copy would say. Re-anchored here, the force on the wire was the
+    // model's extrapolation, which no limit bounds.
+    hs_haptic_model m = o->model;
+    *state = state_of(o, &m, buttons);
+    // A limit set since rt made this output holds from the set's ack on.
+    clamp_model(&m, s->w.scene.force_max_n);
+    double g = estop_gain(s, rx_ns);
+    if (g < 1.0) {
+        scale_model(&m, g);
+        *state = HAPSIM_TOOL_FORCE_T_STATE_RAMP;
+    }
+    return m;
+}
+
+// A device driving sim tool t > 0: feeds its tool, answers from that tool's newest output.
+static hs_haptic_model answer_tool(hs_server* s, int d, int t, const hs_net_pose* p, int64_t rx_ns,
+                                   int* state) {
+    dev_state* ds = &s->dev[d];
+    if (s->paused) {
+        *state = HAPSIM_TOOL_FORCE_T_STATE_RAMP;
+        return paused_from(s, &ds->pause_model, rx_ns, p->position);
+    }
+    if (!(p->buttons & HAPSIM_TOOL_POSE_T_BUTTON_CLUTCH)) {
+        hs_haptic_pose hp;
+        memset(&hp, 0, sizeof hp);
+        hp.seq = ++ds->feed_seq;
+        hp.stamp_ns = rx_ns;
+        memcpy(hp.pos_m, p->position, sizeof hp.pos_m);
+        memcpy(hp.quat_wxyz, p->orientation, sizeof hp.quat_wxyz);
+        hp.buttons = p->buttons;
+        hs_haptic_sim_feed_tool_pose(s->w.sim, t, &hp);
+    }
+    drain_tool_outputs(s);
+    if (!ds->have_out) return zero_model();
+    return output_model(s, &ds->out, p->buttons, rx_ns, state);
+}
+
 // Answer an accepted pose at once: the newest rt model evaluated at the new position.
 static void answer_pose(hs_server* s, const hs_net_pose* p, int64_t rx_ns) {
     int d = p->device_id;
@@ -679,10 +759,14 @@ static void answer_pose(hs_server* s, const hs_net_pose* p, int64_t rx_ns) {
     if (!w->haptics) return; // validated and counted, not answered (scene: haptics off)
     hs_haptic_model m = zero_model();
     int state = HAPSIM_TOOL_FORCE_T_STATE_STOPPED;
-    if (d == 0 && s->paused) {
+    const int t = w->dev_sim[d]; // the sim tool it drives (-1: none)
+    if (t > 0 && (w->sim || s->paused) && !s->estop) {
+        if (s->paused || t < hs_haptic_sim_tools(w->sim))
+            m = answer_tool(s, d, t, p, rx_ns, &state);
+    } else if (t == 0 && s->paused) {
         m = paused_model(s, rx_ns, p->position);
         state = HAPSIM_TOOL_FORCE_T_STATE_RAMP;
-    } else if (d == 0 && w->sim) {
+    } else if (t == 0 && w->sim) {
         if (!(p->buttons & HAPSIM_TOOL_POSE_T_BUTTON_CLUTCH)) {
             hs_haptic_pose hp;
             memset(&hp, 0, sizeof hp);
@@ -699,21 +783,7 @@ static void answer_pose(hs_server* s, const hs_net_pose* p, int64_t rx_ns) {
             hs_haptic_sim_feed_pose(w->sim, &hp);
         }
         drain_outputs(s);
-        if (s->have_out && !s->estop) {
-            // The rt output as it is, anchored where rt took it: its force is the one the rt
-            // output stage limited (magnitude, rate, watchdog), and a driver evaluating the
-            // model at this pose gets what a re-anchored copy would say. Re-anchored here, the
-            // force on the wire was the model's extrapolation, which no limit bounds.
-            m = s->out.model;
-            state = state_of(&s->out, &m, p->buttons);
-            // A limit set since rt made this output holds from the set's ack on.
-            clamp_model(&m, w->scene.force_max_n);
-            double g = estop_gain(s, rx_ns);
-            if (g < 1.0) {
-                scale_model(&m, g);
-                state = HAPSIM_TOOL_FORCE_T_STATE_RAMP;
-            }
-        }
+        if (s->have_out && !s->estop) m = output_model(s, &s->out, p->buttons, rx_ns, &state);
     }
     if (s->estop) {
         m = zero_model();
@@ -868,7 +938,12 @@ static void apply_cut(hs_server* s) {
     e.seq = ++s->seq_tevent;
     e.old_version = old;
     e.new_version = s->topo_version;
-    e.device_id = 0;
+    e.device_id = 0; // the blade's device: the one driving sim tool 0
+    for (int d = 0; d < MAX_DEV; ++d)
+        if (w->dev_sim[d] == 0) {
+            e.device_id = d;
+            break;
+        }
     e.n_removed = ev.n_removed;
     e.removed_tets = w->ev_removed;
     e.n_moved = ev.n_moved;
@@ -924,9 +999,13 @@ static void publish_tool_states(hs_server* s, int64_t t) {
         }
         for (int k = 0; k < 4; ++k) ts.orientation[k] = ds->quat[k];
         ts.radius = s->w.def.probe.radius_m;
+        if (sc->devices_listed && sc->tools[sc->device_tool[d]].kind == HS_TOOL_PROBE) {
+            ts.tool_id = sc->device_tool[d]; // its own probe
+            ts.radius = sc->tools[ts.tool_id].radius;
+        }
         ts.contact = (int8_t)ds->contact;
         ts.cutting = 0;
-        if (s->w.cutting && d == 0 &&
+        if (s->w.cutting && s->w.dev_sim[d] == 0 &&
             !(s->w.cdef.probe_when_released && !(ds->buttons & s->w.cdef.engage_buttons))) {
             const hs_scene_tool* tl = &sc->tools[s->w.scalpel];
             double ra[3], rb[3];
@@ -1137,8 +1216,9 @@ static void publish_status(hs_server* s, int64_t t) {
     if (w->sim && !(s->rt_obtained & HS_RT_MLOCKED))
         WARN("rt thread: memory not locked, no mlockall (%s)",
              s->opt.realtime ? "refused or skipped" : "--realtime not given");
-    if (w->scene.n_devices > 1 && w->haptics)
-        WARN("scene has %d devices: only device 0 drives the probe, others get zero force",
+    if (w->scene.n_devices > 1 && w->haptics && !w->scene.devices_listed)
+        WARN("scene has %d devices: only device 0 drives the tools, others get zero force "
+             "(list the devices to give each its own tool: docs/scenes.md)",
              w->scene.n_devices);
     if (w->sim && s->st_prev->step_failures)
         WARN("%lld deformation steps failed", (long long)s->st_prev->step_failures);
@@ -1214,6 +1294,7 @@ static void reset_limits(hs_server* s) {
 // sim's first (not with zero force).
 static void after_rebuild(hs_server* s, int keep, int handed) {
     if (!handed) s->have_out = 0;
+    forget_tool_outputs(s);
     s->sim_step_base = keep ? s->frame_step : 0;
     if (!keep) {
         s->frame_step = 0;
@@ -1654,6 +1735,7 @@ static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap)
         if (s->paused) return HAPSIM_COMMAND_ACK_T_STATUS_OK;
         drain_outputs(s);
         s->pause_model = s->have_out ? s->out.model : zero_model();
+        pause_tools(s);
         s->pause_ns = hs_now_ns();
         server_sim_pause(s);
         s->paused = 1;
@@ -1672,6 +1754,7 @@ static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap)
                 return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
             }
             s->have_out = 0;
+            forget_tool_outputs(s);
             hs_haptic_sim_stats_get(w->sim, s->st_prev); // status windows start at the resume
         } else if (w->haptics) {
             if (world_sim_create(w, 1, &err) != HS_OK ||
@@ -1681,6 +1764,7 @@ static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap)
                 return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
             }
             s->have_out = 0;
+            forget_tool_outputs(s);
             s->sim_step_base = s->frame_step;
             memset(s->st_prev, 0, sizeof *s->st_prev);
         }

@@ -797,6 +797,14 @@ static hs_status parse_root(const ctx* c, const cJSON* root, int check_files, hs
         for (int i = 0; i < s->n_tools; ++i) scalpel |= s->tools[i].kind == HS_TOOL_SCALPEL;
         if (!scalpel) return fail(c, where, "features.cutting", "is on but no tool is a scalpel");
     }
+    if (s->feature_cutting && s->devices_listed) {
+        int driven = 0;
+        for (int d = 0; d < s->n_devices; ++d)
+            driven |= s->tools[s->device_tool[d]].kind == HS_TOOL_SCALPEL;
+        if (!driven)
+            return fail(c, where, "features.cutting",
+                        "is on but no device in `devices` drives the scalpel");
+    }
     if (s->feature_haptics && (s->n_tools < 1 || s->n_devices < 1))
         return fail(c, where, "features.haptics", "is on but the scene has no tools or no devices");
     if (s->sim_hz > s->haptic_hz)
