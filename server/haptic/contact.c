@@ -250,7 +250,9 @@ typedef struct work {
     int* vtx;                   // [cap] local vertex -> candidate index
     int* owner;                 // [cap] tool of each point
     int* ia;                    // [cap] pushing points
-    int* idx;                   // [cap] active points (solve_active)
+    int* idx;                   // [cap] active points (solve_active; w->a holds their factor)
+    int n_idx;                  // how many
+    int* used;                  // [cap] scratch per vertex
     unsigned char* act;         // [cap]
     unsigned char* bad;         // [cap]
     double *delta, *lambda, *x; // [cap]
@@ -261,7 +263,7 @@ typedef struct work {
 } work;
 
 #define WORK_DOUBLES(cap) ((cap)*40 + (cap) * (cap)*5)
-#define WORK_INTS(cap)    ((cap)*5)
+#define WORK_INTS(cap)    ((cap)*6)
 #define WORK_BYTES(cap)   ((cap)*3)
 
 static void work_carve(work* k, int cap, feat* set, double* d, int* in, unsigned char* b) {
@@ -271,7 +273,8 @@ static void work_carve(work* k, int cap, feat* set, double* d, int* in, unsigned
     k->vtx = in, in += cap;
     k->owner = in, in += cap;
     k->ia = in, in += cap;
-    k->idx = in;
+    k->idx = in, in += cap;
+    k->used = in;
     k->act = b, b += cap;
     k->bad = b, b += cap;
     k->wc.have = b;
@@ -310,8 +313,10 @@ static int solve_active(work* w) {
         w->x[i] = w->delta[w->idx[i]];
     }
     for (int i = 0; i < w->m; ++i) w->lambda[i] = 0;
+    w->n_idx = 0;
     if (k == 0) return 0;
     if (hs_dense_cholesky(w->a, k) != 0) return -1;
+    w->n_idx = k;
     hs_dense_cholesky_solve(w->a, k, w->x);
     for (int i = 0; i < k; ++i) w->lambda[w->idx[i]] = w->x[i];
     return 0;
@@ -583,7 +588,7 @@ static void displacements(work* w, int k) {
 // Tool t's part of the result: its pushing points' forces on their vertices, those vertices'
 // displacements (under all tools' forces), the force on the tool.
 static void tool_result(const hs_contact_snapshot* s, work* w, int k, int t, hs_contact* out) {
-    int* used = w->idx; // free after the pivoting
+    int* used = w->used;
     for (int a = 0; a < w->nv; ++a) {
         used[a] = 0;
         for (int p = 0; p < 3; ++p) w->fv[3 * a + p] = 0;
@@ -626,9 +631,12 @@ static void tool_result(const hs_contact_snapshot* s, work* w, int k, int t, hs_
 // df_i = -N_i^T Dn_i / FADE_COS.
 // The factor of W over the pushing points and their Dn_i, dw_ia. Returns -1 if not SPD.
 static int stiffness_prepare(const hs_contact_snapshot* s, work* w, int k) {
-    for (int i = 0; i < k; ++i)
-        for (int j = 0; j < k; ++j) w->a[i * k + j] = w_sym(&w->wc, w->ia[i], w->ia[j]);
-    if (hs_dense_cholesky(w->a, k) != 0) return -1;
+    // Usually every active point pushes: the pivoting's last factor is this one.
+    if (k != w->n_idx || memcmp(w->ia, w->idx, (size_t)k * sizeof *w->ia) != 0) {
+        for (int i = 0; i < k; ++i)
+            for (int j = 0; j < k; ++j) w->a[i * k + j] = w_sym(&w->wc, w->ia[i], w->ia[j]);
+        if (hs_dense_cholesky(w->a, k) != 0) return -1;
+    }
     for (int i = 0; i < k; ++i) {
         feat_dn(s, &w->set[w->ia[i]], w->dn + 9 * i);
         feat_dw(s, &w->set[w->ia[i]], (double(*)[3])(w->dw + 9 * i));
@@ -669,12 +677,19 @@ static double own_terms(const hs_contact_snapshot* s, const work* w, int i, int 
 static void tool_stiffness(const hs_contact_snapshot* s, work* w, int k, int t, hs_contact* out) {
     double* e = w->e;
     memset(e, 0, (size_t)w->nv * 9 * sizeof(double));
+    int* eb_list = w->used; // the vertices tool t pushes: E_b is zero elsewhere
+    int ne = 0;
+    for (int a = 0; a < w->nv; ++a) w->x[a] = 0; // 1: listed
     for (int i = 0; i < k; ++i) {
         const feat* f = &w->set[w->ia[i]];
         if (w->owner[w->ia[i]] != t) continue;
         double l = w->lambda[w->ia[i]];
         const double *dn = w->dn + 9 * i, *dw = w->dw + 9 * i;
         for (int q = 0; q < f->kind; ++q) {
+            if (w->x[f->lv[q]] == 0) {
+                w->x[f->lv[q]] = 1;
+                eb_list[ne++] = f->lv[q];
+            }
             double* eb = e + 9 * f->lv[q];
             for (int p = 0; p < 3; ++p)
                 for (int c = 0; c < 3; ++c)
@@ -687,7 +702,8 @@ static void tool_stiffness(const hs_contact_snapshot* s, work* w, int k, int t, 
         const int mine = w->owner[w->ia[i]] == t;
         for (int c = 0; c < 3; ++c) {
             double d = mine ? own_terms(s, w, i, c) : 0;
-            for (int b = 0; b < w->nv; ++b) {
+            for (int q = 0; q < ne; ++q) {
+                const int b = eb_list[q];
                 const double* cb = cn_at(&w->wc, b, w->ia[i]);
                 d += cb[0] * e[9 * b + c] + cb[1] * e[9 * b + 3 + c] + cb[2] * e[9 * b + 6 + c];
             }
