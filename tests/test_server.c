@@ -84,8 +84,9 @@ static void write_file(const char* path, const char* text) {
     }
 }
 
-// A liver scene without gravity (the press script's surface is the rest surface), mesh by path.
-static void liver_scene(const char* path, const char* extra) {
+// A liver scene without gravity (the press script's surface is the rest surface), mesh by path,
+// with these tools (JSON array).
+static void liver_scene_tools(const char* path, const char* tools, const char* extra) {
     char text[2048];
     snprintf(text, sizeof text,
              "{ \"mesh\": \"%s/scenes/liver/liver2.msh\",\n"
@@ -94,10 +95,17 @@ static void liver_scene(const char* path, const char* extra) {
              "  \"fixed\": [{\"type\": \"plane\", \"point\": [0, -0.0433, 0], \"normal\": [0, 1, "
              "0]}],\n"
              "  \"gravity\": [0, 0, 0],\n"
-             "  \"tools\": [{\"kind\": \"probe\", \"radius\": %g}],\n"
+             "  \"tools\": %s,\n"
              "  \"workspace\": {\"min\": [-0.25, -0.2, -0.2], \"max\": [0.25, 0.25, 0.2]}%s }\n",
-             HS_SOURCE_DIR, PROBE_R, extra ? extra : "");
+             HS_SOURCE_DIR, tools, extra ? extra : "");
     write_file(path, text);
+}
+
+// The liver scene with one probe of radius PROBE_R.
+static void liver_scene(const char* path, const char* extra) {
+    char tools[128];
+    snprintf(tools, sizeof tools, "[{\"kind\": \"probe\", \"radius\": %g}]", PROBE_R);
+    liver_scene_tools(path, tools, extra);
 }
 
 // Start hapsim-server on scene with the test URLs; stdout/stderr to files in tmpdir.
@@ -1713,22 +1721,11 @@ static int set_after_mesh_changed(void) {
 static int two_devices_one_dies(void) {
     char scene[512];
     snprintf(scene, sizeof scene, "%s/liver_two.json", tmpdir);
-    char extra[256];
-    snprintf(extra, sizeof extra,
-             ",\n  \"tools\": [{\"kind\": \"probe\", \"radius\": %g}, {\"kind\": \"probe\", "
-             "\"radius\": %g}],\n  \"devices\": [{\"tool\": 0}, {\"tool\": 1}]",
+    char tools[256];
+    snprintf(tools, sizeof tools,
+             "[{\"kind\": \"probe\", \"radius\": %g}, {\"kind\": \"probe\", \"radius\": %g}]",
              PROBE_R, PROBE_R);
-    char text[2048];
-    snprintf(text, sizeof text,
-             "{ \"mesh\": \"%s/scenes/liver/liver2.msh\",\n"
-             "  \"material\": {\"youngs_pa\": 5000, \"poisson\": 0.45, \"density_kg_m3\": 1060,\n"
-             "               \"rayleigh_mass\": 0.5, \"rayleigh_stiffness\": 0.01},\n"
-             "  \"fixed\": [{\"type\": \"plane\", \"point\": [0, -0.0433, 0], \"normal\": [0, 1, "
-             "0]}],\n"
-             "  \"gravity\": [0, 0, 0],\n"
-             "  \"workspace\": {\"min\": [-0.25, -0.2, -0.2], \"max\": [0.25, 0.25, 0.2]}%s }\n",
-             HS_SOURCE_DIR, extra);
-    write_file(scene, text);
+    liver_scene_tools(scene, tools, ",\n  \"devices\": [{\"tool\": 0}, {\"tool\": 1}]");
     ENSURE(start_server(scene, "two") == 0);
     client c;
     ENSURE(client_open(&c) == 0);

@@ -723,6 +723,18 @@ static hs_haptic_model output_model(const hs_server* s, const hs_haptic_output* 
     return m;
 }
 
+// The pose rt is fed for an accepted wire pose: its own seq, stamped when received.
+static hs_haptic_pose rt_pose(const hs_net_pose* p, int64_t seq, int64_t rx_ns) {
+    hs_haptic_pose hp;
+    memset(&hp, 0, sizeof hp);
+    hp.seq = seq;
+    hp.stamp_ns = rx_ns;
+    memcpy(hp.pos_m, p->position, sizeof hp.pos_m);
+    memcpy(hp.quat_wxyz, p->orientation, sizeof hp.quat_wxyz);
+    hp.buttons = p->buttons;
+    return hp;
+}
+
 // A device driving sim tool t > 0: feeds its tool, answers from that tool's newest output.
 static hs_haptic_model answer_tool(hs_server* s, int d, int t, const hs_net_pose* p, int64_t rx_ns,
                                    int* state) {
@@ -732,13 +744,7 @@ static hs_haptic_model answer_tool(hs_server* s, int d, int t, const hs_net_pose
         return paused_from(s, &ds->pause_model, rx_ns, p->position);
     }
     if (!(p->buttons & HAPSIM_TOOL_POSE_T_BUTTON_CLUTCH)) {
-        hs_haptic_pose hp;
-        memset(&hp, 0, sizeof hp);
-        hp.seq = ++ds->feed_seq;
-        hp.stamp_ns = rx_ns;
-        memcpy(hp.pos_m, p->position, sizeof hp.pos_m);
-        memcpy(hp.quat_wxyz, p->orientation, sizeof hp.quat_wxyz);
-        hp.buttons = p->buttons;
+        hs_haptic_pose hp = rt_pose(p, ++ds->feed_seq, rx_ns);
         hs_haptic_sim_feed_tool_pose(s->w.sim, t, &hp);
     }
     drain_tool_outputs(s);
@@ -768,13 +774,7 @@ static void answer_pose(hs_server* s, const hs_net_pose* p, int64_t rx_ns) {
         state = HAPSIM_TOOL_FORCE_T_STATE_RAMP;
     } else if (t == 0 && w->sim) {
         if (!(p->buttons & HAPSIM_TOOL_POSE_T_BUTTON_CLUTCH)) {
-            hs_haptic_pose hp;
-            memset(&hp, 0, sizeof hp);
-            hp.seq = ++s->feed_seq;
-            hp.stamp_ns = rx_ns;
-            memcpy(hp.pos_m, p->position, sizeof hp.pos_m);
-            memcpy(hp.quat_wxyz, p->orientation, sizeof hp.quat_wxyz);
-            hp.buttons = p->buttons;
+            hs_haptic_pose hp = rt_pose(p, ++s->feed_seq, rx_ns);
             int i = (int)(hp.seq % POSE_RING);
             s->ring_feed[i] = hp.seq;
             s->ring_seq[i] = p->seq;
