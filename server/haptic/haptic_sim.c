@@ -533,18 +533,12 @@ static void settle_entry(hs_haptic_sim* h, hs_contact_snapshot* s, const double 
 
 // Build and publish the snapshot around the tool positions p[3 n_tools] (tool 0 first) from
 // the body's current state: the candidates cover the surface near every tool.
-static void build_snapshot(hs_haptic_sim* h, const double* p) {
+// Contact-free positions of the surface nodes (h->q) from the body's state u (h->x set).
+static void update_free_surface(hs_haptic_sim* h, const double* u) {
     const hs_mesh* mesh = h->mesh;
-    const hs_mesh* sm = h->smesh; // same nodes and x0; its own boundary
+    const hs_mesh* sm = h->smesh;
     const int ns = sm->n_surf_nodes;
-    const double* u = hs_body_displacement(h->body);
     const double r = h->def.probe.radius_m;
-    double r_max = r; // the largest tool sphere: the search reach
-    for (int k = 1; k < h->n_tools; ++k) r_max = fmax(r_max, h->def.tool_radius_m[k]);
-    const double reach = r_max + h->def.probe.reach_margin_m;
-    for (int k = 0; k < 3 * mesh->n_nodes; ++k) h->x[k] = mesh->x0[k] + u[k];
-    const int new_surface = h->q_reset; // the compliance was just swapped in
-
     // Contact-free positions. g = -(f_el + gravity load) is the force that holds the current
     // shape beyond the loads that are not contact: the contact forces, plus inertia and damping
     // while the body moves. Removing its static response R C R^T g leaves the shape the tissue
@@ -630,26 +624,15 @@ static void build_snapshot(hs_haptic_sim* h, const double* p) {
         double* q = h->q + 3 * (size_t)node;
         for (int a = 0; a < 3; ++a) q[a] += w * (t[a] - q[a]);
     }
+}
 
-    // Contact surface: the boundary triangles (all three vertices contactable) within reach of
-    // the tool on the current (deformed) surface, nearest first, and their vertices as the
-    // candidates, until either list is full (a linear scan: microseconds per step; this plays
-    // the role of the per-step acceleration structure, which at these sizes would cost more
-    // than it saves). Every surface point within `cover` of p is on a listed triangle. The
-    // geometry is the deformed surface, not the contact-free one: pressed deeper than r, the
-    // contact-free surface lies behind the centre and its closest points say nothing about
-    // where the tissue touches the sphere, while the deformed surface wraps it (the gap is
-    // still measured from the contact-free positions: pre_m below).
-    sim_snapshot* wrap = hs_triple_buffer_back(h->snap);
-    memcpy(wrap->cut_force_n, h->cut_force, sizeof wrap->cut_force_n);
-    hs_contact_snapshot* s = &wrap->s;
+// The boundary triangles (all three vertices contactable) whose closest point on the current
+// surface is within reach of a tool (tool 0 when probing, the others when others), into
+// h->near_tri, nearest first. Returns how many.
+static int near_triangles(hs_haptic_sim* h, const double* p, int probing, int others,
+                          double reach) {
+    const hs_mesh* sm = h->smesh;
     int n_near = 0;
-    // A blade has no contact sphere. A released one probes when the def says so, once the
-    // compliance matches the cut body (a stale one would answer for the uncut tissue).
-    // The other tools are probes whenever the compliance matches the cut body.
-    const int comp_now = !h->cut || h->st.comp_version == hs_cut_topology_version(h->cut);
-    int probing = !h->cut || (h->cdef.probe_when_released && !h->engaged && comp_now);
-    const int others = h->n_tools > 1 && comp_now;
     for (int t = 0; t < sm->n_tris && (probing || others); ++t) {
         const int* tv = sm->tris + 3 * t;
         if (!hs_compliance_contactable(h->comp, tv[0]) ||
@@ -672,6 +655,79 @@ static void build_snapshot(hs_haptic_sim* h, const double* p) {
         ++n_near;
     }
     qsort(h->near_tri, (size_t)n_near, sizeof *h->near_tri, near_tri_cmp);
+    return n_near;
+}
+
+// The candidates nodes[n_cand] into s: node, coupling, contact-free position, normal, and the
+// rotated blocks R_i C_ij R_j^T. Returns how many are coupled.
+static int fill_blocks(hs_haptic_sim* h, hs_contact_snapshot* s, const int* nodes, int n_cand) {
+    int coupled = 0;
+    for (int i = 0; i < n_cand; ++i) {
+        int node = nodes[i];
+        s->node[i] = node;
+        s->coupled[i] = (unsigned char)hs_compliance_has_column(h->comp, node);
+        coupled += s->coupled[i];
+        memcpy(s->surf_m[i], h->q + 3 * (size_t)node, sizeof s->surf_m[i]);
+        node_normal(h, node, s->normal[i]);
+    }
+    for (int i = 0; i < n_cand; ++i) {
+        const double* ri = h->rot + 9 * (size_t)nodes[i];
+        for (int j = i; j < n_cand; ++j) {
+            const double* rj = h->rot + 9 * (size_t)nodes[j];
+            double blk[9];
+            if (!hs_compliance_block(h->comp, nodes[i], nodes[j], blk)) {
+                memset(s->c[i][j], 0, sizeof s->c[i][j]);
+                memset(s->c[j][i], 0, sizeof s->c[j][i]);
+                continue;
+            }
+            hs_mat3_rotate(ri, blk, rj, s->c[i][j]);
+            if (i == j) {
+                // Exact symmetry for the rt Cholesky.
+                double* b = s->c[i][i];
+                for (int a = 0; a < 3; ++a)
+                    for (int c = a + 1; c < 3; ++c)
+                        b[3 * a + c] = b[3 * c + a] = 0.5 * (b[3 * a + c] + b[3 * c + a]);
+            } else {
+                for (int a = 0; a < 3; ++a)
+                    for (int c = 0; c < 3; ++c) s->c[j][i][3 * c + a] = s->c[i][j][3 * a + c];
+            }
+        }
+    }
+    return coupled;
+}
+
+static void build_snapshot(hs_haptic_sim* h, const double* p) {
+    const hs_mesh* mesh = h->mesh;
+    const hs_mesh* sm = h->smesh; // same nodes and x0; its own boundary
+    const double* u = hs_body_displacement(h->body);
+    const double r = h->def.probe.radius_m;
+    double r_max = r; // the largest tool sphere: the search reach
+    for (int k = 1; k < h->n_tools; ++k) r_max = fmax(r_max, h->def.tool_radius_m[k]);
+    const double reach = r_max + h->def.probe.reach_margin_m;
+    for (int k = 0; k < 3 * mesh->n_nodes; ++k) h->x[k] = mesh->x0[k] + u[k];
+    const int new_surface = h->q_reset; // the compliance was just swapped in
+
+    update_free_surface(h, u);
+
+    // Contact surface: the boundary triangles (all three vertices contactable) within reach of
+    // the tool on the current (deformed) surface, nearest first, and their vertices as the
+    // candidates, until either list is full (a linear scan: microseconds per step; this plays
+    // the role of the per-step acceleration structure, which at these sizes would cost more
+    // than it saves). Every surface point within `cover` of p is on a listed triangle. The
+    // geometry is the deformed surface, not the contact-free one: pressed deeper than r, the
+    // contact-free surface lies behind the centre and its closest points say nothing about
+    // where the tissue touches the sphere, while the deformed surface wraps it (the gap is
+    // still measured from the contact-free positions: pre_m below).
+    sim_snapshot* wrap = hs_triple_buffer_back(h->snap);
+    memcpy(wrap->cut_force_n, h->cut_force, sizeof wrap->cut_force_n);
+    hs_contact_snapshot* s = &wrap->s;
+    // A blade has no contact sphere. A released one probes when the def says so, once the
+    // compliance matches the cut body (a stale one would answer for the uncut tissue).
+    // The other tools are probes whenever the compliance matches the cut body.
+    const int comp_now = !h->cut || h->st.comp_version == hs_cut_topology_version(h->cut);
+    int probing = !h->cut || (h->cdef.probe_when_released && !h->engaged && comp_now);
+    const int others = h->n_tools > 1 && comp_now;
+    const int n_near = near_triangles(h, p, probing, others, reach);
     double cover = reach;
     int n_cand = 0, n_tri = 0;
     int nodes[HS_CONTACT_MAX_CAND];
@@ -737,38 +793,7 @@ static void build_snapshot(hs_haptic_sim* h, const double* p) {
     // Columns for the candidates, nearest first, within this step's budget.
     int got = hs_compliance_ensure(h->comp, n_cand, nodes, h->def.probe.max_new_columns);
     (void)got; // a solver failure leaves the diagonal-only approximation
-    int coupled = 0;
-    for (int i = 0; i < n_cand; ++i) {
-        int node = nodes[i];
-        s->node[i] = node;
-        s->coupled[i] = (unsigned char)hs_compliance_has_column(h->comp, node);
-        coupled += s->coupled[i];
-        memcpy(s->surf_m[i], h->q + 3 * (size_t)node, sizeof s->surf_m[i]);
-        node_normal(h, node, s->normal[i]);
-    }
-    for (int i = 0; i < n_cand; ++i) {
-        const double* ri = h->rot + 9 * (size_t)nodes[i];
-        for (int j = i; j < n_cand; ++j) {
-            const double* rj = h->rot + 9 * (size_t)nodes[j];
-            double blk[9];
-            if (!hs_compliance_block(h->comp, nodes[i], nodes[j], blk)) {
-                memset(s->c[i][j], 0, sizeof s->c[i][j]);
-                memset(s->c[j][i], 0, sizeof s->c[j][i]);
-                continue;
-            }
-            hs_mat3_rotate(ri, blk, rj, s->c[i][j]);
-            if (i == j) {
-                // Exact symmetry for the rt Cholesky.
-                double* b = s->c[i][i];
-                for (int a = 0; a < 3; ++a)
-                    for (int c = a + 1; c < 3; ++c)
-                        b[3 * a + c] = b[3 * c + a] = 0.5 * (b[3 * a + c] + b[3 * c + a]);
-            } else {
-                for (int a = 0; a < 3; ++a)
-                    for (int c = 0; c < 3; ++c) s->c[j][i][3 * c + a] = s->c[i][j][3 * a + c];
-            }
-        }
-    }
+    const int coupled = fill_blocks(h, s, nodes, n_cand);
     preload_surface(h, s, h->applied_n, h->applied_node, (const double(*)[3])h->applied_f, -1);
     if (entering) settle_entry(h, s, p);
     s->stamp_ns = hs_now_ns();
