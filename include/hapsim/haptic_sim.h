@@ -182,7 +182,8 @@ void hs_haptic_sim_stop(hs_haptic_sim* sim);
 /// A rebuild of the same scene (new material, reset): before sim's first start, with from
 /// stopped, sim's 1 kHz loop goes on where from's left off: the device's last pose, watchdog
 /// gain and rate clamp (the force does not ramp in again), and from's last force model, given
-/// until sim's deformation thread publishes its first snapshot, which is then blended in. That
+/// until sim's deformation thread publishes its first snapshot, which is then blended in (with
+/// several tools, each goes on from its own last pose, gain, clamp and output). That
 /// thread starts from from's last contact (its forces on the body, the tool position). The
 /// body's state is not taken: hs_body_set_state does that. Pose seqs fed to sim must go on
 /// growing from from's (lower ones are stale and dropped). HS_ERR_INVALID when sim has run,

@@ -1293,8 +1293,10 @@ static void reset_limits(hs_server* s) {
 // took the old one's rt loop over, so poses are answered from its last output until the new
 // sim's first (not with zero force).
 static void after_rebuild(hs_server* s, int keep, int handed) {
-    if (!handed) s->have_out = 0;
-    forget_tool_outputs(s);
+    if (!handed) {
+        s->have_out = 0;
+        forget_tool_outputs(s);
+    }
     s->sim_step_base = keep ? s->frame_step : 0;
     if (!keep) {
         s->frame_step = 0;

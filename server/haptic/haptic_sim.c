@@ -1820,6 +1820,16 @@ hs_status hs_haptic_sim_take_over(hs_haptic_sim* h, const hs_haptic_sim* from, h
     // snapshot where the tool is (not at the origin, where an empty contact would put it).
     hs_contact* c = hs_triple_buffer_back(h->contact);
     *c = from->src.last;
+    // The other tools as well: each goes on from its last output, given until the first joint
+    // solve (it runs once tool 0's hold ends), and its last contact is applied.
+    const int n = h->n_tools < from->n_tools ? h->n_tools : from->n_tools;
+    for (int t = 1; t < n; ++t) {
+        hs_haptic_rt_take_over(h->xhrt[t], from->xhrt[t], &h->src.model[t]);
+        memcpy(h->src.tool_p[t], from->src.tool_p[t], sizeof h->src.tool_p[t]);
+        h->src.tool_seen[t] = from->src.tool_seen[t];
+        h->src.lastv[t] = from->src.lastv[t];
+        c[t] = from->src.lastv[t];
+    }
     hs_triple_buffer_publish(h->contact);
     return HS_OK;
 }
