@@ -686,22 +686,27 @@ static int ring_find(const hs_server* s, int64_t feed) {
 
 // rt outputs go out when the device's poses have stopped (watchdog ramp to zero) or slowed down.
 static void publish_rt_output(hs_server* s) {
-    if (!s->have_out || s->paused) return;
-    dev_state* ds = &s->dev[0];
-    if (!ds->seen) return;
+    if (s->paused) return;
     int64_t t = hs_now_ns();
-    double quiet_s = s->w.scene.watchdog_s + s->w.def.safety.ramp_s + 0.25;
-    if (t - ds->last_rx_ns > (int64_t)(quiet_s * 1e9)) return; // long dead: nothing to say
-    if (t - ds->last_pub_ns < RT_GAP_NS) return;
-    hs_haptic_model m = s->estop ? zero_model() : s->out.model; // limited by the rt stage
-    int state = s->estop ? HAPSIM_TOOL_FORCE_T_STATE_STOPPED : state_of(&s->out, &m, ds->buttons);
-    double g = estop_gain(s, t);
-    if (!s->estop && g < 1.0) {
-        scale_model(&m, g);
-        state = HAPSIM_TOOL_FORCE_T_STATE_RAMP;
+    for (int d = 0; d < MAX_DEV; ++d) { // every device driving a sim tool, from its tool's output
+        const int tool = s->w.dev_sim[d];
+        dev_state* ds = &s->dev[d];
+        if (tool < 0 || !(tool == 0 ? s->have_out : ds->have_out) || !ds->seen) continue;
+        const hs_haptic_output* o = tool == 0 ? &s->out : &ds->out;
+        double quiet_s = s->w.scene.watchdog_s + s->w.def.safety.ramp_s + 0.25;
+        if (t - ds->last_rx_ns > (int64_t)(quiet_s * 1e9)) continue; // long dead: nothing to say
+        if (t - ds->last_pub_ns < RT_GAP_NS) continue;
+        hs_haptic_model m = s->estop ? zero_model() : o->model; // limited by the rt stage
+        int state = s->estop ? HAPSIM_TOOL_FORCE_T_STATE_STOPPED : state_of(o, &m, ds->buttons);
+        double g = estop_gain(s, t);
+        if (!s->estop && g < 1.0) {
+            scale_model(&m, g);
+            state = HAPSIM_TOOL_FORCE_T_STATE_RAMP;
+        }
+        int i = tool == 0 ? ring_find(s, o->pose_seq) : -1; // the ring maps tool 0's poses
+        publish_force(s, d, &m, state, i >= 0 ? s->ring_seq[i] : 0, i >= 0 ? s->ring_utime[i] : 0,
+                      0);
     }
-    int i = ring_find(s, s->out.pose_seq);
-    publish_force(s, 0, &m, state, i >= 0 ? s->ring_seq[i] : 0, i >= 0 ? s->ring_utime[i] : 0, 0);
 }
 
 // The model an rt output o puts on the wire for a pose with these buttons received at rx_ns.
