@@ -5,6 +5,9 @@
 
 #include <string.h>
 
+// Every listed device can have a sim tool of its own.
+_Static_assert(HS_SCENE_MAX_TOOLS <= HS_MAX_TOOLS, "a scene lists more tools than a sim drives");
+
 void hs_scene_sim_def(const hs_scene* sc, int realtime, hs_haptic_sim_def* d) {
     *d = hs_haptic_sim_default_def();
     d->body.fem.model = sc->model;
