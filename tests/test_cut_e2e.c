@@ -3,8 +3,8 @@
 // dragged across the skin patch by poses fed at 1 kHz, real deformation and rt threads.
 // The LCM end to end is tests/test_cut_e2e.sh.
 #define _POSIX_C_SOURCE 200809L
-#include "hapsim/haptic_sim.h"
-#include "rt/haptic_rt.h"
+#include "haptic_sim.h"
+#include "haptic_rt.h"
 #include "test_macros.h"
 
 #include <limits.h>
@@ -1202,12 +1202,12 @@ static int release_inside(int zigzag) {
     ENSURE(cut_steps > 5 && st.comp_version == st.topology_version);
     // No kick: from the force it had to where it settles, never well above both.
     ENSURE(peak <= 1.2 * fmax(at_release, settled) + 0.02);
-    ENSURE(range <= 0.02);    // no chatter while held
+    ENSURE(range <= 0.02); // no chatter while held
     // Lifted out: the tissue lets go. In some runs of the straight cut it catches the sphere on
     // the way up and pulls 1.0-1.3 N (a known defect, not understood yet; ~0.1 N in the others):
     // the bound is the blade's resistance cap, which the old code's 3.3 N spike exceeded.
     ENSURE(lift_peak <= 1.5);
-    ENSURE(pressed > 0.003);  // the full probe again
+    ENSURE(pressed > 0.003); // the full probe again
 #endif
     ENSURE(hs_byte_count() == bytes);
     return 0;

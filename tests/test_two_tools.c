@@ -5,11 +5,11 @@
 // solve; the tick allocates nothing.
 #define _POSIX_C_SOURCE 200809L
 #include "alloc_counter.h"
-#include "hapsim/body.h"
-#include "hapsim/compliance.h"
-#include "hapsim/haptic_sim.h"
-#include "rt/haptic_rt.h"
-#include "hapsim/mesh.h"
+#include "body.h"
+#include "compliance.h"
+#include "haptic_sim.h"
+#include "haptic_rt.h"
+#include "mesh.h"
 #include "test_macros.h"
 
 #include <stdlib.h>

@@ -5,8 +5,8 @@
 // and a synthetic snapshot where each has the cap's 16 contact nodes, against
 // one tool alone on the same snapshot. CSV on stdout.
 #include "bench.h"
-#include "hapsim/compliance.h"
-#include "hapsim/mesh.h"
+#include "compliance.h"
+#include "mesh.h"
 
 #include <math.h>
 #include <stdio.h>
