@@ -5,8 +5,8 @@
 #   scripts/bench-table.sh                  print the table; reads docs/data/, runs nothing
 #   scripts/bench-table.sh --update         also write it into docs/benchmarks.md (between the
 #                                           bench-table markers)
-#   scripts/bench-table.sh --run [NAME...]  first run the benchmarks NAME (core haptic cut
-#                                           protocol organ_timing; default all) into docs/data/,
+#   scripts/bench-table.sh --run [NAME...]  first run the benchmarks NAME (core haptic tools
+#                                           cut protocol organ_timing; default all) into docs/data/,
 #                                           then --update. Long: run on an otherwise idle machine.
 # --run uses BUILD_BIN (default build/bin) and HS_MESHES (the organ meshes; default: hapsim-bench's
 # own). Exit status: 0 done, 1 a data file or a run failed, 2 bad usage.
@@ -30,7 +30,7 @@ case "${1:-}" in
     update=1
     shift
     run=("$@")
-    [ ${#run[@]} -gt 0 ] || run=(core haptic cut protocol organ_timing)
+    [ ${#run[@]} -gt 0 ] || run=(core haptic tools cut protocol organ_timing)
     ;;
 -h | --help)
     usage
@@ -52,7 +52,7 @@ run_bench() {
     local name=$1 meshes=()
     [ -n "${HS_MESHES:-}" ] && meshes=(--meshes "$HS_MESHES")
     case $name in
-    core | haptic | cut | protocol)
+    core | haptic | tools | cut | protocol)
         [ -x "$bin/hapsim-bench" ] || {
             echo "bench-table: $bin/hapsim-bench not built (make build)" >&2
             return 1
@@ -76,7 +76,7 @@ run_bench() {
         mv "$data/.organ_timing.csv" "$data/organ_timing.csv"
         ;;
     *)
-        echo "bench-table: unknown benchmark '$name' (core haptic cut protocol organ_timing)" >&2
+        echo "bench-table: unknown benchmark '$name' (core haptic tools cut protocol organ_timing)" >&2
         return 2
         ;;
     esac
@@ -215,6 +215,21 @@ haptic_rows() {
             }' | emit "$c" "$t1" "$t2"
 }
 
+tools_row() {
+    local t='two tools in one contact problem, 16 contact nodes each: rt contact solve p99 <= 60 us (thread CPU time)'
+    local c='`hapsim-bench tools`' f
+    f=$(pick case,tools,contact_nodes_tool0 bench-tools.csv) || { na "$t" "$c" tools; return; }
+    rows case,tools,contact_nodes_tool0 "$data/$f" | cut -f2 |
+        awk -F, -v src="$(link "$f")" '
+            $1 == "cap16" && $2 == 2 { p50 = $9; p99 = $10; wall = $7; n0 = $3; n1 = $4 }
+            $1 == "cap16" && $2 == 1 { one = $10 }
+            $1 == "block-2.5mm" && $2 == 2 { blk = $10; bn = $3 }
+            END {
+                printf "%d + %d contact nodes: CPU p50 %g us, p99 %g us (wall p99 %g us on a shared machine); one tool with 16: CPU p99 %g us; a block, %d nodes each: CPU p99 %g us (%s)|%s\n",
+                    n0, n1, p50, p99, wall, one, bn, blk, src, (p99 != "" && p99 <= 60) ? "yes" : "no"
+            }' | emit "$c" "$t"
+}
+
 protocol_row() {
     local t='server pose -> force round trip p50 <= 1.5x a bare LCM echo' c='`hapsim-bench protocol`' f
     f=$(pick rtt_us_p50,rtt_us_p99,bare_lcm_rtt_us_p50 bench-protocol.csv bench-protocol.txt) ||
@@ -278,6 +293,7 @@ trap 'rm -f "$tmp" "$tmp.doc"' EXIT
     core_row_step
     core_row_ratio
     haptic_rows
+    tools_row
     line 'compliance blocks for a new contact within one deformation step' '-' \
         'by design: a new contact node'"'"'s column block is one sparse solve before the next snapshot; not timed' \
         'not measured'

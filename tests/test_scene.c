@@ -367,6 +367,48 @@ static int files_and_truncation(void) {
     return 0;
 }
 
+// `devices` as a list: each device drives its own tool; errors name file, line and key.
+static int device_list(void) {
+#define TOOLS2                                                                                     \
+    "\"tools\": [{\"kind\": \"probe\", \"radius\": 0.004},\n {\"kind\": \"scalpel\", "             \
+    "\"blade_a\": [0,0,0], \"blade_b\": [0,0,0.01]},\n {\"kind\": \"probe\", \"radius\": "         \
+    "0.006}],\n"
+    hs_scene s;
+    hs_err err = {0};
+    ENSURE(hs_scene_parse(HEAD TOOLS2
+                          "\"devices\": [{\"tool\": 2}, {\"tool\": 1},\n {\"tool\": 0}]}",
+                          "t.json", 0, &s, &err) == HS_OK);
+    ENSURE(s.devices_listed && s.n_devices == 3 && s.device_tool[0] == 2 && s.device_tool[1] == 1);
+    int sim_tool[HS_SCENE_MAX_DEVICES], scene_tool[HS_SCENE_MAX_TOOLS];
+    // The scalpel's device drives the sim's tool 0 (its blade), then the probes by device.
+    ENSURE(hs_scene_device_tools(&s, sim_tool, scene_tool) == 3);
+    ENSURE(sim_tool[1] == 0 && sim_tool[0] == 1 && sim_tool[2] == 2 && sim_tool[3] == -1);
+    ENSURE(scene_tool[0] == 1 && scene_tool[1] == 2 && scene_tool[2] == 0);
+    // The integer form keeps its meaning: device 0 drives the tools, the others none.
+    ENSURE(hs_scene_parse(HEAD "\"devices\": 2}", "t.json", 0, &s, &err) == HS_OK);
+    ENSURE(!s.devices_listed && s.n_devices == 2);
+    ENSURE(hs_scene_device_tools(&s, sim_tool, scene_tool) == 1 && sim_tool[0] == 0 &&
+           sim_tool[1] == -1 && scene_tool[0] == -1);
+    ENSURE(expect_fail(HEAD TOOLS2 "\"devices\": [{\"tool\": 0},\n {\"tool\": 3}]}", HS_ERR_PARSE,
+                       "t.json:8: key 'devices[1].tool': must be in [0, 2]", NULL) == 0);
+    ENSURE(expect_fail(HEAD TOOLS2 "\"devices\": [{\"tool\": 0},\n {\"tool\": 0}]}", HS_ERR_PARSE,
+                       "t.json:8: key 'devices[1].tool': tool 0 is driven by devices[0]",
+                       NULL) == 0);
+    ENSURE(expect_fail(HEAD TOOLS2 "\"devices\": [{\"tool\": 0},\n {}]}", HS_ERR_PARSE,
+                       "t.json:8: key 'devices[1].tool': is required", NULL) == 0);
+    ENSURE(expect_fail(HEAD TOOLS2 "\"devices\": [{\"tool\": 0, \"hand\": 1}]}", HS_ERR_PARSE,
+                       "'devices[0].hand': unknown key", NULL) == 0);
+    ENSURE(expect_fail(HEAD TOOLS2 "\"devices\": []}", HS_ERR_PARSE,
+                       "t.json:7: key 'devices': a list of 1..3 devices", NULL) == 0);
+    ENSURE(expect_fail(HEAD "\"devices\": \"two\"}", HS_ERR_PARSE,
+                       "'devices': must be a number of devices or a list", NULL) == 0);
+    // Two probes with `devices` a number: the second names the list form.
+    ENSURE(expect_fail(HEAD TOOLS2 "\"devices\": 1}", HS_ERR_PARSE,
+                       "t.json:6: key 'tools[2]': a second probe", "\"tool\": 2") == 0);
+#undef TOOLS2
+    return 0;
+}
+
 HS_TEST_MAIN(HS_CASE(liver_scene_loads), HS_CASE(defaults_and_paths),
              HS_CASE(malformed_names_file_line_key), HS_CASE(files_and_truncation),
-             HS_CASE(same_bus))
+             HS_CASE(same_bus), HS_CASE(device_list))

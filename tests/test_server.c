@@ -84,8 +84,9 @@ static void write_file(const char* path, const char* text) {
     }
 }
 
-// A liver scene without gravity (the press script's surface is the rest surface), mesh by path.
-static void liver_scene(const char* path, const char* extra) {
+// A liver scene without gravity (the press script's surface is the rest surface), mesh by path,
+// with these tools (JSON array).
+static void liver_scene_tools(const char* path, const char* tools, const char* extra) {
     char text[2048];
     snprintf(text, sizeof text,
              "{ \"mesh\": \"%s/scenes/liver/liver2.msh\",\n"
@@ -94,10 +95,17 @@ static void liver_scene(const char* path, const char* extra) {
              "  \"fixed\": [{\"type\": \"plane\", \"point\": [0, -0.0433, 0], \"normal\": [0, 1, "
              "0]}],\n"
              "  \"gravity\": [0, 0, 0],\n"
-             "  \"tools\": [{\"kind\": \"probe\", \"radius\": %g}],\n"
+             "  \"tools\": %s,\n"
              "  \"workspace\": {\"min\": [-0.25, -0.2, -0.2], \"max\": [0.25, 0.25, 0.2]}%s }\n",
-             HS_SOURCE_DIR, PROBE_R, extra ? extra : "");
+             HS_SOURCE_DIR, tools, extra ? extra : "");
     write_file(path, text);
+}
+
+// The liver scene with one probe of radius PROBE_R.
+static void liver_scene(const char* path, const char* extra) {
+    char tools[128];
+    snprintf(tools, sizeof tools, "[{\"kind\": \"probe\", \"radius\": %g}]", PROBE_R);
+    liver_scene_tools(path, tools, extra);
 }
 
 // Start hapsim-server on scene with the test URLs; stdout/stderr to files in tmpdir.
@@ -224,6 +232,10 @@ typedef struct client {
     hapsim_mesh_delta_t_subscription_t* s_delta;
     int64_t hist_id[8]; // the last keyframes, by id
     float* hist[8];
+    // devices 1..3: their own pose seqs and newest forces (device 0 uses the fields above)
+    int64_t dev_seq[4];
+    hapsim_tool_force_t dev_force[4];
+    int dev_n_force[4];
 } client;
 
 static void on_force(const lcm_recv_buf_t* rb, const char* ch, const hapsim_tool_force_t* f,
@@ -231,6 +243,11 @@ static void on_force(const lcm_recv_buf_t* rb, const char* ch, const hapsim_tool
     (void)rb;
     (void)ch;
     client* c = u;
+    if (f->device_id > 0 && f->device_id < 4) { // a second device's (two_devices_one_dies)
+        c->dev_force[f->device_id] = *f;
+        c->dev_n_force[f->device_id]++;
+        return;
+    }
     c->force = *f;
     c->force_rx_ns = hs_now_ns();
     c->n_force++;
@@ -408,18 +425,22 @@ static int wait_more(client* c, const int* counter, int timeout_ms) {
     return *counter > start;
 }
 
-static void send_pose(client* c, const double p[3], uint32_t buttons) {
+static void send_pose_dev(client* c, int d, const double p[3], uint32_t buttons) {
     hapsim_tool_pose_t m;
     memset(&m, 0, sizeof m);
     m.utime = hs_now_ns() / 1000;
-    m.seq = ++c->seq;
+    m.seq = d == 0 ? ++c->seq : ++c->dev_seq[d];
     m.session = c->session;
-    m.device_id = 0;
+    m.device_id = d;
     m.tool_id = 0;
     for (int k = 0; k < 3; ++k) m.position[k] = p[k];
     m.orientation[0] = 1;
     m.buttons = (int32_t)buttons;
     hapsim_tool_pose_t_publish(hs_net_bus_lcm(c->h), PREFIX "TOOL_POSE", &m);
+}
+
+static void send_pose(client* c, const double p[3], uint32_t buttons) {
+    send_pose_dev(c, 0, p, buttons);
 }
 
 // Probe centre at depth d (m, > 0: pressed in) along the normal at node 399.
@@ -1863,10 +1884,85 @@ static int set_after_mesh_changed(void) {
     return 0;
 }
 
+// Two listed devices, each its own probe on the liver: both pressed, both feel force; then
+// device 0's driver dies (its poses stop): device 1's forces go on as before, none of them
+// STOPPED or ramped, within 1 % of what they were.
+static int two_devices_one_dies(void) {
+    char scene[512];
+    snprintf(scene, sizeof scene, "%s/liver_two.json", tmpdir);
+    char tools[256];
+    snprintf(tools, sizeof tools,
+             "[{\"kind\": \"probe\", \"radius\": %g}, {\"kind\": \"probe\", \"radius\": %g}]",
+             PROBE_R, PROBE_R);
+    liver_scene_tools(scene, tools, ",\n  \"devices\": [{\"tool\": 0}, {\"tool\": 1}]");
+    ENSURE(start_server(scene, "two") == 0);
+    client c;
+    ENSURE(client_open(&c) == 0);
+    ENSURE(wait_up(&c));
+    // Device 1 presses as deep at the surface node 12-20 mm from node 399 whose normal is
+    // nearest N399.
+    double p0[3], p1[3];
+    const double depth = 0.004;
+    probe_at(depth, p0);
+    char mpath[512];
+    snprintf(mpath, sizeof mpath, "%s/scenes/liver/liver2.msh", HS_SOURCE_DIR);
+    hs_mesh* m = NULL;
+    hs_err err = {0};
+    ENSURE(hs_mesh_load(mpath, &m, &err) == HS_OK);
+    double best = -1, n1[3] = {0, 0, 0};
+    for (int i = 0; i < m->n_surf_nodes; ++i) {
+        const int v = m->surf_nodes[i];
+        const double* x = m->x0 + 3 * v;
+        double d[3] = {x[0] - P399[0], x[1] - P399[1], x[2] - P399[2]}, nv[3];
+        if (norm3(d) < 0.012 || norm3(d) > 0.020 || hs_mesh_rest_normal(m, v, nv) != 0) continue;
+        if (dot_n(nv) > best) {
+            best = dot_n(nv);
+            for (int k = 0; k < 3; ++k) {
+                n1[k] = nv[k];
+                p1[k] = x[k];
+            }
+        }
+    }
+    hs_mesh_destroy(&m);
+    ENSURE(best > 0.9);
+    for (int k = 0; k < 3; ++k) p1[k] += (PROBE_R - depth) * n1[k];
+    int64_t t0 = hs_now_ns();
+    double f1_both = 0, f1_dead = 0;
+    int n_both = 0, n_dead = 0, bad_state = 0;
+    for (int i = 0; i < 5000; ++i) {
+        const int dead = i >= 3000; // device 0's driver gone from here
+        if (!dead) send_pose_dev(&c, 0, p0, 0);
+        send_pose_dev(&c, 1, p1, 0);
+        int64_t next = t0 + (int64_t)(i + 1) * 1000000;
+        while (hs_now_ns() < next) {
+            hs_net_bus_handle(c.h, 0);
+            hs_net_bus_handle(c.m, 0);
+        }
+        const hapsim_tool_force_t* f = &c.dev_force[1];
+        double fn = norm3(f->force);
+        if (i >= 2800 && i < 3000) f1_both += fn, ++n_both;
+        if (i >= 4800) f1_dead += fn, ++n_dead;
+        if (i >= 2800 && f->state != HAPSIM_TOOL_FORCE_T_STATE_CONTACT) ++bad_state;
+    }
+    f1_both /= n_both;
+    f1_dead /= n_dead;
+    printf("  device 1: %.4f N with device 0 pressing, %.4f N 2 s after device 0's driver "
+           "stopped; %d device-1 answers not in contact; %d / %d forces for devices 0 / 1\n",
+           f1_both, f1_dead, bad_state, c.n_force, c.dev_n_force[1]);
+    ENSURE(c.n_force > 2000 && c.dev_n_force[1] > 4000);
+    ENSURE(f1_both > 0.02);
+    ENSURE(fabs(f1_dead - f1_both) <= 0.01 * f1_both);
+    ENSURE(bad_state == 0);
+    ENSURE(stop_server() == 0);
+    client_close(&c);
+    return 0;
+}
+
 HS_TEST_MAIN(HS_CASE(malformed_scene_exits_1), HS_CASE(bad_command_lines_refused),
              HS_CASE(poses_in_forces_out), HS_CASE(restarted_driver_session),
              HS_CASE(load_goes_on_answering), HS_CASE(set_after_mesh_changed),
              HS_CASE(set_keeps_body_state), HS_CASE(rebuild_keeps_force),
              HS_CASE(pause_keeps_limits), HS_CASE(clutch_ignores_motion),
              HS_CASE(starts_under_a_streaming_driver), HS_CASE(mesh_10k_arrives_whole),
-             HS_CASE(dropped_deltas_recover), HS_CASE(flood_leaves_server_intact))
+             HS_CASE(dropped_deltas_recover), HS_CASE(flood_leaves_server_intact),
+             HS_CASE(two_devices_one_dies))

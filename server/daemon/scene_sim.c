@@ -5,6 +5,9 @@
 
 #include <string.h>
 
+// Every listed device can have a sim tool of its own.
+_Static_assert(HS_SCENE_MAX_TOOLS <= HS_MAX_TOOLS, "a scene lists more tools than a sim drives");
+
 void hs_scene_sim_def(const hs_scene* sc, int realtime, hs_haptic_sim_def* d) {
     *d = hs_haptic_sim_default_def();
     d->body.fem.model = sc->model;
@@ -33,6 +36,19 @@ void hs_scene_sim_def(const hs_scene* sc, int realtime, hs_haptic_sim_def* d) {
             d->probe.radius_m = sc->tools[t].radius;
             break;
         }
+    // Listed devices: one sim tool per device, each probe with its own radius (tool 0 is the
+    // blade when a device drives the scalpel).
+    int sim_tool[HS_SCENE_MAX_DEVICES], scene_tool[HS_SCENE_MAX_TOOLS];
+    int n = hs_scene_device_tools(sc, sim_tool, scene_tool);
+    d->tools = n > 1 ? n : 1;
+    for (int t = 0; t < n && sc->devices_listed; ++t) {
+        const hs_scene_tool* tl = &sc->tools[scene_tool[t]];
+        if (tl->kind != HS_TOOL_PROBE) continue;
+        if (t == 0)
+            d->probe.radius_m = tl->radius;
+        else
+            d->tool_radius_m[t] = tl->radius;
+    }
     d->safety.max_force_n = sc->force_max_n;
     d->safety.max_rate_n_s = sc->force_rate_max;
     d->safety.watchdog_timeout_s = sc->watchdog_s;

@@ -86,6 +86,10 @@ typedef struct world {
     int cutting;
     int scalpel;    // scene tool index of the blade
     int probe_tool; // first probe tool, or -1
+    // devices -> the sim's tools (hs_scene_device_tools): dev_sim[d] (-1: zero force), and
+    // the scene tool of each sim tool (-1: the probe or the scalpel by the button)
+    int dev_sim[MAX_DEV];
+    int sim_scene_tool[HS_SCENE_MAX_TOOLS];
     hs_haptic_cut_def cdef;
     double* x0r;         // [3n] rest positions after the newest cut taken, m
     int tri_cap;         // boundary triangles the buffers hold
@@ -145,6 +149,11 @@ typedef struct dev_state {
     double engage_g0;   // the clutch gain at release: the ramp back in starts there
     int64_t pubs;       // forces published
     hs_rt_hist* lat;    // window: pose received -> force published, us
+    // a device driving sim tool t > 0 (devices listed): its own feed and outputs
+    int64_t feed_seq;            // poses fed to its tool
+    hs_haptic_output out;        // newest rt output of its tool
+    int have_out;                // out is from the running sim
+    hs_haptic_model pause_model; // its output model at a pause, ramped to zero
 } dev_state;
 
 // The server's run state. Two latches lie over it, set and cleared in any state without
@@ -497,6 +506,7 @@ static hs_status world_create(const hs_scene* sc, int realtime, world* w, hs_err
         if (sc->tools[t].kind == HS_TOOL_PROBE && w->probe_tool < 0) w->probe_tool = t;
     }
     w->cutting = sc->feature_cutting && w->scalpel >= 0;
+    hs_scene_device_tools(sc, w->dev_sim, w->sim_scene_tool);
     w->x0r = hs_alloc(3 * n * sizeof(double));
     if (!w->x0r) goto nomem;
     memcpy(w->x0r, m->x0, 3 * n * sizeof(double));
@@ -506,8 +516,9 @@ static hs_status world_create(const hs_scene* sc, int realtime, world* w, hs_err
         memcpy(w->cdef.blade_b, sc->tools[w->scalpel].blade_b, sizeof w->cdef.blade_b);
         w->cdef.max_force_n =
             sc->force_max_n < w->cdef.max_force_n ? sc->force_max_n : w->cdef.max_force_n;
-        // A scene listing a probe as well: the released blade probes the (cut) tissue.
-        w->cdef.probe_when_released = w->probe_tool >= 0;
+        // A scene listing a probe as well: the released blade probes the (cut) tissue (with
+        // devices listed, the probe has its own device and the blade only cuts).
+        w->cdef.probe_when_released = w->probe_tool >= 0 && !sc->devices_listed;
         w->cdef.cut.fragment =
             sc->cut_free_pieces_fall ? HS_CUT_FRAGMENT_FIX : HS_CUT_FRAGMENT_DROP;
         w->tri_cap = 4 * m->n_tets;
@@ -713,18 +724,45 @@ static hs_haptic_model clutch_model(const hs_server* s, const dev_state* ds, int
 // limits a running answer gets (force_max_n as set now, the e-stop release ramp): without them a
 // pause lifted a lowered limit and cut a release ramp short (tests/test_server.c
 // pause_keeps_limits has the numbers).
-static hs_haptic_model paused_model(const hs_server* s, int64_t t, const double pos[3]) {
+static hs_haptic_model paused_from(const hs_server* s, const hs_haptic_model* at_pause, int64_t t,
+                                   const double pos[3]) {
     double g = (1.0 - (double)(t - s->pause_ns) * 1e-9 / PAUSE_RAMP_S) * estop_gain(s, t);
     if (!(g > 0)) return zero_model();
     hs_haptic_model m;
-    hs_haptic_model_reanchor(&s->pause_model, pos, &m);
+    hs_haptic_model_reanchor(at_pause, pos, &m);
     clamp_model(&m, s->w.scene.force_max_n);
     scale_model(&m, g);
     return m;
 }
 
+static hs_haptic_model paused_model(const hs_server* s, int64_t t, const double pos[3]) {
+    return paused_from(s, &s->pause_model, t, pos);
+}
+
+// Devices driving sim tools t > 0: the newest output of each.
+static void drain_tool_outputs(hs_server* s) {
+    for (int d = 0; d < MAX_DEV && s->w.sim; ++d) {
+        int t = s->w.dev_sim[d];
+        if (t <= 0 || t >= hs_haptic_sim_tools(s->w.sim)) continue;
+        while (hs_haptic_sim_take_tool_output(s->w.sim, t, &s->dev[d].out)) s->dev[d].have_out = 1;
+    }
+}
+
+// Their outputs belong to a sim that is gone (rebuild, resume).
+static void forget_tool_outputs(hs_server* s) {
+    for (int d = 0; d < MAX_DEV; ++d) s->dev[d].have_out = 0;
+}
+
+// At a pause: each such device's output model, ramped to zero while paused.
+static void pause_tools(hs_server* s) {
+    drain_tool_outputs(s);
+    for (int d = 0; d < MAX_DEV; ++d)
+        s->dev[d].pause_model = s->dev[d].have_out ? s->dev[d].out.model : zero_model();
+}
+
 static void drain_outputs(hs_server* s) {
     if (!s->w.sim) return;
+    drain_tool_outputs(s);
     hs_haptic_output o;
     while (hs_haptic_sim_take_output(s->w.sim, &o)) {
         s->out = o;
@@ -745,36 +783,90 @@ static int ring_find(const hs_server* s, int64_t feed) {
 
 // rt outputs go out when the device's poses have stopped (watchdog ramp to zero) or slowed down.
 static void publish_rt_output(hs_server* s) {
-    if (!s->have_out || srv_paused(s)) return;
-    dev_state* ds = &s->dev[0];
-    if (!ds->seen) return;
+    if (srv_paused(s)) return;
     int64_t t = hs_now_ns();
-    double quiet_s = s->w.scene.watchdog_s + s->w.def.safety.ramp_s + 0.25;
-    if (t - ds->last_rx_ns > (int64_t)(quiet_s * 1e9)) return; // long dead: nothing to say
-    if (t - ds->last_pub_ns < RT_GAP_NS) return;
-    hs_haptic_model m = s->estop ? zero_model() : s->out.model; // limited by the rt stage
-    int state = s->estop ? HAPSIM_TOOL_FORCE_T_STATE_STOPPED : state_of(&s->out, &m);
-    double g = estop_gain(s, t) * engage_gain(s, ds, t);
-    if (!s->estop && ds->clutched) {
-        double hand[3];
-        for (int k = 0; k < 3; ++k) hand[k] = ds->hand[k] + ds->offset[k];
-        m = clutch_model(s, ds, t, hand, &state);
-    } else if (!s->estop && g < 1.0) {
-        scale_model(&m, g);
-        state = HAPSIM_TOOL_FORCE_T_STATE_RAMP;
+    for (int d = 0; d < MAX_DEV; ++d) { // every device driving a sim tool, from its tool's output
+        const int tool = s->w.dev_sim[d];
+        dev_state* ds = &s->dev[d];
+        if (tool < 0 || !(tool == 0 ? s->have_out : ds->have_out) || !ds->seen) continue;
+        const hs_haptic_output* o = tool == 0 ? &s->out : &ds->out;
+        double quiet_s = s->w.scene.watchdog_s + s->w.def.safety.ramp_s + 0.25;
+        if (t - ds->last_rx_ns > (int64_t)(quiet_s * 1e9)) continue; // long dead: nothing to say
+        if (t - ds->last_pub_ns < RT_GAP_NS) continue;
+        hs_haptic_model m = s->estop ? zero_model() : o->model; // limited by the rt stage
+        int state = s->estop ? HAPSIM_TOOL_FORCE_T_STATE_STOPPED : state_of(o, &m);
+        // The clutch is tool 0's device's (clutch_track).
+        double g = estop_gain(s, t) * (tool == 0 ? engage_gain(s, ds, t) : 1.0);
+        if (!s->estop && tool == 0 && ds->clutched) {
+            double hand[3];
+            for (int k = 0; k < 3; ++k) hand[k] = ds->hand[k] + ds->offset[k];
+            m = clutch_model(s, ds, t, hand, &state);
+        } else if (!s->estop && g < 1.0) {
+            scale_model(&m, g);
+            state = HAPSIM_TOOL_FORCE_T_STATE_RAMP;
+        }
+        int i = tool == 0 ? ring_find(s, o->pose_seq) : -1; // the ring maps tool 0's poses
+        // The session of the pose rt answered: after a takeover an output of the old session's
+        // poses must not reach the new driver.
+        publish_force(s, d, &m, state, i >= 0 ? s->ring_session[i] : ds->session,
+                      i >= 0 ? s->ring_seq[i] : 0, i >= 0 ? s->ring_utime[i] : 0, 0);
     }
-    // The session of the pose rt answered: after a takeover an output of the old session's
-    // poses must not reach the new driver.
-    int i = ring_find(s, s->out.pose_seq);
-    publish_force(s, 0, &m, state, i >= 0 ? s->ring_session[i] : ds->session,
-                  i >= 0 ? s->ring_seq[i] : 0, i >= 0 ? s->ring_utime[i] : 0, 0);
+}
+
+// The model an rt output o puts on the wire for a pose with these buttons received at rx_ns.
+static hs_haptic_model output_model(const hs_server* s, const hs_haptic_output* o, uint32_t buttons,
+                                    int64_t rx_ns, int* state) {
+    // The rt output as it is, anchored where rt took it: its force is the one the rt output
+    // stage limited (magnitude, rate, watchdog), and a driver evaluating the model at this pose
+    // gets what a re-anchored copy would say. Re-anchored here, the force on the wire was the
+    // model's extrapolation, which no limit bounds.
+    (void)buttons;
+    hs_haptic_model m = o->model;
+    *state = state_of(o, &m);
+    // A limit set since rt made this output holds from the set's ack on.
+    clamp_model(&m, s->w.scene.force_max_n);
+    double g = estop_gain(s, rx_ns);
+    if (g < 1.0) {
+        scale_model(&m, g);
+        *state = HAPSIM_TOOL_FORCE_T_STATE_RAMP;
+    }
+    return m;
+}
+
+// The pose rt is fed for an accepted wire pose: its own seq, stamped when received.
+static hs_haptic_pose rt_pose(const hs_net_pose* p, int64_t seq, int64_t rx_ns) {
+    hs_haptic_pose hp;
+    memset(&hp, 0, sizeof hp);
+    hp.seq = seq;
+    hp.stamp_ns = rx_ns;
+    memcpy(hp.pos_m, p->position, sizeof hp.pos_m);
+    memcpy(hp.quat_wxyz, p->orientation, sizeof hp.quat_wxyz);
+    hp.buttons = p->buttons;
+    return hp;
+}
+
+// A device driving sim tool t > 0: feeds its tool, answers from that tool's newest output.
+static hs_haptic_model answer_tool(hs_server* s, int d, int t, const hs_net_pose* p, int64_t rx_ns,
+                                   int* state) {
+    dev_state* ds = &s->dev[d];
+    if (srv_paused(s)) {
+        *state = HAPSIM_TOOL_FORCE_T_STATE_RAMP;
+        return paused_from(s, &ds->pause_model, rx_ns, p->position);
+    }
+    if (!(p->buttons & HAPSIM_TOOL_POSE_T_BUTTON_CLUTCH)) {
+        hs_haptic_pose hp = rt_pose(p, ++ds->feed_seq, rx_ns);
+        hs_haptic_sim_feed_tool_pose(s->w.sim, t, &hp);
+    }
+    drain_tool_outputs(s);
+    if (!ds->have_out) return zero_model();
+    return output_model(s, &ds->out, p->buttons, rx_ns, state);
 }
 
 // Answer an accepted pose at once: the newest rt model evaluated at the new position.
 static void answer_pose(hs_server* s, const hs_net_pose* p, int64_t rx_ns) {
     int d = p->device_id;
     dev_state* ds = &s->dev[d];
-    if (d == 0) clutch_track(s, ds, p, rx_ns);
+    if (s->w.dev_sim[d] == 0) clutch_track(s, ds, p, rx_ns); // the clutch: tool 0's device
     double hand[3]; // the hand in the tool's frame; the tool stays put while clutched
     for (int k = 0; k < 3; ++k) hand[k] = p->position[k] + ds->offset[k];
     ds->seen = 1;
@@ -788,18 +880,17 @@ static void answer_pose(hs_server* s, const hs_net_pose* p, int64_t rx_ns) {
     if (!w->haptics) return; // validated and counted, not answered (scene: haptics off)
     hs_haptic_model m = zero_model();
     int state = HAPSIM_TOOL_FORCE_T_STATE_STOPPED;
-    if (d == 0 && srv_paused(s)) {
+    const int t = w->dev_sim[d]; // the sim tool it drives (-1: none)
+    if (t > 0 && (w->sim || srv_paused(s)) && !s->estop) {
+        if (srv_paused(s) || t < hs_haptic_sim_tools(w->sim))
+            m = answer_tool(s, d, t, p, rx_ns, &state);
+    } else if (t == 0 && srv_paused(s)) {
         m = paused_model(s, rx_ns, hand);
         state = HAPSIM_TOOL_FORCE_T_STATE_RAMP;
-    } else if (d == 0 && w->sim) {
+    } else if (t == 0 && w->sim) {
         // rt gets the tool's position: it stays still while the clutch is held (no watchdog).
-        hs_haptic_pose hp;
-        memset(&hp, 0, sizeof hp);
-        hp.seq = ++s->feed_seq;
-        hp.stamp_ns = rx_ns;
+        hs_haptic_pose hp = rt_pose(p, ++s->feed_seq, rx_ns);
         memcpy(hp.pos_m, ds->pos, sizeof hp.pos_m);
-        memcpy(hp.quat_wxyz, p->orientation, sizeof hp.quat_wxyz);
-        hp.buttons = p->buttons;
         int i = (int)(hp.seq % POSE_RING);
         s->ring_feed[i] = hp.seq;
         s->ring_seq[i] = p->seq;
@@ -995,7 +1086,12 @@ static void apply_cut(hs_server* s) {
     e.seq = ++s->seq_tevent;
     e.old_version = old;
     e.new_version = s->topo_version;
-    e.device_id = 0;
+    e.device_id = 0; // the blade's device: the one driving sim tool 0
+    for (int d = 0; d < MAX_DEV; ++d)
+        if (w->dev_sim[d] == 0) {
+            e.device_id = d;
+            break;
+        }
     e.n_removed = ev.n_removed;
     e.removed_tets = w->ev_removed;
     e.n_moved = ev.n_moved;
@@ -1051,9 +1147,13 @@ static void publish_tool_states(hs_server* s, int64_t t) {
         }
         for (int k = 0; k < 4; ++k) ts.orientation[k] = ds->quat[k];
         ts.radius = s->w.def.probe.radius_m;
+        if (sc->devices_listed && sc->tools[sc->device_tool[d]].kind == HS_TOOL_PROBE) {
+            ts.tool_id = sc->device_tool[d]; // its own probe
+            ts.radius = sc->tools[ts.tool_id].radius;
+        }
         ts.contact = (int8_t)ds->contact;
         ts.cutting = 0;
-        if (s->w.cutting && d == 0 &&
+        if (s->w.cutting && s->w.dev_sim[d] == 0 &&
             !(s->w.cdef.probe_when_released && !(ds->buttons & s->w.cdef.engage_buttons))) {
             const hs_scene_tool* tl = &sc->tools[s->w.scalpel];
             double ra[3], rb[3];
@@ -1232,9 +1332,10 @@ static void status_warnings(const hs_server* s, status_buf* b) {
     if (w->sim && !(s->rt_obtained & HS_RT_MLOCKED))
         status_warn(b, "rt thread: memory not locked, no mlockall (%s)",
                     s->opt.realtime ? "refused or skipped" : "--realtime not given");
-    if (w->scene.n_devices > 1 && w->haptics)
+    if (w->scene.n_devices > 1 && w->haptics && !w->scene.devices_listed)
         status_warn(b,
-                    "scene has %d devices: only device 0 drives the probe, others get zero force",
+                    "scene has %d devices: only device 0 drives the tools, others get zero force "
+                    "(list the devices to give each its own tool: docs/scenes.md)",
                     w->scene.n_devices);
     if (w->sim && st->step_failures)
         status_warn(b, "%lld deformation steps failed", (long long)st->step_failures);
@@ -1367,7 +1468,10 @@ static void reset_limits(hs_server* s) {
 // took the old one's rt loop over, so poses are answered from its last output until the new
 // sim's first (not with zero force).
 static void after_rebuild(hs_server* s, int keep, int handed) {
-    if (!handed) s->have_out = 0;
+    if (!handed) {
+        s->have_out = 0;
+        forget_tool_outputs(s);
+    }
     s->sim_step_base = keep ? s->frame_step : 0;
     if (!keep) {
         s->frame_step = 0;
@@ -1874,6 +1978,7 @@ static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap)
         if (srv_paused(s)) return HAPSIM_COMMAND_ACK_T_STATUS_OK;
         drain_outputs(s);
         s->pause_model = s->have_out ? s->out.model : zero_model();
+        pause_tools(s);
         s->pause_ns = hs_now_ns();
         server_sim_pause(s);
         srv_transition(s, EV_PAUSE, NULL);
@@ -1890,6 +1995,7 @@ static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap)
                 return HAPSIM_COMMAND_ACK_T_STATUS_FAILED; // still PAUSED_CUT
             }
             s->have_out = 0;
+            forget_tool_outputs(s);
             hs_haptic_sim_stats_get(w->sim, s->st_prev); // status windows start at the resume
         } else if (w->haptics) {
             if (world_sim_create(w, 1, &err) != HS_OK ||
@@ -1898,6 +2004,7 @@ static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap)
                 return HAPSIM_COMMAND_ACK_T_STATUS_FAILED; // still PAUSED
             }
             s->have_out = 0;
+            forget_tool_outputs(s);
             s->sim_step_base = s->frame_step;
             memset(s->st_prev, 0, sizeof *s->st_prev);
         }

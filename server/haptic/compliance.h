@@ -33,6 +33,7 @@ extern "C" {
 #define HS_MAX_CONTACT      16  ///< contact points and their nodes per tick (the deepest first)
 #define HS_CONTACT_MAX_CAND 64  ///< candidate nodes in one snapshot (nearest the tool)
 #define HS_CONTACT_MAX_TRI  128 ///< surface triangles in one snapshot
+#define HS_MAX_TOOLS        4   ///< tools in one contact problem, HS_MAX_CONTACT points each
 /// Contact compliance added to every contact point, relative to the mean diagonal compliance
 /// of the snapshot's nodes: keeps the contact problem positive definite when contact points
 /// nearly coincide (moves a held force by about this fraction).
@@ -114,8 +115,15 @@ typedef struct hs_contact_snapshot {
     double probe_radius_m; ///< sphere radius, m
     double centre_m[3];    ///< tool position the candidates were chosen around, m
     double reach_m;        ///< candidates cover every contactable node within this of centre_m
-    int n_cand;            ///< candidates (<= HS_CONTACT_MAX_CAND)
-    int node[HS_CONTACT_MAX_CAND];              ///< mesh node index
+    /// Tool t >= 1 of a several-tool snapshot (hs_contact_solve_tools): its candidates cover
+    /// every contactable node within tool_reach_m[t] of tool_centre_m[t] (tool 0: centre_m,
+    /// reach_m; [0] unused).
+    double tool_centre_m[HS_MAX_TOOLS][3];
+    double tool_reach_m[HS_MAX_TOOLS];    ///< m; 0: no cover (the tool's clearance is 0)
+    double tool_radius_m[HS_MAX_TOOLS];   ///< sphere radius of tool t, m; 0: probe_radius_m
+    unsigned char tool_off[HS_MAX_TOOLS]; ///< 1: tool t has no sphere now (a blade): no contact
+    int n_cand;                           ///< candidates (<= HS_CONTACT_MAX_CAND)
+    int node[HS_CONTACT_MAX_CAND];        ///< mesh node index
     unsigned char coupled[HS_CONTACT_MAX_CAND]; ///< 1 when the node's column block is known
     /// Position the contact geometry is taken on (closest points, push directions), m: the
     /// deformed surface, so a press deeper than r still finds the surface around the sphere.
@@ -163,6 +171,8 @@ static inline double hs_contact_validated_depth(double radius_m) {
     return 3 * radius_m > 0.015 ? 3 * radius_m : 0.015;
 }
 
+typedef struct hs_contact_work hs_contact_work;
+
 /// Frictionless contact of a probe sphere centred at tool_m with the snapshot's surface: contact
 /// points = each triangle's closest point to the centre (or each candidate node when n_tri is
 /// 0), those within HS_CONTACT_BAND r, deepest first, at most HS_MAX_CONTACT on at most
@@ -182,6 +192,24 @@ void hs_contact_solve(const hs_contact_snapshot* s, const double tool_m[3], int 
 /// Thread: any (rt) | Allocates: no | Blocks: no
 void hs_contact_solve_from(const hs_contact_snapshot* s, const double tool_m[3],
                            const hs_contact* prev, hs_contact* out);
+/// Scratch of hs_contact_solve_tools for up to n_tools tools (1..HS_MAX_TOOLS), allocated once
+/// so the 1 kHz tick allocates nothing. Allocates: yes. @param out OUT
+hs_status hs_contact_work_create(int n_tools, hs_contact_work** out);
+/// Release; accepts NULL, sets *w = NULL.
+void hs_contact_work_destroy(hs_contact_work** w);
+/// Tools w was created for (0 for NULL).
+int hs_contact_work_tools(const hs_contact_work* w);
+/// The contact of n_tools spheres (centres tool_m[3t..3t+2], m; radius s->tool_radius_m[t]) with
+/// the snapshot's surface as one problem: each tool's points chosen as by hs_contact_solve (at most
+/// HS_MAX_CONTACT points on as many nodes per tool), then one complementarity problem over all of
+/// them, so W's blocks between different tools' points (the compliance between their nodes) couple
+/// them: one tool's push moves the tissue under the other, and both feel it. out[t] is tool t's
+/// contact: its points' forces on their nodes, those nodes' displacements under all tools' forces,
+/// the force on tool t and its own stiffness -dF_t/dp_t (the other tools held). prev[n_tools]
+/// (previous tick, or NULL) only picks the start. With one tool it equals hs_contact_solve_from.
+/// out must not alias prev. Thread: any (rt; one thread per workspace) | Allocates: no | Blocks: no
+void hs_contact_solve_tools(const hs_contact_snapshot* s, int n_tools, const double* tool_m,
+                            const hs_contact* prev, hs_contact_work* w, hs_contact* out);
 /// Fill s->n_tri/tri with the boundary triangles of mesh whose three vertices are all among
 /// s->node[0..n_cand) (mesh order, at most HS_CONTACT_MAX_TRI), and their bounds (surf_m must
 /// be set). For tools and tests that build snapshots themselves. Returns n_tri.

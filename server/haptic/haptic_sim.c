@@ -41,6 +41,8 @@
 // nothing, so it feels no resistance (it kept the last sweep's for as long as it stood).
 #define CUT_STILL_M  5e-5
 #define CUT_STILL_NS 50000000LL
+// Where a tool without a pose yet is put (several tools): far from any scene, no contact.
+#define TOOL_AWAY_M 1e3
 
 // What crosses to rt: the contact snapshot and the cutting resistance computed with it, in one
 // buffer so a new resistance always comes with a new model version (rt blends across it).
@@ -95,6 +97,7 @@ hs_haptic_sim_def hs_haptic_sim_default_def(void) {
     d.blend_ticks = 10;
     d.sleep_speed_m_s = 1e-4;
     d.idle_poll_s = 0.002;
+    d.tools = 1;
     d.cookie = SIM_COOKIE;
     return d;
 }
@@ -172,7 +175,22 @@ typedef struct probe_src {
     int hold;
     int64_t hold_version;
     hs_haptic_model held;
+    // Several tools (n_tools > 1): tool 0's tick solves all tools' contact as one problem
+    // (work) with the newest pose each other tool's tick recorded (tool_p; 1 tick old at most)
+    // and leaves each tool's model in model[t] for that tool's next tick.
+    int n_tools;
+    hs_contact_work* work;
+    double tool_p[HS_MAX_TOOLS][3]; // newest pose of each tool (tool_seen: one came), m
+    int tool_seen[HS_MAX_TOOLS];
+    hs_contact lastv[HS_MAX_TOOLS]; // the previous tick's contacts (warm start)
+    hs_haptic_model model[HS_MAX_TOOLS];
 } probe_src;
+
+// The force source of tool t >= 1.
+typedef struct tool_src {
+    probe_src* p;
+    int t;
+} tool_src;
 
 typedef struct face_key {
     int k[3]; // nodes, ascending
@@ -196,6 +214,12 @@ struct hs_haptic_sim {
     hs_rt_loop* loop;
     probe_src src;
     hs_rt_tick inner; // the haptic tick of server/rt, wrapped to run the def's hooks
+    // tools 1 .. n_tools-1: each its own device, tick (blend, safety, watchdog) and source
+    int n_tools;
+    hs_memdev* xdev[HS_MAX_TOOLS];
+    hs_haptic_rt* xhrt[HS_MAX_TOOLS];
+    hs_rt_tick xinner[HS_MAX_TOOLS];
+    tool_src xsrc[HS_MAX_TOOLS];
 
     // deformation thread
     pthread_t thread;
@@ -219,9 +243,9 @@ struct hs_haptic_sim {
     int* near_node;       // [n+1] scratch (triangle adjacency)
     near_tri* near_tri;   // [tri_cap] triangles within reach of the tool, scratch
     int* cand_of;         // [n] candidate index of a node while a snapshot is built, else -1
-    int applied_n;        // contact forces in the body now
-    int applied_node[HS_MAX_CONTACT];
-    double applied_f[HS_MAX_CONTACT][3]; // N
+    int applied_n;        // contact forces in the body now (all tools', summed per node)
+    int applied_node[HS_MAX_TOOLS * HS_MAX_CONTACT];
+    double applied_f[HS_MAX_TOOLS * HS_MAX_CONTACT][3]; // N
     int64_t version;
     deform_status st;    // deformation thread's copy, published through `status`
     int was_probing;     // the previous snapshot had a probe contact (cutting on)
@@ -316,6 +340,33 @@ struct hs_haptic_sim {
 // ---------------------------------------------------------------------------------------------
 // rt side
 
+// Every tool's contact as one problem: tool 0 at p0, the others where their newest poses were
+// (a tool with none yet is far off: no contact). Each tool's model is kept for its own tick.
+static void solve_tools(probe_src* p, const hs_contact_snapshot* s, const double p0[3],
+                        hs_contact* c /* [n_tools] */) {
+    double tm[3 * HS_MAX_TOOLS];
+    for (int t = 0; t < p->n_tools; ++t)
+        for (int k = 0; k < 3; ++k)
+            tm[3 * t + k] = t == 0 ? p0[k] : p->tool_seen[t] ? p->tool_p[t][k] : TOOL_AWAY_M;
+    hs_contact_solve_tools(s, p->n_tools, tm, p->lastv, p->work, c);
+    memcpy(p->lastv, c, (size_t)p->n_tools * sizeof *c);
+    p->last = c[0];
+    for (int t = 1; t < p->n_tools; ++t)
+        hs_contact_model(&c[t], p->min_r, p->max_r, p->timeout_s, &p->model[t]);
+}
+
+// Tool t >= 1: records its pose for the next joint solve and gives the model tool 0's tick
+// left for it, re-anchored at its pose.
+static void tool_eval(void* ctx, const hs_rt_clock* clk, const hs_haptic_pose* pose,
+                      hs_haptic_model* out) {
+    tool_src* ts = ctx;
+    probe_src* p = ts->p;
+    memcpy(p->tool_p[ts->t], pose->pos_m, sizeof p->tool_p[ts->t]);
+    p->tool_seen[ts->t] = 1;
+    hs_haptic_model_reanchor(&p->model[ts->t], pose->pos_m, out);
+    out->stamp_ns = clk->now_ns;
+}
+
 static void probe_eval(void* ctx, const hs_rt_clock* clk, const hs_haptic_pose* pose,
                        hs_haptic_model* out) {
     probe_src* p = ctx;
@@ -328,8 +379,12 @@ static void probe_eval(void* ctx, const hs_rt_clock* clk, const hs_haptic_pose* 
     }
     p->hold = 0;
     hs_contact* c = hs_triple_buffer_back(p->contact);
-    hs_contact_solve_from(s, pose->pos_m, &p->last, c);
-    p->last = *c;
+    if (p->n_tools > 1) {
+        solve_tools(p, s, pose->pos_m, c);
+    } else {
+        hs_contact_solve_from(s, pose->pos_m, &p->last, c);
+        p->last = *c;
+    }
     hs_triple_buffer_publish(p->contact);
     // From the copy: the published slot is the deformation thread's to read now.
     hs_contact_model(&p->last, p->min_r, p->max_r, p->timeout_s, out);
@@ -339,12 +394,16 @@ static void probe_eval(void* ctx, const hs_rt_clock* clk, const hs_haptic_pose* 
 
 static void rt_tick(void* ctx, const hs_rt_clock* clk) {
     hs_haptic_sim* h = ctx;
+    // The other tools first: their poses go into tool 0's joint solve of this tick.
+    for (int t = 1; t < h->n_tools; ++t) h->xinner[t].fn(h->xinner[t].ctx, clk);
     h->inner.fn(h->inner.ctx, clk);
 }
 
 static void rt_start(void* ctx) {
     hs_haptic_sim* h = ctx;
     if (h->inner.on_start) h->inner.on_start(h->inner.ctx);
+    for (int t = 1; t < h->n_tools; ++t)
+        if (h->xinner[t].on_start) h->xinner[t].on_start(h->xinner[t].ctx);
     if (h->def.rt_on_start) h->def.rt_on_start(h->def.rt_hook_ctx);
 }
 
@@ -352,6 +411,8 @@ static void rt_stop(void* ctx) {
     hs_haptic_sim* h = ctx;
     if (h->def.rt_on_stop) h->def.rt_on_stop(h->def.rt_hook_ctx);
     if (h->inner.on_stop) h->inner.on_stop(h->inner.ctx);
+    for (int t = 1; t < h->n_tools; ++t)
+        if (h->xinner[t].on_stop) h->xinner[t].on_stop(h->xinner[t].ctx);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -470,16 +531,14 @@ static void settle_entry(hs_haptic_sim* h, hs_contact_snapshot* s, const double 
     }
 }
 
-// Build and publish the snapshot around tool position p from the body's current state.
-static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
+// Build and publish the snapshot around the tool positions p[3 n_tools] (tool 0 first) from
+// the body's current state: the candidates cover the surface near every tool.
+// Contact-free positions of the surface nodes (h->q) from the body's state u (h->x set).
+static void update_free_surface(hs_haptic_sim* h, const double* u) {
     const hs_mesh* mesh = h->mesh;
-    const hs_mesh* sm = h->smesh; // same nodes and x0; its own boundary
+    const hs_mesh* sm = h->smesh;
     const int ns = sm->n_surf_nodes;
-    const double* u = hs_body_displacement(h->body);
-    const double r = h->def.probe.radius_m, reach = r + h->def.probe.reach_margin_m;
-    for (int k = 0; k < 3 * mesh->n_nodes; ++k) h->x[k] = mesh->x0[k] + u[k];
-    const int new_surface = h->q_reset; // the compliance was just swapped in
-
+    const double r = h->def.probe.radius_m;
     // Contact-free positions. g = -(f_el + gravity load) is the force that holds the current
     // shape beyond the loads that are not contact: the contact forces, plus inertia and damping
     // while the body moves. Removing its static response R C R^T g leaves the shape the tissue
@@ -565,6 +624,90 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
         double* q = h->q + 3 * (size_t)node;
         for (int a = 0; a < 3; ++a) q[a] += w * (t[a] - q[a]);
     }
+}
+
+// The boundary triangles (all three vertices contactable) whose closest point on the current
+// surface is within reach of a tool (tool 0 when probing, the others when others), into
+// h->near_tri, nearest first. Returns how many.
+static int near_triangles(hs_haptic_sim* h, const double* p, int probing, int others,
+                          double reach) {
+    const hs_mesh* sm = h->smesh;
+    int n_near = 0;
+    for (int t = 0; t < sm->n_tris && (probing || others); ++t) {
+        const int* tv = sm->tris + 3 * t;
+        if (!hs_compliance_contactable(h->comp, tv[0]) ||
+            !hs_compliance_contactable(h->comp, tv[1]) ||
+            !hs_compliance_contactable(h->comp, tv[2]))
+            continue;
+        const double* a = h->x + 3 * (size_t)tv[0];
+        const double* b = h->x + 3 * (size_t)tv[1];
+        const double* c = h->x + 3 * (size_t)tv[2];
+        double wb[3], x[3], dist = INFINITY;
+        for (int k = 0; k < h->n_tools; ++k) {
+            const double* pk = p + 3 * k;
+            if (k == 0 ? !probing : !others || !(fabs(pk[0]) < 0.5 * TOOL_AWAY_M))
+                continue; // a blade, or no pose yet
+            if (hs_tri_closest(pk, a, b, c, wb, x)) dist = fmin(dist, dist3(x, pk));
+        }
+        if (!(dist < reach)) continue;
+        h->near_tri[n_near].dist = dist;
+        h->near_tri[n_near].tri = t;
+        ++n_near;
+    }
+    qsort(h->near_tri, (size_t)n_near, sizeof *h->near_tri, near_tri_cmp);
+    return n_near;
+}
+
+// The candidates nodes[n_cand] into s: node, coupling, contact-free position, normal, and the
+// rotated blocks R_i C_ij R_j^T. Returns how many are coupled.
+static int fill_blocks(hs_haptic_sim* h, hs_contact_snapshot* s, const int* nodes, int n_cand) {
+    int coupled = 0;
+    for (int i = 0; i < n_cand; ++i) {
+        int node = nodes[i];
+        s->node[i] = node;
+        s->coupled[i] = (unsigned char)hs_compliance_has_column(h->comp, node);
+        coupled += s->coupled[i];
+        memcpy(s->surf_m[i], h->q + 3 * (size_t)node, sizeof s->surf_m[i]);
+        node_normal(h, node, s->normal[i]);
+    }
+    for (int i = 0; i < n_cand; ++i) {
+        const double* ri = h->rot + 9 * (size_t)nodes[i];
+        for (int j = i; j < n_cand; ++j) {
+            const double* rj = h->rot + 9 * (size_t)nodes[j];
+            double blk[9];
+            if (!hs_compliance_block(h->comp, nodes[i], nodes[j], blk)) {
+                memset(s->c[i][j], 0, sizeof s->c[i][j]);
+                memset(s->c[j][i], 0, sizeof s->c[j][i]);
+                continue;
+            }
+            hs_mat3_rotate(ri, blk, rj, s->c[i][j]);
+            if (i == j) {
+                // Exact symmetry for the rt Cholesky.
+                double* b = s->c[i][i];
+                for (int a = 0; a < 3; ++a)
+                    for (int c = a + 1; c < 3; ++c)
+                        b[3 * a + c] = b[3 * c + a] = 0.5 * (b[3 * a + c] + b[3 * c + a]);
+            } else {
+                for (int a = 0; a < 3; ++a)
+                    for (int c = 0; c < 3; ++c) s->c[j][i][3 * c + a] = s->c[i][j][3 * a + c];
+            }
+        }
+    }
+    return coupled;
+}
+
+static void build_snapshot(hs_haptic_sim* h, const double* p) {
+    const hs_mesh* mesh = h->mesh;
+    const hs_mesh* sm = h->smesh; // same nodes and x0; its own boundary
+    const double* u = hs_body_displacement(h->body);
+    const double r = h->def.probe.radius_m;
+    double r_max = r; // the largest tool sphere: the search reach
+    for (int k = 1; k < h->n_tools; ++k) r_max = fmax(r_max, h->def.tool_radius_m[k]);
+    const double reach = r_max + h->def.probe.reach_margin_m;
+    for (int k = 0; k < 3 * mesh->n_nodes; ++k) h->x[k] = mesh->x0[k] + u[k];
+    const int new_surface = h->q_reset; // the compliance was just swapped in
+
+    update_free_surface(h, u);
 
     // Contact surface: the boundary triangles (all three vertices contactable) within reach of
     // the tool on the current (deformed) surface, nearest first, and their vertices as the
@@ -578,29 +721,13 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
     sim_snapshot* wrap = hs_triple_buffer_back(h->snap);
     memcpy(wrap->cut_force_n, h->cut_force, sizeof wrap->cut_force_n);
     hs_contact_snapshot* s = &wrap->s;
-    int n_near = 0;
     // A blade has no contact sphere. A released one probes when the def says so, once the
     // compliance matches the cut body (a stale one would answer for the uncut tissue).
-    int probing = !h->cut || (h->cdef.probe_when_released && !h->engaged &&
-                              h->st.comp_version == hs_cut_topology_version(h->cut));
-    for (int t = 0; t < sm->n_tris && probing; ++t) {
-        const int* tv = sm->tris + 3 * t;
-        if (!hs_compliance_contactable(h->comp, tv[0]) ||
-            !hs_compliance_contactable(h->comp, tv[1]) ||
-            !hs_compliance_contactable(h->comp, tv[2]))
-            continue;
-        const double* a = h->x + 3 * (size_t)tv[0];
-        const double* b = h->x + 3 * (size_t)tv[1];
-        const double* c = h->x + 3 * (size_t)tv[2];
-        double wb[3], x[3];
-        if (!hs_tri_closest(p, a, b, c, wb, x)) continue;
-        double dist = dist3(x, p);
-        if (dist >= reach) continue;
-        h->near_tri[n_near].dist = dist;
-        h->near_tri[n_near].tri = t;
-        ++n_near;
-    }
-    qsort(h->near_tri, (size_t)n_near, sizeof *h->near_tri, near_tri_cmp);
+    // The other tools are probes whenever the compliance matches the cut body.
+    const int comp_now = !h->cut || h->st.comp_version == hs_cut_topology_version(h->cut);
+    int probing = !h->cut || (h->cdef.probe_when_released && !h->engaged && comp_now);
+    const int others = h->n_tools > 1 && comp_now;
+    const int n_near = near_triangles(h, p, probing, others, reach);
     double cover = reach;
     int n_cand = 0, n_tri = 0;
     int nodes[HS_CONTACT_MAX_CAND];
@@ -654,43 +781,19 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
     s->probe_radius_m = h->probe_r;
     memcpy(s->centre_m, p, sizeof s->centre_m);
     s->reach_m = cover;
+    s->tool_off[0] = (unsigned char)!probing;
+    for (int k = 1; k < h->n_tools; ++k) { // every tool covered as far as tool 0
+        memcpy(s->tool_centre_m[k], p + 3 * k, sizeof s->tool_centre_m[k]);
+        s->tool_reach_m[k] = cover;
+        s->tool_radius_m[k] = h->def.tool_radius_m[k] > 0 ? h->def.tool_radius_m[k] : r;
+        s->tool_off[k] = (unsigned char)!others;
+    }
     s->n_cand = n_cand;
     s->n_tri = n_tri;
     // Columns for the candidates, nearest first, within this step's budget.
     int got = hs_compliance_ensure(h->comp, n_cand, nodes, h->def.probe.max_new_columns);
     (void)got; // a solver failure leaves the diagonal-only approximation
-    int coupled = 0;
-    for (int i = 0; i < n_cand; ++i) {
-        int node = nodes[i];
-        s->node[i] = node;
-        s->coupled[i] = (unsigned char)hs_compliance_has_column(h->comp, node);
-        coupled += s->coupled[i];
-        memcpy(s->surf_m[i], h->q + 3 * (size_t)node, sizeof s->surf_m[i]);
-        node_normal(h, node, s->normal[i]);
-    }
-    for (int i = 0; i < n_cand; ++i) {
-        const double* ri = h->rot + 9 * (size_t)nodes[i];
-        for (int j = i; j < n_cand; ++j) {
-            const double* rj = h->rot + 9 * (size_t)nodes[j];
-            double blk[9];
-            if (!hs_compliance_block(h->comp, nodes[i], nodes[j], blk)) {
-                memset(s->c[i][j], 0, sizeof s->c[i][j]);
-                memset(s->c[j][i], 0, sizeof s->c[j][i]);
-                continue;
-            }
-            hs_mat3_rotate(ri, blk, rj, s->c[i][j]);
-            if (i == j) {
-                // Exact symmetry for the rt Cholesky.
-                double* b = s->c[i][i];
-                for (int a = 0; a < 3; ++a)
-                    for (int c = a + 1; c < 3; ++c)
-                        b[3 * a + c] = b[3 * c + a] = 0.5 * (b[3 * a + c] + b[3 * c + a]);
-            } else {
-                for (int a = 0; a < 3; ++a)
-                    for (int c = 0; c < 3; ++c) s->c[j][i][3 * c + a] = s->c[i][j][3 * a + c];
-            }
-        }
-    }
+    const int coupled = fill_blocks(h, s, nodes, n_cand);
     preload_surface(h, s, h->applied_n, h->applied_node, (const double(*)[3])h->applied_f, -1);
     if (entering) settle_entry(h, s, p);
     s->stamp_ns = hs_now_ns();
@@ -700,19 +803,26 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
     h->st.coupled = coupled;
 }
 
-// Replace the body's contact loads by those of contact c.
-static void apply_contact(hs_haptic_sim* h, const hs_contact* c) {
+// Replace the body's contact loads by those of every tool's contact c[n] (a node two tools
+// push takes the sum).
+static void apply_contact(hs_haptic_sim* h, const hs_contact* c, int n) {
     for (int k = 0; k < h->applied_n; ++k) {
         static const double zero[3] = {0, 0, 0};
         hs_body_set_force(h->body, h->applied_node[k], zero);
     }
     h->applied_n = 0;
-    for (int k = 0; k < c->n; ++k) {
-        h->applied_node[k] = c->node[k];
-        memcpy(h->applied_f[k], c->f_n[k], sizeof h->applied_f[k]);
-        hs_body_set_force(h->body, c->node[k], c->f_n[k]);
-    }
-    h->applied_n = c->n;
+    for (int t = 0; t < n; ++t)
+        for (int k = 0; k < c[t].n; ++k) {
+            int j = 0;
+            while (j < h->applied_n && h->applied_node[j] != c[t].node[k]) ++j;
+            if (j == h->applied_n) {
+                h->applied_node[h->applied_n++] = c[t].node[k];
+                memset(h->applied_f[j], 0, sizeof h->applied_f[j]);
+            }
+            for (int a = 0; a < 3; ++a) h->applied_f[j][a] += c[t].f_n[k][a];
+        }
+    for (int k = 0; k < h->applied_n; ++k)
+        hs_body_set_force(h->body, h->applied_node[k], h->applied_f[k]);
 }
 
 static double max_speed(const hs_haptic_sim* h) {
@@ -1225,14 +1335,22 @@ static void* deform_main(void* arg) {
     const int64_t idle_ns = (int64_t)(h->def.idle_poll_s * 1e9);
     struct timespec next;
     clock_gettime(CLOCK_MONOTONIC, &next);
-    hs_contact c;
-    memset(&c, 0, sizeof c);
-    double centre[3] = {0, 0, 0};
+    hs_contact cs[HS_MAX_TOOLS];
+    memset(cs, 0, sizeof cs);
+    hs_contact* const cp = &cs[0]; // tool 0's
+    double centre[3 * HS_MAX_TOOLS], tools[3 * HS_MAX_TOOLS];
+    for (int k = 0; k < 3 * HS_MAX_TOOLS; ++k) centre[k] = k < 3 ? 0 : TOOL_AWAY_M;
+    for (int t = 1; t < HS_MAX_TOOLS; ++t) cs[t].tool_m[0] = TOOL_AWAY_M;
     int have_snapshot = 0;
     while (!atomic_load_explicit(&h->stop, memory_order_acquire)) {
-        int fresh = hs_triple_buffer_read_copy(h->contact, &c);
+        int fresh = hs_triple_buffer_read_copy(h->contact, cs);
         (void)fresh;
-        int loaded = c.n > 0 || h->applied_n > 0;
+        hs_contact c = *cp;
+        int loaded = h->applied_n > 0;
+        for (int t = 0; t < h->n_tools; ++t) {
+            loaded = loaded || cs[t].n > 0;
+            memcpy(tools + 3 * t, cs[t].tool_m, sizeof cs[t].tool_m);
+        }
         int64_t t0 = hs_now_ns(), c0 = thread_cpu_ns();
         int rebuild = 0, cut_changed = 0;
         h->st.loops++;
@@ -1254,7 +1372,7 @@ static void* deform_main(void* arg) {
         double body_ms = 0;
         if (moving) {
             // The forces rt computed from the last snapshot drive this step.
-            apply_contact(h, &c);
+            apply_contact(h, cs, h->n_tools);
             int64_t tb = hs_now_ns();
             hs_status s = hs_body_step(h->body, NULL);
             body_ms = (double)(hs_now_ns() - tb) * 1e-6;
@@ -1265,20 +1383,20 @@ static void* deform_main(void* arg) {
             rebuild = 1;
         } else {
             // At rest: refresh the candidates only when the tool wandered toward their edge.
-            double dx = c.tool_m[0] - centre[0], dy = c.tool_m[1] - centre[1],
-                   dz = c.tool_m[2] - centre[2];
             // A fitted probe grows with its clearance: refresh it as the tool moves.
             const double refresh = h->probe_r < h->def.probe.radius_m
                                        ? 0.05 * h->def.probe.radius_m
                                        : 0.5 * h->def.probe.reach_margin_m;
-            rebuild = rebuild || !have_snapshot || sqrt(dx * dx + dy * dy + dz * dz) > refresh;
+            rebuild = rebuild || !have_snapshot;
+            for (int t = 0; t < h->n_tools; ++t)
+                rebuild = rebuild || dist3(tools + 3 * t, centre + 3 * t) > refresh;
         }
         if (rebuild) {
             int64_t t1 = hs_now_ns();
             // No compliance yet (background set-up): no snapshot, rt answers zero force.
             if (h->comp) {
-                build_snapshot(h, c.tool_m);
-                memcpy(centre, c.tool_m, sizeof centre);
+                build_snapshot(h, tools);
+                memcpy(centre, tools, 3 * (size_t)h->n_tools * sizeof(double));
                 have_snapshot = 1;
             }
             double sms = (double)(hs_now_ns() - t1) * 1e-6;
@@ -1371,6 +1489,11 @@ void hs_haptic_sim_destroy(hs_haptic_sim** ph) {
     hs_rt_loop_destroy(&h->loop);
     hs_haptic_rt_destroy(&h->hrt);
     hs_memdev_destroy(&h->dev);
+    for (int t = 1; t < HS_MAX_TOOLS; ++t) {
+        hs_haptic_rt_destroy(&h->xhrt[t]);
+        hs_memdev_destroy(&h->xdev[t]);
+    }
+    hs_contact_work_destroy(&h->src.work);
     hs_triple_buffer_destroy(&h->snap);
     hs_triple_buffer_destroy(&h->contact);
     hs_triple_buffer_destroy(&h->frame);
@@ -1401,6 +1524,29 @@ void hs_haptic_sim_destroy(hs_haptic_sim** ph) {
     *ph = NULL;
 }
 
+// Tools 1 .. n_tools-1: a device and a tick each, with tool 0's options (hd), and the joint
+// solve's workspace.
+static hs_status create_tools(hs_haptic_sim* h, const hs_haptic_rt_def* hd, hs_err* err) {
+    h->src.n_tools = h->n_tools;
+    if (h->n_tools == 1) return HS_OK;
+    if (hs_contact_work_create(h->n_tools, &h->src.work) != HS_OK)
+        return hs_err_set(err, HS_ERR_NOMEM, "hs_haptic_sim_create: out of memory");
+    for (int t = 1; t < h->n_tools; ++t) {
+        hs_status s = hs_memdev_create(&h->xdev[t], err);
+        if (s != HS_OK) return s;
+        h->xsrc[t].p = &h->src;
+        h->xsrc[t].t = t;
+        hs_haptic_rt_def d = *hd;
+        d.device = hs_memdev_device(h->xdev[t]);
+        d.source.eval = tool_eval;
+        d.source.ctx = &h->xsrc[t];
+        d.telemetry_capacity = 0;
+        s = hs_haptic_rt_create(&d, &h->xhrt[t], err);
+        if (s != HS_OK) return s;
+    }
+    return HS_OK;
+}
+
 hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def,
                                const unsigned char* fixed, hs_haptic_sim** out, hs_err* err) {
     if (out) *out = NULL;
@@ -1410,6 +1556,14 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
         return hs_err_set(err, HS_ERR_INVALID,
                           "hs_haptic_sim_create: definition not initialised with "
                           "hs_haptic_sim_default_def()");
+    if (def->tools < 1 || def->tools > HS_MAX_TOOLS)
+        return hs_err_set(err, HS_ERR_INVALID, "hs_haptic_sim_create: tools %d not in 1..%d",
+                          def->tools, HS_MAX_TOOLS);
+    for (int t = 0; t < HS_MAX_TOOLS; ++t)
+        if (!(def->tool_radius_m[t] >= 0 && def->tool_radius_m[t] <= 1))
+            return hs_err_set(err, HS_ERR_INVALID,
+                              "hs_haptic_sim_create: tool_radius_m[%d] %g m not in [0, 1]", t,
+                              def->tool_radius_m[t]);
     const hs_probe_def* pd = &def->probe;
     if (!(pd->radius_m > 0) || !isfinite(pd->radius_m) || !(pd->reach_margin_m >= 0) ||
         !isfinite(pd->reach_margin_m))
@@ -1537,7 +1691,9 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
 
     h->frame_size = sizeof(int64_t) + 3 * n * sizeof(double);
     s = hs_triple_buffer_create(sizeof(sim_snapshot), &h->snap, err);
-    if (s == HS_OK) s = hs_triple_buffer_create(sizeof(hs_contact), &h->contact, err);
+    h->n_tools = def->tools;
+    if (s == HS_OK)
+        s = hs_triple_buffer_create((size_t)h->n_tools * sizeof(hs_contact), &h->contact, err);
     if (s == HS_OK) s = hs_triple_buffer_create(h->frame_size, &h->frame, err);
     if (s == HS_OK) s = hs_triple_buffer_create(sizeof(deform_status), &h->status, err);
     if (s == HS_OK) s = hs_memdev_create(&h->dev, err);
@@ -1557,6 +1713,7 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
     if (!(hd.safety.step_period_s > 0)) hd.safety.step_period_s = 1.0 / def->rate_hz;
     hd.blend_ticks = def->blend_ticks;
     s = hs_haptic_rt_create(&hd, &h->hrt, err);
+    if (s == HS_OK) s = create_tools(h, &hd, err);
     if (s != HS_OK) goto fail;
     hs_rt_def rd = hs_rt_default_def();
     rd.rate_hz = def->rate_hz;
@@ -1567,6 +1724,7 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
     rd.tick.ctx = h;
     rd.tick.on_start = rt_start;
     rd.tick.on_stop = rt_stop;
+    for (int t = 1; t < h->n_tools; ++t) h->xinner[t] = hs_haptic_rt_tick(h->xhrt[t]);
     s = hs_rt_loop_create(&rd, &h->loop, err);
     if (s != HS_OK) goto fail;
     hs_triple_buffer_write(h->status, &h->st); // the solver and rate, before the first pass
@@ -1585,6 +1743,8 @@ hs_status hs_haptic_sim_set_safety(hs_haptic_sim* h, const hs_safety_def* safety
     hs_safety_def d = *safety;
     if (!(d.step_period_s > 0)) d.step_period_s = 1.0 / h->def.rate_hz;
     hs_status st = hs_haptic_rt_set_safety(h->hrt, &d);
+    for (int t = 1; t < h->n_tools && st == HS_OK; ++t)
+        st = hs_haptic_rt_set_safety(h->xhrt[t], &d);
     if (st == HS_OK) h->def.safety = *safety;
     return st;
 }
@@ -1615,6 +1775,12 @@ hs_status hs_haptic_sim_start(hs_haptic_sim* h, hs_err* err) {
         wrap->s.version = ++h->version;
         hs_triple_buffer_publish(h->snap);
         hs_haptic_rt_restart(h->hrt);
+        for (int t = 1; t < h->n_tools; ++t) {
+            hs_haptic_rt_restart(h->xhrt[t]);
+            memset(&h->src.model[t], 0, sizeof h->src.model[t]);
+            h->src.tool_seen[t] = 0;
+        }
+        memset(h->src.lastv, 0, sizeof h->src.lastv);
     }
     h->started_once = 1;
     // A still body under gravity or displaced (a state handed over) need not be in
@@ -1654,6 +1820,16 @@ hs_status hs_haptic_sim_take_over(hs_haptic_sim* h, const hs_haptic_sim* from, h
     // snapshot where the tool is (not at the origin, where an empty contact would put it).
     hs_contact* c = hs_triple_buffer_back(h->contact);
     *c = from->src.last;
+    // The other tools as well: each goes on from its last output, given until the first joint
+    // solve (it runs once tool 0's hold ends), and its last contact is applied.
+    const int n = h->n_tools < from->n_tools ? h->n_tools : from->n_tools;
+    for (int t = 1; t < n; ++t) {
+        hs_haptic_rt_take_over(h->xhrt[t], from->xhrt[t], &h->src.model[t]);
+        memcpy(h->src.tool_p[t], from->src.tool_p[t], sizeof h->src.tool_p[t]);
+        h->src.tool_seen[t] = from->src.tool_seen[t];
+        h->src.lastv[t] = from->src.lastv[t];
+        c[t] = from->src.lastv[t];
+    }
     hs_triple_buffer_publish(h->contact);
     return HS_OK;
 }
@@ -1694,6 +1870,7 @@ hs_status hs_haptic_sim_enable_cutting(hs_haptic_sim* h, hs_mesh* mesh,
     if (h->thread_started || h->cut)
         return hs_err_set(err, HS_ERR_INVALID,
                           "hs_haptic_sim_enable_cutting: sim already running or cutting");
+
     if (hs_haptic_sim_wait_setup(h) != HS_OK) // cuts move x0, which the set-up reads
         return hs_err_set(err, h->su_status, "hs_haptic_sim_enable_cutting: %s", h->su_err.msg);
     if (!(def->toughness_n_m >= 0) || !(def->max_force_n >= 0) || !(def->min_travel_m >= 0) ||
@@ -1870,6 +2047,28 @@ int64_t hs_haptic_sim_take_topology(hs_haptic_sim* h, double* x0, int* tris, int
 
 int hs_haptic_sim_take_output(hs_haptic_sim* h, hs_haptic_output* out) {
     return hs_memdev_take_output(h->dev, out);
+}
+
+int hs_haptic_sim_tools(const hs_haptic_sim* h) {
+    return h ? h->n_tools : 0;
+}
+
+void hs_haptic_sim_feed_tool_pose(hs_haptic_sim* h, int tool, const hs_haptic_pose* pose) {
+    HS_ASSERT(tool >= 0 && tool < h->n_tools);
+    if (tool == 0)
+        hs_haptic_sim_feed_pose(h, pose);
+    else
+        hs_memdev_feed_pose(h->xdev[tool], pose);
+}
+
+int hs_haptic_sim_take_tool_output(hs_haptic_sim* h, int tool, hs_haptic_output* out) {
+    HS_ASSERT(tool >= 0 && tool < h->n_tools);
+    return hs_memdev_take_output(tool == 0 ? h->dev : h->xdev[tool], out);
+}
+
+void hs_haptic_sim_tool_counters(hs_haptic_sim* h, int tool, hs_haptic_rt_counters* out) {
+    HS_ASSERT(tool >= 0 && tool < h->n_tools);
+    hs_haptic_rt_get_counters(tool == 0 ? h->hrt : h->xhrt[tool], out);
 }
 
 int hs_haptic_sim_read_frame(hs_haptic_sim* h, double* u, int64_t* step) {

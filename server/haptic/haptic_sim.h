@@ -83,6 +83,16 @@ typedef struct hs_haptic_sim_def {
     /// (no snapshot), the body steps and frames go out as usual (stats comp_state). 0: create
     /// sets it up (default). hs_haptic_sim_enable_cutting waits for it.
     int background_setup;
+    /// Tools (1..HS_MAX_TOOLS), each a probe sphere driven by its own device (pose in, force
+    /// out: hs_haptic_sim_feed_tool_pose, hs_haptic_sim_take_tool_output) with its own blend,
+    /// safety chain and watchdog; all tools' contacts are one problem per tick
+    /// (hs_contact_solve_tools) and the body takes all their forces. Tool 0 is the device of
+    /// hs_haptic_sim_feed_pose / take_output. With cutting on, tool 0 is the blade and the
+    /// others are probes on the cut tissue while the compliance matches the newest cut (stats
+    /// comp_version == topology_version; no contact before that). Default 1.
+    int tools;
+    /// Sphere radius of tool t >= 1, m (0: probe.radius_m; [0] unused: tool 0 is probe).
+    double tool_radius_m[HS_MAX_TOOLS];
     int cookie; ///< set by hs_haptic_sim_default_def
 } hs_haptic_sim_def;
 
@@ -172,7 +182,8 @@ void hs_haptic_sim_stop(hs_haptic_sim* sim);
 /// A rebuild of the same scene (new material, reset): before sim's first start, with from
 /// stopped, sim's 1 kHz loop goes on where from's left off: the device's last pose, watchdog
 /// gain and rate clamp (the force does not ramp in again), and from's last force model, given
-/// until sim's deformation thread publishes its first snapshot, which is then blended in. That
+/// until sim's deformation thread publishes its first snapshot, which is then blended in (with
+/// several tools, each goes on from its own last pose, gain, clamp and output). That
 /// thread starts from from's last contact (its forces on the body, the tool position). The
 /// body's state is not taken: hs_body_set_state does that. Pose seqs fed to sim must go on
 /// growing from from's (lower ones are stale and dropped). HS_ERR_INVALID when sim has run,
@@ -191,6 +202,19 @@ void hs_haptic_sim_feed_pose(hs_haptic_sim* sim, const hs_haptic_pose* pose);
 /// Newest rt output (force and local model). Returns 1 when new since the last call.
 /// Thread: one consumer | Allocates: no | Lock-free: yes | Blocks: no
 int hs_haptic_sim_take_output(hs_haptic_sim* sim, hs_haptic_output* out /* OUT */);
+/// Tools the sim was created with (def.tools).
+int hs_haptic_sim_tools(const hs_haptic_sim* sim);
+/// Hand tool's pose to the rt thread (tool 0: as hs_haptic_sim_feed_pose; pose->seq must grow
+/// per tool). Thread: one feeder per tool | Allocates: no | Lock-free: yes | Blocks: no
+void hs_haptic_sim_feed_tool_pose(hs_haptic_sim* sim, int tool, const hs_haptic_pose* pose);
+/// Newest rt output of tool (force and local model). Returns 1 when new since the last call.
+/// Thread: one consumer per tool | Allocates: no | Lock-free: yes | Blocks: no
+int hs_haptic_sim_take_tool_output(hs_haptic_sim* sim, int tool, hs_haptic_output* out /* OUT */);
+struct hs_haptic_rt_counters;
+/// The rt counters of tool's tick (poses, blends, safety: its own watchdog trips).
+/// Thread: any | Allocates: no | Lock-free: yes
+void hs_haptic_sim_tool_counters(hs_haptic_sim* sim, int tool,
+                                 struct hs_haptic_rt_counters* out /* OUT */);
 /// Newest displacement frame u[3 n_nodes] (m) and its step number. Returns 1 when new.
 /// Thread: one reader | Allocates: no | Lock-free: yes | Blocks: no
 int hs_haptic_sim_read_frame(hs_haptic_sim* sim, double* u /* OUT [3n] */,

@@ -510,11 +510,12 @@ static hs_status parse_tools(const ctx* c, const cJSON* root, hs_scene* s) {
         int k = 0;
         TRY(get_enum(c, t, path, "kind", kinds, 2, 1, &k));
         tool->kind = (hs_tool_kind)k;
-        // The server simulates one probe and one scalpel (the button chooses between them); a
-        // second of a kind would be validated as a tool_id and then answered as the first.
-        if (count[k]++ > 0)
-            return fail(c, t, path, "a second %s: a scene has at most one probe and one scalpel",
-                        kinds[k]);
+        // With `devices` an integer, one device drives one probe and one scalpel (the button
+        // chooses between them): a second of a kind would be validated as a tool_id and then
+        // answered as the first (checked in parse_devices, which knows the form). At most one
+        // scalpel in any case: the sim has one blade.
+        if (count[k]++ > 0 && tool->kind == HS_TOOL_SCALPEL)
+            return fail(c, t, path, "a second scalpel: a scene has at most one scalpel");
         char key[64];
         if (tool->kind == HS_TOOL_PROBE) {
             static const char* const keys[] = {"kind", "radius", NULL};
@@ -539,6 +540,76 @@ static hs_status parse_tools(const ctx* c, const cJSON* root, hs_scene* s) {
         s->n_tools++;
     }
     return HS_OK;
+}
+
+// `devices`: an integer (ids 0..n-1 accepted; device 0 drives the tools, the button picks
+// probe or scalpel) or a list of {"tool": i}: device d drives tools[i] alone.
+static hs_status parse_devices(const ctx* c, const cJSON* root, hs_scene* s) {
+    const cJSON* arr = cJSON_GetObjectItemCaseSensitive(root, "devices");
+    const cJSON* tools = cJSON_GetObjectItemCaseSensitive(root, "tools");
+    if (arr && !cJSON_IsArray(arr) && !cJSON_IsNumber(arr))
+        return fail(c, arr, "devices",
+                    "must be a number of devices or a list [{\"tool\": 0}, {\"tool\": 1}]");
+    if (!cJSON_IsArray(arr)) {
+        TRY(get_int(c, root, "", "devices", 0, HS_SCENE_MAX_DEVICES, &s->n_devices));
+        int i = 0, probes = 0;
+        for (const cJSON* t = tools ? tools->child : NULL; t; t = t->next, ++i)
+            if (s->tools[i].kind == HS_TOOL_PROBE && probes++ > 0) {
+                char path[48];
+                snprintf(path, sizeof path, "tools[%d]", i);
+                return fail(c, t, path,
+                            "a second probe: with `devices` a number one device drives one probe "
+                            "(list the devices, [{\"tool\": 0}, {\"tool\": %d}], to drive it "
+                            "with another)",
+                            i);
+            }
+        return HS_OK;
+    }
+    int n = cJSON_GetArraySize(arr);
+    if (n < 1 || n > s->n_tools)
+        return fail(c, arr, "devices",
+                    "a list of 1..%d devices (one per tool: the scene has %d tools), got %d",
+                    s->n_tools, s->n_tools, n);
+    s->devices_listed = 1;
+    s->n_devices = n;
+    int i = 0;
+    for (const cJSON* d = arr->child; d; d = d->next, ++i) {
+        char path[48], key[64];
+        snprintf(path, sizeof path, "devices[%d]", i);
+        if (!cJSON_IsObject(d)) return fail(c, d, path, "must be an object {\"tool\": i}");
+        static const char* const keys[] = {"tool", NULL};
+        TRY(check_keys(c, d, path, keys));
+        int t = -1;
+        TRY(get_int(c, d, path, "tool", 0, s->n_tools - 1, &t));
+        join(key, sizeof key, path, "tool");
+        if (t < 0) return fail(c, d, key, "is required: the index of the tool it drives");
+        for (int j = 0; j < i; ++j)
+            if (s->device_tool[j] == t)
+                return fail(c, cJSON_GetObjectItemCaseSensitive(d, "tool"), key,
+                            "tool %d is driven by devices[%d] already", t, j);
+        s->device_tool[i] = t;
+    }
+    return HS_OK;
+}
+
+int hs_scene_device_tools(const hs_scene* sc, int sim_tool[HS_SCENE_MAX_DEVICES],
+                          int scene_tool[HS_SCENE_MAX_TOOLS]) {
+    for (int d = 0; d < HS_SCENE_MAX_DEVICES; ++d) sim_tool[d] = -1;
+    if (!sc->devices_listed) {
+        if (sc->n_devices < 1 || sc->n_tools < 1) return 0;
+        sim_tool[0] = 0;
+        scene_tool[0] = -1; // the probe or the scalpel, by the button
+        return 1;
+    }
+    int n = 0;
+    for (int pass = 0; pass < 2; ++pass) // the scalpel's device first: the sim's blade is tool 0
+        for (int d = 0; d < sc->n_devices; ++d) {
+            int t = sc->device_tool[d];
+            if ((sc->tools[t].kind == HS_TOOL_SCALPEL) != (pass == 0)) continue;
+            sim_tool[d] = n;
+            scene_tool[n++] = t;
+        }
+    return n;
 }
 
 static hs_status parse_rest(const ctx* c, const cJSON* root, hs_scene* s) {
@@ -710,7 +781,7 @@ static hs_status parse_root(const ctx* c, const cJSON* root, int check_files, hs
     TRY(parse_fixed(c, root, s));
     TRY(get_vec3(c, root, "", "gravity", 1e3, 0, s->gravity));
     TRY(parse_tools(c, root, s));
-    TRY(get_int(c, root, "", "devices", 0, HS_SCENE_MAX_DEVICES, &s->n_devices));
+    TRY(parse_devices(c, root, s));
     TRY(parse_rest(c, root, s));
 
     // Cross-checks: what a feature needs must be there. The error points at features, else at
@@ -725,6 +796,14 @@ static hs_status parse_root(const ctx* c, const cJSON* root, int check_files, hs
         int scalpel = 0;
         for (int i = 0; i < s->n_tools; ++i) scalpel |= s->tools[i].kind == HS_TOOL_SCALPEL;
         if (!scalpel) return fail(c, where, "features.cutting", "is on but no tool is a scalpel");
+    }
+    if (s->feature_cutting && s->devices_listed) {
+        int driven = 0;
+        for (int d = 0; d < s->n_devices; ++d)
+            driven |= s->tools[s->device_tool[d]].kind == HS_TOOL_SCALPEL;
+        if (!driven)
+            return fail(c, where, "features.cutting",
+                        "is on but no device in `devices` drives the scalpel");
     }
     if (s->feature_haptics && (s->n_tools < 1 || s->n_devices < 1))
         return fail(c, where, "features.haptics", "is on but the scene has no tools or no devices");

@@ -104,9 +104,13 @@ typedef struct hs_scene {
     int n_tools;                              ///< used entries of tools[]
     hs_scene_tool tools[HS_SCENE_MAX_TOOLS];  ///< tool ids index this array
     int n_devices;                            ///< device ids 0 .. n_devices-1 accepted
-    int has_workspace;                        ///< 1 when workspace_min/max were given
-    double workspace_min[3];                  ///< m, scene frame: poses outside are rejected
-    double workspace_max[3];                  ///< m
+    /// 1: `devices` was a list, device d drives tools[device_tool[d]] alone; 0: an integer,
+    /// device 0 drives the tools (the button picks probe or scalpel), the others get zero force
+    int devices_listed;
+    int device_tool[HS_SCENE_MAX_DEVICES]; ///< devices_listed: the tool each device drives
+    int has_workspace;                     ///< 1 when workspace_min/max were given
+    double workspace_min[3];               ///< m, scene frame: poses outside are rejected
+    double workspace_max[3];               ///< m
 
     double haptic_hz; ///< Hz, rt loop rate
     double sim_hz;    ///< Hz, deformation steps per second (upper bound)
@@ -127,6 +131,14 @@ typedef struct hs_scene {
     char mesh_url[HS_SCENE_URL_MAX];   ///< LCM URL of the mesh bus
     char prefix[HS_SCENE_PREFIX_MAX];  ///< channel prefix, [A-Z0-9_]*
 } hs_scene;
+
+/// Which haptic sim tool each device drives: sim_tool[d] (-1: none, answered with zero force),
+/// and the scene tool of each sim tool, scene_tool[t] (-1: the probe or the scalpel, by the
+/// button). With `devices` an integer, device 0 drives sim tool 0; listed, the scalpel's device
+/// drives sim tool 0 (the sim's blade), then the probes' devices in device order. Returns the
+/// sim's tool count (0: no device drives a tool). Thread: any | Allocates: no
+int hs_scene_device_tools(const hs_scene* sc, int sim_tool[HS_SCENE_MAX_DEVICES] /* OUT */,
+                          int scene_tool[HS_SCENE_MAX_TOOLS] /* OUT */);
 
 /// Defaults (as documented in docs/scenes.md); mesh_path empty.
 void hs_scene_default(hs_scene* s /* OUT */);

@@ -18,6 +18,8 @@ int hs_bench_stress(const hs_bench_args* a);
 int hs_bench_lockfree(const hs_bench_args* a);
 /// 1 kHz haptic loop with the condensed-compliance probe.
 int hs_bench_haptic(const hs_bench_args* a);
+/// The rt tick's contact solve with two tools in one problem (16 contact nodes each).
+int hs_bench_tools(const hs_bench_args* a);
 /// Cutting on the server's path: cut step, compliance valid again, tick jumps.
 int hs_bench_cut(const hs_bench_args* a);
 /// The server path (deformation + rt threads) on organ meshes against the static press reference.

@@ -76,6 +76,7 @@ static const bench_cmd cmds[] = {
     {"lockfree", hs_bench_lockfree, "locking-free options vs CalculiX's converged solution"},
     {"stress", hs_bench_stress, "numerical stress cases: NaN, energy, inversion"},
     {"haptic", hs_bench_haptic, "1 kHz loop with the compliance probe vs a bare loop"},
+    {"tools", hs_bench_tools, "rt contact solve of two tools in one problem, 16 nodes each"},
     {"organs", hs_bench_organs, "server path on organ meshes: force at depth vs the static press"},
 #ifdef HS_BENCH_HAVE_CUT
     {"cut", hs_bench_cut, "the server's cutting path: cut step and compliance valid again"},
