@@ -262,6 +262,12 @@ struct hs_haptic_sim {
     int* cw_tets;          // [4 n_tets] job input
     int cw_ntets;          // tets in cw_tets: the live ones of held pieces
     unsigned char* cw_fix; // [n] worker: fixed0 + nodes no tet of cw_tets uses
+    double* cw_u;          // [3n] job input: the body's displacement when it was copied
+    double* cw_xw;         // [3n] worker: cw_x0 + cw_u (comp_warm)
+    near_tri* cw_near;     // [tri_cap] worker scratch (comp_warm)
+    int* cw_cand;          // [n] worker scratch, all -1 (comp_warm)
+    pthread_mutex_t cw_mx; // guards cw_tool (deformation thread, worker; never rt)
+    double cw_tool[3];     // the tool now, for comp_warm, m
     hs_mesh* cw_mesh;      // job output
     hs_compliance* cw_comp;
     hs_status cw_status;
@@ -470,6 +476,59 @@ static void settle_entry(hs_haptic_sim* h, hs_contact_snapshot* s, const double 
     }
 }
 
+// Contact surface: the boundary triangles of sm (all three vertices contactable in comp) within
+// reach of p on the surface at positions x, nearest first (near: scratch of sm->n_tris; *n_near
+// of them), and their vertices as the candidates (nodes, returned count; tri: their triangles
+// by candidate index, *n_tri), until either list is full; *cover: every surface point within it
+// of p is on a listed triangle. cand_of ([n], all -1) is scratch and left all -1. A linear scan:
+// microseconds per step; this plays the role of the per-step acceleration structure, which at
+// these sizes would cost more than it saves.
+static int find_candidates(const hs_mesh* sm, const hs_compliance* comp, const double* x,
+                           const double p[3], double reach, near_tri* near, int* cand_of,
+                           int nodes[HS_CONTACT_MAX_CAND], int (*tri)[3], int* n_near, int* n_tri,
+                           double* cover) {
+    int nn = 0;
+    for (int t = 0; t < sm->n_tris; ++t) {
+        const int* tv = sm->tris + 3 * t;
+        if (!hs_compliance_contactable(comp, tv[0]) || !hs_compliance_contactable(comp, tv[1]) ||
+            !hs_compliance_contactable(comp, tv[2]))
+            continue;
+        double wb[3], cp[3];
+        if (!hs_tri_closest(p, x + 3 * (size_t)tv[0], x + 3 * (size_t)tv[1], x + 3 * (size_t)tv[2],
+                            wb, cp))
+            continue;
+        double dist = dist3(cp, p);
+        if (dist >= reach) continue;
+        near[nn].dist = dist;
+        near[nn].tri = t;
+        ++nn;
+    }
+    qsort(near, (size_t)nn, sizeof *near, near_tri_cmp);
+    *cover = reach;
+    int n_cand = 0, nt = 0;
+    for (int k = 0; k < nn; ++k) {
+        const int* tv = sm->tris + 3 * near[k].tri;
+        int add = 0;
+        for (int j = 0; j < 3; ++j) add += cand_of[tv[j]] < 0;
+        if (nt == HS_CONTACT_MAX_TRI || n_cand + add > HS_CONTACT_MAX_CAND) {
+            *cover = near[k].dist;
+            break;
+        }
+        for (int j = 0; j < 3; ++j) {
+            if (cand_of[tv[j]] < 0) {
+                cand_of[tv[j]] = n_cand;
+                nodes[n_cand++] = tv[j];
+            }
+            tri[nt][j] = cand_of[tv[j]];
+        }
+        ++nt;
+    }
+    for (int i = 0; i < n_cand; ++i) cand_of[nodes[i]] = -1;
+    *n_near = nn;
+    *n_tri = nt;
+    return n_cand;
+}
+
 // Build and publish the snapshot around tool position p from the body's current state.
 static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
     const hs_mesh* mesh = h->mesh;
@@ -566,11 +625,7 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
         for (int a = 0; a < 3; ++a) q[a] += w * (t[a] - q[a]);
     }
 
-    // Contact surface: the boundary triangles (all three vertices contactable) within reach of
-    // the tool on the current (deformed) surface, nearest first, and their vertices as the
-    // candidates, until either list is full (a linear scan: microseconds per step; this plays
-    // the role of the per-step acceleration structure, which at these sizes would cost more
-    // than it saves). Every surface point within `cover` of p is on a listed triangle. The
+    // Contact surface (find_candidates) on the current (deformed) surface. The
     // geometry is the deformed surface, not the contact-free one: pressed deeper than r, the
     // contact-free surface lies behind the centre and its closest points say nothing about
     // where the tissue touches the sphere, while the deformed surface wraps it (the gap is
@@ -578,50 +633,17 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
     sim_snapshot* wrap = hs_triple_buffer_back(h->snap);
     memcpy(wrap->cut_force_n, h->cut_force, sizeof wrap->cut_force_n);
     hs_contact_snapshot* s = &wrap->s;
-    int n_near = 0;
     // A blade has no contact sphere. A released one probes when the def says so, once the
     // compliance matches the cut body (a stale one would answer for the uncut tissue).
     int probing = !h->cut || (h->cdef.probe_when_released && !h->engaged &&
                               h->st.comp_version == hs_cut_topology_version(h->cut));
-    for (int t = 0; t < sm->n_tris && probing; ++t) {
-        const int* tv = sm->tris + 3 * t;
-        if (!hs_compliance_contactable(h->comp, tv[0]) ||
-            !hs_compliance_contactable(h->comp, tv[1]) ||
-            !hs_compliance_contactable(h->comp, tv[2]))
-            continue;
-        const double* a = h->x + 3 * (size_t)tv[0];
-        const double* b = h->x + 3 * (size_t)tv[1];
-        const double* c = h->x + 3 * (size_t)tv[2];
-        double wb[3], x[3];
-        if (!hs_tri_closest(p, a, b, c, wb, x)) continue;
-        double dist = dist3(x, p);
-        if (dist >= reach) continue;
-        h->near_tri[n_near].dist = dist;
-        h->near_tri[n_near].tri = t;
-        ++n_near;
-    }
-    qsort(h->near_tri, (size_t)n_near, sizeof *h->near_tri, near_tri_cmp);
-    double cover = reach;
-    int n_cand = 0, n_tri = 0;
     int nodes[HS_CONTACT_MAX_CAND];
-    for (int k = 0; k < n_near; ++k) {
-        const int* tv = sm->tris + 3 * h->near_tri[k].tri;
-        int add = 0;
-        for (int j = 0; j < 3; ++j) add += h->cand_of[tv[j]] < 0;
-        if (n_tri == HS_CONTACT_MAX_TRI || n_cand + add > HS_CONTACT_MAX_CAND) {
-            cover = h->near_tri[k].dist;
-            break;
-        }
-        for (int j = 0; j < 3; ++j) {
-            if (h->cand_of[tv[j]] < 0) {
-                h->cand_of[tv[j]] = n_cand;
-                nodes[n_cand++] = tv[j];
-            }
-            s->tri[n_tri][j] = h->cand_of[tv[j]];
-        }
-        ++n_tri;
-    }
-    for (int i = 0; i < n_cand; ++i) h->cand_of[nodes[i]] = -1;
+    int n_near = 0, n_tri = 0;
+    double cover = reach;
+    const int n_cand = !probing
+                           ? 0
+                           : find_candidates(sm, h->comp, h->x, p, reach, h->near_tri, h->cand_of,
+                                             nodes, s->tri, &n_near, &n_tri, &cover);
     const int n_near_nodes = n_cand;
 
     // A released blade that turns probe (or a probe whose surface was just replaced) may find
@@ -748,6 +770,35 @@ static void quat_rotate(const double q[4], const double v[3], double out[3]) {
 
 static hs_status build_tri_adjacency(hs_haptic_sim* h);
 
+// Worker, once the job's compliance c on mesh m is built: solve its columns for the candidates
+// at the tool now, so that the swap brings them along. The first snapshot on a compliance
+// without them solved them on the deformation thread (64 columns: ~0.23 s on a 5k-vertex plate,
+// more under load) while rt kept the stale compliance's empty snapshot: a press beside the cut
+// felt nothing although the compliance was valid. The tool moves meanwhile: again while it went
+// on by more than half the reach margin (when the sleeping loop would look again), a few times.
+#define WARM_PASSES 3
+static void comp_warm(hs_haptic_sim* h, const hs_mesh* m, hs_compliance* c) {
+    if (!h->cdef.probe_when_released || m->n_tris > h->tri_cap) return; // nothing probes
+    for (int k = 0; k < 3 * h->mesh->n_nodes; ++k) h->cw_xw[k] = h->cw_x0[k] + h->cw_u[k];
+    const double margin = h->def.probe.reach_margin_m, reach = h->def.probe.radius_m + margin;
+    double at[3] = {0, 0, 0};
+    for (int pass = 0; pass < WARM_PASSES; ++pass) {
+        double p[3];
+        pthread_mutex_lock(&h->cw_mx);
+        memcpy(p, h->cw_tool, sizeof p);
+        pthread_mutex_unlock(&h->cw_mx);
+        if (pass > 0 && dist3(p, at) <= 0.5 * margin) break;
+        memcpy(at, p, sizeof at);
+        int nodes[HS_CONTACT_MAX_CAND], tri[HS_CONTACT_MAX_TRI][3], n_near, n_tri;
+        double cover;
+        const int nc = find_candidates(m, c, h->cw_xw, p, reach, h->cw_near, h->cw_cand, nodes, tri,
+                                       &n_near, &n_tri, &cover);
+        hs_compliance_begin_step(c);
+        // A failed solve leaves them to the deformation thread, as before.
+        if (hs_compliance_ensure(c, nc, nodes, nc) < 0) break;
+    }
+}
+
 // Worker: the haptic compliance of the job's mesh (see comp_start for what it holds).
 // Recreated rather than updated (hs_compliance has no update entry point); it costs 0.1-0.2 s
 // on the skin patch (0.4-0.7 s before its sparse diagonal blocks), which is why it runs beside
@@ -771,6 +822,8 @@ static void* comp_worker(void* arg) {
     if (s != HS_OK) {
         hs_compliance_destroy(&c);
         hs_mesh_destroy(&m);
+    } else {
+        comp_warm(h, m, c);
     }
     h->cw_mesh = m;
     h->cw_comp = c;
@@ -788,6 +841,8 @@ static int comp_start(hs_haptic_sim* h) {
     if (!live || live->n_tets > h->mesh->n_tets) return 0;
     const int n = h->mesh->n_nodes;
     memcpy(h->cw_x0, live->x0, 3 * (size_t)n * sizeof(double));
+    memcpy(h->cw_u, hs_body_displacement(h->body), 3 * (size_t)n * sizeof(double));
+    memcpy(h->cw_tool, h->st.contact.tool_m, sizeof h->cw_tool); // the previous pass's tool
     // The compliance sees the pieces the fixed region holds. Under DROP those are all the live
     // tets (the cut pins only nodes left without a tet). Under FIX the cut pins every node of
     // a piece it does not hold, and the body lets that piece move with its mass: its tets are
@@ -1233,6 +1288,11 @@ static void* deform_main(void* arg) {
         int fresh = hs_triple_buffer_read_copy(h->contact, &c);
         (void)fresh;
         int loaded = c.n > 0 || h->applied_n > 0;
+        if (h->cw_running) { // where the rebuild's worker solves the first columns
+            pthread_mutex_lock(&h->cw_mx);
+            memcpy(h->cw_tool, c.tool_m, sizeof h->cw_tool);
+            pthread_mutex_unlock(&h->cw_mx);
+        }
         int64_t t0 = hs_now_ns(), c0 = thread_cpu_ns();
         int rebuild = 0, cut_changed = 0;
         h->st.loops++;
@@ -1349,6 +1409,10 @@ static void free_cut_scratch(hs_haptic_sim* h) {
     hs_free(h->cw_x0);
     hs_free(h->cw_tets);
     hs_free(h->cw_fix);
+    hs_free(h->cw_u);
+    hs_free(h->cw_xw);
+    hs_free(h->cw_near);
+    hs_free(h->cw_cand);
     hs_free(h->cu);
     hs_free(h->cv);
     hs_free(h->t_x0);
@@ -1396,7 +1460,10 @@ void hs_haptic_sim_destroy(hs_haptic_sim** ph) {
     hs_cut_destroy(&h->cut);
     hs_free(h->fixed0);
     free_cut_scratch(h);
-    if (h->tmx_init) pthread_mutex_destroy(&h->tmx);
+    if (h->tmx_init) {
+        pthread_mutex_destroy(&h->tmx);
+        pthread_mutex_destroy(&h->cw_mx);
+    }
     hs_free(h);
     *ph = NULL;
 }
@@ -1720,6 +1787,10 @@ hs_status hs_haptic_sim_enable_cutting(hs_haptic_sim* h, hs_mesh* mesh,
     h->cw_x0 = hs_calloc(3 * n, sizeof(double));
     h->cw_tets = hs_calloc(4 * nt + 1, sizeof(int));
     h->cw_fix = hs_calloc(n + 1, 1);
+    h->cw_u = hs_calloc(3 * n, sizeof(double));
+    h->cw_xw = hs_calloc(3 * n, sizeof(double));
+    h->cw_near = hs_calloc(4 * nt + 1, sizeof *h->cw_near);
+    h->cw_cand = hs_alloc((n + 1) * sizeof(int));
     h->cu = hs_calloc(3 * n, sizeof(double));
     h->cv = hs_calloc(3 * n, sizeof(double));
     h->t_x0 = hs_calloc(3 * n, sizeof(double));
@@ -1735,12 +1806,18 @@ hs_status hs_haptic_sim_enable_cutting(hs_haptic_sim* h, hs_mesh* mesh,
     h->r_cur = hs_alloc((n + 2) * sizeof(int));
     if (!h->r_gone || !h->r_keys || !h->r_sorted || !h->r_start || !h->r_cur)
         return hs_err_set(err, HS_ERR_NOMEM, "hs_haptic_sim_enable_cutting: out of memory");
-    if (!h->cw_x0 || !h->cw_tets || !h->cw_fix || !h->cu || !h->cv || !h->t_x0 || !h->t_tris ||
-        !h->t_removed || !h->t_moved || !h->t_mflag)
+    if (!h->cw_x0 || !h->cw_tets || !h->cw_fix || !h->cw_u || !h->cw_xw || !h->cw_near ||
+        !h->cw_cand || !h->cu || !h->cv || !h->t_x0 || !h->t_tris || !h->t_removed || !h->t_moved ||
+        !h->t_mflag)
         return hs_err_set(err, HS_ERR_NOMEM, "hs_haptic_sim_enable_cutting: out of memory");
+    for (size_t i = 0; i <= n; ++i) h->cw_cand[i] = -1;
     if (!h->tmx_init) {
         if (pthread_mutex_init(&h->tmx, NULL) != 0)
             return hs_err_set(err, HS_ERR_NOMEM, "hs_haptic_sim_enable_cutting: mutex");
+        if (pthread_mutex_init(&h->cw_mx, NULL) != 0) {
+            pthread_mutex_destroy(&h->tmx);
+            return hs_err_set(err, HS_ERR_NOMEM, "hs_haptic_sim_enable_cutting: mutex");
+        }
         h->tmx_init = 1;
     }
     // Room for the boundary of any live mesh (at most 4 faces per tet), for the probe.
