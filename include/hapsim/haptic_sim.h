@@ -122,6 +122,7 @@ typedef struct hs_haptic_sim_stats {
     int64_t comp_version;    ///< topology version the compliance was built on (0: uncut)
     int64_t comp_rebuilds;   ///< rebuilds swapped in
     int64_t comp_discarded;  ///< rebuilds dropped because a newer cut came meanwhile
+    int64_t comp_updates;    ///< cut steps the compliance followed at once (no rebuild)
     int comp_building;       ///< 1 while a rebuild runs beside the deformation thread
     int64_t cut_done_ns;     ///< hs_now_ns when the last changing cut step ended (0: none)
     int64_t comp_swap_ns;    ///< hs_now_ns when the last rebuild was swapped in (0: none)
