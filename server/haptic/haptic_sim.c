@@ -19,6 +19,7 @@
 #include "base/spsc_ring.h"
 #include "base/triple_buffer.h"
 #include "closest.h"
+#include "cut_surface.h"
 #include "dense.h"
 #include "rt/device.h"
 #include "rt/haptic_rt.h"
@@ -44,6 +45,15 @@
 
 // What crosses to rt: the contact snapshot and the cutting resistance computed with it, in one
 // buffer so a new resistance always comes with a new model version (rt blends across it).
+// What the feeder hands the deformation thread when cutting: the newest pose, and where the
+// tool was when the blade's buttons last changed (the deformation thread sees only the newest
+// pose, up to a step late: a release it noticed late put the released probe's fit where the
+// tool had moved on to, pressing into the tissue with a sphere of no size, 0 N).
+typedef struct cut_pose {
+    hs_haptic_pose pose;
+    double flip_m[3]; // tool position at the newest engage or release, m
+} cut_pose;
+
 typedef struct sim_snapshot {
     hs_contact_snapshot s;
     double cut_force_n[3];
@@ -235,10 +245,13 @@ struct hs_haptic_sim {
     // cutting (cut == NULL: off); owned by the deformation thread after start
     hs_haptic_cut_def cdef;
     hs_cut* cut;
+    hs_cut_surface* fsurf;   // the live boundary while the compliance follows the cuts
     unsigned char* fixed0;   // [n] the fixed nodes given at create
     double* cu;              // [3n] displacement handed to the sweep
     double* cv;              // [3n] velocity kept across the sweep
-    hs_triple_buffer* cpose; // hs_haptic_pose, feeder -> deformation
+    hs_triple_buffer* cpose; // cut_pose, feeder -> deformation
+    int feed_engaged;        // feeder: the blade's buttons held in the newest pose
+    double feed_flip[3];     // feeder: tool position at the newest engage or release, m
     int blade_have;
     double bp[3], bq[3]; // blade ends at the last sweep, m
     double cut_force[3]; // resistance in the newest snapshot, N
@@ -919,15 +932,15 @@ static int comp_poll(hs_haptic_sim* h, int wait) {
 // stale, the FIX rule (its pinned pieces stay in the body but not in the compliance) or a failed
 // update; the rebuild once the blade is released then takes over.
 static int comp_follow(hs_haptic_sim* h) {
-    if (h->comp_stale || h->cdef.cut.fragment != HS_CUT_FRAGMENT_DROP ||
+    if (h->comp_stale || h->cdef.cut.fragment != HS_CUT_FRAGMENT_DROP || !h->fsurf ||
         hs_compliance_mesh(h->comp) != h->mesh)
         return 0;
-    hs_err err = {0};
-    if (hs_cut_update_live(h->cut, &err) != HS_OK) return 0;
-    const hs_mesh* live = hs_cut_live_mesh(h->cut); // stays put until the next rebuild of it
-    if (!live || live->n_tris > h->tri_cap) return 0;
     const int *off, *mv;
     const int n_off = hs_cut_last_removed(h->cut, &off), n_mv = hs_cut_last_changed(h->cut, &mv);
+    // The live boundary by the removals alone (a live-mesh rebuild took 10-60 ms on the tongue).
+    hs_cut_surface_remove(h->fsurf, n_off, off);
+    const hs_mesh* live = hs_cut_surface_mesh(h->fsurf);
+    if (live->n_tris > h->tri_cap || live->n_surf_nodes < 1) return 0;
     if (hs_compliance_change_elements(h->comp, n_off, off, n_mv, mv, live) != HS_OK) return 0;
     h->smesh = live;
     build_tri_adjacency(h);
@@ -963,8 +976,9 @@ static void share_topology(hs_haptic_sim* h, const double quad[12]) {
 // enough, mirror the cut into the body and the compliance, and set the resistance. Returns 1
 // when a new snapshot is due (the resistance or the body changed).
 static int cut_step(hs_haptic_sim* h) {
-    hs_haptic_pose pose;
-    hs_triple_buffer_read_copy(h->cpose, &pose);
+    cut_pose cp;
+    hs_triple_buffer_read_copy(h->cpose, &cp);
+    const hs_haptic_pose pose = cp.pose;
     if (pose.seq <= 0 || pose.seq <= h->pose_floor) return 0;
     const hs_haptic_cut_def* cd = &h->cdef;
     int engaged = !cd->engage_buttons || (pose.buttons & cd->engage_buttons);
@@ -974,7 +988,7 @@ static int cut_step(hs_haptic_sim* h) {
     static const double zero[3] = {0, 0, 0};
     if (flipped) {
         // Where the blade let go: the probe sphere that appears there is fitted (build_snapshot).
-        memcpy(h->release_p, pose.pos_m, sizeof h->release_p);
+        memcpy(h->release_p, cp.flip_m, sizeof h->release_p);
         h->release_fit = !engaged;
     }
     if (!engaged) {
@@ -1443,6 +1457,7 @@ static hs_status build_tri_adjacency(hs_haptic_sim* h) {
 
 /// The cutting workspace, allocated by hs_haptic_sim_enable_cutting (again on each call).
 static void free_cut_scratch(hs_haptic_sim* h) {
+    hs_cut_surface_destroy(&h->fsurf);
     hs_free(h->cw_x0);
     hs_free(h->cw_tets);
     hs_free(h->cw_fix);
@@ -1704,9 +1719,9 @@ hs_status hs_haptic_sim_start(hs_haptic_sim* h, hs_err* err) {
     // last sweep's, felt at once on resume with the blade lifted out meanwhile).
     h->blade_have = 0;
     if (h->cpose) {
-        hs_haptic_pose last;
+        cut_pose last;
         hs_triple_buffer_read_copy(h->cpose, &last);
-        h->pose_floor = last.seq;
+        h->pose_floor = last.pose.seq;
     }
     if (h->started_once) {
         memset(h->cut_force, 0, sizeof h->cut_force);
@@ -1779,8 +1794,20 @@ void hs_haptic_sim_stop(hs_haptic_sim* h) {
     if (h->loop) hs_rt_loop_stop(h->loop);
 }
 
+// Feeder: the pose for the blade, with where its buttons last changed.
+static void feed_cut_pose(hs_haptic_sim* h, const hs_haptic_pose* pose) {
+    const unsigned eb = h->cdef.engage_buttons;
+    const int engaged = !eb || (pose->buttons & eb);
+    if (engaged != h->feed_engaged) memcpy(h->feed_flip, pose->pos_m, sizeof h->feed_flip);
+    h->feed_engaged = engaged;
+    cut_pose cp;
+    cp.pose = *pose;
+    memcpy(cp.flip_m, h->feed_flip, sizeof cp.flip_m);
+    hs_triple_buffer_write(h->cpose, &cp);
+}
+
 void hs_haptic_sim_feed_pose(hs_haptic_sim* h, const hs_haptic_pose* pose) {
-    if (h->cpose) hs_triple_buffer_write(h->cpose, pose);
+    if (h->cpose) feed_cut_pose(h, pose);
     hs_memdev_feed_pose(h->dev, pose);
 }
 
@@ -1873,13 +1900,17 @@ hs_status hs_haptic_sim_enable_cutting(hs_haptic_sim* h, hs_mesh* mesh,
         h->near_tri = nr;
         h->tri_cap = 4 * (int)nt;
     }
-    hs_status s = hs_triple_buffer_create(sizeof(hs_haptic_pose), &h->cpose, err);
+    hs_status s = hs_triple_buffer_create(sizeof(cut_pose), &h->cpose, err);
     if (s != HS_OK) return s;
     s = hs_cut_create(mesh, h->fixed0, &h->cdef.cut, &h->cut, err);
     if (s != HS_OK) return s;
     // The compliance follows each cut step (comp_follow): its one full pass now, not in a step.
     // Should this fail, the first cut step tries again, or the rebuild takes over.
     (void)hs_compliance_prepare_changes(h->comp);
+    s = hs_cut_surface_create(mesh, &h->fsurf);
+    if (s != HS_OK)
+        return hs_err_set(err, s, "hs_haptic_sim_enable_cutting: live surface: %s",
+                          hs_status_str(s));
     memcpy(h->t_x0, mesh->x0, 3 * n * sizeof(double));
     h->t_ntris = mesh->n_tris <= h->t_cap ? mesh->n_tris : 0;
     memcpy(h->t_tris, mesh->tris, 3 * (size_t)h->t_ntris * sizeof(int));

@@ -309,10 +309,9 @@ static int run_case(const cut_case* cc, const hs_bench_args* args, const hs_scen
                 (long long)st.cut_removed, pct(r->sweep_ms, r->n_cuts, 50),
                 pct(r->sweep_ms, r->n_cuts, 99), (long long)st.comp_updates,
                 pct(r->update_ms, r->n_updates, 50), pct(r->update_ms, r->n_updates, 99),
-                (long long)st.comp_rebuilds,
-                (long long)st.comp_discarded, pct(r->rebuild_ms, r->n_rebuilds, 50),
-                pct(r->rebuild_ms, r->n_rebuilds, 100), r->n_valid,
-                pct(r->probe_n, r->n_probes, 50), pct(r->probe_n, r->n_probes, 0),
+                (long long)st.comp_rebuilds, (long long)st.comp_discarded,
+                pct(r->rebuild_ms, r->n_rebuilds, 50), pct(r->rebuild_ms, r->n_rebuilds, 100),
+                r->n_valid, pct(r->probe_n, r->n_probes, 50), pct(r->probe_n, r->n_probes, 0),
                 (long long)st.safety.watchdog_trips, setup_ms, (long long)st.cut_failures);
         printf("%s,%d,%d,%d,%lld,%.2f,%.2f,%.1f,%.1f,%.4f\n", cc->name, m->n_nodes, m->n_tets,
                r->n_cuts, (long long)st.cut_removed, pct(r->cut_ms, r->n_cuts, 50),
