@@ -1150,7 +1150,7 @@ static int release_inside(int zigzag) {
     wire_mark(&w);
     wire_move(&w, up, 450, 0);
     wire_move(&w, up, 100, 0);
-    const double lift_peak = w.peak;
+    const double lift_peak = w.peak, out_of_it = w.last;
     // Out of the cut the tool is the full 3 mm probe again: 1 mm into the top surface (z = 4 mm)
     // 11 mm beside the cut it feels the tissue (about 0.01-0.02 N, test_probe_after_cut).
     const double beside[3] = {0.012, 0, 0.012}, press[3] = {0.012, 0, 0.006};
@@ -1163,12 +1163,13 @@ static int release_inside(int zigzag) {
         "  %s cut to the middle (%lld cut steps), released inside: %lld answers, largest "
         "|f| %.3f N (limit %.1f), largest step %.3f N (limit %.3f per 1 ms answer); after "
         "the release (from %.3f N): peak %.3f N, settled %.3f N, range over the last 0.5 s %.4f N; "
-        "lifted out: peak %.3f N; pressed 1 mm beside the cut: %.4f N; worst snapshot %.2f ms "
+        "lifted out: peak %.3f N, out of it %.4f N; pressed 1 mm beside the cut: %.4f N; worst "
+        "snapshot %.2f ms "
         "(settling included); compliance %s\n",
         zigzag ? "zig-zag" : "straight", (long long)cut_steps, (long long)w.answers, w.worst_mag,
         SKIN_FORCE_MAX, w.worst_step, SKIN_RATE_MAX * 1e-3, at_release, peak, settled, range,
-        lift_peak, pressed, st.snapshot_ms_max,
-        st.comp_version == st.topology_version ? "rebuilt" : "still stale");
+        lift_peak, out_of_it, pressed, st.snapshot_ms_max,
+        st.comp_version == st.topology_version ? "valid" : "still stale");
     destroy_sim(&w.sim);
     hs_free(fixed);
     hs_mesh_destroy(&m);
@@ -1180,10 +1181,11 @@ static int release_inside(int zigzag) {
     // No kick: from the force it had to where it settles, never well above both.
     ENSURE(peak <= 1.2 * fmax(at_release, settled) + 0.02);
     ENSURE(range <= 0.02); // no chatter while held
-    // Lifted out: the tissue lets go. In some runs of the straight cut it catches the sphere on
-    // the way up and pulls 1.0-1.3 N (a known defect, not understood yet; ~0.1 N in the others):
-    // the bound is the blade's resistance cap, which the old code's 3.3 N spike exceeded.
-    ENSURE(lift_peak <= 1.5);
+    // Lifted out: the tissue lets go. Withdrawing never pulls more than the tool held (tissue
+    // sagging onto it at the cut's end: up to ~0.09 N), plus the blend's share; 16 mm above the
+    // patch it feels nothing.
+    ENSURE(lift_peak <= fmax(settled, at_release) + 0.02);
+    ENSURE(out_of_it <= 1e-3);
     ENSURE(pressed > 0.003); // the full probe again
 #endif
     ENSURE(hs_byte_count() == bytes);
