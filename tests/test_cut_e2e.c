@@ -1463,7 +1463,81 @@ static int test_follow_matches_fresh(void) {
     return 0;
 }
 
+/// On a small plate (8 x 8 x 1 cells) the compliance follows a cut across: after every step
+/// each surface node's diagonal block equals a fresh compliance's on the cut mesh (1e-8), the
+/// followed surface's; cut through, the two sides do not couple.
+static int test_follow_each_step(void) {
+    int64_t bytes = hs_byte_count();
+    hs_mesh* m = NULL;
+    hs_err err = {0};
+    ENSURE(hs_mesh_create_box(0.04, 0.04, 0.004, 8, 8, 1, &m, &err) == HS_OK);
+    unsigned char* fixed = ends_fixed(m);
+    ENSURE(fixed);
+    hs_fem_def fd = sim_def().body.fem;
+    fd.material.youngs_pa = 50000;
+    hs_compliance* c = NULL;
+    ENSURE(hs_compliance_create(m, &fd, fixed, 96, &c, &err) == HS_OK);
+    hs_cut_def cdef = hs_cut_default_def();
+    cdef.orphan = HS_CUT_ORPHAN_PIN;
+    cdef.pins_hold = 0;
+    hs_cut* cut = NULL;
+    ENSURE(hs_cut_create(m, fixed, &cdef, &cut, &err) == HS_OK);
+    hs_cut_surface* fs = NULL;
+    ENSURE(hs_cut_surface_create(m, &fs) == HS_OK);
+    const double xc = 0.02137, step = 0.005; // the box spans [0, 0.04] in x and y
+    double worst = 0;
+    int steps = 0;
+    for (double y = -0.005; y < 0.045 - 1e-9; y += step) {
+        const double p0[3] = {xc, y, -0.001}, q0[3] = {xc, y, 0.005};
+        const double p1[3] = {xc, y + step, -0.001}, q1[3] = {xc, y + step, 0.005};
+        hs_cut_result res;
+        ENSURE(hs_cut_sweep(cut, p0, q0, p1, q1, NULL, &res, &err) == HS_OK);
+        if (res.removed == 0 && res.moved == 0) continue;
+        const int *off, *mv;
+        const int n_off = hs_cut_last_removed(cut, &off), n_mv = hs_cut_last_changed(cut, &mv);
+        hs_cut_surface_remove(fs, n_off, off);
+        ENSURE(hs_compliance_change_elements(c, n_off, off, n_mv, mv, hs_cut_surface_mesh(fs)) ==
+               HS_OK);
+        ++steps;
+        const hs_mesh* live = hs_cut_live_mesh(cut);
+        hs_compliance* fresh = fresh_compliance(live, fixed, &fd);
+        ENSURE(fresh);
+        for (int i = 0; i < m->n_nodes; ++i) {
+            if (!hs_compliance_contactable(fresh, i)) continue;
+            ENSURE(hs_compliance_contactable(c, i));
+            double a[9], b[9], na = 0, nd = 0;
+            ENSURE(hs_compliance_ensure(c, 1, &i, 0) == 0);
+            ENSURE(hs_compliance_block(c, i, i, a) && hs_compliance_block(fresh, i, i, b));
+            for (int k = 0; k < 9; ++k) na += b[k] * b[k], nd += (a[k] - b[k]) * (a[k] - b[k]);
+            worst = fmax(worst, sqrt(nd / na));
+        }
+        hs_compliance_destroy(&fresh);
+    }
+    const double pi[3] = {0.015, 0.02, 0.004}, pj[3] = {0.03, 0.02, 0.004};
+    const int pair[2] = {nearest_surface_node(m, pi), nearest_surface_node(m, pj)};
+    double blk[9], bii[9], na = 0, ni = 0;
+    const double dd[6] = {0, 0, -0.001, 0, 0, 0};
+    double f[6];
+    ENSURE(hs_compliance_solve_set(c, 2, pair, NULL, dd, f) == HS_OK);
+    ENSURE(hs_compliance_block(c, pair[0], pair[1], blk) &&
+           hs_compliance_block(c, pair[0], pair[0], bii));
+    for (int q = 0; q < 9; ++q) na += blk[q] * blk[q], ni += bii[q] * bii[q];
+    printf("  %d cut steps followed: diagonal blocks as fresh to %.1e; cut through, cross block "
+           "%.1e of the own block\n",
+           steps, worst, sqrt(na / ni));
+    ENSURE(steps >= 5 && worst <= 1e-8);
+    ENSURE(sqrt(na) <= 1e-9 * sqrt(ni) && hs_cut_components(cut) == 2);
+    hs_cut_destroy(&cut);
+    hs_cut_surface_destroy(&fs);
+    hs_compliance_destroy(&c);
+    hs_free(fixed);
+    hs_mesh_destroy(&m);
+    ENSURE(hs_byte_count() == bytes);
+    return 0;
+}
+
 GUARDED(test_enable_errors)
+GUARDED(test_follow_each_step)
 GUARDED(test_follow_matches_fresh)
 GUARDED(test_blade_drag)
 GUARDED(test_probe_after_cut)
@@ -1480,8 +1554,9 @@ GUARDED(test_press_beside_cut)
     { #fn, fn##_guarded }
 
 HS_TEST_MAIN(GUARDED_CASE(test_enable_errors), GUARDED_CASE(test_follow_matches_fresh),
-             GUARDED_CASE(test_blade_drag), GUARDED_CASE(test_probe_after_cut),
-             GUARDED_CASE(test_probe_after_fine_cut), GUARDED_CASE(test_free_piece_dropped),
-             GUARDED_CASE(test_free_piece_fall_rule), GUARDED_CASE(test_restart_mid_cut),
-             GUARDED_CASE(test_force_speed), GUARDED_CASE(test_release_inside_zigzag),
-             GUARDED_CASE(test_release_inside_halfway), GUARDED_CASE(test_press_beside_cut))
+             GUARDED_CASE(test_follow_each_step), GUARDED_CASE(test_blade_drag),
+             GUARDED_CASE(test_probe_after_cut), GUARDED_CASE(test_probe_after_fine_cut),
+             GUARDED_CASE(test_free_piece_dropped), GUARDED_CASE(test_free_piece_fall_rule),
+             GUARDED_CASE(test_restart_mid_cut), GUARDED_CASE(test_force_speed),
+             GUARDED_CASE(test_release_inside_zigzag), GUARDED_CASE(test_release_inside_halfway),
+             GUARDED_CASE(test_press_beside_cut))
