@@ -16,7 +16,7 @@
 #include <stdint.h>
 #include <stdio.h>
 
-#include "hapsim/base.h"
+#include "base.h"
 
 #ifdef __cplusplus
 extern "C" {

@@ -6,9 +6,9 @@
 #ifndef HS_ACCURACY_REFS_H
 #define HS_ACCURACY_REFS_H
 
-#include "hapsim/body.h"
-#include "hapsim/mesh.h"
-#include "hapsim/mooney.h"
+#include "body.h"
+#include "mesh.h"
+#include "mooney.h"
 
 #include <math.h>
 #include <stdio.h>

@@ -12,10 +12,10 @@
 // minus their sum is the static force on the tool. Printed as key=value lines:
 //   contact_nodes=N  sim_force=FX,FY,FZ  reaction_force=FX,FY,FZ  reaction_norm=F
 #define _POSIX_C_SOURCE 200809L
-#include "hapsim/body.h"
-#include "hapsim/haptic_sim.h"
-#include "hapsim/mesh.h"
-#include "hapsim/scene.h"
+#include "body.h"
+#include "haptic_sim.h"
+#include "mesh.h"
+#include "scene.h"
 
 #include <math.h>
 #include <stdio.h>

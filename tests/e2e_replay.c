@@ -15,9 +15,9 @@
 #define _POSIX_C_SOURCE 200809L
 #include "hapsim/version.h"
 #include "e2e_lcmlog.h"
-#include "hapsim/compliance.h"
-#include "hapsim/mesh.h"
-#include "hapsim/scene.h"
+#include "compliance.h"
+#include "mesh.h"
+#include "scene.h"
 #include "hapsim_tool_pose_t.h"
 
 #include <lcm/lcm.h>

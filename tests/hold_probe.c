@@ -6,12 +6,12 @@
 //   hold_probe NODE RADIUS_M DEPTH_M [HOLD_MS [FREE_RELAX]]
 // e.g. `build/bin/hold_probe 399 0.005 0.005` is the scene's scripted press.
 #define _POSIX_C_SOURCE 200809L
-#include "hapsim/body.h"
-#include "hapsim/haptic_sim.h"
+#include "body.h"
+#include "haptic_sim.h"
 #include "liver_haptic.h"
-#include "hapsim/mesh.h"
-#include "base/spsc_ring.h"
-#include "rt/haptic_rt.h"
+#include "mesh.h"
+#include "spsc_ring.h"
+#include "haptic_rt.h"
 
 #include <math.h>
 #include <stdio.h>

@@ -5,7 +5,7 @@
 #ifndef HS_TESTS_LIVER_HAPTIC_H
 #define HS_TESTS_LIVER_HAPTIC_H
 
-#include "hapsim/haptic_sim.h"
+#include "haptic_sim.h"
 
 static inline hs_haptic_sim_def hs_liver_haptic_def(hs_model model, double radius_m) {
     hs_haptic_sim_def d = hs_haptic_sim_default_def();

@@ -6,7 +6,7 @@
 #ifndef HS_SPARSE_GRID_H
 #define HS_SPARSE_GRID_H
 
-#include "hapsim/sparse.h"
+#include "sparse.h"
 
 #include <math.h>
 #include <stdint.h>

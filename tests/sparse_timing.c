@@ -4,7 +4,8 @@
 // by cutting. A measurement tool, not a test.
 //   sparse_timing [--threads N] [--cpu] [NX NY NZ]...   (default: 15 14 13 and 22 22 22)
 #define _POSIX_C_SOURCE 200809L // clock_gettime
-#include "hapsim/sparse.h"
+#include "platform.h"
+#include "sparse.h"
 #include "sparse_grid.h"
 
 #include <stdio.h>
@@ -162,12 +163,13 @@ static int run(int nx, int ny, int nz) {
 }
 
 int main(int argc, char** argv) {
+    hs_platform_setup(argv); // one BLAS thread unless --threads says otherwise
     int dims[16][3], nd = 0;
     for (int i = 1; i < argc; i++) {
         if (strcmp(argv[i], "--cpu") == 0) {
             g_cpu_clock = 1;
         } else if (strcmp(argv[i], "--threads") == 0 && i + 1 < argc) {
-            hs_status st = hs_sparse_set_threads(atoi(argv[++i]));
+            hs_status st = hs_platform_set_threads(atoi(argv[++i]));
             printf("# threads %s: %s\n", argv[i], hs_status_str(st));
         } else if (i + 2 < argc && nd < 16) {
             dims[nd][0] = atoi(argv[i]);

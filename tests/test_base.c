@@ -1,6 +1,6 @@
 // SPDX-License-Identifier: GPL-2.0-or-later
 // Base: allocation accounting, fault injection, status text, error formatting.
-#include "hapsim/base.h"
+#include "base.h"
 #include "test_macros.h"
 
 static int AllocAccounting(void) {

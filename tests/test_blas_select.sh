@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # SPDX-License-Identifier: GPL-2.0-or-later
-# hs_sparse_blas_select as the programs run it: OpenBLAS's generic fallback kernels are replaced
+# hs_platform_blas_select as the programs run it: OpenBLAS's generic fallback kernels are replaced
 # by its AVX2 ones on an AVX2 processor, and a user's OPENBLAS_CORETYPE is never overridden.
 set -u
 BENCH="$1"

@@ -1,8 +1,8 @@
 // SPDX-License-Identifier: GPL-2.0-or-later
 // Body: static and dynamic solves against beam theory, the paper's self-weight cantilever,
 // energy behaviour of implicit Euler, inversion recovery, boundary conditions, solvers.
-#include "hapsim/body.h"
-#include "hapsim/mesh.h"
+#include "body.h"
+#include "mesh.h"
 #include "test_macros.h"
 
 #include <stdlib.h>

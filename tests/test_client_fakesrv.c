@@ -18,7 +18,7 @@
 #include <string.h>
 #include <time.h>
 
-#include "hapsim/mesh.h"
+#include "mesh.h"
 #include "hapsim_channels.h"
 #include "hapsim_command_ack_t.h"
 #include "hapsim_command_t.h"

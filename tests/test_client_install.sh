@@ -15,16 +15,23 @@ trap 'rm -rf "$tmp"' EXIT
 prefix=$tmp/prefix
 cmake --install "$build" --component client --prefix "$prefix" >"$tmp/install.log" 2>&1 ||
     { cat "$tmp/install.log"; echo "FAIL: cmake --install"; exit 1; }
-for f in include/hapsim/client.h include/hapsim/status.h include/hapsim/lcmtypes/hapsim_tool_pose_t.h \
-         include/hapsim/lcmtypes/hapsim_channels.h bin/hapsim-view bin/hapsim-ctl; do
+for f in include/hapsim/client.h include/hapsim/status.h include/hapsim/version.h \
+         include/hapsim/lcmtypes/hapsim_tool_pose_t.h include/hapsim/lcmtypes/hapsim_channels.h \
+         bin/hapsim-view bin/hapsim-ctl; do
     [ -e "$prefix/$f" ] || { echo "FAIL: $f not installed"; exit 1; }
 done
+# include/hapsim in the tree is exactly the installed API: the same headers, nothing more.
+src=$(cd "$(dirname "$0")/.." && pwd)
+want=$(cd "$src/include/hapsim" && ls -- *.h)
+got=$(cd "$prefix/include/hapsim" && ls -- *.h)
+[ "$want" = "$got" ] || { echo "FAIL: installed headers ($got) differ from include/hapsim ($want)"; exit 1; }
 pc=$(find "$prefix" -name hapsim-client.pc | head -n 1)
 [ -n "$pc" ] || { echo "FAIL: hapsim-client.pc not installed"; exit 1; }
 
 mkdir -p "$tmp/consumer"
 cat >"$tmp/consumer/main.c" <<'C'
 #include <hapsim/client.h>
+#include <hapsim/version.h>
 #include <hapsim_channels.h>
 #include <hapsim_tool_pose_t.h>
 #include <stdio.h>
@@ -53,7 +60,7 @@ int main(void) {
     if (strcmp(hs_status_str(HS_ERR_NOMEM), "out of memory") != 0) return 1;
     hs_err e2 = {0};
     if (hs_err_set(&e2, HS_ERR_IO, "x %d", 1) != HS_ERR_IO || strcmp(e2.msg, "x 1") != 0) return 1;
-    printf("consumer ok: %lld pose sent, default prefix %s, %lld bytes left\n",
+    printf("consumer ok (hapsim " HAPSIM_VERSION "): %lld pose sent, default prefix %s, %lld bytes left\n",
            (long long)st.poses_sent, HAPSIM_DEFAULT_PREFIX, (long long)hs_client_byte_count());
     return st.poses_sent == 1 && hs_client_byte_count() == 0 && c == NULL ? 0 : 1;
 }

@@ -1,9 +1,9 @@
 // SPDX-License-Identifier: GPL-2.0-or-later
 // Condensed compliance and probe contact: exactness against full FEM solves, the column cache,
 // the contact solve (active set, cap, stiffness) on the bundled liver.
-#include "hapsim/body.h"
-#include "hapsim/compliance.h"
-#include "hapsim/mesh.h"
+#include "body.h"
+#include "compliance.h"
+#include "mesh.h"
 #include "test_macros.h"
 
 #include <stdlib.h>

@@ -3,8 +3,8 @@
 // wider than the probe never loses it and its force changes continuously across faces, edges
 // and vertices; one contact point per geometric point; stiffness against finite differences;
 // the contact compliance's effect on a held force; caps; no allocation.
-#include "hapsim/compliance.h"
-#include "hapsim/mesh.h"
+#include "compliance.h"
+#include "mesh.h"
 #include "test_macros.h"
 
 #include <stdlib.h>

@@ -2,9 +2,9 @@
 // Cutting: geometry and rules, separation and wounds on the skin patch, 1,000 random cuts on the
 // liver, and the element changes consistent with a stiffness built from scratch on the cut mesh.
 #define _POSIX_C_SOURCE 200809L // access
-#include "hapsim/body.h"
-#include "hapsim/cut.h"
-#include "hapsim/sparse.h"
+#include "body.h"
+#include "cut.h"
+#include "sparse.h"
 #include "test_macros.h"
 
 #include <math.h>

@@ -3,9 +3,9 @@
 // dragged across the skin patch by poses fed at 1 kHz, real deformation and rt threads.
 // The LCM end to end is tests/test_cut_e2e.sh.
 #define _POSIX_C_SOURCE 200809L
-#include "hapsim/haptic_sim.h"
-#include "haptic/cut_surface.h"
-#include "rt/haptic_rt.h"
+#include "cut_surface.h"
+#include "haptic_rt.h"
+#include "haptic_sim.h"
 #include "test_macros.h"
 
 #include <limits.h>

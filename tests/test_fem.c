@@ -2,7 +2,7 @@
 #define _POSIX_C_SOURCE 200809L
 // FEM element models: patch test, rigid rotation, tangents against finite differences, polar
 // decomposition, locking-free bending, inversion recovery, mass, allocation discipline.
-#include "hapsim/fem.h"
+#include "fem.h"
 
 #include "../server/fem/element.h"      // hs_polar_warm4, hs_polar_higham_ex
 #include "../server/fem/fem_internal.h" // hs_fem_tangent_rotations

@@ -2,11 +2,11 @@
 // In-process haptic simulation on the bundled liver: real deformation and rt threads, poses fed
 // through the memory device by this (harness) thread at 1 kHz.
 #define _POSIX_C_SOURCE 200809L
-#include "hapsim/haptic_sim.h"
-#include "hapsim/surface_press.h"
+#include "haptic_sim.h"
+#include "surface_press.h"
 #include "liver_haptic.h"
-#include "base/spsc_ring.h"
-#include "rt/haptic_rt.h"
+#include "spsc_ring.h"
+#include "haptic_rt.h"
 #include "test_macros.h"
 
 #include <stdatomic.h>

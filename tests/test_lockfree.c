@@ -3,9 +3,9 @@
 // (in order, nothing lost or duplicated), hammered by two threads. Runs under ThreadSanitizer
 // (ctest label tsan).
 #define _POSIX_C_SOURCE 200809L
-#include "base/spsc_ring.h"
-#include "base/triple_buffer.h"
-#include "hapsim/base.h"
+#include "spsc_ring.h"
+#include "triple_buffer.h"
+#include "base.h"
 #include "test_macros.h"
 
 #include <pthread.h>

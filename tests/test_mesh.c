@@ -1,6 +1,6 @@
 // SPDX-License-Identifier: GPL-2.0-or-later
 // Mesh: readers, repair, derived topology, invariant checker, box, selection, error paths.
-#include "hapsim/mesh.h"
+#include "mesh.h"
 #include "test_macros.h"
 
 #include <errno.h>

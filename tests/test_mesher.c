@@ -4,9 +4,9 @@
 // broken surfaces fail naming the file and the problem (and where); --repair says what changed;
 // Gmsh physical groups (MSH 2.2 and 4.1) are kept as regions, written back, and fix a scene.
 #define _XOPEN_SOURCE 700 // mkdtemp
-#include "hapsim/mesher.h"
-#include "hapsim/scene.h"
-#include "hapsim/surface.h"
+#include "mesher.h"
+#include "scene.h"
+#include "surface.h"
 #include "test_macros.h"
 
 #include <math.h>

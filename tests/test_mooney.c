@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: GPL-2.0-or-later
 // Mooney-Rivlin reference solver: element kernel, homogeneous deformation, small-strain limit,
 // pressure stabilisation, Newton convergence, bad input.
-#include "hapsim/mooney.h"
+#include "mooney.h"
 #include "test_macros.h"
 
 #include <stdlib.h>

@@ -7,15 +7,15 @@
 
 #include "test_macros.h"
 
-#include "hapsim/base.h"
+#include "base.h"
 #include "hapsim_channels.h"
 #include "hapsim_command_ack_t.h"
 #include "hapsim_command_t.h"
 #include "hapsim_mesh_state_t.h"
 #include "hapsim_tool_force_t.h"
 #include "hapsim_tool_pose_t.h"
-#include "net/bus.h"
-#include "net/validate.h"
+#include "bus.h"
+#include "validate.h"
 
 // Private ports (never the defaults 7667/7668), ttl=0: nothing leaves the host.
 #define URL_POSE    "udpm://239.255.76.67:7781?ttl=0"

@@ -5,8 +5,8 @@
 // sphere, pushing contact forces, global equilibrium with the supports, force monotone in
 // depth; at a small depth the linear model agrees with the compliance contact (hs_compliance +
 // hs_contact_solve, node mode).
-#include "hapsim/compliance.h"
-#include "hapsim/press.h"
+#include "compliance.h"
+#include "press.h"
 #include "test_macros.h"
 
 #include <stdlib.h>

@@ -6,7 +6,7 @@
 
 #include "test_macros.h"
 
-#include "hapsim/base.h"
+#include "base.h"
 #include "hapsim_channels.h"
 #include "hapsim_command_t.h"
 #include "hapsim_command_ack_t.h"
@@ -18,9 +18,9 @@
 #include "hapsim_tool_pose_t.h"
 #include "hapsim_tool_state_t.h"
 #include "hapsim_topology_event_t.h"
-#include "net/bus.h"
-#include "net/mesh_frames.h"
-#include "net/validate.h"
+#include "bus.h"
+#include "mesh_frames.h"
+#include "validate.h"
 
 // Encode any lcm-gen type into a fresh malloc'd buffer (LCM's own allocator, as its publish does).
 #define ENCODE(type, msg, buf, len)                                                                \

@@ -8,8 +8,8 @@
 
 #include "test_macros.h"
 
-#include "hapsim/mesh.h"
-#include "hapsim/scene.h"
+#include "mesh.h"
+#include "scene.h"
 #include "hapsim_channels.h"
 
 #define LIVER HS_SOURCE_DIR "/scenes/liver/liver.json"

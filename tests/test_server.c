@@ -20,8 +20,8 @@
 
 #include "test_macros.h"
 
-#include "hapsim/base.h"
-#include "hapsim/mesh.h"
+#include "base.h"
+#include "mesh.h"
 #include "hapsim_channels.h"
 #include "hapsim_command_ack_t.h"
 #include "hapsim_command_t.h"
@@ -31,8 +31,8 @@
 #include "hapsim_server_status_t.h"
 #include "hapsim_tool_force_t.h"
 #include "hapsim_tool_pose_t.h"
-#include "net/bus.h"
-#include "net/mesh_frames.h"
+#include "bus.h"
+#include "mesh_frames.h"
 
 #define URL_H    "udpm://239.255.76.91:7791?ttl=0"
 #define URL_M    "udpm://239.255.76.92:7792?ttl=0"
@@ -204,6 +204,7 @@ typedef struct client {
     int64_t flog_utime[8192];
     double flog_norm[8192];
     int32_t flog_state[8192];
+    double flog_stiff[8192]; // largest |stiffness| entry, N/m
     // mesh
     int n_topo, n_key, n_delta;
     int64_t topo_version;
@@ -236,6 +237,9 @@ static void on_force(const lcm_recv_buf_t* rb, const char* ch, const hapsim_tool
         c->flog_utime[c->n_flog] = f->utime;
         c->flog_norm[c->n_flog] =
             sqrt(f->force[0] * f->force[0] + f->force[1] * f->force[1] + f->force[2] * f->force[2]);
+        double st = 0;
+        for (int k = 0; k < 9; ++k) st = fmax(st, fabs(f->stiffness[k]));
+        c->flog_stiff[c->n_flog] = st;
         c->flog_state[c->n_flog++] = f->state;
     }
 }
@@ -421,13 +425,14 @@ static void probe_at(double depth, double p[3]) {
     for (int k = 0; k < 3; ++k) p[k] = P399[k] + (PROBE_R - depth) * N399[k] / l;
 }
 
-// Stream poses at ~1 kHz for ms, moving linearly from depth d0 to d1; handles traffic between.
-static void stream(client* c, double d0, double d1, int ms) {
+// Stream poses at ~1 kHz for ms, moving linearly from depth d0 to d1 with these buttons held;
+// handles traffic between.
+static void stream_buttons(client* c, double d0, double d1, int ms, uint32_t buttons) {
     int64_t t0 = hs_now_ns();
     for (int i = 0; i < ms; ++i) {
         double p[3];
         probe_at(d0 + (d1 - d0) * (i + 1) / ms, p);
-        send_pose(c, p, 0);
+        send_pose(c, p, buttons);
         int64_t next = t0 + (int64_t)(i + 1) * 1000000;
         while (hs_now_ns() < next) {
             hs_net_bus_handle(c->h, 0);
@@ -441,6 +446,10 @@ static void stream(client* c, double d0, double d1, int ms) {
         hs_net_bus_handle(c->h, 0);
         hs_net_bus_handle(c->m, 0);
     }
+}
+
+static void stream(client* c, double d0, double d1, int ms) {
+    stream_buttons(c, d0, d1, ms, 0);
 }
 
 static int64_t next_request = 1000;
@@ -1627,6 +1636,113 @@ static int pause_keeps_limits(void) {
     paused = max_force_since(&c, from);
     printf("  force_max_n 0.01 N, then paused: at most %.4f N\n", paused);
     ENSURE(paused <= 0.01 + 1e-9);
+    // Repeated commands in each state are no-ops, and no transition was refused (the server's
+    // state machine says "internal: event ... refused" on stderr when one is).
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_PAUSE, NULL, NULL, NULL, NULL, NULL) == OK);
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_RESUME, NULL, NULL, NULL, NULL, NULL) == OK);
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_RESUME, NULL, NULL, NULL, NULL, NULL) == OK);
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_ESTOP_RELEASE, NULL, NULL, NULL, NULL, NULL) == OK);
+    ENSURE(stop_server() == 0);
+    client_close(&c);
+    static char log[1 << 16];
+    ENSURE(read_server_log("pause", log, sizeof log) == 0);
+    ENSURE(strstr(log, "hapsim-server: stopped after") && !strstr(log, "internal: event"));
+    return 0;
+}
+
+/// The clutch decouples the tool from the hand (docs/protocol.md, "Clutch"). Before, the force
+/// followed the hand for the whole watchdog (0.20 -> 0.38 N while labelled RAMP), jumped 0.19 N
+/// within 2 ms and ended STOPPED. Held while the hand presses 8 mm deeper: no answer exceeds the
+/// force at clutch-down, none carries stiffness, RAMP then FREE at zero. Released there: the tool
+/// goes on from where it stayed (the force comes back to about the clutch-down force, anchored at
+/// the hand) and no two answers differ by more than the rate limit allows.
+static int clutch_ignores_motion(void) {
+    char scene[512];
+    snprintf(scene, sizeof scene, "%s/liver_clutch.json", tmpdir);
+    liver_scene(scene, NULL);
+    ENSURE(start_server(scene, "clutch") == 0);
+    client c;
+    ENSURE(client_open(&c) == 0);
+    ENSURE(wait_up(&c));
+    const double rate = 20; // N/s
+    ENSURE(command(&c, HAPSIM_COMMAND_T_KIND_SET_PARAM, "name", "force_rate_max_n_per_s", "value",
+                   "20", NULL) == HAPSIM_COMMAND_ACK_T_STATUS_OK);
+    stream(&c, -0.010, 0.004, 500);
+    stream(&c, 0.004, 0.004, 800);
+    double down = norm3(c.force.force);
+    ENSURE(c.force.state == HAPSIM_TOOL_FORCE_T_STATE_CONTACT && dot_n(c.force.force) > 0.02);
+    int from = c.n_flog;
+    const uint32_t CLUTCH = HAPSIM_TOOL_POSE_T_BUTTON_CLUTCH;
+    stream_buttons(&c, 0.004, 0.012, 400, CLUTCH);
+    int held = c.n_flog, free_from = -1, bad_state = 0;
+    double stiff = 0;
+    for (int i = from; i < held; ++i) {
+        stiff = fmax(stiff, c.flog_stiff[i]);
+        if (c.flog_state[i] == HAPSIM_TOOL_FORCE_T_STATE_FREE && free_from < 0) free_from = i;
+        if (c.flog_state[i] !=
+            (free_from < 0 ? HAPSIM_TOOL_FORCE_T_STATE_RAMP : HAPSIM_TOOL_FORCE_T_STATE_FREE))
+            bad_state++;
+    }
+    double clutched_max = max_force_since(&c, from);
+    printf("  %.4f N at clutch-down; clutched, hand 8 mm deeper: at most %.4f N, zero after %d of "
+           "%d answers, %d in a wrong state, stiffness up to %.1f N/m, end %.4f N state %d\n",
+           down, clutched_max, free_from - from, held - from, bad_state, stiff,
+           norm3(c.force.force), c.force.state);
+    ENSURE(held - from > 300 && clutched_max <= down + 1e-9 && bad_state == 0 && free_from > from);
+    ENSURE(norm3(c.force.force) == 0 && stiff == 0 &&
+           c.force.state == HAPSIM_TOOL_FORCE_T_STATE_FREE);
+    stream(&c, 0.012, 0.012, 600); // released where the hand is now
+    double hand[3], off = 0;
+    probe_at(0.012, hand);
+    for (int k = 0; k < 3; ++k) off = fmax(off, fabs(c.force.anchor[k] - hand[k]));
+    double back = norm3(c.force.force), jump = 0;
+    for (int i = from + 1; i < c.n_flog; ++i) {
+        double dt = (double)(c.flog_utime[i] - c.flog_utime[i - 1]) * 1e-6;
+        double over = fabs(c.flog_norm[i] - c.flog_norm[i - 1]) - rate * (fabs(dt) + 1e-3);
+        jump = fmax(jump, over);
+    }
+    printf("  released: %.4f N, anchor %.2f mm from the hand, state %d; worst step over the rate "
+           "limit %.5f N\n",
+           back, off * 1e3, c.force.state, jump);
+    ENSURE(c.force.state == HAPSIM_TOOL_FORCE_T_STATE_CONTACT);
+    ENSURE(back > 0.7 * down && back < 1.3 * down && off < 1e-3 && jump <= 1e-6);
+    // A quick clutch: released 30 ms into the ramp down, the ramp back in starts where it was.
+    from = c.n_flog;
+    stream_buttons(&c, 0.012, 0.012, 30, CLUTCH);
+    double low = c.flog_norm[c.n_flog - 1];
+    stream(&c, 0.012, 0.012, 400);
+    jump = 0;
+    for (int i = from + 1; i < c.n_flog; ++i) {
+        double dt = (double)(c.flog_utime[i] - c.flog_utime[i - 1]) * 1e-6;
+        jump = fmax(jump, fabs(c.flog_norm[i] - c.flog_norm[i - 1]) - rate * (fabs(dt) + 1e-3));
+    }
+    printf("  quick clutch: %.4f N after 30 ms held, %.4f N 400 ms after release; worst step over "
+           "the rate limit %.5f N\n",
+           low, norm3(c.force.force), jump);
+    ENSURE(low > 0.5 * back && low < back && jump <= 1e-6);
+    ENSURE(norm3(c.force.force) > 0.7 * down && c.force.state == HAPSIM_TOOL_FORCE_T_STATE_CONTACT);
+    ENSURE(stop_server() == 0);
+    client_close(&c);
+    return 0;
+}
+
+/// A server started while a driver streams serves it. Before, it answered the poses while it
+/// listened for another server, heard its own forces and refused to start as a second server.
+static int starts_under_a_streaming_driver(void) {
+    char scene[512];
+    snprintf(scene, sizeof scene, "%s/liver_streamed.json", tmpdir);
+    liver_scene(scene, NULL);
+    client c;
+    ENSURE(client_open(&c) == 0);
+    stream(&c, -0.003, -0.003, 100);
+    ENSURE(start_server(scene, "streamed") == 0);
+    int64_t end = hs_now_ns() + 20000000000LL;
+    while ((c.n_status == 0 || strstr(c.status->warnings, "compliance set-up")) &&
+           hs_now_ns() < end && server_alive())
+        stream(&c, -0.003, -0.003, 20);
+    ENSURE(server_alive() && c.n_status > 0);
+    stream(&c, -0.003, -0.003, 100);
+    ENSURE(c.force.pose_seq == c.seq);
     ENSURE(stop_server() == 0);
     client_close(&c);
     return 0;
@@ -1698,5 +1814,6 @@ HS_TEST_MAIN(HS_CASE(malformed_scene_exits_1), HS_CASE(bad_command_lines_refused
              HS_CASE(poses_in_forces_out), HS_CASE(load_goes_on_answering),
              HS_CASE(set_after_mesh_changed), HS_CASE(set_keeps_body_state),
              HS_CASE(rebuild_keeps_force), HS_CASE(pause_keeps_limits),
+             HS_CASE(clutch_ignores_motion), HS_CASE(starts_under_a_streaming_driver),
              HS_CASE(mesh_10k_arrives_whole), HS_CASE(dropped_deltas_recover),
              HS_CASE(flood_leaves_server_intact))

@@ -2,10 +2,13 @@
 // Sparse: CSC pattern and products against a dense reference, CHOLMOD factor/refactor/solve,
 // keeping the last good factor, allocation-free solves, PCG, low-rank updates for cutting,
 // fault injection.
-#include "hapsim/sparse.h"
+#define _GNU_SOURCE // RTLD_DEFAULT
+#include "platform.h"
+#include "sparse.h"
 #include "sparse_grid.h"
 #include "test_macros.h"
 
+#include <dlfcn.h>
 #include <pthread.h>
 #include <stdatomic.h>
 #include <stdlib.h>
@@ -295,9 +298,29 @@ static int SolveAllocatesNothing(void) {
 }
 
 static int ThreadControl(void) {
-    ENSURE(hs_sparse_set_threads(0) == HS_ERR_INVALID);
+    ENSURE(hs_platform_set_threads(0) == HS_ERR_INVALID);
     // libgomp comes with Debian's CHOLMOD, so at least the OpenMP control exists.
-    ENSURE(hs_sparse_set_threads(1) == HS_OK);
+    ENSURE(hs_platform_set_threads(1) == HS_OK);
+    return 0;
+}
+
+// The sparse layer leaves the program's BLAS thread count alone (it once set 1 on first use).
+static int LeavesBlasThreads(void) {
+    int (*get)(void);
+    *(void**)&get = dlsym(RTLD_DEFAULT, "openblas_get_num_threads");
+    if (!get) {
+        printf("  SKIP: the BLAS is not OpenBLAS\n");
+        return 0;
+    }
+    ENSURE(hs_platform_set_threads(2) == HS_OK);
+    ENSURE(get() == 2);
+    fixture t;
+    ENSURE(fixture_make(&t, 6, 5, 4, 0.0) == 0);
+    ENSURE(hs_cholesky_solve(t.f, t.b, t.x) == HS_OK);
+    int after = get();
+    fixture_free(&t);
+    ENSURE(hs_platform_set_threads(1) == HS_OK);
+    ENSURE(after == 2);
     return 0;
 }
 
@@ -1177,7 +1200,7 @@ static int InverseDiagBlocks(void) {
 HS_TEST_MAIN(HS_CASE(CscPatternAndSpmv), HS_CASE(CscBadInput), HS_CASE(CholeskySolve),
              HS_CASE(SimplicialNotPosdef), HS_CASE(CholeskyRefactor),
              HS_CASE(CholeskyNotPosdefKeepsFactor), HS_CASE(SolveAllocatesNothing),
-             HS_CASE(ThreadControl), HS_CASE(CholeskyFaultInjection), HS_CASE(PcgConverges),
-             HS_CASE(UpdownMatchesFreshFactor), HS_CASE(AggregatedUpdates),
+             HS_CASE(ThreadControl), HS_CASE(LeavesBlasThreads), HS_CASE(CholeskyFaultInjection),
+             HS_CASE(PcgConverges), HS_CASE(UpdownMatchesFreshFactor), HS_CASE(AggregatedUpdates),
              HS_CASE(PartialRefactor), HS_CASE(FreeFragmentDetected), HS_CASE(UpdateFaultInjection),
              HS_CASE(SmallAndEmpty), HS_CASE(NaturalOrderInPlace), HS_CASE(InverseDiagBlocks))

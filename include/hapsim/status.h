@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: MIT
 // hapsim status: the result codes and error detail of every fallible call, their text.
-// Installed with the client library (hapsim/client.h includes it); the server's hapsim/base.h
-// builds on it.
+// Installed with the client library (hapsim/client.h includes it); the server's base.h
+// (server/base) builds on it.
 #ifndef HAPSIM_STATUS_H
 #define HAPSIM_STATUS_H
 

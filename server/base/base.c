@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: GPL-2.0-or-later
 // Accounted allocation, assertions, clock (status text and errors: status.c).
 #define _POSIX_C_SOURCE 200809L
-#include "hapsim/base.h"
+#include "base.h"
 
 #include <stdarg.h>
 #include <stdatomic.h>

@@ -4,7 +4,7 @@
 #ifndef HAPSIM_BASE_INTERNAL_H
 #define HAPSIM_BASE_INTERNAL_H
 
-#include "hapsim/base.h"
+#include "base.h"
 
 /// Largest file hs_read_file reads.
 #define HS_MAX_FILE_BYTES ((size_t)512 << 20)

@@ -5,7 +5,7 @@
 
 #include <stdio.h>
 
-#include "hapsim/base.h"
+#include "base.h"
 
 /// Open path for reading as a binary stream. A FIFO, device or folder is refused without
 /// blocking on it (opened non-blocking, checked, then made blocking): HS_ERR_IO naming the path

@@ -10,7 +10,7 @@
 #ifndef HS_BASE_TRIPLE_BUFFER_H
 #define HS_BASE_TRIPLE_BUFFER_H
 
-#include "hapsim/base.h"
+#include "base.h"
 
 #ifdef __cplusplus
 extern "C" {

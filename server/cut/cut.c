@@ -1,8 +1,8 @@
 // SPDX-License-Identifier: GPL-2.0-or-later
 // Vertex-preserving cutting: sweep crossing test, vertex moves with a quality guard, tet
 // removal with the orphan and free-piece rules, the live mesh and the element-change lists.
-// See include/hapsim/cut.h for the design and docs/cutting.md for the choices.
-#include "hapsim/cut.h"
+// See server/cut/cut.h for the design and docs/cutting.md for the choices.
+#include "cut.h"
 
 #include <math.h>
 #include <stdlib.h>
@@ -941,42 +941,69 @@ static int take_tet(hs_cut* c, int e) {
     return 1;
 }
 
-hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const double p1[3],
-                       const double q1[3], double* u, hs_cut_result* res, hs_err* err) {
+static const int k_edge[6][2] = {{0, 1}, {0, 2}, {0, 3}, {1, 2}, {1, 3}, {2, 3}};
+
+// One sweep's shared state, step to step.
+typedef struct sweep {
+    const double* S[4]; // the swept quad p0, q0, q1, p1
+    const double* p0;
+    double lo[3], hi[3]; // its bounding box
+    double tn[2][3];     // unit normals of the quad's triangles (zero when degenerate)
+    double* u;           // displacements (may be NULL)
+    int n_cut;           // tets in c->cut_list
+    int n_onb;           // vertices in c->onb
+    int n_moved;         // vertices in c->moved
     hs_cut_result r;
-    memset(&r, 0, sizeof r);
-    int64_t t0 = hs_now_ns();
-    if (!c || !p0 || !q0 || !p1 || !q1)
-        return hs_err_set(err, HS_ERR_INVALID, "cut: NULL argument to hs_cut_sweep");
-    const double* S[4] = {p0, q0, q1, p1};
+} sweep;
+
+// Current positions x0 + u, and the blade's points checked.
+static hs_status sweep_begin(hs_cut* c, sweep* w, hs_err* err) {
     for (int k = 0; k < 4; k++)
         for (int d = 0; d < 3; d++)
-            if (!isfinite(S[k][d]) || fabs(S[k][d]) > 1e6)
+            if (!isfinite(w->S[k][d]) || fabs(w->S[k][d]) > 1e6)
                 return hs_err_set(err, HS_ERR_INVALID, "cut: blade point %d coordinate %d is %g", k,
-                                  d, S[k][d]);
-    const int n = c->n, ne = c->ne;
-    double* x0 = c->mesh->x0;
-    const int* T = c->mesh->tets;
-    for (int k = 0; k < 3 * n; k++) {
-        c->x[k] = x0[k] + (u ? u[k] : 0.0);
+                                  d, w->S[k][d]);
+    const double* x0 = c->mesh->x0;
+    for (int k = 0; k < 3 * c->n; k++) {
+        c->x[k] = x0[k] + (w->u ? w->u[k] : 0.0);
         if (!isfinite(c->x[k]))
             return hs_err_set(err, HS_ERR_INVALID, "cut: displacement of node %d is not finite",
                               k / 3);
     }
     c->n_removed = c->n_moved = c->n_changed = c->n_pins = 0;
-
-    // 1. Crossing test against the two triangles of the swept quad.
-    double lo[3], hi[3];
     for (int d = 0; d < 3; d++) {
-        lo[d] = fmin(fmin(p0[d], q0[d]), fmin(p1[d], q1[d]));
-        hi[d] = fmax(fmax(p0[d], q0[d]), fmax(p1[d], q1[d]));
+        w->lo[d] = fmin(fmin(w->S[0][d], w->S[1][d]), fmin(w->S[3][d], w->S[2][d]));
+        w->hi[d] = fmax(fmax(w->S[0][d], w->S[1][d]), fmax(w->S[3][d], w->S[2][d]));
     }
-    static const int k_edge[6][2] = {{0, 1}, {0, 2}, {0, 3}, {1, 2}, {1, 3}, {2, 3}};
-    double tn[2][3]; // unit normals of the quad's triangles (zero when degenerate)
-    unit_normal(p0, q0, q1, tn[0]);
-    unit_normal(p0, q1, p1, tn[1]);
-    int n_cut = 0, n_edges = 0, n_onb = 0;
-    for (int e = 0; e < ne; e++) {
+    unit_normal(w->S[0], w->S[1], w->S[2], w->tn[0]);
+    unit_normal(w->S[0], w->S[2], w->S[3], w->tn[1]);
+    return HS_OK;
+}
+
+// Vertices of tet t near the blade's plane (within 1e-6 of the tet's size ext, a bound on their
+// own tolerance below) go on c->onb, to be checked for hinges in sweep_hinges.
+static void note_near_plane(hs_cut* c, sweep* w, const int* t, double ext) {
+    for (int a = 0; a < 4; a++) {
+        int v = t[a];
+        if (c->nmark[v]) continue;
+        double d[3];
+        v3_sub(c->x + 3 * v, w->p0, d);
+        int near = 0; // a flat triangle's zero normal would let every vertex in
+        for (int tri = 0; tri < 2; tri++)
+            near |= v3_dot(w->tn[tri], w->tn[tri]) > 0 && fabs(v3_dot(d, w->tn[tri])) <= 1e-6 * ext;
+        if (near) {
+            c->nmark[v] = 1;
+            c->onb[w->n_onb++] = v;
+        }
+    }
+}
+
+// 1. Crossing test against the two triangles of the swept quad: cut tets (marked 1) and the
+// length of the cut edges.
+static void sweep_find_cut(hs_cut* c, sweep* w) {
+    const int* T = c->mesh->tets;
+    int n_edges = 0;
+    for (int e = 0; e < c->ne; e++) {
         if (!c->active[e]) continue;
         const int* t = T + 4 * e;
         // Plain comparisons, not fmin/fmax (library calls here; x is finite): this loop
@@ -990,29 +1017,14 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
                 th[d] = v > th[d] ? v : th[d];
             }
         }
-        if (tl[0] > hi[0] || th[0] < lo[0] || tl[1] > hi[1] || th[1] < lo[1] || tl[2] > hi[2] ||
-            th[2] < lo[2])
+        if (tl[0] > w->hi[0] || th[0] < w->lo[0] || tl[1] > w->hi[1] || th[1] < w->lo[1] ||
+            tl[2] > w->hi[2] || th[2] < w->lo[2])
             continue;
-        // Vertices near the blade's plane (within 1e-6 of this tet's size, a bound on their
-        // own tolerance below): checked for hinges in 3c.
-        double ext = (th[0] - tl[0]) + (th[1] - tl[1]) + (th[2] - tl[2]);
-        for (int a = 0; a < 4; a++) {
-            int v = t[a];
-            if (c->nmark[v]) continue;
-            double d[3];
-            v3_sub(c->x + 3 * v, p0, d);
-            int near = 0; // a flat triangle's zero normal would let every vertex in
-            for (int tri = 0; tri < 2; tri++)
-                near |= v3_dot(tn[tri], tn[tri]) > 0 && fabs(v3_dot(d, tn[tri])) <= 1e-6 * ext;
-            if (near) {
-                c->nmark[v] = 1;
-                c->onb[n_onb++] = v;
-            }
-        }
+        note_near_plane(c, w, t, (th[0] - tl[0]) + (th[1] - tl[1]) + (th[2] - tl[2]));
         int hit = 0;
         for (int k = 0; k < 6; k++) {
             int a = t[k_edge[k][0]], b = t[k_edge[k][1]];
-            if (edge_crosses(c->x + 3 * a, c->x + 3 * b, S)) {
+            if (edge_crosses(c->x + 3 * a, c->x + 3 * b, w->S)) {
                 hit = 1;
                 c->edges[2 * n_edges] = a < b ? a : b;
                 c->edges[2 * n_edges + 1] = a < b ? b : a;
@@ -1021,11 +1033,11 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
         }
         if (hit) {
             c->tmark[e] = 1;
-            c->cut_list[n_cut++] = e;
+            c->cut_list[w->n_cut++] = e;
         }
     }
-    for (int k = 0; k < n_onb; k++) c->nmark[c->onb[k]] = 0;
-    r.cut_tets = n_cut;
+    for (int k = 0; k < w->n_onb; k++) c->nmark[c->onb[k]] = 0;
+    w->r.cut_tets = w->n_cut;
     if (n_edges > 0) {
         qsort(c->edges, (size_t)n_edges, 2 * sizeof(int), cmp_edge);
         for (int k = 0; k < n_edges; k++) {
@@ -1034,23 +1046,96 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
                 continue;
             double d[3];
             v3_sub(c->x + 3 * c->edges[2 * k], c->x + 3 * c->edges[2 * k + 1], d);
-            r.cut_length_m += sqrt(v3_dot(d, d));
+            w->r.cut_length_m += sqrt(v3_dot(d, d));
         }
     }
+}
 
-    // 2. Removal set with the orphan rule (counts are decremented as tets go).
-    for (int k = 0; k < n_cut; k++) {
+// 2. Removal set with the orphan rule (counts are decremented as tets go).
+static void sweep_take_cut(hs_cut* c, sweep* w) {
+    for (int k = 0; k < w->n_cut; k++) {
         int e = c->cut_list[k];
         // The move step below ignores tets marked 2 (going); step 4 deactivates them.
         if (!take_tet(c, e)) {
             c->tmark[e] = 0;
-            r.kept++;
+            w->r.kept++;
         }
     }
+}
 
-    // 3. Vertex moves onto the swept surface (vertices of tets being removed).
+// The move of vertex v onto the swept surface, in current coordinates; 0 when it stays.
+// Onto the quad's plane where the vertex's projection falls inside one of its triangles (the
+// nearer if both). A projection outside the quad (a vertex ahead of the blade, or beyond its
+// ends) has its closest point on the quad's edge, and going there dragged the vertex along the
+// cut, stretching tets that later sweeps cut and moved again. Such a vertex stays (its tet still
+// goes); the blade moves it when it gets there. Not onto the plane either: its uncut tets would
+// then have no edge across the blade and would stay, joining the two sides.
+static int move_target(const hs_cut* c, const sweep* w, int v, double dx[3]) {
+    const double* xv = c->x + 3 * v;
+    const double h2 = shortest_edge2(c, v);
+    double best = INFINITY;
+    for (int tri = 0; tri < 2; tri++) {
+        const double* nk = w->tn[tri];
+        if (!(v3_dot(nk, nk) > 0)) continue;
+        double cp[3], d[3];
+        closest_on_tri(xv, w->p0, tri ? w->S[2] : w->S[1], tri ? w->S[3] : w->S[2], cp);
+        v3_sub(cp, xv, d);
+        double along = v3_dot(d, nk), side[3];
+        for (int q = 0; q < 3; q++) side[q] = d[q] - along * nk[q];
+        if (v3_dot(side, side) > 1e-12 * h2 || !(v3_dot(d, d) < best)) continue;
+        best = v3_dot(d, d);
+        memcpy(dx, d, 3 * sizeof *dx);
+    }
+    if (best == INFINITY) return 0;
+    if (c->def.tangent_surface) {
+        const double* nv = c->nrm + 3 * v;
+        double nn = v3_dot(nv, nv);
+        if (nn > 0) {
+            double s = v3_dot(dx, nv) / nn;
+            for (int d = 0; d < 3; d++) dx[d] -= s * nv[d];
+        }
+    }
+    return v3_dot(dx, dx) > 0;
+}
+
+// Moves vertex v by dx (current) as far as the quality guard allows, halving the step up to
+// max_bisections times; 1 when it moved.
+static int move_vertex(hs_cut* c, sweep* w, int v, const double dx[3]) {
+    double* x0 = c->mesh->x0;
+    double* xv = c->x + 3 * v;
+    double dX[3];
+    if (w->u)
+        to_rest(c, v, dx, dX);
+    else
+        memcpy(dX, dx, sizeof dX);
+    double s = 1.0, Xt[3], xt[3];
+    int ok = 0;
+    for (int b = 0; b <= c->def.max_bisections; b++, s *= 0.5) {
+        for (int d = 0; d < 3; d++) {
+            Xt[d] = x0[3 * v + d] + s * dX[d];
+            xt[d] = xv[d] + s * dx[d];
+        }
+        if (move_ok(c, v, Xt, xt)) {
+            ok = 1;
+            break;
+        }
+    }
+    if (!ok || s < 1.0) w->r.clamped++;
+    if (!ok) return 0;
+    for (int d = 0; d < 3; d++) {
+        if (w->u) w->u[3 * v + d] += s * (dx[d] - dX[d]);
+        x0[3 * v + d] = Xt[d];
+        c->live->x0[3 * v + d] = Xt[d];
+        xv[d] = xt[d];
+    }
+    return 1;
+}
+
+// 3. Vertex moves onto the swept surface (vertices of tets being removed).
+static void sweep_move(hs_cut* c, sweep* w) {
+    const int* T = c->mesh->tets;
     int n_cand = 0;
-    for (int k = 0; k < n_cut; k++) {
+    for (int k = 0; k < w->n_cut; k++) {
         int e = c->cut_list[k];
         if (c->tmark[e] != 2) continue;
         for (int a = 0; a < 4; a++) {
@@ -1067,72 +1152,19 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
     for (int k = 0; k < n_cand; k++) {
         int v = c->moved[k];
         c->nmark[v] = 0;
-        double* xv = c->x + 3 * v;
-        // Onto the quad's plane where the vertex's projection falls inside one of its
-        // triangles (the nearer if both). A projection outside the quad (a vertex ahead of
-        // the blade, or beyond its ends) has its closest point on the quad's edge, and going
-        // there dragged the vertex along the cut, stretching tets that later sweeps cut and
-        // moved again. Such a vertex stays (its tet still goes); the blade moves it when it
-        // gets there. Not onto the plane either: its uncut tets would then have no edge
-        // across the blade and would stay, joining the two sides.
-        const double h2 = shortest_edge2(c, v);
-        double dx[3], best = INFINITY;
-        for (int tri = 0; tri < 2; tri++) {
-            const double* nk = tn[tri];
-            if (!(v3_dot(nk, nk) > 0)) continue;
-            double cp[3], d[3];
-            closest_on_tri(xv, p0, tri ? q1 : q0, tri ? p1 : q1, cp);
-            v3_sub(cp, xv, d);
-            double along = v3_dot(d, nk), side[3];
-            for (int q = 0; q < 3; q++) side[q] = d[q] - along * nk[q];
-            if (v3_dot(side, side) > 1e-12 * h2 || !(v3_dot(d, d) < best)) continue;
-            best = v3_dot(d, d);
-            memcpy(dx, d, sizeof dx);
-        }
-        if (best == INFINITY) continue;
-        if (c->def.tangent_surface) {
-            double* nv = c->nrm + 3 * v;
-            double nn = v3_dot(nv, nv);
-            if (nn > 0) {
-                double s = v3_dot(dx, nv) / nn;
-                for (int d = 0; d < 3; d++) dx[d] -= s * nv[d];
-            }
-        }
-        if (!(v3_dot(dx, dx) > 0)) continue;
-        double dX[3];
-        if (u)
-            to_rest(c, v, dx, dX);
-        else
-            memcpy(dX, dx, sizeof dX);
-        double s = 1.0, Xt[3], xt[3];
-        int ok = 0;
-        for (int b = 0; b <= c->def.max_bisections; b++, s *= 0.5) {
-            for (int d = 0; d < 3; d++) {
-                Xt[d] = x0[3 * v + d] + s * dX[d];
-                xt[d] = xv[d] + s * dx[d];
-            }
-            if (move_ok(c, v, Xt, xt)) {
-                ok = 1;
-                break;
-            }
-        }
-        if (!ok || s < 1.0) r.clamped++;
-        if (!ok) continue;
-        for (int d = 0; d < 3; d++) {
-            if (u) u[3 * v + d] += s * (dx[d] - dX[d]);
-            x0[3 * v + d] = Xt[d];
-            c->live->x0[3 * v + d] = Xt[d];
-            xv[d] = xt[d];
-        }
-        c->moved[n_moved++] = v;
+        double dx[3];
+        if (move_target(c, w, v, dx) && move_vertex(c, w, v, dx)) c->moved[n_moved++] = v;
     }
-    c->n_moved = r.moved = n_moved;
+    c->n_moved = w->r.moved = w->n_moved = n_moved;
+}
 
-    // 3b. A move can leave a vertex a hair across the blade's plane (the tangent-plane rule, a
-    // clamped move): its other tets then cross the swept quad, and no later sweep comes back
-    // here. They go now, as they are (no further moves: nothing cascades). Without this, fine
-    // sweeps left hundreds of such tets bridging a cut across the skin patch.
-    for (int k = 0; k < n_moved; k++) {
+// 3b. A move can leave a vertex a hair across the blade's plane (the tangent-plane rule, a
+// clamped move): its other tets then cross the swept quad, and no later sweep comes back
+// here. They go now, as they are (no further moves: nothing cascades). Without this, fine
+// sweeps left hundreds of such tets bridging a cut across the skin patch.
+static void sweep_take_crossed(hs_cut* c, sweep* w) {
+    const int* T = c->mesh->tets;
+    for (int k = 0; k < w->n_moved; k++) {
         int v = c->moved[k];
         for (int p = c->nt_start[v]; p < c->nt_start[v + 1]; p++) {
             int e = c->nt[p];
@@ -1140,41 +1172,44 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
             const int* t = T + 4 * e;
             int hit = 0;
             for (int q = 0; q < 6 && !hit; q++)
-                hit = edge_crosses(c->x + 3 * t[k_edge[q][0]], c->x + 3 * t[k_edge[q][1]], S);
+                hit = edge_crosses(c->x + 3 * t[k_edge[q][0]], c->x + 3 * t[k_edge[q][1]], w->S);
             if (!hit) continue;
             if (!take_tet(c, e)) {
                 int seen = 0; // counted already from an earlier moved vertex of e
                 for (int j = 0; j < k && !seen; j++)
                     for (int a = 0; a < 4; a++) seen |= t[a] == c->moved[j];
-                if (!seen) r.kept++;
+                if (!seen) w->r.kept++;
                 continue;
             }
-            c->cut_list[n_cut++] = e;
-            r.cut_tets++;
+            c->cut_list[w->n_cut++] = e;
+            w->r.cut_tets++;
         }
     }
+}
 
-    // 3c. Hinges. A vertex on the blade's plane (moved there, or lying there) where the blade
-    // passed, with tets left on both sides, would keep the sides joined: no edge from it counts
-    // as crossing, and its tets on the far side touch the blade only at it (with 0.2 mm sweeps
-    // the skin patch's cut stayed in one piece). The smaller side's tets there go, as they are.
-    for (int k = 0; k < n_onb; k++) c->nmark[c->onb[k]] = 1; // once each: n_onb <= n
-    for (int k = 0; k < n_moved; k++) {
+// 3c. Hinges. A vertex on the blade's plane (moved there, or lying there) where the blade
+// passed, with tets left on both sides, would keep the sides joined: no edge from it counts
+// as crossing, and its tets on the far side touch the blade only at it (with 0.2 mm sweeps
+// the skin patch's cut stayed in one piece). The smaller side's tets there go, as they are.
+static void sweep_hinges(hs_cut* c, sweep* w) {
+    for (int k = 0; k < w->n_onb; k++) c->nmark[c->onb[k]] = 1; // once each: n_onb <= n
+    for (int k = 0; k < w->n_moved; k++) {
         int v = c->moved[k];
-        if (!c->nmark[v]) c->onb[n_onb++] = v;
+        if (!c->nmark[v]) c->onb[w->n_onb++] = v;
         c->nmark[v] = 1;
     }
-    for (int k = 0; k < n_onb; k++) {
+    for (int k = 0; k < w->n_onb; k++) {
         int v = c->onb[k];
         c->nmark[v] = 0;
         if (c->fixed[v] || c->pinned[v]) continue;
         double h2 = shortest_edge2(c, v);
-        int tri = isfinite(h2) ? blade_site(c, v, S, tn, 1e-6 * sqrt(h2)) : -1;
+        int tri = isfinite(h2) ? blade_site(c, v, w->S, w->tn, 1e-6 * sqrt(h2)) : -1;
         if (tri < 0) continue;
+        const double* nrm = w->tn[tri];
         double vol[2] = {0, 0};
         for (int p = c->nt_start[v]; p < c->nt_start[v + 1]; p++) {
             int e = c->nt[p], side;
-            if (c->active[e] && c->tmark[e] == 0 && (side = tet_side(c, e, v, p0, tn[tri])) >= 0)
+            if (c->active[e] && c->tmark[e] == 0 && (side = tet_side(c, e, v, w->p0, nrm)) >= 0)
                 vol[side] += c->vol_orig[e];
         }
         if (!(vol[0] > 0 && vol[1] > 0)) continue;
@@ -1182,18 +1217,21 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
         int went = 0; // ORPHAN_KEEP_TET may keep them all (not counted in `kept`: not cut tets)
         for (int p = c->nt_start[v]; p < c->nt_start[v + 1]; p++) {
             int e = c->nt[p];
-            if (!c->active[e] || c->tmark[e] != 0 || tet_side(c, e, v, p0, tn[tri]) != drop)
+            if (!c->active[e] || c->tmark[e] != 0 || tet_side(c, e, v, w->p0, nrm) != drop)
                 continue;
             if (!take_tet(c, e)) continue;
-            c->cut_list[n_cut++] = e;
-            r.cut_tets++;
+            c->cut_list[w->n_cut++] = e;
+            w->r.cut_tets++;
             went = 1;
         }
-        r.hinges += went;
+        w->r.hinges += went;
     }
+}
 
-    // 4. Remove, then orphans (PIN rule) and free pieces.
-    for (int k = 0; k < n_cut; k++) {
+// 4. Remove, then orphans (PIN rule) and free pieces; 1 when the mesh changed.
+static int sweep_remove(hs_cut* c, sweep* w) {
+    const int* T = c->mesh->tets;
+    for (int k = 0; k < w->n_cut; k++) {
         int e = c->cut_list[k];
         if (c->tmark[e] == 2) remove_tet(c, e, 1);
     }
@@ -1203,18 +1241,21 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
             if (c->count[v] == 0) pin_node(c, v);
         }
     if (c->n_removed > 0) // moves never disconnect
-        r.fragments = handle_fragments(c, &r.piece_check_tets);
-    r.removed = c->n_removed;
-    r.pinned = c->n_pins;
-    const int mesh_changed = c->n_removed > 0 || n_moved > 0;
+        w->r.fragments = handle_fragments(c, &w->r.piece_check_tets);
+    w->r.removed = c->n_removed;
+    w->r.pinned = c->n_pins;
+    const int mesh_changed = c->n_removed > 0 || w->n_moved > 0;
     if (mesh_changed) {
         c->version++;
         c->live_dirty = 1;
     }
+    return mesh_changed;
+}
 
-    // 5. Element changes for the owner of the factor and the compliance: the removed tets
-    // (above) and the remaining tets around moved vertices, whose rest data changed.
-    for (int k = 0; k < n_moved; k++) {
+// 5. Element changes for the owner of the factor and the compliance: the removed tets
+// (sweep_remove) and the remaining tets around moved vertices, whose rest data changed.
+static void sweep_changes(hs_cut* c, sweep* w) {
+    for (int k = 0; k < w->n_moved; k++) {
         int v = c->moved[k];
         for (int p = c->nt_start[v]; p < c->nt_start[v + 1]; p++) {
             int e = c->nt[p];
@@ -1223,20 +1264,36 @@ hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const 
             c->changed[c->n_changed++] = e;
         }
     }
-    r.changed_elements = c->n_removed + c->n_changed;
-    r.geometry_ms = (double)(hs_now_ns() - t0) * 1e-6;
+    w->r.changed_elements = c->n_removed + c->n_changed;
+}
+
+hs_status hs_cut_sweep(hs_cut* c, const double p0[3], const double q0[3], const double p1[3],
+                       const double q1[3], double* u, hs_cut_result* res, hs_err* err) {
+    int64_t t0 = hs_now_ns();
+    if (!c || !p0 || !q0 || !p1 || !q1)
+        return hs_err_set(err, HS_ERR_INVALID, "cut: NULL argument to hs_cut_sweep");
+    sweep w = {.S = {p0, q0, q1, p1}, .p0 = p0, .u = u};
+    hs_status st = sweep_begin(c, &w, err);
+    if (st != HS_OK) return st;
+    sweep_find_cut(c, &w);
+    sweep_take_cut(c, &w);
+    sweep_move(c, &w);
+    sweep_take_crossed(c, &w);
+    sweep_hinges(c, &w);
+    const int mesh_changed = sweep_remove(c, &w);
+    sweep_changes(c, &w);
+    w.r.geometry_ms = (double)(hs_now_ns() - t0) * 1e-6;
 
     // 6. Checks (the live mesh is rebuilt here only when validating, else on first use).
-    hs_status st = HS_OK;
     int64_t t2 = hs_now_ns();
     if (mesh_changed && c->def.validate) st = hs_cut_validate(c, err);
-    r.mesh_ms = (double)(hs_now_ns() - t2) * 1e-6;
-    for (int k = 0; k < n_cut; k++) c->tmark[c->cut_list[k]] = 0;
+    w.r.mesh_ms = (double)(hs_now_ns() - t2) * 1e-6;
+    for (int k = 0; k < w.n_cut; k++) c->tmark[c->cut_list[k]] = 0;
     for (int k = 0; k < c->n_removed; k++) c->tmark[c->removed[k]] = 0;
     for (int k = 0; k < c->n_changed; k++) c->tmark[c->changed[k]] = 0;
-    r.topology_version = c->version;
-    r.total_ms = (double)(hs_now_ns() - t0) * 1e-6;
-    if (res) *res = r;
+    w.r.topology_version = c->version;
+    w.r.total_ms = (double)(hs_now_ns() - t0) * 1e-6;
+    if (res) *res = w.r;
     return st;
 }
 

@@ -11,7 +11,7 @@
 #include <unistd.h>
 
 #include "server.h"
-#include "hapsim/sparse.h"
+#include "platform.h"
 
 static int stop_pipe[2] = {-1, -1};
 
@@ -54,7 +54,7 @@ static void usage(FILE* f) {
 
 int main(int argc, char** argv) {
     if (hapsim_version_asked(argc, argv, "hapsim-server")) return 0;
-    hs_sparse_blas_select(argv); // before any thread: it may re-execute the program
+    hs_platform_setup(argv); // before any thread: it may re-execute the program
     // SIGINT/SIGTERM write one byte to a pipe the net loop polls (async-signal-safe), whichever
     // thread the kernel picks (libraries start threads before main, so masks cannot steer it).
     if (pipe(stop_pipe) != 0) {

@@ -3,8 +3,8 @@
 #ifndef HS_SCENE_SIM_H
 #define HS_SCENE_SIM_H
 
-#include "hapsim/haptic_sim.h"
-#include "hapsim/scene.h"
+#include "haptic_sim.h"
+#include "scene.h"
 
 /// The sim options hapsim-server uses for scene sc: model, material, solver, rates, probe radius,
 /// force limits, background compliance set-up; realtime: ask for SCHED_FIFO and locked memory.

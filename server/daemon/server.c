@@ -10,6 +10,7 @@
 #include <math.h>
 #include <poll.h>
 #include <pthread.h>
+#include <stdarg.h>
 #include <stdatomic.h>
 #include <signal.h>
 #include <stdio.h>
@@ -17,11 +18,11 @@
 #include <string.h>
 #include <unistd.h>
 
-#include "hapsim/fem.h"
-#include "hapsim/haptic.h"
-#include "hapsim/haptic_sim.h"
-#include "hapsim/mesh.h"
-#include "hapsim/scene.h"
+#include "fem.h"
+#include "haptic.h"
+#include "haptic_sim.h"
+#include "mesh.h"
+#include "scene.h"
 #include "hapsim_channels.h"
 #include "hapsim_command_ack_t.h"
 #include "hapsim_command_t.h"
@@ -33,11 +34,11 @@
 #include "hapsim_tool_pose_t.h"
 #include "hapsim_tool_state_t.h"
 #include "hapsim_topology_event_t.h"
-#include "net/bus.h"
-#include "net/mesh_frames.h"
-#include "net/validate.h"
-#include "base/spsc_ring.h"
-#include "rt/haptic_rt.h"
+#include "bus.h"
+#include "mesh_frames.h"
+#include "validate.h"
+#include "spsc_ring.h"
+#include "haptic_rt.h"
 
 #define MAX_DEV             HS_SCENE_MAX_DEVICES
 #define POSE_RING           64           // fed poses remembered for echoing in rt-output forces
@@ -50,6 +51,7 @@
 #define RT_GAP_NS           1500000LL    // publish rt outputs when no force went out for this long
 #define HANDLE_BATCH        256          // messages handled per bus per loop iteration
 #define POSE_QUEUE          8192         // LCM subscription queue (default 30 drops bursts)
+#define HAPTIC_RCVBUF       4194304      // haptic bus receive buffer asked for, bytes
 #define COMMAND_QUEUE       1024
 #define CUT_SAMPLES         1024 // cut step times kept for the quantiles (cut steps take ms, not us)
 #define LOAD_QUEUE          32   // commands kept while a scene loads; more are refused (busy)
@@ -127,13 +129,44 @@ typedef struct dev_state {
     int64_t last_rx_ns;  // newest accepted pose, CLOCK_MONOTONIC
     int64_t last_pub_ns; // newest tool_force published
     int seen;
-    double pos[3], quat[4];
+    double pos[3], quat[4]; // the tool's pose (pos: the hand's + the clutch offset)
+    double hand[3];         // the newest pose's position
     uint32_t buttons;
     double force[3]; // newest published force, N
     int contact;
-    int64_t pubs;    // forces published
-    hs_rt_hist* lat; // window: pose received -> force published, us
+    // Clutch (BUTTON_CLUTCH): tool position = hand position + offset (scene frame, m).
+    int64_t session;    // the driver session the offset belongs to
+    double offset[3];   // grows by the hand's motion while the clutch was held
+    int clutched;       // the clutch is held
+    double hold[3];     // tool position while clutched
+    double clutch_f[3]; // force published last before the clutch went down, N
+    int64_t clutch_ns;  // clutch down
+    int64_t engage_ns;  // clutch released (0: engaged since the session began)
+    double engage_g0;   // the clutch gain at release: the ramp back in starts there
+    int64_t pubs;       // forces published
+    hs_rt_hist* lat;    // window: pose received -> force published, us
 } dev_state;
+
+// The server's run state. Two latches lie over it, set and cleared in any state without
+// changing it: the e-stop (every force zero) and a load in progress (commands but the e-stop's
+// wait for it). srv_transition is the only code that changes the three.
+typedef enum srv_state {
+    SRV_RUNNING,    // the scene's simulation runs (haptics off: mesh and status only)
+    SRV_PAUSED,     // no simulation; its body state is kept and RESUME builds it again
+    SRV_PAUSED_CUT, // a cut world's simulation stopped and kept (world.held): RESUME starts it
+} srv_state;
+
+typedef enum srv_event {
+    EV_PAUSE,         // PAUSE stopped the sim (a cut world's is held): forces ramp down
+    EV_RESUME,        // RESUME started the sim again
+    EV_SIM_STOPPED,   // a sim that did not start, or a reset kept at rest: zero force, no sim
+    EV_SIM_HELD,      // a cut world's sim that did not start again: zero force, kept
+    EV_SWAPPED,       // a built world took the running one's place (its sim not started yet)
+    EV_ESTOP,         // ESTOP latched
+    EV_ESTOP_RELEASE, // ESTOP_RELEASE: forces ramp back in (a repeated release does not re-ramp)
+    EV_LOAD_BEGIN,    // a scene is being built (path: the status names it)
+    EV_LOAD_END,      // the build is over (swapped in, failed or left behind)
+} srv_event;
 
 struct hs_server {
     hs_server_opts opt;
@@ -151,6 +184,7 @@ struct hs_server {
     hs_net_command_state cst;
     int64_t params_refused; // SET_PARAM acked INVALID: an unknown name or a value out of range
     int64_t kdrop0[2];      // the kernel's drops on the haptic / mesh bus sockets at start
+    int listening;          // listening for another server before serving: poses go unanswered
 
     dev_state dev[MAX_DEV];
     int64_t feed_seq; // poses fed to rt (rt's pose seq)
@@ -158,8 +192,10 @@ struct hs_server {
     hs_haptic_output out; // newest rt output
     int have_out;
 
-    int paused, estop;
-    const char* loading; // path of the scene being built: the status says STATE_LOADING
+    // Changed only by srv_transition (docs/server.md, "States").
+    srv_state state;     // RUNNING, PAUSED or PAUSED_CUT
+    int estop;           // latch over every state: every force zero until released
+    const char* loading; // latch: path of the scene being built (status says STATE_LOADING)
     loader load;         // a LOAD_SCENE being built on its own thread
     int64_t pause_ns;
     int64_t estop_release_ns;    // forces ramp back in from here (the rt chain never saw the stop)
@@ -199,6 +235,10 @@ struct hs_server {
     int rt_prio;
     int stop;
 };
+
+static int srv_paused(const hs_server* s) {
+    return s->state != SRV_RUNNING;
+}
 
 // ---------------------------------------------------------------------------------------------
 // Helpers
@@ -546,7 +586,8 @@ static int model_stiff(const hs_haptic_model* m) {
     return 0;
 }
 
-// Publish one tool_force for device d from model m (force at m->anchor_m).
+// Publish one tool_force for device d from model m (force at m->anchor_m, tool position: the
+// wire carries the hand's, the clutch's offset off).
 static void publish_force(hs_server* s, int d, const hs_haptic_model* m, int state,
                           int64_t pose_seq, int64_t pose_utime, int64_t rx_ns) {
     dev_state* ds = &s->dev[d];
@@ -561,7 +602,7 @@ static void publish_force(hs_server* s, int d, const hs_haptic_model* m, int sta
     f.state = state;
     for (int k = 0; k < 3; ++k) {
         f.force[k] = m->force_n[k];
-        f.anchor[k] = m->anchor_m[k];
+        f.anchor[k] = m->anchor_m[k] - ds->offset[k];
     }
     for (int k = 0; k < 9; ++k) f.stiffness[k] = -m->stiffness_n_m[k]; // wire: dF/dp
     f.validity_radius = m->radius_m;
@@ -586,11 +627,10 @@ static void clamp_model(hs_haptic_model* m, double fmax) {
     }
 }
 
-static int state_of(const hs_haptic_output* o, const hs_haptic_model* m, uint32_t buttons) {
+static int state_of(const hs_haptic_output* o, const hs_haptic_model* m) {
     int active = norm3(m->force_n) > 0 || model_stiff(m);
     if (o->safety & HS_SAFETY_WATCHDOG)
         return active ? HAPSIM_TOOL_FORCE_T_STATE_RAMP : HAPSIM_TOOL_FORCE_T_STATE_STOPPED;
-    if (buttons & HAPSIM_TOOL_POSE_T_BUTTON_CLUTCH) return HAPSIM_TOOL_FORCE_T_STATE_RAMP;
     return active ? HAPSIM_TOOL_FORCE_T_STATE_CONTACT : HAPSIM_TOOL_FORCE_T_STATE_FREE;
 }
 
@@ -599,17 +639,71 @@ static void scale_model(hs_haptic_model* m, double g) {
     for (int k = 0; k < 9; ++k) m->stiffness_n_m[k] *= g;
 }
 
-// Gain on the rt model at time t after an ESTOP_RELEASE: 0 -> 1 over the safety ramp, or
-// slower if the force limit at the rate limit needs longer (a resume ramps in the same way,
-// through its new sim's watchdog).
-static double estop_gain(const hs_server* s, int64_t t) {
-    if (s->estop) return 0.0;
+// How long a ramp between zero and full force takes: the safety ramp, or longer if the force
+// limit at the rate limit needs it. The e-stop release and the clutch ramp over it.
+static double ramp_time(const hs_server* s) {
     const hs_safety_def* sd = &s->w.def.safety;
     double ramp = sd->ramp_s;
     if (sd->max_rate_n_s > 0 && sd->max_force_n / sd->max_rate_n_s > ramp)
         ramp = sd->max_force_n / sd->max_rate_n_s;
-    double g = (double)(t - s->estop_release_ns) * 1e-9 / ramp;
+    return ramp;
+}
+
+// Gain on the rt model at time t after an ESTOP_RELEASE: 0 -> 1 over the ramp time (a resume
+// ramps in the same way, through its new sim's watchdog).
+static double estop_gain(const hs_server* s, int64_t t) {
+    if (s->estop) return 0.0;
+    double g = (double)(t - s->estop_release_ns) * 1e-9 / ramp_time(s);
     return g >= 1.0 ? 1.0 : g > 0.0 ? g : 0.0;
+}
+
+// The clutch decouples the tool from the hand (docs/protocol.md, "Clutch"). Held: the tool stays
+// where it was, the hand's motion is ignored, and the answers ramp the force felt at clutch-down
+// to zero with no stiffness, so a driver's local model does not follow the hand. Released: the
+// tool goes on from where it stayed by the hand's motion from then on (the hand-to-tool offset
+// is kept, as a device's indexing) and the force ramps back in from where the ramp down was.
+static void clutch_track(hs_server* s, dev_state* ds, const hs_net_pose* p, int64_t t) {
+    int held = (p->buttons & HAPSIM_TOOL_POSE_T_BUTTON_CLUTCH) != 0;
+    if (p->session != ds->session) { // a new driver: no offset left by another one's clutch
+        ds->session = p->session;
+        memset(ds->offset, 0, sizeof ds->offset);
+        ds->clutched = 0;
+        ds->engage_ns = 0;
+    }
+    if (held && !ds->clutched) {
+        ds->clutched = 1;
+        ds->clutch_ns = t;
+        memcpy(ds->clutch_f, ds->force, sizeof ds->clutch_f);
+        for (int k = 0; k < 3; ++k)
+            ds->hold[k] = ds->seen ? ds->pos[k] : p->position[k] + ds->offset[k];
+    } else if (!held && ds->clutched) {
+        double g = 1.0 - (double)(t - ds->clutch_ns) * 1e-9 / ramp_time(s);
+        ds->clutched = 0;
+        ds->engage_ns = t;
+        ds->engage_g0 = g > 0 ? g : 0;
+        for (int k = 0; k < 3; ++k) ds->offset[k] = ds->hold[k] - p->position[k];
+    }
+}
+
+// Gain on the engaged model at time t: 1, or ramping back in after a release.
+static double engage_gain(const hs_server* s, const dev_state* ds, int64_t t) {
+    if (ds->engage_ns == 0) return 1.0;
+    double g = ds->engage_g0 + (double)(t - ds->engage_ns) * 1e-9 / ramp_time(s);
+    return g >= 1.0 ? 1.0 : g;
+}
+
+// The answer while the clutch is held, at hand position hand (tool frame): the force at
+// clutch-down ramped to zero, no stiffness. State RAMP, then FREE once it is zero.
+static hs_haptic_model clutch_model(const hs_server* s, const dev_state* ds, int64_t t,
+                                    const double hand[3], int* state) {
+    hs_haptic_model m = zero_model();
+    double g = 1.0 - (double)(t - ds->clutch_ns) * 1e-9 / ramp_time(s);
+    if (g > 0)
+        for (int k = 0; k < 3; ++k) m.force_n[k] = g * ds->clutch_f[k];
+    memcpy(m.anchor_m, hand, sizeof m.anchor_m);
+    m.timeout_s = s->have_out ? s->out.model.timeout_s : s->w.scene.watchdog_s;
+    *state = norm3(m.force_n) > 0 ? HAPSIM_TOOL_FORCE_T_STATE_RAMP : HAPSIM_TOOL_FORCE_T_STATE_FREE;
+    return m;
 }
 
 // The paused model at time t: the model at the pause scaled down linearly to zero, under the
@@ -648,7 +742,7 @@ static int ring_find(const hs_server* s, int64_t feed) {
 
 // rt outputs go out when the device's poses have stopped (watchdog ramp to zero) or slowed down.
 static void publish_rt_output(hs_server* s) {
-    if (!s->have_out || s->paused) return;
+    if (!s->have_out || srv_paused(s)) return;
     dev_state* ds = &s->dev[0];
     if (!ds->seen) return;
     int64_t t = hs_now_ns();
@@ -656,9 +750,13 @@ static void publish_rt_output(hs_server* s) {
     if (t - ds->last_rx_ns > (int64_t)(quiet_s * 1e9)) return; // long dead: nothing to say
     if (t - ds->last_pub_ns < RT_GAP_NS) return;
     hs_haptic_model m = s->estop ? zero_model() : s->out.model; // limited by the rt stage
-    int state = s->estop ? HAPSIM_TOOL_FORCE_T_STATE_STOPPED : state_of(&s->out, &m, ds->buttons);
-    double g = estop_gain(s, t);
-    if (!s->estop && g < 1.0) {
+    int state = s->estop ? HAPSIM_TOOL_FORCE_T_STATE_STOPPED : state_of(&s->out, &m);
+    double g = estop_gain(s, t) * engage_gain(s, ds, t);
+    if (!s->estop && ds->clutched) {
+        double hand[3];
+        for (int k = 0; k < 3; ++k) hand[k] = ds->hand[k] + ds->offset[k];
+        m = clutch_model(s, ds, t, hand, &state);
+    } else if (!s->estop && g < 1.0) {
         scale_model(&m, g);
         state = HAPSIM_TOOL_FORCE_T_STATE_RAMP;
     }
@@ -670,45 +768,50 @@ static void publish_rt_output(hs_server* s) {
 static void answer_pose(hs_server* s, const hs_net_pose* p, int64_t rx_ns) {
     int d = p->device_id;
     dev_state* ds = &s->dev[d];
+    if (d == 0) clutch_track(s, ds, p, rx_ns);
+    double hand[3]; // the hand in the tool's frame; the tool stays put while clutched
+    for (int k = 0; k < 3; ++k) hand[k] = p->position[k] + ds->offset[k];
     ds->seen = 1;
     ds->last_rx_ns = rx_ns;
-    memcpy(ds->pos, p->position, sizeof ds->pos);
+    memcpy(ds->hand, p->position, sizeof ds->hand);
+    memcpy(ds->pos, ds->clutched ? ds->hold : hand, sizeof ds->pos);
     memcpy(ds->quat, p->orientation, sizeof ds->quat);
     ds->buttons = p->buttons;
     world* w = &s->w;
     if (!w->haptics) return; // validated and counted, not answered (scene: haptics off)
     hs_haptic_model m = zero_model();
     int state = HAPSIM_TOOL_FORCE_T_STATE_STOPPED;
-    if (d == 0 && s->paused) {
-        m = paused_model(s, rx_ns, p->position);
+    if (d == 0 && srv_paused(s)) {
+        m = paused_model(s, rx_ns, hand);
         state = HAPSIM_TOOL_FORCE_T_STATE_RAMP;
     } else if (d == 0 && w->sim) {
-        if (!(p->buttons & HAPSIM_TOOL_POSE_T_BUTTON_CLUTCH)) {
-            hs_haptic_pose hp;
-            memset(&hp, 0, sizeof hp);
-            hp.seq = ++s->feed_seq;
-            hp.stamp_ns = rx_ns;
-            memcpy(hp.pos_m, p->position, sizeof hp.pos_m);
-            memcpy(hp.quat_wxyz, p->orientation, sizeof hp.quat_wxyz);
-            hp.buttons = p->buttons;
-            int i = (int)(hp.seq % POSE_RING);
-            s->ring_feed[i] = hp.seq;
-            s->ring_seq[i] = p->seq;
-            s->ring_utime[i] = p->utime;
-            s->ring_rx[i] = rx_ns;
-            hs_haptic_sim_feed_pose(w->sim, &hp);
-        }
+        // rt gets the tool's position: it stays still while the clutch is held (no watchdog).
+        hs_haptic_pose hp;
+        memset(&hp, 0, sizeof hp);
+        hp.seq = ++s->feed_seq;
+        hp.stamp_ns = rx_ns;
+        memcpy(hp.pos_m, ds->pos, sizeof hp.pos_m);
+        memcpy(hp.quat_wxyz, p->orientation, sizeof hp.quat_wxyz);
+        hp.buttons = p->buttons;
+        int i = (int)(hp.seq % POSE_RING);
+        s->ring_feed[i] = hp.seq;
+        s->ring_seq[i] = p->seq;
+        s->ring_utime[i] = p->utime;
+        s->ring_rx[i] = rx_ns;
+        hs_haptic_sim_feed_pose(w->sim, &hp);
         drain_outputs(s);
-        if (s->have_out && !s->estop) {
+        if (s->have_out && !s->estop && ds->clutched) {
+            m = clutch_model(s, ds, rx_ns, hand, &state);
+        } else if (s->have_out && !s->estop) {
             // The rt output as it is, anchored where rt took it: its force is the one the rt
             // output stage limited (magnitude, rate, watchdog), and a driver evaluating the
             // model at this pose gets what a re-anchored copy would say. Re-anchored here, the
             // force on the wire was the model's extrapolation, which no limit bounds.
             m = s->out.model;
-            state = state_of(&s->out, &m, p->buttons);
+            state = state_of(&s->out, &m);
             // A limit set since rt made this output holds from the set's ack on.
             clamp_model(&m, w->scene.force_max_n);
-            double g = estop_gain(s, rx_ns);
+            double g = estop_gain(s, rx_ns) * engage_gain(s, ds, rx_ns);
             if (g < 1.0) {
                 scale_model(&m, g);
                 state = HAPSIM_TOOL_FORCE_T_STATE_RAMP;
@@ -720,13 +823,29 @@ static void answer_pose(hs_server* s, const hs_net_pose* p, int64_t rx_ns) {
         state = HAPSIM_TOOL_FORCE_T_STATE_STOPPED;
     }
     if (m.anchor_m[0] == 0 && m.anchor_m[1] == 0 && m.anchor_m[2] == 0)
-        memcpy(m.anchor_m, p->position, sizeof m.anchor_m);
+        memcpy(m.anchor_m, hand, sizeof m.anchor_m);
     publish_force(s, d, &m, state, p->seq, p->utime, rx_ns);
+}
+
+// The haptic bus's URL as LCM gets it: a udpm:// URL that names no recv_buf_size asks for
+// HAPTIC_RCVBUF, or net.core.rmem_max if that is less (LCM warns when it gets less than it
+// asked for), so a foreign flood does not spill the driver's poses as soon (docs/server.md,
+// "Floods").
+static void haptic_bus_url(const hs_server* s, char* out, size_t cap) {
+    int64_t want = s->rmem_max < HAPTIC_RCVBUF ? s->rmem_max : HAPTIC_RCVBUF;
+    if (strncmp(s->haptic_url, "udpm://", 7) != 0 || strstr(s->haptic_url, "recv_buf_size=") ||
+        want <= s->rmem_default)
+        snprintf(out, cap, "%s", s->haptic_url);
+    else if (snprintf(out, cap, "%s%crecv_buf_size=%lld", s->haptic_url,
+                      strchr(s->haptic_url, '?') ? '&' : '?',
+                      (long long)want) >= HS_SCENE_URL_MAX) // the bus keeps 255 bytes
+        snprintf(out, cap, "%s", s->haptic_url);
 }
 
 static void on_pose(const lcm_recv_buf_t* rb, const char* ch, void* user) {
     (void)ch;
     hs_server* s = user;
+    if (s->listening) return; // not serving yet: an answer would be heard as another server's
     int64_t t0 = hs_now_ns();
     hs_net_pose p;
     if (hs_net_validate_pose(&s->lim, &s->pst, rb->data, rb->data_size, t0 / 1000, &p) !=
@@ -970,6 +1089,172 @@ static int64_t kernel_drops(const hs_server* s, int b) {
     return v >= 0 && s->kdrop0[b] >= 0 && v > s->kdrop0[b] ? v - s->kdrop0[b] : 0;
 }
 
+// The arrays a status message points into, filled step by step.
+#define STATUS_REJECTS (2 * HS_NET_REJ_COUNT + 3)
+typedef struct status_buf {
+    char* lname[3]; // loops: rt, sim (when the sim runs), net
+    float rate[3], p50[3], p99[3], pmax[3];
+    int64_t over[3];
+    int nl;
+    char* sname[5]; // steps
+    float s50[5], s99[5], smax[5];
+    int ns;
+    int32_t did[MAX_DEV];
+    int8_t live[MAX_DEV];
+    float age[MAX_DEV], l50[MAX_DEV], l99[MAX_DEV], fnorm[MAX_DEV];
+    int64_t recv[MAX_DEV], lost[MAX_DEV];
+    char* rch[STATUS_REJECTS];
+    char* rreason[STATUS_REJECTS];
+    char rname[STATUS_REJECTS][32];
+    int64_t rcount[STATUS_REJECTS];
+    int nr;
+    char warn[1024];
+    size_t wl;
+} status_buf;
+
+static void status_loop(status_buf* b, char* name, double rate, double p50, double p99, double pmax,
+                        int64_t over) {
+    b->lname[b->nl] = name;
+    b->rate[b->nl] = (float)rate;
+    b->p50[b->nl] = (float)p50;
+    b->p99[b->nl] = (float)p99;
+    b->pmax[b->nl] = (float)pmax;
+    b->over[b->nl++] = over;
+}
+
+static void status_step(status_buf* b, char* name, double p50, double p99, double pmax) {
+    b->sname[b->ns] = name;
+    b->s50[b->ns] = (float)p50;
+    b->s99[b->ns] = (float)p99;
+    b->smax[b->ns++] = (float)pmax;
+}
+
+static void status_reject(status_buf* b, char* channel, const char* reason, int64_t count) {
+    b->rch[b->nr] = channel;
+    snprintf(b->rname[b->nr], sizeof b->rname[b->nr], "%s", reason);
+    b->rreason[b->nr] = b->rname[b->nr];
+    b->rcount[b->nr++] = count;
+}
+
+// One warning line (lines past the buffer are dropped).
+__attribute__((format(printf, 2, 3))) static void status_warn(status_buf* b, const char* fmt, ...) {
+    if (b->wl < sizeof b->warn)
+        b->wl += (size_t)snprintf(b->warn + b->wl, sizeof b->warn - b->wl, "%s", b->wl ? "\n" : "");
+    if (b->wl >= sizeof b->warn) return;
+    va_list ap;
+    va_start(ap, fmt);
+    b->wl += (size_t)vsnprintf(b->warn + b->wl, sizeof b->warn - b->wl, fmt, ap);
+    va_end(ap);
+}
+
+// The rt and sim loops and their steps over the window of win seconds (a running sim only).
+static void status_sim_loops(hs_server* s, status_buf* b, double win) {
+    world* w = &s->w;
+    hs_haptic_sim_stats_get(w->sim, s->st_now);
+    const hs_haptic_sim_stats* a = s->st_now;
+    const hs_haptic_sim_stats* p = s->st_prev;
+    double nominal_us = 1e6 / w->def.rate_hz;
+    hist_diff(&a->rt.period_err, &p->rt.period_err, s->h_diff);
+    status_loop(b, "rt", (double)(a->rt.ticks - p->rt.ticks) / win,
+                nominal_us + hs_rt_hist_quantile_us(s->h_diff, 0.5),
+                nominal_us + hs_rt_hist_quantile_us(s->h_diff, 0.99),
+                nominal_us + hist_max_us(s->h_diff), a->rt.overruns);
+    hist_diff(&a->rt.tick, &p->rt.tick, s->h_diff);
+    status_step(b, "rt_tick", hs_rt_hist_quantile_us(s->h_diff, 0.5),
+                hs_rt_hist_quantile_us(s->h_diff, 0.99), hist_max_us(s->h_diff));
+    // Overruns: steps (+ snapshot) longer than 1 / sim_hz.
+    status_loop(b, "sim", (double)(a->steps - p->steps) / win,
+                SIM_HIST_SCALE * hs_rt_hist_quantile_us(s->h_simper, 0.5),
+                SIM_HIST_SCALE * hs_rt_hist_quantile_us(s->h_simper, 0.99),
+                SIM_HIST_SCALE * hist_max_us(s->h_simper), a->step_overruns);
+    // The deformation thread's own figures over its newest HS_SIM_STEP_WINDOW steps (every
+    // step; the net thread samples only some for the window's maximum).
+    status_step(b, "sim_step", a->step_ms_p50 * 1e3, a->step_ms_p99 * 1e3,
+                SIM_HIST_SCALE * hist_max_us(s->h_step));
+    if (w->cutting) // since start: cut steps are rare
+        status_step(b, "cut", cut_quantile(s, 0.5) * 1e3, cut_quantile(s, 0.99) * 1e3,
+                    cut_quantile(s, 1.0) * 1e3);
+    s->rt_obtained = a->rt.obtained;
+    s->rt_prio = a->rt.fifo_priority;
+    hs_haptic_sim_stats* tmp = s->st_prev;
+    s->st_prev = s->st_now;
+    s->st_now = tmp;
+}
+
+static void status_devices(const hs_server* s, status_buf* b, int nd, int64_t t) {
+    const world* w = &s->w;
+    for (int d = 0; d < nd; ++d) {
+        const dev_state* ds = &s->dev[d];
+        b->did[d] = d;
+        double a_ms = ds->seen ? (double)(t - ds->last_rx_ns) * 1e-6 : -1.0;
+        b->age[d] = (float)a_ms;
+        b->live[d] = (int8_t)(ds->seen && a_ms <= w->scene.watchdog_s * 1e3);
+        b->recv[d] = s->pst.dev[d].accepted;
+        b->lost[d] = s->pst.dev[d].lost;
+        b->l50[d] = (float)hs_rt_hist_quantile_us(ds->lat, 0.5);
+        b->l99[d] = (float)hs_rt_hist_quantile_us(ds->lat, 0.99);
+        b->fnorm[d] = (float)norm3(ds->force);
+    }
+}
+
+static void status_rejects(hs_server* s, status_buf* b) {
+    const hs_net_counters* cs[2] = {&s->pst.counters, &s->cst.counters};
+    char* cn[2] = {HAPSIM_CH_TOOL_POSE, HAPSIM_CH_COMMAND};
+    for (int c = 0; c < 2; ++c)
+        for (int r = 1; r < HS_NET_REJ_COUNT; ++r)
+            if (cs[c]->rejected[r])
+                status_reject(b, cn[c], hs_net_reject_name((hs_net_reject)r),
+                              (int64_t)cs[c]->rejected[r]);
+    if (s->params_refused) // well-formed, but a name or value the server does not take
+        status_reject(b, HAPSIM_CH_COMMAND, "parameter", s->params_refused);
+    for (int k = 0; k < 2; ++k) { // lost before any handler saw them: a full receive buffer
+        int64_t n = kernel_drops(s, k);
+        if (n) status_reject(b, k ? "MESH_BUS" : "HAPTIC_BUS", "kernel_drop", n);
+    }
+}
+
+static void status_warnings(const hs_server* s, status_buf* b) {
+    const world* w = &s->w;
+    const hs_haptic_sim_stats* st = s->st_prev;
+    if (w->probe_note) status_warn(b, "%s", w->probe_note);
+    // What the rt thread obtained from the OS is reported here (the message has no field for it).
+    if (w->sim && !(s->rt_obtained & HS_RT_SCHED_FIFO))
+        status_warn(b, "rt thread: ordinary scheduling, no SCHED_FIFO (%s)",
+                    s->opt.realtime ? "refused by the OS" : "--realtime not given");
+    if (w->sim && !(s->rt_obtained & HS_RT_MLOCKED))
+        status_warn(b, "rt thread: memory not locked, no mlockall (%s)",
+                    s->opt.realtime ? "refused or skipped" : "--realtime not given");
+    if (w->scene.n_devices > 1 && w->haptics)
+        status_warn(b,
+                    "scene has %d devices: only device 0 drives the probe, others get zero force",
+                    w->scene.n_devices);
+    if (w->sim && st->step_failures)
+        status_warn(b, "%lld deformation steps failed", (long long)st->step_failures);
+    if (s->estop) status_warn(b, "e-stop latched: every force is zero");
+    if (s->loading)
+        status_warn(b, "loading %s: the running scene goes on until it is built", s->loading);
+    char note[256];
+    if (edge_note(w, note, sizeof note)) status_warn(b, "%s", note);
+    if (w->sim && st->comp_state > 0)
+        status_warn(b, "haptics: compliance set-up running: zero force until it is ready");
+    if (w->sim && st->comp_state < 0)
+        status_warn(b, "haptics: compliance set-up failed (%s): zero force",
+                    hs_haptic_sim_setup_error(w->sim) ? hs_haptic_sim_setup_error(w->sim) : "?");
+    if (w->sim && st->sim_hz_target > 0 && st->sim_hz_target < 0.999 * w->scene.sim_hz)
+        status_warn(b,
+                    "deformation lowered to %.1f Hz (of %g): sim step p99 %.1f ms > %.1f ms; the "
+                    "tissue moves slower than real time, haptics stay at %g Hz",
+                    st->sim_hz_target, w->scene.sim_hz, st->step_ms_p99, 1e3 / w->scene.sim_hz,
+                    w->scene.haptic_hz);
+    if (w->sim && st->cut_failures)
+        status_warn(b, "%lld cut steps failed (mesh kept consistent)", (long long)st->cut_failures);
+    if (w->sim && st->deep_loops)
+        status_warn(b,
+                    "pressed %.1f mm deep, beyond the %.1f mm the contact is validated for (docs/"
+                    "haptics.md): the force there is unchecked",
+                    st->depth_max_m * 1e3, hs_contact_validated_depth(w->def.probe.radius_m) * 1e3);
+}
+
 static void publish_status(hs_server* s, int64_t t) {
     world* w = &s->w;
     double win = (double)(t - s->stat_ns) * 1e-9;
@@ -980,194 +1265,55 @@ static void publish_status(hs_server* s, int64_t t) {
     m.seq = ++s->seq_status;
     m.uptime_us = (t - s->start_ns) / 1000;
     // An e-stop latched while a scene loads shows: it is the state that matters to the hand.
-    m.state = s->estop     ? HAPSIM_SERVER_STATUS_T_STATE_ESTOP
-              : s->loading ? HAPSIM_SERVER_STATUS_T_STATE_LOADING
-              : s->paused  ? HAPSIM_SERVER_STATUS_T_STATE_PAUSED
-                           : HAPSIM_SERVER_STATUS_T_STATE_RUNNING;
+    m.state = s->estop        ? HAPSIM_SERVER_STATUS_T_STATE_ESTOP
+              : s->loading    ? HAPSIM_SERVER_STATUS_T_STATE_LOADING
+              : srv_paused(s) ? HAPSIM_SERVER_STATUS_T_STATE_PAUSED
+                              : HAPSIM_SERVER_STATUS_T_STATE_RUNNING;
     m.scene = w->scene.path;
     m.topology_version = s->topo_version;
 
-    // loops: rt, sim (when the sim runs), net
-    char* lname[3];
-    float rate[3], p50[3], p99[3], pmax[3];
-    int64_t over[3];
-    int nl = 0;
-    char* sname[5];
-    float s50[5], s99[5], smax[5];
-    int ns = 0;
-    if (w->sim) {
-        hs_haptic_sim_stats_get(w->sim, s->st_now);
-        const hs_haptic_sim_stats* a = s->st_now;
-        const hs_haptic_sim_stats* b = s->st_prev;
-        double nominal_us = 1e6 / w->def.rate_hz;
-        hist_diff(&a->rt.period_err, &b->rt.period_err, s->h_diff);
-        lname[nl] = "rt";
-        rate[nl] = (float)((double)(a->rt.ticks - b->rt.ticks) / win);
-        p50[nl] = (float)(nominal_us + hs_rt_hist_quantile_us(s->h_diff, 0.5));
-        p99[nl] = (float)(nominal_us + hs_rt_hist_quantile_us(s->h_diff, 0.99));
-        pmax[nl] = (float)(nominal_us + hist_max_us(s->h_diff));
-        over[nl++] = a->rt.overruns;
-        hist_diff(&a->rt.tick, &b->rt.tick, s->h_diff);
-        sname[ns] = "rt_tick";
-        s50[ns] = (float)hs_rt_hist_quantile_us(s->h_diff, 0.5);
-        s99[ns] = (float)hs_rt_hist_quantile_us(s->h_diff, 0.99);
-        smax[ns++] = (float)hist_max_us(s->h_diff);
-        lname[nl] = "sim";
-        rate[nl] = (float)((double)(a->steps - b->steps) / win);
-        p50[nl] = (float)(SIM_HIST_SCALE * hs_rt_hist_quantile_us(s->h_simper, 0.5));
-        p99[nl] = (float)(SIM_HIST_SCALE * hs_rt_hist_quantile_us(s->h_simper, 0.99));
-        pmax[nl] = (float)(SIM_HIST_SCALE * hist_max_us(s->h_simper));
-        over[nl++] = a->step_overruns; // steps (+ snapshot) longer than 1 / sim_hz
-        // The deformation thread's own figures over its newest HS_SIM_STEP_WINDOW steps (every
-        // step; the net thread samples only some for the window's maximum).
-        sname[ns] = "sim_step";
-        s50[ns] = (float)(a->step_ms_p50 * 1e3);
-        s99[ns] = (float)(a->step_ms_p99 * 1e3);
-        smax[ns++] = (float)(SIM_HIST_SCALE * hist_max_us(s->h_step));
-        if (w->cutting) { // since start: cut steps are rare
-            sname[ns] = "cut";
-            s50[ns] = (float)(cut_quantile(s, 0.5) * 1e3);
-            s99[ns] = (float)(cut_quantile(s, 0.99) * 1e3);
-            smax[ns++] = (float)(cut_quantile(s, 1.0) * 1e3);
-        }
-        s->rt_obtained = a->rt.obtained;
-        s->rt_prio = a->rt.fifo_priority;
-        hs_haptic_sim_stats* tmp = s->st_prev;
-        s->st_prev = s->st_now;
-        s->st_now = tmp;
-    }
-    lname[nl] = "net";
-    rate[nl] = (float)((double)s->net_iters / win);
-    p50[nl] = (float)hs_rt_hist_quantile_us(s->h_net, 0.5);
-    p99[nl] = (float)hs_rt_hist_quantile_us(s->h_net, 0.99);
-    pmax[nl] = (float)hist_max_us(s->h_net);
-    over[nl++] = 0;
-    sname[ns] = "pose_handling";
-    s50[ns] = (float)hs_rt_hist_quantile_us(s->h_handle, 0.5);
-    s99[ns] = (float)hs_rt_hist_quantile_us(s->h_handle, 0.99);
-    smax[ns++] = (float)hist_max_us(s->h_handle);
-    m.n_loops = nl;
-    m.loop_name = lname;
-    m.rate_hz = rate;
-    m.period_p50_us = p50;
-    m.period_p99_us = p99;
-    m.period_max_us = pmax;
-    m.overruns = over;
-    m.n_steps = ns;
-    m.step_name = sname;
-    m.step_p50_us = s50;
-    m.step_p99_us = s99;
-    m.step_max_us = smax;
+    status_buf b; // about 2 kB, the net thread's stack
+    b.nl = b.ns = b.nr = 0;
+    b.wl = 0;
+    b.warn[0] = '\0';
+    if (w->sim) status_sim_loops(s, &b, win);
+    status_loop(&b, "net", (double)s->net_iters / win, hs_rt_hist_quantile_us(s->h_net, 0.5),
+                hs_rt_hist_quantile_us(s->h_net, 0.99), hist_max_us(s->h_net), 0);
+    status_step(&b, "pose_handling", hs_rt_hist_quantile_us(s->h_handle, 0.5),
+                hs_rt_hist_quantile_us(s->h_handle, 0.99), hist_max_us(s->h_handle));
+    m.n_loops = b.nl;
+    m.loop_name = b.lname;
+    m.rate_hz = b.rate;
+    m.period_p50_us = b.p50;
+    m.period_p99_us = b.p99;
+    m.period_max_us = b.pmax;
+    m.overruns = b.over;
+    m.n_steps = b.ns;
+    m.step_name = b.sname;
+    m.step_p50_us = b.s50;
+    m.step_p99_us = b.s99;
+    m.step_max_us = b.smax;
 
     int nd = w->scene.n_devices < MAX_DEV ? w->scene.n_devices : MAX_DEV;
-    int32_t did[MAX_DEV];
-    int8_t live[MAX_DEV];
-    float age[MAX_DEV], l50[MAX_DEV], l99[MAX_DEV], fnorm[MAX_DEV];
-    int64_t recv[MAX_DEV], lost[MAX_DEV];
-    for (int d = 0; d < nd; ++d) {
-        dev_state* ds = &s->dev[d];
-        did[d] = d;
-        double a_ms = ds->seen ? (double)(t - ds->last_rx_ns) * 1e-6 : -1.0;
-        age[d] = (float)a_ms;
-        live[d] = (int8_t)(ds->seen && a_ms <= w->scene.watchdog_s * 1e3);
-        recv[d] = s->pst.dev[d].accepted;
-        lost[d] = s->pst.dev[d].lost;
-        l50[d] = (float)hs_rt_hist_quantile_us(ds->lat, 0.5);
-        l99[d] = (float)hs_rt_hist_quantile_us(ds->lat, 0.99);
-        fnorm[d] = (float)norm3(ds->force);
-    }
+    status_devices(s, &b, nd, t);
     m.n_devices = nd;
-    m.device_id = did;
-    m.device_live = live;
-    m.pose_age_ms = age;
-    m.poses_received = recv;
-    m.poses_lost = lost;
-    m.latency_p50_us = l50;
-    m.latency_p99_us = l99;
-    m.force_norm = fnorm;
+    m.device_id = b.did;
+    m.device_live = b.live;
+    m.pose_age_ms = b.age;
+    m.poses_received = b.recv;
+    m.poses_lost = b.lost;
+    m.latency_p50_us = b.l50;
+    m.latency_p99_us = b.l99;
+    m.force_norm = b.fnorm;
 
-    char* rch[2 * HS_NET_REJ_COUNT + 3];
-    char* rreason[2 * HS_NET_REJ_COUNT + 3];
-    char rname[2 * HS_NET_REJ_COUNT + 3][32];
-    int64_t rcount[2 * HS_NET_REJ_COUNT + 3];
-    int nr = 0;
-    const hs_net_counters* cs[2] = {&s->pst.counters, &s->cst.counters};
-    char* cn[2] = {HAPSIM_CH_TOOL_POSE, HAPSIM_CH_COMMAND};
-    for (int c = 0; c < 2; ++c)
-        for (int r = 1; r < HS_NET_REJ_COUNT; ++r)
-            if (cs[c]->rejected[r]) {
-                rch[nr] = cn[c];
-                snprintf(rname[nr], sizeof rname[nr], "%s", hs_net_reject_name((hs_net_reject)r));
-                rreason[nr] = rname[nr];
-                rcount[nr++] = (int64_t)cs[c]->rejected[r];
-            }
-    if (s->params_refused) { // well-formed, but a name or value the server does not take
-        rch[nr] = HAPSIM_CH_COMMAND;
-        snprintf(rname[nr], sizeof rname[nr], "parameter");
-        rreason[nr] = rname[nr];
-        rcount[nr++] = s->params_refused;
-    }
-    for (int b = 0; b < 2; ++b) { // lost before any handler saw them: a full receive buffer
-        int64_t k = kernel_drops(s, b);
-        if (!k) continue;
-        rch[nr] = b ? "MESH_BUS" : "HAPTIC_BUS";
-        snprintf(rname[nr], sizeof rname[nr], "kernel_drop");
-        rreason[nr] = rname[nr];
-        rcount[nr++] = k;
-    }
-    m.n_rejects = nr;
-    m.reject_channel = rch;
-    m.reject_reason = rreason;
-    m.reject_count = rcount;
+    status_rejects(s, &b);
+    m.n_rejects = b.nr;
+    m.reject_channel = b.rch;
+    m.reject_reason = b.rreason;
+    m.reject_count = b.rcount;
 
-    char warn[1024];
-    size_t wl = 0;
-    warn[0] = '\0';
-#define WARN(...)                                                                                  \
-    do {                                                                                           \
-        if (wl < sizeof warn)                                                                      \
-            wl += (size_t)snprintf(warn + wl, sizeof warn - wl, "%s", wl ? "\n" : "");             \
-        if (wl < sizeof warn) wl += (size_t)snprintf(warn + wl, sizeof warn - wl, __VA_ARGS__);    \
-    } while (0)
-    if (w->probe_note) WARN("%s", w->probe_note);
-    // What the rt thread obtained from the OS is reported here (the message has no field for it).
-    if (w->sim && !(s->rt_obtained & HS_RT_SCHED_FIFO))
-        WARN("rt thread: ordinary scheduling, no SCHED_FIFO (%s)",
-             s->opt.realtime ? "refused by the OS" : "--realtime not given");
-    if (w->sim && !(s->rt_obtained & HS_RT_MLOCKED))
-        WARN("rt thread: memory not locked, no mlockall (%s)",
-             s->opt.realtime ? "refused or skipped" : "--realtime not given");
-    if (w->scene.n_devices > 1 && w->haptics)
-        WARN("scene has %d devices: only device 0 drives the probe, others get zero force",
-             w->scene.n_devices);
-    if (w->sim && s->st_prev->step_failures)
-        WARN("%lld deformation steps failed", (long long)s->st_prev->step_failures);
-    if (s->estop) WARN("e-stop latched: every force is zero");
-    if (s->loading) WARN("loading %s: the running scene goes on until it is built", s->loading);
-    {
-        char note[256];
-        if (edge_note(w, note, sizeof note)) WARN("%s", note);
-    }
-    if (w->sim && s->st_prev->comp_state > 0)
-        WARN("haptics: compliance set-up running: zero force until it is ready");
-    if (w->sim && s->st_prev->comp_state < 0)
-        WARN("haptics: compliance set-up failed (%s): zero force",
-             hs_haptic_sim_setup_error(w->sim) ? hs_haptic_sim_setup_error(w->sim) : "?");
-    if (w->sim && s->st_prev->sim_hz_target > 0 &&
-        s->st_prev->sim_hz_target < 0.999 * w->scene.sim_hz)
-        WARN("deformation lowered to %.1f Hz (of %g): sim step p99 %.1f ms > %.1f ms; the tissue "
-             "moves slower than real time, haptics stay at %g Hz",
-             s->st_prev->sim_hz_target, w->scene.sim_hz, s->st_prev->step_ms_p99,
-             1e3 / w->scene.sim_hz, w->scene.haptic_hz);
-    if (w->sim && s->st_prev->cut_failures)
-        WARN("%lld cut steps failed (mesh kept consistent)", (long long)s->st_prev->cut_failures);
-    if (w->sim && s->st_prev->deep_loops)
-        WARN("pressed %.1f mm deep, beyond the %.1f mm the contact is validated for (docs/"
-             "haptics.md): the force there is unchecked",
-             s->st_prev->depth_max_m * 1e3,
-             hs_contact_validated_depth(w->def.probe.radius_m) * 1e3);
-#undef WARN
-    m.warnings = warn;
+    status_warnings(s, &b);
+    m.warnings = b.warn;
     hapsim_server_status_t_publish(hs_net_bus_lcm(s->mbus), s->ch_status, &m);
 
     // restart the windows
@@ -1231,13 +1377,74 @@ static void after_rebuild(hs_server* s, int keep, int handed) {
     publish_keyframe(s);
 }
 
+static const char* const srv_state_name[] = {"RUNNING", "PAUSED", "PAUSED_CUT"};
+static const char* const srv_event_name[] = {"PAUSE",         "RESUME",     "SIM_STOPPED",
+                                             "SIM_HELD",      "SWAPPED",    "ESTOP",
+                                             "ESTOP_RELEASE", "LOAD_BEGIN", "LOAD_END"};
+
+// The server's one state transition (docs/server.md, "States"). The caller has done the work
+// (stopped, held or started the sim); this checks that the event may happen in the current
+// state and with the world as it is, and sets the state. A refused transition is a bug in the
+// caller: it is said on stderr and the state stays. path: EV_LOAD_BEGIN's scene.
+static int srv_transition(hs_server* s, srv_event ev, const char* path) {
+    srv_state from = s->state, to = from;
+    int ok = 1;
+    switch (ev) {
+    case EV_PAUSE: // from RUNNING only (PAUSE in a paused state does nothing); the caller took
+                   // the model to ramp down and its time before stopping the sim
+        ok = from == SRV_RUNNING && !s->w.sim;
+        to = s->w.held ? SRV_PAUSED_CUT : SRV_PAUSED;
+        break;
+    case EV_RESUME:
+        ok = from != SRV_RUNNING && !s->w.held;
+        to = SRV_RUNNING;
+        break;
+    case EV_SIM_STOPPED:
+        ok = !s->w.sim && !s->w.held;
+        to = SRV_PAUSED;
+        break;
+    case EV_SIM_HELD:
+        ok = from == SRV_RUNNING && !s->w.sim && s->w.held;
+        to = SRV_PAUSED_CUT;
+        break;
+    case EV_SWAPPED: // a new world, uncut and not started: it runs unless stopped again
+        ok = !s->w.held && !s->w.cut_made;
+        to = SRV_RUNNING;
+        break;
+    case EV_ESTOP:
+        s->estop = 1;
+        return 0;
+    case EV_ESTOP_RELEASE:
+        if (s->estop) s->estop_release_ns = hs_now_ns();
+        s->estop = 0;
+        return 0;
+    case EV_LOAD_BEGIN:
+        ok = !s->loading;
+        if (ok) s->loading = path ? path : "(no path)";
+        break;
+    case EV_LOAD_END:
+        ok = s->loading != NULL;
+        s->loading = NULL;
+        break;
+    }
+    if (!ok) {
+        fprintf(stderr, "hapsim-server: internal: event %s refused in state %s%s\n",
+                srv_event_name[ev], srv_state_name[from], s->loading ? " (loading)" : "");
+        return -1;
+    }
+    if (ev == EV_SIM_STOPPED || ev == EV_SIM_HELD) { // no model to ramp down from
+        s->pause_model = zero_model();
+        s->pause_ns = hs_now_ns();
+    }
+    s->state = to;
+    return 0;
+}
+
 // Stop the world's sim keeping its state, and pause with zero force: RESUME rebuilds it (a
 // reset kept paused, or a sim that would not start, for RESUME to retry).
 static void pause_stopped(hs_server* s) {
     world_sim_stop(&s->w);
-    s->pause_model = zero_model();
-    s->pause_ns = hs_now_ns();
-    s->paused = 1;
+    srv_transition(s, EV_SIM_STOPPED, NULL);
 }
 
 // Start the stopped sim of a world found cut (it cannot be rebuilt); one that will not start is
@@ -1249,9 +1456,7 @@ static void restart_cut_sim(hs_server* s) {
     world_save_state(w);
     w->held = w->sim;
     w->sim = NULL;
-    s->pause_model = zero_model();
-    s->pause_ns = hs_now_ns();
-    s->paused = 1;
+    srv_transition(s, EV_SIM_HELD, NULL);
 }
 
 // Rebuild the running sim from w.def; keep: carry the body state over. Paused: rebuild later.
@@ -1261,7 +1466,7 @@ static hs_status rebuild_sim(hs_server* s, int keep, hs_err* err) {
     if (w->sim && w->cutting && hs_haptic_sim_topology_version(w->sim) != w->cut_seen)
         apply_cut(s);                        // a cut not yet passed on counts too
     if (w->cut_made) return refuse_cut(err); // before stopping the sim, which could not return
-    if (s->paused) {
+    if (srv_paused(s)) {
         if (!keep) after_rebuild(s, 0, 0); // at rest now: say so (a keyframe), not at the resume
         return HS_OK;
     }
@@ -1362,7 +1567,7 @@ static int set_param(hs_server* s, const hs_net_command* c, char* msg, size_t ca
         snprintf(msg, cap, "%s", e.msg);
         return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
     }
-    if (w->sim && !s->paused) {
+    if (w->sim && !srv_paused(s)) {
         snprintf(s->load.ok_msg, sizeof s->load.ok_msg, "%s = %g", name, v);
         if (loader_begin(s, NULL, &sc, c, 1) == 0) return LOAD_STARTED;
     }
@@ -1375,7 +1580,14 @@ static int set_param(hs_server* s, const hs_net_command* c, char* msg, size_t ca
         w->def = old_d;
         w->scene = old_sc;
         hs_err e2 = {0};
-        rebuild_sim(s, 1, &e2);
+        if (rebuild_sim(s, 1, &e2) != HS_OK) { // no sim runs: PAUSED (not RUNNING without one)
+            pause_stopped(s);
+            snprintf(msg, cap,
+                     "%.250s; the old simulation did not start either (%.250s): paused, "
+                     "RESUME retries",
+                     err.msg, e2.msg);
+            return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
+        }
         snprintf(msg, cap, "%s", err.msg);
         return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
     }
@@ -1387,7 +1599,7 @@ static int set_param(hs_server* s, const hs_net_command* c, char* msg, size_t ca
 // reset: nw is the running scene rebuilt at rest (RESET), not a LOAD_SCENE.
 static int swap_world(hs_server* s, world* nw, int reset, char* msg, size_t cap) {
     hs_err err = {0};
-    int stay_paused = reset && s->paused; // a reset does not resume; a new scene starts
+    int stay_paused = reset && srv_paused(s); // a reset does not resume; a new scene starts
     world old = s->w; // freed once the new sim runs: the device meanwhile holds its last model
     if (old.sim) hs_haptic_sim_stop(old.sim);
     // A reset rebuilds the same scene: its rt loop goes on from the old one's (no gap, no ramp).
@@ -1402,7 +1614,7 @@ static int swap_world(hs_server* s, world* nw, int reset, char* msg, size_t cap)
     memset(&err, 0, sizeof err);
     s->w = *nw;
     memset(nw, 0, sizeof *nw);
-    s->paused = 0;
+    srv_transition(s, EV_SWAPPED, NULL);
     reset_limits(s);
     s->topo_version++;
     s->last_cut_steps = 0; // the new sim counts its cut steps from 0
@@ -1440,9 +1652,9 @@ static int swap_world(hs_server* s, world* nw, int reset, char* msg, size_t cap)
 // thread could be started. Built while the old world still exists: a scene that fails leaves
 // the running simulation as it was.
 static int load_scene(hs_server* s, const char* path, const hs_scene* from, char* msg, size_t cap) {
-    s->loading = path ? path : "(no path)";
+    srv_transition(s, EV_LOAD_BEGIN, path);
     publish_status(s, hs_now_ns()); // the net loop stands still now: say so first
-    s->loading = NULL;
+    srv_transition(s, EV_LOAD_END, NULL);
     hs_scene sc;
     hs_err err = {0};
     if (from)
@@ -1484,13 +1696,13 @@ static int loader_begin(hs_server* s, const char* path, const hs_scene* from,
     L->st = HS_OK;
     memset(&L->err, 0, sizeof L->err);
     atomic_store(&L->done, 0);
-    s->loading = L->path;
+    srv_transition(s, EV_LOAD_BEGIN, L->path);
     publish_status(s, hs_now_ns());
     if (pthread_create(&L->th, NULL, loader_main, L) == 0) {
         L->active = 1;
         return 0;
     }
-    s->loading = NULL;
+    srv_transition(s, EV_LOAD_END, NULL);
     return -1;
 }
 
@@ -1507,7 +1719,7 @@ static int load_scene_start(hs_server* s, const char* path, const hs_scene* from
 // longer holds the running mesh (nw read it again).
 static int swap_keep(hs_server* s, world* nw, char* msg, size_t cap) {
     world* w = &s->w;
-    if (!w->sim || s->paused) {
+    if (!w->sim || srv_paused(s)) {
         snprintf(msg, cap, "the simulation stopped during the rebuild: not applied");
         return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
     }
@@ -1587,7 +1799,7 @@ static void finish_load(hs_server* s, int stopping) {
         pthread_detach(L->th);
         L->active = 0;
         L->abandoned = 1;
-        s->loading = NULL;
+        srv_transition(s, EV_LOAD_END, NULL);
         fprintf(stderr,
                 "hapsim-server: the load of %s had not returned after %d ms (a file that "
                 "blocks?): left behind\n",
@@ -1599,7 +1811,7 @@ static void finish_load(hs_server* s, int stopping) {
     }
     pthread_join(L->th, NULL);
     L->active = 0;
-    s->loading = NULL;
+    srv_transition(s, EV_LOAD_END, NULL);
     char msg[600];
     int st = HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
     if (L->st != HS_OK)
@@ -1642,7 +1854,7 @@ static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap)
         // (with its set parameters, on the mesh read again: uncut) is built at rest beside the
         // running one and swapped in. Paused uncut, or haptics off: nothing to build, only the
         // state to clear (rebuild_sim, which then meets no sim that could have cut).
-        if (w->cut_made || (w->haptics && !s->paused))
+        if (w->cut_made || (w->haptics && !srv_paused(s)))
             return load_scene_start(s, NULL, &w->scene, c, msg, cap);
         if (rebuild_sim(s, 0, &err) != HS_OK) {
             snprintf(msg, cap, "%s", err.msg);
@@ -1651,16 +1863,15 @@ static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap)
         if (!w->haptics) publish_keyframe(s);
         return HAPSIM_COMMAND_ACK_T_STATUS_OK;
     case HAPSIM_COMMAND_T_KIND_PAUSE:
-        if (s->paused) return HAPSIM_COMMAND_ACK_T_STATUS_OK;
+        if (srv_paused(s)) return HAPSIM_COMMAND_ACK_T_STATUS_OK;
         drain_outputs(s);
         s->pause_model = s->have_out ? s->out.model : zero_model();
         s->pause_ns = hs_now_ns();
         server_sim_pause(s);
-        s->paused = 1;
+        srv_transition(s, EV_PAUSE, NULL);
         return HAPSIM_COMMAND_ACK_T_STATUS_OK;
     case HAPSIM_COMMAND_T_KIND_RESUME:
-        if (!s->paused) return HAPSIM_COMMAND_ACK_T_STATUS_OK;
-        s->paused = 0;
+        if (!srv_paused(s)) return HAPSIM_COMMAND_ACK_T_STATUS_OK;
         if (w->held) { // a cut world: its own sim goes on (step count and statistics too)
             w->sim = w->held;
             w->held = NULL;
@@ -1668,8 +1879,7 @@ static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap)
                 w->held = w->sim;
                 w->sim = NULL;
                 snprintf(msg, cap, "%s", err.msg);
-                s->paused = 1;
-                return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
+                return HAPSIM_COMMAND_ACK_T_STATUS_FAILED; // still PAUSED_CUT
             }
             s->have_out = 0;
             hs_haptic_sim_stats_get(w->sim, s->st_prev); // status windows start at the resume
@@ -1677,20 +1887,20 @@ static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap)
             if (world_sim_create(w, 1, &err) != HS_OK ||
                 hs_haptic_sim_start(w->sim, &err) != HS_OK) {
                 snprintf(msg, cap, "%s", err.msg);
-                s->paused = 1;
-                return HAPSIM_COMMAND_ACK_T_STATUS_FAILED;
+                return HAPSIM_COMMAND_ACK_T_STATUS_FAILED; // still PAUSED
             }
             s->have_out = 0;
             s->sim_step_base = s->frame_step;
             memset(s->st_prev, 0, sizeof *s->st_prev);
         }
+        srv_transition(s, EV_RESUME, NULL);
         return HAPSIM_COMMAND_ACK_T_STATUS_OK;
     case HAPSIM_COMMAND_T_KIND_LOAD_SCENE:
         return load_scene_start(s, hs_net_command_arg(c, "path"), NULL, c, msg, cap);
     case HAPSIM_COMMAND_T_KIND_SET_PARAM:
         return set_param(s, c, msg, cap);
     case HAPSIM_COMMAND_T_KIND_ESTOP: {
-        s->estop = 1;
+        srv_transition(s, EV_ESTOP, NULL);
         hs_haptic_model z = zero_model();
         for (int d = 0; d < w->scene.n_devices && d < MAX_DEV; ++d)
             if (s->dev[d].seen && w->haptics) {
@@ -1700,8 +1910,7 @@ static int execute(hs_server* s, const hs_net_command* c, char* msg, size_t cap)
         return HAPSIM_COMMAND_ACK_T_STATUS_OK;
     }
     case HAPSIM_COMMAND_T_KIND_ESTOP_RELEASE:
-        if (s->estop) s->estop_release_ns = hs_now_ns(); // a repeated release does not re-ramp
-        s->estop = 0;
+        srv_transition(s, EV_ESTOP_RELEASE, NULL);
         return HAPSIM_COMMAND_ACK_T_STATUS_OK;
     case HAPSIM_COMMAND_T_KIND_REQUEST_TOPOLOGY:
         publish_topology(s);
@@ -1852,7 +2061,9 @@ hs_status hs_server_create(const hs_server_opts* opts, hs_server** out, hs_err* 
         }
     }
     // Buses first (LCM's fds stay low), then the world.
-    st = hs_net_bus_create(s->haptic_url, &s->hbus, err);
+    char hurl[HS_SCENE_URL_MAX + 40];
+    haptic_bus_url(s, hurl, sizeof hurl);
+    st = hs_net_bus_create(hurl, &s->hbus, err);
     if (st != HS_OK) goto fail;
     st = hs_net_bus_create(s->mesh_url, &s->mbus, err);
     if (st != HS_OK) goto fail;
@@ -2034,9 +2245,9 @@ static void live_line(hs_server* s, int64_t t) {
             rate, jit, norm3(s->dev[0].force), solver, sim_hz, p50, p99, over,
             (long long)s->poses_total, (unsigned long long)rej,
             deep ? "  TOO DEEP (force unchecked)" : "",
-            s->estop    ? "  E-STOP"
-            : s->paused ? "  PAUSED"
-                        : "");
+            s->estop        ? "  E-STOP"
+            : srv_paused(s) ? "  PAUSED"
+                            : "");
     fflush(stderr);
 }
 
@@ -2096,202 +2307,227 @@ static int another_server(hs_server* s, hs_err* err) {
     return 1;
 }
 
-hs_status hs_server_run(hs_server* s, hs_err* err) {
-    int sfd = s->opt.stop_fd;
+// Start the scene's sim and wait up to 0.5 s for a small mesh's compliance, so the start line
+// can give its set-up time (a large one goes on in the background).
+static hs_status run_start_sim(hs_server* s, hs_err* err) {
     world* w = &s->w;
+    if (!w->sim) return HS_OK;
+    hs_status st = hs_haptic_sim_start(w->sim, err);
+    if (st != HS_OK) return st;
+    hs_haptic_sim_stats hst;
+    for (int i = 0; i < 100; ++i) {
+        hs_haptic_sim_stats_get(w->sim, &hst);
+        if (hst.comp_state <= 0) break;
+        struct timespec ts = {0, 5000000};
+        nanosleep(&ts, NULL);
+    }
+    return HS_OK;
+}
+
+// The deformation thread's news since the last pass: step and cut timings, compliance state,
+// solver switches, a cut to pass on.
+static void observe_sim(hs_server* s, int64_t t) {
+    world* w = &s->w;
+    hs_haptic_sim_stats st;
+    hs_haptic_sim_stats_get(w->sim, &st);
+    if (st.steps != s->last_steps) {
+        hist_add(s->h_step, (int64_t)(st.step_ms_last * 1e6) / SIM_HIST_SCALE);
+        if (s->last_step_ns && st.steps > s->last_steps)
+            hist_add(s->h_simper,
+                     (t - s->last_step_ns) / (st.steps - s->last_steps) / SIM_HIST_SCALE);
+        s->last_steps = st.steps;
+        s->last_step_ns = t;
+    }
+    if (st.cut_steps != s->last_cut_steps) {
+        s->cut_ms[s->n_cut_ms++ % CUT_SAMPLES] = st.cut_ms_last;
+        s->last_cut_steps = st.cut_steps;
+    }
+    s->cutting_now = st.cutting;
+    const int say = !s->opt.quiet && !s->opt.live;
+    if (st.comp_state != s->comp_state_seen) {
+        if (say && (st.comp_state == 0 || st.comp_state == -1)) {
+            const char* e = hs_haptic_sim_setup_error(w->sim);
+            if (st.comp_state == 0)
+                printf("hapsim-server: compliance ready after %.1f ms: haptics answer "
+                       "with forces now\n",
+                       st.setup_ms);
+            else
+                printf("hapsim-server: compliance set-up failed (%s): haptics answer "
+                       "zero force\n",
+                       e ? e : "?");
+            fflush(stdout);
+        }
+        s->comp_state_seen = st.comp_state;
+    }
+    if (st.solver_switches > s->solver_switches_seen) {
+        s->solver_switches_seen = st.solver_switches;
+        if (say) {
+            printf("hapsim-server: solver now %s (step cost direct %.1f, pcg %.1f, "
+                   "warped %.1f ms, 0: not measured; budget %.1f ms)\n",
+                   solver_name(st.solver), st.solver_cost_ms[HS_SOLVER_DIRECT],
+                   st.solver_cost_ms[HS_SOLVER_PCG], st.solver_cost_ms[HS_SOLVER_WARPED],
+                   1e3 / w->scene.sim_hz);
+            fflush(stdout);
+        }
+    } else if (st.solver_switches < s->solver_switches_seen) {
+        s->solver_switches_seen = st.solver_switches; // a new sim (reset, load)
+    }
+    if (w->cutting && hs_haptic_sim_topology_version(w->sim) != w->cut_seen) apply_cut(s);
+}
+
+// When the net loop publishes next.
+typedef struct schedule {
+    int64_t visual, status, topo, key, live, end;
+} schedule;
+
+static int64_t schedule_next(const hs_server* s, const schedule* c) {
+    int64_t next = c->visual;
+    if (c->status < next) next = c->status;
+    if (c->topo < next) next = c->topo;
+    if (c->key < next) next = c->key;
+    if (s->opt.live && c->live < next) next = c->live;
+    if (c->end < next) next = c->end;
+    return next;
+}
+
+// What is due at t: mesh frames and tool states, keyframe, topology, status, the live line.
+static void publish_due(hs_server* s, schedule* c, int64_t t) {
+    const world* w = &s->w;
+    if (t >= c->visual) {
+        publish_frame(s, t);
+        publish_tool_states(s, t);
+        const int64_t visual_ns = (int64_t)(1e9 / w->scene.visual_hz); // a load may change it
+        c->visual += visual_ns;
+        if (c->visual < t) c->visual = t + visual_ns;
+    }
+    if (t >= c->key) {
+        publish_keyframe(s);
+        c->key = t + KEYFRAME_NS;
+    }
+    if (t >= c->topo) {
+        publish_topology(s);
+        c->topo = t + KEYFRAME_NS;
+    }
+    if (t >= c->status) {
+        publish_status(s, t);
+        c->status = t + (int64_t)(1e9 / w->scene.status_hz);
+    }
+    if (s->opt.live && t >= c->live) {
+        live_line(s, t);
+        c->live = t + LIVE_NS;
+    }
+    if (t >= c->end) s->stop = 1;
+}
+
+// One wait for input (or the next due time) and its handling; HS_OK, or the bus error.
+static hs_status run_once(hs_server* s, const schedule* c, hs_err* err) {
+    int64_t t = hs_now_ns();
+    int64_t wait_ns = schedule_next(s, c) - t;
+    // While a device is active, wake every millisecond to pass rt outputs on.
+    if (s->w.sim && s->dev[0].seen && t - s->dev[0].last_rx_ns < 2000000000LL && wait_ns > 1000000)
+        wait_ns = 1000000;
+    if (s->load.active && wait_ns > 2000000) wait_ns = 2000000; // look for its end
+    int timeout = wait_ns <= 0 ? 0 : (int)((wait_ns + 999999) / 1000000);
+    int sfd = s->opt.stop_fd;
+    struct pollfd pf[3] = {{lcm_get_fileno(hs_net_bus_lcm(s->hbus)), POLLIN, 0},
+                           {lcm_get_fileno(hs_net_bus_lcm(s->mbus)), POLLIN, 0},
+                           {sfd, POLLIN, 0}};
+    int n = poll(pf, 3, timeout);
+    if (n < 0 && errno != EINTR) return hs_err_set(err, HS_ERR_IO, "poll: %s", strerror(errno));
+    t = hs_now_ns();
+    hist_add(s->h_net, t - s->last_iter_ns);
+    s->last_iter_ns = t;
+    s->net_iters++;
+    if (n > 0 && (pf[2].revents & POLLIN)) {
+        char b[16];
+        while (read(sfd, b, sizeof b) > 0) s->stop = 1;
+    }
+    if (n > 0 && (pf[0].revents & POLLIN) && handle_ready(s->hbus) < 0)
+        return hs_err_set(err, HS_ERR_IO, "lcm_handle failed on %s", s->haptic_url);
+    if (n > 0 && (pf[1].revents & POLLIN) && handle_ready(s->mbus) < 0)
+        return hs_err_set(err, HS_ERR_IO, "lcm_handle failed on %s", s->mesh_url);
+    if (s->load.active && atomic_load(&s->load.done)) finish_load(s, 0); // replaces the world
+    drain_outputs(s);
+    publish_rt_output(s);
+    return HS_OK;
+}
+
+// The lines printed at the stop.
+static void print_stop_summary(hs_server* s) {
+    printf("hapsim-server: stopped after %.1f s: %lld poses accepted, %lld forces sent, "
+           "%llu messages rejected, %llu command retries answered again\n",
+           (double)(hs_now_ns() - s->start_ns) * 1e-9, (long long)s->poses_total,
+           (long long)s->forces_total, (unsigned long long)rejected_total(s),
+           (unsigned long long)retried_total(s));
+    const int64_t kd[2] = {kernel_drops(s, 0), kernel_drops(s, 1)};
+    if (kd[0] || kd[1])
+        printf("hapsim-server: the kernel dropped %lld datagrams on the haptic bus and %lld on "
+               "the mesh bus (receive buffers full: docs/server.md)\n",
+               (long long)kd[0], (long long)kd[1]);
+    if (s->w.sim) {
+        hs_haptic_sim_stats st;
+        hs_haptic_sim_stats_get(s->w.sim, &st);
+        printf("hapsim-server: %lld deformation steps; sim step p50 %.2f ms, p99 %.2f ms "
+               "(step + snapshot, since the last reset or load; thread CPU p50 %.2f ms, p99 "
+               "%.2f ms), %lld overruns of %.1f ms; rate %.1f Hz of %g at the end; solver %s",
+               (long long)st.steps, st.step_ms_p50_all, st.step_ms_p99_all, st.step_cpu_ms_p50_all,
+               st.step_cpu_ms_p99_all, (long long)st.step_overruns, 1e3 / s->w.scene.sim_hz,
+               st.sim_hz_target, s->w.scene.sim_hz, solver_name(st.solver));
+        if (s->w.def.auto_solver)
+            printf(" (auto, %lld switches; step cost direct %.1f, pcg %.1f, warped %.1f ms; "
+                   "0: not measured)",
+                   (long long)st.solver_switches, st.solver_cost_ms[HS_SOLVER_DIRECT],
+                   st.solver_cost_ms[HS_SOLVER_PCG], st.solver_cost_ms[HS_SOLVER_WARPED]);
+        printf("\n");
+        if (st.depth_max_m > 0)
+            printf("hapsim-server: deepest press %.1f mm (validated to %.1f mm)\n",
+                   st.depth_max_m * 1e3, hs_contact_validated_depth(s->w.def.probe.radius_m) * 1e3);
+        if (st.deep_loops)
+            printf("hapsim-server: warning: pressed %.1f mm deep, beyond the %.1f mm the "
+                   "contact is validated for, in %lld deformation loops\n",
+                   st.depth_max_m * 1e3, hs_contact_validated_depth(s->w.def.probe.radius_m) * 1e3,
+                   (long long)st.deep_loops);
+    }
+    if (s->w.cutting)
+        printf("hapsim-server: %lld cut steps (topology events, over every reset), "
+               "topology version %lld; cut step p50 %.1f ms, p99 %.1f ms, max %.1f ms "
+               "(deformation thread: sweep, body sync, topology hand-over)\n",
+               (long long)s->cut_events, (long long)s->topo_version, cut_quantile(s, 0.5),
+               cut_quantile(s, 0.99), cut_quantile(s, 1.0));
+    if (s->w.cutting && s->w.sim) {
+        hs_haptic_sim_stats st;
+        hs_haptic_sim_stats_get(s->w.sim, &st);
+        printf("hapsim-server: %lld tets removed since the last reset or load; last sweep "
+               "alone %.1f ms; haptic compliance rebuilt after the blade left in %.1f ms\n",
+               (long long)st.cut_removed, st.sweep_ms_last, st.comp_ms_last);
+    }
+    fflush(stdout);
+}
+
+hs_status hs_server_run(hs_server* s, hs_err* err) {
+    s->listening = 1;
     int other = another_server(s, err);
+    s->listening = 0;
     if (other > 0) return HS_ERR_INVALID;
     if (other < 0) return HS_OK; // SIGINT/SIGTERM while listening
-    if (w->sim) {
-        hs_status st = hs_haptic_sim_start(w->sim, err);
-        if (st != HS_OK) return st;
-        // A small mesh's compliance is ready within moments: give it up to 0.5 s, so the start
-        // line can give its set-up time (a large one goes on in the background).
-        hs_haptic_sim_stats hst;
-        for (int i = 0; i < 100; ++i) {
-            hs_haptic_sim_stats_get(w->sim, &hst);
-            if (hst.comp_state <= 0) break;
-            struct timespec ts = {0, 5000000};
-            nanosleep(&ts, NULL);
-        }
-    }
+    hs_status rc = run_start_sim(s, err);
+    if (rc != HS_OK) return rc;
     if (!s->opt.quiet) hs_server_print_summary(s);
     int64_t t = hs_now_ns();
     s->start_ns = s->stat_ns = s->last_iter_ns = t;
-    int64_t end = s->opt.duration_s > 0 ? t + (int64_t)(s->opt.duration_s * 1e9) : INT64_MAX;
-    int64_t next_visual = t, next_status = t, next_topo = t, next_key = t, next_live = t;
+    schedule c = {t, t, t, t, t, INT64_MAX};
+    if (s->opt.duration_s > 0) c.end = t + (int64_t)(s->opt.duration_s * 1e9);
     publish_topology(s);
-    hs_status rc = HS_OK;
     while (!s->stop) {
+        rc = run_once(s, &c, err);
+        if (rc != HS_OK) break;
         t = hs_now_ns();
-        int64_t next = next_visual;
-        if (next_status < next) next = next_status;
-        if (next_topo < next) next = next_topo;
-        if (next_key < next) next = next_key;
-        if (s->opt.live && next_live < next) next = next_live;
-        if (end < next) next = end;
-        int64_t wait_ns = next - t;
-        // While a device is active, wake every millisecond to pass rt outputs on.
-        if (w->sim && s->dev[0].seen && t - s->dev[0].last_rx_ns < 2000000000LL &&
-            wait_ns > 1000000)
-            wait_ns = 1000000;
-        if (s->load.active && wait_ns > 2000000) wait_ns = 2000000; // look for its end
-        int timeout = wait_ns <= 0 ? 0 : (int)((wait_ns + 999999) / 1000000);
-        struct pollfd pf[3] = {{lcm_get_fileno(hs_net_bus_lcm(s->hbus)), POLLIN, 0},
-                               {lcm_get_fileno(hs_net_bus_lcm(s->mbus)), POLLIN, 0},
-                               {sfd, POLLIN, 0}};
-        int n = poll(pf, 3, timeout);
-        if (n < 0 && errno != EINTR) {
-            rc = hs_err_set(err, HS_ERR_IO, "poll: %s", strerror(errno));
-            break;
-        }
-        t = hs_now_ns();
-        hist_add(s->h_net, t - s->last_iter_ns);
-        s->last_iter_ns = t;
-        s->net_iters++;
-        if (n > 0 && (pf[2].revents & POLLIN)) {
-            char b[16];
-            while (read(sfd, b, sizeof b) > 0) s->stop = 1;
-        }
-        if (n > 0 && (pf[0].revents & POLLIN) && handle_ready(s->hbus) < 0) {
-            rc = hs_err_set(err, HS_ERR_IO, "lcm_handle failed on %s", s->haptic_url);
-            break;
-        }
-        if (n > 0 && (pf[1].revents & POLLIN) && handle_ready(s->mbus) < 0) {
-            rc = hs_err_set(err, HS_ERR_IO, "lcm_handle failed on %s", s->mesh_url);
-            break;
-        }
-        if (s->load.active && atomic_load(&s->load.done)) finish_load(s, 0);
-        w = &s->w; // a load_scene replaces the world
-        drain_outputs(s);
-        publish_rt_output(s);
-        t = hs_now_ns();
-        if (w->sim) {
-            hs_haptic_sim_stats st;
-            hs_haptic_sim_stats_get(w->sim, &st);
-            if (st.steps != s->last_steps) {
-                hist_add(s->h_step, (int64_t)(st.step_ms_last * 1e6) / SIM_HIST_SCALE);
-                if (s->last_step_ns && st.steps > s->last_steps)
-                    hist_add(s->h_simper,
-                             (t - s->last_step_ns) / (st.steps - s->last_steps) / SIM_HIST_SCALE);
-                s->last_steps = st.steps;
-                s->last_step_ns = t;
-            }
-            if (st.cut_steps != s->last_cut_steps) {
-                s->cut_ms[s->n_cut_ms++ % CUT_SAMPLES] = st.cut_ms_last;
-                s->last_cut_steps = st.cut_steps;
-            }
-            s->cutting_now = st.cutting;
-            if (st.comp_state != s->comp_state_seen) {
-                if (!s->opt.quiet && !s->opt.live && (st.comp_state == 0 || st.comp_state == -1)) {
-                    const char* e = hs_haptic_sim_setup_error(w->sim);
-                    if (st.comp_state == 0)
-                        printf("hapsim-server: compliance ready after %.1f ms: haptics answer "
-                               "with forces now\n",
-                               st.setup_ms);
-                    else
-                        printf("hapsim-server: compliance set-up failed (%s): haptics answer "
-                               "zero force\n",
-                               e ? e : "?");
-                    fflush(stdout);
-                }
-                s->comp_state_seen = st.comp_state;
-            }
-            if (st.solver_switches > s->solver_switches_seen) {
-                s->solver_switches_seen = st.solver_switches;
-                if (!s->opt.quiet && !s->opt.live) {
-                    printf("hapsim-server: solver now %s (step cost direct %.1f, pcg %.1f, "
-                           "warped %.1f ms, 0: not measured; budget %.1f ms)\n",
-                           solver_name(st.solver), st.solver_cost_ms[HS_SOLVER_DIRECT],
-                           st.solver_cost_ms[HS_SOLVER_PCG], st.solver_cost_ms[HS_SOLVER_WARPED],
-                           1e3 / w->scene.sim_hz);
-                    fflush(stdout);
-                }
-            } else if (st.solver_switches < s->solver_switches_seen) {
-                s->solver_switches_seen = st.solver_switches; // a new sim (reset, load)
-            }
-            if (w->cutting && hs_haptic_sim_topology_version(w->sim) != w->cut_seen) apply_cut(s);
-        }
-        if (t >= next_visual) {
-            publish_frame(s, t);
-            publish_tool_states(s, t);
-            const int64_t visual_ns = (int64_t)(1e9 / w->scene.visual_hz); // a load may change it
-            next_visual += visual_ns;
-            if (next_visual < t) next_visual = t + visual_ns;
-        }
-        if (t >= next_key) {
-            publish_keyframe(s);
-            next_key = t + KEYFRAME_NS;
-        }
-        if (t >= next_topo) {
-            publish_topology(s);
-            next_topo = t + KEYFRAME_NS;
-        }
-        if (t >= next_status) {
-            publish_status(s, t);
-            next_status = t + (int64_t)(1e9 / w->scene.status_hz);
-        }
-        if (s->opt.live && t >= next_live) {
-            live_line(s, t);
-            next_live = t + LIVE_NS;
-        }
-        if (t >= end) s->stop = 1;
+        if (s->w.sim) observe_sim(s, t);
+        publish_due(s, &c, t);
     }
     finish_load(s, 1);
     if (s->w.sim) hs_haptic_sim_stop(s->w.sim);
     if (s->opt.live) fprintf(stderr, "\n");
-    if (!s->opt.quiet) {
-        printf("hapsim-server: stopped after %.1f s: %lld poses accepted, %lld forces sent, "
-               "%llu messages rejected, %llu command retries answered again\n",
-               (double)(hs_now_ns() - s->start_ns) * 1e-9, (long long)s->poses_total,
-               (long long)s->forces_total, (unsigned long long)rejected_total(s),
-               (unsigned long long)retried_total(s));
-        const int64_t kd[2] = {kernel_drops(s, 0), kernel_drops(s, 1)};
-        if (kd[0] || kd[1])
-            printf("hapsim-server: the kernel dropped %lld datagrams on the haptic bus and %lld on "
-                   "the mesh bus (receive buffers full: docs/server.md)\n",
-                   (long long)kd[0], (long long)kd[1]);
-        if (s->w.sim) {
-            hs_haptic_sim_stats st;
-            hs_haptic_sim_stats_get(s->w.sim, &st);
-            printf("hapsim-server: %lld deformation steps; sim step p50 %.2f ms, p99 %.2f ms "
-                   "(step + snapshot, since the last reset or load; thread CPU p50 %.2f ms, p99 "
-                   "%.2f ms), %lld overruns of %.1f ms; rate %.1f Hz of %g at the end; solver %s",
-                   (long long)st.steps, st.step_ms_p50_all, st.step_ms_p99_all,
-                   st.step_cpu_ms_p50_all, st.step_cpu_ms_p99_all, (long long)st.step_overruns,
-                   1e3 / s->w.scene.sim_hz, st.sim_hz_target, s->w.scene.sim_hz,
-                   solver_name(st.solver));
-            if (s->w.def.auto_solver)
-                printf(" (auto, %lld switches; step cost direct %.1f, pcg %.1f, warped %.1f ms; "
-                       "0: not measured)",
-                       (long long)st.solver_switches, st.solver_cost_ms[HS_SOLVER_DIRECT],
-                       st.solver_cost_ms[HS_SOLVER_PCG], st.solver_cost_ms[HS_SOLVER_WARPED]);
-            printf("\n");
-            if (st.depth_max_m > 0)
-                printf("hapsim-server: deepest press %.1f mm (validated to %.1f mm)\n",
-                       st.depth_max_m * 1e3,
-                       hs_contact_validated_depth(s->w.def.probe.radius_m) * 1e3);
-            if (st.deep_loops)
-                printf("hapsim-server: warning: pressed %.1f mm deep, beyond the %.1f mm the "
-                       "contact is validated for, in %lld deformation loops\n",
-                       st.depth_max_m * 1e3,
-                       hs_contact_validated_depth(s->w.def.probe.radius_m) * 1e3,
-                       (long long)st.deep_loops);
-        }
-        if (s->w.cutting)
-            printf("hapsim-server: %lld cut steps (topology events, over every reset), "
-                   "topology version %lld; cut step p50 %.1f ms, p99 %.1f ms, max %.1f ms "
-                   "(deformation thread: sweep, body sync, topology hand-over)\n",
-                   (long long)s->cut_events, (long long)s->topo_version, cut_quantile(s, 0.5),
-                   cut_quantile(s, 0.99), cut_quantile(s, 1.0));
-        if (s->w.cutting && s->w.sim) {
-            hs_haptic_sim_stats st;
-            hs_haptic_sim_stats_get(s->w.sim, &st);
-            printf("hapsim-server: %lld tets removed since the last reset or load; last sweep "
-                   "alone %.1f ms; haptic compliance rebuilt after the blade left in %.1f ms\n",
-                   (long long)st.cut_removed, st.sweep_ms_last, st.comp_ms_last);
-        }
-        fflush(stdout);
-    }
+    if (!s->opt.quiet) print_stop_summary(s);
     return rc;
 }

@@ -17,7 +17,7 @@
 #ifndef HS_DAEMON_SERVER_H
 #define HS_DAEMON_SERVER_H
 
-#include "hapsim/base.h"
+#include "base.h"
 
 #ifdef __cplusplus
 extern "C" {

@@ -7,7 +7,7 @@
 // tangent coupling K_fp du_p is moved to the right-hand side). Everything but the factor is
 // allocated in hs_body_create; the factor and its workspaces come with the first step or solve
 // that needs them, and are reused after that.
-#include "hapsim/body.h"
+#include "body.h"
 
 #include "fem_internal.h"
 

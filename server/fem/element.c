@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: GPL-2.0-or-later
 // Element kernels: the rotation of a deformation gradient by Higham's polar iteration (with a
 // warm start) and by a 3x3 SVD built on a Jacobi eigen-decomposition of F^T F.
-#include "hapsim/fem.h"
+#include "fem.h"
 
 #include "element.h"
 #include "polar4.h"

@@ -10,7 +10,7 @@
 // hs_fem_update evaluates the model and keeps what the tangent needs (F, R, S, ANP gradients);
 // element tangents are formed on the fly from those in assemble / apply_tangent, since a
 // 12x12 block per element costs more memory traffic than recomputing it from 3x3 pieces.
-#include "hapsim/fem.h"
+#include "fem.h"
 
 #include "element.h"
 #include "fem_internal.h"

@@ -3,7 +3,7 @@
 #ifndef HS_FEM_INTERNAL_H
 #define HS_FEM_INTERNAL_H
 
-#include "hapsim/fem.h"
+#include "fem.h"
 
 /// The warped solver's rotation of a node at the last update (row-major; r: in the previous
 /// one, out the new one). Co-rotated: the chordal mean of its active tets' rotations (their

@@ -17,9 +17,9 @@
 //   [ K + B^T A0^-1 B      -B^T A0^-1 E^T     ] [du]   [r]
 //   [ -E A0^-1 B        W^-1 + E A0^-1 E^T   ] [q ] = [0]
 // whose Schur complement on du is exactly S (Woodbury); see docs/mooney.md.
-#include "hapsim/mooney.h"
+#include "mooney.h"
 #include "fem_internal.h"
-#include "hapsim/sparse.h"
+#include "sparse.h"
 
 #include <math.h>
 #include <stdint.h>

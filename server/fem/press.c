@@ -1,10 +1,10 @@
 // SPDX-License-Identifier: GPL-2.0-or-later
-// Static equilibrium under a frictionless rigid sphere (see include/hapsim/press.h): an
+// Static equilibrium under a frictionless rigid sphere (see server/fem/press.h): an
 // active-set node-to-sphere contact around a Newton (SQP) solver of its own on hs_fem,
 // independent of the body's solvers and of the haptic code it is a reference for.
-#include "hapsim/press.h"
+#include "press.h"
 
-#include "hapsim/sparse.h"
+#include "sparse.h"
 
 #include <float.h>
 #include <math.h>

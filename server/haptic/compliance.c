@@ -1,5 +1,5 @@
 // SPDX-License-Identifier: GPL-2.0-or-later
-// Condensed compliance: C = K0^-1 restricted to what contact needs (hapsim/compliance.h).
+// Condensed compliance: C = K0^-1 restricted to what contact needs (compliance.h).
 //
 // DESIGN. Owned by the deformation thread. K0 is the rest-state stiffness of a linear model
 // over the free dofs (the body's dof map), factored once with CHOLMOD. Diagonal blocks of all
@@ -8,8 +8,8 @@
 // C(:, k) restricted to the surface rows live in a cache of fixed capacity with least-recently
 // used eviction; a per-step epoch pins the columns in use so one snapshot's columns never
 // evict each other. Everything is allocated in create.
-#include "hapsim/compliance.h"
-#include "hapsim/sparse.h"
+#include "compliance.h"
+#include "sparse.h"
 
 #include "dense.h"
 

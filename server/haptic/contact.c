@@ -24,7 +24,7 @@
 // points ordered deepest first; finite for positive definite matrices) stays well conditioned.
 // Each closest point moves continuously with p, so the force does not jump when the centre
 // crosses from a face over an edge or a vertex to the next face.
-#include "hapsim/compliance.h"
+#include "compliance.h"
 
 #include "closest.h"
 #include "dense.h"

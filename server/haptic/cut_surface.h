@@ -4,7 +4,7 @@
 #ifndef HS_HAPTIC_CUT_SURFACE_H
 #define HS_HAPTIC_CUT_SURFACE_H
 
-#include "hapsim/mesh.h"
+#include "mesh.h"
 
 typedef struct hs_cut_surface hs_cut_surface;
 

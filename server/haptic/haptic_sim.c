@@ -1,5 +1,5 @@
 // SPDX-License-Identifier: GPL-2.0-or-later
-// In-process haptic simulation: deformation thread + rt thread (hapsim/haptic_sim.h).
+// In-process haptic simulation: deformation thread + rt thread (haptic_sim.h).
 //
 // DESIGN. The deformation thread (this file, `deform_main`) owns the body, the compliance and
 // every work array; the rt thread runs the rt helper's haptic tick with `probe_eval` as its
@@ -14,16 +14,16 @@
 // (the live mesh, its worker thread). Otherwise the deformation thread allocates nothing after
 // create; the rt tick never allocates or locks.
 #define _POSIX_C_SOURCE 200809L
-#include "hapsim/haptic_sim.h"
+#include "haptic_sim.h"
 
-#include "base/spsc_ring.h"
-#include "base/triple_buffer.h"
+#include "spsc_ring.h"
+#include "triple_buffer.h"
 #include "closest.h"
 #include "cut_surface.h"
 #include "dense.h"
-#include "rt/device.h"
-#include "rt/haptic_rt.h"
-#include "rt/rt_thread.h"
+#include "device.h"
+#include "haptic_rt.h"
+#include "rt_thread.h"
 
 #include <float.h>
 #include <math.h>

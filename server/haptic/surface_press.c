@@ -1,12 +1,12 @@
 // SPDX-License-Identifier: GPL-2.0-or-later
-// Static press of a rigid sphere with contact on the boundary surface (hapsim/surface_press.h).
+// Static press of a rigid sphere with contact on the boundary surface (surface_press.h).
 #define _POSIX_C_SOURCE 200809L
-#include "hapsim/surface_press.h"
+#include "surface_press.h"
 
 #include "closest.h"
 #include "dense.h"
-#include "hapsim/compliance.h"
-#include "hapsim/fem.h"
+#include "compliance.h"
+#include "fem.h"
 
 #include <float.h>
 #include <math.h>

@@ -173,27 +173,9 @@ static void tet_quality(const double* x, const int* tet, double* min_dihedral_de
 // ---------------------------------------------------------------------------------------------
 // Finalize: repair, then derive.
 
-// Builds every derived array from valid, positively oriented, distinct tets.
-// fault (may be NULL) gets a face error's tets and nodes, tets numbered as in m.
-static hs_status build_derived(hs_mesh* m, hs_mesh_fault* fault, hs_err* err) {
+// Node -> tet CSR (tets ascending within each node) and the used nodes. marker: [nn] scratch.
+static void derive_node_tets(hs_mesh* m, int* marker) {
     const int nn = m->n_nodes, nt = m->n_tets;
-    hs_status st = HS_ERR_NOMEM;
-    face_key* faces = NULL;
-    unsigned char* bnd = NULL;
-    int* marker = NULL;
-
-    m->node_used = hs_calloc((size_t)nn + 1, 1);
-    m->node_tet_start = hs_calloc((size_t)nn + 1, sizeof(int));
-    m->node_tet = hs_alloc(((size_t)4 * nt + 1) * sizeof(int));
-    m->node_nbr_start = hs_calloc((size_t)nn + 1, sizeof(int));
-    m->node_surf = hs_alloc(((size_t)nn + 1) * sizeof(int));
-    marker = hs_alloc(((size_t)nn + 1) * sizeof(int));
-    bnd = hs_calloc((size_t)4 * nt + 1, 1);
-    if (!m->node_used || !m->node_tet_start || !m->node_tet || !m->node_nbr_start ||
-        !m->node_surf || !marker || !bnd)
-        goto fail;
-
-    // Node -> tet CSR (tets ascending within each node).
     for (int t = 0; t < nt; ++t)
         for (int i = 0; i < 4; ++i) m->node_tet_start[m->tets[4 * t + i] + 1]++;
     for (int i = 0; i < nn; ++i) m->node_tet_start[i + 1] += m->node_tet_start[i];
@@ -205,78 +187,89 @@ static hs_status build_derived(hs_mesh* m, hs_mesh_fault* fault, hs_err* err) {
         m->node_used[i] = m->node_tet_start[i + 1] > m->node_tet_start[i];
         if (!m->node_used[i]) m->report.unreferenced_nodes++;
     }
+}
 
-    // Node -> node CSR: count, then fill with a marker so each neighbour enters once.
-    for (int i = 0; i < nn; ++i) marker[i] = -1;
-    for (int i = 0; i < nn; ++i) {
-        int cnt = 0;
-        for (int k = m->node_tet_start[i]; k < m->node_tet_start[i + 1]; ++k) {
-            const int* tet = m->tets + 4 * m->node_tet[k];
-            for (int j = 0; j < 4; ++j)
-                if (tet[j] != i && marker[tet[j]] != i) {
-                    marker[tet[j]] = i;
-                    ++cnt;
-                }
-        }
-        m->node_nbr_start[i + 1] = m->node_nbr_start[i] + cnt;
+// Node i's neighbours (each once, through marker) into out when not NULL; their count.
+static int node_neighbours(const hs_mesh* m, int i, int* marker, int* out) {
+    int cnt = 0;
+    for (int k = m->node_tet_start[i]; k < m->node_tet_start[i + 1]; ++k) {
+        const int* tet = m->tets + 4 * m->node_tet[k];
+        for (int j = 0; j < 4; ++j)
+            if (tet[j] != i && marker[tet[j]] != i) {
+                marker[tet[j]] = i;
+                if (out) out[cnt] = tet[j];
+                ++cnt;
+            }
     }
+    return cnt;
+}
+
+// Node -> node CSR: count, then fill, neighbours ascending. 0, or -1 out of memory.
+static int derive_node_nbrs(hs_mesh* m, int* marker) {
+    const int nn = m->n_nodes;
+    for (int i = 0; i < nn; ++i) marker[i] = -1;
+    for (int i = 0; i < nn; ++i)
+        m->node_nbr_start[i + 1] = m->node_nbr_start[i] + node_neighbours(m, i, marker, NULL);
     m->node_nbr = hs_alloc(((size_t)m->node_nbr_start[nn] + 1) * sizeof(int));
-    if (!m->node_nbr) goto fail;
+    if (!m->node_nbr) return -1;
     for (int i = 0; i < nn; ++i) marker[i] = -1;
     for (int i = 0; i < nn; ++i) {
         int* out = m->node_nbr + m->node_nbr_start[i];
-        int cnt = 0;
-        for (int k = m->node_tet_start[i]; k < m->node_tet_start[i + 1]; ++k) {
-            const int* tet = m->tets + 4 * m->node_tet[k];
-            for (int j = 0; j < 4; ++j)
-                if (tet[j] != i && marker[tet[j]] != i) {
-                    marker[tet[j]] = i;
-                    out[cnt++] = tet[j];
-                }
-        }
-        qsort(out, (size_t)cnt, sizeof(int), cmp_int);
+        qsort(out, (size_t)node_neighbours(m, i, marker, out), sizeof(int), cmp_int);
     }
+    return 0;
+}
 
-    // Faces: each face is collected at its smallest node, from that node's tets, and matched
-    // there by sorting that short list (O(sum deg log deg), no global sort). A face seen once
-    // is boundary, twice must be seen from opposite sides (else the tets overlap), more than
-    // twice is not a volume mesh.
+// The faces whose smallest node is v, from v's tets, sorted; their count.
+static int faces_at(const hs_mesh* m, int v, face_key* faces) {
+    int n = 0;
+    for (int q = m->node_tet_start[v]; q < m->node_tet_start[v + 1]; ++q) {
+        const int t = m->node_tet[q];
+        for (int f = 0; f < 4; ++f) {
+            if (m->tets[4 * t + f] == v) continue; // the face opposite v lacks v
+            face_key* fk = faces + n;
+            for (int i = 0; i < 3; ++i) fk->k[i] = m->tets[4 * t + k_face[f][i]];
+            fk->parity = sort3(fk->k);
+            fk->slot = 4 * t + f;
+            n += fk->k[0] == v;
+        }
+    }
+    if (n <= 64) { // insertion sort: lists are short and often nearly sorted
+        for (int i = 1; i < n; ++i)
+            for (int j = i; j > 0 && cmp_face_key(faces + j - 1, faces + j) > 0; --j) {
+                face_key tmp = faces[j];
+                faces[j] = faces[j - 1];
+                faces[j - 1] = tmp;
+            }
+    } else {
+        qsort(faces, (size_t)n, sizeof(face_key), cmp_face_key);
+    }
+    return n;
+}
+
+// Faces: each face is collected at its smallest node, from that node's tets, and matched there
+// by sorting that short list (O(sum deg log deg), no global sort). A face seen once is boundary
+// (bnd[4 t + f] = 1), twice must be seen from opposite sides (else the tets overlap), more than
+// twice is not a volume mesh. *n_tris: the boundary faces.
+static hs_status match_faces(const hs_mesh* m, unsigned char* bnd, int* n_tris,
+                             hs_mesh_fault* fault, hs_err* err) {
+    const int nn = m->n_nodes;
     int max_deg = 0;
     for (int i = 0; i < nn; ++i)
         if (m->node_tet_start[i + 1] - m->node_tet_start[i] > max_deg)
             max_deg = m->node_tet_start[i + 1] - m->node_tet_start[i];
-    faces = hs_alloc(((size_t)3 * max_deg + 1) * sizeof(face_key));
-    if (!faces) goto fail;
-    int n_tris = 0;
-    for (int v = 0; v < nn; ++v) {
-        int n = 0;
-        for (int q = m->node_tet_start[v]; q < m->node_tet_start[v + 1]; ++q) {
-            const int t = m->node_tet[q];
-            for (int f = 0; f < 4; ++f) {
-                if (m->tets[4 * t + f] == v) continue; // the face opposite v lacks v
-                face_key* fk = faces + n;
-                for (int i = 0; i < 3; ++i) fk->k[i] = m->tets[4 * t + k_face[f][i]];
-                fk->parity = sort3(fk->k);
-                fk->slot = 4 * t + f;
-                n += fk->k[0] == v;
-            }
-        }
-        if (n <= 64) { // insertion sort: lists are short and often nearly sorted
-            for (int i = 1; i < n; ++i)
-                for (int j = i; j > 0 && cmp_face_key(faces + j - 1, faces + j) > 0; --j) {
-                    face_key tmp = faces[j];
-                    faces[j] = faces[j - 1];
-                    faces[j - 1] = tmp;
-                }
-        } else {
-            qsort(faces, (size_t)n, sizeof(face_key), cmp_face_key);
-        }
+    face_key* faces = hs_alloc(((size_t)3 * max_deg + 1) * sizeof(face_key));
+    if (!faces) return HS_ERR_NOMEM;
+    hs_status st = HS_OK;
+    *n_tris = 0;
+    for (int v = 0; v < nn && st == HS_OK; ++v) {
+        const int n = faces_at(m, v, faces);
         for (int a = 0; a < n;) {
             int b = a + 1;
             while (b < n && memcmp(faces[a].k, faces[b].k, sizeof faces[a].k) == 0) ++b;
             if (b - a == 1) {
                 bnd[faces[a].slot] = 1;
-                ++n_tris;
+                ++*n_tris;
             } else if (b - a > 2 || faces[a].parity == faces[a + 1].parity) {
                 if (fault)
                     *fault = (hs_mesh_fault){{faces[a].slot / 4, faces[a + 1].slot / 4},
@@ -291,14 +284,21 @@ static hs_status build_derived(hs_mesh* m, hs_mesh_fault* fault, hs_err* err) {
                         "tets %d and %d lie on the same side of face (%d,%d,%d) (overlap)",
                         faces[a].slot / 4, faces[a + 1].slot / 4, faces[a].k[0], faces[a].k[1],
                         faces[a].k[2]);
-                goto fail;
+                break;
             }
             a = b;
         }
     }
+    hs_free(faces);
+    return st;
+}
+
+// Boundary triangles from bnd, and the surface nodes, ascending. 0, or -1 out of memory.
+static int derive_surface(hs_mesh* m, const unsigned char* bnd, int n_tris) {
+    const int nn = m->n_nodes, nt = m->n_tets;
     m->tris = hs_alloc(((size_t)3 * n_tris + 1) * sizeof(int));
     m->tri_tet = hs_alloc(((size_t)n_tris + 1) * sizeof(int));
-    if (!m->tris || !m->tri_tet) goto fail;
+    if (!m->tris || !m->tri_tet) return -1;
     m->n_tris = 0;
     for (int s = 0; s < 4 * nt; ++s) {
         if (!bnd[s]) continue;
@@ -306,22 +306,25 @@ static hs_status build_derived(hs_mesh* m, hs_mesh_fault* fault, hs_err* err) {
         for (int i = 0; i < 3; ++i) m->tris[3 * m->n_tris + i] = m->tets[4 * t + k_face[f][i]];
         m->tri_tet[m->n_tris++] = t;
     }
-
-    // Surface nodes, ascending.
     for (int i = 0; i < nn; ++i) m->node_surf[i] = -1;
     for (int k = 0; k < 3 * m->n_tris; ++k) m->node_surf[m->tris[k]] = 0;
     int ns = 0;
     for (int i = 0; i < nn; ++i) ns += m->node_surf[i] == 0;
     m->surf_nodes = hs_alloc(((size_t)ns + 1) * sizeof(int));
-    if (!m->surf_nodes) goto fail;
+    if (!m->surf_nodes) return -1;
     m->n_surf_nodes = 0;
     for (int i = 0; i < nn; ++i)
         if (m->node_surf[i] == 0) {
             m->node_surf[i] = m->n_surf_nodes;
             m->surf_nodes[m->n_surf_nodes++] = i;
         }
+    return 0;
+}
 
-    // Components: union-find over the nodes of each tet (tets sharing a node are connected).
+// Components (union-find over the nodes of each tet: tets sharing a node are connected),
+// volume and quality. marker: [nn] scratch.
+static void derive_report(hs_mesh* m, int* marker) {
+    const int nn = m->n_nodes, nt = m->n_tets;
     for (int i = 0; i < nn; ++i) marker[i] = i;
     for (int t = 0; t < nt; ++t) {
         int r0 = find_root(marker, m->tets[4 * t]);
@@ -332,8 +335,6 @@ static hs_status build_derived(hs_mesh* m, hs_mesh_fault* fault, hs_err* err) {
     }
     m->report.components = 0;
     for (int i = 0; i < nn; ++i) m->report.components += m->node_used[i] && marker[i] == i;
-
-    // Volume and quality.
     m->volume = 0.0;
     m->report.min_dihedral_deg = nt ? 180.0 : 0.0;
     m->report.max_aspect = 0.0;
@@ -347,16 +348,38 @@ static hs_status build_derived(hs_mesh* m, hs_mesh_fault* fault, hs_err* err) {
         aspect_sum += asp;
     }
     m->report.mean_aspect = nt ? aspect_sum / nt : 0.0;
+}
 
+// Builds every derived array from valid, positively oriented, distinct tets.
+// fault (may be NULL) gets a face error's tets and nodes, tets numbered as in m.
+static hs_status build_derived(hs_mesh* m, hs_mesh_fault* fault, hs_err* err) {
+    const int nn = m->n_nodes, nt = m->n_tets;
+    hs_status st = HS_ERR_NOMEM;
+    m->node_used = hs_calloc((size_t)nn + 1, 1);
+    m->node_tet_start = hs_calloc((size_t)nn + 1, sizeof(int));
+    m->node_tet = hs_alloc(((size_t)4 * nt + 1) * sizeof(int));
+    m->node_nbr_start = hs_calloc((size_t)nn + 1, sizeof(int));
+    m->node_surf = hs_alloc(((size_t)nn + 1) * sizeof(int));
+    int* marker = hs_alloc(((size_t)nn + 1) * sizeof(int));
+    unsigned char* bnd = hs_calloc((size_t)4 * nt + 1, 1);
+    int n_tris = 0;
+    if (!m->node_used || !m->node_tet_start || !m->node_tet || !m->node_nbr_start ||
+        !m->node_surf || !marker || !bnd)
+        goto fail;
+    derive_node_tets(m, marker);
+    if (derive_node_nbrs(m, marker) != 0) goto fail;
+    st = match_faces(m, bnd, &n_tris, fault, err);
+    if (st != HS_OK) goto fail;
+    st = HS_ERR_NOMEM;
+    if (derive_surface(m, bnd, n_tris) != 0) goto fail;
+    derive_report(m, marker);
     hs_free(marker);
-    hs_free(faces);
     hs_free(bnd);
     return HS_OK;
 
 fail:
     if (st == HS_ERR_NOMEM) hs_err_set(err, HS_ERR_NOMEM, "mesh: out of memory");
     hs_free(marker);
-    hs_free(faces);
     hs_free(bnd);
     free_derived(m);
     return st;
@@ -687,18 +710,9 @@ static hs_status check_csr(const int* start, const int* idx, int n, int total, i
     return HS_OK;
 }
 
-hs_status hs_mesh_check(const hs_mesh* m, hs_err* err) {
-    if (!m) return hs_err_set(err, HS_ERR_INVALID, "mesh is NULL");
-    const int nn = m->n_nodes, nt = m->n_tets;
-    if (nn < 0 || nt < 0 || nn > HS_MESH_MAX_COUNT || nt > HS_MESH_MAX_COUNT || m->n_tris < 0 ||
-        m->n_tris > 4 * nt || m->n_surf_nodes < 0 || m->n_surf_nodes > nn)
-        return hs_err_set(err, HS_ERR_INVALID, "bad counts: %d nodes, %d tets, %d tris", nn, nt,
-                          m->n_tris);
-    if ((nn && !m->x0) || (nt && !m->tets) || !m->node_used || !m->node_surf ||
-        (m->n_tris && (!m->tris || !m->tri_tet)) || (m->n_surf_nodes && !m->surf_nodes))
-        return hs_err_set(err, HS_ERR_INVALID, "mesh arrays are NULL (not finalized?)");
-
-    // Regions: names, node indices in range, ascending.
+// Regions: names, node indices in range, ascending.
+static hs_status check_regions(const hs_mesh* m, hs_err* err) {
+    const int nn = m->n_nodes;
     if (m->n_regions < 0 || (m->n_regions && !m->regions))
         return hs_err_set(err, HS_ERR_INVALID, "bad region list");
     for (int r = 0; r < m->n_regions; ++r) {
@@ -712,8 +726,12 @@ hs_status hs_mesh_check(const hs_mesh* m, hs_err* err) {
                                   "region '%s': node %d out of range or out of order", g->name,
                                   g->nodes[i]);
     }
+    return HS_OK;
+}
 
-    // Tets: ranges, distinct nodes, positive volume; node_used and the volume sum.
+// Tets: ranges, distinct nodes, positive volume; node_used and the volume sum.
+static hs_status check_tets(const hs_mesh* m, hs_err* err) {
+    const int nn = m->n_nodes, nt = m->n_tets;
     double vol = 0.0;
     for (int t = 0; t < nt; ++t) {
         const int* tet = m->tets + 4 * t;
@@ -736,9 +754,13 @@ hs_status hs_mesh_check(const hs_mesh* m, hs_err* err) {
         for (int d = 0; d < 3; ++d)
             if (!(m->x0[3 * i + d] >= m->bbox_min[d] && m->x0[3 * i + d] <= m->bbox_max[d]))
                 return hs_err_set(err, HS_ERR_INVALID, "node %d outside the bbox", i);
+    return HS_OK;
+}
 
-    // Node -> tet: every incidence exactly once (entries distinct and contain the node, and
-    // their number is 4 per tet).
+// Node -> tet: every incidence exactly once (entries distinct and contain the node, and
+// their number is 4 per tet).
+static hs_status check_node_tets(const hs_mesh* m, hs_err* err) {
+    const int nn = m->n_nodes, nt = m->n_tets;
     hs_status st = check_csr(m->node_tet_start, m->node_tet, nn, 4 * nt, nt, "node_tet", err);
     if (st != HS_OK) return st;
     int unused = 0;
@@ -755,11 +777,16 @@ hs_status hs_mesh_check(const hs_mesh* m, hs_err* err) {
     if (unused != m->report.unreferenced_nodes)
         return hs_err_set(err, HS_ERR_INVALID, "%d unreferenced nodes, report says %d", unused,
                           m->report.unreferenced_nodes);
+    return HS_OK;
+}
 
-    // Node -> node: sorted, no self, symmetric, and exactly the tet edges.
+// Node -> node: sorted, no self, symmetric, and exactly the tet edges.
+static hs_status check_node_nbrs(const hs_mesh* m, hs_err* err) {
+    const int nn = m->n_nodes, nt = m->n_tets;
     if (!m->node_nbr_start)
         return hs_err_set(err, HS_ERR_INVALID, "node_nbr arrays are NULL (not finalized?)");
-    st = check_csr(m->node_nbr_start, m->node_nbr, nn, m->node_nbr_start[nn], nn, "node_nbr", err);
+    hs_status st =
+        check_csr(m->node_nbr_start, m->node_nbr, nn, m->node_nbr_start[nn], nn, "node_nbr", err);
     if (st != HS_OK) return st;
     for (int i = 0; i < nn; ++i)
         for (int k = m->node_nbr_start[i]; k < m->node_nbr_start[i + 1]; ++k) {
@@ -778,9 +805,13 @@ hs_status hs_mesh_check(const hs_mesh* m, hs_err* err) {
                 if (a != b && !has_nbr(m, m->tets[4 * t + a], m->tets[4 * t + b]))
                     return hs_err_set(err, HS_ERR_INVALID, "edge %d-%d of tet %d not adjacent",
                                       m->tets[4 * t + a], m->tets[4 * t + b], t);
+    return HS_OK;
+}
 
-    // Boundary: each triangle is an outward face of its tet that no other tet has, and the
-    // number of such faces over all tets equals n_tris.
+// Boundary: each triangle is an outward face of its tet that no other tet has, and the
+// number of such faces over all tets equals n_tris.
+static hs_status check_boundary(const hs_mesh* m, hs_err* err) {
+    const int nt = m->n_tets;
     int n_bnd = 0;
     for (int t = 0; t < nt; ++t)
         for (int f = 0; f < 4; ++f) {
@@ -798,7 +829,7 @@ hs_status hs_mesh_check(const hs_mesh* m, hs_err* err) {
         hs_free(tri_sorted);
         return hs_err_set(err, HS_ERR_NOMEM, "mesh check: out of memory");
     }
-    st = HS_OK;
+    hs_status st = HS_OK;
     for (int s = 0; s < m->n_tris && st == HS_OK; ++s) {
         const int* tri = m->tris + 3 * s;
         int t = m->tri_tet[s];
@@ -856,8 +887,12 @@ hs_status hs_mesh_check(const hs_mesh* m, hs_err* err) {
     hs_free(e);
     hs_free(tri_sorted);
     if (st != HS_OK) return st;
+    return HS_OK;
+}
 
-    // Surface nodes: exactly the triangle nodes, ascending, and node_surf their inverse.
+// Surface nodes: exactly the triangle nodes, ascending, and node_surf their inverse.
+static hs_status check_surface_nodes(const hs_mesh* m, hs_err* err) {
+    const int nn = m->n_nodes;
     int ns = 0;
     for (int i = 0; i < nn; ++i) {
         int s = m->node_surf[i];
@@ -891,6 +926,27 @@ hs_status hs_mesh_check(const hs_mesh* m, hs_err* err) {
     if (on_tri != m->n_surf_nodes)
         return hs_err_set(err, HS_ERR_INVALID, "%d surface nodes lie on no boundary face",
                           m->n_surf_nodes - on_tri);
+    return HS_OK;
+}
+
+hs_status hs_mesh_check(const hs_mesh* m, hs_err* err) {
+    if (!m) return hs_err_set(err, HS_ERR_INVALID, "mesh is NULL");
+    const int nn = m->n_nodes, nt = m->n_tets;
+    if (nn < 0 || nt < 0 || nn > HS_MESH_MAX_COUNT || nt > HS_MESH_MAX_COUNT || m->n_tris < 0 ||
+        m->n_tris > 4 * nt || m->n_surf_nodes < 0 || m->n_surf_nodes > nn)
+        return hs_err_set(err, HS_ERR_INVALID, "bad counts: %d nodes, %d tets, %d tris", nn, nt,
+                          m->n_tris);
+    if ((nn && !m->x0) || (nt && !m->tets) || !m->node_used || !m->node_surf ||
+        (m->n_tris && (!m->tris || !m->tri_tet)) || (m->n_surf_nodes && !m->surf_nodes))
+        return hs_err_set(err, HS_ERR_INVALID, "mesh arrays are NULL (not finalized?)");
+
+    hs_status (*const checks[])(const hs_mesh*, hs_err*) = {check_regions,   check_tets,
+                                                            check_node_tets, check_node_nbrs,
+                                                            check_boundary,  check_surface_nodes};
+    for (size_t k = 0; k < sizeof checks / sizeof checks[0]; ++k) {
+        hs_status st = checks[k](m, err);
+        if (st != HS_OK) return st;
+    }
     return HS_OK;
 }
 

@@ -3,7 +3,7 @@
 #ifndef HAPSIM_MESH_INTERNAL_H
 #define HAPSIM_MESH_INTERNAL_H
 
-#include "hapsim/mesh.h"
+#include "mesh.h"
 
 /// Largest node or tet count accepted: keeps every derived count (12 per tet) inside an int.
 #define HS_MESH_MAX_COUNT (0x7fffffff / 16)

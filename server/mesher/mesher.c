@@ -5,7 +5,7 @@
 // volume is meshed and optimised. The tets come back through the API into an hs_mesh, which
 // validates them as any loaded mesh.
 #define _POSIX_C_SOURCE 200809L
-#include "hapsim/mesher.h"
+#include "mesher.h"
 
 #include <gmshc.h>
 #include <math.h>
@@ -133,20 +133,16 @@ static void split_triangles(double* xyz, size_t* nv, size_t* tri, size_t* nt, si
     do {                                                                                           \
         ierr = 0;                                                                                  \
         call;                                                                                      \
-        if (ierr) {                                                                                \
-            st = gmsh_fail(err, step);                                                             \
-            goto done;                                                                             \
-        }                                                                                          \
+        if (ierr) return gmsh_fail(err, step);                                                     \
     } while (0)
 
-hs_status hs_mesher_tet(const hs_surface* s, const hs_mesher_def* def, hs_mesh** out, hs_err* err) {
-    if (!out) return hs_err_set(err, HS_ERR_INVALID, "out is NULL");
-    *out = NULL;
+// Input checks, and a size far below the model, which would ask for billions of tets: refused
+// before gmsh tries.
+static hs_status mesher_check(const hs_surface* s, const hs_mesher_def* def, hs_err* err) {
     if (!s || !def || s->n_tris < 4 || s->n_verts < 4)
         return hs_err_set(err, HS_ERR_INVALID, "mesher: no closed surface given");
     if (!(def->size > 0) || !isfinite(def->size))
         return hs_err_set(err, HS_ERR_INVALID, "mesher: size must be > 0, got %g", def->size);
-    // A size far below the model would ask for billions of tets: refuse before gmsh tries.
     double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
     for (int i = 0; i < s->n_verts; ++i)
         for (int d = 0; d < 3; ++d) {
@@ -160,7 +156,25 @@ hs_status hs_mesher_tet(const hs_surface* s, const hs_mesher_def* def, hs_mesh**
                           "mesher: size %g would give about %.3g tets in a %g x %g x %g box "
                           "(over 20 million): a larger size, or the wrong units?",
                           def->size, est, hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]);
+    return HS_OK;
+}
 
+// The surface as gmsh takes it: 1-based tags, split until it has enough triangles.
+typedef struct gmsh_input {
+    size_t nv, nt;
+    size_t *ntag, *ttag, *tnod;
+    double* xyz;
+} gmsh_input;
+
+static void gmsh_input_free(gmsh_input* in) {
+    free(in->ntag);
+    free(in->ttag);
+    free(in->tnod);
+    free(in->xyz);
+}
+
+static hs_status gmsh_input_make(const hs_surface* s, const hs_mesher_def* def, gmsh_input* in,
+                                 hs_err* err) {
     // gmsh 4.8's surface classification for remeshing never returns (it keeps partitioning a
     // patch with METIS) on a tetrahedron's four triangles: tiny surfaces are split 1 -> 4 at
     // their edge midpoints, which keeps their shape, until they have SPLIT_TO triangles.
@@ -170,103 +184,87 @@ hs_status hs_mesher_tet(const hs_surface* s, const hs_mesher_def* def, hs_mesh**
         nv_cap += 3 * nt_cap;
         nt_cap *= 4;
     }
-    size_t* ntag = malloc(nv_cap * sizeof(size_t));
-    size_t* ttag = malloc(nt_cap * sizeof(size_t));
-    size_t* tnod = malloc(3 * nt_cap * sizeof(size_t));
-    double* xyz = malloc(3 * nv_cap * sizeof(double));
-    size_t *node_tags = NULL, *elem_tags = NULL, *elem_nodes = NULL;
-    double *coord = NULL, *param = NULL;
-    int* dimtags = NULL;
-    int* map = NULL;
-    double* x = NULL;
-    int* tets = NULL;
-    hs_status st = HS_OK;
-    int ierr = 0, inited = 0;
-    if (!ntag || !ttag || !tnod || !xyz) {
-        free(ntag);
-        free(ttag);
-        free(tnod);
-        free(xyz);
+    in->ntag = malloc(nv_cap * sizeof(size_t));
+    in->ttag = malloc(nt_cap * sizeof(size_t));
+    in->tnod = malloc(3 * nt_cap * sizeof(size_t));
+    in->xyz = malloc(3 * nv_cap * sizeof(double));
+    if (!in->ntag || !in->ttag || !in->tnod || !in->xyz) {
+        gmsh_input_free(in);
         return hs_err_set(err, HS_ERR_NOMEM, "mesher: out of memory");
     }
-    for (size_t t = 0; t < 3 * nt; ++t) tnod[t] = (size_t)s->tris[t] + 1;
-    memcpy(xyz, s->x, 3 * nv * sizeof(double));
-    while (nt < nt_cap) split_triangles(xyz, &nv, tnod, &nt, ntag);
-    for (size_t i = 0; i < nv; ++i) ntag[i] = i + 1;
-    for (size_t t = 0; t < nt; ++t) ttag[t] = t + 1;
+    for (size_t t = 0; t < 3 * nt; ++t) in->tnod[t] = (size_t)s->tris[t] + 1;
+    memcpy(in->xyz, s->x, 3 * nv * sizeof(double));
+    while (nt < nt_cap) split_triangles(in->xyz, &nv, in->tnod, &nt, in->ntag);
+    for (size_t i = 0; i < nv; ++i) in->ntag[i] = i + 1;
+    for (size_t t = 0; t < nt; ++t) in->ttag[t] = t + 1;
+    in->nv = nv;
+    in->nt = nt;
+    return HS_OK;
+}
 
-    pthread_mutex_lock(&g_gmsh_lock);
-    GMSH_TRY(gmshInitialize(0, NULL, 0, &ierr), "initialise");
-    inited = 1;
-    GMSH_TRY(gmshOptionSetNumber("General.Terminal", def->verbose ? 1 : 0, &ierr), "option");
-    GMSH_TRY(gmshLoggerStart(&ierr), "logger");
+// The discrete surface, its classification (or one patch when kept) and the volume inside it.
+static hs_status gmsh_add_volume(const gmsh_input* in, const hs_mesher_def* def, hs_err* err) {
+    int ierr = 0;
     GMSH_TRY(gmshModelAdd("hapsim", &ierr), "model");
     int sfc;
     GMSH_TRY(sfc = gmshModelAddDiscreteEntity(2, -1, NULL, 0, &ierr), "surface entity");
-    GMSH_TRY(gmshModelMeshAddNodes(2, sfc, ntag, nv, xyz, 3 * nv, NULL, 0, &ierr), "nodes");
-    GMSH_TRY(gmshModelMeshAddElementsByType(sfc, 2, ttag, nt, tnod, 3 * nt, &ierr), "triangles");
-    {
-        // Keeping the surface: one patch, no parametrisation, so gmsh cannot remesh it.
-        const double pi = 3.14159265358979323846;
-        GMSH_TRY(gmshModelMeshClassifySurfaces(
-                     def->keep_surface ? pi : def->feature_angle_deg * pi / 180, 1,
-                     !def->keep_surface, pi, 1, &ierr),
-                 "surface classification");
-        if (!def->keep_surface)
-            GMSH_TRY(gmshModelMeshCreateGeometry(NULL, 0, &ierr), "surface parametrisation");
-        size_t ndt = 0;
-        GMSH_TRY(gmshModelGetEntities(&dimtags, &ndt, 2, &ierr), "entities");
-        int* surfs = malloc((ndt / 2 + 1) * sizeof(int));
-        if (!surfs) {
-            st = hs_err_set(err, HS_ERR_NOMEM, "mesher: out of memory");
-            goto done;
-        }
-        for (size_t i = 0; i < ndt / 2; ++i) surfs[i] = dimtags[2 * i + 1];
-        int loop = gmshModelGeoAddSurfaceLoop(surfs, ndt / 2, -1, &ierr);
-        free(surfs);
-        if (ierr) {
-            st = gmsh_fail(err, "surface loop");
-            goto done;
-        }
-        GMSH_TRY(gmshModelGeoAddVolume(&loop, 1, -1, &ierr), "volume");
-        GMSH_TRY(gmshModelGeoSynchronize(&ierr), "synchronise");
+    GMSH_TRY(gmshModelMeshAddNodes(2, sfc, in->ntag, in->nv, in->xyz, 3 * in->nv, NULL, 0, &ierr),
+             "nodes");
+    GMSH_TRY(gmshModelMeshAddElementsByType(sfc, 2, in->ttag, in->nt, in->tnod, 3 * in->nt, &ierr),
+             "triangles");
+    // Keeping the surface: one patch, no parametrisation, so gmsh cannot remesh it.
+    const double pi = 3.14159265358979323846;
+    GMSH_TRY(
+        gmshModelMeshClassifySurfaces(def->keep_surface ? pi : def->feature_angle_deg * pi / 180, 1,
+                                      !def->keep_surface, pi, 1, &ierr),
+        "surface classification");
+    if (!def->keep_surface)
+        GMSH_TRY(gmshModelMeshCreateGeometry(NULL, 0, &ierr), "surface parametrisation");
+    int* dimtags = NULL;
+    size_t ndt = 0;
+    GMSH_TRY(gmshModelGetEntities(&dimtags, &ndt, 2, &ierr), "entities");
+    int* surfs = malloc((ndt / 2 + 1) * sizeof(int));
+    if (!surfs) {
+        gmshFree(dimtags);
+        return hs_err_set(err, HS_ERR_NOMEM, "mesher: out of memory");
     }
-    size_cb cb = {def, def->size_min > 0 ? fmin(def->size_min, def->size) : def->size * 0.5,
-                  def->size};
+    for (size_t i = 0; i < ndt / 2; ++i) surfs[i] = dimtags[2 * i + 1];
+    if (dimtags) gmshFree(dimtags);
+    int loop = gmshModelGeoAddSurfaceLoop(surfs, ndt / 2, -1, &ierr);
+    free(surfs);
+    if (ierr) return gmsh_fail(err, "surface loop");
+    GMSH_TRY(gmshModelGeoAddVolume(&loop, 1, -1, &ierr), "volume");
+    GMSH_TRY(gmshModelGeoSynchronize(&ierr), "synchronise");
+    return HS_OK;
+}
+
+// Sizes and meshing options; cb must live until the mesh is generated.
+static hs_status gmsh_set_options(const hs_mesher_def* def, size_cb* cb, hs_err* err) {
+    int ierr = 0;
     if (def->size_at) {
-        GMSH_TRY(gmshModelMeshSetSizeCallback(size_callback, &cb, &ierr), "size callback");
+        GMSH_TRY(gmshModelMeshSetSizeCallback(size_callback, cb, &ierr), "size callback");
         // The callback alone decides: no growth from the boundary, no curvature sizes.
         GMSH_TRY(gmshOptionSetNumber("Mesh.MeshSizeExtendFromBoundary", 0, &ierr), "option");
     }
-    GMSH_TRY(gmshOptionSetNumber("Mesh.MeshSizeMin", cb.lo, &ierr), "option");
+    GMSH_TRY(gmshOptionSetNumber("Mesh.MeshSizeMin", cb->lo, &ierr), "option");
     GMSH_TRY(gmshOptionSetNumber("Mesh.MeshSizeMax", def->size, &ierr), "option");
     GMSH_TRY(gmshOptionSetNumber("Mesh.Optimize", def->optimize ? 1 : 0, &ierr), "option");
     GMSH_TRY(gmshOptionSetNumber("General.NumThreads", 1, &ierr), "option");
-    if (def->gmsh_options && (st = set_gmsh_options(def->gmsh_options, err)) != HS_OK) goto done;
-    GMSH_TRY(gmshModelMeshGenerate(3, &ierr), "meshing");
+    if (def->gmsh_options) return set_gmsh_options(def->gmsh_options, err);
+    return HS_OK;
+}
 
-    size_t n_nodes = 0, n_coord = 0, n_param = 0, n_et = 0, n_en = 0;
-    GMSH_TRY(gmshModelMeshGetNodes(&node_tags, &n_nodes, &coord, &n_coord, &param, &n_param, -1, -1,
-                                   0, 0, &ierr),
-             "nodes");
-    GMSH_TRY(
-        gmshModelMeshGetElementsByType(4, &elem_tags, &n_et, &elem_nodes, &n_en, -1, 0, 1, &ierr),
-        "tetrahedra");
-    if (n_et == 0 || n_en != 4 * n_et) {
-        st = hs_err_set(err, HS_ERR_INVALID, "gmsh made no tetrahedra (is the surface closed?)");
-        goto done;
-    }
-    if (n_et > 0x7fffffff / 16 || n_nodes > 0x7fffffff / 16) {
-        st = hs_err_set(err, HS_ERR_INVALID, "gmsh made %zu tetrahedra: too many", n_et);
-        goto done;
-    }
-    // Node tags -> compact indices of the nodes the tets use, in tag order.
+// The tets of a node's tag list: nodes compacted to those the tets use, in tag order.
+static hs_status compact_tets(const size_t* node_tags, size_t n_nodes, const double* coord,
+                              const size_t* elem_nodes, size_t n_en, hs_mesh** out, hs_err* err) {
     size_t max_tag = 0;
     for (size_t i = 0; i < n_nodes; ++i) max_tag = node_tags[i] > max_tag ? node_tags[i] : max_tag;
-    map = malloc((max_tag + 1) * sizeof(int));
+    int* map = malloc((max_tag + 1) * sizeof(int));
     int* slot = malloc((max_tag + 1) * sizeof(int)); // tag -> position in node_tags
+    double* x = NULL;
+    int* tets = NULL;
+    hs_status st = HS_OK;
     if (!map || !slot) {
-        free(slot);
         st = hs_err_set(err, HS_ERR_NOMEM, "mesher: out of memory");
         goto done;
     }
@@ -274,7 +272,6 @@ hs_status hs_mesher_tet(const hs_surface* s, const hs_mesher_def* def, hs_mesh**
     for (size_t i = 0; i < n_nodes; ++i) slot[node_tags[i]] = (int)i;
     for (size_t i = 0; i < n_en; ++i) {
         if (elem_nodes[i] > max_tag || slot[elem_nodes[i]] < 0) {
-            free(slot);
             st = hs_err_set(err, HS_ERR_INVALID, "gmsh returned a tet with an unknown node");
             goto done;
         }
@@ -286,34 +283,86 @@ hs_status hs_mesher_tet(const hs_surface* s, const hs_mesher_def* def, hs_mesh**
     x = hs_alloc(((size_t)nn * 3 + 1) * sizeof(double));
     tets = hs_alloc((n_en + 1) * sizeof(int));
     if (!x || !tets) {
-        free(slot);
         st = hs_err_set(err, HS_ERR_NOMEM, "mesher: out of memory");
         goto done;
     }
     for (size_t tg = 0; tg <= max_tag; ++tg)
         if (map[tg] >= 0) memcpy(x + 3 * map[tg], coord + 3 * slot[tg], 3 * sizeof(double));
-    free(slot);
     for (size_t i = 0; i < n_en; ++i) tets[i] = map[elem_nodes[i]];
-    st = hs_mesh_create(nn, x, (int)n_et, tets, out, err);
-
+    st = hs_mesh_create(nn, x, (int)(n_en / 4), tets, out, err);
 done:
-    if (inited) {
-        gmshLoggerStop(&ierr);
-        gmshFinalize(&ierr);
+    free(map);
+    free(slot);
+    hs_free(x);
+    hs_free(tets);
+    return st;
+}
+
+// The generated tets out of gmsh.
+static hs_status gmsh_read_tets(hs_mesh** out, hs_err* err) {
+    int ierr = 0;
+    size_t *node_tags = NULL, *elem_tags = NULL, *elem_nodes = NULL;
+    double *coord = NULL, *param = NULL;
+    size_t n_nodes = 0, n_coord = 0, n_param = 0, n_et = 0, n_en = 0;
+    hs_status st = HS_OK;
+    gmshModelMeshGetNodes(&node_tags, &n_nodes, &coord, &n_coord, &param, &n_param, -1, -1, 0, 0,
+                          &ierr);
+    if (ierr) {
+        st = gmsh_fail(err, "nodes");
+    } else {
+        gmshModelMeshGetElementsByType(4, &elem_tags, &n_et, &elem_nodes, &n_en, -1, 0, 1, &ierr);
+        if (ierr) st = gmsh_fail(err, "tetrahedra");
     }
-    pthread_mutex_unlock(&g_gmsh_lock);
+    if (st == HS_OK && (n_et == 0 || n_en != 4 * n_et))
+        st = hs_err_set(err, HS_ERR_INVALID, "gmsh made no tetrahedra (is the surface closed?)");
+    if (st == HS_OK && (n_et > 0x7fffffff / 16 || n_nodes > 0x7fffffff / 16))
+        st = hs_err_set(err, HS_ERR_INVALID, "gmsh made %zu tetrahedra: too many", n_et);
+    if (st == HS_OK) st = compact_tets(node_tags, n_nodes, coord, elem_nodes, n_en, out, err);
     if (node_tags) gmshFree(node_tags);
     if (coord) gmshFree(coord);
     if (param) gmshFree(param);
     if (elem_tags) gmshFree(elem_tags);
     if (elem_nodes) gmshFree(elem_nodes);
-    if (dimtags) gmshFree(dimtags);
-    free(map);
-    free(ntag);
-    free(ttag);
-    free(tnod);
-    free(xyz);
-    hs_free(x);
-    hs_free(tets);
+    return st;
+}
+
+// One gmsh session (gmsh is process-global: callers are serialised by g_gmsh_lock).
+static hs_status gmsh_mesh(const gmsh_input* in, const hs_mesher_def* def, hs_mesh** out,
+                           hs_err* err) {
+    int ierr = 0;
+    GMSH_TRY(gmshInitialize(0, NULL, 0, &ierr), "initialise");
+    size_cb cb = {def, def->size_min > 0 ? fmin(def->size_min, def->size) : def->size * 0.5,
+                  def->size};
+    hs_status st = HS_OK;
+    gmshOptionSetNumber("General.Terminal", def->verbose ? 1 : 0, &ierr);
+    if (ierr) st = gmsh_fail(err, "option");
+    if (st == HS_OK) {
+        gmshLoggerStart(&ierr);
+        if (ierr) st = gmsh_fail(err, "logger");
+    }
+    if (st == HS_OK) st = gmsh_add_volume(in, def, err);
+    if (st == HS_OK) st = gmsh_set_options(def, &cb, err);
+    if (st == HS_OK) {
+        gmshModelMeshGenerate(3, &ierr);
+        if (ierr) st = gmsh_fail(err, "meshing");
+    }
+    if (st == HS_OK) st = gmsh_read_tets(out, err);
+    gmshLoggerStop(&ierr);
+    gmshFinalize(&ierr);
+    return st;
+}
+
+hs_status hs_mesher_tet(const hs_surface* s, const hs_mesher_def* def, hs_mesh** out, hs_err* err) {
+    if (!out) return hs_err_set(err, HS_ERR_INVALID, "out is NULL");
+    *out = NULL;
+    hs_status st = mesher_check(s, def, err);
+    if (st != HS_OK) return st;
+    gmsh_input in = {0};
+    st = gmsh_input_make(s, def, &in, err);
+    if (st != HS_OK) return st;
+    pthread_mutex_lock(&g_gmsh_lock);
+    st = gmsh_mesh(&in, def, out, err);
+    pthread_mutex_unlock(&g_gmsh_lock);
+    gmsh_input_free(&in);
     return st;
 }

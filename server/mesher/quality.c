@@ -1,6 +1,6 @@
 // SPDX-License-Identifier: GPL-2.0-or-later
 // Quality statistics of a tetrahedral mesh: dihedral angles, radius ratios, sizes.
-#include "hapsim/surface.h"
+#include "surface.h"
 #include "vec3.h"
 
 #include <math.h>

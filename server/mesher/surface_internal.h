@@ -3,7 +3,7 @@
 #ifndef HAPSIM_SURFACE_INTERNAL_H
 #define HAPSIM_SURFACE_INTERNAL_H
 
-#include "hapsim/surface.h"
+#include "surface.h"
 
 /// Merge vertices with exactly equal coordinates; how many were merged, -1 on no memory.
 int hs_surface_weld(hs_surface* s);

@@ -12,7 +12,7 @@
 
 #include <lcm/lcm.h>
 
-#include "hapsim/base.h"
+#include "base.h"
 
 #ifdef __cplusplus
 extern "C" {

@@ -13,7 +13,7 @@
 
 #include <stdint.h>
 
-#include "hapsim/base.h"
+#include "base.h"
 #include "hapsim_command_rules.h" // the command limits
 
 #ifdef __cplusplus

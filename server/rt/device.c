@@ -2,7 +2,7 @@
 // Memory device: a hs_device whose pose and output travel through triple buffers.
 #include "device.h"
 
-#include "base/triple_buffer.h"
+#include "triple_buffer.h"
 
 struct hs_memdev {
     hs_triple_buffer* pose; // feeder -> rt

@@ -5,8 +5,8 @@
 #ifndef HS_RT_DEVICE_H
 #define HS_RT_DEVICE_H
 
-#include "hapsim/base.h"
-#include "hapsim/haptic.h"
+#include "base.h"
+#include "haptic.h"
 
 #ifdef __cplusplus
 extern "C" {

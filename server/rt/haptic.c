@@ -1,8 +1,8 @@
 // SPDX-License-Identifier: GPL-2.0-or-later
-// Local model evaluation, blending, safety filters and histogram percentiles (hapsim/haptic.h).
+// Local model evaluation, blending, safety filters and histogram percentiles (haptic.h).
 // All pure functions over caller-owned state: safe on the rt thread (no allocation, no locks).
-#include "hapsim/haptic.h"
-#include "hapsim/base.h"
+#include "haptic.h"
+#include "base.h"
 
 #include <math.h>
 #include <string.h>

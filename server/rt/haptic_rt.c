@@ -2,7 +2,7 @@
 // The haptic tick (see haptic_rt.h for the design) and the model source.
 #include "haptic_rt.h"
 
-#include "base/triple_buffer.h"
+#include "triple_buffer.h"
 
 #include <math.h>
 #include <stdatomic.h>

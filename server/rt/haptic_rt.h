@@ -16,10 +16,10 @@
 #ifndef HS_RT_HAPTIC_RT_H
 #define HS_RT_HAPTIC_RT_H
 
-#include "base/spsc_ring.h"
+#include "spsc_ring.h"
 #include "device.h"
-#include "hapsim/base.h"
-#include "hapsim/haptic.h"
+#include "base.h"
+#include "haptic.h"
 #include "rt_thread.h"
 
 #ifdef __cplusplus

@@ -13,8 +13,8 @@
 #ifndef HS_RT_RT_THREAD_H
 #define HS_RT_RT_THREAD_H
 
-#include "hapsim/base.h"
-#include "hapsim/haptic.h"
+#include "base.h"
+#include "haptic.h"
 
 #ifdef __cplusplus
 extern "C" {

@@ -3,7 +3,7 @@
 // repeated keys are errors (a typo must not silently fall back to a default). Errors name the
 // file, the line and the key path, e.g. "liver.json:7: key 'material.poisson': ...".
 #define _DEFAULT_SOURCE // inet_aton
-#include "hapsim/scene.h"
+#include "scene.h"
 #include "open_regular.h"
 
 #include <arpa/inet.h>

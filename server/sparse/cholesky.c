@@ -7,11 +7,10 @@
 // at hs_alloc/hs_calloc/hs_realloc/hs_free, so CHOLMOD's memory is in hs_byte_count and fault
 // injection reaches it. METIS, when CHOLMOD tries it, uses its own malloc during analysis only.
 #define _GNU_SOURCE // RTLD_DEFAULT
-#include "hapsim/sparse.h"
+#include "sparse.h"
 
 #include <cholmod.h>
 #include <dlfcn.h>
-#include <errno.h>
 #include <math.h>
 #include <pthread.h>
 #include <sched.h>
@@ -62,25 +61,23 @@ struct duo;
 static void duo_destroy(struct duo** pd);
 
 // ---------------------------------------------------------------------------------------------
-// Process-wide set-up: allocator hooks (once) and a quiet error handler.
+// CHOLMOD set-up: allocator hooks (once) and a quiet error handler.
 
 static atomic_int g_alloc_state; // 0 untouched, 1 installing, 2 installed
-static atomic_int g_threads_set; // hs_sparse_set_threads called (by the user or by default)
 
-// OpenMP's max-active-levels is per thread in libgomp: the value set by hs_sparse_set_threads
-// holds for the calling thread only, and another thread calling CHOLMOD (a background
-// factorisation) would spawn CHOLMOD's 4-thread teams. Each thread applies it on entry.
-static atomic_int g_threads;             // last hs_sparse_set_threads(n), 0 before any
-static _Atomic(void*) g_set_levels;      // omp_set_max_active_levels, if loaded
-static _Thread_local int tl_threads = 0; // value applied on this thread
+// CHOLMOD's OpenMP loops say num_threads(4), which would start teams of threads on every call.
+// The sparse layer starts no thread (parallelism comes from the caller through hs_parallel), so
+// each thread that calls CHOLMOD sets its own max-active-levels to zero on entry: libgomp keeps
+// that per thread, so it touches no other thread. BLAS threads are the program's choice
+// (hs_platform_set_threads in server/base/platform.h).
+static _Thread_local int tl_serial = 0; // this thread's OpenMP loops are teams of one
 
 static void apply_thread_limit(void) {
-    int n = atomic_load(&g_threads);
-    if (n == tl_threads || n == 0) return;
-    tl_threads = n;
+    if (tl_serial) return;
+    tl_serial = 1;
     void (*set_levels)(int);
-    *(void**)&set_levels = atomic_load(&g_set_levels);
-    if (set_levels) set_levels(n == 1 ? 0 : 1);
+    *(void**)&set_levels = dlsym(RTLD_DEFAULT, "omp_set_max_active_levels");
+    if (set_levels) set_levels(0);
 }
 
 // CHOLMOD's supernodal numeric factorisation allocates and frees a dense scratch block (and
@@ -294,8 +291,6 @@ static hs_status create_factor(const hs_csc* a, int natural, hs_cholesky** out, 
     hs_status st = check_csc(a, err);
     if (st != HS_OK) return st;
     install_allocator();
-    int unset = 0;
-    if (atomic_compare_exchange_strong(&g_threads_set, &unset, 1)) hs_sparse_set_threads(1);
     apply_thread_limit();
 
     hs_cholesky* f = hs_calloc(1, sizeof *f);
@@ -1552,64 +1547,6 @@ void hs_cholesky_last_update(const hs_cholesky* f, hs_cholesky_update_info* info
 }
 
 // ---------------------------------------------------------------------------------------------
-
-hs_status hs_sparse_set_threads(int n) {
-    if (n < 1) return HS_ERR_INVALID;
-    atomic_store(&g_threads_set, 1);
-    // Looked up at run time: the BLAS behind libblas.so.3 is chosen by the system (Debian
-    // alternatives), and only OpenBLAS has this entry point. libgomp comes with CHOLMOD.
-    void (*set_blas)(int);
-    *(void**)&set_blas = dlsym(RTLD_DEFAULT, "openblas_set_num_threads");
-    void* set_levels = dlsym(RTLD_DEFAULT, "omp_set_max_active_levels");
-    atomic_store(&g_set_levels, set_levels);
-    if (set_blas) set_blas(n);
-    // CHOLMOD's loops say num_threads(4), which overrides omp_set_num_threads; zero active
-    // levels makes every parallel region a team of one.
-    atomic_store(&g_threads, n);
-    tl_threads = 0;
-    apply_thread_limit();
-    return set_blas || set_levels ? HS_OK : HS_ERR_UNSUPPORTED;
-}
-
-const char* hs_sparse_blas_core(void) {
-    const char* (*core)(void);
-    *(void**)&core = dlsym(RTLD_DEFAULT, "openblas_get_corename");
-    const char* name = core ? core() : NULL;
-    return name ? name : "not OpenBLAS";
-}
-
-hs_status hs_sparse_blas_select(char** argv) {
-    if (!argv || !argv[0] || getenv("OPENBLAS_CORETYPE")) return HS_OK;
-    for (char** a = argv + 1; *a; ++a) // a program asked for its usage computes nothing
-        if (!strcmp(*a, "-h") || !strcmp(*a, "--help")) return HS_OK;
-    // OpenBLAS's kernel sets that predate AVX2 (its fallback for an unknown model is one of
-    // them); on an AVX2 processor any of them means the detection failed.
-    static const char* const generic[] = {
-        "Katmai",      "Coppermine", "Northwood", "Prescott",     "Banias",
-        "Atom",        "Core2",      "Penryn",    "Dunnington",   "Nehalem",
-        "Sandybridge", "Athlon",     "Opteron",   "Opteron_SSE3", "Barcelona",
-        "Nano",        "Bobcat",     "Bulldozer", "Piledriver",   "Steamroller"};
-    const char* core = hs_sparse_blas_core();
-    int fallback = 0;
-    for (size_t i = 0; i < sizeof generic / sizeof generic[0]; ++i)
-        fallback |= !strcmp(core, generic[i]);
-    __builtin_cpu_init();
-    if (!fallback || !__builtin_cpu_supports("avx2") || !__builtin_cpu_supports("fma"))
-        return HS_OK;
-    fprintf(stderr,
-            "%s: OpenBLAS runs its %s kernels, older than this AVX2 processor; restarting with "
-            "OPENBLAS_CORETYPE=Haswell (set OPENBLAS_CORETYPE to choose otherwise)\n",
-            argv[0], core);
-    fflush(NULL);
-    if (setenv("OPENBLAS_CORETYPE", "Haswell", 1) != 0) return HS_ERR_UNSUPPORTED;
-    execv("/proc/self/exe", argv);
-    unsetenv("OPENBLAS_CORETYPE"); // the exec failed: run on as loaded, and say so
-    fprintf(stderr, "%s: could not restart (%s); running on the %s kernels\n", argv[0],
-            strerror(errno), core);
-    return HS_ERR_UNSUPPORTED;
-}
-
-// ---------------------------------------------------------------------------------------------
 // Partial refactorisation: multifrontal over CHOLMOD's supernodes, keeping every supernode's
 // update (contribution) matrix, so a change of A confined to a few columns recomputes only
 // their supernodes and those supernodes' ancestors; the others' blocks of L and their update
@@ -1678,16 +1615,8 @@ static double supernode_flops(int nc, int m) {
     return (double)nc * nc * nc / 3.0 + (double)m * nc * nc + (double)m * m * nc;
 }
 
-// Build the maps of a supernodal factor L for a matrix with a's pattern (both halves stored).
-static hs_status build_partial(const cholmod_factor* L, const hs_csc* a, struct hs_partial** out) {
-    const int n = (int)L->n, ns = (int)L->nsuper;
-    const int *super = L->super, *pi = L->pi, *px = L->px, *ls = L->s, *perm = L->Perm;
-    struct hs_partial* p = hs_calloc(1, sizeof *p);
-    int* pinv = hs_alloc(sizeof(int) * ((size_t)n + 1));
-    int* pos = hs_alloc(sizeof(int) * ((size_t)n + 1));
-    int* cnt = hs_calloc((size_t)n + 1, sizeof(int));
-    hs_status st = HS_ERR_NOMEM;
-    if (!p || !pinv || !pos || !cnt) goto fail;
+// build_partial's arrays sized by n and ns.
+static hs_status partial_alloc(struct hs_partial* p, int n, int ns) {
     p->ns = ns;
     p->parent = hs_alloc(sizeof(int) * ((size_t)ns + 1));
     p->child_start = hs_calloc((size_t)ns + 2, sizeof(int));
@@ -1701,21 +1630,24 @@ static hs_status build_partial(const cholmod_factor* L, const hs_csc* a, struct 
     p->mark = hs_calloc((size_t)ns + 1, 1);
     if (!p->parent || !p->child_start || !p->child || !p->col_super || !p->ent_start ||
         !p->diag_val || !p->rel_start || !p->u_start || !p->flops || !p->mark)
-        goto fail;
-    for (int k = 0; k < n; k++) pinv[perm ? perm[k] : k] = k;
-    for (int s = 0; s < ns; s++)
-        for (int j = super[s]; j < super[s + 1]; j++) p->col_super[j] = s;
-    // Tree, sizes and the row lists' order (ascending, columns first: relied on below).
-    st = HS_ERR_UNSUPPORTED;
+        return HS_ERR_NOMEM;
+    return HS_OK;
+}
+
+// Tree, sizes and the row lists' order (ascending, columns first: relied on below); then the
+// update matrices' storage.
+static hs_status partial_tree(const cholmod_factor* L, struct hs_partial* p) {
+    const int ns = p->ns;
+    const int *super = L->super, *pi = L->pi, *ls = L->s;
     for (int s = 0; s < ns; s++) {
         int nc = super[s + 1] - super[s], nr = pi[s + 1] - pi[s], m = nr - nc;
-        if (m < 0) goto fail;
+        if (m < 0) return HS_ERR_UNSUPPORTED;
         for (int k = 0; k < nr; k++)
             if ((k < nc && ls[pi[s] + k] != super[s] + k) ||
                 (k > 0 && ls[pi[s] + k] <= ls[pi[s] + k - 1]))
-                goto fail;
+                return HS_ERR_UNSUPPORTED;
         p->parent[s] = m > 0 ? p->col_super[ls[pi[s] + nc]] : -1;
-        if (m > 0 && p->parent[s] <= s) goto fail;
+        if (m > 0 && p->parent[s] <= s) return HS_ERR_UNSUPPORTED;
         if (m > 0) p->child_start[p->parent[s] + 1]++;
         p->rel_start[s + 1] = p->rel_start[s] + m;
         p->u_start[s + 1] = p->u_start[s] + (size_t)m * (size_t)m;
@@ -1723,93 +1655,58 @@ static hs_status build_partial(const cholmod_factor* L, const hs_csc* a, struct 
         p->total_flops += p->flops[s];
     }
     for (int s = 0; s < ns; s++) p->child_start[s + 1] += p->child_start[s];
-    st = HS_ERR_NOMEM;
     p->rel = hs_alloc(sizeof(int) * ((size_t)p->rel_start[ns] + 1));
     p->run_end = hs_alloc(sizeof(int) * ((size_t)p->rel_start[ns] + 1));
     p->u = hs_alloc(sizeof(double) * (p->u_start[ns] + 1));
-    if (!p->rel || !p->run_end || !p->u) goto fail;
+    if (!p->rel || !p->run_end || !p->u) return HS_ERR_NOMEM;
     advise_huge(p->u, sizeof(double) * (p->u_start[ns] + 1));
-    {
-        int* fill = cnt; // next free child slot per supernode
-        for (int s = 0; s < ns; s++) fill[s] = p->child_start[s];
-        for (int s = 0; s < ns; s++)
-            if (p->parent[s] >= 0) p->child[fill[p->parent[s]]++] = s;
-        // A child's rows below its columns lie in its parent's row list (elimination-tree
-        // property); checked, since the extend-add writes through these positions unchecked.
-        for (int k = 0; k < n; k++) pos[k] = -1;
-        int bad = 0;
-        for (int s = 0; s < ns && !bad; s++) {
-            for (int k = pi[s]; k < pi[s + 1]; k++) pos[ls[k]] = k - pi[s];
-            for (int q = p->child_start[s]; q < p->child_start[s + 1]; q++) {
-                int c = p->child[q], cnc = super[c + 1] - super[c];
-                int* r = p->rel + p->rel_start[c];
-                for (int k = pi[c] + cnc; k < pi[c + 1]; k++) {
-                    int lr = pos[ls[k]];
-                    bad |= lr < 0 || lr >= pi[s + 1] - pi[s] || ls[pi[s] + lr] != ls[k];
-                    *r++ = lr;
-                }
-            }
-        }
-        if (bad) {
-            st = HS_ERR_UNSUPPORTED;
-            goto fail;
-        }
-        for (int c = 0; c < ns; c++) {
-            const int *r = p->rel + p->rel_start[c], mc = p->rel_start[c + 1] - p->rel_start[c];
-            int* e = p->run_end + p->rel_start[c];
-            for (int k = mc - 1; k >= 0; k--)
-                e[k] = k + 1 < mc && r[k + 1] == r[k] + 1 ? e[k + 1] : k + 1;
-        }
-    }
-    // A's upper entries (original numbering), each to the supernode of its lower column.
-    memset(cnt, 0, sizeof(int) * ((size_t)n + 1));
-    int nz = 0;
-    for (int j = 0; j < n; j++)
-        for (int q = a->colp[j]; q < a->colp[j + 1]; q++) {
-            int i = a->rowi[q];
-            if (i > j) continue;
-            int c = pinv[i] < pinv[j] ? pinv[i] : pinv[j];
-            cnt[p->col_super[c]]++;
-            nz++;
-            if (i == j) p->diag_val[pinv[j]] = q;
-        }
-    p->ent_val = hs_alloc(sizeof(int) * ((size_t)nz + 1));
-    p->ent_off = hs_alloc(sizeof(int) * ((size_t)nz + 1));
-    if (!p->ent_val || !p->ent_off) goto fail;
-    for (int s = 0; s < ns; s++) p->ent_start[s + 1] = p->ent_start[s] + cnt[s];
-    for (int s = 0; s < ns; s++) cnt[s] = p->ent_start[s];
-    // Local rows of every supernode at once would need n x ns; go supernode by supernode over
-    // a column-to-entries list instead.
-    int* cstart = hs_calloc((size_t)n + 2, sizeof(int));
-    int* clist = hs_alloc(sizeof(int) * ((size_t)nz + 1));
-    if (!cstart || !clist) {
-        hs_free(cstart);
-        hs_free(clist);
-        goto fail;
-    }
-    for (int j = 0; j < n; j++)
-        for (int q = a->colp[j]; q < a->colp[j + 1]; q++)
-            if (a->rowi[q] <= j) {
-                int c = pinv[a->rowi[q]] < pinv[j] ? pinv[a->rowi[q]] : pinv[j];
-                cstart[c + 2]++;
-            }
-    for (int c = 0; c < n; c++) cstart[c + 2] += cstart[c + 1];
-    for (int j = 0; j < n; j++)
-        for (int q = a->colp[j]; q < a->colp[j + 1]; q++)
-            if (a->rowi[q] <= j) {
-                int c = pinv[a->rowi[q]] < pinv[j] ? pinv[a->rowi[q]] : pinv[j];
-                clist[cstart[c + 1]++] = q;
-            }
-    int* colof = hs_alloc(sizeof(int) * ((size_t)a->nnz + 1)); // column of each entry
-    if (!colof) {
-        hs_free(cstart);
-        hs_free(clist);
-        goto fail;
-    }
-    for (int j = 0; j < n; j++)
-        for (int q = a->colp[j]; q < a->colp[j + 1]; q++) colof[q] = j;
+    return HS_OK;
+}
+
+// Children lists, and each child's update rows as local rows of its parent (rel, run_end).
+// fill and pos: [n] scratch.
+static hs_status partial_children(const cholmod_factor* L, struct hs_partial* p, int* fill,
+                                  int* pos) {
+    const int n = (int)L->n, ns = p->ns;
+    const int *super = L->super, *pi = L->pi, *ls = L->s;
+    for (int s = 0; s < ns; s++) fill[s] = p->child_start[s]; // next free child slot
+    for (int s = 0; s < ns; s++)
+        if (p->parent[s] >= 0) p->child[fill[p->parent[s]]++] = s;
+    // A child's rows below its columns lie in its parent's row list (elimination-tree
+    // property); checked, since the extend-add writes through these positions unchecked.
+    for (int k = 0; k < n; k++) pos[k] = -1;
     int bad = 0;
     for (int s = 0; s < ns && !bad; s++) {
+        for (int k = pi[s]; k < pi[s + 1]; k++) pos[ls[k]] = k - pi[s];
+        for (int q = p->child_start[s]; q < p->child_start[s + 1]; q++) {
+            int c = p->child[q], cnc = super[c + 1] - super[c];
+            int* r = p->rel + p->rel_start[c];
+            for (int k = pi[c] + cnc; k < pi[c + 1]; k++) {
+                int lr = pos[ls[k]];
+                bad |= lr < 0 || lr >= pi[s + 1] - pi[s] || ls[pi[s] + lr] != ls[k];
+                *r++ = lr;
+            }
+        }
+    }
+    if (bad) return HS_ERR_UNSUPPORTED;
+    for (int c = 0; c < ns; c++) {
+        const int *r = p->rel + p->rel_start[c], mc = p->rel_start[c + 1] - p->rel_start[c];
+        int* e = p->run_end + p->rel_start[c];
+        for (int k = mc - 1; k >= 0; k--)
+            e[k] = k + 1 < mc && r[k + 1] == r[k] + 1 ? e[k + 1] : k + 1;
+    }
+    return HS_OK;
+}
+
+// Where each of A's entries goes in supernode s: ent_val / ent_off from cnt[s] on. cstart and
+// clist list A's upper entries by their lower column (L's order); colof: each entry's column;
+// pos: [n] scratch. HS_ERR_UNSUPPORTED when an entry is not in L's pattern.
+static hs_status partial_place(const cholmod_factor* L, const hs_csc* a, struct hs_partial* p,
+                               const int* pinv, const int* cstart, const int* clist,
+                               const int* colof, int* cnt, int* pos) {
+    const int *super = L->super, *pi = L->pi, *px = L->px, *ls = L->s;
+    int bad = 0;
+    for (int s = 0; s < p->ns && !bad; s++) {
         int nr = pi[s + 1] - pi[s];
         for (int k = pi[s]; k < pi[s + 1]; k++) pos[ls[k]] = k - pi[s];
         for (int c = super[s]; c < super[s + 1]; c++)
@@ -1823,24 +1720,87 @@ static hs_status build_partial(const cholmod_factor* L, const hs_csc* a, struct 
                 p->ent_off[e] = px[s] + (c - super[s]) * nr + lr;
             }
     }
+    return bad ? HS_ERR_UNSUPPORTED : HS_OK;
+}
+
+// A's upper entries (original numbering), each to the supernode of its lower column.
+// cnt and pos: [n] scratch.
+static hs_status partial_entries(const cholmod_factor* L, const hs_csc* a, struct hs_partial* p,
+                                 const int* pinv, int* cnt, int* pos) {
+    const int n = (int)L->n, ns = p->ns;
+    memset(cnt, 0, sizeof(int) * ((size_t)n + 1));
+    int nz = 0;
+    for (int j = 0; j < n; j++)
+        for (int q = a->colp[j]; q < a->colp[j + 1]; q++) {
+            int i = a->rowi[q];
+            if (i > j) continue;
+            int c = pinv[i] < pinv[j] ? pinv[i] : pinv[j];
+            cnt[p->col_super[c]]++;
+            nz++;
+            if (i == j) p->diag_val[pinv[j]] = q;
+        }
+    p->ent_val = hs_alloc(sizeof(int) * ((size_t)nz + 1));
+    p->ent_off = hs_alloc(sizeof(int) * ((size_t)nz + 1));
+    if (!p->ent_val || !p->ent_off) return HS_ERR_NOMEM;
+    for (int s = 0; s < ns; s++) p->ent_start[s + 1] = p->ent_start[s] + cnt[s];
+    for (int s = 0; s < ns; s++) cnt[s] = p->ent_start[s];
+    // Local rows of every supernode at once would need n x ns; go supernode by supernode over
+    // a column-to-entries list instead.
+    int* cstart = hs_calloc((size_t)n + 2, sizeof(int));
+    int* clist = hs_alloc(sizeof(int) * ((size_t)nz + 1));
+    int* colof = hs_alloc(sizeof(int) * ((size_t)a->nnz + 1)); // column of each entry
+    hs_status st = HS_ERR_NOMEM;
+    if (cstart && clist && colof) {
+        for (int j = 0; j < n; j++)
+            for (int q = a->colp[j]; q < a->colp[j + 1]; q++)
+                if (a->rowi[q] <= j) {
+                    int c = pinv[a->rowi[q]] < pinv[j] ? pinv[a->rowi[q]] : pinv[j];
+                    cstart[c + 2]++;
+                }
+        for (int c = 0; c < n; c++) cstart[c + 2] += cstart[c + 1];
+        for (int j = 0; j < n; j++)
+            for (int q = a->colp[j]; q < a->colp[j + 1]; q++)
+                if (a->rowi[q] <= j) {
+                    int c = pinv[a->rowi[q]] < pinv[j] ? pinv[a->rowi[q]] : pinv[j];
+                    clist[cstart[c + 1]++] = q;
+                }
+        for (int j = 0; j < n; j++)
+            for (int q = a->colp[j]; q < a->colp[j + 1]; q++) colof[q] = j;
+        st = partial_place(L, a, p, pinv, cstart, clist, colof, cnt, pos);
+    }
     hs_free(cstart);
     hs_free(clist);
     hs_free(colof);
-    if (bad) {
-        st = HS_ERR_UNSUPPORTED;
-        goto fail;
+    return st;
+}
+
+// Build the maps of a supernodal factor L for a matrix with a's pattern (both halves stored).
+static hs_status build_partial(const cholmod_factor* L, const hs_csc* a, struct hs_partial** out) {
+    const int n = (int)L->n, ns = (int)L->nsuper;
+    const int *super = L->super, *perm = L->Perm;
+    struct hs_partial* p = hs_calloc(1, sizeof *p);
+    int* pinv = hs_alloc(sizeof(int) * ((size_t)n + 1));
+    int* pos = hs_alloc(sizeof(int) * ((size_t)n + 1));
+    int* cnt = hs_calloc((size_t)n + 1, sizeof(int));
+    hs_status st = HS_ERR_NOMEM;
+    if (p && pinv && pos && cnt) st = partial_alloc(p, n, ns);
+    if (st == HS_OK) {
+        for (int k = 0; k < n; k++) pinv[perm ? perm[k] : k] = k;
+        for (int s = 0; s < ns; s++)
+            for (int j = super[s]; j < super[s + 1]; j++) p->col_super[j] = s;
+        st = partial_tree(L, p);
     }
+    if (st == HS_OK) st = partial_children(L, p, cnt, pos);
+    if (st == HS_OK) st = partial_entries(L, a, p, pinv, cnt, pos);
     hs_free(pinv);
     hs_free(pos);
     hs_free(cnt);
+    if (st != HS_OK) {
+        free_partial(&p);
+        return st;
+    }
     *out = p;
     return HS_OK;
-fail:
-    hs_free(pinv);
-    hs_free(pos);
-    hs_free(cnt);
-    free_partial(&p);
-    return st;
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -1,6 +1,6 @@
 // SPDX-License-Identifier: GPL-2.0-or-later
 // Symmetric compressed-column matrices with a fixed, full (both triangles) pattern.
-#include "hapsim/sparse.h"
+#include "sparse.h"
 
 #include <limits.h>
 #include <stdlib.h>

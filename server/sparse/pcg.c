@@ -1,6 +1,6 @@
 // SPDX-License-Identifier: GPL-2.0-or-later
 // Preconditioned conjugate gradients on hs_csc with warm start; workspace allocated once.
-#include "hapsim/sparse.h"
+#include "sparse.h"
 
 #include <math.h>
 #include <string.h>

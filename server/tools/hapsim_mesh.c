@@ -4,10 +4,10 @@
 // surface, `scene` makes a ready scene folder, `surface` writes a mesh's boundary.
 #define _XOPEN_SOURCE 700 // mkdir
 #include "hapsim/version.h"
-#include "hapsim/mesh.h"
-#include "hapsim/mesher.h"
-#include "hapsim/scene.h"
-#include "hapsim/surface.h"
+#include "mesh.h"
+#include "mesher.h"
+#include "scene.h"
+#include "surface.h"
 
 #include <errno.h>
 #include <math.h>
@@ -679,60 +679,45 @@ static int fix_json(const char* spec, double u, char* buf, size_t cap) {
     return 1;
 }
 
-static int cmd_scene(const opts* o) {
-    if (!o->out || o->n_fix == 0) {
-        fprintf(stderr, "hapsim-mesh scene: --out DIR and at least one --fix REGION are needed\n");
-        return 2;
-    }
-    char fixes[MAX_SPECS][400];
-    for (int i = 0; i < o->n_fix; ++i)
-        if (!fix_json(o->fix[i], o->units, fixes[i], sizeof fixes[i])) {
-            fprintf(stderr, "hapsim-mesh scene: bad --fix '%s' (see --help)\n", o->fix[i]);
-            return 2;
-        }
+// The tets for a scene: meshed from a surface (--size given), or a volume mesh with its
+// --group regions.
+static hs_mesh* scene_mesh(const opts* o) {
     hs_mesh* m = NULL;
-    if (is_surface_ext(o->input) || o->size > 0) {
-        if (!(o->size > 0)) {
-            fprintf(stderr, "hapsim-mesh scene: %s is a surface: --size H is required\n", o->input);
-            return 2;
-        }
-        m = make_tets(o);
-    } else {
-        if (load_volume(o->input, o->units, &m)) {
-            check_units(o->input, m->bbox_min, m->bbox_max, o->units);
-            int base = m->n_regions;
-            for (int g = 0; g < o->n_groups; ++g)
-                if (!add_group(m, o->groups[g], o->units, 1000 + base + g)) hs_mesh_destroy(&m);
-        }
+    if (is_surface_ext(o->input) || o->size > 0) return make_tets(o);
+    if (load_volume(o->input, o->units, &m)) {
+        check_units(o->input, m->bbox_min, m->bbox_max, o->units);
+        int base = m->n_regions;
+        for (int g = 0; g < o->n_groups; ++g)
+            if (!add_group(m, o->groups[g], o->units, 1000 + base + g)) hs_mesh_destroy(&m);
     }
-    if (!m) return 1;
-    if (mkdir(o->out, 0777) != 0 && errno != EEXIST) {
-        fprintf(stderr, "hapsim-mesh: %s: cannot create: %s\n", o->out, strerror(errno));
-        hs_mesh_destroy(&m);
-        return 1;
-    }
-    char path[4200];
-    hs_err e = {0};
-    snprintf(path, sizeof path, "%s/organ.msh", o->out);
-    if (hs_mesh_write_msh(m, path, &e) < 0) {
-        fprintf(stderr, "hapsim-mesh: %s\n", e.msg);
-        hs_mesh_destroy(&m);
-        return 1;
-    }
-    // The scene.
-    double r = o->have_probe ? o->probe_radius * o->units : 0.005;
+    return m;
+}
+
+static FILE* open_out(const char* path) {
+    FILE* f = fopen(path, "w");
+    if (!f) fprintf(stderr, "hapsim-mesh: %s: cannot write: %s\n", path, strerror(errno));
+    return f;
+}
+
+// Closes f written to path: 0, or 1 after saying the write failed.
+static int close_out(FILE* f, const char* path) {
+    int bad = ferror(f);
+    bad |= fclose(f) != 0;
+    if (bad) fprintf(stderr, "hapsim-mesh: %s: write failed\n", path);
+    return bad ? 1 : 0;
+}
+
+// scene.json beside organ.msh: soft tissue defaults, the fixed regions, a probe of radius r
+// (and a scalpel with --cut). 0, or 1 after saying why.
+static int write_scene_json(const opts* o, const hs_mesh* m, char (*fixes)[400], double r,
+                            const char* path) {
     double lo[3], hi[3];
     for (int d = 0; d < 3; ++d) {
         lo[d] = m->bbox_min[d] - 0.1;
         hi[d] = m->bbox_max[d] + 0.1;
     }
-    snprintf(path, sizeof path, "%s/scene.json", o->out);
-    FILE* f = fopen(path, "w");
-    if (!f) {
-        fprintf(stderr, "hapsim-mesh: %s: cannot write: %s\n", path, strerror(errno));
-        hs_mesh_destroy(&m);
-        return 1;
-    }
+    FILE* f = open_out(path);
+    if (!f) return 1;
     char esc[1024];
     fprintf(f,
             "{\n  \"_comment\": \"Made by hapsim-mesh scene from %s. Soft tissue defaults: "
@@ -760,31 +745,28 @@ static int cmd_scene(const opts* o) {
         fprintf(f, "  \"tools\": [ { \"kind\": \"probe\", \"radius\": %.6g } ],\n", r);
     fprintf(f, "  \"workspace\": { \"min\": [%.4f, %.4f, %.4f], \"max\": [%.4f, %.4f, %.4f] }\n}\n",
             lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]);
-    int bad = ferror(f);
-    bad |= fclose(f) != 0;
-    if (bad) {
-        fprintf(stderr, "hapsim-mesh: %s: write failed\n", path);
-        hs_mesh_destroy(&m);
-        return 1;
-    }
-    // Check the scene as the server will: it loads, every region selects, one node stays free.
+    return close_out(f, path);
+}
+
+// The fixed nodes of the scene at path, checked as the server will: it loads, every region
+// selects, one node stays free. fc: the sum of the fixed nodes' positions. 0, or 1 after
+// saying why.
+static int check_scene_fixed(const opts* o, const hs_mesh* m, const char* path, int* n_fixed,
+                             int* n_used, double fc[3]) {
     hs_scene sc;
+    hs_err e = {0};
     if (hs_scene_load(path, &sc, &e) < 0) {
         fprintf(stderr, "hapsim-mesh: the scene made does not load: %s\n", e.msg);
-        hs_mesh_destroy(&m);
         return 1;
     }
     unsigned char* sel = calloc((size_t)m->n_nodes, 1);
     unsigned char* all = calloc((size_t)m->n_nodes, 1);
-    double fc[3] = {0, 0, 0};
-    int n_fixed = 0, n_used = 0;
-    for (int k = 0; sel && all && k < sc.n_fixed; ++k) {
+    int rc = 0;
+    for (int k = 0; sel && all && k < sc.n_fixed && !rc; ++k) {
         if (hs_scene_fixed_select(&sc.fixed[k], m, sel, &e) < 0) {
             fprintf(stderr, "hapsim-mesh: --fix '%s': %s\n", o->fix[k], e.msg);
-            free(sel);
-            free(all);
-            hs_mesh_destroy(&m);
-            return 1;
+            rc = 1;
+            break;
         }
         int any = 0;
         for (int i = 0; i < m->n_nodes; ++i) {
@@ -797,28 +779,37 @@ static int cmd_scene(const opts* o) {
                     "%g] x [%g, %g] m)\n",
                     o->fix[k], m->bbox_min[0], m->bbox_max[0], m->bbox_min[1], m->bbox_max[1],
                     m->bbox_min[2], m->bbox_max[2]);
-            free(sel);
-            free(all);
-            hs_mesh_destroy(&m);
-            return 1;
+            rc = 1;
         }
     }
-    for (int i = 0; all && i < m->n_nodes; ++i) {
-        n_used += m->node_used[i] != 0;
+    *n_fixed = *n_used = 0;
+    for (int i = 0; !rc && all && i < m->n_nodes; ++i) {
+        *n_used += m->node_used[i] != 0;
         if (all[i]) {
-            ++n_fixed;
+            ++*n_fixed;
             for (int d = 0; d < 3; ++d) fc[d] += m->x0[3 * i + d];
         }
     }
     free(sel);
     free(all);
-    if (n_fixed == 0 || n_fixed == n_used) {
+    if (!rc && (*n_fixed == 0 || *n_fixed == *n_used)) {
         fprintf(stderr, "hapsim-mesh: the --fix regions hold %s\n",
-                n_fixed ? "every node: nothing left to move" : "no node");
-        hs_mesh_destroy(&m);
-        return 1;
+                *n_fixed ? "every node: nothing left to move" : "no node");
+        rc = 1;
     }
-    // Probe at the top-most point along up: by default away from the fixed region.
+    return rc;
+}
+
+// Where the scripts press: the top-most surface point along up (by default away from the
+// fixed region, whose centre is fc), with the sphere centre c at contact, the start s0 and the
+// approach a, in mm.
+typedef struct press_plan {
+    probe_pt p;
+    double c[3], s0[3], a[3];
+} press_plan;
+
+static int plan_press(const opts* o, const hs_mesh* m, const double fc[3], double r,
+                      press_plan* pl) {
     double up[3] = {0, 0, 1};
     if (o->have_up) {
         memcpy(up, o->up, sizeof up);
@@ -826,106 +817,138 @@ static int cmd_scene(const opts* o) {
         double mc[3] = {0, 0, 0};
         for (int i = 0; i < m->n_nodes; ++i)
             for (int d = 0; d < 3; ++d) mc[d] += m->x0[3 * i + d] / m->n_nodes;
-        for (int d = 0; d < 3; ++d) up[d] = mc[d] - fc[d] / n_fixed;
+        for (int d = 0; d < 3; ++d) up[d] = mc[d] - fc[d];
         if (!(sqrt(up[0] * up[0] + up[1] * up[1] + up[2] * up[2]) > 1e-9)) up[2] = 1;
     }
     double l = sqrt(up[0] * up[0] + up[1] * up[1] + up[2] * up[2]);
     for (int d = 0; d < 3; ++d) up[d] /= l;
-    probe_pt p;
-    if (!top_point(m, up, &p)) {
+    if (!top_point(m, up, &pl->p)) {
         fprintf(stderr, "hapsim-mesh: no surface point with a normal\n");
-        hs_mesh_destroy(&m);
         return 1;
     }
-    snprintf(path, sizeof path, "%s/probe.probe", o->out);
-    f = fopen(path, "w");
-    if (!f) {
-        fprintf(stderr, "hapsim-mesh: %s: cannot write: %s\n", path, strerror(errno));
-        hs_mesh_destroy(&m);
-        return 1;
-    }
-    double c[3], s0[3], a[3];
     for (int d = 0; d < 3; ++d) {
-        c[d] = (p.x[d] + r * p.n[d]) * 1e3; // contact begins (sphere centre), mm
-        s0[d] = c[d] + 15 * p.n[d];         // start 15 mm out
-        a[d] = c[d] + 10 * p.n[d];          // approach 10 mm out
+        pl->c[d] = (pl->p.x[d] + r * pl->p.n[d]) * 1e3; // contact begins (sphere centre), mm
+        pl->s0[d] = pl->c[d] + 15 * pl->p.n[d];         // start 15 mm out
+        pl->a[d] = pl->c[d] + 10 * pl->p.n[d];          // approach 10 mm out
     }
+    return 0;
+}
+
+static int write_probe_script(const press_plan* pl, const char* path) {
+    FILE* f = open_out(path);
+    if (!f) return 1;
+    const probe_pt* p = &pl->p;
+    const double *c = pl->c, *s0 = pl->s0, *a = pl->a;
     fprintf(
         f, "# Made by hapsim-mesh scene: touch the organ at its top-most point away from the\n"
            "# fixed region, press 5 mm along the normal, hold, release. Format: docs/stylus.md.\n");
     fprintf(f,
             "# Press point: surface node %d at (%.2f, %.2f, %.2f) mm, outward normal "
             "(%.3f, %.3f, %.3f).\n",
-            p.node, p.x[0] * 1e3, p.x[1] * 1e3, p.x[2] * 1e3, p.n[0], p.n[1], p.n[2]);
+            p->node, p->x[0] * 1e3, p->x[1] * 1e3, p->x[2] * 1e3, p->n[0], p->n[1], p->n[2]);
     fprintf(f, "units mm\n");
-    fprintf(f, "surface %.2f %.2f %.2f   %.3f %.3f %.3f\n", c[0], c[1], c[2], p.n[0], p.n[1],
-            p.n[2]);
+    fprintf(f, "surface %.2f %.2f %.2f   %.3f %.3f %.3f\n", c[0], c[1], c[2], p->n[0], p->n[1],
+            p->n[2]);
     fprintf(f, "origin %.2f %.2f %.2f\n", c[0], c[1], c[2]);
     fprintf(f, "start %.2f %.2f %.2f\n", s0[0], s0[1], s0[2]);
     fprintf(f, "profile minjerk\n");
     fprintf(f, "move_to %.2f %.2f %.2f 20\n", a[0], a[1], a[2]);
-    fprintf(f, "touch %.3f %.3f %.3f 20 5\n", p.n[0], p.n[1], p.n[2]);
-    fprintf(f, "hold 0.5\npress %.3f %.3f %.3f 5 5\nhold 2\nrelease 5 1\nhold 0.5\n", p.n[0],
-            p.n[1], p.n[2]);
+    fprintf(f, "touch %.3f %.3f %.3f 20 5\n", p->n[0], p->n[1], p->n[2]);
+    fprintf(f, "hold 0.5\npress %.3f %.3f %.3f 5 5\nhold 2\nrelease 5 1\nhold 0.5\n", p->n[0],
+            p->n[1], p->n[2]);
     fprintf(f, "move_to %.2f %.2f %.2f 20\n", s0[0], s0[1], s0[2]);
-    bad = ferror(f);
-    bad |= fclose(f) != 0;
-    if (bad) {
-        fprintf(stderr, "hapsim-mesh: %s: write failed\n", path);
-        hs_mesh_destroy(&m);
-        return 1;
-    }
-    if (o->cut) {
-        // Touch with the probe (button up), then hold the button and sweep the blade 20 mm
-        // along the surface with its axis on the normal: it reaches 5 mm into the tissue.
-        double t[3], ax[3] = {0, 0, 0};
-        int k = fabs(p.n[0]) < fabs(p.n[1]) ? (fabs(p.n[0]) < fabs(p.n[2]) ? 0 : 2)
-                                            : (fabs(p.n[1]) < fabs(p.n[2]) ? 1 : 2);
-        ax[k] = 1;
-        t[0] = p.n[1] * ax[2] - p.n[2] * ax[1];
-        t[1] = p.n[2] * ax[0] - p.n[0] * ax[2];
-        t[2] = p.n[0] * ax[1] - p.n[1] * ax[0];
-        double tl = sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2]);
-        snprintf(path, sizeof path, "%s/cut.probe", o->out);
-        f = fopen(path, "w");
-        if (!f) {
-            fprintf(stderr, "hapsim-mesh: %s: cannot write: %s\n", path, strerror(errno));
-            hs_mesh_destroy(&m);
-            return 1;
-        }
-        fprintf(
-            f,
+    return close_out(f, path);
+}
+
+// Touch with the probe (button up), then hold the button and sweep the blade 20 mm along the
+// surface with its axis on the normal: it reaches 5 mm into the tissue.
+static int write_cut_script(const press_plan* pl, const char* path) {
+    const double* n = pl->p.n;
+    const double *c = pl->c, *s0 = pl->s0, *a = pl->a;
+    double t[3], ax[3] = {0, 0, 0};
+    int k = fabs(n[0]) < fabs(n[1]) ? (fabs(n[0]) < fabs(n[2]) ? 0 : 2)
+                                    : (fabs(n[1]) < fabs(n[2]) ? 1 : 2);
+    ax[k] = 1;
+    t[0] = n[1] * ax[2] - n[2] * ax[1];
+    t[1] = n[2] * ax[0] - n[0] * ax[2];
+    t[2] = n[0] * ax[1] - n[1] * ax[0];
+    double tl = sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2]);
+    FILE* f = open_out(path);
+    if (!f) return 1;
+    fprintf(f,
             "# Made by hapsim-mesh scene --cut: touch the organ where probe.probe presses, then\n"
             "# hold the button and draw the 20 mm blade 20 mm along the surface (5 mm deep),\n"
             "# then lift. Format: docs/stylus.md; cutting: docs/cutting.md.\n");
-        fprintf(f, "units mm\nsurface %.2f %.2f %.2f   %.3f %.3f %.3f\n", c[0], c[1], c[2], p.n[0],
-                p.n[1], p.n[2]);
-        fprintf(f, "origin %.2f %.2f %.2f\nstart %.2f %.2f %.2f\nprofile minjerk\n", c[0], c[1],
-                c[2], s0[0], s0[1], s0[2]);
-        fprintf(f, "move_to %.2f %.2f %.2f 20\n", a[0], a[1], a[2]);
-        fprintf(f, "touch %.3f %.3f %.3f 20 5\nhold 0.5\n", p.n[0], p.n[1], p.n[2]);
-        fprintf(f, "cut %.2f %.2f %.2f 10 %.3f %.3f %.3f\n", c[0] + 20 * t[0] / tl,
-                c[1] + 20 * t[1] / tl, c[2] + 20 * t[2] / tl, p.n[0], p.n[1], p.n[2]);
-        fprintf(f, "hold 0.5\nmove_to %.2f %.2f %.2f 20\n", s0[0] + 20 * t[0] / tl,
-                s0[1] + 20 * t[1] / tl, s0[2] + 20 * t[2] / tl);
-        bad = ferror(f);
-        bad |= fclose(f) != 0;
-        if (bad) {
-            fprintf(stderr, "hapsim-mesh: %s: write failed\n", path);
-            hs_mesh_destroy(&m);
-            return 1;
-        }
+    fprintf(f, "units mm\nsurface %.2f %.2f %.2f   %.3f %.3f %.3f\n", c[0], c[1], c[2], n[0], n[1],
+            n[2]);
+    fprintf(f, "origin %.2f %.2f %.2f\nstart %.2f %.2f %.2f\nprofile minjerk\n", c[0], c[1], c[2],
+            s0[0], s0[1], s0[2]);
+    fprintf(f, "move_to %.2f %.2f %.2f 20\n", a[0], a[1], a[2]);
+    fprintf(f, "touch %.3f %.3f %.3f 20 5\nhold 0.5\n", n[0], n[1], n[2]);
+    fprintf(f, "cut %.2f %.2f %.2f 10 %.3f %.3f %.3f\n", c[0] + 20 * t[0] / tl,
+            c[1] + 20 * t[1] / tl, c[2] + 20 * t[2] / tl, n[0], n[1], n[2]);
+    fprintf(f, "hold 0.5\nmove_to %.2f %.2f %.2f 20\n", s0[0] + 20 * t[0] / tl,
+            s0[1] + 20 * t[1] / tl, s0[2] + 20 * t[2] / tl);
+    return close_out(f, path);
+}
+
+// organ.msh, scene.json and the stylus scripts into --out; the exit status.
+static int write_scene_dir(const opts* o, hs_mesh* m, char (*fixes)[400]) {
+    if (mkdir(o->out, 0777) != 0 && errno != EEXIST) {
+        fprintf(stderr, "hapsim-mesh: %s: cannot create: %s\n", o->out, strerror(errno));
+        return 1;
     }
+    char path[4200];
+    hs_err e = {0};
+    snprintf(path, sizeof path, "%s/organ.msh", o->out);
+    if (hs_mesh_write_msh(m, path, &e) < 0) {
+        fprintf(stderr, "hapsim-mesh: %s\n", e.msg);
+        return 1;
+    }
+    double r = o->have_probe ? o->probe_radius * o->units : 0.005;
+    snprintf(path, sizeof path, "%s/scene.json", o->out);
+    if (write_scene_json(o, m, fixes, r, path)) return 1;
+    int n_fixed = 0, n_used = 0;
+    double fc[3] = {0, 0, 0};
+    if (check_scene_fixed(o, m, path, &n_fixed, &n_used, fc)) return 1;
+    for (int d = 0; d < 3; ++d) fc[d] /= n_fixed;
+    press_plan pl;
+    if (plan_press(o, m, fc, r, &pl)) return 1;
+    snprintf(path, sizeof path, "%s/probe.probe", o->out);
+    if (write_probe_script(&pl, path)) return 1;
+    snprintf(path, sizeof path, "%s/cut.probe", o->out);
+    if (o->cut && write_cut_script(&pl, path)) return 1;
     print_quality(stdout, m, r);
     printf("fixed           %d of %d nodes\n", n_fixed, n_used);
-    printf("probe point     node %d at (%.2f, %.2f, %.2f) mm\n", p.node, p.x[0] * 1e3, p.x[1] * 1e3,
-           p.x[2] * 1e3);
+    printf("probe point     node %d at (%.2f, %.2f, %.2f) mm\n", pl.p.node, pl.p.x[0] * 1e3,
+           pl.p.x[1] * 1e3, pl.p.x[2] * 1e3);
     printf("scene           %s/scene.json\n", o->out);
     printf("run             hapsim-server %s/scene.json\n", o->out);
     printf("                hapsim-stylus --script %s/probe.probe\n", o->out);
     if (o->cut) printf("                hapsim-stylus --script %s/cut.probe\n", o->out);
-    hs_mesh_destroy(&m);
     return 0;
+}
+
+static int cmd_scene(const opts* o) {
+    if (!o->out || o->n_fix == 0) {
+        fprintf(stderr, "hapsim-mesh scene: --out DIR and at least one --fix REGION are needed\n");
+        return 2;
+    }
+    char fixes[MAX_SPECS][400];
+    for (int i = 0; i < o->n_fix; ++i)
+        if (!fix_json(o->fix[i], o->units, fixes[i], sizeof fixes[i])) {
+            fprintf(stderr, "hapsim-mesh scene: bad --fix '%s' (see --help)\n", o->fix[i]);
+            return 2;
+        }
+    if ((is_surface_ext(o->input) || o->size > 0) && !(o->size > 0)) {
+        fprintf(stderr, "hapsim-mesh scene: %s is a surface: --size H is required\n", o->input);
+        return 2;
+    }
+    hs_mesh* m = scene_mesh(o);
+    if (!m) return 1;
+    int rc = write_scene_dir(o, m, fixes);
+    hs_mesh_destroy(&m);
+    return rc;
 }
 
 // ---------------------------------------------------------------------------------------------

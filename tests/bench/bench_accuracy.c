@@ -4,14 +4,14 @@
 //
 // Errors are nodal displacement differences normalised by the bounding-box diagonal of the rest
 // mesh (the paper's normalisation). Times are thread CPU times (CLOCK_THREAD_CPUTIME_ID; CHOLMOD
-// and OpenBLAS run single-threaded, hs_sparse_set_threads), so other jobs on the machine inflate
+// and OpenBLAS run single-threaded, hs_platform_setup), so other jobs on the machine inflate
 // them less than wall time would.
 #define _POSIX_C_SOURCE 200809L
 #include "accuracy_refs.h"
 #include "bench.h"
-#include "hapsim/body.h"
-#include "hapsim/mesh.h"
-#include "hapsim/mooney.h"
+#include "body.h"
+#include "mesh.h"
+#include "mooney.h"
 
 #include <math.h>
 #include <stdio.h>

@@ -2,8 +2,8 @@
 // hapsim-bench core: cost of one implicit step per model and mesh, with tip deflection and
 // volume ratio so that speed and accuracy are read together.
 #include "bench.h"
-#include "hapsim/body.h"
-#include "hapsim/mesh.h"
+#include "body.h"
+#include "mesh.h"
 
 #include <math.h>
 #include <stdio.h>

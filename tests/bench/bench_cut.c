@@ -12,10 +12,10 @@
 #define _POSIX_C_SOURCE 200809L
 #include "bench.h"
 
-#include "base/spsc_ring.h"
-#include "hapsim/haptic_sim.h"
-#include "hapsim/scene.h"
-#include "rt/haptic_rt.h"
+#include "spsc_ring.h"
+#include "haptic_sim.h"
+#include "scene.h"
+#include "haptic_rt.h"
 #include "scene_sim.h"
 
 #include <math.h>

@@ -6,11 +6,11 @@
 #define _POSIX_C_SOURCE 200809L
 #include "bench.h"
 #include "../liver_haptic.h"
-#include "hapsim/compliance.h"
-#include "hapsim/haptic_sim.h"
-#include "hapsim/mesh.h"
-#include "hapsim/sparse.h"
-#include "rt/rt_thread.h"
+#include "compliance.h"
+#include "haptic_sim.h"
+#include "mesh.h"
+#include "sparse.h"
+#include "rt_thread.h"
 
 #include <math.h>
 #include <stdio.h>
@@ -299,7 +299,6 @@ static void contact_worst_case(void) {
 
 int hs_bench_haptic(const hs_bench_args* a) {
     contact_worst_case();
-    hs_sparse_set_threads(1);
     const haptic_case* cases = a->quick ? cases_quick : cases_full;
     size_t nc = a->quick ? sizeof cases_quick / sizeof *cases_quick
                          : sizeof cases_full / sizeof *cases_full;

@@ -11,8 +11,8 @@
 #define _POSIX_C_SOURCE 200809L
 #include "accuracy_refs.h"
 #include "bench.h"
-#include "hapsim/fem.h"
-#include "hapsim/sparse.h"
+#include "fem.h"
+#include "sparse.h"
 
 #define REFDIR HS_SOURCE_DIR "/tests/accuracy/refs/"
 

@@ -6,13 +6,13 @@
 // tool centre the rt thread held.
 #define _POSIX_C_SOURCE 200809L
 #include "bench.h"
-#include "base/spsc_ring.h"
-#include "hapsim/haptic_sim.h"
-#include "hapsim/mesh.h"
-#include "hapsim/press.h"
-#include "hapsim/surface_press.h"
-#include "hapsim/sparse.h"
-#include "rt/haptic_rt.h"
+#include "spsc_ring.h"
+#include "haptic_sim.h"
+#include "mesh.h"
+#include "press.h"
+#include "surface_press.h"
+#include "sparse.h"
+#include "haptic_rt.h"
 
 #include <math.h>
 #include <stdio.h>
@@ -281,7 +281,6 @@ done:
 }
 
 int hs_bench_organs(const hs_bench_args* a) {
-    hs_sparse_set_threads(1);
     const organ_case* cases = a->quick ? organs_quick : organs_full;
     size_t nc = a->quick ? sizeof organs_quick / sizeof *organs_quick
                          : sizeof organs_full / sizeof *organs_full;

@@ -17,13 +17,13 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
-#include "hapsim/base.h"
+#include "base.h"
 #include "hapsim_mesh_delta_t.h"
 #include "hapsim_mesh_state_t.h"
 #include "hapsim_mesh_topology_t.h"
 #include "hapsim_tool_force_t.h"
 #include "hapsim_tool_pose_t.h"
-#include "net/bus.h"
+#include "bus.h"
 
 #define SRV_H  "udpm://239.255.76.101:7801?ttl=0"
 #define SRV_M  "udpm://239.255.76.102:7802?ttl=0"

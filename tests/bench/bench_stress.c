@@ -5,8 +5,8 @@
 // quick set with assertions; `make stress` runs the long set (100,000-step soaks).
 #define _POSIX_C_SOURCE 200809L
 #include "bench.h"
-#include "hapsim/body.h"
-#include "hapsim/mesh.h"
+#include "body.h"
+#include "mesh.h"
 
 #include <math.h>
 #include <stdint.h>

@@ -3,7 +3,7 @@
 #define _POSIX_C_SOURCE 200809L
 #include "hapsim/version.h"
 #include "bench.h"
-#include "hapsim/sparse.h"
+#include "platform.h"
 
 #include <stdio.h>
 #include <stdlib.h>
@@ -65,12 +65,12 @@ typedef struct bench_cmd {
 
 static int bench_blas(const hs_bench_args* a) {
     (void)a;
-    printf("blas_core\n%s\n", hs_sparse_blas_core());
+    printf("blas_core\n%s\n", hs_platform_blas_core());
     return 0;
 }
 
 static const bench_cmd cmds[] = {
-    {"blas", bench_blas, "the BLAS kernels in use (hs_sparse_blas_select may have chosen them)"},
+    {"blas", bench_blas, "the BLAS kernels in use (hs_platform_blas_select may have chosen them)"},
     {"core", hs_bench_core, "FEM step cost per model and mesh"},
     {"accuracy", hs_bench_accuracy, "run time against error per model, solver, dt"},
     {"lockfree", hs_bench_lockfree, "locking-free options vs CalculiX's converged solution"},
@@ -100,7 +100,7 @@ static void usage(FILE* f) {
 
 int main(int argc, char** argv) {
     if (hapsim_version_asked(argc, argv, "hapsim-bench")) return 0;
-    hs_sparse_blas_select(argv); // before any thread: it may re-execute the program
+    hs_platform_setup(argv); // before any thread: it may re-execute the program
     hs_bench_args a = {0, HS_SHARED_MESHES};
     const char* cmd = NULL; // options may come before or after it
     for (int i = 1; i < argc; ++i) {
@@ -132,7 +132,7 @@ int main(int argc, char** argv) {
     }
     int all = !strcmp(cmd, "all"), found = 0, rc = 0;
     if (strcmp(cmd, "blas"))
-        fprintf(stderr, "hapsim-bench: BLAS kernels %s\n", hs_sparse_blas_core());
+        fprintf(stderr, "hapsim-bench: BLAS kernels %s\n", hs_platform_blas_core());
     for (size_t i = 0; i < sizeof cmds / sizeof cmds[0]; ++i) {
         if (!all && strcmp(cmd, cmds[i].name)) continue;
         if (all && cmds[i].fn == bench_blas) continue;

@@ -4,7 +4,7 @@
 #ifndef HS_FUZZ_MESH_COMMON_H
 #define HS_FUZZ_MESH_COMMON_H
 
-#include "hapsim/mesh.h"
+#include "mesh.h"
 
 #include <stdint.h>
 #include <stdio.h>

@@ -8,7 +8,7 @@
 
 #include "hapsim_command_ack_t.h"
 #include "hapsim_command_t.h"
-#include "net/validate.h"
+#include "validate.h"
 
 int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size);
 

@@ -8,7 +8,7 @@
 #include <string.h>
 
 #include "hapsim_tool_pose_t.h"
-#include "net/validate.h"
+#include "validate.h"
 
 int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size);
 

@@ -5,7 +5,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "hapsim/scene.h"
+#include "scene.h"
 
 int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size);
 

@@ -4,7 +4,7 @@
 // format (low 3 bits) and whether to repair (bit 3); the
 // rest is the file. Oracle: an error names the file; a surface has its indices in range; a
 // clean that succeeds leaves a closed, consistently oriented surface; nothing leaks.
-#include "hapsim/surface.h"
+#include "surface.h"
 
 #include <stdint.h>
 #include <stdio.h>

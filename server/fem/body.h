@@ -7,10 +7,10 @@
 #ifndef HAPSIM_BODY_H
 #define HAPSIM_BODY_H
 
-#include "hapsim/base.h"
-#include "hapsim/fem.h"
-#include "hapsim/mesh.h"
-#include "hapsim/sparse.h"
+#include "base.h"
+#include "fem.h"
+#include "mesh.h"
+#include "sparse.h"
 
 #ifdef __cplusplus
 extern "C" {

@@ -4,7 +4,7 @@
 #ifndef HAPSIM_MESH_H
 #define HAPSIM_MESH_H
 
-#include "hapsim/base.h"
+#include "base.h"
 
 #ifdef __cplusplus
 extern "C" {

@@ -5,9 +5,9 @@
 #ifndef HAPSIM_FEM_H
 #define HAPSIM_FEM_H
 
-#include "hapsim/base.h"
-#include "hapsim/mesh.h"
-#include "hapsim/sparse.h"
+#include "base.h"
+#include "mesh.h"
+#include "sparse.h"
 
 #ifdef __cplusplus
 extern "C" {

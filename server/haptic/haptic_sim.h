@@ -18,12 +18,12 @@
 #ifndef HAPSIM_HAPTIC_SIM_H
 #define HAPSIM_HAPTIC_SIM_H
 
-#include "hapsim/base.h"
-#include "hapsim/body.h"
-#include "hapsim/compliance.h"
-#include "hapsim/cut.h"
-#include "hapsim/haptic.h"
-#include "hapsim/mesh.h"
+#include "base.h"
+#include "body.h"
+#include "compliance.h"
+#include "cut.h"
+#include "haptic.h"
+#include "mesh.h"
 
 #ifdef __cplusplus
 extern "C" {

@@ -6,9 +6,9 @@
 #ifndef HAPSIM_SCENE_H
 #define HAPSIM_SCENE_H
 
-#include "hapsim/base.h"
-#include "hapsim/fem.h"
-#include "hapsim/mesh.h"
+#include "base.h"
+#include "fem.h"
+#include "mesh.h"
 
 #ifdef __cplusplus
 extern "C" {

@@ -20,11 +20,11 @@
 #ifndef HAPSIM_COMPLIANCE_H
 #define HAPSIM_COMPLIANCE_H
 
-#include "hapsim/base.h"
-#include "hapsim/fem.h"
-#include "hapsim/haptic.h"
-#include "hapsim/mesh.h"
-#include "hapsim/sparse.h"
+#include "base.h"
+#include "fem.h"
+#include "haptic.h"
+#include "mesh.h"
+#include "sparse.h"
 
 #ifdef __cplusplus
 extern "C" {

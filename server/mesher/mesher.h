@@ -5,8 +5,8 @@
 #ifndef HAPSIM_MESHER_H
 #define HAPSIM_MESHER_H
 
-#include "hapsim/mesh.h"
-#include "hapsim/surface.h"
+#include "mesh.h"
+#include "surface.h"
 
 #ifdef __cplusplus
 extern "C" {

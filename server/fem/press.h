@@ -20,9 +20,9 @@
 #ifndef HAPSIM_PRESS_H
 #define HAPSIM_PRESS_H
 
-#include "hapsim/base.h"
-#include "hapsim/fem.h"
-#include "hapsim/mesh.h"
+#include "base.h"
+#include "fem.h"
+#include "mesh.h"
 
 #ifdef __cplusplus
 extern "C" {

@@ -14,9 +14,9 @@
 #ifndef HAPSIM_SURFACE_PRESS_H
 #define HAPSIM_SURFACE_PRESS_H
 
-#include "hapsim/base.h"
-#include "hapsim/body.h"
-#include "hapsim/mesh.h"
+#include "base.h"
+#include "body.h"
+#include "mesh.h"
 
 #ifdef __cplusplus
 extern "C" {

@@ -1,13 +1,13 @@
 // SPDX-License-Identifier: GPL-2.0-or-later
 // hapsim surface: triangle surfaces as organs arrive from segmentation (STL, OBJ, PLY, OFF, VTK,
 // MSH triangles), their check and repair before tetrahedralisation, writers, and mesh quality.
-// Pure functions of their inputs: no threads, no global state. The mesher (hapsim/mesher.h)
+// Pure functions of their inputs: no threads, no global state. The mesher (mesher.h)
 // turns a checked surface into tetrahedra.
 #ifndef HAPSIM_SURFACE_H
 #define HAPSIM_SURFACE_H
 
-#include "hapsim/base.h"
-#include "hapsim/mesh.h"
+#include "base.h"
+#include "mesh.h"
 
 #ifdef __cplusplus
 extern "C" {

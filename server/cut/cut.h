@@ -27,9 +27,9 @@
 #ifndef HAPSIM_CUT_H
 #define HAPSIM_CUT_H
 
-#include "hapsim/base.h"
-#include "hapsim/fem.h"
-#include "hapsim/mesh.h"
+#include "base.h"
+#include "fem.h"
+#include "mesh.h"
 
 #ifdef __cplusplus
 extern "C" {

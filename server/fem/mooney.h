@@ -7,8 +7,8 @@
 #ifndef HAPSIM_MOONEY_H
 #define HAPSIM_MOONEY_H
 
-#include "hapsim/base.h"
-#include "hapsim/mesh.h"
+#include "base.h"
+#include "mesh.h"
 
 #ifdef __cplusplus
 extern "C" {

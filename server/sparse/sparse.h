@@ -5,7 +5,7 @@
 #ifndef HAPSIM_SPARSE_H
 #define HAPSIM_SPARSE_H
 
-#include "hapsim/base.h"
+#include "base.h"
 
 #ifdef __cplusplus
 extern "C" {
@@ -204,32 +204,6 @@ typedef struct hs_cholesky_update_info {
 
 /// The last update's rank, union and method. @param info OUT
 void hs_cholesky_last_update(const hs_cholesky* f, hs_cholesky_update_info* info);
-
-/// Threads used inside CHOLMOD, process-wide: OpenBLAS gets n threads, and CHOLMOD's own
-/// OpenMP loops (fixed at 4 threads in Debian's build) run serially when n == 1. The defaults
-/// use every core and spin-wait, competing with the haptic thread, so the first
-/// hs_cholesky_create sets 1 unless this was called before. OpenMP keeps the setting per
-/// thread, so every thread applies it when it enters a factorisation or update.
-/// Returns HS_ERR_UNSUPPORTED if neither control exists in the loaded libraries.
-hs_status hs_sparse_set_threads(int n);
-
-/// The BLAS kernel family in use, as OpenBLAS names it ("Haswell", "SkylakeX", "Prescott", ...),
-/// or "not OpenBLAS" when the BLAS behind libblas.so.3 has no such query. Static text.
-const char* hs_sparse_blas_core(void);
-
-/// OpenBLAS chooses its kernels when it loads, from the processor's model number. On a model it
-/// does not know (OpenBLAS 0.3.21 of Debian 12 on a family 6 model 207 Xeon, say) it falls back
-/// to its generic SSE3 kernels ("Prescott"): CHOLMOD's factorisation and the cut step then take
-/// about 1.5x the time they take on its AVX2 kernels (docs/benchmarks.md). If the kernels in
-/// use predate AVX2 (that fallback or any older set), OPENBLAS_CORETYPE is unset and the
-/// processor has AVX2 and FMA, this re-executes the running program (/proc/self/exe, same argv
-/// and environment) with OPENBLAS_CORETYPE=Haswell, after one line on stderr; it returns only
-/// when nothing was to be done (HS_OK) or the exec failed (HS_ERR_UNSUPPORTED, the program runs
-/// on). A set OPENBLAS_CORETYPE, whatever its value, is the user's choice and is kept, which
-/// also stops a second exec; so does -h or --help among the arguments. Call first thing in
-/// main, before any thread starts.
-/// @param argv main's argv (NULL-terminated) | Thread: main, alone | Allocates: no
-hs_status hs_sparse_blas_select(char** argv);
 
 // ---------------------------------------------------------------------------------------------
 /// Preconditioned conjugate gradients with warm start.
