@@ -671,19 +671,7 @@ static void build_snapshot(hs_haptic_sim* h, const double p[3]) {
     // sphere (the contact pushes along a face's inward normal), that tissue ended on top of it
     // and was carried up when the tool was lifted out (up to 0.76 N pulling down, 3.3 N once
     // through the server).
-    // The clearance is taken to the contact-free surface q, which the contact answers for, not
-    // to the current one: the probe's own push moves the current surface away, so a radius
-    // grown with that clearance inflated itself step by step, held the lips apart and caught
-    // them on the way out (lifted out of a straight cut: 0.1-0.15 N here, 1.0-1.3 N through
-    // the rebuild's swap).
-    double clear = reach;
-    for (int k = 0; k < n_near; ++k) {
-        const int* tv = sm->tris + 3 * h->near_tri[k].tri;
-        double wb[3], cp[3];
-        if (hs_tri_closest(p, h->q + 3 * (size_t)tv[0], h->q + 3 * (size_t)tv[1],
-                           h->q + 3 * (size_t)tv[2], wb, cp))
-            clear = fmin(clear, dist3(cp, p));
-    }
+    const double clear = n_near > 0 ? h->near_tri[0].dist : reach;
     if (!h->cut || !probing) {
         h->probe_r = r;
     } else if (!h->was_probing || new_surface) {
