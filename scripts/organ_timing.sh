@@ -1,7 +1,7 @@
 #!/bin/sh
 # SPDX-License-Identifier: GPL-2.0-or-later
-# Sim step timing inside the running server on organ meshes (docs/benchmarks.md, "Organs on the
-# server's path"): for each mesh and solver setting, a scene from scripts/organ_scene.py (held
+# Sim step timing inside the running server on organ meshes (docs/benchmarks.md, "Organs in
+# the running server"): for each mesh and solver setting, a scene from scripts/organ_scene.py (held
 # at its lowest 10 % in z), hapsim-server over LCM and hapsim-stylus pressing its top node one
 # probe radius deep and holding 6 s; prints CSV of the server's own start line and exit summary.
 #   scripts/organ_timing.sh [BIN_DIR] [OUT_CSV] [SOLVERS]

@@ -7,6 +7,7 @@
 // hs_contact_solve, node mode).
 #include "compliance.h"
 #include "press.h"
+#include "surface_press.h"
 #include "test_macros.h"
 
 #include <stdlib.h>
@@ -223,6 +224,75 @@ static int refuses_bad_input(void) {
     return 0;
 }
 
+// Surface contact (def.surface) on a block in 7.5 mm cells, wider than the 5 mm probe, which
+// comes down at (31, 32) mm inside a top face: co-rotated at r and 2r, converged, nothing of
+// the surface inside the sphere, pushing up, growing, in equilibrium with the supports, and
+// the same force as the fixed-point surface press (hs_surface_press). At 3r the sphere has
+// crushed the 7.5 mm top layer: the solve does not converge there (said, not passed).
+static int surface_coarse_block(void) {
+    const int64_t bytes0 = hs_byte_count();
+    hs_err err = {0};
+    block b = {0};
+    ENSURE(hs_mesh_create_box(0.06, 0.06, 0.03, 8, 8, 4, &b.mesh, &err) == HS_OK);
+    b.fixed = calloc((size_t)b.mesh->n_nodes, 1);
+    hs_mesh_select_plane(b.mesh, 2, -1, 1e-9, b.fixed);
+    hs_press_def def = soft_def(HS_MODEL_COROTATED);
+    def.surface = 1;
+    def.max_newton = 1000;
+    hs_press* p = NULL;
+    ENSURE(hs_press_create(b.mesh, &def, b.fixed, &p, &err) == HS_OK);
+    double prev = 0;
+    for (int k = 1; k <= 2; ++k) {
+        const double c[3] = {0.031, 0.032, 0.03 + R - k * R};
+        hs_press_stats st;
+        hs_status s = hs_press_solve(p, c, DOWN, &st, &err);
+        if (s != HS_OK) printf("  %s\n", err.msg);
+        ENSURE(s == HS_OK);
+        printf("  surface, depth %d r: force %.5f N (lateral %.1e), %d triangles, %d Newton, "
+               "pen %.2e R, residual %.1e, %.0f ms\n",
+               k, st.force_n[2], hypot(st.force_n[0], st.force_n[1]), st.active, st.newton,
+               st.penetration_m / R, st.residual, st.wall_ms);
+        ENSURE(st.active > 0 && st.residual <= 1e-8 && st.penetration_m <= 1e-4 * R);
+        // Lateral: the coarse faces tilt under the sphere (the fixed-point press agrees).
+        ENSURE(st.force_n[2] > prev && hypot(st.force_n[0], st.force_n[1]) <= 0.3 * st.force_n[2]);
+        prev = st.force_n[2];
+        double sum_c[3] = {0}, sum_r[3] = {0}, f[3];
+        for (int i = 0; i < b.mesh->n_nodes; ++i) {
+            hs_press_contact_force(p, i, f);
+            for (int q = 0; q < 3; ++q) sum_c[q] += f[q];
+            hs_press_reaction(p, i, f);
+            for (int q = 0; q < 3; ++q) sum_r[q] += f[q];
+        }
+        for (int q = 0; q < 3; ++q) {
+            ENSURE_NEAR(st.force_n[q], -sum_c[q], 1e-9 * st.force_n[2]);
+            ENSURE_NEAR(st.force_n[q], sum_r[q], 1e-6 * st.force_n[2]);
+        }
+        hs_body_def bd = hs_body_default_def();
+        bd.fem = def.fem;
+        const double from[3] = {c[0], c[1], 0.03 + R + 0.002};
+        hs_surface_press_stats sp;
+        ENSURE(hs_surface_press(b.mesh, &bd, b.fixed, R, from, c, 4 * k + 2, 1e-7, &sp, &err) ==
+               HS_OK);
+        const double df =
+            sqrt(pow(sp.force_n[0] - st.force_n[0], 2) + pow(sp.force_n[1] - st.force_n[1], 2) +
+                 pow(sp.force_n[2] - st.force_n[2], 2));
+        printf("  fixed-point surface press: %.5f N up, %.2f %% apart\n", sp.force_n[2],
+               100 * df / st.force_n[2]);
+        ENSURE(df <= 0.01 * st.force_n[2]);
+    }
+    // A solve that cannot converge says so: one Newton step per pass is not enough.
+    hs_press_destroy(&p);
+    def.max_newton = 1;
+    ENSURE(hs_press_create(b.mesh, &def, b.fixed, &p, &err) == HS_OK);
+    const double deep[3] = {0.031, 0.032, 0.03 - 2 * R};
+    ENSURE(hs_press_solve(p, deep, DOWN, NULL, &err) == HS_ERR_NOT_CONVERGED);
+    ENSURE(strstr(err.msg, "did not converge") != NULL);
+    hs_press_destroy(&p);
+    block_destroy(&b);
+    ENSURE(hs_byte_count() == bytes0);
+    return 0;
+}
+
 static int no_leak(void) {
     int64_t before = hs_byte_count();
     if (refuses_bad_input()) return 1;
@@ -231,4 +301,5 @@ static int no_leak(void) {
 }
 
 HS_TEST_MAIN(HS_CASE(depths_corotated), HS_CASE(depths_linear), HS_CASE(depths_stvk),
-             HS_CASE(agrees_with_compliance), HS_CASE(refuses_bad_input), HS_CASE(no_leak))
+             HS_CASE(agrees_with_compliance), HS_CASE(surface_coarse_block),
+             HS_CASE(refuses_bad_input), HS_CASE(no_leak))

@@ -161,6 +161,15 @@ check "a sphere that never reaches the surface: exit 1, named, nothing written" 
 "$SOLVE" "${PROBE[@]}" --probe 0.07756132,0.00306969,0.0484151 --out "$T/p.csv" \
   > /dev/null 2> "$T/err"; rc=$?
 [ $rc -eq 2 ] && grep -q "go together" "$T/err"; check "--probe without --probe-radius refused" $?
+# Surface contact is the default: the summary counts triangles; --probe-contact nodes counts
+# nodes; anything else is refused.
+grep -q "contact triangles" "$T/sum"; check "probe: surface contact by default" $?
+"$SOLVE" "${PROBE[@]}" --probe 0.07756132,0.00306969,0.0484151 --probe-radius 0.005 \
+  --probe-dir 0,0,-1 --probe-contact nodes --out "$T/p3.csv" > "$T/sum3" 2> "$T/err"; rc=$?
+[ $rc -eq 0 ] && grep -q "contact nodes" "$T/sum3"; check "--probe-contact nodes" $?
+"$SOLVE" "${PROBE[@]}" --probe 0.07756132,0.00306969,0.0484151 --probe-radius 0.005 \
+  --probe-contact edges --out "$T/p4.csv" > /dev/null 2> "$T/err"; rc=$?
+[ $rc -eq 2 ] && grep -q "surface or nodes" "$T/err"; check "--probe-contact edges refused" $?
 "$SOLVE" --mesh "$MESH" --model corotated --fix-plane y,min,0.005 --steps 2 --dt 0.01 \
   --probe 0,0,0 --probe-radius 0.005 --out "$T/p.csv" > /dev/null 2> "$T/err"; rc=$?
 [ $rc -eq 2 ] && grep -q -- "--probe has no effect" "$T/err"; check "--probe with --steps refused" $?

@@ -35,6 +35,19 @@ struct hs_press {
     double last_len;  // its sphere travel, m (0: none)
     double pos_floor; // round-off floor of the residual from the positions, N
     double gap_max, fc_norm, fg_norm, r_norm, el_abs;
+    // Surface contact (def.surface): one contact point per boundary triangle with a free
+    // vertex, the triangle's point nearest the centre, pushed with p = max(0, lam + k g)
+    // (augmented Lagrangian: lam is the multiplier of the last pass).
+    int n_tc;          // candidate triangles
+    int* tc;           // [n_tc] triangle index
+    double* tlam;      // [n_tc] multiplier, N
+    double* tp;        // [n_tc] push at the last evaluation, N
+    double* tw;        // [3 n_tc] barycentric weights of the nearest point
+    double* tn;        // [3 n_tc] outward normal (from the centre to the point)
+    double* td;        // [n_tc] distance of the point from the centre, m
+    double* te;        // [3 n_tc] unit edge direction when the point is on an edge (else 0)
+    unsigned char* tf; // [n_tc] feature of the point (FEAT_*)
+    double pen_max;    // deepest point of any candidate triangle inside the sphere, m
 };
 
 hs_press_def hs_press_default_def(void) {
@@ -48,6 +61,7 @@ hs_press_def hs_press_default_def(void) {
     d.penalty_scale = 1e3;
     d.max_newton = 300;
     d.max_passes = 40;
+    d.surface = 0;
     d.cookie = HS_PRESS_COOKIE;
     return d;
 }
@@ -58,9 +72,10 @@ void hs_press_destroy(hs_press** pp) {
     hs_fem_destroy(&p->fem);
     hs_csc_destroy(&p->a);
     hs_cholesky_destroy(&p->chol);
-    void* bufs[] = {p->du_last, p->dof, p->free_to_full, p->fixed,   p->u,  p->x,    p->f_el,
-                    p->f_g,     p->r,   p->save,         p->rhs,     p->dx, p->cand, p->cand_of,
-                    p->gap,     p->p,   p->act,          p->prev_act};
+    void* bufs[] = {p->du_last, p->dof, p->free_to_full, p->fixed,    p->u,  p->x,    p->f_el,
+                    p->f_g,     p->r,   p->save,         p->rhs,      p->dx, p->cand, p->cand_of,
+                    p->gap,     p->p,   p->act,          p->prev_act, p->tc, p->tlam, p->tp,
+                    p->tw,      p->tn,  p->td,           p->te,       p->tf};
     for (size_t i = 0; i < sizeof bufs / sizeof bufs[0]; ++i) hs_free(bufs[i]);
     hs_free(p);
     *pp = NULL;
@@ -171,6 +186,25 @@ hs_status hs_press_create(const hs_mesh* mesh, const hs_press_def* def, const un
         p->cand_of[i] = p->n_cand;
         p->cand[p->n_cand++] = i;
     }
+    if (def->surface) {
+        const size_t nt = (size_t)mesh->n_tris + 1;
+        p->tc = hs_alloc(nt * sizeof(int));
+        p->tlam = hs_calloc(nt, sizeof(double));
+        p->tp = hs_calloc(nt, sizeof(double));
+        p->tw = hs_calloc(3 * nt, sizeof(double));
+        p->tn = hs_calloc(3 * nt, sizeof(double));
+        p->td = hs_calloc(nt, sizeof(double));
+        p->te = hs_calloc(3 * nt, sizeof(double));
+        p->tf = hs_calloc(nt, 1);
+        if (!p->tc || !p->tlam || !p->tp || !p->tw || !p->tn || !p->td || !p->te || !p->tf) {
+            hs_press_destroy(&p);
+            return hs_err_set(err, HS_ERR_NOMEM, "hs_press_create: out of memory");
+        }
+        for (int t = 0; t < mesh->n_tris; ++t) {
+            const int* v = mesh->tris + 3 * t;
+            if (!p->fixed[v[0]] || !p->fixed[v[1]] || !p->fixed[v[2]]) p->tc[p->n_tc++] = t;
+        }
+    }
     const double* m = NULL;
     // Co-rotated: rotations converged to 1e-10 at least; at the default 1e-6 the forces carry
     // an error of that order, and the residual stalled at 1e-7 of the load on the vessel.
@@ -195,6 +229,7 @@ void hs_press_reset(hs_press* p) {
     memset(p->gap, 0, (size_t)p->n_cand * sizeof(double));
     memset(p->p, 0, (size_t)p->n_cand * sizeof(double));
     memset(p->act, 0, (size_t)p->n_cand);
+    for (int j = 0; j < p->n_tc; ++j) p->tlam[j] = p->tp[j] = 0;
     p->engaged = 0;
     p->last_len = 0;
 }
@@ -209,6 +244,61 @@ double hs_press_penalty(const hs_press* p) {
 static double dist3(const double* a, const double* b) {
     return sqrt((a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1]) +
                 (a[2] - b[2]) * (a[2] - b[2]));
+}
+
+enum { FEAT_VERTEX = 1, FEAT_EDGE = 2, FEAT_FACE = 3 };
+
+// Point of segment a-b nearest p: parameter t in [0, 1] and the squared distance.
+static double seg_nearest(const double p[3], const double a[3], const double b[3], double* t) {
+    double ab[3], ap[3], l2 = 0, dot = 0;
+    for (int q = 0; q < 3; ++q) ab[q] = b[q] - a[q], ap[q] = p[q] - a[q];
+    for (int q = 0; q < 3; ++q) l2 += ab[q] * ab[q], dot += ab[q] * ap[q];
+    *t = l2 > 0 ? fmin(1.0, fmax(0.0, dot / l2)) : 0.0;
+    double d2 = 0;
+    for (int q = 0; q < 3; ++q) d2 += (ap[q] - *t * ab[q]) * (ap[q] - *t * ab[q]);
+    return d2;
+}
+
+// Point y of triangle (v0, v1, v2) nearest p, y = sum w_a v_a: the projection on the plane when
+// it falls inside (barycentric coordinates from the sub-areas), else the nearest of the three
+// edges. Returns the feature (vertex, edge or face); 0 for a degenerate triangle.
+static int tri_nearest(const double p[3], const double* v0, const double* v1, const double* v2,
+                       double w[3], double y[3]) {
+    const double* v[3] = {v0, v1, v2};
+    double e1[3], e2[3], nrm[3], d[3];
+    for (int q = 0; q < 3; ++q) e1[q] = v1[q] - v0[q], e2[q] = v2[q] - v0[q], d[q] = p[q] - v0[q];
+    nrm[0] = e1[1] * e2[2] - e1[2] * e2[1];
+    nrm[1] = e1[2] * e2[0] - e1[0] * e2[2];
+    nrm[2] = e1[0] * e2[1] - e1[1] * e2[0];
+    const double n2 = nrm[0] * nrm[0] + nrm[1] * nrm[1] + nrm[2] * nrm[2];
+    const double s1 = e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2];
+    const double s2 = e2[0] * e2[0] + e2[1] * e2[1] + e2[2] * e2[2];
+    if (!(n2 > 1e-24 * s1 * s2)) return 0;
+    // Barycentric coordinates of the projection: (e1 x d) . n and (d x e2) . n over |n|^2.
+    const double b2 =
+        ((e1[1] * d[2] - e1[2] * d[1]) * nrm[0] + (e1[2] * d[0] - e1[0] * d[2]) * nrm[1] +
+         (e1[0] * d[1] - e1[1] * d[0]) * nrm[2]) /
+        n2;
+    const double b1 =
+        ((d[1] * e2[2] - d[2] * e2[1]) * nrm[0] + (d[2] * e2[0] - d[0] * e2[2]) * nrm[1] +
+         (d[0] * e2[1] - d[1] * e2[0]) * nrm[2]) /
+        n2;
+    if (b1 > 0 && b2 > 0 && b1 + b2 < 1) {
+        w[0] = 1 - b1 - b2, w[1] = b1, w[2] = b2;
+    } else {
+        double best = INFINITY;
+        for (int e = 0; e < 3; ++e) {
+            double t;
+            const double d2 = seg_nearest(p, v[e], v[(e + 1) % 3], &t);
+            if (d2 < best) {
+                best = d2;
+                w[e] = 1 - t, w[(e + 1) % 3] = t, w[(e + 2) % 3] = 0;
+            }
+        }
+    }
+    for (int q = 0; q < 3; ++q) y[q] = w[0] * v0[q] + w[1] * v1[q] + w[2] * v2[q];
+    const int zeros = (w[0] == 0) + (w[1] == 0) + (w[2] == 0);
+    return zeros == 0 ? FEAT_FACE : zeros == 1 ? FEAT_EDGE : FEAT_VERTEX;
 }
 
 // Evaluate at x0 + u with the sphere at c (NULL: none). For each node j of the active set:
@@ -228,7 +318,39 @@ static void evaluate(hs_press* p, const double c[3]) {
         fg2 += fr ? p->f_g[k] * p->f_g[k] : 0.0;
         el += fr ? fabs(p->f_el[k]) : 0.0;
     }
-    for (int j = 0; j < p->n_cand; ++j) {
+    if (p->def.surface) {
+        p->pen_max = -INFINITY;
+        for (int j = 0; j < p->n_tc; ++j) {
+            p->tp[j] = 0;
+            if (!c) continue;
+            const int* v = p->mesh->tris + 3 * p->tc[j];
+            double* w = p->tw + 3 * j;
+            double* nv = p->tn + 3 * j;
+            double y[3];
+            const int feat =
+                tri_nearest(c, p->x + 3 * v[0], p->x + 3 * v[1], p->x + 3 * v[2], w, y);
+            if (!feat) continue;
+            p->tf[j] = (unsigned char)feat;
+            if (feat == FEAT_EDGE) { // the edge's two ends: the weights not zero
+                const int a = w[0] == 0 ? 1 : 0, b = w[2] == 0 ? 1 : 2;
+                const double le = dist3(p->x + 3 * v[a], p->x + 3 * v[b]);
+                for (int q = 0; q < 3; ++q)
+                    p->te[3 * j + q] = (p->x[3 * v[b] + q] - p->x[3 * v[a] + q]) / le;
+            }
+            const double d = dist3(y, c);
+            p->td[j] = d;
+            p->pen_max = fmax(p->pen_max, R - d);
+            const double push = p->tlam[j] + p->k * (R - d);
+            if (!(push > 0) || !(d > 0)) continue;
+            p->tp[j] = push;
+            fc2 += push * push;
+            for (int q = 0; q < 3; ++q) nv[q] = (y[q] - c[q]) / d;
+            for (int a = 0; a < 3; ++a)
+                if (p->dof[3 * v[a]] >= 0)
+                    for (int q = 0; q < 3; ++q) p->r[3 * v[a] + q] += push * w[a] * nv[q];
+        }
+    }
+    for (int j = 0; j < p->n_cand && !p->def.surface; ++j) {
         p->p[j] = 0;
         if (!c || !p->act[j]) continue;
         const double* xi = p->x + 3 * p->cand[j];
@@ -255,7 +377,30 @@ static void evaluate(hs_press* p, const double c[3]) {
 static void assemble(hs_press* p, const double c[3], int curvature, double shift) {
     hs_fem_assemble(p->fem, 1.0, 0.0, p->a);
     for (int j = 0; j < p->a->n && shift > 0; ++j) p->a->val[hs_csc_find(p->a, j, j)] += shift;
-    for (int j = 0; j < p->n_cand && c; ++j) {
+    for (int j = 0; j < p->n_tc && c; ++j) {
+        if (!(p->tp[j] > 0)) continue;
+        const int* v = p->mesh->tris + 3 * p->tc[j];
+        const double *w = p->tw + 3 * j, *nv = p->tn + 3 * j;
+        // The push direction turns as the point moves across it: about the centre at a vertex,
+        // about the centre and along the edge at an edge; a face's normal only with the face
+        // (left out: the tangent need not be exact under the line search).
+        const double t = curvature && p->tf[j] != FEAT_FACE ? p->tp[j] / p->td[j] : 0.0;
+        const double* e = p->te + 3 * j;
+        const double ee = p->tf[j] == FEAT_EDGE ? 1.0 : 0.0;
+        for (int ia = 0; ia < 3; ++ia)
+            for (int ib = 0; ib < 3; ++ib)
+                for (int a = 0; a < 3; ++a)
+                    for (int b = 0; b < 3; ++b) {
+                        const int ra = p->dof[3 * v[ia] + a], cb = p->dof[3 * v[ib] + b];
+                        if (ra < 0 || cb < 0) continue;
+                        int at = hs_csc_find(p->a, ra, cb);
+                        if (at < 0) continue;
+                        p->a->val[at] += w[ia] * w[ib] *
+                                         (p->k * nv[a] * nv[b] -
+                                          t * ((a == b) - nv[a] * nv[b] - ee * e[a] * e[b]));
+                    }
+    }
+    for (int j = 0; j < p->n_cand && c && !p->def.surface; ++j) {
         if (!p->act[j]) continue;
         const int i = p->cand[j];
         const double* xi = p->x + 3 * i;
@@ -310,7 +455,7 @@ static hs_status newton(hs_press* p, const double c[3], hs_press_stats* st) {
         }
         if (s != HS_OK) return s;
         for (int j = 0; j < p->nf; ++j) p->rhs[j] = p->r[p->free_to_full[j]];
-        for (int j = 0; j < p->n_cand && c; ++j) {
+        for (int j = 0; j < p->n_cand && c && !p->def.surface; ++j) {
             if (!p->act[j]) continue;
             const int i = p->cand[j];
             double d = dist3(p->x + 3 * i, c);
@@ -348,6 +493,41 @@ static double fixed_penetration(const hs_press* p, const double c[3], int* fixed
     return pen;
 }
 
+// One Newton solve of an active-set pass, its failure named.
+static hs_status newton_pass(hs_press* p, const double c[3], hs_press_stats* st, hs_err* err) {
+    hs_status s = newton(p, c, st);
+    ++st->passes;
+    if (s == HS_ERR_NOT_CONVERGED)
+        return hs_err_set(err, s,
+                          "press: Newton did not converge in %d iterations at centre "
+                          "%g,%g,%g (residual %.3g of the load)",
+                          p->def.max_newton, c[0], c[1], c[2],
+                          p->r_norm / (p->fc_norm + p->fg_norm + DBL_MIN));
+    if (s != HS_OK) return hs_err_set(err, s, "press: solver failed: %s", hs_status_str(s));
+    return HS_OK;
+}
+
+// Surface contact at one sphere position: Newton on the equilibrium with the pushes
+// max(0, lam + k g) (the active set is whichever triangles push, re-decided at every
+// evaluation), then lam <- the pushes, until no point of the surface is deeper than
+// 0.1 pen_tol R inside the sphere.
+static hs_status increment_surface(hs_press* p, const double c[3], hs_press_stats* st,
+                                   hs_err* err) {
+    const double R = p->def.radius_m;
+    for (int pass = 0; pass < p->def.max_passes; ++pass) {
+        hs_status s = newton_pass(p, c, st, err);
+        if (s != HS_OK) return s;
+        st->penetration_m = fmax(p->pen_max, 0.0);
+        st->residual = p->r_norm / (p->fc_norm + p->fg_norm + DBL_MIN);
+        if (st->penetration_m <= 0.1 * p->def.pen_tol * R) return HS_OK;
+        for (int j = 0; j < p->n_tc; ++j) p->tlam[j] = p->tp[j];
+    }
+    return hs_err_set(err, HS_ERR_NOT_CONVERGED,
+                      "press: the surface is still %.3g mm inside the sphere after %d passes at "
+                      "centre %g,%g,%g",
+                      p->pen_max * 1e3, p->def.max_passes, c[0], c[1], c[2]);
+}
+
 // One sphere position: Newton with the active set held, then release the nodes that pull and
 // add the ones inside, until the set is unchanged.
 static hs_status increment(hs_press* p, const double c[3], hs_press_stats* st, hs_err* err) {
@@ -359,16 +539,10 @@ static hs_status increment(hs_press* p, const double c[3], hs_press_stats* st, h
                           "press: the sphere at %g,%g,%g reaches fixed "
                           "node %d (%.3g m deep): it cannot be pushed away",
                           c[0], c[1], c[2], fnode, fpen);
+    if (p->def.surface) return increment_surface(p, c, st, err);
     for (int pass = 0; pass < p->def.max_passes; ++pass) {
-        hs_status s = newton(p, c, st);
-        ++st->passes;
-        if (s == HS_ERR_NOT_CONVERGED)
-            return hs_err_set(err, s,
-                              "press: Newton did not converge in %d iterations at centre "
-                              "%g,%g,%g (residual %.3g of the load)",
-                              p->def.max_newton, c[0], c[1], c[2],
-                              p->r_norm / (p->fc_norm + p->fg_norm + DBL_MIN));
-        if (s != HS_OK) return hs_err_set(err, s, "press: solver failed: %s", hs_status_str(s));
+        hs_status s = newton_pass(p, c, st, err);
+        if (s != HS_OK) return s;
         // Release the node that pulls hardest (one at a time: releasing one changes the
         // others' pushes), else add every node inside.
         int changes = 0, worst = -1;
@@ -430,6 +604,48 @@ static double first_contact(const hs_press* p, const double c[3], const double d
     return best;
 }
 
+// Deepest point of the current surface (candidate triangles) inside a sphere at c, m.
+static double surface_depth(const hs_press* p, const double c[3]) {
+    const double R = p->def.radius_m;
+    double pen = -INFINITY;
+    for (int j = 0; j < p->n_tc; ++j) {
+        const int* v = p->mesh->tris + 3 * p->tc[j];
+        double w[3], y[3];
+        if (tri_nearest(c, p->x + 3 * v[0], p->x + 3 * v[1], p->x + 3 * v[2], w, y))
+            pen = fmax(pen, R - dist3(y, c));
+    }
+    return pen;
+}
+
+// Surface contact: the travel s >= 0 back along dir from c at which the sphere first touches
+// the surface coming in from outside the bounding box (steps of R/8, then bisection to 1e-6 R);
+// -1 when it meets nothing.
+static double first_contact_surface(const hs_press* p, const double c[3], const double dir[3]) {
+    const double R = p->def.radius_m, h = R / 8;
+    const double* lo = p->mesh->bbox_min;
+    const double* hi = p->mesh->bbox_max;
+    double far = 2 * R + dist3(lo, hi);
+    for (int q = 0; q < 3; ++q) far += fabs(c[q] - 0.5 * (lo[q] + hi[q]));
+    double out = far, ck[3];
+    for (double s = far; s >= 0; s -= h) {
+        for (int q = 0; q < 3; ++q) ck[q] = c[q] - s * dir[q];
+        if (surface_depth(p, ck) > 0) {
+            double in = s;
+            while (out - in > 1e-6 * R) {
+                const double mid = 0.5 * (in + out);
+                for (int q = 0; q < 3; ++q) ck[q] = c[q] - mid * dir[q];
+                if (surface_depth(p, ck) > 0)
+                    in = mid;
+                else
+                    out = mid;
+            }
+            return out;
+        }
+        out = s;
+    }
+    return -1;
+}
+
 // Default approach: minus the rest normal of the free surface node nearest c.
 static int default_dir(const hs_press* p, const double c[3], double dir[3]) {
     int best = -1;
@@ -454,6 +670,12 @@ static double longest_contact_edge(const hs_press* p) {
             if ((ci >= 0 && p->act[ci]) || (cj >= 0 && p->act[cj]))
                 e = fmax(e, dist3(m->x0 + 3 * i, m->x0 + 3 * j));
         }
+    for (int t = 0; t < p->n_tc; ++t) {
+        if (!(p->tp[t] > 0)) continue;
+        const int* v = m->tris + 3 * p->tc[t];
+        for (int a = 0; a < 3; ++a)
+            e = fmax(e, dist3(m->x0 + 3 * v[a], m->x0 + 3 * v[(a + 1) % 3]));
+    }
     return e;
 }
 
@@ -476,7 +698,7 @@ static hs_status start_point(hs_press* p, const double c[3], const double* dir_i
         return hs_err_set(err, HS_ERR_INVALID, "press: no surface normal near %g,%g,%g", c[0], c[1],
                           c[2]);
     }
-    double s = first_contact(p, c, dir);
+    double s = p->def.surface ? first_contact_surface(p, c, dir) : first_contact(p, c, dir);
     if (s < 0)
         return hs_err_set(err, HS_ERR_INVALID,
                           "press: a sphere of radius %g m coming along "
@@ -517,7 +739,9 @@ hs_status hs_press_solve(hs_press* p, const double c[3], const double* dir, hs_p
             ++st.increments;
         }
     }
-    for (int j = 0; j < p->n_cand; ++j) st.active += p->act[j] && p->p[j] > 0 && s == HS_OK;
+    for (int j = 0; j < p->n_cand && !p->def.surface; ++j)
+        st.active += p->act[j] && p->p[j] > 0 && s == HS_OK;
+    for (int j = 0; j < p->n_tc; ++j) st.active += p->tp[j] > 0 && s == HS_OK;
     if (s == HS_OK && st.active == 0)
         s = hs_err_set(err, HS_ERR_INVALID,
                        "press: the sphere at %g,%g,%g touches no surface node "
@@ -529,12 +753,14 @@ hs_status hs_press_solve(hs_press* p, const double c[3], const double* dir, hs_p
     } else {
         p->engaged = 0;
     }
-    for (int j = 0; j < p->n_cand; ++j) {
+    for (int j = 0; j < p->n_cand && !p->def.surface; ++j) {
         if (!p->act[j]) continue;
         const double* xi = p->x + 3 * p->cand[j];
         double d = dist3(xi, c);
         for (int q = 0; q < 3; ++q) st.force_n[q] -= p->p[j] * (xi[q] - c[q]) / d;
     }
+    for (int j = 0; j < p->n_tc; ++j)
+        for (int q = 0; q < 3; ++q) st.force_n[q] -= p->tp[j] * p->tn[3 * j + q];
     st.max_edge_m = longest_contact_edge(p);
     st.wall_ms = (double)(hs_now_ns() - t0) * 1e-6;
     if (stats) *stats = st;
@@ -543,6 +769,13 @@ hs_status hs_press_solve(hs_press* p, const double c[3], const double* dir, hs_p
 
 void hs_press_contact_force(const hs_press* p, int node, double f[3]) {
     f[0] = f[1] = f[2] = 0;
+    for (int t = 0; t < p->n_tc && p->engaged && node >= 0; ++t) {
+        const int* v = p->mesh->tris + 3 * p->tc[t];
+        for (int a = 0; a < 3; ++a)
+            if (v[a] == node)
+                for (int q = 0; q < 3; ++q) f[q] += p->tp[t] * p->tw[3 * t + a] * p->tn[3 * t + q];
+    }
+    if (p->def.surface) return;
     int j = node >= 0 && node < p->n ? p->cand_of[node] : -1;
     if (j < 0 || !p->engaged || !p->act[j]) return;
     const double* xi = p->x + 3 * node;

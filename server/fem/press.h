@@ -16,6 +16,9 @@
 // its centre in straight increments of at most max_step R from the first contact along the
 // approach direction (or from its previous centre), so the surface always wraps the sphere
 // from the side it came from (a sphere dropped 3 radii deep at once has no such side).
+// Surface contact (def.surface): one contact point per boundary triangle, its point nearest
+// the centre, pushed with max(0, lam + k g) (augmented Lagrangian, lam updated per pass) inside
+// the same Newton; passes until the surface is outside the sphere to 0.1 pen_tol R.
 // Pure computation: no threads, no I/O; allocates at create and at the first factorisation.
 #ifndef HAPSIM_PRESS_H
 #define HAPSIM_PRESS_H
@@ -39,6 +42,7 @@ typedef struct hs_press_def {
     double penalty_scale; ///< k = penalty_scale x the mean rest-stiffness diagonal (surface)
     int max_newton;       ///< Newton iterations per active-set pass
     int max_passes;       ///< active-set passes per increment
+    int surface;          ///< 1: contact on the boundary triangles (default 0: on the nodes)
     int cookie;           ///< set by hs_press_default_def
 } hs_press_def;
 

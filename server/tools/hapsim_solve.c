@@ -63,7 +63,8 @@ static const char* usage =
     "  --pcg-iters N          PCG iterations per solve (default 20)\n"
     "  --probe X,Y,Z          --static only: a frictionless rigid sphere centred at X,Y,Z (m)\n"
     "                         presses the body (linear, corotated, stvk); prints\n"
-    "                         'probe force N: fx,fy,fz', the force on the tool; node contact,\n"
+    "                         'probe force N: fx,fy,fz', the force on the tool; contact on\n"
+    "                         the boundary triangles (--probe-contact nodes: on the nodes),\n"
     "                         co-rotated rotations to 1e-10 at least (docs/fem.md, \"Probe\n"
     "                         reference\")\n"
     "  --probe-radius R       sphere radius, m (required with --probe)\n"
@@ -179,9 +180,10 @@ static const char* const flag_name[] = {
 // exit status (0 solved, 1 bad input such as a sphere touching nothing, 3 solver failure, 4 not
 // converged) and leaves the press in *out for the displacement output.
 static int run_probe(const hs_mesh* mesh, const hs_body_def* def, const unsigned char* fixed,
-                     const double c[3], double r, const double* dir, hs_press** out,
+                     const double c[3], double r, const double* dir, int nodes, hs_press** out,
                      hs_press_stats* st) {
     hs_press_def pd = hs_press_default_def();
+    pd.surface = !nodes;
     pd.fem = def->fem;
     memcpy(pd.gravity, def->gravity, sizeof pd.gravity);
     pd.radius_m = r;
@@ -212,7 +214,7 @@ typedef struct solve_opts {
     unsigned given; // F_* flags on the command line
     double beta;
     double probe_c[3], probe_r, probe_dir[3];
-    int have_probe, have_dir;
+    int have_probe, have_dir, probe_nodes;
     double boxes[8][6];
     int n_boxes;
     plane_fix planes[8];
@@ -322,6 +324,10 @@ static int region_option(solve_opts* o, const char* a, const char* v) {
         if (!parse_doubles(v, o->probe_c, 3)) return bad_value(a, v, "X,Y,Z in metres");
         o->have_probe = 1;
         o->given |= F_PROBE;
+    } else if (!strcmp(a, "--probe-contact")) {
+        if (strcmp(v, "surface") && strcmp(v, "nodes")) return bad_value(a, v, "surface or nodes");
+        o->probe_nodes = !strcmp(v, "nodes");
+        o->given |= F_PROBE;
     } else if (!strcmp(a, "--probe-radius")) {
         if (!parse_doubles(v, &o->probe_r, 1) || o->probe_r <= 0)
             return bad_value(a, v, "a positive radius in m");
@@ -406,20 +412,20 @@ static int locking_free_option(solve_opts* o, int argc, char** argv, int* i) {
 
 // The command line into o: -1 to go on, else the exit status (0 after --help, 2 bad usage).
 static int parse_args(int argc, char** argv, solve_opts* o) {
-    static const char* const with_value[] = {"--mesh",      "--out",
-                                             "--vtk",       "--locking-free-alpha",
-                                             "--model",     "--E",
-                                             "--beta",      "--nu",
-                                             "--density",   "--gravity",
-                                             "--rotation",  "--polar-tol",
-                                             "--inversion", "--damping",
-                                             "--fix-box",   "--fix-plane",
-                                             "--probe",     "--probe-radius",
-                                             "--probe-dir", "--steps",
-                                             "--dt",        "--tol",
-                                             "--max-iter",  "--load-steps",
-                                             "--solver",    "--precond",
-                                             "--pcg-iters"};
+    static const char* const with_value[] = {"--mesh",          "--out",
+                                             "--vtk",           "--locking-free-alpha",
+                                             "--model",         "--E",
+                                             "--beta",          "--nu",
+                                             "--density",       "--gravity",
+                                             "--rotation",      "--polar-tol",
+                                             "--inversion",     "--damping",
+                                             "--fix-box",       "--fix-plane",
+                                             "--probe",         "--probe-radius",
+                                             "--probe-contact", "--probe-dir",
+                                             "--steps",         "--dt",
+                                             "--tol",           "--max-iter",
+                                             "--load-steps",    "--solver",
+                                             "--precond",       "--pcg-iters"};
     for (int i = 1; i < argc; ++i) {
         const char* a = argv[i];
         if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
@@ -641,7 +647,7 @@ static hs_status solve_body(const solve_opts* o, solve_run* r, hs_err* err, int*
     hs_status s = HS_OK;
     if (o->have_probe) {
         *rc = run_probe(r->mesh, &o->def, r->fixed, o->probe_c, o->probe_r,
-                        o->have_dir ? o->probe_dir : NULL, &r->press, &r->pst);
+                        o->have_dir ? o->probe_dir : NULL, o->probe_nodes, &r->press, &r->pst);
         r->total_ms = r->pst.wall_ms;
         r->iters = r->pst.newton;
         r->st.residual = r->pst.residual;
@@ -705,11 +711,12 @@ static void print_report(const solve_opts* o, const solve_run* r, const double* 
            r->st.fem.inverted);
     const hs_press_stats* pst = &r->pst;
     if (r->press)
-        printf("probe           r %g m, %d contact nodes, %d increments, %d passes, %d "
+        printf("probe           r %g m, %d contact %s, %d increments, %d passes, %d "
                "Newton (residual ratio %.2e, penetration %.2e r, longest contact edge "
                "%.3g m)\n",
-               o->probe_r, pst->active, pst->increments, pst->passes, r->iters, pst->residual,
-               pst->penetration_m / o->probe_r, pst->max_edge_m);
+               o->probe_r, pst->active, o->probe_nodes ? "nodes" : "triangles", pst->increments,
+               pst->passes, r->iters, pst->residual, pst->penetration_m / o->probe_r,
+               pst->max_edge_m);
     else if (o->do_static)
         printf("iterations      %d Newton (residual ratio %.2e)\n", r->iters, r->st.residual);
     else
