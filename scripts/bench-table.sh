@@ -257,10 +257,10 @@ cut_server_row() {
         { na "$t" "$c" cut; return; }
     rows mesh,vertices,tets,cut_steps "$data/$f" | cut -f2 | awk -F, -v src="$(link "$f")" '
         { lim = $1 == "skin_patch" ? 2 : $1 == "plate5043" ? 10 : 30
-          r = r (NR > 1 ? "; " : "") sprintf("%s cut step %.1f ms + valid again %.0f ms", $1, $7, $9)
-          n++; if ($7 + $9 <= lim) ok++ }
+          r = r (NR > 1 ? "; " : "") sprintf("%s valid %.1f ms after the step began (the step %.1f ms)", $1, $9, $7)
+          n++; if ($9 <= lim) ok++ }
         END {
-            met = ok == n ? "yes" : ok == 0 ? "no (the compliance is rebuilt from scratch in the background after a cut)" : sprintf("partly (%d of %d)", ok, n)
+            met = ok == n ? "yes" : ok == 0 ? "no (the compliance follows each cut step exactly, within the step; the step, with the body'"'"'s and the compliance'"'"'s partial refactors, is slower than the target)" : sprintf("partly (%d of %d)", ok, n)
             printf "%s (%s)|%s\n", r, src, met
         }' | emit "$c" "$t"
 }

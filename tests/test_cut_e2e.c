@@ -3,8 +3,9 @@
 // dragged across the skin patch by poses fed at 1 kHz, real deformation and rt threads.
 // The LCM end to end is tests/test_cut_e2e.sh.
 #define _POSIX_C_SOURCE 200809L
-#include "haptic_sim.h"
+#include "cut_surface.h"
 #include "haptic_rt.h"
+#include "haptic_sim.h"
 #include "test_macros.h"
 
 #include <limits.h>
@@ -166,6 +167,17 @@ static void sleep_until(struct timespec* t, long ns) {
     clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, t, NULL);
 }
 
+// Feed the next pose (at, buttons) to sim as a device would, then wait for the next ms from t.
+static void feed_ms(hs_haptic_sim* sim, hs_haptic_pose* pose, struct timespec* t,
+                    const double at[3], unsigned buttons) {
+    pose->seq++;
+    pose->stamp_ns = hs_now_ns();
+    memcpy(pose->pos_m, at, sizeof pose->pos_m);
+    pose->buttons = buttons;
+    hs_haptic_sim_feed_pose(sim, pose);
+    sleep_until(t, 1000000);
+}
+
 static int cmp_tri(const void* pa, const void* pb) {
     const int *a = pa, *b = pb;
     for (int k = 0; k < 3; ++k)
@@ -189,27 +201,11 @@ static int released(const hs_haptic_sim_stats* st) {
     return f[0] == 0 && f[1] == 0 && f[2] == 0;
 }
 
-// Loop passes the status showed while one rebuild ran (the largest over the rebuilds seen).
-typedef struct rebuild_span {
-    int64_t first, last, best; // loop passes: where the running rebuild was first / last seen
-    int on;
-} rebuild_span;
-
-static void span_track(rebuild_span* s, const hs_haptic_sim_stats* st) {
-    if (!st->comp_building) {
-        s->on = 0;
-        return;
-    }
-    if (!s->on) s->first = st->loops;
-    s->on = 1;
-    s->last = st->loops;
-    if (s->last - s->first > s->best) s->best = s->last - s->first;
-}
-
 /// The blade dragged across the patch with the button held, then released: topology versions
 /// grow, events list each removed tet once, the shared surface and rest positions are the
 /// mesh's, the force is finite, shows resistance, changes by at most the cap over one blend
-/// per tick, and returns to zero after the release; the compliance is rebuilt after it.
+/// per tick, and returns to zero after the release; the compliance follows every cut step and
+/// equals one built afresh on the cut mesh.
 static int test_blade_drag(void) {
     int64_t bytes = hs_byte_count();
     hs_mesh* m = NULL;
@@ -230,11 +226,9 @@ static int test_blade_drag(void) {
     ENSURE(x0 && tris && removed && moved && gone);
 
     const double speed = 0.04, y0 = -0.05, y1 = 0.05;
-    // Across the patch (y0 -> y1 at x = 1 mm), released until the loop has started the
-    // compliance rebuild (at least 10 ticks; the loop paces at 60 Hz, slower under sanitizers,
-    // so a fixed gap may pass unseen), then a second, partial cut back in from the y1 side at
-    // x = 21 mm before that rebuild can end (it is then dropped and redone), then released for
-    // good.
+    // Across the patch (y0 -> y1 at x = 1 mm), released until the loop has taken the release
+    // (at least 10 ticks; the compliance followed every cut step, so it is valid by then), then
+    // a second, partial cut back in from the y1 side at x = 21 mm, then released for good.
     const int drag_ticks = (int)((y1 - y0) / speed * 1000), min_gap = 10, max_gap = 5000;
     const int drag2 = 600, rest_ticks = 600;
     int gap_end = -1, end2 = INT_MAX - rest_ticks; // known once the rebuild has started
@@ -248,7 +242,6 @@ static int test_blade_drag(void) {
     memset(&pose, 0, sizeof pose);
     pose.quat_wxyz[0] = 1;
     double prev[3] = {0, 0, 0}, peak = 0, max_step = 0, after_release = 0;
-    rebuild_span span = {0, 0, -1, 0}; // loop passes seen during a rebuild
     int64_t version = 0, events = 0, removed_total = 0;
     int have_prev = 0, bad_event = 0, step_pairs = 0;
     int64_t prev_seq = 0;
@@ -256,7 +249,7 @@ static int test_blade_drag(void) {
         if (gap_end < 0 && k >= drag_ticks + min_gap) {
             hs_haptic_sim_stats bs;
             hs_haptic_sim_stats_get(sim, &bs);
-            if (bs.comp_building || k >= drag_ticks + max_gap) {
+            if (bs.comp_version == bs.topology_version || k >= drag_ticks + max_gap) {
                 gap_end = k;
                 end2 = gap_end + drag2;
                 loop_end = end2 + 20000;
@@ -305,7 +298,6 @@ static int test_blade_drag(void) {
         if (!cutting) {
             hs_haptic_sim_stats bs;
             hs_haptic_sim_stats_get(sim, &bs);
-            span_track(&span, &bs);
             if (k >= end2 && release_k < 0 && released(&bs)) {
                 release_k = k;
                 loop_end = end2 + rest_ticks > k + d.blend_ticks + 250 ? end2 + rest_ticks
@@ -337,15 +329,13 @@ static int test_blade_drag(void) {
             events++;
         }
     }
-    // The compliance rebuild (~0.4 s, more on a loaded machine) follows the release, on a
-    // worker: the deformation loop keeps running meanwhile.
+    // The compliance followed each cut step on the deformation thread: valid with the last one.
     hs_haptic_sim_stats st;
     hs_haptic_sim_stats_get(sim, &st);
     for (int i = 0; i < 12000 && st.comp_version != st.topology_version;
          ++i) { // <= 60 s (sanitizers)
         sleep_until(&t, 5000000);
         hs_haptic_sim_stats_get(sim, &st);
-        span_track(&span, &st);
     }
     hs_haptic_sim_stop(sim);
     hs_haptic_sim_stats_get(sim, &st);
@@ -353,7 +343,7 @@ static int test_blade_drag(void) {
     ENSURE(hs_haptic_sim_take_topology(sim, x0, tris, 4 * ntet, &nt, NULL) == version);
     printf("  %lld events, version %lld, %lld tets removed (%lld cut steps, %lld sweeps); "
            "peak %.3f N, largest step %.4f N/tick; cut step last %.1f ms max %.1f ms; "
-           "compliance rebuilt in %.1f ms\n",
+           "compliance followed the last in %.1f ms\n",
            (long long)events, (long long)version, (long long)removed_total, (long long)st.cut_steps,
            (long long)st.cut_sweeps, peak, max_step, st.cut_ms_last, st.cut_ms_max,
            st.comp_ms_last);
@@ -395,20 +385,11 @@ static int test_blade_drag(void) {
         hs_free(all);
         hs_mesh_destroy(&am);
     }
-    ENSURE(st.comp_ms_last > 0); // the compliance was rebuilt once the blade left ...
-    ENSURE(st.comp_rebuilds >= 1 && st.comp_version == version && !st.comp_building);
-    printf("  compliance rebuilds: %lld swapped in, %lld dropped (a newer cut came first)\n",
-           (long long)st.comp_rebuilds, (long long)st.comp_discarded);
-    printf("  the second cut began %d ticks after the release, once the rebuild had started\n",
-           gap_end - drag_ticks);
-    ENSURE(st.comp_discarded >= 1); // the first rebuild was overtaken by the second cut
-    printf(
-        "  deformation loop passes while the compliance was rebuilt: %lld (at most, per rebuild)\n",
-        (long long)span.best);
-    // ... beside the loop, not in it: a loop the rebuild blocked would show one pass with the
-    // rebuild running (the next one waits for it). After a cut the body steps (paced at 60 Hz)
-    // for a while, so a 77-660 ms rebuild (measured) spans 4 passes or more.
-    ENSURE(span.best >= 2);
+    // Every cut step was followed at once: no rebuild, none dropped.
+    printf("  compliance: %lld cut steps followed, %lld rebuilds, %lld dropped\n",
+           (long long)st.comp_updates, (long long)st.comp_rebuilds, (long long)st.comp_discarded);
+    ENSURE(st.comp_ms_last > 0 && st.comp_version == version && !st.comp_building);
+    ENSURE(st.comp_updates == st.cut_steps && st.comp_rebuilds == 0);
     // ... and it is the compliance of the cut body: diagonal blocks as a fresh one's, on every
     // live tet, holding the fixed nodes and those no live tet uses. The cut pins only nodes
     // left without a tet (and drops pieces the fixed ends do not hold), so no live tet has one.
@@ -435,13 +416,14 @@ static int test_blade_drag(void) {
     ENSURE(on_pinned == 0);
     ENSURE(hs_compliance_create(lm, &d.body.fem, fix2, d.probe.cache_nodes, &fresh, &err) == HS_OK);
     hs_free(fix2);
-    const hs_compliance* cc = hs_haptic_sim_compliance(sim);
+    hs_compliance* cc = hs_haptic_sim_compliance(sim);
     double worst = 0;
     int compared = 0;
     for (int i = 0; i < n; ++i) {
         if (!hs_compliance_contactable(fresh, i)) continue;
         ENSURE(hs_compliance_contactable(cc, i));
         double a[9], b[9], na = 0, nd = 0;
+        ENSURE(hs_compliance_ensure(cc, 1, &i, 0) == 0); // its stale diagonal block, afresh
         ENSURE(hs_compliance_block(cc, i, i, a) && hs_compliance_block(fresh, i, i, b));
         for (int k = 0; k < 9; ++k) {
             na += b[k] * b[k];
@@ -450,7 +432,7 @@ static int test_blade_drag(void) {
         worst = fmax(worst, sqrt(nd / na));
         compared++;
     }
-    printf("  rebuilt compliance vs fresh on the cut mesh: %d surface nodes, worst block %.2e\n",
+    printf("  followed compliance vs fresh on the cut mesh: %d surface nodes, worst block %.2e\n",
            compared, worst);
     ENSURE(compared > 0 && compared >= lm->n_surf_nodes / 2);
     ENSURE(worst <= 1e-8);
@@ -551,6 +533,9 @@ typedef struct probe_run {
 // What is left of the blade's cutting force (0.5 mN at the release) once it has blended out:
 // it falls monotonically from there; a contact 1 mm deep would be ~0.01 N.
 #define RESIDUAL_N 1e-6
+// The probe may touch the tissue as soon as the blade is released (the compliance is valid):
+// then the force never gets down to RESIDUAL_N, and steps count from this long after it.
+#define GATE_LATE_NS 50000000
 
 // Past the blend-out: from the gate on (or always, when nothing is gated).
 static int counted(const probe_run* pr, int64_t tick) {
@@ -573,12 +558,7 @@ static void probe_move(probe_run* pr, const double to[3], int ticks, unsigned bu
     for (int k = 1; k <= ticks; ++k) {
         double a = (double)k / ticks;
         for (int i = 0; i < 3; ++i) pr->at[i] = from[i] + a * (to[i] - from[i]);
-        pr->pose.seq++;
-        pr->pose.stamp_ns = hs_now_ns();
-        memcpy(pr->pose.pos_m, pr->at, sizeof pr->at);
-        pr->pose.buttons = buttons;
-        hs_haptic_sim_feed_pose(pr->sim, &pr->pose);
-        sleep_until(&pr->t, 1000000);
+        feed_ms(pr->sim, &pr->pose, &pr->t, pr->at, buttons);
         // Every rt tick from the telemetry: the newest output alone missed ticks whenever this
         // thread's wake-ups fell in step with rt's (a run kept 249 of ~2200 consecutive pairs).
         int nb = 0;
@@ -599,8 +579,9 @@ static void probe_move(probe_run* pr, const double to[3], int ticks, unsigned bu
             // At full watchdog gain only: a stall of this thread past the watchdog timeout
             // ramps the force down, which is not the blade's force having faded.
             if (pr->gated && pr->gate_tick < 0 && pr->release_ns > 0 &&
-                tl->now_ns >= pr->release_ns && fn <= RESIDUAL_N && tl->gain == 1 &&
-                !(tl->safety & HS_SAFETY_WATCHDOG)) {
+                tl->now_ns >= pr->release_ns &&
+                (fn <= RESIDUAL_N || tl->now_ns >= pr->release_ns + GATE_LATE_NS) &&
+                tl->gain == 1 && !(tl->safety & HS_SAFETY_WATCHDOG)) {
                 pr->gate_tick = tl->tick;
                 pr->stale_when_gated = stale;
             }
@@ -630,11 +611,11 @@ static void probe_move(probe_run* pr, const double to[3], int ticks, unsigned bu
 }
 
 /// With probe_when_released the released blade is a probe sphere: pressed 1 mm next to where
-/// the cut will run, it feels the intact patch; after a full cut across and the compliance
-/// rebuild it feels the cut tissue, softer, and in both cases the force of the rest-state
-/// contact on that body. While the compliance is stale there is no contact at all, and the
-/// contact that appears when it is swapped in is blended. min_travel_m: the blade's sweep step;
-/// tol: how far the cut press may be from the rest contact on the rebuilt compliance.
+/// the cut will run, it feels the intact patch; after a full cut across it feels the cut tissue
+/// at once, softer, and in both cases the force of the rest-state contact on that body. The
+/// compliance followed every cut step, so it is never stale once the blade is out, and the
+/// contact that appears is blended. min_travel_m: the blade's sweep step; tol: how far the cut
+/// press may be from the rest contact on the followed compliance.
 static int probe_after_cut(double min_travel_m, double tol) {
     (void)tol; // unchecked under TSan
     int64_t bytes = hs_byte_count();
@@ -685,8 +666,7 @@ static int probe_after_cut(double min_travel_m, double tol) {
     probe_move(&pr, c0, 200, 0, 0, 0);
     probe_move(&pr, c1, 100, 0, 0, 0);
     probe_move(&pr, c2, 2500, 1u, 0, 0);
-    // Quickly back and into the tissue (in 30 ms) while the compliance is being rebuilt
-    // (~150 ms): the probe must feel nothing until it is swapped in.
+    // Quickly back and into the tissue (in 30 ms): the compliance is valid already.
     pr.max_step = 0;
     pr.step_pairs = 0;
     pr.gate_tick = -1;
@@ -729,14 +709,11 @@ static int probe_after_cut(double min_travel_m, double tol) {
     ENSURE(f_cut > 0.001 && f_cut < f_uncut);
     ENSURE(fabs(f_cut - f_ref1[2]) <= tol * f_ref1[2]); // and it is the cut body's answer
 #endif
-    // No contact on a stale compliance: every rt tick from the probe's entry to the swap (the
-    // rebuild takes ~130 ms here, the probe is in the tissue ~30 ms after the release).
-    ENSURE(pr.stale_in_tissue >= 20);
-    ENSURE(pr.stale_force <= RESIDUAL_N); // a contact 1 mm deep: ~0.01 N
+    // Valid with the cut's last step: not one rt tick in the tissue on a stale compliance.
+    ENSURE(pr.stale_in_tissue == 0 && st.comp_updates == st.cut_steps && st.comp_rebuilds == 0);
 #ifndef __SANITIZE_THREAD__
     ENSURE(pr.step_pairs >= 500);
-    ENSURE(pr.stale_when_gated);             // the steps counted include the swap...
-    ENSURE(step_swap <= 0.5 * f_cut + 1e-3); // ...blended in, not a jump of f_cut (0.0095 N)
+    ENSURE(step_swap <= 0.5 * f_cut + 1e-3); // the contact blended in, not a jump of f_cut
 #endif
     hs_free(x0);
     hs_free(tris);
@@ -838,7 +815,7 @@ static int free_piece(int fall) {
     // with the lip (1 of 160, once under ASan).
     int strip = 0, contactable = 0, pinned = 0, hinges = 0;
     double moved = 0, fell = 0, since_pre = 0;
-    const hs_compliance* cc = hs_haptic_sim_compliance(sim);
+    hs_compliance* cc = hs_haptic_sim_compliance(sim);
     for (int i = 0; i < n; ++i) {
         for (int a = 0; a < 3; ++a) ENSURE(isfinite(u1[3 * i + a]));
         contactable += hs_compliance_contactable(cc, i) && !kept[i]; // anywhere
@@ -1173,7 +1150,7 @@ static int release_inside(int zigzag) {
     wire_mark(&w);
     wire_move(&w, up, 450, 0);
     wire_move(&w, up, 100, 0);
-    const double lift_peak = w.peak;
+    const double lift_peak = w.peak, out_of_it = w.last;
     // Out of the cut the tool is the full 3 mm probe again: 1 mm into the top surface (z = 4 mm)
     // 11 mm beside the cut it feels the tissue (about 0.01-0.02 N, test_probe_after_cut).
     const double beside[3] = {0.012, 0, 0.012}, press[3] = {0.012, 0, 0.006};
@@ -1186,12 +1163,13 @@ static int release_inside(int zigzag) {
         "  %s cut to the middle (%lld cut steps), released inside: %lld answers, largest "
         "|f| %.3f N (limit %.1f), largest step %.3f N (limit %.3f per 1 ms answer); after "
         "the release (from %.3f N): peak %.3f N, settled %.3f N, range over the last 0.5 s %.4f N; "
-        "lifted out: peak %.3f N; pressed 1 mm beside the cut: %.4f N; worst snapshot %.2f ms "
+        "lifted out: peak %.3f N, out of it %.4f N; pressed 1 mm beside the cut: %.4f N; worst "
+        "snapshot %.2f ms "
         "(settling included); compliance %s\n",
         zigzag ? "zig-zag" : "straight", (long long)cut_steps, (long long)w.answers, w.worst_mag,
         SKIN_FORCE_MAX, w.worst_step, SKIN_RATE_MAX * 1e-3, at_release, peak, settled, range,
-        lift_peak, pressed, st.snapshot_ms_max,
-        st.comp_version == st.topology_version ? "rebuilt" : "still stale");
+        lift_peak, out_of_it, pressed, st.snapshot_ms_max,
+        st.comp_version == st.topology_version ? "valid" : "still stale");
     destroy_sim(&w.sim);
     hs_free(fixed);
     hs_mesh_destroy(&m);
@@ -1203,10 +1181,12 @@ static int release_inside(int zigzag) {
     // No kick: from the force it had to where it settles, never well above both.
     ENSURE(peak <= 1.2 * fmax(at_release, settled) + 0.02);
     ENSURE(range <= 0.02); // no chatter while held
-    // Lifted out: the tissue lets go. In some runs of the straight cut it catches the sphere on
-    // the way up and pulls 1.0-1.3 N (a known defect, not understood yet; ~0.1 N in the others):
-    // the bound is the blade's resistance cap, which the old code's 3.3 N spike exceeded.
+    // Lifted out: 16 mm above the patch it feels nothing. On the way out of the straight cut
+    // the tissue still catches the sphere in most runs (0.1-0.16 N, ~1 N in some, with nothing
+    // held before: a known defect, docs/cutting.md), so the bound there is the blade's
+    // resistance cap, which the old code's 3.3 N spike exceeded.
     ENSURE(lift_peak <= 1.5);
+    ENSURE(out_of_it <= 1e-3);
     ENSURE(pressed > 0.003); // the full probe again
 #endif
     ENSURE(hs_byte_count() == bytes);
@@ -1221,7 +1201,345 @@ static int test_release_inside_halfway(void) {
     return release_inside(0);
 }
 
+// One millisecond of the press-beside-the-cut case: feed the pose, wait, then go through rt's
+// telemetry. From `from_ns` on (0: not yet) every tick's force counts: the weakest, and the
+// ticks below `min_n`.
+typedef struct press_run {
+    hs_haptic_sim* sim;
+    struct timespec t;
+    hs_haptic_pose pose;
+    double at[3];
+    int64_t from_ns;
+    int weak, counted;
+    double weakest;
+    int64_t first_felt_ns; // first tick at or after from_ns with at least min_n (0: none)
+} press_run;
+
+#define PRESS_MIN_N 0.003 // a press 1 mm deep beside the cut is ~0.015-0.02 N
+
+static void press_tick(press_run* pr, const double to[3], unsigned buttons) {
+    memcpy(pr->at, to, sizeof pr->at);
+    feed_ms(pr->sim, &pr->pose, &pr->t, pr->at, buttons);
+    hs_haptic_telemetry tl;
+    while (hs_spsc_ring_pop(hs_haptic_sim_telemetry(pr->sim), &tl)) {
+        if (pr->from_ns <= 0 || tl.now_ns < pr->from_ns) continue;
+        double fn = norm3(tl.force_n);
+        pr->counted++;
+        if (fn < PRESS_MIN_N) pr->weak++;
+        if (fn >= PRESS_MIN_N && pr->first_felt_ns == 0) pr->first_felt_ns = tl.now_ns;
+        if (pr->counted == 1 || fn < pr->weakest) pr->weakest = fn;
+    }
+}
+
+static void press_move(press_run* pr, const double to[3], int ticks, unsigned buttons) {
+    double from[3];
+    memcpy(from, pr->at, sizeof from);
+    for (int k = 1; k <= ticks; ++k) {
+        double p[3];
+        for (int i = 0; i < 3; ++i) p[i] = from[i] + (to[i] - from[i]) * k / ticks;
+        press_tick(pr, p, buttons);
+    }
+}
+
+/// The other hand presses beside the cut: one blade stroke through a 5,043-vertex plate (the
+/// `hapsim-bench cut` plate), released, and the tool pressed 1 mm into the surface ~8 mm beside
+/// the cut. The compliance followed the stroke's cut steps, so it is valid when the tool comes
+/// down: the press is felt within grace_ms of the tool being in place (a snapshot and the blend)
+/// and on every tick of the 300 ms after.
+static int test_press_beside_cut(void) {
+#ifdef __SANITIZE_THREAD__
+    // TSan slows every solve ~10x: a coarser plate (1,323 vertices), looser timing.
+    const int grace_ms = 1000, cells = 20;
+#else
+    // The first snapshot after a cut: its candidates' diagonal blocks and 8 columns afresh,
+    // 30-130 ms on this plate on a 2-core machine under load.
+    const int grace_ms = 250;
+    const int cells = 40;
+#endif
+    int64_t bytes = hs_byte_count();
+    hs_mesh* m = NULL;
+    hs_err err = {0};
+    ENSURE(hs_mesh_create_box(0.2, 0.2, 0.01, cells, cells, 2, &m, &err) == HS_OK);
+    unsigned char* fixed = ends_fixed(m);
+    ENSURE(fixed);
+    hs_haptic_sim_def d = sim_def();
+    const double r = 0.003, top = 0.01;
+    d.probe.radius_m = r;
+    d.body.fem.material.youngs_pa = 50000; // the skin scene's
+    hs_haptic_cut_def cd = hs_haptic_cut_default_def();
+    cd.blade_a[2] = -0.008; // from the tool point at mid-thickness through the whole plate
+    cd.blade_b[2] = 0.01;
+    cd.probe_when_released = 1;
+    hs_haptic_sim* sim = NULL;
+    ENSURE(start_cutting_sim(m, fixed, &d, &cd, &sim) == 0);
+    press_run pr;
+    memset(&pr, 0, sizeof pr);
+    pr.sim = sim;
+    pr.pose.quat_wxyz[0] = 1;
+    const double xc = 0.10037, up = 0.03; // off the vertex planes; the whole blade above
+    // Beside the cut: the sphere clear of the removed tets' cell column, on intact tissue.
+    const double beside = 0.2 / cells + r + 0.00037;
+    const double a0[3] = {xc, 0.03, up}, a1[3] = {xc, 0.03, 0.005}, a2[3] = {xc, 0.065, 0.005},
+                 a3[3] = {xc, 0.065, up}, b0[3] = {xc + beside, 0.0475, up},
+                 b1[3] = {xc + beside, 0.0475, top + r - 0.001};
+    memcpy(pr.at, a0, sizeof pr.at);
+    clock_gettime(CLOCK_MONOTONIC, &pr.t);
+    press_move(&pr, a0, 50, 0);
+    press_move(&pr, a1, 250, 1u);  // down along the blade
+    press_move(&pr, a2, 1200, 1u); // the stroke, 30 mm/s
+    press_move(&pr, a3, 250, 1u);  // out along the blade
+    press_move(&pr, b0, 100, 0);   // released, beside the cut
+    // The last cut step may still run on a loaded machine (~50 ms a step on this plate): the
+    // compliance is valid with it, no rebuild after the release.
+    hs_haptic_sim_stats st;
+    int waited = 0;
+    for (hs_haptic_sim_stats_get(sim, &st);
+         (st.topology_version == 0 || st.comp_version != st.topology_version) && waited < 2000;
+         hs_haptic_sim_stats_get(sim, &st), ++waited)
+        press_tick(&pr, b0, 0);
+    const int valid_before = st.topology_version > 0 && st.comp_version == st.topology_version;
+    press_move(&pr, b1, 150, 0); // down, 1 mm into the plate
+    const int64_t valid_ns = hs_now_ns();
+    pr.from_ns = valid_ns;
+    press_move(&pr, b1, grace_ms, 0);
+    const int64_t first = pr.first_felt_ns;
+    pr.from_ns = hs_now_ns();
+    pr.weak = pr.counted = 0;
+    press_move(&pr, b1, 300, 0);
+    hs_haptic_sim_stats_get(sim, &st);
+    printf("  cut version %lld, compliance valid %s the press (waited %d ms); first felt %.1f ms "
+           "after the tool "
+           "was in place (allowed %d ms); then %d of %d ticks below %.3f N, weakest %.4f N; "
+           "worst snapshot %.1f ms\n",
+           (long long)st.topology_version, valid_before ? "before" : "NOT before", waited,
+           first > 0 ? (double)(first - valid_ns) * 1e-6 : -1.0, grace_ms, pr.weak, pr.counted,
+           PRESS_MIN_N, pr.weakest, st.snapshot_ms_max);
+    printf("  at the end: %d candidates, %d coupled, %d contacts; %lld cut steps followed\n",
+           st.candidates, st.coupled, st.contact.n, (long long)st.comp_updates);
+    ENSURE(st.topology_version > 0 && st.comp_version == st.topology_version);
+    ENSURE(st.cut_failures == 0 && st.comp_rebuilds == 0 && valid_before);
+    ENSURE(first > 0 && first - valid_ns <= (int64_t)grace_ms * 1000000);
+    ENSURE(pr.counted >= 250 && pr.weak == 0);
+    destroy_sim(&sim);
+    hs_free(fixed);
+    hs_mesh_destroy(&m);
+    ENSURE(hs_byte_count() == bytes);
+    return 0;
+}
+
+// A compliance built afresh on the cut mesh: the live tets, holding the fixed nodes and those no
+// live tet uses (as the rebuild does).
+static hs_compliance* fresh_compliance(const hs_mesh* live, const unsigned char* fixed,
+                                       const hs_fem_def* fd) {
+    const int n = live->n_nodes;
+    unsigned char* fix2 = hs_alloc((size_t)n);
+    if (!fix2) return NULL;
+    memset(fix2, 1, (size_t)n);
+    for (int k = 0; k < 4 * live->n_tets; ++k) fix2[live->tets[k]] = 0;
+    for (int i = 0; i < n; ++i) fix2[i] |= fixed[i];
+    hs_compliance* c = NULL;
+    hs_err err = {0};
+    // On the cut's live mesh itself (same nodes and x0, the live tets and surface).
+    if (hs_compliance_create(live, fd, fix2, 96, &c, &err) != HS_OK) c = NULL;
+    hs_free(fix2);
+    return c;
+}
+
+// Surface node nearest to p.
+static int nearest_surface_node(const hs_mesh* m, const double p[3]) {
+    int best = -1;
+    double bd = INFINITY;
+    for (int s = 0; s < m->n_surf_nodes; ++s) {
+        const int v = m->surf_nodes[s];
+        const double* x = m->x0 + 3 * v;
+        double d = pow(x[0] - p[0], 2) + pow(x[1] - p[1], 2) + pow(x[2] - p[2], 2);
+        if (d < bd) bd = d, best = v;
+    }
+    return best;
+}
+
+/// The compliance follows a cut across the skin patch (2 mm sweeps at rest, y from -45 to
+/// 45 mm, blade through the thickness at x = 1 mm) by hs_compliance_change_elements after every
+/// sweep. At 8, 24 and all 45 steps a 3 mm sphere pressed 1 mm deep 4 mm beside the cut, just
+/// behind the blade, feels the force a compliance built afresh on the cut mesh gives, within 1 %.
+/// Cut through, a press 5 mm on one side of it pulls nothing on the other: the cross block and
+/// the force at the far node are zero to round-off (before the cut they were not).
+static int test_follow_matches_fresh(void) {
+    int64_t bytes = hs_byte_count();
+    hs_mesh* m = NULL;
+    unsigned char* fixed = NULL;
+    ENSURE(skin_with_ends_fixed(&m, &fixed) == 0);
+    hs_fem_def fd = sim_def().body.fem;
+    fd.material.youngs_pa = 50000;
+    hs_err err = {0};
+    hs_compliance* c = NULL;
+    ENSURE(hs_compliance_create(m, &fd, fixed, 96, &c, &err) == HS_OK);
+    ENSURE(hs_compliance_prepare_changes(c) == HS_OK);
+    // Across the cut line, 5 mm each side on the top surface at y = 0.
+    const double top = 0.004, r = 0.003, pi[3] = {-0.004, 0, top}, pj[3] = {0.006, 0, top};
+    const int ni = nearest_surface_node(m, pi), nj = nearest_surface_node(m, pj);
+    double blk_before[9], dd[6] = {0, 0, -0.001, 0, 0, 0}, f_before[6];
+    const int pair[2] = {ni, nj};
+    ENSURE(hs_compliance_solve_set(c, 2, pair, NULL, dd, f_before) == HS_OK); // solves columns
+    ENSURE(hs_compliance_block(c, ni, nj, blk_before) == 1);
+
+    hs_cut_def cdef = hs_cut_default_def(); // as the server runs it
+    cdef.orphan = HS_CUT_ORPHAN_PIN;
+    cdef.fragment = HS_CUT_FRAGMENT_DROP;
+    cdef.pins_hold = 0;
+    hs_cut* cut = NULL;
+    ENSURE(hs_cut_create(m, fixed, &cdef, &cut, &err) == HS_OK);
+    hs_cut_surface* fs = NULL; // the live boundary as the sim follows it
+    ENSURE(hs_cut_surface_create(m, &fs) == HS_OK);
+    int* ta = hs_alloc(3 * 4 * (size_t)m->n_tets * sizeof(int));
+    int* tb = hs_alloc(3 * 4 * (size_t)m->n_tets * sizeof(int));
+    ENSURE(ta && tb);
+    const double step = 0.002, xc = 0.001;
+    int k = 0;
+    double worst = 0;
+    for (double y = -0.045; y < 0.045 - 1e-9; y += step) {
+        const double p0[3] = {xc, y, -0.001}, q0[3] = {xc, y, 0.005};
+        const double p1[3] = {xc, y + step, -0.001}, q1[3] = {xc, y + step, 0.005};
+        hs_cut_result res;
+        ENSURE(hs_cut_sweep(cut, p0, q0, p1, q1, NULL, &res, &err) == HS_OK);
+        const hs_mesh* live = hs_cut_live_mesh(cut);
+        ENSURE(live);
+        const int *off, *mv;
+        const int n_off = hs_cut_last_removed(cut, &off), n_mv = hs_cut_last_changed(cut, &mv);
+        hs_cut_surface_remove(fs, n_off, off);
+        const hs_mesh* fv = hs_cut_surface_mesh(fs);
+        ENSURE(hs_compliance_change_elements(c, n_off, off, n_mv, mv, fv) == HS_OK);
+        // The followed boundary is the live mesh's, triangle for triangle, same orientation.
+        ENSURE(fv->n_tris == live->n_tris && fv->n_surf_nodes == live->n_surf_nodes);
+        canonical_tris(fv->tris, fv->n_tris, ta);
+        canonical_tris(live->tris, live->n_tris, tb);
+        ENSURE(!memcmp(ta, tb, 3 * (size_t)fv->n_tris * sizeof(int)));
+        ENSURE(!memcmp(fv->surf_nodes, live->surf_nodes, (size_t)fv->n_surf_nodes * sizeof(int)));
+        ++k;
+        if (k != 8 && k != 24 && k != 45) continue;
+        hs_compliance* fresh = fresh_compliance(live, fixed, &fd);
+        ENSURE(fresh);
+        const double press[3] = {xc + 0.004, fmin(y, 0.035) - 0.004, top + r - 0.001};
+        double fa[3], fb[3];
+        ENSURE(rest_force(c, m->x0, live->tris, live->n_tris, m->n_nodes, press, r, fa) > 0);
+        ENSURE(rest_force(fresh, m->x0, live->tris, live->n_tris, m->n_nodes, press, r, fb) > 0);
+        const double rel =
+            sqrt(pow(fa[0] - fb[0], 2) + pow(fa[1] - fb[1], 2) + pow(fa[2] - fb[2], 2)) /
+            sqrt(fb[0] * fb[0] + fb[1] * fb[1] + fb[2] * fb[2]);
+        printf("  after %d cut steps (%d tets removed): press beside the cut %.5f N followed, "
+               "%.5f N fresh, difference %.1e\n",
+               k, m->n_tets - live->n_tets, fa[2], fb[2], rel);
+        worst = fmax(worst, rel);
+        ENSURE(fb[2] > 0.001);
+        hs_compliance_destroy(&fresh);
+    }
+    ENSURE(k == 45 && worst <= 0.01);
+    ENSURE(hs_compliance_updates(c) == 45);
+    // Cut through: no coupling across it.
+    double blk[9], f_after[6], nb = 0, na = 0, ni2 = 0;
+    ENSURE(hs_compliance_solve_set(c, 2, pair, NULL, dd, f_after) == HS_OK);
+    ENSURE(hs_compliance_block(c, ni, nj, blk) == 1);
+    double bii[9];
+    ENSURE(hs_compliance_block(c, ni, ni, bii) == 1);
+    for (int q = 0; q < 9; ++q)
+        nb += blk_before[q] * blk_before[q], na += blk[q] * blk[q], ni2 += bii[q] * bii[q];
+    const double pull_before = sqrt(f_before[3] * f_before[3] + f_before[4] * f_before[4] +
+                                    f_before[5] * f_before[5]),
+                 pull_after = sqrt(f_after[3] * f_after[3] + f_after[4] * f_after[4] +
+                                   f_after[5] * f_after[5]);
+    printf("  cut through: cross block %.2e -> %.2e m/N (own block %.2e); the far node's force "
+           "for a 1 mm press on the near one %.2e -> %.2e N (press %.3f N)\n",
+           sqrt(nb), sqrt(na), sqrt(ni2), pull_before, pull_after, fabs(f_after[2]));
+    ENSURE(sqrt(nb) > 1e-3 * sqrt(ni2) && pull_before > 1e-3 * fabs(f_before[2]));
+    ENSURE(sqrt(na) <= 1e-9 * sqrt(ni2));
+    ENSURE(pull_after <= 1e-9 * fabs(f_after[2]));
+    hs_cut_destroy(&cut);
+    hs_cut_surface_destroy(&fs);
+    hs_free(ta);
+    hs_free(tb);
+    hs_compliance_destroy(&c);
+    hs_free(fixed);
+    hs_mesh_destroy(&m);
+    ENSURE(hs_byte_count() == bytes);
+    return 0;
+}
+
+/// On a small plate (8 x 8 x 1 cells) the compliance follows a cut across: after every step
+/// each surface node's diagonal block equals a fresh compliance's on the cut mesh (1e-8), the
+/// followed surface's; cut through, the two sides do not couple.
+static int test_follow_each_step(void) {
+    int64_t bytes = hs_byte_count();
+    hs_mesh* m = NULL;
+    hs_err err = {0};
+    ENSURE(hs_mesh_create_box(0.04, 0.04, 0.004, 8, 8, 1, &m, &err) == HS_OK);
+    unsigned char* fixed = ends_fixed(m);
+    ENSURE(fixed);
+    hs_fem_def fd = sim_def().body.fem;
+    fd.material.youngs_pa = 50000;
+    hs_compliance* c = NULL;
+    ENSURE(hs_compliance_create(m, &fd, fixed, 96, &c, &err) == HS_OK);
+    hs_cut_def cdef = hs_cut_default_def();
+    cdef.orphan = HS_CUT_ORPHAN_PIN;
+    cdef.pins_hold = 0;
+    hs_cut* cut = NULL;
+    ENSURE(hs_cut_create(m, fixed, &cdef, &cut, &err) == HS_OK);
+    hs_cut_surface* fs = NULL;
+    ENSURE(hs_cut_surface_create(m, &fs) == HS_OK);
+    const double xc = 0.02137, step = 0.005; // the box spans [0, 0.04] in x and y
+    double worst = 0;
+    int steps = 0;
+    for (double y = -0.005; y < 0.045 - 1e-9; y += step) {
+        const double p0[3] = {xc, y, -0.001}, q0[3] = {xc, y, 0.005};
+        const double p1[3] = {xc, y + step, -0.001}, q1[3] = {xc, y + step, 0.005};
+        hs_cut_result res;
+        ENSURE(hs_cut_sweep(cut, p0, q0, p1, q1, NULL, &res, &err) == HS_OK);
+        if (res.removed == 0 && res.moved == 0) continue;
+        const int *off, *mv;
+        const int n_off = hs_cut_last_removed(cut, &off), n_mv = hs_cut_last_changed(cut, &mv);
+        hs_cut_surface_remove(fs, n_off, off);
+        ENSURE(hs_compliance_change_elements(c, n_off, off, n_mv, mv, hs_cut_surface_mesh(fs)) ==
+               HS_OK);
+        ++steps;
+        const hs_mesh* live = hs_cut_live_mesh(cut);
+        hs_compliance* fresh = fresh_compliance(live, fixed, &fd);
+        ENSURE(fresh);
+        for (int i = 0; i < m->n_nodes; ++i) {
+            if (!hs_compliance_contactable(fresh, i)) continue;
+            ENSURE(hs_compliance_contactable(c, i));
+            double a[9], b[9], na = 0, nd = 0;
+            ENSURE(hs_compliance_ensure(c, 1, &i, 0) == 0);
+            ENSURE(hs_compliance_block(c, i, i, a) && hs_compliance_block(fresh, i, i, b));
+            for (int k = 0; k < 9; ++k) na += b[k] * b[k], nd += (a[k] - b[k]) * (a[k] - b[k]);
+            worst = fmax(worst, sqrt(nd / na));
+        }
+        hs_compliance_destroy(&fresh);
+    }
+    const double pi[3] = {0.015, 0.02, 0.004}, pj[3] = {0.03, 0.02, 0.004};
+    const int pair[2] = {nearest_surface_node(m, pi), nearest_surface_node(m, pj)};
+    double blk[9], bii[9], na = 0, ni = 0;
+    const double dd[6] = {0, 0, -0.001, 0, 0, 0};
+    double f[6];
+    ENSURE(hs_compliance_solve_set(c, 2, pair, NULL, dd, f) == HS_OK);
+    ENSURE(hs_compliance_block(c, pair[0], pair[1], blk) &&
+           hs_compliance_block(c, pair[0], pair[0], bii));
+    for (int q = 0; q < 9; ++q) na += blk[q] * blk[q], ni += bii[q] * bii[q];
+    printf("  %d cut steps followed: diagonal blocks as fresh to %.1e; cut through, cross block "
+           "%.1e of the own block\n",
+           steps, worst, sqrt(na / ni));
+    ENSURE(steps >= 5 && worst <= 1e-8);
+    ENSURE(sqrt(na) <= 1e-9 * sqrt(ni) && hs_cut_components(cut) == 2);
+    hs_cut_destroy(&cut);
+    hs_cut_surface_destroy(&fs);
+    hs_compliance_destroy(&c);
+    hs_free(fixed);
+    hs_mesh_destroy(&m);
+    ENSURE(hs_byte_count() == bytes);
+    return 0;
+}
+
 GUARDED(test_enable_errors)
+GUARDED(test_follow_each_step)
+GUARDED(test_follow_matches_fresh)
 GUARDED(test_blade_drag)
 GUARDED(test_probe_after_cut)
 GUARDED(test_probe_after_fine_cut)
@@ -1231,12 +1549,15 @@ GUARDED(test_restart_mid_cut)
 GUARDED(test_force_speed)
 GUARDED(test_release_inside_zigzag)
 GUARDED(test_release_inside_halfway)
+GUARDED(test_press_beside_cut)
 
 #define GUARDED_CASE(fn)                                                                           \
     { #fn, fn##_guarded }
 
-HS_TEST_MAIN(GUARDED_CASE(test_enable_errors), GUARDED_CASE(test_blade_drag),
+HS_TEST_MAIN(GUARDED_CASE(test_enable_errors), GUARDED_CASE(test_follow_matches_fresh),
+             GUARDED_CASE(test_follow_each_step), GUARDED_CASE(test_blade_drag),
              GUARDED_CASE(test_probe_after_cut), GUARDED_CASE(test_probe_after_fine_cut),
              GUARDED_CASE(test_free_piece_dropped), GUARDED_CASE(test_free_piece_fall_rule),
              GUARDED_CASE(test_restart_mid_cut), GUARDED_CASE(test_force_speed),
-             GUARDED_CASE(test_release_inside_zigzag), GUARDED_CASE(test_release_inside_halfway))
+             GUARDED_CASE(test_release_inside_zigzag), GUARDED_CASE(test_release_inside_halfway),
+             GUARDED_CASE(test_press_beside_cut))

@@ -695,43 +695,6 @@ static int AggregatedUpdates(void) {
     return 0;
 }
 
-// A factor ordered with a set of dofs last (the cut's update window) solves like any other,
-// and element updates inside the set match a fresh factor.
-static int OrderedLastWindow(void) {
-    int64_t bytes0 = hs_byte_count();
-    fixture t;
-    ENSURE(fixture_make(&t, 8, 8, 6, 1e-3) == 0);
-    int n = t.a->n;
-    const int mid = t.g.n_tets / 2;
-    double k[12 * 144];
-    int dofs[12 * 12];
-    unsigned char* last = calloc((size_t)n, 1);
-    for (int i = 0; i < 12; i++) {
-        grid_tet_block(&t.g, mid + i, t.g.w[mid + i], k + 144 * i);
-        grid_tet_dofs(&t.g, mid + i, dofs + 12 * i);
-        for (int q = 0; q < 12; q++)
-            if (dofs[12 * i + q] >= 0) last[dofs[12 * i + q]] = 1;
-    }
-    hs_cholesky* w = NULL;
-    hs_err err;
-    ENSURE(hs_cholesky_create_last(t.a, NULL, &w, &err) == HS_ERR_INVALID);
-    ENSURE(hs_cholesky_create_last(t.a, last, &w, &err) == HS_OK);
-    ENSURE(hs_cholesky_solve(w, t.b, t.x) == HS_OK);
-    ENSURE_SMALL(rel_residual(t.a, t.x, t.b, t.r), 1e-12);
-    ENSURE(hs_cholesky_refactor(w, t.a) == HS_OK);
-    ENSURE(hs_cholesky_prepare_updates(w, 12) == HS_OK);
-    add_blocks(t.a, k, dofs, 0, 12, -1.0);
-    ENSURE(hs_cholesky_update_parts(w, 0, 12, k, dofs) == HS_OK);
-    double* x2 = malloc(sizeof(double) * (size_t)n);
-    ENSURE_SMALL(compare_with_fresh(w, t.a, t.b, t.x, x2), 1e-8);
-    free(x2);
-    free(last);
-    hs_cholesky_destroy(&w);
-    fixture_free(&t);
-    ENSURE(hs_byte_count() == bytes0);
-    return 0;
-}
-
 // Soften (scale -0.5) or stiffen (2.0) the tets of grid cell (cx, cy, cz) in t's matrix; their
 // free dofs into dofs. Returns how many, -1 on failure.
 static int change_cell(fixture* t, int cx, int cy, int cz, double scale, int* dofs) {
@@ -872,93 +835,6 @@ static int PartialRefactor(void) {
     ENSURE(hs_cholesky_partial_bytes(t.f) == -1);
     free(x2);
     free(dofs);
-    fixture_free(&t);
-    ENSURE(hs_byte_count() == bytes0);
-    return 0;
-}
-
-// A factor ordered with a window last and factored through the partial refactor's first pass
-// (hs_cholesky_create_last_partial): solves as a fresh factor; a change inside the window
-// redoes a smaller share than the same change in the default order; full refactors still work
-// (the spare factor made on demand); bad input and allocation faults fail cleanly.
-static int CreateLastPartial(void) {
-    int64_t bytes0 = hs_byte_count();
-    fixture t;
-    ENSURE(fixture_make(&t, 12, 10, 8, 1e-3) == 0);
-    int n = t.a->n;
-    double* x2 = malloc(sizeof(double) * (size_t)n);
-    int* dofs = malloc(sizeof(int) * 12 * (size_t)t.g.n_tets);
-    unsigned char* last = calloc((size_t)n, 1);
-    // The window: the dofs of the tets in cells x 4..7, y 3..6, z 2..5.
-    for (int e = 0; e < t.g.n_tets; e++) {
-        double x0[3];
-        grid_coords(&t.g, t.g.tets[4 * e], x0);
-        if (x0[0] < 4 || x0[0] > 7 || x0[1] < 3 || x0[1] > 6 || x0[2] < 2 || x0[2] > 5) continue;
-        int d[12];
-        grid_tet_dofs(&t.g, e, d);
-        for (int q = 0; q < 12; q++)
-            if (d[q] >= 0) last[d[q]] = 1;
-    }
-    hs_cholesky* w = NULL;
-    hs_err err;
-    ENSURE(hs_cholesky_create_last_partial(t.a, NULL, &w, &err) == HS_ERR_INVALID && !w);
-    // Every allocation fails in turn: nothing is made (the count at the end shows no leak;
-    // in between, the block cache may hand back memory cached earlier).
-    for (int k = 1;; k++) {
-        hs_alloc_fail_after(k);
-        hs_status st = hs_cholesky_create_last_partial(t.a, last, &w, &err);
-        hs_alloc_fail_after(0);
-        if (st == HS_OK) break;
-        ENSURE(st == HS_ERR_NOMEM && !w && k < 200);
-    }
-    ENSURE(hs_cholesky_is_supernodal(w));
-    ENSURE(hs_cholesky_partial_share(w) == 1.0); // its numeric factorisation was the full pass
-    ENSURE_SMALL(compare_with_fresh(w, t.a, t.b, t.x, x2), 1e-10);
-    // The same change (a cell in the middle of the window) in both orders.
-    ENSURE(hs_cholesky_prepare_partial(t.f, t.a) == HS_OK);
-    int nd = change_cell(&t, 5, 4, 3, 2.0, dofs);
-    ENSURE(nd > 0);
-    ENSURE(hs_cholesky_refactor_partial(w, t.a, nd, dofs) == HS_OK);
-    ENSURE(hs_cholesky_refactor_partial(t.f, t.a, nd, dofs) == HS_OK);
-    double sw = hs_cholesky_partial_share(w), sd = hs_cholesky_partial_share(t.f);
-    // The same two shares from the symbolic analyses alone, no factor needed.
-    double od = -1, ow = -1;
-    ENSURE(hs_cholesky_order_shares(t.a, last, nd, dofs, &od, &ow, &err) == HS_OK);
-    ENSURE(od == sd && ow == sw);
-    int oob = n;
-    ENSURE(hs_cholesky_order_shares(t.a, last, 1, &oob, &od, &ow, &err) == HS_ERR_INVALID);
-    ENSURE(hs_cholesky_order_shares(t.a, NULL, nd, dofs, &od, &ow, &err) == HS_ERR_INVALID);
-    printf("  a change inside the window: share %.3f, in the default order %.3f\n", sw, sd);
-    ENSURE(sw > 0 && sw < sd);
-    ENSURE_SMALL(compare_with_fresh(w, t.a, t.b, t.x, x2), 1e-10);
-    ENSURE(hs_cholesky_refactor(w, t.a) == HS_OK);
-    ENSURE_SMALL(compare_with_fresh(w, t.a, t.b, t.x, x2), 1e-10);
-    hs_cholesky_destroy(&w);
-    // Not positive definite: refused with a message.
-    int d0 = dofs[0], pd = hs_csc_find(t.a, d0, d0);
-    double keep = t.a->val[pd];
-    t.a->val[pd] = -100.0;
-    ENSURE(hs_cholesky_create_last_partial(t.a, last, &w, &err) == HS_ERR_NOT_POSDEF && !w);
-    printf("  indefinite: %s\n", err.msg);
-    t.a->val[pd] = keep;
-    free(last);
-    free(x2);
-    free(dofs);
-    fixture_free(&t);
-    // A small matrix gets a simplicial factor, made as by hs_cholesky_create_last.
-    ENSURE(fixture_make(&t, 2, 2, 2, 1e-3) == 0);
-    ENSURE(!hs_cholesky_is_supernodal(t.f));
-    n = t.a->n;
-    last = calloc((size_t)n, 1);
-    last[0] = last[1] = 1;
-    x2 = malloc(sizeof(double) * (size_t)n);
-    ENSURE(hs_cholesky_create_last_partial(t.a, last, &w, &err) == HS_OK);
-    ENSURE(!hs_cholesky_is_supernodal(w));
-    ENSURE_SMALL(compare_with_fresh(w, t.a, t.b, t.x, x2), 1e-10);
-    ENSURE(hs_cholesky_refactor_partial(w, t.a, -1, NULL) == HS_ERR_UNSUPPORTED);
-    hs_cholesky_destroy(&w);
-    free(last);
-    free(x2);
     fixture_free(&t);
     ENSURE(hs_byte_count() == bytes0);
     return 0;
@@ -1326,6 +1202,5 @@ HS_TEST_MAIN(HS_CASE(CscPatternAndSpmv), HS_CASE(CscBadInput), HS_CASE(CholeskyS
              HS_CASE(CholeskyNotPosdefKeepsFactor), HS_CASE(SolveAllocatesNothing),
              HS_CASE(ThreadControl), HS_CASE(LeavesBlasThreads), HS_CASE(CholeskyFaultInjection),
              HS_CASE(PcgConverges), HS_CASE(UpdownMatchesFreshFactor), HS_CASE(AggregatedUpdates),
-             HS_CASE(OrderedLastWindow), HS_CASE(PartialRefactor), HS_CASE(CreateLastPartial),
-             HS_CASE(FreeFragmentDetected), HS_CASE(UpdateFaultInjection), HS_CASE(SmallAndEmpty),
-             HS_CASE(NaturalOrderInPlace), HS_CASE(InverseDiagBlocks))
+             HS_CASE(PartialRefactor), HS_CASE(FreeFragmentDetected), HS_CASE(UpdateFaultInjection),
+             HS_CASE(SmallAndEmpty), HS_CASE(NaturalOrderInPlace), HS_CASE(InverseDiagBlocks))

@@ -2607,15 +2607,17 @@ static void print_stop_summary(hs_server* s) {
     if (s->w.cutting)
         printf("hapsim-server: %lld cut steps (topology events, over every reset), "
                "topology version %lld; cut step p50 %.1f ms, p99 %.1f ms, max %.1f ms "
-               "(deformation thread: sweep, body sync, topology hand-over)\n",
+               "(deformation thread: sweep, body and compliance sync, topology hand-over)\n",
                (long long)s->cut_events, (long long)s->topo_version, cut_quantile(s, 0.5),
                cut_quantile(s, 0.99), cut_quantile(s, 1.0));
     if (s->w.cutting && s->w.sim) {
         hs_haptic_sim_stats st;
         hs_haptic_sim_stats_get(s->w.sim, &st);
         printf("hapsim-server: %lld tets removed since the last reset or load; last sweep "
-               "alone %.1f ms; haptic compliance rebuilt after the blade left in %.1f ms\n",
-               (long long)st.cut_removed, st.sweep_ms_last, st.comp_ms_last);
+               "alone %.1f ms; haptic compliance: %lld cut steps followed, %lld rebuilds, the "
+               "last in %.1f ms\n",
+               (long long)st.cut_removed, st.sweep_ms_last, (long long)st.comp_updates,
+               (long long)st.comp_rebuilds, st.comp_ms_last);
     }
     fflush(stdout);
 }

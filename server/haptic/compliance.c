@@ -19,7 +19,8 @@
 #define BATCH_NODES 32 // surface nodes per batched solve (3 right-hand sides each)
 
 struct hs_compliance {
-    const hs_mesh* mesh;
+    const hs_mesh* mesh; // the fem's mesh (element numbering, rest positions)
+    const hs_mesh* surf; // whose boundary nodes are the surface: mesh, or a cut's live mesh
     int n, n_free, n_surf;
     int* dof;    // [3n] free index or -1
     hs_fem* fem; // linear model at rest
@@ -37,6 +38,16 @@ struct hs_compliance {
     int64_t epoch;
     int64_t solves;
     double setup_ms;
+    // Following cuts (hs_compliance_change_elements).
+    unsigned char* diag_ok; // [n_surf] diag block exact for the current factor
+    unsigned char* held;    // [n] node given the hold diagonal (no element left)
+    unsigned char* emark;   // [n_tets] scratch
+    int* elist;             // [n_tets] scratch: elements whose share changes
+    int* dlist;             // [12 n_tets] scratch: their free dofs
+    double hold_k;          // diagonal that holds a node with no element, N/m
+    int partial;            // the factor is set up for partial refactors
+    int64_t updates;
+    double update_ms;
 };
 
 void hs_compliance_destroy(hs_compliance** pc) {
@@ -54,6 +65,11 @@ void hs_compliance_destroy(hs_compliance** pc) {
     hs_free(c->rhs);
     hs_free(c->sol);
     hs_free(c->batch);
+    hs_free(c->diag_ok);
+    hs_free(c->held);
+    hs_free(c->emark);
+    hs_free(c->elist);
+    hs_free(c->dlist);
     hs_free(c);
     *pc = NULL;
 }
@@ -102,6 +118,7 @@ hs_status hs_compliance_create_par(const hs_mesh* mesh, const hs_fem_def* def,
     hs_compliance* c = hs_calloc(1, sizeof *c);
     if (!c) return hs_err_set(err, HS_ERR_NOMEM, "hs_compliance_create: out of memory");
     c->mesh = mesh;
+    c->surf = mesh;
     c->n = mesh->n_nodes;
     c->n_surf = mesh->n_surf_nodes;
     c->cap = cache_nodes;
@@ -152,9 +169,19 @@ hs_status hs_compliance_create_par(const hs_mesh* mesh, const hs_fem_def* def,
     c->rhs = hs_alloc((size_t)nf * 3 * BATCH_NODES * sizeof(double));
     c->sol = hs_alloc((size_t)nf * 3 * BATCH_NODES * sizeof(double));
     c->batch = hs_alloc(BATCH_NODES * sizeof(int));
+    c->diag_ok = hs_alloc(ns + 1);
     if (!c->diag || !c->slot_node || !c->slot_used || !c->node_slot || !c->cols || !c->rhs ||
-        !c->sol || !c->batch)
+        !c->sol || !c->batch || !c->diag_ok)
         goto nomem;
+    memset(c->diag_ok, 1, ns);
+    {
+        double sum = 0;
+        for (int j = 0; j < c->k->n; ++j) {
+            int p = hs_csc_find(c->k, j, j);
+            if (p >= 0) sum += c->k->val[p];
+        }
+        c->hold_k = sum / c->k->n;
+    }
     for (size_t i = 0; i < cap; ++i) c->slot_node[i] = -1;
     for (int i = 0; i < c->n; ++i) c->node_slot[i] = -1;
 
@@ -193,15 +220,31 @@ int hs_compliance_cache_capacity(const hs_compliance* c) {
 }
 
 int hs_compliance_contactable(const hs_compliance* c, int node) {
-    if (node < 0 || node >= c->n || c->mesh->node_surf[node] < 0) return 0;
+    if (node < 0 || node >= c->n || c->surf->node_surf[node] < 0) return 0;
     return c->dof[3 * node] >= 0;
+}
+
+// C_kk of surface node k: the table, or after a change its column (0 when neither is known).
+static int diag_block(const hs_compliance* c, int node, double out[9]) {
+    const int s = c->surf->node_surf[node];
+    if (c->diag_ok[s]) {
+        memcpy(out, c->diag + 9 * (size_t)s, 9 * sizeof(double));
+        return 1;
+    }
+    const int slot = c->node_slot[node];
+    if (slot >= 0) {
+        memcpy(out, c->cols + ((size_t)slot * (size_t)c->n_surf + (size_t)s) * 9,
+               9 * sizeof(double));
+        return 1;
+    }
+    memset(out, 0, 9 * sizeof(double));
+    return 0;
 }
 
 void hs_compliance_diag(const hs_compliance* c, int node, double out[9]) {
     HS_ASSERT(node >= 0 && node < c->n);
-    int s = c->mesh->node_surf[node];
-    HS_ASSERT(s >= 0);
-    memcpy(out, c->diag + 9 * (size_t)s, 9 * sizeof(double));
+    HS_ASSERT(c->surf->node_surf[node] >= 0);
+    (void)diag_block(c, node, out);
 }
 
 void hs_compliance_begin_step(hs_compliance* c) {
@@ -239,7 +282,43 @@ static hs_status flush_batch(hs_compliance* c, int nb) {
         int node = c->batch[q], slot = c->node_slot[node];
         double* col = c->cols + (size_t)slot * (size_t)c->n_surf * 9;
         for (int si = 0; si < c->n_surf; ++si)
-            sol_block(c, q, c->mesh->surf_nodes[si], col + 9 * (size_t)si);
+            sol_block(c, q, c->surf->surf_nodes[si], col + 9 * (size_t)si);
+        const int sn = c->surf->node_surf[node];
+        if (!c->diag_ok[sn]) { // exactly symmetric, as the table's
+            const double* b = col + 9 * (size_t)sn;
+            double* d = c->diag + 9 * (size_t)sn;
+            for (int a = 0; a < 3; ++a)
+                for (int e = 0; e < 3; ++e) d[3 * a + e] = 0.5 * (b[3 * a + e] + b[3 * e + a]);
+            c->diag_ok[sn] = 1;
+        }
+    }
+    return HS_OK;
+}
+
+// Diagonal blocks of nodes[n] that a change made stale and no column gave back: sparse solves
+// along the factor's elimination tree (hs_cholesky_inverse_diag3), BATCH_NODES at a time.
+static hs_status refresh_diag(hs_compliance* c, int n, const int* nodes) {
+    int dl[3 * BATCH_NODES], which[BATCH_NODES], nb = 0;
+    double out[9 * BATCH_NODES];
+    for (int i = 0; i <= n; ++i) {
+        if (i < n) {
+            const int node = nodes[i], sn = c->surf->node_surf[node];
+            if (!hs_compliance_contactable(c, node) || c->diag_ok[sn]) continue;
+            int dup = 0;
+            for (int q = 0; q < nb; ++q) dup |= which[q] == sn;
+            if (dup) continue;
+            for (int a = 0; a < 3; ++a) dl[3 * nb + a] = c->dof[3 * node + a];
+            which[nb++] = sn;
+        }
+        if (nb == BATCH_NODES || (i == n && nb > 0)) {
+            hs_status s = hs_cholesky_inverse_diag3(c->chol, nb, dl, out);
+            if (s != HS_OK) return s;
+            for (int q = 0; q < nb; ++q) {
+                memcpy(c->diag + 9 * (size_t)which[q], out + 9 * q, 9 * sizeof(double));
+                c->diag_ok[which[q]] = 1;
+            }
+            nb = 0;
+        }
     }
     return HS_OK;
 }
@@ -278,17 +357,15 @@ int hs_compliance_ensure(hs_compliance* c, int n, const int* nodes, int max_new)
         }
     }
     hs_status s = flush_batch(c, nb);
+    if (s == HS_OK) s = refresh_diag(c, n, nodes);
     if (s != HS_OK) return s;
     return have;
 }
 
 int hs_compliance_block(const hs_compliance* c, int i, int j, double out[9]) {
-    const int* ns = c->mesh->node_surf;
+    const int* ns = c->surf->node_surf;
     HS_ASSERT(i >= 0 && i < c->n && j >= 0 && j < c->n && ns[i] >= 0 && ns[j] >= 0);
-    if (i == j) {
-        memcpy(out, c->diag + 9 * (size_t)ns[i], 9 * sizeof(double));
-        return 1;
-    }
+    if (i == j) return diag_block(c, i, out);
     int sj = c->node_slot[j], si = c->node_slot[i];
     if (sj >= 0) {
         memcpy(out, c->cols + ((size_t)sj * (size_t)c->n_surf + (size_t)ns[i]) * 9,
@@ -361,5 +438,130 @@ hs_status hs_compliance_solve_set(hs_compliance* c, int m, const int* nodes, con
     if (hs_dense_cholesky(a, n) != 0) return HS_ERR_NOT_POSDEF;
     memcpy(f, d, (size_t)n * sizeof(double));
     hs_dense_cholesky_solve(a, n, f);
+    return HS_OK;
+}
+
+const hs_mesh* hs_compliance_mesh(const hs_compliance* c) {
+    return c->mesh;
+}
+int64_t hs_compliance_updates(const hs_compliance* c) {
+    return c->updates;
+}
+double hs_compliance_update_ms(const hs_compliance* c) {
+    return c->update_ms;
+}
+
+// Scratch and the surface-sized tables for a change onto surface sm.
+static hs_status change_scratch(hs_compliance* c, const hs_mesh* sm) {
+    const size_t nt = (size_t)c->mesh->n_tets;
+    if (!c->emark) {
+        c->emark = hs_calloc(nt + 1, 1);
+        c->elist = hs_alloc((nt + 1) * sizeof(int));
+        c->dlist = hs_alloc((12 * nt + 1) * sizeof(int));
+        c->held = hs_calloc((size_t)c->n + 1, 1);
+        if (!c->emark || !c->elist || !c->dlist || !c->held) return HS_ERR_NOMEM;
+    }
+    if (sm->n_surf_nodes != c->n_surf) {
+        const size_t ns = (size_t)sm->n_surf_nodes;
+        double* d = hs_realloc(c->diag, 9 * ns * sizeof(double));
+        if (d) c->diag = d;
+        unsigned char* ok = hs_realloc(c->diag_ok, ns + 1);
+        if (ok) c->diag_ok = ok;
+        double* cols = hs_realloc(c->cols, (size_t)c->cap * ns * 9 * sizeof(double));
+        if (cols) c->cols = cols;
+        if (!d || !ok || !cols) return HS_ERR_NOMEM;
+        c->n_surf = sm->n_surf_nodes;
+    }
+    return HS_OK;
+}
+
+hs_status hs_compliance_prepare_changes(hs_compliance* c) {
+    if (!c) return HS_ERR_INVALID;
+    hs_status s = change_scratch(c, c->surf);
+    if (s != HS_OK || c->partial || !hs_cholesky_is_supernodal(c->chol)) return s;
+    s = hs_cholesky_prepare_partial(c->chol, c->k);
+    c->partial = s == HS_OK;
+    return s;
+}
+
+hs_status hs_compliance_change_elements(hs_compliance* c, int n_off, const int* off, int n_moved,
+                                        const int* moved, const hs_mesh* surface) {
+    if (!c || !surface || n_off < 0 || n_moved < 0 || (n_off > 0 && !off) ||
+        (n_moved > 0 && !moved) || surface->n_nodes != c->n || surface->n_surf_nodes < 1)
+        return HS_ERR_INVALID;
+    const int ne = c->mesh->n_tets;
+    for (int k = 0; k < n_off; ++k)
+        if (off[k] < 0 || off[k] >= ne) return HS_ERR_INVALID;
+    for (int k = 0; k < n_moved; ++k)
+        if (moved[k] < 0 || moved[k] >= ne) return HS_ERR_INVALID;
+    const int64_t t0 = hs_now_ns();
+    hs_status s = change_scratch(c, surface);
+    if (s != HS_OK) return s;
+    // Every cached column and diagonal block answers for the old stiffness from here on.
+    for (int i = 0; i < c->cap; ++i) c->slot_node[i] = -1;
+    for (int i = 0; i < c->n; ++i) c->node_slot[i] = -1;
+    memset(c->diag_ok, 0, (size_t)c->n_surf);
+    c->surf = surface;
+
+    // Elements whose share changes, each once: moved ones still active (list[0, n_new)), then
+    // active ones going off; one both moved and going off only goes off.
+    unsigned char* mk = c->emark;
+    int* list = c->elist;
+    int n_all = 0;
+    for (int k = 0; k < n_off; ++k) mk[off[k]] = 2;
+    for (int k = 0; k < n_moved; ++k) {
+        const int e = moved[k];
+        if (!mk[e] && hs_fem_element_active(c->fem, e)) list[n_all++] = e;
+        mk[e] |= 1;
+    }
+    const int n_new = n_all;
+    for (int k = 0; k < n_off; ++k) {
+        const int e = off[k];
+        if (mk[e] != 4 && hs_fem_element_active(c->fem, e)) list[n_all++] = e;
+        mk[e] = 4;
+    }
+    for (int k = 0; k < n_off; ++k) mk[off[k]] = 0;
+    for (int k = 0; k < n_moved; ++k) mk[moved[k]] = 0;
+
+    // K' = K - old shares + new shares, in place (the pattern never changes).
+    s = hs_fem_add_rest_elements(c->fem, n_all, list, 1.0, 0.0, -1.0, c->k);
+    if (s == HS_OK) s = hs_fem_refresh_elements(c->fem, list, n_new);
+    if (s != HS_OK) return s; // K partly changed: the caller rebuilds
+    for (int k = 0; k < n_off; ++k) hs_fem_set_element_active(c->fem, off[k], 0);
+    s = hs_fem_add_rest_elements(c->fem, n_new, list, 1.0, 0.0, 1.0, c->k);
+    if (s != HS_OK) return s;
+    // A node that lost its last element leaves the system: a diagonal holds it (its rows and
+    // columns are zero now up to round-off), so the stiffness stays definite and it couples to
+    // nothing. The compliance built afresh eliminates it instead: the same C elsewhere.
+    const double* held = hs_fem_held_mass(c->fem);
+    int nd = 0;
+    for (int k = 0; k < n_all; ++k)
+        for (int q = 0; q < 12; ++q) {
+            const int node = c->mesh->tets[4 * list[k] + q / 3], d = c->dof[3 * node + q % 3];
+            if (d < 0) continue;
+            c->dlist[nd++] = d;
+            if (held[node] > 0 && !c->held[node]) {
+                for (int a = 0; a < 3; ++a) {
+                    const int dd = c->dof[3 * node + a], p = hs_csc_find(c->k, dd, dd);
+                    if (p >= 0) c->k->val[p] += c->hold_k;
+                }
+                c->held[node] = 1;
+            }
+        }
+
+    // The factor follows exactly: a supernodal one recomputes only the supernodes on the
+    // elimination-tree paths from the changed dofs (the first change sets that up with one full
+    // pass); a simplicial one (small meshes) refactors, which costs about the same there.
+    if (c->partial) {
+        s = hs_cholesky_refactor_partial(c->chol, c->k, nd, c->dlist);
+    } else if (hs_cholesky_is_supernodal(c->chol)) {
+        s = hs_cholesky_prepare_partial(c->chol, c->k);
+        c->partial = s == HS_OK;
+    } else {
+        s = hs_cholesky_refactor(c->chol, c->k);
+    }
+    if (s != HS_OK) return s; // e.g. a piece left without a hold: the caller rebuilds
+    c->updates++;
+    c->update_ms = (double)(hs_now_ns() - t0) * 1e-6;
     return HS_OK;
 }

@@ -66,6 +66,28 @@ hs_status hs_compliance_create_par(const hs_mesh* mesh, const hs_fem_def* def,
                                    const hs_parallel* par, hs_compliance** out, hs_err* err);
 /// Release; accepts NULL, sets *c = NULL.
 void hs_compliance_destroy(hs_compliance** c);
+/// Follow a cut exactly: elements off[n_off] of the mesh c was created on are removed and
+/// moved[n_moved] have new rest positions in its x0 (hs_cut_last_removed / _changed). The
+/// stiffness changes by their shares only, a low-rank change; the factor follows by a partial
+/// refactor of the supernodes on their elimination-tree paths (or a refactor when simplicial).
+/// A node left without an element is held by a diagonal and couples to nothing. surface (same
+/// nodes; the cut's live mesh, kept by the caller until the next call or destroy) gives the
+/// contactable nodes from now on. Cached columns are dropped and the diagonal blocks become
+/// stale: each is recomputed when hs_compliance_ensure asks for its node. On an error c answers
+/// for no stiffness: rebuild it. Thread: the owner's | Allocates: the first time, and when the
+/// surface grows.
+hs_status hs_compliance_change_elements(hs_compliance* c, int n_off, const int* off, int n_moved,
+                                        const int* moved, const hs_mesh* surface);
+/// Set up what hs_compliance_change_elements needs (scratch; a supernodal factor's partial
+/// refactor data, with one full factorisation), so the first change costs no more than the
+/// next. Optional. Allocates: yes (the factor's update matrices: 2-3.5x its memory).
+hs_status hs_compliance_prepare_changes(hs_compliance* c);
+/// The mesh c was created on (its element numbering is the one changes refer to).
+const hs_mesh* hs_compliance_mesh(const hs_compliance* c);
+/// Changes followed so far (hs_compliance_change_elements that succeeded).
+int64_t hs_compliance_updates(const hs_compliance* c);
+/// Wall time of the last hs_compliance_change_elements, ms.
+double hs_compliance_update_ms(const hs_compliance* c);
 /// Wall time of hs_compliance_create (factor + all diagonal blocks), ms.
 double hs_compliance_setup_ms(const hs_compliance* c);
 /// Column solves done so far (each one 3-rhs solve); for tests and statistics.
@@ -74,7 +96,8 @@ int64_t hs_compliance_column_solves(const hs_compliance* c);
 int hs_compliance_cache_capacity(const hs_compliance* c);
 /// 1 when node is a surface node with free dofs (a possible contact node), else 0.
 int hs_compliance_contactable(const hs_compliance* c, int node);
-/// Diagonal block C_kk of a surface node, row-major, m/N (zero for a fixed node).
+/// Diagonal block C_kk of a surface node, row-major, m/N (zero for a fixed node, and for one
+/// whose block a change made stale until hs_compliance_ensure asks for it).
 void hs_compliance_diag(const hs_compliance* c, int node, double out[9] /* OUT */);
 
 /// Start a deformation step: columns used from now on are pinned until the next call, so a
@@ -82,13 +105,16 @@ void hs_compliance_diag(const hs_compliance* c, int node, double out[9] /* OUT *
 void hs_compliance_begin_step(hs_compliance* c);
 /// Make the column blocks of nodes[n] (surface nodes) available, solving the missing ones in one
 /// batched solve of at most max_new nodes (the first missing ones in the given order); pins all.
-/// Returns how many of nodes[] have a column now (negative hs_status on a solver failure).
+/// After a change (hs_compliance_change_elements) it also recomputes the stale diagonal blocks
+/// of nodes[] that got no column. Returns how many of nodes[] have a column now (negative
+/// hs_status on a solver failure).
 /// Allocates: no (after the first solve, CHOLMOD's workspaces are reused).
 int hs_compliance_ensure(hs_compliance* c, int n, const int* nodes, int max_new);
 /// 1 when the column block of node is cached.
 int hs_compliance_has_column(const hs_compliance* c, int node);
 /// Block C_ij (surface nodes i, j), row-major, m/N, from the diagonal table or a cached column
-/// of j or i. Returns 1 when known exactly, 0 when neither column is cached (out = zero).
+/// of j or i. Returns 1 when known exactly, 0 when neither column is cached or a change made a
+/// diagonal block stale (out = zero).
 int hs_compliance_block(const hs_compliance* c, int i, int j, double out[9] /* OUT */);
 /// Displacement of every surface node caused by forces f[3n] at nodes[n] (all with cached
 /// columns): u_surf[3*s] for surface index s, without rotation. Returns 0, or -1 when a column

@@ -19,6 +19,7 @@
 #include "spsc_ring.h"
 #include "triple_buffer.h"
 #include "closest.h"
+#include "cut_surface.h"
 #include "dense.h"
 #include "device.h"
 #include "haptic_rt.h"
@@ -46,6 +47,15 @@
 
 // What crosses to rt: the contact snapshot and the cutting resistance computed with it, in one
 // buffer so a new resistance always comes with a new model version (rt blends across it).
+// What the feeder hands the deformation thread when cutting: the newest pose, and where the
+// tool was when the blade's buttons last changed (the deformation thread sees only the newest
+// pose, up to a step late: a release it noticed late put the released probe's fit where the
+// tool had moved on to, pressing into the tissue with a sphere of no size, 0 N).
+typedef struct cut_pose {
+    hs_haptic_pose pose;
+    double flip_m[3]; // tool position at the newest engage or release, m
+} cut_pose;
+
 typedef struct sim_snapshot {
     hs_contact_snapshot s;
     double cut_force_n[3];
@@ -113,7 +123,7 @@ typedef struct deform_status {
     double cut_ms_last, cut_ms_max, sweep_ms_last, comp_ms_last;
     double cut_force_n[3];
     int cutting;
-    int64_t loops, comp_version, comp_rebuilds, comp_discarded;
+    int64_t loops, comp_version, comp_rebuilds, comp_discarded, comp_updates;
     int64_t cut_done_ns, comp_swap_ns;
     int comp_building;
     double relax_w;
@@ -259,14 +269,18 @@ struct hs_haptic_sim {
     // cutting (cut == NULL: off); owned by the deformation thread after start
     hs_haptic_cut_def cdef;
     hs_cut* cut;
+    hs_cut_surface* fsurf;   // the live boundary while the compliance follows the cuts
     unsigned char* fixed0;   // [n] the fixed nodes given at create
     double* cu;              // [3n] displacement handed to the sweep
     double* cv;              // [3n] velocity kept across the sweep
-    hs_triple_buffer* cpose; // hs_haptic_pose, feeder -> deformation
+    hs_triple_buffer* cpose; // cut_pose, feeder -> deformation
+    int feed_engaged;        // feeder: the blade's buttons held in the newest pose
+    double feed_flip[3];     // feeder: tool position at the newest engage or release, m
     int blade_have;
     double bp[3], bq[3]; // blade ends at the last sweep, m
     double cut_force[3]; // resistance in the newest snapshot, N
     int comp_stale;      // the compliance predates the newest cut (rebuilt once the blade stops)
+    int cols_cold;       // the compliance followed a cut: its columns come COLD_COLUMNS a step
     int wake_steps;      // steps the body takes whatever its speed: a start or a cut moves its
                          // equilibrium
     int engaged;         // the blade's buttons are held (cutting on)
@@ -286,6 +300,12 @@ struct hs_haptic_sim {
     int* cw_tets;          // [4 n_tets] job input
     int cw_ntets;          // tets in cw_tets: the live ones of held pieces
     unsigned char* cw_fix; // [n] worker: fixed0 + nodes no tet of cw_tets uses
+    double* cw_u;          // [3n] job input: the body's displacement when it was copied
+    double* cw_xw;         // [3n] worker: cw_x0 + cw_u (comp_warm)
+    near_tri* cw_near;     // [tri_cap] worker scratch (comp_warm)
+    int* cw_cand;          // [n] worker scratch, all -1 (comp_warm)
+    pthread_mutex_t cw_mx; // guards cw_tool (deformation thread, worker; never rt)
+    double cw_tool[3];     // the tool now, for comp_warm, m
     hs_mesh* cw_mesh;      // job output
     hs_compliance* cw_comp;
     hs_status cw_status;
@@ -531,6 +551,69 @@ static void settle_entry(hs_haptic_sim* h, hs_contact_snapshot* s, const double 
     }
 }
 
+// The vertices of the triangles near[nn] (nearest first) as the candidates (nodes, returned
+// count; tri: their triangles by candidate index, *n_tri), until either list is full; *cover:
+// every surface point within it of the tool is on a listed triangle. cand_of ([n], all -1) is
+// scratch and left all -1.
+static int take_candidates(const hs_mesh* sm, const near_tri* near, int nn, double reach,
+                           int* cand_of, int nodes[HS_CONTACT_MAX_CAND], int (*tri)[3], int* n_tri,
+                           double* cover) {
+    *cover = reach;
+    int n_cand = 0, nt = 0;
+    for (int k = 0; k < nn; ++k) {
+        const int* tv = sm->tris + 3 * near[k].tri;
+        int add = 0;
+        for (int j = 0; j < 3; ++j) add += cand_of[tv[j]] < 0;
+        if (nt == HS_CONTACT_MAX_TRI || n_cand + add > HS_CONTACT_MAX_CAND) {
+            *cover = near[k].dist;
+            break;
+        }
+        for (int j = 0; j < 3; ++j) {
+            if (cand_of[tv[j]] < 0) {
+                cand_of[tv[j]] = n_cand;
+                nodes[n_cand++] = tv[j];
+            }
+            tri[nt][j] = cand_of[tv[j]];
+        }
+        ++nt;
+    }
+    for (int i = 0; i < n_cand; ++i) cand_of[nodes[i]] = -1;
+    *n_tri = nt;
+    return n_cand;
+}
+
+// Contact surface: the boundary triangles of sm (all three vertices contactable in comp) within
+// reach of p on the surface at positions x, nearest first (near: scratch of sm->n_tris; *n_near
+// of them), and their vertices as the candidates (nodes, returned count; tri: their triangles
+// by candidate index, *n_tri), until either list is full; *cover: every surface point within it
+// of p is on a listed triangle. cand_of ([n], all -1) is scratch and left all -1. A linear scan:
+// microseconds per step; this plays the role of the per-step acceleration structure, which at
+// these sizes would cost more than it saves.
+static int find_candidates(const hs_mesh* sm, const hs_compliance* comp, const double* x,
+                           const double p[3], double reach, near_tri* near, int* cand_of,
+                           int nodes[HS_CONTACT_MAX_CAND], int (*tri)[3], int* n_near, int* n_tri,
+                           double* cover) {
+    int nn = 0;
+    for (int t = 0; t < sm->n_tris; ++t) {
+        const int* tv = sm->tris + 3 * t;
+        if (!hs_compliance_contactable(comp, tv[0]) || !hs_compliance_contactable(comp, tv[1]) ||
+            !hs_compliance_contactable(comp, tv[2]))
+            continue;
+        double wb[3], cp[3];
+        if (!hs_tri_closest(p, x + 3 * (size_t)tv[0], x + 3 * (size_t)tv[1], x + 3 * (size_t)tv[2],
+                            wb, cp))
+            continue;
+        double dist = dist3(cp, p);
+        if (dist >= reach) continue;
+        near[nn].dist = dist;
+        near[nn].tri = t;
+        ++nn;
+    }
+    qsort(near, (size_t)nn, sizeof *near, near_tri_cmp);
+    *n_near = nn;
+    return take_candidates(sm, near, nn, reach, cand_of, nodes, tri, n_tri, cover);
+}
+
 // Build and publish the snapshot around the tool positions p[3 n_tools] (tool 0 first) from
 // the body's current state: the candidates cover the surface near every tool.
 // Contact-free positions of the surface nodes (h->q) from the body's state u (h->x set).
@@ -696,6 +779,7 @@ static int fill_blocks(hs_haptic_sim* h, hs_contact_snapshot* s, const int* node
     return coupled;
 }
 
+#define COLD_COLUMNS 8 // new columns per snapshot while a followed compliance has few
 static void build_snapshot(hs_haptic_sim* h, const double* p) {
     const hs_mesh* mesh = h->mesh;
     const hs_mesh* sm = h->smesh; // same nodes and x0; its own boundary
@@ -709,11 +793,7 @@ static void build_snapshot(hs_haptic_sim* h, const double* p) {
 
     update_free_surface(h, u);
 
-    // Contact surface: the boundary triangles (all three vertices contactable) within reach of
-    // the tool on the current (deformed) surface, nearest first, and their vertices as the
-    // candidates, until either list is full (a linear scan: microseconds per step; this plays
-    // the role of the per-step acceleration structure, which at these sizes would cost more
-    // than it saves). Every surface point within `cover` of p is on a listed triangle. The
+    // Contact surface (near_triangles, take_candidates) on the current (deformed) surface. The
     // geometry is the deformed surface, not the contact-free one: pressed deeper than r, the
     // contact-free surface lies behind the centre and its closest points say nothing about
     // where the tissue touches the sphere, while the deformed surface wraps it (the gap is
@@ -728,27 +808,11 @@ static void build_snapshot(hs_haptic_sim* h, const double* p) {
     int probing = !h->cut || (h->cdef.probe_when_released && !h->engaged && comp_now);
     const int others = h->n_tools > 1 && comp_now;
     const int n_near = near_triangles(h, p, probing, others, reach);
-    double cover = reach;
-    int n_cand = 0, n_tri = 0;
+    double cover;
+    int n_tri;
     int nodes[HS_CONTACT_MAX_CAND];
-    for (int k = 0; k < n_near; ++k) {
-        const int* tv = sm->tris + 3 * h->near_tri[k].tri;
-        int add = 0;
-        for (int j = 0; j < 3; ++j) add += h->cand_of[tv[j]] < 0;
-        if (n_tri == HS_CONTACT_MAX_TRI || n_cand + add > HS_CONTACT_MAX_CAND) {
-            cover = h->near_tri[k].dist;
-            break;
-        }
-        for (int j = 0; j < 3; ++j) {
-            if (h->cand_of[tv[j]] < 0) {
-                h->cand_of[tv[j]] = n_cand;
-                nodes[n_cand++] = tv[j];
-            }
-            s->tri[n_tri][j] = h->cand_of[tv[j]];
-        }
-        ++n_tri;
-    }
-    for (int i = 0; i < n_cand; ++i) h->cand_of[nodes[i]] = -1;
+    const int n_cand =
+        take_candidates(sm, h->near_tri, n_near, reach, h->cand_of, nodes, s->tri, &n_tri, &cover);
     const int n_near_nodes = n_cand;
 
     // A released blade that turns probe (or a probe whose surface was just replaced) may find
@@ -791,7 +855,13 @@ static void build_snapshot(hs_haptic_sim* h, const double* p) {
     s->n_cand = n_cand;
     s->n_tri = n_tri;
     // Columns for the candidates, nearest first, within this step's budget.
-    int got = hs_compliance_ensure(h->comp, n_cand, nodes, h->def.probe.max_new_columns);
+    // After a cut step the compliance has no columns: a few per snapshot (the nearest), so the
+    // first contact is published within milliseconds on the exact diagonal blocks and the
+    // coupling fills in over the next steps (64 at once took ~0.15 s on a 5k-vertex plate).
+    const int budget = h->cols_cold && h->def.probe.max_new_columns > COLD_COLUMNS
+                           ? COLD_COLUMNS
+                           : h->def.probe.max_new_columns;
+    int got = hs_compliance_ensure(h->comp, n_cand, nodes, budget);
     (void)got; // a solver failure leaves the diagonal-only approximation
     const int coupled = fill_blocks(h, s, nodes, n_cand);
     preload_surface(h, s, h->applied_n, h->applied_node, (const double(*)[3])h->applied_f, -1);
@@ -801,6 +871,7 @@ static void build_snapshot(hs_haptic_sim* h, const double* p) {
     h->st.snapshots++;
     h->st.candidates = n_near_nodes;
     h->st.coupled = coupled;
+    if (n_cand > 0 && coupled == n_cand) h->cols_cold = 0;
 }
 
 // Replace the body's contact loads by those of every tool's contact c[n] (a node two tools
@@ -858,6 +929,35 @@ static void quat_rotate(const double q[4], const double v[3], double out[3]) {
 
 static hs_status build_tri_adjacency(hs_haptic_sim* h);
 
+// Worker, once the job's compliance c on mesh m is built: solve its columns for the candidates
+// at the tool now, so that the swap brings them along. The first snapshot on a compliance
+// without them solved them on the deformation thread (64 columns: ~0.23 s on a 5k-vertex plate,
+// more under load) while rt kept the stale compliance's empty snapshot: a press beside the cut
+// felt nothing although the compliance was valid. The tool moves meanwhile: again while it went
+// on by more than half the reach margin (when the sleeping loop would look again), a few times.
+#define WARM_PASSES 3
+static void comp_warm(hs_haptic_sim* h, const hs_mesh* m, hs_compliance* c) {
+    if (!h->cdef.probe_when_released || m->n_tris > h->tri_cap) return; // nothing probes
+    for (int k = 0; k < 3 * h->mesh->n_nodes; ++k) h->cw_xw[k] = h->cw_x0[k] + h->cw_u[k];
+    const double margin = h->def.probe.reach_margin_m, reach = h->def.probe.radius_m + margin;
+    double at[3] = {0, 0, 0};
+    for (int pass = 0; pass < WARM_PASSES; ++pass) {
+        double p[3];
+        pthread_mutex_lock(&h->cw_mx);
+        memcpy(p, h->cw_tool, sizeof p);
+        pthread_mutex_unlock(&h->cw_mx);
+        if (pass > 0 && dist3(p, at) <= 0.5 * margin) break;
+        memcpy(at, p, sizeof at);
+        int nodes[HS_CONTACT_MAX_CAND], tri[HS_CONTACT_MAX_TRI][3], n_near, n_tri;
+        double cover;
+        const int nc = find_candidates(m, c, h->cw_xw, p, reach, h->cw_near, h->cw_cand, nodes, tri,
+                                       &n_near, &n_tri, &cover);
+        hs_compliance_begin_step(c);
+        // A failed solve leaves them to the deformation thread, as before.
+        if (hs_compliance_ensure(c, nc, nodes, nc) < 0) break;
+    }
+}
+
 // Worker: the haptic compliance of the job's mesh (see comp_start for what it holds).
 // Recreated rather than updated (hs_compliance has no update entry point); it costs 0.1-0.2 s
 // on the skin patch (0.4-0.7 s before its sparse diagonal blocks), which is why it runs beside
@@ -881,6 +981,8 @@ static void* comp_worker(void* arg) {
     if (s != HS_OK) {
         hs_compliance_destroy(&c);
         hs_mesh_destroy(&m);
+    } else {
+        comp_warm(h, m, c);
     }
     h->cw_mesh = m;
     h->cw_comp = c;
@@ -898,6 +1000,8 @@ static int comp_start(hs_haptic_sim* h) {
     if (!live || live->n_tets > h->mesh->n_tets) return 0;
     const int n = h->mesh->n_nodes;
     memcpy(h->cw_x0, live->x0, 3 * (size_t)n * sizeof(double));
+    memcpy(h->cw_u, hs_body_displacement(h->body), 3 * (size_t)n * sizeof(double));
+    memcpy(h->cw_tool, h->st.contact.tool_m, sizeof h->cw_tool); // the previous pass's tool
     // The compliance sees the pieces the fixed region holds. Under DROP those are all the live
     // tets (the cut pins only nodes left without a tet). Under FIX the cut pins every node of
     // a piece it does not hold, and the body lets that piece move with its mass: its tets are
@@ -958,6 +1062,33 @@ static int comp_poll(hs_haptic_sim* h, int wait) {
     return 1;
 }
 
+// The compliance follows the cut step at once (hs_compliance_change_elements: the stiffness
+// changes by the removed and moved elements' shares, the factor by a partial refactor), exact
+// for the new topology before the next snapshot; the probe touches the cut's live surface.
+// Returns 0 when it cannot: a compliance rebuilt on a copy (other element numbering), already
+// stale, the FIX rule (its pinned pieces stay in the body but not in the compliance) or a failed
+// update; the rebuild once the blade is released then takes over.
+static int comp_follow(hs_haptic_sim* h) {
+    if (h->comp_stale || h->cdef.cut.fragment != HS_CUT_FRAGMENT_DROP || !h->fsurf ||
+        hs_compliance_mesh(h->comp) != h->mesh)
+        return 0;
+    const int *off, *mv;
+    const int n_off = hs_cut_last_removed(h->cut, &off), n_mv = hs_cut_last_changed(h->cut, &mv);
+    // The live boundary by the removals alone (a live-mesh rebuild took 10-60 ms on the tongue).
+    hs_cut_surface_remove(h->fsurf, n_off, off);
+    const hs_mesh* live = hs_cut_surface_mesh(h->fsurf);
+    if (live->n_tris > h->tri_cap || live->n_surf_nodes < 1) return 0;
+    if (hs_compliance_change_elements(h->comp, n_off, off, n_mv, mv, live) != HS_OK) return 0;
+    h->smesh = live;
+    build_tri_adjacency(h);
+    h->q_reset = 1;
+    h->cols_cold = 1;
+    h->st.comp_ms_last = hs_compliance_update_ms(h->comp);
+    h->st.comp_version = hs_cut_topology_version(h->cut);
+    h->st.comp_updates++;
+    return 1;
+}
+
 // Hand the cut's result to the control thread (rest positions, event lists; the reader
 // derives the live surface from the removed tets).
 static void share_topology(hs_haptic_sim* h, const double quad[12]) {
@@ -982,8 +1113,9 @@ static void share_topology(hs_haptic_sim* h, const double quad[12]) {
 // enough, mirror the cut into the body and the compliance, and set the resistance. Returns 1
 // when a new snapshot is due (the resistance or the body changed).
 static int cut_step(hs_haptic_sim* h) {
-    hs_haptic_pose pose;
-    hs_triple_buffer_read_copy(h->cpose, &pose);
+    cut_pose cp;
+    hs_triple_buffer_read_copy(h->cpose, &cp);
+    const hs_haptic_pose pose = cp.pose;
     if (pose.seq <= 0 || pose.seq <= h->pose_floor) return 0;
     const hs_haptic_cut_def* cd = &h->cdef;
     int engaged = !cd->engage_buttons || (pose.buttons & cd->engage_buttons);
@@ -993,7 +1125,7 @@ static int cut_step(hs_haptic_sim* h) {
     static const double zero[3] = {0, 0, 0};
     if (flipped) {
         // Where the blade let go: the probe sphere that appears there is fitted (build_snapshot).
-        memcpy(h->release_p, pose.pos_m, sizeof h->release_p);
+        memcpy(h->release_p, cp.flip_m, sizeof h->release_p);
         h->release_fit = !engaged;
     }
     if (!engaged) {
@@ -1085,12 +1217,13 @@ static int cut_step(hs_haptic_sim* h) {
             hs_cut_sync_fem(h->cut, hs_body_fem(h->body)) != HS_OK)
             h->st.cut_failures++;
         hs_body_set_state(h->body, h->cu, h->cv);
-        h->comp_stale = 1;
+        if (s != HS_OK || !comp_follow(h)) h->comp_stale = 1;
         share_topology(h, quad);
         h->st.cut_steps++;
         h->st.cut_removed += res.removed;
         h->st.sweep_ms_last = sweep_ms;
         h->st.cut_done_ns = hs_now_ns();
+        if (!h->comp_stale) h->st.comp_swap_ns = h->st.cut_done_ns; // valid with the step
         double ms = (double)(h->st.cut_done_ns - t0) * 1e-6;
         h->st.cut_ms_last = ms;
         if (ms > h->st.cut_ms_max) h->st.cut_ms_max = ms;
@@ -1351,6 +1484,11 @@ static void* deform_main(void* arg) {
             loaded = loaded || cs[t].n > 0;
             memcpy(tools + 3 * t, cs[t].tool_m, sizeof cs[t].tool_m);
         }
+        if (h->cw_running) { // where the rebuild's worker solves the first columns
+            pthread_mutex_lock(&h->cw_mx);
+            memcpy(h->cw_tool, cp->tool_m, sizeof h->cw_tool);
+            pthread_mutex_unlock(&h->cw_mx);
+        }
         int64_t t0 = hs_now_ns(), c0 = thread_cpu_ns();
         int rebuild = 0, cut_changed = 0;
         h->st.loops++;
@@ -1464,9 +1602,14 @@ static hs_status build_tri_adjacency(hs_haptic_sim* h) {
 
 /// The cutting workspace, allocated by hs_haptic_sim_enable_cutting (again on each call).
 static void free_cut_scratch(hs_haptic_sim* h) {
+    hs_cut_surface_destroy(&h->fsurf);
     hs_free(h->cw_x0);
     hs_free(h->cw_tets);
     hs_free(h->cw_fix);
+    hs_free(h->cw_u);
+    hs_free(h->cw_xw);
+    hs_free(h->cw_near);
+    hs_free(h->cw_cand);
     hs_free(h->cu);
     hs_free(h->cv);
     hs_free(h->t_x0);
@@ -1519,7 +1662,10 @@ void hs_haptic_sim_destroy(hs_haptic_sim** ph) {
     hs_cut_destroy(&h->cut);
     hs_free(h->fixed0);
     free_cut_scratch(h);
-    if (h->tmx_init) pthread_mutex_destroy(&h->tmx);
+    if (h->tmx_init) {
+        pthread_mutex_destroy(&h->tmx);
+        pthread_mutex_destroy(&h->cw_mx);
+    }
     hs_free(h);
     *ph = NULL;
 }
@@ -1760,9 +1906,9 @@ hs_status hs_haptic_sim_start(hs_haptic_sim* h, hs_err* err) {
     // last sweep's, felt at once on resume with the blade lifted out meanwhile).
     h->blade_have = 0;
     if (h->cpose) {
-        hs_haptic_pose last;
+        cut_pose last;
         hs_triple_buffer_read_copy(h->cpose, &last);
-        h->pose_floor = last.seq;
+        h->pose_floor = last.pose.seq;
     }
     if (h->started_once) {
         memset(h->cut_force, 0, sizeof h->cut_force);
@@ -1851,8 +1997,20 @@ void hs_haptic_sim_stop(hs_haptic_sim* h) {
     if (h->loop) hs_rt_loop_stop(h->loop);
 }
 
+// Feeder: the pose for the blade, with where its buttons last changed.
+static void feed_cut_pose(hs_haptic_sim* h, const hs_haptic_pose* pose) {
+    const unsigned eb = h->cdef.engage_buttons;
+    const int engaged = !eb || (pose->buttons & eb);
+    if (engaged != h->feed_engaged) memcpy(h->feed_flip, pose->pos_m, sizeof h->feed_flip);
+    h->feed_engaged = engaged;
+    cut_pose cp;
+    cp.pose = *pose;
+    memcpy(cp.flip_m, h->feed_flip, sizeof cp.flip_m);
+    hs_triple_buffer_write(h->cpose, &cp);
+}
+
 void hs_haptic_sim_feed_pose(hs_haptic_sim* h, const hs_haptic_pose* pose) {
-    if (h->cpose) hs_triple_buffer_write(h->cpose, pose);
+    if (h->cpose) feed_cut_pose(h, pose);
     hs_memdev_feed_pose(h->dev, pose);
 }
 
@@ -1897,6 +2055,10 @@ hs_status hs_haptic_sim_enable_cutting(hs_haptic_sim* h, hs_mesh* mesh,
     h->cw_x0 = hs_calloc(3 * n, sizeof(double));
     h->cw_tets = hs_calloc(4 * nt + 1, sizeof(int));
     h->cw_fix = hs_calloc(n + 1, 1);
+    h->cw_u = hs_calloc(3 * n, sizeof(double));
+    h->cw_xw = hs_calloc(3 * n, sizeof(double));
+    h->cw_near = hs_calloc(4 * nt + 1, sizeof *h->cw_near);
+    h->cw_cand = hs_alloc((n + 1) * sizeof(int));
     h->cu = hs_calloc(3 * n, sizeof(double));
     h->cv = hs_calloc(3 * n, sizeof(double));
     h->t_x0 = hs_calloc(3 * n, sizeof(double));
@@ -1912,12 +2074,18 @@ hs_status hs_haptic_sim_enable_cutting(hs_haptic_sim* h, hs_mesh* mesh,
     h->r_cur = hs_alloc((n + 2) * sizeof(int));
     if (!h->r_gone || !h->r_keys || !h->r_sorted || !h->r_start || !h->r_cur)
         return hs_err_set(err, HS_ERR_NOMEM, "hs_haptic_sim_enable_cutting: out of memory");
-    if (!h->cw_x0 || !h->cw_tets || !h->cw_fix || !h->cu || !h->cv || !h->t_x0 || !h->t_tris ||
-        !h->t_removed || !h->t_moved || !h->t_mflag)
+    if (!h->cw_x0 || !h->cw_tets || !h->cw_fix || !h->cw_u || !h->cw_xw || !h->cw_near ||
+        !h->cw_cand || !h->cu || !h->cv || !h->t_x0 || !h->t_tris || !h->t_removed || !h->t_moved ||
+        !h->t_mflag)
         return hs_err_set(err, HS_ERR_NOMEM, "hs_haptic_sim_enable_cutting: out of memory");
+    for (size_t i = 0; i <= n; ++i) h->cw_cand[i] = -1;
     if (!h->tmx_init) {
         if (pthread_mutex_init(&h->tmx, NULL) != 0)
             return hs_err_set(err, HS_ERR_NOMEM, "hs_haptic_sim_enable_cutting: mutex");
+        if (pthread_mutex_init(&h->cw_mx, NULL) != 0) {
+            pthread_mutex_destroy(&h->tmx);
+            return hs_err_set(err, HS_ERR_NOMEM, "hs_haptic_sim_enable_cutting: mutex");
+        }
         h->tmx_init = 1;
     }
     // Room for the boundary of any live mesh (at most 4 faces per tet), for the probe.
@@ -1936,10 +2104,17 @@ hs_status hs_haptic_sim_enable_cutting(hs_haptic_sim* h, hs_mesh* mesh,
         h->near_tri = nr;
         h->tri_cap = 4 * (int)nt;
     }
-    hs_status s = hs_triple_buffer_create(sizeof(hs_haptic_pose), &h->cpose, err);
+    hs_status s = hs_triple_buffer_create(sizeof(cut_pose), &h->cpose, err);
     if (s != HS_OK) return s;
     s = hs_cut_create(mesh, h->fixed0, &h->cdef.cut, &h->cut, err);
     if (s != HS_OK) return s;
+    // The compliance follows each cut step (comp_follow): its one full pass now, not in a step.
+    // Should this fail, the first cut step tries again, or the rebuild takes over.
+    (void)hs_compliance_prepare_changes(h->comp);
+    s = hs_cut_surface_create(mesh, &h->fsurf);
+    if (s != HS_OK)
+        return hs_err_set(err, s, "hs_haptic_sim_enable_cutting: live surface: %s",
+                          hs_status_str(s));
     memcpy(h->t_x0, mesh->x0, 3 * n * sizeof(double));
     h->t_ntris = mesh->n_tris <= h->t_cap ? mesh->n_tris : 0;
     memcpy(h->t_tris, mesh->tris, 3 * (size_t)h->t_ntris * sizeof(int));
@@ -2107,6 +2282,7 @@ void hs_haptic_sim_stats_get(hs_haptic_sim* h, hs_haptic_sim_stats* out) {
     out->comp_version = ds.comp_version;
     out->comp_rebuilds = ds.comp_rebuilds;
     out->comp_discarded = ds.comp_discarded;
+    out->comp_updates = ds.comp_updates;
     out->comp_building = ds.comp_building;
     out->cut_done_ns = ds.cut_done_ns;
     out->comp_swap_ns = ds.comp_swap_ns;

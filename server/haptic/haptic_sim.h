@@ -128,13 +128,14 @@ typedef struct hs_haptic_sim_stats {
     double cut_ms_last;      ///< last changing cut step: sweep + body sync + topology hand-over, ms
     double cut_ms_max;       ///< worst of them, ms
     double sweep_ms_last;    ///< of the last, the sweep alone (the cut's geometry), ms
-    double comp_ms_last;     ///< the last haptic compliance rebuild (background worker), ms
+    double comp_ms_last;     ///< the last compliance update (in a cut step) or rebuild, ms
     int64_t comp_version;    ///< topology version the compliance was built on (0: uncut)
     int64_t comp_rebuilds;   ///< rebuilds swapped in
     int64_t comp_discarded;  ///< rebuilds dropped because a newer cut came meanwhile
+    int64_t comp_updates;    ///< cut steps the compliance followed at once (no rebuild)
     int comp_building;       ///< 1 while a rebuild runs beside the deformation thread
     int64_t cut_done_ns;     ///< hs_now_ns when the last changing cut step ended (0: none)
-    int64_t comp_swap_ns;    ///< hs_now_ns when the last rebuild was swapped in (0: none)
+    int64_t comp_swap_ns;    ///< hs_now_ns when the compliance last became valid (0: none)
     int64_t loops;           ///< deformation-loop passes (it keeps going during rebuilds)
     double cut_force_n[3];   ///< cutting resistance on the blade in the newest snapshot, N
     int cutting;             ///< 1 when the newest sweep cut tissue
@@ -256,9 +257,11 @@ hs_haptic_cut_def hs_haptic_cut_default_def(void);
 /// (cuts move its x0; nobody else may read x0 while the sim runs: use
 /// hs_haptic_sim_take_topology). The tool then is a blade: the probe contact is off, the felt
 /// force is the cutting resistance (blended on each new snapshot); with probe_when_released
-/// the released tool probes the cut tissue. Once the blade is released
-/// after a cut, the haptic compliance is rebuilt on a worker thread while the deformation loop
-/// goes on, and swapped in between two steps (stats comp_*). Allocates: yes
+/// the released tool probes the cut tissue. The haptic compliance follows each cut step
+/// exactly, in the step (hs_compliance_change_elements; stats comp_updates); where it cannot
+/// (cut.fragment FIX, a failed update) it is rebuilt on a worker thread once the blade is
+/// released and swapped in between two steps (stats comp_*). Allocates: yes (the compliance's
+/// partial refactor data: one full factorisation, 2-3.5x the factor's memory)
 hs_status hs_haptic_sim_enable_cutting(hs_haptic_sim* sim, hs_mesh* mesh,
                                        const hs_haptic_cut_def* def, hs_err* err);
 

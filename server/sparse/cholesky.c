@@ -285,8 +285,7 @@ static int ensure_spare(hs_cholesky* f) {
     return f->spare != NULL;
 }
 
-static hs_status create_factor(const hs_csc* a, int natural, const unsigned char* last, int partial,
-                               hs_cholesky** out, hs_err* err) {
+static hs_status create_factor(const hs_csc* a, int natural, hs_cholesky** out, hs_err* err) {
     if (!out) return hs_err_set(err, HS_ERR_INVALID, "%s:%d: out is NULL", __FILE__, __LINE__);
     *out = NULL;
     hs_status st = check_csc(a, err);
@@ -325,55 +324,13 @@ static hs_status create_factor(const hs_csc* a, int natural, const unsigned char
     }
     set_matrix_view(f, a, NULL);
 
-    if (last) {
-        // CAMD with two constraint sets: the flagged dofs after all others. Not postordered:
-        // a postorder may move them away from the end.
-        int* cm = hs_alloc(sizeof(int) * ((size_t)a->n + 1));
-        int* perm = hs_alloc(sizeof(int) * ((size_t)a->n + 1));
-        int ok = cm && perm;
-        if (ok) {
-            for (int i = 0; i < a->n; i++) cm[i] = last[i] != 0;
-            ok = cholmod_camd(&f->a, NULL, 0, cm, perm, &f->c);
-        }
-        if (ok) {
-            f->c.nmethods = 1;
-            f->c.method[0].ordering = CHOLMOD_GIVEN;
-            f->c.postorder = 0;
-            f->L = cholmod_analyze_p(&f->a, perm, NULL, 0, &f->c);
-        }
-        hs_free(cm);
-        hs_free(perm);
-        if (!ok) {
-            st = cm && perm
-                     ? fail_from_cholmod(f, err, "constrained ordering")
-                     : hs_err_set(err, HS_ERR_NOMEM, "%s:%d: out of memory", __FILE__, __LINE__);
-            goto fail;
-        }
-    } else {
-        f->L = cholmod_analyze(&f->a, &f->c);
-    }
+    f->L = cholmod_analyze(&f->a, &f->c);
     if (!f->L) {
         st = fail_from_cholmod(f, err, "symbolic analysis");
         goto fail;
     }
     set_matrix_view(f, a, f->L);
-    if (partial && f->L->is_super) {
-        // The partial refactor's first full pass is the numeric factorisation: only allocate L.
-        if (!cholmod_change_factor(CHOLMOD_REAL, 1, 1, 1, 1, f->L, &f->c)) {
-            st = fail_from_cholmod(f, err, "allocating the factor");
-            goto fail;
-        }
-        advise_huge(f->L->x, sizeof(double) * f->L->xsize);
-        memset(f->L->x, 0, sizeof(double) * f->L->xsize); // the blocks' unused upper parts
-        st = hs_cholesky_prepare_partial(f, a);
-        if (st != HS_OK) {
-            st = hs_err_set(err, st, "%s:%d: partial refactor set-up of a matrix (n %d) failed: %s",
-                            __FILE__, __LINE__, a->n, hs_status_str(st));
-            goto fail;
-        }
-    } else {
-        cholmod_factorize(&f->a, f->L, &f->c);
-    }
+    cholmod_factorize(&f->a, f->L, &f->c);
     if (f->c.status == CHOLMOD_NOT_POSDEF) {
         st = hs_err_set(err, HS_ERR_NOT_POSDEF,
                         "%s:%d: matrix (n %d) is not positive definite (pivot %zu of the "
@@ -400,7 +357,7 @@ static hs_status create_factor(const hs_csc* a, int natural, const unsigned char
         goto fail;
     }
     // Double buffering costs one more factor of memory but no copy per refactor.
-    if (!(partial && f->L->is_super) && !ensure_spare(f)) {
+    if (!ensure_spare(f)) {
         st = fail_from_cholmod(f, err, "copying the factor");
         goto fail;
     }
@@ -420,23 +377,11 @@ fail:
 }
 
 hs_status hs_cholesky_create(const hs_csc* a, hs_cholesky** out, hs_err* err) {
-    return create_factor(a, 0, NULL, 0, out, err);
-}
-
-hs_status hs_cholesky_create_last(const hs_csc* a, const unsigned char* last, hs_cholesky** out,
-                                  hs_err* err) {
-    if (!last) return hs_err_set(err, HS_ERR_INVALID, "%s:%d: last is NULL", __FILE__, __LINE__);
-    return create_factor(a, 0, last, 0, out, err);
-}
-
-hs_status hs_cholesky_create_last_partial(const hs_csc* a, const unsigned char* last,
-                                          hs_cholesky** out, hs_err* err) {
-    if (!last) return hs_err_set(err, HS_ERR_INVALID, "%s:%d: last is NULL", __FILE__, __LINE__);
-    return create_factor(a, 0, last, 1, out, err);
+    return create_factor(a, 0, out, err);
 }
 
 hs_status hs_cholesky_create_natural(const hs_csc* a, hs_cholesky** out, hs_err* err) {
-    return create_factor(a, 1, NULL, 0, out, err);
+    return create_factor(a, 1, out, err);
 }
 
 hs_status hs_cholesky_fill_order(const hs_csc* a, int* perm, hs_err* err) {
@@ -2313,96 +2258,4 @@ int64_t hs_cholesky_partial_bytes(const hs_cholesky* f) {
 
 double hs_cholesky_partial_share(const hs_cholesky* f) {
     return f && f->part ? f->part->last_share : 0;
-}
-
-// Share of a factorisation's flops the paths from dofs to the root hold in a symbolic
-// supernodal factor L (the tree and costs build_partial derives). -1 when out of memory.
-static double symbolic_path_share(const cholmod_factor* L, int n_dofs, const int* dofs) {
-    const int n = (int)L->n, ns = (int)L->nsuper;
-    const int *super = L->super, *pi = L->pi, *ls = L->s, *perm = L->Perm;
-    int* col_super = hs_alloc(sizeof(int) * ((size_t)n + 1));
-    int* pinv = hs_alloc(sizeof(int) * ((size_t)n + 1));
-    int* parent = hs_alloc(sizeof(int) * ((size_t)ns + 1));
-    double* flops = hs_alloc(sizeof(double) * ((size_t)ns + 1));
-    unsigned char* mark = hs_calloc((size_t)ns + 1, 1);
-    double share = -1;
-    if (col_super && pinv && parent && flops && mark) {
-        for (int k = 0; k < n; k++) pinv[perm ? perm[k] : k] = k;
-        for (int s = 0; s < ns; s++)
-            for (int j = super[s]; j < super[s + 1]; j++) col_super[j] = s;
-        double total = 0, done = 0;
-        for (int s = 0; s < ns; s++) {
-            int nc = super[s + 1] - super[s], m = pi[s + 1] - pi[s] - nc;
-            parent[s] = m > 0 ? col_super[ls[pi[s] + nc]] : -1;
-            flops[s] = supernode_flops(nc, m);
-            total += flops[s];
-        }
-        for (int k = 0; k < n_dofs; k++)
-            for (int s = col_super[pinv[dofs[k]]]; s >= 0 && !mark[s]; s = parent[s]) {
-                mark[s] = 1;
-                done += flops[s];
-            }
-        share = total > 0 ? done / total : 0;
-    }
-    hs_free(col_super);
-    hs_free(pinv);
-    hs_free(parent);
-    hs_free(flops);
-    hs_free(mark);
-    return share;
-}
-
-hs_status hs_cholesky_order_shares(const hs_csc* a, const unsigned char* last, int n_dofs,
-                                   const int* dofs, double* share_default, double* share_last,
-                                   hs_err* err) {
-    if (!a || !last || n_dofs < 0 || (n_dofs > 0 && !dofs) || !share_default || !share_last)
-        return hs_err_set(err, HS_ERR_INVALID, "%s:%d: invalid argument", __FILE__, __LINE__);
-    hs_status st = check_csc(a, err);
-    if (st != HS_OK) return st;
-    for (int k = 0; k < n_dofs; k++)
-        if (dofs[k] < 0 || dofs[k] >= a->n)
-            return hs_err_set(err, HS_ERR_INVALID, "%s:%d: dof %d out of range", __FILE__, __LINE__,
-                              dofs[k]);
-    install_allocator();
-    hs_cholesky* f = hs_calloc(1, sizeof *f);
-    int* cm = hs_alloc(sizeof(int) * ((size_t)a->n + 1));
-    int* perm = hs_alloc(sizeof(int) * ((size_t)a->n + 1));
-    if (!f || !cm || !perm) {
-        hs_free(f);
-        hs_free(cm);
-        hs_free(perm);
-        return hs_err_set(err, HS_ERR_NOMEM, "%s:%d: out of memory", __FILE__, __LINE__);
-    }
-    cholmod_start(&f->c);
-    f->c.print = 0;
-    f->c.error_handler = on_cholmod_error;
-    set_matrix_view(f, a, NULL);
-    // The orders hs_cholesky_create and hs_cholesky_create_last choose; symbolic only.
-    cholmod_factor* l1 = cholmod_analyze(&f->a, &f->c);
-    cholmod_factor* l2 = NULL;
-    for (int i = 0; i < a->n; i++) cm[i] = last[i] != 0;
-    if (l1 && cholmod_camd(&f->a, NULL, 0, cm, perm, &f->c)) {
-        f->c.nmethods = 1;
-        f->c.method[0].ordering = CHOLMOD_GIVEN;
-        f->c.postorder = 0;
-        l2 = cholmod_analyze_p(&f->a, perm, NULL, 0, &f->c);
-    }
-    if (!l1 || !l2) {
-        st = fail_from_cholmod(f, err, "symbolic analysis");
-    } else if (!l1->is_super || !l2->is_super) {
-        st = hs_err_set(err, HS_ERR_UNSUPPORTED, "%s:%d: a simplicial factor (matrix too small)",
-                        __FILE__, __LINE__);
-    } else {
-        *share_default = symbolic_path_share(l1, n_dofs, dofs);
-        *share_last = symbolic_path_share(l2, n_dofs, dofs);
-        if (*share_default < 0 || *share_last < 0)
-            st = hs_err_set(err, HS_ERR_NOMEM, "%s:%d: out of memory", __FILE__, __LINE__);
-    }
-    cholmod_free_factor(&l1, &f->c);
-    cholmod_free_factor(&l2, &f->c);
-    cholmod_finish(&f->c);
-    hs_free(f);
-    hs_free(cm);
-    hs_free(perm);
-    return st;
 }

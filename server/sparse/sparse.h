@@ -46,18 +46,6 @@ typedef struct hs_cholesky hs_cholesky;
 /// refactors, so memory is about twice nnz(L) doubles. CHOLMOD allocates through hs_alloc.
 /// Returns HS_ERR_NOT_POSDEF if a is not SPD, HS_ERR_NUMERIC on NaN/Inf. @param out OUT
 hs_status hs_cholesky_create(const hs_csc* a, hs_cholesky** out, hs_err* err);
-/// As hs_cholesky_create, but the dofs with last[i] != 0 ([n]) are eliminated after all the
-/// others (CAMD with two constraint sets). A low-rank change confined to them then walks only
-/// the trailing columns of L instead of the root separators: a window around a cut. The
-/// numeric factor costs about as much as the unconstrained one. @param out OUT
-hs_status hs_cholesky_create_last(const hs_csc* a, const unsigned char* last, hs_cholesky** out,
-                                  hs_err* err);
-/// As hs_cholesky_create_last followed by hs_cholesky_prepare_partial, with the partial
-/// refactor's first full pass as the only numeric factorisation (about 60 % of the two calls'
-/// time). A simplicial analysis (small matrices) is factored as by hs_cholesky_create_last,
-/// without partial data. @param out OUT
-hs_status hs_cholesky_create_last_partial(const hs_csc* a, const unsigned char* last,
-                                          hs_cholesky** out, hs_err* err);
 /// Fill-reducing order of a's pattern (CHOLMOD's choice of AMD/METIS, postordered):
 /// perm[k] is the row of a that goes to position k. Renumber the unknowns by it, then use
 /// hs_cholesky_create_natural. @param perm OUT [n]
@@ -143,15 +131,6 @@ hs_status hs_cholesky_refactor_partial(hs_cholesky* f, const hs_csc* a, int n_do
 int64_t hs_cholesky_partial_bytes(const hs_cholesky* f);
 /// Share of a full factorisation's flops the last partial refactor did (0..1).
 double hs_cholesky_partial_share(const hs_cholesky* f);
-/// Whether an order with the flagged dofs last (last[i] != 0, as hs_cholesky_create_last)
-/// would shorten partial refactors of dofs[n_dofs]: the shares of a factorisation's flops they
-/// would redo in the default order and in that one, from CHOLMOD's symbolic analyses alone
-/// (no numeric factorisation: it added 40-60 ms to hs_cut_create's 0.4-0.5 s at 5,043
-/// vertices). HS_ERR_UNSUPPORTED when either factor would be simplicial.
-/// Allocates: yes (temporarily)
-hs_status hs_cholesky_order_shares(const hs_csc* a, const unsigned char* last, int n_dofs,
-                                   const int* dofs, double* share_default, double* share_last,
-                                   hs_err* err);
 /// Threads for the partial refactor's large supernodes (over ~3 Mflop): 1 (the default before
 /// any call) or 2; 0: 2 when two or more processors are online, else 1.
 /// With 2, a helper thread (created here, joined by hs_cholesky_destroy or a call with 1) shares
@@ -172,8 +151,7 @@ int64_t hs_cholesky_partial_helper_chunks(const hs_cholesky* f);
 // for element updates a dense d x d workspace and column buffers, d = min(12 max_elems, 768, n)
 // (up to ~8 MB). A rank-r change costs about ceil(r/8) passes along the elimination-tree paths
 // of its rows, which in 3D cross the large separators (one removed element, measured with
-// tests/sparse_timing on 27-point grids: ~3.5 ms at 7.6k dofs, ~25 ms at 30k dofs); ordering
-// the changed region last (hs_cholesky_create_last) shortens them.
+// tests/sparse_timing on 27-point grids: ~3.5 ms at 7.6k dofs, ~25 ms at 30k dofs).
 
 /// Convert to an updatable factor and size workspaces for changes of up to max_elems elements
 /// (or max_elems*12 columns) per call, so later updates allocate nothing. Idempotent.

@@ -4,10 +4,11 @@
 // driven by poses at 1 kHz: blade strokes with button 0 held, each followed by the same tool,
 // released, pressing beside the cut (the sim drives one tool: there is no second device to probe
 // with while the blade cuts). Per cut step: the step on the deformation thread (sweep + body
-// update + topology hand-over, stats cut_ms_last), and the time until the compliance the rt
-// thread uses is valid for that topology again (stats comp_swap_ns - cut_done_ns: the rebuild
-// starts when the blade is released and runs on a worker thread). Over the run: the largest
-// change between consecutive rt forces.
+// update + compliance update + topology hand-over, stats cut_ms_last), and the time from the
+// step's start until the compliance the rt thread uses is valid for that topology (the step
+// itself when the compliance followed it, hs_compliance_change_elements; plus stats
+// comp_swap_ns - cut_done_ns when it had to be rebuilt on a worker after the release). Over the
+// run: the largest change between consecutive rt forces.
 #define _POSIX_C_SOURCE 200809L
 #include "bench.h"
 
@@ -48,6 +49,9 @@ typedef struct cut_run {
     int64_t comp_version, cut_version;
     double rebuild_ms[MAX_CUTS]; // each swapped-in rebuild's own time (stats comp_ms_last)
     int n_rebuilds;
+    double update_ms[MAX_CUTS]; // each followed step's compliance update (stats comp_ms_last)
+    int n_updates;
+    int64_t updates_seen;
     double probe_n[MAX_CUTS]; // per stroke: force felt at the end of the press beside the cut
     int n_probes;
 } cut_run;
@@ -88,13 +92,17 @@ static void tick(cut_run* r, const double p[3], int button) {
         }
         r->cut_version = st.topology_version;
     }
-    if (st.comp_rebuilds != r->comp_seen) {
+    if (st.comp_rebuilds != r->comp_seen || st.comp_updates != r->updates_seen) {
+        if (st.comp_rebuilds != r->comp_seen && r->n_rebuilds < MAX_CUTS)
+            r->rebuild_ms[r->n_rebuilds++] = st.comp_ms_last;
+        else if (st.comp_updates != r->updates_seen && r->n_updates < MAX_CUTS)
+            r->update_ms[r->n_updates++] = st.comp_ms_last;
         r->comp_seen = st.comp_rebuilds;
+        r->updates_seen = st.comp_updates;
         r->comp_version = st.comp_version;
-        if (r->n_rebuilds < MAX_CUTS) r->rebuild_ms[r->n_rebuilds++] = st.comp_ms_last;
         for (int k = 0; k < r->n_cuts; ++k)
             if (isnan(r->valid_ms[k]) && r->cut_ver[k] <= st.comp_version) {
-                r->valid_ms[k] = (double)(st.comp_swap_ns - r->cut_ns[k]) * 1e-6;
+                r->valid_ms[k] = r->cut_ms[k] + (double)(st.comp_swap_ns - r->cut_ns[k]) * 1e-6;
                 r->n_valid++;
             }
     }
@@ -291,17 +299,19 @@ static int run_case(const cut_case* cc, const hs_bench_args* args, const hs_scen
         hs_haptic_sim_stop(r->sim);
         fprintf(stderr,
                 "cut: %s: %d strokes, %lld sweeps, %d cut steps (%d missed by the 1 ms poll), "
-                "%lld tets removed; the sweep alone p50 %.2f ms, p99 %.2f ms; %lld compliance "
-                "rebuilds (%lld dropped for a newer cut), "
+                "%lld tets removed; the sweep alone p50 %.2f ms, p99 %.2f ms; the compliance "
+                "followed %lld steps (its update p50 %.2f ms, p99 %.2f ms, within the step); "
+                "%lld compliance rebuilds (%lld dropped for a newer cut), "
                 "each p50 %.0f ms, max %.0f ms on the worker; %d of the steps found valid; "
                 "the press beside the cut felt p50 %.3f N, min %.3f N; watchdog trips %lld; set-up "
                 "%.0f ms; cut failures %lld\n",
                 cc->name, strokes, (long long)st.cut_sweeps, r->n_cuts, r->missed,
                 (long long)st.cut_removed, pct(r->sweep_ms, r->n_cuts, 50),
-                pct(r->sweep_ms, r->n_cuts, 99), (long long)st.comp_rebuilds,
-                (long long)st.comp_discarded, pct(r->rebuild_ms, r->n_rebuilds, 50),
-                pct(r->rebuild_ms, r->n_rebuilds, 100), r->n_valid,
-                pct(r->probe_n, r->n_probes, 50), pct(r->probe_n, r->n_probes, 0),
+                pct(r->sweep_ms, r->n_cuts, 99), (long long)st.comp_updates,
+                pct(r->update_ms, r->n_updates, 50), pct(r->update_ms, r->n_updates, 99),
+                (long long)st.comp_rebuilds, (long long)st.comp_discarded,
+                pct(r->rebuild_ms, r->n_rebuilds, 50), pct(r->rebuild_ms, r->n_rebuilds, 100),
+                r->n_valid, pct(r->probe_n, r->n_probes, 50), pct(r->probe_n, r->n_probes, 0),
                 (long long)st.safety.watchdog_trips, setup_ms, (long long)st.cut_failures);
         printf("%s,%d,%d,%d,%lld,%.2f,%.2f,%.1f,%.1f,%.4f\n", cc->name, m->n_nodes, m->n_tets,
                r->n_cuts, (long long)st.cut_removed, pct(r->cut_ms, r->n_cuts, 50),
