@@ -1178,8 +1178,10 @@ static int release_inside(int zigzag) {
     ENSURE(w.worst_step <= SKIN_RATE_MAX * 1e-3 + 1e-9);
 #ifndef __SANITIZE_THREAD__ // TSan slows the sweeps, the rebuild and the body ~10x
     ENSURE(cut_steps > 5 && st.comp_version == st.topology_version);
-    // No kick: from the force it had to where it settles, never well above both.
-    ENSURE(peak <= 1.2 * fmax(at_release, settled) + 0.02);
+    // No kick: from the force it had to where it settles, never well above both. Under load the
+    // fit can come a step late and the probe pushes out gently first (0.131 N from 0.047 N in
+    // one loaded run of the straight cut; the kicks this guards against were 0.4-2.4 N).
+    ENSURE(peak <= 1.2 * fmax(at_release, settled) + 0.1);
     ENSURE(range <= 0.02); // no chatter while held
     // Lifted out: 16 mm above the patch it feels nothing. On the way out of the straight cut
     // the tissue still catches the sphere in most runs (0.1-0.16 N, ~1 N in some, with nothing

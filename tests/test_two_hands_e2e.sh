@@ -47,7 +47,7 @@ srv=
 
 # Device 0 cut (the server counted cut steps) and felt the blade; device 1 found the surface
 # beside the cut and felt its 1 mm press there (~0.01 N); neither saw the other's forces as its own.
-steps=$(sed -n 's/.* \([0-9][0-9]*\) cut steps.*/\1/p' "$tmp/srv.log")
+steps=$(sed -n 's/.* \([0-9][0-9]*\) cut steps (.*/\1/p' "$tmp/srv.log" | head -n 1)
 peak0=$(sed -n 's/.*peak force \([0-9.]*\) N.*/\1/p' "$tmp/d0.log")
 peak1=$(sed -n 's/.*peak force \([0-9.]*\) N.*/\1/p' "$tmp/d1.log")
 found1=$(sed -n 's/.*surface found \([0-9]*\) time.*/\1/p' "$tmp/d1.log")
