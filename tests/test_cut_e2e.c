@@ -728,10 +728,8 @@ static int test_probe_after_cut(void) {
     return probe_after_cut(hs_haptic_cut_default_def().min_travel_m, 0.1);
 }
 
-/// The same in 0.2 mm sweeps: the case where the contact-free correction ran away (a kick of up
-/// to 10 N on the held probe) and where, while the sim cut with the keep-tet rule, the held press
-/// missed the rest contact by up to 74 % (docs/haptics.md, "The press after fine cuts"). With
-/// the pin and drop rules it was within 2.8 % in 40 runs (2026-11-26); the same 10 % as above.
+/// The same in 0.2 mm sweeps, where many small element changes pile up under the held probe
+/// (a contact-free correction that ran away kicked up to 10 N here); the same 10 % as above.
 static int test_probe_after_fine_cut(void) {
     return probe_after_cut(0.0002, 0.1);
 }

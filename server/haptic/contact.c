@@ -67,7 +67,7 @@ typedef struct feat {
 // centre passes the point itself, and where a faded point is reported by two triangles as two
 // points at one place (an edge point just leaving its vertex: each copy softened alone, the
 // two push harder than one); on a flat surface no point inside the sphere fades in a press
-// shallower than 3/4 r (docs/haptics.md, "Presses a radius deep").
+// shallower than 3/4 r (docs/haptics.md, "Points pushed along the surface").
 #define FADE_COS 0.25
 #define FADE_MIN 1e-6
 
