@@ -71,10 +71,15 @@ static void print_status(const hs_client_status* s, int64_t age_us) {
     if (s->warnings[0]) printf("warnings:\n%s\n", s->warnings);
 }
 
-int main(int argc, char** argv) {
-    if (hapsim_version_asked(argc, argv, "hapsim-ctl")) return 0;
-    const char *mesh_url = NULL, *prefix = NULL;
-    int timeout_ms = 3000, retry_ms = 250, quiet = 0, i = 1;
+// The options before the command.
+typedef struct ctl_opts {
+    const char *mesh_url, *prefix;
+    int timeout_ms, retry_ms, quiet;
+} ctl_opts;
+
+// Reads the options into o and *first to the command's index; -1 to go on, else the exit status.
+static int parse_options(int argc, char** argv, ctl_opts* o, int* first) {
+    int i = 1;
     // Asking for help is never a usage error, also after the command ("status --help").
     for (int j = 1; j < argc; j++)
         if (!strcmp(argv[j], "-h") || !strcmp(argv[j], "--help")) {
@@ -84,7 +89,7 @@ int main(int argc, char** argv) {
     for (; i < argc && argv[i][0] == '-'; i++) {
         const char* a = argv[i];
         if (!strcmp(a, "-q") || !strcmp(a, "--quiet")) {
-            quiet = 1;
+            o->quiet = 1;
             continue;
         }
         if (i + 1 >= argc) {
@@ -94,9 +99,9 @@ int main(int argc, char** argv) {
         const char* val = argv[++i];
         char* e;
         if (!strcmp(a, "--mesh-url"))
-            mesh_url = val;
+            o->mesh_url = val;
         else if (!strcmp(a, "--prefix"))
-            prefix = val;
+            o->prefix = val;
         else if (!strcmp(a, "--timeout") || !strcmp(a, "--retry")) {
             long v = strtol(val, &e, 10);
             if (e == val || *e || v < 1 || v > 3600000) {
@@ -104,9 +109,9 @@ int main(int argc, char** argv) {
                 return EXIT_USAGE;
             }
             if (a[2] == 't')
-                timeout_ms = (int)v;
+                o->timeout_ms = (int)v;
             else
-                retry_ms = (int)v;
+                o->retry_ms = (int)v;
         } else {
             fprintf(stderr, "hapsim-ctl: unknown option '%s' (see --help)\n", a);
             return EXIT_USAGE;
@@ -116,52 +121,121 @@ int main(int argc, char** argv) {
         usage(stderr);
         return EXIT_USAGE;
     }
+    *first = i;
+    return -1;
+}
+
+// The commands; kind 0 is status (read, not sent).
+static const struct ctl_command {
+    const char* name;
+    int kind, nargs;
+} commands[] = {{"status", 0, 0},
+                {"reset", HAPSIM_COMMAND_T_KIND_RESET, 0},
+                {"pause", HAPSIM_COMMAND_T_KIND_PAUSE, 0},
+                {"resume", HAPSIM_COMMAND_T_KIND_RESUME, 0},
+                {"load-scene", HAPSIM_COMMAND_T_KIND_LOAD_SCENE, 1},
+                {"set", HAPSIM_COMMAND_T_KIND_SET_PARAM, 2},
+                {"estop", HAPSIM_COMMAND_T_KIND_ESTOP, 0},
+                {"estop-release", HAPSIM_COMMAND_T_KIND_ESTOP_RELEASE, 0},
+                {"request-topology", HAPSIM_COMMAND_T_KIND_REQUEST_TOPOLOGY, 0}};
+
+// set --list: the parameter table.
+static void print_params(void) {
+    int n;
+    const hapsim_param_info* t = hapsim_params(&n);
+    printf("%-24s %-22s %-5s %-10s %s\n", "parameter", "accepted", "unit", "on set", "meaning");
+    for (int j = 0; j < n; j++) {
+        char range[64];
+        snprintf(range, sizeof range, "%s%g .. %g", t[j].min_open ? "> " : "", t[j].min, t[j].max);
+        printf("%-24s %-22s %-5s %-10s %s\n", t[j].name, range, t[j].unit,
+               t[j].rebuilds ? "rebuild" : "at once", t[j].what);
+    }
+}
+
+// Waits for one status message and prints it; returns the exit status.
+static int show_status(hs_client* c, int timeout_ms) {
+    hs_err err = {0};
+    int64_t deadline = hs_client_now_us() + (int64_t)timeout_ms * 1000;
+    hs_client_status s;
+    int64_t age = 0;
+    while (!hs_client_status_latest(c, NULL, NULL) && hs_client_now_us() < deadline)
+        if (hs_client_poll(c, 50, &err) < 0) break;
+    if (hs_client_status_latest(c, &s, &age)) {
+        print_status(&s, age);
+        return EXIT_OK;
+    }
+    fprintf(stderr,
+            "hapsim-ctl: no server status within %d ms (is hapsim-server "
+            "running on this mesh bus and prefix?)\n",
+            timeout_ms);
+    return EXIT_NO_SERVER;
+}
+
+// Sends one command and reports its acknowledgement; returns the exit status.
+static int send_command(hs_client* c, const struct ctl_command* k, const char** keys,
+                        const char** values, const ctl_opts* o) {
+    const char* cmd = k->name;
+    hs_err err = {0};
+    hs_client_ack ack;
+    hs_status st = hs_client_command(c, k->kind, k->nargs, keys, values, o->timeout_ms, o->retry_ms,
+                                     &ack, &err);
+    if (st == HS_ERR_INVALID) {
+        fprintf(stderr, "hapsim-ctl: %s\n", err.msg);
+        return EXIT_USAGE;
+    }
+    if (st != HS_OK) {
+        // The library's reason: no ack at all, or a PENDING one and then nothing.
+        if (ack.status == HAPSIM_COMMAND_ACK_T_STATUS_PENDING && ack.message[0])
+            fprintf(stderr, "hapsim-ctl: %s: %s (the server said: %s)\n", cmd, err.msg,
+                    ack.message);
+        else
+            fprintf(stderr, "hapsim-ctl: %s: %s (%d attempts)\n", cmd, err.msg, ack.attempts);
+        return EXIT_NO_SERVER;
+    }
+    if (ack.status != HAPSIM_COMMAND_ACK_T_STATUS_OK) {
+        fprintf(stderr, "hapsim-ctl: %s %s: %s\n", cmd,
+                ack.status == HAPSIM_COMMAND_ACK_T_STATUS_INVALID ? "rejected as invalid"
+                                                                  : "failed",
+                ack.message[0] ? ack.message : "(no detail)");
+        return EXIT_REJECTED;
+    }
+    if (!o->quiet)
+        printf("%s: ok (request %lld, %d attempt%s, %.1f ms)%s%s\n", cmd, (long long)ack.request_id,
+               ack.attempts, ack.attempts == 1 ? "" : "s", (double)ack.rtt_us * 1e-3,
+               ack.message[0] ? ": " : "", ack.message);
+    return EXIT_OK;
+}
+
+int main(int argc, char** argv) {
+    if (hapsim_version_asked(argc, argv, "hapsim-ctl")) return 0;
+    ctl_opts o = {.timeout_ms = 3000, .retry_ms = 250};
+    int i = 1;
+    int prc = parse_options(argc, argv, &o, &i);
+    if (prc >= 0) return prc;
     const char* cmd = argv[i++];
     int nrest = argc - i;
-    static const struct {
-        const char* name;
-        int kind, nargs;
-    } table[] = {{"status", 0, 0},
-                 {"reset", HAPSIM_COMMAND_T_KIND_RESET, 0},
-                 {"pause", HAPSIM_COMMAND_T_KIND_PAUSE, 0},
-                 {"resume", HAPSIM_COMMAND_T_KIND_RESUME, 0},
-                 {"load-scene", HAPSIM_COMMAND_T_KIND_LOAD_SCENE, 1},
-                 {"set", HAPSIM_COMMAND_T_KIND_SET_PARAM, 2},
-                 {"estop", HAPSIM_COMMAND_T_KIND_ESTOP, 0},
-                 {"estop-release", HAPSIM_COMMAND_T_KIND_ESTOP_RELEASE, 0},
-                 {"request-topology", HAPSIM_COMMAND_T_KIND_REQUEST_TOPOLOGY, 0}};
-    int k = -1;
-    for (int j = 0; j < (int)(sizeof table / sizeof table[0]); j++)
-        if (!strcmp(cmd, table[j].name)) k = j;
-    if (k < 0) {
+    const struct ctl_command* k = NULL;
+    for (int j = 0; j < (int)(sizeof commands / sizeof commands[0]); j++)
+        if (!strcmp(cmd, commands[j].name)) k = &commands[j];
+    if (!k) {
         fprintf(stderr, "hapsim-ctl: unknown command '%s' (see --help)\n", cmd);
         return EXIT_USAGE;
     }
-    if (table[k].kind == HAPSIM_COMMAND_T_KIND_SET_PARAM && nrest == 1 &&
-        !strcmp(argv[i], "--list")) {
-        int n;
-        const hapsim_param_info* t = hapsim_params(&n);
-        printf("%-24s %-22s %-5s %-10s %s\n", "parameter", "accepted", "unit", "on set", "meaning");
-        for (int j = 0; j < n; j++) {
-            char range[64];
-            snprintf(range, sizeof range, "%s%g .. %g", t[j].min_open ? "> " : "", t[j].min,
-                     t[j].max);
-            printf("%-24s %-22s %-5s %-10s %s\n", t[j].name, range, t[j].unit,
-                   t[j].rebuilds ? "rebuild" : "at once", t[j].what);
-        }
+    if (k->kind == HAPSIM_COMMAND_T_KIND_SET_PARAM && nrest == 1 && !strcmp(argv[i], "--list")) {
+        print_params();
         return EXIT_OK;
     }
-    if (nrest != table[k].nargs) {
-        fprintf(stderr, "hapsim-ctl: %s takes %d argument%s, got %d (see --help)\n", cmd,
-                table[k].nargs, table[k].nargs == 1 ? "" : "s", nrest);
+    if (nrest != k->nargs) {
+        fprintf(stderr, "hapsim-ctl: %s takes %d argument%s, got %d (see --help)\n", cmd, k->nargs,
+                k->nargs == 1 ? "" : "s", nrest);
         return EXIT_USAGE;
     }
     const char* keys[2];
     const char* values[2];
-    if (table[k].kind == HAPSIM_COMMAND_T_KIND_LOAD_SCENE) {
+    if (k->kind == HAPSIM_COMMAND_T_KIND_LOAD_SCENE) {
         keys[0] = "path";
         values[0] = argv[i];
-    } else if (table[k].kind == HAPSIM_COMMAND_T_KIND_SET_PARAM) {
+    } else if (k->kind == HAPSIM_COMMAND_T_KIND_SET_PARAM) {
         char* e;
         double d = strtod(argv[i + 1], &e);
         if (e == argv[i + 1] || *e || !isfinite(d)) {
@@ -178,62 +252,19 @@ int main(int argc, char** argv) {
     hs_client_config cfg;
     hs_client_config_default(&cfg);
     cfg.haptic_url = "";
-    cfg.mesh_url = mesh_url;
-    cfg.prefix = prefix;
+    cfg.mesh_url = o.mesh_url;
+    cfg.prefix = o.prefix;
     cfg.sender = "hapsim-ctl";
-    cfg.subscribe = table[k].kind ? HS_CLIENT_SUB_COMMANDS : HS_CLIENT_SUB_STATUS;
+    cfg.subscribe = k->kind ? HS_CLIENT_SUB_COMMANDS : HS_CLIENT_SUB_STATUS;
     hs_client* c = NULL;
     hs_err err = {0};
-    hs_status st = hs_client_create(&cfg, &c, &err);
-    if (st != HS_OK) {
+    if (hs_client_create(&cfg, &c, &err) != HS_OK) {
         // Nothing was sent yet: a prefix or a URL that LCM cannot open is a bad value, not a
         // missing server (the message names the URL).
         fprintf(stderr, "hapsim-ctl: %s\n", err.msg);
         return EXIT_USAGE;
     }
-    int rc = EXIT_OK;
-    if (table[k].kind == 0) {
-        int64_t deadline = hs_client_now_us() + (int64_t)timeout_ms * 1000;
-        hs_client_status s;
-        int64_t age = 0;
-        while (!hs_client_status_latest(c, NULL, NULL) && hs_client_now_us() < deadline)
-            if (hs_client_poll(c, 50, &err) < 0) break;
-        if (hs_client_status_latest(c, &s, &age)) {
-            print_status(&s, age);
-        } else {
-            fprintf(stderr,
-                    "hapsim-ctl: no server status within %d ms (is hapsim-server "
-                    "running on this mesh bus and prefix?)\n",
-                    timeout_ms);
-            rc = EXIT_NO_SERVER;
-        }
-    } else {
-        hs_client_ack ack;
-        st = hs_client_command(c, table[k].kind, table[k].nargs, keys, values, timeout_ms, retry_ms,
-                               &ack, &err);
-        if (st == HS_ERR_INVALID) {
-            fprintf(stderr, "hapsim-ctl: %s\n", err.msg);
-            rc = EXIT_USAGE;
-        } else if (st != HS_OK) {
-            // The library's reason: no ack at all, or a PENDING one and then nothing.
-            if (ack.status == HAPSIM_COMMAND_ACK_T_STATUS_PENDING && ack.message[0])
-                fprintf(stderr, "hapsim-ctl: %s: %s (the server said: %s)\n", cmd, err.msg,
-                        ack.message);
-            else
-                fprintf(stderr, "hapsim-ctl: %s: %s (%d attempts)\n", cmd, err.msg, ack.attempts);
-            rc = EXIT_NO_SERVER;
-        } else if (ack.status != HAPSIM_COMMAND_ACK_T_STATUS_OK) {
-            fprintf(stderr, "hapsim-ctl: %s %s: %s\n", cmd,
-                    ack.status == HAPSIM_COMMAND_ACK_T_STATUS_INVALID ? "rejected as invalid"
-                                                                      : "failed",
-                    ack.message[0] ? ack.message : "(no detail)");
-            rc = EXIT_REJECTED;
-        } else if (!quiet) {
-            printf("%s: ok (request %lld, %d attempt%s, %.1f ms)%s%s\n", cmd,
-                   (long long)ack.request_id, ack.attempts, ack.attempts == 1 ? "" : "s",
-                   (double)ack.rtt_us * 1e-3, ack.message[0] ? ": " : "", ack.message);
-        }
-    }
+    int rc = k->kind == 0 ? show_status(c, o.timeout_ms) : send_command(c, k, keys, values, &o);
     hs_client_destroy(&c);
     return rc;
 }

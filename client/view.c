@@ -246,21 +246,15 @@ static void scene_name(const char* path, char* out, size_t cap) {
     if (dot && dot != out) *dot = '\0';
 }
 
-int main(int argc, char** argv) {
-    if (hapsim_version_asked(argc, argv, "hapsim-view")) return 0;
-    viewer v;
-    memset(&v, 0, sizeof v);
-    v.out = "hapsim-view-out";
-    v.rate = 2;
-    v.dmax = 0; // auto
-    v.az = 30;
-    v.el = 20;
-    v.width = 640;
-    v.height = 480;
+// Options not kept in the viewer.
+typedef struct view_opts {
+    double duration;
+    const char *mesh_url, *prefix;
+} view_opts;
+
+// Reads the command line into v and o; returns -1 to go on, else the exit status.
+static int parse_args(int argc, char** argv, viewer* v, view_opts* o) {
     int status = isatty(2);
-    v.last_frame_written = -1;
-    double duration = 0;
-    const char *mesh_url = NULL, *prefix = NULL;
     for (int i = 1; i < argc; i++) {
         const char* a = argv[i];
         const char* val = i + 1 < argc ? argv[i + 1] : NULL;
@@ -278,74 +272,148 @@ int main(int argc, char** argv) {
             return 0;
         } else if (!strcmp(a, "--out")) {
             NEED_VAL;
-            v.out = val;
+            v->out = val;
         } else if (!strcmp(a, "--rate")) {
             NEED_VAL;
-            v.rate = strtod(val, &e);
-            if (e == val || *e || !(v.rate == 0 || (v.rate >= 0.001 && v.rate <= 1000))) {
+            v->rate = strtod(val, &e);
+            if (e == val || *e || !(v->rate == 0 || (v->rate >= 0.001 && v->rate <= 1000))) {
                 fprintf(stderr, "hapsim-view: --rate '%s': expected 0, or 0.001 .. 1000 Hz\n", val);
                 return 2;
             }
         } else if (!strcmp(a, "--duration")) {
             NEED_VAL;
-            duration = strtod(val, &e);
-            if (e == val || *e || !(duration >= 0 && duration <= 1e9)) {
+            o->duration = strtod(val, &e);
+            if (e == val || *e || !(o->duration >= 0 && o->duration <= 1e9)) {
                 fprintf(stderr, "hapsim-view: --duration '%s': expected 0 .. 1e9 seconds\n", val);
                 return 2;
             }
         } else if (!strcmp(a, "--dmax")) {
             NEED_VAL;
-            v.dmax = strcmp(val, "auto") ? strtod(val, &e) : 0;
-            if (strcmp(val, "auto") && (e == val || *e || !(v.dmax > 0) || !isfinite(v.dmax))) {
+            v->dmax = strcmp(val, "auto") ? strtod(val, &e) : 0;
+            if (strcmp(val, "auto") && (e == val || *e || !(v->dmax > 0) || !isfinite(v->dmax))) {
                 fprintf(stderr, "hapsim-view: --dmax '%s': expected metres > 0 or auto\n", val);
                 return 2;
             }
         } else if (!strcmp(a, "--view")) {
             NEED_VAL;
-            if (parse_pair(val, ',', &v.az, &v.el) || fabs(v.el) > 90) {
+            if (parse_pair(val, ',', &v->az, &v->el) || fabs(v->el) > 90) {
                 fprintf(stderr, "hapsim-view: --view '%s': expected AZ,EL in degrees, |EL| <= 90\n",
                         val);
                 return 2;
             }
         } else if (!strcmp(a, "--size")) {
             NEED_VAL;
-            if (parse_size(val, &v.width, &v.height)) {
+            if (parse_size(val, &v->width, &v->height)) {
                 fprintf(stderr, "hapsim-view: --size '%s': expected WxH, 16 .. 8192 pixels\n", val);
                 return 2;
             }
         } else if (!strcmp(a, "--mesh-url")) {
             NEED_VAL;
-            mesh_url = val;
+            o->mesh_url = val;
         } else if (!strcmp(a, "--prefix")) {
             NEED_VAL;
-            prefix = val;
+            o->prefix = val;
         } else if (!strcmp(a, "--png")) {
-            v.png = 1;
+            v->png = 1;
         } else if (!strcmp(a, "--vtk")) {
-            v.vtk = 1;
+            v->vtk = 1;
         } else if (!strcmp(a, "--status")) {
             status = 1;
         } else if (!strcmp(a, "--quiet")) {
-            v.quiet = 1;
+            v->quiet = 1;
         } else {
             fprintf(stderr, "hapsim-view: unknown option '%s' (see --help)\n", a);
             return 2;
         }
     }
-    if (!v.png && !v.vtk) v.png = v.vtk = 1;
-    v.status = status && !v.quiet; // in either order
+    if (!v->png && !v->vtk) v->png = v->vtk = 1;
+    v->status = status && !v->quiet; // in either order
     // An unusable --out is bad usage (exit 2), found before connecting or creating anything.
     // The length limit keeps "DIR/frame_NNNNNN.vtu.tmp" within the writers' 4200-byte paths.
     struct stat st_out;
-    if (!v.out[0] || strlen(v.out) > 4000) {
+    if (!v->out[0] || strlen(v->out) > 4000) {
         fprintf(stderr, "hapsim-view: --out '%.40s%s': expected a folder path of 1 .. 4000 bytes\n",
-                v.out, strlen(v.out) > 40 ? "..." : "");
+                v->out, strlen(v->out) > 40 ? "..." : "");
         return 2;
     }
-    if (stat(v.out, &st_out) == 0 && !S_ISDIR(st_out.st_mode)) {
-        fprintf(stderr, "hapsim-view: --out '%s': expected a folder, this is not one\n", v.out);
+    if (stat(v->out, &st_out) == 0 && !S_ISDIR(st_out.st_mode)) {
+        fprintf(stderr, "hapsim-view: --out '%s': expected a folder, this is not one\n", v->out);
         return 2;
     }
+    return -1;
+}
+
+// The live one-line status on stderr.
+static void print_status(const viewer* v, hs_client* c, const hs_client_mesh* m, int64_t now,
+                         int64_t* frames_at_status, int64_t* status_t) {
+    hs_sync_stats s;
+    hs_client_mesh_stats(c, &s);
+    double dt = (double)(now - *status_t) * 1e-6;
+    double fps = dt > 0 ? (double)(m->frame - *frames_at_status) / dt : 0;
+    int64_t age = m->ready ? hs_client_age_us(m->utime) : -1;
+    double lat_ms = age >= 0 ? (double)age * 1e-3 : NAN;
+    int64_t lost = s.lost[0] + s.lost[1] + s.lost[2] + s.lost[3];
+    fprintf(stderr,
+            "\rhapsim-view: %5.1f fps  topology v%lld  keyframe %lld  latency %6.1f ms  "
+            "lost %lld  bad %lld  written %d   ",
+            fps, (long long)m->topology_version, (long long)m->keyframe_id, lat_ms, (long long)lost,
+            (long long)s.malformed, v->n_written);
+    fflush(stderr);
+    *frames_at_status = m->frame;
+    *status_t = now;
+}
+
+// Why no mesh came, and the summary; returns the exit status.
+static int report_end(const viewer* v, hs_client* c, const hs_client_mesh* m, int rc) {
+    if (rc == 0 && !m->ready) {
+        hs_sync_stats s;
+        hs_client_mesh_stats(c, &s);
+        const long long keys = (long long)s.received[HS_SYNC_STATE];
+        if (keys > 0 && s.received[HS_SYNC_TOPOLOGY] == 0)
+            fprintf(stderr,
+                    "hapsim-view: %lld keyframes but no topology received: a topology larger than "
+                    "this socket's receive buffer is lost (see the server's note on message sizes; "
+                    "raise net.core.rmem_max and the mesh URL's recv_buf_size, docs/protocol.md)\n",
+                    keys);
+        else if (keys > 0 && s.topologies == 0) // the sync refused what came (counted as bad)
+            fprintf(stderr,
+                    "hapsim-view: %lld keyframes but no topology accepted: %lld topology messages "
+                    "came, none usable (malformed, or no memory for them)\n",
+                    keys, (long long)s.received[HS_SYNC_TOPOLOGY]);
+        else
+            fprintf(stderr,
+                    "hapsim-view: no mesh received (is hapsim-server running on this bus?)\n");
+        rc = 1;
+    }
+    if (!v->quiet) {
+        hs_sync_stats s;
+        hs_client_mesh_stats(c, &s);
+        printf("hapsim-view: %d frames written to %s; mesh messages %lld topology, %lld keyframes,"
+               " %lld deltas; lost %lld, malformed %lld\n",
+               v->n_written, v->out, (long long)s.received[0], (long long)s.received[1],
+               (long long)s.received[2], (long long)(s.lost[0] + s.lost[1] + s.lost[2] + s.lost[3]),
+               (long long)s.malformed);
+    }
+    return rc;
+}
+
+int main(int argc, char** argv) {
+    if (hapsim_version_asked(argc, argv, "hapsim-view")) return 0;
+    viewer v;
+    memset(&v, 0, sizeof v);
+    v.out = "hapsim-view-out";
+    v.rate = 2;
+    v.dmax = 0; // auto
+    v.az = 30;
+    v.el = 20;
+    v.width = 640;
+    v.height = 480;
+    v.last_frame_written = -1;
+    view_opts o = {0};
+    int prc = parse_args(argc, argv, &v, &o);
+    if (prc >= 0) return prc;
+    double duration = o.duration;
+    const char *mesh_url = o.mesh_url, *prefix = o.prefix;
 
     // The client checks --prefix and --mesh-url: before anything is created on disk.
     hs_client_config cfg;
@@ -429,21 +497,7 @@ int main(int argc, char** argv) {
             }
         }
         if (v.status && now >= next_status) {
-            hs_sync_stats s;
-            hs_client_mesh_stats(c, &s);
-            double dt = (double)(now - status_t) * 1e-6;
-            double fps = dt > 0 ? (double)(m->frame - frames_at_status) / dt : 0;
-            int64_t age = m->ready ? hs_client_age_us(m->utime) : -1;
-            double lat_ms = age >= 0 ? (double)age * 1e-3 : NAN;
-            int64_t lost = s.lost[0] + s.lost[1] + s.lost[2] + s.lost[3];
-            fprintf(stderr,
-                    "\rhapsim-view: %5.1f fps  topology v%lld  keyframe %lld  latency %6.1f ms  "
-                    "lost %lld  bad %lld  written %d   ",
-                    fps, (long long)m->topology_version, (long long)m->keyframe_id, lat_ms,
-                    (long long)lost, (long long)s.malformed, v.n_written);
-            fflush(stderr);
-            frames_at_status = m->frame;
-            status_t = now;
+            print_status(&v, c, m, now, &frames_at_status, &status_t);
             next_status = now + 500000;
         }
     }
@@ -452,35 +506,7 @@ int main(int argc, char** argv) {
         write_frame(&v, m))
         rc = 3;
     if (v.status) fputc('\n', stderr);
-    if (rc == 0 && !m->ready) {
-        hs_sync_stats s;
-        hs_client_mesh_stats(c, &s);
-        const long long keys = (long long)s.received[HS_SYNC_STATE];
-        if (keys > 0 && s.received[HS_SYNC_TOPOLOGY] == 0)
-            fprintf(stderr,
-                    "hapsim-view: %lld keyframes but no topology received: a topology larger than "
-                    "this socket's receive buffer is lost (see the server's note on message sizes; "
-                    "raise net.core.rmem_max and the mesh URL's recv_buf_size, docs/protocol.md)\n",
-                    keys);
-        else if (keys > 0 && s.topologies == 0) // the sync refused what came (counted as bad)
-            fprintf(stderr,
-                    "hapsim-view: %lld keyframes but no topology accepted: %lld topology messages "
-                    "came, none usable (malformed, or no memory for them)\n",
-                    keys, (long long)s.received[HS_SYNC_TOPOLOGY]);
-        else
-            fprintf(stderr,
-                    "hapsim-view: no mesh received (is hapsim-server running on this bus?)\n");
-        rc = 1;
-    }
-    if (!v.quiet) {
-        hs_sync_stats s;
-        hs_client_mesh_stats(c, &s);
-        printf("hapsim-view: %d frames written to %s; mesh messages %lld topology, %lld keyframes,"
-               " %lld deltas; lost %lld, malformed %lld\n",
-               v.n_written, v.out, (long long)s.received[0], (long long)s.received[1],
-               (long long)s.received[2], (long long)(s.lost[0] + s.lost[1] + s.lost[2] + s.lost[3]),
-               (long long)s.malformed);
-    }
+    rc = report_end(&v, c, m, rc);
     fclose(v.index);
     for (int32_t i = 0; i < v.n_written && i < v.cap_files; i++) hs_proto_free(v.files[i]);
     hs_proto_free(v.files);

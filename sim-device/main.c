@@ -206,67 +206,178 @@ static int parse_int(const char* s, int lo, int hi, int* v) {
     return 1;
 }
 
+// getopt_long codes of the long options.
+enum {
+    O_SCRIPT = 256,
+    O_URL,
+    O_PREFIX,
+    O_DEVICE,
+    O_TOOL,
+    O_TRACE,
+    O_DURATION,
+    O_ORIGIN,
+    O_RATE,
+    O_MASS,
+    O_HK,
+    O_HB,
+    O_FMAX,
+    O_RMAX,
+    O_WS,
+    O_TIMEOUT,
+    O_RAMP,
+    O_STATUS,
+    O_REALTIME,
+    O_STATUS_URL,
+    O_QUIET,
+    O_OK,
+    O_PLANE,
+    O_DELAY,
+    O_PERIOD,
+    O_RADIUS,
+    O_HELP
+};
+
+static const struct option longopts[] = {
+    {"script", required_argument, 0, O_SCRIPT},
+    {"haptic-url", required_argument, 0, O_URL},
+    {"prefix", required_argument, 0, O_PREFIX},
+    {"device-id", required_argument, 0, O_DEVICE},
+    {"tool-id", required_argument, 0, O_TOOL},
+    {"trace", required_argument, 0, O_TRACE},
+    {"duration", required_argument, 0, O_DURATION},
+    {"origin", required_argument, 0, O_ORIGIN},
+    {"rate", required_argument, 0, O_RATE},
+    {"mass", required_argument, 0, O_MASS},
+    {"hand-stiffness", required_argument, 0, O_HK},
+    {"hand-damping", required_argument, 0, O_HB},
+    {"max-force", required_argument, 0, O_FMAX},
+    {"max-rate", required_argument, 0, O_RMAX},
+    {"workspace", required_argument, 0, O_WS},
+    {"timeout-ms", required_argument, 0, O_TIMEOUT},
+    {"ramp-ms", required_argument, 0, O_RAMP},
+    {"status", no_argument, 0, O_STATUS},
+    {"realtime", no_argument, 0, O_REALTIME},
+    {"status-url", required_argument, 0, O_STATUS_URL},
+    {"quiet", no_argument, 0, O_QUIET},
+    {"offline-stiffness", required_argument, 0, O_OK},
+    {"offline-plane", required_argument, 0, O_PLANE},
+    {"offline-delay", required_argument, 0, O_DELAY},
+    {"offline-period", required_argument, 0, O_PERIOD},
+    {"offline-radius", required_argument, 0, O_RADIUS},
+    {"help", no_argument, 0, O_HELP},
+    {0, 0, 0, 0},
+};
+
+// Applies one option that takes its value (or sets a flag); 1: done, 0: a bad value, -1: a
+// bad value already reported. offline_only and live_only name a flag one mode would ignore.
+static int set_option(int c, const char* a, options* o, hs_stylus_def* def,
+                      const char** offline_only, const char** live_only) {
+    double ms;
+    int ok = 1;
+    switch (c) {
+    case O_SCRIPT:
+        o->script = a;
+        break;
+    case O_URL:
+        o->haptic_url = a;
+        *live_only = "--haptic-url";
+        break;
+    case O_PREFIX:
+        o->prefix = a;
+        ok = prefix_ok(a);
+        break;
+    case O_DEVICE:
+        ok = parse_int(a, 0, 1 << 20, &o->device_id);
+        break;
+    case O_TOOL:
+        ok = parse_int(a, 0, 1 << 20, &o->tool_id);
+        break;
+    case O_TRACE:
+        o->trace = a;
+        break;
+    case O_DURATION:
+        // At most 1e7 s, as the server: beyond, ticks would overflow the tick count.
+        ok = parse_double(a, &o->duration_s) && o->duration_s > 0 && o->duration_s <= 1e7;
+        break;
+    case O_ORIGIN:
+        ok = o->has_origin = parse_list(a, o->origin, 3);
+        break;
+    case O_RATE:
+        ok = parse_double(a, &o->rate_hz) && o->rate_hz >= 10 && o->rate_hz <= 10000;
+        break;
+    case O_MASS:
+        ok = parse_double(a, &def->mass_kg);
+        break;
+    case O_HK:
+        ok = parse_double(a, &def->hand_stiffness_n_m);
+        break;
+    case O_HB:
+        ok = parse_double(a, &def->hand_damping_n_s_m);
+        break;
+    case O_FMAX:
+        ok = parse_double(a, &def->max_force_n);
+        break;
+    case O_RMAX:
+        ok = parse_double(a, &def->max_rate_n_s);
+        break;
+    case O_WS:
+        ok = parse_list(a, def->workspace_m, 3);
+        break;
+    case O_TIMEOUT: // bounded: beyond ~9.2e12 ms the ramp's ns overflowed and was skipped
+        ok = parse_double(a, &ms) && ms > 0 && ms <= 1e3 * HS_STYLUS_MAX_TIMEOUT_S;
+        def->timeout_s = ms * 1e-3;
+        break;
+    case O_RAMP:
+        ok = parse_double(a, &ms) && ms > 0 && ms <= 1e3 * HS_STYLUS_MAX_TIMEOUT_S;
+        def->ramp_s = ms * 1e-3;
+        break;
+    case O_STATUS:
+        o->status = 1;
+        break;
+    case O_REALTIME:
+        o->realtime = 1;
+        *live_only = "--realtime";
+        break;
+    case O_STATUS_URL:
+        o->status_url = a;
+        o->status = 1;
+        *live_only = "--status-url";
+        break;
+    case O_QUIET:
+        o->quiet = 1;
+        break;
+    case O_OK:
+        ok = parse_double(a, &o->offline_k) && o->offline_k > 0;
+        break;
+    case O_PLANE:
+        ok = o->has_plane = parse_list(a, o->plane, 6);
+        if (ok && !unit_vector(o->plane + 3)) {
+            fprintf(stderr,
+                    "hapsim-stylus: bad value '%s' for --offline-plane: the normal "
+                    "(NX,NY,NZ) must not be zero\n",
+                    a);
+            return -1;
+        }
+        *offline_only = "--offline-plane";
+        break;
+    case O_DELAY:
+        ok = parse_int(a, 1, 63, &o->offline_delay);
+        *offline_only = "--offline-delay";
+        break;
+    case O_PERIOD:
+        ok = parse_int(a, 1, 1000, &o->offline_period);
+        *offline_only = "--offline-period";
+        break;
+    case O_RADIUS:
+        ok = parse_double(a, &o->offline_radius) && o->offline_radius >= 0;
+        *offline_only = "--offline-radius";
+        break;
+    }
+    return ok;
+}
+
 // Returns 0 to run, 1 to exit with success (--help), 2 on a bad option (message printed).
 static int parse_options(int argc, char** argv, options* o, hs_stylus_def* def) {
-    enum {
-        O_SCRIPT = 256,
-        O_URL,
-        O_PREFIX,
-        O_DEVICE,
-        O_TOOL,
-        O_TRACE,
-        O_DURATION,
-        O_ORIGIN,
-        O_RATE,
-        O_MASS,
-        O_HK,
-        O_HB,
-        O_FMAX,
-        O_RMAX,
-        O_WS,
-        O_TIMEOUT,
-        O_RAMP,
-        O_STATUS,
-        O_REALTIME,
-        O_STATUS_URL,
-        O_QUIET,
-        O_OK,
-        O_PLANE,
-        O_DELAY,
-        O_PERIOD,
-        O_RADIUS,
-        O_HELP
-    };
-    static const struct option longopts[] = {
-        {"script", required_argument, 0, O_SCRIPT},
-        {"haptic-url", required_argument, 0, O_URL},
-        {"prefix", required_argument, 0, O_PREFIX},
-        {"device-id", required_argument, 0, O_DEVICE},
-        {"tool-id", required_argument, 0, O_TOOL},
-        {"trace", required_argument, 0, O_TRACE},
-        {"duration", required_argument, 0, O_DURATION},
-        {"origin", required_argument, 0, O_ORIGIN},
-        {"rate", required_argument, 0, O_RATE},
-        {"mass", required_argument, 0, O_MASS},
-        {"hand-stiffness", required_argument, 0, O_HK},
-        {"hand-damping", required_argument, 0, O_HB},
-        {"max-force", required_argument, 0, O_FMAX},
-        {"max-rate", required_argument, 0, O_RMAX},
-        {"workspace", required_argument, 0, O_WS},
-        {"timeout-ms", required_argument, 0, O_TIMEOUT},
-        {"ramp-ms", required_argument, 0, O_RAMP},
-        {"status", no_argument, 0, O_STATUS},
-        {"realtime", no_argument, 0, O_REALTIME},
-        {"status-url", required_argument, 0, O_STATUS_URL},
-        {"quiet", no_argument, 0, O_QUIET},
-        {"offline-stiffness", required_argument, 0, O_OK},
-        {"offline-plane", required_argument, 0, O_PLANE},
-        {"offline-delay", required_argument, 0, O_DELAY},
-        {"offline-period", required_argument, 0, O_PERIOD},
-        {"offline-radius", required_argument, 0, O_RADIUS},
-        {"help", no_argument, 0, O_HELP},
-        {0, 0, 0, 0},
-    };
     memset(o, 0, sizeof *o);
     o->haptic_url = HAPSIM_DEFAULT_HAPTIC_URL;
     o->prefix = HAPSIM_DEFAULT_PREFIX;
@@ -276,116 +387,17 @@ static int parse_options(int argc, char** argv, options* o, hs_stylus_def* def) 
     o->offline_period = 1;
     o->offline_radius = 0.002;
     o->offline_timeout = 0.05;
-    double ms;
     int c, idx = -1;
     const char *offline_only = NULL, *live_only = NULL; // a flag the chosen mode would ignore
     opterr = 0;
     while ((c = getopt_long(argc, argv, "h", longopts, &idx)) != -1) {
         const char* a = optarg;
-        int ok = 1;
-        switch (c) {
-        case O_SCRIPT:
-            o->script = a;
-            break;
-        case O_URL:
-            o->haptic_url = a;
-            live_only = "--haptic-url";
-            break;
-        case O_PREFIX:
-            o->prefix = a;
-            ok = prefix_ok(a);
-            break;
-        case O_DEVICE:
-            ok = parse_int(a, 0, 1 << 20, &o->device_id);
-            break;
-        case O_TOOL:
-            ok = parse_int(a, 0, 1 << 20, &o->tool_id);
-            break;
-        case O_TRACE:
-            o->trace = a;
-            break;
-        case O_DURATION:
-            // At most 1e7 s, as the server: beyond, ticks would overflow the tick count.
-            ok = parse_double(a, &o->duration_s) && o->duration_s > 0 && o->duration_s <= 1e7;
-            break;
-        case O_ORIGIN:
-            ok = o->has_origin = parse_list(a, o->origin, 3);
-            break;
-        case O_RATE:
-            ok = parse_double(a, &o->rate_hz) && o->rate_hz >= 10 && o->rate_hz <= 10000;
-            break;
-        case O_MASS:
-            ok = parse_double(a, &def->mass_kg);
-            break;
-        case O_HK:
-            ok = parse_double(a, &def->hand_stiffness_n_m);
-            break;
-        case O_HB:
-            ok = parse_double(a, &def->hand_damping_n_s_m);
-            break;
-        case O_FMAX:
-            ok = parse_double(a, &def->max_force_n);
-            break;
-        case O_RMAX:
-            ok = parse_double(a, &def->max_rate_n_s);
-            break;
-        case O_WS:
-            ok = parse_list(a, def->workspace_m, 3);
-            break;
-        case O_TIMEOUT: // bounded: beyond ~9.2e12 ms the ramp's ns overflowed and was skipped
-            ok = parse_double(a, &ms) && ms > 0 && ms <= 1e3 * HS_STYLUS_MAX_TIMEOUT_S;
-            def->timeout_s = ms * 1e-3;
-            break;
-        case O_RAMP:
-            ok = parse_double(a, &ms) && ms > 0 && ms <= 1e3 * HS_STYLUS_MAX_TIMEOUT_S;
-            def->ramp_s = ms * 1e-3;
-            break;
-        case O_STATUS:
-            o->status = 1;
-            break;
-        case O_REALTIME:
-            o->realtime = 1;
-            live_only = "--realtime";
-            break;
-        case O_STATUS_URL:
-            o->status_url = a;
-            o->status = 1;
-            live_only = "--status-url";
-            break;
-        case O_QUIET:
-            o->quiet = 1;
-            break;
-        case O_OK:
-            ok = parse_double(a, &o->offline_k) && o->offline_k > 0;
-            break;
-        case O_PLANE:
-            ok = o->has_plane = parse_list(a, o->plane, 6);
-            if (ok && !unit_vector(o->plane + 3)) {
-                fprintf(stderr,
-                        "hapsim-stylus: bad value '%s' for --offline-plane: the normal "
-                        "(NX,NY,NZ) must not be zero\n",
-                        a);
-                return 2;
-            }
-            offline_only = "--offline-plane";
-            break;
-        case O_DELAY:
-            ok = parse_int(a, 1, 63, &o->offline_delay);
-            offline_only = "--offline-delay";
-            break;
-        case O_PERIOD:
-            ok = parse_int(a, 1, 1000, &o->offline_period);
-            offline_only = "--offline-period";
-            break;
-        case O_RADIUS:
-            ok = parse_double(a, &o->offline_radius) && o->offline_radius >= 0;
-            offline_only = "--offline-radius";
-            break;
-        case 'h':
-        case O_HELP:
+        if (c == 'h' || c == O_HELP) {
             usage(stdout);
             return 1;
-        default: // getopt_long sets optopt to the short option it did not know, else 0
+        }
+        if (c < O_SCRIPT || c > O_RADIUS) {
+            // getopt_long sets optopt to the short option it did not know, else 0
             if (optopt > 0 && optopt < 256 && optopt != 'h')
                 fprintf(stderr, "hapsim-stylus: unknown option -%c\n", optopt);
             else
@@ -394,6 +406,8 @@ static int parse_options(int argc, char** argv, options* o, hs_stylus_def* def) 
             usage(stderr);
             return 2;
         }
+        int ok = set_option(c, a, o, def, &offline_only, &live_only);
+        if (ok < 0) return 2;
         if (!ok) {
             fprintf(stderr, "hapsim-stylus: bad value '%s' for --%s\n", a,
                     idx >= 0 ? longopts[idx].name : "?");

@@ -248,8 +248,271 @@ typedef struct loop_frame {
     long remaining;   // iterations still to run after the current one
 } loop_frame;
 
-static hs_status parse_text(parser* p, const char* text, hs_err* err) {
+// One command's words: tok[0] is the lower-cased command name.
+typedef struct line_words {
+    char* tok[MAX_TOKENS + 1];
+    int ntok;
+} line_words;
+
+// Splits a line (comment already cut) into words; an empty comma field is an error.
+static hs_status split_words(parser* p, hs_err* err, char* buf, line_words* w) {
+    // An empty comma field ("0,,0", a comma first or last) was merged away, shifting every
+    // later number into the wrong place: an error.
+    for (const char* q = strchr(buf, ','); q; q = strchr(q + 1, ',')) {
+        const char* b = q;
+        while (b > buf && (b[-1] == ' ' || b[-1] == '\t' || b[-1] == '\r')) b--;
+        const char* a = q + 1;
+        while (*a == ' ' || *a == '\t' || *a == '\r') a++;
+        if (b == buf || *a == '\0' || *a == ',') return perr(p, err, "empty field between commas");
+    }
+    w->ntok = 0;
+    for (char* q = strtok(buf, " \t\r,"); q; q = strtok(NULL, " \t\r,")) {
+        if (w->ntok == MAX_TOKENS) return perr(p, err, "too many words on the line");
+        w->tok[w->ntok++] = q;
+    }
+    if (w->ntok > 0)
+        for (char* q = w->tok[0]; *q; ++q) *q = (char)tolower((unsigned char)*q);
+    return HS_OK;
+}
+
+static hs_status cmd_start_origin(parser* p, hs_err* err, char** tok, int ntok) {
     hs_script* s = p->s;
+    const char* cmd = tok[0];
+    double v[8];
+    hs_status st;
+    if ((st = read_args(p, err, tok, ntok, "LLL", "x y z", v))) return st;
+    int is_start = !strcmp(cmd, "start");
+    if (!is_start) {
+        s->has_origin = 1;
+        memcpy(s->origin_m, v, sizeof s->origin_m);
+    }
+    // The start (default: the origin) is where the timeline begins: fixed once moving.
+    if (!p->moved && (is_start || !s->has_start)) {
+        memcpy(s->start_m, v, sizeof s->start_m);
+        memcpy(p->cur, v, sizeof p->cur);
+        s->start_line = p->line;
+        s->has_start |= is_start;
+    } else if (is_start) {
+        return perr(p, err, "start: must come before the first motion command");
+    }
+    return HS_OK;
+}
+
+static hs_status cmd_profile(parser* p, hs_err* err, char** tok, int ntok) {
+    double v0;
+    hs_status st;
+    if (ntok == 2 && !strcmp(tok[1], "minjerk")) {
+        p->profile = HS_PROFILE_MINJERK;
+    } else if (ntok == 3 && !strcmp(tok[1], "trapezoid")) {
+        if (!parse_num(tok[2], &v0))
+            return perr(p, err, "profile trapezoid: '%.60s' is not a finite number", tok[2]);
+        if ((st = need_positive(p, err, "profile trapezoid", "accel", v0))) return st;
+        p->profile = HS_PROFILE_TRAPEZOID;
+        p->accel = v0 * p->scale;
+    } else {
+        return perr(p, err,
+                    "profile: expected 'profile minjerk' or "
+                    "'profile trapezoid ACCEL'");
+    }
+    return HS_OK;
+}
+
+// cut x y z speed ax ay az: the tool turns so that its z axis (the blade of a scalpel whose
+// blade lies along tool z) points along a, then moves.
+static hs_status cmd_cut_axis(parser* p, hs_err* err, char** tok, int ntok) {
+    const char* cmd = tok[0];
+    double v[8];
+    hs_status st;
+    if ((st = read_args(p, err, tok, ntok, "LLLVNNN", "x y z speed [ax ay az]", v))) return st;
+    if ((st = need_positive(p, err, cmd, "speed", v[3]))) return st;
+    if (p->pressed) return perr(p, err, "%s: a press is active (use drag, or release first)", cmd);
+    double a[3] = {0, 0, 1}; // set by unit_normal (init: -O3 cannot see that)
+    if ((st = unit_normal(p, err, cmd, v + 4, a))) return st;
+    axis_quat(a, p->quat);
+    return emit(p, err, HS_SEG_MOVE, HS_CMD_CUT, v, v[3], 0, BUTTON_PRIMARY);
+}
+
+static hs_status cmd_move(parser* p, hs_err* err, char** tok, int ntok) {
+    const char* cmd = tok[0];
+    double v[8];
+    hs_status st;
+    if ((st = read_args(p, err, tok, ntok, "LLLV",
+                        !strcmp(cmd, "cut") ? "x y z speed [ax ay az]" : "x y z speed", v)))
+        return st;
+    if ((st = need_positive(p, err, cmd, "speed", v[3]))) return st;
+    if (p->pressed) return perr(p, err, "%s: a press is active (use drag, or release first)", cmd);
+    int is_cut = !strcmp(cmd, "cut");
+    return emit(p, err, HS_SEG_MOVE, is_cut ? HS_CMD_CUT : HS_CMD_MOVE_TO, v, v[3], 0,
+                is_cut ? BUTTON_PRIMARY : 0);
+}
+
+static hs_status cmd_press(parser* p, hs_err* err, char** tok, int ntok) {
+    const char* cmd = tok[0];
+    double v[8];
+    hs_status st;
+    if ((st = read_args(p, err, tok, ntok, "NNNLV", "nx ny nz depth speed", v))) return st;
+    double n[3];
+    if ((st = unit_normal(p, err, cmd, v, n))) return st;
+    if ((st = need_positive(p, err, cmd, "depth", v[3]))) return st;
+    if ((st = need_positive(p, err, cmd, "speed", v[4]))) return st;
+    if (p->pressed && n[0] * p->normal[0] + n[1] * p->normal[1] + n[2] * p->normal[2] < 1 - 1e-9)
+        return perr(p, err,
+                    "press: a press along another normal is active "
+                    "(release first)");
+    double to[3];
+    for (int i = 0; i < 3; ++i) to[i] = p->cur[i] - n[i] * v[3];
+    memcpy(p->normal, n, sizeof n);
+    p->depth += v[3];
+    p->pressed = 1;
+    if ((st = bounded_target(p, err, cmd, to))) return st;
+    return emit(p, err, HS_SEG_MOVE, HS_CMD_PRESS, to, v[4], 0, 0);
+}
+
+static hs_status cmd_drag(parser* p, hs_err* err, char** tok, int ntok) {
+    const char* cmd = tok[0];
+    double v[8];
+    hs_status st;
+    if ((st = read_args(p, err, tok, ntok, "LLLV", "x y z speed", v))) return st;
+    if ((st = need_positive(p, err, cmd, "speed", v[3]))) return st;
+    if (!p->pressed) return perr(p, err, "drag: no press is active (press first)");
+    double to[3];
+    for (int i = 0; i < 3; ++i) to[i] = v[i] - p->normal[i] * p->depth;
+    if ((st = bounded_target(p, err, cmd, to))) return st;
+    return emit(p, err, HS_SEG_MOVE, HS_CMD_DRAG, to, v[3], 0, 0);
+}
+
+// release speed [lift]: back out by the pressed depth, plus lift clear of the surface (so
+// Coulomb friction cannot hold the handle in light contact).
+static hs_status cmd_release(parser* p, hs_err* err, char** tok, int ntok) {
+    const char* cmd = tok[0];
+    double v[8];
+    hs_status st;
+    double lift = 0;
+    if (ntok == 3) {
+        if (!parse_num(tok[2], &lift) || lift < 0)
+            return perr(p, err, "release: lift '%.60s' must be a number >= 0", tok[2]);
+        lift *= p->scale;
+        if (lift > HS_SCRIPT_MAX_LENGTH_M)
+            return perr(p, err, "release: lift '%.60s' is beyond %g m", tok[2],
+                        HS_SCRIPT_MAX_LENGTH_M);
+        ntok = 2;
+    }
+    if ((st = read_args(p, err, tok, ntok, "V", "speed [lift]", v))) return st;
+    if ((st = need_positive(p, err, cmd, "speed", v[0]))) return st;
+    if (!p->pressed) return perr(p, err, "release: no press is active");
+    double to[3];
+    for (int i = 0; i < 3; ++i) to[i] = p->cur[i] + p->normal[i] * (p->depth + lift);
+    if ((st = bounded_target(p, err, cmd, to))) return st;
+    p->pressed = 0;
+    p->depth = 0;
+    return emit(p, err, HS_SEG_MOVE, HS_CMD_RELEASE, to, v[0], 0, 0);
+}
+
+// touch nx ny nz max_depth speed [force]: search along -n for the surface.
+static hs_status cmd_touch(parser* p, hs_err* err, char** tok, int ntok) {
+    hs_script* s = p->s;
+    const char* cmd = tok[0];
+    double v[8];
+    hs_status st;
+    int n_args = ntok - 1;
+    if (n_args != 5 && n_args != 6)
+        return perr(p, err,
+                    "touch: expected 5 or 6 numbers (nx ny nz max_depth speed "
+                    "[force_n]), got %d",
+                    n_args);
+    char* t6[7];
+    for (int i = 0; i < 6; ++i) t6[i] = tok[i];
+    if ((st = read_args(p, err, t6, 6, "NNNLV", "nx ny nz max_depth speed", v))) return st;
+    double force = TOUCH_FORCE_N;
+    if (n_args == 6 && !parse_num(tok[6], &force))
+        return perr(p, err, "touch: '%.60s' is not a finite number (force_n)", tok[6]);
+    double n[3];
+    if ((st = unit_normal(p, err, cmd, v, n))) return st;
+    if ((st = need_positive(p, err, cmd, "max_depth", v[3]))) return st;
+    if ((st = need_positive(p, err, cmd, "speed", v[4]))) return st;
+    if ((st = need_positive(p, err, cmd, "force_n", force))) return st;
+    if (p->pressed) return perr(p, err, "touch: a press is active (release first)");
+    double from[3], to[3], ref[3];
+    for (int i = 0; i < 3; ++i) {
+        from[i] = p->cur[i];
+        to[i] = p->cur[i] - n[i] * v[3];
+        ref[i] = from[i];
+    }
+    for (int i = 0; i < 3; ++i) // start and max_depth in bounds still reach 2000 m
+        if (!(fabs(to[i]) <= HS_SCRIPT_MAX_LENGTH_M))
+            return perr(p, err, "touch: the search ends beyond +-%g m (max_depth %g m)",
+                        HS_SCRIPT_MAX_LENGTH_M, v[3]);
+    if (s->has_surface) {
+        // The expected contact: where the search line crosses the surface plane.
+        const double* m = s->surface_normal;
+        const double* q = s->surface_point_m;
+        double mn = m[0] * n[0] + m[1] * n[1] + m[2] * n[2];
+        double h = m[0] * (from[0] - q[0]) + m[1] * (from[1] - q[1]) + m[2] * (from[2] - q[2]);
+        double at = mn > 1e-6 ? h / mn : -1;
+        if (!(at >= 0 && at <= v[3]))
+            return perr(p, err,
+                        "touch: the search does not cross the `surface` plane "
+                        "within max_depth (start above it, search toward it)");
+        for (int i = 0; i < 3; ++i) ref[i] = from[i] - n[i] * at;
+    }
+    int keep_profile = p->profile;
+    double keep_accel = p->accel;
+    p->profile = HS_PROFILE_TRAPEZOID;
+    p->accel = TOUCH_ACCEL;
+    int before = s->n_segments;
+    st = emit(p, err, HS_SEG_MOVE, HS_CMD_TOUCH, to, v[4], 0, 0);
+    p->profile = keep_profile;
+    p->accel = keep_accel;
+    if (st) return st;
+    if (s->n_segments > before) {
+        s->seg[s->n_segments - 1].touch_force_n = force;
+        memcpy(s->seg[s->n_segments - 1].touch_ref_m, ref, sizeof ref);
+    }
+    // What follows is written as if the surface were where the script expects it; the runner
+    // shifts it to where the surface is found.
+    memcpy(p->cur, ref, sizeof ref);
+    return HS_OK;
+}
+
+// One command other than loop and end (which move the read position).
+static hs_status run_command(parser* p, hs_err* err, char** tok, int ntok) {
+    hs_script* s = p->s;
+    const char* cmd = tok[0];
+    double v[8];
+    hs_status st;
+    if (!strcmp(cmd, "units")) {
+        if (ntok != 2 || (strcmp(tok[1], "m") && strcmp(tok[1], "mm")))
+            return perr(p, err, "units: expected 'units m' or 'units mm'");
+        p->scale = strcmp(tok[1], "mm") ? 1.0 : 1e-3;
+        return HS_OK;
+    }
+    if (!strcmp(cmd, "start") || !strcmp(cmd, "origin")) return cmd_start_origin(p, err, tok, ntok);
+    if (!strcmp(cmd, "surface")) {
+        if ((st = read_args(p, err, tok, ntok, "LLLNNN", "px py pz nx ny nz", v))) return st;
+        if ((st = unit_normal(p, err, cmd, v + 3, s->surface_normal))) return st;
+        memcpy(s->surface_point_m, v, sizeof s->surface_point_m);
+        s->has_surface = 1;
+        return HS_OK;
+    }
+    if (!strcmp(cmd, "profile")) return cmd_profile(p, err, tok, ntok);
+    if (!strcmp(cmd, "cut") && ntok == 8) return cmd_cut_axis(p, err, tok, ntok);
+    if (!strcmp(cmd, "move_to") || !strcmp(cmd, "cut")) return cmd_move(p, err, tok, ntok);
+    if (!strcmp(cmd, "press")) return cmd_press(p, err, tok, ntok);
+    if (!strcmp(cmd, "drag")) return cmd_drag(p, err, tok, ntok);
+    if (!strcmp(cmd, "release")) return cmd_release(p, err, tok, ntok);
+    if (!strcmp(cmd, "touch")) return cmd_touch(p, err, tok, ntok);
+    if (!strcmp(cmd, "hold")) {
+        if ((st = read_args(p, err, tok, ntok, "T", "seconds", v))) return st;
+        if (v[0] < 0) return perr(p, err, "hold: seconds must be >= 0");
+        return emit(p, err, HS_SEG_HOLD, HS_CMD_HOLD, p->cur, 0, v[0], 0);
+    }
+    return perr(p, err,
+                "unknown command '%.60s' (expected units, start, origin, surface, "
+                "profile, move_to, touch, press, drag, release, hold, loop, end, cut)",
+                cmd);
+}
+
+static hs_status parse_text(parser* p, const char* text, hs_err* err) {
     loop_frame stack[HS_SCRIPT_MAX_LOOP_DEPTH];
     int depth = 0;
     // Lines read again by loops: bounds loops of empty bodies. Lines read once are not counted
@@ -274,206 +537,14 @@ static hs_status parse_text(parser* p, const char* text, hs_err* err) {
         c = next;
         char* hash = strchr(buf, '#');
         if (hash) *hash = '\0';
-        // An empty comma field ("0,,0", a comma first or last) was merged away, shifting every
-        // later number into the wrong place: an error.
-        for (const char* q = strchr(buf, ','); q; q = strchr(q + 1, ',')) {
-            const char* b = q;
-            while (b > buf && (b[-1] == ' ' || b[-1] == '\t' || b[-1] == '\r')) b--;
-            const char* a = q + 1;
-            while (*a == ' ' || *a == '\t' || *a == '\r') a++;
-            if (b == buf || *a == '\0' || *a == ',')
-                return perr(p, err, "empty field between commas");
-        }
-        char* tok[MAX_TOKENS + 1];
-        int ntok = 0;
-        for (char* q = strtok(buf, " \t\r,"); q; q = strtok(NULL, " \t\r,")) {
-            if (ntok == MAX_TOKENS) return perr(p, err, "too many words on the line");
-            tok[ntok++] = q;
-        }
-        if (ntok == 0) continue;
-        for (char* q = tok[0]; *q; ++q) *q = (char)tolower((unsigned char)*q);
-        const char* cmd = tok[0];
-        double v[8];
-        hs_status st = HS_OK;
-        if (!strcmp(cmd, "units")) {
-            if (ntok != 2 || (strcmp(tok[1], "m") && strcmp(tok[1], "mm")))
-                return perr(p, err, "units: expected 'units m' or 'units mm'");
-            p->scale = strcmp(tok[1], "mm") ? 1.0 : 1e-3;
-        } else if (!strcmp(cmd, "start") || !strcmp(cmd, "origin")) {
-            if ((st = read_args(p, err, tok, ntok, "LLL", "x y z", v))) return st;
-            int is_start = !strcmp(cmd, "start");
-            if (!is_start) {
-                s->has_origin = 1;
-                memcpy(s->origin_m, v, sizeof s->origin_m);
-            }
-            // The start (default: the origin) is where the timeline begins: fixed once moving.
-            if (!p->moved && (is_start || !s->has_start)) {
-                memcpy(s->start_m, v, sizeof s->start_m);
-                memcpy(p->cur, v, sizeof p->cur);
-                s->start_line = p->line;
-                s->has_start |= is_start;
-            } else if (is_start) {
-                return perr(p, err, "start: must come before the first motion command");
-            }
-        } else if (!strcmp(cmd, "surface")) {
-            if ((st = read_args(p, err, tok, ntok, "LLLNNN", "px py pz nx ny nz", v))) return st;
-            if ((st = unit_normal(p, err, cmd, v + 3, s->surface_normal))) return st;
-            memcpy(s->surface_point_m, v, sizeof s->surface_point_m);
-            s->has_surface = 1;
-        } else if (!strcmp(cmd, "profile")) {
-            if (ntok == 2 && !strcmp(tok[1], "minjerk")) {
-                p->profile = HS_PROFILE_MINJERK;
-            } else if (ntok == 3 && !strcmp(tok[1], "trapezoid")) {
-                if (!parse_num(tok[2], &v[0]))
-                    return perr(p, err, "profile trapezoid: '%.60s' is not a finite number",
-                                tok[2]);
-                if ((st = need_positive(p, err, "profile trapezoid", "accel", v[0]))) return st;
-                p->profile = HS_PROFILE_TRAPEZOID;
-                p->accel = v[0] * p->scale;
-            } else {
-                return perr(p, err,
-                            "profile: expected 'profile minjerk' or "
-                            "'profile trapezoid ACCEL'");
-            }
-        } else if (!strcmp(cmd, "cut") && ntok == 8) {
-            // cut x y z speed ax ay az: the tool turns so that its z axis (the blade of a
-            // scalpel whose blade lies along tool z) points along a, then moves.
-            if ((st = read_args(p, err, tok, ntok, "LLLVNNN", "x y z speed [ax ay az]", v)))
-                return st;
-            if ((st = need_positive(p, err, cmd, "speed", v[3]))) return st;
-            if (p->pressed)
-                return perr(p, err, "%s: a press is active (use drag, or release first)", cmd);
-            double a[3] = {0, 0, 1}; // set by unit_normal (init: -O3 cannot see that)
-            if ((st = unit_normal(p, err, cmd, v + 4, a))) return st;
-            axis_quat(a, p->quat);
-            st = emit(p, err, HS_SEG_MOVE, HS_CMD_CUT, v, v[3], 0, BUTTON_PRIMARY);
-            if (st) return st;
-        } else if (!strcmp(cmd, "move_to") || !strcmp(cmd, "cut")) {
-            if ((st = read_args(p, err, tok, ntok, "LLLV",
-                                !strcmp(cmd, "cut") ? "x y z speed [ax ay az]" : "x y z speed", v)))
-                return st;
-            if ((st = need_positive(p, err, cmd, "speed", v[3]))) return st;
-            if (p->pressed)
-                return perr(p, err, "%s: a press is active (use drag, or release first)", cmd);
-            int is_cut = !strcmp(cmd, "cut");
-            st = emit(p, err, HS_SEG_MOVE, is_cut ? HS_CMD_CUT : HS_CMD_MOVE_TO, v, v[3], 0,
-                      is_cut ? BUTTON_PRIMARY : 0);
-            if (st) return st;
-        } else if (!strcmp(cmd, "press")) {
-            if ((st = read_args(p, err, tok, ntok, "NNNLV", "nx ny nz depth speed", v))) return st;
-            double n[3];
-            if ((st = unit_normal(p, err, cmd, v, n))) return st;
-            if ((st = need_positive(p, err, cmd, "depth", v[3]))) return st;
-            if ((st = need_positive(p, err, cmd, "speed", v[4]))) return st;
-            if (p->pressed &&
-                n[0] * p->normal[0] + n[1] * p->normal[1] + n[2] * p->normal[2] < 1 - 1e-9)
-                return perr(p, err,
-                            "press: a press along another normal is active "
-                            "(release first)");
-            double to[3];
-            for (int i = 0; i < 3; ++i) to[i] = p->cur[i] - n[i] * v[3];
-            memcpy(p->normal, n, sizeof n);
-            p->depth += v[3];
-            p->pressed = 1;
-            if ((st = bounded_target(p, err, cmd, to))) return st;
-            if ((st = emit(p, err, HS_SEG_MOVE, HS_CMD_PRESS, to, v[4], 0, 0))) return st;
-        } else if (!strcmp(cmd, "drag")) {
-            if ((st = read_args(p, err, tok, ntok, "LLLV", "x y z speed", v))) return st;
-            if ((st = need_positive(p, err, cmd, "speed", v[3]))) return st;
-            if (!p->pressed) return perr(p, err, "drag: no press is active (press first)");
-            double to[3];
-            for (int i = 0; i < 3; ++i) to[i] = v[i] - p->normal[i] * p->depth;
-            if ((st = bounded_target(p, err, cmd, to))) return st;
-            if ((st = emit(p, err, HS_SEG_MOVE, HS_CMD_DRAG, to, v[3], 0, 0))) return st;
-        } else if (!strcmp(cmd, "release")) {
-            // release speed [lift]: back out by the pressed depth, plus lift clear of the
-            // surface (so Coulomb friction cannot hold the handle in light contact).
-            double lift = 0;
-            if (ntok == 3) {
-                if (!parse_num(tok[2], &lift) || lift < 0)
-                    return perr(p, err, "release: lift '%.60s' must be a number >= 0", tok[2]);
-                lift *= p->scale;
-                if (lift > HS_SCRIPT_MAX_LENGTH_M)
-                    return perr(p, err, "release: lift '%.60s' is beyond %g m", tok[2],
-                                HS_SCRIPT_MAX_LENGTH_M);
-                ntok = 2;
-            }
-            if ((st = read_args(p, err, tok, ntok, "V", "speed [lift]", v))) return st;
-            if ((st = need_positive(p, err, cmd, "speed", v[0]))) return st;
-            if (!p->pressed) return perr(p, err, "release: no press is active");
-            double to[3];
-            for (int i = 0; i < 3; ++i) to[i] = p->cur[i] + p->normal[i] * (p->depth + lift);
-            if ((st = bounded_target(p, err, cmd, to))) return st;
-            p->pressed = 0;
-            p->depth = 0;
-            if ((st = emit(p, err, HS_SEG_MOVE, HS_CMD_RELEASE, to, v[0], 0, 0))) return st;
-        } else if (!strcmp(cmd, "touch")) {
-            // touch nx ny nz max_depth speed [force]: search along -n for the surface.
-            int n_args = ntok - 1;
-            if (n_args != 5 && n_args != 6)
-                return perr(p, err,
-                            "touch: expected 5 or 6 numbers (nx ny nz max_depth speed "
-                            "[force_n]), got %d",
-                            n_args);
-            char* t6[7];
-            for (int i = 0; i < 6; ++i) t6[i] = tok[i];
-            if ((st = read_args(p, err, t6, 6, "NNNLV", "nx ny nz max_depth speed", v))) return st;
-            double force = TOUCH_FORCE_N;
-            if (n_args == 6 && !parse_num(tok[6], &force))
-                return perr(p, err, "touch: '%.60s' is not a finite number (force_n)", tok[6]);
-            double n[3];
-            if ((st = unit_normal(p, err, cmd, v, n))) return st;
-            if ((st = need_positive(p, err, cmd, "max_depth", v[3]))) return st;
-            if ((st = need_positive(p, err, cmd, "speed", v[4]))) return st;
-            if ((st = need_positive(p, err, cmd, "force_n", force))) return st;
-            if (p->pressed) return perr(p, err, "touch: a press is active (release first)");
-            double from[3], to[3], ref[3];
-            for (int i = 0; i < 3; ++i) {
-                from[i] = p->cur[i];
-                to[i] = p->cur[i] - n[i] * v[3];
-                ref[i] = from[i];
-            }
-            for (int i = 0; i < 3; ++i) // start and max_depth in bounds still reach 2000 m
-                if (!(fabs(to[i]) <= HS_SCRIPT_MAX_LENGTH_M))
-                    return perr(p, err, "touch: the search ends beyond +-%g m (max_depth %g m)",
-                                HS_SCRIPT_MAX_LENGTH_M, v[3]);
-            if (s->has_surface) {
-                // The expected contact: where the search line crosses the surface plane.
-                const double* m = s->surface_normal;
-                const double* q = s->surface_point_m;
-                double mn = m[0] * n[0] + m[1] * n[1] + m[2] * n[2];
-                double h =
-                    m[0] * (from[0] - q[0]) + m[1] * (from[1] - q[1]) + m[2] * (from[2] - q[2]);
-                double at = mn > 1e-6 ? h / mn : -1;
-                if (!(at >= 0 && at <= v[3]))
-                    return perr(p, err,
-                                "touch: the search does not cross the `surface` plane "
-                                "within max_depth (start above it, search toward it)");
-                for (int i = 0; i < 3; ++i) ref[i] = from[i] - n[i] * at;
-            }
-            int keep_profile = p->profile;
-            double keep_accel = p->accel;
-            p->profile = HS_PROFILE_TRAPEZOID;
-            p->accel = TOUCH_ACCEL;
-            int before = s->n_segments;
-            st = emit(p, err, HS_SEG_MOVE, HS_CMD_TOUCH, to, v[4], 0, 0);
-            p->profile = keep_profile;
-            p->accel = keep_accel;
-            if (st) return st;
-            if (s->n_segments > before) {
-                s->seg[s->n_segments - 1].touch_force_n = force;
-                memcpy(s->seg[s->n_segments - 1].touch_ref_m, ref, sizeof ref);
-            }
-            // What follows is written as if the surface were where the script expects it; the
-            // runner shifts it to where the surface is found.
-            memcpy(p->cur, ref, sizeof ref);
-        } else if (!strcmp(cmd, "hold")) {
-            if ((st = read_args(p, err, tok, ntok, "T", "seconds", v))) return st;
-            if (v[0] < 0) return perr(p, err, "hold: seconds must be >= 0");
-            if ((st = emit(p, err, HS_SEG_HOLD, HS_CMD_HOLD, p->cur, 0, v[0], 0))) return st;
-        } else if (!strcmp(cmd, "loop")) {
+        line_words w;
+        hs_status st = split_words(p, err, buf, &w);
+        if (st) return st;
+        if (w.ntok == 0) continue;
+        const char* cmd = w.tok[0];
+        if (!strcmp(cmd, "loop")) {
             double n;
-            if (ntok != 2 || !parse_num(tok[1], &n) || n != floor(n) || n < 1 || n > 1e6)
+            if (w.ntok != 2 || !parse_num(w.tok[1], &n) || n != floor(n) || n < 1 || n > 1e6)
                 return perr(p, err, "loop: expected a whole count 1..1000000");
             if (depth == HS_SCRIPT_MAX_LOOP_DEPTH)
                 return perr(p, err, "loop: nested deeper than %s", "8");
@@ -482,7 +553,7 @@ static hs_status parse_text(parser* p, const char* text, hs_err* err) {
             stack[depth].remaining = (long)n - 1;
             depth++;
         } else if (!strcmp(cmd, "end")) {
-            if (ntok != 1) return perr(p, err, "end: takes no arguments");
+            if (w.ntok != 1) return perr(p, err, "end: takes no arguments");
             if (depth == 0) return perr(p, err, "end: no open loop");
             loop_frame* f = &stack[depth - 1];
             if (f->remaining > 0) {
@@ -492,11 +563,8 @@ static hs_status parse_text(parser* p, const char* text, hs_err* err) {
             } else {
                 depth--;
             }
-        } else {
-            return perr(p, err,
-                        "unknown command '%.60s' (expected units, start, origin, surface, "
-                        "profile, move_to, touch, press, drag, release, hold, loop, end, cut)",
-                        cmd);
+        } else if ((st = run_command(p, err, w.tok, w.ntok))) {
+            return st;
         }
     }
     if (depth > 0) {

@@ -932,17 +932,17 @@ static int find_web_root(char* out, size_t n, const char* given) {
     return 0;
 }
 
-int main(int argc, char** argv) {
-    if (hapsim_version_asked(argc, argv, "hapsim-web")) return 0;
-    int port = 8080;
-    const char* bind_addr = "127.0.0.1";
-    const char* web_root_opt = NULL;
-    double duration = 0;
-    int quiet = 0;
-    hs_client_config cfg;
-    hs_client_config_default(&cfg);
-    cfg.sender = "hapsim-web";
-    cfg.all_sessions = 1; // shows every driver's force
+// The command line outside the client's configuration.
+typedef struct web_opts {
+    int port;
+    const char* bind_addr;
+    const char* web_root_opt;
+    double duration;
+    int quiet;
+} web_opts;
+
+// Reads the command line into w and cfg; -1 to go on, else the exit status.
+static int parse_args(int argc, char** argv, web_opts* w, hs_client_config* cfg) {
     for (int i = 1; i < argc; ++i) {
         const char* o = argv[i];
         const char* v = i + 1 < argc ? argv[i + 1] : NULL;
@@ -951,7 +951,7 @@ int main(int argc, char** argv) {
             usage(stdout);
             return 0;
         } else if (!strcmp(o, "--quiet")) {
-            quiet = 1;
+            w->quiet = 1;
             continue;
         }
         if (!v) {
@@ -966,20 +966,20 @@ int main(int argc, char** argv) {
                 fprintf(stderr, "hapsim-web: --port '%s': want 1..65535\n", v);
                 return 2;
             }
-            port = (int)p;
+            w->port = (int)p;
         } else if (!strcmp(o, "--bind"))
-            bind_addr = v;
+            w->bind_addr = v;
         else if (!strcmp(o, "--web-root"))
-            web_root_opt = v;
+            w->web_root_opt = v;
         else if (!strcmp(o, "--mesh-url"))
-            cfg.mesh_url = v;
+            cfg->mesh_url = v;
         else if (!strcmp(o, "--haptic-url"))
-            cfg.haptic_url = v;
+            cfg->haptic_url = v;
         else if (!strcmp(o, "--prefix"))
-            cfg.prefix = v;
+            cfg->prefix = v;
         else if (!strcmp(o, "--duration")) {
-            duration = strtod(v, &end);
-            if (!*v || *end || !(duration >= 0) || duration > 1e7) {
+            w->duration = strtod(v, &end);
+            if (!*v || *end || !(w->duration >= 0) || w->duration > 1e7) {
                 fprintf(stderr, "hapsim-web: --duration '%s': want seconds 0..1e7\n", v);
                 return 2;
             }
@@ -989,32 +989,18 @@ int main(int argc, char** argv) {
             return 2;
         }
     }
-    web_app* a = &g_app;
-    char web_root[PATH_MAX];
-    if (find_web_root(web_root, sizeof web_root, web_root_opt) != 0) {
-        fprintf(stderr,
-                "hapsim-web: no index.html in '%s' (build tree: build/share/hapsim/web; "
-                "give --web-root DIR)\n",
-                web_root_opt ? web_root_opt : "<exe>/../share/hapsim/web");
-        return 2;
-    }
-    char why[256];
-    int bound = check_bind(bind_addr, port, why, sizeof why);
-    if (bound != 0) {
-        fprintf(stderr, "hapsim-web: cannot listen on %s port %d: %s\n", bind_addr, port, why);
-        return bound == -2 ? 2 : 1;
-    }
-    snprintf(a->prefix, sizeof a->prefix, "%s", cfg.prefix ? cfg.prefix : HAPSIM_DEFAULT_PREFIX);
-    pthread_mutex_init(&a->hub.mu, NULL);
-    a->hub.pre = LWS_PRE;
-    a->last_topo = -1;
+    return -1;
+}
+
+// The client and the tool-state subscriber, the wake pipe; 0, else the exit status.
+static int open_buses(web_app* a, const hs_client_config* cfg) {
     hs_err err = {0};
-    if (hs_client_create(&cfg, &a->client, &err) != HS_OK) {
+    if (hs_client_create(cfg, &a->client, &err) != HS_OK) {
         fprintf(stderr, "hapsim-web: cannot open the LCM buses: %s\n", err.msg);
         return 1;
     }
     // TOOL_STATE is not taken by the client library: a second mesh-bus subscriber of our own.
-    const char* murl = cfg.mesh_url ? cfg.mesh_url : HAPSIM_DEFAULT_MESH_URL;
+    const char* murl = cfg->mesh_url ? cfg->mesh_url : HAPSIM_DEFAULT_MESH_URL;
     a->ts_lcm = lcm_create(murl);
     if (!a->ts_lcm) {
         fprintf(stderr, "hapsim-web: LCM cannot open '%s'\n", murl);
@@ -1028,7 +1014,11 @@ int main(int argc, char** argv) {
         perror("hapsim-web: pipe");
         return 1;
     }
+    return 0;
+}
 
+// The HTTP and WebSocket server on bind_addr:port serving web_root; 0, else the exit status.
+static int create_context(web_app* a, const char* web_root, const web_opts* w) {
     lws_set_log_level(LLL_ERR, NULL);
     static struct lws_http_mount mount;
     memset(&mount, 0, sizeof mount);
@@ -1040,8 +1030,8 @@ int main(int argc, char** argv) {
     mount.cache_max_age = 0;
     struct lws_context_creation_info info;
     memset(&info, 0, sizeof info);
-    info.port = port;
-    info.iface = bind_addr;
+    info.port = w->port;
+    info.iface = w->bind_addr;
     info.protocols = g_protocols;
     info.mounts = &mount;
     info.gid = -1;
@@ -1051,25 +1041,71 @@ int main(int argc, char** argv) {
         fprintf(stderr,
                 "hapsim-web: cannot listen on %s:%d (in use, or not an address of "
                 "this host?)\n",
-                bind_addr, port);
+                w->bind_addr, w->port);
         lcm_destroy(a->ts_lcm);
         hs_client_destroy(&a->client);
         return 1;
     }
+    return 0;
+}
+
+// The closing line: what was served and the CPU it took.
+static void print_summary(const web_app* a, int64_t t_start) {
+    struct rusage ru;
+    getrusage(RUSAGE_SELF, &ru);
+    double cpu = (double)ru.ru_utime.tv_sec + ru.ru_utime.tv_usec * 1e-6 +
+                 (double)ru.ru_stime.tv_sec + ru.ru_stime.tv_usec * 1e-6;
+    printf("hapsim-web: stopped after %.1f s: %lld browser connection(s), %lld frames and "
+           "%.1f MB sent, %lld tool states; CPU %.2f s (%.1f %% of one core)\n",
+           (double)(hs_client_now_us() - t_start) * 1e-6, (long long)a->ws_sessions,
+           (long long)a->ws_frames, (double)a->ws_bytes * 1e-6, (long long)a->tool_states, cpu,
+           100.0 * cpu / fmax((double)(hs_client_now_us() - t_start) * 1e-6, 1e-3));
+}
+
+int main(int argc, char** argv) {
+    if (hapsim_version_asked(argc, argv, "hapsim-web")) return 0;
+    web_opts w = {.port = 8080, .bind_addr = "127.0.0.1"};
+    hs_client_config cfg;
+    hs_client_config_default(&cfg);
+    cfg.sender = "hapsim-web";
+    cfg.all_sessions = 1; // shows every driver's force
+    int rc = parse_args(argc, argv, &w, &cfg);
+    if (rc >= 0) return rc;
+    web_app* a = &g_app;
+    char web_root[PATH_MAX];
+    if (find_web_root(web_root, sizeof web_root, w.web_root_opt) != 0) {
+        fprintf(stderr,
+                "hapsim-web: no index.html in '%s' (build tree: build/share/hapsim/web; "
+                "give --web-root DIR)\n",
+                w.web_root_opt ? w.web_root_opt : "<exe>/../share/hapsim/web");
+        return 2;
+    }
+    char why[256];
+    int bound = check_bind(w.bind_addr, w.port, why, sizeof why);
+    if (bound != 0) {
+        fprintf(stderr, "hapsim-web: cannot listen on %s port %d: %s\n", w.bind_addr, w.port, why);
+        return bound == -2 ? 2 : 1;
+    }
+    snprintf(a->prefix, sizeof a->prefix, "%s", cfg.prefix ? cfg.prefix : HAPSIM_DEFAULT_PREFIX);
+    pthread_mutex_init(&a->hub.mu, NULL);
+    a->hub.pre = LWS_PRE;
+    a->last_topo = -1;
+    if ((rc = open_buses(a, &cfg)) != 0) return rc;
+    if ((rc = create_context(a, web_root, &w)) != 0) return rc;
     signal(SIGINT, on_signal);
     signal(SIGTERM, on_signal);
     signal(SIGPIPE, SIG_IGN);
     int64_t t_start = hs_client_now_us();
-    a->t_end = duration > 0 ? hs_client_now_us() + (int64_t)(duration * 1e6) : 0;
+    a->t_end = w.duration > 0 ? hs_client_now_us() + (int64_t)(w.duration * 1e6) : 0;
     pthread_t lt, pt;
     if (pthread_create(&lt, NULL, lcm_thread, a) != 0 ||
         pthread_create(&pt, NULL, pose_thread, a) != 0) {
         fprintf(stderr, "hapsim-web: cannot start threads\n");
         return 1;
     }
-    if (!quiet) {
+    if (!w.quiet) {
         printf("hapsim-web: open http://%s:%d/  (web root %s)\n",
-               strcmp(bind_addr, "0.0.0.0") ? bind_addr : "<this host>", port, web_root);
+               strcmp(w.bind_addr, "0.0.0.0") ? w.bind_addr : "<this host>", w.port, web_root);
         fflush(stdout);
     }
     while (!a->stop)
@@ -1085,16 +1121,6 @@ int main(int argc, char** argv) {
     for (int i = 0; i < HS_WEB_EVENTS; ++i) hs_web_blob_unref(&a->hub, a->hub.events[i]);
     close(a->wake[0]);
     close(a->wake[1]);
-    if (!quiet) {
-        struct rusage ru;
-        getrusage(RUSAGE_SELF, &ru);
-        double cpu = (double)ru.ru_utime.tv_sec + ru.ru_utime.tv_usec * 1e-6 +
-                     (double)ru.ru_stime.tv_sec + ru.ru_stime.tv_usec * 1e-6;
-        printf("hapsim-web: stopped after %.1f s: %lld browser connection(s), %lld frames and "
-               "%.1f MB sent, %lld tool states; CPU %.2f s (%.1f %% of one core)\n",
-               (double)(hs_client_now_us() - t_start) * 1e-6, (long long)a->ws_sessions,
-               (long long)a->ws_frames, (double)a->ws_bytes * 1e-6, (long long)a->tool_states, cpu,
-               100.0 * cpu / fmax((double)(hs_client_now_us() - t_start) * 1e-6, 1e-3));
-    }
+    if (!w.quiet) print_summary(a, t_start);
     return 0;
 }

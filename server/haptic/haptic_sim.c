@@ -1693,11 +1693,8 @@ static hs_status create_tools(hs_haptic_sim* h, const hs_haptic_rt_def* hd, hs_e
     return HS_OK;
 }
 
-hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def,
-                               const unsigned char* fixed, hs_haptic_sim** out, hs_err* err) {
-    if (out) *out = NULL;
-    if (!mesh || !def || !out)
-        return hs_err_set(err, HS_ERR_INVALID, "hs_haptic_sim_create: NULL argument");
+// The definition's checks, before anything is made.
+static hs_status check_def(const hs_haptic_sim_def* def, hs_err* err) {
     if (def->cookie != SIM_COOKIE || def->probe.cookie != PROBE_COOKIE)
         return hs_err_set(err, HS_ERR_INVALID,
                           "hs_haptic_sim_create: definition not initialised with "
@@ -1742,16 +1739,13 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
         return hs_err_set(err, HS_ERR_INVALID,
                           "hs_haptic_sim_create: safety definition invalid (use "
                           "hs_safety_default_def())");
+    return HS_OK;
+}
 
-    hs_haptic_sim* h = hs_calloc(1, sizeof *h);
-    if (!h) return hs_err_set(err, HS_ERR_NOMEM, "hs_haptic_sim_create: out of memory");
-    h->def = *def;
-    h->mesh = mesh;
-    h->corotated = def->body.fem.model != HS_MODEL_LINEAR;
-    atomic_init(&h->stop, 0);
-    // The warped factor follows the co-rotated model's rotations: only there is there a choice
-    // (the linear model's warped solver is the direct one).
-    if (def->body.fem.model != HS_MODEL_COROTATED) h->def.auto_solver = 0;
+// The deformable body; with auto_solver, the solver it starts with.
+static hs_status create_body(hs_haptic_sim* h, const hs_haptic_sim_def* def,
+                             const unsigned char* fixed, hs_err* err) {
+    const hs_mesh* mesh = h->mesh;
     hs_body_def bd = def->body;
     if (h->def.auto_solver) {
         // Start with the cheapest allowed solver; the PCG workspace is made now, so a switch
@@ -1762,11 +1756,10 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
         h->def.body = bd;
     }
     hs_status s = hs_body_create(mesh, &bd, fixed, &h->body, err);
-    if (s != HS_OK) goto fail;
+    if (s != HS_OK) return s;
     if (h->def.auto_solver && (hs_body_set_solver(h->body, HS_SOLVER_PCG, err) != HS_OK ||
                                hs_body_set_solver(h->body, bd.solver, err) != HS_OK)) {
-        s = HS_ERR_NOMEM;
-        goto fail;
+        return HS_ERR_NOMEM;
     }
     if (h->def.auto_solver) {
         // The first step's factorisation, made now and timed: a direct step refactors about
@@ -1789,26 +1782,12 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
         }
     }
     h->st.solver = (int)bd.solver;
-    h->period_ns = (int64_t)(def->body.dt * 1e9);
-    h->st.sim_hz_target = 1.0 / def->body.dt;
-    h->step_hist = hs_calloc(2 * (STEP_BINS + 1), sizeof *h->step_hist);
-    if (!h->step_hist) goto nomem;
-    h->fixed0 = hs_calloc((size_t)mesh->n_nodes + 1, 1);
-    if (!h->fixed0) goto nomem;
-    if (fixed) memcpy(h->fixed0, fixed, (size_t)mesh->n_nodes);
-    if (def->background_setup) {
-        atomic_store(&h->comp_state, 1);
-        if (pthread_create(&h->su_thread, NULL, setup_worker, h) != 0) {
-            s = hs_err_set(err, HS_ERR_NOMEM, "hs_haptic_sim_create: cannot start the set-up");
-            goto fail;
-        }
-        h->su_running = 1;
-    } else {
-        s = hs_compliance_create(mesh, &def->body.fem, fixed, pd->cache_nodes, &h->comp, err);
-        if (s != HS_OK) goto fail;
-        h->setup_ms = hs_compliance_setup_ms(h->comp);
-    }
+    return HS_OK;
+}
 
+// The per-node and per-triangle arrays of the contact search; -1 when out of memory.
+static int alloc_arrays(hs_haptic_sim* h, const hs_haptic_sim_def* def) {
+    const hs_mesh* mesh = h->mesh;
     const size_t n = (size_t)mesh->n_nodes;
     h->x = hs_calloc(3 * n, sizeof(double));
     h->g = hs_calloc(3 * n, sizeof(double));
@@ -1827,14 +1806,21 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
     h->cand_of = hs_alloc((n + 1) * sizeof(int));
     if (!h->x || !h->g || !h->v || !h->rot || !h->q || !h->dq || !h->pre || !h->pre_at ||
         !h->near_node || !h->near_tri || !h->cand_of || !h->tri_start || !h->tri_list)
-        goto nomem;
+        return -1;
     for (size_t i = 0; i < n; ++i) h->cand_of[i] = -1;
-    if (build_tri_adjacency(h) != HS_OK) goto nomem;
+    if (build_tri_adjacency(h) != HS_OK) return -1;
     memcpy(h->q, mesh->x0, 3 * n * sizeof(double));
     h->st.relax_w = def->probe.free_relax;
     h->relax_e = -1;
     h->probe_r = def->probe.radius_m;
+    return 0;
+}
 
+// The buffers between the threads, the device, the haptic loops and the 1 kHz loop.
+static hs_status create_loops(hs_haptic_sim* h, const hs_haptic_sim_def* def, hs_err* err) {
+    const hs_probe_def* pd = &def->probe;
+    const size_t n = (size_t)h->mesh->n_nodes;
+    hs_status s;
     h->frame_size = sizeof(int64_t) + 3 * n * sizeof(double);
     s = hs_triple_buffer_create(sizeof(sim_snapshot), &h->snap, err);
     h->n_tools = def->tools;
@@ -1843,7 +1829,7 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
     if (s == HS_OK) s = hs_triple_buffer_create(h->frame_size, &h->frame, err);
     if (s == HS_OK) s = hs_triple_buffer_create(sizeof(deform_status), &h->status, err);
     if (s == HS_OK) s = hs_memdev_create(&h->dev, err);
-    if (s != HS_OK) goto fail;
+    if (s != HS_OK) return s;
 
     h->src.snap = h->snap;
     h->src.contact = h->contact;
@@ -1860,7 +1846,7 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
     hd.blend_ticks = def->blend_ticks;
     s = hs_haptic_rt_create(&hd, &h->hrt, err);
     if (s == HS_OK) s = create_tools(h, &hd, err);
-    if (s != HS_OK) goto fail;
+    if (s != HS_OK) return s;
     hs_rt_def rd = hs_rt_default_def();
     rd.rate_hz = def->rate_hz;
     rd.fifo_priority = def->fifo_priority;
@@ -1871,7 +1857,52 @@ hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def
     rd.tick.on_start = rt_start;
     rd.tick.on_stop = rt_stop;
     for (int t = 1; t < h->n_tools; ++t) h->xinner[t] = hs_haptic_rt_tick(h->xhrt[t]);
-    s = hs_rt_loop_create(&rd, &h->loop, err);
+    return hs_rt_loop_create(&rd, &h->loop, err);
+}
+
+hs_status hs_haptic_sim_create(const hs_mesh* mesh, const hs_haptic_sim_def* def,
+                               const unsigned char* fixed, hs_haptic_sim** out, hs_err* err) {
+    if (out) *out = NULL;
+    if (!mesh || !def || !out)
+        return hs_err_set(err, HS_ERR_INVALID, "hs_haptic_sim_create: NULL argument");
+    hs_status s = check_def(def, err);
+    if (s != HS_OK) return s;
+
+    hs_haptic_sim* h = hs_calloc(1, sizeof *h);
+    if (!h) return hs_err_set(err, HS_ERR_NOMEM, "hs_haptic_sim_create: out of memory");
+    h->def = *def;
+    h->mesh = mesh;
+    h->corotated = def->body.fem.model != HS_MODEL_LINEAR;
+    atomic_init(&h->stop, 0);
+    // The warped factor follows the co-rotated model's rotations: only there is there a choice
+    // (the linear model's warped solver is the direct one).
+    if (def->body.fem.model != HS_MODEL_COROTATED) h->def.auto_solver = 0;
+    s = create_body(h, def, fixed, err);
+    if (s != HS_OK) goto fail;
+    h->period_ns = (int64_t)(def->body.dt * 1e9);
+    h->st.sim_hz_target = 1.0 / def->body.dt;
+    h->step_hist = hs_calloc(2 * (STEP_BINS + 1), sizeof *h->step_hist);
+    if (!h->step_hist) goto nomem;
+    h->fixed0 = hs_calloc((size_t)mesh->n_nodes + 1, 1);
+    if (!h->fixed0) goto nomem;
+    if (fixed) memcpy(h->fixed0, fixed, (size_t)mesh->n_nodes);
+    if (def->background_setup) {
+        atomic_store(&h->comp_state, 1);
+        if (pthread_create(&h->su_thread, NULL, setup_worker, h) != 0) {
+            s = hs_err_set(err, HS_ERR_NOMEM, "hs_haptic_sim_create: cannot start the set-up");
+            goto fail;
+        }
+        h->su_running = 1;
+    } else {
+        s = hs_compliance_create(mesh, &def->body.fem, fixed, def->probe.cache_nodes, &h->comp,
+                                 err);
+        if (s != HS_OK) goto fail;
+        h->setup_ms = hs_compliance_setup_ms(h->comp);
+    }
+
+    if (alloc_arrays(h, def)) goto nomem;
+
+    s = create_loops(h, def, err);
     if (s != HS_OK) goto fail;
     hs_triple_buffer_write(h->status, &h->st); // the solver and rate, before the first pass
     *out = h;
