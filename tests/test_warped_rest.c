@@ -12,7 +12,7 @@
 #include <string.h>
 
 // Soft cube (tongue-like tissue, 5 kPa), base z = 0 clamped, a downward + sideways load on the
-// top face's centre nodes: a deep local press (top sinks ~30-40 % of the height).
+// top face's centre nodes (0.11 N down, 0.02 N sideways): the top sinks 2.6 mm (13 %).
 static hs_body* make(const hs_mesh* m, const unsigned char* fx, hs_solver_kind solver,
                      double step_polar_tol) {
     hs_body_def d = hs_body_default_def();
