@@ -7,6 +7,7 @@
 #include "sparse.h"
 #include "sparse_grid.h"
 #include "test_macros.h"
+#include "worker.h"
 
 #include <dlfcn.h>
 #include <pthread.h>
@@ -760,9 +761,16 @@ static int PartialRefactor(void) {
     ENSURE(least < 0.6);
     // The same on two threads: a clone of the factor state cannot be had, so compare each
     // step with a fresh factor and with the one-thread result of the same matrix.
-    ENSURE(hs_cholesky_set_partial_threads(t.f, 3) == HS_ERR_INVALID);
-    ENSURE(hs_cholesky_set_partial_threads(t.f, 2) == HS_OK);
-    ENSURE(hs_cholesky_set_partial_threads(t.f, 2) == HS_OK); // already running: kept
+    hs_parallel no_runner = {.width = 2};
+    ENSURE(hs_cholesky_set_partial_parallel(t.f, &no_runner) == HS_ERR_INVALID);
+    hs_worker* w = NULL;
+    ENSURE(hs_worker_create(hs_sparse_thread_init, NULL, &w) == HS_OK);
+    hs_parallel two = {.run = hs_worker_run,
+                       .user = w,
+                       .width = 2,
+                       .begin = hs_worker_begin,
+                       .end = hs_worker_end};
+    ENSURE(hs_cholesky_set_partial_parallel(t.f, &two) == HS_OK);
     double* x1 = malloc(sizeof(double) * (size_t)n);
     long long helped = 0;
     double t_two = 1e30, t_one = 1e30; // fastest whole pass, ms
@@ -779,9 +787,7 @@ static int PartialRefactor(void) {
         ENSURE(hs_cholesky_refactor_partial(t.f, t.a, -1, NULL) == HS_OK);
         t_two = fmin(t_two, (double)(hs_now_ns() - t0) * 1e-6);
         ENSURE(hs_cholesky_solve(t.f, t.b, x1) == HS_OK);
-        helped += hs_cholesky_partial_helper_chunks(t.f);
-        ENSURE(hs_cholesky_set_partial_threads(t.f, 1) == HS_OK);
-        ENSURE(hs_cholesky_partial_helper_chunks(t.f) == 0);
+        ENSURE(hs_cholesky_set_partial_parallel(t.f, NULL) == HS_OK);
         t0 = hs_now_ns();
         ENSURE(hs_cholesky_refactor_partial(t.f, t.a, -1, NULL) == HS_OK);
         t_one = fmin(t_one, (double)(hs_now_ns() - t0) * 1e-6);
@@ -792,7 +798,8 @@ static int PartialRefactor(void) {
             xn = fmax(xn, fabs(x2[i]));
         }
         ENSURE_SMALL(dn / xn, 1e-12);
-        ENSURE(hs_cholesky_set_partial_threads(t.f, 2) == HS_OK);
+        ENSURE(hs_cholesky_set_partial_parallel(t.f, &two) == HS_OK);
+        helped = hs_worker_tasks(w);
     }
     // The helper took chunks of the large supernodes (a busy machine may delay it for a
     // while, hence up to 60 rounds).
@@ -800,6 +807,9 @@ static int PartialRefactor(void) {
            "%.3f ms\n",
            helped, t_two, t_one);
     ENSURE(helped > 0);
+    ENSURE(hs_cholesky_set_partial_parallel(t.f, NULL) == HS_OK);
+    hs_worker_destroy(&w);
+    ENSURE(w == NULL);
     free(x1);
     // No change at all recomputes nothing and changes nothing.
     ENSURE(hs_cholesky_refactor_partial(t.f, t.a, 0, dofs) == HS_OK);
@@ -1176,7 +1186,8 @@ static int InverseDiagBlocks(void) {
         for (int width = 2; width <= 5; width += 3)
             for (int threaded = 0; threaded < 2; ++threaded) {
                 par_log log = {0};
-                hs_parallel par = {threaded ? par_threads : par_in_turn, &log, width};
+                hs_parallel par = {
+                    .run = threaded ? par_threads : par_in_turn, .user = &log, .width = width};
                 ENSURE(hs_cholesky_inverse_diag3_par(fs[v], nb, dofs, blk2, &par) == HS_OK);
                 ENSURE(memcmp(blk, blk2, sizeof(double) * 9 * (size_t)nb) == 0);
                 ENSURE(log.calls == 1 && log.parts == width && log.tasks == width);
@@ -1190,7 +1201,7 @@ static int InverseDiagBlocks(void) {
     ENSURE(hs_cholesky_inverse_diag3(NULL, nb, dofs, blk) == HS_ERR_INVALID);
     ENSURE(hs_cholesky_inverse_diag3(t.f, 0, NULL, NULL) == HS_OK);
     dofs[0] = 0;
-    hs_parallel bad = {NULL, NULL, 2};
+    hs_parallel bad = {.width = 2};
     ENSURE(hs_cholesky_inverse_diag3_par(t.f, nb, dofs, blk2, &bad) == HS_ERR_INVALID);
     hs_cholesky_destroy(&nat);
     hs_cholesky_destroy(&upd);
