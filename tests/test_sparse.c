@@ -1206,6 +1206,17 @@ static int InverseDiagBlocks(void) {
                 ENSURE(memcmp(blk, blk2, sizeof(double) * 9 * (size_t)nb) == 0);
                 ENSURE(log.calls == 1 && log.parts == width && log.tasks == width);
             }
+        // And on an hs_worker, woken by begin and put back to sleep by end.
+        hs_worker* w = NULL;
+        ENSURE(hs_worker_create(NULL, NULL, &w) == HS_OK);
+        hs_parallel on_worker = {.run = hs_worker_run,
+                                 .user = w,
+                                 .width = 4,
+                                 .begin = hs_worker_begin,
+                                 .end = hs_worker_end};
+        ENSURE(hs_cholesky_inverse_diag3_par(fs[v], nb, dofs, blk2, &on_worker) == HS_OK);
+        ENSURE(memcmp(blk, blk2, sizeof(double) * 9 * (size_t)nb) == 0);
+        hs_worker_destroy(&w);
     }
     printf("  %d blocks, worst difference from full solves %.2e (of the block's first entry)\n", nb,
            worst);

@@ -990,9 +990,11 @@ hs_status hs_cholesky_inverse_diag3_par(hs_cholesky* f, int nb, const int* dofs,
     }
     qsort(order, (size_t)nb, sizeof *order, cmp_i64_asc);
     J.order = order;
-    if (J.n_parts > 1)
+    if (J.n_parts > 1) {
+        if (par->begin) par->begin(par->user);
         par->run(J.n_parts, diag_part, &J, par->user);
-    else
+        if (par->end) par->end(par->user);
+    } else
         diag_part(0, &J);
 done:
     for (int w = 0; w < HS_PARALLEL_MAX; ++w) {

@@ -81,8 +81,8 @@ typedef void hs_task_fn(int i, void* ctx);
 /// Parallelism from the caller (the sparse layer starts no thread): run(n, task, ctx, user)
 /// calls task(i, ctx) for every i in [0, n), at once on other threads or in turn, and returns
 /// when all have returned. width: how many parts to split a job into (1 .. HS_PARALLEL_MAX).
-/// begin(user) and end(user), optional, bracket a burst of run calls (a runner that polls for
-/// work in between, as hs_worker in server/base/worker.h does, sleeps outside them).
+/// begin(user) and end(user), optional, bracket every burst of run calls (a runner that polls
+/// for work in between, as hs_worker in server/base/worker.h does, sleeps outside them).
 typedef struct hs_parallel {
     void (*run)(int n, hs_task_fn* task, void* ctx, void* user);
     void* user;
