@@ -23,7 +23,7 @@ src=${1:?usage: check_deps.sh [--self-test] SOURCE_DIR}
 # Headers a module offers to the modules that may see it (the rest of its folder is private).
 exports() {
     case $1 in
-    server/base) echo "base.h base_internal.h open_regular.h spsc_ring.h triple_buffer.h vec3.h" ;;
+    server/base) echo "base.h base_internal.h open_regular.h spsc_ring.h triple_buffer.h vec3.h worker.h" ;;
     server/mesh) echo "mesh.h" ;;
     server/mesher) echo "mesher.h surface.h" ;;
     server/sparse) echo "sparse.h" ;;

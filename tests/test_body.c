@@ -569,9 +569,10 @@ static int NoAllocAndErrors(void) {
     d.dt = -1;
     ENSURE(hs_body_create(m, &d, fx, &b, &e) == HS_ERR_INVALID && b == NULL);
     d.dt = 0.01;
-    d.factor_threads = -1;
+    hs_parallel no_runner = {.width = 2};
+    d.factor_parallel = &no_runner;
     ENSURE(hs_body_create(m, &d, fx, &b, &e) == HS_ERR_INVALID && b == NULL);
-    ENSURE(strstr(e.msg, "factor threads") != NULL);
+    ENSURE(strstr(e.msg, "without a runner") != NULL);
     free(all);
     free(fx);
     hs_mesh_destroy(&m);

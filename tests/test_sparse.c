@@ -7,6 +7,7 @@
 #include "sparse.h"
 #include "sparse_grid.h"
 #include "test_macros.h"
+#include "worker.h"
 
 #include <dlfcn.h>
 #include <pthread.h>
@@ -715,6 +716,13 @@ static int change_cell(fixture* t, int cx, int cy, int cz, double scale, int* do
 // Partial refactorisation: changes confined to small regions of the grid recompute part of the
 // factor and agree with a fresh factor; a whole pass, a non-SPD change (factor refused until a
 // refactor), the pattern check, update mode and allocation faults.
+// hs_parallel runners for the tests: every task in turn on this thread, or each on a thread.
+typedef struct par_log {
+    int calls, parts;
+    _Atomic int tasks;
+} par_log;
+static void par_in_turn(int n, hs_task_fn* task, void* ctx, void* user);
+
 static int PartialRefactor(void) {
     int64_t bytes0 = hs_byte_count();
     fixture t;
@@ -760,11 +768,19 @@ static int PartialRefactor(void) {
     ENSURE(least < 0.6);
     // The same on two threads: a clone of the factor state cannot be had, so compare each
     // step with a fresh factor and with the one-thread result of the same matrix.
-    ENSURE(hs_cholesky_set_partial_threads(t.f, 3) == HS_ERR_INVALID);
-    ENSURE(hs_cholesky_set_partial_threads(t.f, 2) == HS_OK);
-    ENSURE(hs_cholesky_set_partial_threads(t.f, 2) == HS_OK); // already running: kept
+    hs_parallel no_runner = {.width = 2};
+    ENSURE(hs_cholesky_set_partial_parallel(t.f, &no_runner) == HS_ERR_INVALID);
+    hs_worker* w = NULL;
+    ENSURE(hs_worker_create(hs_sparse_thread_init, NULL, &w) == HS_OK);
+    hs_parallel two = {.run = hs_worker_run,
+                       .user = w,
+                       .width = 2,
+                       .begin = hs_worker_begin,
+                       .end = hs_worker_end};
+    ENSURE(hs_cholesky_set_partial_parallel(t.f, &two) == HS_OK);
     double* x1 = malloc(sizeof(double) * (size_t)n);
     long long helped = 0;
+    double t_two = 1e30, t_one = 1e30; // fastest whole pass, ms
     for (int k = 0; k < 60 && (k < 4 || helped == 0); k++) {
         // Stiffen only: a cell comes round again every 40 rounds.
         int nd = change_cell(&t, 1 + (k * 7) % 10, 1 + (k * 5) % 8, 1 + (k * 3) % 6,
@@ -774,12 +790,14 @@ static int PartialRefactor(void) {
         ENSURE(hs_cholesky_solve(t.f, t.b, x1) == HS_OK);
         ENSURE_SMALL(compare_with_fresh(t.f, t.a, t.b, t.x, x2), 1e-10);
         // A whole pass on two threads, then one on one thread: the same to round-off.
+        int64_t t0 = hs_now_ns();
         ENSURE(hs_cholesky_refactor_partial(t.f, t.a, -1, NULL) == HS_OK);
+        t_two = fmin(t_two, (double)(hs_now_ns() - t0) * 1e-6);
         ENSURE(hs_cholesky_solve(t.f, t.b, x1) == HS_OK);
-        helped += hs_cholesky_partial_helper_chunks(t.f);
-        ENSURE(hs_cholesky_set_partial_threads(t.f, 1) == HS_OK);
-        ENSURE(hs_cholesky_partial_helper_chunks(t.f) == 0);
+        ENSURE(hs_cholesky_set_partial_parallel(t.f, NULL) == HS_OK);
+        t0 = hs_now_ns();
         ENSURE(hs_cholesky_refactor_partial(t.f, t.a, -1, NULL) == HS_OK);
+        t_one = fmin(t_one, (double)(hs_now_ns() - t0) * 1e-6);
         ENSURE(hs_cholesky_solve(t.f, t.b, x2) == HS_OK);
         double dn = 0, xn = 0;
         for (int i = 0; i < n; i++) {
@@ -787,12 +805,29 @@ static int PartialRefactor(void) {
             xn = fmax(xn, fabs(x2[i]));
         }
         ENSURE_SMALL(dn / xn, 1e-12);
-        ENSURE(hs_cholesky_set_partial_threads(t.f, 2) == HS_OK);
+        ENSURE(hs_cholesky_set_partial_parallel(t.f, &two) == HS_OK);
+        helped = hs_worker_tasks(w);
     }
     // The helper took chunks of the large supernodes (a busy machine may delay it for a
     // while, hence up to 60 rounds).
-    printf("  two threads: %lld chunks run by the helper\n", helped);
+    printf("  two threads: %lld chunks run by the helper; fastest whole pass %.3f ms, one thread "
+           "%.3f ms\n",
+           helped, t_two, t_one);
     ENSURE(helped > 0);
+    // The chunks are the runner's to run, not to choose: the helper, and one thread running
+    // them backwards, give the same bits.
+    ENSURE(hs_cholesky_refactor_partial(t.f, t.a, -1, NULL) == HS_OK);
+    ENSURE(hs_cholesky_solve(t.f, t.b, x1) == HS_OK);
+    par_log log = {0};
+    hs_parallel backwards = {.run = par_in_turn, .user = &log, .width = 2};
+    ENSURE(hs_cholesky_set_partial_parallel(t.f, &backwards) == HS_OK);
+    ENSURE(hs_cholesky_refactor_partial(t.f, t.a, -1, NULL) == HS_OK);
+    ENSURE(hs_cholesky_solve(t.f, t.b, x2) == HS_OK);
+    ENSURE(log.calls > 0);
+    ENSURE(memcmp(x1, x2, sizeof(double) * (size_t)n) == 0);
+    ENSURE(hs_cholesky_set_partial_parallel(t.f, NULL) == HS_OK);
+    hs_worker_destroy(&w);
+    ENSURE(w == NULL);
     free(x1);
     // No change at all recomputes nothing and changes nothing.
     ENSURE(hs_cholesky_refactor_partial(t.f, t.a, 0, dofs) == HS_OK);
@@ -1070,10 +1105,6 @@ static int NaturalOrderInPlace(void) {
 }
 
 // hs_parallel runners for the tests: every task in turn on this thread, or each on a thread.
-typedef struct par_log {
-    int calls, parts;
-    _Atomic int tasks;
-} par_log;
 
 typedef struct par_task {
     hs_task_fn* task;
@@ -1169,11 +1200,23 @@ static int InverseDiagBlocks(void) {
         for (int width = 2; width <= 5; width += 3)
             for (int threaded = 0; threaded < 2; ++threaded) {
                 par_log log = {0};
-                hs_parallel par = {threaded ? par_threads : par_in_turn, &log, width};
+                hs_parallel par = {
+                    .run = threaded ? par_threads : par_in_turn, .user = &log, .width = width};
                 ENSURE(hs_cholesky_inverse_diag3_par(fs[v], nb, dofs, blk2, &par) == HS_OK);
                 ENSURE(memcmp(blk, blk2, sizeof(double) * 9 * (size_t)nb) == 0);
                 ENSURE(log.calls == 1 && log.parts == width && log.tasks == width);
             }
+        // And on an hs_worker, woken by begin and put back to sleep by end.
+        hs_worker* w = NULL;
+        ENSURE(hs_worker_create(NULL, NULL, &w) == HS_OK);
+        hs_parallel on_worker = {.run = hs_worker_run,
+                                 .user = w,
+                                 .width = 4,
+                                 .begin = hs_worker_begin,
+                                 .end = hs_worker_end};
+        ENSURE(hs_cholesky_inverse_diag3_par(fs[v], nb, dofs, blk2, &on_worker) == HS_OK);
+        ENSURE(memcmp(blk, blk2, sizeof(double) * 9 * (size_t)nb) == 0);
+        hs_worker_destroy(&w);
     }
     printf("  %d blocks, worst difference from full solves %.2e (of the block's first entry)\n", nb,
            worst);
@@ -1183,7 +1226,7 @@ static int InverseDiagBlocks(void) {
     ENSURE(hs_cholesky_inverse_diag3(NULL, nb, dofs, blk) == HS_ERR_INVALID);
     ENSURE(hs_cholesky_inverse_diag3(t.f, 0, NULL, NULL) == HS_OK);
     dofs[0] = 0;
-    hs_parallel bad = {NULL, NULL, 2};
+    hs_parallel bad = {.width = 2};
     ENSURE(hs_cholesky_inverse_diag3_par(t.f, nb, dofs, blk2, &bad) == HS_ERR_INVALID);
     hs_cholesky_destroy(&nat);
     hs_cholesky_destroy(&upd);

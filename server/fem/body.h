@@ -44,10 +44,10 @@ typedef struct hs_body_def {
     /// A step's own error (one linearised solve per step) is far larger, so the static solve's
     /// 1e-6 would only cost Newton steps per element (docs/fem.md, "The tolerance in a step").
     double step_polar_tol;
-    /// Threads of the partial refactor after element changes (hs_body_change_elements): 1, or
-    /// 2 to share its large supernodes with a helper thread (hs_cholesky_set_partial_threads);
-    /// 0: 2 when two or more processors are online, else 1.
-    int factor_threads;
+    /// Parallelism of the partial refactor after element changes (hs_body_change_elements),
+    /// from the thread owner (hs_cholesky_set_partial_parallel; the body starts no thread):
+    /// NULL (the default) one thread. Must outlive the body.
+    const hs_parallel* factor_parallel;
     int cookie; ///< set by hs_body_default_def
 } hs_body_def;
 

@@ -200,9 +200,10 @@ hs_status hs_body_create(const hs_mesh* mesh, const hs_body_def* def, const unsi
     if (!(def->step_polar_tol >= 0) || !isfinite(def->step_polar_tol))
         return hs_err_set(err, HS_ERR_INVALID, "hs_body_create: step_polar_tol %g (>= 0)",
                           def->step_polar_tol);
-    if (def->factor_threads < 0 || def->factor_threads > 2)
-        return hs_err_set(err, HS_ERR_INVALID, "hs_body_create: factor threads %d (0, 1 or 2)",
-                          def->factor_threads);
+    if (def->factor_parallel && def->factor_parallel->width >= 2 && !def->factor_parallel->run)
+        return hs_err_set(err, HS_ERR_INVALID,
+                          "hs_body_create: factor parallelism of width %d without a runner",
+                          def->factor_parallel->width);
     if (def->solver < HS_SOLVER_DIRECT || def->solver > HS_SOLVER_WARPED)
         return hs_err_set(err, HS_ERR_INVALID, "hs_body_create: unknown solver %d",
                           (int)def->solver);
@@ -514,8 +515,8 @@ hs_status hs_body_change_elements(hs_body* b, int n_off, const int* off, int n_m
         hs_status ps = hs_cholesky_refactor_partial(b->factor, b->a, nd, b->blk_d);
         if (ps == HS_ERR_UNSUPPORTED) { // the first time: the maps, and one full pass
             ps = hs_cholesky_prepare_partial(b->factor, b->a);
-            if (ps == HS_OK) // a helper that cannot start leaves one thread
-                (void)hs_cholesky_set_partial_threads(b->factor, b->def.factor_threads);
+            if (ps == HS_OK) // checked by hs_body_create
+                (void)hs_cholesky_set_partial_parallel(b->factor, b->def.factor_parallel);
         }
         if (ps != HS_OK) keep = 0; // e.g. a singular matrix: the next step refactors
     } else {

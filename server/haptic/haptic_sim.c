@@ -18,6 +18,7 @@
 
 #include "spsc_ring.h"
 #include "triple_buffer.h"
+#include "worker.h"
 #include "closest.h"
 #include "cut_surface.h"
 #include "dense.h"
@@ -211,6 +212,11 @@ struct hs_haptic_sim {
     hs_haptic_sim_def def;
     const hs_mesh* mesh;
     hs_body* body;
+    // The partial refactor's helper thread (factor_helper) and the parallelism the body's
+    // factor gets from it; factor_own: the body was given factor_par (no def's own).
+    hs_worker* factor_worker;
+    hs_parallel factor_par;
+    int factor_own, factor_tried;
     hs_compliance* comp;
     int corotated;
 
@@ -1109,6 +1115,25 @@ static void share_topology(hs_haptic_sim* h, const double quad[12]) {
     pthread_mutex_unlock(&h->tmx);
 }
 
+// Once the body's factor refactors partially (its first cut with a rest-state factor it can
+// refactor in part), a helper thread shares the large supernodes when two or more processors
+// are online: a core the haptic thread barely uses. Started here, on the deformation thread,
+// after the first (one-thread) full pass, as the factor's parallelism; none if it cannot start.
+static void factor_helper(hs_haptic_sim* h) {
+    hs_cholesky* f = hs_body_factor(h->body);
+    if (!h->factor_own || h->factor_tried || !f || hs_cholesky_partial_share(f) <= 0) return;
+    h->factor_tried = 1;
+    if (sysconf(_SC_NPROCESSORS_ONLN) < 2 ||
+        hs_worker_create(hs_sparse_thread_init, NULL, &h->factor_worker) != HS_OK)
+        return;
+    h->factor_par = (hs_parallel){.run = hs_worker_run,
+                                  .user = h->factor_worker,
+                                  .width = 2,
+                                  .begin = hs_worker_begin,
+                                  .end = hs_worker_end};
+    (void)hs_cholesky_set_partial_parallel(f, &h->factor_par);
+}
+
 // One blade step: sweep from the last blade pose to the newest one when it travelled far
 // enough, mirror the cut into the body and the compliance, and set the resistance. Returns 1
 // when a new snapshot is due (the resistance or the body changed).
@@ -1216,6 +1241,7 @@ static int cut_step(hs_haptic_sim* h) {
         if ((s != HS_OK || hs_body_change_elements(h->body, n_off, off, n_mv, mv, NULL) != HS_OK) &&
             hs_cut_sync_fem(h->cut, hs_body_fem(h->body)) != HS_OK)
             h->st.cut_failures++;
+        factor_helper(h);
         hs_body_set_state(h->body, h->cu, h->cv);
         if (s != HS_OK || !comp_follow(h)) h->comp_stale = 1;
         share_topology(h, quad);
@@ -1436,7 +1462,7 @@ static void* setup_worker(void* arg) {
     hs_haptic_sim* h = arg;
     int64_t t0 = hs_now_ns();
     long cores = sysconf(_SC_NPROCESSORS_ONLN);
-    hs_parallel par = {par_run, NULL, cores < 1 ? 1 : cores > 4 ? 4 : (int)cores};
+    hs_parallel par = {.run = par_run, .width = cores < 1 ? 1 : cores > 4 ? 4 : (int)cores};
     h->su_status =
         hs_compliance_create_par(h->mesh, &h->def.body.fem, h->fixed0, h->def.probe.cache_nodes,
                                  &par, &h->su_comp, &h->su_err);
@@ -1644,6 +1670,7 @@ void hs_haptic_sim_destroy(hs_haptic_sim** ph) {
     hs_compliance_destroy(&h->comp);
     hs_mesh_destroy(&h->comp_mesh);
     hs_body_destroy(&h->body);
+    hs_worker_destroy(&h->factor_worker); // after the factor that used it
     hs_free(h->tri_start);
     hs_free(h->tri_list);
     hs_free(h->x);
@@ -1747,6 +1774,11 @@ static hs_status create_body(hs_haptic_sim* h, const hs_haptic_sim_def* def,
                              const unsigned char* fixed, hs_err* err) {
     const hs_mesh* mesh = h->mesh;
     hs_body_def bd = def->body;
+    if (!bd.factor_parallel) { // filled by factor_helper
+        bd.factor_parallel = &h->factor_par;
+        h->def.body.factor_parallel = &h->factor_par;
+        h->factor_own = 1;
+    }
     if (h->def.auto_solver) {
         // Start with the cheapest allowed solver; the PCG workspace is made now, so a switch
         // on the deformation thread allocates nothing.

@@ -12,14 +12,11 @@
 #include <cholmod.h>
 #include <dlfcn.h>
 #include <math.h>
-#include <pthread.h>
-#include <sched.h>
 #include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/mman.h>
-#include <unistd.h>
 
 struct hs_cholesky {
     cholmod_common c;            // one context per object; objects are single-threaded
@@ -53,12 +50,9 @@ struct hs_cholesky {
     int* dlist;    // [cap_d] union dofs, then their rows in L
     double* dense; // [cap_d^2] summed change, then its LDL^T (lower triangle)
     struct hs_partial* part;      // partial refactorisation data (hs_cholesky_prepare_partial)
-    struct duo* duo;              // its second thread (hs_cholesky_set_partial_threads)
+    hs_parallel par;              // its parallelism (hs_cholesky_set_partial_parallel)
     hs_cholesky_update_info last; // of the last update_elements / update_parts
 };
-
-struct duo;
-static void duo_destroy(struct duo** pd);
 
 // ---------------------------------------------------------------------------------------------
 // CHOLMOD set-up: allocator hooks (once) and a quiet error handler.
@@ -996,9 +990,11 @@ hs_status hs_cholesky_inverse_diag3_par(hs_cholesky* f, int nb, const int* dofs,
     }
     qsort(order, (size_t)nb, sizeof *order, cmp_i64_asc);
     J.order = order;
-    if (J.n_parts > 1)
+    if (J.n_parts > 1) {
+        if (par->begin) par->begin(par->user);
         par->run(J.n_parts, diag_part, &J, par->user);
-    else
+        if (par->end) par->end(par->user);
+    } else
         diag_part(0, &J);
 done:
     for (int w = 0; w < HS_PARALLEL_MAX; ++w) {
@@ -1039,7 +1035,6 @@ static void free_partial(struct hs_partial** pp);
 void hs_cholesky_destroy(hs_cholesky** pf) {
     if (!pf || !*pf) return;
     hs_cholesky* f = *pf;
-    duo_destroy(&f->duo);
     cholmod_free_factor(&f->L, &f->c);
     cholmod_free_factor(&f->spare, &f->c);
     cholmod_free_dense(&f->x1, &f->c);
@@ -1804,173 +1799,39 @@ static hs_status build_partial(const cholmod_factor* L, const hs_csc* a, struct 
 }
 
 // ---------------------------------------------------------------------------------------------
-// A second thread for the partial refactor's large supernodes (hs_cholesky_set_partial_threads).
-// A piece of work is cut into chunks that write disjoint parts of the output; the caller and
-// the helper take chunks from a shared counter, so the load balances itself and a slow or busy
-// helper costs at most the chunk it holds. The helper spins while a refactor runs and sleeps
-// on a condition otherwise.
-
-typedef void duo_fn(void* arg, int chunk);
+// Parallelism for the partial refactor's large supernodes (hs_cholesky_set_partial_parallel).
+// A piece of work is cut into chunks that write disjoint parts of the output, run through the
+// caller's hs_parallel; the cut depends on the sizes alone, never on the runner.
 
 // Supernodes below this many flops (about 0.1 ms) stay on one thread: the split kernels would
 // be too small to pay for the hand-over.
-#define HS_DUO_MIN_FLOPS 3e6
-#define HS_DUO_CHUNKS    8  // chunks per kernel: enough to even out unequal ones,
-#define HS_DUO_WIDTH     48 // but no narrower than this (BLAS slows down on thin blocks)
+#define HS_PAR_MIN_FLOPS 3e6
+#define HS_PAR_CHUNKS    8  // chunks per kernel: enough to even out unequal ones,
+#define HS_PAR_WIDTH     48 // but no narrower than this (BLAS slows down on thin blocks)
 
 // Rows or columns per chunk when m are shared out: a multiple of 4.
 static int chunk_width(int m) {
-    int w = (m + HS_DUO_CHUNKS - 1) / HS_DUO_CHUNKS;
-    if (w < HS_DUO_WIDTH) w = HS_DUO_WIDTH;
+    int w = (m + HS_PAR_CHUNKS - 1) / HS_PAR_CHUNKS;
+    if (w < HS_PAR_WIDTH) w = HS_PAR_WIDTH;
     return (w + 3) & ~3;
 }
 
-struct duo {
-    pthread_t th;
-    pthread_mutex_t mu;
-    pthread_cond_t cv;
-    atomic_int spin; // a refactor is running: poll for work (set under mu, cleared without)
-    int quit;        // under mu
-    int ready;       // under mu: the helper has made its first BLAS call
-    uint32_t seq;    // caller's count of postings
-    // Posting seq, next chunk to take and chunk count in one word, so that a chunk is taken
-    // only from the posting the taker saw: seq << 32 | next << 16 | n.
-    _Atomic uint64_t ticket;
-    atomic_int finished; // chunks of the current posting the helper has completed
-    atomic_llong helped; // chunks the helper has run, in all
-    duo_fn* fn;
-    void* arg;
-};
-
-static inline void cpu_relax(void) {
-#if defined(__x86_64__) || defined(__i386__)
-    __builtin_ia32_pause();
-#endif
+void hs_sparse_thread_init(void* arg) {
+    (void)arg;
+    enum { W = 64 };
+    static const double one = 1.0, zero = 0.0;
+    double a[W * W] = {0}, c[W * W] = {0};
+    const int w = W;
+    dgemm_("N", "T", &w, &w, &w, &one, a, &w, a, &w, &zero, c, &w);
 }
 
-// Take the next chunk of posting seq; -1 when none is left (or a newer posting came).
-static int duo_take(struct duo* d, uint64_t seq) {
-    uint64_t v = atomic_load_explicit(&d->ticket, memory_order_acquire);
-    for (;;) {
-        unsigned next = (unsigned)(v >> 16) & 0xffffu, n = (unsigned)v & 0xffffu;
-        if ((v >> 32) != seq || next >= n) return -1;
-        if (atomic_compare_exchange_weak_explicit(&d->ticket, &v, v + (1u << 16),
-                                                  memory_order_acq_rel, memory_order_acquire))
-            return (int)next;
-    }
-}
-
-static void* duo_main(void* arg) {
-    struct duo* d = arg;
-    uint64_t seen = 0;
-    unsigned idle = 0;
-    // OpenBLAS maps a thread's work buffer on its first call (faulted in at once under
-    // mlockall): make that call now, during set-up, not in the first refactor.
-    {
-        enum { W = 64 };
-        static const double one = 1.0, zero = 0.0;
-        double a[W * W] = {0}, c[W * W] = {0};
-        const int w = W;
-        dgemm_("N", "T", &w, &w, &w, &one, a, &w, a, &w, &zero, c, &w);
-    }
-    pthread_mutex_lock(&d->mu);
-    d->ready = 1;
-    pthread_cond_broadcast(&d->cv);
-    pthread_mutex_unlock(&d->mu);
-    for (;;) {
-        pthread_mutex_lock(&d->mu);
-        while (!atomic_load(&d->spin) && !d->quit) pthread_cond_wait(&d->cv, &d->mu);
-        int quit = d->quit;
-        pthread_mutex_unlock(&d->mu);
-        if (quit) return NULL;
-        while (atomic_load_explicit(&d->spin, memory_order_acquire)) {
-            uint64_t seq = atomic_load_explicit(&d->ticket, memory_order_acquire) >> 32;
-            if (seq == seen) {
-                // Yield now and then: woken onto the caller's core, it would otherwise spin
-                // there until the scheduler moves it.
-                if ((++idle & 63) == 0)
-                    sched_yield();
-                else
-                    cpu_relax();
-                continue;
-            }
-            seen = seq;
-            // Holding a chunk keeps the caller from posting again, so fn and arg are this
-            // posting's while it runs.
-            for (int c; (c = duo_take(d, seq)) >= 0;) {
-                d->fn(d->arg, c);
-                atomic_fetch_add_explicit(&d->helped, 1, memory_order_relaxed);
-                atomic_fetch_add_explicit(&d->finished, 1, memory_order_release);
-            }
-        }
-    }
-}
-
-static hs_status duo_create(struct duo** out) {
-    struct duo* d = hs_calloc(1, sizeof *d);
-    if (!d) return HS_ERR_NOMEM;
-    if (pthread_mutex_init(&d->mu, NULL) != 0) {
-        hs_free(d);
-        return HS_ERR_NOMEM;
-    }
-    if (pthread_cond_init(&d->cv, NULL) != 0) {
-        pthread_mutex_destroy(&d->mu);
-        hs_free(d);
-        return HS_ERR_NOMEM;
-    }
-    if (pthread_create(&d->th, NULL, duo_main, d) != 0) {
-        pthread_cond_destroy(&d->cv);
-        pthread_mutex_destroy(&d->mu);
-        hs_free(d);
-        return HS_ERR_NOMEM;
-    }
-    pthread_mutex_lock(&d->mu);
-    while (!d->ready) pthread_cond_wait(&d->cv, &d->mu);
-    pthread_mutex_unlock(&d->mu);
-    *out = d;
-    return HS_OK;
-}
-
-static void duo_destroy(struct duo** pd) {
-    struct duo* d = *pd;
-    if (!d) return;
-    pthread_mutex_lock(&d->mu);
-    d->quit = 1;
-    atomic_store(&d->spin, 0);
-    pthread_cond_signal(&d->cv);
-    pthread_mutex_unlock(&d->mu);
-    pthread_join(d->th, NULL);
-    pthread_cond_destroy(&d->cv);
-    pthread_mutex_destroy(&d->mu);
-    hs_free(d);
-    *pd = NULL;
-}
-
-static void duo_wake(struct duo* d) {
-    pthread_mutex_lock(&d->mu);
-    atomic_store(&d->spin, 1);
-    pthread_cond_signal(&d->cv);
-    pthread_mutex_unlock(&d->mu);
-}
-
-static void duo_sleep(struct duo* d) {
-    atomic_store_explicit(&d->spin, 0, memory_order_release);
-}
-
-// fn(arg, c) for every chunk c < n, on both threads when d is given, else in order here.
-static void duo_run(struct duo* d, duo_fn* fn, void* arg, int n) {
+// fn(c, arg) for every chunk c < n, through d when given, else in order here.
+static void chunks_run(const hs_parallel* d, hs_task_fn* fn, void* arg, int n) {
     if (!d) {
-        for (int c = 0; c < n; c++) fn(arg, c);
+        for (int c = 0; c < n; c++) fn(c, arg);
         return;
     }
-    uint64_t seq = ++d->seq;
-    d->fn = fn;
-    d->arg = arg;
-    atomic_store_explicit(&d->finished, 0, memory_order_relaxed);
-    atomic_store_explicit(&d->ticket, seq << 32 | (uint64_t)n, memory_order_release);
-    int mine = 0;
-    for (int c; (c = duo_take(d, seq)) >= 0; mine++) fn(arg, c);
-    while (atomic_load_explicit(&d->finished, memory_order_acquire) != n - mine) cpu_relax();
+    d->run(n, fn, arg, d->user);
 }
 
 // B (m x k, rows of a lower block) := B L^-T, in chunks of rows.
@@ -1980,16 +1841,16 @@ typedef struct trsm_job {
     double* b;
 } trsm_job;
 
-static void trsm_chunk(void* arg, int c) {
+static void trsm_chunk(int c, void* arg) {
     const trsm_job* j = arg;
     int r0 = c * j->rows, mm = j->m - r0 < j->rows ? j->m - r0 : j->rows;
     const double one = 1.0;
     if (mm > 0) dtrsm_("R", "L", "T", "N", &mm, &j->k, &one, j->l, &j->ld, j->b + r0, &j->ld);
 }
 
-static void trsm_run(struct duo* d, int m, int k, const double* l, double* b, int ld) {
+static void trsm_run(const hs_parallel* d, int m, int k, const double* l, double* b, int ld) {
     trsm_job t = {m, k, ld, chunk_width(m), l, b};
-    duo_run(d, trsm_chunk, &t, (m + t.rows - 1) / t.rows);
+    chunks_run(d, trsm_chunk, &t, (m + t.rows - 1) / t.rows);
 }
 
 // Lower triangle of C (m x m) := beta C - A A^T (A m x k), in blocks of columns: each a
@@ -2001,7 +1862,7 @@ typedef struct syrk_job {
     double* c;
 } syrk_job;
 
-static void syrk_chunk(void* arg, int ch) {
+static void syrk_chunk(int ch, void* arg) {
     const syrk_job* j = arg;
     int c0 = ch * j->cols, w = j->m - c0 < j->cols ? j->m - c0 : j->cols, below = j->m - c0 - w;
     const double minus = -1.0;
@@ -2013,27 +1874,27 @@ static void syrk_chunk(void* arg, int ch) {
                &j->beta, cc + w, &j->ldc);
 }
 
-static void syrk_run(struct duo* d, int m, int k, const double* a, int lda, double beta, double* c,
-                     int ldc) {
+static void syrk_run(const hs_parallel* d, int m, int k, const double* a, int lda, double beta,
+                     double* c, int ldc) {
     syrk_job y = {m, k, lda, ldc, chunk_width(m), beta, a, c};
-    duo_run(d, syrk_chunk, &y, (m + y.cols - 1) / y.cols);
+    chunks_run(d, syrk_chunk, &y, (m + y.cols - 1) / y.cols);
 }
 
 // Cholesky of the n x n lower block a: recursive halves, the off-diagonal solve and the
 // trailing update shared between the threads. LAPACK's info convention.
-static int potrf_duo(struct duo* d, int n, double* a, int lda) {
+static int potrf_par(const hs_parallel* d, int n, double* a, int lda) {
     int info = 0;
     if (n < 192) {
         dpotrf_("L", &n, a, &lda, &info);
         return info;
     }
     int h = (n / 2 + 3) & ~3;
-    info = potrf_duo(d, h, a, lda);
+    info = potrf_par(d, h, a, lda);
     if (info) return info;
     double* a22 = a + (size_t)h * (size_t)lda + (size_t)h;
     trsm_run(d, n - h, h, a, a + h, lda);
     syrk_run(d, n - h, h, a + h, lda, 1.0, a22, lda);
-    info = potrf_duo(d, n - h, a22, lda);
+    info = potrf_par(d, n - h, a22, lda);
     return info ? info + h : 0;
 }
 
@@ -2077,7 +1938,7 @@ static int extadd_bound(int c, int n_chunks, int width, int rows) {
     return j < 0 ? 0 : j > width ? width : j;
 }
 
-static void extadd_chunk(void* arg, int ch) {
+static void extadd_chunk(int ch, void* arg) {
     const extadd_job* j = arg;
     const struct hs_partial* p = j->p;
     int width = j->phase ? j->m : j->nc, rows = j->phase ? j->m : j->nr;
@@ -2124,7 +1985,7 @@ static void extadd_chunk(void* arg, int ch) {
 // and finite, or collapsed below 1e-12 of A's diagonal (a singular matrix shows as round-off
 // rather than a negative pivot).
 static int factor_supernode(const cholmod_factor* L, struct hs_partial* p, const double* aval,
-                            int s, struct duo* d) {
+                            int s, const hs_parallel* d) {
     const int *super = L->super, *pi = L->pi, *px = L->px;
     double* x = L->x;
     const int nc = super[s + 1] - super[s], nr = pi[s + 1] - pi[s], m = nr - nc;
@@ -2133,11 +1994,11 @@ static int factor_supernode(const cholmod_factor* L, struct hs_partial* p, const
     // Children's update matrices, the columns landing in s's own columns first; the rest go
     // after the syrk, which then writes the update matrix outright instead of adding to a
     // zeroed one.
-    extadd_job ej = {p, s, nc, nr, m, 0, d ? HS_DUO_CHUNKS : 1, x, blk, us, aval};
-    duo_run(d, extadd_chunk, &ej, ej.n_chunks);
+    extadd_job ej = {p, s, nc, nr, m, 0, d ? HS_PAR_CHUNKS : 1, x, blk, us, aval};
+    chunks_run(d, extadd_chunk, &ej, ej.n_chunks);
     int info = 0;
     if (d)
-        info = potrf_duo(d, nc, blk, nr);
+        info = potrf_par(d, nc, blk, nr);
     else
         dpotrf_("L", &nc, blk, &nr, &info);
     if (info != 0) return 0;
@@ -2156,7 +2017,7 @@ static int factor_supernode(const cholmod_factor* L, struct hs_partial* p, const
         dsyrk_("L", "N", &m, &nc, &minus, blk + nc, &nr, &zero, us, &m);
     }
     ej.phase = 1;
-    duo_run(d, extadd_chunk, &ej, ej.n_chunks);
+    chunks_run(d, extadd_chunk, &ej, ej.n_chunks);
     return 1;
 }
 
@@ -2199,21 +2060,22 @@ hs_status hs_cholesky_refactor_partial(hs_cholesky* f, const hs_csc* a, int n_do
     const double* aval = a->val;
     double done = 0;
     int ok = 1;
-    struct duo* d = f->duo;
+    const hs_parallel* d = f->par.width >= 2 ? &f->par : NULL;
     int awake = 0;
     for (int s = 0; s < p->ns; s++) {
         if (!all && !p->mark[s]) continue;
         p->mark[s] = 0;
         if (!ok) continue; // clear the remaining marks only
-        int big = d && p->flops[s] >= HS_DUO_MIN_FLOPS;
+        int big = d && p->flops[s] >= HS_PAR_MIN_FLOPS;
         if (big && !awake) {
-            duo_wake(d); // supernodes come in postorder: the large ones last, so wake late
+            // Supernodes come in postorder: the large ones last, so wake late.
+            if (d->begin) d->begin(d->user);
             awake = 1;
         }
         ok = factor_supernode(f->L, p, aval, s, big ? d : NULL);
         done += p->flops[s];
     }
-    if (awake) duo_sleep(d);
+    if (awake && d->end) d->end(d->user);
     p->last_share = p->total_flops > 0 ? done / p->total_flops : 0;
     if (!ok) {
         // L is partly recomputed: unusable until a full refactor (as after a failed downdate).
@@ -2226,18 +2088,10 @@ hs_status hs_cholesky_refactor_partial(hs_cholesky* f, const hs_csc* a, int n_do
     return HS_OK;
 }
 
-hs_status hs_cholesky_set_partial_threads(hs_cholesky* f, int n) {
-    if (!f || n < 0 || n > 2) return HS_ERR_INVALID;
-    if (n == 0) n = sysconf(_SC_NPROCESSORS_ONLN) >= 2 ? 2 : 1;
-    if (n == 1) {
-        duo_destroy(&f->duo);
-        return HS_OK;
-    }
-    return f->duo ? HS_OK : duo_create(&f->duo);
-}
-
-int64_t hs_cholesky_partial_helper_chunks(const hs_cholesky* f) {
-    return f && f->duo ? (int64_t)atomic_load(&f->duo->helped) : 0;
+hs_status hs_cholesky_set_partial_parallel(hs_cholesky* f, const hs_parallel* par) {
+    if (!f || (par && par->width >= 2 && !par->run)) return HS_ERR_INVALID;
+    f->par = par && par->width >= 2 ? *par : (hs_parallel){0};
+    return HS_OK;
 }
 
 static void invalidate_partial(hs_cholesky* f) {

@@ -81,11 +81,19 @@ typedef void hs_task_fn(int i, void* ctx);
 /// Parallelism from the caller (the sparse layer starts no thread): run(n, task, ctx, user)
 /// calls task(i, ctx) for every i in [0, n), at once on other threads or in turn, and returns
 /// when all have returned. width: how many parts to split a job into (1 .. HS_PARALLEL_MAX).
+/// begin(user) and end(user), optional, bracket every burst of run calls (a runner that polls
+/// for work in between, as hs_worker in server/base/worker.h does, sleeps outside them).
 typedef struct hs_parallel {
     void (*run)(int n, hs_task_fn* task, void* ctx, void* user);
     void* user;
     int width;
+    void (*begin)(void* user);
+    void (*end)(void* user);
 } hs_parallel;
+/// For a thread that will run hs_parallel tasks (an hs_worker's init; arg unused): one small
+/// BLAS call, so that the BLAS maps the thread's work buffer now (faulted in at once under
+/// mlockall) rather than in the first job.
+void hs_sparse_thread_init(void* arg);
 
 /// As hs_cholesky_inverse_diag3, the blocks split into par->width parts that par->run may
 /// solve at once (each part its own scratch; BLAS calls from several threads). par NULL: one
@@ -131,17 +139,15 @@ hs_status hs_cholesky_refactor_partial(hs_cholesky* f, const hs_csc* a, int n_do
 int64_t hs_cholesky_partial_bytes(const hs_cholesky* f);
 /// Share of a full factorisation's flops the last partial refactor did (0..1).
 double hs_cholesky_partial_share(const hs_cholesky* f);
-/// Threads for the partial refactor's large supernodes (over ~3 Mflop): 1 (the default before
-/// any call) or 2; 0: 2 when two or more processors are online, else 1.
-/// With 2, a helper thread (created here, joined by hs_cholesky_destroy or a call with 1) shares
-/// each large dense kernel in chunks writing disjoint parts: the off-diagonal solve by rows, the
-/// update matrix and the extend-adds by columns, the diagonal block's Cholesky by recursive
-/// halves. It spins while a partial refactor runs and sleeps otherwise; the caller runs every
-/// chunk the helper has not claimed. Results agree with one thread to round-off (BLAS blocking
-/// differs). For a core the haptic thread barely uses. Allocates: yes (the thread).
-hs_status hs_cholesky_set_partial_threads(hs_cholesky* f, int n);
-/// Chunks of work the helper thread has run since it was started (0 without one).
-int64_t hs_cholesky_partial_helper_chunks(const hs_cholesky* f);
+/// Parallelism for the partial refactor's large supernodes (over ~3 Mflop); NULL or width < 2:
+/// one thread (the default). With width >= 2 each large dense kernel is cut into 8 chunks
+/// writing disjoint parts, run through par->run: the off-diagonal solve by rows, the update
+/// matrix and the extend-adds by columns, the diagonal block's Cholesky by recursive halves;
+/// par->begin and par->end bracket each refactor's large supernodes. The cut does not depend on
+/// the runner, so results are the same bit for bit whichever threads run the chunks, and agree
+/// with one thread to round-off (BLAS blocking differs). *par is copied; par->user must outlive
+/// the factor's partial refactors. HS_ERR_INVALID for width >= 2 without run. Allocates: no.
+hs_status hs_cholesky_set_partial_parallel(hs_cholesky* f, const hs_parallel* par);
 
 // Low-rank modification (cutting). CHOLMOD updates only a simplicial LDL^T factor, so update
 // mode converts the current factor once (O(nnz(L)), allocates; done by prepare or the first
