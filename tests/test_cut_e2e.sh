@@ -178,8 +178,11 @@ echo "$out"
 wait $stylus_pid || fail "hapsim-stylus (held during the reset) rc $?: $(cat "$tmp/stylus_reset.log")"
 stylus_pid=""
 age=$(sed -n 's/.*max model age \([0-9.]*\) ms.*/\1/p' "$tmp/stylus_reset.log")
-echo "largest force age across the reset: $age ms"
-echo "$age" | grep -Eq '^[0-9]+(\.[0-9]+)?$' && echo "$age" | awk '{ exit !($1 < 40) }' ||
+# Under AddressSanitizer the rt loop itself runs late (950 Hz, hundreds of overruns): 80 ms.
+age_max=40
+ldd "$bin/hapsim-server" 2>/dev/null | grep -q libasan && age_max=80
+echo "largest force age across the reset: $age ms (bound $age_max ms)"
+echo "$age" | grep -Eq '^[0-9]+(\.[0-9]+)?$' && echo "$age" | awk -v m="$age_max" '{ exit !($1 < m) }' ||
     fail "no force for $age ms across the reset: $(cat "$tmp/stylus_reset.log")"
 echo "$out" | grep -q "attempts" && echo "$out" | grep -q "rebuilt at rest" ||
     fail "the reset's answer is not the executed command's: $out"
