@@ -814,18 +814,17 @@ static void publish_rt_output(hs_server* s) {
 }
 
 // The model an rt output o puts on the wire for a pose with these buttons received at rx_ns.
-static hs_haptic_model output_model(const hs_server* s, const hs_haptic_output* o, uint32_t buttons,
+static hs_haptic_model output_model(const hs_server* s, const hs_haptic_output* o, double gain,
                                     int64_t rx_ns, int* state) {
     // The rt output as it is, anchored where rt took it: its force is the one the rt output
     // stage limited (magnitude, rate, watchdog), and a driver evaluating the model at this pose
     // gets what a re-anchored copy would say. Re-anchored here, the force on the wire was the
-    // model's extrapolation, which no limit bounds.
-    (void)buttons;
+    // model's extrapolation, which no limit bounds. gain: a ramp of the caller's (the clutch).
     hs_haptic_model m = o->model;
     *state = state_of(o, &m);
     // A limit set since rt made this output holds from the set's ack on.
     clamp_model(&m, s->w.scene.force_max_n);
-    double g = estop_gain(s, rx_ns);
+    double g = estop_gain(s, rx_ns) * gain;
     if (g < 1.0) {
         scale_model(&m, g);
         *state = HAPSIM_TOOL_FORCE_T_STATE_RAMP;
@@ -859,7 +858,7 @@ static hs_haptic_model answer_tool(hs_server* s, int d, int t, const hs_net_pose
     }
     drain_tool_outputs(s);
     if (!ds->have_out) return zero_model();
-    return output_model(s, &ds->out, p->buttons, rx_ns, state);
+    return output_model(s, &ds->out, 1.0, rx_ns, state);
 }
 
 // Answer an accepted pose at once: the newest rt model evaluated at the new position.
@@ -902,19 +901,7 @@ static void answer_pose(hs_server* s, const hs_net_pose* p, int64_t rx_ns) {
         if (s->have_out && !s->estop && ds->clutched) {
             m = clutch_model(s, ds, rx_ns, hand, &state);
         } else if (s->have_out && !s->estop) {
-            // The rt output as it is, anchored where rt took it: its force is the one the rt
-            // output stage limited (magnitude, rate, watchdog), and a driver evaluating the
-            // model at this pose gets what a re-anchored copy would say. Re-anchored here, the
-            // force on the wire was the model's extrapolation, which no limit bounds.
-            m = s->out.model;
-            state = state_of(&s->out, &m);
-            // A limit set since rt made this output holds from the set's ack on.
-            clamp_model(&m, w->scene.force_max_n);
-            double g = estop_gain(s, rx_ns) * engage_gain(s, ds, rx_ns);
-            if (g < 1.0) {
-                scale_model(&m, g);
-                state = HAPSIM_TOOL_FORCE_T_STATE_RAMP;
-            }
+            m = output_model(s, &s->out, engage_gain(s, ds, rx_ns), rx_ns, &state);
         }
     }
     if (s->estop) {
